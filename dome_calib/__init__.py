@@ -1,0 +1,1 @@
+"""Calibration and synchronisation of a massively multi-camera capture dome (Panoptic Studio style)."""

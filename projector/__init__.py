@@ -1,0 +1,1 @@
+"""Projector random patterns and the projector-pattern structure-from-motion front end."""

@@ -1,0 +1,6 @@
+"""Errors of the timecode package (all are user errors: bad audio, no LTC, bad options)."""
+from __future__ import annotations
+
+
+class TimecodeError(Exception):
+    """Base of every timecode error a user can cause."""
