@@ -1,0 +1,217 @@
+"""The calibration-and-sync bundle: typed objects keyed by camera name, and ``load_bundle`` / ``write_bundle``.
+
+A bundle is one folder holding the Panoptic-format files (see :mod:`dome_calib.panoptic_io`):
+``calibration_<seq>.json`` (required), ``kcalibration_<seq>.json``, ``synctables_<seq>.json``,
+``ksynctables_<seq>.json`` (optional), and ``report/``.
+
+Conventions: world = Panoptic frame (origin at the floor centre, y down, cm); ``x_cam = R @ X_world + t_cm``.
+"""
+from __future__ import annotations
+
+import logging
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+
+import numpy as np
+
+from dome_calib.camera import K_to_intr
+from dome_calib.errors import BundleFormatError
+
+logger = logging.getLogger(__name__)
+
+
+class CameraType(StrEnum):
+    VGA = "vga"
+    HD = "hd"
+    KINECT_COLOR = "kinect-color"
+
+
+#: Nominal resolution (width, height) px per camera type.
+NOMINAL_RESOLUTION = {CameraType.VGA: (640, 480), CameraType.HD: (1920, 1080), CameraType.KINECT_COLOR: (1920, 1080)}
+
+
+@dataclass(kw_only=True)
+class Camera:
+    """One calibrated camera. ``R`` (3, 3) and ``t_cm`` (3,) map world to camera: x_cam = R @ X + t_cm."""
+
+    name: str
+    type: CameraType
+    resolution: tuple[int, int]  # (width_px, height_px)
+    K: np.ndarray  # (3, 3) px, zero skew
+    dist: np.ndarray  # (5,) [k1, k2, p1, p2, k3]
+    R: np.ndarray  # (3, 3) cam_from_world rotation
+    t_cm: np.ndarray  # (3,) cam_from_world translation, cm
+    panel: int
+    node: int
+
+    @property
+    def intr(self) -> np.ndarray:
+        """(4,) [fx, fy, cx, cy] px."""
+        return K_to_intr(self.K)
+
+    @property
+    def center_cm(self) -> np.ndarray:
+        """(3,) camera centre in world coordinates, cm."""
+        return -self.R.T @ self.t_cm
+
+    @property
+    def cam_from_world(self) -> np.ndarray:
+        """(4, 4) homogeneous transform, translation in cm."""
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = self.R, self.t_cm
+        return T
+
+
+@dataclass(kw_only=True)
+class KinectSensor:
+    """Depth-colour calibration of one Kinect v2 (Panoptic ``kcalibration`` layout, metres).
+
+    Convention (this project's, written into every file as ``"convention"``): ``M_depth`` and ``M_color`` map
+    camera coordinates INTO the sensor frame, i.e. ``M_depth = sensor_from_depth`` and
+    ``M_color = sensor_from_color`` (the reading of the official MATLAB demo, ``T_kinectColor2KinectLocal =
+    M_color``). Hence ``color_from_depth = inv(M_color) @ M_depth``. ``M_world2sensor`` maps the Kinoptic
+    world (metres) into the sensor frame.
+    """
+
+    name: str  # "KINECTNODE1" .. "KINECTNODE10"
+    K_depth: np.ndarray
+    dist_depth: np.ndarray  # (5,) [k1, k2, p1, p2, k3]
+    depth_size: tuple[int, int]  # (width_px, height_px)
+    K_color: np.ndarray
+    dist_color: np.ndarray  # (5,)
+    color_size: tuple[int, int]
+    M_depth: np.ndarray  # (4, 4) sensor_from_depth, metres
+    M_color: np.ndarray  # (4, 4) sensor_from_color, metres
+    M_world2sensor: np.ndarray  # (4, 4) sensor_from_kinoptic_world, metres
+    color_time_offset_ms: float = 0.0
+    depth_time_offset_ms: float = 0.0
+    depth_bias_mm: float = 0.0  # measured = true * (1 + depth_scale) + depth_bias_mm; correct by inverting
+    depth_scale: float = 0.0
+    extra: dict = field(default_factory=dict)  # other keys of the file, kept verbatim (domeCenter, ...)
+
+    @property
+    def color_from_depth(self) -> np.ndarray:
+        """(4, 4) depth-camera coordinates -> colour-camera coordinates, metres."""
+        return np.linalg.inv(self.M_color) @ self.M_depth
+
+
+@dataclass(kw_only=True)
+class KinectCalibration:
+    """All Kinect sensors of a session plus the Kinoptic-to-Panoptic world transform ``M_world2vga`` (m -> cm)."""
+
+    sensors: dict[str, KinectSensor]
+    M_world2vga: np.ndarray  # (4, 4) panoptic_world_cm_from_kinoptic_world_m
+    calib_data_source: str = ""
+    panoptic_calib_data_source: str = ""
+
+
+@dataclass(kw_only=True)
+class SyncTable:
+    """Frames of one stream on universal time. ``index`` (F,) int frame indices; ``univ_time_ms`` (F,) strictly
+    increasing. Look frames up through ``index``, never by list position."""
+
+    index: np.ndarray
+    univ_time_ms: np.ndarray
+
+    def time_of(self, frame_index: int) -> float:
+        """Universal time (ms) of a frame index; KeyError if the stream has no such frame."""
+        pos = np.searchsorted(self.index, frame_index)
+        if pos >= len(self.index) or self.index[pos] != frame_index:
+            raise KeyError(f"frame {frame_index} not in sync table")
+        return float(self.univ_time_ms[pos])
+
+
+@dataclass(kw_only=True)
+class SyncTables:
+    """``synctables``: 'vga' and 'hd' streams; ``ksynctables``: Kinect colour and depth streams keyed by node."""
+
+    streams: dict[str, SyncTable] = field(default_factory=dict)  # "vga", "hd"
+    kinect_color: dict[str, SyncTable] = field(default_factory=dict)  # "KINECTNODE1" -> table
+    kinect_depth: dict[str, SyncTable] = field(default_factory=dict)
+
+
+@dataclass(kw_only=True)
+class Bundle:
+    """A calibration-and-sync bundle. ``cameras`` is keyed by Panoptic name ("01_01", "00_00", "50_01")."""
+
+    seq: str
+    cameras: dict[str, Camera]
+    calib_data_source: str = ""
+    kinect: KinectCalibration | None = None
+    sync: SyncTables | None = None
+
+    def of_type(self, camera_type: CameraType | str) -> dict[str, Camera]:
+        """Cameras of one type, keyed by name, in name order."""
+        return {n: c for n, c in sorted(self.cameras.items()) if c.type == CameraType(camera_type)}
+
+    def stacked(self, names: list[str] | None = None) -> dict[str, np.ndarray]:
+        """Arrays for the vectorised camera model: R (C,3,3), t_cm (C,3), intr (C,4), dist (C,5), resolution (C,2)."""
+        names = sorted(self.cameras) if names is None else names
+        cams = [self.cameras[n] for n in names]
+        return {
+            "R": np.stack([c.R for c in cams]),
+            "t_cm": np.stack([c.t_cm for c in cams]),
+            "intr": np.stack([c.intr for c in cams]),
+            "dist": np.stack([c.dist for c in cams]),
+            "resolution": np.array([c.resolution for c in cams]),
+        }
+
+
+def _bundle_files(folder: Path) -> dict[str, Path]:
+    found = sorted(folder.glob("calibration_*.json"))
+    if not found:
+        raise BundleFormatError(f"{folder}: no calibration_<seq>.json in this folder (is it a bundle?)")
+    if len(found) > 1:
+        raise BundleFormatError(f"{folder}: several calibration_*.json files ({', '.join(p.name for p in found)})")
+    seq = found[0].stem.removeprefix("calibration_")
+    return {k: folder / f"{k}_{seq}.json" for k in ("calibration", "kcalibration", "synctables", "ksynctables")}
+
+
+def load_bundle(folder: str | Path) -> Bundle:
+    """Read and validate a bundle folder. Raises :class:`BundleFormatError` naming file, camera and field."""
+    from dome_calib import panoptic_io as pio
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise BundleFormatError(f"{folder}: not a folder")
+    files = _bundle_files(folder)
+    seq = files["calibration"].stem.removeprefix("calibration_")
+    cameras, source = pio.read_calibration(files["calibration"])
+    bundle = Bundle(seq=seq, cameras=cameras, calib_data_source=source)
+    if files["kcalibration"].exists():
+        bundle.kinect = pio.read_kcalibration(files["kcalibration"])
+    if files["synctables"].exists() or files["ksynctables"].exists():
+        bundle.sync = SyncTables()
+        if files["synctables"].exists():
+            bundle.sync.streams = pio.read_synctables(files["synctables"])
+        if files["ksynctables"].exists():
+            bundle.sync.kinect_color, bundle.sync.kinect_depth = pio.read_ksynctables(files["ksynctables"])
+    logger.debug("loaded bundle %s: %d cameras", folder, len(cameras))
+    return bundle
+
+
+def write_bundle(bundle: Bundle, folder: str | Path) -> Path:
+    """Write the bundle's files into ``folder``. Each file appears whole or not at all (temp file, then rename)."""
+    from dome_calib import panoptic_io as pio
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    texts = {f"calibration_{bundle.seq}.json": pio.format_calibration(bundle.cameras, bundle.calib_data_source)}
+    if bundle.kinect is not None:
+        texts[f"kcalibration_{bundle.seq}.json"] = pio.format_kcalibration(bundle.kinect)
+    if bundle.sync is not None and bundle.sync.streams:
+        texts[f"synctables_{bundle.seq}.json"] = pio.format_synctables(bundle.sync.streams)
+    if bundle.sync is not None and (bundle.sync.kinect_color or bundle.sync.kinect_depth):
+        texts[f"ksynctables_{bundle.seq}.json"] = pio.format_ksynctables(bundle.sync.kinect_color, bundle.sync.kinect_depth)
+    staging = Path(tempfile.mkdtemp(prefix=".bundle.", dir=folder))
+    try:
+        for name, text in texts.items():  # everything formatted and staged before anything is replaced
+            (staging / name).write_text(text, encoding="utf-8")
+        for name in texts:
+            (staging / name).replace(folder / name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return folder
