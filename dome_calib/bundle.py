@@ -116,12 +116,43 @@ class SyncTable:
     index: np.ndarray
     univ_time_ms: np.ndarray
 
+    def times_of(self, frame_index: np.ndarray | int) -> np.ndarray:
+        """Universal time (ms) of frame indices (vectorised). KeyError names the first index the stream lacks."""
+        idx = np.asarray(frame_index)
+        flat = idx.reshape(-1)
+        pos = np.minimum(np.searchsorted(self.index, flat), len(self.index) - 1)
+        found = (pos >= 0) & (self.index[pos] == flat) if len(self.index) else np.zeros(flat.shape, bool)
+        if not np.all(found):
+            raise KeyError(f"frame {int(flat[~found][0])} not in sync table")
+        return self.univ_time_ms[pos].reshape(idx.shape)
+
     def time_of(self, frame_index: int) -> float:
-        """Universal time (ms) of a frame index; KeyError if the stream has no such frame."""
-        pos = np.searchsorted(self.index, frame_index)
-        if pos >= len(self.index) or self.index[pos] != frame_index:
-            raise KeyError(f"frame {frame_index} not in sync table")
-        return float(self.univ_time_ms[pos])
+        """Universal time (ms) of one frame index; KeyError if the stream has no such frame."""
+        return float(self.times_of(frame_index))
+
+    def nearest(self, univ_time_ms: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+        """For universal times (ms): the nearest frame's index and ``frame_time - univ_time`` in ms (vectorised)."""
+        t = np.asarray(univ_time_ms, dtype=float)
+        hi = np.clip(np.searchsorted(self.univ_time_ms, t), 1, len(self.index) - 1)
+        lo = hi - 1
+        pick = np.where(np.abs(self.univ_time_ms[lo] - t) <= np.abs(self.univ_time_ms[hi] - t), lo, hi)
+        return self.index[pick], self.univ_time_ms[pick] - t
+
+    def bracket(self, univ_time_ms: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The two frames around each time and their linear-interpolation weights.
+
+        Returns ``(index0, index1, w0, w1)`` with ``value(t) ~= w0 * value[index0] + w1 * value[index1]``;
+        weights are NaN for times outside the stream's span (no extrapolation). Consecutive entries of the
+        table are bracketed, so a dropped frame widens the gap instead of being bridged by a wrong index.
+        """
+        t = np.asarray(univ_time_ms, dtype=float)
+        hi = np.clip(np.searchsorted(self.univ_time_ms, t, side="right"), 1, len(self.index) - 1)
+        lo = hi - 1
+        t0, t1 = self.univ_time_ms[lo], self.univ_time_ms[hi]
+        w1 = (t - t0) / (t1 - t0)
+        outside = (t < self.univ_time_ms[0]) | (t > self.univ_time_ms[-1])
+        w1 = np.where(outside, np.nan, w1)
+        return self.index[lo], self.index[hi], 1.0 - w1, w1
 
 
 @dataclass(kw_only=True)
