@@ -1,0 +1,1 @@
+"""Synthetic dome captures with ground truth: layout, tent, rendering, capture writer."""

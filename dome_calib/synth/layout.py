@@ -1,0 +1,262 @@
+"""The dome's camera and projector layout, as ground truth for synthetic captures.
+
+Two sources:
+
+* :func:`nominal_dome` builds the dome from the paper's description (a geodesic dome 5.49 m across whose centre
+  is 1.40 m above the floor; 20 hexagonal panels of 24 VGA cameras; 31 HD cameras, 20 of them at panel centres;
+  10 Kinect colour cameras in two rings of five at 1 m and 2.6 m; every camera aimed at the dome centre).
+  The paper does not give panel angles, so the panel ring latitudes and azimuths below were measured once from
+  the real calibration ``calibration_160906_band1.json`` (4 rings of 5 panels, 5-fold symmetric).
+  Intrinsics and distortion are drawn (seeded) around the real file's per-type statistics.
+* :func:`dome_from_calibration` takes cameras (poses and intrinsics) from a real Panoptic calibration file.
+
+World frame: Panoptic (origin at the floor centre, y DOWN, cm); ``x_cam = R @ X_world + t_cm``.
+Projectors (5, at pentagon centres between the panel rings) come from :func:`projectors`.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from enum import StrEnum
+from pathlib import Path
+
+import numpy as np
+
+from dome_calib.bundle import NOMINAL_RESOLUTION, Bundle, Camera, CameraType
+from dome_calib.camera import intr_to_K
+from dome_calib.errors import DomeCalibError
+
+logger = logging.getLogger(__name__)
+
+DOME_DIAMETER_CM = 549.0
+DOME_RADIUS_CM = DOME_DIAMETER_CM / 2
+CENTRE_HEIGHT_CM = 140.0
+#: Dome centre in the world frame (y down: 1.40 m above the floor).
+DOME_CENTRE_CM = np.array([0.0, -CENTRE_HEIGHT_CM, 0.0])
+MOUNT_INSET_CM = 2.0  # camera centres sit this far inside the sphere
+KINECT_INSET_CM = 7.0
+KINECT_HEIGHTS_CM = (100.0, 260.0)
+KINECT_RING_AZIMUTH_DEG = (32.0, 64.0)
+
+#: Panel rings (latitude deg above the dome centre, azimuth of sector 0 deg, panel number of sector 0, step).
+#: Sector k of a ring has azimuth ``az0 - 72 k`` and panel number ``first + step * k``. Measured from the real dome.
+PANEL_RINGS = ((3.7, -103.1, 1, 3), (13.1, -77.3, 2, 3), (22.4, -123.6, 3, 3), (-3.1, -56.9, 16, 1))
+#: HD cameras not at panel centres: (latitude deg, azimuth of the first deg, count).
+HD_EXTRA_RINGS = ((40.0, -2.8, 5), (47.8, 32.6, 5), (-12.7, 133.2, 1))
+PROJECTOR_LATITUDE_DEG = 32.0
+PROJECTOR_AZIMUTH0_DEG = -67.1
+PROJECTOR_RESOLUTION = (1280, 800)  # WXGA, see projector/patterns.py
+PROJECTOR_FOCAL_PX = 1000.0
+#: Projectors aim at the middle height of the tent.
+PROJECTOR_TARGET_CM = np.array([0.0, -95.0, 0.0])
+
+#: Per-type intrinsics statistics of the real dome (mean, std) from calibration_160906_band1.json.
+#: f: focal px; c: principal point offset from the image centre px; dist: [k1, k2, p1, p2, k3] mean and std.
+INTRINSICS_STATS = {
+    CameraType.VGA: dict(f=(745.4, 1.5), c=((49.2, 13.4), (-9.0, 12.4)),
+                         dist=((-0.321, 0.049, -1.3e-4, 1.5e-4, 0.081), (0.011, 0.06, 7.4e-4, 8.0e-4, 0.1))),
+    CameraType.HD: dict(f=(1476.0, 116.0), c=((-16.2, 8.8), (18.3, 7.4)),
+                        dist=((-0.266, 0.190, -2.1e-4, 4.6e-4, -0.023), (0.03, 0.014, 2.5e-4, 3.5e-4, 0.054))),
+    CameraType.KINECT_COLOR: dict(f=(1054.7, 3.6), c=((-2.6, 12.5), (0.2, 10.7)),
+                                  dist=((0.050, -0.0587, 2.0e-4, 7.7e-5, 0.0142),
+                                        (0.0044, 0.0074, 3.3e-4, 5.3e-4, 0.0044))),
+}
+AIM_JITTER_CM = 8.0
+ROLL_JITTER_DEG = 2.0
+PIXEL_ASPECT_STD = 1.5e-4  # fy / fx - 1
+
+
+class Preset(StrEnum):
+    TINY = "tiny"  # 8 VGA of panel 1, 3 HD, 1 Kinect colour
+    PANEL = "panel"  # panels 1-2 (48 VGA), 8 HD, 4 Kinect colour
+    FULL = "full"  # every camera
+
+
+@dataclass(kw_only=True)
+class Projector:
+    """A pinhole projector (no distortion). ``R``, ``t_cm``: projector_from_world; ``K`` (3, 3) px."""
+
+    name: str
+    resolution: tuple[int, int]  # (width_px, height_px)
+    K: np.ndarray
+    R: np.ndarray
+    t_cm: np.ndarray
+
+    @property
+    def center_cm(self) -> np.ndarray:
+        return -self.R.T @ self.t_cm
+
+
+def _direction(lat_deg: float, az_deg: float) -> np.ndarray:
+    """Unit vector from the dome centre at a latitude (up positive) and azimuth (atan2(z, x)), world frame."""
+    lat, az = np.radians(lat_deg), np.radians(az_deg)
+    return np.array([np.cos(lat) * np.cos(az), -np.sin(lat), np.cos(lat) * np.sin(az)])
+
+
+def look_at(center_cm: np.ndarray, target_cm: np.ndarray, roll_rad: float = 0.0) -> np.ndarray:
+    """cam_from_world rotation (3, 3) of a camera at ``center_cm`` looking at ``target_cm``, image-down = world-down."""
+    z = target_cm - center_cm
+    z = z / np.linalg.norm(z)
+    down = np.array([0.0, 1.0, 0.0])
+    y = down - (down @ z) * z
+    if np.linalg.norm(y) < 1e-9:  # looking straight down or up
+        y = np.array([0.0, 0.0, 1.0]) - z[2] * z
+    y = y / np.linalg.norm(y)
+    x = np.cross(y, z)
+    c, s = np.cos(roll_rad), np.sin(roll_rad)
+    x, y = c * x + s * y, -s * x + c * y
+    return np.stack([x, y, z])
+
+
+def _hexagon_nodes_cm() -> np.ndarray:
+    """(24, 2) node offsets in a panel's tangent plane: an inner hexagon of 6 and an outer one of 18 (3 per side)."""
+    angles = np.radians(np.arange(6) * 60.0 + 30.0)
+    inner = 22.0 * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    corners = 55.0 * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    outer = [corners[i] + f * (corners[(i + 1) % 6] - corners[i]) for i in range(6) for f in (0.0, 1 / 3, 2 / 3)]
+    return np.vstack([inner, np.array(outer)])
+
+
+def _draw_intrinsics(rng: np.random.Generator, camera_type: CameraType) -> tuple[np.ndarray, np.ndarray]:
+    stats = INTRINSICS_STATS[camera_type]
+    w, h = NOMINAL_RESOLUTION[camera_type]
+    f_mean, f_std = stats["f"]
+    fx = float(np.clip(rng.normal(f_mean, f_std), f_mean - 2.5 * f_std, f_mean + 2.5 * f_std))
+    fy = fx * (1.0 + rng.normal(0.0, PIXEL_ASPECT_STD))
+    (cx_m, cx_s), (cy_m, cy_s) = stats["c"]
+    cx = (w - 1) / 2 + float(np.clip(rng.normal(cx_m, cx_s), cx_m - 2.5 * cx_s, cx_m + 2.5 * cx_s))
+    cy = (h - 1) / 2 + float(np.clip(rng.normal(cy_m, cy_s), cy_m - 2.5 * cy_s, cy_m + 2.5 * cy_s))
+    mean, std = (np.array(v) for v in stats["dist"])
+    # k2 and k3 are strongly anti-correlated in real fits; draw them small (0.3 std) so the lens stays monotonic
+    scale = np.array([1.0, 0.3, 1.0, 1.0, 0.3])
+    dist = mean + scale * std * np.clip(rng.normal(size=5), -2.0, 2.0)
+    return intr_to_K(np.array([fx, fy, cx, cy])), dist
+
+
+def _aimed_camera(rng: np.random.Generator, *, name: str, camera_type: CameraType, center_cm: np.ndarray,
+                  panel: int, node: int) -> Camera:
+    target = DOME_CENTRE_CM + rng.normal(0.0, AIM_JITTER_CM, size=3)
+    R = look_at(center_cm, target, np.radians(rng.normal(0.0, ROLL_JITTER_DEG)))
+    K, dist = _draw_intrinsics(rng, camera_type)
+    return Camera(name=name, type=camera_type, resolution=NOMINAL_RESOLUTION[camera_type], K=K, dist=dist, R=R,
+                  t_cm=-R @ center_cm, panel=panel, node=node)
+
+
+def panel_centres() -> dict[int, np.ndarray]:
+    """Panel number (1..20) -> unit direction of the panel centre from the dome centre (world frame)."""
+    out = {}
+    for lat, az0, first, step in PANEL_RINGS:
+        for k in range(5):
+            out[first + step * k] = _direction(lat, az0 - 72.0 * k)
+    return dict(sorted(out.items()))
+
+
+def all_nominal_cameras(seed: int) -> dict[str, Camera]:
+    """Every camera of the nominal dome (480 VGA, 31 HD, 10 Kinect colour), drawn with ``seed``."""
+    rng = np.random.default_rng([seed, 3])
+    r_mount = DOME_RADIUS_CM - MOUNT_INSET_CM
+    nodes = _hexagon_nodes_cm()
+    cams: dict[str, Camera] = {}
+    hd_dirs = []
+    for panel, n in panel_centres().items():
+        e1 = np.cross(n, [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(n, e1)
+        for node, (a, b) in enumerate(nodes, start=1):
+            p = r_mount * n + a * e1 + b * e2
+            p = DOME_CENTRE_CM + r_mount * p / np.linalg.norm(p)
+            name = f"{panel:02d}_{node:02d}"
+            cams[name] = _aimed_camera(rng, name=name, camera_type=CameraType.VGA, center_cm=p, panel=panel, node=node)
+        hd_dirs.append(n)
+    for lat, az0, count in HD_EXTRA_RINGS:
+        hd_dirs += [_direction(lat, az0 + 72.0 * k) for k in range(count)]
+    for i, n in enumerate(hd_dirs):
+        name = f"00_{i:02d}"
+        cams[name] = _aimed_camera(rng, name=name, camera_type=CameraType.HD, center_cm=DOME_CENTRE_CM + r_mount * n,
+                                   panel=0, node=i)
+    r_kinect = DOME_RADIUS_CM - KINECT_INSET_CM
+    for ring, (height, az0) in enumerate(zip(KINECT_HEIGHTS_CM, KINECT_RING_AZIMUTH_DEG)):
+        dy = height - CENTRE_HEIGHT_CM
+        horizontal = np.sqrt(r_kinect**2 - dy**2)
+        for k in range(5):
+            az = np.radians(az0 + 72.0 * k)
+            p = np.array([horizontal * np.cos(az), -height, horizontal * np.sin(az)])
+            node = 5 * ring + k + 1
+            name = f"50_{node:02d}"
+            cams[name] = _aimed_camera(rng, name=name, camera_type=CameraType.KINECT_COLOR, center_cm=p, panel=50,
+                                       node=node)
+    return cams
+
+
+def select_preset(cameras: dict[str, Camera], preset: Preset | str) -> list[str]:
+    """Camera names of a preset, chosen by geometry so that the same preset works on any layout.
+
+    tiny: the 8 VGA of panel 1 nearest its centre, the 3 HD and the 1 Kinect colour camera nearest panel 1;
+    panel: all VGA of panels 1 and 2, the 8 HD and 4 Kinect colour cameras nearest them; full: every camera.
+    """
+    preset = Preset(preset)
+    if preset is Preset.FULL:
+        return sorted(cameras)
+    panels = (1,) if preset is Preset.TINY else (1, 2)
+    vga = [c for c in cameras.values() if c.type == CameraType.VGA and c.panel in panels]
+    if not vga:
+        raise DomeCalibError(f"preset {preset}: the layout has no VGA cameras on panel(s) {panels}")
+    centre = np.mean([c.center_cm for c in vga], axis=0)
+    n_vga, n_hd, n_kinect = (8, 3, 1) if preset is Preset.TINY else (len(vga), 8, 4)
+
+    def nearest(cands: list[Camera], n: int) -> list[str]:
+        return [c.name for c in sorted(cands, key=lambda c: (np.linalg.norm(c.center_cm - centre), c.name))[:n]]
+
+    names = nearest(vga, n_vga)
+    names += nearest([c for c in cameras.values() if c.type == CameraType.HD], n_hd)
+    names += nearest([c for c in cameras.values() if c.type == CameraType.KINECT_COLOR], n_kinect)
+    return sorted(names)
+
+
+def nominal_dome(preset: Preset | str = Preset.FULL, seed: int = 0) -> Bundle:
+    """Ground-truth bundle of the nominal (paper) dome, restricted to a preset's cameras.
+
+    Args:
+        preset: "tiny" (12 cameras), "panel" (60) or "full" (521).
+        seed: draws intrinsics, distortion, aim and roll jitter; the same seed gives the same cameras in every
+            preset (a tiny camera is identical to the same-named full camera).
+    Example:
+        >>> bundle = nominal_dome("tiny", seed=0); sorted(bundle.cameras)[:2]
+    """
+    cams = all_nominal_cameras(seed)
+    names = select_preset(cams, preset)
+    return Bundle(seq="synth", cameras={n: cams[n] for n in names},
+                  calib_data_source=f"dome_calib.synth nominal dome, preset {Preset(preset)}, seed {seed}")
+
+
+def dome_from_calibration(path: str | Path, preset: Preset | str = Preset.FULL, seed: int = 0) -> Bundle:
+    """Ground-truth bundle whose cameras (poses, intrinsics, distortion) are those of a real calibration file.
+
+    ``seed`` is unused for the cameras (they are the file's) and kept for a uniform signature.
+    Raises :class:`BundleFormatError` if the file is malformed.
+    """
+    from dome_calib.panoptic_io import read_calibration
+
+    cams, source = read_calibration(Path(path))
+    names = select_preset(cams, preset)
+    return Bundle(seq="synth", cameras={n: cams[n] for n in names},
+                  calib_data_source=f"dome_calib.synth from {Path(path).name} ({source}), preset {Preset(preset)}")
+
+
+def projectors(seed: int = 0) -> dict[str, Projector]:
+    """The 5 projectors ("P1".."P5") at pentagon centres above the panel rings, aimed at the tent's middle.
+
+    Resolution 1280x800 px, focal 1000 px (covers ~3.5 m x 2.2 m at the dome centre). ``seed`` jitters the aim
+    (5 cm) and focal length (1 %).
+    """
+    rng = np.random.default_rng([seed, 5])
+    out = {}
+    w, h = PROJECTOR_RESOLUTION
+    for k in range(5):
+        c = DOME_CENTRE_CM + (DOME_RADIUS_CM - 10.0) * _direction(PROJECTOR_LATITUDE_DEG,
+                                                                  PROJECTOR_AZIMUTH0_DEG - 72.0 * k)
+        R = look_at(c, PROJECTOR_TARGET_CM + rng.normal(0.0, 5.0, size=3))
+        f = PROJECTOR_FOCAL_PX * (1.0 + rng.normal(0.0, 0.01))
+        K = intr_to_K(np.array([f, f, (w - 1) / 2, (h - 1) / 2]))
+        out[f"P{k + 1}"] = Projector(name=f"P{k + 1}", resolution=(w, h), K=K, R=R, t_cm=-R @ c)
+    return out
