@@ -33,5 +33,70 @@ def info(
     typer.echo(json.dumps(summary, indent=2) if json_out else format_summary(summary))
 
 
+@app.command()
+def calibrate(
+    capture: Path = typer.Argument(..., help="Capture folder (scenes/<scene>/<camera>.png).", show_default=False),
+    out: Path = typer.Option(..., "-o", "--out", help="Bundle folder to write (created).", show_default=False),
+    prior: Path = typer.Option(None, "--prior", help="Previous calibration bundle of this dome: sets the world "
+                               "frame, seeds the matching, and shows which cameras moved."),
+    only_changed: bool = typer.Option(False, "--only-changed", help="Quick recalibration: re-estimate only the "
+                                      "cameras that changed since --prior; the rest stay fixed."),
+    seq: str = typer.Option(None, "--seq", help="Sequence name for calibration_<seq>.json (default: the capture "
+                            "folder's name)."),
+    work: Path = typer.Option(None, "--work", help="Work folder for intermediate results; a rerun resumes from "
+                              "it (default: OUT.work beside the bundle)."),
+) -> None:
+    """Calibrate every camera of the dome from one capture session: features, matching, reconstruction, bundle
+    adjustment, world frame, then the bundle and its report. Rerun the same command to resume after a stop."""
+    from dome_calib.pipeline import CalibrateOptions, format_result, run_calibration
+
+    options = CalibrateOptions(prior=prior, only_changed=only_changed, seq=seq, work_dir=work)
+    typer.echo(format_result(run_calibration(capture, out, options)))
+
+
+@app.command()
+def report(
+    bundle: Path = typer.Argument(..., help="Bundle folder; the report is written to BUNDLE/report/.",
+                                  show_default=False),
+    prior: Path = typer.Option(None, "--prior", help="Previous bundle: list the cameras that moved since."),
+    min_observations: int = typer.Option(100, help="Flag cameras with fewer observations than this."),
+) -> None:
+    """Write BUNDLE/report/: report.json, the dome plot coloured by residual, residual histograms, observation
+    counts, and the list of cameras to check with the reason."""
+    from dome_calib.pipeline import report_bundle
+
+    typer.echo(report_bundle(bundle, prior=prior, min_observations=min_observations))
+
+
+@app.command()
+def compare(
+    bundle: Path = typer.Argument(..., help="Bundle folder to judge.", show_default=False),
+    ground_truth: Path = typer.Argument(..., help="Reference bundle folder (ground truth or another calibration).",
+                                        show_default=False),
+    json_out: bool = typer.Option(False, "--json", help="Print per-camera errors as JSON."),
+) -> None:
+    """Per-camera centre, rotation, focal and distortion errors of BUNDLE against GROUND_TRUTH, after a
+    similarity alignment on the camera centres."""
+    from dome_calib.bundle import load_bundle
+    from dome_calib.compare import compare_cameras, format_comparison
+
+    cmp = compare_cameras(load_bundle(bundle).cameras, load_bundle(ground_truth).cameras)
+    typer.echo(json.dumps(cmp.as_dict(), indent=1) if json_out else format_comparison(cmp))
+
+
+@app.command()
+def demo(
+    out: Path = typer.Option(Path("demo_out"), "-o", "--out", help="Folder for the capture, bundle and report."),
+    preset: str = typer.Option("panel", help="Synthetic dome size: tiny | panel | full."),
+    scenes: int = typer.Option(None, help="Tent positions (default: the demo's choice for the preset)."),
+    seed: int = typer.Option(0, help="Random seed of the synthetic capture."),
+) -> None:
+    """Demonstration: synthesise a small dome capture, calibrate it, compare with the ground truth, and print
+    what a technician would look at."""
+    from dome_calib.demo import DemoOptions, format_demo, run_demo
+
+    typer.echo(format_demo(run_demo(out, DemoOptions(preset=preset, scenes=scenes, seed=seed))))
+
+
 def main() -> None:
     run_cli(app, prog="dome-calib")

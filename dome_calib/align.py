@@ -1,0 +1,150 @@
+"""Similarity alignment of two camera sets matched by name (robust Umeyama through pycolmap's LO-RANSAC).
+
+The transform is a ``pycolmap.Sim3d`` ``tgt_from_src``: ``X_tgt = scale * R @ X_src + t``. Cameras are aligned
+by their centres; the RANSAC threshold is in the target's units (cm for a bundle in the Panoptic frame), so
+cameras that moved between two calibrations come out as outliers instead of bending the fit.
+
+Example:
+    result = align_cameras(sfm_cameras, prior.cameras, AlignOptions(max_error_cm=1.0))
+    in_prior_frame = transform_cameras(sfm_cameras, result.tgt_from_src)
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import pycolmap
+
+from dome_calib.bundle import Camera
+from dome_calib.errors import DomeCalibError
+
+logger = logging.getLogger(__name__)
+
+#: Fewest shared cameras a similarity (7 degrees of freedom) is estimated from.
+MIN_SHARED_CAMERAS = 3
+
+
+class AlignmentError(DomeCalibError):
+    """Two camera sets cannot be aligned (too few shared cameras, degenerate layout, no consensus)."""
+
+
+@dataclass(kw_only=True)
+class AlignOptions:
+    """How to align. ``max_error_cm``: inlier threshold on centre distance in the target frame."""
+
+    max_error_cm: float = 2.0
+    min_inlier_ratio: float = 0.25
+    estimate_scale: bool = True  # False: rigid (scale held at 1), e.g. two bundles both in cm
+    random_seed: int = 0
+
+
+@dataclass(kw_only=True)
+class Alignment:
+    """Result of :func:`align_cameras`. ``residual_cm`` is per shared camera, after alignment, in target units."""
+
+    tgt_from_src: pycolmap.Sim3d
+    names: list[str]  # shared cameras, sorted
+    inliers: list[str]
+    residual_cm: dict[str, float]
+
+    @property
+    def outliers(self) -> list[str]:
+        keep = set(self.inliers)
+        return [n for n in self.names if n not in keep]
+
+    @property
+    def inlier_rms_cm(self) -> float:
+        return float(np.sqrt(np.mean([self.residual_cm[n] ** 2 for n in self.inliers])))
+
+
+def sim3_apply(tgt_from_src: pycolmap.Sim3d, X_src: np.ndarray) -> np.ndarray:
+    """(..., 3) points in the source frame -> (..., 3) in the target frame."""
+    M = np.asarray(tgt_from_src.matrix())
+    return np.asarray(X_src, dtype=float) @ M[:, :3].T + M[:, 3]
+
+
+def sim3_rotation(tgt_from_src: pycolmap.Sim3d) -> np.ndarray:
+    """(3, 3) rotation part of a similarity."""
+    return np.asarray(tgt_from_src.rotation.matrix())
+
+
+def _rigid_fit(src: np.ndarray, tgt: np.ndarray) -> pycolmap.Sim3d:
+    """Least-squares rotation + translation (scale 1): Kabsch on centred points."""
+    mu_s, mu_t = src.mean(axis=0), tgt.mean(axis=0)
+    U, _, Vt = np.linalg.svd((tgt - mu_t).T @ (src - mu_s))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    return pycolmap.Sim3d(1.0, pycolmap.Rotation3d(R), mu_t - R @ mu_s)
+
+
+def align_points(src: np.ndarray, tgt: np.ndarray, options: AlignOptions | None = None) -> tuple[pycolmap.Sim3d, np.ndarray]:
+    """Robust similarity ``tgt_from_src`` between corresponding points (N, 3); returns it and the inlier mask (N,).
+
+    LO-RANSAC (pycolmap) with a fixed seed, then a least-squares refit on the inliers.
+    Raises :class:`AlignmentError` when fewer than 3 points, a degenerate (collinear) set, or no consensus.
+    """
+    options = options or AlignOptions()
+    src, tgt = np.asarray(src, dtype=float), np.asarray(tgt, dtype=float)
+    if src.shape != tgt.shape or src.ndim != 2 or src.shape[1] != 3:
+        raise AlignmentError(f"{src.shape=} and {tgt.shape=} but expected two (N, 3) arrays")
+    if len(src) < MIN_SHARED_CAMERAS:
+        raise AlignmentError(f"only {len(src)} shared cameras; need at least {MIN_SHARED_CAMERAS} to align")
+    if np.linalg.matrix_rank(src - src.mean(axis=0), tol=1e-9 * max(1.0, np.abs(src).max())) < 2:
+        raise AlignmentError("the shared cameras are collinear; a similarity is not determined")
+    ransac = pycolmap.RANSACOptions(max_error=options.max_error_cm, min_inlier_ratio=options.min_inlier_ratio,
+                                    random_seed=options.random_seed, num_threads=1)
+    found = pycolmap.estimate_sim3d_robust(src, tgt, ransac)
+    if found is None or found["num_inliers"] < MIN_SHARED_CAMERAS:
+        raise AlignmentError(f"no similarity agrees with at least {MIN_SHARED_CAMERAS} of {len(src)} cameras "
+                             f"within {options.max_error_cm} cm")
+    inliers = np.asarray(found["inlier_mask"], dtype=bool)
+    if options.estimate_scale:
+        sim = pycolmap.estimate_sim3d(src[inliers], tgt[inliers]) or found["tgt_from_src"]
+    else:
+        sim = _rigid_fit(src[inliers], tgt[inliers])
+        inliers = np.linalg.norm(sim3_apply(sim, src) - tgt, axis=1) <= options.max_error_cm
+        if inliers.sum() >= MIN_SHARED_CAMERAS:
+            sim = _rigid_fit(src[inliers], tgt[inliers])
+    return sim, inliers
+
+
+def align_cameras(src: dict[str, Camera], tgt: dict[str, Camera], options: AlignOptions | None = None,
+                  names: list[str] | None = None) -> Alignment:
+    """Robust similarity ``tgt_from_src`` mapping the centres of ``src`` cameras onto same-named ``tgt`` cameras.
+
+    Args:
+        src, tgt: cameras keyed by name, in their own world frames.
+        names: cameras to align on (default: every name in both).
+    """
+    shared = sorted(set(src) & set(tgt) if names is None else set(names) & set(src) & set(tgt))
+    if len(shared) < MIN_SHARED_CAMERAS:
+        raise AlignmentError(f"only {len(shared)} cameras in common; need at least {MIN_SHARED_CAMERAS} to align")
+    c_src = np.array([src[n].center_cm for n in shared])
+    c_tgt = np.array([tgt[n].center_cm for n in shared])
+    sim, inliers = align_points(c_src, c_tgt, options)
+    residual = np.linalg.norm(sim3_apply(sim, c_src) - c_tgt, axis=1)
+    result = Alignment(tgt_from_src=sim, names=shared, inliers=[n for n, k in zip(shared, inliers) if k],
+                       residual_cm={n: float(r) for n, r in zip(shared, residual)})
+    logger.debug("aligned %d/%d cameras, scale %.6f, inlier RMS %.3f cm", len(result.inliers), len(shared),
+                 sim.scale, result.inlier_rms_cm)
+    return result
+
+
+def transform_cameras(cameras: dict[str, Camera], tgt_from_src: pycolmap.Sim3d) -> dict[str, Camera]:
+    """Move cameras into the target frame: ``R' = R @ Rs.T``, ``t' = scale * t - R' @ ts`` (translations scale)."""
+    Rs, ts, s = sim3_rotation(tgt_from_src), np.asarray(tgt_from_src.translation), float(tgt_from_src.scale)
+    out = {}
+    for name, cam in cameras.items():
+        R_new = cam.R @ Rs.T
+        out[name] = dataclasses.replace(cam, R=R_new, t_cm=s * cam.t_cm - R_new @ ts)
+    return out
+
+
+def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
+    """(...,) angle of ``R_a @ R_b.T`` in degrees, for (..., 3, 3) rotations."""
+    rel = np.asarray(R_a) @ np.swapaxes(np.asarray(R_b), -1, -2)
+    cos = (np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0
+    vee = np.stack([rel[..., 2, 1] - rel[..., 1, 2], rel[..., 0, 2] - rel[..., 2, 0], rel[..., 1, 0] - rel[..., 0, 1]], -1)
+    return np.degrees(np.arctan2(np.linalg.norm(vee, axis=-1) / 2.0, cos))  # accurate near 0, unlike arccos

@@ -1,0 +1,213 @@
+"""The calibration report: per-camera residuals and observation counts, cameras to check with the reason, and
+the plots, written as ``<bundle>/report/`` (report.json, residuals.npz, dome.png, residuals.png,
+observations.png) all at once: built in a temporary folder beside it, then renamed into place.
+
+Residuals come from the bundle adjustment (:class:`Residuals`); a bundle without them still gets a report of
+its geometry, and the report says the residuals are missing.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from dome_calib.bundle import Bundle, CameraType
+from dome_calib.errors import DomeCalibError
+
+logger = logging.getLogger(__name__)
+
+REPORT_DIR = "report"
+RESIDUALS_FILE = "residuals.npz"
+
+
+class ReportError(DomeCalibError):
+    """The report cannot be made from what was given (bad residual file, unknown camera)."""
+
+
+@dataclass(kw_only=True)
+class Residuals:
+    """Final reprojection residuals of the bundle adjustment: one row per observation (OpenCV px)."""
+
+    camera_names: list[str]  # (C,)
+    camera_index: np.ndarray  # (M,) int into camera_names
+    residual_px: np.ndarray  # (M, 2) observed - projected
+
+    def per_camera(self) -> dict[str, tuple[int, float | None]]:
+        """name -> (observation count, RMS px of the residual norm; None without observations)."""
+        sq = np.sum(self.residual_px ** 2, axis=1)
+        counts = np.bincount(self.camera_index, minlength=len(self.camera_names))
+        sums = np.bincount(self.camera_index, weights=sq, minlength=len(self.camera_names))
+        return {n: (int(c), float(np.sqrt(s / c)) if c else None)
+                for n, c, s in zip(self.camera_names, counts, sums)}
+
+    def norms_of(self, names: set[str]) -> np.ndarray:
+        """Residual norms (px) of the observations of the given cameras."""
+        keep = np.isin(np.asarray(self.camera_names)[self.camera_index], sorted(names))
+        return np.linalg.norm(self.residual_px[keep], axis=1)
+
+    def save(self, path: Path) -> None:
+        np.savez_compressed(path, camera_names=np.asarray(self.camera_names), camera_index=self.camera_index,
+                            residual_px=self.residual_px.astype(np.float32))
+
+    @classmethod
+    def load(cls, path: Path) -> Residuals:
+        try:
+            with np.load(path) as data:
+                names, idx, res = [str(n) for n in data["camera_names"]], data["camera_index"], data["residual_px"]
+        except (OSError, ValueError, KeyError) as exc:
+            raise ReportError(f"{path}: not a residual file ({exc})") from exc
+        if res.ndim != 2 or res.shape[1] != 2 or idx.shape != (len(res),) or (len(idx) and idx.max() >= len(names)):
+            raise ReportError(f"{path}: residual_px {res.shape} / camera_index {idx.shape} do not match")
+        return cls(camera_names=names, camera_index=idx.astype(np.int64), residual_px=res.astype(float))
+
+
+@dataclass(kw_only=True)
+class ReportOptions:
+    """Rules for the list of cameras to check."""
+
+    min_observations: int = 100
+    high_rms_factor: float = 2.5  # RMS above this many times the median RMS of the camera's type ...
+    high_rms_floor_px: float = 1.0  # ... and above this absolute level
+    plots: bool = True
+
+
+@dataclass(kw_only=True)
+class CameraRow:
+    name: str
+    type: CameraType
+    center_cm: list[float]
+    observations: int | None
+    rms_px: float | None
+    reasons: list[str] = field(default_factory=list)
+
+
+def camera_rows(bundle: Bundle, residuals: Residuals | None, options: ReportOptions,
+                changes: dict[str, list[str]] | None = None) -> dict[str, CameraRow]:
+    """One row per camera of the bundle with its statistics and the reasons to check it."""
+    stats = residuals.per_camera() if residuals is not None else {}
+    rows = {n: CameraRow(name=n, type=c.type, center_cm=[round(float(v), 3) for v in c.center_cm],
+                         observations=stats.get(n, (0, None))[0] if residuals is not None else None,
+                         rms_px=stats.get(n, (0, None))[1] if residuals is not None else None)
+            for n, c in sorted(bundle.cameras.items())}
+    if residuals is not None:
+        for cam_type in CameraType:
+            rms = [r.rms_px for r in rows.values() if r.type == cam_type and r.rms_px is not None]
+            limit = max(options.high_rms_floor_px, options.high_rms_factor * float(np.median(rms))) if rms else np.inf
+            for r in rows.values():
+                if r.type != cam_type:
+                    continue
+                if r.observations < options.min_observations:
+                    r.reasons.append(f"too few observations ({r.observations} < {options.min_observations})")
+                if r.rms_px is not None and r.rms_px > limit:
+                    r.reasons.append(f"high RMS {r.rms_px:.2f} px (limit {limit:.2f} px for {cam_type})")
+    for name, reasons in (changes or {}).items():
+        if name in rows:
+            rows[name].reasons.extend(reasons)
+    return rows
+
+
+def build_report(bundle: Bundle, residuals: Residuals | None = None, options: ReportOptions | None = None, *,
+                 changes: dict[str, list[str]] | None = None, missing: dict[str, str] | None = None,
+                 extra: dict | None = None) -> dict:
+    """The content of report.json (plain data).
+
+    Args:
+        changes: camera -> reasons it differs from a prior (from :func:`dome_calib.compare.detect_changes`).
+        missing: cameras expected but not calibrated -> why (e.g. "saw no tent").
+        extra: more sections to include as-is (world frame, timings, comparison with ground truth).
+    """
+    options = options or ReportOptions()
+    rows = camera_rows(bundle, residuals, options, changes)
+    unknown = sorted(set(residuals.camera_names) - set(bundle.cameras)) if residuals is not None else []
+    if unknown:
+        raise ReportError(f"residuals name cameras not in bundle {bundle.seq}: {', '.join(unknown[:5])}")
+    per_type = {}
+    for cam_type in CameraType:
+        sel = [r for r in rows.values() if r.type == cam_type]
+        if not sel:
+            continue
+        entry: dict = {"cameras": len(sel)}
+        if residuals is not None:
+            norms = residuals.norms_of({r.name for r in sel})
+            entry |= {"observations": int(len(norms)),
+                      "rms_px": float(np.sqrt(np.mean(norms ** 2))) if len(norms) else None,
+                      "median_px": float(np.median(norms)) if len(norms) else None}
+        per_type[str(cam_type)] = entry
+    overall = None
+    if residuals is not None and len(residuals.residual_px):
+        overall = float(np.sqrt(np.mean(np.sum(residuals.residual_px ** 2, axis=1))))
+    to_check = [{"name": r.name, "type": str(r.type), "reasons": r.reasons} for r in rows.values() if r.reasons]
+    to_check += [{"name": n, "type": None, "reasons": [f"not calibrated: {why}"]} for n, why in sorted((missing or {}).items())]
+    return {
+        "seq": bundle.seq, "calib_data_source": bundle.calib_data_source, "cameras": len(bundle.cameras),
+        "has_residuals": residuals is not None, "rms_px": overall, "per_type": per_type,
+        "rules": {"min_observations": options.min_observations, "high_rms_factor": options.high_rms_factor,
+                  "high_rms_floor_px": options.high_rms_floor_px},
+        "to_check": to_check,
+        "per_camera": {r.name: {"type": str(r.type), "center_cm": r.center_cm, "observations": r.observations,
+                                "rms_px": r.rms_px} for r in rows.values()},
+        **(extra or {}),
+    }
+
+
+def _swap_in(staging: Path, target: Path) -> None:
+    """Replace folder ``target`` by ``staging`` with renames only (old one removed after)."""
+    old = None
+    if target.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old.", dir=target.parent))
+        target.replace(old / target.name)
+    staging.replace(target)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def write_report(bundle_folder: str | Path, bundle: Bundle, residuals: Residuals | None = None,
+                 options: ReportOptions | None = None, **kwargs) -> Path:
+    """Build the report and write ``<bundle_folder>/report/`` whole (temp folder, then rename). Returns its path.
+
+    Keyword arguments go to :func:`build_report` (changes, missing, extra).
+    """
+    from dome_calib.report.plots import plot_dome, plot_observations, plot_residual_histograms
+
+    options = options or ReportOptions()
+    folder = Path(bundle_folder)
+    if not folder.is_dir():
+        raise ReportError(f"{folder}: not a folder")
+    content = build_report(bundle, residuals, options, **kwargs)
+    staging = Path(tempfile.mkdtemp(prefix=f".{REPORT_DIR}.new.", dir=folder))
+    try:
+        if residuals is not None:
+            residuals.save(staging / RESIDUALS_FILE)
+        if options.plots:
+            content["plots"] = [plot_dome(bundle, content, staging / "dome.png").name,
+                                plot_observations(content, staging / "observations.png").name]
+            if residuals is not None:
+                content["plots"].append(plot_residual_histograms(bundle, residuals, staging / "residuals.png").name)
+        (staging / "report.json").write_text(json.dumps(content, indent=1, allow_nan=False, default=_json_default),
+                                             encoding="utf-8")
+        target = folder / REPORT_DIR
+        _swap_in(staging, target)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    logger.info("report written to %s (%d cameras to check)", target, len(content["to_check"]))
+    return target
+
+
+def _json_default(obj: object) -> object:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+
+
+def load_residuals(bundle_folder: str | Path) -> Residuals | None:
+    """The residuals saved with a bundle's previous report, or None."""
+    path = Path(bundle_folder) / REPORT_DIR / RESIDUALS_FILE
+    return Residuals.load(path) if path.exists() else None
