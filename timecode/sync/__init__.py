@@ -1,0 +1,7 @@
+"""Clock alignment from LTC and sync tables (issue 5).
+
+Modules: :mod:`~timecode.sync.clock` (decoded frame starts -> piecewise clock models), :mod:`~timecode.sync.session`
+(on-disk session layout and loader), :mod:`~timecode.sync.tables` (universal time of every frame, sync tables,
+report), :mod:`~timecode.sync.match` (HD frame -> Kinect colour/depth frames), :mod:`~timecode.sync.synth`
+(synthetic sessions with known truth), :mod:`~timecode.sync.pipeline` (decode + fit + write, used by the CLI).
+"""
