@@ -1,0 +1,74 @@
+"""The calibrate pipeline's two heavy stages, as thin adapters over the SfM front end (``projector``) and the
+bundle adjustment (:mod:`dome_calib.ba`): what they return is what the pipeline keeps in its work folder.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from dome_calib.ba.problem import BAProblem
+from dome_calib.bundle import Bundle, Camera
+from dome_calib.camera import project
+from dome_calib.report import Residuals
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(kw_only=True)
+class SfmOutcome:
+    """The merged multi-scene reconstruction (initial BA problem) and the cameras that failed, with why."""
+
+    problem: BAProblem
+    failures: dict[str, str] = field(default_factory=dict)
+    stats: dict = field(default_factory=dict)  # per-stage counts and times from the front end
+
+
+@dataclass(kw_only=True)
+class BAOutcome:
+    """The refined problem (its own gauge frame), cameras by name, and the final residuals of the inliers."""
+
+    problem: BAProblem
+    cameras: dict[str, Camera]
+    residuals: Residuals
+    inlier: np.ndarray  # (M,) bool over the problem's observations
+    stats: dict = field(default_factory=dict)  # iterations, cost, rms, seconds
+
+
+def observation_residuals(problem: BAProblem) -> np.ndarray:
+    """(M, 2) observed - projected pixels for every observation at the problem's current parameters."""
+    out = np.full((problem.n_observations, 2), np.nan)
+    order = np.argsort(problem.camera_index, kind="stable")
+    bounds = np.searchsorted(problem.camera_index[order], np.arange(problem.n_cameras + 1))
+    for c in range(problem.n_cameras):
+        rows = order[bounds[c]:bounds[c + 1]]
+        if not len(rows):
+            continue
+        cam = problem.camera(problem.camera_names[c])
+        proj = project(problem.points_cm[problem.point_index[rows]], cam.R[None], cam.t_cm[None], cam.intr[None],
+                       cam.dist[None])
+        out[rows] = problem.uv_px[rows] - proj.uv_px[0]
+    return out
+
+
+def residuals_of(problem: BAProblem, inlier: np.ndarray | None = None) -> Residuals:
+    """The report's :class:`Residuals` of the (inlier) observations."""
+    res = observation_residuals(problem)
+    keep = np.all(np.isfinite(res), axis=1) if inlier is None else (inlier & np.all(np.isfinite(res), axis=1))
+    return Residuals(camera_names=list(problem.camera_names), camera_index=problem.camera_index[keep],
+                     residual_px=res[keep])
+
+
+def run_sfm_stage(capture: Path, work_dir: Path, *, prior: Bundle | None, progress: bool = True,
+                  scenes: list[str] | None = None) -> SfmOutcome:
+    """Features, pairs, matching, per-scene mapping and merging (projector.run_sfm)."""
+    from projector import run_sfm  # noqa: F401  (wired when the SfM front end lands)
+
+    raise NotImplementedError
+
+
+def run_ba_stage(problem: BAProblem, *, progress: bool = True) -> BAOutcome:
+    """Five-parameter bundle adjustment with the outlier schedule (dome_calib.ba)."""
+    raise NotImplementedError

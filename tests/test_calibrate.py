@@ -1,0 +1,131 @@
+"""The calibrate orchestration (dome_calib.pipeline) with the heavy stages replaced by exact stand-ins built from
+the tiny nominal dome: resumability, world frame, outputs, change detection vs a prior, one-line errors."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pycolmap
+import pytest
+from scipy.spatial.transform import Rotation
+from typer.testing import CliRunner
+
+import dome_calib.pipeline as pipeline
+from dome_calib.align import sim3_apply, transform_cameras
+from dome_calib.ba.problem import BAProblem
+from dome_calib.bundle import load_bundle, write_bundle
+from dome_calib.camera import project
+from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, observation_residuals, residuals_of
+from dome_calib.synth.layout import nominal_dome
+
+SFM_FRAME = pycolmap.Sim3d(0.05, pycolmap.Rotation3d(Rotation.from_rotvec([0.2, 1.3, -0.4]).as_matrix()), [1, 2, 3])
+NOISE_PX = 0.3
+
+
+def _problem(truth, seed=0, noise_px=NOISE_PX):
+    """Tent-like points seen by the truth cameras, observed with Gaussian noise, expressed in an SfM-like frame."""
+    rng = np.random.default_rng(seed)
+    X = rng.uniform([-60, -180, -60], [60, -20, 60], size=(400, 3))
+    names = sorted(truth.cameras)
+    s = truth.stacked(names)
+    proj = project(X, s["R"], s["t_cm"], s["intr"], s["dist"])
+    vis = proj.in_image(s["resolution"]) & proj.in_lens
+    cam_idx, pt_idx = np.nonzero(vis)
+    uv = proj.uv_px[cam_idx, pt_idx] + rng.normal(0, noise_px, size=(len(cam_idx), 2))
+    cams = transform_cameras(truth.cameras, SFM_FRAME)
+    return BAProblem.from_cameras(cams, {"scene_01": sim3_apply(SFM_FRAME, X)}, camera_index=cam_idx,
+                                  point_index=pt_idx, uv_px=uv, camera_names=names)
+
+
+def test_observation_residuals_are_the_added_noise():
+    truth = nominal_dome("tiny", seed=0)
+    problem = _problem(truth, noise_px=0.0)
+    assert np.abs(observation_residuals(problem)).max() < 1e-6  # px: the frame change keeps pixels
+    noisy = _problem(truth)
+    res = residuals_of(noisy)
+    assert len(res.residual_px) == noisy.n_observations
+    assert np.sqrt(np.mean(res.residual_px ** 2)) == pytest.approx(NOISE_PX, rel=0.05)
+
+
+@pytest.fixture
+def capture(tmp_path):
+    """A capture folder skeleton (capture.json, ground truth); the stand-in stages never read images."""
+    truth = nominal_dome("tiny", seed=0)
+    cap = tmp_path / "capture"
+    (cap / "scenes" / "scene_01").mkdir(parents=True)
+    names = sorted(truth.cameras) + ["01_24"]  # one camera that "saw no tent"
+    (cap / "capture.json").write_text(json.dumps({"preset": "tiny", "seed": 0, "scenes": ["scene_01"],
+                                                  "cameras": names}))
+    write_bundle(truth, cap / "ground_truth")
+    return cap, truth
+
+
+@pytest.fixture
+def stand_in_stages(monkeypatch, capture):
+    _, truth = capture
+    calls = {"sfm": 0, "ba": 0}
+
+    def sfm(capture_dir, work_dir, *, prior, progress=True, scenes=None):
+        calls["sfm"] += 1
+        return SfmOutcome(problem=_problem(truth), failures={"01_24": "saw no tent in any scene"})
+
+    def ba(problem, *, progress=True):
+        calls["ba"] += 1
+        cams = {n: problem.camera(n) for n in problem.camera_names}
+        return BAOutcome(problem=problem, cameras=cams, residuals=residuals_of(problem),
+                         inlier=np.ones(problem.n_observations, bool))
+
+    monkeypatch.setattr(pipeline, "run_sfm_stage", sfm)
+    monkeypatch.setattr(pipeline, "run_ba_stage", ba)
+    return calls
+
+
+def test_calibrate_writes_bundle_and_report_and_resumes(tmp_path, capture, stand_in_stages):
+    cap, truth = capture
+    out = tmp_path / "bundle"
+    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=False))
+    bundle = load_bundle(out)
+    assert sorted(bundle.cameras) == sorted(truth.cameras)
+    for n, c in truth.cameras.items():  # nominal-geometry frame = the synthetic truth frame
+        assert np.linalg.norm(bundle.cameras[n].center_cm - c.center_cm) < 1e-6
+    rep = json.loads((out / "report" / "report.json").read_text())
+    assert rep["world_frame"]["reference"] == "nominal"
+    assert {"name": "01_24", "type": None, "reasons": ["not calibrated: saw no tent in any scene"]} in rep["to_check"]
+    text = pipeline.format_result(result)
+    assert "calibrated 12 of 13 cameras (vga 8/9, hd 3/3, kinect-color 1/1)" in text
+    assert "nominal dome geometry" in text and "01_24: not calibrated" in text
+    assert stand_in_stages == {"sfm": 1, "ba": 1}
+    again = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=False))
+    assert stand_in_stages == {"sfm": 1, "ba": 1}  # both taken from the work folder
+    assert again.resumed == ["sfm", "ba"]
+
+
+def test_calibrate_with_prior_reports_moved_camera(tmp_path, capture, stand_in_stages):
+    cap, truth = capture
+    moved = dict(truth.cameras)
+    c = moved["01_02"]
+    moved["01_02"] = type(c)(**{**c.__dict__, "t_cm": c.t_cm + np.array([0.0, 3.0, 0.0])})
+    prior = write_bundle(type(truth)(seq="old", cameras=moved), tmp_path / "prior")
+    out = tmp_path / "bundle"
+    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(prior=prior, progress=False))
+    assert sorted(result.changes) == ["01_02"]
+    assert result.normalized.reference == "prior" and result.normalized.alignment.outliers == ["01_02"]
+    assert "01_02: moved 3.0 cm" in pipeline.format_result(result)
+
+
+def test_calibrate_cli_bad_input(tmp_path):
+    proc = subprocess.run([sys.executable, "-c", "from dome_calib.cli import main; main()", "calibrate",
+                           str(tmp_path / "nope"), "-o", str(tmp_path / "out")], capture_output=True, text=True)
+    assert proc.returncode == 1
+    assert proc.stderr.count("\n") == 1 and "nope: not a folder" in proc.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_calibrate_cli_only_changed_needs_prior(tmp_path, capture):
+    cap, _ = capture
+    result = CliRunner().invoke(__import__("dome_calib.cli", fromlist=["app"]).app,
+                                ["calibrate", str(cap), "-o", str(tmp_path / "out"), "--only-changed"])
+    assert result.exit_code != 0
+    assert "--only-changed needs --prior" in str(result.exception)
