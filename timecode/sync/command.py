@@ -1,0 +1,33 @@
+"""Body of ``timecode sync`` (kept out of timecode/cli.py so --help stays fast and the shell stays thin)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+from timecode.sync.pipeline import sync_session, write_sync
+from timecode.sync.report import summary_lines
+from timecode.sync.session import load_session
+from timecode.sync.tables import SyncOptions
+
+
+def run_sync(session: Path, output: Path, *, seq: str | None, strict_kinect: bool, max_extrapolation_s: float) -> None:
+    """Decode, fit, write; print the per-stream summary. Errors propagate as one-line user errors."""
+    opts = SyncOptions(strict_kinect=strict_kinect, max_extrapolation_s=max_extrapolation_s)
+    n_steps = 2 + len(load_session(session).kinects)
+    with Progress(TextColumn("{task.description:<40}"), BarColumn(), MofNCompleteColumn(),
+                  transient=True, disable=None) as bar:
+        task = bar.add_task("decoding", total=n_steps)
+        done = [0]
+
+        def step(what: str) -> None:  # called before each decoding step
+            bar.update(task, description=what, completed=done[0])
+            done[0] += 1
+
+        result = sync_session(session, opts, progress=step)
+        bar.update(task, completed=n_steps)
+    written = write_sync(result, output, seq=seq)
+    for line in summary_lines(result):
+        typer.echo(line)
+    typer.echo(f"wrote {', '.join(str(p) for p in written)}")
