@@ -1,0 +1,293 @@
+"""Robust weighted triangulation of 2D detections seen by many views, vectorised over a batch of points.
+
+Pipeline per point (all points of a batch at once, no Python loop over points):
+
+1. rays: detections -> undistorted normalised coordinates (``cv2.undistortPoints``, one call per view);
+2. RANSAC over views: random pairs of views give two-view (midpoint) hypotheses, scored on a random subset of
+   the point's views with a truncated, confidence-weighted squared reprojection error (MSAC);
+3. weighted linear triangulation (DLT on the rays of the inlier views, weights = detection confidence);
+4. Levenberg-Marquardt on the confidence-weighted reprojection error ``sum_v c_v |pi_v(X) - u_v|^2`` (the
+   weighted cost of the Panoptic 3D node proposals), with the analytic point Jacobian of the camera model;
+5. final inliers: views whose reprojection error is below ``inlier_threshold_px``.
+
+Inputs are (P, V, 2) pixels and (P, V) confidences (0 or NaN pixels = no detection) for the views of a
+:class:`~dome_calib.recon.project.ViewSet`.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from dome_calib.camera import MIN_DEPTH
+from dome_calib.recon.errors import ReconError
+from dome_calib.recon.kernel import F32, CameraKernel, Evaluation, normal_equations
+from dome_calib.recon.project import ViewSet
+
+logger = logging.getLogger(__name__)
+
+#: Scale (cm) that conditions the DLT: world points are solved in metres.
+_DLT_SCALE_CM = 100.0
+#: Smallest sin^2 of the angle between the two rays of a RANSAC hypothesis (about 3 degrees).
+_MIN_SIN2_PAIR = np.sin(np.radians(3.0)) ** 2
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 10, 1e-10)
+
+
+@dataclass(kw_only=True)
+class TriangulationOptions:
+    """Options of :func:`triangulate`.
+
+    inlier_threshold_px: a view supports a point if its reprojection error is below this (pixels of that view).
+    ransac_hypotheses: two-view hypotheses per point. With 10 % wrong detections a random pair is clean with
+        probability 0.81, so 24 hypotheses all fail with probability 0.19^24 ~ 5e-18.
+    ransac_score_views: views (random subset of the point's detections) that score each hypothesis.
+    lm_iterations: Levenberg-Marquardt iterations (each one projection with Jacobians).
+    min_views: fewer inlier views than this -> the point is not reconstructed (NaN, confidence -1).
+    min_confidence: detections with confidence <= this are ignored.
+    seed: RANSAC random seed (results are reproducible).
+    """
+
+    inlier_threshold_px: float = 8.0
+    ransac_hypotheses: int = 24
+    ransac_score_views: int = 40
+    lm_iterations: int = 3
+    min_views: int = 2
+    min_confidence: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.inlier_threshold_px <= 0:
+            raise ReconError(f"inlier_threshold_px={self.inlier_threshold_px} but expected > 0")
+        if self.ransac_hypotheses < 1 or self.ransac_score_views < 2 or self.lm_iterations < 0:
+            raise ReconError("ransac_hypotheses >= 1, ransac_score_views >= 2 and lm_iterations >= 0 are required")
+        if self.min_views < 2:
+            raise ReconError(f"min_views={self.min_views} but a point needs at least 2 views")
+
+
+@dataclass(frozen=True)
+class Triangulation:
+    """Result of :func:`triangulate` for P points and V views.
+
+    X_cm (P, 3) world points (NaN where not reconstructed); confidence (P,) mean detection confidence of the
+    inlier views (-1 where not reconstructed); inliers (P, V) bool; n_inliers (P,); rms_px (P,) RMS
+    reprojection error over the inlier views.
+    """
+
+    X_cm: np.ndarray
+    confidence: np.ndarray
+    inliers: np.ndarray
+    n_inliers: np.ndarray
+    rms_px: np.ndarray
+
+
+def undistort_detections(views: ViewSet, uv_px: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(P, V, 2) pixels -> (P, V, 2) undistorted normalised coordinates (0 where not ``valid``).
+
+    One ``cv2.undistortPoints`` call per view (OpenCV's iterative inverse, 10 iterations): accurate to well
+    under a pixel inside the image, enough for initialisation; the refinement uses the exact forward model.
+    """
+    xn = np.zeros(uv_px.shape, dtype=float)
+    K = np.zeros((3, 3))
+    K[2, 2] = 1.0
+    for v in np.flatnonzero(valid.any(axis=0)):
+        rows = valid[:, v]
+        fx, fy, cx, cy = views.intr[v]
+        K[0, 0], K[1, 1], K[0, 2], K[1, 2] = fx, fy, cx, cy
+        pts = np.ascontiguousarray(uv_px[rows, v], dtype=np.float64).reshape(-1, 1, 2)
+        xn[rows, v] = cv2.undistortPoints(pts, K, views.dist[v], criteria=_UNDISTORT_CRITERIA).reshape(-1, 2)
+    return xn
+
+
+def _dlt_blocks(views: ViewSet) -> np.ndarray:
+    """(4, V, 16) per-view blocks so that the weighted DLT normal matrix is a product of (P, V) sums with them.
+
+    For a view with P = [R | t] (metres) and ray (x, y): r1 = x P3 - P1, r2 = y P3 - P2 and
+    r1 r1^T + r2 r2^T = (x^2 + y^2) P3 P3^T - x (P3 P1^T + P1 P3^T) - y (P3 P2^T + P2 P3^T) + P1 P1^T + P2 P2^T.
+    """
+    Pm = np.concatenate([views.R, views.t_cm[:, :, None] / _DLT_SCALE_CM], axis=2)  # (V, 3, 4)
+    P1, P2, P3 = Pm[:, 0], Pm[:, 1], Pm[:, 2]
+    outer = lambda a, b: np.einsum("vi,vj->vij", a, b).reshape(len(a), 16)  # noqa: E731
+    return np.stack([outer(P3, P3), -(outer(P3, P1) + outer(P1, P3)), -(outer(P3, P2) + outer(P2, P3)),
+                     outer(P1, P1) + outer(P2, P2)])
+
+
+def triangulate_dlt(views: ViewSet, xn: np.ndarray, weight: np.ndarray, blocks: np.ndarray | None = None) -> np.ndarray:
+    """Weighted linear triangulation of (P, V, 2) normalised rays with (P, V) weights -> (P, 3) cm.
+
+    Minimises ``sum_v w_v (|x_v P3 - P1|^2 + |y_v P3 - P2|^2)`` over homogeneous X (rows of each view's [R | t]):
+    the eigenvector of the smallest eigenvalue of the (P, 4, 4) normal matrix. Fewer than 2 weighted views: NaN.
+    """
+    blocks = _dlt_blocks(views) if blocks is None else blocks
+    w = np.maximum(np.where(np.isfinite(weight), weight, 0.0), 0.0)
+    x, y = xn[..., 0], xn[..., 1]
+    normal = (w * (x * x + y * y)) @ blocks[0] + (w * x) @ blocks[1] + (w * y) @ blocks[2] + w @ blocks[3]
+    _, vecs = np.linalg.eigh(normal.reshape(-1, 4, 4))
+    Xh = vecs[:, :, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        X = Xh[:, :3] / Xh[:, 3:4] * _DLT_SCALE_CM
+    X[(w > 0).sum(axis=1) < 2] = np.nan
+    return X
+
+
+def point_jacobian(views: ViewSet, X_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels (P, V, 2) of (P, 3) points in every view and d(uv)/d(X) (P, V, 2, 3), float32 (NaN behind).
+
+    The point block of :func:`dome_calib.camera.project_with_jacobians` (``d_point``), computed by the batched
+    :class:`~dome_calib.recon.kernel.CameraKernel` that the refinement uses.
+    """
+    P, V = len(X_world), len(views.names)
+    ev = CameraKernel(views).evaluate(X_world, np.zeros((P, V), F32), np.zeros((P, V), F32), jacobian=True)
+    J = ev.J.reshape(P, 2, 3, V).transpose(0, 3, 1, 2)
+    return np.stack([ev.r_u, ev.r_v], axis=-1), J
+
+
+def reprojection_error_px(views: ViewSet, X_world: np.ndarray, uv_px: np.ndarray) -> np.ndarray:
+    """(P, V) pixel distance between the projection of (P, 3) points and (P, V, 2) detections (NaN if none)."""
+    return CameraKernel(views).reprojection_error_px(X_world, uv_px[..., 0].astype(F32), uv_px[..., 1].astype(F32))
+
+
+def refine_lm(views: ViewSet | CameraKernel, X0: np.ndarray, uv_px: np.ndarray, weight: np.ndarray, *,
+              iterations: int = 3, penalty_px: float = 100.0) -> tuple[np.ndarray, Evaluation]:
+    """Levenberg-Marquardt on ``sum_v w_v |pi_v(X) - u_v|^2`` for each of P points independently (batched).
+
+    Args: X0 (P, 3) cm start; uv_px (P, V, 2); weight (P, V) (0 = view unused). Each point keeps its own
+    damping; a step is kept only where it lowers that point's cost.
+    Returns: (P, 3) cm and the residuals at the returned points (for inlier tests).
+    """
+    kernel = views if isinstance(views, CameraKernel) else CameraKernel(views)
+    X = np.array(X0, dtype=float)
+    u_obs, v_obs = uv_px[..., 0].astype(F32), uv_px[..., 1].astype(F32)
+    start = np.where(np.all(np.isfinite(X), axis=1)[:, None], X, 0.0)
+    ev = kernel.evaluate(start, u_obs, v_obs, jacobian=iterations > 0)
+    if iterations == 0:
+        return X, ev
+    w = np.where(np.all(np.isfinite(X), axis=1)[:, None], weight, 0.0)
+    H, g, cost = normal_equations(ev, w, penalty_px)
+    lam = np.full(len(X), 1e-4)
+    eye = np.eye(3)
+    Xs = start
+    for it in range(iterations):
+        diag = np.einsum("pii->pi", H)
+        A = H + (lam[:, None] * np.maximum(diag, 1e-9))[:, :, None] * eye + 1e-12 * eye
+        step = -np.linalg.solve(A, g[..., None])[..., 0]
+        X_new = Xs + step
+        last = it == iterations - 1
+        ev_new = kernel.evaluate(X_new, u_obs, v_obs, jacobian=not last)
+        H_new, g_new, cost_new = normal_equations(ev_new, w, penalty_px)
+        better = cost_new < cost
+        Xs = np.where(better[:, None], X_new, Xs)
+        sel = better[:, None]
+        ev = Evaluation(np.where(sel, ev_new.r_u, ev.r_u), np.where(sel, ev_new.r_v, ev.r_v), None)
+        if not last:
+            H = np.where(better[:, None, None], H_new, H)
+            g = np.where(better[:, None], g_new, g)
+        cost = np.where(better, cost_new, cost)
+        lam = np.where(better, np.maximum(lam * 0.1, 1e-9), lam * 10.0)
+    X = np.where(np.all(np.isfinite(X), axis=1)[:, None], Xs, np.nan)
+    return X, ev
+
+
+def _ransac(views: ViewSet, xn: np.ndarray, conf: np.ndarray, valid: np.ndarray,
+            options: TriangulationOptions) -> np.ndarray:
+    """Best two-view hypothesis (P, 3) per point by MSAC over a random subset of its views (NaN if none)."""
+    P, V = valid.shape
+    rng = np.random.default_rng(options.seed)
+    keys = rng.random((P, V))
+    keys[~valid] = 2.0
+    order = np.argsort(keys, axis=1)  # the point's views in random order, valid ones first
+    n_valid = valid.sum(axis=1)
+    H = options.ransac_hypotheses
+    u = rng.random((P, H, 2))
+    nv = np.maximum(n_valid, 2)[:, None]
+    i = np.minimum((u[..., 0] * nv).astype(np.int64), nv - 1)
+    j = (i + 1 + np.minimum((u[..., 1] * (nv - 1)).astype(np.int64), nv - 2)) % nv
+    vi, vj = np.take_along_axis(order, i, axis=1), np.take_along_axis(order, j, axis=1)  # (P, H)
+    centers = views.center_cm
+    rows = np.arange(P)[:, None]
+
+    def ray(v: np.ndarray) -> np.ndarray:
+        xh = np.concatenate([xn[rows, v], np.ones((P, H, 1))], axis=-1)
+        return np.einsum("phji,phj->phi", views.R[v], xh)  # R^T [x, y, 1]: world direction
+
+    di, dj = ray(vi), ray(vj)
+    w0 = centers[vi] - centers[vj]
+    a, b, c = (di * di).sum(-1), (di * dj).sum(-1), (dj * dj).sum(-1)
+    d, e = (di * w0).sum(-1), (dj * w0).sum(-1)
+    den = a * c - b * b
+    good = (den > _MIN_SIN2_PAIR * a * c) & (n_valid[:, None] >= 2)
+    den = np.where(good, den, 1.0)
+    s, t = (b * e - c * d) / den, (a * e - b * d) / den
+    good &= (s > 0) & (t > 0)
+    X_h = 0.5 * (centers[vi] + s[..., None] * di + centers[vj] + t[..., None] * dj)  # (P, H, 3)
+
+    S = min(options.ransac_score_views, V)
+    sv = order[:, :S]  # (P, S)
+    s_ok = np.arange(S)[None, :] < n_valid[:, None]
+    Xc = np.einsum("psij,phj->phsi", views.R[sv], X_h) + views.t_cm[sv][:, None]  # (P, H, S, 3)
+    z = Xc[..., 2]
+    front = z > MIN_DEPTH
+    proj = Xc[..., :2] / np.where(front, z, 1.0)[..., None]
+    f = views.intr[sv][:, None, :, 0:2]
+    err2 = (((proj - xn[rows, sv][:, None]) * f) ** 2).sum(-1)
+    thr2 = options.inlier_threshold_px**2
+    err2 = np.where(front, np.minimum(err2, thr2), thr2)
+    score = np.einsum("phs,ps->ph", err2, np.where(s_ok, conf[rows, sv], 0.0))
+    score = np.where(good, score, np.inf)
+    best = np.argmin(score, axis=1)
+    X_best = X_h[np.arange(P), best]
+    X_best[~np.isfinite(score[np.arange(P), best])] = np.nan
+    return X_best
+
+
+def triangulate(views: ViewSet, uv_px: np.ndarray, conf: np.ndarray,
+                options: TriangulationOptions | None = None) -> Triangulation:
+    """Triangulate P points from detections in V views, robust to wrong detections.
+
+    Args:
+        views: the V cameras (order of the second axis of ``uv_px``).
+        uv_px: (P, V, 2) OpenCV pixels; NaN = no detection.
+        conf: (P, V) detection confidence; <= ``options.min_confidence`` or NaN = no detection.
+    Returns:
+        :class:`Triangulation`.
+    Example:
+        >>> tri = triangulate(view_set(bundle), uv, conf)   # uv (19 * frames, 520, 2)
+        >>> tri.X_cm[tri.n_inliers >= 2]
+    """
+    options = options or TriangulationOptions()
+    uv_px = np.asarray(uv_px, dtype=float)
+    conf = np.asarray(conf, dtype=float)
+    P, V = conf.shape
+    if uv_px.shape != (P, V, 2) or V != len(views.names):
+        raise ReconError(f"detections have shape {uv_px.shape} / confidences {conf.shape} but expected "
+                         f"(P, {len(views.names)}, 2) / (P, {len(views.names)}) for the {len(views.names)} views")
+    valid = np.isfinite(conf) & (conf > options.min_confidence) & np.all(np.isfinite(uv_px), axis=-1)
+    w = np.where(valid, conf, 0.0)
+    uv = np.where(valid[..., None], uv_px, 0.0)
+    xn = undistort_detections(views, uv, valid)
+    thr = options.inlier_threshold_px
+    kernel = CameraKernel(views)
+    u_obs, v_obs = uv[..., 0].astype(F32), uv[..., 1].astype(F32)
+
+    X = _ransac(views, xn, w, valid, options)
+    start = np.where(np.isfinite(X), X, 0.0)
+    inl = valid & (kernel.reprojection_error_px(start, u_obs, v_obs) < 2.0 * thr)  # loose: two-view points are noisy
+    X = triangulate_dlt(views, xn, np.where(inl, w, 0.0))
+    start = np.where(np.isfinite(X), X, 0.0)
+    inl = valid & (kernel.reprojection_error_px(start, u_obs, v_obs) < thr)
+    X, ev = refine_lm(kernel, X, uv, np.where(inl, w, 0.0), iterations=options.lm_iterations)
+    err = np.sqrt(ev.r_u * ev.r_u + ev.r_v * ev.r_v).astype(float)
+    inl = valid & (err < thr)
+    n_inl = inl.sum(axis=1)
+    ok = (n_inl >= options.min_views) & np.all(np.isfinite(X), axis=1)
+    X[~ok] = np.nan
+    wsum = np.where(inl, w, 0.0).sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        confidence = np.where(ok, wsum / np.maximum(n_inl, 1), -1.0)
+        rms = np.sqrt(np.where(inl, err**2, 0.0).sum(axis=1) / n_inl)
+    rms[~ok] = np.nan
+    inl[~ok] = False
+    logger.debug("triangulated %d/%d points, median %d inlier views", ok.sum(), P,
+                 int(np.median(n_inl)) if P else 0)
+    return Triangulation(X_cm=X, confidence=confidence, inliers=inl, n_inliers=np.where(ok, n_inl, 0), rms_px=rms)
