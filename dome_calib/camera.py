@@ -104,7 +104,10 @@ def undistort(xd: np.ndarray, dist: np.ndarray, *, max_iterations: int = 30, tol
     xn = xd.copy()
     for _ in range(max_iterations):
         f, J, _ = _distort_jacobian(xn, dist)
-        step = np.linalg.solve(J, (f - xd)[..., None])[..., 0]
+        r = f - xd
+        det = J[..., 0, 0] * J[..., 1, 1] - J[..., 0, 1] * J[..., 1, 0]
+        step = np.stack([J[..., 1, 1] * r[..., 0] - J[..., 0, 1] * r[..., 1],
+                         J[..., 0, 0] * r[..., 1] - J[..., 1, 0] * r[..., 0]], axis=-1) / det[..., None]
         xn = xn - step
         if np.nanmax(np.abs(step), initial=0.0) < tol:
             break
