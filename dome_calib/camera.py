@@ -11,6 +11,7 @@ Every function broadcasts over leading dimensions, so one call handles (N,) poin
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -143,20 +144,24 @@ def max_valid_radius2(dist: np.ndarray, r2_cap: float = 4.0) -> np.ndarray:
     return r2[np.maximum(first_bad - 1, 0)]
 
 
-@dataclass(frozen=True)
 class Projection:
     """Result of :func:`project`.
 
     uv_px: (..., 2) OpenCV pixels; NaN where the point is behind the camera.
     depth: (...,) z in the camera frame (same unit as t, cm for the dome).
     in_front: (...,) bool, depth > MIN_DEPTH.
-    in_lens: (...,) bool, in front and inside the distortion model's monotonic range (a physical projection).
+    in_lens: (...,) bool, in front and inside the distortion model's monotonic range (a physical projection);
+        computed on first use.
     """
 
-    uv_px: np.ndarray
-    depth: np.ndarray
-    in_front: np.ndarray
-    in_lens: np.ndarray
+    def __init__(self, uv_px: np.ndarray, depth: np.ndarray, in_front: np.ndarray, r2: np.ndarray, dist: np.ndarray):
+        self.uv_px, self.depth, self.in_front = uv_px, depth, in_front
+        self._r2, self._dist = r2, dist
+
+    @cached_property
+    def in_lens(self) -> np.ndarray:
+        r2_max = max_valid_radius2(self._dist)
+        return self.in_front & (self._r2 <= (r2_max[..., None] if self._r2.ndim > r2_max.ndim else r2_max))
 
     def in_image(self, resolution: np.ndarray) -> np.ndarray:
         """(...,) bool: physically projected and inside [-0.5, w - 0.5] x [-0.5, h - 0.5]; resolution (..., 2)."""
@@ -182,17 +187,17 @@ def project(X_world: np.ndarray, R: np.ndarray, t: np.ndarray, intr: np.ndarray,
     R = np.asarray(R, dtype=float)
     t = np.asarray(t, dtype=float)
     X = np.asarray(X_world, dtype=float)
-    X_cam = np.einsum("...ij,...nj->...ni", R, X) + t[..., None, :]
+    X_cam = X @ np.swapaxes(R, -1, -2) + t[..., None, :]
     depth = X_cam[..., 2]
     in_front = depth > MIN_DEPTH
-    safe_depth = np.where(in_front, depth, np.nan)
-    xn = X_cam[..., :2] / safe_depth[..., None]
-    d = np.asarray(dist, dtype=float)[..., None, :]
+    xn = X_cam[..., :2] / np.where(in_front, depth, np.nan)[..., None]
+    d = np.asarray(dist, dtype=float)
     f = np.asarray(intr, dtype=float)[..., None, :]
-    uv = distort(xn, d) * f[..., 0:2] + f[..., 2:4]
-    r2 = np.sum(xn * xn, axis=-1)
-    in_lens = in_front & (r2 <= max_valid_radius2(np.asarray(dist, dtype=float))[..., None])
-    return Projection(uv_px=uv, depth=depth, in_front=in_front, in_lens=in_lens)
+    uv = distort(xn, d[..., None, :])
+    uv *= f[..., 0:2]
+    uv += f[..., 2:4]
+    r2 = np.einsum("...i,...i->...", xn, xn)
+    return Projection(uv_px=uv, depth=depth, in_front=in_front, r2=r2, dist=d)
 
 
 @dataclass(frozen=True)
