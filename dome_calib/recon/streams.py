@@ -47,6 +47,10 @@ class StreamTracks:
             raise ReconError(f"stream {self.stream}: conf has shape {self.conf.shape} but expected {self.uv_px.shape[:3]}")
         if F > 1 and np.any(np.diff(self.frame_index) <= 0):
             raise ReconError(f"stream {self.stream}: frame indices must increase")
+        # Cleaned copies for interpolation: finite pixels, confidence 0 wherever there is no usable detection.
+        finite = np.all(np.isfinite(self.uv_px), axis=-1)
+        self._uv = np.where(finite[..., None], self.uv_px, 0.0)
+        self._conf = np.where(finite & np.isfinite(self.conf), self.conf, 0.0)
 
 
 @dataclass(frozen=True)
@@ -134,10 +138,7 @@ def interpolate_stream(tracks: StreamTracks, univ_time_ms: np.ndarray, *, max_ga
     def lookup(idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         pos = np.clip(np.searchsorted(tracks.frame_index, idx), 0, max(F - 1, 0))
         have = (F > 0) & (tracks.frame_index[pos] == idx) if F else np.zeros(idx.shape, bool)
-        c = np.where(have[:, None, None], np.nan_to_num(tracks.conf[pos], nan=0.0), 0.0)
-        u = tracks.uv_px[pos]
-        c = np.where(np.all(np.isfinite(u), axis=-1), c, 0.0)
-        return np.nan_to_num(u, nan=0.0), c
+        return tracks._uv[pos], np.where(have[:, None, None], tracks._conf[pos], 0.0)
 
     u0, c0 = lookup(i0)
     u1, c1 = lookup(i1)

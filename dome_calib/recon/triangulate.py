@@ -2,7 +2,7 @@
 
 Pipeline per point (all points of a batch at once, no Python loop over points):
 
-1. rays: detections -> undistorted normalised coordinates (``cv2.undistortPoints``, one call per view);
+1. rays: detections -> undistorted normalised coordinates (batched Newton inverse of the lens model);
 2. RANSAC over views: random pairs of views give two-view (midpoint) hypotheses, scored on a random subset of
    the point's views with a truncated, confidence-weighted squared reprojection error (MSAC);
 3. weighted linear triangulation (DLT on the rays of the inlier views, weights = detection confidence);
@@ -18,7 +18,6 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from dome_calib.camera import MIN_DEPTH
@@ -32,7 +31,6 @@ logger = logging.getLogger(__name__)
 _DLT_SCALE_CM = 100.0
 #: Smallest sin^2 of the angle between the two rays of a RANSAC hypothesis (about 3 degrees).
 _MIN_SIN2_PAIR = np.sin(np.radians(3.0)) ** 2
-_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 10, 1e-10)
 
 
 @dataclass(kw_only=True)
@@ -41,7 +39,7 @@ class TriangulationOptions:
 
     inlier_threshold_px: a view supports a point if its reprojection error is below this (pixels of that view).
     ransac_hypotheses: two-view hypotheses per point. With 10 % wrong detections a random pair is clean with
-        probability 0.81, so 24 hypotheses all fail with probability 0.19^24 ~ 5e-18.
+        probability 0.81, so 16 hypotheses all fail with probability 0.19^16 ~ 3e-12.
     ransac_score_views: views (random subset of the point's detections) that score each hypothesis.
     lm_iterations: Levenberg-Marquardt iterations (each one projection with Jacobians).
     min_views: fewer inlier views than this -> the point is not reconstructed (NaN, confidence -1).
@@ -50,8 +48,8 @@ class TriangulationOptions:
     """
 
     inlier_threshold_px: float = 8.0
-    ransac_hypotheses: int = 24
-    ransac_score_views: int = 40
+    ransac_hypotheses: int = 16
+    ransac_score_views: int = 32
     lm_iterations: int = 3
     min_views: int = 2
     min_confidence: float = 0.0
@@ -82,22 +80,16 @@ class Triangulation:
     rms_px: np.ndarray
 
 
-def undistort_detections(views: ViewSet, uv_px: np.ndarray, valid: np.ndarray) -> np.ndarray:
+def undistort_detections(views: ViewSet | CameraKernel, uv_px: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """(P, V, 2) pixels -> (P, V, 2) undistorted normalised coordinates (0 where not ``valid``).
 
-    One ``cv2.undistortPoints`` call per view (OpenCV's iterative inverse, 10 iterations): accurate to well
-    under a pixel inside the image, enough for initialisation; the refinement uses the exact forward model.
+    Batched Newton inverse of the lens model (:meth:`CameraKernel.undistort`, float32): enough for the
+    initialisation; the refinement uses the exact forward model.
     """
-    xn = np.zeros(uv_px.shape, dtype=float)
-    K = np.zeros((3, 3))
-    K[2, 2] = 1.0
-    for v in np.flatnonzero(valid.any(axis=0)):
-        rows = valid[:, v]
-        fx, fy, cx, cy = views.intr[v]
-        K[0, 0], K[1, 1], K[0, 2], K[1, 2] = fx, fy, cx, cy
-        pts = np.ascontiguousarray(uv_px[rows, v], dtype=np.float64).reshape(-1, 1, 2)
-        xn[rows, v] = cv2.undistortPoints(pts, K, views.dist[v], criteria=_UNDISTORT_CRITERIA).reshape(-1, 2)
-    return xn
+    kernel = views if isinstance(views, CameraKernel) else CameraKernel(views)
+    x, y = kernel.undistort(uv_px[..., 0], uv_px[..., 1])
+    xn = np.stack([x, y], axis=-1).astype(float)
+    return np.where(valid[..., None] & np.isfinite(xn), xn, 0.0)
 
 
 def _dlt_blocks(views: ViewSet) -> np.ndarray:
@@ -225,15 +217,19 @@ def _ransac(views: ViewSet, xn: np.ndarray, conf: np.ndarray, valid: np.ndarray,
     S = min(options.ransac_score_views, V)
     sv = order[:, :S]  # (P, S)
     s_ok = np.arange(S)[None, :] < n_valid[:, None]
-    Xc = np.einsum("psij,phj->phsi", views.R[sv], X_h) + views.t_cm[sv][:, None]  # (P, H, S, 3)
-    z = Xc[..., 2]
-    front = z > MIN_DEPTH
-    proj = Xc[..., :2] / np.where(front, z, 1.0)[..., None]
-    f = views.intr[sv][:, None, :, 0:2]
-    err2 = (((proj - xn[rows, sv][:, None]) * f) ** 2).sum(-1)
-    thr2 = options.inlier_threshold_px**2
+    Rs = views.R[sv].astype(F32)[:, None]  # (P, 1, S, 3, 3)
+    ts = views.t_cm[sv].astype(F32)[:, None]  # (P, 1, S, 3)
+    Xh = X_h.astype(F32)[:, :, None]  # (P, H, 1, 3)
+    xc, yc, zc = (Rs[..., i, 0] * Xh[..., 0] + Rs[..., i, 1] * Xh[..., 1] + Rs[..., i, 2] * Xh[..., 2] + ts[..., i]
+                  for i in range(3))  # (P, H, S)
+    front = zc > MIN_DEPTH
+    inv_z = 1.0 / np.where(front, zc, F32(1.0))
+    f = views.intr[sv].astype(F32)[:, None]  # (P, 1, S, 4)
+    obs = xn[rows, sv].astype(F32)[:, None]  # (P, 1, S, 2)
+    err2 = ((xc * inv_z - obs[..., 0]) * f[..., 0]) ** 2 + ((yc * inv_z - obs[..., 1]) * f[..., 1]) ** 2
+    thr2 = F32(options.inlier_threshold_px**2)
     err2 = np.where(front, np.minimum(err2, thr2), thr2)
-    score = np.einsum("phs,ps->ph", err2, np.where(s_ok, conf[rows, sv], 0.0))
+    score = np.einsum("phs,ps->ph", err2, np.where(s_ok, conf[rows, sv], 0.0).astype(F32))
     score = np.where(good, score, np.inf)
     best = np.argmin(score, axis=1)
     X_best = X_h[np.arange(P), best]
@@ -265,9 +261,9 @@ def triangulate(views: ViewSet, uv_px: np.ndarray, conf: np.ndarray,
     valid = np.isfinite(conf) & (conf > options.min_confidence) & np.all(np.isfinite(uv_px), axis=-1)
     w = np.where(valid, conf, 0.0)
     uv = np.where(valid[..., None], uv_px, 0.0)
-    xn = undistort_detections(views, uv, valid)
     thr = options.inlier_threshold_px
     kernel = CameraKernel(views)
+    xn = undistort_detections(kernel, uv, valid)
     u_obs, v_obs = uv[..., 0].astype(F32), uv[..., 1].astype(F32)
 
     X = _ransac(views, xn, w, valid, options)
