@@ -98,5 +98,10 @@ def demo(
     typer.echo(format_demo(run_demo(out, DemoOptions(preset=preset, scenes=scenes, seed=seed))))
 
 
+from dome_calib.cli_synth import register as _register_synth  # noqa: E402  (synth, patterns)
+
+_register_synth(app)
+
+
 def main() -> None:
     run_cli(app, prog="dome-calib")

@@ -1,0 +1,66 @@
+"""`dome-calib synth` and `dome-calib patterns`: thin shells over dome_calib.synth and projector.patterns."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def synth(
+    out: Path = typer.Argument(..., help="Capture folder to create (scenes/, ground_truth/, capture.json).",
+                               show_default=False),
+    preset: str = typer.Option("tiny", help="Which cameras: tiny (12, seconds), panel (60, one or two panels plus "
+                               "HD and Kinect colour), full (all 521)."),
+    scenes: int = typer.Option(3, help="Number of tent positions (scene_01, scene_02, ...)."),
+    seed: int = typer.Option(0, help="Random seed: same seed, same capture."),
+    layout: Path = typer.Option(None, "--layout", help="Take the cameras from a real Panoptic calibration file "
+                                "(calibration_<seq>.json) instead of the nominal dome."),
+    workers: int = typer.Option(2, help="Processes rendering in parallel."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace OUT if it exists."),
+) -> None:
+    """Make a synthetic capture with ground truth: the projectors' random patterns on a white tent at several
+    positions, seen by every camera of the preset, plus the true calibration in OUT/ground_truth/."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from dome_calib.errors import DomeCalibError
+    from dome_calib.synth.capture import SynthOptions, synthesize
+    from dome_calib.synth.layout import Preset
+
+    try:
+        preset_value = Preset(preset)
+    except ValueError:
+        raise DomeCalibError(f"--preset {preset}: expected one of {', '.join(p.value for p in Preset)}") from None
+    options = SynthOptions(preset=preset_value, n_scenes=scenes, seed=seed, layout=layout, workers=workers,
+                           overwrite=overwrite)
+    columns = (TextColumn("rendering"), BarColumn(), MofNCompleteColumn(), TextColumn("images"), TimeElapsedColumn())
+    with Progress(*columns, transient=False) as bar:
+        task = bar.add_task("render", total=None)
+
+        def progress(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        summary = synthesize(out, options, progress)
+    typer.echo(f"{summary.folder}: {summary.n_images} images ({len(summary.cameras)} cameras x "
+               f"{len(summary.scenes)} scenes) in {summary.seconds:.1f} s")
+
+
+def patterns(
+    out: Path = typer.Argument(..., help="Folder for pattern_P1.png .. pattern_P5.png.", show_default=False),
+    seed: int = typer.Option(0, help="Random seed (use the capture's seed to get its patterns)."),
+    width: int = typer.Option(1280, help="Projector width in pixels."),
+    height: int = typer.Option(800, help="Projector height in pixels."),
+) -> None:
+    """Write the five projectors' random patterns as 8-bit PNGs (show each on its projector, full screen)."""
+    from dome_calib.errors import DomeCalibError
+    from projector.patterns import PatternOptions, write_patterns
+
+    if not (64 <= width <= 8192 and 64 <= height <= 8192):
+        raise DomeCalibError(f"pattern size {width}x{height}: expected 64..8192 pixels per side")
+    paths = write_patterns(out, seed, options=PatternOptions(resolution=(width, height)))
+    typer.echo(f"{out}: wrote {', '.join(p.name for p in paths)}")
+
+
+def register(app: typer.Typer) -> None:
+    """Add the commands to the `dome-calib` app."""
+    app.command()(synth)
+    app.command()(patterns)

@@ -1,0 +1,201 @@
+"""Write a synthetic capture folder (the CONTRACTS.md layout) with ground truth, rendering cameras in parallel.
+
+```
+CAPTURE/
+  capture.json                 preset, seed, scenes, cameras, generator_version, tent poses, projectors, timings
+  scenes/<scene>/<camera>.png  8-bit grayscale
+  ground_truth/                bundle folder (calibration_synth.json), tent_<scene>.npz, projectors.json
+```
+The folder is assembled under ``.<name>.tmp-<pid>`` beside the target and renamed into place at the end, so a
+reader never sees a half-written capture. Deterministic for a seed (noise is seeded per scene and camera).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import multiprocessing
+import os
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from dome_calib.bundle import Bundle, CameraType, write_bundle
+from dome_calib.errors import DomeCalibError
+from dome_calib.io_utils import atomic_write_text
+from dome_calib.synth.layout import Preset, Projector, dome_from_calibration, nominal_dome, projectors
+from dome_calib.synth.render import RenderOptions, SceneState, prepare_scene, render_image
+from dome_calib.synth.rays import CameraRays
+from dome_calib.synth.tent import TENT_CONES, TENT_ELLIPSOIDS, scene_poses, tent_mesh
+
+logger = logging.getLogger(__name__)
+
+GENERATOR_VERSION = "synth-1"
+MAX_SCENES = 99
+PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 6]
+
+
+@dataclass(kw_only=True)
+class SynthOptions:
+    """What to generate. ``layout``: a real Panoptic calibration file for the cameras (default: the nominal dome)."""
+
+    preset: Preset = Preset.TINY
+    n_scenes: int = 3
+    seed: int = 0
+    layout: Path | None = None
+    workers: int = 2
+    overwrite: bool = False
+    render: RenderOptions = field(default_factory=RenderOptions)
+
+
+@dataclass(kw_only=True)
+class CaptureSummary:
+    folder: Path
+    scenes: list[str]
+    cameras: list[str]
+    n_images: int
+    seconds: float
+
+
+def scene_name(i: int) -> str:
+    return f"scene_{i + 1:02d}"
+
+
+def _projector_json(p: Projector) -> dict:
+    return {"name": p.name, "resolution": list(p.resolution), "K": p.K.tolist(), "R": p.R.tolist(),
+            "t": p.t_cm.tolist()}
+
+
+# Set in the parent before the worker pool forks; workers read it (copy-on-write), never pickle it.
+_JOB: dict = {}
+
+
+def _worker_init() -> None:
+    cv2.setNumThreads(1)
+
+
+def _render_camera(name: str) -> tuple[str, int, float]:
+    """Render one camera for every scene and write its PNGs; returns (name, images written, seconds)."""
+    t0 = time.perf_counter()
+    job = _JOB
+    cam = job["bundle"].cameras[name]
+    rays = CameraRays(cam)
+    for scene in job["scenes"]:
+        img = render_image(rays, scene, job["render"], job["seed"])
+        path = job["folder"] / "scenes" / scene.name / f"{name}.png"
+        if not cv2.imwrite(str(path), img, PNG_PARAMS):
+            raise OSError(f"{path}: could not write the image")
+    return name, len(job["scenes"]), time.perf_counter() - t0
+
+
+def _cost(bundle: Bundle, name: str) -> float:
+    w, h = bundle.cameras[name].resolution
+    return w * h
+
+
+def load_layout(options: SynthOptions) -> Bundle:
+    """The ground-truth bundle of the capture's cameras."""
+    if options.layout is not None:
+        if not Path(options.layout).is_file():
+            raise DomeCalibError(f"{options.layout}: layout file not found (expected a calibration_<seq>.json)")
+        return dome_from_calibration(options.layout, options.preset, options.seed)
+    return nominal_dome(options.preset, options.seed)
+
+
+def synthesize(out: str | Path, options: SynthOptions,
+               progress: Callable[[int, int], None] | None = None) -> CaptureSummary:
+    """Generate a capture folder at ``out``. ``progress(done_images, total_images)`` is called as images finish.
+
+    Raises :class:`DomeCalibError` for a bad request (scene count, existing output, missing layout file).
+    """
+    t_start = time.perf_counter()
+    out = Path(out)
+    if not 1 <= options.n_scenes <= MAX_SCENES:
+        raise DomeCalibError(f"--scenes {options.n_scenes}: expected 1..{MAX_SCENES}")
+    if options.workers < 1:
+        raise DomeCalibError(f"workers {options.workers}: expected at least 1")
+    if out.exists() and not options.overwrite:
+        raise DomeCalibError(f"{out}: already exists (choose another folder or pass --overwrite)")
+    from projector.patterns import make_patterns
+
+    bundle = load_layout(options)
+    projs = projectors(options.seed)
+    patterns = make_patterns(options.seed, tuple(sorted(projs)))
+    poses = scene_poses(options.n_scenes, options.seed)
+    names = [scene_name(i) for i in range(options.n_scenes)]
+    cameras = sorted(bundle.cameras)
+    total = len(cameras) * len(names)
+    if progress:
+        progress(0, total)
+
+    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        for s in names:
+            (tmp / "scenes" / s).mkdir(parents=True)
+        gt = tmp / "ground_truth"
+        write_bundle(bundle, gt)
+        scenes: list[SceneState] = []
+        for s, pose in zip(names, poses):
+            scenes.append(prepare_scene(s, pose, projs, patterns, options.render))
+            V, F = tent_mesh(pose)
+            np.savez_compressed(gt / f"tent_{s}.npz", vertices_cm=V, faces=F.astype(np.int32),
+                                yaw_rad=pose.yaw_rad, position_cm=pose.T_cm)
+        t_prepared = time.perf_counter()
+        _JOB.update(bundle=bundle, scenes=scenes, render=options.render, seed=options.seed, folder=tmp)
+        order = sorted(cameras, key=lambda n: (-_cost(bundle, n), n))  # big images first: better load balance
+        done = 0
+        camera_seconds = {}
+        pool = None
+        try:
+            if options.workers == 1:
+                results = map(_render_camera, order)
+            else:
+                pool = multiprocessing.get_context("fork").Pool(options.workers, initializer=_worker_init)
+                results = pool.imap_unordered(_render_camera, order)
+            for name, n, seconds in results:
+                done += n
+                camera_seconds[name] = round(seconds, 3)
+                if progress:
+                    progress(done, total)
+            if pool is not None:
+                pool.close()
+                pool.join()
+        finally:
+            _JOB.clear()
+            if pool is not None:
+                pool.terminate()
+        atomic_write_text(gt / "projectors.json", json.dumps(
+            {"projectors": [_projector_json(p) for _, p in sorted(projs.items())],
+             "patterns": f"projector.patterns.make_patterns(seed={options.seed}) == `dome-calib patterns OUT "
+                         f"--seed {options.seed}`"}, indent=1))
+        seconds = time.perf_counter() - t_start
+        meta = {
+            "preset": str(options.preset), "seed": options.seed, "scenes": names, "cameras": cameras,
+            "generator_version": GENERATOR_VERSION,
+            "layout": str(options.layout) if options.layout else "nominal",
+            "camera_types": {t.value: sorted(bundle.of_type(t)) for t in CameraType},
+            "tent_poses": {s: {"yaw_rad": p.yaw_rad, "x_cm": p.x_cm, "z_cm": p.z_cm} for s, p in zip(names, poses)},
+            "tent_primitives": {"cones": [vars(c) for c in TENT_CONES],
+                                "ellipsoids": [vars(e) for e in TENT_ELLIPSOIDS]},
+            "projectors": sorted(projs), "pattern_seed": options.seed,
+            "ground_truth": "ground_truth/calibration_synth.json",
+            "seconds": {"total": round(seconds, 2), "prepare_scenes": round(t_prepared - t_start, 2)},
+        }
+        atomic_write_text(tmp / "capture.json", json.dumps(meta, indent=1))
+        if out.exists():
+            trash = out.parent / f".{out.name}.old-{os.getpid()}"
+            out.rename(trash)
+            tmp.rename(out)
+            shutil.rmtree(trash, ignore_errors=True)
+        else:
+            tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    logger.debug("capture %s: %d images in %.1f s", out, total, seconds)
+    return CaptureSummary(folder=out, scenes=names, cameras=cameras, n_images=total, seconds=seconds)

@@ -1,0 +1,219 @@
+"""Ray-cast rendering of one camera's view of a scene: projectors' patterns on a Lambertian tent and floor.
+
+Per scene (:func:`prepare_scene`): each projector's depth map of the scene (one ray per depth-map pixel) for the
+shadow test, and its pattern (blurred by the projector's optics) for bilinear texture lookups (cv2.remap).
+Per camera (:class:`~dome_calib.synth.rays.CameraRays`): rays through the real distorted camera model, once.
+Per image (:func:`render_image`): first hits; irradiance = sum over the projectors that see the point of
+pattern x cos(incidence) x (d_ref / d)^2; Lambertian radiance + ambient (+ optional emissive markers).
+Anti-aliasing: the pattern is pre-filtered to the camera's pixel footprint (texture), and pixels on geometric
+edges (silhouettes, occlusions, tent/floor boundary) are supersampled ss x ss and box-filtered. Then the sensor:
+Gaussian lens blur, tone curve, shot + read noise, 8-bit rounding.
+"""
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from dome_calib.bundle import Camera, CameraType
+from dome_calib.synth.layout import Projector
+from dome_calib.synth.rays import CHUNK_RAYS, CameraRays
+from dome_calib.synth.tent import TentPose, intersect_scene
+
+REFERENCE_THROW_CM = 275.0
+EDGE_DEPTH_JUMP = 0.03  # relative depth step between neighbour pixels that marks an occlusion edge
+
+
+@dataclass(kw_only=True)
+class RenderOptions:
+    """How images are formed."""
+
+    edge_supersample: int = 3  # ss x ss samples in pixels on geometric edges (1: no supersampling)
+    lens_blur_px: dict = field(default_factory=lambda: {CameraType.VGA: 0.5, CameraType.HD: 0.7,
+                                                        CameraType.KINECT_COLOR: 0.7})
+    projector_power: float = 0.42  # irradiance of a white projector pixel at REFERENCE_THROW_CM, normal incidence
+    ambient: float = 0.04
+    exposure: float = 1.0  # linear radiance -> full scale
+    gamma: float = 1.0 / 1.6  # mild tone curve (machine-vision cameras are near-linear)
+    read_noise_dn: float = 1.0
+    shot_noise_dn2_per_dn: float = 0.02  # variance (DN^2) per DN of signal
+    noise: bool = True
+    background: float = 0.015  # dome interior far behind the tent (radiance)
+    shadow_bias_cm: float = 1.0
+    depth_map_scale: float = 0.5  # projector depth maps at half the projector resolution
+    flat_patterns: bool = False  # projectors show full white (for the marker test)
+    markers_cm: np.ndarray | None = None  # (M, 3) world points on the tent with emissive Gaussian spots
+    marker_sigma_cm: float = 1.0
+    marker_radiance: float = 0.5
+    projector_blur_px: float = 0.5
+
+
+@dataclass(kw_only=True)
+class SceneState:
+    """What every camera needs to render one scene."""
+
+    name: str
+    pose: TentPose
+    projectors: list[Projector]
+    patterns: list[np.ndarray]  # (h, w) float32 in [0, 1], blurred by the projector optics
+    depth_cm: list[np.ndarray]  # (h*scale, w*scale) float32 projector-frame depth of the first hit (inf: none)
+    depth_scale: float
+    _filtered: dict = field(default_factory=dict)
+
+    def patterns_for(self, cam: Camera) -> list[np.ndarray]:
+        """Patterns pre-filtered to the camera's pixel footprint (Gaussian, sigma = 0.5 footprint, proj px)."""
+        ratio = float(np.mean([p.K[0, 0] for p in self.projectors])) / float(cam.intr[0])
+        sigma = round(0.5 * ratio, 1)
+        if sigma <= 0.3:
+            return self.patterns
+        if sigma not in self._filtered:
+            self._filtered[sigma] = [cv2.GaussianBlur(p, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+                                     for p in self.patterns]
+        return self._filtered[sigma]
+
+
+def projector_rays(p: Projector, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """World unit directions through the centres of a (scaled) projector pixel grid, their z per unit length, shape."""
+    w, h = int(round(p.resolution[0] * scale)), int(round(p.resolution[1] * scale))
+    u, v = np.meshgrid((np.arange(w) + 0.5) / scale - 0.5, (np.arange(h) + 0.5) / scale - 0.5)
+    xn = np.stack([(u.ravel() - p.K[0, 2]) / p.K[0, 0], (v.ravel() - p.K[1, 2]) / p.K[1, 1], np.ones(u.size)], axis=1)
+    norm = np.linalg.norm(xn, axis=1)
+    return (xn / norm[:, None]) @ p.R, 1.0 / norm, (h, w)
+
+
+def prepare_scene(name: str, pose: TentPose, projectors: dict[str, Projector], patterns: dict[str, np.ndarray],
+                  options: RenderOptions) -> SceneState:
+    """Depth maps of the scene from each projector (for shadows) and the projected patterns."""
+    projs, pats, depths = [], [], []
+    for pname, p in sorted(projectors.items()):
+        dirs, z_per_s, shape = projector_rays(p, options.depth_map_scale)
+        s = np.empty(len(dirs))
+        for i in range(0, len(dirs), CHUNK_RAYS):
+            s[i:i + CHUNK_RAYS] = intersect_scene(p.center_cm, dirs[i:i + CHUNK_RAYS], pose).s
+        depths.append((s * z_per_s).reshape(shape).astype(np.float32))
+        w, h = p.resolution
+        pat = np.ones((h, w), np.float32) if options.flat_patterns else patterns[pname].astype(np.float32)
+        if options.projector_blur_px > 0 and not options.flat_patterns:
+            pat = cv2.GaussianBlur(pat, (0, 0), options.projector_blur_px, borderType=cv2.BORDER_REFLECT)
+        projs.append(p)
+        pats.append(pat)
+    return SceneState(name=name, pose=pose, projectors=projs, patterns=pats, depth_cm=depths,
+                      depth_scale=options.depth_map_scale)
+
+
+def irradiance(X: np.ndarray, normal: np.ndarray, scene: SceneState, patterns: list[np.ndarray],
+               options: RenderOptions) -> np.ndarray:
+    """(N,) sum over projectors of pattern x cos(incidence) x falloff at world points X (N, 3), with shadows."""
+    total = np.zeros(len(X), np.float32)
+    k = scene.depth_scale
+    for p, pat, depth in zip(scene.projectors, patterns, scene.depth_cm):
+        x_p = X @ p.R.T + p.t_cm
+        z = x_p[:, 2]
+        front = z > 1.0
+        zs = np.where(front, z, 1.0)
+        u = p.K[0, 0] * x_p[:, 0] / zs + p.K[0, 2]
+        v = p.K[1, 1] * x_p[:, 1] / zs + p.K[1, 2]
+        to_proj = p.center_cm - X
+        dist = np.sqrt(np.einsum("ij,ij->i", to_proj, to_proj))
+        cos = np.einsum("ij,ij->i", normal, to_proj) / np.maximum(dist, 1e-9)
+        lit = front & (cos > 0)
+        value = cv2.remap(pat, u.astype(np.float32)[:, None], v.astype(np.float32)[:, None], cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)[:, 0]
+        du = ((u + 0.5) * k - 0.5).astype(np.float32)[:, None]
+        dv = ((v + 0.5) * k - 0.5).astype(np.float32)[:, None]
+        d_map = cv2.remap(depth, du, dv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                          borderValue=float("inf"))[:, 0]
+        d_map = np.where(np.isfinite(d_map), d_map, np.inf)  # interpolated next to a miss: treat as lit
+        bias = options.shadow_bias_cm / np.maximum(cos, 0.25)
+        visible = np.clip((d_map + 2.0 * bias - z) / bias, 0.0, 1.0)
+        contrib = value * visible * cos * (REFERENCE_THROW_CM / np.maximum(dist, 1.0)) ** 2
+        total += np.where(lit, contrib, 0.0).astype(np.float32)
+    return total * np.float32(options.projector_power)
+
+
+def trace(origin_cm: np.ndarray, dirs: np.ndarray, scene: SceneState, patterns: list[np.ndarray],
+          options: RenderOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Radiance (N,) float32, hit kind (N,) uint8 (0 none, 1 tent, 2 floor) and distance (N,) cm of world rays."""
+    n = len(dirs)
+    L, kind, dist = np.empty(n, np.float32), np.empty(n, np.uint8), np.empty(n)
+    for i in range(0, n, CHUNK_RAYS):
+        hits = intersect_scene(origin_cm, dirs[i:i + CHUNK_RAYS], scene.pose)
+        Lc = np.full(len(hits.s), options.background, np.float32)
+        m = hits.kind > 0
+        if m.any():
+            X = hits.X_cm[m]
+            E = irradiance(X, hits.normal[m], scene, patterns, options) + np.float32(options.ambient)
+            Lm = hits.albedo[m].astype(np.float32) * E
+            if options.markers_cm is not None:
+                on_tent = hits.kind[m] == 1
+                for marker in np.atleast_2d(options.markers_cm):
+                    r2 = np.sum((X - marker) ** 2, axis=1)
+                    Lm += (options.marker_radiance * np.exp(-0.5 * r2 / options.marker_sigma_cm**2) * on_tent) \
+                        .astype(np.float32)
+            Lc[m] = Lm
+        L[i:i + CHUNK_RAYS], kind[i:i + CHUNK_RAYS], dist[i:i + CHUNK_RAYS] = Lc, hits.kind, hits.s
+    return L, kind, dist
+
+
+def edge_mask(kind: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels next to a change of surface (kind) or a depth jump (occlusion), dilated by one pixel."""
+    d = np.where(np.isfinite(dist), dist, 1e6)
+    edge = np.zeros(kind.shape, bool)
+    for axis in (0, 1):
+        dk = np.diff(kind.astype(np.int16), axis=axis) != 0
+        dd = np.abs(np.diff(d, axis=axis)) > EDGE_DEPTH_JUMP * np.minimum(
+            np.delete(d, -1, axis=axis), np.delete(d, 0, axis=axis))
+        e = dk | dd
+        sl_a = [slice(None), slice(None)]
+        sl_b = [slice(None), slice(None)]
+        sl_a[axis], sl_b[axis] = slice(0, -1), slice(1, None)
+        edge[tuple(sl_a)] |= e
+        edge[tuple(sl_b)] |= e
+    return cv2.dilate(edge.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+
+
+def radiance_image(rays: CameraRays, scene: SceneState, options: RenderOptions) -> tuple[np.ndarray, int]:
+    """(H, W) float32 pixel radiance (edge pixels averaged over ss x ss samples) and the number of edge pixels."""
+    patterns = scene.patterns_for(rays.cam)
+    L, kind, dist = trace(rays.origin_cm, rays.base_dirs, scene, patterns, options)
+    h, w = rays.shape
+    L, kind, dist = L.reshape(h, w), kind.reshape(h, w), dist.reshape(h, w)
+    ss = options.edge_supersample
+    if ss <= 1:
+        return L, 0
+    vv, uu = np.nonzero(edge_mask(kind, dist))
+    if len(vv) == 0:
+        return L, 0
+    offsets = (np.arange(ss) + 0.5) / ss - 0.5
+    ou, ov = (a.ravel() for a in np.meshgrid(offsets, offsets))
+    uv = np.stack([(uu[:, None] + ou[None]).ravel(), (vv[:, None] + ov[None]).ravel()], axis=1)
+    L_sub, _, _ = trace(rays.origin_cm, rays.dirs_at(uv), scene, patterns, options)
+    L[vv, uu] = L_sub.reshape(len(vv), ss * ss).mean(axis=1)
+    return L, len(vv)
+
+
+def noise_seed(seed: int, scene: str, camera: str) -> int:
+    """Seed of one image's sensor noise: the same for a (seed, scene, camera) whatever the worker order."""
+    return zlib.crc32(f"{seed}/{scene}/{camera}".encode())
+
+
+def sensor_image(L: np.ndarray, camera_type: CameraType, options: RenderOptions,
+                 rng: np.random.Generator) -> np.ndarray:
+    """Pixel radiance (H, W) -> 8-bit image: lens blur, tone curve, shot and read noise, rounding."""
+    sigma = options.lens_blur_px[CameraType(camera_type)]
+    if sigma > 0:
+        L = cv2.GaussianBlur(L, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    dn = (255.0 * np.clip(L * options.exposure, 0.0, 1.0) ** options.gamma).astype(np.float32)
+    if options.noise:
+        std = np.sqrt(options.read_noise_dn**2 + options.shot_noise_dn2_per_dn * dn)
+        dn = dn + std * rng.standard_normal(dn.shape, dtype=np.float32)
+    return np.clip(np.rint(dn), 0, 255).astype(np.uint8)
+
+
+def render_image(rays: CameraRays, scene: SceneState, options: RenderOptions, seed: int) -> np.ndarray:
+    """One camera's 8-bit grayscale image (H, W) of one scene."""
+    L, _ = radiance_image(rays, scene, options)
+    rng = np.random.default_rng(noise_seed(seed, scene.name, rays.cam.name))
+    return sensor_image(L, rays.cam.type, options, rng)
