@@ -102,6 +102,10 @@ from dome_calib.cli_synth import register as _register_synth  # noqa: E402  (syn
 
 _register_synth(app)
 
+from dome_calib.cli_recon import register as _register_recon  # noqa: E402  (triangulate, pointcloud)
+
+_register_recon(app)
+
 
 def main() -> None:
     run_cli(app, prog="dome-calib")

@@ -1,0 +1,64 @@
+"""`dome-calib triangulate` and `dome-calib pointcloud`: thin shells over dome_calib.recon."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def triangulate(
+    detections: Path = typer.Argument(..., help="Detections JSON: 2D joints per camera per frame (see README, "
+                                      "'Reconstruction').", show_default=False),
+    bundle: Path = typer.Option(..., "--bundle", help="Calibration bundle folder (calibration_<seq>.json plus "
+                                "synctables/ksynctables).", show_default=False),
+    out: Path = typer.Option(None, "-o", "--out", help="Folder for the body3DScene_<k>.json skeleton files "
+                             "[default: <DETECTIONS name>_skeletons beside DETECTIONS]."),
+    threshold_px: float = typer.Option(8.0, "--threshold-px", help="A camera supports a joint if the joint "
+                                       "reprojects within this many pixels of its detection."),
+    min_views: int = typer.Option(2, "--min-views", help="Joints seen by fewer supporting cameras are left out."),
+) -> None:
+    """Triangulate 2D joint detections from all cameras (VGA, HD, Kinect colour, each at its own frame rate) into
+    3D skeletons in the world frame (cm), one Panoptic body3DScene file per time."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from dome_calib.recon.commands import triangulate_file
+    from dome_calib.recon.triangulate import TriangulationOptions
+
+    out = out or detections.with_name(f"{detections.stem}_skeletons")
+    options = TriangulationOptions(inlier_threshold_px=threshold_px, min_views=min_views)
+    columns = (TextColumn("triangulating"), BarColumn(), MofNCompleteColumn(), TextColumn("times"),
+               TimeElapsedColumn())
+    with Progress(*columns, transient=True) as bar:
+        task = bar.add_task("triangulate", total=None)
+        summary = triangulate_file(bundle, detections, out, options=options,
+                                   progress=lambda done, total: bar.update(task, completed=done, total=total))
+    typer.echo(f"{summary.times} times x {summary.joints} joints from streams {', '.join(summary.streams)}: "
+               f"{summary.reconstructed} joints reconstructed (median {summary.median_inlier_views:.0f} supporting "
+               f"cameras) -> {summary.out}")
+
+
+def pointcloud(
+    bundle: Path = typer.Option(..., "--bundle", help="Calibration bundle folder (needs kcalibration_<seq>.json and "
+                                "ksynctables_<seq>.json).", show_default=False),
+    time_ms: float = typer.Option(..., "--time-ms", help="Universal time (ms on the HD timecode timeline).",
+                                  show_default=False),
+    depth: Path = typer.Option(..., "--depth", help="Folder with KINECTNODE<n>/depth_<k>.png (16-bit, mm).",
+                               show_default=False),
+    out: Path = typer.Option(None, "-o", "--out", help="PLY file to write [default: pointcloud_<time>ms.ply]."),
+    max_offset_ms: float = typer.Option(None, "--max-offset-ms", help="Leave out Kinects whose nearest depth "
+                                        "frame is further than this from the time."),
+) -> None:
+    """Turn the depth frames of every Kinect nearest to a universal time into one point cloud in the world frame
+    (cm), each point tagged with its Kinect and the frame's time offset (ms)."""
+    from dome_calib.recon.commands import pointcloud_file
+
+    out = out or Path(f"pointcloud_{time_ms:g}ms.ply")
+    summary = pointcloud_file(bundle, time_ms, depth, out, max_offset_ms=max_offset_ms)
+    offsets = ", ".join(f"{s} {o:+.1f} ms" for s, o in zip(summary.sensors, summary.time_offsets_ms))
+    typer.echo(f"{summary.points} points from {len(summary.sensors)} Kinects ({offsets}) -> {summary.out}")
+
+
+def register(app: typer.Typer) -> None:
+    """Add the reconstruction commands to the `dome-calib` app."""
+    app.command()(triangulate)
+    app.command()(pointcloud)

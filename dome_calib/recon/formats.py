@@ -1,0 +1,149 @@
+"""JSON in/out of ``dome-calib triangulate`` (documented in README, "Reconstruction").
+
+In: a detections file (2D joints per camera per frame of that camera's own stream)::
+
+    {"joints": 19, "body_id": 0, "reference": "vga", "times_ms": [...],      (all optional)
+     "cameras": {"01_01": {"frames": [100, 101], "joints": [[[u, v, c], ... J], ...]}, ...}}
+
+Out: one Panoptic ``body3DScene`` file per time, ``body3DScene_<k:08d>.json``::
+
+    {"version": 0.7, "univTime": t_ms, "fpsType": "vga_25", "bodies": [{"id": 0, "joints19": [x, y, z, c, ...],
+     "inlierViews19": [n, ...]}]}
+
+x, y, z in cm (Panoptic world), c = mean detection confidence of the supporting views, -1 (and x = y = z = 0)
+where the joint could not be reconstructed.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from dome_calib.bundle import Bundle
+from dome_calib.io_utils import atomic_write_text
+from dome_calib.recon.errors import ReconError
+from dome_calib.recon.streams import SkeletonSequence, StreamTracks, group_by_stream
+
+FPS_TYPE = {"vga": "vga_25", "hd": "hd_29_97"}
+KNOWN_KEYS = {"joints", "body_id", "reference", "times_ms", "cameras"}
+
+
+def _fail(path: Path, where: str, problem: str) -> ReconError:
+    return ReconError(f"{path}: {where}: {problem}")
+
+
+def read_detections(path: str | Path) -> dict:
+    """Parse and validate a detections file -> {"cameras": {name: (frames (F,), uv (F, J, 2), conf (F, J))},
+    "joints", "body_id", "reference", "times_ms"}."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise ReconError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(data, dict):
+        raise _fail(path, "top level", "expected an object with 'cameras'")
+    unknown = set(data) - KNOWN_KEYS
+    if unknown:
+        raise _fail(path, "top level", f"unknown key {sorted(unknown)[0]!r} (known: {', '.join(sorted(KNOWN_KEYS))})")
+    cams = data.get("cameras")
+    if not isinstance(cams, dict) or not cams:
+        raise _fail(path, "field 'cameras'", "missing or empty (expected {camera name: {frames, joints}})")
+    out: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    n_joints = data.get("joints")
+    for name, entry in cams.items():
+        where = f"camera {name}"
+        if not isinstance(entry, dict) or "frames" not in entry or "joints" not in entry:
+            raise _fail(path, where, "expected {\"frames\": [...], \"joints\": [[[u, v, c], ...], ...]}")
+        try:
+            frames = np.asarray(entry["frames"], dtype=float)
+            joints = np.asarray(entry["joints"], dtype=float)
+        except (TypeError, ValueError):
+            raise _fail(path, where, "frames and joints must be numbers") from None
+        if frames.ndim != 1 or np.any(frames != np.round(frames)) or np.any(np.diff(frames) <= 0):
+            raise _fail(path, f"{where}: field 'frames'", "expected increasing integer frame indices")
+        if joints.ndim != 3 or joints.shape[0] != len(frames) or joints.shape[2] != 3:
+            raise _fail(path, f"{where}: field 'joints'",
+                        f"shape {joints.shape} but expected ({len(frames)}, J, 3) = frames x joints x [u, v, c]")
+        if n_joints is None:
+            n_joints = joints.shape[1]
+        if joints.shape[1] != n_joints:
+            raise _fail(path, f"{where}: field 'joints'", f"{joints.shape[1]} joints but expected {n_joints}")
+        out[name] = (frames.astype(np.int64), joints[..., :2], joints[..., 2])
+    times = data.get("times_ms")
+    if times is not None:
+        times = np.asarray(times, dtype=float).ravel()
+        if not np.all(np.isfinite(times)):
+            raise _fail(path, "field 'times_ms'", "contains NaN or infinity")
+    return {"cameras": out, "joints": int(n_joints), "body_id": int(data.get("body_id", 0)),
+            "reference": data.get("reference"), "times_ms": times}
+
+
+def default_times(streams: list[StreamTracks], reference: str | None) -> tuple[np.ndarray, np.ndarray, str]:
+    """Universal times to reconstruct when none are given: the reference stream's frames that have detections
+    (reference: given, else "vga", else "hd", else the stream with most cameras) -> (times_ms, frame index, name)."""
+    by_name = {s.stream: s for s in streams}
+    if reference is not None and reference not in by_name:
+        raise ReconError(f"reference stream {reference!r} has no detections (streams: {', '.join(sorted(by_name))})")
+    name = reference or next((n for n in ("vga", "hd") if n in by_name),
+                             max(streams, key=lambda s: len(s.cameras)).stream)
+    s = by_name[name]
+    frames = s.frame_index[s.conf.reshape(len(s.frame_index), -1).max(axis=1) > 0]
+    try:
+        return s.table.times_of(frames), frames, name
+    except KeyError as exc:
+        raise ReconError(f"stream {name}: {exc.args[0]}") from None
+
+
+def load_detection_streams(bundle: Bundle, path: str | Path) -> tuple[list[StreamTracks], dict]:
+    """Detections file -> (streams grouped with the bundle's sync tables, parsed header)."""
+    parsed = read_detections(path)
+    missing = [n for n in parsed["cameras"] if n not in bundle.cameras]
+    if missing:
+        raise ReconError(f"{path}: camera {missing[0]} is not in the bundle's calibration")
+    return group_by_stream(bundle, parsed["cameras"]), parsed
+
+
+def skeleton_json(seq: SkeletonSequence, k: int, *, body_id: int = 0, fps_type: str = "custom") -> dict:
+    """One Panoptic body3DScene object for time ``k`` of the sequence."""
+    J = seq.X_cm.shape[1]
+    flat: list[float] = []
+    for j in range(J):
+        X, c = seq.X_cm[k, j], float(seq.confidence[k, j])
+        if not (np.all(np.isfinite(X)) and c >= 0):
+            flat += [0.0, 0.0, 0.0, -1.0]
+        else:
+            flat += [round(float(v), 4) for v in X] + [round(c, 4)]
+    return {"version": 0.7, "univTime": round(float(seq.times_ms[k]), 4), "fpsType": fps_type,
+            "bodies": [{"id": body_id, f"joints{J}": flat, f"inlierViews{J}": [int(n) for n in seq.n_inliers[k]]}]}
+
+
+def write_skeletons(folder: str | Path, seq: SkeletonSequence, numbers: np.ndarray, *, body_id: int = 0,
+                    fps_type: str = "custom") -> list[Path]:
+    """Write ``body3DScene_<number:08d>.json`` per time into ``folder`` (each file atomically)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for k, number in enumerate(numbers):
+        obj = skeleton_json(seq, k, body_id=body_id, fps_type=fps_type)
+        path = folder / f"body3DScene_{int(number):08d}.json"
+        atomic_write_text(path, json.dumps(obj, allow_nan=False) + "\n")
+        paths.append(path)
+    return paths
+
+
+def read_skeleton(path: str | Path) -> tuple[float, np.ndarray, np.ndarray]:
+    """A body3DScene file -> (univTime ms, X_cm (J, 3) NaN where c < 0, confidence (J,)) of its first body."""
+    data = json.loads(Path(path).read_text(encoding="utf-8"))
+    body = data["bodies"][0]
+    key = next(k for k in body if k.startswith("joints"))
+    arr = np.asarray(body[key], dtype=float).reshape(-1, 4)
+    X = np.where(arr[:, 3:4] < 0, np.nan, arr[:, :3])
+    return float(data["univTime"]), X, arr[:, 3]
+
+
+def fps_type_of(stream: str, explicit_times: bool) -> str:
+    """Panoptic ``fpsType`` label for output times taken from ``stream`` (``custom`` for explicit times)."""
+    return "custom" if explicit_times else FPS_TYPE.get(stream, "custom")
+
+
