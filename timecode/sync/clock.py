@@ -315,7 +315,7 @@ def fit_channel_clock(frames: FrameStarts, options: ClockFitOptions | None = Non
             wrap_tick = seg.tick_first + fpd - seg.count_first
             events.append({"kind": "midnight", "tick": int(wrap_tick), "sample": float(np.interp(wrap_tick, ticks, samples))})
     for e in events:
-        logger.info("%s: %s at sample %.1f", frames.source, e["kind"], e["sample"])
+        logger.debug("%s: %s at sample %.1f", frames.source, e["kind"], e["sample"])
     return ChannelClock(source=frames.source, fps=frames.fps, sample_rate=frames.sample_rate, frames_per_day=fpd,
                         audio=segments, labels=labels, n_decoded=int(c.size), n_misread=n_misread, events=events,
                         ticks=ticks, start_samples=samples)

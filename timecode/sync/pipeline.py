@@ -22,34 +22,35 @@ from timecode.sync.tables import SyncError, SyncOptions, SyncResult, build_sync
 logger = logging.getLogger(__name__)
 
 
-def read_channel(path: Path, channel: int, field: str) -> tuple[np.ndarray, int]:
-    """One channel of an audio file as float64 and its sample rate; SessionError naming file and field."""
+def _check_channel(path: Path, channel: int, field: str) -> None:
+    """SessionError naming file and field when the audio file is missing, unreadable or lacks the channel."""
     if not path.is_file():
         raise SessionError(f"{path}: audio file not found ({field})")
     try:
-        data, rate = sf.read(str(path), dtype="float64", always_2d=True)
+        n = sf.info(str(path)).channels
     except (sf.LibsndfileError, RuntimeError) as exc:
         raise SessionError(f"{path}: cannot read audio ({exc})") from None
-    if channel >= data.shape[1]:
-        raise SessionError(f"{path}: {field} = {channel} but the file has {data.shape[1]} channel(s)")
-    return data[:, channel], int(rate)
+    if channel >= n:
+        raise SessionError(f"{path}: {field} = {channel} but the file has {n} channel(s)")
 
 
-def decode_frame_starts(samples: np.ndarray, sample_rate: int, rate: FrameRate, source: str) -> FrameStarts:
-    """Decode LTC at a known frame rate; keep forward frames with valid labels. ClockError if none is found."""
-    from timecode.decoder import DecoderOptions, decode  # the LTC decoder (issue 4)
+def decode_frame_starts(path: Path, channel: int, rate: FrameRate, source: str) -> FrameStarts:
+    """Decode the LTC of one channel of an audio file at a known frame rate (forward frames only).
+
+    Raises ClockError naming ``source`` when no LTC is found.
+    """
+    from timecode.decoder import DecodeOptions, decode_file  # the LTC decoder (issue 4)
 
     try:
-        result = decode(samples, sample_rate, options=DecoderOptions(rate=rate))
+        (ch,) = decode_file(path, options=DecodeOptions(rate=rate), channels=[channel])
     except TimecodeError as exc:
         raise ClockError(f"{source}: {exc}") from None
-    frames = result.frames
-    ok = np.asarray(frames.valid, bool) & (np.asarray(frames.direction) > 0)
+    ok = ~np.asarray(ch.reverse, bool)
     if not ok.any():
         raise ClockError(f"{source}: no LTC found (is timecode recorded on this channel?)")
-    return FrameStarts(count=np.asarray(frames.count)[ok], start_samples=np.asarray(frames.start_samples)[ok],
-                       sample_rate=float(sample_rate), fps=rate.fps, frames_per_day=rate.frames_per_day,
-                       source=source)
+    return FrameStarts(count=np.asarray(ch.frame_numbers, np.int64)[ok],
+                       start_samples=np.asarray(ch.start_samples, float)[ok], sample_rate=float(ch.sample_rate),
+                       fps=rate.fps, frames_per_day=rate.frames_per_day, source=source)
 
 
 def decode_session(session: Session, progress: Callable[[str], None] | None = None
@@ -63,20 +64,18 @@ def decode_session(session: Session, progress: Callable[[str], None] | None = No
     out = []
     for key, ch, rate in (("vga", ltc.vga_channel, ltc.vga_rate), ("hd", ltc.hd_channel, ltc.hd_rate)):
         step(f"decoding {ltc.path.name} {key.upper()} channel")
-        samples, fs = read_channel(ltc.path, ch, f"ltc.{key}_channel")
-        out.append(decode_frame_starts(samples, fs, rate, f"{ltc.path.name} channel {ch} ({key.upper()} LTC)"))
+        _check_channel(ltc.path, ch, f"ltc.{key}_channel")
+        out.append(decode_frame_starts(ltc.path, ch, rate, f"{ltc.path.name} channel {ch} ({key.upper()} LTC)"))
     kinect: dict[str, FrameStarts | str] = {}
     for name, node in session.kinects.items():
         step(f"decoding {name} audio")
         if node.audio_path is None:
             kinect[name] = "no audio recorded (session.json: audio is null)"
             continue
-        if not node.audio_path.is_file():
-            kinect[name] = f"audio file {node.audio_path} not found"
-            continue
         try:
-            samples, fs = read_channel(node.audio_path, node.audio_channel, f"kinect.{name}.audio_channel")
-            kinect[name] = decode_frame_starts(samples, fs, ltc.hd_rate, f"{name} audio (HD LTC)")
+            _check_channel(node.audio_path, node.audio_channel, f"kinect.{name}.audio_channel")
+            kinect[name] = decode_frame_starts(node.audio_path, node.audio_channel, ltc.hd_rate,
+                                               f"{name} audio (HD LTC)")
         except (ClockError, SessionError) as exc:
             kinect[name] = str(exc)
     return out[0], out[1], kinect
@@ -95,6 +94,20 @@ def sync_session(folder: str | Path, options: SyncOptions | None = None,
     return build_sync(session, vga, hd, kinect, opts)
 
 
+def output_seq(bundle: str | Path, seq: str | None, session_seq: str) -> str:
+    """The seq the sync files will carry in ``bundle``; SyncError if ``seq`` contradicts the bundle's calibration."""
+    folder = Path(bundle)
+    if folder.exists() and not folder.is_dir():
+        raise SyncError(f"{folder}: output bundle is not a folder")
+    found = sorted(folder.glob("calibration_*.json")) if folder.is_dir() else []
+    if not found:
+        return seq or session_seq
+    bundle_seq = found[0].stem.removeprefix("calibration_")
+    if seq is not None and seq != bundle_seq:
+        raise SyncError(f"{folder}: holds {found[0].name}; --seq {seq} differs (omit --seq to use {bundle_seq!r})")
+    return bundle_seq
+
+
 def write_sync(result: SyncResult, bundle: str | Path, *, seq: str | None = None) -> list[Path]:
     """Write the sync tables and ``report/sync.json`` into a bundle folder; returns the files written.
 
@@ -103,21 +116,15 @@ def write_sync(result: SyncResult, bundle: str | Path, *, seq: str | None = None
     Every file is formatted before any is written, and each appears whole (atomic rename).
     """
     folder = Path(bundle)
-    if folder.exists() and not folder.is_dir():
-        raise SyncError(f"{folder}: output bundle is not a folder")
+    seq = output_seq(folder, seq, result.seq)
     report_text = json.dumps(sync_report(result), indent=1) + "\n"
     has_kinect = bool(result.tables.kinect_color or result.tables.kinect_depth)
     if folder.is_dir() and any(folder.glob("calibration_*.json")):
         b = load_bundle(folder)
-        if seq is not None and seq != b.seq:
-            raise SyncError(f"{folder}: holds calibration_{b.seq}.json; --seq {seq} differs (omit --seq to use "
-                            f"{b.seq!r})")
         b.sync = result.tables
         write_bundle(b, folder)
         names = [f"synctables_{b.seq}.json"] + ([f"ksynctables_{b.seq}.json"] if has_kinect else [])
-        seq = b.seq
     else:
-        seq = seq or result.seq
         texts = {f"synctables_{seq}.json": format_synctables(result.tables.streams)}
         if has_kinect:
             texts[f"ksynctables_{seq}.json"] = format_ksynctables(result.tables.kinect_color, result.tables.kinect_depth)

@@ -258,7 +258,7 @@ def build_sync(session: Session, vga_frames: FrameStarts, hd_frames: FrameStarts
             tables.kinect_color.pop(name, None)
             tables.kinect_depth.pop(name, None)
             summaries = [s for s in summaries if not s.name.startswith(f"{name}/")]
-            flagged[name] = str(exc)
-            logger.warning("%s: not synced: %s", name, exc)
+            flagged[name] = str(exc).removeprefix(f"{name}: ")
+            logger.debug("%s: not synced: %s", name, exc)
     return SyncResult(seq=session.seq, tables=tables, vga=vga, hd=hd, kinect=kin, summaries=summaries,
                       flagged=flagged)
