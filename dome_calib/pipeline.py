@@ -72,7 +72,7 @@ class CalibrationResult:
 
     @property
     def rms_px(self) -> float:
-        return float(np.sqrt(np.mean(np.sum(self.residuals.residual_px ** 2, axis=1))))
+        return float(np.sqrt(np.mean(self.residuals.residual_px ** 2)))  # per coordinate
 
 
 def _capture_cameras(capture: Path) -> tuple[list[str], list[str]]:
@@ -213,8 +213,8 @@ def format_result(result: CalibrationResult, max_rows: int = 12) -> str:
         names = set(result.bundle.of_type(cam_type))
         norms = result.residuals.norms_of(names)
         if len(norms):
-            type_rms.append(f"{cam_type} {np.sqrt(np.mean(norms ** 2)):.3f}")
-    lines.append(f"reprojection RMS {result.rms_px:.3f} px ({', '.join(type_rms)}) over "
+            type_rms.append(f"{cam_type} {np.sqrt(np.mean(norms ** 2) / 2):.3f}")
+    lines.append(f"reprojection RMS {result.rms_px:.3f} px per coordinate ({', '.join(type_rms)}) over "
                  f"{len(result.residuals.residual_px):,} observations")
     lines.append(result.normalized.describe())
     if result.changes is not None:

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.ba.problem import BAProblem
+from dome_calib.ba.solver import BAOptions, bundle_adjust
 from dome_calib.bundle import Bundle, Camera
 from dome_calib.camera import project
 from dome_calib.report import Residuals
@@ -69,6 +70,23 @@ def run_sfm_stage(capture: Path, work_dir: Path, *, prior: Bundle | None, progre
     raise NotImplementedError
 
 
-def run_ba_stage(problem: BAProblem, *, progress: bool = True) -> BAOutcome:
-    """Five-parameter bundle adjustment with the outlier schedule (dome_calib.ba)."""
-    raise NotImplementedError
+def ba_options() -> BAOptions:
+    """The bundle adjustment as calibrate runs it: Huber 2 px, one outlier round at 5 sigma, then least squares."""
+    return BAOptions(compute_uncertainty=False)
+
+
+def run_ba_stage(problem: BAProblem, *, progress: bool = True, options: BAOptions | None = None) -> BAOutcome:
+    """Five-parameter bundle adjustment with the outlier schedule (:func:`dome_calib.ba.bundle_adjust`); the
+    problem's free mask is respected (quick recalibration frees only the changed cameras)."""
+    result = bundle_adjust(problem, options or ba_options())
+    refined = result.problem
+    used = np.asarray(result.used, dtype=bool)
+    res = np.asarray(result.residuals_px)
+    return BAOutcome(problem=refined, cameras={n: refined.camera(n) for n in refined.camera_names},
+                     residuals=Residuals(camera_names=list(refined.camera_names),
+                                         camera_index=refined.camera_index[used], residual_px=res[used]),
+                     inlier=used,
+                     stats={"iterations": len(result.iterations), "cost": result.cost, "rms_px": result.rms_px,
+                            "sigma_px": result.sigma_px, "n_used": int(used.sum()),
+                            "n_rejected": int((~used).sum()), "seconds": result.time_s,
+                            "termination": list(result.termination)})

@@ -129,3 +129,15 @@ def test_calibrate_cli_only_changed_needs_prior(tmp_path, capture):
                                 ["calibrate", str(cap), "-o", str(tmp_path / "out"), "--only-changed"])
     assert result.exit_code != 0
     assert "--only-changed needs --prior" in str(result.exception)
+
+
+def test_ba_stage_on_noisy_observations():
+    """The real bundle adjustment through the pipeline's adapter: RMS / noise near 1, nothing rejected wrongly."""
+    from dome_calib.pipeline_stages import run_ba_stage
+
+    truth = nominal_dome("tiny", seed=0)
+    outcome = run_ba_stage(_problem(truth, seed=1), progress=False)
+    rms = np.sqrt(np.mean(outcome.residuals.residual_px ** 2))
+    assert 0.8 * NOISE_PX < rms < 1.05 * NOISE_PX  # below sigma by the fitted-parameter share, never above
+    assert outcome.stats["n_rejected"] < 0.01 * outcome.problem.n_observations
+    assert sorted(outcome.cameras) == sorted(truth.cameras)

@@ -31,18 +31,22 @@ class ReportError(DomeCalibError):
 
 @dataclass(kw_only=True)
 class Residuals:
-    """Final reprojection residuals of the bundle adjustment: one row per observation (OpenCV px)."""
+    """Final reprojection residuals of the bundle adjustment: one row per observation (OpenCV px).
+
+    RMS values are per coordinate, ``sqrt(mean(r_x^2 + r_y^2) / 2)``, as the bundle adjustment reports them (so
+    RMS / pixel noise sigma is near 1 at the optimum); histograms show the norm ``|r|``.
+    """
 
     camera_names: list[str]  # (C,)
     camera_index: np.ndarray  # (M,) int into camera_names
     residual_px: np.ndarray  # (M, 2) observed - projected
 
     def per_camera(self) -> dict[str, tuple[int, float | None]]:
-        """name -> (observation count, RMS px of the residual norm; None without observations)."""
+        """name -> (observation count, per-coordinate RMS px; None without observations)."""
         sq = np.sum(self.residual_px ** 2, axis=1)
         counts = np.bincount(self.camera_index, minlength=len(self.camera_names))
         sums = np.bincount(self.camera_index, weights=sq, minlength=len(self.camera_names))
-        return {n: (int(c), float(np.sqrt(s / c)) if c else None)
+        return {n: (int(c), float(np.sqrt(s / (2 * c))) if c else None)
                 for n, c, s in zip(self.camera_names, counts, sums)}
 
     def norms_of(self, names: set[str]) -> np.ndarray:
@@ -135,12 +139,12 @@ def build_report(bundle: Bundle, residuals: Residuals | None = None, options: Re
         if residuals is not None:
             norms = residuals.norms_of({r.name for r in sel})
             entry |= {"observations": int(len(norms)),
-                      "rms_px": float(np.sqrt(np.mean(norms ** 2))) if len(norms) else None,
+                      "rms_px": float(np.sqrt(np.mean(norms ** 2) / 2)) if len(norms) else None,
                       "median_px": float(np.median(norms)) if len(norms) else None}
         per_type[str(cam_type)] = entry
     overall = None
     if residuals is not None and len(residuals.residual_px):
-        overall = float(np.sqrt(np.mean(np.sum(residuals.residual_px ** 2, axis=1))))
+        overall = float(np.sqrt(np.mean(residuals.residual_px ** 2)))  # per coordinate
     to_check = [{"name": r.name, "type": str(r.type), "reasons": r.reasons} for r in rows.values() if r.reasons]
     to_check += [{"name": n, "type": None, "reasons": [f"not calibrated: {why}"]} for n, why in sorted((missing or {}).items())]
     return {

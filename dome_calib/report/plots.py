@@ -54,7 +54,7 @@ def plot_dome(bundle: Bundle, report: dict, path: Path) -> Path:
         ax.grid(True, alpha=0.3)
     axes[0].legend(loc="upper right", fontsize=8)
     if mappable is not None:
-        fig.colorbar(mappable, ax=list(axes), label="RMS reprojection residual (px)", shrink=0.8)
+        fig.colorbar(mappable, ax=list(axes), label="RMS reprojection residual (px, per coordinate)", shrink=0.8)
     n_check = len(report["to_check"])
     fig.suptitle(f"calibration {report['seq']}: {report['cameras']} cameras, "
                  f"RMS {report['rms_px']:.3f} px, {n_check} to check (red)" if report["rms_px"] is not None else
@@ -73,7 +73,7 @@ def plot_residual_histograms(bundle: Bundle, residuals, path: Path) -> Path:
         if len(norms):
             hi = max(float(np.percentile(norms, 99.9)), 1e-3)
             ax.hist(np.minimum(norms, hi), bins=60, range=(0.0, hi), color=_COLOR[cam_type], log=True)
-            ax.set_title(f"{cam_type}: {len(norms)} obs, RMS {np.sqrt(np.mean(norms ** 2)):.3f} px")
+            ax.set_title(f"{cam_type}: {len(norms)} obs, RMS {np.sqrt(np.mean(norms ** 2) / 2):.3f} px per coord.")
         else:
             ax.set_title(f"{cam_type}: no observations")
         ax.set(xlabel="residual norm (px)", ylabel="observations")
