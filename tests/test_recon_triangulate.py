@@ -1,0 +1,133 @@
+"""Robust weighted triangulation: kernel against the foundation camera model, DLT, LM, RANSAC, weighting."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from dome_calib.camera import pixels_to_normalized, project, project_with_jacobians
+from dome_calib.recon.errors import ReconError
+from dome_calib.recon.kernel import CameraKernel
+from dome_calib.recon.project import project_points, view_set
+from dome_calib.recon.triangulate import (
+    TriangulationOptions,
+    point_jacobian,
+    refine_lm,
+    triangulate,
+    triangulate_dlt,
+)
+from dome_calib.rotation import matrix_to_rotvec
+
+from .recon_helpers import dome_points, real_bundle
+
+
+@pytest.fixture(scope="module")
+def views():
+    return view_set(real_bundle(kinect=False, sync=False))
+
+
+def _observe(views, X, *, noise_px=0.0, wrong=0.0, seed=0):
+    """(P, V, 2) detections, (P, V) confidences and the (P, V) mask of wrong detections."""
+    rng = np.random.default_rng(seed)
+    p = project_points(views, X)
+    uv = p.uv_px.transpose(1, 0, 2) + rng.normal(scale=noise_px, size=(len(X), len(views.names), 2))
+    vis = p.visible.T
+    bad = vis & (rng.random(vis.shape) < wrong)
+    uv[bad] = rng.random((bad.sum(), 2)) * views.resolution[np.nonzero(bad)[1]]
+    conf = np.where(vis, rng.uniform(0.5, 1.0, vis.shape), 0.0)
+    return uv, conf, bad
+
+
+def test_kernel_pixels_and_point_jacobian_match_the_foundation(views):
+    X = dome_points(7, seed=3)
+    uv, J = point_jacobian(views, X)
+    P, V = len(X), len(views.names)
+    ref = project(X, views.R, views.t_cm, views.intr, views.dist)
+    np.testing.assert_allclose(uv, ref.uv_px.transpose(1, 0, 2), atol=2e-3)  # float32 kernel: ~1e-4 px
+    rep = lambda a: np.broadcast_to(a[None], (P, *a.shape)).reshape(P * V, *a.shape[1:])  # noqa: E731
+    jac = project_with_jacobians(np.repeat(X, V, axis=0), rep(matrix_to_rotvec(views.R)), rep(views.t_cm),
+                                 rep(views.intr), rep(views.dist), R=rep(views.R))
+    np.testing.assert_allclose(J.reshape(P * V, 2, 3), jac.d_point, rtol=1e-4, atol=1e-4 * np.abs(jac.d_point).max())
+
+
+def test_kernel_undistort_matches_pixels_to_normalized(views):
+    rng = np.random.default_rng(4)
+    uv = rng.random((60, len(views.names), 2)) * views.resolution
+    ref = pixels_to_normalized(uv, views.intr, views.dist)
+    x, y = CameraKernel(views).undistort(uv[..., 0], uv[..., 1])
+    err_px = np.hypot(x - ref[..., 0], y - ref[..., 1]) * views.intr[:, 0]
+    assert np.nanmax(err_px) < 2e-3
+
+
+def test_dlt_is_exact_on_noise_free_rays(views):
+    X = dome_points(20, seed=5)
+    uv, conf, _ = _observe(views, X)
+    xn = np.nan_to_num(pixels_to_normalized(uv, views.intr, views.dist))
+    X_dlt = triangulate_dlt(views, xn, conf)
+    assert np.abs(X_dlt - X).max() < 1e-6  # cm
+    conf[:, 1:] = 0.0  # one view only: no point
+    assert np.isnan(triangulate_dlt(views, xn, conf)).all()
+
+
+def test_lm_minimises_the_confidence_weighted_reprojection_error(views):
+    """Same minimum as scipy's least_squares on sum_v c_v |pi_v(X) - u_v|^2, from a start 5 cm away."""
+    sub = views.subset(views.names[::40])
+    X = dome_points(4, seed=6)
+    uv, conf, _ = _observe(sub, X, noise_px=3.0, seed=6)
+    X0 = X + 5.0
+    X_lm, _ = refine_lm(sub, X0, uv, conf, iterations=8)
+    for p in range(len(X)):
+        ok = conf[p] > 0
+
+        def residual(x, p=p, ok=ok):
+            proj = project(x[None], sub.R[ok], sub.t_cm[ok], sub.intr[ok], sub.dist[ok]).uv_px[:, 0]
+            return ((proj - uv[p, ok]) * np.sqrt(conf[p, ok])[:, None]).ravel()
+
+        ref = least_squares(residual, X0[p], xtol=1e-12, ftol=1e-12).x
+        assert np.abs(X_lm[p] - ref).max() < 1e-3  # cm (float32 residuals)
+
+
+def test_robust_to_ten_percent_wrong_detections(views):
+    X = dome_points(60, seed=7)
+    uv, conf, bad = _observe(views, X, noise_px=2.0, wrong=0.10, seed=7)
+    tri = triangulate(views, uv, conf)
+    err_mm = np.linalg.norm(tri.X_cm - X, axis=1) * 10.0
+    assert err_mm.max() < 3.0
+    # Wrong detections far from the truth are rejected, good ones kept.
+    far = bad & (np.linalg.norm(uv - project_points(views, X).uv_px.transpose(1, 0, 2), axis=-1) > 10.0)
+    assert (far & tri.inliers).sum() == 0
+    good = (conf > 0) & ~bad
+    assert (good & tri.inliers).sum() > 0.97 * good.sum()
+    assert np.all(tri.rms_px < 3.5) and np.all(tri.confidence > 0.5)
+    # Without rejection (weighted DLT over every detection) the same data gives centimetre errors.
+    xn = np.nan_to_num(pixels_to_normalized(uv, views.intr, views.dist))
+    naive_mm = np.linalg.norm(triangulate_dlt(views, xn, conf) - X, axis=1) * 10.0
+    assert np.median(naive_mm) > 10 * np.median(err_mm)
+
+
+def test_confidence_weights_pull(views):
+    """A biased detection with low confidence moves the point less than the same detection with high confidence."""
+    sub = views.subset(views.names[::60])
+    X = dome_points(1, seed=8)
+    uv, conf, _ = _observe(sub, X, seed=8)
+    v = int(np.flatnonzero(conf[0])[0])
+    uv[0, v] += 6.0  # inside the inlier threshold
+    errs = []
+    for c in (1.0, 0.02):
+        conf[0, v] = c
+        errs.append(np.linalg.norm(triangulate(sub, uv, conf).X_cm[0] - X[0]))
+    assert errs[1] < 0.2 * errs[0]
+
+
+def test_unreconstructable_points_and_bad_input(views):
+    X = dome_points(3, seed=9)
+    uv, conf, _ = _observe(views, X, noise_px=1.0, seed=9)
+    conf[1] = 0.0
+    conf[2, np.flatnonzero(conf[2])[1:]] = 0.0  # a single view
+    tri = triangulate(views, uv, conf)
+    assert np.isfinite(tri.X_cm[0]).all() and np.isnan(tri.X_cm[1:]).all()
+    assert tri.confidence[1:].tolist() == [-1.0, -1.0] and tri.n_inliers[1:].tolist() == [0, 0]
+    with pytest.raises(ReconError, match="expected"):
+        triangulate(views, uv[:, :10], conf)
+    with pytest.raises(ReconError, match="min_views"):
+        TriangulationOptions(min_views=1)
