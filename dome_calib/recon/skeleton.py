@@ -85,9 +85,9 @@ def clock_table(fps: Fraction, *, start_ms: float, duration_ms: float, offset_ms
     k0 = int(np.floor((start_ms - offset_ms) / period_ms)) - 1
     k1 = int(np.ceil((start_ms + duration_ms - offset_ms) / period_ms)) + 1
     k = np.arange(k0, k1 + 1)
-    keep = ~np.isin(k, dropped or [])
-    k = k[keep]
-    return SyncTable(index=(k - k0 + first_index).astype(np.int64), univ_time_ms=offset_ms + k * period_ms)
+    index = k - k0 + first_index
+    keep = ~np.isin(index, dropped or [])
+    return SyncTable(index=index[keep].astype(np.int64), univ_time_ms=offset_ms + k[keep] * period_ms)
 
 
 def synthetic_sync(bundle: Bundle, *, start_ms: float, duration_ms: float, seed: int = 0) -> SyncTables:
@@ -108,7 +108,7 @@ def synthetic_sync(bundle: Bundle, *, start_ms: float, duration_ms: float, seed:
         node = f"KINECTNODE{int(name.split('_')[1])}"
         offset, drift = float(rng.uniform(0, 33)), float(rng.uniform(-50, 50))
         n_frames = int(duration_ms / 33.3)
-        dropped = sorted(rng.choice(np.arange(5, max(n_frames - 5, 6)), size=3, replace=False).tolist())
+        dropped = sorted(rng.choice(np.arange(5, max(n_frames - 5, 8)), size=3, replace=False).tolist())
         color[node] = clock_table(KINECT_FPS, start_ms=start_ms, duration_ms=duration_ms, offset_ms=offset,
                                   drift_ppm=drift, dropped=dropped)
         depth[node] = clock_table(KINECT_FPS, start_ms=start_ms, duration_ms=duration_ms, offset_ms=offset + 16.7,
