@@ -106,6 +106,10 @@ from dome_calib.cli_recon import register as _register_recon  # noqa: E402  (tri
 
 _register_recon(app)
 
+from dome_calib.cli_kinect import register as _register_kinect  # noqa: E402  (kinect, kinect-synth)
+
+_register_kinect(app)
+
 
 def main() -> None:
     run_cli(app, prog="dome-calib")
