@@ -1,0 +1,281 @@
+"""Normal equations of the bundle adjustment, Schur complement on the points, reduced camera system.
+
+Notation (observation i sees point p with camera a; Jc_i (2, 15), Jp_i (2, 3), IRLS weight w_i, residual r_i):
+
+    U_a = sum_i w Jc^T Jc (15 x 15 per camera)      V_p = sum_i w Jp^T Jp (3 x 3 per point)
+    W_i = w Jc^T Jp (15 x 3 per observation)       g_a = sum_i w Jc^T r,  g_p = sum_i w Jp^T r
+
+Damped by lambda * D (D = clamped diagonal, as Ceres' Levenberg-Marquardt), the points are eliminated with
+V_p = L_p L_p^T (3 x 3 Cholesky, batched over all points). With y_i = W_i L_p^{-T} (15 x 3):
+
+    S = blockdiag(U + lambda D_c) - Y Y^T,   Y the block-sparse (cameras x 15) x (points x 3) matrix of the y_i,
+    S dc = -g_c + sum_i y_i L_p^{-1} g_p,     dp = -L_p^{-T} (L_p^{-1} g_p + sum_i y_i^T dc_a).
+
+Y Y^T is the crux (about sum over points of track_length^2 block products, ~10^7 at dome scale). It is done
+by scipy's block-sparse (BSR, 15 x 3 blocks) products, split into camera groups so that only the upper
+triangle of group pairs is computed, in threads (scipy's sparse kernels release the GIL). The reduced
+system is dense for the dome (most cameras share points with most cameras on their side), so it is solved
+by a dense LAPACK Cholesky.
+"""
+from __future__ import annotations
+
+import logging
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse as sp
+
+from dome_calib.ba.blas import blas_threads
+
+logger = logging.getLogger(__name__)
+
+_MIN_DIAG, _MAX_DIAG = 1e-6, 1e32
+_PARALLEL_CHOLESKY_MIN = 1500  # unknowns from which the dense Cholesky gets more than one BLAS thread
+
+
+@dataclass(kw_only=True)
+class Structure:
+    """Sparsity of one set of observations (fixed while the observation set is fixed).
+
+    obs (Ma,): indices into the problem's observations, sorted by (camera, point); cam, pt (Ma,).
+    active_cameras (A,): cameras with at least one free parameter; cam_local (Ma,): their local index or -1.
+    act (Ma,) bool: observation by an active camera (a contiguous block per camera).
+    free_flat (F,): free parameters as indices into the (A * 15) flattened active-camera parameters.
+    groups: camera-group boundaries [0, ..., A] for the blocked Y Y^T product.
+    """
+
+    obs: np.ndarray
+    cam: np.ndarray
+    pt: np.ndarray
+    n_points: int
+    active_cameras: np.ndarray
+    cam_local: np.ndarray
+    act: np.ndarray
+    act_starts: np.ndarray  # (A + 1,) offsets of each active camera's observations among the active ones
+    free: np.ndarray  # (A, 15) bool
+    free_flat: np.ndarray
+    groups: np.ndarray
+    live_points: np.ndarray  # (P,) bool: points with >= 2 observations (the others are not refined)
+
+
+def build_structure(camera_index: np.ndarray, point_index: np.ndarray, obs_mask: np.ndarray, free: np.ndarray,
+                    n_points: int, *, n_groups: int = 4) -> Structure:
+    """Sort the kept observations, drop points seen fewer than twice, and index the free camera parameters."""
+    keep = np.flatnonzero(obs_mask)
+    counts = np.bincount(point_index[keep], minlength=n_points)
+    keep = keep[counts[point_index[keep]] >= 2]
+    live = np.bincount(point_index[keep], minlength=n_points) >= 2
+    order = np.lexsort((point_index[keep], camera_index[keep]))
+    obs = keep[order]
+    cam, pt = camera_index[obs], point_index[obs]
+    C = free.shape[0]
+    n_obs_cam = np.bincount(cam, minlength=C)
+    active = np.flatnonzero(free.any(axis=1) & (n_obs_cam > 0))
+    local = np.full(C, -1, dtype=np.int64)
+    local[active] = np.arange(len(active))
+    cam_local = local[cam]
+    act = cam_local >= 0
+    act_starts = np.concatenate([[0], np.cumsum(n_obs_cam[active])]).astype(np.int64)
+    free_a = free[active]
+    # groups of active cameras with about equal observation counts
+    G = max(1, min(n_groups, len(active)))
+    cuts = np.searchsorted(act_starts, np.linspace(0, act_starts[-1], G + 1)[1:-1])
+    groups = np.unique(np.concatenate([[0], cuts, [len(active)]])).astype(np.int64)
+    return Structure(obs=obs, cam=cam, pt=pt, n_points=n_points, active_cameras=active, cam_local=cam_local,
+                     act=act, act_starts=act_starts, free=free_a, free_flat=np.flatnonzero(free_a.ravel()),
+                     groups=groups, live_points=live)
+
+
+@dataclass(kw_only=True)
+class Linearization:
+    """Gradient and Gauss-Newton blocks at one point of the parameter space (lambda-independent).
+
+    Jc (2, 15, Ma_active) with fixed columns zeroed; Jp (2, 3, Ma); w (Ma,); U (A, 15, 15); V (P, 3, 3);
+    g_c (A, 15); g_p (P, 3); D_c (A, 15), D_p (P, 3) the LM scaling diagonals.
+    """
+
+    Jc: np.ndarray
+    Jp: np.ndarray
+    w: np.ndarray
+    U: np.ndarray
+    V: np.ndarray
+    g_c: np.ndarray
+    g_p: np.ndarray
+    D_c: np.ndarray
+    D_p: np.ndarray
+
+
+def _segment_sum(values: np.ndarray, seg: np.ndarray, n: int) -> np.ndarray:
+    """(K, M) values summed per segment id (M,) -> (n, K)."""
+    return np.stack([np.bincount(seg, weights=v, minlength=n) for v in values], axis=1)
+
+
+def linearize(st: Structure, res: np.ndarray, Jc: np.ndarray, Jp: np.ndarray, w: np.ndarray) -> Linearization:
+    """Blocks of J^T W J and J^T W r from component-major residuals (2, Ma) and Jacobians (2, 15|3, Ma)."""
+    A, P = len(st.active_cameras), st.n_points
+    if not st.act.all():
+        Jc = Jc[:, :, st.act]
+    Jc *= st.free[st.cam_local[st.act]].T[None]  # hold fixed parameters: zero their columns
+    wr = res * w
+    cl = st.cam_local[st.act]
+    g_c = _segment_sum(Jc[0] * wr[0, st.act] + Jc[1] * wr[1, st.act], cl, A) if A else np.zeros((0, 15))
+    g_p = _segment_sum(Jp[0] * wr[0] + Jp[1] * wr[1], st.pt, P)
+    U = np.empty((A, 15, 15))
+    sw = np.sqrt(w[st.act])
+    sJ0, sJ1 = Jc[0] * sw, Jc[1] * sw
+    for a in range(A):
+        s, e = st.act_starts[a], st.act_starts[a + 1]
+        U[a] = sJ0[:, s:e] @ sJ0[:, s:e].T + sJ1[:, s:e] @ sJ1[:, s:e].T
+    pairs = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
+    Vu = _segment_sum(np.stack([w * (Jp[0, i] * Jp[0, j] + Jp[1, i] * Jp[1, j]) for i, j in pairs]), st.pt, P)
+    V = np.empty((P, 3, 3))
+    for k, (i, j) in enumerate(pairs):
+        V[:, i, j] = V[:, j, i] = Vu[:, k]
+    D_c = np.clip(np.einsum("aii->ai", U), _MIN_DIAG, _MAX_DIAG)
+    D_p = np.clip(np.einsum("pii->pi", V), _MIN_DIAG, _MAX_DIAG)
+    return Linearization(Jc=Jc, Jp=Jp, w=w, U=U, V=V, g_c=g_c, g_p=g_p, D_c=D_c, D_p=D_p)
+
+
+def chol3_inverse(V: np.ndarray) -> np.ndarray:
+    """(P, 3, 3) SPD blocks -> (P, 3, 3) inverse Cholesky factors L^{-1} (lower), V = L L^T, batched.
+
+    Pivots are clamped at 1e-12 x the diagonal so a degenerate point (e.g. two nearly identical rays)
+    gets a huge but finite uncertainty instead of a NaN that would poison the reduced system.
+    """
+    a00, a10, a20, a11, a21, a22 = V[:, 0, 0], V[:, 1, 0], V[:, 2, 0], V[:, 1, 1], V[:, 2, 1], V[:, 2, 2]
+    tiny = np.maximum(1e-12 * np.maximum(np.maximum(a00, a11), a22), 1e-100)
+    l00 = np.sqrt(np.maximum(a00, tiny))
+    l10, l20 = a10 / l00, a20 / l00
+    l11 = np.sqrt(np.maximum(a11 - l10 * l10, tiny))
+    l21 = (a21 - l20 * l10) / l11
+    l22 = np.sqrt(np.maximum(a22 - l20 * l20 - l21 * l21, tiny))
+    Li = np.zeros_like(V)
+    Li[:, 0, 0], Li[:, 1, 1], Li[:, 2, 2] = 1.0 / l00, 1.0 / l11, 1.0 / l22
+    Li[:, 1, 0] = -l10 / (l00 * l11)
+    Li[:, 2, 1] = -l21 / (l11 * l22)
+    Li[:, 2, 0] = (l10 * l21 - l11 * l20) / (l00 * l11 * l22)
+    return Li
+
+
+def _yyt_into(S4: np.ndarray, y_blocks: np.ndarray, st: Structure, n_threads: int) -> None:
+    """S4 (A, 15, A, 15) -= Y Y^T with Y given by camera-sorted (Ma_active, 15, 3) blocks."""
+    P, g = st.n_points, st.groups
+    pt_act = st.pt[st.act]
+
+    def group_matrix(k: int) -> sp.bsr_matrix:
+        a0, a1 = g[k], g[k + 1]
+        s, e = st.act_starts[a0], st.act_starts[a1]
+        return sp.bsr_matrix((y_blocks[s:e], pt_act[s:e], st.act_starts[a0:a1 + 1] - s),
+                             shape=(15 * (a1 - a0), 3 * P), copy=False)
+
+    n = len(g) - 1
+    Ys = [group_matrix(k) for k in range(n)]
+    Yts = [Y.T for Y in Ys]  # BSR (3, 15) blocks, transposed in C++
+    jobs = sorted(((i, j) for i in range(n) for j in range(i, n)),
+                  key=lambda ij: -(Ys[ij[0]].nnz + Ys[ij[1]].nnz))
+
+    def product(ij: tuple[int, int]) -> None:
+        i, j = ij
+        R = Ys[i] @ Yts[j]
+        if not isinstance(R, sp.bsr_matrix) or R.blocksize != (15, 15):
+            R = sp.bsr_matrix(R, blocksize=(15, 15))
+        rows = np.repeat(np.arange(len(R.indptr) - 1), np.diff(R.indptr)) + g[i]
+        cols = R.indices + g[j]
+        S4[rows, :, cols, :] = -R.data
+        if i != j:
+            S4[cols, :, rows, :] = -R.data.transpose(0, 2, 1)
+
+    if n_threads > 1 and len(jobs) > 1:
+        with ThreadPoolExecutor(max_workers=n_threads) as pool:
+            list(pool.map(product, jobs))
+    else:
+        for job in jobs:
+            product(job)
+
+
+@dataclass(kw_only=True)
+class Step:
+    """A solved LM step: dc (A, 15) (zero on fixed parameters), dp (P, 3), and the model's cost decrease."""
+
+    dc: np.ndarray
+    dp: np.ndarray
+    predicted_decrease: float
+
+
+def reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: int = 2
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Damped reduced camera system over ALL active-camera parameters: (S (A*15, A*15), rhs (A*15,), L^{-1}
+    (P, 3, 3), y blocks (Ma_active, 15, 3)). Fixed parameters have zero rows and columns."""
+    A = len(st.active_cameras)
+    Li = chol3_inverse(lin.V + lam * lin.D_p[:, :, None] * np.eye(3))
+    Jp, w = lin.Jp, lin.w
+    # m = w Jp L^{-T}: (2, 3, Ma), row j = sum_l Jp[:, l] Li[pt, j, l]
+    Lg = {(j, l): np.ascontiguousarray(Li[:, j, l])[st.pt] for j in range(3) for l in range(j + 1)}
+    m = np.empty_like(Jp)
+    for j in range(3):
+        m[:, j] = w * sum(Jp[:, l] * Lg[j, l] for l in range(j + 1))
+    if not st.act.all():
+        m = m[:, :, st.act]
+    yT = lin.Jc[0][:, None, :] * m[0][None] + lin.Jc[1][:, None, :] * m[1][None]  # (15, 3, Ma_active)
+    y_blocks = np.ascontiguousarray(yT.transpose(2, 0, 1))
+    h = np.einsum("pjl,pl->pj", Li, lin.g_p)
+    hg = h[st.pt[st.act]]
+    rhs = -lin.g_c + _segment_sum(np.einsum("kjm,mj->km", yT, hg), st.cam_local[st.act], A)
+    del yT
+    S = np.zeros((A * 15, A * 15))
+    S4 = S.reshape(A, 15, A, 15)
+    _yyt_into(S4, y_blocks, st, n_threads)
+    idx = np.arange(A)
+    S4[idx, :, idx, :] += lin.U + lam * lin.D_c[:, :, None] * np.eye(15)
+    return S, rhs.ravel(), Li, y_blocks
+
+
+def solve_free(S: np.ndarray, rhs: np.ndarray, free_flat: np.ndarray, *, n_threads: int = 2) -> np.ndarray:
+    """Solve the reduced system for the free parameters by dense Cholesky; zeros elsewhere.
+
+    Raises numpy.linalg.LinAlgError if the system is not positive definite. ``S`` is overwritten.
+    """
+    n = len(rhs)
+    x = np.zeros(n)
+    if len(free_flat) == 0:
+        return x
+    if len(free_flat) >= 0.95 * n:
+        fixed = np.setdiff1d(np.arange(n), free_flat)  # few fixed: identity rows keep the matrix in place
+        S[fixed, :] = 0.0
+        S[:, fixed] = 0.0
+        S[fixed, fixed] = 1.0
+        b = rhs.copy()
+        b[fixed] = 0.0
+        Sf = S
+    else:
+        Sf = S[np.ix_(free_flat, free_flat)]
+        b = rhs[free_flat]
+    try:
+        with blas_threads(n_threads if len(b) >= _PARALLEL_CHOLESKY_MIN else 1):
+            factor = scipy.linalg.cho_factor(Sf.T, lower=False, overwrite_a=True, check_finite=False)
+            sol = scipy.linalg.cho_solve(factor, b, check_finite=False)
+    except scipy.linalg.LinAlgError as exc:
+        raise np.linalg.LinAlgError(str(exc)) from None
+    if len(free_flat) >= 0.95 * n:
+        x[free_flat] = sol[free_flat]
+    else:
+        x[free_flat] = sol
+    return x
+
+
+def solve_step(st: Structure, lin: Linearization, lam: float, *, n_threads: int = 2) -> Step:
+    """Solve the damped normal equations (H + lam D) d = -g by the Schur complement on the points."""
+    A = len(st.active_cameras)
+    S, rhs, Li, y_blocks = reduced_system(st, lin, lam, n_threads=n_threads)
+    dc = solve_free(S, rhs, st.free_flat, n_threads=n_threads).reshape(A, 15)
+    del S
+    h = np.einsum("pjl,pl->pj", Li, lin.g_p)
+    t = np.einsum("mkj,mk->mj", y_blocks, dc[st.cam_local[st.act]])
+    q = _segment_sum(t.T, st.pt[st.act], st.n_points)
+    dp = -np.einsum("plj,pl->pj", Li, h + q)
+    dp[~st.live_points] = 0.0
+    g_dot = float(np.sum(lin.g_c * dc) + np.sum(lin.g_p * dp))
+    d_dot = float(np.sum(lin.D_c * dc * dc) + np.sum(lin.D_p * dp * dp))
+    return Step(dc=dc, dp=dp, predicted_decrease=0.5 * (-g_dot + lam * d_dot))

@@ -1,0 +1,201 @@
+"""Levenberg-Marquardt bundle adjustment with a robust loss and an outlier schedule.
+
+Schedule (``BAOptions``): stage 1 minimises the robust cost (Huber by default, scale in px) over all
+observations until it has found the basin (looser tolerance); then observations whose reprojection error
+exceeds a threshold (``outlier_threshold_px``, or ``outlier_sigmas`` x the robust noise estimate) are
+rejected and the problem is re-solved with ``final_loss`` (least squares by default: the maximum-likelihood
+cost for Gaussian pixel noise once the gross outliers are gone). ``outlier_rounds`` repeats reject/re-solve;
+each round re-judges every observation, so wrongly rejected ones come back.
+
+LM follows Ceres' strategy: damping lambda * clamp(diag(J^T W J)), gain ratio rho = actual / predicted
+decrease, on success lambda *= max(1/3, 1 - (2 rho - 1)^3), on failure lambda *= nu, nu *= 2.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dome_calib.ba.blas import blas_threads
+from dome_calib.ba.evaluate import residuals, residuals_and_jacobians
+from dome_calib.ba.gauge import Gauge, GaugeMode, choose_gauge
+from dome_calib.ba.problem import BAProblem
+from dome_calib.ba.result import BAResult, IterationLog, camera_statistics
+from dome_calib.ba.robust import LossKind, robust_cost_and_weight, robust_sigma_px
+from dome_calib.ba.schur import Structure, build_structure, linearize, solve_step
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(kw_only=True)
+class BAOptions:
+    """Options of :func:`bundle_adjust`. Tolerances are relative; scales and thresholds in pixels."""
+
+    max_iterations: int = 50  # per stage
+    function_tolerance: float = 1e-7  # stop when the relative cost decrease of an accepted step is below
+    first_stage_function_tolerance: float = 1e-3  # looser: the first stage only has to expose the outliers
+    parameter_tolerance: float = 1e-10  # stop when |step| / (|x| + tol) is below
+    gradient_tolerance: float = 1e-12  # stop when max |gradient| / cost is below
+    initial_lambda: float = 1e-4
+    max_consecutive_rejections: int = 12
+    loss: LossKind = LossKind.HUBER
+    loss_scale_px: float = 2.0
+    outlier_rounds: int = 3  # at most; stops early when re-judging changes no observation
+    outlier_threshold_px: float | None = None  # None: outlier_sigmas x robust noise estimate
+    outlier_sigmas: float = 5.0
+    final_loss: LossKind = LossKind.TRIVIAL
+    final_loss_scale_px: float = 2.0
+    gauge: GaugeMode = GaugeMode.AUTO
+    gauge_reference_camera: str | None = None
+    gauge_scale_camera: str | None = None
+    n_threads: int = 2
+    n_camera_groups: int = 4  # blocks of the Y Y^T product (upper triangle of group pairs is computed)
+    compute_uncertainty: bool = True
+
+
+@dataclass(kw_only=True)
+class _State:
+    camera_params: np.ndarray
+    points_cm: np.ndarray
+    iterations: list[IterationLog] = field(default_factory=list)
+
+
+def _cost(state: _State, problem: BAProblem, st: Structure, loss: LossKind, scale: float
+          ) -> tuple[float, np.ndarray]:
+    r = residuals(state.camera_params, state.points_cm, st.cam, st.pt, problem.uv_px[st.obs])
+    rho, _ = robust_cost_and_weight(np.sum(r * r, axis=1), loss, scale)
+    c = 0.5 * float(np.sum(rho))
+    return (c if np.isfinite(c) else np.inf), r
+
+
+def _apply(state: _State, st: Structure, dc: np.ndarray, dp: np.ndarray) -> _State:
+    """New state with the step added to free parameters only (fixed ones stay bit-identical)."""
+    cp = state.camera_params.copy()
+    a = st.active_cameras
+    cp[a] = np.where(st.free, cp[a] + dc, cp[a])
+    pts = np.where(st.live_points[:, None], state.points_cm + dp, state.points_cm)
+    return _State(camera_params=cp, points_cm=pts, iterations=state.iterations)
+
+
+def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, options: BAOptions, *,
+                         loss: LossKind, scale: float, ftol: float, stage: int) -> tuple[_State, str]:
+    lam, nu = options.initial_lambda, 2.0
+    cost, _ = _cost(state, problem, st, loss, scale)
+    n_res = 2 * len(st.obs)
+    reason = "max_iterations"
+    t_start = time.perf_counter()
+    for it in range(1, options.max_iterations + 1):
+        res, Jc, Jp = residuals_and_jacobians(state.camera_params, state.points_cm, st.cam, st.pt,
+                                              problem.uv_px[st.obs])
+        _, w = robust_cost_and_weight(res[0] ** 2 + res[1] ** 2, loss, scale)
+        lin = linearize(st, res, Jc, Jp, w)
+        del res, Jc, Jp
+        g_max = max(np.abs(lin.g_c).max(initial=0.0), np.abs(lin.g_p).max(initial=0.0))
+        if g_max <= options.gradient_tolerance * max(cost, 1e-300):
+            reason = "gradient_tolerance"
+            break
+        rejections = 0
+        while True:
+            try:
+                step = solve_step(st, lin, lam, n_threads=options.n_threads)
+                new_state = _apply(state, st, step.dc, step.dp)
+                new_cost, _ = _cost(new_state, problem, st, loss, scale)
+            except np.linalg.LinAlgError:
+                step, new_cost = None, np.inf
+            rho = (cost - new_cost) / step.predicted_decrease if step and step.predicted_decrease > 0 else -1.0
+            if np.isfinite(new_cost) and rho > 1e-3:
+                lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                nu = 2.0
+                break
+            rejections += 1
+            logger.debug("ba stage %d it %d: step rejected (rho %.3g), lambda %.3g -> %.3g", stage, it, rho,
+                         lam, lam * nu)
+            lam *= nu
+            nu *= 2.0
+            if rejections >= options.max_consecutive_rejections:
+                return state, "no_decrease"
+        step_norm = float(np.sqrt(np.sum(step.dc ** 2) + np.sum(step.dp ** 2)))
+        x_norm = float(np.sqrt(np.sum(state.camera_params ** 2) + np.sum(state.points_cm ** 2)))
+        rel_decrease = (cost - new_cost) / max(cost, 1e-300)
+        state, cost = new_state, new_cost
+        rms = float(np.sqrt(2.0 * cost / n_res)) if loss is LossKind.TRIVIAL else float("nan")
+        entry = IterationLog(stage=stage, iteration=it, cost=cost, rms_px=rms, step_norm=step_norm, lam=lam,
+                             rejected_steps=rejections, time_s=time.perf_counter() - t_start)
+        state.iterations.append(entry)
+        logger.info("ba stage %d it %2d: cost %.9g  rms %.4f px  step %.3g  lambda %.3g  (%d rejected, %.1f s)",
+                    stage, it, cost, rms, step_norm, lam, rejections, entry.time_s)
+        if rel_decrease < ftol:
+            reason = "function_tolerance"
+            break
+        if step_norm <= options.parameter_tolerance * (x_norm + options.parameter_tolerance):
+            reason = "parameter_tolerance"
+            break
+    return state, reason
+
+
+def bundle_adjust(problem: BAProblem, options: BAOptions | None = None) -> BAResult:
+    """Refine cameras and points of ``problem`` (not modified); returns a :class:`BAResult`.
+
+    The gauge is fixed as described in :mod:`dome_calib.ba.gauge`; parameters with ``problem.free`` False stay
+    bit-identical. Per-iteration progress goes to the ``dome_calib.ba.solver`` logger at INFO level.
+    Example:
+        >>> result = bundle_adjust(problem, BAOptions(loss="huber", loss_scale_px=2.0))
+        >>> bundle = result.problem.to_bundle(seq="160906_band1")
+    """
+    options = options or BAOptions()
+    with blas_threads(1):  # small BLAS calls: one thread (see dome_calib.ba.blas); the big Cholesky takes more
+        return _bundle_adjust(problem, options)
+
+
+def _bundle_adjust(problem: BAProblem, options: BAOptions) -> BAResult:
+    t0 = time.perf_counter()
+    gauge: Gauge = choose_gauge(problem, mode=options.gauge, reference_camera=options.gauge_reference_camera,
+                                scale_camera=options.gauge_scale_camera)
+    free = problem.free & ~gauge.held
+    state = _State(camera_params=problem.camera_params.copy(), points_cm=problem.points_cm.copy())
+    M = problem.n_observations
+    inlier = np.ones(M, dtype=bool)
+    rounds = options.outlier_rounds
+    st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points,
+                         n_groups=options.n_camera_groups)
+    ftol = options.first_stage_function_tolerance if rounds else options.function_tolerance
+    state, reason = _levenberg_marquardt(problem, state, st, options, loss=LossKind(options.loss),
+                                         scale=options.loss_scale_px, ftol=ftol, stage=0)
+    reasons = [reason]
+    threshold_px = None
+    for rnd in range(1, rounds + 1):
+        r_all = residuals(state.camera_params, state.points_cm, problem.camera_index, problem.point_index,
+                          problem.uv_px)
+        err = np.linalg.norm(r_all, axis=1)
+        threshold_px = options.outlier_threshold_px
+        if threshold_px is None:
+            threshold_px = options.outlier_sigmas * robust_sigma_px(r_all[inlier & np.isfinite(err)])
+        new_inlier = np.isfinite(err) & (err <= threshold_px)
+        changed = int(np.sum(new_inlier != inlier))
+        logger.info("ba outliers round %d: threshold %.3f px, %d of %d observations rejected (%d changed)", rnd,
+                    threshold_px, int((~new_inlier).sum()), M, changed)
+        if rnd > 1 and changed == 0:
+            break
+        inlier = new_inlier
+        st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points,
+                             n_groups=options.n_camera_groups)
+        state, reason = _levenberg_marquardt(problem, state, st, options, loss=LossKind(options.final_loss),
+                                             scale=options.final_loss_scale_px, ftol=options.function_tolerance,
+                                             stage=rnd)
+        reasons.append(reason)
+    refined = problem.copy()
+    refined.camera_params = state.camera_params
+    refined.points_cm = state.points_cm
+    result = camera_statistics(refined, st, inlier, gauge=gauge, iterations=state.iterations,
+                               termination=reasons, outlier_threshold_px=threshold_px)
+    if options.compute_uncertainty:
+        from dome_calib.ba.uncertainty import camera_uncertainty
+
+        result.uncertainty = camera_uncertainty(refined, st, result.sigma_px, n_threads=options.n_threads,
+                                                gauge=gauge)
+    result.time_s = time.perf_counter() - t0
+    logger.info("ba done: %d iterations, rms %.4f px, %d inliers, %.1f s", len(state.iterations), result.rms_px,
+                int(inlier.sum()), result.time_s)
+    return result
