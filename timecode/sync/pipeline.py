@@ -34,23 +34,57 @@ def _check_channel(path: Path, channel: int, field: str) -> None:
         raise SessionError(f"{path}: {field} = {channel} but the file has {n} channel(s)")
 
 
-def decode_frame_starts(path: Path, channel: int, rate: FrameRate, source: str) -> FrameStarts:
-    """Decode the LTC of one channel of an audio file at a known frame rate (forward frames only).
+def _decode(path: Path, channel: int, rate: FrameRate, source: str, start: int = 0, stop: int | None = None
+            ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Forward frames (counts, start samples in the file) of ``path[start:stop]``, and the file's sample rate."""
+    from timecode.decoder import DecodeOptions, decode_file, decode_samples  # the LTC decoder (issue 4)
 
-    Raises ClockError naming ``source`` when no LTC is found.
-    """
-    from timecode.decoder import DecodeOptions, decode_file  # the LTC decoder (issue 4)
-
+    opts = DecodeOptions(rate=rate)
     try:
-        (ch,) = decode_file(path, options=DecodeOptions(rate=rate), channels=[channel])
+        if start == 0 and stop is None:
+            (ch,) = decode_file(path, options=opts, channels=[channel])
+        else:
+            data, fs = sf.read(str(path), start=start, stop=stop, dtype="float32", always_2d=True)
+            (ch,) = decode_samples(data[:, channel], fs, options=opts)
     except TimecodeError as exc:
         raise ClockError(f"{source}: {exc}") from None
-    ok = ~np.asarray(ch.reverse, bool)
-    if not ok.any():
+    fwd = ~np.asarray(ch.reverse, bool)
+    return (np.asarray(ch.frame_numbers, np.int64)[fwd], np.asarray(ch.start_samples, float)[fwd] + start,
+            int(ch.sample_rate))
+
+
+def decode_frame_starts(path: Path, channel: int, rate: FrameRate, source: str, *, max_gap_s: float = 1.0,
+                        passes: int = 3) -> FrameStarts:
+    """Decode the LTC of one channel of an audio file at a known frame rate (forward frames only).
+
+    Stretches longer than ``max_gap_s`` without a decoded frame are decoded again on their own (up to
+    ``passes`` rounds): a decoder may give up on one side of a splice (a recording restart), and the clock fit
+    needs both. Raises ClockError naming ``source`` when no LTC is found.
+    """
+    count, starts, fs = _decode(path, channel, rate, source)
+    n_samples = sf.info(str(path)).frames
+    period = fs / float(rate.fps)
+    for _ in range(passes):
+        bounds = np.concatenate([[-period], starts, [n_samples]])
+        gaps = np.flatnonzero(np.diff(bounds) > max_gap_s * fs)
+        found = []
+        for g in gaps:
+            a, b = max(0, int(bounds[g] + 1.2 * period)), min(n_samples, int(bounds[g + 1] - 0.2 * period))
+            if b - a > 3 * period:
+                c, s, _ = _decode(path, channel, rate, source, a, b)
+                found.append((c, s))
+        if not found or not sum(c.size for c, _ in found):
+            break
+        logger.debug("%s: %d frames recovered from stretches the first decode skipped", source,
+                     sum(c.size for c, _ in found))
+        count = np.concatenate([count, *(c for c, _ in found)])
+        starts = np.concatenate([starts, *(s for _, s in found)])
+        order = np.argsort(starts, kind="stable")
+        count, starts = count[order], starts[order]
+    if count.size == 0:
         raise ClockError(f"{source}: no LTC found (is timecode recorded on this channel?)")
-    return FrameStarts(count=np.asarray(ch.frame_numbers, np.int64)[ok],
-                       start_samples=np.asarray(ch.start_samples, float)[ok], sample_rate=float(ch.sample_rate),
-                       fps=rate.fps, frames_per_day=rate.frames_per_day, source=source)
+    return FrameStarts(count=count, start_samples=starts, sample_rate=float(fs), fps=rate.fps,
+                       frames_per_day=rate.frames_per_day, source=source)
 
 
 def decode_session(session: Session, progress: Callable[[str], None] | None = None
