@@ -114,3 +114,18 @@ def test_errors_are_one_line(session, tmp_path):
     strict = _cli(str(folder), "-o", str(tmp_path / "strict"), "--strict-kinect")
     assert strict.returncode == 1 and "KINECTNODE2: no audio recorded" in strict.stderr
     assert not (tmp_path / "strict").exists()
+
+
+def test_decoder_end_to_end_jump_restart_dropped_frames(tmp_path):
+    from timecode.sync.pipeline import sync_session
+
+    truth = make_session(tmp_path, SynthSessionOptions(duration_s=4.0, n_kinects=1, vga_jump_at_s=1.0,
+                                                       hd_jump_at_s=3.0, restart_at_s=2.0, dropped_frames=4,
+                                                       hd_timecode_every=0, snr_db=15.0, seed=9))
+    result = sync_session(tmp_path)
+    assert [e["kind"] for e in sorted(result.vga.events, key=lambda e: e["tick"])] == ["jump", "restart"]
+    assert sorted(e["kind"] for e in result.hd.events) == ["jump", "restart"]
+    for key in ("vga", "hd"):
+        table = result.tables.streams[key]
+        np.testing.assert_array_equal(table.index, truth.index[key])
+        assert np.sqrt(np.mean(((table.univ_time_ms - truth.univ_ms[key]) * 1e3) ** 2)) < VGA_HD_RMS_US, key

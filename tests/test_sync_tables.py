@@ -166,3 +166,14 @@ def test_streams_that_do_not_overlap(tmp_path):
     kinect["KINECTNODE1"].count[:] = (kinect["KINECTNODE1"].count + 9000) % hd.frames_per_day  # another hour
     result = build_sync(session, vga, hd, kinect)
     assert "do not overlap" in result.flagged["KINECTNODE1"]
+
+
+def test_kinect_device_clock_reset_splits_the_fit(tmp_path):
+    session, truth, vga, hd, kinect = _decoded(tmp_path, n_kinects=1)
+    node = session.kinects["KINECTNODE1"]
+    reset = node.block_device_time_100ns[node.block_device_time_100ns.size // 2]
+    for arr in (node.block_device_time_100ns, node.color.device_time_100ns, node.depth.device_time_100ns):
+        arr[arr >= reset] += 47 * 10**7  # the device clock leaps 47 s forward mid-session
+    result = build_sync(session, vga, hd, kinect)
+    assert len(result.kinect["KINECTNODE1"].device) == 2
+    _check_accuracy(result, truth)
