@@ -129,7 +129,7 @@ def pointcloud_at(bundle: Bundle, univ_time_ms: float, read_frame: Callable[[str
     if nodes is None:
         known = bundle.kinect.sensors if bundle.kinect is not None else {}
         nodes = sorted((n for n in tables if n in known), key=lambda n: (len(n), n))
-    points, sensor_ids, offsets, names = [], [], [], []
+    points, sensor_ids, offsets, names, skipped = [], [], [], [], []
     for node in nodes:
         if node not in tables:
             raise ReconError(f"bundle {bundle.seq}: no depth sync table for {node}")
@@ -137,15 +137,15 @@ def pointcloud_at(bundle: Bundle, univ_time_ms: float, read_frame: Callable[[str
         k, dt = table.nearest(univ_time_ms)
         k, dt = int(k), float(dt)
         if univ_time_ms < table.univ_time_ms[0] or univ_time_ms > table.univ_time_ms[-1]:
-            logger.warning("%s: time %.1f ms outside its depth stream (%.1f..%.1f ms); skipped", node, univ_time_ms,
-                           table.univ_time_ms[0], table.univ_time_ms[-1])
+            skipped.append(f"{node}: time outside its depth stream ({table.univ_time_ms[0]:.1f}.."
+                           f"{table.univ_time_ms[-1]:.1f} ms)")
             continue
         if max_offset_ms is not None and abs(dt) > max_offset_ms:
-            logger.warning("%s: nearest depth frame %d is %.1f ms away; skipped", node, k, dt)
+            skipped.append(f"{node}: nearest depth frame {k} is {dt:+.1f} ms away")
             continue
         frame = read_frame(node, k)
         if frame is None:
-            logger.warning("%s: depth frame %d missing; skipped", node, k)
+            skipped.append(f"{node}: depth frame {k} missing")
             continue
         xyz = depth_to_world(bundle, node, frame, correct_bias=correct_bias)
         points.append(xyz)
@@ -154,7 +154,10 @@ def pointcloud_at(bundle: Bundle, univ_time_ms: float, read_frame: Callable[[str
         names.append(node)
         logger.debug("%s: frame %d (%+.1f ms), %d points", node, k, dt, len(xyz))
     if not names:
-        raise ReconError(f"no Kinect depth frame near {univ_time_ms} ms (checked {', '.join(nodes) or 'no sensors'})")
+        first = skipped[0] if skipped else "no sensors"
+        raise ReconError(f"no Kinect depth frame near {univ_time_ms} ms in {len(nodes)} sensors (first: {first})")
+    for reason in skipped:
+        logger.warning("%s; skipped", reason)
     return PointCloud(xyz_cm=np.concatenate(points), sensor=np.concatenate(sensor_ids),
                       time_offset_ms=np.concatenate(offsets), sensors=names)
 
