@@ -32,8 +32,8 @@ AIM_VGA_HD_RMS_US = 10.0
 def sessions(duration_s: float) -> dict[str, SynthSessionOptions]:
     return {
         "clean_48k_snr30": SynthSessionOptions(seed=1, duration_s=duration_s, dropped_frames=3),
-        "hard_48k_snr10_jumps_midnight_df_restart": SynthSessionOptions(
-            seed=2, duration_s=duration_s, snr_db=10.0, kinect_snr_db=10.0, vga_start="23:59:50:00",
+        "hard_48k_snr10_kinect_snr15_jumps_midnight_df_restart": SynthSessionOptions(
+            seed=2, duration_s=duration_s, snr_db=10.0, kinect_snr_db=15.0, vga_start="23:59:50:00",
             hd_start="23:59:50;00", vga_drift_ppm=48.0, hd_drift_ppm=-49.0, vga_jump_at_s=duration_s * 0.3,
             hd_jump_at_s=duration_s * 0.7, restart_at_s=duration_s * 0.5, dropped_frames=4, hd_timecode_every=0,
             n_kinects=3, kinect_missing_audio=("KINECTNODE3",)),

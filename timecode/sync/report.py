@@ -70,6 +70,7 @@ def summary_lines(result: SyncResult) -> list[str]:
         if clock.n_misread or clock.n_outliers:
             lines.append(f"note: {clock.source}: {clock.n_misread} misread frames dropped, "
                          f"{clock.n_outliers} outliers rejected")
+    lines += [f"note: {n}" for n in result.notes]
     for name, why in result.flagged.items():
         lines.append(f"NOT SYNCED: {name}: {why}")
     return lines

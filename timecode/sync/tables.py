@@ -115,15 +115,16 @@ def stream_ticks(stream: FrameStream, clock: ChannelClock, margin_frames: int) -
     return stream.index + offset
 
 
-def _check_span(name: str, what: np.ndarray, lo: float, hi: float, per_s: float, limit_s: float) -> int:
+def _check_span(name: str, what: np.ndarray, lo: float, hi: float, per_s: float, limit_s: float,
+                span: str = "the LTC recording") -> int:
     """Frames outside [lo, hi] (in units of ``per_s`` per second): error past ``limit_s``; returns how many."""
     out = np.maximum(lo - what, what - hi) / per_s
     if np.all(out > limit_s):
-        raise SyncError(f"stream {name}: no frame within the LTC recording (streams do not overlap; nearest "
+        raise SyncError(f"stream {name}: no frame within {span} (streams do not overlap; nearest "
                         f"{out.min():.2f} s outside)")
     if np.any(out > limit_s):
         raise SyncError(f"stream {name}: {int((out > limit_s).sum())} frames lie up to {out.max():.2f} s outside "
-                        f"the LTC recording (limit {limit_s} s)")
+                        f"{span} (limit {limit_s} s)")
     return int((out > 0).sum())
 
 
@@ -209,13 +210,15 @@ def build_sync(session: Session, vga_frames: FrameStarts, hd_frames: FrameStarts
         raise SyncError(f"{vga.source} and {hd.source}: the two LTC channels never run at the same time "
                         "(streams do not overlap)")
     margin = opts.clock.label_margin_frames
-    streams, summaries = {}, []
+    streams, summaries, notes = {}, [], []
     pairs = pair_models(vga, hd)
     for name, st in session.streams.items():
         clock = vga if st.clock == "vga" else hd
         ticks = stream_ticks(st, clock, margin)
-        _check_span(name, ticks.astype(float), clock.ticks[0], clock.ticks[-1], float(clock.fps),
+        n_out = _check_span(name, ticks.astype(float), clock.ticks[0], clock.ticks[-1], float(clock.fps),
                     opts.max_extrapolation_s)
+        if n_out:
+            notes.append(f"{name}: {n_out} frames lie outside the decoded LTC; their times are extrapolated")
         if st.clock == "vga":
             univ = vga_to_univ_ms(vga, hd, ticks)
             w = np.array([p["vga_tick_last"] - p["vga_tick_first"] + 1 for p in pairs], float)
@@ -238,8 +241,11 @@ def build_sync(session: Session, vga_frames: FrameStarts, hd_frames: FrameStarts
             kc = kinect_clock(node, got, hd, opts)
             for kind in ("color", "depth"):
                 fr = getattr(node, kind)
-                _check_span(f"{name}/{kind}", fr.device_time_100ns.astype(float), kc.spans[0][0], kc.spans[-1][1],
-                            1e7, opts.max_extrapolation_s)
+                n_out = _check_span(f"{name}/{kind}", fr.device_time_100ns.astype(float), kc.spans[0][0], kc.spans[-1][1],
+                            1e7, opts.max_extrapolation_s, "the audio blocks timed by its decoded LTC")
+                if n_out:
+                    notes.append(f"{name}/{kind}: {n_out} frames lie outside the timed audio blocks; their times "
+                                 "are extrapolated")
                 univ = kc.univ_ms(fr.device_time_100ns)
                 if np.any(np.diff(univ) <= 0):
                     raise SyncError(f"{name}/{kind}: device timestamps do not increase with the frame index")
@@ -260,5 +266,6 @@ def build_sync(session: Session, vga_frames: FrameStarts, hd_frames: FrameStarts
             summaries = [s for s in summaries if not s.name.startswith(f"{name}/")]
             flagged[name] = str(exc).removeprefix(f"{name}: ")
             logger.debug("%s: not synced: %s", name, exc)
+    notes = [n for n in notes if n.split("/")[0].split(":")[0] not in flagged]
     return SyncResult(seq=session.seq, tables=tables, vga=vga, hd=hd, kinect=kin, summaries=summaries,
-                      flagged=flagged)
+                      flagged=flagged, notes=notes)
