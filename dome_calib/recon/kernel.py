@@ -86,7 +86,7 @@ class CameraKernel:
         d = radial + yy * two_dr + 6.0 * self.p1 * y + 2.0 * self.p2 * x
         return xd, yd, a, b, d, r2
 
-    def undistort(self, u_px: np.ndarray, v_px: np.ndarray, *, iterations: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    def undistort(self, u_px: np.ndarray, v_px: np.ndarray, *, iterations: int = 3) -> tuple[np.ndarray, np.ndarray]:
         """(P, V) pixels -> undistorted normalised (x, y) by Newton's method with the explicit 2x2 inverse.
 
         Float32; converges to the float32 floor (~3e-4 px) in 3 iterations on the real Panoptic lenses (tested against

@@ -41,7 +41,7 @@ class TriangulationOptions:
     ransac_hypotheses: two-view hypotheses per point. With 10 % wrong detections a random pair is clean with
         probability 0.81, so 16 hypotheses all fail with probability 0.19^16 ~ 3e-12.
     ransac_score_views: views (random subset of the point's detections) that score each hypothesis.
-    lm_iterations: Levenberg-Marquardt iterations (each one projection with Jacobians).
+    lm_iterations: Levenberg-Marquardt iterations (each one projection; one is enough from the DLT start).
     min_views: fewer inlier views than this -> the point is not reconstructed (NaN, confidence -1).
     min_confidence: detections with confidence <= this are ignored.
     seed: RANSAC random seed (results are reproducible).
@@ -50,7 +50,7 @@ class TriangulationOptions:
     inlier_threshold_px: float = 8.0
     ransac_hypotheses: int = 16
     ransac_score_views: int = 32
-    lm_iterations: int = 3
+    lm_iterations: int = 2
     min_views: int = 2
     min_confidence: float = 0.0
     seed: int = 0
@@ -141,11 +141,13 @@ def reprojection_error_px(views: ViewSet, X_world: np.ndarray, uv_px: np.ndarray
 
 
 def refine_lm(views: ViewSet | CameraKernel, X0: np.ndarray, uv_px: np.ndarray, weight: np.ndarray, *,
-              iterations: int = 3, penalty_px: float = 100.0) -> tuple[np.ndarray, Evaluation]:
+              iterations: int = 2, gate_px: float | None = None, penalty_px: float = 100.0
+              ) -> tuple[np.ndarray, Evaluation]:
     """Levenberg-Marquardt on ``sum_v w_v |pi_v(X) - u_v|^2`` for each of P points independently (batched).
 
-    Args: X0 (P, 3) cm start; uv_px (P, V, 2); weight (P, V) (0 = view unused). Each point keeps its own
-    damping; a step is kept only where it lowers that point's cost.
+    Args: X0 (P, 3) cm start; uv_px (P, V, 2); weight (P, V) (0 = view unused); gate_px: if given, views whose
+    residual at X0 is not below it get weight 0 (inlier gating on the first evaluation, saving a projection).
+    Each point keeps its own damping; a step is kept only where it lowers that point's cost.
     Returns: (P, 3) cm and the residuals at the returned points (for inlier tests).
     """
     kernel = views if isinstance(views, CameraKernel) else CameraKernel(views)
@@ -156,6 +158,8 @@ def refine_lm(views: ViewSet | CameraKernel, X0: np.ndarray, uv_px: np.ndarray, 
     if iterations == 0:
         return X, ev
     w = np.where(np.all(np.isfinite(X), axis=1)[:, None], weight, 0.0)
+    if gate_px is not None:
+        w = np.where(ev.r_u * ev.r_u + ev.r_v * ev.r_v < F32(gate_px) ** 2, w, 0.0)
     H, g, cost = normal_equations(ev, w, penalty_px)
     lam = np.full(len(X), 1e-4)
     eye = np.eye(3)
@@ -267,12 +271,11 @@ def triangulate(views: ViewSet, uv_px: np.ndarray, conf: np.ndarray,
     u_obs, v_obs = uv[..., 0].astype(F32), uv[..., 1].astype(F32)
 
     X = _ransac(views, xn, w, valid, options)
-    start = np.where(np.isfinite(X), X, 0.0)
-    inl = valid & (kernel.reprojection_error_px(start, u_obs, v_obs) < 2.0 * thr)  # loose: two-view points are noisy
+    have = np.all(np.isfinite(X), axis=1, keepdims=True)
+    err = kernel.reprojection_error_px(np.where(have, X, 0.0), u_obs, v_obs)
+    inl = valid & have & (err < 2.0 * thr)  # loose: two-view points are noisy
     X = triangulate_dlt(views, xn, np.where(inl, w, 0.0))
-    start = np.where(np.isfinite(X), X, 0.0)
-    inl = valid & (kernel.reprojection_error_px(start, u_obs, v_obs) < thr)
-    X, ev = refine_lm(kernel, X, uv, np.where(inl, w, 0.0), iterations=options.lm_iterations)
+    X, ev = refine_lm(kernel, X, uv, w, iterations=options.lm_iterations, gate_px=thr)
     err = np.sqrt(ev.r_u * ev.r_u + ev.r_v * ev.r_v).astype(float)
     inl = valid & (err < thr)
     n_inl = inl.sum(axis=1)
