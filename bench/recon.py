@@ -99,7 +99,8 @@ def skeleton_bench(dome: str, seconds: float, seed: int) -> None:
          vga_period_ms=round(float(np.median(np.diff(sync.streams["vga"].univ_time_ms))), 5),
          hd_period_ms=round(float(np.median(np.diff(sync.streams["hd"].univ_time_ms))), 5),
          kinect_period_ms=[round(float(np.median(np.diff(t.univ_time_ms))), 5) for t in sync.kinect_color.values()],
-         kinect_dropped_frames=sum(int(t.index[-1] - t.index[0] + 1 - len(t.index)) for t in sync.kinect_color.values()),
+         kinect_dropped_frames=sum(int(t.index[-1] - t.index[0] + 1 - len(t.index))
+                                   for t in sync.kinect_color.values()),
          load_avg_1min=os.getloadavg()[0], calibrated_bundle="ground truth perturbed like a good calibration "
          "(centre 1.5 mm, rotation 0.02 deg, focal 0.05 %, pp 0.3 px, k1/k2 0.2 %); not the calibration pipeline")
     vga_times = sync.streams["vga"].univ_time_ms

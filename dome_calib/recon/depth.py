@@ -75,7 +75,8 @@ def depth_to_world(bundle: Bundle, node: str, depth_mm: np.ndarray, *, correct_b
     w, h = sensor.depth_size
     depth = np.asarray(depth_mm)
     if depth.shape != (h, w):
-        raise ReconError(f"{node}: depth frame has shape {depth.shape} but the calibration says {h} x {w} (rows x cols)")
+        raise ReconError(f"{node}: depth frame has shape {depth.shape} but the calibration says {h} x {w} "
+                         f"(rows x cols)")
     valid = depth > 0
     z_mm = correct_depth_mm(sensor, depth[valid]) if correct_bias else depth[valid].astype(float)
     rays = depth_rays(sensor)[valid]

@@ -51,6 +51,9 @@ def read_detections(path: str | Path) -> dict:
         raise _fail(path, "field 'cameras'", "missing or empty (expected {camera name: {frames, joints}})")
     out: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     n_joints = data.get("joints")
+    body_id = data.get("body_id", 0)
+    if not isinstance(body_id, int) or isinstance(body_id, bool):
+        raise _fail(path, "field 'body_id'", f"expected an integer, got {json.dumps(body_id)[:40]}")
     for name, entry in cams.items():
         where = f"camera {name}"
         if not isinstance(entry, dict) or "frames" not in entry or "joints" not in entry:
@@ -72,10 +75,13 @@ def read_detections(path: str | Path) -> dict:
         out[name] = (frames.astype(np.int64), joints[..., :2], joints[..., 2])
     times = data.get("times_ms")
     if times is not None:
-        times = np.asarray(times, dtype=float).ravel()
+        try:
+            times = np.asarray(times, dtype=float).ravel()
+        except (TypeError, ValueError):
+            raise _fail(path, "field 'times_ms'", "expected a list of numbers (ms)") from None
         if not np.all(np.isfinite(times)):
             raise _fail(path, "field 'times_ms'", "contains NaN or infinity")
-    return {"cameras": out, "joints": int(n_joints), "body_id": int(data.get("body_id", 0)),
+    return {"cameras": out, "joints": int(n_joints), "body_id": body_id,
             "reference": data.get("reference"), "times_ms": times}
 
 

@@ -44,7 +44,8 @@ class StreamTracks:
         if self.uv_px.ndim != 4 or self.uv_px.shape[:2] != (F, V) or self.uv_px.shape[3] != 2:
             raise ReconError(f"stream {self.stream}: uv_px has shape {self.uv_px.shape} but expected ({F}, {V}, J, 2)")
         if self.conf.shape != self.uv_px.shape[:3]:
-            raise ReconError(f"stream {self.stream}: conf has shape {self.conf.shape} but expected {self.uv_px.shape[:3]}")
+            raise ReconError(f"stream {self.stream}: conf has shape {self.conf.shape} but expected "
+                             f"{self.uv_px.shape[:3]}")
         if F > 1 and np.any(np.diff(self.frame_index) <= 0):
             raise ReconError(f"stream {self.stream}: frame indices must increase")
         # Cleaned copies for interpolation: finite pixels, confidence 0 wherever there is no usable detection.
