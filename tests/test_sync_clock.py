@@ -8,7 +8,7 @@ import pytest
 
 from timecode.labels import label_to_frames
 from timecode.rates import RATE_25, RATE_29_97_DF
-from timecode.sync.clock import ClockError, FrameStarts, fit_channel_clock, restarts_of, robust_line
+from timecode.sync.clock import ClockError, ClockFitOptions, FrameStarts, fit_channel_clock, restarts_of, robust_line
 
 FS = 48000.0
 NOISE_SAMPLES = 0.05  # ~1 us at 48 kHz, what the sub-sample decoder achieves
@@ -113,3 +113,23 @@ def test_no_frames_and_never_locks_are_one_line_errors():
     d["count"] = np.random.default_rng(3).integers(0, 10**6, 60)  # garbage labels: nothing consistent
     with pytest.raises(ClockError, match="never locks"):
         fit_channel_clock(_fs(d))
+
+
+def test_splice_of_whole_frames_in_both_channels_is_a_restart():
+    """Cutting exactly 10 frames out of a stereo recording looks like a label jump on each channel; seen at the same
+    place on both channels it is a splice: ticks are bridged by the labels (10 frames), not by the audio (0)."""
+    from timecode.sync.tables import fit_ltc_pair
+
+    chans = []
+    for seed, offset in ((0, 1234.5), (1, 777.25)):
+        d = _frames(300, offset=offset, drift_ppm=0.0, seed=seed)
+        cut = 150 * 1920 + 500.0
+        lost = (d["start_samples"] > cut - 1920) & (d["start_samples"] < cut + 10 * 1920)
+        d["start_samples"] = np.where(d["start_samples"] >= cut, d["start_samples"] - 10 * 1920, d["start_samples"])
+        chans.append((d, _fs(d, ~lost)))
+    alone = fit_channel_clock(chans[0][1])
+    assert [e["kind"] for e in alone.events] == ["jump"]  # one channel alone cannot tell
+    vga, hd = fit_ltc_pair(chans[0][1], chans[1][1], ClockFitOptions())
+    for clock, (d, fs) in zip((vga, hd), chans):
+        assert [e["kind"] for e in clock.events] == ["restart"] and len(clock.audio) == 2
+        np.testing.assert_array_equal(clock.ticks, d["ticks"][np.isin(d["count"], fs.count)])

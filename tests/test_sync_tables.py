@@ -177,3 +177,13 @@ def test_kinect_device_clock_reset_splits_the_fit(tmp_path):
     result = build_sync(session, vga, hd, kinect)
     assert len(result.kinect["KINECTNODE1"].device) == 2
     _check_accuracy(result, truth)
+
+
+def test_kinect_audio_losing_blocks(tmp_path):
+    """A Kinect drops 23 audio blocks (368 ms): its LTC fit restarts, the device-time fit runs straight through."""
+    result, truth = _run(tmp_path, kinect_audio_gap_at_s=2.0)
+    for node in ("KINECTNODE1", "KINECTNODE2"):
+        kc = result.kinect[node]
+        assert [e["kind"] for e in kc.audio.events] == ["restart"] and len(kc.audio.audio) == 2
+        assert len(kc.device) == 1
+    _check_accuracy(result, truth)

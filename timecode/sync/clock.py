@@ -49,7 +49,8 @@ class ClockFitOptions:
 
     min_run_frames: int = 4  # shorter runs of consistent labels are rejected as misreads
     min_lock_frames: int = 12  # a channel needs one consistent run this long, else "never locks"
-    gap_tolerance_frames: float = 0.1  # |gap / period - integer| below this: the audio ran on continuously
+    gap_tolerance_frames: float = 0.005  # |gap / period - n| below this + n * max_drift: audio ran on continuously
+    max_drift_ppm: float = 300.0  # clock error the continuity test allows per frame of gap
     outlier_sigma: float = 6.0  # residuals beyond sigma * robust std (MAD) are rejected ...
     outlier_floor_us: float = 20.0  # ... but never below this many microseconds
     label_margin_frames: int = 250  # a label may be extrapolated this far beyond a label segment's decoded span
@@ -170,6 +171,15 @@ class ChannelClock:
         bounds = [(a.sample_last + b.sample_first) / 2 for a, b in zip(self.audio[:-1], self.audio[1:])]
         return np.searchsorted(np.asarray(bounds, float), sample)
 
+    def in_gap(self, sample: np.ndarray | float) -> np.ndarray:
+        """True for sample positions between two audio segments where the splice may lie (neither side's fit is
+        known to hold there: after the last decoded frame's end, before the next segment's first frame)."""
+        x = np.asarray(sample, dtype=float)
+        out = np.zeros(x.shape, bool)
+        for a, b in zip(self.audio[:-1], self.audio[1:]):
+            out |= (x > a.sample_last + a.samples_per_tick) & (x < b.sample_first)
+        return out
+
     def tick_to_sample(self, tick: np.ndarray | float) -> np.ndarray:
         """Sample position (float) of the start of tick(s), from the nearest audio segment (vectorised)."""
         t = np.asarray(tick, dtype=float)
@@ -223,10 +233,17 @@ class ChannelClock:
         return (c0 + t - firsts[k]) % self.frames_per_day
 
 
-def _runs(gap_frames: np.ndarray, dcount: np.ndarray, tol: float) -> list[tuple[int, int]]:
+def _continuous(gap_frames: np.ndarray | float, opts: ClockFitOptions) -> tuple[np.ndarray, np.ndarray]:
+    """(whole frames, True where the audio between two frame starts is continuous: a whole number of frames)."""
+    n = np.round(gap_frames)
+    tol = opts.gap_tolerance_frames + np.abs(n) * opts.max_drift_ppm * 1e-6
+    return n, (n >= 1) & (np.abs(gap_frames - n) < tol)
+
+
+def _runs(gap_frames: np.ndarray, dcount: np.ndarray, opts: ClockFitOptions) -> list[tuple[int, int]]:
     """Maximal runs [i, j) of frames whose consecutive gaps agree with their label steps."""
-    n_steps = np.round(gap_frames)
-    ok = (n_steps >= 1) & (np.abs(gap_frames - n_steps) < tol) & (dcount == n_steps)
+    n_steps, cont = _continuous(gap_frames, opts)
+    ok = cont & (dcount == n_steps)
     breaks = np.flatnonzero(~ok) + 1
     edges = np.concatenate([[0], breaks, [gap_frames.size + 1]])
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
@@ -249,7 +266,7 @@ def fit_channel_clock(frames: FrameStarts, options: ClockFitOptions | None = Non
     c, s = c[order], s[order]
     fpd = frames.frames_per_day
     period0 = frames.sample_rate / float(frames.fps)
-    runs = _runs(np.diff(s) / period0, np.diff(c) % fpd, opts.gap_tolerance_frames)
+    runs = _runs(np.diff(s) / period0, np.diff(c) % fpd, opts)
     kept = [(a, b) for a, b in runs if b - a >= opts.min_run_frames]
     longest = max(b - a for a, b in runs)
     if not kept or longest < opts.min_lock_frames:
@@ -270,16 +287,17 @@ def fit_channel_clock(frames: FrameStarts, options: ClockFitOptions | None = Non
             pa, pb = prev
             span = (s[pb - 1] - s[pa]) / max(1, int(ticks_parts[-1][-1] - ticks_parts[-1][0]))
             period = span if pb - pa >= 2 else period0
-            gap = (s[a] - s[pb - 1]) / period
-            n = int(round(gap))
+            n_f, cont = _continuous((s[a] - s[pb - 1]) / period, opts)
+            n = int(n_f)
             dc = int((c[a] - c[pb - 1]) % fpd)
             forced_here = any(f0 < s[a] and s[pb - 1] < f1 for f0, f1 in forced)
-            continuous = n >= 1 and abs(gap - n) < opts.gap_tolerance_frames and not forced_here
+            continuous = bool(cont) and not forced_here
             if continuous and dc == n:
                 step = n  # misread frames in between were dropped; same label and audio segment
             elif continuous:
                 step = n
                 events.append({"kind": "jump", "tick": tick + step, "sample": float(s[a]),
+                               "sample_before": float(s[pb - 1]),
                                "from_count": int(c[pb - 1]), "to_count": int(c[a])})
                 labels.append(LabelSegment(count_first=int(c[a]), tick_first=tick + step, tick_last=tick + step))
             else:

@@ -58,6 +58,8 @@ class SynthSessionOptions:
     kinect_frame_jitter_us: float = 200.0  # std of colour/depth frame timestamps
     kinect_block_jitter_us: float = 500.0  # std of audio block timestamps
     kinect_depth_phase_ms: float = 6.25  # depth exposure after colour exposure
+    kinect_audio_gap_at_s: float | None = None  # every Kinect loses audio blocks here (USB hiccup) ...
+    kinect_audio_gap_blocks: int = 23  # ... this many blocks: the file just lacks them
 
 
 @dataclass(kw_only=True)
@@ -174,6 +176,16 @@ def make_session(folder: str | Path, options: SynthSessionOptions | None = None)
         audio += rng.normal(0, 10 ** (o.kinect_level_dbfs / 20) / 10 ** (o.kinect_snr_db / 20), n_k)
         first = np.arange(0, n_k - BLOCK_SAMPLES, BLOCK_SAMPLES)
         block_dev = np.round(dev(t0 + first / kfs) + rng.normal(0, o.kinect_block_jitter_us * 10, first.size))
+        if o.kinect_audio_gap_at_s is not None:  # lost blocks: removed from the file, later ones move up
+            b0 = int((o.kinect_audio_gap_at_s - t0) * kfs) // BLOCK_SAMPLES
+            gap = o.kinect_audio_gap_blocks * BLOCK_SAMPLES
+            c0 = b0 * BLOCK_SAMPLES
+            audio = np.delete(audio, np.s_[c0:c0 + gap])
+            keep = (first < c0) | (first >= c0 + gap)
+            first, block_dev = np.where(first >= c0 + gap, first - gap, first)[keep], block_dev[keep]
+            kc, ks = truth.ltc_frames[name]
+            ok = (ks < c0 - o.kinect_sample_rate / hd_fps) | (ks >= c0 + gap)
+            truth.ltc_frames[name] = (kc[ok], np.where(ks >= c0 + gap, ks - gap, ks)[ok])
         node_dir = folder / "kinect" / name
         node_dir.mkdir(parents=True, exist_ok=True)
         has_audio = name not in o.kinect_missing_audio

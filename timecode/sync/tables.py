@@ -158,9 +158,38 @@ def pair_models(vga: ChannelClock, hd: ChannelClock) -> list[dict]:
     return out
 
 
+def _overlap(a: tuple[float, float], b: tuple[float, float]) -> bool:
+    return a[0] <= b[1] and b[0] <= a[1]
+
+
+def fit_ltc_pair(vga_frames: FrameStarts, hd_frames: FrameStarts, opts: ClockFitOptions
+                 ) -> tuple[ChannelClock, ChannelClock]:
+    """Fit both channels of ltc.wav. Both share one sample clock, so a restart either channel sees splits both,
+    and label breaks at the same place in both channels are a splice of the recording, not two re-jams."""
+    forced: list[tuple[float, float]] = []
+    for _ in range(4):
+        vga = fit_channel_clock(vga_frames, opts, restarts=forced)
+        hd = fit_channel_clock(hd_frames, opts, restarts=forced)
+        jumps = [[(e["sample_before"], e["sample"]) for e in c.events if e["kind"] == "jump"] for c in (vga, hd)]
+        shared = [j for j in jumps[0] if any(_overlap(j, k) for k in jumps[1])]
+        shared += [k for k in jumps[1] if any(_overlap(j, k) for j in jumps[0])]
+        new = sorted(set(forced) | set(restarts_of(vga)) | set(restarts_of(hd)) | set(shared))
+        if new == sorted(set(forced)):
+            break
+        forced = new
+    return vga, hd
+
+
+def block_splices(node: KinectNode, sample_rate: float, min_gap_ms: float = 8.0) -> list[tuple[float, float]]:
+    """Where a Kinect's audio file lacks blocks: the device time jumps more than the samples between two blocks."""
+    first = node.block_first_sample.astype(float)
+    excess_ms = np.diff(node.block_device_time_100ns) * 1e-4 - np.diff(first) / sample_rate * 1e3
+    return [(first[b + 1], first[b + 1]) for b in np.flatnonzero(excess_ms > min_gap_ms)]
+
+
 def kinect_clock(node: KinectNode, frames: FrameStarts, hd: ChannelClock, opts: SyncOptions) -> KinectClock:
     """Fit device time -> universal time for one Kinect from the HD LTC its microphone recorded."""
-    audio = fit_channel_clock(frames, opts.clock)
+    audio = fit_channel_clock(frames, opts.clock, restarts=block_splices(node, frames.sample_rate))
     main, found = hd.count_to_tick(audio.count_of_tick(audio.ticks), margin_frames=opts.clock.label_margin_frames)
     if not found.any():
         raise SyncError(f"{frames.source}: its HD timecode never occurs in the HD LTC recording "
@@ -169,6 +198,7 @@ def kinect_clock(node: KinectNode, frames: FrameStarts, hd: ChannelClock, opts: 
     offset = int(values[np.argmax(counts)])
     s0, s1 = audio.start_samples[0], audio.start_samples[-1]
     keep = (node.block_first_sample >= s0 - frames.sample_rate) & (node.block_first_sample <= s1 + frames.sample_rate)
+    keep &= ~audio.in_gap(node.block_first_sample.astype(float))  # blocks where the audio may be spliced
     if keep.sum() < 4:
         raise SyncError(f"{frames.source}: fewer than 4 audio blocks lie within the decoded LTC "
                         "(audio_blocks do not overlap the audio)")
@@ -200,10 +230,7 @@ def build_sync(session: Session, vga_frames: FrameStarts, hd_frames: FrameStarts
         SyncResult with the tables; Kinects that could not be synced are listed in ``flagged``.
     """
     opts = options or SyncOptions()
-    vga = fit_channel_clock(vga_frames, opts.clock)
-    hd = fit_channel_clock(hd_frames, opts.clock, restarts=restarts_of(vga))
-    if len(restarts_of(hd)) > len(restarts_of(vga)):  # restarts only the HD channel saw split VGA too
-        vga = fit_channel_clock(vga_frames, opts.clock, restarts=restarts_of(hd))
+    vga, hd = fit_ltc_pair(vga_frames, hd_frames, opts.clock)
     lo = max(vga.start_samples[0], hd.start_samples[0])
     hi = min(vga.start_samples[-1], hd.start_samples[-1])
     if hi <= lo:
