@@ -70,6 +70,9 @@ class SensorCalibration:
     stereo: StereoResult
     depth_bias: DepthBiasResult | None
     sensor: KinectSensor
+    used_indices: list[int]  # frame indices of the rows of the corner arrays (and of the stereo board poses)
+    ir_corners_px: np.ndarray  # (F, N, 2) detected corners of the used frames, canonical order
+    color_corners_px: np.ndarray  # (F, N, 2)
 
     @property
     def frames_used(self) -> int:
@@ -165,7 +168,8 @@ def calibrate_sensor(frames: SensorFrames, color_cam: Camera, opts: KinectCalibO
                "rmsColorPx": stereo.rms_color_px},
     )
     return SensorCalibration(name=frames.name, color_camera=color_cam.name, frames=statuses, stereo=stereo,
-                             depth_bias=bias, sensor=sensor)
+                             depth_bias=bias, sensor=sensor, used_indices=keys, ir_corners_px=ir_px,
+                             color_corners_px=col_px)
 
 
 def color_camera_name(sensor: str) -> str:
