@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -90,7 +91,18 @@ def _variant(session: Path, tmp_path: Path, vga_channel: np.ndarray | None = Non
     return folder
 
 
-def test_errors_are_one_line(session, tmp_path):
+def _main(monkeypatch, capsys, *args: str) -> tuple[int, str]:
+    """Run ``timecode sync ARGS`` in-process through run_cli (as the installed command does): (exit code, stderr)."""
+    from timecode.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["timecode", "sync", *args])
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exc:
+        main()
+    return int(exc.value.code or 0), capsys.readouterr().err
+
+
+def test_errors_are_one_line(session, tmp_path, monkeypatch, capsys):
     folder, _ = session
     n = sf.info(str(folder / "ltc.wav")).frames
     rng = np.random.default_rng(0)
@@ -104,15 +116,17 @@ def test_errors_are_one_line(session, tmp_path):
     far = _variant(folder, tmp_path / "c", doc_edit=lambda d: d["streams"]["vga"].update(ref_timecode="08:00:00:00"))
     cases.append((far, "stream vga: .*do not overlap"))
     cases.append((tmp_path / "absent", "not a session folder"))
+    wrong = _variant(folder, tmp_path / "d", doc_edit=lambda d: d["ltc"].update(hd_channel=2))
+    cases.append((wrong, r"ltc.wav: session.json field 'ltc.hd_channel' = 2 but the file has 2 channel\(s\)"))
     for path, message in cases:
         out = tmp_path / "out"
-        proc = _cli(str(path), "-o", str(out))
-        assert proc.returncode == 1, proc.stderr
-        assert proc.stderr.startswith("timecode: error: ") and proc.stderr.count("\n") == 1, proc.stderr
-        assert __import__("re").search(message, proc.stderr), proc.stderr
+        code, err = _main(monkeypatch, capsys, str(path), "-o", str(out))
+        assert code == 1, err
+        assert err.startswith("timecode: error: ") and err.count("\n") == 1, err
+        assert re.search(message, err), err
         assert not out.exists()  # nothing written, not even partially
-    strict = _cli(str(folder), "-o", str(tmp_path / "strict"), "--strict-kinect")
-    assert strict.returncode == 1 and "KINECTNODE2: no audio recorded" in strict.stderr
+    code, err = _main(monkeypatch, capsys, str(folder), "-o", str(tmp_path / "strict"), "--strict-kinect")
+    assert code == 1 and "KINECTNODE2: no audio recorded" in err
     assert not (tmp_path / "strict").exists()
 
 

@@ -331,7 +331,8 @@ def fit_channel_clock(frames: FrameStarts, options: ClockFitOptions | None = Non
     for seg in labels:
         if seg.count_first + seg.tick_last - seg.tick_first >= fpd:
             wrap_tick = seg.tick_first + fpd - seg.count_first
-            events.append({"kind": "midnight", "tick": int(wrap_tick), "sample": float(np.interp(wrap_tick, ticks, samples))})
+            events.append({"kind": "midnight", "tick": int(wrap_tick),
+                           "sample": float(np.interp(wrap_tick, ticks, samples))})
     for e in events:
         logger.debug("%s: %s at sample %.1f", frames.source, e["kind"], e["sample"])
     return ChannelClock(source=frames.source, fps=frames.fps, sample_rate=frames.sample_rate, frames_per_day=fpd,

@@ -46,7 +46,8 @@ def match_time(table: SyncTable, univ_time_ms: np.ndarray | float) -> FrameMatch
     return FrameMatch(index=np.asarray(index), dt_ms=np.asarray(dt), within=np.asarray(within))
 
 
-def match_hd_to_kinect(sync: SyncTables, hd_index: np.ndarray | int, node: str, *, hd_stream: str = "hd") -> KinectMatch:
+def match_hd_to_kinect(sync: SyncTables, hd_index: np.ndarray | int, node: str, *,
+                       hd_stream: str = "hd") -> KinectMatch:
     """The colour and depth frames of Kinect ``node`` nearest in universal time to HD frames ``hd_index``.
 
     Raises KeyError naming the stream or node the tables lack, or the first HD frame index they do not hold.
@@ -62,7 +63,8 @@ def match_hd_to_kinect(sync: SyncTables, hd_index: np.ndarray | int, node: str, 
                        depth=match_time(sync.kinect_depth[node], t))
 
 
-def match_hd_to_all_kinects(sync: SyncTables, hd_index: np.ndarray | int, *, hd_stream: str = "hd") -> dict[str, KinectMatch]:
+def match_hd_to_all_kinects(sync: SyncTables, hd_index: np.ndarray | int, *,
+                            hd_stream: str = "hd") -> dict[str, KinectMatch]:
     """:func:`match_hd_to_kinect` for every node that has both colour and depth tables, keyed by node name."""
     nodes = sorted(set(sync.kinect_color) & set(sync.kinect_depth), key=lambda n: (len(n), n))
     return {n: match_hd_to_kinect(sync, hd_index, n, hd_stream=hd_stream) for n in nodes}

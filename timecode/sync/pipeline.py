@@ -22,16 +22,17 @@ from timecode.sync.tables import SyncError, SyncOptions, SyncResult, build_sync
 logger = logging.getLogger(__name__)
 
 
-def _check_channel(path: Path, channel: int, field: str) -> None:
+def _check_channel(path: Path, channel: int, field: str, file_field: str) -> None:
     """SessionError naming file and field when the audio file is missing, unreadable or lacks the channel."""
     if not path.is_file():
-        raise SessionError(f"{path}: audio file not found ({field})")
+        raise SessionError(f"{path}: audio file not found (session.json field '{file_field}')")
     try:
         n = sf.info(str(path)).channels
     except (sf.LibsndfileError, RuntimeError) as exc:
         raise SessionError(f"{path}: cannot read audio ({exc})") from None
     if channel >= n:
-        raise SessionError(f"{path}: {field} = {channel} but the file has {n} channel(s)")
+        raise SessionError(f"{path}: session.json field '{field}' = {channel} but the file has {n} channel(s) "
+                           "(channels count from 0)")
 
 
 def _decode(path: Path, channel: int, rate: FrameRate, source: str, start: int = 0, stop: int | None = None
@@ -98,7 +99,7 @@ def decode_session(session: Session, progress: Callable[[str], None] | None = No
     out = []
     for key, ch, rate in (("vga", ltc.vga_channel, ltc.vga_rate), ("hd", ltc.hd_channel, ltc.hd_rate)):
         step(f"decoding {ltc.path.name} {key.upper()} channel")
-        _check_channel(ltc.path, ch, f"ltc.{key}_channel")
+        _check_channel(ltc.path, ch, f"ltc.{key}_channel", "ltc.file")
         out.append(decode_frame_starts(ltc.path, ch, rate, f"{ltc.path.name} channel {ch} ({key.upper()} LTC)"))
     kinect: dict[str, FrameStarts | str] = {}
     for name, node in session.kinects.items():
@@ -107,7 +108,8 @@ def decode_session(session: Session, progress: Callable[[str], None] | None = No
             kinect[name] = "no audio recorded (session.json: audio is null)"
             continue
         try:
-            _check_channel(node.audio_path, node.audio_channel, f"kinect.{name}.audio_channel")
+            _check_channel(node.audio_path, node.audio_channel, f"kinect.{name}.audio_channel",
+                           f"kinect.{name}.audio")
             kinect[name] = decode_frame_starts(node.audio_path, node.audio_channel, ltc.hd_rate,
                                                f"{name} audio (HD LTC)")
         except (ClockError, SessionError) as exc:
@@ -133,6 +135,8 @@ def output_seq(bundle: str | Path, seq: str | None, session_seq: str) -> str:
     folder = Path(bundle)
     if folder.exists() and not folder.is_dir():
         raise SyncError(f"{folder}: output bundle is not a folder")
+    if seq is not None and (not seq or "/" in seq or seq.startswith(".")):
+        raise SyncError(f"--seq {seq!r}: expected a plain name (no '/', not starting with '.')")
     found = sorted(folder.glob("calibration_*.json")) if folder.is_dir() else []
     if not found:
         return seq or session_seq
@@ -161,7 +165,8 @@ def write_sync(result: SyncResult, bundle: str | Path, *, seq: str | None = None
     else:
         texts = {f"synctables_{seq}.json": format_synctables(result.tables.streams)}
         if has_kinect:
-            texts[f"ksynctables_{seq}.json"] = format_ksynctables(result.tables.kinect_color, result.tables.kinect_depth)
+            texts[f"ksynctables_{seq}.json"] = format_ksynctables(result.tables.kinect_color,
+                                                                  result.tables.kinect_depth)
         for name, text in texts.items():
             atomic_write_text(folder / name, text)
         names = list(texts)

@@ -192,7 +192,8 @@ def make_session(folder: str | Path, options: SynthSessionOptions | None = None)
         if has_audio:
             with atomic_path(node_dir / "audio.wav") as tmp:
                 sf.write(tmp, audio.astype(np.float32), o.kinect_sample_rate, subtype="FLOAT", format="WAV")
-        ts: dict = {"audio_blocks": {"first_sample": first.tolist(), "device_time_100ns": block_dev.astype(np.int64).tolist()}}
+        ts: dict = {"audio_blocks": {"first_sample": first.tolist(),
+                                     "device_time_100ns": block_dev.astype(np.int64).tolist()}}
         period = 1 / 30 / (1 + d_dev * 1e-6)
         tc0 = t0 + 0.05 + rng.uniform(0, 0.03)
         n_frames = int((t0 + dur - 0.05 - tc0 - o.kinect_depth_phase_ms * 1e-3) / period)

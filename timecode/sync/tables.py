@@ -210,7 +210,8 @@ def kinect_clock(node: KinectNode, frames: FrameStarts, hd: ChannelClock, opts: 
     for i0, i1 in zip(breaks[:-1], breaks[1:]):
         if i1 - i0 < 4:
             continue
-        fits.append(robust_line(x[i0:i1], y[i0:i1], sigma=opts.device_outlier_sigma, floor=opts.device_outlier_floor_ms))
+        fits.append(robust_line(x[i0:i1], y[i0:i1], sigma=opts.device_outlier_sigma,
+                                floor=opts.device_outlier_floor_ms))
         spans.append((int(x[i0]), int(x[i1 - 1])))
     if not fits:
         raise SyncError(f"{frames.source}: audio block timestamps are inconsistent (no stretch of 4 agreeing blocks)")
@@ -268,8 +269,9 @@ def build_sync(session: Session, vga_frames: FrameStarts, hd_frames: FrameStarts
             kc = kinect_clock(node, got, hd, opts)
             for kind in ("color", "depth"):
                 fr = getattr(node, kind)
-                n_out = _check_span(f"{name}/{kind}", fr.device_time_100ns.astype(float), kc.spans[0][0], kc.spans[-1][1],
-                            1e7, opts.max_extrapolation_s, "the audio blocks timed by its decoded LTC")
+                n_out = _check_span(f"{name}/{kind}", fr.device_time_100ns.astype(float), kc.spans[0][0],
+                                    kc.spans[-1][1], 1e7, opts.max_extrapolation_s,
+                                    "the audio blocks timed by its decoded LTC")
                 if n_out:
                     notes.append(f"{name}/{kind}: {n_out} frames lie outside the timed audio blocks; their times "
                                  "are extrapolated")
