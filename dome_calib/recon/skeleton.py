@@ -3,8 +3,8 @@
 The body walks on a circle around the dome centre (~0.6 m/s) with swinging arms and legs, a bobbing torso and a
 turning head; joint positions are an analytic function of universal time, so any camera can be sampled at its
 own frame times. Detections are the projections at each stream's frame times (from its sync table) plus Gaussian
-pixel noise, with a fraction of wrong detections (half uniformly random in the image, half the left/right
-mirror joint, the typical detector confusion). Self-occlusion is not modelled: a joint is detected where it
+pixel noise, with a fraction of wrong detections (for left/right joints half are the mirror joint, the typical
+detector confusion, the rest uniformly random in the image; midline joints: all random). Self-occlusion is not modelled: a joint is detected where it
 projects inside the image.
 """
 from __future__ import annotations
@@ -42,8 +42,8 @@ def skeleton_cm(univ_time_ms: np.ndarray, *, radius_cm: float = 60.0, speed_cm_s
     gait = 2 * np.pi * 0.9 * t  # stride frequency 0.9 Hz
     center = np.stack([radius_cm * np.cos(phase), -95.0 - 2.0 * np.cos(2 * gait), radius_cm * np.sin(phase)], -1)
     fwd = np.stack([-np.sin(phase), np.zeros_like(t), np.cos(phase)], -1)  # walking direction
-    right = np.cross(fwd, [0.0, -1.0, 0.0])  # body's right (up = -y)
-    # Body-frame offsets (right, down, forward) in cm.
+    right = np.cross(fwd, [0.0, -1.0, 0.0])  # lateral axis (up = -y); "left" joints sit at -1 on it
+    # Body-frame offsets (lateral, down, forward) in cm.
     swing = 0.45 * np.sin(gait)
     raise_arm = 0.6 * (1 - np.cos(2 * np.pi * 0.25 * t))  # slow raise of the arms
     local = np.zeros((len(t), 19, 3))
