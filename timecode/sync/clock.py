@@ -11,6 +11,13 @@ Vocabulary:
   cut or paused while the generator ran on) starts a new audio segment; ticks across it are bridged by labels.
 - *label segment*: a stretch of ticks whose labels are contiguous; maps labels to ticks.
 
+How breaks are told apart: between two decoded frames the audio ran on continuously when their distance is a
+whole number of frame periods (within ``gap_tolerance_frames`` plus the drift allowance); if the labels advanced by
+that number too, nothing happened (the decoder just missed frames); if not, the timecode jumped. When the distance
+is not a whole number of periods, audio was lost: a restart, bridged by the labels. A splice that happens to remove
+a whole number of frames looks like a jump on one channel; :func:`timecode.sync.tables.fit_ltc_pair` recognises it
+because both channels of ltc.wav break at the same place, and Kinect audio splices show in the block timestamps.
+
 Per audio segment the frame starts are fitted robustly as ``start_sample = a + b * (tick - tick_ref)``
 (offset and drift against the audio sample clock); outliers are rejected and counted.
 """
@@ -302,9 +309,15 @@ def fit_channel_clock(frames: FrameStarts, options: ClockFitOptions | None = Non
                 labels.append(LabelSegment(count_first=int(c[a]), tick_first=tick + step, tick_last=tick + step))
             else:
                 step = dc if dc > 0 else max(1, n)
+                # audio was lost, so labels must advance at least as far as the audio that is there
+                doubtful = dc < (s[a] - s[pb - 1]) / period - 1
                 events.append({"kind": "restart", "tick": tick + step, "sample": float(s[a]),
-                               "sample_before": float(s[pb - 1]),
-                               "gap_samples": float(s[a] - s[pb - 1]), "label_gap_frames": dc})
+                               "sample_before": float(s[pb - 1]), "gap_samples": float(s[a] - s[pb - 1]),
+                               "label_gap_frames": dc, "doubtful": bool(doubtful)})
+                if doubtful:
+                    logger.warning("%s: restart at sample %.0f: the labels jump too (by %d frames over %.1f frames "
+                                   "of audio); frames after it are timed by those labels", frames.source, s[a], dc,
+                                   (s[a] - s[pb - 1]) / period)
                 audio_breaks.append(n_kept)
                 if dc == 0:
                     labels.append(LabelSegment(count_first=int(c[a]), tick_first=tick + step, tick_last=tick + step))

@@ -66,7 +66,8 @@ def summary_lines(result: SyncResult) -> list[str]:
                      f"{s.drift_ppm:>10.2f} {s.residual_rms_us:>13.2f}")
     for clock in (result.vga, result.hd):
         for e in sorted(clock.events, key=lambda e: e["tick"]):
-            lines.append(f"note: {clock.source}: {e['kind']} at sample {e['sample']:.0f}")
+            doubt = " (labels jump there too: later times rest on them)" if e.get("doubtful") else ""
+            lines.append(f"note: {clock.source}: {e['kind']} at sample {e['sample']:.0f}{doubt}")
         if clock.n_misread or clock.n_outliers:
             lines.append(f"note: {clock.source}: {clock.n_misread} misread frames dropped, "
                          f"{clock.n_outliers} outliers rejected")
