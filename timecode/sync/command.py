@@ -29,7 +29,7 @@ def run_sync(session: Path, output: Path, *, seq: str | None, strict_kinect: boo
             bar.update(task, description=what, completed=done[0])
             done[0] += 1
 
-        result = sync_session(session, opts, progress=step)
+        result = sync_session(loaded, opts, progress=step)
         bar.update(task, completed=n_steps)
     written = write_sync(result, output, seq=seq)
     for line in summary_lines(result):

@@ -117,10 +117,10 @@ def decode_session(session: Session, progress: Callable[[str], None] | None = No
     return out[0], out[1], kinect
 
 
-def sync_session(folder: str | Path, options: SyncOptions | None = None,
+def sync_session(folder: str | Path | Session, options: SyncOptions | None = None,
                  progress: Callable[[str], None] | None = None) -> SyncResult:
-    """Load, decode and fit a session folder; returns tables and fits (nothing is written)."""
-    session = load_session(folder)
+    """Load (unless given a loaded Session), decode and fit a session; returns tables and fits, writes nothing."""
+    session = folder if isinstance(folder, Session) else load_session(folder)
     vga, hd, kinect = decode_session(session, progress)
     opts = options or SyncOptions()
     if opts.strict_kinect:
