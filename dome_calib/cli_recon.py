@@ -50,10 +50,17 @@ def pointcloud(
 ) -> None:
     """Turn the depth frames of every Kinect nearest to a universal time into one point cloud in the world frame
     (cm), each point tagged with its Kinect and the frame's time offset (ms)."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
     from dome_calib.recon.commands import pointcloud_file
 
     out = out or Path(f"pointcloud_{time_ms:g}ms.ply")
-    summary = pointcloud_file(bundle, time_ms, depth, out, max_offset_ms=max_offset_ms)
+    columns = (TextColumn("depth to world"), BarColumn(), MofNCompleteColumn(), TextColumn("Kinects"),
+               TimeElapsedColumn())
+    with Progress(*columns, transient=True) as bar:
+        task = bar.add_task("pointcloud", total=None)
+        summary = pointcloud_file(bundle, time_ms, depth, out, max_offset_ms=max_offset_ms,
+                                  progress=lambda done, total: bar.update(task, completed=done, total=total))
     offsets = ", ".join(f"{s} {o:+.1f} ms" for s, o in zip(summary.sensors, summary.time_offsets_ms))
     typer.echo(f"{summary.points} points from {len(summary.sensors)} Kinects ({offsets}) -> {summary.out}")
 

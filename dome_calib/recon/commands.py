@@ -62,11 +62,12 @@ class PointCloudSummary:
 
 
 def pointcloud_file(bundle_folder: str | Path, time_ms: float, depth_folder: str | Path, out: str | Path, *,
-                    max_offset_ms: float | None = None, correct_bias: bool = True) -> PointCloudSummary:
+                    max_offset_ms: float | None = None, correct_bias: bool = True,
+                    progress: Callable[[int, int], None] | None = None) -> PointCloudSummary:
     """Depth frames nearest to ``time_ms`` of every Kinect -> one world point cloud PLY at ``out``."""
     bundle = load_bundle(bundle_folder)
     cloud = pointcloud_at(bundle, time_ms, depth_folder_reader(depth_folder), max_offset_ms=max_offset_ms,
-                          correct_bias=correct_bias)
+                          correct_bias=correct_bias, progress=progress)
     write_ply(out, cloud)
     offsets = [float(cloud.time_offset_ms[cloud.sensor == i][0]) for i in range(len(cloud.sensors))]
     return PointCloudSummary(out=Path(out), points=len(cloud.xyz_cm), sensors=cloud.sensors, time_offsets_ms=offsets)

@@ -113,13 +113,14 @@ def depth_folder_reader(folder: str | Path) -> Callable[[str, int], np.ndarray |
 
 def pointcloud_at(bundle: Bundle, univ_time_ms: float, read_frame: Callable[[str, int], np.ndarray | None], *,
                   nodes: list[str] | None = None, max_offset_ms: float | None = None,
-                  correct_bias: bool = True) -> PointCloud:
+                  correct_bias: bool = True, progress: Callable[[int, int], None] | None = None) -> PointCloud:
     """Merge the depth frames of all Kinects nearest to a universal time into one world point cloud.
 
     Args:
         read_frame: ``(node, frame_index) -> (H, W) uint16 mm or None`` (see :func:`depth_folder_reader`).
         nodes: sensors to use; default every sensor with a depth sync table and a calibration.
         max_offset_ms: skip sensors whose nearest frame is further than this from the time.
+        progress: called with (sensors done, sensors) after each sensor.
     Raises:
         ReconError if the bundle lacks depth sync tables or Kinect calibration, or no sensor has a frame.
     """
@@ -131,7 +132,9 @@ def pointcloud_at(bundle: Bundle, univ_time_ms: float, read_frame: Callable[[str
         known = bundle.kinect.sensors if bundle.kinect is not None else {}
         nodes = sorted((n for n in tables if n in known), key=lambda n: (len(n), n))
     points, sensor_ids, offsets, names, skipped = [], [], [], [], []
-    for node in nodes:
+    for done, node in enumerate(nodes, start=1):
+        if progress is not None and done > 1:
+            progress(done - 1, len(nodes))
         if node not in tables:
             raise ReconError(f"bundle {bundle.seq}: no depth sync table for {node}")
         table = tables[node]
@@ -154,6 +157,8 @@ def pointcloud_at(bundle: Bundle, univ_time_ms: float, read_frame: Callable[[str
         offsets.append(np.full(len(xyz), dt, dtype=np.float32))
         names.append(node)
         logger.debug("%s: frame %d (%+.1f ms), %d points", node, k, dt, len(xyz))
+    if progress is not None:
+        progress(len(nodes), len(nodes))
     if not names:
         first = skipped[0] if skipped else "no sensors"
         raise ReconError(f"no Kinect depth frame near {univ_time_ms} ms in {len(nodes)} sensors (first: {first})")
