@@ -12,7 +12,7 @@ def triangulate(
     bundle: Path = typer.Option(..., "--bundle", help="Calibration bundle folder (calibration_<seq>.json plus "
                                 "synctables/ksynctables).", show_default=False),
     out: Path = typer.Option(None, "-o", "--out", help="Folder for the body3DScene_<k>.json skeleton files "
-                             "[default: <DETECTIONS name>_skeletons beside DETECTIONS]."),
+                             "(default: <DETECTIONS name>_skeletons beside DETECTIONS)."),
     threshold_px: float = typer.Option(8.0, "--threshold-px", help="A camera supports a joint if the joint "
                                        "reprojects within this many pixels of its detection."),
     min_views: int = typer.Option(2, "--min-views", help="Joints seen by fewer supporting cameras are left out."),
@@ -44,7 +44,8 @@ def pointcloud(
                                   show_default=False),
     depth: Path = typer.Option(..., "--depth", help="Folder with KINECTNODE<n>/depth_<k>.png (16-bit, mm).",
                                show_default=False),
-    out: Path = typer.Option(None, "-o", "--out", help="PLY file to write [default: pointcloud_<time>ms.ply]."),
+    out: Path = typer.Option(None, "-o", "--out", help="PLY file to write (default: pointcloud_<time>ms.ply in "
+                             "the current folder)."),
     max_offset_ms: float = typer.Option(None, "--max-offset-ms", help="Leave out Kinects whose nearest depth "
                                         "frame is further than this from the time."),
 ) -> None:
