@@ -234,3 +234,19 @@ def test_sync_lookup_by_index_nearest_and_bracket():
     np.testing.assert_allclose(w1[:2], [0.25, 0.25])
     np.testing.assert_allclose(w0[:2] + w1[:2], 1.0)
     assert np.isnan(w0[2]) and np.isnan(w1[2])
+
+
+def test_atomic_write_gives_normal_permissions_and_leaves_nothing_on_error(tmp_path):
+    import os
+
+    from dome_calib.io_utils import atomic_path, atomic_write_text
+
+    atomic_write_text(tmp_path / "a.json", "{}")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (tmp_path / "a.json").stat().st_mode & 0o777 == 0o666 & ~mask
+    with pytest.raises(RuntimeError):
+        with atomic_path(tmp_path / "b.json") as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("stop")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json"]
