@@ -28,7 +28,7 @@ from dome_calib.panoptic_io import read_calibration, read_kcalibration  # noqa: 
 from dome_calib.recon.depth import pointcloud_at  # noqa: E402
 from dome_calib.recon.project import view_set  # noqa: E402
 from dome_calib.recon.skeleton import DetectionNoise, skeleton_cm, synthetic_sync, synthetic_tracks  # noqa: E402
-from dome_calib.recon.streams import triangulate_streams  # noqa: E402
+from dome_calib.recon.streams import InterpolationOptions, triangulate_streams  # noqa: E402
 from dome_calib.recon.synth_depth import distance_to_triangles, render_depth_mm, tent_triangles  # noqa: E402
 from dome_calib.rotation import rotvec_to_matrix  # noqa: E402
 
@@ -72,10 +72,10 @@ def calibrated_like(truth: Bundle, seed: int) -> Bundle:
     return out
 
 
-def run(bundle: Bundle, streams, times: np.ndarray, truth_X: np.ndarray) -> dict:
+def run(bundle: Bundle, streams, times: np.ndarray, truth_X: np.ndarray, mode: str = "linear") -> dict:
     views = view_set(bundle, [n for s in streams for n in s.cameras])
     c0, w0 = time.process_time(), time.perf_counter()
-    seq = triangulate_streams(views, streams, times)
+    seq = triangulate_streams(views, streams, times, interpolation=InterpolationOptions(mode=mode))
     cpu, wall = time.process_time() - c0, time.perf_counter() - w0
     err_mm = np.linalg.norm(seq.X_cm - truth_X, axis=-1) * 10.0
     ok = np.isfinite(err_mm)
@@ -113,10 +113,14 @@ def skeleton_bench(dome: str, seconds: float, seed: int) -> None:
             r = run(bundle, streams, times, truth_X)
             results[(bname, sname)] = r
             emit(what="skeleton", bundle=bname, streams=sname, times="vga frame times", **r)
-    # Any universal time: all streams interpolated at a 100 Hz grid (between everyone's frames).
+    # Any universal time: all streams at a 100 Hz grid (between everyone's frames); nearest frame as ablation.
     grid = np.arange(times[0], times[-1], 10.0)
-    r = run(truth, tracks, grid, skeleton_cm(grid))
-    emit(what="skeleton", bundle="ground_truth", streams="all_interpolated", times="100 Hz grid", **r)
+    for mode in ("linear", "nearest"):
+        r = run(truth, tracks, grid, skeleton_cm(grid), mode=mode)
+        sname = "all_interpolated" if mode == "linear" else "all_nearest_frame"
+        emit(what="skeleton", bundle="ground_truth", streams=sname, times="100 Hz grid", **r)
+    r = run(truth, tracks, times, truth_X, mode="nearest")
+    emit(what="skeleton", bundle="ground_truth", streams="all_nearest_frame", times="vga frame times", **r)
     # Throughput: best of 3 runs (all streams, ground truth), wall clock and CPU time of this process.
     views = view_set(truth, [n for s in tracks for n in s.cameras])
     walls, cpus = [], []

@@ -11,6 +11,7 @@ from dome_calib.recon.errors import ReconError
 from dome_calib.recon.project import view_set
 from dome_calib.recon.skeleton import MIRROR19, clock_table, skeleton_cm, synthetic_tracks
 from dome_calib.recon.streams import (
+    InterpolationOptions,
     StreamTracks,
     group_by_stream,
     interpolate_stream,
@@ -39,6 +40,20 @@ def test_interpolation_is_exact_for_linear_motion_and_empty_outside_the_span():
     np.testing.assert_allclose(uv[inside, 0, 0, 0], 100 + 0.5 * times[inside], atol=1e-9)
     np.testing.assert_allclose(uv[inside, 0, 0, 1], 200 - 0.25 * times[inside], atol=1e-9)
     assert conf[[0, 5], 0, 0].tolist() == [0.0, 0.0] and np.isnan(uv[[0, 5]]).all()
+
+
+def test_nearest_mode_takes_the_closer_frame():
+    table = clock_table(Fraction(25), start_ms=0.0, duration_ms=400.0)
+    tracks = _linear_tracks(table)
+    t0, t1 = table.univ_time_ms[2], table.univ_time_ms[3]
+    times = np.array([t0 + 0.3 * (t1 - t0), t0 + 0.7 * (t1 - t0)])
+    uv, conf = interpolate_stream(tracks, times, mode="nearest")
+    np.testing.assert_allclose(uv[:, 0, 0, 0], 100 + 0.5 * np.array([t0, t1]), atol=1e-9)
+    assert conf[:, 0, 0].tolist() == [1.0, 1.0]
+    with pytest.raises(ReconError, match="max_gap_frames"):
+        InterpolationOptions(max_gap_frames=0.5)
+    with pytest.raises(ValueError):
+        InterpolationOptions(mode="cubic")
 
 
 def test_dropped_frames_widen_the_gap_and_wide_gaps_are_not_bridged():
@@ -96,6 +111,9 @@ def test_all_streams_interpolated_beat_vga_only_and_time_matters():
         assert np.isfinite(seq.X_cm).all()
         mpjpe[name] = np.linalg.norm(seq.X_cm - truth, axis=-1).mean() * 10.0
     assert mpjpe["all"] < mpjpe["vga"] < 3.0
+    # Nearest frames instead of interpolation: the HD and Kinect cameras see the body up to half a frame late.
+    seq = triangulate_streams(views, tracks, times, interpolation=InterpolationOptions(mode="nearest"))
+    assert np.linalg.norm(seq.X_cm - truth, axis=-1).mean() * 10.0 > 1.2 * mpjpe["all"]
     # Between VGA frames (HD times) the interpolated streams still reconstruct the moving body.
     hd_times = bundle.sync.streams["hd"].univ_time_ms
     hd_times = hd_times[(hd_times > 1100) & (hd_times < 1500)]

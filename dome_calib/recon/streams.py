@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 
@@ -21,6 +22,25 @@ from dome_calib.recon.project import ViewSet
 from dome_calib.recon.triangulate import TriangulationOptions, triangulate
 
 logger = logging.getLogger(__name__)
+
+
+class Interpolation(StrEnum):
+    LINEAR = "linear"  # w0 * frame0 + w1 * frame1 (the method)
+    NEAREST = "nearest"  # the bracketing frame with the larger weight (ablation: what interpolation buys)
+
+
+@dataclass(kw_only=True)
+class InterpolationOptions:
+    """How streams are brought to a universal time: ``mode``; brackets wider than ``max_gap_frames`` nominal
+    frame periods are not bridged."""
+
+    mode: Interpolation = Interpolation.LINEAR
+    max_gap_frames: float = 2.5
+
+    def __post_init__(self) -> None:
+        self.mode = Interpolation(self.mode)
+        if self.max_gap_frames < 1.0:
+            raise ReconError(f"max_gap_frames={self.max_gap_frames} but expected >= 1 (one frame period)")
 
 
 @dataclass(kw_only=True)
@@ -115,14 +135,15 @@ def group_by_stream(bundle: Bundle, detections: dict[str, tuple[np.ndarray, np.n
     return out
 
 
-def interpolate_stream(tracks: StreamTracks, univ_time_ms: np.ndarray, *, max_gap_frames: float = 2.5
-                       ) -> tuple[np.ndarray, np.ndarray]:
+def interpolate_stream(tracks: StreamTracks, univ_time_ms: np.ndarray, *, max_gap_frames: float = 2.5,
+                       mode: Interpolation | str = Interpolation.LINEAR) -> tuple[np.ndarray, np.ndarray]:
     """Detections of one stream linearly interpolated to universal times.
 
     Args:
         univ_time_ms: (T,) universal times.
         max_gap_frames: brackets wider than this many nominal frame periods (median spacing of the table) are
             not bridged (one dropped frame is; motion over longer gaps is not linear enough).
+        mode: ``linear`` (default) or ``nearest`` (the bracketing frame with the larger weight; an ablation).
     Returns:
         uv_px (T, V_s, J, 2) and conf (T, V_s, J): ``w0 * uv[f0] + w1 * uv[f1]``; confidence is the smaller of the
         two frames' (a frame with weight 0 is not needed); 0 outside the span, across wide gaps or where a
@@ -145,6 +166,9 @@ def interpolate_stream(tracks: StreamTracks, univ_time_ms: np.ndarray, *, max_ga
     u1, c1 = lookup(i1)
     a0 = np.nan_to_num(w0, nan=0.0)[:, None, None]
     a1 = np.nan_to_num(w1, nan=0.0)[:, None, None]
+    if Interpolation(mode) == Interpolation.NEAREST:
+        a1 = (a1 > 0.5).astype(float)
+        a0 = 1.0 - a1
     need0, need1 = a0 > 0, a1 > 0
     ok = usable[:, None, None] & (~need0 | (c0 > 0)) & (~need1 | (c1 > 0))
     conf = np.where(ok, np.minimum(np.where(need0, c0, np.inf), np.where(need1, c1, np.inf)), 0.0)
@@ -153,12 +177,14 @@ def interpolate_stream(tracks: StreamTracks, univ_time_ms: np.ndarray, *, max_ga
     return uv, conf
 
 
-def gather_streams(streams: list[StreamTracks], univ_time_ms: np.ndarray, *, max_gap_frames: float = 2.5
-                   ) -> tuple[list[str], np.ndarray, np.ndarray]:
+def gather_streams(streams: list[StreamTracks], univ_time_ms: np.ndarray,
+                   interpolation: InterpolationOptions | None = None) -> tuple[list[str], np.ndarray, np.ndarray]:
     """All streams interpolated to (T,) times: (camera names (V,), uv_px (T, V, J, 2), conf (T, V, J))."""
+    interpolation = interpolation or InterpolationOptions()
     names, uvs, confs = [], [], []
     for s in streams:
-        uv, conf = interpolate_stream(s, univ_time_ms, max_gap_frames=max_gap_frames)
+        uv, conf = interpolate_stream(s, univ_time_ms, max_gap_frames=interpolation.max_gap_frames,
+                                      mode=interpolation.mode)
         names += s.cameras
         uvs.append(uv)
         confs.append(conf)
@@ -169,13 +195,14 @@ def gather_streams(streams: list[StreamTracks], univ_time_ms: np.ndarray, *, max
 
 def triangulate_streams(views: ViewSet, streams: list[StreamTracks], univ_time_ms: np.ndarray,
                         options: TriangulationOptions | None = None, *, batch_times: int = 16,
-                        max_gap_frames: float = 2.5, progress: Callable[[int], None] | None = None
-                        ) -> SkeletonSequence:
+                        interpolation: InterpolationOptions | None = None,
+                        progress: Callable[[int], None] | None = None) -> SkeletonSequence:
     """Triangulate every joint at every universal time from all streams' interpolated detections.
 
     Args:
         views: a view set holding (at least) every camera of ``streams``.
         univ_time_ms: (T,) times; batch_times: times solved together (P = batch_times x J points per batch).
+        interpolation: how each stream is brought to the times (default linear, gaps up to 2.5 frames).
         progress: called with the number of times finished after each batch.
     Example:
         >>> seq = triangulate_streams(view_set(bundle), group_by_stream(bundle, detections), vga_times_ms)
@@ -191,7 +218,7 @@ def triangulate_streams(views: ViewSet, streams: list[StreamTracks], univ_time_m
     rms = np.full((len(t), J), np.nan)
     for start in range(0, len(t), batch_times):
         sl = slice(start, min(start + batch_times, len(t)))
-        _, uv, c = gather_streams(streams, t[sl], max_gap_frames=max_gap_frames)
+        _, uv, c = gather_streams(streams, t[sl], interpolation)
         T_b, V = c.shape[:2]
         tri = triangulate(sub, uv.transpose(0, 2, 1, 3).reshape(T_b * J, V, 2),
                           c.transpose(0, 2, 1).reshape(T_b * J, V), options)
