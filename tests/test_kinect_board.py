@@ -10,7 +10,7 @@ from dome_calib.camera import K_to_intr, pixels_to_normalized, project
 from dome_calib.kinect.board import Checkerboard, RayGrid, render_board
 from dome_calib.kinect.detect import canonical_order, detect_board
 from dome_calib.kinect.stereo import calibrate_stereo, opencv_stereo_calibrate, rotation_error_deg
-from dome_calib.synth.kinect_boards import (IR_SIZE, KinectBoardsOptions, color_background, draw_sensor_truth,
+from dome_calib.synth.kinect_boards import (IR_SIZE, KinectBoardsOptions, color_scene, draw_sensor_truth,
                                             render_color, render_ir, sample_board_pose)
 from tests.conftest import DATA
 
@@ -56,7 +56,7 @@ def test_rendered_corners_are_detected_to_a_tenth_of_a_pixel(dome):
     col_rays = RayGrid.build(K_to_intr(truth.K_color), truth.dist_color, truth.color_size)
     ir = render_ir(render_board(BOARD, ir_rays, R, t, supersample=4), truth, opts, rng)
     col = render_color(render_board(BOARD, col_rays, T[:3, :3] @ R, T[:3, :3] @ t + T[:3, 3], supersample=2),
-                       color_background(truth), opts, rng)
+                       color_scene(truth, rng), opts, rng)
     det_ir = detect_board(ir, BOARD, what="IR")
     det_col = detect_board(col.mean(axis=2).astype(np.uint8), BOARD, what="colour")
     true_ir = project(obj, R, t, K_to_intr(truth.K_depth), truth.dist_depth).uv_px

@@ -60,15 +60,19 @@ class Checkerboard:
         ``xy_mm`` (..., 2) board coordinates; ``blur_mm`` (...) half-width of a linear ramp across square edges
         (the footprint of one render sample), an analytic anti-aliasing that supersampling then refines.
         """
-        u = xy_mm[..., 0] / self.square_mm
-        v = xy_mm[..., 1] / self.square_mm
-        w = np.maximum(np.asarray(blur_mm, dtype=float) / self.square_mm, 1e-6)
+        return self.reflectance_xy(xy_mm[..., 0], xy_mm[..., 1], blur_mm)
+
+    def reflectance_xy(self, x_mm: np.ndarray, y_mm: np.ndarray, blur_mm: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`reflectance` with the board coordinates as two arrays (saves stacking in the renderer)."""
+        u = x_mm / self.square_mm
+        v = y_mm / self.square_mm
+        w = np.maximum(np.asarray(blur_mm) / self.square_mm, 1e-6)
 
         def ramp(a: np.ndarray) -> np.ndarray:  # (-1)^floor(a), ramped to 0 at the square edges
             sign = 1.0 - 2.0 * (np.floor(a) % 2)
             return sign * np.clip(np.abs(a - np.round(a)) / w, 0.0, 1.0)
 
-        checker = 0.5 - 0.5 * ramp(u) * ramp(v)  # cell (i, j) black when i + j is even
+        checker = 0.5 - 0.5 * ramp(u) * ramp(v)  # cell (i, j) black when i + j is even (dtype follows xy_mm)
         in_squares = (u >= -1) & (u <= self.cols) & (v >= -1) & (v <= self.rows)
         b = self.border_mm / self.square_mm
         on_board = (u >= -1 - b) & (u <= self.cols + b) & (v >= -1 - b) & (v <= self.rows + b)
@@ -90,11 +94,11 @@ class RayGrid:
     dist: np.ndarray
 
     @classmethod
-    def build(cls, intr: np.ndarray, dist: np.ndarray, size: tuple[int, int], *, stride_px: int = 4) -> RayGrid:
+    def build(cls, intr: np.ndarray, dist: np.ndarray, size: tuple[int, int], *, stride_px: int = 8) -> RayGrid:
         """Rays of every pixel of a ``size`` = (w, h) image.
 
         Exact rays (:func:`pixels_to_normalized`) on a grid every ``stride_px`` pixels, expanded to all pixels to
-        first order and polished by two Newton steps against the forward model (error < 1e-4 px).
+        first order and polished by three quasi-Newton steps against the forward model (error < 1e-4 px).
         """
         w, h = size
         intr, dist = np.asarray(intr, dtype=float), np.asarray(dist, dtype=float)
@@ -107,7 +111,7 @@ class RayGrid:
         J = inv_c[iv, iu]  # (h, w, 2, 2) d xn / d uv at the nearest grid node
         uv = np.stack([u, v], axis=-1)
         xn = xn_c[iv, iu] + np.einsum("...ij,...j->...i", J, uv - np.stack([uc[iv, iu], vc[iv, iu]], axis=-1))
-        for _ in range(2):  # quasi-Newton polish: uv(xn) must equal the pixel
+        for _ in range(3):  # quasi-Newton polish: uv(xn) must equal the pixel
             residual = distort(xn, dist) * intr[:2] + intr[2:] - uv
             xn -= np.einsum("...ij,...j->...i", J, residual)
         return cls(xn=xn, d_xn_d_uv=J.astype(np.float32), intr=intr, dist=dist)
@@ -162,32 +166,38 @@ def render_board(board: Checkerboard, rays: RayGrid, R: np.ndarray, t_mm: np.nda
     roi = board_roi(board, rays, R, t_mm)
     if roi is None:
         return out
-    xn0 = rays.xn[roi].astype(float)
-    J = rays.d_xn_d_uv[roi].astype(float)
-    normal = R[:, 2]
-    offset = float(normal @ t_mm)  # plane: normal . X = offset (camera frame, mm)
-    f = float(np.mean(rays.intr[:2]))
+    # float32 samples: 1e-7 relative precision is < 1e-4 px and < 1e-3 mm on the board, and twice as fast
+    x0, y0 = (rays.xn[roi][..., i].astype(np.float32) for i in range(2))
+    J = rays.d_xn_d_uv[roi]
+    j00, j01, j10, j11 = (np.ascontiguousarray(J[..., a, b], dtype=np.float32) for a, b in ((0, 0), (0, 1), (1, 0), (1, 1)))
+    Rf = np.asarray(R, dtype=float)
+    n = Rf[:, 2]  # plane: n . X = offset (camera frame, mm)
+    offset = float(n @ t_mm)
+    c = Rf.T @ np.asarray(t_mm, dtype=float)  # board xy = z * (R^T ray)[:2] - (R^T t)[:2]
+    blur_per_mm = np.float32(0.5 / (np.mean(rays.intr[:2]) * supersample))
     k = supersample
     steps = (np.arange(k) + 0.5) / k - 0.5
-    acc = np.zeros(xn0.shape[:2])
-    cover = np.zeros(xn0.shape[:2])
+    acc = np.zeros(x0.shape, np.float32)
+    cover = np.zeros(x0.shape, np.float32)
+    f32 = np.float32
     for dv in steps:
         for du in steps:
-            xn = xn0 + J @ np.array([du, dv])
-            ray = np.concatenate([xn, np.ones((*xn.shape[:2], 1))], axis=-1)
-            denom = ray @ normal
-            z = np.where(np.abs(denom) > 1e-12, offset / np.where(np.abs(denom) > 1e-12, denom, 1.0), -1.0)
-            xyz = ray * z[..., None] - t_mm
-            board_xy = (xyz @ R)[..., :2]
-            value, on = board.reflectance(board_xy, 0.5 * np.abs(z) / (f * k))
+            x = x0 + j00 * f32(du) + j01 * f32(dv)
+            y = y0 + j10 * f32(du) + j11 * f32(dv)
+            denom = x * f32(n[0]) + y * f32(n[1]) + f32(n[2])
+            ok = np.abs(denom) > 1e-12
+            z = np.where(ok, f32(offset) / np.where(ok, denom, f32(1.0)), f32(-1.0))
+            bx = z * (x * f32(Rf[0, 0]) + y * f32(Rf[1, 0]) + f32(Rf[2, 0])) - f32(c[0])
+            by = z * (x * f32(Rf[0, 1]) + y * f32(Rf[1, 1]) + f32(Rf[2, 1])) - f32(c[1])
+            value, on = board.reflectance_xy(bx, by, np.abs(z) * blur_per_mm)
             on &= z > 0
-            acc += np.where(on, value, 0.0)
+            acc += np.where(on, value, f32(0.0))
             cover += on
     out.reflectance[roi] = acc / k**2
     out.coverage[roi] = cover / k**2
-    ray0 = np.concatenate([xn0, np.ones((*xn0.shape[:2], 1))], axis=-1)
-    denom0 = ray0 @ normal
-    z0 = offset / np.where(np.abs(denom0) > 1e-12, denom0, np.nan)
+    ray0 = np.concatenate([rays.xn[roi], np.ones((*x0.shape, 1))], axis=-1)  # float64 for the depth map
+    denom0 = ray0 @ R[:, 2]
+    z0 = float(R[:, 2] @ t_mm) / np.where(np.abs(denom0) > 1e-12, denom0, np.nan)
     out.depth_mm[roi] = np.where(z0 > 0, z0, np.nan)
     out.cos_incidence[roi] = np.where(z0 > 0, np.abs(denom0) / np.linalg.norm(ray0, axis=-1), 0.0)
     return out

@@ -177,26 +177,43 @@ def render_ir(r: BoardRender, truth: SensorTruth, opts: KinectBoardsOptions, rng
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
 
-def color_background(truth: SensorTruth) -> tuple[np.ndarray, np.ndarray]:
-    """(room background BGR (H, W, 3), board illumination (H, W)), float32, vignetting included."""
+@dataclass(kw_only=True)
+class ColorScene:
+    """What stays fixed between one colour camera's frames (float32): room background BGR (H, W, 3), board
+    illumination (H, W), both with vignetting, and a bank of unit Gaussian noise a little larger than the image
+    (each frame takes a randomly shifted window of it: independent pixels within a frame, 10x cheaper)."""
+
+    background: np.ndarray
+    light: np.ndarray
+    noise: np.ndarray
+
+
+_NOISE_MARGIN = 64
+
+
+def color_scene(truth: SensorTruth, rng: np.random.Generator) -> ColorScene:
     w, h = truth.color_size
     u, v = np.meshgrid(np.linspace(0, 1, w, dtype=np.float32), np.linspace(0, 1, h, dtype=np.float32))
     vignette = _vignetting(truth.color_size, truth.K_color, 0.15).astype(np.float32)
     bg = (70.0 + 30.0 * u * (1 - v) + 15.0 * np.sin(3 * u + 2 * v)) * vignette
     tint = np.array([0.95, 1.0, 1.06], dtype=np.float32)  # BGR: a warm room
-    return bg[..., None] * tint, (0.9 + 0.1 * u) * vignette  # light falls off across the room
+    noise = rng.standard_normal((h + _NOISE_MARGIN, w + _NOISE_MARGIN, 3), dtype=np.float32)
+    return ColorScene(background=bg[..., None] * tint, light=(0.9 + 0.1 * u) * vignette, noise=noise)
 
 
-def render_color(r: BoardRender, background: tuple[np.ndarray, np.ndarray], opts: KinectBoardsOptions,
-                 rng: np.random.Generator) -> np.ndarray:
-    """Colour image (uint8 BGR): the room background (:func:`color_background`), the lit grey board, noise."""
-    bg, light = background
-    board_black, board_white = 30.0, 215.0
-    cover = r.coverage.astype(np.float32)
-    board = light * (board_black * cover + (board_white - board_black) * r.reflectance.astype(np.float32))
-    img = bg * (1 - cover)[..., None] + board[..., None]
-    img += opts.color_noise_dn * rng.standard_normal(img.shape, dtype=np.float32)
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+def render_color(r: BoardRender, scene: ColorScene, opts: KinectBoardsOptions, rng: np.random.Generator) -> np.ndarray:
+    """Colour image (uint8 BGR): the room background, the lit grey board (black 30, white 215), noise."""
+    h, w = r.coverage.shape
+    img = scene.background.copy()
+    rows, cols = np.nonzero(r.coverage.any(axis=1))[0], np.nonzero(r.coverage.any(axis=0))[0]
+    if len(rows):
+        roi = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+        cover = r.coverage[roi].astype(np.float32)
+        board = scene.light[roi] * (30.0 * cover + 185.0 * r.reflectance[roi].astype(np.float32))
+        img[roi] = img[roi] * (1 - cover)[..., None] + board[..., None]
+    dy, dx = rng.integers(0, _NOISE_MARGIN, 2)
+    img += np.float32(opts.color_noise_dn) * scene.noise[dy:dy + h, dx:dx + w]
+    return np.clip(img + 0.5, 0, 255).astype(np.uint8)
 
 
 def render_depth(r: BoardRender, truth: SensorTruth, opts: KinectBoardsOptions, rng: np.random.Generator) -> np.ndarray:
@@ -226,14 +243,14 @@ def generate_sensor(truth: SensorTruth, folder: Path, opts: KinectBoardsOptions,
     board = opts.board
     rays_ir = RayGrid.build(K_to_intr(truth.K_depth), truth.dist_depth, IR_SIZE)
     rays_col = RayGrid.build(K_to_intr(truth.K_color), truth.dist_color, truth.color_size)
-    background = color_background(truth)
+    scene = color_scene(truth, rng)
     T = truth.color_from_depth_mm
     records = []
     for k, kind in enumerate(_frame_kinds(opts, rng)):
         R, t = sample_board_pose(truth, opts, rng, cut_off=kind == "cut_off")
         r_ir = render_board(board, rays_ir, R, t, supersample=opts.ir_supersample)
         r_col = render_board(board, rays_col, T[:3, :3] @ R, T[:3, :3] @ t + T[:3, 3], supersample=opts.color_supersample)
-        ir, color, depth = render_ir(r_ir, truth, opts, rng), render_color(r_col, background, opts, rng), render_depth(r_ir, truth, opts, rng)
+        ir, color, depth = render_ir(r_ir, truth, opts, rng), render_color(r_col, scene, opts, rng), render_depth(r_ir, truth, opts, rng)
         if kind == "blurred":  # the board moved during the exposure: both cameras smear it
             angle = rng.uniform(0, np.pi)
             ir = _motion_blur(ir, rng.uniform(7, 11), angle)
