@@ -171,3 +171,17 @@ def test_cli_bad_input_one_line_and_nothing_written(case, message, dome_folder, 
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("dome-calib: error:") and message in lines[0], proc.stderr
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_depth_to_world_agrees_with_the_reconstruction_stage(capture, calibrated):
+    """Our M_world2sensor route and recon's colour-camera route (color_from_depth, then 50_<n>) give one point."""
+    from dome_calib.kinect.world import depth_map_to_world_cm
+    from dome_calib.recon.depth import depth_to_world
+
+    folder, truth = capture
+    _, bundle = calibrated
+    k = next(f["index"] for f in truth["sensors"][SENSOR]["frames"] if f["kind"] == "good")
+    depth = cv2.imread(str(folder / SENSOR / f"depth_{k:04d}.png"), cv2.IMREAD_UNCHANGED)
+    ours, _ = depth_map_to_world_cm(depth, bundle.kinect.sensors[SENSOR], bundle.kinect.M_world2vga)
+    assert len(ours) > 1000
+    np.testing.assert_allclose(ours, depth_to_world(bundle, SENSOR, depth), atol=1e-6)  # cm
