@@ -185,3 +185,12 @@ def test_depth_to_world_agrees_with_the_reconstruction_stage(capture, calibrated
     ours, _ = depth_map_to_world_cm(depth, bundle.kinect.sensors[SENSOR], bundle.kinect.M_world2vga)
     assert len(ours) > 1000
     np.testing.assert_allclose(ours, depth_to_world(bundle, SENSOR, depth), atol=1e-6)  # cm
+
+
+def test_truth_kcalibration_has_the_true_depth_pose(capture):
+    from dome_calib.synth.kinect_boards import truth_kcalibration
+
+    _, truth = capture
+    kcal = truth_kcalibration(truth)
+    D = depth_from_world_cm(kcal.sensors[SENSOR], kcal.M_world2vga)
+    np.testing.assert_allclose(D, truth["sensors"][SENSOR]["depth_from_world_cm"], atol=1e-9)

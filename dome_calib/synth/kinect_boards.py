@@ -24,11 +24,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from dome_calib.bundle import Bundle, CameraType
+from dome_calib.bundle import Bundle, CameraType, KinectCalibration, KinectSensor
 from dome_calib.camera import K_to_intr, intr_to_K, project
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.jsonfmt import dumps
 from dome_calib.kinect.board import BoardRender, Checkerboard, RayGrid, render_board
+from dome_calib.kinect.world import M_WORLD2VGA, sensor_matrices
 from dome_calib.rotation import rotvec_to_matrix
 
 logger = logging.getLogger(__name__)
@@ -317,3 +318,17 @@ def load_ground_truth(folder: str | Path) -> dict:
         for f in s["frames"]:
             f["depth_from_board_mm"] = np.asarray(f["depth_from_board_mm"], dtype=float)
     return doc
+
+
+def truth_kcalibration(truth_doc: dict) -> KinectCalibration:
+    """The ground truth as a :class:`KinectCalibration` (for a ground-truth bundle's ``kcalibration_<seq>.json``)."""
+    sensors = {}
+    for name, s in truth_doc["sensors"].items():
+        sensors[name] = KinectSensor(
+            name=name, K_depth=s["K_depth"], dist_depth=s["dist_depth"], depth_size=tuple(truth_doc["ir_size"]),
+            K_color=s["K_color"], dist_color=s["dist_color"], color_size=tuple(s["color_size"]),
+            **sensor_matrices(s["color_from_depth_mm"], s["color_from_world_cm"]),
+            depth_bias_mm=float(s["depth_bias_mm"]), depth_scale=float(s["depth_scale"]),
+        )
+    return KinectCalibration(sensors=sensors, M_world2vga=M_WORLD2VGA.copy(), calib_data_source=GENERATOR_VERSION)
+
