@@ -2,13 +2,14 @@
 and the joint stereo refinement against the truth and against OpenCV's stereoCalibrate on the same corners."""
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
 from dome_calib.bundle import load_bundle
 from dome_calib.camera import K_to_intr, pixels_to_normalized, project
 from dome_calib.kinect.board import Checkerboard, RayGrid, render_board
-from dome_calib.kinect.detect import canonical_order, detect_board
+from dome_calib.kinect.detect import canonical_order, detect_board, read_gray
 from dome_calib.kinect.stereo import calibrate_stereo, opencv_stereo_calibrate, rotation_error_deg
 from dome_calib.synth.kinect_boards import (IR_SIZE, KinectBoardsOptions, color_scene, draw_sensor_truth,
                                             render_color, render_ir, sample_board_pose)
@@ -45,7 +46,7 @@ def test_ray_grid_matches_the_exact_undistortion():
     assert np.abs(rays.xn[uv[:, 1], uv[:, 0]] - exact).max() * 365.0 < 1e-4  # px
 
 
-def test_rendered_corners_are_detected_to_a_tenth_of_a_pixel(dome):
+def test_rendered_corners_are_detected_to_a_tenth_of_a_pixel(dome, tmp_path):
     opts = KinectBoardsOptions()
     rng = np.random.default_rng(5)
     truth = draw_sensor_truth("KINECTNODE2", dome, opts, rng)
@@ -64,6 +65,10 @@ def test_rendered_corners_are_detected_to_a_tenth_of_a_pixel(dome):
     assert det_ir.ok and det_col.ok
     assert np.sqrt(np.mean(np.sum((det_ir.corners_px - true_ir) ** 2, axis=1))) < 0.15  # px, canonical order
     assert np.sqrt(np.mean(np.sum((det_col.corners_px - true_col) ** 2, axis=1))) < 0.10
+    # a 16-bit IR frame (as the Kinect SDK stores them) reads and detects the same
+    cv2.imwrite(str(tmp_path / "ir16.png"), ir.astype(np.uint16) * 180)
+    det16 = detect_board(read_gray(tmp_path / "ir16.png", IR_SIZE, "IR"), BOARD, what="IR")
+    assert det16.ok and np.abs(det16.corners_px - det_ir.corners_px).max() < 0.05
 
 
 def test_canonical_order_undoes_half_turns_and_mirrored_rows():
