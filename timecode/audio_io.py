@@ -91,8 +91,9 @@ class AudioReader:
                     raise AudioError(f"{self.path}: empty raw audio file")
                 self._mm = np.memmap(self.path, dtype=dt, mode="r", shape=(n, raw.channels))
                 self.info = AudioInfo(path=self.path, sample_rate=raw.sample_rate, channels=raw.channels, frames=n)
-        except sf.LibsndfileError as exc:
-            raise AudioError(f"{self.path}: not a readable audio file ({exc.error_string}); "
+        except (sf.LibsndfileError, TypeError, RuntimeError) as exc:
+            why = exc.error_string if isinstance(exc, sf.LibsndfileError) else str(exc)
+            raise AudioError(f"{self.path}: not a readable audio file ({why}); "
                              "for headerless files give --raw-format and --raw-rate") from None
         if self.info.frames == 0:
             raise AudioError(f"{self.path}: the file holds no audio samples")

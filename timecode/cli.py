@@ -19,6 +19,37 @@ def _root() -> None:
 
 
 @app.command()
+def decode(
+    file: str = typer.Argument(..., help="Audio file with LTC: WAV, FLAC, AIFF, ... or a headerless raw file "
+                                         "(then give --raw-format and --raw-rate)."),
+    channel: str = typer.Option("all", "--channel", "-c", help="Channel to decode: 0 = first (left), 1 = second, "
+                                "...; 'all' decodes every channel (an error only if none holds LTC)."),
+    fps: str = typer.Option("auto", "--fps", help="Frame rate: auto (detected from the labels and the frame "
+                            "length), 24, 25, 29.97df (drop frame), 29.97, 30 or 23.976."),
+    fmt: str = typer.Option("table", "--format", "-f", help="table (for people), csv or json (one record per "
+                            "frame: label, direction, start/end in samples, user bits, flags, level, jitter)."),
+    raw_format: str = typer.Option(None, "--raw-format", help="Headerless file sample format: u8 (unsigned "
+                                   "8-bit, e.g. libltc's test file), s8, s16, s16be, s32, f32 or f64."),
+    raw_rate: int = typer.Option(None, "--raw-rate", help="Headerless file sample rate in Hz, e.g. 22050."),
+    raw_channels: int = typer.Option(1, "--raw-channels", help="Headerless file interleaved channel count."),
+    output: str = typer.Option(None, "--output", "-o", help="Write to this file (atomically) instead of stdout."),
+) -> None:
+    """Decode SMPTE LTC from an audio file: every frame's label, user bits, flags and direction, and the
+    time of its first edge in samples with sub-sample precision (start_samples; start_s = seconds)."""
+    from pathlib import Path
+
+    from timecode.decode_command import raw_format as make_raw, run_decode
+
+    text = run_decode(Path(file), channel=channel, fps=fps, fmt=fmt, raw=make_raw(raw_format, raw_rate, raw_channels))
+    if output:
+        from dome_calib.io_utils import atomic_write_text
+
+        atomic_write_text(output, text)
+    else:
+        typer.echo(text, nl=False)
+
+
+@app.command()
 def sync(
     session: str = typer.Argument(..., help="Session folder holding session.json, ltc.wav and kinect/ (see README, "
                                             "'Sync session layout')."),

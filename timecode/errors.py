@@ -4,3 +4,7 @@ from __future__ import annotations
 
 class TimecodeError(Exception):
     """Base of every timecode error a user can cause."""
+
+
+class NoLTCError(TimecodeError):
+    """An audio channel in which no LTC frame could be decoded."""
