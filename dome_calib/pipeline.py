@@ -75,7 +75,7 @@ class CalibrationResult:
         return float(np.sqrt(np.mean(self.residuals.residual_px ** 2)))  # per coordinate
 
 
-def _capture_cameras(capture: Path) -> tuple[list[str], list[str]]:
+def capture_contents(capture: Path) -> tuple[list[str], list[str]]:
     """Scenes and cameras named by ``capture.json`` (or found under scenes/)."""
     if not capture.is_dir():
         raise CaptureError(f"{capture}: not a folder")
@@ -129,7 +129,7 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
     """
     options = options or CalibrateOptions()
     capture, out = Path(capture), Path(out)
-    scenes, expected = _capture_cameras(capture)
+    scenes, expected = capture_contents(capture)
     if options.only_changed and options.prior is None:
         raise CaptureError("--only-changed needs --prior (the bundle the unchanged cameras are taken from)")
     prior = load_bundle(options.prior) if options.prior is not None else None

@@ -64,10 +64,21 @@ def residuals_of(problem: BAProblem, inlier: np.ndarray | None = None) -> Residu
 
 def run_sfm_stage(capture: Path, work_dir: Path, *, prior: Bundle | None, progress: bool = True,
                   scenes: list[str] | None = None) -> SfmOutcome:
-    """Features, pairs, matching, per-scene mapping and merging (projector.run_sfm)."""
-    from projector import run_sfm  # noqa: F401  (wired when the SfM front end lands)
+    """Features, pairs, matching, per-scene mapping and merging (``projector.run_sfm``; until that lands, the
+    temporary pycolmap stand-in in :mod:`dome_calib.pipeline_sfm_fallback`)."""
+    from dome_calib.pipeline import capture_contents
 
-    raise NotImplementedError
+    all_scenes, _ = capture_contents(capture)
+    scenes = scenes or all_scenes
+    try:
+        from projector import run_sfm  # noqa: F401
+    except ImportError:
+        from dome_calib.pipeline_sfm_fallback import fallback_sfm
+
+        logger.warning("projector.run_sfm not available: using the temporary pycolmap stand-in")
+        problem, failures, stats = fallback_sfm(capture, work_dir, scenes)
+        return SfmOutcome(problem=problem, failures=failures, stats=stats)
+    raise NotImplementedError("projector.run_sfm exists: wire it here")
 
 
 def ba_options() -> BAOptions:
