@@ -1,0 +1,104 @@
+"""One small task-executor interface for the embarrassingly parallel SfM stages.
+
+Feature extraction (one task per image) and matching (one task per batch of pairs) only ever call
+``executor.map(fn, items)`` with a module-level ``fn`` and picklable items, so any object with the
+:class:`Executor` shape can run them: the local process pool here by default, or a thin adapter over
+``dask.distributed.Client`` (``submit`` returns a future with ``.result()``, which is what Dask's futures
+have) running on the dome's module nodes. Task functions read their inputs from paths, so the workers need
+the capture and work folders mounted at the same place.
+"""
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing
+import os
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any, Protocol, TypeVar, runtime_checkable
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+@runtime_checkable
+class Future(Protocol[R]):
+    def result(self, timeout: float | None = None) -> R: ...
+
+
+@runtime_checkable
+class Executor(Protocol):
+    """What the SfM stages need from an executor."""
+
+    def submit(self, fn: Callable[..., R], /, *args: Any, **kwargs: Any) -> Future[R]: ...
+
+    def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
+        """Yield ``fn(item)`` for every item, in COMPLETION order is allowed: results must carry their key."""
+        ...
+
+
+def default_num_workers() -> int:
+    """Cores this process may use (affinity-aware), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - non-Linux
+        return max(1, os.cpu_count() or 1)
+
+
+class SerialExecutor:
+    """Runs tasks in this process, one after another (debugging, tests, tiny inputs)."""
+
+    def submit(self, fn: Callable[..., R], /, *args: Any, **kwargs: Any) -> Future[R]:
+        fut: cf.Future[R] = cf.Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller through the future
+            fut.set_exception(exc)
+        return fut
+
+    def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
+        for item in items:
+            yield fn(item)
+
+
+class LocalProcessExecutor:
+    """A process pool on this machine (default: one worker per available core).
+
+    Workers are started with ``spawn`` so that no pycolmap/OpenMP thread state is inherited from the parent.
+    Use as a context manager, or call :meth:`shutdown`.
+    """
+
+    def __init__(self, num_workers: int | None = None, *, max_in_flight_per_worker: int = 4) -> None:
+        self.num_workers = num_workers or default_num_workers()
+        self._max_in_flight = max(1, self.num_workers * max_in_flight_per_worker)
+        self._pool = cf.ProcessPoolExecutor(self.num_workers, mp_context=multiprocessing.get_context("spawn"))
+
+    def submit(self, fn: Callable[..., R], /, *args: Any, **kwargs: Any) -> Future[R]:
+        return self._pool.submit(fn, *args, **kwargs)
+
+    def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
+        """Results in completion order, with a bounded number of tasks in flight (memory stays flat)."""
+        pending: set[cf.Future[R]] = set()
+        for item in items:
+            pending.add(self._pool.submit(fn, item))
+            if len(pending) >= self._max_in_flight:
+                done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+                for fut in done:
+                    yield fut.result()
+        while pending:
+            done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+            for fut in done:
+                yield fut.result()
+
+    def shutdown(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+    def __enter__(self) -> LocalProcessExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.shutdown()
+
+
+def make_executor(num_workers: int | None = None) -> SerialExecutor | LocalProcessExecutor:
+    """The default executor: a local process pool, or serial when only one worker is asked for."""
+    n = num_workers or default_num_workers()
+    return SerialExecutor() if n <= 1 else LocalProcessExecutor(n)

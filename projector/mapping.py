@@ -1,0 +1,166 @@
+"""Stage 4: per-scene mapping with pycolmap (GLOMAP global SfM by default, COLMAP incremental as an option).
+
+Reads the scene database (features, verified two-view geometries, one FULL_OPENCV camera per physical camera
+with the prior's intrinsics) and writes the models to ``output_dir/<k>/``. The largest model is the scene's
+reconstruction. A rerun loads ``output_dir/0`` instead of mapping again.
+
+Intrinsics: the prior's distortion is kept fixed (``refine_extra_params=False``): COLMAP's FULL_OPENCV has
+three rational terms that must stay zero to remain the OpenCV 5-parameter model, and a scene's SfM is only
+the initial value of the multi-scene bundle adjustment, which refines all five terms. Focal lengths are
+refined (a nominal prior can be off by a few percent for HD cameras).
+"""
+from __future__ import annotations
+
+import logging
+import shutil
+import time
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+
+import pycolmap
+
+from projector.database import camera_of_image
+
+logger = logging.getLogger(__name__)
+
+
+class Mapper(StrEnum):
+    GLOBAL = "global"  # GLOMAP (pycolmap.global_mapping)
+    INCREMENTAL = "incremental"  # COLMAP (pycolmap.incremental_mapping)
+
+
+@dataclass(kw_only=True)
+class MappingOptions:
+    mapper: Mapper = Mapper.GLOBAL
+    refine_focal_length: bool = False
+    refine_principal_point: bool = False
+    refine_extra_params: bool = False
+    min_num_matches: int = 15
+    min_model_size: int = 3
+    num_threads: int = -1  # -1: all cores
+    random_seed: int = 0
+    reuse: bool = True  # load an existing model instead of mapping again
+    fallback: bool = True  # try the other mapper when the first gives no model
+
+
+@dataclass(kw_only=True)
+class SceneModel:
+    """The reconstruction of one scene (None if it did not reconstruct) and what happened to each camera."""
+
+    scene: str
+    reconstruction: pycolmap.Reconstruction | None
+    registered: list[str] = field(default_factory=list)
+    unregistered: dict[str, str] = field(default_factory=dict)  # camera -> reason
+    num_models: int = 0
+    seconds: float = 0.0
+    failure: str | None = None
+
+
+def _global_options(options: MappingOptions) -> pycolmap.GlobalPipelineOptions:
+    o = pycolmap.GlobalPipelineOptions()
+    o.min_num_matches = options.min_num_matches
+    o.min_model_size = options.min_model_size
+    o.num_threads = options.num_threads
+    o.random_seed = options.random_seed
+    o.mapper.num_threads = options.num_threads
+    o.mapper.random_seed = options.random_seed
+    ba = o.mapper.bundle_adjustment
+    ba.refine_focal_length = options.refine_focal_length
+    ba.refine_principal_point = options.refine_principal_point
+    ba.refine_extra_params = options.refine_extra_params
+    o.mapper.global_positioning.use_gpu = False
+    ba.ceres.use_gpu = False
+    return o
+
+
+def _incremental_options(options: MappingOptions) -> pycolmap.IncrementalPipelineOptions:
+    o = pycolmap.IncrementalPipelineOptions()
+    o.min_num_matches = options.min_num_matches
+    o.min_model_size = options.min_model_size
+    o.num_threads = options.num_threads
+    o.random_seed = options.random_seed
+    o.ba_refine_focal_length = options.refine_focal_length
+    o.ba_refine_principal_point = options.refine_principal_point
+    o.ba_refine_extra_params = options.refine_extra_params
+    return o
+
+
+def _run_mapper(mapper: Mapper, database_path: Path, image_dir: str | Path, output_dir: Path,
+                options: MappingOptions, scene: str) -> tuple[dict[int, pycolmap.Reconstruction], str | None]:
+    if output_dir.exists():
+        shutil.rmtree(output_dir)
+    output_dir.mkdir(parents=True)
+    try:
+        if mapper == Mapper.GLOBAL:
+            models = pycolmap.global_mapping(str(database_path), str(image_dir), str(output_dir),
+                                             _global_options(options))
+        else:
+            models = pycolmap.incremental_mapping(str(database_path), str(image_dir), str(output_dir),
+                                                  _incremental_options(options))
+    except Exception as exc:  # noqa: BLE001 - a scene that fails to map is reported, not fatal
+        logger.warning("%s: %s mapping failed: %s", scene, mapper.value, exc)
+        return {}, f"{mapper.value} mapping failed: {exc}"
+    return dict(models), (None if models else f"{mapper.value} mapping gave no model")
+
+
+def _load_models(output_dir: Path) -> dict[int, pycolmap.Reconstruction]:
+    models = {}
+    for sub in sorted(output_dir.iterdir()) if output_dir.is_dir() else []:
+        if sub.is_dir() and sub.name.isdigit() and (sub / "images.bin").exists():
+            models[int(sub.name)] = pycolmap.Reconstruction(str(sub))
+    return models
+
+
+def map_scene(
+    database_path: str | Path, image_dir: str | Path, output_dir: str | Path, *,
+    options: MappingOptions | None = None, scene: str = "",
+) -> SceneModel:
+    """Reconstruct one scene from its database; never raises for a scene that does not reconstruct.
+
+    Returns a :class:`SceneModel`: the largest model, the registered cameras, and for every camera in the
+    database that is not registered, the reason (no verified pair, or not in the largest model).
+    """
+    options = options or MappingOptions()
+    database_path, output_dir = Path(database_path), Path(output_dir)
+    scene = scene or database_path.parent.name
+    t0 = time.perf_counter()
+    models = _load_models(output_dir) if options.reuse else {}
+    if not models:
+        mappers = [options.mapper] + ([m for m in Mapper if m != options.mapper] if options.fallback else [])
+        failure = None
+        for mapper in mappers:
+            models, failure = _run_mapper(mapper, database_path, image_dir, output_dir, options, scene)
+            if models:
+                break
+            logger.warning("%s: %s mapping gave no model%s", scene, mapper.value,
+                           ", trying the next mapper" if mapper != mappers[-1] else "")
+    else:
+        failure = None
+        logger.info("%s: reusing %d model(s) in %s", scene, len(models), output_dir)
+    with pycolmap.Database.open(str(database_path)) as db:
+        all_images = {im.image_id: camera_of_image(im.name) for im in db.read_all_images()}
+        verified_ids = set()
+        pair_ids, counts = db.read_two_view_geometry_num_inliers()
+        for pid, n in zip(pair_ids, counts):
+            if n > 0:
+                verified_ids.update(pycolmap.pair_id_to_image_pair(pid))
+    best = max(models.values(), key=lambda r: r.num_reg_images(), default=None)
+    result = SceneModel(scene=scene, reconstruction=best, num_models=len(models), failure=failure)
+    if best is None and failure is None:
+        result.failure = "no model: too few verified pairs to reconstruct"
+    registered = {best.image(i).name for i in best.reg_image_ids()} if best is not None else set()
+    result.registered = sorted(camera_of_image(n) for n in registered)
+    for image_id, cam in sorted(all_images.items(), key=lambda kv: kv[1]):
+        if cam in result.registered:
+            continue
+        if image_id not in verified_ids:
+            result.unregistered[cam] = "no verified image pair (overlap too small or no tent in view)"
+        elif best is None:
+            result.unregistered[cam] = result.failure or "scene did not reconstruct"
+        else:
+            result.unregistered[cam] = "not registered in the scene's largest model"
+    result.seconds = time.perf_counter() - t0
+    logger.info("%s: %d models, %d/%d cameras registered, %.1f s", scene, len(models), len(result.registered),
+                len(all_images), result.seconds)
+    return result

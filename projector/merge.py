@@ -1,0 +1,240 @@
+"""Stage 5: bring the per-scene reconstructions into one frame and assemble the bundle-adjustment problem.
+
+The cameras are the same physical cameras in every scene, so scenes are related by similarity transforms
+estimated on their shared cameras:
+
+1. The scene with the most registered cameras is the reference. Every other scene is aligned to the frame
+   built so far (reference plus scenes already aligned) by a robust similarity on shared camera centres
+   (pycolmap's LO-RANSAC ``estimate_sim3d_robust``, threshold relative to the camera spread), whose inliers
+   must also agree in orientation (``max_rotation_error_deg``); the final similarity is the least-squares fit
+   on those inliers.
+2. Camera poses are averaged over scenes (centres: mean of inliers; rotations: chordal L2 mean).
+3. The merged frame is mapped onto the prior (previous calibration or nominal layout) by the same robust
+   similarity on camera centres, so the result is in centimetres in the Panoptic world frame.
+4. Every 3D point of every scene, with its observations (COLMAP pixels converted to OpenCV's convention),
+   goes into :class:`dome_calib.ba.problem.BAProblem`.
+"""
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import pycolmap
+
+from dome_calib.ba.problem import BAProblem
+from dome_calib.bundle import Camera
+from dome_calib.camera import colmap_to_opencv_px
+from projector.database import camera_of_image, intrinsics_from_colmap
+from projector.mapping import SceneModel
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(kw_only=True)
+class MergeOptions:
+    inlier_threshold_rel: float = 0.02  # RANSAC threshold on centres, fraction of the camera spread
+    max_rotation_error_deg: float = 5.0
+    min_shared_cameras: int = 3
+    prior_inlier_threshold_cm: float = 15.0
+    use_colmap_intrinsics: bool = False  # True: focal lengths from the scenes (median), else from the prior
+
+
+@dataclass(kw_only=True)
+class Alignment:
+    """``X_target = scale * R @ X_source + t``; residuals of the shared cameras used (target units)."""
+
+    scale: float
+    R: np.ndarray
+    t: np.ndarray
+    num_shared: int
+    inliers: list[str]
+    rms_center: float
+
+
+@dataclass(kw_only=True)
+class ScenePoses:
+    """Cameras of one scene: name -> (R cam_from_world (3, 3), centre (3,)), in the scene's own frame."""
+
+    scene: str
+    R: dict[str, np.ndarray]
+    center: dict[str, np.ndarray]
+
+
+def scene_poses(model: SceneModel) -> ScenePoses:
+    rec = model.reconstruction
+    R, C = {}, {}
+    for image_id in rec.reg_image_ids():
+        im = rec.image(image_id)
+        name = camera_of_image(im.name)
+        R[name] = np.asarray(im.cam_from_world().rotation.matrix())
+        C[name] = np.asarray(im.projection_center())
+    return ScenePoses(scene=model.scene, R=R, center=C)
+
+
+def robust_similarity(src: Mapping[str, np.ndarray], tgt: Mapping[str, np.ndarray], threshold: float,
+                      src_R: Mapping[str, np.ndarray] | None = None, tgt_R: Mapping[str, np.ndarray] | None = None,
+                      max_rotation_error_deg: float = 5.0, min_shared: int = 3) -> Alignment | None:
+    """Similarity ``tgt_from_src`` from shared names' centres (LO-RANSAC, then least squares on inliers).
+
+    With rotations given, an inlier must also agree in orientation within ``max_rotation_error_deg``.
+    Returns None with fewer than ``min_shared`` shared names or inliers.
+    """
+    names = sorted(set(src) & set(tgt))
+    if len(names) < max(min_shared, 3):
+        return None
+    A = np.stack([src[n] for n in names])
+    B = np.stack([tgt[n] for n in names])
+    ransac = pycolmap.RANSACOptions()
+    ransac.max_error = threshold
+    ransac.random_seed = 0
+    sim = pycolmap.estimate_sim3d_robust(A, B, ransac)
+    if sim is None:
+        return None
+    sim = sim["tgt_from_src"] if isinstance(sim, dict) else sim
+    M = np.asarray(sim.matrix())
+    s = float(np.cbrt(np.linalg.det(M[:, :3])))
+    Ra = M[:, :3] / s
+    res = np.linalg.norm(A @ M[:, :3].T + M[:, 3] - B, axis=1)
+    ok = res < threshold
+    if src_R is not None and tgt_R is not None:
+        for k, n in enumerate(names):
+            # cam_from_tgt = cam_from_src @ Ra^T must match the target's rotation
+            dR = tgt_R[n] @ (src_R[n] @ Ra.T).T
+            angle = np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))
+            ok[k] &= angle < max_rotation_error_deg
+    if ok.sum() < max(min_shared, 3):
+        return None
+    ls = pycolmap.estimate_sim3d(A[ok], B[ok])
+    M = np.asarray(ls.matrix()) if ls is not None else M
+    s = float(np.cbrt(np.linalg.det(M[:, :3])))
+    res = np.linalg.norm(A[ok] @ M[:, :3].T + M[:, 3] - B[ok], axis=1)
+    return Alignment(scale=s, R=M[:, :3] / s, t=M[:, 3].copy(), num_shared=len(names),
+                     inliers=[n for n, k in zip(names, ok) if k], rms_center=float(np.sqrt(np.mean(res**2))))
+
+
+def transform_poses(p: ScenePoses, a: Alignment) -> ScenePoses:
+    """Poses of ``p`` expressed in the alignment's target frame."""
+    return ScenePoses(scene=p.scene, R={n: R @ a.R.T for n, R in p.R.items()},
+                      center={n: a.scale * a.R @ C + a.t for n, C in p.center.items()})
+
+
+def chordal_mean(Rs: list[np.ndarray]) -> np.ndarray:
+    """Rotation closest (Frobenius) to the mean of the rotation matrices."""
+    U, _, Vt = np.linalg.svd(np.mean(Rs, axis=0))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+def _spread(centers: Mapping[str, np.ndarray]) -> float:
+    C = np.stack(list(centers.values()))
+    return float(np.sqrt(np.mean(np.sum((C - C.mean(0)) ** 2, axis=1)))) or 1.0
+
+
+@dataclass(kw_only=True)
+class MergeResult:
+    problem: BAProblem
+    cameras: dict[str, Camera]
+    scene_alignment: dict[str, Alignment] = field(default_factory=dict)  # scene -> merged frame
+    prior_alignment: Alignment | None = None  # merged frame -> prior (cm)
+    unaligned_scenes: dict[str, str] = field(default_factory=dict)
+    excluded: dict[tuple[str, str], str] = field(default_factory=dict)  # (scene, camera) -> reason
+
+
+def merge_scenes(models: list[SceneModel], prior: Mapping[str, Camera], options: MergeOptions | None = None) -> MergeResult:
+    """Align the scenes' reconstructions, average the camera poses and assemble the :class:`BAProblem`.
+
+    ``prior`` gives the target frame (cm, Panoptic world) and the cameras' type, resolution and intrinsics.
+    Raises ValueError if no scene reconstructed or the merged frame cannot be aligned to the prior.
+    """
+    options = options or MergeOptions()
+    poses = {m.scene: scene_poses(m) for m in models if m.reconstruction is not None}
+    if not poses:
+        raise ValueError("no scene reconstructed")
+    order = sorted(poses, key=lambda s: (-len(poses[s].R), s))
+    ref = order[0]
+    merged: dict[str, ScenePoses] = {ref: poses[ref]}
+    result_align = {ref: Alignment(scale=1.0, R=np.eye(3), t=np.zeros(3), num_shared=len(poses[ref].R),
+                                   inliers=sorted(poses[ref].R), rms_center=0.0)}
+    unaligned: dict[str, str] = {}
+    excluded: dict[tuple[str, str], str] = {}  # (scene, camera) -> reason
+    pending = order[1:]
+    while pending:  # align scenes in rounds, so a scene may link through one aligned before it
+        progressed = False
+        for scene in list(pending):
+            tgt_C = {n: C for p in merged.values() for n, C in p.center.items()}
+            tgt_R = {n: R for p in merged.values() for n, R in p.R.items()}
+            thr = options.inlier_threshold_rel * _spread(tgt_C)
+            a = robust_similarity(poses[scene].center, tgt_C, thr, poses[scene].R, tgt_R,
+                                  options.max_rotation_error_deg, options.min_shared_cameras)
+            if a is None:
+                continue
+            outliers = (set(poses[scene].R) & set(tgt_C)) - set(a.inliers)
+            for n in sorted(outliers):
+                C = a.scale * a.R @ poses[scene].center[n] + a.t
+                excluded[(scene, n)] = (f"pose disagrees with the other scenes by "
+                                        f"{np.linalg.norm(C - tgt_C[n]) / _spread(tgt_C):.1%} of the dome size")
+            kept = ScenePoses(scene=scene, R={n: R for n, R in poses[scene].R.items() if n not in outliers},
+                              center={n: C for n, C in poses[scene].center.items() if n not in outliers})
+            merged[scene] = transform_poses(kept, a)
+            result_align[scene] = a
+            pending.remove(scene)
+            progressed = True
+        if not progressed:
+            break
+    for scene in pending:
+        unaligned[scene] = f"shares fewer than {options.min_shared_cameras} consistent cameras with the other scenes"
+        logger.warning("%s: %s", scene, unaligned[scene])
+    # average poses over aligned scenes
+    names = sorted({n for p in merged.values() for n in p.R})
+    avg_R = {n: chordal_mean([p.R[n] for p in merged.values() if n in p.R]) for n in names}
+    avg_C = {n: np.mean([p.center[n] for p in merged.values() if n in p.center], axis=0) for n in names}
+    # merged frame -> prior
+    prior_C = {n: c.center_cm for n, c in prior.items()}
+    prior_R = {n: c.R for n, c in prior.items()}
+    # the RANSAC threshold applies to target-frame (cm) residuals, so it is given in cm directly
+    pa = robust_similarity(avg_C, prior_C, options.prior_inlier_threshold_cm, avg_R, prior_R, 30.0, 3)
+    if pa is None:
+        raise ValueError("the reconstruction cannot be aligned to the prior (fewer than 3 consistent cameras)")
+    cameras: dict[str, Camera] = {}
+    for n in names:
+        R = avg_R[n] @ pa.R.T
+        C = pa.scale * pa.R @ avg_C[n] + pa.t
+        base = prior[n]
+        cam = replace(base, R=R, t_cm=-R @ C, K=base.K.copy(), dist=base.dist.copy())
+        if options.use_colmap_intrinsics:
+            Ks = [intrinsics_from_colmap(m.reconstruction.camera(m.reconstruction.find_image_with_name(
+                f"{n}.png").camera_id))[0] for m in models if m.scene in merged and n in merged[m.scene].R]
+            cam.K = np.median(np.stack(Ks), axis=0)
+        cameras[n] = cam
+    # points and observations
+    cam_index = {n: i for i, n in enumerate(names)}
+    scene_points: dict[str, np.ndarray] = {}
+    ci, pi, uv = [], [], []
+    offset = 0
+    for m in models:
+        if m.scene not in merged:
+            continue
+        a = result_align[m.scene]
+        rec = m.reconstruction
+        ids = list(rec.point3D_ids())
+        X = np.array([rec.point3D(i).xyz for i in ids]).reshape(-1, 3)
+        X = pa.scale * (a.scale * X @ a.R.T + a.t) @ pa.R.T + pa.t
+        scene_points[m.scene] = X
+        image_cam = {im_id: cam_index[camera_of_image(rec.image(im_id).name)] for im_id in rec.reg_image_ids()
+                     if (m.scene, camera_of_image(rec.image(im_id).name)) not in excluded}
+        for k, pid in enumerate(ids):
+            for el in rec.point3D(pid).track.elements:
+                if el.image_id not in image_cam:
+                    continue
+                im = rec.image(el.image_id)
+                ci.append(image_cam[el.image_id])
+                pi.append(offset + k)
+                uv.append(im.points2D[el.point2D_idx].xy)
+        offset += len(ids)
+    uv_px = colmap_to_opencv_px(np.array(uv).reshape(-1, 2))
+    problem = BAProblem.from_cameras(cameras, scene_points, camera_index=np.array(ci, np.int64),
+                                     point_index=np.array(pi, np.int64), uv_px=uv_px, camera_names=names)
+    return MergeResult(problem=problem, cameras=cameras, scene_alignment=result_align, prior_alignment=pa,
+                       unaligned_scenes=unaligned, excluded=excluded)

@@ -1,0 +1,233 @@
+"""The projector-pattern SfM front end in one call: capture folder -> initial multi-scene BA problem.
+
+Stages (each also callable on its own, hloc style): :func:`projector.features.extract_features`,
+:func:`projector.pairs.pairs_from_prior` / ``pairs_exhaustive``, :func:`projector.matching.match_pairs`,
+:func:`projector.mapping.map_scene`, :func:`projector.merge.merge_scenes`.
+
+Work folder layout (everything resumable)::
+
+    WORK/<scene>/database.db     COLMAP database (open it in COLMAP with CAPTURE/scenes/<scene> as image folder)
+    WORK/<scene>/pairs.txt       the matched pairs, one "a.png b.png" per line
+    WORK/<scene>/sparse/<k>/     pycolmap models
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from dome_calib.ba.problem import BAProblem
+from dome_calib.bundle import Bundle, Camera, load_bundle
+from dome_calib.errors import CaptureError
+from dome_calib.io_utils import atomic_write_text
+from projector.executor import Executor, make_executor
+from projector.features import FeatureOptions, FeatureReport, extract_features, nominal_camera
+from projector.mapping import MappingOptions, SceneModel, map_scene
+from projector.matching import MatchOptions, MatchReport, match_pairs
+from projector.merge import Alignment, MergeOptions, merge_scenes
+from projector.pairs import (Pair, PairOptions, UnknownStrategy, expand_pairs_from_matches, pairs_for_unknown,
+                             pairs_from_prior)
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(kw_only=True)
+class SfmOptions:
+    features: FeatureOptions = field(default_factory=FeatureOptions)
+    pairs: PairOptions = field(default_factory=PairOptions)
+    matching: MatchOptions = field(default_factory=MatchOptions)
+    mapping: MappingOptions = field(default_factory=MappingOptions)
+    merge: MergeOptions = field(default_factory=MergeOptions)
+    scenes: list[str] | None = None  # default: every folder in CAPTURE/scenes
+    num_workers: int | None = None  # default: all available cores
+    show_progress: bool = True
+
+
+@dataclass(kw_only=True)
+class CameraFailure:
+    camera: str
+    scene: str  # "" for the whole capture
+    stage: str  # features | mapping | merge
+    reason: str
+
+
+@dataclass(kw_only=True)
+class SceneStats:
+    scene: str
+    features: FeatureReport
+    pairs: int
+    matches: MatchReport
+    model: SceneModel
+
+
+@dataclass(kw_only=True)
+class SfmResult:
+    """What the front end hands to the bundle adjustment, plus what went wrong where.
+
+    problem: the initial :class:`BAProblem` (cameras by name, per-scene points in cm in the prior's frame,
+    observations in OpenCV pixels). cameras: the initial cameras (same as in ``problem``).
+    failures: per camera and scene, with the stage and the reason. unregistered: cameras registered in no scene.
+    """
+
+    problem: BAProblem | None
+    cameras: dict[str, Camera]
+    scenes: dict[str, SceneStats]
+    failures: list[CameraFailure]
+    unregistered: dict[str, str]
+    scene_alignment: dict[str, Alignment]
+    prior_alignment: Alignment | None
+    seconds: dict[str, float]
+
+
+def _prior_cameras(prior: Bundle | Mapping[str, Camera] | str | Path | None) -> dict[str, Camera]:
+    if prior is None:
+        from dome_calib.synth.layout import nominal_dome
+
+        return dict(nominal_dome("full", 0).cameras)
+    if isinstance(prior, (str, Path)):
+        return dict(load_bundle(prior).cameras)
+    if isinstance(prior, Bundle):
+        return dict(prior.cameras)
+    return dict(prior)
+
+
+def list_scenes(capture_dir: Path, wanted: list[str] | None) -> list[str]:
+    scenes_dir = capture_dir / "scenes"
+    if not scenes_dir.is_dir():
+        raise CaptureError(f"{capture_dir}: no scenes/ folder (expected CAPTURE/scenes/<scene>/<camera>.png)")
+    found = sorted(p.name for p in scenes_dir.iterdir() if p.is_dir() and any(p.glob("*.png")))
+    if wanted:
+        missing = [s for s in wanted if s not in found]
+        if missing:
+            raise CaptureError(f"{scenes_dir}: scene {missing[0]!r} not found (have: {', '.join(found)})")
+        found = list(wanted)
+    if not found:
+        raise CaptureError(f"{scenes_dir}: no scene folder with PNG images")
+    return found
+
+
+def select_pairs(names: list[str], prior: Mapping[str, Camera], options: PairOptions) -> list[Pair]:
+    """Prior-based pairs for known cameras plus the first-round fallback pairs for unknown ones."""
+    return sorted(set(pairs_from_prior(prior, names, options)) | set(pairs_for_unknown(prior, names, options)))
+
+
+def write_pairs(path: Path, pairs: list[Pair]) -> None:
+    atomic_write_text(path, "".join(f"{a}.png {b}.png\n" for a, b in pairs))
+
+
+def run_scene(
+    capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera], options: SfmOptions,
+    executor: Executor,
+) -> SceneStats:
+    """Features, pairs, matching and mapping of one scene."""
+    image_dir = capture_dir / "scenes" / scene
+    db_path = work_dir / scene / "database.db"
+    feats = extract_features(image_dir, db_path, prior=prior, options=options.features, executor=executor, scene=scene)
+    names = sorted(feats.num_features)
+    pairs = select_pairs(names, prior, options.pairs)
+    write_pairs(work_dir / scene / "pairs.txt", pairs)
+    matches = match_pairs(db_path, pairs, options=options.matching, executor=executor, scene=scene)
+    if options.pairs.unknown_strategy == UnknownStrategy.SUBSET and any(n not in prior for n in names):
+        extra = expand_pairs_from_matches(prior, names, matches.inliers, pairs, options.pairs)
+        if extra:
+            pairs = sorted(set(pairs) | set(extra))
+            write_pairs(work_dir / scene / "pairs.txt", pairs)
+            matches = match_pairs(db_path, pairs, options=options.matching, executor=executor, scene=scene)
+    model = map_scene(db_path, image_dir, work_dir / scene / "sparse", options=options.mapping, scene=scene)
+    return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model)
+
+
+def run_sfm(
+    capture_dir: str | Path, work_dir: str | Path, options: SfmOptions | None = None,
+    prior: Bundle | Mapping[str, Camera] | str | Path | None = None, executor: Executor | None = None,
+) -> SfmResult:
+    """Run the whole front end on a capture folder.
+
+    Args:
+        capture_dir: ``CAPTURE`` with ``scenes/<scene>/<camera>.png``.
+        work_dir: where databases and models go (reruns reuse them).
+        prior: a previous calibration (Bundle, cameras by name, or a bundle folder); default the nominal dome
+            layout. It seeds intrinsics, pair selection and the output frame (cm, Panoptic world).
+        executor: task executor for features and matching (default: local process pool).
+    Returns:
+        :class:`SfmResult`; ``problem`` is None only if no scene reconstructed (``failures`` says why).
+    Example:
+        >>> result = run_sfm("capture", "work", prior="previous_bundle")
+        >>> result.problem.camera_names[:3], len(result.problem.uv_px)
+    """
+    options = options or SfmOptions()
+    for sub in (options.features, options.matching):
+        sub.show_progress = options.show_progress
+    capture_dir, work_dir = Path(capture_dir), Path(work_dir)
+    scenes = list_scenes(capture_dir, options.scenes)
+    prior_cams = _prior_cameras(prior)
+    t0 = time.perf_counter()
+    own_executor = executor is None
+    executor = executor or make_executor(options.num_workers)
+    stats: dict[str, SceneStats] = {}
+    try:
+        for scene in scenes:
+            stats[scene] = run_scene(capture_dir, work_dir, scene, prior_cams, options, executor)
+    finally:
+        if own_executor and hasattr(executor, "shutdown"):
+            executor.shutdown()
+    t_scenes = time.perf_counter() - t0
+    failures: list[CameraFailure] = []
+    for s in stats.values():
+        failures += [CameraFailure(camera=c, scene=s.scene, stage="features", reason=r)
+                     for c, r in sorted(s.features.failures.items())]
+        failures += [CameraFailure(camera=c, scene=s.scene, stage="mapping", reason=r)
+                     for c, r in sorted(s.model.unregistered.items())]
+        if s.model.failure:
+            failures.append(CameraFailure(camera="", scene=s.scene, stage="mapping", reason=s.model.failure))
+    # cameras seen in the images but unknown to the prior get nominal intrinsics (pose from the scenes)
+    all_cams = sorted({c for s in stats.values() for c in (*s.features.num_features, *s.features.failures)})
+    for s in stats.values():
+        for c in s.model.registered:
+            if c not in prior_cams:
+                rec_cam = s.model.reconstruction.camera(s.model.reconstruction.find_image_with_name(f"{c}.png").camera_id)
+                prior_cams[c] = nominal_camera(c, (rec_cam.width, rec_cam.height))
+    t1 = time.perf_counter()
+    problem, cameras, scene_alignment, prior_alignment = None, {}, {}, None
+    try:
+        merged = merge_scenes([s.model for s in stats.values()], prior_cams, options.merge)
+    except ValueError as exc:
+        failures.append(CameraFailure(camera="", scene="", stage="merge", reason=str(exc)))
+    else:
+        problem, cameras = merged.problem, merged.cameras
+        scene_alignment, prior_alignment = merged.scene_alignment, merged.prior_alignment
+        failures += [CameraFailure(camera="", scene=sc, stage="merge", reason=r) for sc, r in merged.unaligned_scenes.items()]
+        failures += [CameraFailure(camera=c, scene=sc, stage="merge", reason=r) for (sc, c), r in merged.excluded.items()]
+    reasons: dict[str, list[str]] = {}
+    for f in failures:
+        if f.camera:
+            reasons.setdefault(f.camera, []).append(f"{f.scene}: {f.reason}")
+    unregistered = {c: "; ".join(reasons.get(c, ["not registered"])) for c in all_cams if c not in cameras}
+    for c, r in unregistered.items():
+        logger.warning("camera %s not registered in any scene: %s", c, r)
+    seconds = {"scenes": t_scenes, "merge": time.perf_counter() - t1, "total": time.perf_counter() - t0}
+    result = SfmResult(problem=problem, cameras=cameras, scenes=stats, failures=failures, unregistered=unregistered,
+                       scene_alignment=scene_alignment, prior_alignment=prior_alignment, seconds=seconds)
+    atomic_write_text(work_dir / "sfm_report.json", json.dumps(report_dict(result), indent=1))
+    return result
+
+
+def report_dict(result: SfmResult) -> dict:
+    """JSON-ready summary: per scene counts, failures per camera, alignment residuals."""
+    return {
+        "registered_cameras": sorted(result.cameras),
+        "unregistered": result.unregistered,
+        "failures": [f.__dict__ for f in result.failures],
+        "scenes": {s: {"images": len(st.features.num_features) + len(st.features.failures),
+                       "features_mean": (sum(st.features.num_features.values()) / max(len(st.features.num_features), 1)),
+                       "pairs": st.pairs, "verified_pairs": st.matches.num_verified_pairs,
+                       "inlier_matches": st.matches.num_inlier_matches, "registered": len(st.model.registered),
+                       "points": st.model.reconstruction.num_points3D() if st.model.reconstruction else 0}
+                   for s, st in result.scenes.items()},
+        "scene_alignment_rms": {s: a.rms_center for s, a in result.scene_alignment.items()},
+        "prior_alignment_rms_cm": result.prior_alignment.rms_center if result.prior_alignment else None,
+        "seconds": result.seconds,
+    }
