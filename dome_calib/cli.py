@@ -45,10 +45,15 @@ def calibrate(
                             "folder's name)."),
     work: Path = typer.Option(None, "--work", help="Work folder for intermediate results; a rerun resumes from "
                               "it (default: OUT.work beside the bundle)."),
+    verbose: bool = typer.Option(False, "--verbose", "-v", help="Log every bundle-adjustment iteration."),
 ) -> None:
     """Calibrate every camera of the dome from one capture session: features, matching, reconstruction, bundle
     adjustment, world frame, then the bundle and its report. Rerun the same command to resume after a stop."""
+    import logging
+
     from dome_calib.pipeline import CalibrateOptions, format_result, run_calibration
+
+    logging.getLogger("dome_calib.ba").setLevel(logging.INFO if verbose else logging.WARNING)
 
     options = CalibrateOptions(prior=prior, only_changed=only_changed, seq=seq, work_dir=work)
     typer.echo(format_result(run_calibration(capture, out, options)))
@@ -93,6 +98,9 @@ def demo(
 ) -> None:
     """Demonstration: synthesise a small dome capture, calibrate it, compare with the ground truth, and print
     what a technician would look at."""
+    import logging
+
+    logging.getLogger("dome_calib.ba").setLevel(logging.WARNING)
     from dome_calib.demo import DemoOptions, format_demo, run_demo
 
     typer.echo(format_demo(run_demo(out, DemoOptions(preset=preset, scenes=scenes, seed=seed))))

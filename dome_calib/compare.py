@@ -161,8 +161,11 @@ class CameraChange:
     reasons: list[str]
 
     def as_dict(self) -> dict:
-        return {"name": self.name, "moved_cm": self.moved_cm, "rotated_deg": self.rotated_deg,
-                "focal_pct": self.focal_pct, "distortion_px": self.distortion_px, "reasons": self.reasons}
+        def num(v: float) -> float | None:
+            return float(v) if np.isfinite(v) else None  # NaN: not comparable (a camera new since the prior)
+
+        return {"name": self.name, "moved_cm": num(self.moved_cm), "rotated_deg": num(self.rotated_deg),
+                "focal_pct": num(self.focal_pct), "distortion_px": num(self.distortion_px), "reasons": self.reasons}
 
 
 def detect_changes(new: dict[str, Camera], prior: dict[str, Camera],

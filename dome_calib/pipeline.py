@@ -15,6 +15,7 @@ those that moved; ``--only-changed`` then re-estimates just those, all other cam
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import pickle
@@ -35,6 +36,9 @@ from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, run_ba_stage, run_
 logger = logging.getLogger(__name__)
 
 STATE_FILE = "state.json"
+STAGE_LABELS = {"sfm": "features, pairs, matching, per-scene mapping, merging scenes",
+                "ba": "bundle adjustment (5 distortion parameters, outlier rejection)",
+                "detect": "which cameras changed since the prior", "quick_ba": "re-estimating the changed cameras"}
 STATE_VERSION = 1
 
 
@@ -93,6 +97,22 @@ def capture_contents(capture: Path) -> tuple[list[str], list[str]]:
     return scenes, cams
 
 
+@contextlib.contextmanager
+def _stage_status(text: str, enabled: bool):
+    """A live spinner with the elapsed time on stderr while a stage runs (nothing when disabled)."""
+    if not enabled:
+        yield
+        return
+    from rich.console import Console
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
+                  console=Console(stderr=True), transient=False) as bar:
+        task = bar.add_task(text, total=1)
+        yield
+        bar.update(task, completed=1)
+
+
 class _WorkState:
     """Which stages finished, for which inputs, kept as JSON in the work folder."""
 
@@ -148,9 +168,9 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
             seconds[name] = state.state["stages"][name]["seconds"]
             logger.info("stage %s: taken from %s", name, work)
             return state.load(name)
-        logger.info("stage %s ...", name)
         t0 = time.perf_counter()
-        value = fn()
+        with _stage_status(f"{name}: {STAGE_LABELS.get(name, name)}", options.progress):
+            value = fn()
         seconds[name] = time.perf_counter() - t0
         state.save(name, value, seconds[name])
         logger.info("stage %s: done in %.1f s", name, seconds[name])

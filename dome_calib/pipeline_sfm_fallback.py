@@ -86,6 +86,7 @@ def _observations(rec: pycolmap.Reconstruction) -> tuple[np.ndarray, list[str], 
 
 def fallback_sfm(capture: Path, work_dir: Path, scenes: list[str]) -> tuple[BAProblem, dict[str, str], dict]:
     """Per-scene pycolmap reconstruction, merged into one frame as a :class:`BAProblem`."""
+    pycolmap.logging.minloglevel = 1  # COLMAP's per-image INFO lines would drown the progress display
     recs = {}
     for scene in scenes:
         rec = _scene_reconstruction(capture / "scenes" / scene, Path(work_dir) / scene)

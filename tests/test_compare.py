@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pycolmap
@@ -17,7 +18,7 @@ from dome_calib.bundle import Bundle, write_bundle
 from dome_calib.camera import intr_to_K, project
 from dome_calib.compare import ChangeOptions, compare_cameras, detect_changes, format_comparison
 
-from conftest import REAL_CALIBRATION
+REAL_CALIBRATION = Path(__file__).parent / "data" / "panoptic" / "calibration_160906_band1.json"
 
 SIM = pycolmap.Sim3d(0.013, pycolmap.Rotation3d(Rotation.from_rotvec([0.4, -1.1, 2.0]).as_matrix()), [3.0, -7.0, 1.5])
 
