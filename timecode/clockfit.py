@@ -59,10 +59,14 @@ def _fit_batch(t, pos, ce, oe, seg_lo, seg_hi, window, h):
     y = (t[idx] - t[ce][:, None] - h * dp).astype(np.float32)
     x = (dp * (1.0 / window)).astype(np.float32)
     x2 = x * x
-    # quadratic only where the window reaches well to both sides of the centre
+    # quadratic where the window reaches well to both sides of the centre; at the end of a run a line
+    # through the nearest half frame (extrapolating a parabola, or a line over a long curved stretch of a
+    # speed change, would cost more than it gains)
     left = (p0 - pos[lo]) >= window // 3
     right = (pos[np.maximum(hi - 1, 0)] - p0) >= window // 3
-    ridge = np.where(left & right, 0.0, 1e9)
+    two_sided = left & right
+    ridge = np.where(two_sided, 0.0, 1e9)
+    valid &= two_sided[:, None] | (np.abs(dp) <= window // 2)
     w = valid.astype(np.float32)
     coef = _solve(x, x2, y, w, ridge)
     res = y - _poly(coef, x, x2)

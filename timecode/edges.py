@@ -75,10 +75,12 @@ def block_levels(x2d: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.float32],
     k = sub.shape[1]
     lo = sub[:, int(0.02 * k)]
     hi = sub[:, min(k - 1, int(0.98 * k))]
-    # a block with little swing next to blocks with a lot holds no edges (flat lead-in, dropout):
-    # it takes the levels of the nearest block that has both
+    # a block with little swing next to blocks with a lot holds no edges (flat lead-in, dropout), and one
+    # that sits mostly on one level (LTC starts or stops in it) has skewed percentiles: both take the
+    # levels of the nearest block that has both levels
     swing = hi - lo
-    good = swing > 0.25 * maximum_filter1d(swing, 17, mode="nearest")
+    above = (sub > ((lo + hi) / 2)[:, None]).mean(axis=1)
+    good = (swing > 0.25 * maximum_filter1d(swing, 17, mode="nearest")) & (above > 0.2) & (above < 0.8)
     if 0 < good.sum() < len(good):
         gi = np.flatnonzero(good)
         near = gi[np.clip(np.searchsorted(gi, np.arange(len(good))), 0, len(gi) - 1)]
