@@ -13,6 +13,7 @@ from dome_calib.ba.problem import BAProblem
 from dome_calib.ba.solver import BAOptions, bundle_adjust
 from dome_calib.bundle import Bundle, Camera
 from dome_calib.camera import project
+from dome_calib.errors import CaptureError
 from dome_calib.report import Residuals
 
 logger = logging.getLogger(__name__)
@@ -64,21 +65,19 @@ def residuals_of(problem: BAProblem, inlier: np.ndarray | None = None) -> Residu
 
 def run_sfm_stage(capture: Path, work_dir: Path, *, prior: Bundle | None, progress: bool = True,
                   scenes: list[str] | None = None) -> SfmOutcome:
-    """Features, pairs, matching, per-scene mapping and merging (``projector.run_sfm``; until that lands, the
-    temporary pycolmap stand-in in :mod:`dome_calib.pipeline_sfm_fallback`)."""
-    from dome_calib.pipeline import capture_contents
+    """Features, pairs, matching, per-scene mapping and merging (:func:`projector.sfm.run_sfm`), seeded by the
+    prior bundle or, without one, the nominal dome layout. Raises CaptureError if no scene reconstructs."""
+    import pycolmap
 
-    all_scenes, _ = capture_contents(capture)
-    scenes = scenes or all_scenes
-    try:
-        from projector import run_sfm  # noqa: F401
-    except ImportError:
-        from dome_calib.pipeline_sfm_fallback import fallback_sfm
+    from projector.sfm import SfmOptions, report_dict, run_sfm
 
-        logger.warning("projector.run_sfm not available: using the temporary pycolmap stand-in")
-        problem, failures, stats = fallback_sfm(capture, work_dir, scenes)
-        return SfmOutcome(problem=problem, failures=failures, stats=stats)
-    raise NotImplementedError("projector.run_sfm exists: wire it here")
+    if not logger.isEnabledFor(logging.DEBUG):
+        pycolmap.logging.minloglevel = max(int(pycolmap.logging.minloglevel), 1)  # COLMAP's INFO lines: noise here
+    result = run_sfm(capture, work_dir, SfmOptions(scenes=scenes, show_progress=progress), prior=prior)
+    if result.problem is None:
+        why = "; ".join(f"{f.scene or 'capture'}: {f.reason}" for f in result.failures if not f.camera)
+        raise CaptureError(f"{capture}: no scene could be reconstructed ({why or 'no registered cameras'})")
+    return SfmOutcome(problem=result.problem, failures=dict(result.unregistered), stats=report_dict(result))
 
 
 def ba_options() -> BAOptions:
