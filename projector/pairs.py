@@ -37,7 +37,7 @@ class UnknownStrategy(StrEnum):
 class PairOptions:
     """Options of prior-based pair selection (lengths in cm, angles in degrees)."""
 
-    exhaustive_below: int = 60  # scenes with at most this many images are matched exhaustively
+    exhaustive_below: int = 30  # scenes with at most this many images are matched exhaustively
     region_center_cm: tuple[float, float, float] | None = None  # None: where the optical axes meet
     region_radii_cm: tuple[float, ...] = (40.0, 80.0, 120.0)  # sample spheres around the region centre
     samples_per_sphere: int = 1500
