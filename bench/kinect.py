@@ -1,6 +1,6 @@
 """Kinect depth-colour calibration on synthetic checkerboard captures, against the ground truth and OpenCV.
 
-Run: .venv/bin/python bench/kinect.py [--sensors 10] [--frames 32] [--seed 0] [--keep DIR]
+Run: .venv/bin/python bench/kinect.py [--sensors 10] [--frames 32] [--seed 0] [--keep DIR | --capture DIR]
 Prints one JSON object per sensor, then one summary line. Per sensor:
 - ours: depth-to-colour translation error (mm) and rotation error (deg), IR focal error (%), depth bias error
   (max |model error| over the board depths used, mm; plus offset and scale errors), RMS / sigma for IR and colour,
@@ -25,7 +25,7 @@ from dome_calib.bundle import load_bundle
 from dome_calib.camera import K_to_intr, project
 from dome_calib.kinect.calibrate import calibrate_kinect_folder
 from dome_calib.kinect.stereo import opencv_stereo_calibrate, rotation_error_deg
-from dome_calib.synth.kinect_boards import KinectBoardsOptions, generate_kinect_boards
+from dome_calib.synth.kinect_boards import KinectBoardsOptions, generate_kinect_boards, load_ground_truth
 
 DOME = Path(__file__).resolve().parents[1] / "tests" / "data" / "panoptic"
 
@@ -83,21 +83,27 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=32, help="good board poses per sensor (+2 blurred, +2 cut off)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--keep", type=Path, default=None, help="write the capture here and keep it")
+    ap.add_argument("--capture", type=Path, default=None, help="reuse a capture written with --keep (no generation)")
     args = ap.parse_args()
     dome = load_bundle(DOME)
-    work = args.keep or Path(tempfile.mkdtemp(prefix="bench_kinect_"))
+    work = args.capture or args.keep or Path(tempfile.mkdtemp(prefix="bench_kinect_"))
     try:
         t0 = time.perf_counter()
         opts = KinectBoardsOptions(sensors=[f"KINECTNODE{i + 1}" for i in range(args.sensors)], good_frames=args.frames,
                                    seed=args.seed)
-        truth = generate_kinect_boards(dome, work, opts)
+        if args.capture is not None:
+            truth = load_ground_truth(work)
+            args.frames = sum(f["kind"] == "good" for f in next(iter(truth["sensors"].values()))["frames"])
+            args.seed = truth["seed"]
+        else:
+            truth = generate_kinect_boards(dome, work, opts)
         t_gen = time.perf_counter() - t0
         t0 = time.perf_counter()
         results, _ = calibrate_kinect_folder(work, dome)
         t_cal = time.perf_counter() - t0
         rows = [sensor_row(r, truth["sensors"][r.name], opts.board) for r in results]
     finally:
-        if args.keep is None:
+        if args.keep is None and args.capture is None:
             shutil.rmtree(work, ignore_errors=True)
     for row in rows:
         print(json.dumps(row))

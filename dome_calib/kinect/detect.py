@@ -24,6 +24,7 @@ import numpy as np
 from dome_calib.errors import CaptureError
 from dome_calib.kinect.board import Checkerboard
 
+_NO_SHARPNESS = 1000.0  # estimateChessboardSharpness returns 9999 where no edge profile could be measured
 _FRAME_RE = re.compile(r"^(ir|color|depth)_(\d+)\.png$")
 _CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH
 _SB_FLAGS = cv2.CALIB_CB_EXHAUSTIVE  # NORMALIZE_IMAGE loses dark IR boards; cornerSubPix does the accuracy
@@ -179,8 +180,10 @@ def detect_board(image: np.ndarray, board: Checkerboard, opts: DetectOptions | N
         return BoardDetection(corners_px=None, reason=f"{what}: no complete {board.cols}x{board.rows} board found "
                                                       "(cut off, hidden or blurred)")
     corners = corners.reshape(-1, 2).astype(np.float32)
-    edge_width = max(float(cv2.estimateChessboardSharpness(image, board.pattern_size, corners.reshape(-1, 1, 2),
-                                                           0.8, vertical)[0][0]) for vertical in (False, True))
+    widths = [float(cv2.estimateChessboardSharpness(image, board.pattern_size, corners.reshape(-1, 1, 2), 0.8,
+                                                    vertical)[0][0]) for vertical in (False, True)]
+    widths = [v for v in widths if np.isfinite(v) and v < _NO_SHARPNESS]  # OpenCV says 9999 when it cannot measure
+    edge_width = max(widths) if widths else float("nan")
     if edge_width > opts.max_edge_width_px:
         return BoardDetection(corners_px=None, edge_width_px=edge_width,
                               reason=f"{what}: blurred (edge width {edge_width:.1f} px > {opts.max_edge_width_px:g} px)")
