@@ -194,3 +194,21 @@ def test_truth_kcalibration_has_the_true_depth_pose(capture):
     kcal = truth_kcalibration(truth)
     D = depth_from_world_cm(kcal.sensors[SENSOR], kcal.M_world2vga)
     np.testing.assert_allclose(D, truth["sensors"][SENSOR]["depth_from_world_cm"], atol=1e-9)
+
+
+def test_kinect_synth_command_writes_a_capture_and_refuses_unknown_sensors(dome_folder, tmp_path):
+    from typer.testing import CliRunner
+
+    from dome_calib.cli import app
+    from dome_calib.synth.kinect_boards import load_ground_truth
+
+    result = CliRunner().invoke(app, ["kinect-synth", str(tmp_path / "k"), "--bundle", str(dome_folder),
+                                      "--sensors", "2", "--frames", "1", "--seed", "3"])
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in (tmp_path / "k" / "KINECTNODE2").iterdir())[:3] == [
+        "color_0000.png", "color_0001.png", "color_0002.png"]
+    assert len(load_ground_truth(tmp_path / "k")["sensors"]["KINECTNODE2"]["frames"]) == 5
+    proc = subprocess.run([sys.executable, "-c", "from dome_calib.cli import main; main()", "kinect-synth",
+                           str(tmp_path / "k2"), "--bundle", str(dome_folder), "--sensors", "11"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1 and proc.stderr.count("\n") == 1 and "KINECTNODE11" in proc.stderr, proc.stderr
