@@ -15,6 +15,8 @@ from dome_calib.bundle import Bundle, CameraType
 _MARKER = {CameraType.VGA: ("o", 22), CameraType.HD: ("s", 60), CameraType.KINECT_COLOR: ("^", 70)}
 _COLOR = {CameraType.VGA: "tab:blue", CameraType.HD: "tab:orange", CameraType.KINECT_COLOR: "tab:green"}
 _DPI = 110
+DOME_RADIUS_CM = 274.5  # the Panoptic dome's sphere (5.49 m across), drawn for orientation
+DOME_CENTRE_HEIGHT_CM = 140.0
 
 
 def plot_dome(bundle: Bundle, report: dict, path: Path) -> Path:
@@ -50,6 +52,15 @@ def plot_dome(bundle: Bundle, report: dict, path: Path) -> Path:
                                linewidths=1.4)
                     ax.annotate(n, (xs[k], ys[k]), xytext=(4, 4), textcoords="offset points", fontsize=7, color="red")
         ax.scatter([0], [0], marker="+", s=80, c="k")  # world origin: floor centre
+        a = np.linspace(0, 2 * np.pi, 361)
+        if j == 1:  # the dome sphere's outline above the floor, from the side
+            a0 = np.arcsin(DOME_CENTRE_HEIGHT_CM / DOME_RADIUS_CM)
+            a = np.linspace(-a0, np.pi + a0, 181)
+            ax.plot(DOME_RADIUS_CM * np.cos(a), DOME_CENTRE_HEIGHT_CM + DOME_RADIUS_CM * np.sin(a), color="0.75",
+                    lw=0.8, zorder=0)
+            ax.axhline(0, color="0.5", lw=0.8, zorder=0)
+        else:
+            ax.plot(DOME_RADIUS_CM * np.cos(a), DOME_RADIUS_CM * np.sin(a), color="0.75", lw=0.8, zorder=0)
         ax.set(title=title, xlabel=xlabel, ylabel=ylabel, aspect="equal")
         ax.grid(True, alpha=0.3)
     axes[0].legend(loc="upper right", fontsize=8)
