@@ -144,41 +144,63 @@ def _frame_fields(raw: bytes) -> tuple[int, int, int, int, int, bool]:
     return h, m, s, f, ub, bool(bits[10])
 
 
-def decode(samples: npt.ArrayLike, sample_rate: float, fps: float = 25.0, chunk: int = 4096) -> LibltcFrames:
-    """Decode mono audio with libltc (floats, full scale 1.0, or uint8 samples written as they are)."""
-    lib = load()
-    if lib is None:
-        raise RuntimeError(f"libltc unavailable: {_LOAD_ERROR}")
-    x = np.asarray(samples)
-    apv = int(round(sample_rate / fps))
-    dec = lib.ltc_decoder_create(apv, 64)
-    rows: list[tuple] = []
-    frame = LTCFrameExt()
-    try:
+class Decoder:
+    """Streaming libltc decoder: ``write`` blocks of mono audio in order, then ``frames()``."""
+
+    def __init__(self, sample_rate: float, fps: float = 25.0, chunk: int = 4096) -> None:
+        lib = load()
+        if lib is None:
+            raise RuntimeError(f"libltc unavailable: {_LOAD_ERROR}")
+        self._lib, self._chunk, self._pos = lib, chunk, 0
+        self._dec = lib.ltc_decoder_create(int(round(sample_rate / fps)), 64)
+        self._rows: list[tuple] = []
+        self._frame = LTCFrameExt()
+
+    def write(self, samples: npt.ArrayLike) -> None:
+        """Floats (full scale 1.0; libltc converts to 8 bits as 128 + 127 x) or uint8 samples as they are."""
+        lib, x = self._lib, np.asarray(samples)
         if x.dtype == np.uint8:
-            buf = np.ascontiguousarray(x)
-            ptr_t = ctypes.POINTER(ctypes.c_ubyte)
-            write = lib.ltc_decoder_write
+            buf, ptr_t, write = np.ascontiguousarray(x), ctypes.POINTER(ctypes.c_ubyte), lib.ltc_decoder_write
         else:
             buf = np.ascontiguousarray(x, dtype=np.float32)
-            ptr_t = ctypes.POINTER(ctypes.c_float)
-            write = lib.ltc_decoder_write_float
-        for start in range(0, len(buf), chunk):
-            part = buf[start:start + chunk]
-            write(dec, part.ctypes.data_as(ptr_t), len(part), start)
-            while lib.ltc_decoder_read(dec, ctypes.byref(frame)):
-                rows.append((*_frame_fields(bytes(frame.ltc)), frame.off_start, frame.off_end, bool(frame.reverse)))
+            ptr_t, write = ctypes.POINTER(ctypes.c_float), lib.ltc_decoder_write_float
+        for start in range(0, len(buf), self._chunk):
+            part = buf[start:start + self._chunk]
+            write(self._dec, part.ctypes.data_as(ptr_t), len(part), self._pos + start)
+            while lib.ltc_decoder_read(self._dec, ctypes.byref(self._frame)):
+                f = self._frame
+                self._rows.append((*_frame_fields(bytes(f.ltc)), f.off_start, f.off_end, bool(f.reverse)))
+        self._pos += len(buf)
+
+    def frames(self) -> LibltcFrames:
+        rows = self._rows
+        if not rows:
+            z = np.zeros(0, np.int64)
+            return LibltcFrames(labels=np.zeros((0, 4), np.int64), user_bits=z.astype(np.uint32),
+                                dfbit=z.astype(bool), off_start=z, off_end=z, reverse=z.astype(bool))
+        a = list(zip(*rows))
+        return LibltcFrames(labels=np.stack([a[0], a[1], a[2], a[3]], axis=1).astype(np.int64),
+                            user_bits=np.array(a[4], np.uint32), dfbit=np.array(a[5], bool),
+                            off_start=np.array(a[6], np.int64), off_end=np.array(a[7], np.int64),
+                            reverse=np.array(a[8], bool))
+
+    def close(self) -> None:
+        if self._dec:
+            self._lib.ltc_decoder_free(self._dec)
+            self._dec = None
+
+    def __del__(self) -> None:
+        self.close()
+
+
+def decode(samples: npt.ArrayLike, sample_rate: float, fps: float = 25.0, chunk: int = 4096) -> LibltcFrames:
+    """Decode mono audio with libltc (floats, full scale 1.0, or uint8 samples written as they are)."""
+    dec = Decoder(sample_rate, fps, chunk)
+    try:
+        dec.write(samples)
+        return dec.frames()
     finally:
-        lib.ltc_decoder_free(dec)
-    if not rows:
-        z = np.zeros(0, np.int64)
-        return LibltcFrames(labels=np.zeros((0, 4), np.int64), user_bits=z.astype(np.uint32), dfbit=z.astype(bool),
-                            off_start=z, off_end=z, reverse=z.astype(bool))
-    a = list(zip(*rows))
-    return LibltcFrames(labels=np.stack([a[0], a[1], a[2], a[3]], axis=1).astype(np.int64),
-                        user_bits=np.array(a[4], np.uint32), dfbit=np.array(a[5], bool),
-                        off_start=np.array(a[6], np.int64), off_end=np.array(a[7], np.int64),
-                        reverse=np.array(a[8], bool))
+        dec.close()
 
 
 def encode(start: tuple[int, int, int, int], n_frames: int, *, sample_rate: float, fps: float, standard: int,

@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,6 +50,7 @@ class DecodeOptions:
     smooth_sigma_samples: float | None = None  # Gaussian smoothing before timing (default ~0.1 half-bit)
     block_seconds: float = 20.0  # audio processed per step (memory ~ 30 bytes x samples x channels)
     ac_coupling: bool = True  # fit and undo an input high-pass (droop)
+    threads: int | None = None  # channels decoded in parallel (default: one per CPU core)
 
 
 class _ArrayReader:
@@ -107,30 +109,47 @@ def _decode(blocks, n_samples: int, n_channels: int, fs: int, opts: DecodeOption
     droops: dict[int, Droop | None] = {c: (None if opts.ac_coupling else Droop(corner_hz=0.0, sample_rate=fs))
                                        for c in chans}
     parts: dict[int, list[tuple[npt.NDArray, ...]]] = {c: [] for c in chans}
-    for d0, core0, core1, data in blocks(block, margin):
-        for c in chans:
-            x = to_float32(np.ascontiguousarray(data[:, c]))
-            if droops[c] is None:
-                excerpt = x[max(0, (len(x) - 2 * fs) // 2):][: 2 * fs]
-                droops[c] = block_droop(excerpt, params)
-                if droops[c] is not None and droops[c].active:
-                    logger.info("channel %d: AC coupling near %.1f Hz detected and undone", c + 1,
-                                droops[c].corner_hz)
-            be = find_edges(x, params, droops[c])
-            t = be.t + d0
-            keep = (t >= core0 - 0.5) & (t < core1 - 0.5)
-            parts[c].append((t[keep], be.rising[keep], be.amplitude[keep]))
-        if progress is not None:
-            progress(core1, n_samples)
-    out = []
-    for c in chans:
+    def one_channel(c: int, data: npt.NDArray, d0: int, core0: int, core1: int) -> None:
+        x = to_float32(np.ascontiguousarray(data[:, c]))
+        if droops[c] is None:
+            excerpt = x[max(0, (len(x) - 2 * fs) // 2):][: 2 * fs]
+            droops[c] = block_droop(excerpt, params)
+            if droops[c] is not None and droops[c].active:
+                logger.info("channel %d: AC coupling near %.1f Hz detected and undone", c, droops[c].corner_hz)
+        be = find_edges(x, params, droops[c])
+        t = be.t + d0
+        keep = (t >= core0 - 0.5) & (t < core1 - 0.5)
+        parts[c].append((t[keep], be.rising[keep], be.amplitude[keep]))
+
+    workers = max(1, min(len(chans), opts.threads or os.cpu_count() or 1))
+    with ThreadPoolExecutor(max_workers=workers) as pool:  # numpy releases the GIL in the heavy loops
+        for d0, core0, core1, data in _prefetch(blocks(block, margin)):
+            list(pool.map(lambda c: one_channel(c, data, d0, core0, core1), chans))
+            if progress is not None:
+                progress(core1, n_samples)
+    def finish(c: int) -> ChannelDecode:
         t = np.concatenate([p[0] for p in parts[c]]) if parts[c] else np.zeros(0)
         rising = np.concatenate([p[1] for p in parts[c]]) if parts[c] else np.zeros(0, bool)
         amp = np.concatenate([p[2] for p in parts[c]]) if parts[c] else np.zeros(0, np.float32)
         dr = droops[c]
-        out.append(decode_edges(t, rising, amp, fs, channel=c, rate=opts.rate,
-                                ac_coupling_hz=dr.corner_hz if dr is not None and dr.active else 0.0))
-    return out
+        return decode_edges(t, rising, amp, fs, channel=c, rate=opts.rate,
+                            ac_coupling_hz=dr.corner_hz if dr is not None and dr.active else 0.0)
+
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        return list(pool.map(finish, chans))
+
+
+def _prefetch(blocks: Iterator[tuple]) -> Iterator[tuple]:
+    """Read the next block on a helper thread while the current one is decoded."""
+    with ThreadPoolExecutor(max_workers=1) as reader:
+        it = iter(blocks)
+        nxt = reader.submit(next, it, None)
+        while True:
+            item = nxt.result()
+            if item is None:
+                return
+            nxt = reader.submit(next, it, None)
+            yield item
 
 
 def decode_edges(t: npt.NDArray[np.float64], rising: npt.NDArray[np.bool_], amplitude: npt.NDArray[np.float32],

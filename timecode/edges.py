@@ -52,7 +52,7 @@ def edge_params(sample_rate: float, sigma_samples: float | None = None) -> EdgeP
     half_bit = sample_rate / (2 * 80 * 27.0)
     sigma = sigma_samples if sigma_samples is not None else min(0.18 * half_bit, max(0.85, 0.1 * half_bit))
     stat_block = 1 << max(6, round(math.log2(sample_rate * 0.008)))
-    search = int(math.ceil(3.0 * math.hypot(sigma, 1.0))) + 2
+    search = max(3, int(math.ceil(2.0 * math.hypot(sigma, 0.85))) + 1)
     return EdgeParams(sample_rate=sample_rate, sigma_samples=sigma, stat_block=stat_block, search_samples=search)
 
 
@@ -78,9 +78,13 @@ def block_levels(x2d: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.float32],
     # a block with little swing next to blocks with a lot holds no edges (flat lead-in, dropout), and one
     # that sits mostly on one level (LTC starts or stops in it) has skewed percentiles: both take the
     # levels of the nearest block that has both levels
+    # (and noise alone is not two levels: most of its samples sit near the middle)
     swing = hi - lo
+    centred = np.abs(sub - ((lo + hi) / 2)[:, None])
     above = (sub > ((lo + hi) / 2)[:, None]).mean(axis=1)
-    good = (swing > 0.25 * maximum_filter1d(swing, 17, mode="nearest")) & (above > 0.2) & (above < 0.8)
+    near = (centred < (0.25 * swing)[:, None]).mean(axis=1)
+    good = ((swing > 0.25 * maximum_filter1d(swing, 17, mode="nearest")) & (above > 0.2) & (above < 0.8)
+            & (near < 0.5))
     if 0 < good.sum() < len(good):
         gi = np.flatnonzero(good)
         near = gi[np.clip(np.searchsorted(gi, np.arange(len(good))), 0, len(gi) - 1)]
@@ -131,17 +135,16 @@ def schmitt_edges(ys: npt.NDArray[np.float32], mid: npt.NDArray[np.float32], hal
 
 
 def steepest_steps(ys: npt.NDArray[np.float32], start: npt.NDArray[np.int64], stop: npt.NDArray[np.int64],
-                   rising: npt.NDArray[np.bool_]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64],
-                                                           npt.NDArray[np.float64]]:
-    """Gather each transition window: (j0, w, step) with w[:, i] = ys[j0 + i] and the signed steps
-    (positive in the edge direction; -inf outside the window)."""
+                   rising: npt.NDArray[np.bool_]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32],
+                                                           npt.NDArray[np.float32]]:
+    """Gather each transition window: (j0, w, step) with w[i, e] = ys[j0[e] + i] and the signed steps
+    (positive in the edge direction; -inf outside the window). Windows are columns (fast reductions)."""
     width = int((stop - start).max()) + 1 if len(start) else 1
-    idx = start[:, None] + np.arange(width)
-    inside = idx <= stop[:, None]
-    w = ys[np.minimum(idx, len(ys) - 1)].astype(np.float64)
-    sign = np.where(rising, 1.0, -1.0)[:, None]
-    step = np.diff(w, axis=1) * sign
-    step = np.where(inside[:, 1:], step, -np.inf)
+    idx = start[None, :] + np.arange(width)[:, None]
+    w = ys[np.minimum(idx, len(ys) - 1)]
+    step = np.diff(w, axis=0)
+    np.negative(step, out=step, where=~rising[None, :])
+    step[idx[1:] > stop[None, :]] = -np.inf
     return start, w, step
 
 
@@ -177,36 +180,35 @@ def refine_edges(ys: npt.NDArray[np.float32], win: tuple, base: npt.NDArray[np.f
     the mid level), the steepest point: parabola through the three steps around the steepest one.
     """
     start, _, rising, k, w, step = win
-    rows = np.arange(len(start))
-    sign = np.where(rising, 1.0, -1.0)[:, None]
-    g = (w - base[:, None]) * sign
-    cross = (g[:, :-1] < 0) & (g[:, 1:] >= 0)
-    best = step.max(axis=1)
-    score = np.where(cross & (step >= 0.5 * best[:, None]), step, -np.inf)
-    jc = np.argmax(score, axis=1)
-    has = np.isfinite(score[rows, jc])
+    g = w - base.astype(np.float32)[None, :]
+    np.negative(g, out=g, where=~rising[None, :])
+    cross = (g[:-1] < 0) & (g[1:] >= 0)
+    cross &= step >= 0.5 * step.max(axis=0)[None, :]
+    score = np.where(cross, step, -np.inf)
+    jc = np.argmax(score, axis=0)
+    has = cross[jc, np.arange(len(start))]
     c = start + jc
-    t_cross = c + _cubic_root(ys[c - 1] - base, ys[c] - base, ys[c + 1] - base, ys[c + 2] - base)
-    # steepest point: parabola through the steps around the steepest one
-    d0, d1, d2 = ys[k] - ys[k - 1], ys[k + 1] - ys[k], ys[k + 2] - ys[k + 1]
-    den = d0 - 2.0 * d1 + d2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        off = np.clip(np.nan_to_num(0.5 * (d0 - d2) / den), -0.5, 0.5)
-    return np.where(has, t_cross, k + 0.5 + off)
+    t = c + _cubic_root(ys[c - 1] - base, ys[c] - base, ys[c + 1] - base, ys[c + 2] - base)
+    if not has.all():  # steepest point: parabola through the steps around the steepest one
+        kk = k[~has]
+        d0, d1, d2 = (ys[kk + i + 1].astype(np.float64) - ys[kk + i] for i in (-1, 0, 1))
+        den = d0 - 2.0 * d1 + d2
+        off = 0.5 * (d0 - d2) / np.where(den == 0, np.inf, den)
+        t[~has] = kk + 0.5 + np.clip(off, -0.5, 0.5)
+    return t
 
 
 def _cubic_root(gm, g0, g1, g2):
     """Root in [-0.5, 1.5] of the cubic through (-1, gm), (0, g0), (1, g1), (2, g2), from the linear guess."""
-    gm, g0, g1, g2 = (np.asarray(v, dtype=np.float64) for v in (gm, g0, g1, g2))
     a1 = -gm / 3 - g0 / 2 + g1 - g2 / 6
     a2 = (gm + g1) / 2 - g0
     a3 = (g2 - gm) / 6 + (g0 - g1) / 2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.nan_to_num(g0 / (g0 - g1), nan=0.5)
-        for _ in range(3):
-            p = g0 + u * (a1 + u * (a2 + u * a3))
-            dp = a1 + u * (2 * a2 + 3 * u * a3)
-            u = np.clip(u - np.nan_to_num(p / dp), -0.5, 1.5)
+    denom = g0 - g1
+    u = g0 / np.where(denom == 0, np.inf, denom)
+    for _ in range(2):  # Newton from the linear guess: converged to ~1e-8 sample
+        p = g0 + u * (a1 + u * (a2 + u * a3))
+        dp = a1 + u * (2 * a2 + 3 * u * a3)
+        u = np.clip(u - p / np.where(dp == 0, np.inf, dp), -0.5, 1.5)
     return u
 
 
@@ -244,9 +246,9 @@ def _coarse(xp, n, mid, half, params):
     ok = (stop < n - 3) & (start >= 2)
     start, stop, rising = start[ok], stop[ok], rising[ok]
     if start.size == 0:
-        return ys, (start, stop, rising, start, np.zeros((0, 1)), np.zeros((0, 1)))
+        return ys, (start, stop, rising, start, np.zeros((1, 0)), np.zeros((1, 0)))
     j0, w, step = steepest_steps(ys, start, stop, rising)
-    k = j0 + np.argmax(step, axis=1)
+    k = j0 + np.argmax(step, axis=0)
     return ys, (start, stop, rising, k, w, step)
 
 

@@ -171,7 +171,7 @@ def encode_ltc_labels(
 
 
 def synthesize_edges(edges: npt.NDArray[np.float64], n_samples: int, sigma: float, amp: float,
-                     chunk_edges: int = 1 << 20) -> npt.NDArray[np.float64]:
+                     chunk_edges: int = 1 << 17) -> npt.NDArray[np.float64]:
     """A square wave of peak ``amp`` flipping at each of the sorted ``edges`` (float samples), with Gaussian
     edges of standard deviation ``sigma`` samples. Level before the first edge is ``-amp``; after it ``+amp``."""
     edges = np.asarray(edges, dtype=np.float64)
