@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 import time
 from pathlib import Path
@@ -98,6 +99,7 @@ def main() -> int:
                     help="prior calibration: the ground truth (a previous calibration) or the nominal layout")
     ap.add_argument("--mapper", choices=["global", "incremental"], default="global")
     args = ap.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", stream=sys.stderr)
 
     from projector.mapping import Mapper
     from projector.sfm import SfmOptions, run_sfm

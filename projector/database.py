@@ -130,14 +130,16 @@ class FeatureReader:
         """The pycolmap camera of image ``name``."""
         if name not in self._cameras:
             row = self._conn.execute(
-                "SELECT c.model, c.width, c.height, c.params FROM images i JOIN cameras c ON c.camera_id = i.camera_id "
-                "WHERE i.name = ?", (name,)).fetchone()
+                "SELECT c.model, c.width, c.height, c.params, c.prior_focal_length FROM images i "
+                "JOIN cameras c ON c.camera_id = i.camera_id WHERE i.name = ?", (name,)).fetchone()
             if row is None:
                 raise KeyError(f"{self.path}: no camera for image {name}")
-            model, w, h, params = row
-            self._cameras[name] = pycolmap.Camera(
-                model=pycolmap.CameraModelId(model), width=int(w), height=int(h),
-                params=np.frombuffer(params, dtype=np.float64).copy())
+            model, w, h, params, prior_focal = row
+            cam = pycolmap.Camera(model=pycolmap.CameraModelId(model), width=int(w), height=int(h),
+                                  params=np.frombuffer(params, dtype=np.float64).copy())
+            # the prior focal length is what makes two-view verification estimate a calibrated (E) geometry
+            cam.has_prior_focal_length = bool(prior_focal)
+            self._cameras[name] = cam
         return self._cameras[name]
 
     def close(self) -> None:
