@@ -15,6 +15,8 @@ def synth(
     seed: int = typer.Option(0, help="Random seed: same seed, same capture."),
     layout: Path = typer.Option(None, "--layout", help="Take the cameras from a real Panoptic calibration file "
                                 "(calibration_<seq>.json) instead of the nominal dome."),
+    cameras: str = typer.Option(None, "--cameras", help="Render only these cameras of the preset, comma-separated "
+                                "(e.g. 01_01,00_00)."),
     workers: int = typer.Option(2, help="Processes rendering in parallel."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace OUT if it exists."),
 ) -> None:
@@ -31,6 +33,7 @@ def synth(
     except ValueError:
         raise DomeCalibError(f"--preset {preset}: expected one of {', '.join(p.value for p in Preset)}") from None
     options = SynthOptions(preset=preset_value, n_scenes=scenes, seed=seed, layout=layout, workers=workers,
+                           cameras=[c.strip() for c in cameras.split(",") if c.strip()] if cameras else None,
                            overwrite=overwrite)
     columns = (TextColumn("rendering"), BarColumn(), MofNCompleteColumn(), TextColumn("images"), TimeElapsedColumn())
     with Progress(*columns, transient=False) as bar:

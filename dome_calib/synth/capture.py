@@ -47,6 +47,7 @@ class SynthOptions:
     n_scenes: int = 3
     seed: int = 0
     layout: Path | None = None
+    cameras: list[str] | None = None  # render only these cameras of the preset (default: all)
     workers: int = 2
     overwrite: bool = False
     render: RenderOptions = field(default_factory=RenderOptions)
@@ -70,12 +71,14 @@ def _projector_json(p: Projector) -> dict:
             "t": p.t_cm.tolist()}
 
 
-# Set in the parent before the worker pool forks; workers read it (copy-on-write), never pickle it.
+# The rendering job of this process: set directly when rendering in-process, or by the pool initializer in each
+# worker (workers are spawned, not forked: forking a process whose OpenCV/BLAS threads hold locks can deadlock).
 _JOB: dict = {}
 
 
-def _worker_init() -> None:
+def _worker_init(job: dict) -> None:
     cv2.setNumThreads(1)
+    _JOB.update(job)
 
 
 def _render_camera(name: str) -> tuple[str, int, float]:
@@ -102,8 +105,16 @@ def load_layout(options: SynthOptions) -> Bundle:
     if options.layout is not None:
         if not Path(options.layout).is_file():
             raise DomeCalibError(f"{options.layout}: layout file not found (expected a calibration_<seq>.json)")
-        return dome_from_calibration(options.layout, options.preset, options.seed)
-    return nominal_dome(options.preset, options.seed)
+        bundle = dome_from_calibration(options.layout, options.preset, options.seed)
+    else:
+        bundle = nominal_dome(options.preset, options.seed)
+    if options.cameras:
+        unknown = sorted(set(options.cameras) - set(bundle.cameras))
+        if unknown:
+            raise DomeCalibError(f"camera {unknown[0]}: not in preset {options.preset} "
+                                 f"(it has {', '.join(sorted(bundle.cameras)[:4])}, ...)")
+        bundle.cameras = {n: bundle.cameras[n] for n in sorted(set(options.cameras))}
+    return bundle
 
 
 def synthesize(out: str | Path, options: SynthOptions,
@@ -146,16 +157,18 @@ def synthesize(out: str | Path, options: SynthOptions,
             np.savez_compressed(gt / f"tent_{s}.npz", vertices_cm=V, faces=F.astype(np.int32),
                                 yaw_rad=pose.yaw_rad, position_cm=pose.T_cm)
         t_prepared = time.perf_counter()
-        _JOB.update(bundle=bundle, scenes=scenes, render=options.render, seed=options.seed, folder=tmp)
+        job = dict(bundle=bundle, scenes=scenes, render=options.render, seed=options.seed, folder=tmp)
         order = sorted(cameras, key=lambda n: (-_cost(bundle, n), n))  # big images first: better load balance
         done = 0
         camera_seconds = {}
         pool = None
         try:
             if options.workers == 1:
+                _JOB.update(job)
                 results = map(_render_camera, order)
             else:
-                pool = multiprocessing.get_context("fork").Pool(options.workers, initializer=_worker_init)
+                pool = multiprocessing.get_context("spawn").Pool(options.workers, initializer=_worker_init,
+                                                                 initargs=(job,))
                 results = pool.imap_unordered(_render_camera, order)
             for name, n, seconds in results:
                 done += n

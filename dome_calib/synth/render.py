@@ -45,7 +45,7 @@ class RenderOptions:
     depth_map_scale: float = 0.5  # projector depth maps at half the projector resolution
     flat_patterns: bool = False  # projectors show full white (for the marker test)
     markers_cm: np.ndarray | None = None  # (M, 3) world points on the tent with emissive Gaussian spots
-    marker_sigma_cm: float = 1.0
+    marker_sigma_cm: float = 0.5  # small: the perspective bias of a finite spot grows as sigma^2
     marker_radiance: float = 0.5
     projector_blur_px: float = 0.5
 

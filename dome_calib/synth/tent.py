@@ -38,10 +38,10 @@ class Ellipsoid:
 
 
 #: The tent's shape in its own frame: a 2 m tall egg (1.6 m x 1.3 m), a 1.6 m side teepee and a bulge.
-#: About 2.0 m x 1.7 m across. The egg sinks 10 cm below the floor (the floor hides that part).
-TENT_CONES = (Cone(x_cm=-62.0, z_cm=-40.0, height_cm=160.0, radius_cm=55.0),)
+#: About 2.0 m x 1.5 m across. The egg sinks 10 cm below the floor (the floor hides that part).
+TENT_CONES = (Cone(x_cm=-55.0, z_cm=-35.0, height_cm=160.0, radius_cm=50.0),)
 TENT_ELLIPSOIDS = (Ellipsoid(centre_cm=(0.0, -95.0, 0.0), radii_cm=(80.0, 105.0, 65.0)),
-                   Ellipsoid(centre_cm=(62.0, -50.0, 35.0), radii_cm=(45.0, 50.0, 42.0)))
+                   Ellipsoid(centre_cm=(55.0, -50.0, 30.0), radii_cm=(40.0, 45.0, 38.0)))
 
 
 def yaw_matrix(yaw_rad: float) -> np.ndarray:
