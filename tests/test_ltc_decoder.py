@@ -135,6 +135,23 @@ def test_jumps_are_reported_never_bridged():
     assert np.flatnonzero(ch.discontinuity).tolist() == [0, 50]
 
 
+@pytest.mark.parametrize("cut", [50000, 50800, 51234])
+def test_a_splice_mid_frame_mixes_no_frames(cut):
+    """Two takes joined at an arbitrary sample: the frame read across the join is dropped, not reported."""
+    fs, rate = 48000, RATE_29_97_DF
+    a = encode_ltc("10:00:00;00", 60, fps=rate, sample_rate=fs, options=EncoderOptions(start_offset_samples=500))
+    b = encode_ltc("11:00:00;00", 60, fps=rate, sample_rate=fs, options=EncoderOptions(start_offset_samples=777.7))
+    x = np.concatenate([a.samples[:cut], b.samples[30000:]])
+    (ch,) = decode_samples(_noise(x, 30, 6), fs)
+    truth = {**dict(zip(labels_to_frames(a.labels, rate).tolist(), a.frame_start_samples)),
+             **dict(zip(labels_to_frames(b.labels, rate).tolist(), b.frame_start_samples - 30000 + cut))}
+    complete = int(np.sum(a.frame_end_samples < cut - 2)) + int(np.sum(b.frame_start_samples > 30000 + 2))
+    assert len(ch) == complete
+    err = [s - truth[n] for n, s in zip(ch.frame_numbers.tolist(), ch.start_samples)]
+    assert np.max(np.abs(err)) < 0.05  # samples: both sides timed as if the other did not exist
+    assert int(ch.discontinuity.sum()) == 2
+
+
 def test_an_isolated_bad_label_is_dropped_but_a_longer_excursion_is_kept():
     rate = RATE_25
     labels = label_range("02:00:00:00", 60, rate)

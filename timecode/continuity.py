@@ -6,8 +6,9 @@ integer from the measured frame period (0.1 % apart, far more than any generator
 
 Continuity: a frame continues the previous one when its label equals the previous label plus the number
 of frame periods elapsed between them (in the play direction), so frames lost to noise are not jumps but
-a re-jammed generator or an edit is. A frame that disagrees with both neighbours while they agree with
-each other is a corrupted frame (bit errors that still form valid BCD) and is dropped, never bridged.
+a re-jammed generator or an edit is, and is reported as a discontinuity, never bridged. A frame whose
+label continues neither neighbour is dropped as corrupted (bit errors that still form a valid label, or
+a frame read across an audio splice), so a jump costs no frame but a one-frame excursion is not reported.
 """
 from __future__ import annotations
 
@@ -97,14 +98,15 @@ def continuity(counts: npt.NDArray[np.int64], reverse: npt.NDArray[np.bool_], mi
         return same_dir & (step >= 1) & (expect == counts[b])
 
     idx = np.arange(f)
-    if f >= 3:
-        ok_prev = np.concatenate([[False], follows(idx[:-1], idx[1:])])
-        ok_skip = np.concatenate([[False, False], follows(idx[:-2], idx[2:])])  # k+1 vs k-1, stored at k+1
-        bad = np.zeros(f, bool)
-        bad[1:-1] = ~ok_prev[1:-1] & ~ok_prev[2:] & ok_skip[2:]
-        keep = ~bad
-        if bad.any():
-            logger.info("dropped %d corrupted frame(s) whose labels disagree with both neighbours", int(bad.sum()))
+    if f >= 2:
+        # a frame whose label continues neither neighbour is corrupted: bit errors that still form a valid
+        # label, or a frame read across an audio splice (its first bits from one take, the rest from the
+        # next). Its neighbours are then compared with each other.
+        ok_next = follows(idx[:-1], idx[1:])
+        alone = ~np.concatenate([[False], ok_next]) & ~np.concatenate([ok_next, [False]])
+        keep = ~alone
+        if alone.any():
+            logger.info("dropped %d frame(s) whose labels continue neither neighbour", int(alone.sum()))
     kept = np.flatnonzero(keep)
     disc = np.ones(len(kept), dtype=bool)
     if len(kept) > 1:
