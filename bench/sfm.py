@@ -158,6 +158,17 @@ def main() -> int:
          rotation_err_deg_max=max(rot), scale_to_truth=s)
     emit(stage="total", preset=preset, features_s=t_feat, matching_s=t_match, features_plus_matching_s=t_feat + t_match,
          mapping_s=t_map, merge_s=result.seconds["merge"], wall_s=total, failures=len(result.failures))
+    if not args.full:  # pair selection on the full nominal dome (cheap): how many pairs the full run matches
+        from dome_calib.synth.layout import nominal_dome
+        from projector.pairs import PairOptions, pairs_from_prior
+
+        dome = nominal_dome("full", 0).cameras
+        t = time.perf_counter()
+        full_pairs = pairs_from_prior(dome, list(dome), PairOptions())
+        degree = np.bincount(np.searchsorted(sorted(dome), np.array(full_pairs).ravel()), minlength=len(dome))
+        emit(stage="pairs_full_dome", cameras=len(dome), pairs=len(full_pairs),
+             exhaustive_pairs=len(dome) * (len(dome) - 1) // 2, min_pairs_per_camera=int(degree.min()),
+             seconds=time.perf_counter() - t)
     first = next(iter(result.scenes))
     pairs_file = work / first / "pairs.txt"
     pairs = [tuple(Path(x).stem for x in line.split()) for line in pairs_file.read_text().splitlines()]

@@ -38,6 +38,7 @@ class MappingOptions:
     refine_extra_params: bool = False
     min_num_matches: int = 15
     min_model_size: int = 3
+    min_points_per_image: int = 30  # a registered image seeing fewer 3D points is reported, not used
     num_threads: int = -1  # -1: all cores
     random_seed: int = 0
     reuse: bool = True  # load an existing model instead of mapping again
@@ -149,12 +150,22 @@ def map_scene(
     result = SceneModel(scene=scene, reconstruction=best, num_models=len(models), failure=failure)
     if best is None and failure is None:
         result.failure = "no model: too few verified pairs to reconstruct"
-    registered = {best.image(i).name for i in best.reg_image_ids()} if best is not None else set()
+    weak: dict[str, str] = {}
+    registered: set[str] = set()
+    for image_id in best.reg_image_ids() if best is not None else []:
+        image = best.image(image_id)
+        if image.num_points3D < options.min_points_per_image:
+            weak[camera_of_image(image.name)] = (f"registered with only {image.num_points3D} 3D points "
+                                                 f"(< {options.min_points_per_image}): pose unreliable")
+        else:
+            registered.add(image.name)
     result.registered = sorted(camera_of_image(n) for n in registered)
     for image_id, cam in sorted(all_images.items(), key=lambda kv: kv[1]):
         if cam in result.registered:
             continue
-        if image_id not in verified_ids:
+        if cam in weak:
+            result.unregistered[cam] = weak[cam]
+        elif image_id not in verified_ids:
             result.unregistered[cam] = "no verified image pair (overlap too small or no tent in view)"
         elif best is None:
             result.unregistered[cam] = result.failure or "scene did not reconstruct"

@@ -46,6 +46,9 @@ class MatchOptions:
     min_num_matches: int = 15  # fewer raw matches: not verified
     min_num_inliers: int = 15
     ransac_max_error_px: float = 4.0
+    # the most distinctive matches of a pair; verification time grows with the count, and a few hundred
+    # well-spread matches per pair are plenty for mapping and the bundle adjustment (None: keep all)
+    max_matches_per_pair: int | None = 512
     backend: MatchBackend = MatchBackend.BLAS
     pairs_per_task: int = 40
     show_progress: bool = True
@@ -73,11 +76,12 @@ class MatchReport:
 
 
 def match_descriptors(d1: np.ndarray, d2: np.ndarray, *, max_ratio: float = 0.8, max_distance: float = 0.7,
-                      cross_check: bool = True) -> np.ndarray:
+                      cross_check: bool = True, max_matches: int | None = None) -> np.ndarray:
     """(M, 2) uint32 indices of mutual nearest neighbours passing the ratio and distance tests.
 
     d1 (N1, 128), d2 (N2, 128): SIFT descriptors (uint8 COLMAP storage or float); compared as unit vectors
-    by the angle between them.
+    by the angle between them. Matches come most distinctive first (by distance ratio); ``max_matches`` keeps
+    only that many.
     """
     if len(d1) < 2 or len(d2) < 2:
         return np.zeros((0, 2), np.uint32)
@@ -97,7 +101,8 @@ def match_descriptors(d1: np.ndarray, d2: np.ndarray, *, max_ratio: float = 0.8,
     keep = (dist1 <= max_distance) & (dist1 < max_ratio * dist2)
     if cross_check:
         keep &= s1 >= col_best[best]  # row i is also column best's nearest neighbour
-    return np.stack([rows[keep], best[keep]], axis=1).astype(np.uint32)
+    order = np.argsort(dist1[keep] / np.maximum(dist2[keep], 1e-12), kind="stable")[:max_matches]
+    return np.stack([rows[keep][order], best[keep][order]], axis=1).astype(np.uint32)
 
 
 _READERS: dict[str, FeatureReader] = {}  # per worker process
@@ -149,7 +154,7 @@ def match_batch(task: tuple[str, list[Pair], MatchOptions]) -> list[PairResult]:
             m = _pycolmap_match(d1, d2, options)
         else:
             m = match_descriptors(d1, d2, max_ratio=options.max_ratio, max_distance=options.max_distance,
-                                  cross_check=options.cross_check)
+                                  cross_check=options.cross_check, max_matches=options.max_matches_per_pair)
         res = PairResult(pair=(a, b), matches=m)
         if len(m) >= options.min_num_matches:
             tvg = pycolmap.estimate_two_view_geometry(reader.camera(image_name(a)), kp1, reader.camera(image_name(b)),

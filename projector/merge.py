@@ -65,9 +65,12 @@ class ScenePoses:
 def scene_poses(model: SceneModel) -> ScenePoses:
     rec = model.reconstruction
     R, C = {}, {}
+    keep = set(model.registered)
     for image_id in rec.reg_image_ids():
         im = rec.image(image_id)
         name = camera_of_image(im.name)
+        if name not in keep:
+            continue
         R[name] = np.asarray(im.cam_from_world().rotation.matrix())
         C[name] = np.asarray(im.projection_center())
     return ScenePoses(scene=model.scene, R=R, center=C)
@@ -218,21 +221,22 @@ def merge_scenes(models: list[SceneModel], prior: Mapping[str, Camera], options:
             continue
         a = result_align[m.scene]
         rec = m.reconstruction
-        ids = list(rec.point3D_ids())
-        X = np.array([rec.point3D(i).xyz for i in ids]).reshape(-1, 3)
-        X = pa.scale * (a.scale * X @ a.R.T + a.t) @ pa.R.T + pa.t
-        scene_points[m.scene] = X
         image_cam = {im_id: cam_index[camera_of_image(rec.image(im_id).name)] for im_id in rec.reg_image_ids()
-                     if (m.scene, camera_of_image(rec.image(im_id).name)) not in excluded}
-        for k, pid in enumerate(ids):
-            for el in rec.point3D(pid).track.elements:
-                if el.image_id not in image_cam:
-                    continue
-                im = rec.image(el.image_id)
+                     if camera_of_image(rec.image(im_id).name) in merged[m.scene].R}
+        kept_xyz = []
+        for pid in rec.point3D_ids():
+            point = rec.point3D(pid)
+            els = [el for el in point.track.elements if el.image_id in image_cam]
+            if len(els) < 2:  # a point needs two kept views to be constrained
+                continue
+            for el in els:
                 ci.append(image_cam[el.image_id])
-                pi.append(offset + k)
-                uv.append(im.points2D[el.point2D_idx].xy)
-        offset += len(ids)
+                pi.append(offset + len(kept_xyz))
+                uv.append(rec.image(el.image_id).points2D[el.point2D_idx].xy)
+            kept_xyz.append(point.xyz)
+        X = np.array(kept_xyz, dtype=float).reshape(-1, 3)
+        scene_points[m.scene] = pa.scale * (a.scale * X @ a.R.T + a.t) @ pa.R.T + pa.t
+        offset += len(kept_xyz)
     uv_px = colmap_to_opencv_px(np.array(uv).reshape(-1, 2))
     problem = BAProblem.from_cameras(cameras, scene_points, camera_index=np.array(ci, np.int64),
                                      point_index=np.array(pi, np.int64), uv_px=uv_px, camera_names=names)

@@ -122,3 +122,7 @@ def test_database_opens_as_a_colmap_database(sfm_result):
         names = sorted(im.name for im in db.read_all_images())
         assert names == [f"{n}.png" for n in GOOD]
         assert db.num_verified_image_pairs() > 0 and db.num_frames() == len(GOOD) and db.num_rigs() == len(GOOD)
+        _, geometries = db.read_two_view_geometries()
+        configs = {g.config for g in geometries if len(g.inlier_matches)}
+        # the prior intrinsics make every verified pair a calibrated geometry (E, or H for small baselines)
+        assert configs and pycolmap.TwoViewGeometryConfiguration.UNCALIBRATED not in configs

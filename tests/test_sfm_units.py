@@ -43,6 +43,8 @@ def test_match_descriptors_recovers_a_permutation_and_rejects_ambiguous():
     m2 = match_descriptors(a, b2)
     assert perm[0] not in m2[:, 0]
     assert len(match_descriptors(a[:1], b)) == 0
+    top = match_descriptors(a, b, max_matches=50)
+    assert len(top) == 50 and {tuple(r) for r in top} <= {tuple(r) for r in m2.tolist()} | {tuple(r) for r in m.tolist()}
 
 
 def test_pairs_exhaustive_counts():
