@@ -189,7 +189,7 @@ def test_channels_input_types_and_blocks():
 def test_decoder_rejects_bad_requests():
     with pytest.raises(DecodeError, match="outside the supported"):
         decode_samples(np.zeros(1000), 4000)
-    with pytest.raises(DecodeError, match="channel 3 does not exist"):
+    with pytest.raises(DecodeError, match="channel 2 does not exist"):
         decode_samples(np.zeros((1000, 2)), 48000, channels=[2])
     with pytest.raises(DecodeError, match="shape"):
         decode_samples(np.zeros((0,)), 48000)

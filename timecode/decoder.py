@@ -102,13 +102,14 @@ def _decode(blocks, n_samples: int, n_channels: int, fs: int, opts: DecodeOption
     chans = list(range(n_channels)) if channels is None else list(channels)
     for c in chans:
         if not 0 <= c < n_channels:
-            raise DecodeError(f"channel {c + 1} does not exist (the audio has {n_channels} channel(s))")
+            raise DecodeError(f"channel {c} does not exist (channels count from 0; the audio has {n_channels})")
     params = edge_params(fs, opts.smooth_sigma_samples)
     block = max(int(opts.block_seconds * fs) // params.stat_block, 4) * params.stat_block
     margin = 8 * params.stat_block
     droops: dict[int, Droop | None] = {c: (None if opts.ac_coupling else Droop(corner_hz=0.0, sample_rate=fs))
                                        for c in chans}
     parts: dict[int, list[tuple[npt.NDArray, ...]]] = {c: [] for c in chans}
+
     def one_channel(c: int, data: npt.NDArray, d0: int, core0: int, core1: int) -> None:
         x = to_float32(np.ascontiguousarray(data[:, c]))
         if droops[c] is None:
@@ -127,6 +128,7 @@ def _decode(blocks, n_samples: int, n_channels: int, fs: int, opts: DecodeOption
             list(pool.map(lambda c: one_channel(c, data, d0, core0, core1), chans))
             if progress is not None:
                 progress(core1, n_samples)
+
     def finish(c: int) -> ChannelDecode:
         t = np.concatenate([p[0] for p in parts[c]]) if parts[c] else np.zeros(0)
         rising = np.concatenate([p[1] for p in parts[c]]) if parts[c] else np.zeros(0, bool)
