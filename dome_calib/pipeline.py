@@ -54,6 +54,7 @@ class CalibrateOptions:
     normalize: NormalizeOptions = field(default_factory=NormalizeOptions)
     changes: ChangeOptions = field(default_factory=ChangeOptions)
     report: ReportOptions = field(default_factory=ReportOptions)
+    max_center_sigma_cm: float = 0.5  # flag cameras whose centre is less certain than this (1 sigma)
 
 
 @dataclass(kw_only=True)
@@ -197,19 +198,25 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
 def finish(*, out: Path, seq: str, expected: list[str], failures: dict[str, str], normalized: Normalized,
            residuals: Residuals, prior: Bundle | None, options: CalibrateOptions, seconds: dict[str, float],
            resumed: list[str], source: str, sfm: SfmOutcome | None = None, ba: BAOutcome | None = None,
-           changes: dict[str, CameraChange] | None = None) -> CalibrationResult:
+           changes: dict[str, CameraChange] | None = None, ba_scale: float | None = None) -> CalibrationResult:
     """Change detection against the prior, then the bundle and its report in ``out``."""
     t0 = time.perf_counter()
     bundle = Bundle(seq=seq, cameras=dict(sorted(normalized.cameras.items())), calib_data_source=source)
     if prior is not None and changes is None:
         changes = detect_changes(bundle.cameras, prior.cameras, options.changes)
     missing = {n: failures.get(n, "not reconstructed") for n in expected if n not in bundle.cameras}
+    reasons = {n: list(c.reasons) for n, c in (changes or {}).items()}
+    scale = float(normalized.alignment.tgt_from_src.scale) if ba_scale is None else ba_scale  # BA units -> cm
+    sigma_cm = {n: s * scale for n, s in (ba.center_sigma if ba else {}).items() if n in bundle.cameras}
+    for n, s in sigma_cm.items():
+        if s > options.max_center_sigma_cm:
+            reasons.setdefault(n, []).append(f"position poorly determined (+-{s:.1f} cm, 1 sigma): few or one-sided "
+                                             "views of the tent; add a tent position it sees")
     write_bundle(bundle, out)
     extra = {"world_frame": normalized.as_dict(), "stage_seconds": seconds,
+             "center_sigma_cm": {n: round(s, 4) for n, s in sorted(sigma_cm.items())},
              "changes_vs_prior": {n: c.as_dict() for n, c in (changes or {}).items()} if prior else None}
-    report_dir = write_report(out, bundle, residuals, options.report,
-                              changes={n: c.reasons for n, c in (changes or {}).items()}, missing=missing,
-                              extra=extra)
+    report_dir = write_report(out, bundle, residuals, options.report, changes=reasons, missing=missing, extra=extra)
     seconds["write"] = time.perf_counter() - t0
     content = json.loads((report_dir / "report.json").read_text(encoding="utf-8"))
     return CalibrationResult(bundle_dir=out, report_dir=report_dir, bundle=bundle, expected=expected,

@@ -27,6 +27,8 @@ from dome_calib.compare import CameraChange, camera_error
 from dome_calib.normalize import Normalized, WorldReference
 from dome_calib.pipeline_stages import SfmOutcome, ba_options, observation_residuals, run_ba_stage, run_sfm_stage
 
+QUICK_BA = dataclasses.replace(ba_options(), compute_uncertainty=False)  # few free cameras: not needed
+
 logger = logging.getLogger(__name__)
 
 QUICK_SCENES = 1
@@ -68,7 +70,7 @@ def detect_changed(sfm: SfmOutcome, prior: Bundle) -> dict:
         fit = held.copy()
         fit.camera_index, fit.point_index, fit.uv_px = held.camera_index[keep], held.point_index[keep], held.uv_px[keep]
         fit.validate()
-        result = bundle_adjust(fit, dataclasses.replace(ba_options(), outlier_rounds=1))
+        result = bundle_adjust(fit, dataclasses.replace(QUICK_BA, outlier_rounds=1))
         held.points_cm = result.problem.points_cm
         rms = _robust_camera_rms(held, np.ones(held.n_observations, bool))
         ok = np.isfinite(rms)
@@ -99,10 +101,10 @@ def run_quick(*, capture: Path, out: Path, seq: str, scenes: list[str], expected
         problem.points_cm = det["held_points_cm"]
         problem.fix(ParamGroup.ALL)
         if not changed:
-            return run_ba_stage(problem, progress=options.progress), []
+            return run_ba_stage(problem, progress=options.progress, options=QUICK_BA), []
         # a moved camera keeps its lens: re-pose first; only cameras that still do not fit get new intrinsics
         problem.unfix(ParamGroup.POSE, cameras=changed)
-        posed = run_ba_stage(problem, progress=options.progress)
+        posed = run_ba_stage(problem, progress=options.progress, options=QUICK_BA)
         rms = _robust_camera_rms(posed.problem, posed.inlier)
         others = [i for i, n in enumerate(problem.camera_names) if n not in changed and np.isfinite(rms[i])]
         limit = max(RMS_FLOOR_PX / 2, 3.0 * float(np.median(rms[others]))) if others else RMS_FLOOR_PX / 2
@@ -111,7 +113,7 @@ def run_quick(*, capture: Path, out: Path, seq: str, scenes: list[str], expected
             return posed, []
         again = posed.problem.copy()
         again.unfix(ParamGroup.ALL, cameras=relensed)
-        return run_ba_stage(again, progress=options.progress), relensed
+        return run_ba_stage(again, progress=options.progress, options=QUICK_BA), relensed
 
     ba, relensed = stage("quick_ba", quick_ba)
     cameras = dict(prior.cameras)
@@ -135,5 +137,5 @@ def run_quick(*, capture: Path, out: Path, seq: str, scenes: list[str], expected
                             reference_source=f"{options.prior} (unchanged cameras held)")
     return finish(out=out, seq=seq, expected=expected, failures=sfm.failures, normalized=normalized,
                   residuals=ba.residuals, prior=prior, options=options, seconds=seconds, resumed=resumed,
-                  sfm=sfm, ba=ba, changes=changes,
+                  sfm=sfm, ba=ba, changes=changes, ba_scale=1.0,
                   source=f"dome-calib calibrate --only-changed {capture.name} ({len(changed)} cameras re-estimated)")

@@ -3,6 +3,7 @@ bundle adjustment (:mod:`dome_calib.ba`): what they return is what the pipeline 
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,6 +38,7 @@ class BAOutcome:
     residuals: Residuals
     inlier: np.ndarray  # (M,) bool over the problem's observations
     stats: dict = field(default_factory=dict)  # iterations, cost, rms, seconds
+    center_sigma: dict[str, float] = field(default_factory=dict)  # 1-sigma centre uncertainty, problem units
 
 
 def observation_residuals(problem: BAProblem) -> np.ndarray:
@@ -81,16 +83,30 @@ def run_sfm_stage(capture: Path, work_dir: Path, *, prior: Bundle | None, progre
 
 
 def ba_options() -> BAOptions:
-    """The bundle adjustment as calibrate runs it: Huber 2 px, one outlier round at 5 sigma, then least squares."""
-    return BAOptions(compute_uncertainty=False)
+    """The bundle adjustment as calibrate runs it (the solver's defaults: Huber, outlier rounds, then least
+    squares), with the parameter uncertainties the report uses to flag poorly determined cameras."""
+    return BAOptions(compute_uncertainty=True)
 
 
 def run_ba_stage(problem: BAProblem, *, progress: bool = True, options: BAOptions | None = None) -> BAOutcome:
     """Five-parameter bundle adjustment with the outlier schedule (:func:`dome_calib.ba.bundle_adjust`); the
     problem's free mask is respected (quick recalibration frees only the changed cameras)."""
-    result = bundle_adjust(problem, options or ba_options())
+    options = options or ba_options()
+    try:
+        result = bundle_adjust(problem, options)
+    except np.linalg.LinAlgError as exc:  # the covariance, not the solve, can fail on a near-singular system
+        if not options.compute_uncertainty:
+            raise
+        logger.warning("bundle adjustment: no parameter uncertainties (%s); solving without them", exc)
+        result = bundle_adjust(problem, dataclasses.replace(options, compute_uncertainty=False))
     refined = result.problem
     used = np.asarray(result.used, dtype=bool)
+    sigma = {}
+    if result.uncertainty is not None:
+        u = result.uncertainty
+        s3 = u.sigma_center_centroid_cm if u.sigma_center_centroid_cm is not None else u.sigma_center_cm
+        sigma = {n: float(np.linalg.norm(s3[i])) for i, n in enumerate(refined.camera_names)
+                 if refined.free[i].any() and np.all(np.isfinite(s3[i]))}
     res = np.asarray(result.residuals_px)
     return BAOutcome(problem=refined, cameras={n: refined.camera(n) for n in refined.camera_names},
                      residuals=Residuals(camera_names=list(refined.camera_names),
@@ -99,4 +115,5 @@ def run_ba_stage(problem: BAProblem, *, progress: bool = True, options: BAOption
                      stats={"iterations": len(result.iterations), "cost": result.cost, "rms_px": result.rms_px,
                             "sigma_px": result.sigma_px, "n_used": int(used.sum()),
                             "n_rejected": int((~used).sum()), "seconds": result.time_s,
-                            "termination": list(result.termination)})
+                            "termination": list(result.termination)},
+                     center_sigma=sigma)

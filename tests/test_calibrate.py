@@ -75,7 +75,8 @@ def stand_in_stages(monkeypatch, capture):
         calls["ba"] += 1
         cams = {n: problem.camera(n) for n in problem.camera_names}
         return BAOutcome(problem=problem, cameras=cams, residuals=residuals_of(problem),
-                         inlier=np.ones(problem.n_observations, bool))
+                         inlier=np.ones(problem.n_observations, bool),
+                         center_sigma={"01_05": 2.0 * SFM_FRAME.scale, "01_06": 0.01})  # problem units
 
     monkeypatch.setattr(pipeline, "run_sfm_stage", sfm)
     monkeypatch.setattr(pipeline, "run_ba_stage", ba)
@@ -93,6 +94,9 @@ def test_calibrate_writes_bundle_and_report_and_resumes(tmp_path, capture, stand
     rep = json.loads((out / "report" / "report.json").read_text())
     assert rep["world_frame"]["reference"] == "nominal"
     assert {"name": "01_24", "type": None, "reasons": ["not calibrated: saw no tent in any scene"]} in rep["to_check"]
+    flagged = {row["name"]: row["reasons"] for row in rep["to_check"]}
+    assert "position poorly determined (+-2.0 cm" in flagged["01_05"][0] and "01_06" not in flagged
+    assert rep["center_sigma_cm"]["01_05"] == pytest.approx(2.0)
     text = pipeline.format_result(result)
     assert "calibrated 12 of 13 cameras (vga 8/9, hd 3/3, kinect-color 1/1)" in text
     assert "nominal dome geometry" in text and "01_24: not calibrated" in text
