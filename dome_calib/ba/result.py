@@ -48,8 +48,9 @@ class CameraUncertainty:
 class BAResult:
     """Result of :func:`dome_calib.ba.bundle_adjust`.
 
-    problem: refined copy of the input (same observations and free mask). used (M,) bool: observations in the
-    final solve (inliers of points seen at least twice). residuals_px (M, 2) at the solution for every
+    problem: refined copy of the input (same observations and free mask). inlier (M,) bool: observations
+    within the outlier threshold; used (M,) bool: those in the final solve (inliers of points still seen at
+    least twice). residuals_px (M, 2) at the solution for every
     observation. camera_rms_px (C,) per-coordinate RMS of used observations; camera_n_obs (C,) used count;
     camera_n_rejected (C,). cost: 0.5 * sum |r|^2 over used observations (px^2) (the final stage's loss);
     rms_px per coordinate; sigma_px = sqrt(2 cost / (2 n_used - n_params)) (noise estimate); n_params: free
@@ -58,6 +59,7 @@ class BAResult:
 
     problem: BAProblem
     used: np.ndarray
+    inlier: np.ndarray
     residuals_px: np.ndarray
     camera_rms_px: np.ndarray
     camera_n_obs: np.ndarray
@@ -113,7 +115,7 @@ def camera_statistics(problem: BAProblem, st: Structure, inlier: np.ndarray, *, 
     n_used = int(used.sum())
     n_params = len(st.free_flat) + 3 * int(st.live_points.sum())
     dof = max(2 * n_used - n_params, 1)
-    return BAResult(problem=problem, used=used, residuals_px=r, camera_rms_px=cam_rms, camera_n_obs=n_obs,
+    return BAResult(problem=problem, used=used, inlier=inlier.copy(), residuals_px=r, camera_rms_px=cam_rms, camera_n_obs=n_obs,
                     camera_n_rejected=n_rejected, cost=cost, rms_px=float(np.sqrt(2 * cost / max(2 * n_used, 1))),
                     sigma_px=float(np.sqrt(2 * cost / dof)), n_params=n_params, gauge=gauge,
                     iterations=iterations, termination=termination, outlier_threshold_px=outlier_threshold_px)

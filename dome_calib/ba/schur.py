@@ -33,6 +33,7 @@ logger = logging.getLogger(__name__)
 
 _MIN_DIAG, _MAX_DIAG = 1e-6, 1e32
 _PARALLEL_CHOLESKY_MIN = 1500  # unknowns from which the dense Cholesky gets more than one BLAS thread
+_MIXED_PRECISION_MIN = 3000  # unknowns from which a float32 factor + CG refinement is tried first
 
 
 @dataclass(kw_only=True)
@@ -232,6 +233,72 @@ def reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: 
     return S, rhs.ravel(), Li, y_blocks
 
 
+def _cholesky_solve(S: np.ndarray, b: np.ndarray, n_threads: int) -> np.ndarray:
+    """Solve S x = b (S SPD, overwritten) by dense LAPACK Cholesky.
+
+    Large systems first try a single-precision factor (half the work of double precision) used as the
+    preconditioner of a double-precision conjugate-gradient solve on the Jacobi-scaled system, which reaches
+    double-precision accuracy in a few iterations when the scaled system is not too ill-conditioned; otherwise
+    (factor fails or CG stalls) the double-precision Cholesky is used.
+    """
+    n = len(b)
+    threads = n_threads if n >= _PARALLEL_CHOLESKY_MIN else 1
+    with blas_threads(threads):
+        if n >= _MIXED_PRECISION_MIN:
+            x = _mixed_precision_solve(S, b)
+            if x is not None:
+                return x
+        factor = scipy.linalg.cho_factor(S.T, lower=False, overwrite_a=True, check_finite=False)
+        return scipy.linalg.cho_solve(factor, b, check_finite=False)
+
+
+def _mixed_precision_solve(S: np.ndarray, b: np.ndarray, *, rtol: float = 1e-13, max_iterations: int = 30
+                           ) -> np.ndarray | None:
+    diag = np.diag(S).copy()
+    if np.any(diag <= 0):
+        return None
+    d = 1.0 / np.sqrt(diag)
+    d32 = d.astype(np.float32)
+    S32 = S.astype(np.float32)
+    S32 *= d32[:, None]
+    S32 *= d32[None, :]
+    try:
+        c32, low = scipy.linalg.cho_factor(S32.T, lower=False, overwrite_a=True, check_finite=False)
+    except scipy.linalg.LinAlgError:
+        return None
+
+    def precond(v: np.ndarray) -> np.ndarray:
+        return scipy.linalg.cho_solve((c32, low), v.astype(np.float32), check_finite=False).astype(float)
+
+    def matvec(v: np.ndarray) -> np.ndarray:
+        return d * (S @ (d * v))
+
+    bs = d * b
+    b_norm = np.linalg.norm(bs)
+    if b_norm == 0:
+        return np.zeros_like(b)
+    x = precond(bs)
+    r = bs - matvec(x)
+    z = precond(r)
+    p = z.copy()
+    rz = r @ z
+    for it in range(max_iterations):
+        if np.linalg.norm(r) <= rtol * b_norm:
+            logger.debug("mixed-precision Cholesky + CG: %d iterations", it)
+            return d * x
+        q = matvec(p)
+        alpha = rz / (p @ q)
+        x += alpha * p
+        r -= alpha * q
+        z = precond(r)
+        rz_new = r @ z
+        p = z + (rz_new / rz) * p
+        rz = rz_new
+    logger.debug("mixed-precision CG did not converge (|r|/|b| = %.2g); double-precision Cholesky",
+                 np.linalg.norm(r) / b_norm)
+    return None
+
+
 def solve_free(S: np.ndarray, rhs: np.ndarray, free_flat: np.ndarray, *, n_threads: int = 2) -> np.ndarray:
     """Solve the reduced system for the free parameters by dense Cholesky; zeros elsewhere.
 
@@ -241,7 +308,8 @@ def solve_free(S: np.ndarray, rhs: np.ndarray, free_flat: np.ndarray, *, n_threa
     x = np.zeros(n)
     if len(free_flat) == 0:
         return x
-    if len(free_flat) >= 0.95 * n:
+    full = len(free_flat) >= 0.95 * n
+    if full:
         fixed = np.setdiff1d(np.arange(n), free_flat)  # few fixed: identity rows keep the matrix in place
         S[fixed, :] = 0.0
         S[:, fixed] = 0.0
@@ -253,15 +321,10 @@ def solve_free(S: np.ndarray, rhs: np.ndarray, free_flat: np.ndarray, *, n_threa
         Sf = S[np.ix_(free_flat, free_flat)]
         b = rhs[free_flat]
     try:
-        with blas_threads(n_threads if len(b) >= _PARALLEL_CHOLESKY_MIN else 1):
-            factor = scipy.linalg.cho_factor(Sf.T, lower=False, overwrite_a=True, check_finite=False)
-            sol = scipy.linalg.cho_solve(factor, b, check_finite=False)
+        sol = _cholesky_solve(Sf, b, n_threads)
     except scipy.linalg.LinAlgError as exc:
         raise np.linalg.LinAlgError(str(exc)) from None
-    if len(free_flat) >= 0.95 * n:
-        x[free_flat] = sol[free_flat]
-    else:
-        x[free_flat] = sol
+    x[free_flat] = sol[free_flat] if full else sol
     return x
 
 

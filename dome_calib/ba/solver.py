@@ -8,7 +8,10 @@ cost for Gaussian pixel noise once the gross outliers are gone). ``outlier_round
 each round re-judges every observation, so wrongly rejected ones come back.
 
 LM follows Ceres' strategy: damping lambda * clamp(diag(J^T W J)), gain ratio rho = actual / predicted
-decrease, on success lambda *= max(1/3, 1 - (2 rho - 1)^3), on failure lambda *= nu, nu *= 2.
+decrease, on failure lambda *= nu, nu *= 2; on success lambda *= max(1/10, 1 - (2 rho - 1)^3) (Nielsen's
+rule, but allowed to fall ten-fold instead of three-fold: the dome's nearly degenerate directions (focal vs
+depth, k1 vs k2 vs k3) converge only as fast as the damping vanishes). Later stages start from the damping
+the previous stage ended with.
 """
 from __future__ import annotations
 
@@ -27,6 +30,7 @@ from dome_calib.ba.robust import LossKind, robust_cost_and_weight, robust_sigma_
 from dome_calib.ba.schur import Structure, build_structure, linearize, solve_step
 
 logger = logging.getLogger(__name__)
+_MIN_LAMBDA = 1e-12
 
 
 @dataclass(kw_only=True)
@@ -43,7 +47,7 @@ class BAOptions:
     loss: LossKind = LossKind.HUBER
     loss_scale_px: float = 2.0
     outlier_rounds: int = 3  # at most; stops early when re-judging changes no observation
-    outlier_threshold_px: float | None = None  # None: outlier_sigmas x robust noise estimate
+    outlier_threshold_px: float | None = None  # None: outlier_sigmas x robust noise estimate (dof-corrected)
     outlier_sigmas: float = 5.0
     final_loss: LossKind = LossKind.TRIVIAL
     final_loss_scale_px: float = 2.0
@@ -80,8 +84,9 @@ def _apply(state: _State, st: Structure, dc: np.ndarray, dp: np.ndarray) -> _Sta
 
 
 def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, options: BAOptions, *,
-                         loss: LossKind, scale: float, ftol: float, stage: int) -> tuple[_State, str]:
-    lam, nu = options.initial_lambda, 2.0
+                         loss: LossKind, scale: float, ftol: float, stage: int, lam: float
+                         ) -> tuple[_State, str, float]:
+    nu = 2.0
     cost, _ = _cost(state, problem, st, loss, scale)
     n_res = 2 * len(st.obs)
     reason = "max_iterations"
@@ -106,7 +111,7 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
                 step, new_cost = None, np.inf
             rho = (cost - new_cost) / step.predicted_decrease if step and step.predicted_decrease > 0 else -1.0
             if np.isfinite(new_cost) and rho > 1e-3:
-                lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                lam = max(lam * max(0.1, 1.0 - (2.0 * rho - 1.0) ** 3), _MIN_LAMBDA)
                 nu = 2.0
                 break
             rejections += 1
@@ -115,7 +120,7 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
             lam *= nu
             nu *= 2.0
             if rejections >= options.max_consecutive_rejections:
-                return state, "no_decrease"
+                return state, "no_decrease", options.initial_lambda
         step_norm = float(np.sqrt(np.sum(step.dc ** 2) + np.sum(step.dp ** 2)))
         x_norm = float(np.sqrt(np.sum(state.camera_params ** 2) + np.sum(state.points_cm ** 2)))
         rel_decrease = (cost - new_cost) / max(cost, 1e-300)
@@ -132,7 +137,7 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
         if step_norm <= options.parameter_tolerance * (x_norm + options.parameter_tolerance):
             reason = "parameter_tolerance"
             break
-    return state, reason
+    return state, reason, lam
 
 
 def bundle_adjust(problem: BAProblem, options: BAOptions | None = None) -> BAResult:
@@ -161,8 +166,9 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions) -> BAResult:
     st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points,
                          n_groups=options.n_camera_groups)
     ftol = options.first_stage_function_tolerance if rounds else options.function_tolerance
-    state, reason = _levenberg_marquardt(problem, state, st, options, loss=LossKind(options.loss),
-                                         scale=options.loss_scale_px, ftol=ftol, stage=0)
+    state, reason, lam = _levenberg_marquardt(problem, state, st, options, loss=LossKind(options.loss),
+                                              scale=options.loss_scale_px, ftol=ftol, stage=0,
+                                              lam=options.initial_lambda)
     reasons = [reason]
     threshold_px = None
     for rnd in range(1, rounds + 1):
@@ -170,8 +176,12 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions) -> BAResult:
                           problem.uv_px)
         err = np.linalg.norm(r_all, axis=1)
         threshold_px = options.outlier_threshold_px
-        if threshold_px is None:
-            threshold_px = options.outlier_sigmas * robust_sigma_px(r_all[inlier & np.isfinite(err)])
+        if threshold_px is None:  # robust noise estimate, corrected for the degrees of freedom of the fit
+            n_res = 2 * len(st.obs)
+            n_par = len(st.free_flat) + 3 * int(st.live_points.sum())
+            dof = max(1.0 - n_par / max(n_res, 1), 0.1)
+            sigma = robust_sigma_px(r_all[inlier & np.isfinite(err)]) / np.sqrt(dof)
+            threshold_px = options.outlier_sigmas * sigma
         new_inlier = np.isfinite(err) & (err <= threshold_px)
         changed = int(np.sum(new_inlier != inlier))
         logger.info("ba outliers round %d: threshold %.3f px, %d of %d observations rejected (%d changed)", rnd,
@@ -181,9 +191,9 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions) -> BAResult:
         inlier = new_inlier
         st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points,
                              n_groups=options.n_camera_groups)
-        state, reason = _levenberg_marquardt(problem, state, st, options, loss=LossKind(options.final_loss),
-                                             scale=options.final_loss_scale_px, ftol=options.function_tolerance,
-                                             stage=rnd)
+        state, reason, lam = _levenberg_marquardt(problem, state, st, options, loss=LossKind(options.final_loss),
+                                                  scale=options.final_loss_scale_px,
+                                                  ftol=options.function_tolerance, stage=rnd, lam=lam)
         reasons.append(reason)
     refined = problem.copy()
     refined.camera_params = state.camera_params

@@ -109,7 +109,7 @@ def make_problem(cameras: list[Camera], options: SyntheticOptions | None = None)
     cam, pt, uv = cam[keep], pt[keep], uv[keep]
     uv = uv + rng.normal(scale=o.noise_px, size=uv.shape)
     is_out = rng.random(len(cam)) < o.outlier_fraction
-    wh = np.array([cameras[c].resolution for c in cam[is_out]], dtype=float)
+    wh = np.array([cameras[c].resolution for c in cam[is_out]], dtype=float).reshape(-1, 2)
     uv[is_out] = rng.random((int(is_out.sum()), 2)) * wh - 0.5
     truth = BAProblem.from_cameras(cameras, scenes, camera_index=cam, point_index=pt, uv_px=uv,
                                    camera_names=[c.name for c in cameras])

@@ -10,6 +10,8 @@ mean radius of the camera centres, which is what the normalisation to the world 
 """
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import scipy.linalg
 from scipy.linalg import lapack
@@ -21,6 +23,8 @@ from dome_calib.ba.problem import ROT, TRANS, BAProblem
 from dome_calib.ba.result import CameraUncertainty
 from dome_calib.ba.schur import Structure, linearize, reduced_system
 from dome_calib.rotation import d_rotate_d_rotvec, rotvec_to_matrix, skew
+
+logger = logging.getLogger(__name__)
 
 
 def center_jacobian(camera_params: np.ndarray) -> np.ndarray:
@@ -57,8 +61,18 @@ def camera_uncertainty(problem: BAProblem, st: Structure, sigma_px: float, *, ga
     f = st.free_flat
     Sf = S[np.ix_(f, f)] if len(f) < A * 15 else S
     del S
+    diag = np.diag(Sf).copy()
     with blas_threads(n_threads):
-        c, _ = scipy.linalg.cho_factor(Sf, lower=False, overwrite_a=True, check_finite=False)
+        for ridge in (0.0, 1e-12, 1e-9, 1e-6):  # a tiny ridge if some parameter is unobservable
+            try:
+                c, _ = scipy.linalg.cho_factor(Sf + ridge * np.diag(diag) if ridge else Sf, lower=False,
+                                               overwrite_a=not ridge, check_finite=False)
+                break
+            except scipy.linalg.LinAlgError:
+                if ridge == 1e-6:
+                    raise
+                logger.warning("uncertainty: reduced system singular; adding a ridge of %.0e x diagonal",
+                               ridge or 1e-12)
         inv, info = lapack.dpotri(c, lower=0, overwrite_c=1)
     if info != 0:
         raise np.linalg.LinAlgError(f"dpotri failed (info {info})")

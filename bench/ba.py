@@ -1,0 +1,403 @@
+"""Benchmark of dome_calib.ba at dome scale against ground truth, the ML optimum and pycolmap's Ceres BA.
+
+    .venv/bin/python bench/ba.py            # 520 real cameras, 3 scenes, 100k points, ~1M observations
+    .venv/bin/python bench/ba.py --small    # 130 cameras, 10k points, ~100k observations (a minute or two)
+
+Problem: the real Panoptic layout and distortion (tests/data/panoptic/calibration_160906_band1.json, 520
+cameras), points on a tent-like surface, Gaussian pixel noise sigma = 0.5 px, 1 % gross outliers; the start
+is perturbed like an SfM result (centres ~3 cm per axis, rotation 0.2 deg, focal 2 %, principal point 2 px,
+distortion zero, points 1 cm). Each solver runs in its own process (peak memory = that process's max RSS):
+
+- ours: dome_calib.ba.bundle_adjust from the perturbed start (Huber 2 px, reject at 5 sigma, least squares);
+- oracle: the same solver from ground truth (the maximum-likelihood optimum of the same schedule);
+- colmap: pycolmap's Ceres BA, FULL_OPENCV with k4, k5, k6 held at zero (pyceres SubsetManifold), TWO_CAMS_FROM_WORLD
+  gauge, 2 threads, the same schedule (Huber 2 px on all observations, the same rejection rule, then least squares);
+- k1: our solver with only k1 free (k2, p1, p2, k3 = 0) started from our solution: why five terms are needed.
+
+Prints one JSON object per line. Errors are after a similarity alignment of camera centres to ground truth.
+cost_true_inliers = 0.5 * sum |r|^2 over the observations that are not gross outliers (the same set for all).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import pickle
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+CALIBRATION = ROOT / "tests/data/panoptic/calibration_160906_band1.json"
+
+
+def emit(obj: dict) -> None:
+    print(json.dumps(obj), flush=True)
+
+
+def peak_rss_gb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6  # Linux: kB
+
+
+# ----------------------------------------------------------------------------------------------- workers
+def worker_ours(data: dict, start_key: str) -> dict:
+    from dome_calib.ba import BAOptions, bundle_adjust
+
+    problem = data[start_key]
+    t0 = time.perf_counter()
+    res = bundle_adjust(problem, BAOptions(n_threads=2))
+    elapsed = time.perf_counter() - t0
+    u = res.uncertainty
+    return dict(camera_params=res.problem.camera_params, points_cm=res.problem.points_cm, used=res.used,
+                time_s=elapsed, iterations=len(res.iterations), cost=res.cost, n_params=res.n_params,
+                n_used=int(res.used.sum()), termination=res.termination,
+                sigma_center_centroid_cm_median=float(np.median(u.sigma_center_centroid_cm))
+                if u is not None and u.sigma_center_centroid_cm is not None else None,
+                sigma_focal_px_median=float(np.median(u.sigma_intr_px[:, :2])) if u is not None else None)
+
+
+def worker_k1(data: dict, ours_file: str) -> dict:
+    from dome_calib.ba import BAOptions, ParamGroup, bundle_adjust
+
+    ours = dict(np.load(ours_file))
+    problem = data["start"].copy()
+    problem.camera_params = ours["camera_params"].copy()
+    problem.camera_params[:, 11:15] = 0.0
+    problem.points_cm = ours["points_cm"].copy()
+    problem.fix([ParamGroup.K2, ParamGroup.P1, ParamGroup.P2, ParamGroup.K3])
+    t0 = time.perf_counter()
+    res = bundle_adjust(problem, BAOptions(n_threads=2, compute_uncertainty=False))
+    return dict(camera_params=res.problem.camera_params, points_cm=res.problem.points_cm, used=res.used,
+                time_s=time.perf_counter() - t0, iterations=len(res.iterations), cost=res.cost,
+                n_params=res.n_params, n_used=int(res.used.sum()), termination=res.termination)
+
+
+def _colmap_reconstruction(problem, pycolmap):
+    from dome_calib.camera import opencv_to_colmap_px
+
+    rec = pycolmap.Reconstruction()
+    order = np.argsort(problem.camera_index, kind="stable")
+    starts = np.searchsorted(problem.camera_index[order], np.arange(problem.n_cameras + 1))
+    point2d_idx = np.empty(problem.n_observations, dtype=np.int64)
+    for i, cam in enumerate(problem.cameras):
+        p = problem.camera_params[i]
+        params = np.array([p[6], p[7], p[8] + 0.5, p[9] + 0.5, p[10], p[11], p[12], p[13], p[14], 0.0, 0.0, 0.0])
+        rec.add_camera_with_trivial_rig(pycolmap.Camera(model="FULL_OPENCV", width=cam.resolution[0],
+                                                        height=cam.resolution[1], params=params, camera_id=i + 1))
+        obs = order[starts[i]:starts[i + 1]]
+        point2d_idx[obs] = np.arange(len(obs))
+        image = pycolmap.Image(name=problem.camera_names[i], keypoints=opencv_to_colmap_px(problem.uv_px[obs]),
+                               camera_id=i + 1, image_id=i + 1)
+        from dome_calib.rotation import rotvec_to_matrix
+        pose = pycolmap.Rigid3d(pycolmap.Rotation3d(rotvec_to_matrix(p[0:3])), p[3:6])
+        rec.add_image_with_trivial_frame(image, pose)
+    by_point = np.argsort(problem.point_index, kind="stable")
+    pstarts = np.searchsorted(problem.point_index[by_point], np.arange(problem.n_points + 1))
+    point_ids = np.zeros(problem.n_points, dtype=np.int64)
+    for k in range(problem.n_points):
+        obs = by_point[pstarts[k]:pstarts[k + 1]]
+        if len(obs) < 2:
+            continue
+        track = pycolmap.Track([pycolmap.TrackElement(int(i) + 1, int(j))
+                                for i, j in zip(problem.camera_index[obs], point2d_idx[obs])])
+        point_ids[k] = rec.add_point3D(problem.points_cm[k], track)
+    return rec, point_ids, point2d_idx
+
+
+def _colmap_solve(rec, pycolmap, pyceres, loss: str, n_images: int, ftol: float) -> tuple[float, int]:
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_principal_point = True
+    options.print_summary = False
+    options.ceres.loss_function_type = getattr(pycolmap.LossFunctionType, loss)
+    options.ceres.loss_function_scale = 2.0
+    options.ceres.solver_options.num_threads = 2
+    options.ceres.solver_options.function_tolerance = ftol  # same stopping rule as ours (COLMAP's default is 0)
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in range(1, n_images + 1):
+        config.add_image(image_id)
+    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    t0 = time.perf_counter()
+    adjuster = pycolmap.create_default_ceres_bundle_adjuster(options, config, rec)
+    manifolds = []  # keep alive while the problem exists
+    for cam_id in range(1, n_images + 1):
+        params = rec.cameras[cam_id].params
+        if adjuster.problem.has_parameter_block(params):
+            m = pyceres.SubsetManifold(12, [9, 10, 11])
+            adjuster.problem.set_manifold(params, m)
+            manifolds.append(m)
+    if len(manifolds) != n_images:
+        raise RuntimeError(f"could hold k4..k6 on {len(manifolds)} of {n_images} cameras only")
+    summary = adjuster.solve()
+    elapsed = time.perf_counter() - t0
+    cs = summary.ceres_summary
+    iterations = int(cs.num_successful_steps + cs.num_unsuccessful_steps)
+    del adjuster, manifolds
+    return elapsed, iterations
+
+
+def _colmap_params(rec, problem, point_ids, pycolmap) -> tuple[np.ndarray, np.ndarray]:
+    from dome_calib.rotation import matrix_to_rotvec
+
+    cp = np.empty_like(problem.camera_params)
+    for i in range(problem.n_cameras):
+        q = np.asarray(rec.cameras[i + 1].params)
+        if np.any(q[9:12] != 0.0):
+            raise RuntimeError(f"k4..k6 of camera {i + 1} moved: {q[9:12]}")
+        pose = rec.images[i + 1].cam_from_world()
+        cp[i, 0:3] = matrix_to_rotvec(np.asarray(pose.rotation.matrix()))
+        cp[i, 3:6] = np.asarray(pose.translation)
+        cp[i, 6:15] = [q[0], q[1], q[2] - 0.5, q[3] - 0.5, q[4], q[5], q[6], q[7], q[8]]
+    pts = problem.points_cm.copy()
+    for k, pid in enumerate(point_ids):
+        if pid and rec.exists_point3D(int(pid)):
+            pts[k] = np.asarray(rec.points3D[int(pid)].xyz)
+    return cp, pts
+
+
+def worker_colmap(data: dict) -> dict:
+    import pyceres
+    import pycolmap
+
+    from dome_calib.ba.evaluate import residuals
+    from dome_calib.ba.robust import robust_sigma_px
+
+    problem = data["start"]
+    t_build = time.perf_counter()
+    rec, point_ids, p2d = _colmap_reconstruction(problem, pycolmap)
+    t_build = time.perf_counter() - t_build
+    t1, it1 = _colmap_solve(rec, pycolmap, pyceres, "HUBER", problem.n_cameras, 1e-3)
+    cp, pts = _colmap_params(rec, problem, point_ids, pycolmap)
+    # same rejection rule as ours: 5 x robust sigma, then least squares on the rest
+    r = residuals(cp, pts, problem.camera_index, problem.point_index, problem.uv_px)
+    err = np.linalg.norm(r, axis=1)
+    thr = 5.0 * robust_sigma_px(r[np.isfinite(err)])
+    bad = np.flatnonzero(~(err <= thr))
+    t_rej = time.perf_counter()
+    for m in bad:
+        pid = int(point_ids[problem.point_index[m]])
+        if pid and rec.exists_point3D(pid):
+            rec.delete_observation(int(problem.camera_index[m] + 1), int(p2d[m]))
+    t_rej = time.perf_counter() - t_rej
+    t2, it2 = _colmap_solve(rec, pycolmap, pyceres, "TRIVIAL", problem.n_cameras, 1e-7)
+    cp, pts = _colmap_params(rec, problem, point_ids, pycolmap)
+    used = np.ones(problem.n_observations, dtype=bool)
+    used[bad] = False
+    return dict(camera_params=cp, points_cm=pts, used=used, time_s=t1 + t_rej + t2, iterations=it1 + it2,
+                build_s=t_build, stage_times_s=[t1, t2], stage_iterations=[it1, it2], rejected=int(len(bad)))
+
+
+# ----------------------------------------------------------------------------------------------- metrics
+def _similarity(src: np.ndarray, tgt: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Least-squares similarity tgt ~ s R src + t (Umeyama)."""
+    mu_s, mu_t = src.mean(0), tgt.mean(0)
+    a, b = src - mu_s, tgt - mu_t
+    U, D, Vt = np.linalg.svd(b.T @ a / len(src))
+    S = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ S @ Vt
+    s = np.trace(np.diag(D) @ S) / (a ** 2).sum(1).mean()
+    return s, R, mu_t - s * R @ mu_s
+
+
+def _image_grid_px(wh: np.ndarray) -> np.ndarray:
+    """(C, 33 * 25, 2) pixel grid over each image."""
+    gx, gy = np.meshgrid(np.linspace(0, 1, 33), np.linspace(0, 1, 25))
+    return np.stack([gx.ravel(), gy.ravel()], 1)[None] * (wh[:, None, :] - 1.0)
+
+
+def _distortion_field_px(uv: np.ndarray, intr: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """(C, G, 2) displacement (pixel - undistorted pixel) at pixels uv (C, G, 2); NaN where it does not invert."""
+    from dome_calib.camera import pixels_to_normalized
+
+    xn = pixels_to_normalized(uv, intr[:, None, :], dist[:, None, :])
+    return uv - (xn * intr[:, None, 0:2] + intr[:, None, 2:4])
+
+
+def observed_region(truth, is_outlier: np.ndarray) -> np.ndarray:
+    """(C, G) bool: grid pixels inside the largest true normalised radius observed by each camera."""
+    from dome_calib.camera import pixels_to_normalized
+
+    p = truth.camera_params
+    wh = np.array([cam.resolution for cam in truth.cameras], dtype=float)
+    ok = ~is_outlier
+    cam = truth.camera_index[ok]
+    xn = pixels_to_normalized(truth.uv_px[ok], p[cam, 6:10], p[cam, 10:15])
+    r = np.nan_to_num(np.linalg.norm(xn, axis=1))
+    r_max = np.zeros(truth.n_cameras)
+    np.maximum.at(r_max, cam, r)
+    grid_xn = pixels_to_normalized(_image_grid_px(wh), p[:, None, 6:10], p[:, None, 10:15])
+    return np.linalg.norm(grid_xn, axis=2) <= r_max[:, None]
+
+
+def metrics(sol: dict, truth, is_outlier: np.ndarray, sigma_px: float, region: np.ndarray) -> dict:
+    from dome_calib.ba.evaluate import residuals
+    from dome_calib.rotation import rotvec_to_matrix
+
+    cp, cp_t = sol["camera_params"], truth.camera_params
+    R, R_t = rotvec_to_matrix(cp[:, 0:3]), rotvec_to_matrix(cp_t[:, 0:3])
+    c = -np.einsum("cji,cj->ci", R, cp[:, 3:6])
+    c_t = -np.einsum("cji,cj->ci", R_t, cp_t[:, 3:6])
+    s, Ra, ta = _similarity(c, c_t)
+    c_al = s * c @ Ra.T + ta
+    cen_mm = 10.0 * np.linalg.norm(c_al - c_t, axis=1)
+    R_al = R @ Ra.T
+    cos = (np.einsum("cij,cij->c", R_al, R_t) - 1.0) / 2.0
+    rot_deg = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    foc = 100.0 * np.abs(cp[:, 6:8] / cp_t[:, 6:8] - 1.0)
+    wh = np.array([cam.resolution for cam in truth.cameras], dtype=float)
+    grid = _image_grid_px(wh)
+    d_all = np.linalg.norm(_distortion_field_px(grid, cp[:, 6:10], cp[:, 10:15])
+                           - _distortion_field_px(grid, cp_t[:, 6:10], cp_t[:, 10:15]), axis=2)
+    d_err = np.nanmax(np.where(region, d_all, 0.0), axis=1)  # over the observed part of each image
+    r = residuals(cp, sol["points_cm"], truth.camera_index, truth.point_index, truth.uv_px)
+    used = sol["used"]
+    sq = np.sum(r * r, axis=1)
+    n_params = int(sol.get("n_params", 0)) or (15 * len(cp) - 7 + 3 * truth.n_points)
+    n_res = 2 * int(used.sum())
+    rms = float(np.sqrt(np.nansum(sq[used]) / n_res))
+    return dict(center_err_mm_median=float(np.median(cen_mm)), center_err_mm_max=float(cen_mm.max()),
+                rot_err_deg_median=float(np.median(rot_deg)), rot_err_deg_max=float(rot_deg.max()),
+                focal_err_pct_median=float(np.median(foc)), focal_err_pct_max=float(foc.max()),
+                distortion_err_px_median=float(np.median(d_err)), distortion_err_px_max=float(np.max(d_err)),
+                distortion_err_full_image_px_max=float(np.nanmax(d_all)),
+                rms_px=rms, rms_over_sigma=rms / sigma_px,
+                rms_over_sigma_expected=float(np.sqrt(1.0 - n_params / n_res)),
+                cost_own=0.5 * float(np.nansum(sq[used])),
+                cost_true_inliers=0.5 * float(np.nansum(sq[~is_outlier])),
+                rms_over_sigma_true_inliers=float(np.sqrt(np.nansum(sq[~is_outlier]) / (2 * (~is_outlier).sum())))
+                / sigma_px,
+                outliers_rejected=int((~used & is_outlier).sum()), inliers_rejected=int((~used & ~is_outlier).sum()))
+
+
+# ----------------------------------------------------------------------------------------------- driver
+def make_data(small: bool, seed: int) -> dict:
+    from dome_calib.ba.synthetic import SyntheticOptions, make_problem
+    from dome_calib.panoptic_io import read_calibration
+
+    cams, _ = read_calibration(CALIBRATION)
+    names = sorted(cams)
+    opts = SyntheticOptions(seed=seed)
+    if small:
+        names = names[::4]
+        opts = SyntheticOptions(seed=seed, n_points=10_000, target_observations=100_000)
+    sp = make_problem([cams[n] for n in names], opts)
+    return dict(truth=sp.truth, start=sp.start, is_outlier=sp.is_outlier, noise_px=sp.noise_px)
+
+
+def run_worker(kind: str, data_file: Path, out_file: Path, extra: list[str], reuse: bool = False) -> dict:
+    info_file = out_file.with_suffix(".json")
+    if reuse and out_file.exists() and info_file.exists():
+        info = json.loads(info_file.read_text())
+    else:
+        cmd = [sys.executable, __file__, "--worker", kind, "--data", str(data_file), "--out", str(out_file), *extra]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        out_file.with_suffix(".log").write_text(proc.stderr)
+        if proc.returncode != 0:
+            raise RuntimeError(f"worker {kind} failed:\n{proc.stderr[-3000:]}")
+        info = json.loads(proc.stdout.strip().splitlines()[-1])
+        info_file.write_text(json.dumps(info))
+    sol = dict(np.load(out_file))
+    sol.update(info)
+    return sol
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--small", action="store_true", help="quick run: 130 cameras, 10k points, ~100k observations")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--skip-peer", action="store_true", help="do not run pycolmap's Ceres BA")
+    ap.add_argument("--worker", choices=["ours", "oracle", "colmap", "k1"], help=argparse.SUPPRESS)
+    ap.add_argument("--data", help=argparse.SUPPRESS)
+    ap.add_argument("--out", help=argparse.SUPPRESS)
+    ap.add_argument("--ours-file", help=argparse.SUPPRESS)
+    ap.add_argument("--workdir", help="keep the problem and solutions in this folder (default: a temp folder)")
+    ap.add_argument("--only", help="comma-separated subset of ours,oracle,colmap,k1 (k1 needs ours)")
+    ap.add_argument("--reuse", action="store_true", help="reuse solutions already in --workdir (same seed/size)")
+    args = ap.parse_args()
+    if args.worker:
+        import logging
+        logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
+        with open(args.data, "rb") as fh:
+            data = pickle.load(fh)
+        if args.worker == "ours":
+            out = worker_ours(data, "start")
+        elif args.worker == "oracle":
+            out = worker_ours(data, "truth")
+        elif args.worker == "k1":
+            out = worker_k1(data, args.ours_file)
+        else:
+            out = worker_colmap(data)
+        arrays = {k: out.pop(k) for k in ("camera_params", "points_cm", "used")}
+        np.savez(args.out, **arrays)
+        out["peak_rss_gb"] = peak_rss_gb()
+        print(json.dumps(out))
+        return
+    t0 = time.perf_counter()
+    data = make_data(args.small, args.seed)
+    truth, is_outlier, sigma = data["truth"], data["is_outlier"], data["noise_px"]
+    emit(dict(bench="ba", what="problem", cameras=truth.n_cameras, scenes=len(truth.scene_names),
+              points=truth.n_points, observations=truth.n_observations, outliers=int(is_outlier.sum()),
+              noise_px=sigma, generate_s=round(time.perf_counter() - t0, 1)))
+    with tempfile.TemporaryDirectory(prefix="bench_ba_") as tmp:
+        tmp = args.workdir or tmp
+        Path(tmp).mkdir(parents=True, exist_ok=True)
+        data_file = Path(tmp) / "data.pkl"
+        if not (args.reuse and data_file.exists()):
+            with open(data_file, "wb") as fh:
+                pickle.dump(data, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        runs = {}
+        region = observed_region(truth, is_outlier)
+        start_m = metrics(dict(camera_params=data["start"].camera_params, points_cm=data["start"].points_cm,
+                               used=~is_outlier), truth, is_outlier, sigma, region)
+        emit(dict(bench="ba", what="start", **{k: round(v, 4) for k, v in start_m.items()
+                                               if k.startswith(("center", "rot", "focal", "distortion"))}))
+        kinds = ["ours"] + ([] if args.skip_peer else ["colmap"]) + ["oracle", "k1"]
+        if args.only:
+            kinds = [k for k in kinds if k in args.only.split(",")]
+        for kind in kinds:
+            extra = ["--ours-file", str(Path(tmp) / "ours.npz")] if kind == "k1" else []
+            sol = run_worker(kind, data_file, Path(tmp) / f"{kind}.npz", extra, reuse=args.reuse)
+            m = metrics(sol, truth, is_outlier, sigma, region)
+            runs[kind] = (sol, m)
+            info = {k: v for k, v in sol.items() if k not in ("camera_params", "points_cm", "used")}
+            line = dict(bench="ba", what=kind, **info, **m)
+            emit({k: (round(v, 6) if isinstance(v, float) else v) for k, v in line.items()})
+    if not {"ours", "oracle", "k1"} <= set(runs):
+        return
+    ours, oracle = runs["ours"][1], runs["oracle"][1]
+    from dome_calib.ba.evaluate import residuals
+
+    common = runs["ours"][0]["used"] & runs["oracle"][0]["used"]
+
+    def common_cost(sol):
+        r = residuals(sol["camera_params"], sol["points_cm"], truth.camera_index[common], truth.point_index[common],
+                      truth.uv_px[common])
+        return 0.5 * float(np.sum(r * r))
+
+    ratios = dict(bench="ba", what="ratios",
+                  cost_common_ours_over_oracle=common_cost(runs["ours"][0]) / common_cost(runs["oracle"][0]),
+                  cost_own_ours_over_oracle=ours["cost_own"] / oracle["cost_own"],
+                  cost_true_inliers_ours_over_oracle=ours["cost_true_inliers"] / oracle["cost_true_inliers"],
+                  rms_over_sigma_vs_expected=ours["rms_over_sigma"] / ours["rms_over_sigma_expected"])
+    for k in ("center_err_mm_median", "center_err_mm_max", "rot_err_deg_median", "focal_err_pct_median",
+              "distortion_err_px_max"):
+        ratios[f"{k}_ours_over_oracle"] = ours[k] / oracle[k]
+    if "colmap" in runs:
+        col_sol, col = runs["colmap"]
+        ratios["time_ours_over_colmap"] = runs["ours"][0]["time_s"] / col_sol["time_s"]
+        ratios["cost_true_inliers_colmap_over_oracle"] = col["cost_true_inliers"] / oracle["cost_true_inliers"]
+        ratios["cost_common_colmap_over_oracle"] = common_cost(col_sol) / common_cost(runs["oracle"][0])
+        ratios["center_err_mm_median_colmap_over_oracle"] = col["center_err_mm_median"] / oracle["center_err_mm_median"]
+    k1 = runs["k1"][1]
+    ratios["k1_only_rms_over_sigma"] = k1["rms_over_sigma"]
+    ratios["k1_only_rms_over_sigma_true_inliers"] = k1["rms_over_sigma_true_inliers"]
+    ratios["ours_rms_over_sigma_true_inliers"] = ours["rms_over_sigma_true_inliers"]
+    emit({k: (round(v, 5) if isinstance(v, float) else v) for k, v in ratios.items()})
+    emit(dict(bench="ba", what="total", wall_s=round(time.perf_counter() - t0, 1)))
+
+
+if __name__ == "__main__":
+    main()
