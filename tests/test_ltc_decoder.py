@@ -195,3 +195,19 @@ def test_decoder_rejects_bad_requests():
         decode_samples(np.zeros((0,)), 48000)
     (silent,) = decode_samples(np.zeros(48000), 48000)
     assert len(silent) == 0 and silent.n_edges == 0
+
+
+def test_continuity_rules_on_label_sequences():
+    from timecode.continuity import continuity
+
+    def run(counts, reverse=None):
+        c = np.array(counts)
+        rev = np.zeros(len(c), bool) if reverse is None else np.array(reverse)
+        keep, disc = continuity(c, rev, np.arange(len(c)) * 10.0 + 5, np.full(len(c), 10.0), 1000)
+        return keep.astype(int).tolist(), np.flatnonzero(disc).tolist()
+
+    assert run([0, 1, 2, 3, 4, 99, 6, 7, 8, 500, 501]) == ([1] * 5 + [0] + [1] * 5, [0, 9])  # bad frame, jump
+    assert run([77, 1, 2, 3]) == ([0, 1, 1, 1], [1])  # a corrupted first frame
+    assert run([5, 17, 3, 90, 44]) == ([1] * 5, [0, 1, 2, 3, 4])  # chaos: every frame kept, every one a jump
+    assert run([998, 999, 0, 1]) == ([1] * 4, [0])  # midnight wrap (1000 frames a day here)
+    assert run([9, 8, 7, 6], reverse=[True] * 4) == ([1] * 4, [0])  # reverse play counts down

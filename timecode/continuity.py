@@ -7,8 +7,9 @@ integer from the measured frame period (0.1 % apart, far more than any generator
 Continuity: a frame continues the previous one when its label equals the previous label plus the number
 of frame periods elapsed between them (in the play direction), so frames lost to noise are not jumps but
 a re-jammed generator or an edit is, and is reported as a discontinuity, never bridged. A frame whose
-label continues neither neighbour is dropped as corrupted (bit errors that still form a valid label, or
-a frame read across an audio splice), so a jump costs no frame but a one-frame excursion is not reported.
+label continues neither neighbour, next to a continuous stretch, is dropped as corrupted (bit errors that
+still form a valid label, or a frame read across an audio splice), so a jump costs no frame but a
+one-frame excursion is not reported.
 """
 from __future__ import annotations
 
@@ -102,11 +103,14 @@ def continuity(counts: npt.NDArray[np.int64], reverse: npt.NDArray[np.bool_], mi
         # a frame whose label continues neither neighbour is corrupted: bit errors that still form a valid
         # label, or a frame read across an audio splice (its first bits from one take, the rest from the
         # next). Its neighbours are then compared with each other.
-        ok_next = follows(idx[:-1], idx[1:])
-        alone = ~np.concatenate([[False], ok_next]) & ~np.concatenate([ok_next, [False]])
-        keep = ~alone
-        if alone.any():
-            logger.info("dropped %d frame(s) whose labels continue neither neighbour", int(alone.sum()))
+        # (Only next to a continuous stretch: where no label follows another the whole stream is chaos,
+        # and every frame is kept and reported as a discontinuity.)
+        cont = np.concatenate([[False, False], follows(idx[:-1], idx[1:]), [False, False]])  # [i+2]: i -> i+1
+        alone = ~cont[1:f + 1] & ~cont[2:f + 2]  # k continues neither k-1 nor into k+1
+        beside_good = cont[0:f] | cont[3:f + 3]  # k-1 continues k-2, or k+1 continues into k+2
+        keep = ~(alone & beside_good)
+        if not keep.all():
+            logger.info("dropped %d frame(s) whose labels continue neither neighbour", int((~keep).sum()))
     kept = np.flatnonzero(keep)
     disc = np.ones(len(kept), dtype=bool)
     if len(kept) > 1:
