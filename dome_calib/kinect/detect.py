@@ -155,7 +155,7 @@ def canonical_order(corners_px: np.ndarray, image: np.ndarray, board: Checkerboa
 def _subpix_window(corners_px: np.ndarray, board: Checkerboard) -> int:
     g = corners_px.reshape(board.rows, board.cols, 2)
     spacing = min(np.linalg.norm(np.diff(g, axis=0), axis=-1).min(), np.linalg.norm(np.diff(g, axis=1), axis=-1).min())
-    return int(np.clip(0.35 * spacing, 2, 11))
+    return int(np.clip(0.45 * spacing, 2, 11))  # wide enough to average noise, short of the next corner
 
 
 def detect_board(image: np.ndarray, board: Checkerboard, opts: DetectOptions | None = None,

@@ -4,8 +4,9 @@ Unknowns: IR intrinsics [fx, fy, cx, cy] and distortion [k1, k2, p1, p2, k3]; th
 distortion (held fixed by default, see :class:`StereoOptions`); the rigid ``color_from_depth`` transform
 (rotation vector, translation mm); and every board pose ``depth_from_board`` (rotation vector, translation mm).
 Residuals: IR corners reprojected by the board pose, colour corners reprojected by ``color_from_depth`` composed
-with the board pose, each divided by its camera's corner noise (estimated from the residuals and re-solved:
-the colour camera, at 3x the IR resolution, sees the corners more precisely and gets the larger weight).
+with the board pose, each divided by its corner noise, estimated per camera and per frame from the residuals
+(shrunk towards the camera's) and re-solved: the colour camera, at 3x the IR resolution, sees the corners more
+precisely, and a far, dim or oblique board gives noisier corners than a near one.
 Solver: ``scipy.optimize.least_squares`` (Levenberg-Marquardt) with analytic Jacobians from
 :func:`dome_calib.camera.project_with_jacobians`.
 """
@@ -27,7 +28,8 @@ class StereoOptions:
     """``estimate_color_intrinsics``: refine the colour camera's intrinsics too (default False: keep the dome's)."""
 
     estimate_color_intrinsics: bool = False
-    reweight_rounds: int = 2  # solves after the first, each with per-camera noise re-estimated from the residuals
+    reweight_rounds: int = 2  # solves after the first, each with the noise re-estimated from the residuals
+    frame_prior_obs: float = 40.0  # per-frame noise = frame's residuals shrunk towards the camera's, this many coords
     max_nfev: int = 200
 
 
@@ -106,7 +108,8 @@ class _Problem:
         self.i_ext = n_cam  # rotvec (3), t (3)
         self.i_board = n_cam + 6
         self.n_params = self.i_board + 6 * self.F
-        self.w_ir = self.w_col = 1.0
+        self.w_ir = np.ones(len(self.X))  # per-observation weights 1 / sigma (set per frame and camera)
+        self.w_col = np.ones(len(self.X))
 
     def pack(self, p: dict[str, np.ndarray]) -> np.ndarray:
         parts = [p["ir_intr"], p["ir_dist"]]
@@ -134,7 +137,8 @@ class _Problem:
         X_depth = np.einsum("mij,mj->mi", Rb, self.X) + tb
         col = project_with_jacobians(X_depth, np.tile(p["ext_rotvec"], (M, 1)), np.tile(p["ext_t"], (M, 1)),
                                      np.tile(p["color_intr"], (M, 1)), np.tile(p["color_dist"], (M, 1)))
-        r = np.concatenate([((ir.uv_px - self.obs_ir) * self.w_ir).ravel(), ((col.uv_px - self.obs_col) * self.w_col).ravel()])
+        r = np.concatenate([((ir.uv_px - self.obs_ir) * self.w_ir[:, None]).ravel(),
+                            ((col.uv_px - self.obs_col) * self.w_col[:, None]).ravel()])
         r = np.nan_to_num(r, nan=1e6)  # a board behind a camera: a huge residual the solver backs away from
         if not with_jacobian:
             return r, None
@@ -143,8 +147,8 @@ class _Problem:
         rows_col = rows_ir + 2 * M
         board_cols = self.i_board + 6 * f[:, None] + np.arange(6)  # (M, 6)
 
-        def put(rows: np.ndarray, cols: np.ndarray, block: np.ndarray, w: float) -> None:
-            J[rows[:, :, None], cols[:, None, :] if cols.ndim == 2 else cols[None, None, :]] = block * w
+        def put(rows: np.ndarray, cols: np.ndarray, block: np.ndarray, w: np.ndarray) -> None:
+            J[rows[:, :, None], cols[:, None, :] if cols.ndim == 2 else cols[None, None, :]] = block * w[:, None, None]
 
         put(rows_ir, np.arange(0, 4), ir.d_intr, self.w_ir)
         put(rows_ir, np.arange(4, 9), ir.d_dist, self.w_ir)
@@ -160,11 +164,18 @@ class _Problem:
     def split_rms(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Unweighted per-observation residual norms (M,) for IR and colour."""
         w_ir, w_col = self.w_ir, self.w_col
-        self.w_ir = self.w_col = 1.0
+        self.w_ir, self.w_col = np.ones_like(w_ir), np.ones_like(w_col)
         r, _ = self.evaluate(x, False)
         self.w_ir, self.w_col = w_ir, w_col
         M = len(self.X)
         return np.linalg.norm(r[:2 * M].reshape(M, 2), axis=1), np.linalg.norm(r[2 * M:].reshape(M, 2), axis=1)
+
+
+def _frame_sigma(err: np.ndarray, frame: np.ndarray, sigma: float, dof: float, prior_obs: float) -> np.ndarray:
+    """Per-frame corner noise (F,) px from residual norms (M,), shrunk towards the camera's ``sigma``."""
+    n = np.bincount(frame) * 2.0  # coordinates per frame
+    var_f = np.bincount(frame, weights=err**2) / dof
+    return np.sqrt((var_f + prior_obs * sigma**2) / (n + prior_obs)).clip(min=1e-6)
 
 
 def refine_stereo(obj_mm: np.ndarray, ir_px: np.ndarray, color_px: np.ndarray, start: dict[str, np.ndarray],
@@ -193,7 +204,8 @@ def refine_stereo(obj_mm: np.ndarray, ir_px: np.ndarray, color_px: np.ndarray, s
         sigma_ir = float(np.sqrt(np.mean(e_ir**2) / 2 / dof))
         sigma_col = float(np.sqrt(np.mean(e_col**2) / 2 / dof))
         if round_ < opts.reweight_rounds:
-            prob.w_ir, prob.w_col = 1.0 / max(sigma_ir, 1e-6), 1.0 / max(sigma_col, 1e-6)
+            prob.w_ir = 1.0 / _frame_sigma(e_ir, prob.frame, sigma_ir, dof, opts.frame_prior_obs)[prob.frame]
+            prob.w_col = 1.0 / _frame_sigma(e_col, prob.frame, sigma_col, dof, opts.frame_prior_obs)[prob.frame]
     p = prob.unpack(x)
     e_ir, e_col = e_ir.reshape(prob.F, prob.N), e_col.reshape(prob.F, prob.N)
     return StereoResult(
