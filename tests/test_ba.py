@@ -247,3 +247,25 @@ def test_bad_input_raises_with_field_named(cameras):
         p.fix(ParamGroup.POSE, cameras=["99_99"])
     with pytest.raises(BAProblemError, match="gauge mode 'user'"):
         bundle_adjust(p, quick(gauge="user"))
+
+
+def test_blas_thread_control_restores_previous_counts():
+    from dome_calib.ba.blas import blas_threads, get_blas_threads
+
+    before = get_blas_threads()
+    with blas_threads(1):
+        assert all(n == 1 for n in get_blas_threads())
+    assert get_blas_threads() == before
+
+
+def test_robust_weights_give_the_robust_gradient():
+    from dome_calib.ba.robust import robust_cost_and_weight
+
+    z = np.array([0.0, 0.5, 3.9, 4.1, 100.0])  # px^2; scale 2 px -> z = 4 is the Huber knee
+    for kind in ("trivial", "huber", "cauchy"):
+        rho, w = robust_cost_and_weight(z, kind, 2.0)
+        h = 1e-6
+        d = (robust_cost_and_weight(z + h, kind, 2.0)[0] - robust_cost_and_weight(np.maximum(z - h, 0), kind, 2.0)[0])
+        d /= (z + h) - np.maximum(z - h, 0)
+        assert np.allclose(w, d, rtol=1e-5, atol=1e-7), kind
+    assert robust_cost_and_weight(z, "huber", 2.0)[1][-1] == pytest.approx(0.2)  # s / |r| = 2 / 10

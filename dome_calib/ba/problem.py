@@ -229,7 +229,8 @@ class BAProblem:
         return self.points_cm[self.scene_point_start[s]:self.scene_point_start[s + 1]]
 
     # ----------------------------------------------------------------- fixing / freeing
-    def _set_free(self, groups, cameras, value: bool) -> None:
+    def _set_free(self, groups: ParamGroup | str | Iterable[ParamGroup | str],
+                  cameras: str | Iterable[str] | None, value: bool) -> None:
         cols = group_columns(groups)
         rows = range(self.n_cameras) if cameras is None else [self.camera_position(n) for n in (
             [cameras] if isinstance(cameras, str) else cameras)]

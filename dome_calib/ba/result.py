@@ -14,8 +14,8 @@ from dome_calib.bundle import Bundle
 
 @dataclass(kw_only=True)
 class IterationLog:
-    """One accepted LM iteration. cost = 0.5 * sum rho(|r|^2) (px^2); rms_px per coordinate (least-squares
-    stages only, NaN under a robust loss); step_norm in parameter units; lam the damping after the step."""
+    """One accepted LM iteration. cost = 0.5 * sum rho(|r|^2) (px^2); rms_px per coordinate over the stage's
+    observations (plain, whatever the loss); step_norm in parameter units; lam the damping after the step."""
 
     stage: int
     iteration: int

@@ -106,9 +106,9 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
             try:
                 step = solve_step(st, lin, lam, n_threads=options.n_threads)
                 new_state = _apply(state, st, step.dc, step.dp)
-                new_cost, _ = _cost(new_state, problem, st, loss, scale)
+                new_cost, new_r = _cost(new_state, problem, st, loss, scale)
             except np.linalg.LinAlgError:
-                step, new_cost = None, np.inf
+                step, new_cost, new_r = None, np.inf, None
             rho = (cost - new_cost) / step.predicted_decrease if step and step.predicted_decrease > 0 else -1.0
             if np.isfinite(new_cost) and rho > 1e-3:
                 lam = max(lam * max(0.1, 1.0 - (2.0 * rho - 1.0) ** 3), _MIN_LAMBDA)
@@ -125,7 +125,7 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
         x_norm = float(np.sqrt(np.sum(state.camera_params ** 2) + np.sum(state.points_cm ** 2)))
         rel_decrease = (cost - new_cost) / max(cost, 1e-300)
         state, cost = new_state, new_cost
-        rms = float(np.sqrt(2.0 * cost / n_res)) if loss is LossKind.TRIVIAL else float("nan")
+        rms = float(np.sqrt(np.sum(new_r * new_r) / n_res))  # plain RMS of the residuals, whatever the loss
         entry = IterationLog(stage=stage, iteration=it, cost=cost, rms_px=rms, step_norm=step_norm, lam=lam,
                              rejected_steps=rejections, time_s=time.perf_counter() - t_start)
         state.iterations.append(entry)
