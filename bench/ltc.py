@@ -89,7 +89,8 @@ def score(labels: np.ndarray, starts: np.ndarray, enc: EncodedLTC) -> dict:
         return {"frames": 0, "wrong": 0, "err_us": np.zeros(0)}
     n = labels_to_frames(labels, enc.rate)
     j = np.clip(np.searchsorted(enc.frame_start_samples, starts), 1, len(truth_n) - 1)
-    j = np.where(np.abs(enc.frame_start_samples[j - 1] - starts) < np.abs(enc.frame_start_samples[j] - starts), j - 1, j)
+    fs_truth = enc.frame_start_samples
+    j = np.where(np.abs(fs_truth[j - 1] - starts) < np.abs(fs_truth[j] - starts), j - 1, j)
     spf = enc.rate.samples_per_frame(enc.sample_rate)
     ok = (truth_n[j] == n) & (np.abs(enc.frame_start_samples[j] - starts) < spf / 2)
     err_us = (starts[ok] - enc.frame_start_samples[j[ok]]) / enc.sample_rate * 1e6
@@ -100,7 +101,8 @@ def _stats(err_us: np.ndarray, prefix: str) -> dict:
     if err_us.size == 0:
         return {f"{prefix}_median_us": None, f"{prefix}_p99_us": None}
     a = np.abs(err_us)
-    return {f"{prefix}_median_us": round(float(np.median(a)), 4), f"{prefix}_p99_us": round(float(np.percentile(a, 99)), 4)}
+    return {f"{prefix}_median_us": round(float(np.median(a)), 4),
+            f"{prefix}_p99_us": round(float(np.percentile(a, 99)), 4)}
 
 
 def run_case(spec: dict, seconds: float, folder: Path, seed: int) -> dict:

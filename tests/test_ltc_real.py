@@ -26,7 +26,8 @@ def _reference(name: str) -> np.ndarray:
 CASES = [
     ("ltcsync_ltc.wav", "ltcsync_ltc.ltcdump.txt", None, RATE_24),
     ("ltcsync_ZOOM0004_Tr1.wav", "ltcsync_ZOOM0004_Tr1.ltcdump.txt", None, RATE_24),
-    ("libltc_timecode.raw", "libltc_timecode.txt", RawFormat(sample_format=RawSampleFormat.U8, sample_rate=22050), RATE_25),
+    ("libltc_timecode.raw", "libltc_timecode.txt", RawFormat(sample_format=RawSampleFormat.U8, sample_rate=22050),
+     RATE_25),
 ]
 
 

@@ -107,7 +107,7 @@ class AudioReader:
         return to_float32(np.asarray(self._mm[start:stop]))
 
     def blocks(self, block: int, margin: int) -> Iterator[tuple[int, int, int, npt.NDArray[np.float32]]]:
-        """Yield (data_start, core_start, core_stop, data) covering the file; data extends ``margin`` beyond the core."""
+        """Yield (data_start, core_start, core_stop, data) covering the file; data reaches ``margin`` past the core."""
         n = self.info.frames
         for core0 in range(0, n, block):
             core1 = min(n, core0 + block)

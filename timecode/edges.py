@@ -62,7 +62,7 @@ class BlockEdges:
 
     t: npt.NDArray[np.float64]
     rising: npt.NDArray[np.bool_]
-    amplitude: npt.NDArray[np.float32]  # peak amplitude (full scale 1.0) around the edge (2nd-98th percentile half swing)
+    amplitude: npt.NDArray[np.float32]  # peak level around the edge (half the 2nd-98th percentile swing)
 
     @classmethod
     def empty(cls) -> BlockEdges:
@@ -75,22 +75,22 @@ def block_levels(x2d: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.float32],
     k = sub.shape[1]
     lo = sub[:, int(0.02 * k)]
     hi = sub[:, min(k - 1, int(0.98 * k))]
-    # a block with little swing next to blocks with a lot holds no edges (flat lead-in, dropout), and one
-    # that sits mostly on one level (LTC starts or stops in it) has skewed percentiles: both take the
-    # levels of the nearest block that has both levels
-    # (and noise alone is not two levels: most of its samples sit near the middle)
+    # A block with little swing next to blocks with a lot holds no edges (flat lead-in, dropout); one that
+    # sits mostly on one level (LTC starts or stops in it) has skewed percentiles; noise alone is not two
+    # levels (most samples sit near the middle). Such blocks take the levels of the nearest good block.
     swing = hi - lo
-    centred = np.abs(sub - ((lo + hi) / 2)[:, None])
-    above = (sub > ((lo + hi) / 2)[:, None]).mean(axis=1)
-    near = (centred < (0.25 * swing)[:, None]).mean(axis=1)
+    mid = (lo + hi) / 2
+    above = (sub > mid[:, None]).mean(axis=1)
+    central = (np.abs(sub - mid[:, None]) < (0.25 * swing)[:, None]).mean(axis=1)
     good = ((swing > 0.25 * maximum_filter1d(swing, 17, mode="nearest")) & (above > 0.2) & (above < 0.8)
-            & (near < 0.5))
+            & (central < 0.5))
     if 0 < good.sum() < len(good):
         gi = np.flatnonzero(good)
-        near = gi[np.clip(np.searchsorted(gi, np.arange(len(good))), 0, len(gi) - 1)]
-        prev = gi[np.clip(np.searchsorted(gi, np.arange(len(good))) - 1, 0, len(gi) - 1)]
-        near = np.where(np.abs(prev - np.arange(len(good))) < np.abs(near - np.arange(len(good))), prev, near)
-        lo, hi = lo[near], hi[near]
+        rows = np.arange(len(good))
+        j = np.searchsorted(gi, rows)
+        after, before = gi[np.clip(j, 0, len(gi) - 1)], gi[np.clip(j - 1, 0, len(gi) - 1)]
+        nearest = np.where(np.abs(before - rows) < np.abs(after - rows), before, after)
+        lo, hi = lo[nearest], hi[nearest]
     if len(lo) >= 5:
         lo, hi = median_filter(lo, 5, mode="nearest"), median_filter(hi, 5, mode="nearest")
     return (lo + hi) / 2, (hi - lo) / 2

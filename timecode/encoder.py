@@ -152,7 +152,10 @@ def encode_ltc_labels(
     edges = offset + _warp(u * half_bit_s, opts) * sample_rate
 
     frame_u = 2 * N_BITS * np.arange(n)
-    start_u, end_u = (total_u - frame_u, total_u - frame_u - 2 * N_BITS) if opts.reverse else (frame_u, frame_u + 2 * N_BITS)
+    if opts.reverse:
+        start_u, end_u = total_u - frame_u, total_u - frame_u - 2 * N_BITS
+    else:
+        start_u, end_u = frame_u, frame_u + 2 * N_BITS
     to_samples = lambda uu: offset + _warp(uu * half_bit_s, opts) * sample_rate  # noqa: E731
 
     sigma = _edge_sigma_samples(opts, sample_rate)
@@ -203,7 +206,9 @@ def _edge_sigma_samples(opts: EncoderOptions, sample_rate: int) -> float:
         raise EncoderError(f"rise_time_us must be > 0, got {opts.rise_time_us}")
     sigma_rise = opts.rise_time_us * 1e-6 * sample_rate / _RISE_10_90_SIGMAS
     # Gaussian response at fs/2 is exp(-(pi*sigma)^2/2) with sigma in samples
-    sigma_aa = math.sqrt(2.0 * opts.nyquist_atten_db * math.log(10.0) / 20.0) / math.pi if opts.nyquist_atten_db > 0 else 0.0
+    sigma_aa = 0.0
+    if opts.nyquist_atten_db > 0:
+        sigma_aa = math.sqrt(2.0 * opts.nyquist_atten_db * math.log(10.0) / 20.0) / math.pi
     return max(sigma_rise, sigma_aa)
 
 

@@ -83,7 +83,8 @@ class ChannelDecode:
             out.append(DecodedFrame(
                 label=Timecode(h, m, s, f, bool(self.drop_frame[i])), frame_number=int(self.frame_numbers[i]),
                 user_bits=int(self.user_bits[i]), drop_frame=bool(self.drop_frame[i]),
-                color_frame=bool(self.color_frame[i]), bgf=tuple(bool(v) for v in self.bgf[i]),  # type: ignore[arg-type]
+                color_frame=bool(self.color_frame[i]),
+                bgf=(bool(self.bgf[i, 0]), bool(self.bgf[i, 1]), bool(self.bgf[i, 2])),
                 parity_ok=bool(self.parity_ok[i]),
                 direction=Direction.REVERSE if self.reverse[i] else Direction.FORWARD,
                 start_samples=float(self.start_samples[i]), end_samples=float(self.end_samples[i]),
