@@ -6,7 +6,7 @@ from dome_calib.camera import pixels_to_normalized, project
 from dome_calib.synth.layout import nominal_dome, projectors
 from dome_calib.synth.markers import locate_spot, marker_view, surface_points_seen_by
 from dome_calib.synth.rays import CameraRays
-from dome_calib.synth.render import RenderOptions, edge_mask, prepare_scene, render_image
+from dome_calib.synth.render import RenderOptions, camera_rays, edge_mask, prepare_scene, render_image
 from dome_calib.synth.tent import inside_tent, intersect_scene, scene_poses, tent_mesh
 
 MARKER_TOL_PX = 0.1
@@ -76,7 +76,7 @@ def test_marker_found_within_tenth_pixel_of_ground_truth(tiny):
     checked = 0
     for name in ("01_01", "01_05", "01_11", "00_16", "50_04"):  # VGA, HD and Kinect colour
         cam = tiny.cameras[name]
-        image = render_image(CameraRays(cam), scene, options, seed=0)
+        image = render_image(camera_rays(cam, options), scene, options, seed=0)  # HD traced at 0.75 x
         for X in markers:
             view = marker_view(cam, X, pose)
             if not view.visible:

@@ -28,8 +28,7 @@ from dome_calib.bundle import Bundle, CameraType, write_bundle
 from dome_calib.errors import DomeCalibError
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.synth.layout import Preset, Projector, dome_from_calibration, nominal_dome, projectors
-from dome_calib.synth.render import RenderOptions, SceneState, prepare_scene, render_image
-from dome_calib.synth.rays import CameraRays
+from dome_calib.synth.render import RenderOptions, SceneState, camera_rays, prepare_scene, render_image
 from dome_calib.synth.tent import TENT_CONES, TENT_ELLIPSOIDS, scene_poses, tent_mesh
 
 logger = logging.getLogger(__name__)
@@ -86,7 +85,7 @@ def _render_camera(name: str) -> tuple[str, int, float]:
     t0 = time.perf_counter()
     job = _JOB
     cam = job["bundle"].cameras[name]
-    rays = CameraRays(cam)
+    rays = camera_rays(cam, job["render"])
     for scene in job["scenes"]:
         img = render_image(rays, scene, job["render"], job["seed"])
         path = job["folder"] / "scenes" / scene.name / f"{name}.png"

@@ -31,17 +31,21 @@ def _newton_undistort_step(xn: np.ndarray, xd: np.ndarray, dist: np.ndarray) -> 
 class CameraRays:
     """World rays of one camera (origin = camera centre, cm) through arbitrary pixel positions.
 
-    ``base_dirs`` (H*W, 3): unit world directions through every pixel centre, row-major, computed once and
-    reused for every scene.
+    ``base_dirs`` (h*w, 3): unit world directions through the centres of a grid of ``shape`` = (h, w) samples,
+    row-major, computed once and reused for every scene. With ``scale`` = 1 the grid is the pixel grid; with
+    ``scale`` < 1 it is a coarser grid of round(W*scale) x round(H*scale) samples covering the image with the same
+    centre-aligned convention as ``cv2.resize`` (sample j sits at pixel (j + 0.5) / scale - 0.5).
     """
 
     GRID_STEP_PX = 8.0
 
-    def __init__(self, cam: Camera) -> None:
+    def __init__(self, cam: Camera, scale: float = 1.0) -> None:
         self.cam = cam
         self.origin_cm = cam.center_cm
         w, h = cam.resolution
-        self.shape = (h, w)
+        self.resolution = (w, h)
+        self.shape = (int(round(h * scale)), int(round(w * scale)))
+        self.scale_xy = (self.shape[1] / w, self.shape[0] / h)
         step = self.GRID_STEP_PX
         self._u0 = self._v0 = -2.0 * step
         ug = self._u0 + step * np.arange(int(np.ceil((w + 4 * step) / step)) + 1)
@@ -51,7 +55,8 @@ class CameraRays:
         if not np.all(np.isfinite(self._grid)):
             raise DomeCalibError(f"camera {cam.name}: distortion {np.round(cam.dist, 4).tolist()} cannot be inverted "
                                  "over the image (the lens model folds back)")
-        u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+        sx, sy = self.scale_xy
+        u, v = np.meshgrid((np.arange(self.shape[1]) + 0.5) / sx - 0.5, (np.arange(self.shape[0]) + 0.5) / sy - 0.5)
         self.base_dirs = self.dirs_at(np.stack([u.ravel(), v.ravel()], axis=1))
 
     def normalized(self, uv_px: np.ndarray) -> np.ndarray:

@@ -85,47 +85,41 @@ def scene_poses(n_scenes: int, seed: int) -> list[TentPose]:
     return poses
 
 
-def _smallest_valid_root(a, b, c, valid_fn) -> np.ndarray:
-    """Smallest positive root s of a s^2 + b s + c = 0 for which ``valid_fn(s)`` holds; inf if none."""
+def _roots(a, b, c) -> tuple[np.ndarray, np.ndarray]:
+    """Both roots (lo <= hi) of a s^2 + b s + c = 0, NaN where there is none (numerically stable form)."""
     disc = b * b - 4.0 * a * c
-    ok = disc >= 0.0
-    sq = np.sqrt(np.where(ok, disc, 0.0))
-    a_safe = np.where(np.abs(a) > _EPS, a, _EPS)
-    # numerically stable roots
+    sq = np.sqrt(np.where(disc >= 0.0, disc, np.nan))
     q = -0.5 * (b + np.copysign(sq, b))
-    r1 = q / a_safe
-    r2 = np.where(np.abs(q) > _EPS, c / np.where(np.abs(q) > _EPS, q, 1.0), np.inf)
-    lo, hi = np.minimum(r1, r2), np.maximum(r1, r2)
-    out = np.full(a.shape, np.inf)
-    for r in (hi, lo):  # lo last so that it wins where valid
-        good = ok & (r > 1e-6) & valid_fn(r)
-        out = np.where(good, r, out)
-    return out
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r1, r2 = q / a, c / q
+    return np.fmin(r1, r2), np.fmax(r1, r2)
 
 
-def _cone_hit(o: np.ndarray, d: np.ndarray, cone: Cone) -> np.ndarray:
+def _cone_hit(ox, oy, oz, dx, dy, dz, cone: Cone) -> np.ndarray:
+    """Entry distance of rays (tent-frame components) into a solid cone; inf for a miss."""
     k2 = (cone.radius_cm / cone.height_cm) ** 2
-    px, py, pz = o[:, 0] - cone.x_cm, o[:, 1] + cone.height_cm, o[:, 2] - cone.z_cm
-    dx, dy, dz = d[:, 0], d[:, 1], d[:, 2]
+    px, py, pz = ox - cone.x_cm, oy + cone.height_cm, oz - cone.z_cm  # py: depth below the apex
     a = dx * dx + dz * dz - k2 * dy * dy
     b = 2.0 * (px * dx + pz * dz - k2 * py * dy)
     c = px * px + pz * pz - k2 * py * py
+    lo, hi = _roots(a, b, c)
+    out = np.full(ox.shape, np.inf)
+    for r in (hi, lo):  # lo last so that it wins where both are valid
+        y = py + r * dy
+        out = np.where((r > 1e-6) & (y >= 0.0) & (y <= cone.height_cm), r, out)
+    return out
 
-    def valid(s):
-        y = py + s * dy  # height below the apex
-        return (y >= 0.0) & (y <= cone.height_cm)
 
-    return _smallest_valid_root(a, b, c, valid)
-
-
-def _ellipsoid_hit(o: np.ndarray, d: np.ndarray, ell: Ellipsoid) -> np.ndarray:
-    inv_r = 1.0 / np.asarray(ell.radii_cm)
-    p = (o - np.asarray(ell.centre_cm)) * inv_r
-    q = d * inv_r
-    a = np.sum(q * q, axis=1)
-    b = 2.0 * np.sum(p * q, axis=1)
-    c = np.sum(p * p, axis=1) - 1.0
-    return _smallest_valid_root(a, b, c, lambda s: np.ones(s.shape, bool))
+def _ellipsoid_hit(ox, oy, oz, dx, dy, dz, ell: Ellipsoid) -> np.ndarray:
+    """Entry distance of rays starting outside into a solid ellipsoid; inf for a miss."""
+    (cx, cy, cz), (rx, ry, rz) = ell.centre_cm, ell.radii_cm
+    px, py, pz = (ox - cx) / rx, (oy - cy) / ry, (oz - cz) / rz
+    qx, qy, qz = dx / rx, dy / ry, dz / rz
+    a = qx * qx + qy * qy + qz * qz
+    b = 2.0 * (px * qx + py * qy + pz * qz)
+    c = px * px + py * py + pz * pz - 1.0
+    lo, _ = _roots(a, b, c)
+    return np.where(lo > 1e-6, lo, np.inf)
 
 
 def tent_normals(X_tent: np.ndarray, which: np.ndarray) -> np.ndarray:
@@ -142,17 +136,44 @@ def tent_normals(X_tent: np.ndarray, which: np.ndarray) -> np.ndarray:
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), _EPS)
 
 
+def _bounding_sphere() -> tuple[np.ndarray, float]:
+    """A sphere (tent frame) containing the whole tent: rays that miss it skip the primitives."""
+    lo = np.min([[c.x_cm - c.radius_cm, -c.height_cm, c.z_cm - c.radius_cm] for c in TENT_CONES]
+                + [np.subtract(e.centre_cm, e.radii_cm) for e in TENT_ELLIPSOIDS], axis=0)
+    hi = np.max([[c.x_cm + c.radius_cm, 0.0, c.z_cm + c.radius_cm] for c in TENT_CONES]
+                + [np.add(e.centre_cm, e.radii_cm) for e in TENT_ELLIPSOIDS], axis=0)
+    return (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2 + 1.0)
+
+
+_BOUND_CENTRE, _BOUND_RADIUS = _bounding_sphere()
+
+
 def intersect_tent(o_tent: np.ndarray, d_tent: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """First hit of rays with the tent (tent frame). o, d (N, 3) (d need not be unit).
+    """First hit of rays with the tent (tent frame). o (N, 3) or (3,), d (N, 3) unit directions.
 
     Returns (s (N,) ray parameter, inf for a miss; which (N,) primitive index, -1 for a miss).
     """
-    hits = [_cone_hit(o_tent, d_tent, c) for c in TENT_CONES]
-    hits += [_ellipsoid_hit(o_tent, d_tent, e) for e in TENT_ELLIPSOIDS]
+    d_tent = np.asarray(d_tent, dtype=float)
+    o_tent = np.broadcast_to(np.asarray(o_tent, dtype=float), d_tent.shape)
+    n = len(d_tent)
+    # cull rays that miss the bounding sphere
+    to_c = _BOUND_CENTRE - o_tent
+    along = np.einsum("ij,ij->i", to_c, d_tent)
+    perp2 = np.einsum("ij,ij->i", to_c, to_c) - along * along
+    idx = np.flatnonzero((perp2 < _BOUND_RADIUS**2) & (along > -_BOUND_RADIUS))
+    s = np.full(n, np.inf)
+    which = np.full(n, -1)
+    if len(idx) == 0:
+        return s, which
+    o, d = o_tent[idx], d_tent[idx]
+    comps = (o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2])
+    hits = [_cone_hit(*comps, c) for c in TENT_CONES] + [_ellipsoid_hit(*comps, e) for e in TENT_ELLIPSOIDS]
     stack = np.stack(hits)
-    which = np.argmin(stack, axis=0)
-    s = np.take_along_axis(stack, which[None], axis=0)[0]
-    return s, np.where(np.isfinite(s), which, -1)
+    w = np.argmin(stack, axis=0)
+    s_sub = np.take_along_axis(stack, w[None], axis=0)[0]
+    s[idx] = s_sub
+    which[idx] = np.where(np.isfinite(s_sub), w, -1)
+    return s, which
 
 
 @dataclass(frozen=True)
