@@ -166,6 +166,8 @@ def main() -> int:
     try:
         sift = cv2.SIFT_create()
         panel = render_preset("panel", work, args.workers)
+        if args.full:  # timed right after panel, before the analysis below
+            shutil.rmtree(render_preset("full", work, args.workers), ignore_errors=True)
         feature_stats(panel, sift)
         gt = load_bundle(panel / "ground_truth")
         for a, b in (("01_01", "01_02"), ("01_07", "01_08"), ("01_03", "02_05"), ("00_00", "01_01")):
@@ -175,9 +177,6 @@ def main() -> int:
             shutil.copytree(panel, args.keep, dirs_exist_ok=True)
         if not args.skip_markers:
             marker_accuracy()
-        if args.full:
-            shutil.rmtree(panel, ignore_errors=True)
-            render_preset("full", work, args.workers)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return 0
