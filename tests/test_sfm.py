@@ -50,6 +50,11 @@ def broken_capture(tmp_path_factory) -> Path:
     (scene / f"{CORRUPT}.png").write_bytes(b"\x89PNG\r\n\x1a\n this is not an image")
     cv2.imwrite(str(scene / f"{BLACK}.png"), np.zeros((480, 640), np.uint8))
     cv2.imwrite(str(scene / f"{AWAY}.png"), _render_facing_away(capture, AWAY))
+    # a scene that cannot reconstruct: two views only
+    small = capture / "scenes" / "scene_02"
+    small.mkdir()
+    for name in ("01_01", "01_02"):
+        (small / f"{name}.png").write_bytes((scene / f"{name}.png").read_bytes())
     return capture
 
 
@@ -67,6 +72,21 @@ def test_broken_images_are_reported_per_camera(sfm_result):
     assert "blank" in failed[BLACK].reason
     assert AWAY in result.unregistered  # sees no tent: blank or too few features, never registered
     assert set(result.unregistered) == {CORRUPT, BLACK, AWAY}
+
+
+def test_a_scene_that_does_not_reconstruct_is_reported(sfm_result):
+    result, _ = sfm_result
+    scene2 = [f for f in result.failures if f.scene == "scene_02" and f.stage == "mapping"]
+    assert {f.camera for f in scene2} == {"01_01", "01_02", ""}  # per camera, plus the scene itself
+    assert all(f.reason for f in scene2)
+    assert "scene_02" not in result.problem.scene_names
+
+
+def test_missing_scenes_folder_is_a_one_line_error(tmp_path):
+    from dome_calib.errors import CaptureError
+
+    with pytest.raises(CaptureError, match="no scenes/ folder"):
+        run_sfm(tmp_path, tmp_path / "work", SfmOptions(show_progress=False))
 
 
 def test_the_rest_registers_with_centres_within_1cm(sfm_result, broken_capture):
