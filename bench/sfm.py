@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 import time
 from pathlib import Path
@@ -157,7 +158,8 @@ def main() -> int:
          within_1cm=int((err < 1.0).sum()), of=len(err), rotation_err_deg_median=np.median(rot),
          rotation_err_deg_max=max(rot), scale_to_truth=s)
     emit(stage="total", preset=preset, features_s=t_feat, matching_s=t_match, features_plus_matching_s=t_feat + t_match,
-         mapping_s=t_map, merge_s=result.seconds["merge"], wall_s=total, failures=len(result.failures))
+         mapping_s=t_map, merge_s=result.seconds["merge"], wall_s=total, failures=len(result.failures),
+         load_avg_1_5_15=[round(x, 1) for x in os.getloadavg()], cores=os.cpu_count())
     if not args.full:  # pair selection on the full nominal dome (cheap): how many pairs the full run matches
         from dome_calib.synth.layout import nominal_dome
         from projector.pairs import PairOptions, pairs_from_prior
