@@ -12,7 +12,7 @@ distortion zero, points 1 cm). Each solver runs in its own process (peak memory 
 - oracle: the same solver from ground truth (the maximum-likelihood optimum of the same schedule);
 - colmap: pycolmap's Ceres BA, FULL_OPENCV with k4, k5, k6 held at zero (pyceres SubsetManifold), TWO_CAMS_FROM_WORLD
   gauge, 2 threads, the same schedule (Huber 2 px on all observations, the same rejection rule, then least squares);
-- k1: our solver with only k1 free (k2, p1, p2, k3 = 0) started from our solution: why five terms are needed.
+- k1: our solver with only k1 free (k2, p1, p2, k3 = 0), started from the truth: why five terms are needed.
 
 Prints one JSON object per line. Errors are after a similarity alignment of camera centres to ground truth.
 cost_true_inliers = 0.5 * sum |r|^2 over the observations that are not gross outliers (the same set for all).
@@ -48,26 +48,24 @@ def worker_ours(data: dict, start_key: str) -> dict:
     from dome_calib.ba import BAOptions, bundle_adjust
 
     problem = data[start_key]
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     res = bundle_adjust(problem, BAOptions(n_threads=2))
-    elapsed = time.perf_counter() - t0
+    elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
     u = res.uncertainty
     return dict(camera_params=res.problem.camera_params, points_cm=res.problem.points_cm, used=res.used,
-                time_s=elapsed, iterations=len(res.iterations), cost=res.cost, n_params=res.n_params,
+                time_s=elapsed, cpu_s=cpu, iterations=len(res.iterations), cost=res.cost, n_params=res.n_params,
                 n_used=int(res.used.sum()), termination=res.termination,
                 sigma_center_centroid_cm_median=float(np.median(u.sigma_center_centroid_cm))
                 if u is not None and u.sigma_center_centroid_cm is not None else None,
                 sigma_focal_px_median=float(np.median(u.sigma_intr_px[:, :2])) if u is not None else None)
 
 
-def worker_k1(data: dict, ours_file: str) -> dict:
+def worker_k1(data: dict) -> dict:
+    """The one-parameter model's best fit: from the truth with k2, p1, p2, k3 zeroed and held, k1 free."""
     from dome_calib.ba import BAOptions, ParamGroup, bundle_adjust
 
-    ours = dict(np.load(ours_file))
-    problem = data["start"].copy()
-    problem.camera_params = ours["camera_params"].copy()
+    problem = data["truth"].copy()
     problem.camera_params[:, 11:15] = 0.0
-    problem.points_cm = ours["points_cm"].copy()
     problem.fix([ParamGroup.K2, ParamGroup.P1, ParamGroup.P2, ParamGroup.K3])
     t0 = time.perf_counter()
     res = bundle_adjust(problem, BAOptions(n_threads=2, compute_uncertainty=False))
@@ -108,7 +106,11 @@ def _colmap_reconstruction(problem, pycolmap):
     return rec, point_ids, point2d_idx
 
 
-def _colmap_solve(rec, pycolmap, pyceres, loss: str, n_images: int, ftol: float) -> tuple[float, int]:
+_CPU_S: list[float] = []  # CPU seconds (all threads) of each Ceres stage
+PEER_TIME_LIMIT_S: float | None = None  # per stage; None = no limit (set by --peer-time-limit-s)
+
+
+def _colmap_solve(rec, pycolmap, pyceres, loss: str, n_images: int, ftol: float) -> tuple[float, int, str]:
     options = pycolmap.BundleAdjustmentOptions()
     options.refine_principal_point = True
     options.print_summary = False
@@ -116,11 +118,13 @@ def _colmap_solve(rec, pycolmap, pyceres, loss: str, n_images: int, ftol: float)
     options.ceres.loss_function_scale = 2.0
     options.ceres.solver_options.num_threads = 2
     options.ceres.solver_options.function_tolerance = ftol  # same stopping rule as ours (COLMAP's default is 0)
+    if PEER_TIME_LIMIT_S is not None:
+        options.ceres.solver_options.max_solver_time_in_seconds = PEER_TIME_LIMIT_S
     config = pycolmap.BundleAdjustmentConfig()
     for image_id in range(1, n_images + 1):
         config.add_image(image_id)
     config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     adjuster = pycolmap.create_default_ceres_bundle_adjuster(options, config, rec)
     manifolds = []  # keep alive while the problem exists
     for cam_id in range(1, n_images + 1):
@@ -133,10 +137,12 @@ def _colmap_solve(rec, pycolmap, pyceres, loss: str, n_images: int, ftol: float)
         raise RuntimeError(f"could hold k4..k6 on {len(manifolds)} of {n_images} cameras only")
     summary = adjuster.solve()
     elapsed = time.perf_counter() - t0
+    _CPU_S.append(time.process_time() - c0)
     cs = summary.ceres_summary
     iterations = int(cs.num_successful_steps + cs.num_unsuccessful_steps)
+    termination = str(cs.termination_type).split(".")[-1]
     del adjuster, manifolds
-    return elapsed, iterations
+    return elapsed, iterations, termination
 
 
 def _colmap_params(rec, problem, point_ids, pycolmap) -> tuple[np.ndarray, np.ndarray]:
@@ -169,7 +175,7 @@ def worker_colmap(data: dict) -> dict:
     t_build = time.perf_counter()
     rec, point_ids, p2d = _colmap_reconstruction(problem, pycolmap)
     t_build = time.perf_counter() - t_build
-    t1, it1 = _colmap_solve(rec, pycolmap, pyceres, "HUBER", problem.n_cameras, 1e-3)
+    t1, it1, term1 = _colmap_solve(rec, pycolmap, pyceres, "HUBER", problem.n_cameras, 1e-3)
     cp, pts = _colmap_params(rec, problem, point_ids, pycolmap)
     # same rejection rule as ours: 5 x robust sigma, then least squares on the rest
     r = residuals(cp, pts, problem.camera_index, problem.point_index, problem.uv_px)
@@ -182,12 +188,13 @@ def worker_colmap(data: dict) -> dict:
         if pid and rec.exists_point3D(pid):
             rec.delete_observation(int(problem.camera_index[m] + 1), int(p2d[m]))
     t_rej = time.perf_counter() - t_rej
-    t2, it2 = _colmap_solve(rec, pycolmap, pyceres, "TRIVIAL", problem.n_cameras, 1e-7)
+    t2, it2, term2 = _colmap_solve(rec, pycolmap, pyceres, "TRIVIAL", problem.n_cameras, 1e-7)
     cp, pts = _colmap_params(rec, problem, point_ids, pycolmap)
     used = np.ones(problem.n_observations, dtype=bool)
     used[bad] = False
     return dict(camera_params=cp, points_cm=pts, used=used, time_s=t1 + t_rej + t2, iterations=it1 + it2,
-                build_s=t_build, stage_times_s=[t1, t2], stage_iterations=[it1, it2], rejected=int(len(bad)))
+                build_s=t_build, stage_times_s=[t1, t2], stage_iterations=[it1, it2], rejected=int(len(bad)),
+                termination=[term1, term2], time_limit_s_per_stage=PEER_TIME_LIMIT_S, cpu_s=sum(_CPU_S))
 
 
 # ----------------------------------------------------------------------------------------------- metrics
@@ -293,6 +300,8 @@ def run_worker(kind: str, data_file: Path, out_file: Path, extra: list[str], reu
         info = json.loads(info_file.read_text())
     else:
         cmd = [sys.executable, __file__, "--worker", kind, "--data", str(data_file), "--out", str(out_file), *extra]
+        if PEER_TIME_LIMIT_S is not None:
+            cmd += ["--peer-time-limit-s", str(PEER_TIME_LIMIT_S)]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         out_file.with_suffix(".log").write_text(proc.stderr)
         if proc.returncode != 0:
@@ -312,11 +321,13 @@ def main() -> None:
     ap.add_argument("--worker", choices=["ours", "oracle", "colmap", "k1"], help=argparse.SUPPRESS)
     ap.add_argument("--data", help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
-    ap.add_argument("--ours-file", help=argparse.SUPPRESS)
     ap.add_argument("--workdir", help="keep the problem and solutions in this folder (default: a temp folder)")
-    ap.add_argument("--only", help="comma-separated subset of ours,oracle,colmap,k1 (k1 needs ours)")
+    ap.add_argument("--only", help="comma-separated subset of ours,oracle,colmap,k1")
     ap.add_argument("--reuse", action="store_true", help="reuse solutions already in --workdir (same seed/size)")
+    ap.add_argument("--peer-time-limit-s", type=float, default=PEER_TIME_LIMIT_S,
+                    help="cap on each of the two Ceres stages (s); default: none")
     args = ap.parse_args()
+    globals()["PEER_TIME_LIMIT_S"] = args.peer_time_limit_s
     if args.worker:
         import logging
         logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
@@ -327,7 +338,7 @@ def main() -> None:
         elif args.worker == "oracle":
             out = worker_ours(data, "truth")
         elif args.worker == "k1":
-            out = worker_k1(data, args.ours_file)
+            out = worker_k1(data)
         else:
             out = worker_colmap(data)
         arrays = {k: out.pop(k) for k in ("camera_params", "points_cm", "used")}
@@ -358,7 +369,7 @@ def main() -> None:
         if args.only:
             kinds = [k for k in kinds if k in args.only.split(",")]
         for kind in kinds:
-            extra = ["--ours-file", str(Path(tmp) / "ours.npz")] if kind == "k1" else []
+            extra = []
             sol = run_worker(kind, data_file, Path(tmp) / f"{kind}.npz", extra, reuse=args.reuse)
             m = metrics(sol, truth, is_outlier, sigma, region)
             runs[kind] = (sol, m)
