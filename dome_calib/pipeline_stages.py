@@ -79,7 +79,48 @@ def run_sfm_stage(capture: Path, work_dir: Path, *, prior: Bundle | None, progre
     if result.problem is None:
         why = "; ".join(f"{f.scene or 'capture'}: {f.reason}" for f in result.failures if not f.camera)
         raise CaptureError(f"{capture}: no scene could be reconstructed ({why or 'no registered cameras'})")
-    return SfmOutcome(problem=result.problem, failures=dict(result.unregistered), stats=report_dict(result))
+    problem, dropped = prune_problem(result.problem)
+    return SfmOutcome(problem=problem, failures={**result.unregistered, **dropped}, stats=report_dict(result))
+
+
+#: Gate between SfM and BA: a camera needs this many observations, and a centre inside this radius (cm) of the
+#: dome's origin, to enter the bundle adjustment (the dome is 5.5 m across; SfM can leave a camera km away).
+MIN_CAMERA_OBSERVATIONS = 50
+MAX_CENTER_RADIUS_CM = 1000.0
+
+
+def prune_problem(problem: BAProblem, *, min_observations: int = MIN_CAMERA_OBSERVATIONS,
+                  max_radius_cm: float = MAX_CENTER_RADIUS_CM) -> tuple[BAProblem, dict[str, str]]:
+    """Drop cameras the bundle adjustment cannot use (too few observations, implausible position) with their
+    observations, then points left with fewer than 2 observations. Returns the problem and camera -> reason."""
+    counts = np.bincount(problem.camera_index, minlength=problem.n_cameras)
+    dropped = {}
+    for i, n in enumerate(problem.camera_names):
+        radius = float(np.linalg.norm(problem.camera(n).center_cm))
+        if counts[i] < min_observations:
+            dropped[n] = f"only {counts[i]} observations after SfM (need {min_observations})"
+        elif not radius <= max_radius_cm:
+            dropped[n] = f"SfM placed it {radius / 100:.0f} m from the dome centre"
+    if not dropped:
+        return problem, {}
+    keep_cam = np.array([n not in dropped for n in problem.camera_names])
+    obs = keep_cam[problem.camera_index]
+    pt_counts = np.bincount(problem.point_index[obs], minlength=problem.n_points)
+    obs &= pt_counts[problem.point_index] >= 2
+    keep_pt = np.bincount(problem.point_index[obs], minlength=problem.n_points) >= 2
+    new_cam = np.cumsum(keep_cam) - 1
+    new_pt = np.cumsum(keep_pt) - 1
+    starts = np.concatenate([[0], np.cumsum([keep_pt[a:b].sum() for a, b in
+                                             zip(problem.scene_point_start[:-1], problem.scene_point_start[1:])])])
+    names = [n for n in problem.camera_names if n not in dropped]
+    pruned = BAProblem(camera_names=names, cameras=[c for c, k in zip(problem.cameras, keep_cam) if k],
+                       camera_params=problem.camera_params[keep_cam], free=problem.free[keep_cam],
+                       points_cm=problem.points_cm[keep_pt], scene_names=list(problem.scene_names),
+                       scene_point_start=starts.astype(np.int64), camera_index=new_cam[problem.camera_index[obs]],
+                       point_index=new_pt[problem.point_index[obs]], uv_px=problem.uv_px[obs])
+    for n, why in dropped.items():
+        logger.warning("camera %s left out of the bundle adjustment: %s", n, why)
+    return pruned, dropped
 
 
 def ba_options() -> BAOptions:

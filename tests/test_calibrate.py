@@ -179,3 +179,24 @@ def test_only_changed_finds_and_reestimates_the_moved_cameras(tmp_path, monkeypa
         e = camera_error(bundle.cameras[n], now[n])
         assert e.center_cm < 0.3 and e.rotation_deg < 0.05 and e.focal_pct < 0.5, (n, e)
     assert "00_00: residual" in pipeline.format_result(result)
+
+
+def test_prune_problem_drops_unusable_cameras():
+    from dome_calib.pipeline_stages import prune_problem
+
+    truth = nominal_dome("tiny", seed=0)
+    problem = _problem(truth)
+    far = problem.camera_position("00_16")
+    problem.camera_params[far, 3:6] += [0.0, 0.0, 5e6]  # SfM put it 50 km away
+    few = problem.camera_position("01_01")
+    drop = np.nonzero(problem.camera_index == few)[0][10:]
+    keep = np.setdiff1d(np.arange(problem.n_observations), drop)
+    problem.camera_index, problem.point_index, problem.uv_px = (problem.camera_index[keep],
+                                                                problem.point_index[keep], problem.uv_px[keep])
+    problem.validate()
+    pruned, dropped = prune_problem(problem)
+    assert sorted(dropped) == ["00_16", "01_01"] and "only 10 observations" in dropped["01_01"]
+    assert "00_16" not in pruned.camera_names and pruned.n_cameras == problem.n_cameras - 2
+    assert np.all(np.bincount(pruned.point_index) >= 2)
+    # the remaining observations are the same pixels of the same points through the same cameras
+    assert np.abs(observation_residuals(pruned)).max() < 5 * NOISE_PX
