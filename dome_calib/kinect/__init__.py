@@ -6,8 +6,8 @@ Stages: :mod:`~dome_calib.kinect.detect` (frames, corners, rejection reasons) ->
 :func:`calibrate_kinect_folder` runs them all for ``dome-calib kinect``.
 """
 from dome_calib.kinect.board import Checkerboard
-from dome_calib.kinect.calibrate import (ColorIntrinsics, KinectCalibOptions, SensorCalibration, calibrate_kinect_folder,
-                                         calibrate_sensor)
+from dome_calib.kinect.calibrate import (ColorIntrinsics, KinectCalibOptions, SensorCalibration,
+                                         calibrate_kinect_folder, calibrate_sensor)
 from dome_calib.kinect.world import M_WORLD2VGA, depth_from_world_cm, depth_map_to_world_cm, depth_pixels_to_world_cm
 
 __all__ = [

@@ -62,7 +62,8 @@ class Checkerboard:
         """
         return self.reflectance_xy(xy_mm[..., 0], xy_mm[..., 1], blur_mm)
 
-    def reflectance_xy(self, x_mm: np.ndarray, y_mm: np.ndarray, blur_mm: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    def reflectance_xy(self, x_mm: np.ndarray, y_mm: np.ndarray,
+                       blur_mm: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`reflectance` with the board coordinates as two arrays (saves stacking in the renderer)."""
         u = x_mm / self.square_mm
         v = y_mm / self.square_mm
@@ -120,7 +121,8 @@ class RayGrid:
 def _d_uv_d_xn(xn: np.ndarray, intr: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """(..., 2, 2) Jacobian of pixel w.r.t. normalised coordinates, by central differences of the forward model."""
     eps = 1e-6
-    cols = [(distort(xn + e, dist) - distort(xn - e, dist)) / (2 * eps) for e in (np.array([eps, 0.0]), np.array([0.0, eps]))]
+    steps = (np.array([eps, 0.0]), np.array([0.0, eps]))
+    cols = [(distort(xn + e, dist) - distort(xn - e, dist)) / (2 * eps) for e in steps]
     return np.stack(cols, axis=-1) * intr[:2, None]
 
 
@@ -169,7 +171,8 @@ def render_board(board: Checkerboard, rays: RayGrid, R: np.ndarray, t_mm: np.nda
     # float32 samples: 1e-7 relative precision is < 1e-4 px and < 1e-3 mm on the board, and twice as fast
     x0, y0 = (rays.xn[roi][..., i].astype(np.float32) for i in range(2))
     J = rays.d_xn_d_uv[roi]
-    j00, j01, j10, j11 = (np.ascontiguousarray(J[..., a, b], dtype=np.float32) for a, b in ((0, 0), (0, 1), (1, 0), (1, 1)))
+    j00, j01, j10, j11 = (np.ascontiguousarray(J[..., a, b], dtype=np.float32)
+                          for a, b in ((0, 0), (0, 1), (1, 0), (1, 1)))
     Rf = np.asarray(R, dtype=float)
     n = Rf[:, 2]  # plane: n . X = offset (camera frame, mm)
     offset = float(n @ t_mm)

@@ -27,7 +27,8 @@ from dome_calib.camera import intr_to_K
 from dome_calib.errors import CaptureError
 from dome_calib.kinect.board import Checkerboard
 from dome_calib.kinect.depth_bias import DepthBiasOptions, DepthBiasResult, fit_depth_bias
-from dome_calib.kinect.detect import DetectOptions, SensorFrames, detect_board, find_sensor_frames, read_depth_mm, read_gray
+from dome_calib.kinect.detect import (DetectOptions, SensorFrames, detect_board, find_sensor_frames, read_depth_mm,
+                                      read_gray)
 from dome_calib.kinect.stereo import StereoOptions, StereoResult, calibrate_stereo
 from dome_calib.kinect.world import M_WORLD2VGA, sensor_matrices
 
@@ -97,7 +98,8 @@ class SensorCalibration:
 
 
 def _detect_frames(frames: SensorFrames, color_size: tuple[int, int], opts: KinectCalibOptions,
-                   on_frame: Callable[[], None] | None) -> tuple[list[FrameStatus], dict[int, tuple[np.ndarray, np.ndarray]]]:
+                   on_frame: Callable[[], None] | None,
+                   ) -> tuple[list[FrameStatus], dict[int, tuple[np.ndarray, np.ndarray]]]:
     statuses, found = [], {}
     for k in frames.indices:
         ir = detect_board(read_gray(frames.ir[k], opts.ir_size, "IR"), opts.board, opts.detect, "IR")
@@ -163,7 +165,8 @@ def calibrate_sensor(frames: SensorFrames, color_cam: Camera, opts: KinectCalibO
         name=frames.name, K_depth=intr_to_K(stereo.ir_intr), dist_depth=stereo.ir_dist.copy(), depth_size=opts.ir_size,
         K_color=intr_to_K(stereo.color_intr), dist_color=stereo.color_dist.copy(), color_size=color_cam.resolution,
         **matrices,
-        depth_bias_mm=0.0 if bias is None else bias.depth_bias_mm, depth_scale=0.0 if bias is None else bias.depth_scale,
+        depth_bias_mm=0.0 if bias is None else bias.depth_bias_mm,
+        depth_scale=0.0 if bias is None else bias.depth_scale,
         extra={"colorCamera": color_cam.name, "framesUsed": len(keys), "rmsIrPx": stereo.rms_ir_px,
                "rmsColorPx": stereo.rms_color_px},
     )

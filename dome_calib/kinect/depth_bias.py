@@ -51,7 +51,8 @@ def board_mask(corners_px: np.ndarray, board: Checkerboard, size: tuple[int, int
     return mask.astype(bool)
 
 
-def plane_depth_mm(uv_px: np.ndarray, intr: np.ndarray, dist: np.ndarray, R: np.ndarray, t_mm: np.ndarray) -> np.ndarray:
+def plane_depth_mm(uv_px: np.ndarray, intr: np.ndarray, dist: np.ndarray, R: np.ndarray,
+                   t_mm: np.ndarray) -> np.ndarray:
     """z (mm) where the rays of pixels (K, 2) meet the plane z_board = 0 of a board at cam_from_board (R, t_mm)."""
     xn = pixels_to_normalized(uv_px, intr, dist)
     rays = np.concatenate([xn, np.ones((len(xn), 1))], axis=1)
@@ -59,7 +60,8 @@ def plane_depth_mm(uv_px: np.ndarray, intr: np.ndarray, dist: np.ndarray, R: np.
     return float(normal @ t_mm) / (rays @ normal)
 
 
-def fit_line_robust(true_mm: np.ndarray, measured_mm: np.ndarray, clip_sigma: float) -> tuple[float, float, float, np.ndarray]:
+def fit_line_robust(true_mm: np.ndarray, measured_mm: np.ndarray,
+                    clip_sigma: float) -> tuple[float, float, float, np.ndarray]:
     """measured = a * true + b with iterated MAD clipping; returns (a, b, robust sigma, inlier mask)."""
     keep = np.isfinite(true_mm) & np.isfinite(measured_mm)
     a, b, sigma = 1.0, 0.0, np.inf

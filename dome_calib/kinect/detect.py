@@ -186,7 +186,8 @@ def detect_board(image: np.ndarray, board: Checkerboard, opts: DetectOptions | N
     edge_width = max(widths) if widths else float("nan")
     if edge_width > opts.max_edge_width_px:
         return BoardDetection(corners_px=None, edge_width_px=edge_width,
-                              reason=f"{what}: blurred (edge width {edge_width:.1f} px > {opts.max_edge_width_px:g} px)")
+                              reason=f"{what}: blurred (edge width {edge_width:.1f} px > "
+                                     f"{opts.max_edge_width_px:g} px)")
     win = _subpix_window(corners, board)
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
     refined = cv2.cornerSubPix(image, corners.reshape(-1, 1, 2).copy(), (win, win), (-1, -1), criteria).reshape(-1, 2)
@@ -198,5 +199,6 @@ def detect_board(image: np.ndarray, board: Checkerboard, opts: DetectOptions | N
     ordered, contrast = canonical_order(refined, image, board)
     if contrast < opts.min_contrast_dn:
         return BoardDetection(corners_px=None, edge_width_px=edge_width,
-                              reason=f"{what}: too little contrast ({contrast:.0f} < {opts.min_contrast_dn:g} grey levels)")
+                              reason=f"{what}: too little contrast ({contrast:.0f} < {opts.min_contrast_dn:g} "
+                                     "grey levels)")
     return BoardDetection(corners_px=ordered, edge_width_px=edge_width)

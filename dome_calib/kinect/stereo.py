@@ -88,7 +88,8 @@ def initial_estimate(obj_mm: np.ndarray, ir_px: np.ndarray, color_px: np.ndarray
     rel = np.array(rel)
     return {
         "ir_intr": K_to_intr(K_ir), "ir_dist": d_ir.ravel()[:5],
-        "ext_rotvec": Rotation.from_matrix(rel[:, :3, :3]).mean().as_rotvec(), "ext_t": np.median(rel[:, :3, 3], axis=0),
+        "ext_rotvec": Rotation.from_matrix(rel[:, :3, :3]).mean().as_rotvec(),
+        "ext_t": np.median(rel[:, :3, 3], axis=0),
         "board_rotvec": np.array([r.ravel() for r in rvecs]), "board_t": np.array([t.ravel() for t in tvecs]),
     }
 
@@ -156,7 +157,8 @@ class _Problem:
         if self.estimate_color:
             put(rows_col, np.arange(9, 13), col.d_intr, self.w_col)
             put(rows_col, np.arange(13, 18), col.d_dist, self.w_col)
-        put(rows_col, np.arange(self.i_ext, self.i_ext + 6), np.concatenate([col.d_rotvec, col.d_t], axis=-1), self.w_col)
+        ext_cols = np.arange(self.i_ext, self.i_ext + 6)
+        put(rows_col, ext_cols, np.concatenate([col.d_rotvec, col.d_t], axis=-1), self.w_col)
         d_board = np.concatenate([col.d_point @ d_rotate_d_rotvec(rb, Rb, self.X), col.d_point], axis=-1)
         put(rows_col, board_cols, d_board, self.w_col)
         return r, J

@@ -95,7 +95,7 @@ def color_camera_of(sensor: str) -> str:
 
 
 def draw_sensor_truth(name: str, bundle: Bundle, opts: KinectBoardsOptions, rng: np.random.Generator) -> SensorTruth:
-    """Draw one sensor's IR intrinsics, depth-colour transform and depth bias; take its colour camera from the bundle."""
+    """Draw one sensor's IR intrinsics, depth-colour transform and depth bias; its colour camera is the bundle's."""
     cam = bundle.cameras[color_camera_of(name)]
     intr = _IR_INTR_MEAN + _IR_INTR_STD * rng.standard_normal(4)
     intr[1] = intr[0]  # the real depth cameras have square pixels
@@ -250,8 +250,10 @@ def generate_sensor(truth: SensorTruth, folder: Path, opts: KinectBoardsOptions,
     for k, kind in enumerate(_frame_kinds(opts, rng)):
         R, t = sample_board_pose(truth, opts, rng, cut_off=kind == "cut_off")
         r_ir = render_board(board, rays_ir, R, t, supersample=opts.ir_supersample)
-        r_col = render_board(board, rays_col, T[:3, :3] @ R, T[:3, :3] @ t + T[:3, 3], supersample=opts.color_supersample)
-        ir, color, depth = render_ir(r_ir, truth, opts, rng), render_color(r_col, scene, opts, rng), render_depth(r_ir, truth, opts, rng)
+        r_col = render_board(board, rays_col, T[:3, :3] @ R, T[:3, :3] @ t + T[:3, 3],
+                             supersample=opts.color_supersample)
+        ir, color = render_ir(r_ir, truth, opts, rng), render_color(r_col, scene, opts, rng)
+        depth = render_depth(r_ir, truth, opts, rng)
         if kind == "blurred":  # the board moved during the exposure: both cameras smear it
             angle = rng.uniform(0, np.pi)
             ir = _motion_blur(ir, rng.uniform(7, 11), angle)
