@@ -115,8 +115,10 @@ def format_demo(result: DemoResult) -> str:
             s = summary[key]
             lines.append(f"  {key:<13}{s['count']:>4} cams  centre error {s['center_cm_median'] * 10:6.2f} mm median, "
                          f"{s['center_cm_max'] * 10:6.2f} mm max;  rotation {s['rotation_deg_median']:.3f} deg;  "
-                         f"focal {s['focal_pct_median']:.3f} %;  distortion {s['distortion_px_max']:.2f} px max")
+                         f"focal {s['focal_pct_median']:.3f} %;  lens {s['distortion_px_median']:.1f} px")
     lines.append("  worst cameras: " + ", ".join(f"{e.name} {e.center_cm * 10:.1f} mm" for e in cmp.worst(5)))
+    lines.append("  (lens: median over cameras of the largest distortion difference over the whole image, corners\n"
+                 "   included where the tent never appears)")
     lines.append("")
     lines.append(f"bundle: {cal.bundle_dir}/calibration_{cal.bundle.seq}.json")
     lines.append(f"report: {cal.report_dir}/dome.png (open it), report.json")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -73,8 +74,9 @@ def run_sfm_stage(capture: Path, work_dir: Path, *, prior: Bundle | None, progre
 
     from projector.sfm import SfmOptions, report_dict, run_sfm
 
-    if not logger.isEnabledFor(logging.DEBUG):
-        pycolmap.logging.minloglevel = max(int(pycolmap.logging.minloglevel), 1)  # COLMAP's INFO lines: noise here
+    if not logger.isEnabledFor(logging.DEBUG):  # COLMAP's INFO lines drown the progress display
+        pycolmap.logging.minloglevel = max(int(pycolmap.logging.minloglevel), 1)
+        os.environ.setdefault("GLOG_minloglevel", "1")  # worker processes of the feature/matching executor
     result = run_sfm(capture, work_dir, SfmOptions(scenes=scenes, show_progress=progress), prior=prior)
     if result.problem is None:
         why = "; ".join(f"{f.scene or 'capture'}: {f.reason}" for f in result.failures if not f.camera)
