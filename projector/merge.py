@@ -145,10 +145,13 @@ class MergeResult:
     excluded: dict[tuple[str, str], str] = field(default_factory=dict)  # (scene, camera) -> reason
 
 
-def merge_scenes(models: list[SceneModel], prior: Mapping[str, Camera], options: MergeOptions | None = None) -> MergeResult:
+def merge_scenes(models: list[SceneModel], prior: Mapping[str, Camera], options: MergeOptions | None = None,
+                 *, align_to: set[str] | None = None) -> MergeResult:
     """Align the scenes' reconstructions, average the camera poses and assemble the :class:`BAProblem`.
 
-    ``prior`` gives the target frame (cm, Panoptic world) and the cameras' type, resolution and intrinsics.
+    ``prior`` gives the target frame (cm, Panoptic world) and the cameras' type, resolution and intrinsics;
+    only the cameras in ``align_to`` (default: all of the prior) are used to align to it (cameras unknown to
+    the real prior carry placeholder poses).
     Raises ValueError if no scene reconstructed or the merged frame cannot be aligned to the prior.
     """
     options = options or MergeOptions()
@@ -194,8 +197,8 @@ def merge_scenes(models: list[SceneModel], prior: Mapping[str, Camera], options:
     avg_R = {n: chordal_mean([p.R[n] for p in merged.values() if n in p.R]) for n in names}
     avg_C = {n: np.mean([p.center[n] for p in merged.values() if n in p.center], axis=0) for n in names}
     # merged frame -> prior
-    prior_C = {n: c.center_cm for n, c in prior.items()}
-    prior_R = {n: c.R for n, c in prior.items()}
+    prior_C = {n: c.center_cm for n, c in prior.items() if align_to is None or n in align_to}
+    prior_R = {n: c.R for n, c in prior.items() if align_to is None or n in align_to}
     # the RANSAC threshold applies to target-frame (cm) residuals, so it is given in cm directly
     pa = robust_similarity(avg_C, prior_C, options.prior_inlier_threshold_cm, avg_R, prior_R, 30.0, 3)
     if pa is None:

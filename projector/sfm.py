@@ -185,6 +185,7 @@ def run_sfm(
             failures.append(CameraFailure(camera="", scene=s.scene, stage="mapping", reason=s.model.failure))
     # cameras seen in the images but unknown to the prior get nominal intrinsics (pose from the scenes)
     all_cams = sorted({c for s in stats.values() for c in (*s.features.num_features, *s.features.failures)})
+    known = set(prior_cams)
     for s in stats.values():
         for c in s.model.registered:
             if c not in prior_cams:
@@ -193,7 +194,7 @@ def run_sfm(
     t1 = time.perf_counter()
     problem, cameras, scene_alignment, prior_alignment = None, {}, {}, None
     try:
-        merged = merge_scenes([s.model for s in stats.values()], prior_cams, options.merge)
+        merged = merge_scenes([s.model for s in stats.values()], prior_cams, options.merge, align_to=known)
     except ValueError as exc:
         failures.append(CameraFailure(camera="", scene="", stage="merge", reason=str(exc)))
     else:

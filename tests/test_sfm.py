@@ -146,3 +146,17 @@ def test_database_opens_as_a_colmap_database(sfm_result):
         configs = {g.config for g in geometries if len(g.inlier_matches)}
         # the prior intrinsics make every verified pair a calibrated geometry (E, or H for small baselines)
         assert configs and pycolmap.TwoViewGeometryConfiguration.UNCALIBRATED not in configs
+
+
+def test_camera_unknown_to_the_prior_is_still_registered(broken_capture, tmp_path):
+    """The prior lacks one camera: it is paired with every other (fallback), gets nominal intrinsics, and its
+    pose comes from the reconstruction; the others still align to the prior."""
+    gt = load_bundle(broken_capture / "ground_truth").cameras
+    unknown = "01_05"
+    prior = {n: c for n, c in gt.items() if n != unknown}
+    result = run_sfm(broken_capture, tmp_path, SfmOptions(show_progress=False, num_workers=2, scenes=["scene_01"]),
+                     prior=prior)
+    assert unknown in result.cameras
+    assert np.linalg.norm(result.cameras[unknown].center_cm - gt[unknown].center_cm) < 2.0
+    pairs = (tmp_path / "scene_01" / "pairs.txt").read_text().splitlines()
+    assert sum(f"{unknown}.png" in line for line in pairs) == len(GOOD) - 1
