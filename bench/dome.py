@@ -30,7 +30,12 @@ from dome_calib.ba.solver import bundle_adjust  # noqa: E402
 from dome_calib.bundle import Bundle, load_bundle, write_bundle  # noqa: E402
 from dome_calib.compare import compare_cameras  # noqa: E402
 from dome_calib.pipeline import CalibrateOptions, run_calibration  # noqa: E402
-from dome_calib.pipeline_stages import ba_options  # noqa: E402
+from dome_calib.pipeline_stages import ba_options as _ba_options  # noqa: E402
+
+
+def ba_options():
+    """Our calibrate's solver settings, without the covariance (not compared here)."""
+    return dataclasses.replace(_ba_options(), compute_uncertainty=False)
 
 
 def emit(**obj) -> None:

@@ -15,6 +15,7 @@ from dome_calib.bundle import Bundle, CameraType
 _MARKER = {CameraType.VGA: ("o", 22), CameraType.HD: ("s", 60), CameraType.KINECT_COLOR: ("^", 70)}
 _COLOR = {CameraType.VGA: "tab:blue", CameraType.HD: "tab:orange", CameraType.KINECT_COLOR: "tab:green"}
 _DPI = 110
+MAX_LABELS = 20
 DOME_RADIUS_CM = 274.5  # the Panoptic dome's sphere (5.49 m across), drawn for orientation
 DOME_CENTRE_HEIGHT_CM = 140.0
 
@@ -50,7 +51,9 @@ def plot_dome(bundle: Bundle, report: dict, path: Path) -> Path:
                 if n in flagged:
                     ax.scatter([xs[k]], [ys[k]], s=size * 4, marker="o", facecolors="none", edgecolors="red",
                                linewidths=1.4)
-                    ax.annotate(n, (xs[k], ys[k]), xytext=(4, 4), textcoords="offset points", fontsize=7, color="red")
+                    if len(flagged) <= MAX_LABELS:  # beyond that, names would hide the dome: see report.json
+                        ax.annotate(n, (xs[k], ys[k]), xytext=(4, 4), textcoords="offset points", fontsize=7,
+                                    color="red")
         ax.scatter([0], [0], marker="+", s=80, c="k")  # world origin: floor centre
         a = np.linspace(0, 2 * np.pi, 361)
         if j == 1:  # the dome sphere's outline above the floor, from the side
