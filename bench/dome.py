@@ -90,6 +90,9 @@ def run(args) -> None:
     truth = load_bundle(capture / "ground_truth")
     emit(bench="dome", stage="synth", preset=args.preset, scenes=args.scenes, cameras=len(truth.cameras),
          seconds=round(t, 1), reused=t == 0.0)
+    if args.quick_only:
+        quick(args, root, truth)
+        return
     out = root / "bundle"
     shutil.rmtree(out, ignore_errors=True)
     if not args.resume:
@@ -107,6 +110,8 @@ def run(args) -> None:
     ours = accuracy(result.bundle.cameras, truth)
     emit(bench="dome", stage="accuracy", preset=args.preset, **ours)
     if args.skip_oracle:
+        if args.quick:
+            quick(args, root, truth)
         return
     t0 = time.perf_counter()
     orc = oracle(result.sfm.problem, result.ba.problem, truth)
@@ -164,7 +169,7 @@ def quick(args, root: Path, truth: Bundle) -> None:
     layout = root / "quick_truth"
     write_bundle(dataclasses.replace(moved, seq="quick"), layout)
     capture = root / "quick_capture"
-    t = synth(capture, args.preset, args.scenes, args.seed, layout=layout / "calibration_quick.json")
+    t = synth(capture, args.preset, 1, args.seed, layout=layout / "calibration_quick.json")  # --only-changed uses 1
     emit(bench="dome", stage="quick_synth", seconds=round(t, 1), perturbed=names, replaced=replaced)
     out = root / "quick_bundle"
     shutil.rmtree(out, ignore_errors=True)
@@ -196,6 +201,7 @@ def main() -> None:
     parser.add_argument("--resume", action="store_true", help="keep the work folder: finished stages are reused "
                         "and reported with the time they took when they ran")
     parser.add_argument("--quick", action="store_true", help="also run the quick-recalibration scenario")
+    parser.add_argument("--quick-only", action="store_true", help="only the quick-recalibration scenario")
     parser.add_argument("--panel", type=int, default=1, help="panel disturbed in the quick scenario")
     run(parser.parse_args())
 
