@@ -27,7 +27,7 @@ import numpy as np
 
 from dome_calib.bundle import Bundle, CameraType, load_bundle, write_bundle
 from dome_calib.compare import CameraChange, ChangeOptions, detect_changes
-from dome_calib.errors import CaptureError
+from dome_calib.errors import CaptureError, DomeCalibError
 from dome_calib.io_utils import atomic_path, atomic_write_text
 from dome_calib.normalize import Normalized, NormalizeOptions, normalize
 from dome_calib.report import ReportOptions, Residuals, load_residuals, write_report
@@ -152,7 +152,7 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
     capture, out = Path(capture), Path(out)
     scenes, expected = capture_contents(capture)
     if options.only_changed and options.prior is None:
-        raise CaptureError("--only-changed needs --prior (the bundle the unchanged cameras are taken from)")
+        raise DomeCalibError("--only-changed needs --prior (the bundle the unchanged cameras are taken from)")
     prior = load_bundle(options.prior) if options.prior is not None else None
     seq = options.seq or capture.resolve().name
     work = Path(options.work_dir) if options.work_dir else out.with_name(out.name + ".work")
