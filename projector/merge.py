@@ -38,7 +38,8 @@ class MergeOptions:
     max_rotation_error_deg: float = 5.0
     min_shared_cameras: int = 3
     prior_inlier_threshold_cm: float = 15.0
-    use_colmap_intrinsics: bool = False  # True: focal lengths from the scenes (median), else from the prior
+    # True: K from the scenes (median; set by run_sfm when mapping refines focal lengths), else from the prior
+    use_colmap_intrinsics: bool = False
 
 
 @dataclass(kw_only=True)

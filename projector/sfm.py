@@ -16,7 +16,7 @@ import json
 import logging
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from dome_calib.ba.problem import BAProblem
@@ -194,7 +194,9 @@ def run_sfm(
     t1 = time.perf_counter()
     problem, cameras, scene_alignment, prior_alignment = None, {}, {}, None
     try:
-        merged = merge_scenes([s.model for s in stats.values()], prior_cams, options.merge, align_to=known)
+        merge_options = replace(options.merge, use_colmap_intrinsics=options.merge.use_colmap_intrinsics
+                                or options.mapping.refine_focal_length or options.mapping.refine_principal_point)
+        merged = merge_scenes([s.model for s in stats.values()], prior_cams, merge_options, align_to=known)
     except ValueError as exc:
         failures.append(CameraFailure(camera="", scene="", stage="merge", reason=str(exc)))
     else:
