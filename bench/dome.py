@@ -173,14 +173,16 @@ def quick(args, root: Path, truth: Bundle) -> None:
     emit(bench="dome", stage="quick_synth", seconds=round(t, 1), perturbed=names, replaced=replaced)
     out = root / "quick_bundle"
     shutil.rmtree(out, ignore_errors=True)
-    shutil.rmtree(root / "quick_bundle.work", ignore_errors=True)
+    if not args.resume:
+        shutil.rmtree(root / "quick_bundle.work", ignore_errors=True)
     t0 = time.perf_counter()
     result = run_calibration(capture, out, CalibrateOptions(prior=Path(root / "capture" / "ground_truth"),
                                                             only_changed=True, progress=False))
     total = time.perf_counter() - t0
     found = sorted(result.changes)
     ours = accuracy(result.bundle.cameras, moved, names)
-    emit(bench="dome", stage="quick", seconds_total=round(total, 1),
+    emit(bench="dome", stage="quick", seconds_total=round(sum(result.stage_seconds.values()), 1),
+         resumed_stages=result.resumed,
          seconds={k: round(v, 1) for k, v in result.stage_seconds.items()}, found=found,
          found_exactly_the_changed=found == names, missed=sorted(set(names) - set(found)),
          false_alarms=sorted(set(found) - set(names)), **ours)

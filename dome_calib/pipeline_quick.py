@@ -7,8 +7,9 @@
    ~13 px on a VGA camera, a 2 cm shift ~4 px at the tent, a 4 % focal change ~10 px at the image edge, against
    ~0.2 px of feature noise). Two rounds: the second refits the points without the cameras flagged in the first,
    so a whole disturbed panel cannot drag the points with it. Cameras the prior does not know are changed too.
-3. ``quick_ba``: bundle adjustment with only the changed cameras' poses free (and the points); cameras that
-   still do not fit then also get new intrinsics and distortion (a replaced camera). Every other camera stays
+3. ``quick_ba``: bundle adjustment with only the changed cameras' poses free (and the points); then with all
+   their parameters free: cameras whose residual RMS the new intrinsics lower by more than 1.2x are replaced
+   cameras and keep them, the others only moved and are re-posed with the prior's lens. Every other camera stays
    bit-identical to the prior, which also fixes the gauge and the world frame.
 """
 from __future__ import annotations
@@ -35,6 +36,9 @@ QUICK_SCENES = 1
 ALIGN_MAX_ERROR_CM = 3.0  # the reconstruction before bundle adjustment is good to ~1 cm
 RMS_FACTOR = 5.0  # changed: per-camera RMS under the prior above this many times the median ...
 RMS_FLOOR_PX = 1.0  # ... and above this
+#: A changed camera gets new intrinsics if freeing them lowers its RMS by more than this factor. Fitting 9 more
+#: parameters to pure noise over N >= 100 observations lowers it by sqrt((2N - 6) / (2N - 15)) < 1.03.
+RELENS_RMS_RATIO = 1.2
 
 
 def _robust_camera_rms(problem, used: np.ndarray) -> np.ndarray:
@@ -102,18 +106,25 @@ def run_quick(*, capture: Path, out: Path, seq: str, scenes: list[str], expected
         problem.fix(ParamGroup.ALL)
         if not changed:
             return run_ba_stage(problem, progress=options.progress, options=QUICK_BA), []
-        # a moved camera keeps its lens: re-pose first; only cameras that still do not fit get new intrinsics
+        # A moved camera keeps its lens: re-pose first. Then everything of the changed cameras free; a camera whose
+        # residual RMS the new intrinsics lower by more than noise fitting would (RELENS_RMS_RATIO) was replaced and
+        # keeps them; the others keep the prior's lens (pose alone is the better-determined estimate).
         problem.unfix(ParamGroup.POSE, cameras=changed)
         posed = run_ba_stage(problem, progress=options.progress, options=QUICK_BA)
-        rms = _robust_camera_rms(posed.problem, posed.inlier)
-        others = [i for i, n in enumerate(problem.camera_names) if n not in changed and np.isfinite(rms[i])]
-        limit = max(RMS_FLOOR_PX / 2, 3.0 * float(np.median(rms[others]))) if others else RMS_FLOOR_PX / 2
-        relensed = [n for n in changed if not rms[problem.camera_position(n)] <= limit]
+        trial = posed.problem.copy()
+        trial.unfix(ParamGroup.ALL, cameras=changed)
+        free_all = run_ba_stage(trial, progress=options.progress, options=QUICK_BA)
+        rms_posed = _robust_camera_rms(posed.problem, posed.inlier)
+        rms_free = _robust_camera_rms(free_all.problem, free_all.inlier)
+        relensed = [n for n in changed if n not in prior.cameras
+                    or rms_posed[problem.camera_position(n)] > RELENS_RMS_RATIO * rms_free[problem.camera_position(n)]]
         if not relensed:
             return posed, []
-        again = posed.problem.copy()
-        again.unfix(ParamGroup.ALL, cameras=relensed)
-        return run_ba_stage(again, progress=options.progress, options=QUICK_BA), relensed
+        if len(relensed) == len(changed):
+            return free_all, relensed
+        final = posed.problem.copy()
+        final.unfix(ParamGroup.ALL, cameras=relensed)
+        return run_ba_stage(final, progress=options.progress, options=QUICK_BA), relensed
 
     ba, relensed = stage("quick_ba", quick_ba)
     cameras = dict(prior.cameras)
