@@ -4,9 +4,10 @@ Unknowns: IR intrinsics [fx, fy, cx, cy] and distortion [k1, k2, p1, p2, k3]; th
 distortion (held fixed by default, see :class:`StereoOptions`); the rigid ``color_from_depth`` transform
 (rotation vector, translation mm); and every board pose ``depth_from_board`` (rotation vector, translation mm).
 Residuals: IR corners reprojected by the board pose, colour corners reprojected by ``color_from_depth`` composed
-with the board pose, each divided by its corner noise, estimated per camera and per frame from the residuals
-(shrunk towards the camera's) and re-solved: the colour camera, at 3x the IR resolution, sees the corners more
-precisely, and a far, dim or oblique board gives noisier corners than a near one.
+with the board pose, each divided by its camera's corner noise, estimated from the residuals and re-solved (the
+colour camera, at 3x the IR resolution, sees the corners more precisely and gets the larger weight). Per-frame
+noise weights are an option (``frame_prior_obs``): they help when the noise truly varies by frame, but did not
+on the rendered captures of ``bench/kinect.py``, so they are off by default.
 Solver: ``scipy.optimize.least_squares`` (Levenberg-Marquardt) with analytic Jacobians from
 :func:`dome_calib.camera.project_with_jacobians`.
 """
@@ -29,7 +30,9 @@ class StereoOptions:
 
     estimate_color_intrinsics: bool = False
     reweight_rounds: int = 2  # solves after the first, each with the noise re-estimated from the residuals
-    frame_prior_obs: float = 40.0  # per-frame noise = frame's residuals shrunk towards the camera's, this many coords
+    # per-frame noise weights: the frame's residuals shrunk towards the camera's noise with this many coordinates
+    # weight; None = one noise level per camera (default: on rendered boards per-frame weights did not help)
+    frame_prior_obs: float | None = None
     max_nfev: int = 200
 
 
@@ -205,7 +208,10 @@ def refine_stereo(obj_mm: np.ndarray, ir_px: np.ndarray, color_px: np.ndarray, s
         dof = max(1.0 - prob.n_params / (2 * n_obs), 0.1)  # residual degrees of freedom per observation
         sigma_ir = float(np.sqrt(np.mean(e_ir**2) / 2 / dof))
         sigma_col = float(np.sqrt(np.mean(e_col**2) / 2 / dof))
-        if round_ < opts.reweight_rounds:
+        if round_ < opts.reweight_rounds and opts.frame_prior_obs is None:
+            prob.w_ir = np.full(len(prob.X), 1.0 / max(sigma_ir, 1e-6))
+            prob.w_col = np.full(len(prob.X), 1.0 / max(sigma_col, 1e-6))
+        elif round_ < opts.reweight_rounds:
             prob.w_ir = 1.0 / _frame_sigma(e_ir, prob.frame, sigma_ir, dof, opts.frame_prior_obs)[prob.frame]
             prob.w_col = 1.0 / _frame_sigma(e_col, prob.frame, sigma_col, dof, opts.frame_prior_obs)[prob.frame]
     p = prob.unpack(x)
