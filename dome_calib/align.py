@@ -49,6 +49,17 @@ class Alignment:
     inliers: list[str]
     residual_cm: dict[str, float]
 
+    def __getstate__(self) -> dict:  # pycolmap.Sim3d does not survive pickle (work-folder caches): store numbers
+        state = dict(self.__dict__)
+        sim = state.pop("tgt_from_src")
+        state["_sim3"] = (float(sim.scale), sim3_rotation(sim), np.asarray(sim.translation, dtype=float))
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        scale, R, t = state.pop("_sim3")
+        state["tgt_from_src"] = pycolmap.Sim3d(scale, pycolmap.Rotation3d(R), t)
+        self.__dict__.update(state)
+
     @property
     def outliers(self) -> list[str]:
         keep = set(self.inliers)

@@ -153,3 +153,14 @@ def test_compare_cli_bad_input(tmp_path):
                            str(tmp_path / "empty"), str(tmp_path / "nope")], capture_output=True, text=True)
     assert proc.returncode == 1
     assert proc.stderr.count("\n") == 1 and "no calibration_<seq>.json" in proc.stderr
+
+
+def test_alignment_survives_pickle(real_cameras):
+    """Work folders cache results with pickle; pycolmap.Sim3d alone does not round-trip."""
+    import pickle
+
+    result = align_cameras(transform_cameras(real_cameras, SIM), real_cameras)
+    back = pickle.loads(pickle.dumps(result))
+    np.testing.assert_allclose(np.asarray(back.tgt_from_src.matrix()), np.asarray(result.tgt_from_src.matrix()),
+                               rtol=1e-12, atol=1e-12)
+    assert back.inliers == result.inliers and back.residual_cm == result.residual_cm
