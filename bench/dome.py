@@ -46,9 +46,10 @@ def synth(folder: Path, preset: str, scenes: int, seed: int, layout: Path | None
     from dome_calib.synth.capture import SynthOptions, synthesize
 
     meta = folder / "capture.json"
-    if meta.exists() and layout is None:
+    if meta.exists():
         old = json.loads(meta.read_text())
-        if old["preset"] == preset and old["seed"] == seed and len(old["scenes"]) == scenes:
+        if (old["preset"] == preset and old["seed"] == seed and len(old["scenes"]) == scenes
+                and old.get("layout") == (str(layout) if layout else "nominal")):
             return 0.0
     t0 = time.perf_counter()
     synthesize(folder, SynthOptions(preset=preset, n_scenes=scenes, seed=seed, layout=layout, overwrite=True))
