@@ -28,7 +28,7 @@ from dome_calib.bundle import load_bundle
 from dome_calib.camera import project
 from dome_calib.synth.capture import SynthOptions, synthesize
 from dome_calib.synth.layout import projectors
-from dome_calib.synth.markers import locate_spot, marker_view, surface_points_seen_by
+from dome_calib.synth.markers import locate_spot, marker_view, spot_window_px, surface_points_seen_by
 from dome_calib.synth.rays import CameraRays
 from dome_calib.synth.render import RenderOptions, camera_rays, prepare_scene, render_image
 from dome_calib.synth.tent import TentPose, intersect_scene
@@ -139,14 +139,14 @@ def marker_accuracy() -> None:
         grid = np.array([[u, v] for u in (200.0, 320.0, 440.0) for v in (180.0, 300.0, 400.0)])
         X = surface_points_seen_by(ref, pose, grid)
         X = X[np.all(np.isfinite(X), axis=1)]
-        options = RenderOptions(flat_patterns=True, markers_cm=X, projector_power=0.15)
+        options = RenderOptions(flat_patterns=True, markers_cm=X, projector_power=0.0, ambient=0.3)
         scene = prepare_scene(f"scene_{si + 1:02d}", pose, projectors(0), {}, options)
         for name, cam in bundle.cameras.items():
             img = render_image(camera_rays(cam, options), scene, options, seed=0)
             for x in X:
                 view = marker_view(cam, x, pose)
                 if view.visible:
-                    found = locate_spot(img, view.uv_px, search_px=12 if cam.type == "vga" else 24)
+                    found = locate_spot(img, view.uv_px, search_px=spot_window_px(cam))
                     errors.setdefault(str(cam.type), []).append(float(np.linalg.norm(found - view.uv_px)))
     for ctype, e in errors.items():
         e = np.array(e)
@@ -161,7 +161,11 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--keep", type=Path, default=None, help="copy the panel capture here")
     parser.add_argument("--skip-markers", action="store_true")
+    parser.add_argument("--markers-only", action="store_true", help="only the marker-spot accuracy lines")
     args = parser.parse_args()
+    if args.markers_only:
+        marker_accuracy()
+        return 0
     work = Path(tempfile.mkdtemp(prefix="bench_synth_"))
     try:
         sift = cv2.SIFT_create()

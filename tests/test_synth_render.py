@@ -4,7 +4,7 @@ import pytest
 
 from dome_calib.camera import pixels_to_normalized, project
 from dome_calib.synth.layout import nominal_dome, projectors
-from dome_calib.synth.markers import locate_spot, marker_view, surface_points_seen_by
+from dome_calib.synth.markers import locate_spot, marker_view, spot_window_px, surface_points_seen_by
 from dome_calib.synth.rays import CameraRays
 from dome_calib.synth.render import RenderOptions, camera_rays, edge_mask, prepare_scene, render_image
 from dome_calib.synth.tent import inside_tent, intersect_scene, scene_poses, tent_mesh
@@ -71,7 +71,8 @@ def test_marker_found_within_tenth_pixel_of_ground_truth(tiny):
     markers = surface_points_seen_by(ref, pose, np.array([[260.0, 200.0], [400.0, 230.0], [330.0, 330.0],
                                                           [250.0, 380.0]]))  # all on the egg
     assert np.all(np.isfinite(markers))
-    options = RenderOptions(flat_patterns=True, markers_cm=markers, projector_power=0.15)
+    # uniform lighting (projectors off, room light on): see dome_calib.synth.markers
+    options = RenderOptions(flat_patterns=True, markers_cm=markers, projector_power=0.0, ambient=0.3)
     scene = prepare_scene("scene_01", pose, projectors(0), {}, options)
     checked = 0
     for name in ("01_01", "01_05", "01_11", "00_16", "50_04"):  # VGA, HD and Kinect colour
@@ -81,7 +82,7 @@ def test_marker_found_within_tenth_pixel_of_ground_truth(tiny):
             view = marker_view(cam, X, pose)
             if not view.visible:
                 continue
-            found = locate_spot(image, view.uv_px, search_px=12 if cam.type == "vga" else 24)
+            found = locate_spot(image, view.uv_px, search_px=spot_window_px(cam))
             err = np.linalg.norm(found - view.uv_px)
             assert err < MARKER_TOL_PX, f"{name}: marker at {X.round(1)} off by {err:.3f} px"
             checked += 1

@@ -4,6 +4,11 @@ A marker is an emissive Gaussian spot painted on the tent (``RenderOptions.marke
 centre of a finite spot seen obliquely shifts by ~f sigma^2 tan(incidence) / d^2, ~0.01 px at this size, 0.05 px
 at 1 cm). Its image is (to first order) an anisotropic Gaussian centred on the projection of the marker point through the camera's
 distorted model, so a least-squares Gaussian fit locates it to a few hundredths of a pixel.
+
+The check is geometric: render markers with uniform lighting (projectors off, ambient light on). Under the
+projectors, shadow edges and pattern texture under the spot bias the Gaussian fit (by up to ~0.2 px on the
+side cone), which says nothing about the geometry; the patterns are checked by ground-truth-verified SIFT
+matches instead (``bench/synth.py``).
 """
 from __future__ import annotations
 
@@ -12,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from dome_calib.bundle import Camera
-from dome_calib.camera import project
+from dome_calib.bundle import Camera, CameraType
+from dome_calib.camera import pixels_to_normalized, project
 from dome_calib.synth.rays import CameraRays
 from dome_calib.synth.tent import TentPose, intersect_scene
 
@@ -26,17 +31,51 @@ class MarkerView:
     visible: bool
 
 
-def marker_view(cam: Camera, X_cm: np.ndarray, pose: TentPose, *, margin_px: float = 20.0,
-                tol_cm: float = 0.3) -> MarkerView:
-    """Ground-truth pixel of a world point and whether the camera sees it (in the image, not occluded)."""
+def spot_window_px(cam: Camera) -> int:
+    """Half-size of the fitting window for a camera type (a marker spans ~3 VGA px, ~6 HD px at 3 m)."""
+    return 12 if cam.type == CameraType.VGA else 24
+
+
+def marker_view(cam: Camera, X_cm: np.ndarray, pose: TentPose, *, margin_px: float = 20.0, tol_cm: float = 0.3,
+                footprint_cm: float = 1.5, min_cos_incidence: float = 0.3) -> MarkerView:
+    """Ground-truth pixel of a marker point and whether the camera sees the whole spot cleanly.
+
+    Visible means: projected inside the image (``margin_px`` from the border), the point itself unoccluded, seen at
+    an incidence whose cosine is at least ``min_cos_incidence`` (not grazing), and four points ``footprint_cm``
+    (3 sigma) around it on the tangent plane also unoccluded (no silhouette or occluding edge across the spot),
+    and no depth discontinuity on a circle of :func:`spot_window_px` around it (the fitting window holds only the
+    smooth surface the spot is on).
+    """
     p = project(X_cm[None], cam.R, cam.t_cm, cam.intr, cam.dist)
     uv = p.uv_px[0]
     w, h = cam.resolution
     inside = bool(p.in_lens[0]) and margin_px <= uv[0] <= w - 1 - margin_px and margin_px <= uv[1] <= h - 1 - margin_px
+    if not inside:
+        return MarkerView(uv_px=uv, visible=False)
     ray = X_cm - cam.center_cm
     dist = np.linalg.norm(ray)
     hit = intersect_scene(cam.center_cm, (ray / dist)[None], pose)
-    return MarkerView(uv_px=uv, visible=inside and abs(hit.s[0] - dist) < tol_cm)
+    if not (hit.kind[0] == 1 and abs(hit.s[0] - dist) < tol_cm):
+        return MarkerView(uv_px=uv, visible=False)
+    n = hit.normal[0]
+    if -(n @ ray) / dist < min_cos_incidence:
+        return MarkerView(uv_px=uv, visible=False)
+    t1 = np.cross(n, ray / dist)
+    t1 /= np.linalg.norm(t1)
+    t2 = np.cross(n, t1)
+    ring = X_cm + footprint_cm * np.array([t1, -t1, t2, -t2])
+    to_ring = ring - cam.center_cm
+    d_ring = np.linalg.norm(to_ring, axis=1)
+    hits = intersect_scene(cam.center_cm, to_ring / d_ring[:, None], pose)
+    clean = bool(np.all((hits.kind == 1) & (np.abs(hits.s - d_ring) < 0.5)))
+    angles = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
+    circle = uv + spot_window_px(cam) * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    xn = pixels_to_normalized(circle, cam.intr, cam.dist)
+    d_cam = np.concatenate([xn, np.ones((len(xn), 1))], axis=1)
+    d_world = (d_cam / np.linalg.norm(d_cam, axis=1, keepdims=True)) @ cam.R
+    around = intersect_scene(cam.center_cm, d_world, pose)
+    smooth = bool(np.all((around.kind == 1) & (np.abs(around.s - dist) < 0.05 * dist)))
+    return MarkerView(uv_px=uv, visible=clean and smooth)
 
 
 def surface_points_seen_by(rays: CameraRays, pose: TentPose, uv_px: np.ndarray) -> np.ndarray:
