@@ -8,7 +8,12 @@ estimated on their shared cameras:
    (pycolmap's LO-RANSAC ``estimate_sim3d_robust``, threshold relative to the camera spread), whose inliers
    must also agree in orientation (``max_rotation_error_deg``); the final similarity is the least-squares fit
    on those inliers.
-2. Camera poses are averaged over scenes (centres: mean of inliers; rotations: chordal L2 mean).
+2. Each scene is pre-scaled by its similarity's scale; a gtsam pose graph (:mod:`projector.pose_graph`) then
+   jointly optimises the rigid scene alignments and one pose per camera from every (scene, camera)
+   registration under a robust (Cauchy) kernel, starting from step 1's alignments and, per camera, the medoid
+   of its registrations. Registrations that still disagree with the optimised pose (beyond the step-1
+   thresholds) are dropped from that scene and the graph is solved again without them (at most 3 solves). ``PoseAveraging.CHORDAL_MEAN`` keeps step 1's alignments and
+   averages instead (centres: mean of inliers; rotations: chordal L2 mean).
 3. The merged frame is mapped onto the prior (previous calibration or nominal layout) by the same robust
    similarity on camera centres, so the result is in centimetres in the Panoptic world frame.
 4. Every 3D point of every scene, with its observations (COLMAP pixels converted to OpenCV's convention),
@@ -19,6 +24,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from enum import StrEnum
 
 import numpy as np
 import pycolmap
@@ -28,8 +34,14 @@ from dome_calib.bundle import Camera
 from dome_calib.camera import colmap_to_opencv_px
 from projector.database import camera_of_image, intrinsics_from_colmap
 from projector.mapping import SceneModel
+from projector.pose_graph import optimise_pose_graph
 
 logger = logging.getLogger(__name__)
+
+
+class PoseAveraging(StrEnum):
+    POSE_GRAPH = "pose_graph"  # joint robust gtsam optimisation of scene alignments and camera poses
+    CHORDAL_MEAN = "chordal_mean"  # sequential alignments only; mean centres, chordal mean rotations
 
 
 @dataclass(kw_only=True)
@@ -37,6 +49,8 @@ class MergeOptions:
     inlier_threshold_rel: float = 0.02  # RANSAC threshold on centres, fraction of the camera spread
     max_rotation_error_deg: float = 5.0
     min_shared_cameras: int = 3
+    pose_averaging: PoseAveraging = PoseAveraging.POSE_GRAPH
+    robust_k: float = 2.0  # Cauchy kernel width of the pose graph, in sigmas (sigma = a third of the thresholds)
     prior_inlier_threshold_cm: float = 15.0
     # True: K from the scenes (median; set by run_sfm when mapping refines focal lengths), else from the prior
     use_colmap_intrinsics: bool = False
@@ -137,6 +151,134 @@ def _spread(centers: Mapping[str, np.ndarray]) -> float:
 
 
 @dataclass(kw_only=True)
+class AlignedPoses:
+    """Scenes brought into the common frame (the reference scene's, at its scale)."""
+
+    reference: str
+    alignment: dict[str, Alignment]  # scene -> common frame
+    R: dict[str, np.ndarray]  # camera -> R cam_from_common
+    center: dict[str, np.ndarray]  # camera -> centre in the common frame
+    kept: dict[str, list[str]]  # scene -> cameras whose pose in that scene is used
+    unaligned: dict[str, str] = field(default_factory=dict)
+    excluded: dict[tuple[str, str], str] = field(default_factory=dict)  # (scene, camera) -> reason
+
+
+def _disagreement(dist: float, angle_deg: float, spread: float) -> str:
+    return f"pose disagrees with the other scenes by {dist / spread:.1%} of the dome size ({angle_deg:.1f} deg)"
+
+
+def _sequential(poses: Mapping[str, ScenePoses], options: MergeOptions) -> AlignedPoses:
+    """Steps 1-2 of the chordal-mean path: sequential robust similarities, then pose averaging."""
+    order = sorted(poses, key=lambda s: (-len(poses[s].R), s))
+    ref = order[0]
+    merged: dict[str, ScenePoses] = {ref: poses[ref]}
+    result_align = {ref: Alignment(scale=1.0, R=np.eye(3), t=np.zeros(3), num_shared=len(poses[ref].R),
+                                   inliers=sorted(poses[ref].R), rms_center=0.0)}
+    unaligned: dict[str, str] = {}
+    excluded: dict[tuple[str, str], str] = {}
+    pending = order[1:]
+    while pending:  # align scenes in rounds, so a scene may link through one aligned before it
+        progressed = False
+        for scene in list(pending):
+            tgt_C = {n: C for p in merged.values() for n, C in p.center.items()}
+            tgt_R = {n: R for p in merged.values() for n, R in p.R.items()}
+            thr = options.inlier_threshold_rel * _spread(tgt_C)
+            a = robust_similarity(poses[scene].center, tgt_C, thr, poses[scene].R, tgt_R,
+                                  options.max_rotation_error_deg, options.min_shared_cameras)
+            if a is None:
+                continue
+            outliers = (set(poses[scene].R) & set(tgt_C)) - set(a.inliers)
+            for n in sorted(outliers):
+                C = a.scale * a.R @ poses[scene].center[n] + a.t
+                dR = tgt_R[n] @ (poses[scene].R[n] @ a.R.T).T
+                excluded[(scene, n)] = _disagreement(float(np.linalg.norm(C - tgt_C[n])), _angle_deg(dR),
+                                                     _spread(tgt_C))
+            kept = ScenePoses(scene=scene, R={n: R for n, R in poses[scene].R.items() if n not in outliers},
+                              center={n: C for n, C in poses[scene].center.items() if n not in outliers})
+            merged[scene] = transform_poses(kept, a)
+            result_align[scene] = a
+            pending.remove(scene)
+            progressed = True
+        if not progressed:
+            break
+    for scene in pending:
+        unaligned[scene] = f"shares fewer than {options.min_shared_cameras} consistent cameras with the other scenes"
+        logger.warning("%s: %s", scene, unaligned[scene])
+    names = sorted({n for p in merged.values() for n in p.R})
+    avg_R = {n: chordal_mean([p.R[n] for p in merged.values() if n in p.R]) for n in names}
+    avg_C = {n: np.mean([p.center[n] for p in merged.values() if n in p.center], axis=0) for n in names}
+    return AlignedPoses(reference=ref, alignment=result_align, R=avg_R, center=avg_C,
+                        kept={s: sorted(p.R) for s, p in merged.items()}, unaligned=unaligned, excluded=excluded)
+
+
+def _angle_deg(dR: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1))))
+
+
+def _pose_graph(poses: Mapping[str, ScenePoses], seq: AlignedPoses, options: MergeOptions) -> AlignedPoses:
+    """Step 2 with gtsam: joint robust optimisation of rigid scene alignments and camera poses (pre-scaled)."""
+    ref = seq.reference
+    scenes = sorted(seq.alignment)
+    spread = _spread(seq.center)
+    thr = options.inlier_threshold_rel * spread
+    # every registration of an aligned scene takes part; the robust kernel and the check below judge it
+    measured = {s: {n: (R.T, seq.alignment[s].scale * poses[s].center[n]) for n, R in poses[s].R.items()}
+                for s in scenes}
+    init_scene = {s: (seq.alignment[s].R, seq.alignment[s].t) for s in scenes}
+    init_camera = {}  # medoid of the camera's registrations (the averages of step 1 trust the reference scene)
+    for n in seq.R:
+        cand = [(init_scene[s][0] @ m[n][0], init_scene[s][0] @ m[n][1] + init_scene[s][1])
+                for s, m in measured.items() if n in m]
+        init_camera[n] = min(cand, key=lambda p: sum(np.linalg.norm(p[1] - q[1]) for q in cand))
+    dropped: set[tuple[str, str]] = set()
+    errors: dict[tuple[str, str], tuple[float, float]] = {}
+    for rnd in range(3):  # optimise, drop disagreeing registrations, optimise again without them
+        use = {s: {n: p for n, p in m.items() if (s, n) not in dropped} for s, m in measured.items()}
+        out = optimise_pose_graph(use, init_scene, init_camera, ref,
+                                  sigma_rotation_rad=np.radians(options.max_rotation_error_deg) / 3,
+                                  sigma_translation=thr / 3, robust_k=options.robust_k)
+        logger.info("pose graph: %d scenes, %d cameras, error %.4g -> %.4g in %d iterations", len(scenes),
+                    len(out.common_from_camera), out.error_before, out.error_after, out.iterations)
+        errors = {}
+        for s, m in measured.items():
+            Xr, Xt = out.common_from_scene[s]
+            for n, (R_wc, C) in m.items():
+                Yr, Yc = out.common_from_camera[n]
+                errors[(s, n)] = (float(np.linalg.norm(Xr @ C + Xt - Yc)), _angle_deg(Yr.T @ Xr @ R_wc))
+        bad = {k for k, (d, ang) in errors.items() if d >= thr or ang >= options.max_rotation_error_deg}
+        for n in {n for _, n in bad}:  # a camera keeps at least its best registration
+            own = [k for k in errors if k[1] == n]
+            if all(k in bad for k in own):
+                bad.discard(min(own, key=lambda k: errors[k][0] / thr + errors[k][1] / options.max_rotation_error_deg))
+        if bad == dropped or rnd == 2:
+            break
+        dropped = bad
+        init_scene, init_camera = out.common_from_scene, out.common_from_camera
+    kept = {s: sorted(n for n in measured[s] if (s, n) not in dropped) for s in scenes}
+    alignment = {}
+    for s in scenes:
+        others = {n for o in scenes if o != s for n in kept[o]}
+        inl = kept[s] if s == ref else [n for n in kept[s] if n in others]
+        res = [errors[(s, n)][0] for n in inl]
+        Xr, Xt = out.common_from_scene[s]
+        alignment[s] = Alignment(scale=seq.alignment[s].scale, R=Xr, t=Xt, num_shared=seq.alignment[s].num_shared,
+                                 inliers=inl, rms_center=float(np.sqrt(np.mean(np.square(res)))) if res else 0.0)
+    names = sorted({n for k in kept.values() for n in k})
+    return AlignedPoses(reference=ref, alignment=alignment, R={n: out.common_from_camera[n][0].T for n in names},
+                        center={n: out.common_from_camera[n][1] for n in names}, kept=kept, unaligned=seq.unaligned,
+                        excluded={k: _disagreement(*errors[k], spread) for k in sorted(dropped)})
+
+
+def align_scenes(poses: Mapping[str, ScenePoses], options: MergeOptions | None = None) -> AlignedPoses:
+    """Steps 1-2: scenes into the common frame and one pose per camera (see the module docstring)."""
+    options = options or MergeOptions()
+    seq = _sequential(poses, options)
+    if options.pose_averaging == PoseAveraging.CHORDAL_MEAN:
+        return seq
+    return _pose_graph(poses, seq, options)
+
+
+@dataclass(kw_only=True)
 class MergeResult:
     problem: BAProblem
     cameras: dict[str, Camera]
@@ -159,44 +301,11 @@ def merge_scenes(models: list[SceneModel], prior: Mapping[str, Camera], options:
     poses = {m.scene: scene_poses(m) for m in models if m.reconstruction is not None}
     if not poses:
         raise ValueError("no scene reconstructed")
-    order = sorted(poses, key=lambda s: (-len(poses[s].R), s))
-    ref = order[0]
-    merged: dict[str, ScenePoses] = {ref: poses[ref]}
-    result_align = {ref: Alignment(scale=1.0, R=np.eye(3), t=np.zeros(3), num_shared=len(poses[ref].R),
-                                   inliers=sorted(poses[ref].R), rms_center=0.0)}
-    unaligned: dict[str, str] = {}
-    excluded: dict[tuple[str, str], str] = {}  # (scene, camera) -> reason
-    pending = order[1:]
-    while pending:  # align scenes in rounds, so a scene may link through one aligned before it
-        progressed = False
-        for scene in list(pending):
-            tgt_C = {n: C for p in merged.values() for n, C in p.center.items()}
-            tgt_R = {n: R for p in merged.values() for n, R in p.R.items()}
-            thr = options.inlier_threshold_rel * _spread(tgt_C)
-            a = robust_similarity(poses[scene].center, tgt_C, thr, poses[scene].R, tgt_R,
-                                  options.max_rotation_error_deg, options.min_shared_cameras)
-            if a is None:
-                continue
-            outliers = (set(poses[scene].R) & set(tgt_C)) - set(a.inliers)
-            for n in sorted(outliers):
-                C = a.scale * a.R @ poses[scene].center[n] + a.t
-                excluded[(scene, n)] = (f"pose disagrees with the other scenes by "
-                                        f"{np.linalg.norm(C - tgt_C[n]) / _spread(tgt_C):.1%} of the dome size")
-            kept = ScenePoses(scene=scene, R={n: R for n, R in poses[scene].R.items() if n not in outliers},
-                              center={n: C for n, C in poses[scene].center.items() if n not in outliers})
-            merged[scene] = transform_poses(kept, a)
-            result_align[scene] = a
-            pending.remove(scene)
-            progressed = True
-        if not progressed:
-            break
-    for scene in pending:
-        unaligned[scene] = f"shares fewer than {options.min_shared_cameras} consistent cameras with the other scenes"
-        logger.warning("%s: %s", scene, unaligned[scene])
-    # average poses over aligned scenes
-    names = sorted({n for p in merged.values() for n in p.R})
-    avg_R = {n: chordal_mean([p.R[n] for p in merged.values() if n in p.R]) for n in names}
-    avg_C = {n: np.mean([p.center[n] for p in merged.values() if n in p.center], axis=0) for n in names}
+    aligned = align_scenes(poses, options)
+    result_align, unaligned, excluded = aligned.alignment, aligned.unaligned, aligned.excluded
+    kept = {s: set(cams) for s, cams in aligned.kept.items()}  # scene -> cameras whose pose it contributes
+    names = sorted(aligned.R)
+    avg_R, avg_C = aligned.R, aligned.center
     # merged frame -> prior
     prior_C = {n: c.center_cm for n, c in prior.items() if align_to is None or n in align_to}
     prior_R = {n: c.R for n, c in prior.items() if align_to is None or n in align_to}
@@ -212,7 +321,7 @@ def merge_scenes(models: list[SceneModel], prior: Mapping[str, Camera], options:
         cam = replace(base, R=R, t_cm=-R @ C, K=base.K.copy(), dist=base.dist.copy())
         if options.use_colmap_intrinsics:
             Ks = [intrinsics_from_colmap(m.reconstruction.camera(m.reconstruction.find_image_with_name(
-                f"{n}.png").camera_id))[0] for m in models if m.scene in merged and n in merged[m.scene].R]
+                f"{n}.png").camera_id))[0] for m in models if n in kept.get(m.scene, ())]
             cam.K = np.median(np.stack(Ks), axis=0)
         cameras[n] = cam
     # points and observations
@@ -221,12 +330,12 @@ def merge_scenes(models: list[SceneModel], prior: Mapping[str, Camera], options:
     ci, pi, uv = [], [], []
     offset = 0
     for m in models:
-        if m.scene not in merged:
+        if m.scene not in kept:
             continue
         a = result_align[m.scene]
         rec = m.reconstruction
         image_cam = {im_id: cam_index[camera_of_image(rec.image(im_id).name)] for im_id in rec.reg_image_ids()
-                     if camera_of_image(rec.image(im_id).name) in merged[m.scene].R}
+                     if camera_of_image(rec.image(im_id).name) in kept[m.scene]}
         kept_xyz = []
         for pid in rec.point3D_ids():
             point = rec.point3D(pid)
