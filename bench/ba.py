@@ -30,6 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pycolmap
 
 ROOT = Path(__file__).resolve().parents[1]
 CALIBRATION = ROOT / "tests/data/panoptic/calibration_160906_band1.json"
@@ -199,14 +200,9 @@ def worker_colmap(data: dict) -> dict:
 
 # ----------------------------------------------------------------------------------------------- metrics
 def _similarity(src: np.ndarray, tgt: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Least-squares similarity tgt ~ s R src + t (Umeyama)."""
-    mu_s, mu_t = src.mean(0), tgt.mean(0)
-    a, b = src - mu_s, tgt - mu_t
-    U, D, Vt = np.linalg.svd(b.T @ a / len(src))
-    S = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = U @ S @ Vt
-    s = np.trace(np.diag(D) @ S) / (a ** 2).sum(1).mean()
-    return s, R, mu_t - s * R @ mu_s
+    """Least-squares similarity tgt ~ s R src + t (pycolmap's closed form)."""
+    sim = pycolmap.estimate_sim3d(np.asarray(src, dtype=float), np.asarray(tgt, dtype=float))
+    return float(sim.scale), np.asarray(sim.rotation.matrix()), np.asarray(sim.translation)
 
 
 def _image_grid_px(wh: np.ndarray) -> np.ndarray:

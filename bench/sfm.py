@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pycolmap
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -60,14 +61,9 @@ def tent_visible(capture: Path, gt) -> dict[str, set[str]]:
 
 
 def umeyama(src: np.ndarray, tgt: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Least-squares similarity tgt = s R src + t."""
-    ms, mt = src.mean(0), tgt.mean(0)
-    A, B = src - ms, tgt - mt
-    U, S, Vt = np.linalg.svd(B.T @ A / len(src))
-    D = np.diag([1, 1, np.sign(np.linalg.det(U @ Vt))])
-    R = U @ D @ Vt
-    s = np.trace(np.diag(S) @ D) / (A**2).sum(1).mean()
-    return s, R, mt - s * R @ ms
+    """Least-squares similarity tgt ~ s R src + t (pycolmap's closed form)."""
+    sim = pycolmap.estimate_sim3d(np.asarray(src, dtype=float), np.asarray(tgt, dtype=float))
+    return float(sim.scale), np.asarray(sim.rotation.matrix()), np.asarray(sim.translation)
 
 
 def compare_matchers(db: Path, pairs: list[tuple[str, str]], n: int = 6) -> None:
