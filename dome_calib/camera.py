@@ -68,8 +68,8 @@ def distort(xn: np.ndarray, dist: np.ndarray) -> np.ndarray:
     return np.stack([xd, yd], axis=-1)
 
 
-def _distort_jacobian(xn: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Distorted coordinates, their (..., 2, 2) Jacobian w.r.t. xn and (..., 2, 5) Jacobian w.r.t. dist."""
+def distort_with_jacobians(xn: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`distort` plus its Jacobians: returns distorted (..., 2), d/d xn (..., 2, 2) and d/d dist (..., 2, 5)."""
     k1, k2, p1, p2, k3 = (dist[..., i] for i in range(5))
     x, y = xn[..., 0], xn[..., 1]
     r2 = x * x + y * y
@@ -104,7 +104,7 @@ def undistort(xd: np.ndarray, dist: np.ndarray, *, max_iterations: int = 30, tol
     dist = np.broadcast_to(np.asarray(dist, dtype=float), (*xd.shape[:-1], 5))
     xn = xd.copy()
     for _ in range(max_iterations):
-        f, J, _ = _distort_jacobian(xn, dist)
+        f, J, _ = distort_with_jacobians(xn, dist)
         r = f - xd
         det = J[..., 0, 0] * J[..., 1, 1] - J[..., 0, 1] * J[..., 1, 0]
         step = np.stack([J[..., 1, 1] * r[..., 0] - J[..., 0, 1] * r[..., 1],
@@ -238,7 +238,7 @@ def project_with_jacobians(
     z = X_cam[:, 2]
     inv_z = np.where(z > MIN_DEPTH, 1.0 / np.where(z > MIN_DEPTH, z, 1.0), np.nan)
     xn = X_cam[:, :2] * inv_z[:, None]
-    xd, J_xn, J_dist_n = _distort_jacobian(xn, np.asarray(dist, dtype=float))
+    xd, J_xn, J_dist_n = distort_with_jacobians(xn, np.asarray(dist, dtype=float))
     intr = np.asarray(intr, dtype=float)
     fxy = intr[:, 0:2]
     uv = xd * fxy + intr[:, 2:4]

@@ -11,7 +11,7 @@ import numpy as np
 from scipy.ndimage import map_coordinates
 
 from dome_calib.bundle import Camera
-from dome_calib.camera import _distort_jacobian, pixels_to_normalized  # private: the analytic lens Jacobian
+from dome_calib.camera import distort_with_jacobians, pixels_to_normalized
 from dome_calib.errors import DomeCalibError
 
 #: Rays are processed in chunks this long: temporaries stay in cache (2.5x faster than 1 << 20).
@@ -20,7 +20,7 @@ CHUNK_RAYS = 1 << 14
 
 def _newton_undistort_step(xn: np.ndarray, xd: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """One Newton step on distort(xn) = xd (analytic 2x2 Jacobian, solved in closed form)."""
-    f, J, _ = _distort_jacobian(xn, dist)
+    f, J, _ = distort_with_jacobians(xn, dist)
     r = f - xd
     det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
     step_x = (J[:, 1, 1] * r[:, 0] - J[:, 0, 1] * r[:, 1]) / det
