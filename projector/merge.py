@@ -29,6 +29,7 @@ from enum import StrEnum
 import numpy as np
 import pycolmap
 
+from dome_calib.align import rotation_angle_deg
 from dome_calib.ba.problem import BAProblem
 from dome_calib.bundle import Camera
 from dome_calib.camera import colmap_to_opencv_px
@@ -119,9 +120,7 @@ def robust_similarity(src: Mapping[str, np.ndarray], tgt: Mapping[str, np.ndarra
     if src_R is not None and tgt_R is not None:
         for k, n in enumerate(names):
             # cam_from_tgt = cam_from_src @ Ra^T must match the target's rotation
-            dR = tgt_R[n] @ (src_R[n] @ Ra.T).T
-            angle = np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))
-            ok[k] &= angle < max_rotation_error_deg
+            ok[k] &= rotation_angle_deg(tgt_R[n], src_R[n] @ Ra.T) < max_rotation_error_deg
     if ok.sum() < max(min_shared, 3):
         return None
     ls = pycolmap.estimate_sim3d(A[ok], B[ok])
@@ -190,8 +189,8 @@ def _sequential(poses: Mapping[str, ScenePoses], options: MergeOptions) -> Align
             outliers = (set(poses[scene].R) & set(tgt_C)) - set(a.inliers)
             for n in sorted(outliers):
                 C = a.scale * a.R @ poses[scene].center[n] + a.t
-                dR = tgt_R[n] @ (poses[scene].R[n] @ a.R.T).T
-                excluded[(scene, n)] = _disagreement(float(np.linalg.norm(C - tgt_C[n])), _angle_deg(dR),
+                angle = float(rotation_angle_deg(tgt_R[n], poses[scene].R[n] @ a.R.T))
+                excluded[(scene, n)] = _disagreement(float(np.linalg.norm(C - tgt_C[n])), angle,
                                                      _spread(tgt_C))
             kept = ScenePoses(scene=scene, R={n: R for n, R in poses[scene].R.items() if n not in outliers},
                               center={n: C for n, C in poses[scene].center.items() if n not in outliers})
@@ -209,10 +208,6 @@ def _sequential(poses: Mapping[str, ScenePoses], options: MergeOptions) -> Align
     avg_C = {n: np.mean([p.center[n] for p in merged.values() if n in p.center], axis=0) for n in names}
     return AlignedPoses(reference=ref, alignment=result_align, R=avg_R, center=avg_C,
                         kept={s: sorted(p.R) for s, p in merged.items()}, unaligned=unaligned, excluded=excluded)
-
-
-def _angle_deg(dR: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1))))
 
 
 def _pose_graph(poses: Mapping[str, ScenePoses], seq: AlignedPoses, options: MergeOptions) -> AlignedPoses:
@@ -244,7 +239,7 @@ def _pose_graph(poses: Mapping[str, ScenePoses], seq: AlignedPoses, options: Mer
             Xr, Xt = out.common_from_scene[s]
             for n, (R_wc, C) in m.items():
                 Yr, Yc = out.common_from_camera[n]
-                errors[(s, n)] = (float(np.linalg.norm(Xr @ C + Xt - Yc)), _angle_deg(Yr.T @ Xr @ R_wc))
+                errors[(s, n)] = (float(np.linalg.norm(Xr @ C + Xt - Yc)), float(rotation_angle_deg(Xr @ R_wc, Yr)))
         bad = {k for k, (d, ang) in errors.items() if d >= thr or ang >= options.max_rotation_error_deg}
         for n in {n for _, n in bad}:  # a camera keeps at least its best registration
             own = [k for k in errors if k[1] == n]

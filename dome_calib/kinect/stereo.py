@@ -20,8 +20,9 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from dome_calib.align import rotation_angle_deg
 from dome_calib.camera import K_to_intr, intr_to_K, project_with_jacobians
-from dome_calib.rotation import d_rotate_d_rotvec, matrix_to_rotvec, rotvec_to_matrix
+from dome_calib.rotation import d_rotate_d_rotvec, rotvec_to_matrix
 
 
 @dataclass(kw_only=True)
@@ -260,5 +261,5 @@ def opencv_stereo_calibrate(obj_mm: np.ndarray, ir_px: np.ndarray, color_px: np.
 
 
 def rotation_error_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
-    """Angle (deg) of R_a @ R_b^T."""
-    return float(np.degrees(np.linalg.norm(matrix_to_rotvec(R_a @ R_b.T))))
+    """Angle (deg) of R_a @ R_b^T (a scalar :func:`dome_calib.align.rotation_angle_deg`)."""
+    return float(rotation_angle_deg(R_a, R_b))
