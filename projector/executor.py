@@ -15,6 +15,8 @@ import os
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Protocol, TypeVar, runtime_checkable
 
+from dome_calib.workers import single_threaded_children
+
 T = TypeVar("T")
 R = TypeVar("R")
 
@@ -62,7 +64,8 @@ class SerialExecutor:
 class LocalProcessExecutor:
     """A process pool on this machine (default: one worker per available core).
 
-    Workers are started with ``spawn`` so that no pycolmap/OpenMP thread state is inherited from the parent.
+    Workers are started with ``spawn`` so that no pycolmap/OpenMP thread state is inherited from the parent,
+    and with one BLAS / OpenMP thread each (:func:`dome_calib.workers.single_threaded_children`).
     Use as a context manager, or call :meth:`shutdown`.
     """
 
@@ -72,13 +75,14 @@ class LocalProcessExecutor:
         self._pool = cf.ProcessPoolExecutor(self.num_workers, mp_context=multiprocessing.get_context("spawn"))
 
     def submit(self, fn: Callable[..., R], /, *args: Any, **kwargs: Any) -> Future[R]:
-        return self._pool.submit(fn, *args, **kwargs)
+        with single_threaded_children():  # the pool starts its worker processes on demand, inside submit
+            return self._pool.submit(fn, *args, **kwargs)
 
     def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
         """Results in completion order, with a bounded number of tasks in flight (memory stays flat)."""
         pending: set[cf.Future[R]] = set()
         for item in items:
-            pending.add(self._pool.submit(fn, item))
+            pending.add(self.submit(fn, item))
             if len(pending) >= self._max_in_flight:
                 done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
                 for fut in done:

@@ -30,6 +30,7 @@ from dome_calib.io_utils import atomic_write_text
 from dome_calib.synth.layout import Preset, Projector, dome_from_calibration, nominal_dome, projectors
 from dome_calib.synth.render import RenderOptions, SceneState, camera_rays, prepare_scene, render_image
 from dome_calib.synth.tent import TENT_CONES, TENT_ELLIPSOIDS, scene_poses, tent_mesh
+from dome_calib.workers import single_threaded_children
 
 logger = logging.getLogger(__name__)
 
@@ -166,8 +167,9 @@ def synthesize(out: str | Path, options: SynthOptions,
                 _JOB.update(job)
                 results = map(_render_camera, order)
             else:
-                pool = multiprocessing.get_context("spawn").Pool(options.workers, initializer=_worker_init,
-                                                                 initargs=(job,))
+                with single_threaded_children():
+                    pool = multiprocessing.get_context("spawn").Pool(options.workers, initializer=_worker_init,
+                                                                     initargs=(job,))
                 results = pool.imap_unordered(_render_camera, order)
             for name, n, seconds in results:
                 done += n
