@@ -36,6 +36,14 @@ class MappingOptions:
     refine_focal_length: bool = False
     refine_principal_point: bool = False
     refine_extra_params: bool = False
+    # GLOMAP's stages after global positioning, trimmed: the scene model only starts our multi-scene bundle
+    # adjustment, which does the fine work. Measured on one full-dome scene (521 cameras, 7,500 pairs): GLOMAP's
+    # defaults (3 bundle-adjustment rounds with a fixed-rotation stage, then retriangulation) took 154 s;
+    # one joint round without retriangulation 77 s, with the same camera centres (0.95 against 0.89 cm median
+    # after a similarity to the truth, both before our bundle adjustment).
+    ba_rounds: int = 1
+    skip_fixed_rotation_stage: bool = True
+    skip_retriangulation: bool = True
     min_num_matches: int = 15
     min_model_size: int = 3
     min_points_per_image: int = 30  # a registered image seeing fewer 3D points is reported, not used
@@ -66,6 +74,9 @@ def _global_options(options: MappingOptions) -> pycolmap.GlobalPipelineOptions:
     o.random_seed = options.random_seed
     o.mapper.num_threads = options.num_threads
     o.mapper.random_seed = options.random_seed
+    o.mapper.ba_num_iterations = options.ba_rounds
+    o.mapper.ba_skip_fixed_rotation_stage = options.skip_fixed_rotation_stage
+    o.mapper.skip_retriangulation = options.skip_retriangulation
     ba = o.mapper.bundle_adjustment
     ba.refine_focal_length = options.refine_focal_length
     ba.refine_principal_point = options.refine_principal_point
