@@ -38,7 +38,8 @@ logger = logging.getLogger(__name__)
 STATE_FILE = "state.json"
 STAGE_LABELS = {"sfm": "features, pairs, matching, per-scene mapping, merging scenes",
                 "ba": "bundle adjustment (5 distortion parameters, outlier rejection)",
-                "detect": "which cameras changed since the prior", "quick_ba": "re-estimating the changed cameras"}
+                "match": "features, pairs and matching of one scene",
+                "detect": "which cameras disagree with the prior", "quick_ba": "re-estimating the changed cameras"}
 STATE_VERSION = 1
 
 

@@ -1,16 +1,21 @@
 """Quick recalibration after a hardware change (`calibrate --prior OLD --only-changed`).
 
-1. ``sfm`` on the first ``quick_scenes`` scenes only (default 1): matched observations and a rough reconstruction.
-2. ``detect``: the reconstruction is put in the prior's frame (robust similarity, generous threshold); every
-   camera is then held at its PRIOR calibration and only the points are fitted (robust loss). A camera that
-   moved, turned or was replaced cannot explain its observations: its residual RMS stands out (a 1 deg turn is
-   ~13 px on a VGA camera, a 2 cm shift ~4 px at the tent, a 4 % focal change ~10 px at the image edge, against
-   ~0.2 px of feature noise). Two rounds: the second refits the points without the cameras flagged in the first,
-   so a whole disturbed panel cannot drag the points with it. Cameras the prior does not know are changed too.
-3. ``quick_ba``: bundle adjustment with only the changed cameras' poses free (and the points); then with all
-   their parameters free: cameras whose residual RMS the new intrinsics lower by more than 4 % are replaced
-   cameras and keep them, the others only moved and are re-posed with the prior's lens. Every other camera stays
-   bit-identical to the prior, which also fixes the gauge and the world frame.
+The prior is right for most cameras, so one scene is enough and no mapping is needed:
+
+1. ``match``: features, prior-based pairs (fewer per camera than a full run) and verified matches of the first
+   scene (:func:`projector.sfm.match_scene`).
+2. ``detect``: every verified pair is tested against the PRIOR's relative pose and lenses (Sampson distance,
+   :mod:`projector.consistency`); cameras most of whose pairs disagree are suspects (greedy, worst first, so
+   an unchanged camera beside a disturbed panel is cleared once the panel is flagged). Cameras the prior does
+   not know are suspects too. The suspects are then matched with more unchanged partners.
+3. ``quick_ba``: the tent is triangulated from the unchanged partners of the suspects at their prior
+   calibration (:func:`projector.known_poses.triangulate_known`); each suspect is registered against those
+   points (absolute pose); bundle adjustment with only the suspects' poses free (and the points), then with
+   all their parameters free: a camera whose residual RMS the new intrinsics lower by more than noise fitting
+   would (RELENS_RMS_RATIO) was replaced and keeps them; the others keep the prior's lens. A suspect is
+   confirmed as changed when its new calibration explains its observations clearly better than the prior
+   (CONFIRM_RMS_RATIO); the others keep the prior bit for bit, as does every camera that was not a suspect,
+   which also fixes the gauge and the world frame.
 """
 from __future__ import annotations
 
@@ -19,28 +24,33 @@ import logging
 from pathlib import Path
 
 import numpy as np
+import pycolmap
 
-from dome_calib.align import AlignOptions, align_cameras, sim3_apply, transform_cameras
+from dome_calib.align import Alignment
 from dome_calib.ba.problem import ParamGroup, camera_to_params
-from dome_calib.ba.solver import bundle_adjust
 from dome_calib.bundle import Bundle
 from dome_calib.compare import CameraChange, camera_error
 from dome_calib.normalize import Normalized, WorldReference
-from dome_calib.pipeline_stages import SfmOutcome, ba_options, observation_residuals, run_ba_stage, run_sfm_stage
+from dome_calib.pipeline_stages import SfmOutcome, ba_options, observation_residuals, quiet_colmap, run_ba_stage
+from dome_calib.report import Residuals
 
 QUICK_BA = dataclasses.replace(ba_options(), compute_uncertainty=False)  # few free cameras: not needed
 
 logger = logging.getLogger(__name__)
 
 QUICK_SCENES = 1
-ALIGN_MAX_ERROR_CM = 3.0  # the reconstruction before bundle adjustment is good to ~1 cm
-RMS_FACTOR = 5.0  # changed: per-camera RMS under the prior above this many times the median ...
-RMS_FLOOR_PX = 1.0  # ... and above this
-#: A changed camera gets new intrinsics if freeing them lowers its RMS by more than this factor. Fitting 9 more
+#: Pairs per camera in the first matching round (enough to judge every camera against the prior) ...
+DETECT_PAIRS_PER_CAMERA = 12
+#: ... and partners among the unchanged cameras matched to each suspect afterwards (its registration).
+SUSPECT_PAIRS_PER_CAMERA = 25
+#: A camera gets new intrinsics if freeing them lowers its RMS by more than this factor. Fitting 9 more
 #: parameters to pure noise over N observations lowers it by sqrt((2N - 6) / (2N - 15)) (< 1.005 for N >= 900).
 #: Set from one case (panel bench): a camera with a 4 % shorter focal, re-posed with its old lens, fits only 7 %
 #: worse (the pose moves 9 cm along the axis instead); cameras that only moved: at most 1.5 %.
 RELENS_RMS_RATIO = 1.04
+#: A suspect changed if its observations fit the prior this many times worse than its new calibration (an
+#: unchanged camera: ~1; a 1 deg turn: ~10 px against a few tenths).
+CONFIRM_RMS_RATIO = 1.5
 
 
 def _robust_camera_rms(problem, used: np.ndarray) -> np.ndarray:
@@ -56,35 +66,132 @@ def _robust_camera_rms(problem, used: np.ndarray) -> np.ndarray:
     return out
 
 
-def detect_changed(sfm: SfmOutcome, prior: Bundle) -> dict:
-    """Cameras inconsistent with the prior (see the module docstring) -> RMS px under the prior, plus the
-    similarity that put the reconstruction in the prior's frame."""
-    problem = sfm.problem
-    sfm_cams = {n: problem.camera(n) for n in problem.camera_names}
-    alignment = align_cameras(sfm_cams, prior.cameras, AlignOptions(max_error_cm=ALIGN_MAX_ERROR_CM))
-    held = problem.copy()
-    for i, n in enumerate(held.camera_names):
+def _options(progress: bool, pairs_per_camera: int):
+    from projector.sfm import SfmOptions
+
+    options = SfmOptions(show_progress=progress)
+    options.pairs.max_pairs_per_camera = pairs_per_camera
+    for sub in (options.features, options.matching):
+        sub.show_progress = progress
+    return options
+
+
+def match_first_scene(capture: Path, work: Path, scene: str, prior: Bundle, progress: bool) -> dict:
+    """Stage ``match``: features, pairs and verified matches of one scene, in ``work/<scene>/database.db``."""
+    from projector.executor import make_executor
+    from projector.sfm import match_scene
+
+    quiet_colmap()
+    executor = make_executor()
+    try:
+        feats, pairs, matches = match_scene(capture, work, scene, dict(prior.cameras),
+                                            _options(progress, DETECT_PAIRS_PER_CAMERA), executor)
+    finally:
+        if hasattr(executor, "shutdown"):
+            executor.shutdown()
+    return {"scene": scene, "database": str(work / scene / "database.db"), "image_dir": str(capture / "scenes" / scene),
+            "cameras": sorted(feats.num_features), "failures": dict(feats.failures), "pairs": len(pairs),
+            "verified_pairs": matches.num_verified_pairs, "inlier_matches": matches.num_inlier_matches,
+            "seconds": {"features": feats.seconds, "matching": matches.seconds}}
+
+
+def detect_suspects(matched: dict, prior: Bundle, progress: bool) -> dict:
+    """Stage ``detect``: cameras inconsistent with the prior (module docstring), then their extra pairs."""
+    from projector.consistency import changed_cameras, pair_errors
+    from projector.executor import make_executor
+    from projector.matching import match_pairs
+    from projector.pairs import PairOptions, pairs_from_prior
+
+    errors = pair_errors(matched["database"], prior.cameras)
+    verdict = changed_cameras(errors)
+    cameras = matched["cameras"]
+    unknown = [n for n in cameras if n not in prior.cameras]
+    suspects = sorted(set(verdict.changed) | set(verdict.unchecked) | set(unknown))
+    logger.info("quick recalibration: %d suspect camera(s) (bad pair above %.2f px)", len(suspects),
+                verdict.bad_pair_px)
+    known = [n for n in cameras if n in prior.cameras]
+    s = set(suspects)
+    extra = [p for p in pairs_from_prior(prior.cameras, known, PairOptions(max_pairs_per_camera=SUSPECT_PAIRS_PER_CAMERA))
+             if (p[0] in s) != (p[1] in s)]
+    if extra:
+        executor = make_executor()
+        try:
+            match_pairs(matched["database"], extra, options=_options(progress, 0).matching, executor=executor,
+                        scene=matched["scene"])
+        finally:
+            if hasattr(executor, "shutdown"):
+                executor.shutdown()
+    pair_err = {n: [e for (a, b), e in errors.items() if n in (a, b)] for n in suspects}
+    return {"suspects": suspects, "unknown": unknown, "bad_pair_px": verdict.bad_pair_px,
+            "flagged": {n: list(v) for n, v in verdict.changed.items()}, "unchecked": verdict.unchecked,
+            "median_pair_error_px": {n: float(np.median(v)) if v else float("nan") for n, v in pair_err.items()},
+            "extra_pairs": len(extra)}
+
+
+def reestimate(matched: dict, det: dict, prior: Bundle, work: Path, progress: bool) -> dict:
+    """Stage ``quick_ba``: triangulate with the unchanged cameras, register and refine the suspects."""
+    from projector.database import camera_of_image
+    from projector.features import nominal_camera
+    from projector.known_poses import problem_from_known, register_cameras, triangulate_known
+
+    suspects = det["suspects"]
+    if not suspects:
+        return {"ba": None, "changed": [], "relensed": [], "failed": {}, "rms_prior_px": {}, "rms_new_px": {}}
+    s = set(suspects)
+    with pycolmap.Database.open(matched["database"]) as db:
+        names = {im.image_id: camera_of_image(im.name) for im in db.read_all_images()}
+        sizes = {camera_of_image(im.name): db.read_camera(im.camera_id) for im in db.read_all_images()}
+        pair_ids, counts = db.read_two_view_geometry_num_inliers()
+    partners = set()
+    for pid, n in zip(pair_ids, counts):
+        a, b = (names[i] for i in pycolmap.pair_id_to_image_pair(pid))
+        if n > 0 and (a in s) != (b in s):
+            partners.add(b if a in s else a)
+    cameras = dict(prior.cameras)
+    for n in det["unknown"]:
+        cameras[n] = nominal_camera(n, (sizes[n].width, sizes[n].height))
+    rec = triangulate_known(matched["database"], matched["image_dir"], work / "known_points", cameras, partners)
+    regs, failed = register_cameras(matched["database"], rec, cameras, suspects)
+    for n, why in failed.items():
+        logger.warning("quick recalibration: %s could not be re-estimated: %s", n, why)
+    if not regs:
+        return {"ba": None, "changed": [], "relensed": [], "failed": failed, "rms_prior_px": {}, "rms_new_px": {}}
+    problem = problem_from_known(rec, cameras, regs, matched["scene"])
+    free = sorted(regs)
+    # the suspects' observations under the prior, against points the unchanged cameras triangulated
+    under_prior = problem.copy()
+    for n in free:
         if n in prior.cameras:
-            held.camera_params[i] = camera_to_params(prior.cameras[n])
-    held.points_cm = sim3_apply(alignment.tgt_from_src, problem.points_cm)
-    held.fix(ParamGroup.ALL)
-    new = [n for n in held.camera_names if n not in prior.cameras]
-    flagged: set[str] = set(new)
-    rms = np.full(held.n_cameras, np.nan)
-    for _ in range(2):
-        keep = ~np.isin(held.camera_index, [held.camera_position(n) for n in sorted(flagged)])
-        fit = held.copy()
-        fit.camera_index, fit.point_index, fit.uv_px = held.camera_index[keep], held.point_index[keep], held.uv_px[keep]
-        fit.validate()
-        result = bundle_adjust(fit, dataclasses.replace(QUICK_BA, outlier_rounds=1))
-        held.points_cm = result.problem.points_cm
-        rms = _robust_camera_rms(held, np.ones(held.n_observations, bool))
-        ok = np.isfinite(rms)
-        limit = max(RMS_FLOOR_PX, RMS_FACTOR * float(np.median(rms[ok]))) if ok.any() else RMS_FLOOR_PX
-        flagged = set(new) | {n for n, r in zip(held.camera_names, rms) if np.isfinite(r) and r > limit}
-    logger.info("quick recalibration: %d camera(s) inconsistent with the prior (limit %.2f px)", len(flagged), limit)
-    return {"changed": sorted(flagged), "rms_under_prior_px": {n: float(r) for n, r in zip(held.camera_names, rms)},
-            "limit_px": limit, "alignment": alignment, "held_points_cm": held.points_cm}
+            under_prior.camera_params[under_prior.camera_position(n)] = camera_to_params(prior.cameras[n])
+    rms_prior = _robust_camera_rms(under_prior, np.ones(problem.n_observations, bool))
+    problem.fix(ParamGroup.ALL)
+    problem.unfix(ParamGroup.POSE, cameras=free)
+    posed = run_ba_stage(problem, progress=progress, options=QUICK_BA)
+    trial = posed.problem.copy()
+    trial.unfix(ParamGroup.ALL, cameras=free)
+    free_all = run_ba_stage(trial, progress=progress, options=QUICK_BA)
+    rms_posed = _robust_camera_rms(posed.problem, posed.inlier)
+    rms_free = _robust_camera_rms(free_all.problem, free_all.inlier)
+    pos = {n: problem.camera_position(n) for n in free}
+    relensed = [n for n in free if n not in prior.cameras or rms_posed[pos[n]] > RELENS_RMS_RATIO * rms_free[pos[n]]]
+    if not relensed:
+        ba = posed
+    elif len(relensed) == len(free):
+        ba = free_all
+    else:
+        final = posed.problem.copy()
+        final.unfix(ParamGroup.ALL, cameras=relensed)
+        ba = run_ba_stage(final, progress=progress, options=QUICK_BA)
+    rms_new = _robust_camera_rms(ba.problem, ba.inlier)
+    changed = [n for n in free if n not in prior.cameras
+               or not rms_prior[pos[n]] <= CONFIRM_RMS_RATIO * rms_new[pos[n]]]
+    cleared = sorted(set(free) - set(changed))
+    if cleared:
+        logger.info("quick recalibration: %s consistent with the prior after all (kept)", ", ".join(cleared))
+    return {"ba": ba, "changed": changed, "relensed": [n for n in relensed if n in changed], "failed": failed,
+            "rms_prior_px": {n: float(rms_prior[pos[n]]) for n in free},
+            "rms_new_px": {n: float(rms_new[pos[n]]) for n in free},
+            "points": problem.n_points, "observations": problem.n_observations, "held_cameras": len(partners)}
 
 
 def run_quick(*, capture: Path, out: Path, seq: str, scenes: list[str], expected: list[str], prior: Bundle,
@@ -92,63 +199,44 @@ def run_quick(*, capture: Path, out: Path, seq: str, scenes: list[str], expected
     """The --only-changed run (called by :func:`dome_calib.pipeline.run_calibration`)."""
     from dome_calib.pipeline import finish
 
-    work = Path(options.work_dir) if options.work_dir else out.with_name(out.name + ".work")
-    sfm = stage("sfm", lambda: run_sfm_stage(capture, work / "sfm", prior=prior, progress=options.progress,
-                                             scenes=scenes[:QUICK_SCENES]))
-    det = stage("detect", lambda: detect_changed(sfm, prior))
-    changed = det["changed"]
-
-    def quick_ba():
-        problem = sfm.problem.copy()
-        sfm_in_prior = transform_cameras({n: problem.camera(n) for n in changed}, det["alignment"].tgt_from_src)
-        for i, n in enumerate(problem.camera_names):
-            cam = sfm_in_prior[n] if n in changed or n not in prior.cameras else prior.cameras[n]
-            problem.camera_params[i] = camera_to_params(cam)
-        problem.points_cm = det["held_points_cm"]
-        problem.fix(ParamGroup.ALL)
-        if not changed:
-            return run_ba_stage(problem, progress=options.progress, options=QUICK_BA), []
-        # A moved camera keeps its lens: re-pose first. Then everything of the changed cameras free; a camera whose
-        # residual RMS the new intrinsics lower by more than noise fitting would (RELENS_RMS_RATIO) was replaced and
-        # keeps them; the others keep the prior's lens (pose alone is the better-determined estimate).
-        problem.unfix(ParamGroup.POSE, cameras=changed)
-        posed = run_ba_stage(problem, progress=options.progress, options=QUICK_BA)
-        trial = posed.problem.copy()
-        trial.unfix(ParamGroup.ALL, cameras=changed)
-        free_all = run_ba_stage(trial, progress=options.progress, options=QUICK_BA)
-        rms_posed = _robust_camera_rms(posed.problem, posed.inlier)
-        rms_free = _robust_camera_rms(free_all.problem, free_all.inlier)
-        relensed = [n for n in changed if n not in prior.cameras
-                    or rms_posed[problem.camera_position(n)] > RELENS_RMS_RATIO * rms_free[problem.camera_position(n)]]
-        if not relensed:
-            return posed, []
-        if len(relensed) == len(changed):
-            return free_all, relensed
-        final = posed.problem.copy()
-        final.unfix(ParamGroup.ALL, cameras=relensed)
-        return run_ba_stage(final, progress=options.progress, options=QUICK_BA), relensed
-
-    ba, relensed = stage("quick_ba", quick_ba)
-    cameras = dict(prior.cameras)
+    work = (Path(options.work_dir) if options.work_dir else out.with_name(out.name + ".work")) / "quick"
+    scene = scenes[0]
+    matched = stage("match", lambda: match_first_scene(capture, work, scene, prior, options.progress))
+    det = stage("detect", lambda: detect_suspects(matched, prior, options.progress))
+    est = stage("quick_ba", lambda: reestimate(matched, det, prior, work, options.progress))
+    changed, ba = est["changed"], est["ba"]
+    failures = {n: f"no usable image in {scene}: {why}" for n, why in matched["failures"].items()}
+    failures.update({n: f"changed since the prior but not re-estimated: {why}" for n, why in est["failed"].items()})
+    cameras = {n: c for n, c in prior.cameras.items() if n not in est["failed"]}
     cameras.update({n: ba.cameras[n] for n in changed})
     changes = {}
     for n in changed:
         err = camera_error(ba.cameras[n], prior.cameras[n]) if n in prior.cameras else None
-        reasons = [f"residual {det['rms_under_prior_px'][n]:.1f} px under the prior calibration"]
         if err is None:
             reasons = ["new camera (not in the prior)"]
         else:
-            reasons.append(f"moved {err.center_cm:.1f} cm, rotated {err.rotation_deg:.2f} deg")
-            if n in relensed:
+            reasons = [f"residual {est['rms_prior_px'][n]:.1f} px under the prior calibration "
+                       f"({est['rms_new_px'][n]:.2f} px now)",
+                       f"moved {err.center_cm:.1f} cm, rotated {err.rotation_deg:.2f} deg"]
+            if n in est["relensed"]:
                 reasons.append(f"new intrinsics (focal {err.focal_pct:.1f} %, distortion {err.distortion_px:.1f} px):"
                                " replaced?")
         changes[n] = CameraChange(name=n, moved_cm=err.center_cm if err else float("nan"),
                                   rotated_deg=err.rotation_deg if err else float("nan"),
                                   focal_pct=err.focal_pct if err else float("nan"),
                                   distortion_px=err.distortion_px if err else float("nan"), reasons=reasons)
-    normalized = Normalized(cameras=cameras, reference=WorldReference.PRIOR, alignment=det["alignment"],
+    held = sorted(n for n in matched["cameras"] if n in prior.cameras and n not in changed and n not in est["failed"])
+    identity = Alignment(tgt_from_src=pycolmap.Sim3d(), names=held, inliers=held, residual_cm=dict.fromkeys(held, 0.0))
+    normalized = Normalized(cameras=cameras, reference=WorldReference.PRIOR, alignment=identity,
                             reference_source=f"{options.prior} (unchanged cameras held)")
-    return finish(out=out, seq=seq, expected=expected, failures=sfm.failures, normalized=normalized,
-                  residuals=ba.residuals, prior=prior, options=options, seconds=seconds, resumed=resumed,
-                  sfm=sfm, ba=ba, changes=changes, ba_scale=1.0,
+    stats = {"scene": scene, "pairs": matched["pairs"], "verified_pairs": matched["verified_pairs"],
+             "inlier_matches": matched["inlier_matches"], "suspects": det["suspects"],
+             "bad_pair_px": det["bad_pair_px"], "extra_pairs": det["extra_pairs"],
+             "points": est.get("points", 0), "observations": est.get("observations", 0),
+             "held_cameras": est.get("held_cameras", 0), "seconds": matched["seconds"]}
+    residuals = ba.residuals if ba is not None else Residuals(camera_names=[], camera_index=np.zeros(0, np.int64),
+                                                                residual_px=np.zeros((0, 2)))
+    return finish(out=out, seq=seq, expected=expected, failures=failures, normalized=normalized,
+                  residuals=residuals, prior=prior, options=options, seconds=seconds, resumed=resumed,
+                  sfm=SfmOutcome(problem=None, failures=failures, stats=stats), ba=ba, changes=changes, ba_scale=1.0,
                   source=f"dome-calib calibrate --only-changed {capture.name} ({len(changed)} cameras re-estimated)")

@@ -66,17 +66,22 @@ def residuals_of(problem: BAProblem, inlier: np.ndarray | None = None) -> Residu
                      residual_px=res[keep])
 
 
+def quiet_colmap() -> None:
+    """COLMAP's INFO lines drown the progress display: keep warnings and errors (unless debugging)."""
+    import pycolmap
+
+    if not logger.isEnabledFor(logging.DEBUG):
+        pycolmap.logging.minloglevel = max(int(pycolmap.logging.minloglevel), 1)
+        os.environ.setdefault("GLOG_minloglevel", "1")  # worker processes of the feature/matching executor
+
+
 def run_sfm_stage(capture: Path, work_dir: Path, *, prior: Bundle | None, progress: bool = True,
                   scenes: list[str] | None = None) -> SfmOutcome:
     """Features, pairs, matching, per-scene mapping and merging (:func:`projector.sfm.run_sfm`), seeded by the
     prior bundle or, without one, the nominal dome layout. Raises CaptureError if no scene reconstructs."""
-    import pycolmap
-
     from projector.sfm import SfmOptions, report_dict, run_sfm
 
-    if not logger.isEnabledFor(logging.DEBUG):  # COLMAP's INFO lines drown the progress display
-        pycolmap.logging.minloglevel = max(int(pycolmap.logging.minloglevel), 1)
-        os.environ.setdefault("GLOG_minloglevel", "1")  # worker processes of the feature/matching executor
+    quiet_colmap()
     result = run_sfm(capture, work_dir, SfmOptions(scenes=scenes, show_progress=progress), prior=prior)
     if result.problem is None:
         why = "; ".join(f"{f.scene or 'capture'}: {f.reason}" for f in result.failures if not f.camera)

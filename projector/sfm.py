@@ -118,11 +118,11 @@ def write_pairs(path: Path, pairs: list[Pair]) -> None:
     atomic_write_text(path, "".join(f"{a}.png {b}.png\n" for a, b in pairs))
 
 
-def run_scene(
+def match_scene(
     capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera], options: SfmOptions,
     executor: Executor,
-) -> SceneStats:
-    """Features, pairs, matching and mapping of one scene."""
+) -> tuple[FeatureReport, list[Pair], MatchReport]:
+    """Features, pairs and matching of one scene into ``work_dir/<scene>/database.db`` (resumable)."""
     image_dir = capture_dir / "scenes" / scene
     db_path = work_dir / scene / "database.db"
     feats = extract_features(image_dir, db_path, prior=prior, options=options.features, executor=executor, scene=scene)
@@ -136,7 +136,17 @@ def run_scene(
             pairs = sorted(set(pairs) | set(extra))
             write_pairs(work_dir / scene / "pairs.txt", pairs)
             matches = match_pairs(db_path, pairs, options=options.matching, executor=executor, scene=scene)
-    model = map_scene(db_path, image_dir, work_dir / scene / "sparse", options=options.mapping, scene=scene)
+    return feats, pairs, matches
+
+
+def run_scene(
+    capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera], options: SfmOptions,
+    executor: Executor,
+) -> SceneStats:
+    """Features, pairs, matching and mapping of one scene."""
+    feats, pairs, matches = match_scene(capture_dir, work_dir, scene, prior, options, executor)
+    model = map_scene(work_dir / scene / "database.db", capture_dir / "scenes" / scene, work_dir / scene / "sparse",
+                      options=options.mapping, scene=scene)
     return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model)
 
 

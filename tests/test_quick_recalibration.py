@@ -1,0 +1,143 @@
+"""Quick recalibration (`calibrate --prior --only-changed`) on a synthetic scene database: keypoints are exact
+projections (plus noise) of tent-like points into the CURRENT cameras, matches and verified two-view geometries
+are written as matching would write them, and the prior is the calibration before two cameras were disturbed.
+Checks the epipolar screening, the triangulation with known poses, the registration and the refinement against
+the current truth, and that every other camera stays bit-identical to the prior."""
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+
+import numpy as np
+import pycolmap
+import pytest
+from scipy.spatial.transform import Rotation
+
+from dome_calib.bundle import Bundle, write_bundle
+from dome_calib.camera import intr_to_K, opencv_to_colmap_px, project
+from dome_calib.compare import camera_error
+from dome_calib.synth.layout import nominal_dome
+from projector.consistency import changed_cameras, pair_errors
+from projector.database import add_image, image_name, write_features
+
+NOISE_PX = 0.2
+MOVED, RELENSED = "01_03", "01_05"
+
+
+def _disturbed(prior: Bundle) -> Bundle:
+    """The dome now: MOVED shifted 3 cm and turned 1.1 deg, RELENSED with a 4 % shorter focal length."""
+    now = dict(prior.cameras)
+    c = now[MOVED]
+    R = Rotation.from_rotvec([0.0, 0.02, 0.0]).as_matrix() @ c.R
+    now[MOVED] = dataclasses.replace(c, R=R, t_cm=-R @ (c.center_cm + [3.0, 0.0, 0.0]))
+    c = now[RELENSED]
+    now[RELENSED] = dataclasses.replace(c, K=intr_to_K(c.intr * [0.96, 0.96, 1, 1]))
+    return Bundle(seq="now", cameras=now)
+
+
+def write_scene_database(path, current: Bundle, prior: Bundle, seed: int = 0, n_points: int = 3000) -> list[str]:
+    """A scene database as features + matching would leave it (database cameras from the prior)."""
+    rng = np.random.default_rng(seed)
+    X = rng.uniform([-70, -190, -70], [70, -10, 70], size=(n_points, 3))
+    names = sorted(current.cameras)
+    s = current.stacked(names)
+    proj = project(X, s["R"], s["t_cm"], s["intr"], s["dist"])
+    seen = proj.in_image(s["resolution"]) & proj.in_lens
+    keypoint_of = np.full(seen.shape, -1)
+    with pycolmap.Database.open(str(path)) as db:
+        ids = {}
+        for c, n in enumerate(names):
+            visible = np.nonzero(seen[c])[0]
+            keypoint_of[c, visible] = np.arange(len(visible))
+            uv = opencv_to_colmap_px(proj.uv_px[c, visible] + rng.normal(0, NOISE_PX, (len(visible), 2)))
+            kp = np.column_stack([uv, np.ones(len(uv)), np.zeros(len(uv))])
+            ids[n] = add_image(db, image_name(n), prior.cameras[n])
+            write_features(db, ids[n], kp, rng.integers(0, 255, (len(uv), 128), dtype=np.uint8))
+        for (a, na), (b, nb) in itertools.combinations(enumerate(names), 2):
+            both = np.nonzero(seen[a] & seen[b])[0]
+            if len(both) < 30:
+                continue
+            m = np.column_stack([keypoint_of[a, both], keypoint_of[b, both]]).astype(np.uint32)
+            db.write_matches(ids[na], ids[nb], m)
+            tvg = pycolmap.TwoViewGeometry()
+            tvg.config = pycolmap.TwoViewGeometryConfiguration.CALIBRATED
+            tvg.inlier_matches = m
+            db.write_two_view_geometry(ids[na], ids[nb], tvg)
+    return names
+
+
+@pytest.fixture
+def scene(tmp_path):
+    prior = nominal_dome("tiny", seed=0)
+    current = _disturbed(prior)
+    db = tmp_path / "scene_01" / "database.db"
+    db.parent.mkdir()
+    names = write_scene_database(db, current, prior)
+    return prior, current, db, names
+
+
+def test_epipolar_screening_flags_exactly_the_disturbed_cameras(scene):
+    prior, current, db, _ = scene
+    same = changed_cameras(pair_errors(db, current.cameras))
+    assert same.changed == {}  # the truth explains every pair: nothing flagged
+    errors = pair_errors(db, prior.cameras)
+    verdict = changed_cameras(errors)
+    assert sorted(verdict.changed) == [MOVED, RELENSED]
+    good = [e for (a, b), e in errors.items() if MOVED not in (a, b) and RELENSED not in (a, b)]
+    assert max(good) < 0.5  # px: feature noise only
+    assert np.median([e for (a, b), e in errors.items() if MOVED in (a, b)]) > 2.0  # px: a 1.1 deg turn
+
+
+def test_greedy_verdict_clears_neighbours_of_a_disturbed_group():
+    """A camera whose partners are mostly disturbed has mostly bad pairs, yet is not flagged once they are."""
+    err = {("a", "b"): 9.0, ("a", "c"): 9.0, ("b", "c"): 9.0, ("a", "x"): 9.0, ("b", "x"): 9.0, ("c", "x"): 9.0,
+           ("x", "y"): 0.1, ("y", "z"): 0.1, ("x", "z"): 0.1}
+    verdict = changed_cameras(err, bad_px=1.0)
+    assert sorted(verdict.changed) == ["a", "b", "c"]  # x had 3 of 5 pairs bad
+
+
+def test_quick_recalibration_reestimates_only_the_changed(tmp_path, scene, monkeypatch):
+    import dome_calib.pipeline as pipeline
+    import dome_calib.pipeline_quick as quick
+    from dome_calib.bundle import load_bundle
+
+    prior, current, db, names = scene
+    cap = tmp_path / "capture"
+    (cap / "scenes" / "scene_01").mkdir(parents=True)
+    (cap / "capture.json").write_text(json.dumps({"scenes": ["scene_01"], "cameras": names}))
+    matched = {"scene": "scene_01", "database": str(db), "image_dir": str(cap / "scenes" / "scene_01"),
+               "cameras": names, "failures": {}, "pairs": 0, "verified_pairs": 0, "inlier_matches": 0,
+               "seconds": {}}
+    monkeypatch.setattr(quick, "match_first_scene", lambda *a, **k: matched)
+    prior_dir = write_bundle(prior, tmp_path / "prior")
+    out = tmp_path / "quick"
+    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(prior=prior_dir, only_changed=True,
+                                                                          progress=False))
+    assert sorted(result.changes) == [MOVED, RELENSED]
+    bundle = load_bundle(out)
+    for n in prior.cameras:
+        if n not in (MOVED, RELENSED):
+            np.testing.assert_array_equal(bundle.cameras[n].t_cm, prior.cameras[n].t_cm)
+            np.testing.assert_array_equal(bundle.cameras[n].K, prior.cameras[n].K)
+    for n in (MOVED, RELENSED):  # the prior's frame: no alignment needed
+        e = camera_error(bundle.cameras[n], current.cameras[n])
+        assert e.center_cm < 0.3 and e.rotation_deg < 0.05 and e.focal_pct < 0.5, (n, e)
+    assert "replaced?" in " ".join(result.changes[RELENSED].reasons)
+    assert "replaced?" not in " ".join(result.changes[MOVED].reasons)
+    np.testing.assert_array_equal(bundle.cameras[MOVED].K, prior.cameras[MOVED].K)  # a moved camera keeps its lens
+    assert f"{MOVED}: residual" in pipeline.format_result(result)
+
+
+def test_quick_recalibration_with_nothing_changed_keeps_the_prior(tmp_path):
+    import dome_calib.pipeline_quick as quick
+
+    prior = nominal_dome("tiny", seed=0)
+    db = tmp_path / "scene_01" / "database.db"
+    db.parent.mkdir()
+    names = write_scene_database(db, prior, prior, seed=3)
+    matched = {"scene": "scene_01", "database": str(db), "image_dir": str(tmp_path), "cameras": names}
+    det = quick.detect_suspects(matched, prior, progress=False)
+    assert det["suspects"] == []
+    est = quick.reestimate(matched, det, prior, tmp_path / "work", progress=False)
+    assert est["changed"] == [] and est["ba"] is None
