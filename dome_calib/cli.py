@@ -39,8 +39,10 @@ def calibrate(
     out: Path = typer.Option(..., "-o", "--out", help="Bundle folder to write (created).", show_default=False),
     prior: Path = typer.Option(None, "--prior", help="Previous calibration bundle of this dome: sets the world "
                                "frame, seeds the matching, and shows which cameras moved."),
-    only_changed: bool = typer.Option(False, "--only-changed", help="Quick recalibration: re-estimate only the "
-                                      "cameras that changed since --prior; the rest stay fixed."),
+    only_changed: bool = typer.Option(False, "--only-changed", help="Quick recalibration after a hardware "
+                                      "change: uses the first scene only, finds the cameras that no longer agree "
+                                      "with --prior and re-estimates just those; the rest stay exactly as in "
+                                      "--prior (about 1.5 min for the full dome)."),
     seq: str = typer.Option(None, "--seq", help="Sequence name for calibration_<seq>.json (default: the capture "
                             "folder's name)."),
     work: Path = typer.Option(None, "--work", help="Work folder for intermediate results; a rerun resumes from "

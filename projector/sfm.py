@@ -238,7 +238,9 @@ def report_dict(result: SfmResult) -> dict:
                        "features_mean": (sum(st.features.num_features.values()) / max(len(st.features.num_features), 1)),
                        "pairs": st.pairs, "verified_pairs": st.matches.num_verified_pairs,
                        "inlier_matches": st.matches.num_inlier_matches, "registered": len(st.model.registered),
-                       "points": st.model.reconstruction.num_points3D() if st.model.reconstruction else 0}
+                       "points": st.model.reconstruction.num_points3D() if st.model.reconstruction else 0,
+                       "seconds": {"features": round(st.features.seconds, 1), "matching": round(st.matches.seconds, 1),
+                                   "mapping": round(st.model.seconds, 1)}}
                    for s, st in result.scenes.items()},
         "scene_alignment_rms": {s: a.rms_center for s, a in result.scene_alignment.items()},
         "prior_alignment_rms_cm": result.prior_alignment.rms_center if result.prior_alignment else None,
