@@ -1,7 +1,8 @@
 """`dome-calib demo` (the README's first command, `make demo`): synthesise a small dome capture, calibrate it
 with the real pipeline, compare the result with the ground truth, and print what a technician would look at.
 
-Everything lands in one folder (default ``demo_out/``): ``capture/`` (images + ground truth), ``bundle/``
+Everything lands in one folder (default ``demo_out/``): ``as_built/`` (the synthetic dome's cameras),
+``capture/`` (images + ground truth), ``bundle/``
 (the calibration and its ``report/``), ``bundle.work/`` (resumable intermediate results). A rerun reuses the
 capture if it was made with the same preset, scenes and seed.
 """
@@ -45,18 +46,25 @@ class DemoResult:
 
 
 def synthesize(capture: Path, preset: str, scenes: int, seed: int, progress: bool = True) -> float:
-    """Write the synthetic capture unless the same one is already there; returns the seconds spent."""
+    """Write the synthetic capture of the dome AS BUILT (:func:`dome_calib.synth.layout.as_built_dome`: not the
+    design that calibrate starts from) unless the same one is already there; returns the seconds spent."""
+    from dome_calib.bundle import write_bundle
+    from dome_calib.synth.layout import as_built_dome
+
+    layout = capture.parent / "as_built" / "calibration_as_built.json"
     meta = capture / "capture.json"
-    if meta.exists():
+    if meta.exists() and layout.exists():
         old = json.loads(meta.read_text(encoding="utf-8"))
-        if old.get("preset") == preset and old.get("seed") == seed and len(old.get("scenes", [])) == scenes:
+        if (old.get("preset") == preset and old.get("seed") == seed and len(old.get("scenes", [])) == scenes
+                and old.get("layout") == str(layout)):
             logger.info("reusing the synthetic capture in %s", capture)
             return 0.0
     from dome_calib.synth.capture import SynthOptions, synthesize as write_capture
 
     t0 = time.perf_counter()
+    write_bundle(as_built_dome(preset, seed), layout.parent)
     with _progress_bar(f"synthesising {preset} capture", progress) as update:
-        write_capture(capture, SynthOptions(preset=preset, n_scenes=scenes, seed=seed, overwrite=True),
+        write_capture(capture, SynthOptions(preset=preset, n_scenes=scenes, seed=seed, layout=layout, overwrite=True),
                       progress=update)
     return time.perf_counter() - t0
 
@@ -105,6 +113,8 @@ def format_demo(result: DemoResult) -> str:
              f"{result.scenes} tent positions, seed {result.seed}"]
     lines.append(f"  capture: {result.out / 'capture'}" + (f" (synthesised in {result.synth_seconds:.0f} s)"
                                                           if result.synth_seconds else " (reused)"))
+    lines.append("  ground truth: the dome as built (cameras off the design by ~1.5 cm and ~3 deg, other lenses);\n"
+                 "  the calibration starts from the design layout (no --prior)")
     lines.append("")
     lines.append("calibration (dome-calib calibrate):")
     lines += ["  " + line for line in _format_calibration_lines(cal)]

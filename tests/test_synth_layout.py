@@ -101,3 +101,20 @@ def test_select_preset_rejects_missing_panels():
 
     with pytest.raises(DomeCalibError, match="panel"):
         select_preset({}, "tiny")
+
+
+def test_as_built_dome_is_the_design_camera_set_but_not_the_design():
+    from dome_calib.align import rotation_angle_deg
+    from dome_calib.synth.layout import AS_BUILT_CENTER_SIGMA_CM, as_built_dome
+
+    design = nominal_dome("panel", seed=0)
+    built = as_built_dome("panel", seed=0)
+    assert sorted(built.cameras) == sorted(design.cameras)
+    moved = np.array([built.cameras[n].center_cm - design.cameras[n].center_cm for n in design.cameras])
+    assert 0.7 * AS_BUILT_CENTER_SIGMA_CM < np.sqrt(np.mean(moved ** 2)) < 1.3 * AS_BUILT_CENTER_SIGMA_CM  # cm
+    turned = [rotation_angle_deg(built.cameras[n].R, design.cameras[n].R) for n in design.cameras]
+    assert np.median(turned) > 1.0  # deg: another aim and roll draw
+    again = as_built_dome("panel", seed=0)
+    for n, c in built.cameras.items():
+        np.testing.assert_array_equal(c.t_cm, again.cameras[n].t_cm)
+        np.testing.assert_allclose(c.R @ c.R.T, np.eye(3), atol=1e-12)

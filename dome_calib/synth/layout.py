@@ -229,6 +229,28 @@ def nominal_dome(preset: Preset | str = Preset.FULL, seed: int = 0) -> Bundle:
                   calib_data_source=f"dome_calib.synth nominal dome, preset {Preset(preset)}, seed {seed}")
 
 
+#: RMS per axis (cm) of the as-built camera centres around the design (:func:`as_built_dome`).
+AS_BUILT_CENTER_SIGMA_CM = 1.0
+
+
+def as_built_dome(preset: Preset | str = Preset.FULL, seed: int = 0,
+                  center_sigma_cm: float = AS_BUILT_CENTER_SIGMA_CM) -> Bundle:
+    """The dome as built, for a ground truth that the design (``nominal_dome(preset, seed)``, where a calibration
+    without a prior starts) does not give away: another draw of every camera's intrinsics, distortion, aim and
+    roll (``nominal_dome(preset, seed + 1)``; HD focal lengths then differ from the design's by up to 23 %, aims
+    by 4 deg median) with the centres moved by ``center_sigma_cm`` RMS per axis."""
+    drawn = all_nominal_cameras(seed + 1)
+    rng = np.random.default_rng(seed + 1000)
+    cams = {}
+    for n in sorted(nominal_dome(preset, seed).cameras):  # the design's camera set
+        c = drawn[n]
+        center = c.center_cm + rng.normal(0.0, center_sigma_cm, 3)
+        cams[n] = Camera(name=c.name, type=c.type, resolution=c.resolution, K=c.K.copy(), dist=c.dist.copy(), R=c.R.copy(),
+                         t_cm=-c.R @ center, panel=c.panel, node=c.node)
+    return Bundle(seq="as_built", cameras=cams,
+                  calib_data_source=f"dome_calib.synth dome as built, preset {Preset(preset)}, seed {seed}")
+
+
 def dome_from_calibration(path: str | Path, preset: Preset | str = Preset.FULL, seed: int = 0) -> Bundle:
     """Ground-truth bundle whose cameras (poses, intrinsics, distortion) are those of a real calibration file.
 
