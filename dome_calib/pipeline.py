@@ -199,14 +199,18 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
 def finish(*, out: Path, seq: str, expected: list[str], failures: dict[str, str], normalized: Normalized,
            residuals: Residuals, prior: Bundle | None, options: CalibrateOptions, seconds: dict[str, float],
            resumed: list[str], source: str, sfm: SfmOutcome | None = None, ba: BAOutcome | None = None,
-           changes: dict[str, CameraChange] | None = None, ba_scale: float | None = None) -> CalibrationResult:
-    """Change detection against the prior, then the bundle and its report in ``out``."""
+           changes: dict[str, CameraChange] | None = None, ba_scale: float | None = None,
+           notes: dict[str, str] | None = None) -> CalibrationResult:
+    """Change detection against the prior, then the bundle and its report in ``out``. ``notes``: camera -> a
+    further reason to check it (e.g. a quick run could not check it)."""
     t0 = time.perf_counter()
     bundle = Bundle(seq=seq, cameras=dict(sorted(normalized.cameras.items())), calib_data_source=source)
     if prior is not None and changes is None:
         changes = detect_changes(bundle.cameras, prior.cameras, options.changes)
     missing = {n: failures.get(n, "not reconstructed") for n in expected if n not in bundle.cameras}
     reasons = {n: list(c.reasons) for n, c in (changes or {}).items()}
+    for n, note in (notes or {}).items():
+        reasons.setdefault(n, []).append(note)
     scale = float(normalized.alignment.tgt_from_src.scale) if ba_scale is None else ba_scale  # BA units -> cm
     sigma_cm = {n: s * scale for n, s in (ba.center_sigma if ba else {}).items() if n in bundle.cameras}
     for n, s in sigma_cm.items():

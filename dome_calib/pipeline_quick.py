@@ -235,9 +235,12 @@ def run_quick(*, capture: Path, out: Path, seq: str, scenes: list[str], expected
              "bad_pair_px": det["bad_pair_px"], "extra_pairs": det["extra_pairs"],
              "points": est.get("points", 0), "observations": est.get("observations", 0),
              "held_cameras": est.get("held_cameras", 0), "seconds": matched["seconds"]}
+    unchecked = {n: f"not checked against the prior: no usable image in {scene} ({why}); prior kept"
+                 for n, why in matched["failures"].items() if n in cameras and n not in changed}
     residuals = ba.residuals if ba is not None else Residuals(camera_names=[], camera_index=np.zeros(0, np.int64),
                                                                 residual_px=np.zeros((0, 2)))
     return finish(out=out, seq=seq, expected=expected, failures=failures, normalized=normalized,
                   residuals=residuals, prior=prior, options=options, seconds=seconds, resumed=resumed,
                   sfm=SfmOutcome(problem=None, failures=failures, stats=stats), ba=ba, changes=changes, ba_scale=1.0,
+                  notes=unchecked,
                   source=f"dome-calib calibrate --only-changed {capture.name} ({len(changed)} cameras re-estimated)")

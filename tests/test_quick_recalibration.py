@@ -107,7 +107,8 @@ def test_quick_recalibration_reestimates_only_the_changed(tmp_path, scene, monke
     (cap / "scenes" / "scene_01").mkdir(parents=True)
     (cap / "capture.json").write_text(json.dumps({"scenes": ["scene_01"], "cameras": names}))
     matched = {"scene": "scene_01", "database": str(db), "image_dir": str(cap / "scenes" / "scene_01"),
-               "cameras": names, "failures": {}, "pairs": 0, "verified_pairs": 0, "inlier_matches": 0,
+               "cameras": names, "failures": {"01_12": "blank image (grey-level std 0.0 < 3.0)"},
+               "pairs": 0, "verified_pairs": 0, "inlier_matches": 0,
                "seconds": {}}
     monkeypatch.setattr(quick, "match_first_scene", lambda *a, **k: matched)
     prior_dir = write_bundle(prior, tmp_path / "prior")
@@ -127,6 +128,9 @@ def test_quick_recalibration_reestimates_only_the_changed(tmp_path, scene, monke
     assert "replaced?" not in " ".join(result.changes[MOVED].reasons)
     np.testing.assert_array_equal(bundle.cameras[MOVED].K, prior.cameras[MOVED].K)  # a moved camera keeps its lens
     assert f"{MOVED}: residual" in pipeline.format_result(result)
+    unchecked = [row for row in result.to_check if row["name"] == "01_12"]  # in the prior, blank image now
+    assert unchecked and "not checked against the prior: no usable image" in unchecked[0]["reasons"][0]
+    assert "01_12" in bundle.cameras and "01_12" not in result.changes
 
 
 def test_quick_recalibration_with_nothing_changed_keeps_the_prior(tmp_path):
