@@ -38,7 +38,6 @@ QUICK_BA = dataclasses.replace(ba_options(), compute_uncertainty=False)  # few f
 
 logger = logging.getLogger(__name__)
 
-QUICK_SCENES = 1
 #: Pairs per camera in the first matching round (enough to judge every camera against the prior) ...
 DETECT_PAIRS_PER_CAMERA = 12
 #: ... and partners among the unchanged cameras matched to each suspect afterwards (its registration).
@@ -83,13 +82,9 @@ def match_first_scene(capture: Path, work: Path, scene: str, prior: Bundle, prog
     from projector.sfm import match_scene
 
     quiet_colmap()
-    executor = make_executor()
-    try:
+    with make_executor() as executor:
         feats, pairs, matches = match_scene(capture, work, scene, dict(prior.cameras),
                                             _options(progress, DETECT_PAIRS_PER_CAMERA), executor)
-    finally:
-        if hasattr(executor, "shutdown"):
-            executor.shutdown()
     return {"scene": scene, "database": str(work / scene / "database.db"), "image_dir": str(capture / "scenes" / scene),
             "cameras": sorted(feats.num_features), "failures": dict(feats.failures), "pairs": len(pairs),
             "verified_pairs": matches.num_verified_pairs, "inlier_matches": matches.num_inlier_matches,
@@ -115,42 +110,30 @@ def detect_suspects(matched: dict, prior: Bundle, progress: bool) -> dict:
     extra = [p for p in pairs_from_prior(prior.cameras, known, PairOptions(max_pairs_per_camera=SUSPECT_PAIRS_PER_CAMERA))
              if (p[0] in s) != (p[1] in s)]
     if extra:
-        executor = make_executor()
-        try:
+        with make_executor() as executor:
             match_pairs(matched["database"], extra, options=_options(progress, 0).matching, executor=executor,
                         scene=matched["scene"])
-        finally:
-            if hasattr(executor, "shutdown"):
-                executor.shutdown()
-    pair_err = {n: [e for (a, b), e in errors.items() if n in (a, b)] for n in suspects}
-    return {"suspects": suspects, "unknown": unknown, "bad_pair_px": verdict.bad_pair_px,
-            "flagged": {n: list(v) for n, v in verdict.changed.items()}, "unchecked": verdict.unchecked,
-            "median_pair_error_px": {n: float(np.median(v)) if v else float("nan") for n, v in pair_err.items()},
-            "extra_pairs": len(extra)}
+    return {"suspects": suspects, "unknown": unknown, "bad_pair_px": verdict.bad_pair_px, "extra_pairs": len(extra)}
 
 
 def reestimate(matched: dict, det: dict, prior: Bundle, work: Path, progress: bool) -> dict:
     """Stage ``quick_ba``: triangulate with the unchanged cameras, register and refine the suspects."""
     from projector.database import camera_of_image
     from projector.features import nominal_camera
-    from projector.known_poses import problem_from_known, register_cameras, triangulate_known
+    from projector.known_poses import problem_from_known, register_cameras, triangulate_known, verified_partners
 
     suspects = det["suspects"]
     if not suspects:
         return {"ba": None, "changed": [], "relensed": [], "failed": {}, "rms_prior_px": {}, "rms_new_px": {}}
     s = set(suspects)
-    with pycolmap.Database.open(matched["database"]) as db:
-        names = {im.image_id: camera_of_image(im.name) for im in db.read_all_images()}
-        sizes = {camera_of_image(im.name): db.read_camera(im.camera_id) for im in db.read_all_images()}
-        pair_ids, counts = db.read_two_view_geometry_num_inliers()
-    partners = set()
-    for pid, n in zip(pair_ids, counts):
-        a, b = (names[i] for i in pycolmap.pair_id_to_image_pair(pid))
-        if n > 0 and (a in s) != (b in s):
-            partners.add(b if a in s else a)
+    graph = verified_partners(matched["database"])
+    partners = {p for n in suspects for p in graph.get(n, ())} - s  # unchanged cameras paired with a suspect
     cameras = dict(prior.cameras)
-    for n in det["unknown"]:
-        cameras[n] = nominal_camera(n, (sizes[n].width, sizes[n].height))
+    if det["unknown"]:
+        with pycolmap.Database.open(matched["database"]) as db:
+            sizes = {camera_of_image(im.name): db.read_camera(im.camera_id) for im in db.read_all_images()}
+        for n in det["unknown"]:
+            cameras[n] = nominal_camera(n, (sizes[n].width, sizes[n].height))
     rec = triangulate_known(matched["database"], matched["image_dir"], work / "known_points", cameras, partners)
     regs, failed = register_cameras(matched["database"], rec, cameras, suspects)
     for n, why in failed.items():

@@ -60,6 +60,15 @@ class SerialExecutor:
         for item in items:
             yield fn(item)
 
+    def shutdown(self) -> None:
+        """Nothing to release (same lifecycle as the pool, so callers can always use ``with``)."""
+
+    def __enter__(self) -> SerialExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.shutdown()
+
 
 class LocalProcessExecutor:
     """A process pool on this machine (default: one worker per available core).

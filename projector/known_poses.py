@@ -63,6 +63,25 @@ def triangulate_known(database_path: str | Path, image_dir: str | Path, output_d
     return pycolmap.triangulate_points(rec, str(database_path), str(image_dir), str(output_dir), options=options)
 
 
+def _verified_partner_ids(db: pycolmap.Database) -> dict[int, set[int]]:
+    """Image id -> the image ids it has a verified pair with (at least one inlier match)."""
+    partners: dict[int, set[int]] = {}
+    pair_ids, counts = db.read_two_view_geometry_num_inliers()
+    for pid, n in zip(pair_ids, counts):
+        if n > 0:
+            a, b = pycolmap.pair_id_to_image_pair(pid)
+            partners.setdefault(a, set()).add(b)
+            partners.setdefault(b, set()).add(a)
+    return partners
+
+
+def verified_partners(database_path: str | Path) -> dict[str, set[str]]:
+    """Camera -> the cameras it has a verified pair with in a scene database."""
+    with pycolmap.Database.open(str(database_path)) as db:
+        names = {im.image_id: camera_of_image(im.name) for im in db.read_all_images()}
+        return {names[a]: {names[b] for b in bs} for a, bs in _verified_partner_ids(db).items()}
+
+
 def _correspondences(db: pycolmap.Database, image_id: int, rec: pycolmap.Reconstruction,
                      partners: list[int]) -> tuple[np.ndarray, np.ndarray]:
     """(keypoint index, point3D id) of ``image_id`` through its verified matches with registered ``partners``;
@@ -105,19 +124,13 @@ def register_cameras(database_path: str | Path, rec: pycolmap.Reconstruction, ca
     refinement = pycolmap.AbsolutePoseRefinementOptions()
     with pycolmap.Database.open(str(database_path)) as db:
         ids = {camera_of_image(im.name): im.image_id for im in db.read_all_images()}
-        pair_ids, counts = db.read_two_view_geometry_num_inliers()
-        partners: dict[int, list[int]] = {}
-        for pid, n in zip(pair_ids, counts):
-            if n > 0:
-                a, b = pycolmap.pair_id_to_image_pair(pid)
-                partners.setdefault(a, []).append(b)
-                partners.setdefault(b, []).append(a)
+        partners = _verified_partner_ids(db)
         for name in sorted(names):
             if name not in ids:
                 failed[name] = "no features in this scene"
                 continue
             image_id = ids[name]
-            kp, pts = _correspondences(db, image_id, rec, sorted(set(partners.get(image_id, [])) & registered))
+            kp, pts = _correspondences(db, image_id, rec, sorted(partners.get(image_id, set()) & registered))
             if len(kp) < MIN_PNP_INLIERS:
                 failed[name] = f"only {len(kp)} matches to points of unchanged cameras (need {MIN_PNP_INLIERS})"
                 continue
@@ -148,29 +161,20 @@ def problem_from_known(rec: pycolmap.Reconstruction, cameras: Mapping[str, Camer
     point_ids = sorted(wanted)
     point_index = {p: i for i, p in enumerate(point_ids)}
     held = {im.image_id: camera_of_image(im.name) for im in rec.images.values() if im.has_pose}
-    names = sorted(set(held.values()) | set(registrations))
-    cam_index = {n: i for i, n in enumerate(names)}
-    ci, pi, xy_colmap = [], [], []
+    observer, pi, xy_colmap = [], [], []  # held cameras that see none of these points stay out of the problem
     for p in point_ids:
         for el in rec.point3D(p).track.elements:
-            ci.append(cam_index[held[el.image_id]])
+            observer.append(held[el.image_id])
             pi.append(point_index[p])
             xy_colmap.append(rec.image(el.image_id).points2D[el.point2D_idx].xy)
     uv = [colmap_to_opencv_px(np.array(xy_colmap, dtype=float).reshape(-1, 2))]
     for n, r in registrations.items():
-        ci += [cam_index[n]] * len(r.point3D_ids)
+        observer += [n] * len(r.point3D_ids)
         pi += [point_index[int(p)] for p in r.point3D_ids]
         uv.append(r.uv_px)
+    names = sorted(set(observer))
+    cam_index = {n: i for i, n in enumerate(names)}
     X = np.array([rec.point3D(p).xyz for p in point_ids], dtype=float).reshape(-1, 3)
     start = {n: registrations[n].camera if n in registrations else cameras[n] for n in names}
-    problem = BAProblem.from_cameras(start, {scene: X}, camera_index=np.array(ci, np.int64),
-                                     point_index=np.array(pi, np.int64), uv_px=np.concatenate(uv),
-                                     camera_names=names)
-    used = np.bincount(problem.camera_index, minlength=problem.n_cameras) > 0
-    if not used.all():  # held cameras that see none of these points do not belong in the problem
-        keep = [n for n, u in zip(names, used) if u]
-        remap = np.cumsum(used) - 1
-        problem = BAProblem.from_cameras(start, {scene: X}, camera_index=remap[problem.camera_index],
-                                         point_index=problem.point_index, uv_px=problem.uv_px, camera_names=keep)
-    return problem
-
+    return BAProblem.from_cameras(start, {scene: X}, camera_index=np.array([cam_index[n] for n in observer], np.int64),
+                                  point_index=np.array(pi, np.int64), uv_px=np.concatenate(uv), camera_names=names)

@@ -182,7 +182,7 @@ def run_sfm(
         for scene in scenes:
             stats[scene] = run_scene(capture_dir, work_dir, scene, prior_cams, options, executor)
     finally:
-        if own_executor and hasattr(executor, "shutdown"):
+        if own_executor:
             executor.shutdown()
     t_scenes = time.perf_counter() - t0
     failures: list[CameraFailure] = []
