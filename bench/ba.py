@@ -277,7 +277,7 @@ def metrics(sol: dict, truth, is_outlier: np.ndarray, sigma_px: float, region: n
 
 # ----------------------------------------------------------------------------------------------- driver
 def make_data(small: bool, seed: int) -> dict:
-    from dome_calib.ba.synthetic import SyntheticOptions, make_problem
+    from dome_calib.synth.ba_problem import SyntheticOptions, make_problem
     from dome_calib.panoptic_io import read_calibration
 
     cams, _ = read_calibration(CALIBRATION)

@@ -9,7 +9,7 @@ ground truth (after a similarity alignment), and the oracle: the same bundle adj
 truth on the same matched observations (the best these observations allow), with ratios ours / oracle.
 "Feature noise" is the per-coordinate RMS with the ground-truth cameras held and only the points fitted.
 
-The synthetic dome is the dome AS BUILT (``dome_calib.synth.layout.as_built_dome``), not the design that calibrate
+The synthetic dome is the dome AS BUILT (``dome_calib.synth.dome.as_built_dome``), not the design that calibrate
 starts from without --prior (``nominal_dome(preset, seed)``): another draw of every camera's intrinsics,
 distortion, aim and roll (HD focal lengths differ by up to 23 %, aims by 4 deg median) and centres off the design
 by 1 cm RMS per axis. ``--design-truth`` renders the design itself (the start is then exact).
@@ -37,7 +37,7 @@ from dome_calib.bundle import Bundle, load_bundle, write_bundle  # noqa: E402
 from dome_calib.compare import compare_cameras  # noqa: E402
 from dome_calib.pipeline import CalibrateOptions, run_calibration  # noqa: E402
 from dome_calib.pipeline_stages import ba_options as _ba_options  # noqa: E402
-from dome_calib.synth.layout import as_built_dome  # noqa: E402
+from dome_calib.synth.dome import as_built_dome  # noqa: E402
 
 
 def ba_options():

@@ -27,9 +27,9 @@ from dome_calib.bundle import Bundle  # noqa: E402
 from dome_calib.panoptic_io import read_calibration, read_kcalibration  # noqa: E402
 from dome_calib.recon.depth import pointcloud_at  # noqa: E402
 from dome_calib.recon.project import view_set  # noqa: E402
-from dome_calib.recon.skeleton import DetectionNoise, skeleton_cm, synthetic_sync, synthetic_tracks  # noqa: E402
+from dome_calib.synth.skeleton import DetectionNoise, skeleton_cm, synthetic_sync, synthetic_tracks  # noqa: E402
 from dome_calib.recon.streams import InterpolationOptions, triangulate_streams  # noqa: E402
-from dome_calib.recon.synth_depth import distance_to_triangles, render_depth_mm, tent_triangles  # noqa: E402
+from dome_calib.synth.depth import distance_to_triangles, render_depth_mm, tent_triangles  # noqa: E402
 from dome_calib.rotation import rotvec_to_matrix  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,7 +44,7 @@ def emit(**fields) -> None:
 
 def ground_truth(dome: str, seconds: float, seed: int) -> Bundle:
     if dome == "nominal":
-        from dome_calib.synth.layout import nominal_dome
+        from dome_calib.layout import nominal_dome
 
         bundle = nominal_dome("full", seed=seed)
     else:

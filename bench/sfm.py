@@ -110,7 +110,7 @@ def main() -> int:
     if args.prior == "truth":
         prior = gt
     else:
-        from dome_calib.synth.layout import nominal_dome
+        from dome_calib.layout import nominal_dome
 
         prior = nominal_dome("full", 1)  # another draw of the nominal layout: not the truth
     options = SfmOptions(show_progress=False)
@@ -159,7 +159,7 @@ def main() -> int:
          mapping_s=t_map, merge_s=result.seconds["merge"], wall_s=total, failures=len(result.failures),
          load_avg_1_5_15=[round(x, 1) for x in os.getloadavg()], cores=os.cpu_count())
     if not args.full:  # pair selection on the full nominal dome (cheap): how many pairs the full run matches
-        from dome_calib.synth.layout import nominal_dome
+        from dome_calib.layout import nominal_dome
         from projector.pairs import PairOptions, pairs_from_prior
 
         dome = nominal_dome("full", 0).cameras

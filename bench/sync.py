@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from timecode.sync.pipeline import sync_session  # noqa: E402
 from timecode.sync.session import load_session  # noqa: E402
-from timecode.sync.synth import SynthSessionOptions, SynthTruth, make_session  # noqa: E402
+from dome_calib.synth.sync_session import SynthSessionOptions, SynthTruth, make_session  # noqa: E402
 from timecode.sync.tables import SyncResult, hd_univ_ms  # noqa: E402
 
 AIM_VGA_HD_RMS_US = 10.0

@@ -27,7 +27,7 @@ import numpy as np
 from dome_calib.bundle import load_bundle
 from dome_calib.camera import project
 from dome_calib.synth.capture import SynthOptions, synthesize
-from dome_calib.synth.layout import projectors
+from dome_calib.synth.dome import projectors
 from dome_calib.synth.markers import locate_spot, marker_view, spot_window_px, surface_points_seen_by
 from dome_calib.synth.rays import CameraRays
 from dome_calib.synth.render import RenderOptions, camera_rays, prepare_scene, render_image
@@ -129,7 +129,7 @@ def feature_stats(capture: Path, sift) -> None:
 
 
 def marker_accuracy() -> None:
-    from dome_calib.synth.layout import nominal_dome
+    from dome_calib.layout import nominal_dome
     from dome_calib.synth.tent import scene_poses
 
     bundle = nominal_dome("tiny", seed=0)

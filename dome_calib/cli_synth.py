@@ -26,7 +26,7 @@ def synth(
 
     from dome_calib.errors import DomeCalibError
     from dome_calib.synth.capture import SynthOptions, synthesize
-    from dome_calib.synth.layout import Preset
+    from dome_calib.layout import Preset
 
     try:
         preset_value = Preset(preset)

@@ -46,10 +46,10 @@ class DemoResult:
 
 
 def synthesize(capture: Path, preset: str, scenes: int, seed: int, progress: bool = True) -> float:
-    """Write the synthetic capture of the dome AS BUILT (:func:`dome_calib.synth.layout.as_built_dome`: not the
+    """Write the synthetic capture of the dome AS BUILT (:func:`dome_calib.synth.dome.as_built_dome`: not the
     design that calibrate starts from) unless the same one is already there; returns the seconds spent."""
     from dome_calib.bundle import write_bundle
-    from dome_calib.synth.layout import as_built_dome
+    from dome_calib.synth.dome import as_built_dome
 
     layout = capture.parent / "as_built" / "calibration_as_built.json"
     meta = capture / "capture.json"

@@ -5,7 +5,7 @@ Two references, and the result always says which one was used:
 
 - ``prior``: a previous calibration bundle of the same dome. The similarity is fitted robustly on the camera
   centres with a tight threshold, so cameras that moved since do not bend the frame.
-- ``nominal``: the dome's design geometry (camera positions by name, from :mod:`dome_calib.synth.layout`),
+- ``nominal``: the dome's design geometry (camera positions by name, from :mod:`dome_calib.layout`),
   used when there is no prior. Real cameras sit centimetres off their nominal spots, so the threshold is wide
   and the frame is only as good as the dome's construction (a few mm in orientation over ~500 cameras).
 
@@ -66,8 +66,8 @@ class Normalized:
 
 def nominal_dome_cameras(names: list[str]) -> dict[str, Camera]:
     """Nominal (design) cameras of the dome by name (only their centres are used), from the paper's layout in
-    :mod:`dome_calib.synth.layout`. Names the design does not have are left out."""
-    from dome_calib.synth.layout import all_nominal_cameras
+    :mod:`dome_calib.layout`. Names the design does not have are left out."""
+    from dome_calib.layout import all_nominal_cameras
 
     design = all_nominal_cameras(seed=0)
     return {n: design[n] for n in names if n in design}

@@ -78,7 +78,7 @@ def _options(progress: bool, pairs_per_camera: int):
 
 def match_first_scene(capture: Path, work: Path, scene: str, prior: Bundle, progress: bool) -> dict:
     """Stage ``match``: features, pairs and verified matches of one scene, in ``work/<scene>/database.db``."""
-    from projector.executor import make_executor
+    from dome_calib.executor import make_executor
     from projector.sfm import match_scene
 
     quiet_colmap()
@@ -94,7 +94,7 @@ def match_first_scene(capture: Path, work: Path, scene: str, prior: Bundle, prog
 def detect_suspects(matched: dict, prior: Bundle, progress: bool) -> dict:
     """Stage ``detect``: cameras inconsistent with the prior (module docstring), then their extra pairs."""
     from projector.consistency import changed_cameras, pair_errors
-    from projector.executor import make_executor
+    from dome_calib.executor import make_executor
     from projector.matching import match_pairs
     from projector.pairs import PairOptions, pairs_from_prior
 

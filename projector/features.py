@@ -1,6 +1,6 @@
 """Stage 1: SIFT features of every image of a scene, stored in the scene's COLMAP database.
 
-One task per image (:func:`extract_image`, run through an :mod:`projector.executor`): read the PNG, check it
+One task per image (:func:`extract_image`, run through an :mod:`dome_calib.executor`): read the PNG, check it
 (unreadable, wrong size, blank, overexposed), run pycolmap's CPU SIFT with one thread, and return keypoints
 and uint8 descriptors; the main process writes them to the database. A rerun skips images that already have
 features. Images that fail a check or give too few features are reported per camera and left out of the
@@ -18,7 +18,7 @@ import numpy as np
 
 from dome_calib.bundle import NOMINAL_RESOLUTION, Camera, CameraType
 from projector.database import add_image, camera_of_image, descriptors_to_uint8, image_name, images_with_features, write_features
-from projector.executor import Executor, SerialExecutor
+from dome_calib.executor import Executor, SerialExecutor
 from projector.progress import progress_bar
 
 logger = logging.getLogger(__name__)
@@ -116,7 +116,7 @@ def extract_image(task: tuple[str, str, FeatureOptions]) -> ImageResult:
 
 def nominal_camera(name: str, resolution: tuple[int, int]) -> Camera:
     """A camera with the nominal intrinsics of its type (from the name, else the resolution), identity pose."""
-    from dome_calib.synth.layout import INTRINSICS_STATS
+    from dome_calib.layout import INTRINSICS_STATS
 
     if name.startswith("00_"):
         ctype = CameraType.HD

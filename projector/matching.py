@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from projector.database import FeatureReader, image_name
-from projector.executor import Executor, SerialExecutor
+from dome_calib.executor import Executor, SerialExecutor
 from projector.pairs import Pair
 from projector.progress import progress_bar
 

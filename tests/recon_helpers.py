@@ -6,7 +6,7 @@ import numpy as np
 
 from dome_calib.bundle import Bundle
 from dome_calib.panoptic_io import read_calibration, read_kcalibration
-from dome_calib.recon.skeleton import synthetic_sync
+from dome_calib.synth.skeleton import synthetic_sync
 
 from .conftest import REAL_CALIBRATION, REAL_KCALIBRATION
 

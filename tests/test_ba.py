@@ -10,7 +10,7 @@ from dome_calib.ba import BAOptions, BAProblem, BAProblemError, GaugeMode, Param
 from dome_calib.ba.evaluate import residuals, residuals_and_jacobians
 from dome_calib.ba.gauge import choose_gauge
 from dome_calib.ba.schur import build_structure, linearize, solve_step
-from dome_calib.ba.synthetic import SyntheticOptions, make_problem
+from dome_calib.synth.ba_problem import SyntheticOptions, make_problem
 from dome_calib.bundle import Bundle
 from dome_calib.camera import project_with_jacobians
 from dome_calib.panoptic_io import read_calibration

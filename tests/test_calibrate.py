@@ -18,7 +18,7 @@ from dome_calib.ba.problem import BAProblem
 from dome_calib.bundle import load_bundle, write_bundle
 from dome_calib.camera import project
 from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, observation_residuals, residuals_of
-from dome_calib.synth.layout import nominal_dome
+from dome_calib.layout import nominal_dome
 
 SFM_FRAME = pycolmap.Sim3d(0.05, pycolmap.Rotation3d(Rotation.from_rotvec([0.2, 1.3, -0.4]).as_matrix()), [1, 2, 3])
 NOISE_PX = 0.3

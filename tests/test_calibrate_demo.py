@@ -13,7 +13,7 @@ import dome_calib.demo as demo
 import dome_calib.pipeline as pipeline
 from dome_calib.bundle import write_bundle
 from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, residuals_of
-from dome_calib.synth.layout import nominal_dome
+from dome_calib.layout import nominal_dome
 
 from .test_calibrate import _problem
 

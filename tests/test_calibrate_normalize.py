@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from dome_calib.align import AlignmentError, rotation_angle_deg, transform_cameras
 from dome_calib.normalize import WorldReference, normalize
-from dome_calib.synth.layout import nominal_dome
+from dome_calib.layout import nominal_dome
 
 ARBITRARY = pycolmap.Sim3d(0.02, pycolmap.Rotation3d(Rotation.from_rotvec([2.0, 0.3, -0.7]).as_matrix()), [1, 2, 3])
 

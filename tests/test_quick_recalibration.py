@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 from dome_calib.bundle import Bundle, write_bundle
 from dome_calib.camera import intr_to_K, opencv_to_colmap_px, project
 from dome_calib.compare import camera_error
-from dome_calib.synth.layout import nominal_dome
+from dome_calib.layout import nominal_dome
 from projector.consistency import changed_cameras, pair_errors
 from projector.database import add_image, image_name, write_features
 

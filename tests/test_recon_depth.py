@@ -16,7 +16,7 @@ from dome_calib.recon.depth import (
     write_ply,
 )
 from dome_calib.recon.errors import ReconError
-from dome_calib.recon.synth_depth import distance_to_triangles, render_depth_mm, tent_triangles
+from dome_calib.synth.depth import distance_to_triangles, render_depth_mm, tent_triangles
 
 from .recon_helpers import real_bundle
 

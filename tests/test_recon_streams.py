@@ -9,7 +9,7 @@ import pytest
 from dome_calib.bundle import SyncTable
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.project import view_set
-from dome_calib.recon.skeleton import MIRROR19, clock_table, skeleton_cm, synthetic_tracks
+from dome_calib.synth.skeleton import MIRROR19, clock_table, skeleton_cm, synthetic_tracks
 from dome_calib.recon.streams import (
     InterpolationOptions,
     StreamTracks,

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from dome_calib.bundle import write_bundle
 from dome_calib.report import ReportError, ReportOptions, Residuals, build_report, load_residuals, write_report
-from dome_calib.synth.layout import nominal_dome
+from dome_calib.layout import nominal_dome
 
 
 @pytest.fixture(scope="module")

@@ -23,7 +23,7 @@ GOOD = sorted(set(CAMERAS) - {CORRUPT, BLACK, AWAY})
 
 def _render_facing_away(capture: Path, name: str) -> np.ndarray:
     """Image of camera ``name`` turned by 180 degrees about the vertical (it sees the dome, not the tent)."""
-    from dome_calib.synth.layout import projectors
+    from dome_calib.synth.dome import projectors
     from dome_calib.synth.rays import CameraRays
     from dome_calib.synth.render import RenderOptions, prepare_scene, render_image
     from dome_calib.synth.tent import scene_poses

@@ -19,7 +19,7 @@ from timecode.cli import app
 from timecode.encoder import EncoderOptions, encode_ltc_labels
 from timecode.labels import frames_to_labels
 from timecode.rates import RATE_25
-from timecode.sync.synth import SynthSessionOptions, make_session
+from dome_calib.synth.sync_session import SynthSessionOptions, make_session
 
 CALIBRATION = Path(__file__).parent / "data" / "panoptic" / "calibration_160906_band1.json"
 VGA_HD_RMS_US = 10.0  # aim of issue 5

@@ -9,7 +9,7 @@ import pytest
 from timecode.labels import label_to_frames
 from timecode.rates import RATE_25, RATE_29_97_DF
 from timecode.sync.session import SessionError, load_session
-from timecode.sync.synth import SynthSessionOptions, load_truth, make_session
+from dome_calib.synth.sync_session import SynthSessionOptions, load_truth, make_session
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ import pytest
 from timecode.sync.clock import FrameStarts
 from timecode.sync.match import frames_at, match_hd_to_kinect
 from timecode.sync.session import load_session
-from timecode.sync.synth import SynthSessionOptions, make_session
+from dome_calib.synth.sync_session import SynthSessionOptions, make_session
 from timecode.sync.tables import SyncError, SyncOptions, build_sync
 
 VGA_HD_RMS_US = 10.0  # aim of issue 5

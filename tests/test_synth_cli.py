@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 from dome_calib.bundle import load_bundle
 from dome_calib.cli import app
 from dome_calib.synth.capture import SynthOptions, synthesize
-from dome_calib.synth.layout import nominal_dome
+from dome_calib.layout import nominal_dome
 
 REAL = Path(__file__).parent / "data" / "panoptic" / "calibration_160906_band1.json"
 EXE = [sys.executable, "-c", "from dome_calib.cli import main; main()"]

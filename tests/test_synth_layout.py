@@ -7,9 +7,8 @@ import pytest
 
 from dome_calib.bundle import CameraType, load_bundle, write_bundle
 from dome_calib.camera import max_valid_radius2, project
-from dome_calib.synth.layout import (
-    DOME_CENTRE_CM, dome_from_calibration, nominal_dome, projectors, select_preset,
-)
+from dome_calib.layout import DOME_CENTRE_CM, nominal_dome, select_preset
+from dome_calib.synth.dome import dome_from_calibration, projectors
 
 REAL = Path(__file__).parent / "data" / "panoptic" / "calibration_160906_band1.json"
 
@@ -105,7 +104,7 @@ def test_select_preset_rejects_missing_panels():
 
 def test_as_built_dome_is_the_design_camera_set_but_not_the_design():
     from dome_calib.align import rotation_angle_deg
-    from dome_calib.synth.layout import AS_BUILT_CENTER_SIGMA_CM, as_built_dome
+    from dome_calib.synth.dome import AS_BUILT_CENTER_SIGMA_CM, as_built_dome
 
     design = nominal_dome("panel", seed=0)
     built = as_built_dome("panel", seed=0)

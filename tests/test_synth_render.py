@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 from dome_calib.camera import pixels_to_normalized, project
-from dome_calib.synth.layout import nominal_dome, projectors
+from dome_calib.layout import nominal_dome
+from dome_calib.synth.dome import projectors
 from dome_calib.synth.markers import locate_spot, marker_view, spot_window_px, surface_points_seen_by
 from dome_calib.synth.rays import CameraRays
 from dome_calib.synth.render import RenderOptions, camera_rays, edge_mask, prepare_scene, render_image

@@ -23,7 +23,7 @@ import numpy.typing as npt
 
 from timecode.audio_io import AudioReader, RawFormat, to_float32
 from timecode.bits import edge_stream, find_frames
-from timecode.clockfit import fit_frame_times
+from timecode.bitclock import fit_frame_times
 from timecode.continuity import continuity, detect_rate
 from timecode.droop import Droop
 from timecode.edges import block_droop, edge_params, find_edges

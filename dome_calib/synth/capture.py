@@ -27,7 +27,8 @@ import numpy as np
 from dome_calib.bundle import Bundle, CameraType, write_bundle
 from dome_calib.errors import DomeCalibError
 from dome_calib.io_utils import atomic_write_text
-from dome_calib.synth.layout import Preset, Projector, dome_from_calibration, nominal_dome, projectors
+from dome_calib.layout import Preset, nominal_dome
+from dome_calib.synth.dome import Projector, dome_from_calibration, projectors
 from dome_calib.synth.render import RenderOptions, SceneState, camera_rays, prepare_scene, render_image
 from dome_calib.synth.tent import TENT_CONES, TENT_ELLIPSOIDS, scene_poses, tent_mesh
 from dome_calib.workers import single_threaded_children

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from dome_calib.bundle import Camera, CameraType
-from dome_calib.synth.layout import Projector
+from dome_calib.synth.dome import Projector
 from dome_calib.synth.rays import CHUNK_RAYS, CameraRays
 from dome_calib.synth.tent import TentPose, intersect_scene
 

@@ -1,24 +1,20 @@
-"""The dome's camera and projector layout, as ground truth for synthetic captures.
+"""The dome's design layout: where every camera is meant to be, by name (production: calibrate starts from it
+without a prior, and the world frame falls back to it).
 
-Two sources:
-
-* :func:`nominal_dome` builds the dome from the paper's description (a geodesic dome 5.49 m across whose centre
-  is 1.40 m above the floor; 20 hexagonal panels of 24 VGA cameras; 31 HD cameras, 20 of them at panel centres;
-  10 Kinect colour cameras in two rings of five at 1 m and 2.6 m; every camera aimed at the dome centre).
-  The paper does not give panel angles, so the panel ring latitudes and azimuths below were measured once from
-  the real calibration ``calibration_160906_band1.json`` (4 rings of 5 panels, 5-fold symmetric).
-  Intrinsics and distortion are drawn (seeded) around the real file's per-type statistics.
-* :func:`dome_from_calibration` takes cameras (poses and intrinsics) from a real Panoptic calibration file.
+:func:`nominal_dome` builds the dome from the paper's description (a geodesic dome 5.49 m across whose centre is
+1.40 m above the floor; 20 hexagonal panels of 24 VGA cameras; 31 HD cameras, 20 of them at panel centres; 10 Kinect
+colour cameras in two rings of five at 1 m and 2.6 m; every camera aimed at the dome centre). The paper does not
+give panel angles, so the panel ring latitudes and azimuths below were measured once from the real calibration
+``calibration_160906_band1.json`` (4 rings of 5 panels, 5-fold symmetric). Intrinsics and distortion are drawn
+(seeded) around the real file's per-type statistics (:data:`INTRINSICS_STATS`).
 
 World frame: Panoptic (origin at the floor centre, y DOWN, cm); ``x_cam = R @ X_world + t_cm``.
-Projectors (5, at pentagon centres between the panel rings) come from :func:`projectors`.
+The dome as built, a dome taken from a real file and the projectors are synthetic: :mod:`dome_calib.synth.dome`.
 """
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
 from enum import StrEnum
-from pathlib import Path
 
 import numpy as np
 
@@ -43,12 +39,7 @@ KINECT_RING_AZIMUTH_DEG = (32.0, 64.0)
 PANEL_RINGS = ((3.7, -103.1, 1, 3), (13.1, -77.3, 2, 3), (22.4, -123.6, 3, 3), (-3.1, -56.9, 16, 1))
 #: HD cameras not at panel centres: (latitude deg, azimuth of the first deg, count).
 HD_EXTRA_RINGS = ((40.0, -2.8, 5), (47.8, 32.6, 5), (-12.7, 133.2, 1))
-PROJECTOR_LATITUDE_DEG = 32.0
-PROJECTOR_AZIMUTH0_DEG = -67.1
-PROJECTOR_RESOLUTION = (1280, 800)  # WXGA, see projector/patterns.py
-PROJECTOR_FOCAL_PX = 1000.0
-#: Projectors aim at the middle height of the tent.
-PROJECTOR_TARGET_CM = np.array([0.0, -95.0, 0.0])
+
 
 #: Per-type intrinsics statistics of the real dome (mean, std) from calibration_160906_band1.json.
 #: f: focal px; c: principal point offset from the image centre px; dist: [k1, k2, p1, p2, k3] mean and std.
@@ -72,22 +63,7 @@ class Preset(StrEnum):
     FULL = "full"  # every camera
 
 
-@dataclass(kw_only=True)
-class Projector:
-    """A pinhole projector (no distortion). ``R``, ``t_cm``: projector_from_world; ``K`` (3, 3) px."""
-
-    name: str
-    resolution: tuple[int, int]  # (width_px, height_px)
-    K: np.ndarray
-    R: np.ndarray
-    t_cm: np.ndarray
-
-    @property
-    def center_cm(self) -> np.ndarray:
-        return -self.R.T @ self.t_cm
-
-
-def _direction(lat_deg: float, az_deg: float) -> np.ndarray:
+def direction(lat_deg: float, az_deg: float) -> np.ndarray:
     """Unit vector from the dome centre at a latitude (up positive) and azimuth (atan2(z, x)), world frame."""
     lat, az = np.radians(lat_deg), np.radians(az_deg)
     return np.array([np.cos(lat) * np.cos(az), -np.sin(lat), np.cos(lat) * np.sin(az)])
@@ -147,7 +123,7 @@ def panel_centres() -> dict[int, np.ndarray]:
     out = {}
     for lat, az0, first, step in PANEL_RINGS:
         for k in range(5):
-            out[first + step * k] = _direction(lat, az0 - 72.0 * k)
+            out[first + step * k] = direction(lat, az0 - 72.0 * k)
     return dict(sorted(out.items()))
 
 
@@ -169,7 +145,7 @@ def all_nominal_cameras(seed: int) -> dict[str, Camera]:
             cams[name] = _aimed_camera(rng, name=name, camera_type=CameraType.VGA, center_cm=p, panel=panel, node=node)
         hd_dirs.append(n)
     for lat, az0, count in HD_EXTRA_RINGS:
-        hd_dirs += [_direction(lat, az0 + 72.0 * k) for k in range(count)]
+        hd_dirs += [direction(lat, az0 + 72.0 * k) for k in range(count)]
     for i, n in enumerate(hd_dirs):
         name = f"00_{i:02d}"
         cams[name] = _aimed_camera(rng, name=name, camera_type=CameraType.HD, center_cm=DOME_CENTRE_CM + r_mount * n,
@@ -229,56 +205,3 @@ def nominal_dome(preset: Preset | str = Preset.FULL, seed: int = 0) -> Bundle:
                   calib_data_source=f"dome_calib.synth nominal dome, preset {Preset(preset)}, seed {seed}")
 
 
-#: RMS per axis (cm) of the as-built camera centres around the design (:func:`as_built_dome`).
-AS_BUILT_CENTER_SIGMA_CM = 1.0
-
-
-def as_built_dome(preset: Preset | str = Preset.FULL, seed: int = 0,
-                  center_sigma_cm: float = AS_BUILT_CENTER_SIGMA_CM) -> Bundle:
-    """The dome as built, for a ground truth that the design (``nominal_dome(preset, seed)``, where a calibration
-    without a prior starts) does not give away: another draw of every camera's intrinsics, distortion, aim and
-    roll (``nominal_dome(preset, seed + 1)``; HD focal lengths then differ from the design's by up to 23 %, aims
-    by 4 deg median) with the centres moved by ``center_sigma_cm`` RMS per axis."""
-    drawn = all_nominal_cameras(seed + 1)
-    rng = np.random.default_rng(seed + 1000)
-    cams = {}
-    for n in sorted(nominal_dome(preset, seed).cameras):  # the design's camera set
-        c = drawn[n]
-        center = c.center_cm + rng.normal(0.0, center_sigma_cm, 3)
-        cams[n] = Camera(name=c.name, type=c.type, resolution=c.resolution, K=c.K.copy(), dist=c.dist.copy(), R=c.R.copy(),
-                         t_cm=-c.R @ center, panel=c.panel, node=c.node)
-    return Bundle(seq="as_built", cameras=cams,
-                  calib_data_source=f"dome_calib.synth dome as built, preset {Preset(preset)}, seed {seed}")
-
-
-def dome_from_calibration(path: str | Path, preset: Preset | str = Preset.FULL, seed: int = 0) -> Bundle:
-    """Ground-truth bundle whose cameras (poses, intrinsics, distortion) are those of a real calibration file.
-
-    ``seed`` is unused for the cameras (they are the file's) and kept for a uniform signature.
-    Raises :class:`BundleFormatError` if the file is malformed.
-    """
-    from dome_calib.panoptic_io import read_calibration
-
-    cams, source = read_calibration(Path(path))
-    names = select_preset(cams, preset)
-    return Bundle(seq="synth", cameras={n: cams[n] for n in names},
-                  calib_data_source=f"dome_calib.synth from {Path(path).name} ({source}), preset {Preset(preset)}")
-
-
-def projectors(seed: int = 0) -> dict[str, Projector]:
-    """The 5 projectors ("P1".."P5") at pentagon centres above the panel rings, aimed at the tent's middle.
-
-    Resolution 1280x800 px, focal 1000 px (covers ~3.5 m x 2.2 m at the dome centre). ``seed`` jitters the aim
-    (5 cm) and focal length (1 %).
-    """
-    rng = np.random.default_rng([seed, 5])
-    out = {}
-    w, h = PROJECTOR_RESOLUTION
-    for k in range(5):
-        c = DOME_CENTRE_CM + (DOME_RADIUS_CM - 10.0) * _direction(PROJECTOR_LATITUDE_DEG,
-                                                                  PROJECTOR_AZIMUTH0_DEG - 72.0 * k)
-        R = look_at(c, PROJECTOR_TARGET_CM + rng.normal(0.0, 5.0, size=3))
-        f = PROJECTOR_FOCAL_PX * (1.0 + rng.normal(0.0, 0.01))
-        K = intr_to_K(np.array([f, f, (w - 1) / 2, (h - 1) / 2]))
-        out[f"P{k + 1}"] = Projector(name=f"P{k + 1}", resolution=(w, h), K=K, R=R, t_cm=-R @ c)
-    return out
