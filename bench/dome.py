@@ -33,7 +33,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from dome_calib.align import align_cameras, sim3_apply, transform_cameras  # noqa: E402
 from dome_calib.ba.problem import ParamGroup, camera_to_params  # noqa: E402
 from dome_calib.ba.solver import bundle_adjust  # noqa: E402
-from dome_calib.bundle import Bundle, load_bundle, write_bundle  # noqa: E402
+from dome_calib.bundle import Bundle  # noqa: E402
+from dome_calib.bundle_io import load_bundle, write_bundle  # noqa: E402
 from dome_calib.compare import compare_cameras  # noqa: E402
 from dome_calib.pipeline import CalibrateOptions, run_calibration  # noqa: E402
 from dome_calib.pipeline_stages import ba_options as _ba_options  # noqa: E402

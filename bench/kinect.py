@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dome_calib.bundle import load_bundle
+from dome_calib.bundle_io import load_bundle
 from dome_calib.camera import K_to_intr, project
 from dome_calib.kinect.calibrate import calibrate_kinect_folder
 from dome_calib.kinect.stereo import calibrate_stereo, opencv_stereo_calibrate, rotation_error_deg

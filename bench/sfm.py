@@ -26,7 +26,7 @@ import pycolmap
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from dome_calib.bundle import load_bundle  # noqa: E402
+from dome_calib.bundle_io import load_bundle  # noqa: E402
 from dome_calib.camera import project  # noqa: E402
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from dome_calib.bundle import load_bundle
+from dome_calib.bundle_io import load_bundle
 from dome_calib.camera import project
 from dome_calib.synth.capture import SynthOptions, synthesize
 from dome_calib.synth.dome import projectors

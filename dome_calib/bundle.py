@@ -1,32 +1,31 @@
-"""The calibration-and-sync bundle: typed objects keyed by camera name, and ``load_bundle`` / ``write_bundle``.
+"""The calibration-and-sync bundle as typed objects keyed by camera name (no file access here).
 
-A bundle is one folder holding the Panoptic-format files (see :mod:`dome_calib.panoptic_io`):
-``calibration_<seq>.json`` (required), ``kcalibration_<seq>.json``, ``synctables_<seq>.json``,
-``ksynctables_<seq>.json`` (optional), and ``report/``.
+On disk a bundle is one folder of Panoptic-format files: :mod:`dome_calib.panoptic_io` reads and formats each
+file, :mod:`dome_calib.bundle_io` loads and writes the folder (``load_bundle`` / ``write_bundle``, also exported
+as ``dome_calib.load_bundle`` / ``dome_calib.write_bundle``).
 
 Conventions: world = Panoptic frame (origin at the floor centre, y down, cm); ``x_cam = R @ X_world + t_cm``.
 """
 from __future__ import annotations
 
-import logging
-import shutil
-import tempfile
 from dataclasses import dataclass, field
 from enum import StrEnum
-from pathlib import Path
 
 import numpy as np
 
 from dome_calib.camera import K_to_intr
-from dome_calib.errors import BundleFormatError
-
-logger = logging.getLogger(__name__)
 
 
 class CameraType(StrEnum):
     VGA = "vga"
     HD = "hd"
     KINECT_COLOR = "kinect-color"
+
+
+def camera_type_from_name(name: str) -> CameraType:
+    """Camera type from a Panoptic name: ``00_*`` HD, ``50_*`` Kinect colour, anything else VGA."""
+    prefix = name.split("_", 1)[0]
+    return CameraType.HD if prefix == "00" else CameraType.KINECT_COLOR if prefix == "50" else CameraType.VGA
 
 
 #: Nominal resolution (width, height) px per camera type.
@@ -189,60 +188,3 @@ class Bundle:
             "dist": np.stack([c.dist for c in cams]),
             "resolution": np.array([c.resolution for c in cams]),
         }
-
-
-def _bundle_files(folder: Path) -> dict[str, Path]:
-    found = sorted(folder.glob("calibration_*.json"))
-    if not found:
-        raise BundleFormatError(f"{folder}: no calibration_<seq>.json in this folder (is it a bundle?)")
-    if len(found) > 1:
-        raise BundleFormatError(f"{folder}: several calibration_*.json files ({', '.join(p.name for p in found)})")
-    seq = found[0].stem.removeprefix("calibration_")
-    return {k: folder / f"{k}_{seq}.json" for k in ("calibration", "kcalibration", "synctables", "ksynctables")}
-
-
-def load_bundle(folder: str | Path) -> Bundle:
-    """Read and validate a bundle folder. Raises :class:`BundleFormatError` naming file, camera and field."""
-    from dome_calib import panoptic_io as pio
-
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise BundleFormatError(f"{folder}: not a folder")
-    files = _bundle_files(folder)
-    seq = files["calibration"].stem.removeprefix("calibration_")
-    cameras, source = pio.read_calibration(files["calibration"])
-    bundle = Bundle(seq=seq, cameras=cameras, calib_data_source=source)
-    if files["kcalibration"].exists():
-        bundle.kinect = pio.read_kcalibration(files["kcalibration"])
-    if files["synctables"].exists() or files["ksynctables"].exists():
-        bundle.sync = SyncTables()
-        if files["synctables"].exists():
-            bundle.sync.streams = pio.read_synctables(files["synctables"])
-        if files["ksynctables"].exists():
-            bundle.sync.kinect_color, bundle.sync.kinect_depth = pio.read_ksynctables(files["ksynctables"])
-    logger.debug("loaded bundle %s: %d cameras", folder, len(cameras))
-    return bundle
-
-
-def write_bundle(bundle: Bundle, folder: str | Path) -> Path:
-    """Write the bundle's files into ``folder``. Each file appears whole or not at all (temp file, then rename)."""
-    from dome_calib import panoptic_io as pio
-
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    texts = {f"calibration_{bundle.seq}.json": pio.format_calibration(bundle.cameras, bundle.calib_data_source)}
-    if bundle.kinect is not None:
-        texts[f"kcalibration_{bundle.seq}.json"] = pio.format_kcalibration(bundle.kinect)
-    if bundle.sync is not None and bundle.sync.streams:
-        texts[f"synctables_{bundle.seq}.json"] = pio.format_synctables(bundle.sync.streams)
-    if bundle.sync is not None and (bundle.sync.kinect_color or bundle.sync.kinect_depth):
-        texts[f"ksynctables_{bundle.seq}.json"] = pio.format_ksynctables(bundle.sync.kinect_color, bundle.sync.kinect_depth)
-    staging = Path(tempfile.mkdtemp(prefix=".bundle.", dir=folder))
-    try:
-        for name, text in texts.items():  # everything formatted and staged before anything is replaced
-            (staging / name).write_text(text, encoding="utf-8")
-        for name in texts:
-            (staging / name).replace(folder / name)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-    return folder

@@ -26,7 +26,7 @@ def info(
     json_out: bool = typer.Option(False, "--json", help="Print the summary as JSON instead of a table."),
 ) -> None:
     """Summarise a calibration bundle: cameras by type, intrinsics, camera positions, sync coverage."""
-    from dome_calib.bundle import load_bundle
+    from dome_calib.bundle_io import load_bundle
     from dome_calib.info import bundle_summary, format_summary
 
     summary = bundle_summary(load_bundle(bundle))
@@ -84,7 +84,7 @@ def compare(
 ) -> None:
     """Per-camera centre, rotation, focal and distortion errors of BUNDLE against GROUND_TRUTH, after a
     similarity alignment on the camera centres."""
-    from dome_calib.bundle import load_bundle
+    from dome_calib.bundle_io import load_bundle
     from dome_calib.compare import compare_cameras, format_comparison
 
     cmp = compare_cameras(load_bundle(bundle).cameras, load_bundle(ground_truth).cameras)

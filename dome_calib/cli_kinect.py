@@ -48,7 +48,7 @@ def kinect(
     dome's world. Frames with a blurred, cut-off or missing board are skipped and listed with the reason."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from dome_calib.bundle import load_bundle, write_bundle
+    from dome_calib.bundle_io import load_bundle, write_bundle
     from dome_calib.kinect.calibrate import ColorIntrinsics, KinectCalibOptions, calibrate_kinect_folder
     from dome_calib.kinect.detect import find_sensor_frames
 
@@ -78,7 +78,7 @@ def kinect_synth(
     seed: int = typer.Option(0, help="Random seed: same seed, same capture."),
 ) -> None:
     """Make a synthetic Kinect checkerboard capture with ground truth (to try or test `dome-calib kinect`)."""
-    from dome_calib.bundle import load_bundle
+    from dome_calib.bundle_io import load_bundle
     from dome_calib.errors import DomeCalibError
     from dome_calib.synth.kinect_boards import KinectBoardsOptions, generate_kinect_boards
 

@@ -15,7 +15,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from dome_calib.bundle import load_bundle
+from dome_calib.bundle_io import load_bundle
 from dome_calib.compare import Comparison, compare_cameras
 from dome_calib.errors import DomeCalibError
 from dome_calib.pipeline import CalibrateOptions, CalibrationResult, run_calibration
@@ -48,7 +48,7 @@ class DemoResult:
 def synthesize(capture: Path, preset: str, scenes: int, seed: int, progress: bool = True) -> float:
     """Write the synthetic capture of the dome AS BUILT (:func:`dome_calib.synth.dome.as_built_dome`: not the
     design that calibrate starts from) unless the same one is already there; returns the seconds spent."""
-    from dome_calib.bundle import write_bundle
+    from dome_calib.bundle_io import write_bundle
     from dome_calib.synth.dome import as_built_dome
 
     layout = capture.parent / "as_built" / "calibration_as_built.json"

@@ -21,6 +21,7 @@ from enum import StrEnum
 
 from dome_calib.align import AlignOptions, Alignment, align_cameras, transform_cameras
 from dome_calib.bundle import Camera
+from dome_calib.layout import all_nominal_cameras
 
 logger = logging.getLogger(__name__)
 
@@ -67,8 +68,6 @@ class Normalized:
 def nominal_dome_cameras(names: list[str]) -> dict[str, Camera]:
     """Nominal (design) cameras of the dome by name (only their centres are used), from the paper's layout in
     :mod:`dome_calib.layout`. Names the design does not have are left out."""
-    from dome_calib.layout import all_nominal_cameras
-
     design = all_nominal_cameras(seed=0)
     return {n: design[n] for n in names if n in design}
 

@@ -25,7 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from dome_calib.bundle import Bundle, CameraType, load_bundle, write_bundle
+from dome_calib.bundle import Bundle, CameraType, camera_type_from_name
+
+from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.compare import CameraChange, ChangeOptions, detect_changes
 from dome_calib.errors import CaptureError, DomeCalibError
 from dome_calib.io_utils import atomic_path, atomic_write_text
@@ -234,7 +236,7 @@ def format_result(result: CalibrationResult, max_rows: int = 12) -> str:
     lines = []
     per_type = []
     for cam_type in CameraType:
-        exp = [n for n in result.expected if _type_of_name(n) == cam_type]
+        exp = [n for n in result.expected if camera_type_from_name(n) == cam_type]
         got = [n for n in exp if n in result.bundle.cameras]
         if exp:
             per_type.append(f"{cam_type} {len(got)}/{len(exp)}")
@@ -266,12 +268,6 @@ def format_result(result: CalibrationResult, max_rows: int = 12) -> str:
     lines.append(f"bundle: {result.bundle_dir}/calibration_{result.bundle.seq}.json")
     lines.append(f"report: {result.report_dir}/ (report.json, dome.png, residuals.png, observations.png)")
     return "\n".join(lines)
-
-
-def _type_of_name(name: str) -> CameraType:
-    """Camera type from a Panoptic name: 00_* HD, 50_* Kinect colour, else VGA."""
-    prefix = name.split("_", 1)[0]
-    return CameraType.HD if prefix == "00" else CameraType.KINECT_COLOR if prefix == "50" else CameraType.VGA
 
 
 def report_bundle(bundle_folder: Path, *, prior: Path | None = None, min_observations: int = 100) -> str:

@@ -14,11 +14,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
+import pycolmap
 
-from dome_calib.bundle import NOMINAL_RESOLUTION, Camera, CameraType
-from projector.database import add_image, camera_of_image, descriptors_to_uint8, image_name, images_with_features, write_features
+from dome_calib.bundle import NOMINAL_RESOLUTION, Camera, CameraType, camera_type_from_name
 from dome_calib.executor import Executor, SerialExecutor
+from dome_calib.layout import INTRINSICS_STATS
+from projector.database import add_image, camera_of_image, descriptors_to_uint8, image_name, images_with_features, write_features
 from projector.progress import progress_bar
 
 logger = logging.getLogger(__name__)
@@ -65,8 +68,6 @@ _EXTRACTORS: dict[tuple, object] = {}  # per worker process: pycolmap extractor 
 
 
 def _extractor(options: FeatureOptions):
-    import pycolmap
-
     key = (options.max_num_features, options.first_octave, options.peak_threshold)
     if key not in _EXTRACTORS:
         opts = pycolmap.FeatureExtractionOptions()
@@ -93,8 +94,6 @@ def check_image(image: np.ndarray | None, options: FeatureOptions) -> str | None
 
 def extract_image(task: tuple[str, str, FeatureOptions]) -> ImageResult:
     """Task: SIFT of one image file. ``task = (camera_name, image_path, options)``. Never raises for bad images."""
-    import cv2
-    import pycolmap
 
     camera, path, options = task
     t0 = time.perf_counter()
@@ -116,14 +115,9 @@ def extract_image(task: tuple[str, str, FeatureOptions]) -> ImageResult:
 
 def nominal_camera(name: str, resolution: tuple[int, int]) -> Camera:
     """A camera with the nominal intrinsics of its type (from the name, else the resolution), identity pose."""
-    from dome_calib.layout import INTRINSICS_STATS
-
-    if name.startswith("00_"):
-        ctype = CameraType.HD
-    elif name.startswith("50_"):
-        ctype = CameraType.KINECT_COLOR
-    else:
-        ctype = CameraType.VGA if tuple(resolution) == NOMINAL_RESOLUTION[CameraType.VGA] else CameraType.HD
+    ctype = camera_type_from_name(name)
+    if ctype == CameraType.VGA and tuple(resolution) != NOMINAL_RESOLUTION[CameraType.VGA]:
+        ctype = CameraType.HD  # a name outside the dome's scheme: the image size tells
     stats = INTRINSICS_STATS[ctype]
     w, h = resolution
     f = stats["f"][0] * (w / NOMINAL_RESOLUTION[ctype][0])
@@ -148,7 +142,6 @@ def extract_features(
     Returns:
         :class:`FeatureReport` with features per camera and failures per camera with the reason.
     """
-    import pycolmap
 
     options = options or FeatureOptions()
     executor = executor or SerialExecutor()

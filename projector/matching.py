@@ -22,9 +22,10 @@ from enum import StrEnum
 from pathlib import Path
 
 import numpy as np
+import pycolmap
 
-from projector.database import FeatureReader, image_name
 from dome_calib.executor import Executor, SerialExecutor
+from projector.database import FeatureReader, image_name
 from projector.pairs import Pair
 from projector.progress import progress_bar
 
@@ -116,8 +117,6 @@ def _reader(database_path: str) -> FeatureReader:
 
 
 def _pycolmap_match(d1: np.ndarray, d2: np.ndarray, options: MatchOptions) -> np.ndarray:
-    import pycolmap
-
     key = (options.max_ratio, options.max_distance, options.cross_check)
     if key not in _MATCHERS:
         mo = pycolmap.FeatureMatchingOptions()
@@ -130,8 +129,6 @@ def _pycolmap_match(d1: np.ndarray, d2: np.ndarray, options: MatchOptions) -> np
 
 
 def verify_options(options: MatchOptions):
-    import pycolmap
-
     vo = pycolmap.TwoViewGeometryOptions()
     vo.min_num_inliers = options.min_num_inliers
     vo.ransac.max_error = options.ransac_max_error_px
@@ -141,7 +138,6 @@ def verify_options(options: MatchOptions):
 
 def match_batch(task: tuple[str, list[Pair], MatchOptions]) -> list[PairResult]:
     """Task: match and verify a batch of pairs of one database. ``task = (database_path, pairs, options)``."""
-    import pycolmap
 
     database_path, pairs, options = task
     reader = _reader(database_path)
@@ -180,7 +176,6 @@ def match_pairs(
     Pairs with an image that has no features in the database are skipped (listed in the report).
     Returns a :class:`MatchReport` (inlier counts of the verified pairs, totals, time).
     """
-    import pycolmap
 
     options = options or MatchOptions()
     executor = executor or SerialExecutor()

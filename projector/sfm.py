@@ -20,9 +20,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from dome_calib.ba.problem import BAProblem
-from dome_calib.bundle import Bundle, Camera, load_bundle
+from dome_calib.bundle import Bundle, Camera
+from dome_calib.bundle_io import load_bundle
 from dome_calib.errors import CaptureError
 from dome_calib.io_utils import atomic_write_text
+from dome_calib.layout import nominal_dome
 from dome_calib.executor import Executor, make_executor
 from projector.features import FeatureOptions, FeatureReport, extract_features, nominal_camera
 from projector.mapping import MappingOptions, SceneModel, map_scene
@@ -84,8 +86,6 @@ class SfmResult:
 
 def _prior_cameras(prior: Bundle | Mapping[str, Camera] | str | Path | None) -> dict[str, Camera]:
     if prior is None:
-        from dome_calib.layout import nominal_dome
-
         return dict(nominal_dome("full", 0).cameras)
     if isinstance(prior, (str, Path)):
         return dict(load_bundle(prior).cameras)

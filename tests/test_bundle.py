@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dome_calib.bundle import Bundle, KinectSensor, SyncTable, SyncTables, load_bundle, write_bundle
+from dome_calib.bundle import Bundle, KinectSensor, SyncTable, SyncTables
+
+from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.errors import BundleFormatError
 from dome_calib.panoptic_io import M_COLOR_CONVENTION, read_calibration, read_kcalibration
 

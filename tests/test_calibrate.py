@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 import dome_calib.pipeline as pipeline
 from dome_calib.align import sim3_apply, transform_cameras
 from dome_calib.ba.problem import BAProblem
-from dome_calib.bundle import load_bundle, write_bundle
+from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.camera import project
 from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, observation_residuals, residuals_of
 from dome_calib.layout import nominal_dome

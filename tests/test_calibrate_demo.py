@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 import dome_calib.demo as demo
 import dome_calib.pipeline as pipeline
-from dome_calib.bundle import write_bundle
+from dome_calib.bundle_io import write_bundle
 from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, residuals_of
 from dome_calib.layout import nominal_dome
 

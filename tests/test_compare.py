@@ -14,7 +14,8 @@ from typer.testing import CliRunner
 
 from dome_calib.align import (AlignmentError, AlignOptions, align_cameras, align_points, rotation_angle_deg,
                               sim3_apply, transform_cameras)
-from dome_calib.bundle import Bundle, write_bundle
+from dome_calib.bundle import Bundle
+from dome_calib.bundle_io import write_bundle
 from dome_calib.camera import intr_to_K, project
 from dome_calib.compare import ChangeOptions, compare_cameras, detect_changes, format_comparison
 

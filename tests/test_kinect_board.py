@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from dome_calib.bundle import load_bundle
+from dome_calib.bundle_io import load_bundle
 from dome_calib.camera import K_to_intr, pixels_to_normalized, project
 from dome_calib.kinect.board import Checkerboard, RayGrid, render_board
 from dome_calib.kinect.detect import canonical_order, detect_board, read_gray

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from dome_calib.bundle import load_bundle, write_bundle
+from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.camera import K_to_intr, pixels_to_normalized
 from dome_calib.kinect.calibrate import calibrate_kinect_folder
 from dome_calib.kinect.stereo import rotation_error_deg

@@ -14,7 +14,9 @@ import pycolmap
 import pytest
 from scipy.spatial.transform import Rotation
 
-from dome_calib.bundle import Bundle, write_bundle
+from dome_calib.bundle import Bundle
+
+from dome_calib.bundle_io import write_bundle
 from dome_calib.camera import intr_to_K, opencv_to_colmap_px, project
 from dome_calib.compare import camera_error
 from dome_calib.layout import nominal_dome
@@ -100,7 +102,7 @@ def test_greedy_verdict_clears_neighbours_of_a_disturbed_group():
 def test_quick_recalibration_reestimates_only_the_changed(tmp_path, scene, monkeypatch):
     import dome_calib.pipeline as pipeline
     import dome_calib.pipeline_quick as quick
-    from dome_calib.bundle import load_bundle
+    from dome_calib.bundle_io import load_bundle
 
     prior, current, db, names = scene
     cap = tmp_path / "capture"

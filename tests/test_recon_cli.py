@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from dome_calib.bundle import write_bundle
+from dome_calib.bundle_io import write_bundle
 from dome_calib.recon.depth import read_ply
 from dome_calib.recon.formats import read_skeleton
 from dome_calib.synth.skeleton import skeleton_cm, synthetic_tracks

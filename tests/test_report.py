@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from dome_calib.bundle import write_bundle
+from dome_calib.bundle_io import write_bundle
 from dome_calib.report import ReportError, ReportOptions, Residuals, build_report, load_residuals, write_report
 from dome_calib.layout import nominal_dome
 

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from dome_calib.bundle import load_bundle
+from dome_calib.bundle_io import load_bundle
 from dome_calib.camera import project
 from projector.features import FeatureOptions, extract_features
 from projector.matching import MatchOptions, match_pairs

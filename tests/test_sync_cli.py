@@ -13,7 +13,7 @@ import pytest
 import soundfile as sf
 from typer.testing import CliRunner
 
-from dome_calib.bundle import load_bundle
+from dome_calib.bundle_io import load_bundle
 from dome_calib.panoptic_io import read_ksynctables, read_synctables
 from timecode.cli import app
 from timecode.encoder import EncoderOptions, encode_ltc_labels

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 from typer.testing import CliRunner
 
-from dome_calib.bundle import load_bundle
+from dome_calib.bundle_io import load_bundle
 from dome_calib.cli import app
 from dome_calib.synth.capture import SynthOptions, synthesize
 from dome_calib.layout import nominal_dome

@@ -5,7 +5,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dome_calib.bundle import CameraType, load_bundle, write_bundle
+from dome_calib.bundle import CameraType
+
+from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.camera import max_valid_radius2, project
 from dome_calib.layout import DOME_CENTRE_CM, nominal_dome, select_preset
 from dome_calib.synth.dome import dome_from_calibration, projectors

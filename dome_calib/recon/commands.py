@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dome_calib.bundle import load_bundle
+from dome_calib.bundle_io import load_bundle
 from dome_calib.recon.depth import depth_folder_reader, pointcloud_at, write_ply
 from dome_calib.recon.formats import default_times, fps_type_of, load_detection_streams, write_skeletons
 from dome_calib.recon.project import view_set

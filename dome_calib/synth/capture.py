@@ -24,7 +24,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from dome_calib.bundle import Bundle, CameraType, write_bundle
+from dome_calib.bundle import Bundle, CameraType
+
+from dome_calib.bundle_io import write_bundle
 from dome_calib.errors import DomeCalibError
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.layout import Preset, nominal_dome

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import soundfile as sf
 
-from dome_calib.bundle import load_bundle, write_bundle
+from dome_calib.bundle_io import bundle_seq, load_bundle, write_bundle
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.panoptic_io import format_ksynctables, format_synctables
 from timecode.errors import TimecodeError
@@ -137,13 +137,12 @@ def output_seq(bundle: str | Path, seq: str | None, session_seq: str) -> str:
         raise SyncError(f"{folder}: output bundle is not a folder")
     if seq is not None and (not seq or "/" in seq or seq.startswith(".")):
         raise SyncError(f"--seq {seq!r}: expected a plain name (no '/', not starting with '.')")
-    found = sorted(folder.glob("calibration_*.json")) if folder.is_dir() else []
-    if not found:
+    held = bundle_seq(folder)
+    if held is None:
         return seq or session_seq
-    bundle_seq = found[0].stem.removeprefix("calibration_")
-    if seq is not None and seq != bundle_seq:
-        raise SyncError(f"{folder}: holds {found[0].name}; --seq {seq} differs (omit --seq to use {bundle_seq!r})")
-    return bundle_seq
+    if seq is not None and seq != held:
+        raise SyncError(f"{folder}: holds calibration_{held}.json; --seq {seq} differs (omit --seq to use {held!r})")
+    return held
 
 
 def write_sync(result: SyncResult, bundle: str | Path, *, seq: str | None = None) -> list[Path]:
@@ -157,7 +156,7 @@ def write_sync(result: SyncResult, bundle: str | Path, *, seq: str | None = None
     seq = output_seq(folder, seq, result.seq)
     report_text = json.dumps(sync_report(result), indent=1) + "\n"
     has_kinect = bool(result.tables.kinect_color or result.tables.kinect_depth)
-    if folder.is_dir() and any(folder.glob("calibration_*.json")):
+    if bundle_seq(folder) is not None:
         b = load_bundle(folder)
         b.sync = result.tables
         write_bundle(b, folder)
