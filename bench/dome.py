@@ -201,7 +201,7 @@ def quick(args, root: Path, truth: Bundle) -> None:
          seconds={k: round(v, 1) for k, v in result.stage_seconds.items()}, found=found,
          found_exactly_the_changed=found == names, missed=sorted(set(names) - set(found)),
          given_new_intrinsics=sorted(n for n, c in result.changes.items() if any("replaced?" in r for r in c.reasons)),
-         counts={k: v for k, v in result.sfm.stats.items() if k not in ("suspects", "seconds")},
+         counts={k: v for k, v in result.stats["quick"].items() if k not in ("suspects", "seconds")},
          false_alarms=sorted(set(found) - set(names)), **ours)
     orc = oracle(result.ba.problem, result.ba.problem, moved)["result"]
     theirs = accuracy({n: orc.problem.camera(n) for n in orc.problem.camera_names}, moved, names)

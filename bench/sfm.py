@@ -148,8 +148,8 @@ def main() -> int:
     emit(stage="registration", preset=preset, prior=args.prior, cameras=len(gt.cameras), see_tent=len(sees),
          registered=len(registered), registered_of_those_seeing_tent=len(sees & registered),
          missing=sorted(sees - registered), all_seeing_cameras_registered=sees <= registered,
-         problem_observations=len(result.problem.uv_px) if result.problem else 0,
-         problem_points=len(result.problem.points_cm) if result.problem else 0)
+         problem_observations=result.observations.n_observations if result.observations else 0,
+         problem_points=result.observations.n_points if result.observations else 0)
     worst = names[int(np.argmax(err))]
     emit(stage="accuracy", preset=preset, prior=args.prior, refine_focal=args.refine_focal, center_err_cm_median=np.median(err),
          center_err_cm_mean=err.mean(), center_err_cm_max=err.max(), worst_camera=worst,

@@ -1,4 +1,5 @@
-"""Similarity alignment of two camera sets matched by name (robust Umeyama through pycolmap's LO-RANSAC).
+"""Similarity alignment of two camera sets matched by name (robust Umeyama through pycolmap's LO-RANSAC): the
+one :class:`Alignment` of the project (world frame, comparisons, and the SfM's scene merging).
 
 The transform is a ``pycolmap.Sim3d`` ``tgt_from_src``: ``X_tgt = scale * R @ X_src + t``. Cameras are aligned
 by their centres; the RANSAC threshold is in the target's units (cm for a bundle in the Panoptic frame), so
@@ -42,12 +43,18 @@ class AlignOptions:
 
 @dataclass(kw_only=True)
 class Alignment:
-    """Result of :func:`align_cameras`. ``residual_cm`` is per shared camera, after alignment, in target units."""
+    """A similarity ``tgt_from_src`` fitted on cameras matched by name, and how well each camera fits it.
+
+    ``residual`` is, per shared camera, the distance between its target centre and its mapped source centre, in
+    the target frame's length unit, which ``unit`` names: "cm" for a Panoptic frame (bundles, the design), else
+    the frame it is (e.g. "scene_01 units" inside the SfM merge, whose frames have no metric scale yet).
+    """
 
     tgt_from_src: pycolmap.Sim3d
     names: list[str]  # shared cameras, sorted
     inliers: list[str]
-    residual_cm: dict[str, float]
+    residual: dict[str, float]
+    unit: str = "cm"
 
     def __getstate__(self) -> dict:  # pycolmap.Sim3d does not survive pickle (work-folder caches): store numbers
         state = dict(self.__dict__)
@@ -66,8 +73,33 @@ class Alignment:
         return [n for n in self.names if n not in keep]
 
     @property
-    def inlier_rms_cm(self) -> float:
-        return float(np.sqrt(np.mean([self.residual_cm[n] ** 2 for n in self.inliers])))
+    def inlier_rms(self) -> float:
+        """RMS residual of the inliers, in ``unit`` (0 without inliers)."""
+        return float(np.sqrt(np.mean([self.residual[n] ** 2 for n in self.inliers]))) if self.inliers else 0.0
+
+    @property
+    def scale(self) -> float:
+        return float(self.tgt_from_src.scale)
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """(3, 3) rotation part."""
+        return sim3_rotation(self.tgt_from_src)
+
+    @property
+    def translation(self) -> np.ndarray:
+        """(3,) translation part, target units."""
+        return np.asarray(self.tgt_from_src.translation, dtype=float)
+
+    def apply(self, X_src: np.ndarray) -> np.ndarray:
+        """(..., 3) source points -> target frame."""
+        return sim3_apply(self.tgt_from_src, X_src)
+
+    @classmethod
+    def identity(cls, names: list[str], unit: str = "cm") -> Alignment:
+        """The identity on ``names`` (every camera an inlier with zero residual)."""
+        return cls(tgt_from_src=pycolmap.Sim3d(), names=list(names), inliers=list(names),
+                   residual=dict.fromkeys(names, 0.0), unit=unit)
 
 
 def sim3_apply(tgt_from_src: pycolmap.Sim3d, X_src: np.ndarray) -> np.ndarray:
@@ -137,9 +169,9 @@ def align_cameras(src: dict[str, Camera], tgt: dict[str, Camera], options: Align
     sim, inliers = align_points(c_src, c_tgt, options)
     residual = np.linalg.norm(sim3_apply(sim, c_src) - c_tgt, axis=1)
     result = Alignment(tgt_from_src=sim, names=shared, inliers=[n for n, k in zip(shared, inliers) if k],
-                       residual_cm={n: float(r) for n, r in zip(shared, residual)})
+                       residual={n: float(r) for n, r in zip(shared, residual)})
     logger.debug("aligned %d/%d cameras, scale %.6f, inlier RMS %.3f cm", len(result.inliers), len(shared),
-                 sim.scale, result.inlier_rms_cm)
+                 sim.scale, result.inlier_rms)
     return result
 
 
@@ -151,11 +183,3 @@ def transform_cameras(cameras: dict[str, Camera], tgt_from_src: pycolmap.Sim3d) 
         R_new = cam.R @ Rs.T
         out[name] = dataclasses.replace(cam, R=R_new, t_cm=s * cam.t_cm - R_new @ ts)
     return out
-
-
-def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
-    """(...,) angle of ``R_a @ R_b.T`` in degrees, for (..., 3, 3) rotations."""
-    rel = np.asarray(R_a) @ np.swapaxes(np.asarray(R_b), -1, -2)
-    cos = (np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0
-    vee = np.stack([rel[..., 2, 1] - rel[..., 1, 2], rel[..., 0, 2] - rel[..., 2, 0], rel[..., 1, 0] - rel[..., 0, 1]], -1)
-    return np.degrees(np.arctan2(np.linalg.norm(vee, axis=-1) / 2.0, cos))  # accurate near 0, unlike arccos

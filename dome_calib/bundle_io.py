@@ -6,14 +6,18 @@ A bundle is one folder holding the Panoptic-format files (each read and formatte
 """
 from __future__ import annotations
 
+import ctypes
+import errno
 import logging
+import os
 import shutil
+import stat
 import tempfile
 from pathlib import Path
 
 from dome_calib import panoptic_io as pio
 from dome_calib.bundle import Bundle, SyncTables
-from dome_calib.errors import BundleFormatError
+from dome_calib.errors import BundleFormatError, DomeCalibError
 
 logger = logging.getLogger(__name__)
 
@@ -86,3 +90,91 @@ def write_bundle(bundle: Bundle, folder: str | Path) -> Path:
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return folder
+
+
+# ------------------------------------------------------------------------------ replacing a bundle folder whole
+def _sibling(target: Path, role: str) -> Path:
+    return target.with_name(f".{target.name}.{role}")
+
+
+def staging_folder(target: Path) -> Path:
+    """An empty folder beside ``target`` to build its replacement in (a leftover one is removed first)."""
+    staging = _sibling(Path(target), "staging")
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    return staging
+
+
+def recover_folder(target: Path) -> None:
+    """Finish or undo a replacement that a stop interrupted: put a set-aside bundle back if ``target`` is gone,
+    and remove leftover staging / set-aside folders. Call with the work folder locked."""
+    target = Path(target)
+    aside = _sibling(target, "aside")
+    if aside.is_dir() and not target.exists():
+        aside.rename(target)
+        logger.warning("%s: restored the previous bundle after an interrupted replacement", target)
+    for leftover in (aside, _sibling(target, "staging")):
+        shutil.rmtree(leftover, ignore_errors=True)
+
+
+_libc = ctypes.CDLL(None, use_errno=True)
+_AT_FDCWD, _RENAME_EXCHANGE = -100, 2
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths in one step (Linux renameat2 RENAME_EXCHANGE); False where the system cannot."""
+    renameat2 = getattr(_libc, "renameat2", None)
+    if renameat2 is None:
+        return False
+    if renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+def replace_folder(staging: Path, target: Path) -> None:
+    """Put the folder ``staging`` in place of ``target`` so that a reader sees the old folder or the new one,
+    never a mix: an atomic exchange where the system has it, else set the old aside, rename the new in and
+    remove the old (a stop between the two renames is undone by :func:`recover_folder`)."""
+    staging, target = Path(staging), Path(target)
+    if not target.exists():
+        staging.rename(target)
+        return
+    if _exchange(staging, target):
+        shutil.rmtree(staging)  # now the old folder
+        return
+    aside = _sibling(target, "aside")
+    shutil.rmtree(aside, ignore_errors=True)
+    target.rename(aside)
+    staging.rename(target)
+    shutil.rmtree(aside)
+
+
+def _kind(path: Path) -> str:
+    mode = path.lstat().st_mode
+    return ("a symbolic link" if stat.S_ISLNK(mode) else "a named pipe (FIFO)" if stat.S_ISFIFO(mode)
+            else "a regular file" if stat.S_ISREG(mode) else "a socket" if stat.S_ISSOCK(mode)
+            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "not a folder")
+
+
+def check_output_folder(out: Path) -> str | None:
+    """Before any work: ``out`` must be new, an empty folder or a bundle folder (which will be replaced whole).
+
+    Returns the seq of the bundle it holds (None when new or empty). Raises :class:`DomeCalibError` for a path
+    that is not a folder (file, FIFO, symbolic link, ...) or a folder of other things.
+    """
+    out = Path(out)
+    if out.is_symlink() or (out.exists() and not out.is_dir()):
+        raise DomeCalibError(f"{out}: the output is {_kind(out)}, not a folder; give a new or bundle folder")
+    if not out.exists():
+        return None
+    found = sorted(out.glob("calibration_*.json"))
+    if not found:
+        others = sorted(p.name for p in out.iterdir())
+        if others:
+            raise DomeCalibError(f"{out}: not a calibration bundle (holds {', '.join(others[:3])}"
+                                 f"{', ...' if len(others) > 3 else ''}); give a new, empty or bundle folder")
+        return None
+    return found[0].stem.removeprefix("calibration_")  # several (a broken folder): it is replaced whole anyway

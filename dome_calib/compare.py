@@ -14,7 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dome_calib.align import AlignOptions, align_cameras, rotation_angle_deg, transform_cameras
+from dome_calib.align import AlignOptions, align_cameras, transform_cameras
+from dome_calib.rotation import rotation_angle_deg
 from dome_calib.bundle import Camera, CameraType
 from dome_calib.camera import distort, pixels_to_normalized
 

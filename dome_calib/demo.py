@@ -15,10 +15,15 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from dome_calib.bundle_io import load_bundle
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.compare import Comparison, compare_cameras
 from dome_calib.errors import DomeCalibError
-from dome_calib.pipeline import CalibrateOptions, CalibrationResult, run_calibration
+from dome_calib.pipeline import CalibrateOptions, CalibrationResult, format_result, run_calibration
+from dome_calib.synth.capture import SynthOptions
+from dome_calib.synth.capture import synthesize as write_capture
+from dome_calib.synth.dome import as_built_dome
 
 logger = logging.getLogger(__name__)
 
@@ -48,9 +53,6 @@ class DemoResult:
 def synthesize(capture: Path, preset: str, scenes: int, seed: int, progress: bool = True) -> float:
     """Write the synthetic capture of the dome AS BUILT (:func:`dome_calib.synth.dome.as_built_dome`: not the
     design that calibrate starts from) unless the same one is already there; returns the seconds spent."""
-    from dome_calib.bundle_io import write_bundle
-    from dome_calib.synth.dome import as_built_dome
-
     layout = capture.parent / "as_built" / "calibration_as_built.json"
     meta = capture / "capture.json"
     if meta.exists() and layout.exists():
@@ -59,7 +61,6 @@ def synthesize(capture: Path, preset: str, scenes: int, seed: int, progress: boo
                 and old.get("layout") == str(layout)):
             logger.info("reusing the synthetic capture in %s", capture)
             return 0.0
-    from dome_calib.synth.capture import SynthOptions, synthesize as write_capture
 
     t0 = time.perf_counter()
     write_bundle(as_built_dome(preset, seed), layout.parent)
@@ -75,7 +76,6 @@ def _progress_bar(description: str, enabled: bool):
     if not enabled:
         yield lambda done, total: None
         return
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   transient=False) as bar:
@@ -136,6 +136,5 @@ def format_demo(result: DemoResult) -> str:
 
 
 def _format_calibration_lines(cal: CalibrationResult) -> list[str]:
-    from dome_calib.pipeline import format_result
 
     return [line for line in format_result(cal).splitlines() if not line.startswith(("bundle:", "report:"))]

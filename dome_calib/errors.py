@@ -1,10 +1,12 @@
 """Error hierarchy and the one-line-error CLI runner shared by the `dome-calib` and `timecode` commands."""
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 logger = logging.getLogger("dome_calib")
 
@@ -19,6 +21,43 @@ class BundleFormatError(DomeCalibError, ValueError):
 
 class CaptureError(DomeCalibError, ValueError):
     """A capture folder (images, Kinect frames, audio) is missing something or malformed."""
+
+
+class ReportError(DomeCalibError):
+    """The report cannot be made from what was given (bad residual file, unknown camera)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM arrived while a stage ran; ``stage`` names it (the run resumes from the work folder)."""
+
+    def __init__(self, stage: str) -> None:
+        super().__init__(stage)
+        self.stage = stage
+
+
+#: Exit code of a run stopped by SIGINT or SIGTERM (128 + SIGINT, as shells report it).
+EXIT_INTERRUPTED = 130
+
+
+def _terminate_as_interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def interrupt_as_one_line(prog: str) -> Iterator[None]:
+    """SIGINT or SIGTERM inside the block: one line on stderr ("interrupted during STAGE; rerun the same command
+    to resume" when a pipeline stage was running), exit code 130, no traceback (``DOME_CALIB_DEBUG=1``: raise)."""
+    previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+    try:
+        yield
+    except KeyboardInterrupt as exc:
+        if os.environ.get("DOME_CALIB_DEBUG"):
+            raise
+        where = f" during {exc.stage}" if isinstance(exc, Interrupted) else ""
+        print(f"{prog}: interrupted{where}; rerun the same command to resume", file=sys.stderr)
+        sys.exit(EXIT_INTERRUPTED)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def run_cli(app: Callable[..., object], *, prog: str, user_errors: tuple[type[BaseException], ...] = ()) -> None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import multiprocessing
 import os
+import signal
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Protocol, TypeVar, runtime_checkable
 
@@ -70,18 +71,26 @@ class SerialExecutor:
         self.shutdown()
 
 
+def _worker_ignores_sigint() -> None:
+    """Worker initializer: Ctrl-C reaches the whole process group; the parent alone handles it and stops the
+    workers (:meth:`LocalProcessExecutor.terminate`), so no worker prints a traceback."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 class LocalProcessExecutor:
     """A process pool on this machine (default: one worker per available core).
 
     Workers are started with ``spawn`` so that no pycolmap/OpenMP thread state is inherited from the parent,
-    and with one BLAS / OpenMP thread each (:func:`dome_calib.workers.single_threaded_children`).
+    and with one BLAS / OpenMP thread each (:func:`dome_calib.workers.single_threaded_children`). They ignore
+    SIGINT: leaving the ``with`` block by an exception (an interrupt included) stops them at once, quietly.
     Use as a context manager, or call :meth:`shutdown`.
     """
 
     def __init__(self, num_workers: int | None = None, *, max_in_flight_per_worker: int = 4) -> None:
         self.num_workers = num_workers or default_num_workers()
         self._max_in_flight = max(1, self.num_workers * max_in_flight_per_worker)
-        self._pool = cf.ProcessPoolExecutor(self.num_workers, mp_context=multiprocessing.get_context("spawn"))
+        self._pool = cf.ProcessPoolExecutor(self.num_workers, mp_context=multiprocessing.get_context("spawn"),
+                                            initializer=_worker_ignores_sigint)
 
     def submit(self, fn: Callable[..., R], /, *args: Any, **kwargs: Any) -> Future[R]:
         with single_threaded_children():  # the pool starts its worker processes on demand, inside submit
@@ -104,11 +113,25 @@ class LocalProcessExecutor:
     def shutdown(self) -> None:
         self._pool.shutdown(wait=True, cancel_futures=True)
 
+    def terminate(self) -> None:
+        """Stop now: drop queued tasks and end the worker processes (SIGTERM) without waiting for their tasks."""
+        # ProcessPoolExecutor has no public handle on its processes; _processes is stable since Python 3.2
+        processes = list((getattr(self._pool, "_processes", None) or {}).values())
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        for proc in processes:
+            if proc.is_alive():
+                proc.terminate()
+        for proc in processes:
+            proc.join(timeout=5)
+
     def __enter__(self) -> LocalProcessExecutor:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.shutdown()
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if exc_type is None:
+            self.shutdown()
+        else:
+            self.terminate()
 
 
 def make_executor(num_workers: int | None = None) -> SerialExecutor | LocalProcessExecutor:

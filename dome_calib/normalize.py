@@ -55,13 +55,13 @@ class Normalized:
         what = {WorldReference.PRIOR: "the prior bundle", WorldReference.NOMINAL: "the nominal dome geometry"}
         src = f" ({self.reference_source})" if self.reference_source else ""
         return (f"world frame: similarity to {what[self.reference]}{src} on {len(a.inliers)} of {len(a.names)} "
-                f"shared cameras, scale {a.tgt_from_src.scale:.5g}, residual RMS {a.inlier_rms_cm:.2f} cm")
+                f"shared cameras, scale {a.tgt_from_src.scale:.5g}, residual RMS {a.inlier_rms:.2f} {a.unit}")
 
     def as_dict(self) -> dict:
         a = self.alignment
         return {"reference": str(self.reference), "reference_source": self.reference_source,
                 "shared_cameras": len(a.names), "inliers": len(a.inliers), "outliers": a.outliers,
-                "scale": float(a.tgt_from_src.scale), "residual_rms_cm": a.inlier_rms_cm,
+                "scale": float(a.tgt_from_src.scale), "residual_rms_cm": a.inlier_rms,
                 "not_aligned": self.not_aligned, "description": self.describe()}
 
 

@@ -1,13 +1,14 @@
 """`dome-calib calibrate`: the technician's one command, as a straight run of stages.
 
-    sfm (features, pairs, matching, per-scene mapping, merge)  -> BAProblem   [projector.run_sfm]
+    sfm (features, pairs, matching, per-scene mapping, merge)  -> observations -> BAProblem   [projector.run_sfm]
     ba (5-parameter bundle adjustment, outlier schedule)        -> refined    [dome_calib.ba]
-    normalize (similarity to the prior, or the nominal dome)   -> Panoptic world frame
-    write (bundle, then report/)                                -> OUT/
+    normalize (similarity to the prior, or the design layout)  -> Panoptic world frame
+    write (bundle and report staged beside OUT, then swapped in) -> OUT/
 
-Resumable: every finished stage leaves its result in the work folder (``OUT.work`` by default) and a rerun
-with the same capture and options starts after the last finished stage; SfM also reuses its own databases.
-Nothing is written to OUT until the end (bundle files atomically, then the report folder by rename).
+Resumable: every finished stage leaves its result in the work folder (``OUT.work`` by default,
+:class:`dome_calib.workstate.WorkState`, locked while a run uses it) and a rerun with the same inputs (images and
+prior by size and mtime, options) starts after the last finished stage; SfM also reuses its own databases.
+OUT is checked before any work and replaced whole at the end (:mod:`dome_calib.pipeline_finish`).
 
 With ``--prior`` the cameras are compared with the prior bundle (cm, deg, intrinsics) and the report lists
 those that moved; ``--only-changed`` then re-estimates just those, all other cameras held at the prior
@@ -15,220 +16,75 @@ those that moved; ``--only-changed`` then re-estimates just those, all other cam
 """
 from __future__ import annotations
 
-import contextlib
+import dataclasses
 import json
 import logging
-import pickle
-import time
-from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
-from dome_calib.bundle import Bundle, CameraType, camera_type_from_name
-
-from dome_calib.bundle_io import load_bundle, write_bundle
-from dome_calib.compare import CameraChange, ChangeOptions, detect_changes
-from dome_calib.errors import CaptureError, DomeCalibError
-from dome_calib.io_utils import atomic_path, atomic_write_text
-from dome_calib.normalize import Normalized, NormalizeOptions, normalize
-from dome_calib.report import ReportOptions, Residuals, load_residuals, write_report
-from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, run_ba_stage, run_sfm_stage
+from dome_calib.bundle import CameraType, camera_type_from_name
+from dome_calib.bundle_io import check_output_folder, load_bundle, recover_folder
+from dome_calib.compare import detect_changes
+from dome_calib.errors import DomeCalibError
+from dome_calib.normalize import normalize
+from dome_calib.pipeline_finish import (CalibrateOptions, Calibrated, CalibrationInputs, CalibrationResult,
+                                        capture_contents, finish)
+from dome_calib.pipeline_quick import run_quick
+from dome_calib.pipeline_stages import run_ba_stage, run_sfm_stage
+from dome_calib.report import ReportOptions, load_residuals, write_report
+from dome_calib.workstate import WorkState, input_fingerprint
 
 logger = logging.getLogger(__name__)
 
-STATE_FILE = "state.json"
+__all__ = ["CalibrateOptions", "CalibrationResult", "format_result", "report_bundle", "run_calibration", "run_full"]
+
 STAGE_LABELS = {"sfm": "features, pairs, matching, per-scene mapping, merging scenes",
                 "ba": "bundle adjustment (5 distortion parameters, outlier rejection)",
+                "normalize": "world frame", "write": "bundle and report",
                 "match": "features, pairs and matching of one scene",
                 "detect": "which cameras disagree with the prior", "quick_ba": "re-estimating the changed cameras"}
-STATE_VERSION = 1
-
-
-@dataclass(kw_only=True)
-class CalibrateOptions:
-    """What `dome-calib calibrate` does. ``seq`` defaults to the capture folder's name."""
-
-    prior: Path | None = None
-    only_changed: bool = False
-    seq: str | None = None
-    work_dir: Path | None = None
-    progress: bool = True
-    normalize: NormalizeOptions = field(default_factory=NormalizeOptions)
-    changes: ChangeOptions = field(default_factory=ChangeOptions)
-    report: ReportOptions = field(default_factory=ReportOptions)
-    max_center_sigma_cm: float = 0.5  # flag cameras whose centre is less certain than this (1 sigma)
-
-
-@dataclass(kw_only=True)
-class CalibrationResult:
-    """What a calibration produced, for the summary and the demo."""
-
-    bundle_dir: Path
-    report_dir: Path
-    bundle: Bundle
-    expected: list[str]  # cameras of the capture
-    failures: dict[str, str]  # camera -> why it was not calibrated
-    normalized: Normalized
-    residuals: Residuals
-    stage_seconds: dict[str, float]
-    resumed: list[str]  # stages taken from the work folder
-    changes: dict[str, CameraChange] | None = None
-    to_check: list[dict] = field(default_factory=list)
-    sfm: SfmOutcome | None = None
-    ba: BAOutcome | None = None
-
-    @property
-    def rms_px(self) -> float:
-        return float(np.sqrt(np.mean(self.residuals.residual_px ** 2)))  # per coordinate
-
-
-def capture_contents(capture: Path) -> tuple[list[str], list[str]]:
-    """Scenes and cameras named by ``capture.json`` (or found under scenes/)."""
-    if not capture.is_dir():
-        raise CaptureError(f"{capture}: not a folder")
-    meta_path = capture / "capture.json"
-    if meta_path.exists():
-        try:
-            meta = json.loads(meta_path.read_text(encoding="utf-8"))
-            return list(meta["scenes"]), list(meta["cameras"])
-        except (ValueError, KeyError, TypeError) as exc:
-            raise CaptureError(f"{meta_path}: malformed ({exc})") from exc
-    scenes = sorted(p.name for p in (capture / "scenes").glob("*") if p.is_dir())
-    if not scenes:
-        raise CaptureError(f"{capture}: no capture.json and no scenes/<scene>/ folders")
-    cams = sorted({p.stem for s in scenes for p in (capture / "scenes" / s).glob("*.png")})
-    return scenes, cams
-
-
-@contextlib.contextmanager
-def _stage_status(text: str, enabled: bool):
-    """A live spinner with the elapsed time on stderr while a stage runs (nothing when disabled)."""
-    if not enabled:
-        yield
-        return
-    from rich.console import Console
-    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-
-    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
-                  console=Console(stderr=True), transient=False) as bar:
-        task = bar.add_task(text, total=1)
-        yield
-        bar.update(task, completed=1)
-
-
-class _WorkState:
-    """Which stages finished, for which inputs, kept as JSON in the work folder."""
-
-    def __init__(self, folder: Path, fingerprint: dict) -> None:
-        self.folder, self.fingerprint = folder, fingerprint
-        self.path = folder / STATE_FILE
-        folder.mkdir(parents=True, exist_ok=True)
-        state = json.loads(self.path.read_text(encoding="utf-8")) if self.path.exists() else {}
-        if state.get("version") != STATE_VERSION or state.get("fingerprint") != fingerprint:
-            if state:
-                logger.info("work folder %s was made for other inputs: starting over", folder)
-            state = {"version": STATE_VERSION, "fingerprint": fingerprint, "stages": {}}
-        self.state = state
-
-    def done(self, stage: str) -> bool:
-        return stage in self.state["stages"] and (self.folder / f"{stage}.pkl").exists()
-
-    def load(self, stage: str):
-        with open(self.folder / f"{stage}.pkl", "rb") as f:
-            return pickle.load(f)
-
-    def save(self, stage: str, value: object, seconds: float) -> None:
-        with atomic_path(self.folder / f"{stage}.pkl") as tmp:
-            tmp.write_bytes(pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL))
-        self.state["stages"][stage] = {"seconds": seconds}
-        atomic_write_text(self.path, json.dumps(self.state, indent=1))
 
 
 def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None = None) -> CalibrationResult:
     """Calibrate the dome from a capture folder and write the bundle and its report to ``out``.
 
-    Raises :class:`CaptureError` for an unusable capture, BundleFormatError for a bad prior, and
-    AlignmentError when the world frame cannot be fixed; nothing is written to ``out`` then.
+    Raises :class:`CaptureError` for an unusable capture, BundleFormatError for a bad prior, DomeCalibError for
+    an output that is not a (bundle) folder or a work folder in use, and AlignmentError when the world frame
+    cannot be fixed; ``out`` is untouched then. An interrupt raises :class:`dome_calib.errors.Interrupted`.
     """
     options = options or CalibrateOptions()
     capture, out = Path(capture), Path(out)
     scenes, expected = capture_contents(capture)
     if options.only_changed and options.prior is None:
         raise DomeCalibError("--only-changed needs --prior (the bundle the unchanged cameras are taken from)")
+    check_output_folder(out)
     prior = load_bundle(options.prior) if options.prior is not None else None
-    seq = options.seq or capture.resolve().name
+    inputs = CalibrationInputs(capture=capture, out=out, seq=options.seq or capture.resolve().name, scenes=scenes,
+                               expected=expected, prior=prior, options=options)
     work = Path(options.work_dir) if options.work_dir else out.with_name(out.name + ".work")
-    fingerprint = {"capture": str(capture.resolve()), "scenes": scenes, "cameras": expected,
-                   "prior": str(Path(options.prior).resolve()) if options.prior else None,
-                   "only_changed": options.only_changed}
-    state = _WorkState(work, fingerprint)
-    seconds: dict[str, float] = {}
-    resumed: list[str] = []
-
-    def stage(name: str, fn):
-        if state.done(name):
-            resumed.append(name)
-            seconds[name] = state.state["stages"][name]["seconds"]
-            logger.info("stage %s: taken from %s", name, work)
-            return state.load(name)
-        t0 = time.perf_counter()
-        with _stage_status(f"{name}: {STAGE_LABELS.get(name, name)}", options.progress):
-            value = fn()
-        seconds[name] = time.perf_counter() - t0
-        state.save(name, value, seconds[name])
-        logger.info("stage %s: done in %.1f s", name, seconds[name])
-        return value
-
-    if options.only_changed:
-        from dome_calib.pipeline_quick import run_quick
-
-        return run_quick(capture=capture, out=out, seq=seq, scenes=scenes, expected=expected, prior=prior,
-                         options=options, stage=stage, seconds=seconds, resumed=resumed)
-
-    sfm: SfmOutcome = stage("sfm", lambda: run_sfm_stage(capture, work / "sfm", prior=prior,
-                                                         progress=options.progress))
-    ba: BAOutcome = stage("ba", lambda: run_ba_stage(sfm.problem, progress=options.progress))
-    t0 = time.perf_counter()
-    normalized = normalize(ba.cameras, options.normalize, prior=prior.cameras if prior else None,
-                           prior_source=str(options.prior) if options.prior else "")
-    seconds["normalize"] = time.perf_counter() - t0
-    return finish(out=out, seq=seq, expected=expected, failures=sfm.failures, normalized=normalized,
-                  residuals=ba.residuals, prior=prior, options=options, seconds=seconds, resumed=resumed,
-                  sfm=sfm, ba=ba, source=f"dome-calib calibrate {capture.name} ({len(scenes)} scenes)")
+    fingerprint = input_fingerprint(capture, scenes, expected, options.prior, {"only_changed": options.only_changed})
+    with WorkState.open(work, fingerprint, progress=options.progress, labels=STAGE_LABELS) as state:
+        recover_folder(out)
+        return run_quick(inputs, state) if options.only_changed else run_full(inputs, state)
 
 
-def finish(*, out: Path, seq: str, expected: list[str], failures: dict[str, str], normalized: Normalized,
-           residuals: Residuals, prior: Bundle | None, options: CalibrateOptions, seconds: dict[str, float],
-           resumed: list[str], source: str, sfm: SfmOutcome | None = None, ba: BAOutcome | None = None,
-           changes: dict[str, CameraChange] | None = None, ba_scale: float | None = None,
-           notes: dict[str, str] | None = None) -> CalibrationResult:
-    """Change detection against the prior, then the bundle and its report in ``out``. ``notes``: camera -> a
-    further reason to check it (e.g. a quick run could not check it)."""
-    t0 = time.perf_counter()
-    bundle = Bundle(seq=seq, cameras=dict(sorted(normalized.cameras.items())), calib_data_source=source)
-    if prior is not None and changes is None:
-        changes = detect_changes(bundle.cameras, prior.cameras, options.changes)
-    missing = {n: failures.get(n, "not reconstructed") for n in expected if n not in bundle.cameras}
-    reasons = {n: list(c.reasons) for n, c in (changes or {}).items()}
-    for n, note in (notes or {}).items():
-        reasons.setdefault(n, []).append(note)
-    scale = float(normalized.alignment.tgt_from_src.scale) if ba_scale is None else ba_scale  # BA units -> cm
-    sigma_cm = {n: s * scale for n, s in (ba.center_sigma if ba else {}).items() if n in bundle.cameras}
-    for n, s in sigma_cm.items():
-        if s > options.max_center_sigma_cm:
-            reasons.setdefault(n, []).append(f"position poorly determined (+-{s:.1f} cm, 1 sigma): few or one-sided "
-                                             "views of the tent; add a tent position it sees")
-    write_bundle(bundle, out)
-    extra = {"world_frame": normalized.as_dict(), "stage_seconds": seconds,
-             "center_sigma_cm": {n: round(s, 4) for n, s in sorted(sigma_cm.items())},
-             "changes_vs_prior": {n: c.as_dict() for n, c in (changes or {}).items()} if prior else None}
-    report_dir = write_report(out, bundle, residuals, options.report, changes=reasons, missing=missing, extra=extra)
-    seconds["write"] = time.perf_counter() - t0
-    content = json.loads((report_dir / "report.json").read_text(encoding="utf-8"))
-    return CalibrationResult(bundle_dir=out, report_dir=report_dir, bundle=bundle, expected=expected,
-                             failures=missing, normalized=normalized, residuals=residuals, stage_seconds=seconds,
-                             resumed=resumed, changes=changes, to_check=content["to_check"], sfm=sfm, ba=ba)
+def run_full(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
+    """Every camera from the images: SfM, bundle adjustment, world frame, then :func:`finish`."""
+    options, prior = inputs.options, inputs.prior
+    sfm = state.run("sfm", partial(run_sfm_stage, inputs.capture, state.folder / "sfm", prior=prior,
+                                   progress=options.progress))
+    ba = state.run("ba", partial(run_ba_stage, sfm.problem, progress=options.progress))
+    normalized = state.time("normalize", partial(normalize, ba.cameras, options.normalize,
+                                                 prior=prior.cameras if prior else None,
+                                                 prior_source=str(options.prior) if options.prior else ""))
+    to_cm = normalized.alignment.scale  # BA units -> cm
+    calibrated = Calibrated(normalized=normalized, failures=sfm.failures, residuals=ba.residuals,
+                            center_sigma_cm={n: s * to_cm for n, s in ba.center_sigma.items()},
+                            source=f"dome-calib calibrate {inputs.capture.name} ({len(inputs.scenes)} scenes)")
+    result = finish(inputs, state, calibrated)
+    return dataclasses.replace(result, sfm=sfm, ba=ba, stats={"sfm": sfm.stats, "ba": ba.stats})
 
 
 def format_result(result: CalibrationResult, max_rows: int = 12) -> str:

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -30,9 +32,20 @@ from dome_calib.align import Alignment
 from dome_calib.ba.problem import ParamGroup, camera_to_params
 from dome_calib.bundle import Bundle
 from dome_calib.compare import CameraChange, camera_error
+from dome_calib.executor import make_executor
 from dome_calib.normalize import Normalized, WorldReference
-from dome_calib.pipeline_stages import SfmOutcome, ba_options, observation_residuals, quiet_colmap, run_ba_stage
-from dome_calib.report import Residuals
+from dome_calib.pipeline_finish import Calibrated, CalibrationInputs, CalibrationResult, finish
+from dome_calib.pipeline_stages import (BAOutcome, ba_options, observation_residuals, problem_from_observations,
+                                        quiet_colmap, run_ba_stage)
+from dome_calib.residuals import Residuals
+from dome_calib.workstate import WorkState
+from projector.consistency import changed_cameras, pair_errors
+from projector.database import camera_of_image
+from projector.features import nominal_camera
+from projector.known_poses import observations_from_known, register_cameras, triangulate_known, verified_partners
+from projector.matching import match_pairs
+from projector.pairs import PairOptions, pairs_from_prior
+from projector.sfm import SfmOptions, match_scene
 
 QUICK_BA = dataclasses.replace(ba_options(), compute_uncertainty=False)  # few free cameras: not needed
 
@@ -53,6 +66,46 @@ RELENS_RMS_RATIO = 1.025
 CONFIRM_RMS_RATIO = 1.5
 
 
+@dataclass(kw_only=True)
+class MatchedScene:
+    """Stage ``match``: one scene's features, pairs and verified matches, in ``database``."""
+
+    scene: str
+    database: Path
+    image_dir: Path
+    cameras: list[str]  # cameras with features
+    failures: dict[str, str]  # camera -> why its image is unusable
+    pairs: int
+    verified_pairs: int
+    inlier_matches: int
+    seconds: dict[str, float]  # features, matching
+
+
+@dataclass(kw_only=True)
+class Suspects:
+    """Stage ``detect``: cameras inconsistent with the prior (or unknown to it), and the extra pairs matched."""
+
+    suspects: list[str]
+    unknown: list[str]  # cameras the prior does not know
+    bad_pair_px: float  # Sampson distance above which a pair disagrees with the prior
+    extra_pairs: int
+
+
+@dataclass(kw_only=True)
+class Reestimated:
+    """Stage ``quick_ba``: the suspects re-estimated, and which of them changed."""
+
+    ba: BAOutcome | None  # None: no suspect, or none could be registered
+    changed: list[str] = field(default_factory=list)
+    relensed: list[str] = field(default_factory=list)  # changed cameras that got new intrinsics
+    failed: dict[str, str] = field(default_factory=dict)  # suspect -> why it could not be re-estimated
+    rms_prior_px: dict[str, float] = field(default_factory=dict)  # per suspect, under the prior
+    rms_new_px: dict[str, float] = field(default_factory=dict)  # per suspect, re-estimated
+    points: int = 0
+    observations: int = 0
+    held_cameras: int = 0  # unchanged partners the points were triangulated from
+
+
 def _robust_camera_rms(problem, used: np.ndarray) -> np.ndarray:
     """(C,) per-coordinate RMS of each camera's observations after trimming its worst 10 % (matching outliers)."""
     res = observation_residuals(problem)
@@ -66,9 +119,7 @@ def _robust_camera_rms(problem, used: np.ndarray) -> np.ndarray:
     return out
 
 
-def _options(progress: bool, pairs_per_camera: int):
-    from projector.sfm import SfmOptions
-
+def _options(progress: bool, pairs_per_camera: int) -> SfmOptions:
     options = SfmOptions(show_progress=progress)
     options.pairs.max_pairs_per_camera = pairs_per_camera
     for sub in (options.features, options.matching):
@@ -76,31 +127,23 @@ def _options(progress: bool, pairs_per_camera: int):
     return options
 
 
-def match_first_scene(capture: Path, work: Path, scene: str, prior: Bundle, progress: bool) -> dict:
+def match_first_scene(capture: Path, work: Path, scene: str, prior: Bundle, progress: bool) -> MatchedScene:
     """Stage ``match``: features, pairs and verified matches of one scene, in ``work/<scene>/database.db``."""
-    from dome_calib.executor import make_executor
-    from projector.sfm import match_scene
-
     quiet_colmap()
     with make_executor() as executor:
         feats, pairs, matches = match_scene(capture, work, scene, dict(prior.cameras),
                                             _options(progress, DETECT_PAIRS_PER_CAMERA), executor)
-    return {"scene": scene, "database": str(work / scene / "database.db"), "image_dir": str(capture / "scenes" / scene),
-            "cameras": sorted(feats.num_features), "failures": dict(feats.failures), "pairs": len(pairs),
-            "verified_pairs": matches.num_verified_pairs, "inlier_matches": matches.num_inlier_matches,
-            "seconds": {"features": feats.seconds, "matching": matches.seconds}}
+    return MatchedScene(scene=scene, database=work / scene / "database.db", image_dir=capture / "scenes" / scene,
+                        cameras=sorted(feats.num_features), failures=dict(feats.failures), pairs=len(pairs),
+                        verified_pairs=matches.num_verified_pairs, inlier_matches=matches.num_inlier_matches,
+                        seconds={"features": feats.seconds, "matching": matches.seconds})
 
 
-def detect_suspects(matched: dict, prior: Bundle, progress: bool) -> dict:
+def detect_suspects(matched: MatchedScene, prior: Bundle, progress: bool) -> Suspects:
     """Stage ``detect``: cameras inconsistent with the prior (module docstring), then their extra pairs."""
-    from projector.consistency import changed_cameras, pair_errors
-    from dome_calib.executor import make_executor
-    from projector.matching import match_pairs
-    from projector.pairs import PairOptions, pairs_from_prior
-
-    errors = pair_errors(matched["database"], prior.cameras)
+    errors = pair_errors(str(matched.database), prior.cameras)
     verdict = changed_cameras(errors)
-    cameras = matched["cameras"]
+    cameras = matched.cameras
     unknown = [n for n in cameras if n not in prior.cameras]
     suspects = sorted(set(verdict.changed) | set(verdict.unchecked) | set(unknown))
     logger.info("quick recalibration: %d suspect camera(s) (bad pair above %.2f px)", len(suspects),
@@ -111,36 +154,33 @@ def detect_suspects(matched: dict, prior: Bundle, progress: bool) -> dict:
              if (p[0] in s) != (p[1] in s)]
     if extra:
         with make_executor() as executor:
-            match_pairs(matched["database"], extra, options=_options(progress, 0).matching, executor=executor,
-                        scene=matched["scene"])
-    return {"suspects": suspects, "unknown": unknown, "bad_pair_px": verdict.bad_pair_px, "extra_pairs": len(extra)}
+            match_pairs(str(matched.database), extra, options=_options(progress, 0).matching, executor=executor,
+                        scene=matched.scene)
+    return Suspects(suspects=suspects, unknown=unknown, bad_pair_px=verdict.bad_pair_px, extra_pairs=len(extra))
 
 
-def reestimate(matched: dict, det: dict, prior: Bundle, work: Path, progress: bool) -> dict:
+def reestimate(matched: MatchedScene, det: Suspects, prior: Bundle, work: Path, progress: bool) -> Reestimated:
     """Stage ``quick_ba``: triangulate with the unchanged cameras, register and refine the suspects."""
-    from projector.database import camera_of_image
-    from projector.features import nominal_camera
-    from projector.known_poses import problem_from_known, register_cameras, triangulate_known, verified_partners
-
-    suspects = det["suspects"]
+    suspects = det.suspects
     if not suspects:
-        return {"ba": None, "changed": [], "relensed": [], "failed": {}, "rms_prior_px": {}, "rms_new_px": {}}
+        return Reestimated(ba=None)
     s = set(suspects)
-    graph = verified_partners(matched["database"])
+    database = str(matched.database)
+    graph = verified_partners(database)
     partners = {p for n in suspects for p in graph.get(n, ())} - s  # unchanged cameras paired with a suspect
     cameras = dict(prior.cameras)
-    if det["unknown"]:
-        with pycolmap.Database.open(matched["database"]) as db:
+    if det.unknown:
+        with pycolmap.Database.open(database) as db:
             sizes = {camera_of_image(im.name): db.read_camera(im.camera_id) for im in db.read_all_images()}
-        for n in det["unknown"]:
+        for n in det.unknown:
             cameras[n] = nominal_camera(n, (sizes[n].width, sizes[n].height))
-    rec = triangulate_known(matched["database"], matched["image_dir"], work / "known_points", cameras, partners)
-    regs, failed = register_cameras(matched["database"], rec, cameras, suspects)
+    rec = triangulate_known(database, str(matched.image_dir), work / "known_points", cameras, partners)
+    regs, failed = register_cameras(database, rec, cameras, suspects)
     for n, why in failed.items():
         logger.warning("quick recalibration: %s could not be re-estimated: %s", n, why)
     if not regs:
-        return {"ba": None, "changed": [], "relensed": [], "failed": failed, "rms_prior_px": {}, "rms_new_px": {}}
-    problem = problem_from_known(rec, cameras, regs, matched["scene"])
+        return Reestimated(ba=None, failed=failed)
+    problem = problem_from_observations(observations_from_known(rec, cameras, regs, matched.scene))
     free = sorted(regs)
     # the suspects' observations under the prior, against points the unchanged cameras triangulated
     under_prior = problem.copy()
@@ -172,58 +212,58 @@ def reestimate(matched: dict, det: dict, prior: Bundle, work: Path, progress: bo
     cleared = sorted(set(free) - set(changed))
     if cleared:
         logger.info("quick recalibration: %s consistent with the prior after all (kept)", ", ".join(cleared))
-    return {"ba": ba, "changed": changed, "relensed": [n for n in relensed if n in changed], "failed": failed,
-            "rms_prior_px": {n: float(rms_prior[pos[n]]) for n in free},
-            "rms_new_px": {n: float(rms_new[pos[n]]) for n in free},
-            "points": problem.n_points, "observations": problem.n_observations, "held_cameras": len(partners)}
+    return Reestimated(ba=ba, changed=changed, relensed=[n for n in relensed if n in changed], failed=failed,
+                       rms_prior_px={n: float(rms_prior[pos[n]]) for n in free},
+                       rms_new_px={n: float(rms_new[pos[n]]) for n in free},
+                       points=problem.n_points, observations=problem.n_observations, held_cameras=len(partners))
 
 
-def run_quick(*, capture: Path, out: Path, seq: str, scenes: list[str], expected: list[str], prior: Bundle,
-              options, stage, seconds: dict[str, float], resumed: list[str]):
-    """The --only-changed run (called by :func:`dome_calib.pipeline.run_calibration`)."""
-    from dome_calib.pipeline import finish
-
-    work = (Path(options.work_dir) if options.work_dir else out.with_name(out.name + ".work")) / "quick"
-    scene = scenes[0]
-    matched = stage("match", lambda: match_first_scene(capture, work, scene, prior, options.progress))
-    det = stage("detect", lambda: detect_suspects(matched, prior, options.progress))
-    est = stage("quick_ba", lambda: reestimate(matched, det, prior, work, options.progress))
-    changed, ba = est["changed"], est["ba"]
-    failures = {n: f"no usable image in {scene}: {why}" for n, why in matched["failures"].items()}
-    failures.update({n: f"changed since the prior but not re-estimated: {why}" for n, why in est["failed"].items()})
-    cameras = {n: c for n, c in prior.cameras.items() if n not in est["failed"]}
-    cameras.update({n: ba.cameras[n] for n in changed})
+def changes_of(est: Reestimated, prior: Bundle) -> dict[str, CameraChange]:
+    """The changed cameras with the reasons the report gives (residual under the prior, motion, new lens)."""
     changes = {}
-    for n in changed:
-        err = camera_error(ba.cameras[n], prior.cameras[n]) if n in prior.cameras else None
+    for n in est.changed:
+        err = camera_error(est.ba.cameras[n], prior.cameras[n]) if n in prior.cameras else None
         if err is None:
             reasons = ["new camera (not in the prior)"]
         else:
-            reasons = [f"residual {est['rms_prior_px'][n]:.1f} px under the prior calibration "
-                       f"({est['rms_new_px'][n]:.2f} px now)",
+            reasons = [f"residual {est.rms_prior_px[n]:.1f} px under the prior calibration "
+                       f"({est.rms_new_px[n]:.2f} px now)",
                        f"moved {err.center_cm:.1f} cm, rotated {err.rotation_deg:.2f} deg"]
-            if n in est["relensed"]:
+            if n in est.relensed:
                 reasons.append(f"new intrinsics (focal {err.focal_pct:.1f} %, distortion {err.distortion_px:.1f} px):"
                                " replaced?")
         changes[n] = CameraChange(name=n, moved_cm=err.center_cm if err else float("nan"),
                                   rotated_deg=err.rotation_deg if err else float("nan"),
                                   focal_pct=err.focal_pct if err else float("nan"),
                                   distortion_px=err.distortion_px if err else float("nan"), reasons=reasons)
-    held = sorted(n for n in matched["cameras"] if n in prior.cameras and n not in changed and n not in est["failed"])
-    identity = Alignment(tgt_from_src=pycolmap.Sim3d(), names=held, inliers=held, residual_cm=dict.fromkeys(held, 0.0))
-    normalized = Normalized(cameras=cameras, reference=WorldReference.PRIOR, alignment=identity,
-                            reference_source=f"{options.prior} (unchanged cameras held)")
-    stats = {"scene": scene, "pairs": matched["pairs"], "verified_pairs": matched["verified_pairs"],
-             "inlier_matches": matched["inlier_matches"], "suspects": det["suspects"],
-             "bad_pair_px": det["bad_pair_px"], "extra_pairs": det["extra_pairs"],
-             "points": est.get("points", 0), "observations": est.get("observations", 0),
-             "held_cameras": est.get("held_cameras", 0), "seconds": matched["seconds"]}
+    return changes
+
+
+def run_quick(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
+    """The --only-changed run: match one scene, find the suspects, re-estimate them, then :func:`finish`."""
+    prior, progress = inputs.prior, inputs.options.progress
+    work = state.folder / "quick"
+    scene = inputs.scenes[0]
+    matched = state.run("match", partial(match_first_scene, inputs.capture, work, scene, prior, progress))
+    det = state.run("detect", partial(detect_suspects, matched, prior, progress))
+    est = state.run("quick_ba", partial(reestimate, matched, det, prior, work, progress))
+    failures = {n: f"no usable image in {scene}: {why}" for n, why in matched.failures.items()}
+    failures.update({n: f"changed since the prior but not re-estimated: {why}" for n, why in est.failed.items()})
+    cameras = {n: c for n, c in prior.cameras.items() if n not in est.failed}
+    cameras.update({n: est.ba.cameras[n] for n in est.changed})
+    held = sorted(n for n in matched.cameras if n in prior.cameras and n not in est.changed and n not in est.failed)
+    normalized = Normalized(cameras=cameras, reference=WorldReference.PRIOR, alignment=Alignment.identity(held),
+                            reference_source=f"{inputs.options.prior} (unchanged cameras held)")
     unchecked = {n: f"not checked against the prior: no usable image in {scene} ({why}); prior kept"
-                 for n, why in matched["failures"].items() if n in cameras and n not in changed}
-    residuals = ba.residuals if ba is not None else Residuals(camera_names=[], camera_index=np.zeros(0, np.int64),
-                                                                residual_px=np.zeros((0, 2)))
-    return finish(out=out, seq=seq, expected=expected, failures=failures, normalized=normalized,
-                  residuals=residuals, prior=prior, options=options, seconds=seconds, resumed=resumed,
-                  sfm=SfmOutcome(problem=None, failures=failures, stats=stats), ba=ba, changes=changes, ba_scale=1.0,
-                  notes=unchecked,
-                  source=f"dome-calib calibrate --only-changed {capture.name} ({len(changed)} cameras re-estimated)")
+                 for n, why in matched.failures.items() if n in cameras and n not in est.changed}
+    sigma_cm = est.ba.center_sigma if est.ba is not None else {}  # the prior's frame: already cm
+    calibrated = Calibrated(normalized=normalized, failures=failures, changes=changes_of(est, prior), notes=unchecked,
+                            residuals=est.ba.residuals if est.ba is not None else Residuals.empty(),
+                            center_sigma_cm=sigma_cm,
+                            source=f"dome-calib calibrate --only-changed {inputs.capture.name} "
+                                   f"({len(est.changed)} cameras re-estimated)")
+    stats = {"scene": scene, "pairs": matched.pairs, "verified_pairs": matched.verified_pairs,
+             "inlier_matches": matched.inlier_matches, "suspects": det.suspects, "bad_pair_px": det.bad_pair_px,
+             "extra_pairs": det.extra_pairs, "points": est.points, "observations": est.observations,
+             "held_cameras": est.held_cameras, "seconds": matched.seconds}
+    return dataclasses.replace(finish(inputs, state, calibrated), ba=est.ba, stats={"quick": stats})

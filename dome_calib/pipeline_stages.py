@@ -1,5 +1,8 @@
 """The calibrate pipeline's two heavy stages, as thin adapters over the SfM front end (``projector``) and the
 bundle adjustment (:mod:`dome_calib.ba`): what they return is what the pipeline keeps in its work folder.
+
+The SfM hands its own :class:`projector.observations.Observations`; :func:`problem_from_observations` builds the
+solver's :class:`BAProblem` from them here, so neither side knows the other's types.
 """
 from __future__ import annotations
 
@@ -10,13 +13,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pycolmap
 
 from dome_calib.ba.problem import BAProblem
 from dome_calib.ba.solver import BAOptions, bundle_adjust
 from dome_calib.bundle import Bundle, Camera
 from dome_calib.camera import project
 from dome_calib.errors import CaptureError
-from dome_calib.report import Residuals
+from dome_calib.residuals import Residuals, observed_minus_projected
+from projector.observations import Observations
+from projector.sfm import SfmOptions, report_dict, run_sfm
 
 logger = logging.getLogger(__name__)
 
@@ -54,7 +60,7 @@ def observation_residuals(problem: BAProblem) -> np.ndarray:
         cam = problem.camera(problem.camera_names[c])
         proj = project(problem.points_cm[problem.point_index[rows]], cam.R[None], cam.t_cm[None], cam.intr[None],
                        cam.dist[None])
-        out[rows] = problem.uv_px[rows] - proj.uv_px[0]
+        out[rows] = observed_minus_projected(problem.uv_px[rows], proj.uv_px[0])
     return out
 
 
@@ -66,10 +72,15 @@ def residuals_of(problem: BAProblem, inlier: np.ndarray | None = None) -> Residu
                      residual_px=res[keep])
 
 
+def problem_from_observations(observations: Observations) -> BAProblem:
+    """The bundle-adjustment problem of the SfM's observations (everything free; fix what must stay)."""
+    return BAProblem.from_cameras(observations.cameras, observations.scene_points_cm,
+                                  camera_index=observations.camera_index, point_index=observations.point_index,
+                                  uv_px=observations.uv_px, camera_names=observations.camera_names)
+
+
 def quiet_colmap() -> None:
     """COLMAP's INFO lines drown the progress display: keep warnings and errors (unless debugging)."""
-    import pycolmap
-
     if not logger.isEnabledFor(logging.DEBUG):
         pycolmap.logging.minloglevel = max(int(pycolmap.logging.minloglevel), 1)
         os.environ.setdefault("GLOG_minloglevel", "1")  # worker processes of the feature/matching executor
@@ -79,14 +90,12 @@ def run_sfm_stage(capture: Path, work_dir: Path, *, prior: Bundle | None, progre
                   scenes: list[str] | None = None) -> SfmOutcome:
     """Features, pairs, matching, per-scene mapping and merging (:func:`projector.sfm.run_sfm`), seeded by the
     prior bundle or, without one, the nominal dome layout. Raises CaptureError if no scene reconstructs."""
-    from projector.sfm import SfmOptions, report_dict, run_sfm
-
     quiet_colmap()
     result = run_sfm(capture, work_dir, SfmOptions(scenes=scenes, show_progress=progress), prior=prior)
-    if result.problem is None:
+    if result.observations is None:
         why = "; ".join(f"{f.scene or 'capture'}: {f.reason}" for f in result.failures if not f.camera)
         raise CaptureError(f"{capture}: no scene could be reconstructed ({why or 'no registered cameras'})")
-    problem, dropped = prune_problem(result.problem)
+    problem, dropped = prune_problem(problem_from_observations(result.observations))
     return SfmOutcome(problem=problem, failures={**result.unregistered, **dropped}, stats=report_dict(result))
 
 
@@ -155,10 +164,10 @@ def run_ba_stage(problem: BAProblem, *, progress: bool = True, options: BAOption
         s3 = u.sigma_center_centroid_cm if u.sigma_center_centroid_cm is not None else u.sigma_center_cm
         sigma = {n: float(np.linalg.norm(s3[i])) for i, n in enumerate(refined.camera_names)
                  if refined.free[i].any() and np.all(np.isfinite(s3[i]))}
-    res = np.asarray(result.residuals_px)
+    projected_px = refined.uv_px + np.asarray(result.residuals_px)  # the solver's residual: projected - observed
     return BAOutcome(problem=refined, cameras={n: refined.camera(n) for n in refined.camera_names},
-                     residuals=Residuals(camera_names=list(refined.camera_names),
-                                         camera_index=refined.camera_index[used], residual_px=res[used]),
+                     residuals=Residuals(camera_names=list(refined.camera_names), camera_index=refined.camera_index[used],
+                                         residual_px=observed_minus_projected(refined.uv_px[used], projected_px[used])),
                      inlier=used,
                      stats={"iterations": len(result.iterations), "cost": result.cost, "rms_px": result.rms_px,
                             "sigma_px": result.sigma_px, "n_used": int(used.sum()),

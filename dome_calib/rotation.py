@@ -55,3 +55,11 @@ def d_rotate_d_rotvec(rotvec: np.ndarray, R: np.ndarray, X: np.ndarray) -> np.nd
         (..., 3, 3) with [..., i, j] = d(R X)_i / d r_j, equal to -R [X]_x J_r(r).
     """
     return -R @ skew(X) @ right_jacobian(rotvec)
+
+
+def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
+    """(...,) angle of ``R_a @ R_b.T`` in degrees, for (..., 3, 3) rotations."""
+    rel = np.asarray(R_a) @ np.swapaxes(np.asarray(R_b), -1, -2)
+    cos = (np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0
+    vee = np.stack([rel[..., 2, 1] - rel[..., 1, 2], rel[..., 0, 2] - rel[..., 2, 0], rel[..., 1, 0] - rel[..., 0, 1]], -1)
+    return np.degrees(np.arctan2(np.linalg.norm(vee, axis=-1) / 2.0, cos))  # accurate near 0, unlike arccos

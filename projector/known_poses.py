@@ -4,7 +4,7 @@ When a previous calibration is good for most cameras, a scene needs no mapping: 
 from the verified matches of the cameras held at their prior poses (COLMAP's point triangulator,
 :func:`pycolmap.triangulate_points`), and each camera to re-estimate is registered against those points
 (2D-3D correspondences through its verified matches, then pycolmap's LO-RANSAC absolute pose with non-linear
-refinement). :func:`problem_from_known` turns the result into the :class:`BAProblem` of the fine bundle
+refinement). :func:`observations_from_known` turns the result into the :class:`Observations` of the fine bundle
 adjustment, in the prior's frame (cm).
 """
 from __future__ import annotations
@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
-from dome_calib.ba.problem import BAProblem
 from dome_calib.bundle import Camera
 from dome_calib.camera import colmap_to_opencv_px
 from projector.database import camera_of_image, to_colmap_camera
+from projector.observations import Observations
 
 logger = logging.getLogger(__name__)
 
@@ -152,9 +152,9 @@ def register_cameras(database_path: str | Path, rec: pycolmap.Reconstruction, ca
     return done, failed
 
 
-def problem_from_known(rec: pycolmap.Reconstruction, cameras: Mapping[str, Camera],
-                       registrations: Mapping[str, Registration], scene: str) -> BAProblem:
-    """The bundle-adjustment problem of the points seen by the registered cameras: their observations in the
+def observations_from_known(rec: pycolmap.Reconstruction, cameras: Mapping[str, Camera],
+                       registrations: Mapping[str, Registration], scene: str) -> Observations:
+    """The observations of the points seen by the registered cameras: their observations in the
     held cameras of ``rec`` and in the registered ones. Cameras: held ones at ``cameras``, registered ones at
     their new pose. Everything starts free (fix what must stay)."""
     wanted = {int(p) for r in registrations.values() for p in r.point3D_ids}
@@ -176,5 +176,6 @@ def problem_from_known(rec: pycolmap.Reconstruction, cameras: Mapping[str, Camer
     cam_index = {n: i for i, n in enumerate(names)}
     X = np.array([rec.point3D(p).xyz for p in point_ids], dtype=float).reshape(-1, 3)
     start = {n: registrations[n].camera if n in registrations else cameras[n] for n in names}
-    return BAProblem.from_cameras(start, {scene: X}, camera_index=np.array([cam_index[n] for n in observer], np.int64),
-                                  point_index=np.array(pi, np.int64), uv_px=np.concatenate(uv), camera_names=names)
+    return Observations(camera_names=names, cameras=start, scene_points_cm={scene: X},
+                        camera_index=np.array([cam_index[n] for n in observer], np.int64),
+                        point_index=np.array(pi, np.int64), uv_px=np.concatenate(uv))

@@ -1,4 +1,4 @@
-"""Stage 5: bring the per-scene reconstructions into one frame and assemble the bundle-adjustment problem.
+"""Stage 5: bring the per-scene reconstructions into one frame and gather the observations for the bundle adjustment.
 
 The cameras are the same physical cameras in every scene, so scenes are related by similarity transforms
 estimated on their shared cameras:
@@ -17,7 +17,7 @@ estimated on their shared cameras:
 3. The merged frame is mapped onto the prior (previous calibration or nominal layout) by the same robust
    similarity on camera centres, so the result is in centimetres in the Panoptic world frame.
 4. Every 3D point of every scene, with its observations (COLMAP pixels converted to OpenCV's convention),
-   goes into :class:`dome_calib.ba.problem.BAProblem`.
+   goes into the :class:`projector.observations.Observations` handed to the bundle adjustment.
 """
 from __future__ import annotations
 
@@ -29,12 +29,13 @@ from enum import StrEnum
 import numpy as np
 import pycolmap
 
-from dome_calib.align import rotation_angle_deg
-from dome_calib.ba.problem import BAProblem
+from dome_calib.align import Alignment, sim3_apply
 from dome_calib.bundle import Camera
 from dome_calib.camera import colmap_to_opencv_px
+from dome_calib.rotation import rotation_angle_deg
 from projector.database import camera_of_image, intrinsics_from_colmap
 from projector.mapping import SceneModel
+from projector.observations import Observations
 from projector.pose_graph import optimise_pose_graph
 
 logger = logging.getLogger(__name__)
@@ -55,18 +56,6 @@ class MergeOptions:
     prior_inlier_threshold_cm: float = 15.0
     # True: K from the scenes (median; set by run_sfm when mapping refines focal lengths), else from the prior
     use_colmap_intrinsics: bool = False
-
-
-@dataclass(kw_only=True)
-class Alignment:
-    """``X_target = scale * R @ X_source + t``; residuals of the shared cameras used (target units)."""
-
-    scale: float
-    R: np.ndarray
-    t: np.ndarray
-    num_shared: int
-    inliers: list[str]
-    rms_center: float
 
 
 @dataclass(kw_only=True)
@@ -94,9 +83,10 @@ def scene_poses(model: SceneModel) -> ScenePoses:
 
 def robust_similarity(src: Mapping[str, np.ndarray], tgt: Mapping[str, np.ndarray], threshold: float,
                       src_R: Mapping[str, np.ndarray] | None = None, tgt_R: Mapping[str, np.ndarray] | None = None,
-                      max_rotation_error_deg: float = 5.0, min_shared: int = 3) -> Alignment | None:
+                      max_rotation_error_deg: float = 5.0, min_shared: int = 3, unit: str = "cm") -> Alignment | None:
     """Similarity ``tgt_from_src`` from shared names' centres (LO-RANSAC, then least squares on inliers).
 
+    ``threshold`` is in the target frame's unit, which ``unit`` names (the result's residuals are in it too).
     With rotations given, an inlier must also agree in orientation within ``max_rotation_error_deg``.
     Returns None with fewer than ``min_shared`` shared names or inliers.
     """
@@ -124,17 +114,17 @@ def robust_similarity(src: Mapping[str, np.ndarray], tgt: Mapping[str, np.ndarra
     if ok.sum() < max(min_shared, 3):
         return None
     ls = pycolmap.estimate_sim3d(A[ok], B[ok])
-    M = np.asarray(ls.matrix()) if ls is not None else M
-    s = float(np.cbrt(np.linalg.det(M[:, :3])))
-    res = np.linalg.norm(A[ok] @ M[:, :3].T + M[:, 3] - B[ok], axis=1)
-    return Alignment(scale=s, R=M[:, :3] / s, t=M[:, 3].copy(), num_shared=len(names),
-                     inliers=[n for n, k in zip(names, ok) if k], rms_center=float(np.sqrt(np.mean(res**2))))
+    final = ls if ls is not None else sim
+    res = np.linalg.norm(sim3_apply(final, A) - B, axis=1)
+    return Alignment(tgt_from_src=final, names=names, inliers=[n for n, k in zip(names, ok) if k],
+                     residual={n: float(r) for n, r in zip(names, res)}, unit=unit)
 
 
 def transform_poses(p: ScenePoses, a: Alignment) -> ScenePoses:
     """Poses of ``p`` expressed in the alignment's target frame."""
-    return ScenePoses(scene=p.scene, R={n: R @ a.R.T for n, R in p.R.items()},
-                      center={n: a.scale * a.R @ C + a.t for n, C in p.center.items()})
+    Ra = a.rotation
+    return ScenePoses(scene=p.scene, R={n: R @ Ra.T for n, R in p.R.items()},
+                      center={n: a.apply(C) for n, C in p.center.items()})
 
 
 def chordal_mean(Rs: list[np.ndarray]) -> np.ndarray:
@@ -171,8 +161,8 @@ def _sequential(poses: Mapping[str, ScenePoses], options: MergeOptions) -> Align
     order = sorted(poses, key=lambda s: (-len(poses[s].R), s))
     ref = order[0]
     merged: dict[str, ScenePoses] = {ref: poses[ref]}
-    result_align = {ref: Alignment(scale=1.0, R=np.eye(3), t=np.zeros(3), num_shared=len(poses[ref].R),
-                                   inliers=sorted(poses[ref].R), rms_center=0.0)}
+    unit = f"{ref} units"  # the common frame is the reference scene's (no metric scale yet)
+    result_align = {ref: Alignment.identity(sorted(poses[ref].R), unit)}
     unaligned: dict[str, str] = {}
     excluded: dict[tuple[str, str], str] = {}
     pending = order[1:]
@@ -183,13 +173,13 @@ def _sequential(poses: Mapping[str, ScenePoses], options: MergeOptions) -> Align
             tgt_R = {n: R for p in merged.values() for n, R in p.R.items()}
             thr = options.inlier_threshold_rel * _spread(tgt_C)
             a = robust_similarity(poses[scene].center, tgt_C, thr, poses[scene].R, tgt_R,
-                                  options.max_rotation_error_deg, options.min_shared_cameras)
+                                  options.max_rotation_error_deg, options.min_shared_cameras, unit)
             if a is None:
                 continue
             outliers = (set(poses[scene].R) & set(tgt_C)) - set(a.inliers)
             for n in sorted(outliers):
-                C = a.scale * a.R @ poses[scene].center[n] + a.t
-                angle = float(rotation_angle_deg(tgt_R[n], poses[scene].R[n] @ a.R.T))
+                C = a.apply(poses[scene].center[n])
+                angle = float(rotation_angle_deg(tgt_R[n], poses[scene].R[n] @ a.rotation.T))
                 excluded[(scene, n)] = _disagreement(float(np.linalg.norm(C - tgt_C[n])), angle,
                                                      _spread(tgt_C))
             kept = ScenePoses(scene=scene, R={n: R for n, R in poses[scene].R.items() if n not in outliers},
@@ -219,7 +209,7 @@ def _pose_graph(poses: Mapping[str, ScenePoses], seq: AlignedPoses, options: Mer
     # every registration of an aligned scene takes part; the robust kernel and the check below judge it
     measured = {s: {n: (R.T, seq.alignment[s].scale * poses[s].center[n]) for n, R in poses[s].R.items()}
                 for s in scenes}
-    init_scene = {s: (seq.alignment[s].R, seq.alignment[s].t) for s in scenes}
+    init_scene = {s: (seq.alignment[s].rotation, seq.alignment[s].translation) for s in scenes}
     init_camera = {}  # medoid of the camera's registrations (the averages of step 1 trust the reference scene)
     for n in seq.R:
         cand = [(init_scene[s][0] @ m[n][0], init_scene[s][0] @ m[n][1] + init_scene[s][1])
@@ -254,10 +244,10 @@ def _pose_graph(poses: Mapping[str, ScenePoses], seq: AlignedPoses, options: Mer
     for s in scenes:
         others = {n for o in scenes if o != s for n in kept[o]}
         inl = kept[s] if s == ref else [n for n in kept[s] if n in others]
-        res = [errors[(s, n)][0] for n in inl]
         Xr, Xt = out.common_from_scene[s]
-        alignment[s] = Alignment(scale=seq.alignment[s].scale, R=Xr, t=Xt, num_shared=seq.alignment[s].num_shared,
-                                 inliers=inl, rms_center=float(np.sqrt(np.mean(np.square(res)))) if res else 0.0)
+        alignment[s] = Alignment(tgt_from_src=pycolmap.Sim3d(seq.alignment[s].scale, pycolmap.Rotation3d(Xr), Xt),
+                                 names=seq.alignment[s].names, inliers=inl,
+                                 residual={n: errors[(s, n)][0] for n in kept[s]}, unit=seq.alignment[s].unit)
     names = sorted({n for k in kept.values() for n in k})
     return AlignedPoses(reference=ref, alignment=alignment, R={n: out.common_from_camera[n][0].T for n in names},
                         center={n: out.common_from_camera[n][1] for n in names}, kept=kept, unaligned=seq.unaligned,
@@ -275,8 +265,7 @@ def align_scenes(poses: Mapping[str, ScenePoses], options: MergeOptions | None =
 
 @dataclass(kw_only=True)
 class MergeResult:
-    problem: BAProblem
-    cameras: dict[str, Camera]
+    observations: Observations
     scene_alignment: dict[str, Alignment] = field(default_factory=dict)  # scene -> merged frame
     prior_alignment: Alignment | None = None  # merged frame -> prior (cm)
     unaligned_scenes: dict[str, str] = field(default_factory=dict)
@@ -285,7 +274,7 @@ class MergeResult:
 
 def merge_scenes(models: list[SceneModel], prior: Mapping[str, Camera], options: MergeOptions | None = None,
                  *, align_to: set[str] | None = None) -> MergeResult:
-    """Align the scenes' reconstructions, average the camera poses and assemble the :class:`BAProblem`.
+    """Align the scenes' reconstructions, average the camera poses and gather the :class:`Observations`.
 
     ``prior`` gives the target frame (cm, Panoptic world) and the cameras' type, resolution and intrinsics;
     only the cameras in ``align_to`` (default: all of the prior) are used to align to it (cameras unknown to
@@ -305,13 +294,14 @@ def merge_scenes(models: list[SceneModel], prior: Mapping[str, Camera], options:
     prior_C = {n: c.center_cm for n, c in prior.items() if align_to is None or n in align_to}
     prior_R = {n: c.R for n, c in prior.items() if align_to is None or n in align_to}
     # the RANSAC threshold applies to target-frame (cm) residuals, so it is given in cm directly
-    pa = robust_similarity(avg_C, prior_C, options.prior_inlier_threshold_cm, avg_R, prior_R, 30.0, 3)
+    pa = robust_similarity(avg_C, prior_C, options.prior_inlier_threshold_cm, avg_R, prior_R, 30.0, 3, "cm")
     if pa is None:
         raise ValueError("the reconstruction cannot be aligned to the prior (fewer than 3 consistent cameras)")
     cameras: dict[str, Camera] = {}
+    pa_R = pa.rotation
     for n in names:
-        R = avg_R[n] @ pa.R.T
-        C = pa.scale * pa.R @ avg_C[n] + pa.t
+        R = avg_R[n] @ pa_R.T
+        C = pa.apply(avg_C[n])
         base = prior[n]
         cam = replace(base, R=R, t_cm=-R @ C, K=base.K.copy(), dist=base.dist.copy())
         if options.use_colmap_intrinsics:
@@ -343,10 +333,10 @@ def merge_scenes(models: list[SceneModel], prior: Mapping[str, Camera], options:
                 uv.append(rec.image(el.image_id).points2D[el.point2D_idx].xy)
             kept_xyz.append(point.xyz)
         X = np.array(kept_xyz, dtype=float).reshape(-1, 3)
-        scene_points[m.scene] = pa.scale * (a.scale * X @ a.R.T + a.t) @ pa.R.T + pa.t
+        scene_points[m.scene] = pa.apply(a.apply(X))
         offset += len(kept_xyz)
     uv_px = colmap_to_opencv_px(np.array(uv).reshape(-1, 2))
-    problem = BAProblem.from_cameras(cameras, scene_points, camera_index=np.array(ci, np.int64),
-                                     point_index=np.array(pi, np.int64), uv_px=uv_px, camera_names=names)
-    return MergeResult(problem=problem, cameras=cameras, scene_alignment=result_align, prior_alignment=pa,
+    observations = Observations(camera_names=names, cameras=cameras, scene_points_cm=scene_points,
+                                camera_index=np.array(ci, np.int64), point_index=np.array(pi, np.int64), uv_px=uv_px)
+    return MergeResult(observations=observations, scene_alignment=result_align, prior_alignment=pa,
                        unaligned_scenes=unaligned, excluded=excluded)

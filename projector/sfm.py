@@ -1,4 +1,4 @@
-"""The projector-pattern SfM front end in one call: capture folder -> initial multi-scene BA problem.
+"""The projector-pattern SfM front end in one call: capture folder -> cameras, points and observations of all scenes.
 
 Stages (each also callable on its own, hloc style): :func:`projector.features.extract_features`,
 :func:`projector.pairs.pairs_from_prior` / ``pairs_exhaustive``, :func:`projector.matching.match_pairs`,
@@ -12,6 +12,7 @@ Work folder layout (everything resumable)::
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import time
@@ -19,7 +20,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from dome_calib.ba.problem import BAProblem
 from dome_calib.bundle import Bundle, Camera
 from dome_calib.bundle_io import load_bundle
 from dome_calib.errors import CaptureError
@@ -30,6 +30,7 @@ from projector.features import FeatureOptions, FeatureReport, extract_features, 
 from projector.mapping import MappingOptions, SceneModel, map_scene
 from projector.matching import MatchOptions, MatchReport, match_pairs
 from projector.merge import Alignment, MergeOptions, merge_scenes
+from projector.observations import Observations
 from projector.pairs import (Pair, PairOptions, UnknownStrategy, expand_pairs_from_matches, pairs_for_unknown,
                              pairs_from_prior)
 
@@ -69,12 +70,12 @@ class SceneStats:
 class SfmResult:
     """What the front end hands to the bundle adjustment, plus what went wrong where.
 
-    problem: the initial :class:`BAProblem` (cameras by name, per-scene points in cm in the prior's frame,
-    observations in OpenCV pixels). cameras: the initial cameras (same as in ``problem``).
+    observations: the initial cameras by name, per-scene points in cm in the prior's frame and their
+    observations in OpenCV pixels (:class:`Observations`). cameras: the initial cameras (as in ``observations``).
     failures: per camera and scene, with the stage and the reason. unregistered: cameras registered in no scene.
     """
 
-    problem: BAProblem | None
+    observations: Observations | None
     cameras: dict[str, Camera]
     scenes: dict[str, SceneStats]
     failures: list[CameraFailure]
@@ -163,10 +164,10 @@ def run_sfm(
             layout. It seeds intrinsics, pair selection and the output frame (cm, Panoptic world).
         executor: task executor for features and matching (default: local process pool).
     Returns:
-        :class:`SfmResult`; ``problem`` is None only if no scene reconstructed (``failures`` says why).
+        :class:`SfmResult`; ``observations`` is None only if no scene reconstructed (``failures`` says why).
     Example:
         >>> result = run_sfm("capture", "work", prior="previous_bundle")
-        >>> result.problem.camera_names[:3], len(result.problem.uv_px)
+        >>> result.observations.camera_names[:3], len(result.observations.uv_px)
     """
     options = options or SfmOptions()
     for sub in (options.features, options.matching):
@@ -175,15 +176,11 @@ def run_sfm(
     scenes = list_scenes(capture_dir, options.scenes)
     prior_cams = _prior_cameras(prior)
     t0 = time.perf_counter()
-    own_executor = executor is None
-    executor = executor or make_executor(options.num_workers)
     stats: dict[str, SceneStats] = {}
-    try:
+    # our own pool is stopped at once (workers quiet) if a scene fails or the run is interrupted
+    with make_executor(options.num_workers) if executor is None else contextlib.nullcontext(executor) as pool:
         for scene in scenes:
-            stats[scene] = run_scene(capture_dir, work_dir, scene, prior_cams, options, executor)
-    finally:
-        if own_executor:
-            executor.shutdown()
+            stats[scene] = run_scene(capture_dir, work_dir, scene, prior_cams, options, pool)
     t_scenes = time.perf_counter() - t0
     failures: list[CameraFailure] = []
     for s in stats.values():
@@ -202,7 +199,7 @@ def run_sfm(
                 rec_cam = s.model.reconstruction.camera(s.model.reconstruction.find_image_with_name(f"{c}.png").camera_id)
                 prior_cams[c] = nominal_camera(c, (rec_cam.width, rec_cam.height))
     t1 = time.perf_counter()
-    problem, cameras, scene_alignment, prior_alignment = None, {}, {}, None
+    observations, cameras, scene_alignment, prior_alignment = None, {}, {}, None
     try:
         merge_options = replace(options.merge, use_colmap_intrinsics=options.merge.use_colmap_intrinsics
                                 or options.mapping.refine_focal_length or options.mapping.refine_principal_point)
@@ -210,7 +207,7 @@ def run_sfm(
     except ValueError as exc:
         failures.append(CameraFailure(camera="", scene="", stage="merge", reason=str(exc)))
     else:
-        problem, cameras = merged.problem, merged.cameras
+        observations, cameras = merged.observations, merged.observations.cameras
         scene_alignment, prior_alignment = merged.scene_alignment, merged.prior_alignment
         failures += [CameraFailure(camera="", scene=sc, stage="merge", reason=r) for sc, r in merged.unaligned_scenes.items()]
         failures += [CameraFailure(camera=c, scene=sc, stage="merge", reason=r) for (sc, c), r in merged.excluded.items()]
@@ -222,7 +219,7 @@ def run_sfm(
     for c, r in unregistered.items():
         logger.warning("camera %s not registered in any scene: %s", c, r)
     seconds = {"scenes": t_scenes, "merge": time.perf_counter() - t1, "total": time.perf_counter() - t0}
-    result = SfmResult(problem=problem, cameras=cameras, scenes=stats, failures=failures, unregistered=unregistered,
+    result = SfmResult(observations=observations, cameras=cameras, scenes=stats, failures=failures, unregistered=unregistered,
                        scene_alignment=scene_alignment, prior_alignment=prior_alignment, seconds=seconds)
     atomic_write_text(work_dir / "sfm_report.json", json.dumps(report_dict(result), indent=1))
     return result
@@ -242,7 +239,9 @@ def report_dict(result: SfmResult) -> dict:
                        "seconds": {"features": round(st.features.seconds, 1), "matching": round(st.matches.seconds, 1),
                                    "mapping": round(st.model.seconds, 1)}}
                    for s, st in result.scenes.items()},
-        "scene_alignment_rms": {s: a.rms_center for s, a in result.scene_alignment.items()},
-        "prior_alignment_rms_cm": result.prior_alignment.rms_center if result.prior_alignment else None,
+        # scene -> merged frame residuals are in the reference scene's units; the prior alignment's scale makes cm
+        "scene_alignment_rms_cm": {s: a.inlier_rms * result.prior_alignment.scale
+                                   for s, a in result.scene_alignment.items()} if result.prior_alignment else None,
+        "prior_alignment_rms_cm": result.prior_alignment.inlier_rms if result.prior_alignment else None,
         "seconds": result.seconds,
     }

@@ -8,7 +8,8 @@ import pycolmap
 import pytest
 from scipy.spatial.transform import Rotation
 
-from dome_calib.align import AlignmentError, rotation_angle_deg, transform_cameras
+from dome_calib.align import AlignmentError, transform_cameras
+from dome_calib.rotation import rotation_angle_deg
 from dome_calib.normalize import WorldReference, normalize
 from dome_calib.layout import nominal_dome
 

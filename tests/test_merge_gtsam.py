@@ -40,7 +40,7 @@ def _scenes(gross_scene: str, seed: int = 3) -> tuple[dict[str, ScenePoses], dic
 
 def _centre_errors_cm(centres: dict[str, np.ndarray], truth: dict[str, np.ndarray]) -> np.ndarray:
     a = robust_similarity(centres, truth, 5.0)
-    return np.array([np.linalg.norm(a.scale * a.R @ centres[n] + a.t - truth[n]) for n in sorted(truth)])
+    return np.array([np.linalg.norm(a.apply(centres[n]) - truth[n]) for n in sorted(truth)])
 
 
 @pytest.mark.parametrize("gross_scene", ["a", "c"])  # "a" is the reference scene (ties broken by name)
@@ -61,5 +61,6 @@ def test_pose_graph_merges_scenes_and_drops_the_gross_registration(gross_scene):
     sc = robust_similarity(graph.center, truth, 5.0).scale
     for scene, s_true in {"a": 1.0, "b": 0.013, "c": 3.7}.items():
         assert graph.alignment[scene].scale * s_true / graph.alignment["a"].scale == pytest.approx(1.0, rel=1e-2)
-        assert graph.alignment[scene].rms_center * sc < 2.0  # cm
-    assert np.allclose(graph.alignment["a"].R, np.eye(3), atol=1e-6)
+        assert graph.alignment[scene].inlier_rms * sc < 2.0  # cm
+        assert graph.alignment[scene].unit == "a units"
+    assert np.allclose(graph.alignment["a"].rotation, np.eye(3), atol=1e-6)

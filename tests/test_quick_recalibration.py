@@ -108,10 +108,9 @@ def test_quick_recalibration_reestimates_only_the_changed(tmp_path, scene, monke
     cap = tmp_path / "capture"
     (cap / "scenes" / "scene_01").mkdir(parents=True)
     (cap / "capture.json").write_text(json.dumps({"scenes": ["scene_01"], "cameras": names}))
-    matched = {"scene": "scene_01", "database": str(db), "image_dir": str(cap / "scenes" / "scene_01"),
-               "cameras": names, "failures": {"01_12": "blank image (grey-level std 0.0 < 3.0)"},
-               "pairs": 0, "verified_pairs": 0, "inlier_matches": 0,
-               "seconds": {}}
+    matched = quick.MatchedScene(scene="scene_01", database=db, image_dir=cap / "scenes" / "scene_01", cameras=names,
+                                 failures={"01_12": "blank image (grey-level std 0.0 < 3.0)"}, pairs=0,
+                                 verified_pairs=0, inlier_matches=0, seconds={})
     monkeypatch.setattr(quick, "match_first_scene", lambda *a, **k: matched)
     prior_dir = write_bundle(prior, tmp_path / "prior")
     out = tmp_path / "quick"
@@ -142,8 +141,9 @@ def test_quick_recalibration_with_nothing_changed_keeps_the_prior(tmp_path):
     db = tmp_path / "scene_01" / "database.db"
     db.parent.mkdir()
     names = write_scene_database(db, prior, prior, seed=3)
-    matched = {"scene": "scene_01", "database": str(db), "image_dir": str(tmp_path), "cameras": names}
+    matched = quick.MatchedScene(scene="scene_01", database=db, image_dir=tmp_path, cameras=names, failures={},
+                                 pairs=0, verified_pairs=0, inlier_matches=0, seconds={})
     det = quick.detect_suspects(matched, prior, progress=False)
-    assert det["suspects"] == []
+    assert det.suspects == []
     est = quick.reestimate(matched, det, prior, tmp_path / "work", progress=False)
-    assert est["changed"] == [] and est["ba"] is None
+    assert est.changed == [] and est.ba is None

@@ -14,6 +14,7 @@ from dome_calib.camera import project
 from projector.features import FeatureOptions, extract_features
 from projector.matching import MatchOptions, match_pairs
 from projector.pairs import pairs_exhaustive
+from dome_calib.pipeline_stages import problem_from_observations
 from projector.sfm import SfmOptions, run_sfm
 
 CAMERAS = ["00_00", "01_01", "01_02", "01_03", "01_04", "01_05", "01_06", "01_11", "01_12"]
@@ -79,7 +80,7 @@ def test_a_scene_that_does_not_reconstruct_is_reported(sfm_result):
     scene2 = [f for f in result.failures if f.scene == "scene_02" and f.stage == "mapping"]
     assert {f.camera for f in scene2} == {"01_01", "01_02", ""}  # per camera, plus the scene itself
     assert all(f.reason for f in scene2)
-    assert "scene_02" not in result.problem.scene_names
+    assert "scene_02" not in result.observations.scene_points_cm
 
 
 def test_missing_scenes_folder_is_a_one_line_error(tmp_path):
@@ -101,9 +102,9 @@ def test_the_rest_registers_with_centres_within_1cm(sfm_result, broken_capture):
 
 
 def test_observations_reproject_in_opencv_pixels(sfm_result):
-    """Points and cameras of the problem reproject onto their observations (catches a 0.5 px convention slip)."""
+    """Points and cameras of the SfM's observations reproject onto them (catches a 0.5 px convention slip)."""
     result, _ = sfm_result
-    p = result.problem
+    p = problem_from_observations(result.observations)
     assert len(p.uv_px) > 1000 and p.scene_names == ["scene_01"]
     res = []
     for c, name in enumerate(p.camera_names):

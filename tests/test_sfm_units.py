@@ -95,7 +95,7 @@ def test_robust_similarity_recovers_transform_despite_outliers():
     tgt["c0"] = tgt["c0"] + 50.0  # wrong centre
     tgt_R["c1"] = rotvec_to_matrix(np.array([0.0, 0.5, 0.0])) @ tgt_R["c1"]  # wrong orientation (29 deg)
     a = robust_similarity(src, tgt, 1.0, src_R, tgt_R, 5.0)
-    assert abs(a.scale - s) < 1e-9 * s and np.allclose(a.R, R, atol=1e-9) and np.allclose(a.t, t, atol=1e-7)
+    assert abs(a.scale - s) < 1e-9 * s and np.allclose(a.rotation, R, atol=1e-9) and np.allclose(a.translation, t, atol=1e-7)
     assert "c0" not in a.inliers and "c1" not in a.inliers and len(a.inliers) == 28
     assert robust_similarity({"a": np.zeros(3)}, {"a": np.zeros(3)}, 1.0) is None
 

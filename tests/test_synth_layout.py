@@ -105,7 +105,7 @@ def test_select_preset_rejects_missing_panels():
 
 
 def test_as_built_dome_is_the_design_camera_set_but_not_the_design():
-    from dome_calib.align import rotation_angle_deg
+    from dome_calib.rotation import rotation_angle_deg
     from dome_calib.synth.dome import AS_BUILT_CENTER_SIGMA_CM, as_built_dome
 
     design = nominal_dome("panel", seed=0)

@@ -25,7 +25,8 @@ def project_observations(camera_params: np.ndarray, points_cm: np.ndarray, cam: 
 
 def residuals(camera_params: np.ndarray, points_cm: np.ndarray, cam: np.ndarray, pt: np.ndarray,
               uv_px: np.ndarray) -> np.ndarray:
-    """(M, 2) reprojection residuals (predicted - observed) in px."""
+    """(M, 2) reprojection residuals in px, the solver's sign: projected - observed (reports use observed - projected,
+    :mod:`dome_calib.residuals`)."""
     return project_observations(camera_params, points_cm, cam, pt) - uv_px
 
 

@@ -50,7 +50,7 @@ class BAResult:
 
     problem: refined copy of the input (same observations and free mask). inlier (M,) bool: observations
     within the outlier threshold; used (M,) bool: those in the final solve (inliers of points still seen at
-    least twice). residuals_px (M, 2) at the solution for every
+    least twice). residuals_px (M, 2) projected - observed (the solver's sign) at the solution for every
     observation. camera_rms_px (C,) per-coordinate RMS of used observations; camera_n_obs (C,) used count;
     camera_n_rejected (C,). cost: 0.5 * sum |r|^2 over used observations (px^2) (the final stage's loss);
     rms_px per coordinate; sigma_px = sqrt(2 cost / (2 n_used - n_params)) (noise estimate); n_params: free

@@ -20,7 +20,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from dome_calib.align import rotation_angle_deg
+from dome_calib.rotation import rotation_angle_deg
 from dome_calib.camera import K_to_intr, intr_to_K, project_with_jacobians
 from dome_calib.rotation import d_rotate_d_rotvec, rotvec_to_matrix
 

@@ -17,57 +17,14 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle import Bundle, CameraType
-from dome_calib.errors import DomeCalibError
+from dome_calib.bundle_io import replace_folder
+from dome_calib.errors import ReportError
+from dome_calib.residuals import Residuals
 
 logger = logging.getLogger(__name__)
 
 REPORT_DIR = "report"
 RESIDUALS_FILE = "residuals.npz"
-
-
-class ReportError(DomeCalibError):
-    """The report cannot be made from what was given (bad residual file, unknown camera)."""
-
-
-@dataclass(kw_only=True)
-class Residuals:
-    """Final reprojection residuals of the bundle adjustment: one row per observation (OpenCV px).
-
-    RMS values are per coordinate, ``sqrt(mean(r_x^2 + r_y^2) / 2)``, as the bundle adjustment reports them (so
-    RMS / pixel noise sigma is near 1 at the optimum); histograms show the norm ``|r|``.
-    """
-
-    camera_names: list[str]  # (C,)
-    camera_index: np.ndarray  # (M,) int into camera_names
-    residual_px: np.ndarray  # (M, 2) observed - projected
-
-    def per_camera(self) -> dict[str, tuple[int, float | None]]:
-        """name -> (observation count, per-coordinate RMS px; None without observations)."""
-        sq = np.sum(self.residual_px ** 2, axis=1)
-        counts = np.bincount(self.camera_index, minlength=len(self.camera_names))
-        sums = np.bincount(self.camera_index, weights=sq, minlength=len(self.camera_names))
-        return {n: (int(c), float(np.sqrt(s / (2 * c))) if c else None)
-                for n, c, s in zip(self.camera_names, counts, sums)}
-
-    def norms_of(self, names: set[str]) -> np.ndarray:
-        """Residual norms (px) of the observations of the given cameras."""
-        keep = np.isin(np.asarray(self.camera_names)[self.camera_index], sorted(names))
-        return np.linalg.norm(self.residual_px[keep], axis=1)
-
-    def save(self, path: Path) -> None:
-        np.savez_compressed(path, camera_names=np.asarray(self.camera_names), camera_index=self.camera_index,
-                            residual_px=self.residual_px.astype(np.float32))
-
-    @classmethod
-    def load(cls, path: Path) -> Residuals:
-        try:
-            with np.load(path) as data:
-                names, idx, res = [str(n) for n in data["camera_names"]], data["camera_index"], data["residual_px"]
-        except (OSError, ValueError, KeyError) as exc:
-            raise ReportError(f"{path}: not a residual file ({exc})") from exc
-        if res.ndim != 2 or res.shape[1] != 2 or idx.shape != (len(res),) or (len(idx) and idx.max() >= len(names)):
-            raise ReportError(f"{path}: residual_px {res.shape} / camera_index {idx.shape} do not match")
-        return cls(camera_names=names, camera_index=idx.astype(np.int64), residual_px=res.astype(float))
 
 
 @dataclass(kw_only=True)
@@ -159,23 +116,14 @@ def build_report(bundle: Bundle, residuals: Residuals | None = None, options: Re
     }
 
 
-def _swap_in(staging: Path, target: Path) -> None:
-    """Replace folder ``target`` by ``staging`` with renames only (old one removed after)."""
-    old = None
-    if target.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old.", dir=target.parent))
-        target.replace(old / target.name)
-    staging.replace(target)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
-
-
 def write_report(bundle_folder: str | Path, bundle: Bundle, residuals: Residuals | None = None,
                  options: ReportOptions | None = None, **kwargs) -> Path:
     """Build the report and write ``<bundle_folder>/report/`` whole (temp folder, then rename). Returns its path.
 
     Keyword arguments go to :func:`build_report` (changes, missing, extra).
     """
+    # in-function import: matplotlib takes ~0.5 s to load, and `dome-calib report --help` or a report without
+    # plots need none of it
     from dome_calib.report.plots import plot_dome, plot_observations, plot_residual_histograms
 
     options = options or ReportOptions()
@@ -195,7 +143,7 @@ def write_report(bundle_folder: str | Path, bundle: Bundle, residuals: Residuals
         (staging / "report.json").write_text(json.dumps(content, indent=1, allow_nan=False, default=_json_default),
                                              encoding="utf-8")
         target = folder / REPORT_DIR
-        _swap_in(staging, target)
+        replace_folder(staging, target)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise

@@ -1,0 +1,179 @@
+"""What the full and the quick calibration share: their options and inputs, the result, and :func:`finish`
+(change detection against the prior, cameras to check, then the bundle and its report replacing OUT whole).
+
+OUT is never written in place: the bundle, its report and the files of the same seq that other commands added
+(Kinect calibration, sync tables) are staged in a sibling folder, then swapped in
+(:func:`dome_calib.bundle_io.replace_folder`), so a reader sees the old bundle or the new one, never a mix, and no
+file of another seq survives.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from dome_calib.bundle import Bundle
+from dome_calib.bundle_io import bundle_files, check_output_folder, replace_folder, staging_folder, write_bundle
+from dome_calib.compare import CameraChange, ChangeOptions, detect_changes
+from dome_calib.errors import CaptureError
+from dome_calib.normalize import Normalized, NormalizeOptions
+from dome_calib.pipeline_stages import BAOutcome, SfmOutcome
+from dome_calib.report import REPORT_DIR, ReportOptions, write_report
+from dome_calib.residuals import Residuals
+from dome_calib.workstate import WorkState
+
+logger = logging.getLogger(__name__)
+
+#: Files of a bundle that other commands add (`dome-calib kinect`, `timecode sync`): kept across a recalibration
+#: of the same seq.
+CARRIED_KINDS = ("kcalibration", "synctables", "ksynctables")
+CARRIED_REPORT_FILES = ("sync.json",)
+
+
+@dataclass(kw_only=True)
+class CalibrateOptions:
+    """What `dome-calib calibrate` does. ``seq`` defaults to the capture folder's name."""
+
+    prior: Path | None = None
+    only_changed: bool = False
+    seq: str | None = None
+    work_dir: Path | None = None
+    progress: bool = True
+    normalize: NormalizeOptions = field(default_factory=NormalizeOptions)
+    changes: ChangeOptions = field(default_factory=ChangeOptions)
+    report: ReportOptions = field(default_factory=ReportOptions)
+    max_center_sigma_cm: float = 0.5  # flag cameras whose centre is less certain than this (1 sigma)
+
+
+@dataclass(kw_only=True)
+class CalibrationInputs:
+    """One run's inputs, read and checked before any work."""
+
+    capture: Path
+    out: Path
+    seq: str
+    scenes: list[str]
+    expected: list[str]  # cameras of the capture
+    prior: Bundle | None
+    options: CalibrateOptions
+
+
+@dataclass(kw_only=True)
+class Calibrated:
+    """What a runner hands to :func:`finish`: cameras in the Panoptic frame and what is known about them."""
+
+    normalized: Normalized
+    failures: dict[str, str]  # camera -> why it was not calibrated
+    residuals: Residuals  # observed - projected, px
+    source: str  # calibDataSource of the bundle
+    center_sigma_cm: dict[str, float] = field(default_factory=dict)  # 1-sigma centre uncertainty
+    changes: dict[str, CameraChange] | None = None  # None: detect against the prior
+    notes: dict[str, str] = field(default_factory=dict)  # camera -> a further reason to check it
+
+
+@dataclass(kw_only=True)
+class CalibrationResult:
+    """What a calibration produced, for the summary, the demo and the benchmarks."""
+
+    bundle_dir: Path
+    report_dir: Path
+    bundle: Bundle
+    expected: list[str]  # cameras of the capture
+    failures: dict[str, str]  # camera -> why it was not calibrated
+    normalized: Normalized
+    residuals: Residuals
+    stage_seconds: dict[str, float]
+    resumed: list[str]  # stages taken from the work folder
+    changes: dict[str, CameraChange] | None = None
+    to_check: list[dict] = field(default_factory=list)
+    stats: dict = field(default_factory=dict)  # per-stage counts and times
+    sfm: SfmOutcome | None = None  # full run
+    ba: BAOutcome | None = None  # full run; quick run: the re-estimation (None if no camera changed)
+
+    @property
+    def rms_px(self) -> float:
+        return float(np.sqrt(np.mean(self.residuals.residual_px ** 2)))  # per coordinate
+
+
+def capture_contents(capture: Path) -> tuple[list[str], list[str]]:
+    """Scenes and cameras named by ``capture.json`` (or found under scenes/)."""
+    if not capture.is_dir():
+        raise CaptureError(f"{capture}: not a folder")
+    meta_path = capture / "capture.json"
+    if meta_path.exists():
+        try:
+            meta = json.loads(meta_path.read_text(encoding="utf-8"))
+            return list(meta["scenes"]), list(meta["cameras"])
+        except (ValueError, KeyError, TypeError) as exc:
+            raise CaptureError(f"{meta_path}: malformed ({exc})") from exc
+    scenes = sorted(p.name for p in (capture / "scenes").glob("*") if p.is_dir())
+    if not scenes:
+        raise CaptureError(f"{capture}: no capture.json and no scenes/<scene>/ folders")
+    cams = sorted({p.stem for s in scenes for p in (capture / "scenes" / s).glob("*.png")})
+    return scenes, cams
+
+
+def finish(inputs: CalibrationInputs, state: WorkState, calibrated: Calibrated) -> CalibrationResult:
+    """Cameras to check (changes against the prior, cameras not calibrated, poorly determined centres), then
+    the bundle and its report in OUT, replaced whole (module docstring)."""
+    options, prior = inputs.options, inputs.prior
+    bundle = Bundle(seq=inputs.seq, cameras=dict(sorted(calibrated.normalized.cameras.items())),
+                    calib_data_source=calibrated.source)
+    changes = calibrated.changes
+    if prior is not None and changes is None:
+        changes = detect_changes(bundle.cameras, prior.cameras, options.changes)
+    missing = {n: calibrated.failures.get(n, "not reconstructed") for n in inputs.expected if n not in bundle.cameras}
+    reasons = {n: list(c.reasons) for n, c in (changes or {}).items()}
+    for n, note in calibrated.notes.items():
+        reasons.setdefault(n, []).append(note)
+    sigma_cm = {n: s for n, s in calibrated.center_sigma_cm.items() if n in bundle.cameras}
+    for n, s in sigma_cm.items():
+        if s > options.max_center_sigma_cm:
+            reasons.setdefault(n, []).append(f"position poorly determined (+-{s:.1f} cm, 1 sigma): few or one-sided "
+                                             "views of the tent; add a tent position it sees")
+    extra = {"world_frame": calibrated.normalized.as_dict(), "stage_seconds": dict(state.seconds),
+             "center_sigma_cm": {n: round(s, 4) for n, s in sorted(sigma_cm.items())},
+             "changes_vs_prior": {n: c.as_dict() for n, c in (changes or {}).items()} if prior else None}
+    state.time("write", lambda: _write_out(inputs, bundle, calibrated.residuals, reasons, missing, extra))
+    report_dir = inputs.out / REPORT_DIR
+    content = json.loads((report_dir / "report.json").read_text(encoding="utf-8"))
+    return CalibrationResult(bundle_dir=inputs.out, report_dir=report_dir, bundle=bundle, expected=inputs.expected,
+                             failures=missing, normalized=calibrated.normalized, residuals=calibrated.residuals,
+                             stage_seconds=state.seconds, resumed=state.resumed, changes=changes,
+                             to_check=content["to_check"])
+
+
+def _write_out(inputs: CalibrationInputs, bundle: Bundle, residuals: Residuals, reasons: dict[str, list[str]],
+               missing: dict[str, str], extra: dict) -> None:
+    """Stage the bundle, its report and the carried files beside OUT, then swap them in."""
+    out = inputs.out
+    old_seq = check_output_folder(out)  # again: OUT may have changed while the stages ran
+    staging = staging_folder(out)
+    try:
+        write_bundle(bundle, staging)
+        write_report(staging, bundle, residuals, inputs.options.report, changes=reasons, missing=missing, extra=extra)
+        if old_seq == bundle.seq:
+            _carry_over(out, staging, bundle.seq)
+        elif old_seq is not None:
+            logger.warning("%s: held the bundle of seq %r; replaced by seq %r", out, old_seq, bundle.seq)
+        replace_folder(staging, out)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+
+
+def _carry_over(old: Path, staging: Path, seq: str) -> None:
+    """Copy the Kinect calibration and sync tables of ``seq`` (and the sync report) from the old bundle."""
+    for kind in CARRIED_KINDS:
+        src = bundle_files(old, seq)[kind]
+        if src.is_file():
+            shutil.copy2(src, staging / src.name)
+    for name in CARRIED_REPORT_FILES:
+        src = old / REPORT_DIR / name
+        if src.is_file():
+            (staging / REPORT_DIR).mkdir(exist_ok=True)
+            shutil.copy2(src, staging / REPORT_DIR / name)

@@ -1,0 +1,67 @@
+"""Reprojection residuals: the project's one sign convention and the residual type the BA hands to the report.
+
+A residual is the OBSERVED pixel minus the PROJECTED one (:func:`observed_minus_projected`): a positive x
+residual means the feature was seen to the right of where the calibration puts it. The solver works internally
+with projected - observed (:mod:`dome_calib.ba.evaluate`); the calibrate pipeline converts once, through this
+function, before anything is reported or saved (``report/residuals.npz``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dome_calib.errors import ReportError
+
+
+def observed_minus_projected(uv_observed_px: np.ndarray, uv_projected_px: np.ndarray) -> np.ndarray:
+    """(..., 2) residual in px: observed - projected (the convention of every residual this project reports)."""
+    return np.asarray(uv_observed_px, dtype=float) - np.asarray(uv_projected_px, dtype=float)
+
+
+@dataclass(kw_only=True)
+class Residuals:
+    """Final reprojection residuals of the bundle adjustment: one row per observation (OpenCV px), observed -
+    projected (:func:`observed_minus_projected`).
+
+    RMS values are per coordinate, ``sqrt(mean(r_x^2 + r_y^2) / 2)``, as the bundle adjustment reports them (so
+    RMS / pixel noise sigma is near 1 at the optimum); histograms show the norm ``|r|``.
+    """
+
+    camera_names: list[str]  # (C,)
+    camera_index: np.ndarray  # (M,) int into camera_names
+    residual_px: np.ndarray  # (M, 2) observed - projected, px
+
+    @classmethod
+    def empty(cls) -> Residuals:
+        """No observations (a quick recalibration that changed no camera)."""
+        return cls(camera_names=[], camera_index=np.zeros(0, np.int64), residual_px=np.zeros((0, 2)))
+
+    def per_camera(self) -> dict[str, tuple[int, float | None]]:
+        """name -> (observation count, per-coordinate RMS px; None without observations)."""
+        sq = np.sum(self.residual_px ** 2, axis=1)
+        counts = np.bincount(self.camera_index, minlength=len(self.camera_names))
+        sums = np.bincount(self.camera_index, weights=sq, minlength=len(self.camera_names))
+        return {n: (int(c), float(np.sqrt(s / (2 * c))) if c else None)
+                for n, c, s in zip(self.camera_names, counts, sums)}
+
+    def norms_of(self, names: set[str]) -> np.ndarray:
+        """Residual norms (px) of the observations of the given cameras."""
+        keep = np.isin(np.asarray(self.camera_names)[self.camera_index], sorted(names))
+        return np.linalg.norm(self.residual_px[keep], axis=1)
+
+    def save(self, path: Path) -> None:
+        np.savez_compressed(path, camera_names=np.asarray(self.camera_names), camera_index=self.camera_index,
+                            residual_px=self.residual_px.astype(np.float32))
+
+    @classmethod
+    def load(cls, path: Path) -> Residuals:
+        try:
+            with np.load(path) as data:
+                names, idx, res = [str(n) for n in data["camera_names"]], data["camera_index"], data["residual_px"]
+        except (OSError, ValueError, KeyError) as exc:
+            raise ReportError(f"{path}: not a residual file ({exc})") from exc
+        if res.ndim != 2 or res.shape[1] != 2 or idx.shape != (len(res),) or (len(idx) and idx.max() >= len(names)):
+            raise ReportError(f"{path}: residual_px {res.shape} / camera_index {idx.shape} do not match")
+        return cls(camera_names=names, camera_index=idx.astype(np.int64), residual_px=res.astype(float))

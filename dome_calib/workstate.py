@@ -1,0 +1,217 @@
+"""The calibrate pipeline's work folder: which stages finished for which inputs, a lock, and stage timing.
+
+    with WorkState.open(work, fingerprint, progress=True) as state:
+        sfm = state.run("sfm", lambda: run_sfm_stage(...))   # taken from the folder if it finished before
+        normalized = state.time("normalize", lambda: normalize(...))  # timed, not kept
+
+A stage's result is pickled into ``WORK/<stage>.pkl`` and listed in ``WORK/state.json`` with the inputs'
+fingerprint (:func:`input_fingerprint`: the content of every image and of the prior, by size and mtime, plus the
+options). A rerun with the same fingerprint resumes after the last finished stage; with another one the work
+folder is emptied first (the SfM databases hold features of the old images).
+
+The lock (``WORK/lock``, ``fcntl.flock``) lets one run use a work folder at a time: a second run fails at once
+naming the holder (pid, host, start time). The kernel releases the lock of a process that died (even by SIGKILL);
+the next run then finds the dead holder's record, warns, and takes the folder over.
+"""
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import hashlib
+import json
+import logging
+import os
+import pickle
+import shutil
+import socket
+import time
+from collections.abc import Callable, Iterator
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import TypeVar
+
+from dome_calib.errors import DomeCalibError, Interrupted
+from dome_calib.io_utils import atomic_path, atomic_write_text
+
+logger = logging.getLogger(__name__)
+
+T = TypeVar("T")
+
+STATE_FILE = "state.json"
+LOCK_FILE = "lock"
+STATE_VERSION = 2  # 2: stage results are the typed outcomes of pipeline_stages / pipeline_quick
+
+
+class WorkFolderBusy(DomeCalibError):
+    """Another run holds the work folder."""
+
+
+def file_signature(path: Path) -> list:
+    """[name, size in bytes, mtime in ns] of a file: changes when its content is replaced."""
+    st = path.stat()
+    return [path.name, st.st_size, st.st_mtime_ns]
+
+
+def input_fingerprint(capture: Path, scenes: list[str], cameras: list[str], prior: Path | None,
+                      options: dict) -> dict:
+    """What a work folder's results depend on: the capture's images (every ``scenes/<scene>/*.png`` by size and
+    mtime), its ``capture.json``, the prior bundle's files, and the run's options. JSON-ready."""
+    digest = hashlib.sha256()
+    for scene in scenes:
+        for png in sorted((capture / "scenes" / scene).glob("*.png")):
+            digest.update(json.dumps([scene, *file_signature(png)]).encode())
+    meta = capture / "capture.json"
+    if meta.exists():
+        digest.update(json.dumps(file_signature(meta)).encode())
+    prior_files = sorted(p for p in Path(prior).iterdir() if p.is_file()) if prior is not None else []
+    for p in prior_files:
+        digest.update(json.dumps(file_signature(p)).encode())
+    return {"capture": str(capture.resolve()), "scenes": scenes, "cameras": cameras,
+            "prior": str(Path(prior).resolve()) if prior is not None else None, "options": options,
+            "content_sha256": digest.hexdigest()}
+
+
+@contextlib.contextmanager
+def _stage_status(text: str, enabled: bool) -> Iterator[None]:
+    """A live spinner with the elapsed time on stderr while a stage runs (nothing when disabled)."""
+    if not enabled:
+        yield
+        return
+    # in-function import: rich costs ~0.1 s and only a run with a terminal needs it
+    from rich.console import Console
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
+                  console=Console(stderr=True), transient=False) as bar:
+        task = bar.add_task(text, total=1)
+        yield
+        bar.update(task, completed=1)
+
+
+class WorkLock:
+    """An exclusive lock on a work folder, held while the object is open (see the module docstring)."""
+
+    def __init__(self, folder: Path) -> None:
+        self.path = folder / LOCK_FILE
+        self._fd: int | None = None
+
+    def acquire(self) -> None:
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _read_holder(fd)
+            os.close(fd)
+            raise WorkFolderBusy(f"{self.path.parent}: in use by another run ({_describe(holder)}); wait for it to "
+                                 "finish, or give this run another --work / -o") from None
+        previous = _read_holder(fd)
+        if previous:  # a holder that released the lock without clearing it: it died
+            logger.warning("%s: taking over from a run that stopped without releasing it (%s)",
+                           self.path.parent, _describe(previous))
+        me = {"pid": os.getpid(), "host": socket.gethostname(),
+              "started": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, json.dumps(me).encode(), 0)
+        self._fd = fd
+
+    def release(self) -> None:
+        if self._fd is not None:
+            os.ftruncate(self._fd, 0)
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+            os.close(self._fd)
+            self._fd = None
+
+
+def _read_holder(fd: int) -> dict:
+    try:
+        data = os.pread(fd, 4096, 0)
+        return json.loads(data) if data.strip() else {}
+    except ValueError:
+        return {"unreadable": True}
+
+
+def _describe(holder: dict) -> str:
+    if not holder or "pid" not in holder:
+        return "holder unknown"
+    return f"pid {holder['pid']} on {holder.get('host', '?')}, started {holder.get('started', '?')}"
+
+
+class WorkState:
+    """Finished stages and their timings for one run; use :meth:`open` (locks the folder)."""
+
+    def __init__(self, folder: Path, fingerprint: dict, *, progress: bool = False,
+                 labels: dict[str, str] | None = None) -> None:
+        self.folder, self.fingerprint, self.progress = Path(folder), fingerprint, progress
+        self.labels = labels or {}
+        self.path = self.folder / STATE_FILE
+        self.seconds: dict[str, float] = {}  # stage -> wall seconds (of the run that computed it, if resumed)
+        self.resumed: list[str] = []  # stages taken from the folder
+        self.current: str | None = None  # the stage running now (named when interrupted)
+        self._lock = WorkLock(self.folder)
+        self.state: dict = {}
+
+    @classmethod
+    @contextlib.contextmanager
+    def open(cls, folder: Path, fingerprint: dict, **kwargs) -> Iterator[WorkState]:
+        """Lock the work folder, load or reset its state, and release the lock at the end."""
+        state = cls(folder, fingerprint, **kwargs)
+        state.folder.mkdir(parents=True, exist_ok=True)
+        state._lock.acquire()
+        try:
+            state._load()
+            yield state
+        finally:
+            state._lock.release()
+
+    def _load(self) -> None:
+        try:
+            state = json.loads(self.path.read_text(encoding="utf-8")) if self.path.exists() else {}
+        except ValueError:
+            state = {"unreadable": True}
+        if state.get("version") != STATE_VERSION or state.get("fingerprint") != self.fingerprint:
+            if any(p.name != LOCK_FILE for p in self.folder.iterdir()):
+                logger.info("work folder %s was made for other inputs: starting over", self.folder)
+                self._empty()
+            state = {"version": STATE_VERSION, "fingerprint": self.fingerprint, "stages": {}}
+        self.state = state
+
+    def _empty(self) -> None:
+        for p in self.folder.iterdir():
+            if p.name == LOCK_FILE:
+                continue
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p)
+            else:
+                p.unlink()
+
+    def done(self, stage: str) -> bool:
+        return stage in self.state["stages"] and (self.folder / f"{stage}.pkl").exists()
+
+    def run(self, name: str, fn: Callable[[], T]) -> T:
+        """The stage's result: from the work folder if it finished before for these inputs, else ``fn()``, kept."""
+        if self.done(name):
+            self.resumed.append(name)
+            self.seconds[name] = self.state["stages"][name]["seconds"]
+            logger.info("stage %s: taken from %s", name, self.folder)
+            with open(self.folder / f"{name}.pkl", "rb") as f:
+                return pickle.load(f)
+        value = self.time(name, fn)
+        with atomic_path(self.folder / f"{name}.pkl") as tmp:
+            tmp.write_bytes(pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL))
+        self.state["stages"][name] = {"seconds": self.seconds[name]}
+        atomic_write_text(self.path, json.dumps(self.state, indent=1))
+        logger.info("stage %s: done in %.1f s", name, self.seconds[name])
+        return value
+
+    def time(self, name: str, fn: Callable[[], T]) -> T:
+        """``fn()`` timed as stage ``name`` (not kept); an interrupt names the stage (:class:`Interrupted`)."""
+        self.current = name
+        t0 = time.perf_counter()
+        try:
+            with _stage_status(f"{name}: {self.labels.get(name, name)}", self.progress):
+                value = fn()
+        except KeyboardInterrupt as exc:
+            raise Interrupted(name) from exc
+        self.seconds[name] = time.perf_counter() - t0
+        self.current = None
+        return value
