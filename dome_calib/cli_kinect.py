@@ -5,9 +5,10 @@ from pathlib import Path
 
 import typer
 
+from dome_calib.errors import DomeCalibError
+
 
 def _board(spec: str, square_mm: float):
-    from dome_calib.errors import DomeCalibError
     from dome_calib.kinect.board import Checkerboard
 
     try:
@@ -79,7 +80,6 @@ def kinect_synth(
 ) -> None:
     """Make a synthetic Kinect checkerboard capture with ground truth (to try or test `dome-calib kinect`)."""
     from dome_calib.bundle_io import load_bundle
-    from dome_calib.errors import DomeCalibError
     from dome_calib.synth.kinect_boards import KinectBoardsOptions, generate_kinect_boards
 
     try:

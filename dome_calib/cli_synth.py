@@ -5,6 +5,8 @@ from pathlib import Path
 
 import typer
 
+from dome_calib.errors import DomeCalibError
+
 
 def synth(
     out: Path = typer.Argument(..., help="Capture folder to create (scenes/, ground_truth/, capture.json).",
@@ -24,7 +26,6 @@ def synth(
     positions, seen by every camera of the preset, plus the true calibration in OUT/ground_truth/."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from dome_calib.errors import DomeCalibError
     from dome_calib.synth.capture import SynthOptions, synthesize
     from dome_calib.layout import Preset
 
@@ -54,7 +55,6 @@ def patterns(
     height: int = typer.Option(800, help="Projector height in pixels."),
 ) -> None:
     """Write the five projectors' random patterns as 8-bit PNGs (show each on its projector, full screen)."""
-    from dome_calib.errors import DomeCalibError
     from projector.patterns import PatternOptions, write_patterns
 
     if not (64 <= width <= 8192 and 64 <= height <= 8192):

@@ -30,6 +30,9 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import TypeVar
 
+from rich.console import Console
+from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
 from dome_calib.errors import DomeCalibError, Interrupted
 from dome_calib.io_utils import atomic_path, atomic_write_text
 
@@ -77,10 +80,6 @@ def _stage_status(text: str, enabled: bool) -> Iterator[None]:
     if not enabled:
         yield
         return
-    # in-function import: rich costs ~0.1 s and only a run with a terminal needs it
-    from rich.console import Console
-    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-
     with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
                   console=Console(stderr=True), transient=False) as bar:
         task = bar.add_task(text, total=1)

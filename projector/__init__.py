@@ -9,6 +9,7 @@ _SFM_NAMES = ("run_sfm", "SfmOptions", "SfmResult", "CameraFailure")
 
 def __getattr__(name: str):
     if name in _SFM_NAMES:
+        # in-function import: `import projector` (patterns, the CLI) must not load pycolmap
         from projector import sfm
 
         return getattr(sfm, name)

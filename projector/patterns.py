@@ -21,6 +21,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from dome_calib.io_utils import atomic_write_bytes
+
 PROJECTOR_NAMES = ("P1", "P2", "P3", "P4", "P5")
 
 
@@ -84,8 +86,6 @@ def pattern_to_uint8(pattern: np.ndarray) -> np.ndarray:
 def write_patterns(out_dir: str | Path, seed: int, names: tuple[str, ...] = PROJECTOR_NAMES,
                    options: PatternOptions | None = None) -> list[Path]:
     """Write ``<out_dir>/pattern_<name>.png`` (8-bit grayscale) for each projector, atomically; return the paths."""
-    from dome_calib.io_utils import atomic_write_bytes
-
     out = Path(out_dir)
     paths = []
     for name, pattern in make_patterns(seed, names, options).items():

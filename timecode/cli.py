@@ -1,6 +1,8 @@
 """The `timecode` command: decode LTC from audio, build sync tables."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import typer
 
 from dome_calib.errors import run_cli
@@ -36,8 +38,6 @@ def decode(
 ) -> None:
     """Decode SMPTE LTC from an audio file: every frame's label, user bits, flags and direction, and the
     time of its first edge in samples with sub-sample precision (start_samples; start_s = seconds)."""
-    from pathlib import Path
-
     from timecode.decode_command import raw_format as make_raw, run_decode
 
     text = run_decode(Path(file), channel=channel, fps=fps, fmt=fmt, raw=make_raw(raw_format, raw_rate, raw_channels))
@@ -63,8 +63,6 @@ def sync(
                                               "outside the LTC that times them; farther is an error."),
 ) -> None:
     """Align the VGA, HD and Kinect clocks from LTC and write sync tables (universal time = ms on the HD LTC)."""
-    from pathlib import Path
-
     from timecode.sync.command import run_sync
 
     run_sync(Path(session), Path(output), seq=seq, strict_kinect=strict_kinect,

@@ -5,6 +5,9 @@ import sys
 from pathlib import Path
 
 from timecode.audio_io import AudioReader, RawFormat, RawSampleFormat
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
 from timecode.decoder import DecodeOptions, decode_file
 from timecode.errors import NoLTCError, TimecodeError
 from timecode.formats import OutputFormat, render
@@ -68,9 +71,6 @@ def run_decode(path: Path, *, channel: str, fps: str, fmt: str, raw: RawFormat |
 
 def _decode_with_progress(path: Path, options: DecodeOptions, channels: list[int] | None, raw: RawFormat | None,
                           total: int):
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
     console = Console(stderr=True)
     with Progress(TextColumn("decoding"), BarColumn(), MofNCompleteColumn(), TextColumn("samples"),
                   TimeRemainingColumn(), console=console, transient=True,

@@ -13,6 +13,9 @@ import logging
 import os
 from collections.abc import Iterator
 
+import numpy  # noqa: F401  (loads its OpenBLAS: _openblas_libraries finds it in /proc/self/maps)
+import scipy.linalg  # noqa: F401  (and scipy's)
+
 logger = logging.getLogger(__name__)
 
 _SETTERS = ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads", "openblas_set_num_threads64_",
@@ -27,9 +30,6 @@ def _openblas_libraries() -> list[tuple[object, object]]:
     global _libs
     if _libs is not None:
         return _libs
-    import numpy  # noqa: F401  (load the libraries)
-    import scipy.linalg  # noqa: F401
-
     paths: set[str] = set()
     try:
         with open("/proc/self/maps") as fh:

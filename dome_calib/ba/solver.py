@@ -28,6 +28,7 @@ from dome_calib.ba.problem import BAProblem
 from dome_calib.ba.result import BAResult, IterationLog, camera_statistics
 from dome_calib.ba.robust import LossKind, robust_cost_and_weight, robust_sigma_px
 from dome_calib.ba.schur import Structure, build_structure, linearize, solve_step
+from dome_calib.ba.uncertainty import camera_uncertainty
 
 logger = logging.getLogger(__name__)
 _MIN_LAMBDA = 1e-12
@@ -201,8 +202,6 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions) -> BAResult:
     result = camera_statistics(refined, st, inlier, gauge=gauge, iterations=state.iterations,
                                termination=reasons, outlier_threshold_px=threshold_px)
     if options.compute_uncertainty:
-        from dome_calib.ba.uncertainty import camera_uncertainty
-
         result.uncertainty = camera_uncertainty(refined, st, result.sigma_px, n_threads=options.n_threads,
                                                 gauge=gauge)
     result.time_s = time.perf_counter() - t0

@@ -34,6 +34,7 @@ from dome_calib.synth.dome import Projector, dome_from_calibration, projectors
 from dome_calib.synth.render import RenderOptions, SceneState, camera_rays, prepare_scene, render_image
 from dome_calib.synth.tent import TENT_CONES, TENT_ELLIPSOIDS, scene_poses, tent_mesh
 from dome_calib.workers import single_threaded_children
+from projector.patterns import make_patterns
 
 logger = logging.getLogger(__name__)
 
@@ -134,8 +135,6 @@ def synthesize(out: str | Path, options: SynthOptions,
         raise DomeCalibError(f"workers {options.workers}: expected at least 1")
     if out.exists() and not options.overwrite:
         raise DomeCalibError(f"{out}: already exists (choose another folder or pass --overwrite)")
-    from projector.patterns import make_patterns
-
     bundle = load_layout(options)
     projs = projectors(options.seed)
     patterns = make_patterns(options.seed, tuple(sorted(projs)))

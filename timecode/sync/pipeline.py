@@ -14,6 +14,7 @@ from dome_calib.io_utils import atomic_write_text
 from dome_calib.panoptic_io import format_ksynctables, format_synctables
 from timecode.errors import TimecodeError
 from timecode.rates import FrameRate
+from timecode.decoder import DecodeOptions, decode_file, decode_samples
 from timecode.sync.clock import ClockError, FrameStarts
 from timecode.sync.report import sync_report
 from timecode.sync.session import Session, SessionError, load_session
@@ -38,8 +39,6 @@ def _check_channel(path: Path, channel: int, field: str, file_field: str) -> Non
 def _decode(path: Path, channel: int, rate: FrameRate, source: str, start: int = 0, stop: int | None = None
             ) -> tuple[np.ndarray, np.ndarray, int]:
     """Forward frames (counts, start samples in the file) of ``path[start:stop]``, and the file's sample rate."""
-    from timecode.decoder import DecodeOptions, decode_file, decode_samples  # the LTC decoder (issue 4)
-
     opts = DecodeOptions(rate=rate)
     try:
         if start == 0 and stop is None:

@@ -1,0 +1,149 @@
+"""The house: imports follow the data (foundation <- stages <- pipelines <- CLI), checked on the source (AST).
+
+- no circle of files (module-level imports, and in-function ones too);
+- ``projector`` (the SfM front end) never imports the solver, the pipelines, the report or the synthetic generators;
+- production code never imports a synthetic generator (only the commands that run them: ``synth``, ``kinect-synth``,
+  ``demo``);
+- an import inside a function only where it saves start-up time, each listed here with its reason.
+"""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("dome_calib", "projector", "timecode")
+
+CLI_REASON = "CLI shell: a command's stages load only when it runs, so `--help` and the other commands start fast"
+#: file -> why imports inside its functions are allowed (and how many it has: a new one must be listed here).
+IN_FUNCTION_ALLOWED = {
+    "dome_calib/cli.py": (7, CLI_REASON),
+    "dome_calib/cli_kinect.py": (7, CLI_REASON),
+    "dome_calib/cli_recon.py": (5, CLI_REASON),
+    "dome_calib/cli_synth.py": (4, CLI_REASON),
+    "timecode/cli.py": (3, CLI_REASON),
+    "dome_calib/__init__.py": (1, "dome_calib.load_bundle / write_bundle without loading numpy on `import dome_calib`"),
+    "projector/__init__.py": (1, "projector.run_sfm without loading pycolmap on `import projector`"),
+    "dome_calib/report/build.py": (1, "matplotlib (~0.5 s) only when a report with plots is written"),
+}
+#: The commands that run the synthetic generators (and only they, besides tests and bench, may import them).
+SYNTH_ENTRY_POINTS = {"dome_calib.cli_synth", "dome_calib.cli_kinect", "dome_calib.demo"}
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return out
+
+
+MODULES = _modules()
+
+
+def _resolve(name: str) -> str | None:
+    while name and name not in MODULES:
+        name = name.rpartition(".")[0]
+    return name or None
+
+
+def _imports(module: str, path: Path) -> list[tuple[str, int, bool]]:
+    """(imported project module, line, inside a function) for every import of the file."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    in_function = {id(sub) for fn in ast.walk(tree) if isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef))
+                   for sub in ast.walk(fn) if isinstance(sub, (ast.Import, ast.ImportFrom))}
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                pkg = module if path.name == "__init__.py" else module.rpartition(".")[0]
+                for _ in range(node.level - 1):
+                    pkg = pkg.rpartition(".")[0]
+                base = f"{pkg}.{base}" if base else pkg
+            # `from pkg import sub` imports the submodule; `from mod import name` the module
+            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in MODULES else base for a in node.names]
+        else:
+            continue
+        for t in targets:
+            target = _resolve(t)
+            if target and target != module:
+                found.append((target, node.lineno, id(node) in in_function))
+    return found
+
+
+IMPORTS = {m: _imports(m, p) for m, p in MODULES.items()}
+
+
+def _cycles() -> list[list[str]]:
+    """Strongly connected components of more than one module (Tarjan)."""
+    graph = {m: sorted({t for t, _, _ in imps}) for m, imps in IMPORTS.items()}
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_circle_of_files():
+    assert _cycles() == []
+
+
+def test_the_checker_sees_a_circle():
+    """The check can fail: a made-up back edge from the foundation to a pipeline is a circle."""
+    IMPORTS["dome_calib.bundle"].append(("dome_calib.pipeline", 0, False))
+    try:
+        assert any("dome_calib.bundle" in c and "dome_calib.pipeline" in c for c in _cycles())
+    finally:
+        IMPORTS["dome_calib.bundle"].pop()
+
+
+def test_projector_does_not_know_the_solver_pipelines_report_or_synth():
+    banned = ("dome_calib.ba", "dome_calib.pipeline", "dome_calib.report", "dome_calib.synth")
+    bad = [(m, t, line) for m, imps in IMPORTS.items() if m.split(".")[0] == "projector"
+           for t, line, _ in imps if t.startswith(banned)]
+    assert bad == []
+
+
+def test_production_does_not_import_synthetic_generators():
+    bad = [(m, t, line) for m, imps in IMPORTS.items()
+           if not m.startswith("dome_calib.synth") and m not in SYNTH_ENTRY_POINTS
+           for t, line, _ in imps if t.startswith("dome_calib.synth")]
+    assert bad == []
+
+
+def test_imports_inside_functions_are_listed_with_their_reason():
+    counts: dict[str, int] = {}
+    for path in MODULES.values():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        statements = {id(sub) for fn in ast.walk(tree) if isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef))
+                      for sub in ast.walk(fn) if isinstance(sub, (ast.Import, ast.ImportFrom))}
+        if statements:  # import statements of any module, ours or not, inside a function
+            counts[path.relative_to(ROOT).as_posix()] = len(statements)
+    assert counts == {f: n for f, (n, _) in IN_FUNCTION_ALLOWED.items()}
+    assert sum(counts.values()) == 29  # 80 before the one-way-house refactor
