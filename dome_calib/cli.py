@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import logging
+import sys
 from pathlib import Path
 
 import typer
@@ -60,7 +61,8 @@ def calibrate(
         from dome_calib.pipeline import CalibrateOptions, format_result, run_calibration
 
         logging.getLogger("dome_calib.ba").setLevel(logging.INFO if verbose else logging.WARNING)
-        options = CalibrateOptions(prior=prior, only_changed=only_changed, seq=seq, work_dir=work)
+        options = CalibrateOptions(prior=prior, only_changed=only_changed, seq=seq, work_dir=work,
+                                   progress=sys.stderr.isatty())  # no spinners in a log file
         typer.echo(format_result(run_calibration(capture, out, options)))
 
 

@@ -114,13 +114,13 @@ class LocalProcessExecutor:
         self._pool.shutdown(wait=True, cancel_futures=True)
 
     def terminate(self) -> None:
-        """Stop now: drop queued tasks and end the worker processes (SIGTERM) without waiting for their tasks."""
+        """Stop now: drop queued tasks and end the worker processes (SIGKILL) without waiting for their tasks."""
         # ProcessPoolExecutor has no public handle on its processes; _processes is stable since Python 3.2
         processes = list((getattr(self._pool, "_processes", None) or {}).values())
         self._pool.shutdown(wait=False, cancel_futures=True)
-        for proc in processes:
+        for proc in processes:  # SIGKILL: pycolmap's glog would print a stack trace on SIGTERM
             if proc.is_alive():
-                proc.terminate()
+                proc.kill()
         for proc in processes:
             proc.join(timeout=5)
 
