@@ -8,7 +8,7 @@ Prints one JSON object per sensor, then one summary line. Per sensor:
 - OpenCV on the very same detections: calibrateCamera (IR) + stereoCalibrate with CALIB_FIX_INTRINSIC
   ("cv_fix", colour intrinsics = the dome's, as ours) and with CALIB_USE_INTRINSIC_GUESS ("cv_guess", both
   cameras refined jointly); ratio_* = ours / OpenCV (below 1: ours is better).
-Aims (issue 9): ours no worse than OpenCV; with >= 30 poses t < 1 mm, rotation < 0.05 deg; RMS / sigma < 1.1.
+Aims: ours no worse than OpenCV; with >= 30 poses t < 1 mm, rotation < 0.05 deg; RMS / sigma < 1.1.
 Per-sensor errors are single draws (a ratio of two of them scatters by +-50 %); the "monte_carlo" line repeats
 the comparison on --mc-trials synthetic corner sets (true projections plus Gaussian noise whose per-frame sigma
 follows what the detectors show on the rendered images: IR 0.05 px near to 0.10 px far, colour 0.037-0.075 px).

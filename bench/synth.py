@@ -1,4 +1,4 @@
-"""Benchmark of the synthetic capture generator (issue 3). One JSON object per line.
+"""Benchmark of the synthetic capture generator. One JSON object per line.
 
 Prints: render time and peak memory of the `panel` preset with 3 scenes (and `full` with --full); SIFT feature
 counts in VGA/HD images with the fraction of the view that is tent; SIFT matches between neighbouring cameras

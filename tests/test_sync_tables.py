@@ -16,7 +16,7 @@ from timecode.sync.session import load_session
 from dome_calib.synth.sync_session import SynthSessionOptions, make_session
 from timecode.sync.tables import SyncError, SyncOptions, build_sync
 
-VGA_HD_RMS_US = 10.0  # aim of issue 5
+VGA_HD_RMS_US = 10.0  # the sync aim: VGA-HD offsets within 10 us RMS
 FRAME_NOISE_US = 1.0  # decoder-like timing noise added to the exact frame starts
 
 

@@ -84,9 +84,9 @@ def distance_to_triangles(points: np.ndarray, triangles: np.ndarray) -> np.ndarr
         inside = np.ones(len(points), dtype=bool)
         for p, q in ((a, b), (b, c), (c, a)):
             inside &= np.cross(q - p, foot - p) @ n >= 0
-        dist = np.where(inside, np.abs(d_plane), np.inf)
+        distance_cm = np.where(inside, np.abs(d_plane), np.inf)
         for p, q in ((a, b), (b, c), (c, a)):
             s = np.clip(((points - p) @ (q - p)) / ((q - p) @ (q - p)), 0.0, 1.0)
-            dist = np.minimum(dist, np.linalg.norm(points - (p + s[:, None] * (q - p)), axis=1))
-        best = np.minimum(best, dist)
+            distance_cm = np.minimum(distance_cm, np.linalg.norm(points - (p + s[:, None] * (q - p)), axis=1))
+        best = np.minimum(best, distance_cm)
     return best

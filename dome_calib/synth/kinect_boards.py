@@ -1,4 +1,4 @@
-"""Synthetic Kinect checkerboard captures with ground truth (issue 9).
+"""Synthetic Kinect checkerboard captures with ground truth.
 
 For each Kinect sensor: pairs of IR (512x424, 8-bit) and colour (1920x1080, BGR) images of a checkerboard at
 varied poses, and the depth map (uint16 mm, 512x424) of the board, written as::

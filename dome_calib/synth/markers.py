@@ -53,14 +53,14 @@ def marker_view(cam: Camera, X_cm: np.ndarray, pose: TentPose, *, margin_px: flo
     if not inside:
         return MarkerView(uv_px=uv, visible=False)
     ray = X_cm - cam.center_cm
-    dist = np.linalg.norm(ray)
-    hit = intersect_scene(cam.center_cm, (ray / dist)[None], pose)
-    if not (hit.kind[0] == 1 and abs(hit.s[0] - dist) < tol_cm):
+    range_cm = np.linalg.norm(ray)
+    hit = intersect_scene(cam.center_cm, (ray / range_cm)[None], pose)
+    if not (hit.kind[0] == 1 and abs(hit.s[0] - range_cm) < tol_cm):
         return MarkerView(uv_px=uv, visible=False)
     n = hit.normal[0]
-    if -(n @ ray) / dist < min_cos_incidence:
+    if -(n @ ray) / range_cm < min_cos_incidence:
         return MarkerView(uv_px=uv, visible=False)
-    t1 = np.cross(n, ray / dist)
+    t1 = np.cross(n, ray / range_cm)
     t1 /= np.linalg.norm(t1)
     t2 = np.cross(n, t1)
     ring = X_cm + footprint_cm * np.array([t1, -t1, t2, -t2])
@@ -74,7 +74,7 @@ def marker_view(cam: Camera, X_cm: np.ndarray, pose: TentPose, *, margin_px: flo
     d_cam = np.concatenate([xn, np.ones((len(xn), 1))], axis=1)
     d_world = (d_cam / np.linalg.norm(d_cam, axis=1, keepdims=True)) @ cam.R
     around = intersect_scene(cam.center_cm, d_world, pose)
-    smooth = bool(np.all((around.kind == 1) & (np.abs(around.s - dist) < 0.05 * dist)))
+    smooth = bool(np.all((around.kind == 1) & (np.abs(around.s - range_cm) < 0.05 * range_cm)))
     return MarkerView(uv_px=uv, visible=clean and smooth)
 
 

@@ -143,7 +143,7 @@ def trace(origin_cm: np.ndarray, dirs: np.ndarray, scene: SceneState, patterns: 
           options: RenderOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Radiance (N,) float32, hit kind (N,) uint8 (0 none, 1 tent, 2 floor) and distance (N,) cm of world rays."""
     n = len(dirs)
-    L, kind, dist = np.empty(n, np.float32), np.empty(n, np.uint8), np.empty(n)
+    L, kind, range_cm = np.empty(n, np.float32), np.empty(n, np.uint8), np.empty(n)
     for i in range(0, n, CHUNK_RAYS):
         hits = intersect_scene(origin_cm, dirs[i:i + CHUNK_RAYS], scene.pose)
         Lc = np.full(len(hits.s), options.background, np.float32)
@@ -159,13 +159,13 @@ def trace(origin_cm: np.ndarray, dirs: np.ndarray, scene: SceneState, patterns: 
                     Lm += (options.marker_radiance * np.exp(-0.5 * r2 / options.marker_sigma_cm**2) * on_tent) \
                         .astype(np.float32)
             Lc[m] = Lm
-        L[i:i + CHUNK_RAYS], kind[i:i + CHUNK_RAYS], dist[i:i + CHUNK_RAYS] = Lc, hits.kind, hits.s
-    return L, kind, dist
+        L[i:i + CHUNK_RAYS], kind[i:i + CHUNK_RAYS], range_cm[i:i + CHUNK_RAYS] = Lc, hits.kind, hits.s
+    return L, kind, range_cm
 
 
-def edge_mask(kind: np.ndarray, dist: np.ndarray) -> np.ndarray:
+def edge_mask(kind: np.ndarray, range_cm: np.ndarray) -> np.ndarray:
     """(H, W) bool: pixels next to a change of surface (kind) or a depth jump (occlusion), dilated by one pixel."""
-    d = np.where(np.isfinite(dist), dist, 1e6)
+    d = np.where(np.isfinite(range_cm), range_cm, 1e6)
     edge = np.zeros(kind.shape, bool)
     for axis in (0, 1):
         dk = np.diff(kind.astype(np.int16), axis=axis) != 0
@@ -187,10 +187,10 @@ def radiance_image(rays: CameraRays, scene: SceneState, options: RenderOptions) 
     geometric edges are then re-traced with ss x ss samples at full resolution and box-filtered.
     """
     patterns = scene.patterns_for(rays.cam, rays.scale_xy[0])
-    L, kind, dist = trace(rays.origin_cm, rays.base_dirs, scene, patterns, options)
+    L, kind, range_cm = trace(rays.origin_cm, rays.base_dirs, scene, patterns, options)
     h, w = rays.shape
-    L, kind, dist = L.reshape(h, w), kind.reshape(h, w), dist.reshape(h, w)
-    edges = edge_mask(kind, dist)
+    L, kind, range_cm = L.reshape(h, w), kind.reshape(h, w), range_cm.reshape(h, w)
+    edges = edge_mask(kind, range_cm)
     W, H = rays.resolution
     if (h, w) != (H, W):
         L = cv2.resize(L, (W, H), interpolation=cv2.INTER_CUBIC)

@@ -1,4 +1,4 @@
-"""Clock alignment from LTC and sync tables (issue 5).
+"""Clock alignment from LTC and sync tables.
 
 Modules: :mod:`~timecode.sync.clock` (decoded frame starts -> piecewise clock models), :mod:`~timecode.sync.session`
 (on-disk session layout and loader), :mod:`~timecode.sync.tables` (universal time of every frame, sync tables,
