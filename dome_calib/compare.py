@@ -72,7 +72,7 @@ class Comparison:
 
     def worst(self, n: int = 5) -> list[CameraError]:
         """The n cameras with the largest centre error."""
-        return sorted(self.cameras.values(), key=lambda e: -e.center_cm)[:n]
+        return sorted(self.cameras.values(), key=lambda e: (-round(e.center_cm, 6), e.name))[:n]
 
     def as_dict(self) -> dict:
         return {"scale": self.scale, "align_inliers": self.align_inliers, "summary": self.summary(),

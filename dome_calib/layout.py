@@ -21,6 +21,7 @@ import numpy as np
 from dome_calib.bundle import NOMINAL_RESOLUTION, Bundle, Camera, CameraType
 from dome_calib.camera import intr_to_K
 from dome_calib.errors import DomeCalibError
+from dome_calib.ties import LENGTH_QUANTUM_CM, order_by
 
 logger = logging.getLogger(__name__)
 
@@ -58,7 +59,7 @@ PIXEL_ASPECT_STD = 1.5e-4  # fy / fx - 1
 
 
 class Preset(StrEnum):
-    TINY = "tiny"  # 8 VGA of panel 1, 3 HD, 1 Kinect colour
+    TINY = "tiny"  # 4 VGA of each of panels 1 and 13, 4 HD between them, 2 Kinect colour
     PANEL = "panel"  # panels 1-2 (48 VGA), 8 HD, 4 Kinect colour
     FULL = "full"  # every camera
 
@@ -164,28 +165,53 @@ def all_nominal_cameras(seed: int) -> dict[str, Camera]:
     return cams
 
 
-def select_preset(cameras: dict[str, Camera], preset: Preset | str) -> list[str]:
-    """Camera names of a preset, chosen by geometry so that the same preset works on any layout.
+#: The tiny preset's two panels: one ring, 72 deg apart, so that its cameras see the tent over a wide arc and
+#: focal length and distance separate (one panel alone sees it from one side, where they trade off).
+TINY_PANELS = (1, 13)
+TINY_VGA_PER_PANEL = 4
+TINY_HD_ON_ARC = 4
 
-    tiny: the 8 VGA of panel 1 nearest its centre, the 3 HD and the 1 Kinect colour camera nearest panel 1;
-    panel: all VGA of panels 1 and 2, the 8 HD and 4 Kinect colour cameras nearest them; full: every camera.
+
+def _nearest(cands: list[Camera], point_cm: np.ndarray, n: int, taken: set[str] = frozenset()) -> list[str]:
+    """Names of the ``n`` cameras of ``cands`` nearest ``point_cm``; distances compared to 1 um, equal ones by
+    name (six ring cameras lie at one distance from a panel centre by design: their last bits differ between
+    machines)."""
+    cands = sorted((c for c in cands if c.name not in taken), key=lambda c: c.name)
+    d = [float(np.linalg.norm(c.center_cm - point_cm)) for c in cands]
+    return [cands[i].name for i in order_by(d, [c.name for c in cands], LENGTH_QUANTUM_CM)[:n]]
+
+
+def select_preset(cameras: dict[str, Camera], preset: Preset | str) -> list[str]:
+    """Camera names of a preset, chosen by geometry so that the same preset works on any layout (ties by name).
+
+    tiny (14): the 4 VGA nearest the centre of each of panels 1 and 13 (same ring, 72 deg apart), the 4 HD
+    nearest points spread evenly along the arc between those panels, and the Kinect colour camera nearest each
+    panel; panel (60): all VGA of panels 1 and 2, the 8 HD and 4 Kinect colour cameras nearest them;
+    full: every camera.
     """
     preset = Preset(preset)
     if preset is Preset.FULL:
         return sorted(cameras)
-    panels = (1,) if preset is Preset.TINY else (1, 2)
-    vga = [c for c in cameras.values() if c.type == CameraType.VGA and c.panel in panels]
-    if not vga:
-        raise DomeCalibError(f"preset {preset}: the layout has no VGA cameras on panel(s) {panels}")
-    centre = np.mean([c.center_cm for c in vga], axis=0)
-    n_vga, n_hd, n_kinect = (8, 3, 1) if preset is Preset.TINY else (len(vga), 8, 4)
-
-    def nearest(cands: list[Camera], n: int) -> list[str]:
-        return [c.name for c in sorted(cands, key=lambda c: (np.linalg.norm(c.center_cm - centre), c.name))[:n]]
-
-    names = nearest(vga, n_vga)
-    names += nearest([c for c in cameras.values() if c.type == CameraType.HD], n_hd)
-    names += nearest([c for c in cameras.values() if c.type == CameraType.KINECT_COLOR], n_kinect)
+    panels = TINY_PANELS if preset is Preset.TINY else (1, 2)
+    vga = {p: [c for c in cameras.values() if c.type == CameraType.VGA and c.panel == p] for p in panels}
+    empty = [p for p, cams in vga.items() if not cams]
+    if empty:
+        raise DomeCalibError(f"preset {preset}: the layout has no VGA cameras on panel {empty[0]}")
+    hd = [c for c in cameras.values() if c.type == CameraType.HD]
+    kinect = [c for c in cameras.values() if c.type == CameraType.KINECT_COLOR]
+    if preset is Preset.PANEL:
+        centre = np.mean([c.center_cm for p in panels for c in vga[p]], axis=0)
+        names = [c.name for p in panels for c in vga[p]] + _nearest(hd, centre, 8) + _nearest(kinect, centre, 4)
+        return sorted(names)
+    centres = [np.mean([c.center_cm for c in vga[p]], axis=0) for p in panels]
+    names = [n for p, centre in zip(panels, centres) for n in _nearest(vga[p], centre, TINY_VGA_PER_PANEL)]
+    a, b = (c - DOME_CENTRE_CM for c in centres)
+    angle = np.arccos(np.clip(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)), -1.0, 1.0))
+    radius = 0.5 * (np.linalg.norm(a) + np.linalg.norm(b))
+    for f in np.linspace(0.0, 1.0, TINY_HD_ON_ARC):  # slerp from panel to panel, on the sphere of the panels
+        u = (np.sin((1 - f) * angle) * a / np.linalg.norm(a) + np.sin(f * angle) * b / np.linalg.norm(b)) / np.sin(angle)
+        names += _nearest(hd, DOME_CENTRE_CM + radius * u, 1, taken=set(names))
+    names += [n for centre in centres for n in _nearest(kinect, centre, 1, taken=set(names))]
     return sorted(names)
 
 

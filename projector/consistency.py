@@ -114,7 +114,7 @@ def changed_cameras(pair_error_px: Mapping[Pair, float], *, bad_px: float | None
     flagged: dict[str, tuple[float, int]] = {}
     while True:
         best, best_key = None, (0.0, 0)
-        for cam, p in partners.items():
+        for cam, p in sorted(partners.items()):  # equal fractions: the first name wins, whatever the input order
             if cam in flagged:
                 continue
             live = [bad for other, bad in p.items() if other not in flagged]

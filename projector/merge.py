@@ -33,6 +33,7 @@ from dome_calib.align import Alignment, sim3_apply
 from dome_calib.bundle import Camera
 from dome_calib.camera import colmap_to_opencv_px
 from dome_calib.rotation import rotation_angle_deg
+from dome_calib.ties import UNIT_QUANTUM, quantize
 from projector.database import camera_of_image, intrinsics_from_colmap
 from projector.mapping import SceneModel
 from projector.observations import Observations
@@ -214,7 +215,8 @@ def _pose_graph(poses: Mapping[str, ScenePoses], seq: AlignedPoses, options: Mer
     for n in seq.R:
         cand = [(init_scene[s][0] @ m[n][0], init_scene[s][0] @ m[n][1] + init_scene[s][1])
                 for s, m in measured.items() if n in m]
-        init_camera[n] = min(cand, key=lambda p: sum(np.linalg.norm(p[1] - q[1]) for q in cand))
+        total = np.array([sum(np.linalg.norm(p[1] - q[1]) for q in cand) for p in cand])  # in scene order
+        init_camera[n] = cand[int(np.argmin(quantize(total / max(total.max(), 1e-300), UNIT_QUANTUM)))]
     dropped: set[tuple[str, str]] = set()
     errors: dict[tuple[str, str], tuple[float, float]] = {}
     for rnd in range(3):  # optimise, drop disagreeing registrations, optimise again without them

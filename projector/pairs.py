@@ -24,6 +24,7 @@ import numpy as np
 
 from dome_calib.bundle import Camera
 from dome_calib.camera import project
+from dome_calib.ties import LENGTH_QUANTUM_CM, UNIT_QUANTUM, argmax_first, quantize
 
 Pair = tuple[str, str]
 
@@ -111,13 +112,14 @@ def pairs_from_prior(cameras: Mapping[str, Camera], names: Iterable[str], option
     if len(known) <= options.exhaustive_below:
         return pairs_exhaustive(known)
     seen, dirs = visibility(cameras, known, options)
-    v = seen.astype(np.float32)
-    shared = v @ v.T  # (C, C) samples seen by both
-    cos_view = dirs @ dirs.T
-    score = np.where(cos_view >= np.cos(np.radians(options.max_view_angle_deg)), shared, 0.0)
-    np.fill_diagonal(score, 0.0)
-    score[score < options.min_shared_samples] = 0.0
-    angle_order = np.argsort(-cos_view, axis=1)
+    v = seen.astype(np.int64)
+    shared = v @ v.T  # (C, C) samples seen by both: exact integers
+    # cosines quantised: cameras at one angle by design compare equal on every machine, then go by name
+    cos_q = quantize(dirs @ dirs.T, UNIT_QUANTUM)
+    score = np.where(cos_q >= quantize(np.cos(np.radians(options.max_view_angle_deg)), UNIT_QUANTUM), shared, 0)
+    np.fill_diagonal(score, 0)
+    score[score < options.min_shared_samples] = 0
+    angle_order = np.argsort(-cos_q, axis=1, kind="stable")  # `known` is in name order
     pairs: set[Pair] = set()
     for i, name in enumerate(known):
         best = np.argsort(-score[i], kind="stable")[: options.max_pairs_per_camera]
@@ -128,14 +130,15 @@ def pairs_from_prior(cameras: Mapping[str, Camera], names: Iterable[str], option
 
 
 def spread_subset(cameras: Mapping[str, Camera], names: list[str], k: int) -> list[str]:
-    """``k`` names spread over viewing directions (farthest-point sampling on camera centres), deterministic."""
+    """``k`` names spread over viewing directions (farthest-point sampling on camera centres), deterministic:
+    distances are compared to 1 um, equal ones by the order of ``names``."""
     if len(names) <= k:
         return list(names)
     C = np.stack([cameras[n].center_cm for n in names])
     chosen = [0]
     d = np.linalg.norm(C - C[0], axis=1)
     while len(chosen) < k:
-        j = int(np.argmax(d))
+        j = argmax_first(d, LENGTH_QUANTUM_CM)
         chosen.append(j)
         d = np.minimum(d, np.linalg.norm(C - C[j], axis=1))
     return [names[j] for j in sorted(chosen)]

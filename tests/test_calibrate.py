@@ -22,6 +22,9 @@ from dome_calib.layout import nominal_dome
 
 SFM_FRAME = pycolmap.Sim3d(0.05, pycolmap.Rotation3d(Rotation.from_rotvec([0.2, 1.3, -0.4]).as_matrix()), [1, 2, 3])
 NOISE_PX = 0.3
+_TINY = nominal_dome("tiny", seed=0)  # cameras the tests need are asked of the preset, not assumed
+UNCERTAIN, CERTAIN = sorted(_TINY.of_type("vga"))[4:6]
+FAR = sorted(_TINY.of_type("hd"))[-1]
 
 
 def _problem(truth, seed=0, noise_px=NOISE_PX):
@@ -76,7 +79,7 @@ def stand_in_stages(monkeypatch, capture):
         cams = {n: problem.camera(n) for n in problem.camera_names}
         return BAOutcome(problem=problem, cameras=cams, residuals=residuals_of(problem),
                          inlier=np.ones(problem.n_observations, bool),
-                         center_sigma={"01_05": 2.0 * SFM_FRAME.scale, "01_06": 0.01})  # problem units
+                         center_sigma={UNCERTAIN: 2.0 * SFM_FRAME.scale, CERTAIN: 0.01})  # problem units
 
     monkeypatch.setattr(pipeline, "run_sfm_stage", sfm)
     monkeypatch.setattr(pipeline, "run_ba_stage", ba)
@@ -95,10 +98,10 @@ def test_calibrate_writes_bundle_and_report_and_resumes(tmp_path, capture, stand
     assert rep["world_frame"]["reference"] == "nominal"
     assert {"name": "01_24", "type": None, "reasons": ["not calibrated: saw no tent in any scene"]} in rep["to_check"]
     flagged = {row["name"]: row["reasons"] for row in rep["to_check"]}
-    assert "position poorly determined (+-2.0 cm" in flagged["01_05"][0] and "01_06" not in flagged
-    assert rep["center_sigma_cm"]["01_05"] == pytest.approx(2.0)
+    assert "position poorly determined (+-2.0 cm" in flagged[UNCERTAIN][0] and CERTAIN not in flagged
+    assert rep["center_sigma_cm"][UNCERTAIN] == pytest.approx(2.0)
     text = pipeline.format_result(result)
-    assert "calibrated 12 of 13 cameras (vga 8/9, hd 3/3, kinect-color 1/1)" in text
+    assert "calibrated 14 of 15 cameras (vga 8/9, hd 4/4, kinect-color 2/2)" in text
     assert "nominal dome geometry" in text and "01_24: not calibrated" in text
     assert stand_in_stages == {"sfm": 1, "ba": 1}
     again = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=False))
@@ -152,7 +155,7 @@ def test_prune_problem_drops_unusable_cameras():
 
     truth = nominal_dome("tiny", seed=0)
     problem = _problem(truth)
-    far = problem.camera_position("00_16")
+    far = problem.camera_position(FAR)
     problem.camera_params[far, 3:6] += [0.0, 0.0, 5e6]  # SfM put it 50 km away
     few = problem.camera_position("01_01")
     drop = np.nonzero(problem.camera_index == few)[0][10:]
@@ -161,8 +164,8 @@ def test_prune_problem_drops_unusable_cameras():
                                                                 problem.point_index[keep], problem.uv_px[keep])
     problem.validate()
     pruned, dropped = prune_problem(problem)
-    assert sorted(dropped) == ["00_16", "01_01"] and "only 10 observations" in dropped["01_01"]
-    assert "00_16" not in pruned.camera_names and pruned.n_cameras == problem.n_cameras - 2
+    assert sorted(dropped) == sorted([FAR, "01_01"]) and "only 10 observations" in dropped["01_01"]
+    assert FAR not in pruned.camera_names and pruned.n_cameras == problem.n_cameras - 2
     assert np.all(np.bincount(pruned.point_index) >= 2)
     # the remaining observations are the same pixels of the same points through the same cameras
     assert np.abs(observation_residuals(pruned)).max() < 5 * NOISE_PX

@@ -25,5 +25,5 @@ def test_sigkill_at_random_moments_leaves_a_loadable_bundle_and_a_rerun_complete
     assert summary["old"] + summary["new"] + summary["finished"] == 3
     assert summary["rerun_rc"] == 0
     same = summary["vs_uninterrupted"]
-    assert same["same_names"] and same["cameras"] == 12
+    assert same["same_names"]
     assert same["center_mm_max"] < MAX_CENTER_DIFF_MM and same["rotation_deg_max"] < MAX_ROTATION_DIFF_DEG

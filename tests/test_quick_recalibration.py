@@ -24,7 +24,16 @@ from projector.consistency import changed_cameras, pair_errors
 from projector.database import add_image, image_name, write_features
 
 NOISE_PX = 0.2
+#: Its own camera set (not a preset's): one panel's neighbourhood, as the quick path sees it on the dome, where
+#: every camera has close partners.
+CAMERAS = [f"01_{k:02d}" for k in range(1, 9)] + ["00_00", "00_01", "00_16", "50_04"]
 MOVED, RELENSED = "01_03", "01_05"
+BLANK = "01_08"  # in the prior, a blank image now
+
+
+def _neighbourhood() -> Bundle:
+    full = nominal_dome("full", seed=0)
+    return Bundle(seq="prior", cameras={n: full.cameras[n] for n in CAMERAS})
 
 
 def _disturbed(prior: Bundle) -> Bundle:
@@ -71,7 +80,7 @@ def write_scene_database(path, current: Bundle, prior: Bundle, seed: int = 0, n_
 
 @pytest.fixture
 def scene(tmp_path):
-    prior = nominal_dome("tiny", seed=0)
+    prior = _neighbourhood()
     current = _disturbed(prior)
     db = tmp_path / "scene_01" / "database.db"
     db.parent.mkdir()
@@ -109,7 +118,7 @@ def test_quick_recalibration_reestimates_only_the_changed(tmp_path, scene, monke
     (cap / "scenes" / "scene_01").mkdir(parents=True)
     (cap / "capture.json").write_text(json.dumps({"scenes": ["scene_01"], "cameras": names}))
     matched = quick.MatchedScene(scene="scene_01", database=db, image_dir=cap / "scenes" / "scene_01", cameras=names,
-                                 failures={"01_12": "blank image (grey-level std 0.0 < 3.0)"}, pairs=0,
+                                 failures={BLANK: "blank image (grey-level std 0.0 < 3.0)"}, pairs=0,
                                  verified_pairs=0, inlier_matches=0, seconds={})
     monkeypatch.setattr(quick, "match_first_scene", lambda *a, **k: matched)
     prior_dir = write_bundle(prior, tmp_path / "prior")
@@ -129,15 +138,15 @@ def test_quick_recalibration_reestimates_only_the_changed(tmp_path, scene, monke
     assert "replaced?" not in " ".join(result.changes[MOVED].reasons)
     np.testing.assert_array_equal(bundle.cameras[MOVED].K, prior.cameras[MOVED].K)  # a moved camera keeps its lens
     assert f"{MOVED}: residual" in pipeline.format_result(result)
-    unchecked = [row for row in result.to_check if row["name"] == "01_12"]  # in the prior, blank image now
+    unchecked = [row for row in result.to_check if row["name"] == BLANK]  # in the prior, blank image now
     assert unchecked and "not checked against the prior: no usable image" in unchecked[0]["reasons"][0]
-    assert "01_12" in bundle.cameras and "01_12" not in result.changes
+    assert BLANK in bundle.cameras and BLANK not in result.changes
 
 
 def test_quick_recalibration_with_nothing_changed_keeps_the_prior(tmp_path):
     import dome_calib.pipeline_quick as quick
 
-    prior = nominal_dome("tiny", seed=0)
+    prior = _neighbourhood()
     db = tmp_path / "scene_01" / "database.db"
     db.parent.mkdir()
     names = write_scene_database(db, prior, prior, seed=3)

@@ -46,7 +46,7 @@ def broken_capture(tmp_path_factory) -> Path:
     from dome_calib.synth.capture import SynthOptions, synthesize
 
     capture = tmp_path_factory.mktemp("sfm") / "capture"
-    synthesize(capture, SynthOptions(preset="tiny", n_scenes=1, seed=0, cameras=CAMERAS, workers=2))
+    synthesize(capture, SynthOptions(preset="full", n_scenes=1, seed=0, cameras=CAMERAS, workers=2))  # its own set
     scene = capture / "scenes" / "scene_01"
     (scene / f"{CORRUPT}.png").write_bytes(b"\x89PNG\r\n\x1a\n this is not an image")
     cv2.imwrite(str(scene / f"{BLACK}.png"), np.zeros((480, 640), np.uint8))

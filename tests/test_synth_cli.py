@@ -53,7 +53,7 @@ def test_synth_deterministic_serial_equals_parallel_and_seeded(tmp_path):
 
 def test_synth_from_real_layout(tmp_path):
     out = tmp_path / "real"
-    synthesize(out, SynthOptions(preset="tiny", n_scenes=1, layout=REAL, cameras=["01_19"], workers=1))
+    synthesize(out, SynthOptions(preset="full", n_scenes=1, layout=REAL, cameras=["01_19"], workers=1))
     gt = load_bundle(out / "ground_truth")
     assert list(gt.cameras) == ["01_19"]
     img = cv2.imread(str(out / "scenes/scene_01/01_19.png"), cv2.IMREAD_GRAYSCALE)

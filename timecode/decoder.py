@@ -3,7 +3,7 @@
 Pipeline per channel: blocks of ~20 s with overlap -> ``edges.find_edges`` (sub-sample edge times, DC,
 AC coupling, spikes and level handled there) -> ``bits.edge_stream`` / ``bits.find_frames`` (biphase
 decoding with speed tracking, forward and reverse sync words) -> label validation, rate detection and
-continuity (``continuity``) -> frame times from the local bit clock (``clockfit``).
+continuity (``continuity``) -> frame times from the local bit clock (``bitclock``).
 
 Example:
     >>> result = decode_file("take1.wav")            # doctest: +SKIP

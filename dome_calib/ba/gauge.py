@@ -27,6 +27,7 @@ from enum import StrEnum
 import numpy as np
 
 from dome_calib.ba.problem import ROT, TRANS, BAProblem, BAProblemError
+from dome_calib.ties import LENGTH_QUANTUM_CM, argmax_first
 from dome_calib.rotation import rotvec_to_matrix
 
 logger = logging.getLogger(__name__)
@@ -97,10 +98,10 @@ def choose_gauge(problem: BAProblem, *, mode: GaugeMode | str = GaugeMode.AUTO,
     else:
         eligible = (counts >= np.median(counts[counts > 0])) if counts.any() else np.ones(C, bool)
         eligible[a] = False
-        b = int(np.argmax(np.where(eligible, score.max(axis=1), -1.0)))
+        b = argmax_first(np.where(eligible, score.max(axis=1), -1.0), LENGTH_QUANTUM_CM)  # equal: first camera
     if b == a:
         raise BAProblemError("gauge: the scale camera must differ from the reference camera")
-    k = int(np.argmax(score[b]))
+    k = argmax_first(score[b], LENGTH_QUANTUM_CM)
     if score[b, k] <= 1e-6 * (1.0 + np.abs(centres).max()):
         raise BAProblemError(f"gauge: camera {problem.camera_names[b]} cannot fix the scale "
                              f"(its centre coincides with {problem.camera_names[a]}'s or its translation is fixed)")
