@@ -1,13 +1,15 @@
 """Kill `dome-calib calibrate` with SIGKILL at random moments (seeded) and check what a stop leaves behind.
 
     .venv/bin/python bench/kill.py                 # 20 kills on the tiny synthetic dome, 2 tent positions
-    .venv/bin/python bench/kill.py --kills 3       # what tests/test_calibrate_kill.py runs (marked slow)
+    .venv/bin/python bench/kill.py --kills 3 --write-kills 2   # what tests/test_calibrate_kill.py runs (slow)
 
 The output folder starts as an "old" bundle (the design layout, seq "old"). Each round starts calibrate on the
 tiny capture into it and SIGKILLs the whole process group (workers included) after a random delay in
 [0, 1.1 x the uninterrupted wall time); when a run was allowed to finish, the work folder is emptied so the next
-round's kill lands in a stage again. After every kill the output folder must load and hold either the old bundle
-or the new one. Finally a rerun completes, and its cameras are compared with an uninterrupted run's.
+round's kill lands in a stage again. Then ``--write-kills`` rounds aim at the last stage, where OUT is replaced:
+with the other stages finished, each run is killed 0-50 ms after its staging folder appears. After every kill
+the output folder must load and hold either the old bundle or the new one. Finally a rerun completes, and its
+cameras are compared with an uninterrupted run's.
 Prints one JSON object per line.
 """
 from __future__ import annotations
@@ -40,17 +42,35 @@ def calibrate_cmd(capture: Path, out: Path) -> list[str]:
             str(out), "--seq", SEQ]
 
 
-def run(cmd: list[str], kill_after_s: float | None = None) -> tuple[int, float, str]:
-    """Run ``cmd`` in its own process group; SIGKILL the group after ``kill_after_s``. (rc, seconds, stderr)."""
+def run(cmd: list[str], kill_after_s: float | None = None, kill_when: Path | None = None,
+        then_s: float = 0.0) -> tuple[int, float, str]:
+    """Run ``cmd`` in its own process group; SIGKILL the group after ``kill_after_s``, or ``then_s`` after the
+    path ``kill_when`` appears. Returns (rc, seconds, stderr)."""
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, cwd=ROOT)
+    if kill_when is not None:
+        while proc.poll() is None and not kill_when.exists():
+            time.sleep(0.002)
+        time.sleep(then_s)
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        _, err = proc.communicate()
+        return proc.returncode, time.perf_counter() - t0, err
     try:
         _, err = proc.communicate(timeout=kill_after_s)
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)
         _, err = proc.communicate()
     return proc.returncode, time.perf_counter() - t0, err
+
+
+def output_state(out: Path) -> str:
+    try:
+        seq = load_bundle(out).seq
+    except Exception as exc:  # noqa: BLE001 - counted and reported
+        return f"unloadable: {exc}"
+    return "old" if seq == "old" else "new" if seq == SEQ else f"other seq {seq}"
 
 
 def stage_of(work: Path) -> str:
@@ -70,7 +90,8 @@ def compare(a: dict, b: dict) -> dict:
 
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--kills", type=int, default=20)
+    ap.add_argument("--kills", type=int, default=20, help="kills at random moments of the whole run")
+    ap.add_argument("--write-kills", type=int, default=10, help="kills while OUT is being replaced")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--scenes", type=int, default=2)
     ap.add_argument("--work", type=Path, help="keep the capture and runs here (default: a temp folder)")
@@ -99,20 +120,32 @@ def main(argv: list[str] | None = None) -> dict:
         before = stage_of(work)
         rc, seconds, err = run(calibrate_cmd(capture, out), kill_after_s=delay)
         finished = rc == 0
-        try:
-            seq = load_bundle(out).seq
-            state = "old" if seq == "old" else "new" if seq == SEQ else f"other seq {seq}"
-        except Exception as exc:  # noqa: BLE001 - counted and reported
-            state = f"unloadable: {exc}"
+        state = output_state(out)
         outcomes["finished" if finished else ("old" if state == "old" else "new" if state == "new" else "unloadable")] += 1
         print(json.dumps({"bench": "kill", "round": k + 1, "kill_after_s": round(delay, 2), "rc": rc,
                           "stages_done_before": before, "stages_done_after": stage_of(work), "output": state,
                           "stderr_lines": len([line for line in err.splitlines() if line.strip()])}), flush=True)
         if finished:
             shutil.rmtree(work, ignore_errors=True)  # the next kill lands in a stage again
+    write_outcomes = {"old": 0, "new": 0, "unloadable": 0, "finished": 0}
+    if args.write_kills:
+        run(calibrate_cmd(capture, out))  # every stage finished: the next runs go straight to the write
+        write_bundle(nominal_dome("tiny", 0).__class__(seq="old", cameras=nominal_dome("tiny", 0).cameras), out)
+    for k in range(args.write_kills):
+        then_s = float(rng.uniform(0.0, 0.05))
+        rc, seconds, err = run(calibrate_cmd(capture, out), kill_when=out.with_name(f".{out.name}.staging"),
+                               then_s=then_s)
+        state = output_state(out)
+        write_outcomes["finished" if rc == 0 else state if state in ("old", "new") else "unloadable"] += 1
+        print(json.dumps({"bench": "kill", "write_round": k + 1, "kill_after_staging_s": round(then_s, 3), "rc": rc,
+                          "output": state}), flush=True)
+        if rc == 0 or state == "new":  # the old bundle back, so that old and new stay distinguishable
+            shutil.rmtree(out)
+            write_bundle(nominal_dome("tiny", 0).__class__(seq="old", cameras=nominal_dome("tiny", 0).cameras), out)
     rc, seconds, err = run(calibrate_cmd(capture, out))
     final = load_bundle(out)
     summary = {"bench": "kill", "what": "summary", "kills": args.kills, "seed": args.seed, **outcomes,
+               "write_kills": args.write_kills, "write_phase": write_outcomes,
                "rerun_rc": rc, "rerun_seconds": round(seconds, 1),
                "vs_uninterrupted": compare(final.cameras, reference.cameras)}
     print(json.dumps(summary), flush=True)

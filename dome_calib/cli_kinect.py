@@ -1,4 +1,7 @@
-"""`dome-calib kinect` (and `kinect-synth`): thin shells over dome_calib.kinect and dome_calib.synth.kinect_boards."""
+"""`dome-calib kinect` (and `kinect-synth`): thin shells over dome_calib.kinect and dome_calib.synth.kinect_boards.
+
+The stages are imported inside the commands: `dome-calib --help` starts without loading them.
+"""
 from __future__ import annotations
 
 from pathlib import Path

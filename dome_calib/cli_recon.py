@@ -1,4 +1,7 @@
-"""`dome-calib triangulate` and `dome-calib pointcloud`: thin shells over dome_calib.recon."""
+"""`dome-calib triangulate` and `dome-calib pointcloud`: thin shells over dome_calib.recon.
+
+The stages are imported inside the commands: `dome-calib --help` starts without loading them.
+"""
 from __future__ import annotations
 
 from pathlib import Path

@@ -1,4 +1,7 @@
-"""`dome-calib synth` and `dome-calib patterns`: thin shells over dome_calib.synth and projector.patterns."""
+"""`dome-calib synth` and `dome-calib patterns`: thin shells over dome_calib.synth and projector.patterns.
+
+The stages are imported inside the commands: `dome-calib --help` starts without loading them.
+"""
 from __future__ import annotations
 
 from pathlib import Path

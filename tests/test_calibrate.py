@@ -3,8 +3,6 @@ the tiny nominal dome: resumability, world frame, outputs, change detection vs a
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pycolmap
@@ -122,9 +120,8 @@ def test_calibrate_with_prior_reports_moved_camera(tmp_path, capture, stand_in_s
     assert "01_02: moved 3.0 cm" in pipeline.format_result(result)
 
 
-def test_calibrate_cli_bad_input(tmp_path):
-    proc = subprocess.run([sys.executable, "-c", "from dome_calib.cli import main; main()", "calibrate",
-                           str(tmp_path / "nope"), "-o", str(tmp_path / "out")], capture_output=True, text=True)
+def test_calibrate_cli_bad_input(tmp_path, dome_calib_cli):
+    proc = dome_calib_cli("calibrate", tmp_path / "nope", "-o", tmp_path / "out")
     assert proc.returncode == 1
     assert proc.stderr.count("\n") == 1 and "nope: not a folder" in proc.stderr
     assert not (tmp_path / "out").exists()

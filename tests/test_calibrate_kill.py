@@ -1,6 +1,6 @@
-"""SIGKILL `dome-calib calibrate` at random moments of a real run on the tiny synthetic dome (bench/kill.py with
-3 kills; the bench runs 20): the output folder always loads, old or new bundle, and a rerun completes with the
-cameras of an uninterrupted run. Takes about two minutes: marked slow (`pytest -m slow`)."""
+"""SIGKILL `dome-calib calibrate` at random moments of a real run on the tiny synthetic dome (bench/kill.py with 3
+kills, then 2 while OUT is replaced; the bench runs 20 + 10): the output folder always loads, old or new bundle,
+and a rerun completes with the cameras of an uninterrupted run. About two minutes: marked slow (`pytest -m slow`)."""
 from __future__ import annotations
 
 import importlib.util
@@ -20,8 +20,8 @@ def test_sigkill_at_random_moments_leaves_a_loadable_bundle_and_a_rerun_complete
     spec = importlib.util.spec_from_file_location("bench_kill", BENCH)
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
-    summary = bench.main(["--kills", "3", "--seed", "1", "--work", str(tmp_path)])
-    assert summary["unloadable"] == 0
+    summary = bench.main(["--kills", "3", "--write-kills", "2", "--seed", "1", "--work", str(tmp_path)])
+    assert summary["unloadable"] == 0 and summary["write_phase"]["unloadable"] == 0
     assert summary["old"] + summary["new"] + summary["finished"] == 3
     assert summary["rerun_rc"] == 0
     same = summary["vs_uninterrupted"]

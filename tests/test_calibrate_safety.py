@@ -183,7 +183,8 @@ def truth_bundle():
 
 # ------------------------------------------------------------------------------------------ interrupts
 _SLOW_SFM = """
-import sys, time
+import signal, sys, time
+signal.signal(signal.SIGINT, signal.default_int_handler)  # as from a terminal, even if this test runs in a background job
 from pathlib import Path
 import dome_calib.pipeline as pipeline
 from dome_calib.executor import LocalProcessExecutor

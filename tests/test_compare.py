@@ -145,13 +145,9 @@ def test_compare_cli(tmp_path, real_cameras):
     assert result.exit_code == 0 and '"center_cm_max"' in result.output
 
 
-def test_compare_cli_bad_input(tmp_path):
-    import subprocess
-    import sys
-
+def test_compare_cli_bad_input(tmp_path, dome_calib_cli):
     (tmp_path / "empty").mkdir()
-    proc = subprocess.run([sys.executable, "-c", "from dome_calib.cli import main; main()", "compare",
-                           str(tmp_path / "empty"), str(tmp_path / "nope")], capture_output=True, text=True)
+    proc = dome_calib_cli("compare", tmp_path / "empty", tmp_path / "nope")
     assert proc.returncode == 1
     assert proc.stderr.count("\n") == 1 and "no calibration_<seq>.json" in proc.stderr
 

@@ -132,14 +132,9 @@ def test_kcalibration_file_round_trip_and_world_pose(capture, calibrated, tmp_pa
     np.testing.assert_allclose((sensor.M_world2sensor @ np.r_[c_color_m, 1])[:3], sensor.M_color[:3, 3], atol=1e-9)
 
 
-def _run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-c", "from dome_calib.cli import main; main()", "kinect", *args],
-                          capture_output=True, text=True, timeout=300)
-
-
-def test_cli_calibrates_and_prints_a_summary(capture, dome_folder, tmp_path):
+def test_cli_calibrates_and_prints_a_summary(capture, dome_folder, tmp_path, dome_calib_cli):
     folder, _ = capture
-    proc = _run(str(folder), "--bundle", str(dome_folder), "-o", str(tmp_path / "out"))
+    proc = dome_calib_cli("kinect", str(folder), "--bundle", str(dome_folder), "-o", str(tmp_path / "out"))
     assert proc.returncode == 0, proc.stderr
     assert f"{SENSOR}" in proc.stdout and "frames used   9, rejected  2" in proc.stdout
     assert "baseline 52." in proc.stdout or "baseline 53." in proc.stdout
@@ -162,11 +157,11 @@ def _fake_capture(root: Path, ir_shapes: list[tuple[int, int]], n_color: int) ->
     ("mismatch", "2 IR frames but 1 colour frames"),
     ("size", "IR image is 640x480, expected 512x424"),
 ])
-def test_cli_bad_input_one_line_and_nothing_written(case, message, dome_folder, tmp_path):
+def test_cli_bad_input_one_line_and_nothing_written(case, message, dome_folder, tmp_path, dome_calib_cli):
     shapes = {"no_board": [(424, 512)] * 2, "mismatch": [(424, 512)] * 2, "size": [(480, 640)] * 2}[case]
     folder = _fake_capture(tmp_path / "kinect", shapes, 1 if case == "mismatch" else 2)
     out = tmp_path / "out"
-    proc = _run(str(folder), "--bundle", str(dome_folder), "-o", str(out))
+    proc = dome_calib_cli("kinect", str(folder), "--bundle", str(dome_folder), "-o", str(out))
     assert proc.returncode == 1
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("dome-calib: error:") and message in lines[0], proc.stderr

@@ -1,6 +1,4 @@
 """Projector random patterns: seeded, distinct per projector, full contrast, rich in SIFT features at all scales."""
-import subprocess
-import sys
 
 import cv2
 import numpy as np
@@ -62,8 +60,7 @@ def test_patterns_cli(tmp_path):
     assert np.array_equal(img, expected)
 
 
-def test_patterns_cli_bad_size(tmp_path):
-    r = subprocess.run([sys.executable, "-c", "from dome_calib.cli import main; main()", "patterns", str(tmp_path),
-                        "--width", "10"], capture_output=True, text=True, timeout=60)
+def test_patterns_cli_bad_size(tmp_path, dome_calib_cli):
+    r = dome_calib_cli("patterns", tmp_path, "--width", "10")
     assert r.returncode == 1
     assert r.stderr.strip().splitlines() == ["dome-calib: error: pattern size 10x800: expected 64..8192 pixels per side"]

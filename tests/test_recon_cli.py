@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 
 import cv2
 import numpy as np
@@ -17,10 +16,6 @@ from dome_calib.synth.depth import distance_to_triangles, render_depth_mm, tent_
 
 from .recon_helpers import real_bundle
 
-
-def _run(*args: str) -> subprocess.CompletedProcess:
-    code = "from dome_calib.cli import main; main()"
-    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=300)
 
 
 def _one_line_error(out: subprocess.CompletedProcess) -> str:
@@ -51,9 +46,9 @@ def session(tmp_path_factory):
     return root, bundle
 
 
-def test_triangulate_writes_panoptic_skeletons(session):
+def test_triangulate_writes_panoptic_skeletons(session, dome_calib_cli):
     root, bundle = session
-    out = _run("triangulate", str(root / "detections.json"), "--bundle", str(root / "bundle"), "-o", str(root / "sk"))
+    out = dome_calib_cli("triangulate", str(root / "detections.json"), "--bundle", str(root / "bundle"), "-o", str(root / "sk"))
     assert out.returncode == 0, out.stderr
     assert "joints reconstructed" in out.stdout
     files = sorted((root / "sk").glob("body3DScene_*.json"))
@@ -73,12 +68,12 @@ def test_triangulate_writes_panoptic_skeletons(session):
     assert np.concatenate(errors).mean() * 10.0 < 3.0  # mm
 
 
-def test_triangulate_at_explicit_times(session, tmp_path):
+def test_triangulate_at_explicit_times(session, tmp_path, dome_calib_cli):
     root, _ = session
     det = json.loads((root / "detections.json").read_text())
     det["times_ms"] = [1200.0, 1234.5]
     (tmp_path / "d.json").write_text(json.dumps(det))
-    out = _run("triangulate", str(tmp_path / "d.json"), "--bundle", str(root / "bundle"))
+    out = dome_calib_cli("triangulate", str(tmp_path / "d.json"), "--bundle", str(root / "bundle"))
     assert out.returncode == 0, out.stderr
     files = sorted((tmp_path / "d_skeletons").glob("*.json"))
     assert [f.name for f in files] == ["body3DScene_00000000.json", "body3DScene_00000001.json"]
@@ -87,23 +82,23 @@ def test_triangulate_at_explicit_times(session, tmp_path):
     assert np.nanmean(np.linalg.norm(X - skeleton_cm(np.array([t_ms]))[0], axis=-1)) * 10.0 < 3.0
 
 
-def test_triangulate_bad_input_is_one_line(session, tmp_path):
+def test_triangulate_bad_input_is_one_line(session, tmp_path, dome_calib_cli):
     root, _ = session
     det = json.loads((root / "detections.json").read_text())
     det["cameras"]["99_99"] = det["cameras"]["01_01"]
     (tmp_path / "d.json").write_text(json.dumps(det))
-    line = _one_line_error(_run("triangulate", str(tmp_path / "d.json"), "--bundle", str(root / "bundle")))
+    line = _one_line_error(dome_calib_cli("triangulate", str(tmp_path / "d.json"), "--bundle", str(root / "bundle")))
     assert "camera 99_99 is not in the bundle" in line
     (tmp_path / "bad.json").write_text('{"cameras": {"01_01": {"frames": [1, 2], "joints": [[[1, 2]]]}}}')
-    line = _one_line_error(_run("triangulate", str(tmp_path / "bad.json"), "--bundle", str(root / "bundle")))
+    line = _one_line_error(dome_calib_cli("triangulate", str(tmp_path / "bad.json"), "--bundle", str(root / "bundle")))
     assert "camera 01_01: field 'joints'" in line
     (tmp_path / "x.json").write_text("{nope")
-    assert "not valid JSON" in _one_line_error(_run("triangulate", str(tmp_path / "x.json"), "--bundle",
+    assert "not valid JSON" in _one_line_error(dome_calib_cli("triangulate", str(tmp_path / "x.json"), "--bundle",
                                                     str(root / "bundle")))
     assert not (tmp_path / "d_skeletons").exists()
 
 
-def test_pointcloud_command(session, tmp_path):
+def test_pointcloud_command(session, tmp_path, dome_calib_cli):
     root, bundle = session
     tris = tent_triangles()
     t_ms = 1400.0
@@ -112,7 +107,7 @@ def test_pointcloud_command(session, tmp_path):
         (tmp_path / "depth" / node).mkdir(parents=True)
         frame = render_depth_mm(bundle, node, tris, noise_mm=1.0)
         cv2.imwrite(str(tmp_path / "depth" / node / f"depth_{int(k):04d}.png"), frame)
-    out = _run("pointcloud", "--bundle", str(root / "bundle"), "--time-ms", str(t_ms), "--depth",
+    out = dome_calib_cli("pointcloud", "--bundle", str(root / "bundle"), "--time-ms", str(t_ms), "--depth",
                str(tmp_path / "depth"), "-o", str(tmp_path / "cloud.ply"))
     assert out.returncode == 0, out.stderr
     assert "from 2 Kinects" in out.stdout
@@ -120,9 +115,9 @@ def test_pointcloud_command(session, tmp_path):
     assert cloud.sensors == ["KINECTNODE2", "KINECTNODE7"]
     sample = cloud.xyz_cm[:: max(len(cloud.xyz_cm) // 3000, 1)]
     assert np.median(distance_to_triangles(sample, tris)) * 10.0 < 5.0 + 1.0
-    line = _one_line_error(_run("pointcloud", "--bundle", str(root / "bundle"), "--time-ms", "1e7", "--depth",
+    line = _one_line_error(dome_calib_cli("pointcloud", "--bundle", str(root / "bundle"), "--time-ms", "1e7", "--depth",
                                 str(tmp_path / "depth"), "-o", str(tmp_path / "far.ply")))
     assert "no Kinect depth frame near" in line and not (tmp_path / "far.ply").exists()
-    line = _one_line_error(_run("pointcloud", "--bundle", str(root / "bundle"), "--time-ms", "0", "--depth",
+    line = _one_line_error(dome_calib_cli("pointcloud", "--bundle", str(root / "bundle"), "--time-ms", "0", "--depth",
                                 str(tmp_path / "nowhere")))
     assert "depth folder not found" in line

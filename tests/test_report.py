@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -102,8 +100,7 @@ def test_report_cli(tmp_path, tiny):
     assert rep["has_residuals"] is False and [r["name"] for r in rep["to_check"]] == ["01_02"]
 
 
-def test_report_cli_bad_input(tmp_path):
-    proc = subprocess.run([sys.executable, "-c", "from dome_calib.cli import main; main()", "report",
-                           str(tmp_path / "missing")], capture_output=True, text=True)
+def test_report_cli_bad_input(tmp_path, dome_calib_cli):
+    proc = dome_calib_cli("report", tmp_path / "missing")
     assert proc.returncode == 1
     assert proc.stderr.count("\n") == 1 and "missing: not a folder" in proc.stderr

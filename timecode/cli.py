@@ -1,4 +1,7 @@
-"""The `timecode` command: decode LTC from audio, build sync tables."""
+"""The `timecode` command: decode LTC from audio, build sync tables.
+
+The decoder and the sync pipeline are imported inside the commands, so `timecode --help` starts without numpy.
+"""
 from __future__ import annotations
 
 from pathlib import Path
