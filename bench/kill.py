@@ -130,6 +130,7 @@ def main(argv: list[str] | None = None) -> dict:
     write_outcomes = {"old": 0, "new": 0, "unloadable": 0, "finished": 0}
     if args.write_kills:
         run(calibrate_cmd(capture, out))  # every stage finished: the next runs go straight to the write
+        shutil.rmtree(out)
         write_bundle(nominal_dome("tiny", 0).__class__(seq="old", cameras=nominal_dome("tiny", 0).cameras), out)
     for k in range(args.write_kills):
         then_s = float(rng.uniform(0.0, 0.05))

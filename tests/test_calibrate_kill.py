@@ -21,9 +21,9 @@ def test_sigkill_at_random_moments_leaves_a_loadable_bundle_and_a_rerun_complete
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
     summary = bench.main(["--kills", "3", "--write-kills", "2", "--seed", "1", "--work", str(tmp_path)])
-    assert summary["unloadable"] == 0 and summary["write_phase"]["unloadable"] == 0
-    assert summary["old"] + summary["new"] + summary["finished"] == 3
-    assert summary["rerun_rc"] == 0
+    assert summary["unloadable"] == 0 and summary["write_phase"]["unloadable"] == 0, summary
+    assert summary["old"] + summary["new"] + summary["finished"] == 3, summary
+    assert summary["rerun_rc"] == 0, summary
     same = summary["vs_uninterrupted"]
-    assert same["same_names"]
+    assert same["same_names"], summary
     assert same["center_mm_max"] < MAX_CENTER_DIFF_MM and same["rotation_deg_max"] < MAX_ROTATION_DIFF_DEG
