@@ -3,8 +3,6 @@ exact stand-ins of test_calibrate (the real end-to-end run is `make demo`, timed
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 from typer.testing import CliRunner
@@ -49,8 +47,7 @@ def test_demo_prints_what_a_technician_needs(tmp_path, monkeypatch):
     assert (tmp_path / "demo" / "bundle" / "report" / "dome.png").exists()
 
 
-def test_demo_bad_preset():
-    proc = subprocess.run([sys.executable, "-c", "from dome_calib.cli import main; main()", "demo", "--preset",
-                           "huge"], capture_output=True, text=True)
+def test_demo_bad_preset(dome_calib_cli):
+    proc = dome_calib_cli("demo", "--preset", "huge")
     assert proc.returncode == 1
     assert proc.stderr.count("\n") == 1 and "unknown preset 'huge'" in proc.stderr

@@ -4,8 +4,6 @@ the `dome-calib kinect` command including its bad inputs."""
 from __future__ import annotations
 
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -191,7 +189,7 @@ def test_truth_kcalibration_has_the_true_depth_pose(capture):
     np.testing.assert_allclose(D, truth["sensors"][SENSOR]["depth_from_world_cm"], atol=1e-9)
 
 
-def test_kinect_synth_command_writes_a_capture_and_refuses_unknown_sensors(dome_folder, tmp_path):
+def test_kinect_synth_command_writes_a_capture_and_refuses_unknown_sensors(dome_folder, tmp_path, dome_calib_cli):
     from typer.testing import CliRunner
 
     from dome_calib.cli import app
@@ -203,7 +201,5 @@ def test_kinect_synth_command_writes_a_capture_and_refuses_unknown_sensors(dome_
     assert sorted(p.name for p in (tmp_path / "k" / "KINECTNODE2").iterdir())[:3] == [
         "color_0000.png", "color_0001.png", "color_0002.png"]
     assert len(load_ground_truth(tmp_path / "k")["sensors"]["KINECTNODE2"]["frames"]) == 5
-    proc = subprocess.run([sys.executable, "-c", "from dome_calib.cli import main; main()", "kinect-synth",
-                           str(tmp_path / "k2"), "--bundle", str(dome_folder), "--sensors", "11"],
-                          capture_output=True, text=True, timeout=120)
+    proc = dome_calib_cli("kinect-synth", tmp_path / "k2", "--bundle", dome_folder, "--sensors", "11")
     assert proc.returncode == 1 and proc.stderr.count("\n") == 1 and "KINECTNODE11" in proc.stderr, proc.stderr

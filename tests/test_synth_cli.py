@@ -1,7 +1,5 @@
 """`dome-calib synth`: the capture folder contract, determinism, atomic output and one-line errors."""
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -14,7 +12,6 @@ from dome_calib.synth.capture import SynthOptions, synthesize
 from dome_calib.layout import nominal_dome
 
 REAL = Path(__file__).parent / "data" / "panoptic" / "calibration_160906_band1.json"
-EXE = [sys.executable, "-c", "from dome_calib.cli import main; main()"]
 
 
 def test_synth_cli_writes_contract_folder(tmp_path):
@@ -60,23 +57,19 @@ def test_synth_from_real_layout(tmp_path):
     assert img[150:350, 200:450].std() > 20  # the tent is in view of a real camera
 
 
-def _run(args):
-    return subprocess.run(EXE + args, capture_output=True, text=True, timeout=120)
-
-
-def test_synth_cli_errors_are_one_line(tmp_path):
+def test_synth_cli_errors_are_one_line(tmp_path, dome_calib_cli):
     for args, needle in (
         (["synth", str(tmp_path / "x"), "--preset", "huge"], "--preset huge"),
         (["synth", str(tmp_path / "x"), "--scenes", "0"], "--scenes 0"),
         (["synth", str(tmp_path / "x"), "--cameras", "99_99"], "camera 99_99"),
         (["synth", str(tmp_path / "x"), "--layout", str(tmp_path / "missing.json")], "missing.json"),
     ):
-        r = _run(args)
+        r = dome_calib_cli(*args)
         assert r.returncode == 1, (args, r.stderr)
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and needle in lines[0] and lines[0].startswith("dome-calib: error:"), r.stderr
     (tmp_path / "exists").mkdir()
-    r = _run(["synth", str(tmp_path / "exists")])
+    r = dome_calib_cli("synth", tmp_path / "exists")
     assert r.returncode == 1 and "already exists" in r.stderr
 
 
