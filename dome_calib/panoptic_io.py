@@ -141,7 +141,7 @@ class _Where:
     def size(self, value: Any, field: str) -> tuple[int, int]:
         ok = (
             isinstance(value, (list, tuple)) and len(value) == 2
-            and all(type(v) in (int, float) and float(v).is_integer() and 0 < v <= LIMITS["resolution_px"]
+            and all(type(v) in (int, float) and 0 < v <= LIMITS["resolution_px"] and float(v).is_integer()
                     for v in value)
         )
         if not ok:
