@@ -10,7 +10,8 @@ import numpy as np
 
 from dome_calib.bundle import load_bundle
 from dome_calib.recon.depth import depth_folder_reader, pointcloud_at, write_ply
-from dome_calib.recon.formats import default_times, fps_type_of, load_detection_streams, write_skeletons
+from dome_calib.recon.formats import (check_output_folder, check_times, default_times, fps_type_of,
+                                      load_detection_streams, write_skeletons)
 from dome_calib.recon.project import view_set
 from dome_calib.recon.streams import triangulate_streams
 from dome_calib.recon.triangulate import TriangulationOptions
@@ -31,7 +32,12 @@ class TriangulateSummary:
 def triangulate_file(bundle_folder: str | Path, detections: str | Path, out: str | Path, *,
                      options: TriangulationOptions | None = None,
                      progress: Callable[[int, int], None] | None = None) -> TriangulateSummary:
-    """Detections JSON + bundle -> Panoptic body3DScene files in ``out`` (see :mod:`dome_calib.recon.formats`)."""
+    """Detections JSON + bundle -> Panoptic body3DScene files in ``out`` (see :mod:`dome_calib.recon.formats`).
+
+    ``out`` is replaced as a whole; it is checked before any work. Explicit times outside every stream's detected
+    frames: all of them -> ReconError (nothing written), some -> a warning with the count (no joints there).
+    """
+    check_output_folder(out)
     bundle = load_bundle(bundle_folder)
     streams, parsed = load_detection_streams(bundle, detections)
     if parsed["times_ms"] is not None:
@@ -41,6 +47,7 @@ def triangulate_file(bundle_folder: str | Path, detections: str | Path, out: str
     else:
         times, numbers, ref = default_times(streams, parsed["reference"])
         fps_type = fps_type_of(ref, explicit_times=False)
+    check_times(detections, streams, times)
     views = view_set(bundle, [n for s in streams for n in s.cameras])
     total = len(times)
     seq = triangulate_streams(views, streams, times, options,
