@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle import load_bundle
+from dome_calib.io_utils import output_file
 from dome_calib.recon.depth import depth_folder_reader, pointcloud_at, write_ply
 from dome_calib.recon.formats import (check_output_folder, check_times, default_times, fps_type_of,
                                       load_detection_streams, write_skeletons)
@@ -71,7 +72,8 @@ class PointCloudSummary:
 def pointcloud_file(bundle_folder: str | Path, time_ms: float, depth_folder: str | Path, out: str | Path, *,
                     max_offset_ms: float | None = None, correct_bias: bool = True,
                     progress: Callable[[int, int], None] | None = None) -> PointCloudSummary:
-    """Depth frames nearest to ``time_ms`` of every Kinect -> one world point cloud PLY at ``out``."""
+    """Depth frames nearest to ``time_ms`` of every Kinect -> one world point cloud PLY at ``out`` (checked first)."""
+    output_file(out)
     bundle = load_bundle(bundle_folder)
     cloud = pointcloud_at(bundle, time_ms, depth_folder_reader(depth_folder), max_offset_ms=max_offset_ms,
                           correct_bias=correct_bias, progress=progress)
