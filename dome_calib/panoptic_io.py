@@ -224,13 +224,14 @@ def read_calibration(path: Path) -> tuple[dict[str, Camera], str]:
         if not isinstance(entry, dict):
             raise where.fail("cameras", f"expected an object, got {_show(entry)}")
         if not isinstance(name, str) or not name:
-            raise where.fail("name", f"expected a non-empty string, got {_show(name)}" if "name" in entry else "missing")
+            problem = f"expected a non-empty string, got {_show(name)}" if "name" in entry else "missing"
+            raise where.fail("name", problem)
         if name in cameras:
             raise where.fail("name", "duplicate camera name")
         cam_type = where.get(entry, "type")
         if not isinstance(cam_type, str) or cam_type not in {str(t) for t in CameraType}:
-            raise where.fail("type", f"unknown camera type {_label(repr(cam_type)) if isinstance(cam_type, str) else _show(cam_type)}"
-                            " (expected vga, hd or kinect-color)")
+            shown = _label(repr(cam_type)) if isinstance(cam_type, str) else _show(cam_type)
+            raise where.fail("type", f"unknown camera type {shown} (expected vga, hd or kinect-color)")
         cameras[name] = Camera(
             name=name,
             type=CameraType(cam_type),

@@ -159,7 +159,8 @@ def _bundle(tmp_path: Path, edit) -> Path:
     texts = {"calibration": json.dumps(cal), "kcalibration": json.dumps(kcal),
              "synctables": json.dumps({"vga": {"index": [0, 1], "univ_time": [0.0, 40.0]}}),
              "ksynctables": json.dumps({"kinect": {"color": {}, "depth": {}}})}
-    for kind, content in {**texts, **{k: v if isinstance(v, (str, bytes)) else json.dumps(v) for k, v in raw.items()}}.items():
+    texts.update({k: v if isinstance(v, (str, bytes)) else json.dumps(v) for k, v in raw.items()})
+    for kind, content in texts.items():
         path = folder / f"{kind}_h.json"
         path.write_bytes(content) if isinstance(content, bytes) else path.write_text(content)
     return folder

@@ -137,3 +137,18 @@ def test_kinect_colour_camera_not_named_50_n_is_one_line():
     assert stream_of_camera(bundle, "50_01")[0] == "KINECTNODE1"
     with pytest.raises(ReconError, match=r"Kinect colour camera 'kinect_a' is not named 50_<n>"):
         stream_of_camera(bundle, "kinect_a")
+
+
+def test_detected_frames_missing_from_the_sync_table_are_named(session, tmp_path, caplog):
+    root, bundle, det = session
+    det = {**_copy(det), "times_ms": [1200.0]}
+    entry = det["cameras"]["01_01"]
+    missing = int(bundle.sync.streams["vga"].index[-1]) + 50
+    entry["frames"].append(missing)
+    entry["joints"].append(entry["joints"][-1])
+    with caplog.at_level(logging.WARNING, logger="dome_calib"):
+        triangulate_file(root / "bundle", _write(tmp_path, det), tmp_path / "sk")
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert len(warnings) == 1
+    assert f"stream vga: 1 of {len(entry['frames'])} frames with detections are not in the sync table" in warnings[0]
+    assert f"(first: frame {missing})" in warnings[0]

@@ -87,7 +87,8 @@ def read_detections(path: str | Path) -> dict:
     out: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     n_joints = data.get("joints")
     if n_joints is not None and (type(n_joints) is not int or n_joints < 1):
-        raise _fail(path, "field 'joints'", f"expected a positive integer (joints per body), got {json.dumps(n_joints)[:40]}")
+        raise _fail(path, "field 'joints'", f"expected a positive integer (joints per body), got "
+                    f"{json.dumps(n_joints)[:40]}")
     if data.get("reference") is not None and not isinstance(data["reference"], str):
         raise _fail(path, "field 'reference'", f"expected a stream name (vga, hd, KINECTNODE<n>), got "
                     f"{json.dumps(data['reference'])[:40]}")
