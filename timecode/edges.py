@@ -288,7 +288,7 @@ def _coarse(xp, n, mid, half, params):
     """Smoothed signal, transition windows (gathered) and, for the baseline fit, the steepest step of each."""
     ys = smooth(xp, params.sigma_samples)
     start, stop, rising = schmitt_edges(ys, mid, half, params)
-    ok = (stop < n - 3) & (start >= 2)
+    ok = (stop < n - 1) & (start >= 2)  # the cubic takes ys[c - 1 .. c + 2]; past n: the held last sample
     start, stop, rising = start[ok], stop[ok], rising[ok]
     if start.size == 0:
         return ys, (start, stop, rising, start, np.zeros((1, 0)), np.zeros((1, 0)))
