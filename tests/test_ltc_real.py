@@ -49,8 +49,8 @@ def test_every_frame_libltc_decodes_we_decode_with_the_same_label(audio, referen
         assert 0 < ch.bits_missing[0] <= 64 and not ch.bits_missing[1:].any() and not ch.extrapolated[1:].any()
         assert ch.start_samples[0] < 0 < ch.end_samples[0]
         assert ch.end_samples[0] == pytest.approx(ch.start_samples[1], abs=0.5)  # two fits of one edge, samples
-        period = rate.samples_per_frame(ch.sample_rate)
-        assert ch.end_samples[0] - ch.start_samples[0] == pytest.approx(period, abs=0.5)  # samples
+        period = np.median(np.diff(ch.start_samples[1:]))  # libltc's test file runs 0.3 % slow
+        assert ch.end_samples[0] - ch.start_samples[0] == pytest.approx(period, abs=0.6)  # samples
     # same frames at the same place: libltc's whole-sample start is a few samples off ours (its detector
     # fires past half the swing, later on slow or dipping edges); its first frame after a gap is only an
     # estimate, so it is left out

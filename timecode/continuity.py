@@ -58,10 +58,15 @@ def rate_evidence(hmsf: npt.NDArray[np.int64], dfbit: npt.NDArray[np.bool_], per
               else float(np.median(period_samples)))
     nominal: int | None = None
     k = np.flatnonzero(contiguous_next[:-1])
-    wraps = k[(hmsf[k + 1, 3] == 0) & (hmsf[k, 3] > 0) & (hmsf[k + 1, 2] != hmsf[k, 2])]
-    if wraps.size:
-        votes = np.bincount(hmsf[wraps, 3] + 1)
-        nominal = int(np.argmax(votes))
+    sec = (hmsf[:, 0] * 60 + hmsf[:, 1]) * 60 + hmsf[:, 2]
+    step = np.abs(sec[k + 1] - sec[k])
+    next_second = (step == 1) | (step == 86399)  # (midnight)
+    # a wrap: frame 0 of a second next to the last frame of the one before (either play direction)
+    wraps = k[next_second & (hmsf[k + 1, 3] == 0) & (hmsf[k, 3] > 0)]
+    rev_wraps = k[next_second & (hmsf[k, 3] == 0) & (hmsf[k + 1, 3] > 0)]
+    last = np.concatenate([hmsf[wraps, 3], hmsf[rev_wraps + 1, 3]])  # the last frame of a second
+    if last.size:
+        nominal = int(np.argmax(np.bincount(last + 1)))
     return RateEvidence(nominal=nominal, top_frame=int(np.max(hmsf[:, 3])) if len(hmsf) else -1,
                         drop_frame=bool(np.mean(dfbit) > 0.5), fps_measured=sample_rate / period,
                         period_samples=period)
