@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.ndimage import maximum_filter1d, uniform_filter1d
+from scipy.ndimage import maximum_filter1d, median_filter, uniform_filter1d
 
 from timecode.bits import classify
 
@@ -106,6 +106,8 @@ def find_impulses(x: npt.NDArray[np.float32], n: int, blocks: npt.NDArray[np.boo
     u = x - np.repeat(base, L)
     au = np.abs(u)
     level = np.sort(au.reshape(nb, L)[:, index], axis=1)[:, min(len(index) - 1, int(0.98 * len(index)))]
+    if nb >= 3:  # a stretch's level (+-4 blocks): a silent or noisy block beside impulses takes theirs
+        level = median_filter(level, min(9, nb - (nb % 2 == 0)), mode="mirror")
     h_min = MIN_HALF_BIT_S * sample_rate
     r = max(1, int(0.45 * h_min))
     w = HALF_WINDOW
@@ -118,13 +120,14 @@ def find_impulses(x: npt.NDArray[np.float32], n: int, blocks: npt.NDArray[np.boo
     if m.size < 2:
         return ImpulseEdges(t=np.zeros(0), rising=np.zeros(0, bool), amplitude=np.zeros(0, np.float32),
                             pole=float("nan"))
-    # sign mode per block: one sign when over 85 % of the tall candidates (over 0.6 of the 98th percentile)
-    # within +-4 blocks share it; the other sign is then noise, or the dips between overlapping tails
+    # sign mode per block: one sign when over 85 % of the tall candidates (over 0.6 of the 98th percentile, and
+    # of half the loudest blocks') within +-4 blocks share it; the other sign is then noise, or the dips between
+    # overlapping tails
     blk = m // L
     sign = np.where(u[m] >= 0, 1.0, -1.0).astype(np.float32)
-    tall = au[m] > 0.6 * level[blk]
-    n_pos = uniform_filter1d(np.bincount(blk, weights=tall & (sign > 0), minlength=nb), 9, mode="nearest")
-    pos = n_pos / np.maximum(uniform_filter1d(np.bincount(blk, weights=tall, minlength=nb), 9, mode="nearest"),
+    tall = au[m] > 0.6 * np.maximum(level, 0.5 * np.percentile(level, 90))[blk]  # not noise in a long silence
+    n_pos = uniform_filter1d(np.bincount(blk, weights=tall & (sign > 0), minlength=nb), 9, mode="mirror")
+    pos = n_pos / np.maximum(uniform_filter1d(np.bincount(blk, weights=tall, minlength=nb), 9, mode="mirror"),
                              1e-9)
     one_sign = (pos > 0.85) | (pos < 0.15)
     keep = ~(one_sign[blk] & (sign != np.where(pos[blk] > 0.5, 1.0, -1.0)))
