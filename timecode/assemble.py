@@ -42,10 +42,13 @@ class RateMismatchError(TimecodeError, ValueError):
 def decode_edges(t: npt.NDArray[np.float64], rising: npt.NDArray[np.bool_], amplitude: npt.NDArray[np.float32],
                  sample_rate: int, *, impulse: npt.NDArray[np.bool_] | None = None, n_samples: int | None = None,
                  channel: int = 0, rate: FrameRate | None = None, ac_coupling_hz: float = 0.0,
-                 impulse_tau_samples: float = 0.0, n_nonfinite: int = 0) -> ChannelDecode:
+                 impulse_tau_samples: float = 0.0, n_nonfinite: int = 0,
+                 edge_margin_samples: float = 3.0) -> ChannelDecode:
     """Frames from one channel's sorted edge times (samples; ``n_samples`` of audio, for the edge frames).
 
     ``rate`` None detects the rate; a given rate that the bit stream contradicts raises RateMismatchError.
+    An edge within ``edge_margin_samples`` of either end of the audio (its transition may be cut, and the
+    smoothing reaches past the end) counts for the bits but not for the bit clock, like an edge outside.
     """
     impulse = np.zeros(len(t), bool) if impulse is None else impulse
     empty = ChannelDecode(channel=channel, sample_rate=sample_rate, rate=rate, n_edges=len(t),
@@ -61,6 +64,8 @@ def decode_edges(t: npt.NDArray[np.float64], rising: npt.NDArray[np.bool_], ampl
     if es is None:
         return empty
     es = with_virtual_edges(es)
+    if n_samples is not None:
+        es.virtual |= (es.t < edge_margin_samples) | (es.t > n_samples - 1 - edge_margin_samples)
     raw = find_frames(es)
     fields = unpack_bits(raw.bits)
     complete = np.flatnonzero((raw.missing == 0) & fields.sync_ok & fields.bcd_ok)
@@ -164,6 +169,8 @@ def _timed(raw, es: EdgeStream, rows, counts, disc, frame_bits, rate: FrameRate,
     np.minimum.at(seg_lo, seg, p_lo)
     np.maximum.at(seg_hi, seg, p_hi)
     real = np.flatnonzero(~es.virtual)
+    if real.size < 2:  # nothing to time by (a frame's worth of edges, all at the very ends): none are reported
+        return ChannelDecode(channel=channel, sample_rate=sample_rate, rate=rate, **summary)
     j = np.clip(np.searchsorted(es.pos[real], start_pos), 1, len(real) - 1)
     before, after = real[j - 1], real[j]
     ref = np.where(np.abs(es.pos[before] - start_pos) <= np.abs(es.pos[after] - start_pos), before, after)

@@ -73,6 +73,13 @@ def _fit_batch(t, pos, use, p0, po, ref, seg_lo, seg_hi, window, h):
     two_sided = left & right
     ridge = np.where(two_sided, 0.0, 1e9)
     valid &= two_sided[:, None] | (np.abs(pos[idx] - pos[ref][:, None]) <= window // 2)
+    # a slip: consecutive edges whose residuals jump by half a half-bit or more (an edge the stream counted at
+    # the wrong position, which moves every edge after it). Only the centre's side of a slip is fitted.
+    jump = (np.abs(np.diff(y, axis=1)) > 0.5 * h) & valid[:, 1:] & valid[:, :-1]
+    if jump.any():
+        side = np.concatenate([np.zeros((len(y), 1), np.int64), np.cumsum(jump, axis=1)], axis=1)
+        centre_col = np.argmin(np.where(valid, np.abs(dp), np.iinfo(np.int64).max), axis=1)
+        valid &= side == side[np.arange(len(y)), centre_col][:, None]
     w = valid.astype(np.float32)
     coef = _solve(x, x2, y, w, ridge)
     res = y - _poly(coef, x, x2)

@@ -1,8 +1,9 @@
 """Frame-rate detection and label continuity of decoded frames.
 
 Rate: the label rate (24, 25 or 30 frames per labelled second) comes from the frame number at which labels
-wrap to the next second (or the largest frame number seen); drop frame from the DF flag; 1000/1001 or
-integer from the measured frame period (0.1 % apart, far more than any generator's clock error).
+wrap to the next second (without a wrap, from the rates whose labels reach the largest frame number seen, the
+frame period choosing); drop frame from the DF flag; 1000/1001 or integer from the measured frame period
+(0.1 % apart, far more than any generator's clock error).
 
 Continuity: a frame continues the previous one when its label equals the previous label plus the number
 of frame periods elapsed between them (in the play direction), so frames lost to noise are not jumps but
@@ -86,11 +87,10 @@ def detect_rate(hmsf: npt.NDArray[np.int64], dfbit: npt.NDArray[np.bool_], perio
         start_samples: (F,) frame start times (for a jitter-free period over chains of frames).
     """
     ev = rate_evidence(hmsf, dfbit, period_samples, contiguous_next, sample_rate, start_samples)
-    nominal = ev.nominal
-    if nominal is None and len(hmsf):
-        nominal = 30 if ev.top_frame >= 25 else (25 if ev.top_frame == 24 else None)
+    # the label rate from a wrap; without one (under a second of LTC), any rate whose labels reach the largest
+    # frame number seen, the frame period choosing
     candidates = [r for r in RATES.values() if r.drop_frame == ev.drop_frame
-                  and (nominal is None or r.nominal_fps == nominal)]
+                  and (r.nominal_fps == ev.nominal if ev.nominal is not None else r.nominal_fps > ev.top_frame)]
     if not candidates:
         candidates = [r for r in RATES.values() if r.drop_frame == ev.drop_frame] or list(RATES.values())
     best = min(candidates, key=lambda r: abs(float(r.fps) - ev.fps_measured))

@@ -145,7 +145,8 @@ def _decode(blocks, n_samples: int, n_channels: int, fs: int, opts: DecodeOption
         dr = droops[c]
         return decode_edges(t, rising, amp, fs, impulse=imp, n_samples=n_samples, channel=c, rate=opts.rate,
                             ac_coupling_hz=dr.corner_hz if dr is not None and dr.active else 0.0,
-                            impulse_tau_samples=pole_to_tau(poles[c]), n_nonfinite=nonfinite[c])
+                            impulse_tau_samples=pole_to_tau(poles[c]), n_nonfinite=nonfinite[c],
+                            edge_margin_samples=(2 * params.sigma_samples + 2) / up)
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
         return list(pool.map(finish, chans))

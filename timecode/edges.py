@@ -177,11 +177,18 @@ def _square_wave(c: npt.NDArray[np.int64], first_high: bool, n: int) -> npt.NDAr
 
 
 def baseline(ys2d: npt.NDArray[np.float32], sq2d: npt.NDArray[np.int8], mid: npt.NDArray[np.float32],
-             half: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64],
-                                                     npt.NDArray[np.float64]]:
+             half: npt.NDArray[np.float32], n: int | None = None) -> tuple[npt.NDArray[np.float64],
+                                                                     npt.NDArray[np.float64],
+                                                                     npt.NDArray[np.float64]]:
     """Per block least squares ys ~ offset + amp * sq; blocks without both levels keep the percentile mid.
-    Also the fraction of each block's variance that the square wave explains (0 without both levels)."""
-    L = ys2d.shape[1]
+    Also the fraction of each block's variance that the square wave explains (0 without both levels). Only the
+    first ``n`` samples count (the padding after the audio's end, a held sample, could be anywhere)."""
+    B, width = ys2d.shape
+    L = np.full(B, float(width))
+    if n is not None and n < B * width:
+        r = n - (B - 1) * width  # real samples in the last block
+        ys2d, sq2d = ys2d.copy(), sq2d.copy()
+        ys2d[-1, r:], sq2d[-1, r:], L[-1] = 0, 0, max(r, 1)
     s_y = ys2d.sum(axis=1, dtype=np.float64)
     s_q = sq2d.sum(axis=1, dtype=np.float64)
     s_yq = np.einsum("ij,ij->i", ys2d, sq2d.astype(np.float32), dtype=np.float64)
@@ -278,17 +285,18 @@ def _condition(xp: npt.NDArray[np.float32], params: EdgeParams, droop: Droop | N
 
 
 def smooth(x: npt.NDArray[np.float32], sigma: float) -> npt.NDArray[np.float32]:
-    """Gaussian smoothing (kernel to 4 sigma, zero beyond the ends)."""
+    """Gaussian smoothing (kernel to 4 sigma; the end samples held beyond the ends, so an edge a few samples
+    into the audio is seen)."""
     r = max(1, int(math.ceil(4.0 * sigma)))
     kern = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
-    return np.convolve(x, (kern / kern.sum()).astype(np.float32), mode="same")
+    return np.convolve(np.pad(x, r, mode="edge"), (kern / kern.sum()).astype(np.float32), mode="valid")
 
 
 def _coarse(xp, n, mid, half, params):
     """Smoothed signal, transition windows (gathered) and, for the baseline fit, the steepest step of each."""
     ys = smooth(xp, params.sigma_samples)
     start, stop, rising = schmitt_edges(ys, mid, half, params)
-    ok = (stop < n - 1) & (start >= 2)  # the cubic takes ys[c - 1 .. c + 2]; past n: the held last sample
+    ok = (stop < n - 1) & (start >= 1)  # the cubic takes ys[c - 1 .. c + 2]; past n: the held last sample
     start, stop, rising = start[ok], stop[ok], rising[ok]
     if start.size == 0:
         return ys, (start, stop, rising, start, np.zeros((1, 0)), np.zeros((1, 0)))
@@ -308,7 +316,7 @@ def _square_reading(xp: npt.NDArray[np.float32], n: int, params: EdgeParams, dro
     if k.size < 2:
         return BlockEdges.empty(), np.zeros(nb), ys, win
     sq = _square_wave(k, not bool(rising[0]), nb * L)
-    off, _, explained = baseline(ys.reshape(nb, L), sq.reshape(nb, L), mid, half)
+    off, _, explained = baseline(ys.reshape(nb, L), sq.reshape(nb, L), mid, half, n)
     centres = (np.arange(nb) + 0.5) * L - 0.5
     base = np.interp(k + 0.5, centres, off)
     t = refine_edges(ys, win, base)

@@ -125,11 +125,12 @@ def find_impulses(x: npt.NDArray[np.float32], n: int, blocks: npt.NDArray[np.boo
     # overlapping tails
     blk = m // L
     sign = np.where(u[m] >= 0, 1.0, -1.0).astype(np.float32)
-    tall = au[m] > 0.6 * np.maximum(level, 0.5 * np.percentile(level, 90))[blk]  # not noise in a long silence
+    loud = np.percentile(level[blocks], 90)  # of the blocks read here: not noise in a long silence
+    tall = au[m] > 0.6 * np.maximum(level, 0.5 * loud)[blk]
     n_pos = uniform_filter1d(np.bincount(blk, weights=tall & (sign > 0), minlength=nb), 9, mode="mirror")
-    pos = n_pos / np.maximum(uniform_filter1d(np.bincount(blk, weights=tall, minlength=nb), 9, mode="mirror"),
-                             1e-9)
-    one_sign = (pos > 0.85) | (pos < 0.15)
+    n_tall = uniform_filter1d(np.bincount(blk, weights=tall, minlength=nb), 9, mode="mirror")
+    pos = n_pos / np.maximum(n_tall, 1e-9)
+    one_sign = ((pos > 0.85) | (pos < 0.15)) & (n_tall >= 2)  # two tall impulses a block, at least
     keep = ~(one_sign[blk] & (sign != np.where(pos[blk] > 0.5, 1.0, -1.0)))
     m, sign = m[keep], sign[keep]
     # the impulse level: median height of the candidates per block; half of it is the threshold (noise peaks
