@@ -48,6 +48,8 @@ def decode(
 
     result = run_decode([Path(f) for f in files], channel=channel, fps=fps, fmt=fmt,
                         raw=make_raw(raw_format, raw_rate, raw_channels))
+    for line in result.warnings:
+        print(f"timecode: warning: {line}", file=sys.stderr)
     for line in result.failures:
         print(f"timecode: error: {line}", file=sys.stderr)
     if result.n_decoded:

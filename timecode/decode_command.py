@@ -1,7 +1,6 @@
 """``timecode decode``: the work behind the CLI command (parse choices, decode with a progress bar, render)."""
 from __future__ import annotations
 
-import logging
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -12,9 +11,6 @@ from timecode.decoder import DecodeOptions, RateMismatchError, decode_file
 from timecode.errors import NoLTCError, TimecodeError
 from timecode.formats import OutputFormat, render
 from timecode.rates import FrameRate, parse_rate
-
-
-logger = logging.getLogger("timecode")
 
 
 class UsageError(TimecodeError, ValueError):
@@ -66,6 +62,7 @@ class BatchResult:
     text: str
     n_decoded: int
     failures: list[str]
+    warnings: list[str]
 
 
 def input_files(inputs: Sequence[Path], raw: RawFormat | None) -> tuple[list[Path], bool]:
@@ -96,14 +93,19 @@ def run_decode(inputs: Sequence[Path], *, channel: str, fps: str, fmt: str, raw:
     files, batch = input_files(inputs, raw)
     done: list[tuple[str, list]] = []
     failed: list[tuple[str, str]] = []
+    warnings: list[str] = []
     for path in files:
         try:
-            done.append((str(path), _decode_one(path, channel=channel, rate=rate, raw=raw)))
+            result = _decode_one(path, channel=channel, rate=rate, raw=raw)
         except TimecodeError as exc:
             msg = str(exc).splitlines()[0]
             failed.append((str(path), msg if msg.startswith(str(path)) else f"{path}: {msg}"))
+            continue
+        done.append((str(path), result))
+        warnings += [f"{path} channel {ch.channel}: {ch.n_nonfinite} NaN or infinite samples read as gaps "
+                     "(interpolated over)" for ch in result if ch.n_nonfinite]
     text = render(done, out_fmt, failed, batch) if done else ""
-    return BatchResult(text=text, n_decoded=len(done), failures=[m for _, m in failed])
+    return BatchResult(text=text, n_decoded=len(done), failures=[m for _, m in failed], warnings=warnings)
 
 
 def _decode_one(path: Path, *, channel: str, rate: FrameRate | None, raw: RawFormat | None) -> list:
@@ -115,10 +117,6 @@ def _decode_one(path: Path, *, channel: str, rate: FrameRate | None, raw: RawFor
         result = _decode_with_progress(path, DecodeOptions(rate=rate), chans, raw, info.frames)
     except RateMismatchError as exc:
         raise RateMismatchError(f"{path}: {exc} (leave --fps auto to detect the rate)") from None
-    for ch in result:
-        if ch.n_nonfinite:
-            logger.warning("%s channel %d: %d NaN or infinite samples read as gaps (interpolated over)", path,
-                           ch.channel, ch.n_nonfinite)
     found = [ch for ch in result if len(ch)]
     if chans is not None and not found:
         raise NoLTCError(f"{path}: no LTC found on channel {chans[0]}")
