@@ -70,3 +70,14 @@ def test_libltc_reads_our_reverse_play_as_reverse():
     assert len(got.labels) >= 28 and np.all(got.reverse)
     assert np.array_equal(got.labels, enc.labels[::-1][1:len(got.labels) + 1]) or \
         np.array_equal(got.labels, enc.labels[::-1][:len(got.labels)])
+
+
+def test_a_stream_cut_at_both_ends_keeps_its_first_and_last_frame():
+    """libltc's stream with no lead-in and no closing edge: the first frame's opening edge is at sample 0 (not
+    seen), the last frame's closing edge after the last sample. Every frame has its sync word in the file:
+    all of them (libltc gives all but one; before issue 16 we gave all but two)."""
+    audio = L.encode((10, 0, 0, 0), 100, sample_rate=48000, fps=25.0, standard=L.TV_625_50)
+    (ch,) = decode_samples(audio, 48000)
+    assert len(ch) == 100 and np.array_equal(ch.labels, label_range("10:00:00:00", 100, RATES["25"]))
+    assert [EXTRAPOLATED[e] for e in ch.extrapolated[[0, -1]]] == [Extrapolated.START, Extrapolated.END]
+    assert len(L.decode(audio, 48000, 25.0).labels) == 99
