@@ -35,7 +35,7 @@ def _cut(enc: EncodedLTC, a: int, b: int):
 def _check(ch, counts, s, e, bit, n, reverse):
     """Every frame whose sync word is in the file (3 samples of margin: a transition needs samples around it)
     is decoded, nothing else is, each at its true place; the flags say which edge lies outside the audio."""
-    first_t, last_t = (np.minimum(s, e), np.maximum(s, e))
+    first_t = np.minimum(s, e)  # the frame's first edge in time
     # the sync word's first and last edge in time: forward, bit 64's opening edge and bit 79's mid-bit edge (a 1,
     # whose closing edge is the next frame's); reverse, bit 79's mid-bit edge and bit 64's opening one (a 0)
     sync_lo = np.where(reverse, first_t + bit / 2, e - 16 * bit)

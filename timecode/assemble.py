@@ -25,7 +25,7 @@ from timecode.bits import EdgeStream, edge_stream, find_frames, with_virtual_edg
 from timecode.clockfit import fit_frame_times
 from timecode.continuity import continuity, detect_rate, rate_contradiction, rate_evidence
 from timecode.errors import TimecodeError
-from timecode.frame import N_BITS, bgf_bits, pack_bits, unpack_bits
+from timecode.frame import bgf_bits, pack_bits, unpack_bits
 from timecode.labels import frames_to_labels, labels_to_frames, labels_valid
 from timecode.rates import FrameRate
 from timecode.result import ChannelDecode
@@ -197,4 +197,4 @@ def pole_to_tau(poles: list[float]) -> float:
     return float(-1.0 / math.log(float(np.median(a)))) if a else 0.0
 
 
-__all__ = ["LABEL_BITS", "N_BITS", "RateMismatchError", "decode_edges", "pole_to_tau"]
+__all__ = ["LABEL_BITS", "RateMismatchError", "decode_edges", "pole_to_tau"]

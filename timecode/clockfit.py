@@ -4,8 +4,9 @@ An LTC generator's edges sit on a regular clock locked to the video frame, so th
 time of one edge uses its neighbours too: around each frame start we fit t(pos) = c0 + c1 x + c2 x^2
 (x = half-bit offset from the frame start) to every edge within +-1 frame (320 half-bits), trimmed twice
 at 3 and 3.5 times the RMS residual, and take c0. The quadratic term follows speed changes. Fits never
-cross a break in the edge run or a timecode discontinuity (``seg_lo``/``seg_hi``). The RMS of the kept
-residuals is the frame's jitter figure.
+cross a break in the edge run or a timecode discontinuity (``seg_lo``/``seg_hi``), nor a slip (edges the stream
+counted a half-bit off, which shows as a jump of the residuals). The RMS of the kept residuals is the frame's
+jitter figure. The centre need not be an edge: a frame edge outside the audio is the fit's extrapolation.
 """
 from __future__ import annotations
 
