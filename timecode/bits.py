@@ -5,7 +5,9 @@ edges are one half-bit (S) or one bit (L) long, measured against a local half-bi
 speed changes. Edges get integer half-bit positions; a run is a stretch of edges with no impossible
 interval. In each run the bit boundaries are the positions of one parity (the ends of every L interval
 share it); a bit is 1 when an edge sits between two boundaries. Frames are found by their sync word:
-0011 1111 1111 1101 forward, and its mirror 1011 1111 1111 1100 when the tape runs backwards.
+0011 1111 1111 1101 forward, and its mirror 1011 1111 1111 1100 when the tape runs backwards. A run that ends
+(starts) on a mid-bit edge gets the edge closing (opening) that bit as a virtual edge, and a sync word whose
+frame begins before its run (ends after it, in reverse play) gives a partial frame: see ``assemble``.
 """
 from __future__ import annotations
 

@@ -14,6 +14,9 @@ Steps, all vectorised over the block (one channel):
 6. Fine time: in the window before each flip, the zero of (smoothed - baseline) at a steep step, from a
    cubic through four samples (Newton from the linear estimate); where the baseline is not crossed at a
    steep step (heavily high-passed or clipped audio), the steepest point of the transition.
+7. The reading per stat block (``_choose``): the square wave above where its edges keep the LTC half-bit pattern
+   and it explains at least ``SQUARE_FIT`` of the block's variance; else an impulse train (``impulses``: a
+   differentiating recorder input) where that reading keeps the pattern; else the nearest block's reading.
 
 Times are in samples from the start of the block (0.0 = the first sample).
 """
