@@ -341,7 +341,7 @@ def _choose(square: BlockEdges, explained: npt.NDArray[np.float64], raw: npt.NDA
     none = np.zeros(nb, bool)
     if raw is None or square_fit.all():
         return square, none
-    imp = find_impulses(raw, n, ~square_fit, L, params.sample_rate, _level_sample_index(L))
+    imp = _impulses_in(raw, n, ~square_fit, params)
     impulse_fit = ~square_fit & regular_blocks(imp.t, nb, L, params.sample_rate)
     if not impulse_fit.any():
         return square, none
@@ -360,6 +360,23 @@ def _choose(square: BlockEdges, explained: npt.NDArray[np.float64], raw: npt.NDA
     cat = lambda a, b: np.concatenate([a[ks], b[ki]])[order]  # noqa: E731
     return BlockEdges(t=t[order], rising=cat(square.rising, imp.rising), amplitude=cat(square.amplitude,
                       imp.amplitude), impulse=cat(square.impulse, np.ones(len(imp.t), bool)), pole=imp.pole), as_impulse
+
+
+def _impulses_in(raw: npt.NDArray[np.float32], n: int, blocks: npt.NDArray[np.bool_], params: EdgeParams):
+    """``impulses.find_impulses`` on the stat blocks ``blocks`` and one block either side only (gathered into
+    one array, so the impulses of every stretch fit one input pole), times mapped back to ``raw``."""
+    L = params.stat_block
+    nb = len(blocks)
+    near = blocks.copy()
+    near[1:] |= blocks[:-1]
+    near[:-1] |= blocks[1:]
+    rows = np.flatnonzero(near)
+    sub = raw.reshape(nb, L)[rows].ravel()
+    n_sub = len(sub) - (nb * L - n if rows[-1] == nb - 1 else 0)
+    imp = find_impulses(sub, n_sub, blocks[rows], L, params.sample_rate, _level_sample_index(L))
+    k = np.minimum(imp.t.astype(np.int64) // L, len(rows) - 1)
+    imp.t = imp.t + (rows[k] - k) * L
+    return imp
 
 
 def find_edges(x: npt.ArrayLike, params: EdgeParams, droop: Droop | None = None) -> BlockEdges:
