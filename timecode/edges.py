@@ -292,7 +292,13 @@ def smooth(x: npt.NDArray[np.float32], sigma: float) -> npt.NDArray[np.float32]:
     into the audio is seen)."""
     r = max(1, int(math.ceil(4.0 * sigma)))
     kern = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
-    return np.convolve(np.pad(x, r, mode="edge"), (kern / kern.sum()).astype(np.float32), mode="valid")
+    kern = (kern / kern.sum()).astype(np.float32)
+    y = np.convolve(x, kern, mode="same")
+    if len(x) > 4 * r:  # the ends again, with the end samples held (no copy of the whole block)
+        y[:r] = np.convolve(np.pad(x[:3 * r], r, mode="edge"), kern, mode="valid")[:r]
+        y[-r:] = np.convolve(np.pad(x[-3 * r:], r, mode="edge"), kern, mode="valid")[-r:]
+        return y
+    return np.convolve(np.pad(x, r, mode="edge"), kern, mode="valid")
 
 
 def _coarse(xp, n, mid, half, params):
