@@ -59,7 +59,7 @@ PIXEL_ASPECT_STD = 1.5e-4  # fy / fx - 1
 
 
 class Preset(StrEnum):
-    TINY = "tiny"  # 4 VGA of each of panels 1 and 13, 4 HD between them, 2 Kinect colour
+    TINY = "tiny"  # 4 VGA of each of panels 1 and 13, 5 HD and 3 Kinect colour on and above the arc between them
     PANEL = "panel"  # panels 1-2 (48 VGA), 8 HD, 4 Kinect colour
     FULL = "full"  # every camera
 
@@ -169,7 +169,22 @@ def all_nominal_cameras(seed: int) -> dict[str, Camera]:
 #: focal length and distance separate (one panel alone sees it from one side, where they trade off).
 TINY_PANELS = (1, 13)
 TINY_VGA_PER_PANEL = 4
-TINY_HD_ON_ARC = 4
+#: Where its HD and Kinect colour cameras are taken, as (fraction along the arc from the first panel to the
+#: second, degrees lifted above it): the panels themselves, two points between them a little higher, and the
+#: arc's middle high up, so that the tent is also seen from above.
+TINY_HD_TARGETS = ((0.0, 0.0), (1 / 3, 10.0), (2 / 3, 10.0), (1.0, 0.0), (0.5, 35.0))
+TINY_KINECT_TARGETS = ((0.0, 0.0), (1.0, 0.0), (0.5, 35.0))
+
+
+def _arc_point_cm(a_cm: np.ndarray, b_cm: np.ndarray, fraction: float, lift_deg: float) -> np.ndarray:
+    """The point ``fraction`` along the great-circle arc (about the dome centre) from ``a_cm`` to ``b_cm``, lifted
+    ``lift_deg`` of latitude, on the sphere of their mean radius (world frame, cm)."""
+    a, b = a_cm - DOME_CENTRE_CM, b_cm - DOME_CENTRE_CM
+    ua, ub = a / np.linalg.norm(a), b / np.linalg.norm(b)
+    angle = np.arccos(np.clip(ua @ ub, -1.0, 1.0))
+    u = (np.sin((1 - fraction) * angle) * ua + np.sin(fraction * angle) * ub) / np.sin(angle)
+    lat, az = np.degrees(np.arcsin(-u[1] / np.linalg.norm(u))), np.degrees(np.arctan2(u[2], u[0]))
+    return DOME_CENTRE_CM + 0.5 * (np.linalg.norm(a) + np.linalg.norm(b)) * direction(lat + lift_deg, az)
 
 
 def _nearest(cands: list[Camera], point_cm: np.ndarray, n: int, taken: set[str] = frozenset()) -> list[str]:
@@ -184,9 +199,10 @@ def _nearest(cands: list[Camera], point_cm: np.ndarray, n: int, taken: set[str] 
 def select_preset(cameras: dict[str, Camera], preset: Preset | str) -> list[str]:
     """Camera names of a preset, chosen by geometry so that the same preset works on any layout (ties by name).
 
-    tiny (14): the 4 VGA nearest the centre of each of panels 1 and 13 (same ring, 72 deg apart), the 4 HD
-    nearest points spread evenly along the arc between those panels, and the Kinect colour camera nearest each
-    panel; panel (60): all VGA of panels 1 and 2, the 8 HD and 4 Kinect colour cameras nearest them;
+    tiny (16): the 4 VGA nearest the centre of each of panels 1 and 13 (one ring, 72 deg apart), and the HD and
+    Kinect colour cameras nearest points on and above the arc between them (:data:`TINY_HD_TARGETS`,
+    :data:`TINY_KINECT_TARGETS`), so the tent is seen over 72 deg of azimuth and 35 deg of elevation;
+    panel (60): all VGA of panels 1 and 2, the 8 HD and 4 Kinect colour cameras nearest them;
     full: every camera.
     """
     preset = Preset(preset)
@@ -205,13 +221,9 @@ def select_preset(cameras: dict[str, Camera], preset: Preset | str) -> list[str]
         return sorted(names)
     centres = [np.mean([c.center_cm for c in vga[p]], axis=0) for p in panels]
     names = [n for p, centre in zip(panels, centres) for n in _nearest(vga[p], centre, TINY_VGA_PER_PANEL)]
-    a, b = (c - DOME_CENTRE_CM for c in centres)
-    angle = np.arccos(np.clip(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)), -1.0, 1.0))
-    radius = 0.5 * (np.linalg.norm(a) + np.linalg.norm(b))
-    for f in np.linspace(0.0, 1.0, TINY_HD_ON_ARC):  # slerp from panel to panel, on the sphere of the panels
-        u = (np.sin((1 - f) * angle) * a / np.linalg.norm(a) + np.sin(f * angle) * b / np.linalg.norm(b)) / np.sin(angle)
-        names += _nearest(hd, DOME_CENTRE_CM + radius * u, 1, taken=set(names))
-    names += [n for centre in centres for n in _nearest(kinect, centre, 1, taken=set(names))]
+    for cands, targets in ((hd, TINY_HD_TARGETS), (kinect, TINY_KINECT_TARGETS)):
+        for fraction, lift_deg in targets:
+            names += _nearest(cands, _arc_point_cm(*centres, fraction, lift_deg), 1, taken=set(names))
     return sorted(names)
 
 

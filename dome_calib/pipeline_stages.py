@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -95,28 +96,61 @@ def run_sfm_stage(capture: Path, work_dir: Path, *, prior: Bundle | None, progre
     if result.observations is None:
         why = "; ".join(f"{f.scene or 'capture'}: {f.reason}" for f in result.failures if not f.camera)
         raise CaptureError(f"{capture}: no scene could be reconstructed ({why or 'no registered cameras'})")
-    problem, dropped = prune_problem(problem_from_observations(result.observations))
+    problem, dropped = prune_problem(problem_from_observations(result.observations),
+                                     prior=prior.cameras if prior is not None else None)
     return SfmOutcome(problem=problem, failures={**result.unregistered, **dropped}, stats=report_dict(result))
 
 
-#: Gate between SfM and BA: a camera needs this many observations, and a centre inside this radius (cm) of the
-#: dome's origin, to enter the bundle adjustment (the dome is 5.5 m across; SfM can leave a camera km away).
+#: Gate between SfM and BA: a camera needs this many observations, and a centre inside the gate, to enter the
+#: bundle adjustment (SfM can leave a camera km away). The gate follows the prior's size and unit: a sphere around
+#: the point the prior's cameras look at (least-squares meeting point of their optical axes) of CENTER_GATE_FACTOR
+#: x their median distance from it (the Panoptic dome: 4 x 2.78 m = 11 m; one panel gives the same); without a
+#: usable prior (none, or axes too close to parallel), the design's: MAX_CENTER_RADIUS_CM around the origin.
 MIN_CAMERA_OBSERVATIONS = 50
+CENTER_GATE_FACTOR = 4.0
 MAX_CENTER_RADIUS_CM = 1000.0
+_MIN_AXIS_SPREAD = 0.01  # smallest eigenvalue of sum(I - d d^T) / n: axes spread over more than ~6 degrees
+
+
+def center_gate(prior: Mapping[str, Camera] | None) -> tuple[np.ndarray, float, str]:
+    """(centre, radius, description) of the position gate for SfM cameras, in the prior's frame and unit."""
+    if prior and len(prior) >= 2:
+        centers = np.array([c.center_cm for c in prior.values()])
+        axes = np.array([c.R[2] for c in prior.values()])  # optical axes in the world
+        proj = np.eye(3) - axes[:, :, None] * axes[:, None, :]
+        A = proj.sum(axis=0)
+        if np.linalg.eigvalsh(A)[0] > _MIN_AXIS_SPREAD * len(prior):
+            looked_at = np.linalg.solve(A, np.einsum("nij,nj->i", proj, centers))
+            spread = float(np.median(np.linalg.norm(centers - looked_at, axis=1)))
+            if spread > 0:
+                radius = CENTER_GATE_FACTOR * spread
+                return looked_at, radius, (f"the gate of radius {radius:.4g} around the point the prior's cameras "
+                                           f"look at ({CENTER_GATE_FACTOR:g} x their median distance from it, in "
+                                           "the prior's unit)")
+    return np.zeros(3), MAX_CENTER_RADIUS_CM, f"the gate of radius {MAX_CENTER_RADIUS_CM:g} cm around the dome centre"
 
 
 def prune_problem(problem: BAProblem, *, min_observations: int = MIN_CAMERA_OBSERVATIONS,
-                  max_radius_cm: float = MAX_CENTER_RADIUS_CM) -> tuple[BAProblem, dict[str, str]]:
-    """Drop cameras the bundle adjustment cannot use (too few observations, implausible position) with their
-    observations, then points left with fewer than 2 observations. Returns the problem and camera -> reason."""
+                  prior: Mapping[str, Camera] | None = None) -> tuple[BAProblem, dict[str, str]]:
+    """Drop cameras the bundle adjustment cannot use (too few observations, outside :func:`center_gate` of the
+    prior) with their observations, then points left with fewer than 2 observations. Returns the problem and
+    camera -> reason. CaptureError (one line, saying why) if no camera is left."""
     counts = np.bincount(problem.camera_index, minlength=problem.n_cameras)
-    dropped = {}
+    centre, radius, gate = center_gate(prior)
+    dropped, far = {}, {}
     for i, n in enumerate(problem.camera_names):
-        radius = float(np.linalg.norm(problem.camera(n).center_cm))
+        distance = float(np.linalg.norm(problem.camera(n).center_cm - centre))
         if counts[i] < min_observations:
             dropped[n] = f"only {counts[i]} observations after SfM (need {min_observations})"
-        elif not radius <= max_radius_cm:
-            dropped[n] = f"SfM placed it {radius / 100:.0f} m from the dome centre"
+        elif not distance <= radius:
+            far[n] = distance
+            dropped[n] = f"SfM placed it {distance:.4g} from the centre, outside {gate}"
+    if len(dropped) == problem.n_cameras:
+        n_few = len(dropped) - len(far)
+        example = f" (e.g. {min(far)} at {far[min(far)]:.4g})" if far else ""
+        raise CaptureError(f"SfM: all {problem.n_cameras} cameras left out of the bundle adjustment: {len(far)} placed "
+                           f"outside {gate}{example}, {n_few} with fewer than {min_observations} observations; is the "
+                           "prior in the capture's unit (cm) and frame?")
     if not dropped:
         return problem, {}
     keep_cam = np.array([n not in dropped for n in problem.camera_names])

@@ -99,7 +99,7 @@ def test_calibrate_writes_bundle_and_report_and_resumes(tmp_path, capture, stand
     assert "position poorly determined (+-2.0 cm" in flagged[UNCERTAIN][0] and CERTAIN not in flagged
     assert rep["center_sigma_cm"][UNCERTAIN] == pytest.approx(2.0)
     text = pipeline.format_result(result)
-    assert "calibrated 14 of 15 cameras (vga 8/9, hd 4/4, kinect-color 2/2)" in text
+    assert "calibrated 16 of 17 cameras (vga 8/9, hd 5/5, kinect-color 3/3)" in text
     assert "nominal dome geometry" in text and "01_24: not calibrated" in text
     assert stand_in_stages == {"sfm": 1, "ba": 1}
     again = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=False))

@@ -38,8 +38,8 @@ def test_demo_prints_what_a_technician_needs(tmp_path, monkeypatch):
     result = CliRunner().invoke(app, ["demo", "--preset", "tiny", "-o", str(tmp_path / "demo")])
     assert result.exit_code == 0, result.output
     out = result.output
-    assert "synthetic 'tiny' dome, 14 cameras" in out
-    assert "calibrated 14 of 14 cameras (vga 8/8, hd 4/4, kinect-color 2/2)" in out
+    assert "synthetic 'tiny' dome, 16 cameras" in out
+    assert "calibrated 16 of 16 cameras (vga 8/8, hd 5/5, kinect-color 3/3)" in out
     assert "reprojection RMS 0.3" in out  # the stand-in's 0.3 px noise
     assert "centre error   0.00 mm median" in out  # exact stand-in: the truth comes back
     assert "worst cameras:" in out

@@ -1,4 +1,5 @@
-"""`timecode decode`: runs on real and synthetic files in every output format; bad input -> one line, exit 1."""
+"""`timecode decode`: runs on real and synthetic files in every output format, on several files or folders at
+once; bad input -> one line, exit 1."""
 from __future__ import annotations
 
 import csv
@@ -12,7 +13,7 @@ import pytest
 import soundfile as sf
 
 from timecode.encoder import EncoderOptions, encode_ltc
-from timecode.rates import RATE_29_97_DF
+from timecode.rates import RATE_25, RATE_29_97_DF
 
 DATA = Path(__file__).parent / "data" / "ltc"
 
@@ -85,7 +86,7 @@ def test_real_and_raw_files(monkeypatch, capsys):
     code, out, err = _run(["decode", DATA / "libltc_timecode.raw", "--raw-format", "u8", "--raw-rate", "22050"],
                           monkeypatch, capsys)
     assert code == 0, err
-    assert "# channel 0: 25 fps, 47 frames 00:05:27:17 .. 00:05:29:13" in out
+    assert "# channel 0: 25 fps, 48 frames 00:05:27:16 .. 00:05:29:13" in out  # the first: cut by the file
 
 
 @pytest.mark.parametrize("args,message", [
@@ -114,3 +115,61 @@ def test_no_ltc_on_a_channel(stereo, monkeypatch, capsys, tmp_path):
     sf.write(silent, np.zeros((24000, 2)), 48000)
     code, _, err = _run(["decode", silent], monkeypatch, capsys)
     assert code == 1 and "no LTC found on any of its 2 channel(s)" in err and err.count("\n") == 1
+
+
+def test_batch_of_files_and_folders_makes_one_table(stereo, monkeypatch, capsys, tmp_path):
+    """A folder and a file: one CSV with a file column; a file that fails is one line on stderr, the others are
+    written, and the exit code is 1."""
+    path, truth = stereo
+    folder = tmp_path / "takes"
+    folder.mkdir()
+    imp = encode_ltc("02:00:00:00", 30, fps=RATE_25, sample_rate=48000,
+                     options=EncoderOptions(highpass_tau_samples=2.0, rectify=True, level_dbfs=-12.0))
+    sf.write(folder / "b_receiver.wav", imp.samples, 48000, subtype="PCM_16")
+    sf.write(folder / "a_silent.flac", np.zeros(48000), 48000)
+    (folder / "notes.txt").write_text("not audio, not read")
+    target = tmp_path / "all.csv"
+    code, out, err = _run(["decode", folder, path, "-f", "csv", "-o", target], monkeypatch, capsys)
+    assert code == 1 and out == ""
+    assert err.splitlines() == [f"timecode: error: {folder / 'a_silent.flac'}: no LTC found on any of its 1 channel(s)"]
+    rows = list(csv.DictReader(io.StringIO(target.read_text())))
+    by_file = {}
+    for r in rows:
+        by_file.setdefault(r["file"], []).append(r)
+    assert list(by_file) == [str(folder / "b_receiver.wav"), str(path)]  # folder files by name, then the file
+    receiver = by_file[str(folder / "b_receiver.wav")]
+    assert len(receiver) == 30 and {r["reading"] for r in receiver} == {"impulses"}
+    assert np.max(np.abs(np.array([float(r["start_samples"]) for r in receiver]) - imp.frame_start_samples)) < 0.05
+    assert len(by_file[str(path)]) == 45 and {r["reading"] for r in by_file[str(path)]} == {"square"}
+    code, out, err = _run(["decode", folder / "b_receiver.wav", path, "-c", "1", "-f", "json"], monkeypatch, capsys)
+    assert code == 1 and "channel 1: the file has 1 channel(s)" in err  # the mono file has no channel 1
+    doc = json.loads(out)
+    assert [f["file"] for f in doc["files"]] == [str(path)] and doc["failed"][0]["file"] == str(folder / "b_receiver.wav")
+    code, out, err = _run(["decode", folder / "b_receiver.wav"], monkeypatch, capsys)
+    assert code == 0 and "30 read from impulses (input time constant 2.0" in out and " IMP " in out
+
+
+def test_edge_frames_and_bad_samples_in_the_outputs(monkeypatch, capsys, tmp_path):
+    enc = encode_ltc("01:00:00:00", 50, fps=RATE_25, sample_rate=48000, options=EncoderOptions(noise_snr_db=40.0))
+    x = enc.samples.astype(np.float32)
+    a = int(enc.frame_start_samples[1] + 800)  # the file starts 33.3 bits (of 24 samples) into frame 1
+    x = x[a:]
+    x[::1000] = np.nan
+    path = tmp_path / "cut_nan.wav"
+    sf.write(path, x, 48000, subtype="FLOAT")
+    code, out, err = _run(["decode", path, "-f", "csv"], monkeypatch, capsys)
+    assert code == 0
+    assert err.strip() == (f"timecode: warning: {path} channel 0: {len(x[::1000])} NaN or infinite samples read as "
+                           "gaps (interpolated over)")
+    rows = list(csv.DictReader(io.StringIO(out)))
+    assert rows[0]["label"] == "01:00:00:01" and rows[0]["extrapolated"] == "start" and rows[0]["bits_missing"] == "34"
+    assert float(rows[0]["start_samples"]) == pytest.approx(enc.frame_start_samples[1] - a, abs=0.05)
+    assert len(rows) == 49 and all(r["extrapolated"] == "" for r in rows[1:-1])
+
+
+def test_fps_the_ltc_contradicts_is_refused(monkeypatch, capsys):
+    code, out, err = _run(["decode", DATA / "ltcsync_ltc.wav", "--fps", "30"], monkeypatch, capsys)
+    assert code == 1 and out == "" and err.count("\n") == 1
+    assert "ltcsync_ltc.wav: channel 0: the LTC is not 30 fps: its labels count 24 frames a second" in err
+    code, out, err = _run(["decode", DATA / "ltcsync_ltc.wav", "--fps", "24", "-f", "csv"], monkeypatch, capsys)
+    assert code == 0 and len(out.splitlines()) == 144

@@ -1,5 +1,6 @@
 """Real LTC recordings: every frame libltc decodes (its reference decodes, tests/data/ltc), ours decodes with
-the same label, at nearly the same place (libltc reports whole samples, late by a level-dependent amount)."""
+the same label, at nearly the same place (libltc reports whole samples, late by a level-dependent amount), plus
+the frame the file starts inside when its sync word is in the file."""
 from __future__ import annotations
 
 import re
@@ -11,6 +12,7 @@ import pytest
 from timecode.audio_io import RawFormat, RawSampleFormat
 from timecode.decoder import decode_file
 from timecode.rates import RATE_24, RATE_25
+from timecode.result import EXTRAPOLATED, Extrapolated
 
 DATA = Path(__file__).parent / "data" / "ltc"
 _ROW = re.compile(r"(\d\d):(\d\d):(\d\d)[:;.](\d\d)\s*\|\s*(-?\d+)\s+(-?\d+)")
@@ -23,23 +25,32 @@ def _reference(name: str) -> np.ndarray:
     return np.array(rows, dtype=np.int64)
 
 
+# (audio, libltc's decode, raw format, rate, the frame the file starts inside whose sync word it holds)
 CASES = [
-    ("ltcsync_ltc.wav", "ltcsync_ltc.ltcdump.txt", None, RATE_24),
-    ("ltcsync_ZOOM0004_Tr1.wav", "ltcsync_ZOOM0004_Tr1.ltcdump.txt", None, RATE_24),
+    ("ltcsync_ltc.wav", "ltcsync_ltc.ltcdump.txt", None, RATE_24, None),  # its sync word starts before sample 0
+    ("ltcsync_ZOOM0004_Tr1.wav", "ltcsync_ZOOM0004_Tr1.ltcdump.txt", None, RATE_24, (18, 34, 17, 2)),
     ("libltc_timecode.raw", "libltc_timecode.txt", RawFormat(sample_format=RawSampleFormat.U8, sample_rate=22050),
-     RATE_25),
+     RATE_25, (0, 5, 27, 16)),
 ]
 
 
-@pytest.mark.parametrize("audio,reference,raw,rate", CASES, ids=[c[0] for c in CASES])
-def test_every_frame_libltc_decodes_we_decode_with_the_same_label(audio, reference, raw, rate):
+@pytest.mark.parametrize("audio,reference,raw,rate,edge", CASES, ids=[c[0] for c in CASES])
+def test_every_frame_libltc_decodes_we_decode_with_the_same_label(audio, reference, raw, rate, edge):
     ref = _reference(reference)
     (ch,) = decode_file(DATA / audio, raw=raw)
     assert ch.rate is rate
     ours = {tuple(lab): (s, e) for lab, s, e in zip(ch.labels.tolist(), ch.start_samples, ch.end_samples)}
     missing = [tuple(r[:4]) for r in ref if tuple(r[:4]) not in ours]
     assert not missing, f"libltc decodes {len(missing)} frame(s) we miss, e.g. {missing[:3]}"
-    assert len(ch) == len(ref)  # and nothing libltc does not have
+    # and nothing libltc does not have but the frame cut by the file's start
+    assert len(ch) == len(ref) + (edge is not None)
+    if edge is not None:
+        assert tuple(ch.labels[0]) == edge and EXTRAPOLATED[ch.extrapolated[0]] is Extrapolated.START
+        assert 0 < ch.bits_missing[0] <= 64 and not ch.bits_missing[1:].any() and not ch.extrapolated[1:].any()
+        assert ch.start_samples[0] < 0 < ch.end_samples[0]
+        assert ch.end_samples[0] == pytest.approx(ch.start_samples[1], abs=0.5)  # two fits of one edge, samples
+        period = np.median(np.diff(ch.start_samples[1:]))  # libltc's test file runs 0.3 % slow
+        assert ch.end_samples[0] - ch.start_samples[0] == pytest.approx(period, abs=0.6)  # samples
     # same frames at the same place: libltc's whole-sample start is a few samples off ours (its detector
     # fires past half the swing, later on slow or dipping edges); its first frame after a gap is only an
     # estimate, so it is left out

@@ -66,8 +66,8 @@ def test_seed_determinism_and_preset_subset(full):
     assert np.array_equal(again.cameras["05_07"].K, full.cameras["05_07"].K)
     assert not np.array_equal(other.cameras["05_07"].K, full.cameras["05_07"].K)
     tiny = nominal_dome("tiny", seed=0)
-    assert len(tiny.cameras) == 14
-    assert {t: len(tiny.of_type(t)) for t in ("vga", "hd", "kinect-color")} == {"vga": 8, "hd": 4, "kinect-color": 2}
+    assert len(tiny.cameras) == 16
+    assert {t: len(tiny.of_type(t)) for t in ("vga", "hd", "kinect-color")} == {"vga": 8, "hd": 5, "kinect-color": 3}
     for name, cam in tiny.cameras.items():
         assert np.array_equal(cam.R, full.cameras[name].R)
     assert 55 <= len(nominal_dome("panel", seed=0).cameras) <= 65

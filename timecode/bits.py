@@ -5,7 +5,9 @@ edges are one half-bit (S) or one bit (L) long, measured against a local half-bi
 speed changes. Edges get integer half-bit positions; a run is a stretch of edges with no impossible
 interval. In each run the bit boundaries are the positions of one parity (the ends of every L interval
 share it); a bit is 1 when an edge sits between two boundaries. Frames are found by their sync word:
-0011 1111 1111 1101 forward, and its mirror 1011 1111 1111 1100 when the tape runs backwards.
+0011 1111 1111 1101 forward, and its mirror 1011 1111 1111 1100 when the tape runs backwards. A run that ends
+(starts) on a mid-bit edge gets the edge closing (opening) that bit as a virtual edge, and a sync word whose
+frame begins before its run (ends after it, in reverse play) gives a partial frame: see ``assemble``.
 """
 from __future__ import annotations
 
@@ -32,16 +34,29 @@ class EdgeStream:
     pos: npt.NDArray[np.int64]  # (E,) half-bit position
     run: npt.NDArray[np.int64]  # (E,) run id
     half_bit_samples: float  # typical half-bit length
+    virtual: npt.NDArray[np.bool_] | None = None  # (E,) edges not in the audio (``with_virtual_edges``)
+
+    def __post_init__(self) -> None:
+        if self.virtual is None:
+            self.virtual = np.zeros(len(self.t), bool)
 
 
 @dataclass(kw_only=True)
 class RawFrames:
-    """Frames found in the bit stream, in time order of their first bit on the wire."""
+    """Frames found in the bit stream, in time order of their first bit on the wire.
+
+    A partial frame is one whose sync word is in a run but whose first bits (forward play; its last bits in
+    reverse play) lie before the run's start (after its end): ``missing`` > 0, ``start_edge`` -1 and those bits 0
+    with ``known`` False. Its start position is ``start_pos`` all the same.
+    """
 
     bits: npt.NDArray[np.uint8]  # (F, 80) in frame order (bit 0 first), whatever the play direction
-    start_edge: npt.NDArray[np.int64]  # (F,) index of the edge opening bit 0
+    start_edge: npt.NDArray[np.int64]  # (F,) index of the edge opening bit 0 (-1: not in the run)
     end_edge: npt.NDArray[np.int64]  # (F,) index of the edge closing bit 79
     reverse: npt.NDArray[np.bool_]  # (F,)
+    start_pos: npt.NDArray[np.int64]  # (F,) half-bit position of the frame start (the edge, or where it would be)
+    missing: npt.NDArray[np.int64]  # (F,) bits not in the run (0: a complete frame)
+    known: npt.NDArray[np.bool_]  # (F, 80)
 
 
 def half_bit_estimate(d: npt.NDArray[np.float64], sample_rate: float) -> float | None:
@@ -169,13 +184,50 @@ def parity_of_runs(es: EdgeStream) -> npt.NDArray[np.int64]:
     return major[es.run]
 
 
+def with_virtual_edges(es: EdgeStream) -> EdgeStream:
+    """The stream with an edge added after a run that ends on a mid-bit edge and before one that starts on one.
+
+    A run ending with the mid-bit edge of a 1 lacks only the edge closing that bit (the audio, or the LTC,
+    stops there); if the bit is the last of a sync word the frame is complete but for its end edge (its start in
+    reverse play). The added edges are ``virtual``: their times (one local half-bit beyond the run) are
+    placeholders that the clock fit replaces by its extrapolation, and they carry index -1.
+    """
+    if len(es.t) < 2:
+        return es
+    par = parity_of_runs(es)
+    brk = np.flatnonzero(np.diff(es.run) != 0)
+    last = np.concatenate([brk, [len(es.t) - 1]])
+    first = np.concatenate([[0], brk + 1])
+    mid = (par >= 0) & (es.pos % 2 != par)
+    after, before = last[mid[last]], first[mid[first]]
+    if after.size + before.size == 0:
+        return es
+
+    def local_h(k: npt.NDArray[np.int64], step: int) -> npt.NDArray[np.float64]:
+        j = np.clip(k + step, 0, len(es.t) - 1)
+        j = np.where(es.run[j] == es.run[k], j, k)
+        dp = es.pos[j] - es.pos[k]
+        return np.where(dp != 0, (es.t[j] - es.t[k]) / np.where(dp != 0, dp, 1), es.half_bit_samples)
+
+    t = np.concatenate([es.t, es.t[after] + local_h(after, -16), es.t[before] - local_h(before, 16)])
+    pos = np.concatenate([es.pos, es.pos[after] + 1, es.pos[before] - 1])
+    run = np.concatenate([es.run, es.run[after], es.run[before]])
+    index = np.concatenate([es.index, np.full(after.size + before.size, -1)])
+    virtual = np.concatenate([es.virtual, np.ones(after.size + before.size, bool)])
+    order = np.argsort(pos, kind="stable")  # runs are RUN_GAP apart, so positions order the whole stream
+    return EdgeStream(t=t[order], index=index[order], pos=pos[order], run=run[order],
+                      half_bit_samples=es.half_bit_samples, virtual=virtual[order])
+
+
 def find_frames(es: EdgeStream) -> RawFrames:
-    """Every complete 80-bit frame (forward or reverse) in the edge stream."""
+    """Every 80-bit frame (forward or reverse) whose sync word is in the edge stream: complete frames, and
+    partial ones cut by the start (forward) or end (reverse) of their run."""
     par = parity_of_runs(es)
     boundary = np.flatnonzero((par >= 0) & (es.pos % 2 == par))
-    empty = RawFrames(bits=np.zeros((0, N_BITS), np.uint8), start_edge=np.zeros(0, np.int64),
-                      end_edge=np.zeros(0, np.int64), reverse=np.zeros(0, bool))
-    if boundary.size < N_BITS + 1:
+    z = np.zeros(0, np.int64)
+    empty = RawFrames(bits=np.zeros((0, N_BITS), np.uint8), start_edge=z, end_edge=z, reverse=z.astype(bool),
+                      start_pos=z, missing=z, known=np.zeros((0, N_BITS), bool))
+    if boundary.size < 17:
         return empty
     # a bit lies between consecutive boundary edges of one run, two half-bits apart
     b0, b1 = boundary[:-1], boundary[1:]
@@ -184,25 +236,37 @@ def find_frames(es: EdgeStream) -> RawFrames:
     # give each contiguous stretch of good bits its own id so no frame spans a gap
     seg = np.cumsum(np.concatenate([[0], ~ok[1:] | ~ok[:-1]]))
     seg = np.where(ok, seg, -1 - np.arange(len(ok)))
-    if len(bit) < 16:
-        return empty
-    codes = np.zeros(len(bit) - 15, np.int64)
+    nbit = len(bit)
+    ar_b = np.arange(nbit)
+    opens = np.concatenate([[True], seg[1:] != seg[:-1]])
+    closes = np.concatenate([seg[1:] != seg[:-1], [True]])
+    first_of = np.maximum.accumulate(np.where(opens, ar_b, 0))  # first bit of each bit's stretch
+    last_of = np.minimum.accumulate(np.where(closes, ar_b, nbit)[::-1])[::-1]
+    codes = np.zeros(nbit - 15, np.int64)
     for k in range(16):  # 16-bit word starting at each bit, first bit most significant
-        codes = (codes << 1) | bit[k:len(bit) - 15 + k]
+        codes = (codes << 1) | bit[k:nbit - 15 + k]
     same16 = seg[:-15] == seg[15:]
     fwd = np.flatnonzero((codes == SYNC_CODE) & same16)
-    fwd = fwd[fwd >= 64]
-    fwd = fwd[seg[fwd - 64] == seg[fwd]]
     rev = np.flatnonzero((codes == REVERSE_SYNC_CODE) & same16)
-    rev = rev[rev + N_BITS <= len(bit)]
-    rev = rev[seg[rev + N_BITS - 1] == seg[rev]]
     ar = np.arange(N_BITS)
-    f_first = fwd - 64
-    bits_f = bit[f_first[:, None] + ar]
-    bits_r = bit[rev[:, None] + ar][:, ::-1]
-    bits = np.concatenate([bits_f, bits_r])
-    start = np.concatenate([b0[f_first], b1[rev + N_BITS - 1]])
+    # forward: frame bit j is bit fwd - 64 + j; those before the segment's first bit are missing
+    miss_f = np.maximum(first_of[fwd] - (fwd - 64), 0)
+    idx_f = fwd[:, None] - 64 + ar
+    known_f = ar[None, :] >= miss_f[:, None]
+    bits_f = np.where(known_f, bit[np.clip(idx_f, 0, nbit - 1)], 0)
+    # reverse: frame bit 79 - i arrives as bit rev + i; those after the segment's last bit are missing
+    miss_r = np.maximum(rev + N_BITS - 1 - last_of[rev], 0)
+    idx_r = rev[:, None] + ar
+    known_r = (ar[None, :] <= (last_of[rev] - rev)[:, None])[:, ::-1]
+    bits_r = np.where(known_r, bit[np.clip(idx_r, 0, nbit - 1)][:, ::-1], 0)
+    start = np.concatenate([np.where(miss_f > 0, -1, b0[np.maximum(fwd - 64, 0)]),
+                            np.where(miss_r > 0, -1, b1[np.minimum(rev + N_BITS - 1, nbit - 1)])])
     end = np.concatenate([b1[fwd + 15], b0[rev]])
-    reverse = np.concatenate([np.zeros(len(fwd), bool), np.ones(len(rev), bool)])
-    order = np.argsort(np.minimum(start, end), kind="stable")
-    return RawFrames(bits=bits[order], start_edge=start[order], end_edge=end[order], reverse=reverse[order])
+    start_pos = np.concatenate([es.pos[b0[fwd]] - 2 * 64, es.pos[b0[rev]] + 2 * N_BITS])
+    first_t = np.concatenate([es.pos[b0[fwd]] - 2 * 64, es.pos[b0[rev]]])  # first bit on the wire
+    order = np.argsort(first_t, kind="stable")
+    return RawFrames(bits=np.concatenate([bits_f, bits_r]).astype(np.uint8)[order], start_edge=start[order],
+                     end_edge=end[order], reverse=np.concatenate([np.zeros(len(fwd), bool),
+                                                                  np.ones(len(rev), bool)])[order],
+                     start_pos=start_pos[order], missing=np.concatenate([miss_f, miss_r])[order],
+                     known=np.concatenate([known_f, known_r])[order])

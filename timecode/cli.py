@@ -4,6 +4,7 @@ The decoder and the sync pipeline are imported inside the commands, so `timecode
 """
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import typer
@@ -25,31 +26,44 @@ def _root() -> None:
 
 @app.command()
 def decode(
-    file: str = typer.Argument(..., help="Audio file with LTC: WAV, FLAC, AIFF, ... or a headerless raw file "
-                                         "(then give --raw-format and --raw-rate)."),
+    files: list[str] = typer.Argument(..., help="Audio files with LTC, or folders of them (their WAV, FLAC, AIFF, "
+                                      "... files, by name; not recursing): WAV, FLAC, AIFF, ... or headerless raw "
+                                      "files (then give --raw-format and --raw-rate)."),
     channel: str = typer.Option("all", "--channel", "-c", help="Channel to decode: 0 = first (left), 1 = second, "
                                 "...; 'all' decodes every channel (an error only if none holds LTC)."),
     fps: str = typer.Option("auto", "--fps", help="Frame rate: auto (detected from the labels and the frame "
-                            "length), 24, 25, 29.97df (drop frame), 29.97, 30 or 23.976."),
+                            "length), 24, 25, 29.97df (drop frame), 29.97, 30 or 23.976. A rate the LTC "
+                            "contradicts (labels counting to another number, drop-frame bit) is refused."),
     fmt: str = typer.Option("table", "--format", "-f", help="table (for people), csv or json (one record per "
-                            "frame: label, direction, start/end in samples, user bits, flags, level, jitter)."),
+                            "frame: file, channel, label, direction, start/end in samples, user bits, flags, "
+                            "level, jitter, reading (square or impulses), extrapolated edge)."),
     raw_format: str = typer.Option(None, "--raw-format", help="Headerless file sample format: u8 (unsigned "
                                    "8-bit, e.g. libltc's test file), s8, s16, s16be, s32, f32 or f64."),
     raw_rate: int = typer.Option(None, "--raw-rate", help="Headerless file sample rate in Hz, e.g. 22050."),
     raw_channels: int = typer.Option(1, "--raw-channels", help="Headerless file interleaved channel count."),
     output: str = typer.Option(None, "--output", "-o", help="Write to this file (atomically) instead of stdout."),
 ) -> None:
-    """Decode SMPTE LTC from an audio file: every frame's label, user bits, flags and direction, and the
-    time of its first edge in samples with sub-sample precision (start_samples; start_s = seconds)."""
+    """Decode SMPTE LTC from audio files: every frame's label, user bits, flags and direction, and the time of
+    its first edge in samples with sub-sample precision (start_samples; start_s = seconds). Several files or a
+    folder make one table with a file column; a file that fails is one line on stderr, the others go on, and
+    the exit code is then 1."""
     from timecode.decode_command import raw_format as make_raw, run_decode
 
-    text = run_decode(Path(file), channel=channel, fps=fps, fmt=fmt, raw=make_raw(raw_format, raw_rate, raw_channels))
-    if output:
-        from dome_calib.io_utils import atomic_write_text
+    result = run_decode([Path(f) for f in files], channel=channel, fps=fps, fmt=fmt,
+                        raw=make_raw(raw_format, raw_rate, raw_channels))
+    for line in result.warnings:
+        print(f"timecode: warning: {line}", file=sys.stderr)
+    for line in result.failures:
+        print(f"timecode: error: {line}", file=sys.stderr)
+    if result.n_decoded:
+        if output:
+            from dome_calib.io_utils import atomic_write_text
 
-        atomic_write_text(output, text)
-    else:
-        typer.echo(text, nl=False)
+            atomic_write_text(output, result.text)
+        else:
+            typer.echo(result.text, nl=False)
+    if result.failures:
+        raise typer.Exit(1)
 
 
 @app.command()

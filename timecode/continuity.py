@@ -1,8 +1,9 @@
 """Frame-rate detection and label continuity of decoded frames.
 
 Rate: the label rate (24, 25 or 30 frames per labelled second) comes from the frame number at which labels
-wrap to the next second (or the largest frame number seen); drop frame from the DF flag; 1000/1001 or
-integer from the measured frame period (0.1 % apart, far more than any generator's clock error).
+wrap to the next second (without a wrap, from the rates whose labels reach the largest frame number seen, the
+frame period choosing); drop frame from the DF flag; 1000/1001 or integer from the measured frame period
+(0.1 % apart, far more than any generator's clock error).
 
 Continuity: a frame continues the previous one when its label equals the previous label plus the number
 of frame periods elapsed between them (in the play direction), so frames lost to noise are not jumps but
@@ -14,6 +15,7 @@ one-frame excursion is not reported.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -37,6 +39,40 @@ def mean_period(start_samples: npt.NDArray[np.float64], period_samples: npt.NDAr
     return float(np.median(period_samples))
 
 
+@dataclass(frozen=True, kw_only=True)
+class RateEvidence:
+    """What decoded frames say about their rate."""
+
+    nominal: int | None  # labels per second, from where they wrap to the next second (None: no wrap seen)
+    top_frame: int  # largest frame number seen
+    drop_frame: bool  # the DF bit is set in most frames
+    fps_measured: float  # frames per second from the frame period
+    period_samples: float
+
+
+def rate_evidence(hmsf: npt.NDArray[np.int64], dfbit: npt.NDArray[np.bool_], period_samples: npt.NDArray[np.float64],
+                  contiguous_next: npt.NDArray[np.bool_], sample_rate: float,
+                  start_samples: npt.NDArray[np.float64] | None = None) -> RateEvidence:
+    """Label wraps, largest frame number, DF majority and measured rate of frames in time order (see
+    ``detect_rate`` for the arguments)."""
+    period = (mean_period(start_samples, period_samples, contiguous_next) if start_samples is not None
+              else float(np.median(period_samples)))
+    nominal: int | None = None
+    k = np.flatnonzero(contiguous_next[:-1])
+    sec = (hmsf[:, 0] * 60 + hmsf[:, 1]) * 60 + hmsf[:, 2]
+    step = np.abs(sec[k + 1] - sec[k])
+    next_second = (step == 1) | (step == 86399)  # (midnight)
+    # a wrap: frame 0 of a second next to the last frame of the one before (either play direction)
+    wraps = k[next_second & (hmsf[k + 1, 3] == 0) & (hmsf[k, 3] > 0)]
+    rev_wraps = k[next_second & (hmsf[k, 3] == 0) & (hmsf[k + 1, 3] > 0)]
+    last = np.concatenate([hmsf[wraps, 3], hmsf[rev_wraps + 1, 3]])  # the last frame of a second
+    if last.size:
+        nominal = int(np.argmax(np.bincount(last + 1)))
+    return RateEvidence(nominal=nominal, top_frame=int(np.max(hmsf[:, 3])) if len(hmsf) else -1,
+                        drop_frame=bool(np.mean(dfbit) > 0.5), fps_measured=sample_rate / period,
+                        period_samples=period)
+
+
 def detect_rate(hmsf: npt.NDArray[np.int64], dfbit: npt.NDArray[np.bool_], period_samples: npt.NDArray[np.float64],
                 contiguous_next: npt.NDArray[np.bool_], sample_rate: float,
                 start_samples: npt.NDArray[np.float64] | None = None) -> FrameRate:
@@ -50,27 +86,45 @@ def detect_rate(hmsf: npt.NDArray[np.int64], dfbit: npt.NDArray[np.bool_], perio
         sample_rate: samples per second.
         start_samples: (F,) frame start times (for a jitter-free period over chains of frames).
     """
-    period = (mean_period(start_samples, period_samples, contiguous_next) if start_samples is not None
-              else float(np.median(period_samples)))
-    fps_meas = sample_rate / period
-    drop = bool(np.mean(dfbit) > 0.5)
-    nominal: int | None = None
-    k = np.flatnonzero(contiguous_next[:-1])
-    wraps = k[(hmsf[k + 1, 3] == 0) & (hmsf[k, 3] > 0) & (hmsf[k + 1, 2] != hmsf[k, 2])]
-    if wraps.size:
-        votes = np.bincount(hmsf[wraps, 3] + 1)
-        nominal = int(np.argmax(votes))
-    elif len(hmsf):
-        top = int(np.max(hmsf[:, 3])) + 1
-        nominal = 30 if top > 25 else (25 if top == 25 else None)
-    candidates = [r for r in RATES.values() if r.drop_frame == drop and (nominal is None or r.nominal_fps == nominal)]
+    ev = rate_evidence(hmsf, dfbit, period_samples, contiguous_next, sample_rate, start_samples)
+    # the label rate from a wrap; without one (under a second of LTC), any rate whose labels reach the largest
+    # frame number seen, the frame period choosing
+    candidates = [r for r in RATES.values() if r.drop_frame == ev.drop_frame
+                  and (r.nominal_fps == ev.nominal if ev.nominal is not None else r.nominal_fps > ev.top_frame)]
     if not candidates:
-        candidates = [r for r in RATES.values() if r.drop_frame == drop] or list(RATES.values())
-    best = min(candidates, key=lambda r: abs(float(r.fps) - fps_meas))
-    if abs(float(best.fps) / fps_meas - 1) > 0.02:
+        candidates = [r for r in RATES.values() if r.drop_frame == ev.drop_frame] or list(RATES.values())
+    best = min(candidates, key=lambda r: abs(float(r.fps) - ev.fps_measured))
+    if abs(float(best.fps) / ev.fps_measured - 1) > 0.02:
         logger.info("frame period %.2f samples is %.1f %% off %s fps (speed change or varispeed)",
-                    period, 100 * (fps_meas / float(best.fps) - 1), best)
+                    ev.period_samples, 100 * (ev.fps_measured / float(best.fps) - 1), best)
     return best
+
+
+#: Without a label wrap to go by, a given rate is refused when the frames come this much faster or slower.
+MAX_SPEED_OFF = 0.15
+
+
+def rate_contradiction(rate: FrameRate, ev: RateEvidence) -> str | None:
+    """Why the bit stream contradicts ``rate`` (one line), or None if it is consistent with it.
+
+    Contradictions: the labels wrap at another frame count, or count past the rate's last frame; the
+    drop-frame bit disagrees (29.97 DF vs the others); with no wrap seen (under a second of LTC), the frames
+    come over ``MAX_SPEED_OFF`` faster or slower than the rate (where labels wrap, speed is not held against a
+    rate: varispeed and shuttle are allowed). 29.97 against 30 (and 23.976 against 24) is not decided here:
+    0.1 % is as much as a speed change, so that choice is the caller's.
+    """
+    if ev.nominal is not None and ev.nominal != rate.nominal_fps:
+        return (f"its labels count {ev.nominal} frames a second (frame numbers wrap after {ev.nominal - 1}), "
+                f"not {rate.nominal_fps}")
+    if ev.top_frame >= rate.nominal_fps:
+        return f"its labels reach frame {ev.top_frame}, past the last frame {rate.nominal_fps - 1} of {rate} fps"
+    if ev.drop_frame != rate.drop_frame:
+        return (f"its drop-frame bit is {'set' if ev.drop_frame else 'clear'}, and {rate} fps is "
+                f"{'' if rate.drop_frame else 'not '}drop frame")
+    off = ev.fps_measured / float(rate.fps) - 1
+    if ev.nominal is None and abs(off) > MAX_SPEED_OFF:
+        return f"its frames come at {ev.fps_measured:.2f} per second, {100 * off:+.0f} % off {rate} fps"
+    return None
 
 
 def continuity(counts: npt.NDArray[np.int64], reverse: npt.NDArray[np.bool_], mid_samples: npt.NDArray[np.float64],

@@ -2,13 +2,15 @@
 from __future__ import annotations
 
 import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
-from timecode.audio_io import AudioReader, RawFormat, RawSampleFormat
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from timecode.decoder import DecodeOptions, decode_file
+from timecode.audio_io import AudioReader, RawFormat, RawSampleFormat
+from timecode.decoder import DecodeOptions, RateMismatchError, decode_file
 from timecode.errors import NoLTCError, TimecodeError
 from timecode.formats import OutputFormat, render
 from timecode.rates import FrameRate, parse_rate
@@ -50,23 +52,80 @@ def raw_format(sample_format: str | None, rate: int | None, channels: int) -> Ra
     return RawFormat(sample_format=fmt, sample_rate=rate, channels=channels)
 
 
-def run_decode(path: Path, *, channel: str, fps: str, fmt: str, raw: RawFormat | None) -> str:
-    """Decode ``path`` and return the rendered output; raises NoLTCError if a requested channel has none."""
+#: File name endings read from a folder (libsndfile's formats; ``.raw`` too with --raw-format).
+AUDIO_SUFFIXES = (".wav", ".wave", ".bwf", ".rf64", ".w64", ".flac", ".aif", ".aiff", ".aifc", ".caf", ".au",
+                  ".snd", ".ogg", ".oga", ".opus", ".mp3")
+
+
+@dataclass(kw_only=True)
+class BatchResult:
+    """What ``run_decode`` made: the rendered output of the files that decoded, and one line per file that
+    did not."""
+
+    text: str
+    n_decoded: int
+    failures: list[str]
+    warnings: list[str]
+
+
+def input_files(inputs: Sequence[Path], raw: RawFormat | None) -> tuple[list[Path], bool]:
+    """The files to decode: each file as given, each folder's audio files (by name, not recursing), and whether
+    this is a batch (a folder, or more than one input)."""
+    files: list[Path] = []
+    suffixes = AUDIO_SUFFIXES + ((".raw", ".pcm") if raw is not None else ())
+    for p in inputs:
+        if p.is_dir():
+            found = sorted((f for f in p.iterdir() if f.is_file() and f.suffix.lower() in suffixes),
+                           key=lambda f: f.name)
+            if not found:
+                raise UsageError(f"{p}: the folder holds no audio file ({', '.join(suffixes)})")
+            files.extend(found)
+        else:
+            files.append(p)
+    return files, len(inputs) > 1 or any(p.is_dir() for p in inputs)
+
+
+def run_decode(inputs: Sequence[Path], *, channel: str, fps: str, fmt: str, raw: RawFormat | None) -> BatchResult:
+    """Decode every input file (folders: their audio files) into one output; a file that fails is one line in
+    ``failures`` and the others go on. A single input keeps the single-file JSON layout."""
     try:
         out_fmt = OutputFormat(fmt.lower())
     except ValueError:
         raise UsageError(f"--format must be one of {', '.join(f.value for f in OutputFormat)}, got {fmt!r}") from None
     rate = parse_fps(fps)
+    files, batch = input_files(inputs, raw)
+    done: list[tuple[str, list]] = []
+    failed: list[tuple[str, str]] = []
+    warnings: list[str] = []
+    for path in files:
+        try:
+            result = _decode_one(path, channel=channel, rate=rate, raw=raw)
+        except TimecodeError as exc:
+            msg = str(exc).splitlines()[0]
+            failed.append((str(path), msg if msg.startswith(str(path)) else f"{path}: {msg}"))
+            continue
+        done.append((str(path), result))
+        warnings += [f"{path} channel {ch.channel}: {ch.n_nonfinite} NaN or infinite samples read as gaps "
+                     "(interpolated over)" for ch in result if ch.n_nonfinite]
+    text = render(done, out_fmt, failed, batch) if done else ""
+    return BatchResult(text=text, n_decoded=len(done), failures=[m for _, m in failed], warnings=warnings)
+
+
+def _decode_one(path: Path, *, channel: str, rate: FrameRate | None, raw: RawFormat | None) -> list:
+    """The channels of one file; raises a TimecodeError (no LTC on a requested channel, unreadable, ...)."""
     with AudioReader(path, raw) as reader:
         info = reader.info
     chans = parse_channels(channel, info.channels)
-    result = _decode_with_progress(path, DecodeOptions(rate=rate), chans, raw, info.frames)
+    try:
+        result = _decode_with_progress(path, DecodeOptions(rate=rate), chans, raw, info.frames)
+    except RateMismatchError as exc:
+        raise RateMismatchError(f"{path}: {exc} (leave --fps auto to detect the rate)") from None
     found = [ch for ch in result if len(ch)]
     if chans is not None and not found:
         raise NoLTCError(f"{path}: no LTC found on channel {chans[0]}")
     if not found:
         raise NoLTCError(f"{path}: no LTC found on any of its {info.channels} channel(s)")
-    return render(result, out_fmt, str(path))
+    return result
 
 
 def _decode_with_progress(path: Path, options: DecodeOptions, channels: list[int] | None, raw: RawFormat | None,

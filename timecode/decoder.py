@@ -1,8 +1,10 @@
 """LTC decoder: audio (file or array, any rate 8-192 kHz, every channel) -> frames with sub-sample times.
 
-Pipeline per channel: blocks of ~20 s with overlap -> ``edges.find_edges`` (sub-sample edge times, DC,
-AC coupling, spikes and level handled there) -> ``bits.edge_stream`` / ``bits.find_frames`` (biphase
-decoding with speed tracking, forward and reverse sync words) -> label validation, rate detection and
+Pipeline per channel: blocks of ~20 s with overlap (NaN/inf samples interpolated over; below 16 kHz the
+band-limited interpolation at twice the rate) -> ``edges.find_edges`` (sub-sample edge times, each stat block
+read as a square wave or an impulse train, whichever fits; DC, AC coupling, spikes and level handled there) ->
+``assemble.decode_edges``: ``bits.edge_stream`` / ``bits.find_frames`` (biphase decoding with speed tracking,
+forward and reverse sync words, frames at the edges of the audio) -> label validation, rate detection and
 continuity (``continuity``) -> frame times from the local bit clock (``bitclock``).
 
 Example:
@@ -20,16 +22,13 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+from scipy.signal import resample_poly
 
+from timecode.assemble import RateMismatchError, decode_edges, pole_to_tau
 from timecode.audio_io import AudioReader, RawFormat, to_float32
-from timecode.bits import edge_stream, find_frames
-from timecode.bitclock import fit_frame_times
-from timecode.continuity import continuity, detect_rate
 from timecode.droop import Droop
 from timecode.edges import block_droop, edge_params, find_edges
 from timecode.errors import TimecodeError
-from timecode.frame import bgf_bits, unpack_bits
-from timecode.labels import labels_to_frames, labels_valid
 from timecode.rates import FrameRate
 from timecode.result import ChannelDecode
 
@@ -46,7 +45,7 @@ class DecodeError(TimecodeError, ValueError):
 class DecodeOptions:
     """Decoder settings; the defaults suit every supported sample rate."""
 
-    rate: FrameRate | None = None  # None: detect from labels and frame period
+    rate: FrameRate | None = None  # None: detect from labels and frame period; else refused if the LTC is not
     smooth_sigma_samples: float | None = None  # Gaussian smoothing before timing (default ~0.1 half-bit)
     block_seconds: float = 20.0  # audio processed per step (memory ~ 30 bytes x samples x channels)
     ac_coupling: bool = True  # fit and undo an input high-pass (droop)
@@ -103,24 +102,35 @@ def _decode(blocks, n_samples: int, n_channels: int, fs: int, opts: DecodeOption
     for c in chans:
         if not 0 <= c < n_channels:
             raise DecodeError(f"channel {c} does not exist (channels count from 0; the audio has {n_channels})")
-    params = edge_params(fs, opts.smooth_sigma_samples)
-    block = max(int(opts.block_seconds * fs) // params.stat_block, 4) * params.stat_block
-    margin = 8 * params.stat_block
-    droops: dict[int, Droop | None] = {c: (None if opts.ac_coupling else Droop(corner_hz=0.0, sample_rate=fs))
+    up = upsample_factor(fs)
+    params = edge_params(fs * up, None if opts.smooth_sigma_samples is None else opts.smooth_sigma_samples * up)
+    stat = params.stat_block // up  # samples of the file per stat block
+    block = max(int(opts.block_seconds * fs) // stat, 4) * stat
+    margin = 8 * stat
+    droops: dict[int, Droop | None] = {c: (None if opts.ac_coupling else Droop(corner_hz=0.0, sample_rate=fs * up))
                                        for c in chans}
     parts: dict[int, list[tuple[npt.NDArray, ...]]] = {c: [] for c in chans}
+    poles: dict[int, list[float]] = {c: [] for c in chans}
+    nonfinite = dict.fromkeys(chans, 0)
 
     def one_channel(c: int, data: npt.NDArray, d0: int, core0: int, core1: int) -> None:
         x = to_float32(np.ascontiguousarray(data[:, c]))
+        bad = ~np.isfinite(x)
+        if bad.any():
+            nonfinite[c] += int(bad[core0 - d0:core1 - d0].sum())
+            x = fill_gaps(x, bad)
+        x = upsample(x, up)
         if droops[c] is None:
-            excerpt = x[max(0, (len(x) - 2 * fs) // 2):][: 2 * fs]
+            excerpt = x[max(0, (len(x) - 2 * fs * up) // 2):][: 2 * fs * up]
             droops[c] = block_droop(excerpt, params)
             if droops[c] is not None and droops[c].active:
                 logger.info("channel %d: AC coupling near %.1f Hz detected and undone", c, droops[c].corner_hz)
         be = find_edges(x, params, droops[c])
-        t = be.t + d0
+        t = be.t / up + d0
         keep = (t >= core0 - 0.5) & (t < core1 - 0.5)
-        parts[c].append((t[keep], be.rising[keep], be.amplitude[keep]))
+        parts[c].append((t[keep], be.rising[keep], be.amplitude[keep], be.impulse[keep]))
+        if be.impulse[keep].any():
+            poles[c].append(be.pole ** (1.0 / up))
 
     workers = max(1, min(len(chans), opts.threads or os.cpu_count() or 1))
     with ThreadPoolExecutor(max_workers=workers) as pool:  # numpy releases the GIL in the heavy loops
@@ -130,15 +140,43 @@ def _decode(blocks, n_samples: int, n_channels: int, fs: int, opts: DecodeOption
                 progress(core1, n_samples)
 
     def finish(c: int) -> ChannelDecode:
-        t = np.concatenate([p[0] for p in parts[c]]) if parts[c] else np.zeros(0)
-        rising = np.concatenate([p[1] for p in parts[c]]) if parts[c] else np.zeros(0, bool)
-        amp = np.concatenate([p[2] for p in parts[c]]) if parts[c] else np.zeros(0, np.float32)
+        t, rising, amp, imp = ((np.concatenate(a) for a in zip(*parts[c])) if parts[c] else
+                               (np.zeros(0), np.zeros(0, bool), np.zeros(0, np.float32), np.zeros(0, bool)))
         dr = droops[c]
-        return decode_edges(t, rising, amp, fs, channel=c, rate=opts.rate,
-                            ac_coupling_hz=dr.corner_hz if dr is not None and dr.active else 0.0)
+        return decode_edges(t, rising, amp, fs, impulse=imp, n_samples=n_samples, channel=c, rate=opts.rate,
+                            ac_coupling_hz=dr.corner_hz if dr is not None and dr.active else 0.0,
+                            impulse_tau_samples=pole_to_tau(poles[c]), n_nonfinite=nonfinite[c],
+                            edge_margin_samples=(2 * params.sigma_samples + 2) / up)
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
         return list(pool.map(finish, chans))
+
+
+def fill_gaps(x: npt.NDArray[np.float32], bad: npt.NDArray[np.bool_]) -> npt.NDArray[np.float32]:
+    """``x`` with its non-finite samples (``bad``) replaced by straight lines between the finite samples around
+    them: a lone NaN costs nothing, a long run of them is a gap without transitions. All bad: zeros."""
+    good = np.flatnonzero(~bad)
+    y = x.copy()
+    if good.size == 0:
+        y[:] = 0.0
+        return y
+    where = np.flatnonzero(bad)
+    y[where] = np.interp(where, good, x[good].astype(np.float64)).astype(np.float32)
+    return y
+
+
+def upsample_factor(sample_rate: int) -> int:
+    """2 below 16 kHz, else 1. At 8-12 kHz a half-bit is 1.7-3 samples: the edge finder then works on the
+    band-limited interpolation at twice the rate, which shows each half-bit's level whatever the sampling
+    phase (the samples of a 1.7-sample pulse can all sit near its edges)."""
+    return 2 if sample_rate < 16000 else 1
+
+
+def upsample(x: npt.NDArray[np.float32], up: int) -> npt.NDArray[np.float32]:
+    """Band-limited interpolation by ``up`` (sample k of the result is at k / up input samples); ends held."""
+    if up == 1:
+        return x
+    return resample_poly(x, up, 1, padtype="edge").astype(np.float32, copy=False)
 
 
 def _prefetch(blocks: Iterator[tuple]) -> Iterator[tuple]:
@@ -154,66 +192,4 @@ def _prefetch(blocks: Iterator[tuple]) -> Iterator[tuple]:
             yield item
 
 
-def decode_edges(t: npt.NDArray[np.float64], rising: npt.NDArray[np.bool_], amplitude: npt.NDArray[np.float32],
-                 sample_rate: int, *, channel: int = 0, rate: FrameRate | None = None,
-                 ac_coupling_hz: float = 0.0) -> ChannelDecode:
-    """Frames from one channel's sorted edge times: bits, sync, labels, rate, continuity, clock fit."""
-    empty = ChannelDecode(channel=channel, sample_rate=sample_rate, rate=rate, n_edges=len(t),
-                          ac_coupling_hz=ac_coupling_hz)
-    if len(t) > 1:
-        # two edges closer than a tenth of the shortest half-bit cannot both be LTC (block seams)
-        close = np.diff(t) < 0.1 * sample_rate / (2 * 2760.0)
-        if close.any():
-            drop = np.concatenate([[False], close]) | np.concatenate([close, [False]])
-            t, rising, amplitude = t[~drop], rising[~drop], amplitude[~drop]
-    es = edge_stream(t, rising, sample_rate)
-    if es is None:
-        return empty
-    raw = find_frames(es)
-    fields = unpack_bits(raw.bits)
-    ok = fields.sync_ok & fields.bcd_ok
-    n_found = len(ok)
-    hmsf, bits = fields.hmsf[ok], fields.bits[ok]
-    start_e, end_e, reverse = raw.start_edge[ok], raw.end_edge[ok], raw.reverse[ok]
-    ub, parity = fields.user_bits[ok], fields.parity_ok[ok]
-    if len(hmsf) == 0:
-        empty.n_rejected = n_found
-        return empty
-    period = np.abs(es.t[end_e] - es.t[start_e])
-    contiguous = np.concatenate([(end_e[:-1] == start_e[1:]) & (reverse[:-1] == reverse[1:]), [False]])
-    if rate is None:
-        rate = detect_rate(hmsf, bits[:, 10].astype(bool), period, contiguous, sample_rate, es.t[start_e])
-    valid = labels_valid(hmsf, rate)
-    hmsf, bits, start_e, end_e, reverse, ub, parity, period = (
-        a[valid] for a in (hmsf, bits, start_e, end_e, reverse, ub, parity, period))
-    counts = labels_to_frames(hmsf, rate)
-    mid = (es.t[start_e] + es.t[end_e]) / 2
-    keep, disc = continuity(counts, reverse, mid, period, rate.frames_per_day)
-    hmsf, bits, start_e, end_e, reverse, ub, parity, counts, disc = (
-        a[keep] for a in (hmsf, bits, start_e, end_e, reverse, ub, parity, counts, disc))
-    n_rejected = n_found - len(counts)
-    if len(counts) == 0:
-        empty.rate, empty.n_rejected = rate, n_rejected
-        return empty
-    # clock-fit segments: never across a discontinuity (runs are already apart in position)
-    seg = np.cumsum(disc) - 1
-    p_lo = np.minimum(es.pos[start_e], es.pos[end_e])
-    p_hi = np.maximum(es.pos[start_e], es.pos[end_e])
-    nseg = int(seg[-1]) + 1
-    seg_lo = np.full(nseg, np.iinfo(np.int64).max)
-    seg_hi = np.full(nseg, np.iinfo(np.int64).min)
-    np.minimum.at(seg_lo, seg, p_lo)
-    np.maximum.at(seg_hi, seg, p_hi)
-    start, end, rms = fit_frame_times(es.t, es.pos, start_e, end_e, seg_lo[seg], seg_hi[seg], es.half_bit_samples)
-    i0, i1, i2 = bgf_bits(rate.is_25_layout)
-    amp_e = amplitude[es.index[start_e]].astype(np.float64)
-    return ChannelDecode(
-        channel=channel, sample_rate=sample_rate, rate=rate, labels=hmsf, frame_numbers=counts, user_bits=ub,
-        drop_frame=bits[:, 10].astype(bool), color_frame=bits[:, 11].astype(bool),
-        bgf=bits[:, [i0, i1, i2]].astype(bool), parity_ok=parity, reverse=reverse,
-        start_samples=start, end_samples=end,
-        level_dbfs=20 * np.log10(np.maximum(amp_e, 1e-12)),
-        jitter_us=rms / sample_rate * 1e6, discontinuity=disc,
-        n_edges=len(t), n_rejected=n_rejected, ac_coupling_hz=ac_coupling_hz,
-    )
-
+__all__ = ["DecodeError", "DecodeOptions", "RateMismatchError", "decode_edges", "decode_file", "decode_samples"]

@@ -14,6 +14,9 @@ Steps, all vectorised over the block (one channel):
 6. Fine time: in the window before each flip, the zero of (smoothed - baseline) at a steep step, from a
    cubic through four samples (Newton from the linear estimate); where the baseline is not crossed at a
    steep step (heavily high-passed or clipped audio), the steepest point of the transition.
+7. The reading per stat block (``_choose``): the square wave above where its edges keep the LTC half-bit pattern
+   and it explains at least ``SQUARE_FIT`` of the block's variance; else an impulse train (``impulses``: a
+   differentiating recorder input) where that reading keeps the pattern; else the nearest block's reading.
 
 Times are in samples from the start of the block (0.0 = the first sample).
 """
@@ -28,10 +31,14 @@ from scipy.ndimage import maximum_filter1d, median_filter
 
 from timecode.audio_io import to_float32
 from timecode.droop import Droop, compensate, estimate_droop
+from timecode.bits import half_bit_estimate
+from timecode.impulses import find_impulses, impulses_readable
 
 #: Highest and lowest LTC bit rates considered (30 fps +15 %, 23.976 fps -15 %), bits per second.
 MAX_BIT_RATE = 30 * 80 * 1.15
 MIN_BIT_RATE = 23.976 * 80 * 0.85
+#: A stat block is read as a square wave only if the square wave explains this much of its variance.
+SQUARE_FIT = 0.7
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -44,6 +51,7 @@ class EdgeParams:
     search_samples: int  # how far before a Schmitt flip the steepest step is searched
     hysteresis: float = 0.15  # Schmitt thresholds at mid +- this fraction of the half swing
     clip_factor: float = 1.6
+    impulses: bool = True  # read impulse trains too (``impulses.impulses_readable``)
 
 
 def edge_params(sample_rate: float, sigma_samples: float | None = None) -> EdgeParams:
@@ -53,7 +61,8 @@ def edge_params(sample_rate: float, sigma_samples: float | None = None) -> EdgeP
     sigma = sigma_samples if sigma_samples is not None else min(0.18 * half_bit, max(0.85, 0.1 * half_bit))
     stat_block = 1 << max(6, round(math.log2(sample_rate * 0.008)))
     search = max(3, int(math.ceil(2.0 * math.hypot(sigma, 0.85))) + 1)
-    return EdgeParams(sample_rate=sample_rate, sigma_samples=sigma, stat_block=stat_block, search_samples=search)
+    return EdgeParams(sample_rate=sample_rate, sigma_samples=sigma, stat_block=stat_block, search_samples=search,
+                      impulses=impulses_readable(sample_rate))
 
 
 @dataclass(kw_only=True)
@@ -62,16 +71,29 @@ class BlockEdges:
 
     t: npt.NDArray[np.float64]
     rising: npt.NDArray[np.bool_]
-    amplitude: npt.NDArray[np.float32]  # peak level around the edge (half the 2nd-98th percentile swing)
+    amplitude: npt.NDArray[np.float32]  # peak level around the edge (half swing, or the impulse's height)
+    impulse: npt.NDArray[np.bool_]  # read from an impulse train (else from a square wave)
+    pole: float = float("nan")  # the impulse stretches' input pole a = exp(-1 / tau) (nan: none fitted)
 
     @classmethod
     def empty(cls) -> BlockEdges:
-        return cls(t=np.zeros(0), rising=np.zeros(0, bool), amplitude=np.zeros(0, np.float32))
+        return cls(t=np.zeros(0), rising=np.zeros(0, bool), amplitude=np.zeros(0, np.float32),
+                   impulse=np.zeros(0, bool))
 
 
-def block_levels(x2d: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
-    """Mid level and half swing per row of (B, L) from the 2nd/98th percentiles, median-filtered over rows."""
-    sub = np.sort(x2d[:, ::4], axis=1)
+def _level_sample_index(n: int) -> npt.NDArray[np.int64]:
+    """About a quarter of a block's samples for the level percentiles, on every phase modulo 2, 3 and 4: a plain
+    stride of 4 sees one phase only of a signal with a 4-sample period (8 kHz LTC at 25 fps: a half-bit is 2
+    samples) and can miss one of its levels."""
+    i = np.arange(n // 4)
+    return 4 * i + i % 4
+
+
+def block_levels(x2d: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32],
+                                                        npt.NDArray[np.bool_]]:
+    """Mid level and half swing per row of (B, L) from the 2nd/98th percentiles, median-filtered over rows, and
+    which rows hold a two-level (square) signal of their own."""
+    sub = np.sort(x2d[:, _level_sample_index(x2d.shape[1])], axis=1)
     k = sub.shape[1]
     lo = sub[:, int(0.02 * k)]
     hi = sub[:, min(k - 1, int(0.98 * k))]
@@ -93,7 +115,7 @@ def block_levels(x2d: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.float32],
         lo, hi = lo[nearest], hi[nearest]
     if len(lo) >= 5:
         lo, hi = median_filter(lo, 5, mode="nearest"), median_filter(hi, 5, mode="nearest")
-    return (lo + hi) / 2, (hi - lo) / 2
+    return (lo + hi) / 2, (hi - lo) / 2, good
 
 
 def schmitt_edges(ys: npt.NDArray[np.float32], mid: npt.NDArray[np.float32], half: npt.NDArray[np.float32],
@@ -158,17 +180,46 @@ def _square_wave(c: npt.NDArray[np.int64], first_high: bool, n: int) -> npt.NDAr
 
 
 def baseline(ys2d: npt.NDArray[np.float32], sq2d: npt.NDArray[np.int8], mid: npt.NDArray[np.float32],
-             half: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """Per block least squares ys ~ offset + amp * sq; blocks without both levels keep the percentile mid."""
-    L = ys2d.shape[1]
+             half: npt.NDArray[np.float32], n: int | None = None) -> tuple[npt.NDArray[np.float64],
+                                                                     npt.NDArray[np.float64],
+                                                                     npt.NDArray[np.float64]]:
+    """Per block least squares ys ~ offset + amp * sq; blocks without both levels keep the percentile mid.
+    Also the fraction of each block's variance that the square wave explains (0 without both levels). Only the
+    first ``n`` samples count (the padding after the audio's end, a held sample, could be anywhere)."""
+    B, width = ys2d.shape
+    L = np.full(B, float(width))
+    if n is not None and n < B * width:
+        r = n - (B - 1) * width  # real samples in the last block
+        ys2d, sq2d = ys2d.copy(), sq2d.copy()
+        ys2d[-1, r:], sq2d[-1, r:], L[-1] = 0, 0, max(r, 1)
     s_y = ys2d.sum(axis=1, dtype=np.float64)
     s_q = sq2d.sum(axis=1, dtype=np.float64)
     s_yq = np.einsum("ij,ij->i", ys2d, sq2d.astype(np.float32), dtype=np.float64)
+    s_yy = np.einsum("ij,ij->i", ys2d, ys2d, dtype=np.float64)
     var_q = L - s_q * s_q / L
     ok = var_q > 0.2 * L
-    amp = np.where(ok, (s_yq - s_y * s_q / L) / np.where(ok, var_q, 1.0), half)
+    cov = s_yq - s_y * s_q / L
+    amp = np.where(ok, cov / np.where(ok, var_q, 1.0), half)
     off = np.where(ok, (s_y - amp * s_q) / L, mid)
-    return off, np.abs(amp)
+    var_y = s_yy - s_y * s_y / L
+    explained = np.where(ok & (var_y > 0), cov * amp / np.where(var_y > 0, var_y, 1.0), 0.0)
+    return off, np.abs(amp), explained
+
+
+def regular_blocks(t: npt.NDArray[np.float64], n_blocks: int, stat_block: int,
+                   sample_rate: float) -> npt.NDArray[np.bool_]:
+    """Stat blocks whose edges ``t`` (sorted, samples) are LTC-like: at least 4 intervals end in the block and
+    at least 80 % of them are one or two half-bits (+- 20 %) of the half-bit the edges show overall."""
+    d = np.diff(t)
+    h = half_bit_estimate(d, sample_rate)
+    if h is None:
+        return np.zeros(n_blocks, bool)
+    r = d / h
+    k = np.rint(r)
+    ok = ((k == 1) | (k == 2)) & (np.abs(r - k) < 0.2 * k)
+    blk = np.clip(t[1:].astype(np.int64) // stat_block, 0, n_blocks - 1)
+    total = np.bincount(blk, minlength=n_blocks)
+    return (total >= 4) & (np.bincount(blk, weights=ok, minlength=n_blocks) >= 0.8 * total)
 
 
 def refine_edges(ys: npt.NDArray[np.float32], win: tuple, base: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
@@ -212,38 +263,49 @@ def _cubic_root(gm, g0, g1, g2):
     return u
 
 
-def _condition(x: npt.ArrayLike, params: EdgeParams, droop: Droop | None):
-    """Float32 copy padded to whole stat blocks, spikes clipped, droop undone; with mids and half swings."""
+def _pad(x: npt.ArrayLike, params: EdgeParams) -> tuple[npt.NDArray[np.float32], int]:
+    """Float32 copy padded to whole stat blocks (with the last sample), and the count of real samples."""
     x = to_float32(np.asarray(x))
     n = len(x)
-    L = params.stat_block
-    nb = max(1, -(-n // L))
-    xp = np.empty(nb * L, dtype=np.float32)
+    nb = max(1, -(-n // params.stat_block))
+    xp = np.empty(nb * params.stat_block, dtype=np.float32)
     xp[:n] = x
     xp[n:] = x[-1] if n else 0.0
-    x2d = xp.reshape(nb, L)
-    mid, half = block_levels(x2d)
+    return xp, n
+
+
+def _condition(xp: npt.NDArray[np.float32], params: EdgeParams, droop: Droop | None, levels: tuple):
+    """Spikes clipped (in place) and droop undone in the padded ``xp``; with mids and half swings."""
+    L = params.stat_block
+    x2d = xp.reshape(-1, L)
+    mid, half, _ = levels
     lo, hi = mid - params.clip_factor * half, mid + params.clip_factor * half
     np.clip(x2d, lo[:, None], hi[:, None], out=x2d)
     if droop is not None and droop.active:
         xp = compensate(xp, droop).astype(np.float32, copy=False)
-        x2d = xp.reshape(nb, L)
-        mid, half = block_levels(x2d)
-    return xp, n, mid, half
+        mid, half, _ = block_levels(xp.reshape(-1, L))
+    return xp, mid, half
 
 
 def smooth(x: npt.NDArray[np.float32], sigma: float) -> npt.NDArray[np.float32]:
-    """Gaussian smoothing (kernel to 4 sigma, zero beyond the ends)."""
+    """Gaussian smoothing (kernel to 4 sigma; the end samples held beyond the ends, so an edge a few samples
+    into the audio is seen)."""
     r = max(1, int(math.ceil(4.0 * sigma)))
     kern = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
-    return np.convolve(x, (kern / kern.sum()).astype(np.float32), mode="same")
+    kern = (kern / kern.sum()).astype(np.float32)
+    y = np.convolve(x, kern, mode="same")
+    if len(x) > 4 * r:  # the ends again, with the end samples held (no copy of the whole block)
+        y[:r] = np.convolve(np.pad(x[:3 * r], r, mode="edge"), kern, mode="valid")[:r]
+        y[-r:] = np.convolve(np.pad(x[-3 * r:], r, mode="edge"), kern, mode="valid")[-r:]
+        return y
+    return np.convolve(np.pad(x, r, mode="edge"), kern, mode="valid")
 
 
 def _coarse(xp, n, mid, half, params):
     """Smoothed signal, transition windows (gathered) and, for the baseline fit, the steepest step of each."""
     ys = smooth(xp, params.sigma_samples)
     start, stop, rising = schmitt_edges(ys, mid, half, params)
-    ok = (stop < n - 3) & (start >= 2)
+    ok = (stop < n - 1) & (start >= 1)  # the cubic takes ys[c - 1 .. c + 2]; past n: the held last sample
     start, stop, rising = start[ok], stop[ok], rising[ok]
     if start.size == 0:
         return ys, (start, stop, rising, start, np.zeros((1, 0)), np.zeros((1, 0)))
@@ -252,27 +314,94 @@ def _coarse(xp, n, mid, half, params):
     return ys, (start, stop, rising, k, w, step)
 
 
-def find_edges(x: npt.ArrayLike, params: EdgeParams, droop: Droop | None = None) -> BlockEdges:
-    """Every LTC transition in one channel block ``x`` (1-D, any dtype, full scale 1.0 for floats)."""
-    xp, n, mid, half = _condition(x, params, droop)
+def _square_reading(xp: npt.NDArray[np.float32], n: int, params: EdgeParams, droop: Droop | None):
+    """The Schmitt-trigger reading of the padded ``xp`` (clipped in place): (edges, per-block fraction of the
+    variance a square wave explains, smoothed signal, transition windows)."""
     L = params.stat_block
-    nb = len(mid)
-    ys, win = _coarse(xp, n, mid, half, params)
+    nb = len(xp) // L
+    xc, mid, half = _condition(xp, params, droop, block_levels(xp.reshape(nb, L)))
+    ys, win = _coarse(xc, n, mid, half, params)
     rising, k = win[2], win[3]
     if k.size < 2:
-        return BlockEdges.empty()
+        return BlockEdges.empty(), np.zeros(nb), ys, win
     sq = _square_wave(k, not bool(rising[0]), nb * L)
-    off, amp = baseline(ys.reshape(nb, L), sq.reshape(nb, L), mid, half)
+    off, _, explained = baseline(ys.reshape(nb, L), sq.reshape(nb, L), mid, half, n)
     centres = (np.arange(nb) + 0.5) * L - 0.5
     base = np.interp(k + 0.5, centres, off)
     t = refine_edges(ys, win, base)
-    return BlockEdges(t=t, rising=rising, amplitude=np.interp(t, centres, half).astype(np.float32))
+    return (BlockEdges(t=t, rising=rising, amplitude=np.interp(t, centres, half).astype(np.float32),
+                       impulse=np.zeros(len(t), bool)), explained, ys, win)
+
+
+def _choose(square: BlockEdges, explained: npt.NDArray[np.float64], raw: npt.NDArray[np.float32] | None, n: int,
+            params: EdgeParams) -> tuple[BlockEdges, npt.NDArray[np.bool_]]:
+    """Per stat block, the reading that fits: the square wave where its edges are LTC-like and it explains at
+    least ``SQUARE_FIT`` of the variance (bipolar impulses give LTC-like Schmitt edges, but a square wave
+    explains little of them); else the impulse reading where its edges are LTC-like. Blocks where neither fits
+    (silence, noise, a dropout, where LTC starts) take the reading of the nearest block where one does (the
+    square wave on a tie, and everywhere when no impulse reading fits anywhere, as before impulses were read).
+    Returns the edges and which blocks were read as impulses."""
+    L = params.stat_block
+    nb = len(explained)
+    square_fit = (explained >= SQUARE_FIT) & regular_blocks(square.t, nb, L, params.sample_rate)
+    none = np.zeros(nb, bool)
+    if raw is None or square_fit.all():
+        return square, none
+    imp = _impulses_in(raw, n, ~square_fit, params)
+    impulse_fit = ~square_fit & regular_blocks(imp.t, nb, L, params.sample_rate)
+    if not impulse_fit.any():
+        return square, none
+    label = np.where(impulse_fit, 2, np.where(square_fit, 1, 0))
+    known = np.flatnonzero(label > 0)
+    rows = np.arange(nb)
+    j = np.searchsorted(known, rows)
+    after, before = known[np.clip(j, 0, len(known) - 1)], known[np.clip(j - 1, 0, len(known) - 1)]
+    d_b, d_a = np.abs(rows - before), np.abs(after - rows)
+    as_impulse = np.where(d_b < d_a, label[before] == 2,
+                          np.where(d_a < d_b, label[after] == 2, (label[before] == 2) & (label[after] == 2)))
+    in_imp = lambda t: as_impulse[np.clip(t.astype(np.int64) // L, 0, nb - 1)]  # noqa: E731
+    ks, ki = ~in_imp(square.t), in_imp(imp.t)
+    t = np.concatenate([square.t[ks], imp.t[ki]])
+    order = np.argsort(t, kind="stable")
+    cat = lambda a, b: np.concatenate([a[ks], b[ki]])[order]  # noqa: E731
+    return BlockEdges(t=t[order], rising=cat(square.rising, imp.rising), amplitude=cat(square.amplitude,
+                      imp.amplitude), impulse=cat(square.impulse, np.ones(len(imp.t), bool)), pole=imp.pole), as_impulse
+
+
+def _impulses_in(raw: npt.NDArray[np.float32], n: int, blocks: npt.NDArray[np.bool_], params: EdgeParams):
+    """``impulses.find_impulses`` on the stat blocks ``blocks`` and one block either side only (gathered into
+    one array, so the impulses of every stretch fit one input pole), times mapped back to ``raw``."""
+    L = params.stat_block
+    nb = len(blocks)
+    near = blocks.copy()
+    near[1:] |= blocks[:-1]
+    near[:-1] |= blocks[1:]
+    rows = np.flatnonzero(near)
+    sub = raw.reshape(nb, L)[rows].ravel()
+    n_sub = len(sub) - (nb * L - n if rows[-1] == nb - 1 else 0)
+    imp = find_impulses(sub, n_sub, blocks[rows], L, params.sample_rate, _level_sample_index(L))
+    k = np.minimum(imp.t.astype(np.int64) // L, len(rows) - 1)
+    imp.t = imp.t + (rows[k] - k) * L
+    return imp
+
+
+def find_edges(x: npt.ArrayLike, params: EdgeParams, droop: Droop | None = None) -> BlockEdges:
+    """Every LTC transition in one channel block ``x`` (1-D, any dtype, full scale 1.0 for floats), read per
+    stat block as a square wave (Schmitt trigger) or as an impulse train (``impulses``), whichever fits."""
+    xp, n = _pad(x, params)
+    raw = xp.copy() if params.impulses else None  # the square reading clips xp in place
+    square, explained, _, _ = _square_reading(xp, n, params, droop)
+    return _choose(square, explained, raw, n, params)[0]
 
 
 def block_droop(x: npt.ArrayLike, params: EdgeParams, edge_sigma_samples: float = 1.0) -> Droop | None:
-    """Fit the AC coupling of one channel on an excerpt ``x`` (~1-2 s); None if it holds too few edges."""
-    xp, n, mid, half = _condition(x, params, None)
-    ys, win = _coarse(xp, n, mid, half, params)
+    """Fit the AC coupling of one channel on an excerpt ``x`` (~1-2 s); None if it holds too few edges.
+    None is fitted (corner 0) where the excerpt is mostly read as an impulse train."""
+    xp, n = _pad(x, params)
+    raw = xp.copy() if params.impulses else None
+    square, explained, ys, win = _square_reading(xp, n, params, None)
+    if raw is not None and _choose(square, explained, raw, n, params)[1].mean() > 0.5:
+        return Droop(corner_hz=0.0, sample_rate=params.sample_rate)
     rising, c = win[2], win[3]
     if c.size < 200:
         return None

@@ -25,7 +25,7 @@ from fractions import Fraction
 
 import numpy as np
 import numpy.typing as npt
-from scipy.special import ndtr
+from scipy.special import log_ndtr, ndtr
 
 from timecode.errors import TimecodeError
 from timecode.frame import N_BITS, pack_bits
@@ -54,6 +54,11 @@ class EncoderOptions:
     tail_samples: int | None = None  # samples after the last edge (default: one frame)
     color_frame: bool = False
     bgf: tuple[bool, bool, bool] = (False, False, False)  # binary group flags BGF0, BGF1, BGF2
+    # what a field recorder or wireless receiver does to it (defaults: nothing)
+    highpass_tau_samples: float = 0.0  # one-pole high-pass of this time constant (1-4: every edge an impulse)
+    rectify: bool = False  # output |signal| (one-sign impulses; polarity carries nothing)
+    noise_snr_db: float | None = None  # white noise this far below the peak^2 of the signal (None: no noise)
+    noise_seed: int = 0
 
 
 @dataclass(kw_only=True)
@@ -165,7 +170,7 @@ def encode_ltc_labels(
         raise EncoderError(f"start_offset_samples {offset} leaves no room for the first edge "
                            f"(needs >= {6 * sigma:.2f})")
     amp = 10.0 ** (opts.level_dbfs / 20.0) * opts.polarity
-    samples = synthesize_edges(edges, n_samples, sigma, amp)
+    samples = recorded(edges, n_samples, sigma, amp, opts)
     return EncodedLTC(
         samples=samples, sample_rate=sample_rate, rate=rate, labels=hmsf, user_bits=ub, bits=bits,
         frame_start_samples=to_samples(start_u), frame_end_samples=to_samples(end_u),
@@ -197,6 +202,49 @@ def synthesize_edges(edges: npt.NDArray[np.float64], n_samples: int, sigma: floa
         ok = (idx >= 0) & (idx < n_samples)
         lo = int(idx[ok].min())
         acc = np.bincount((idx[ok] - lo), weights=corr[ok])
+        out[lo:lo + len(acc)] += acc
+    return out
+
+
+def recorded(edges: npt.NDArray[np.float64], n_samples: int, sigma: float, amp: float,
+             opts: EncoderOptions) -> npt.NDArray[np.float64]:
+    """The square wave of ``synthesize_edges`` as a recorder delivers it: high-passed (then its impulses peak
+    at ``|amp|``), rectified, with noise, as ``opts`` asks."""
+    if opts.highpass_tau_samples < 0:
+        raise EncoderError(f"highpass_tau_samples must be >= 0, got {opts.highpass_tau_samples}")
+    if opts.highpass_tau_samples > 0:
+        x = synthesize_highpassed_edges(edges, n_samples, sigma, 1.0, opts.highpass_tau_samples)
+        x *= abs(amp) / float(np.max(np.abs(x)))
+        x = x if amp > 0 else -x
+    else:
+        x = synthesize_edges(edges, n_samples, sigma, amp)
+    if opts.rectify:
+        x = np.abs(x)
+    if opts.noise_snr_db is not None:
+        x = x + np.random.default_rng(opts.noise_seed).normal(0.0, abs(amp) / 10 ** (opts.noise_snr_db / 20), x.size)
+    return x
+
+
+def synthesize_highpassed_edges(edges: npt.NDArray[np.float64], n_samples: int, sigma: float, amp: float,
+                                tau: float, chunk_edges: int = 1 << 16) -> npt.NDArray[np.float64]:
+    """The Gaussian-edged square wave of ``synthesize_edges`` through an analog one-pole high-pass of time
+    constant ``tau`` samples (what a differentiating recorder input does), sampled exactly: each edge of
+    height 2 amp at t_k becomes 2 amp g(n - t_k), g(x) = exp(-x / tau + sigma^2 / (2 tau^2)) Phi(x / sigma -
+    sigma / tau) (the high-pass step response exp(-x / tau) convolved with the Gaussian edge). The level is 0
+    before the first edge (the high-pass has removed the DC)."""
+    edges = np.asarray(edges, dtype=np.float64)
+    out = np.zeros(n_samples)
+    lo_off, hi_off = int(math.ceil(7 * sigma)) + 1, int(math.ceil(7 * sigma + 40 * tau)) + 1
+    offs = np.arange(-lo_off, hi_off + 1)
+    step = np.where(np.arange(len(edges)) % 2 == 0, 2.0 * amp, -2.0 * amp)
+    for c0 in range(0, len(edges), chunk_edges):
+        e = edges[c0:c0 + chunk_edges]
+        idx = np.floor(e).astype(np.int64)[:, None] + offs
+        x = idx - e[:, None]
+        g = np.exp(-x / tau + sigma * sigma / (2 * tau * tau) + log_ndtr(x / sigma - sigma / tau))
+        ok = (idx >= 0) & (idx < n_samples)
+        lo = int(idx[ok].min())
+        acc = np.bincount(idx[ok] - lo, weights=(step[c0:c0 + chunk_edges, None] * g)[ok])
         out[lo:lo + len(acc)] += acc
     return out
 

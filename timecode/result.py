@@ -3,7 +3,8 @@
 Time convention: ``start_samples`` is the time of the edge that opens bit 0 of the frame (SMPTE's frame
 start), in samples from the first sample of the file (0.0 = the first sample's instant), as a float with
 sub-sample precision. ``end_samples`` is the edge closing bit 79 (the next frame's start). In reverse
-play a frame's bits arrive 79 first, so its start comes after its end in the file.
+play a frame's bits arrive 79 first, so its start comes after its end in the file. Where an edge is not in
+the audio (``extrapolated``), its time is the bit clock's, extrapolated from the frame's other edges.
 """
 from __future__ import annotations
 
@@ -20,6 +21,27 @@ from timecode.rates import FrameRate
 class Direction(StrEnum):
     FORWARD = "forward"
     REVERSE = "reverse"
+
+
+class Reading(StrEnum):
+    """How a frame's transitions were read from the audio."""
+
+    SQUARE = "square"  # a square wave (the LTC as generated, maybe filtered or AC-coupled)
+    IMPULSES = "impulses"  # an impulse train (a differentiating recorder or receiver input)
+
+
+class Extrapolated(StrEnum):
+    """Which edge of a frame is not in the audio (the file, or the LTC, starts or ends inside the frame); its
+    time comes from the bit clock of the frame's other edges."""
+
+    NONE = ""
+    START = "start"  # the edge opening bit 0
+    END = "end"  # the edge closing bit 79
+    BOTH = "both"
+
+
+#: ``ChannelDecode.extrapolated`` codes, in order.
+EXTRAPOLATED = (Extrapolated.NONE, Extrapolated.START, Extrapolated.END, Extrapolated.BOTH)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -39,6 +61,9 @@ class DecodedFrame:
     level_dbfs: float
     jitter_us: float  # RMS of edge times around the fitted local bit clock (quality; nan = too few edges)
     discontinuity: bool  # first frame, or label does not follow the previous frame
+    reading: Reading = Reading.SQUARE
+    extrapolated: Extrapolated = Extrapolated.NONE
+    bits_missing: int = 0  # bits outside the audio (label from the neighbouring frame, checked on the others)
 
 
 def _empty(dtype: type | str) -> npt.NDArray:
@@ -65,9 +90,14 @@ class ChannelDecode:
     level_dbfs: npt.NDArray[np.float64] = field(default_factory=lambda: _empty(np.float64))
     jitter_us: npt.NDArray[np.float64] = field(default_factory=lambda: _empty(np.float64))
     discontinuity: npt.NDArray[np.bool_] = field(default_factory=lambda: _empty(bool))
+    impulses: npt.NDArray[np.bool_] = field(default_factory=lambda: _empty(bool))  # read from an impulse train
+    extrapolated: npt.NDArray[np.int8] = field(default_factory=lambda: _empty(np.int8))  # EXTRAPOLATED codes
+    bits_missing: npt.NDArray[np.int64] = field(default_factory=lambda: _empty(np.int64))
     n_edges: int = 0
     n_rejected: int = 0  # frames with a sync word but impossible labels, or corrupted
     ac_coupling_hz: float = 0.0  # fitted input high-pass corner that was undone (0 = none)
+    impulse_tau_samples: float = 0.0  # time constant of the differentiating input of impulse stretches (0: none)
+    n_nonfinite: int = 0  # NaN or infinite samples, read as gaps (interpolated over)
 
     def __len__(self) -> int:
         return len(self.frame_numbers)
@@ -90,5 +120,7 @@ class ChannelDecode:
                 start_samples=float(self.start_samples[i]), end_samples=float(self.end_samples[i]),
                 level_dbfs=float(self.level_dbfs[i]), jitter_us=float(self.jitter_us[i]),
                 discontinuity=bool(self.discontinuity[i]),
+                reading=Reading.IMPULSES if self.impulses[i] else Reading.SQUARE,
+                extrapolated=EXTRAPOLATED[int(self.extrapolated[i])], bits_missing=int(self.bits_missing[i]),
             ))
         return out

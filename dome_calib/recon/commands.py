@@ -9,8 +9,10 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle_io import load_bundle
+from dome_calib.io_utils import output_file
 from dome_calib.recon.depth import depth_folder_reader, pointcloud_at, write_ply
-from dome_calib.recon.formats import default_times, fps_type_of, load_detection_streams, write_skeletons
+from dome_calib.recon.formats import (check_output_folder, check_times, default_times, fps_type_of,
+                                      load_detection_streams, write_skeletons)
 from dome_calib.recon.project import view_set
 from dome_calib.recon.streams import triangulate_streams
 from dome_calib.recon.triangulate import TriangulationOptions
@@ -31,7 +33,12 @@ class TriangulateSummary:
 def triangulate_file(bundle_folder: str | Path, detections: str | Path, out: str | Path, *,
                      options: TriangulationOptions | None = None,
                      progress: Callable[[int, int], None] | None = None) -> TriangulateSummary:
-    """Detections JSON + bundle -> Panoptic body3DScene files in ``out`` (see :mod:`dome_calib.recon.formats`)."""
+    """Detections JSON + bundle -> Panoptic body3DScene files in ``out`` (see :mod:`dome_calib.recon.formats`).
+
+    ``out`` is replaced as a whole; it is checked before any work. Explicit times outside every stream's detected
+    frames: all of them -> ReconError (nothing written), some -> a warning with the count (no joints there).
+    """
+    check_output_folder(out)
     bundle = load_bundle(bundle_folder)
     streams, parsed = load_detection_streams(bundle, detections)
     if parsed["times_ms"] is not None:
@@ -41,6 +48,7 @@ def triangulate_file(bundle_folder: str | Path, detections: str | Path, out: str
     else:
         times, numbers, ref = default_times(streams, parsed["reference"])
         fps_type = fps_type_of(ref, explicit_times=False)
+    check_times(detections, streams, times)
     views = view_set(bundle, [n for s in streams for n in s.cameras])
     total = len(times)
     seq = triangulate_streams(views, streams, times, options,
@@ -64,7 +72,8 @@ class PointCloudSummary:
 def pointcloud_file(bundle_folder: str | Path, time_ms: float, depth_folder: str | Path, out: str | Path, *,
                     max_offset_ms: float | None = None, correct_bias: bool = True,
                     progress: Callable[[int, int], None] | None = None) -> PointCloudSummary:
-    """Depth frames nearest to ``time_ms`` of every Kinect -> one world point cloud PLY at ``out``."""
+    """Depth frames nearest to ``time_ms`` of every Kinect -> one world point cloud PLY at ``out`` (checked first)."""
+    output_file(out)
     bundle = load_bundle(bundle_folder)
     cloud = pointcloud_at(bundle, time_ms, depth_folder_reader(depth_folder), max_offset_ms=max_offset_ms,
                           correct_bias=correct_bias, progress=progress)

@@ -10,6 +10,7 @@ time, so the paper's "VGA only because the streams do not coincide in time" rest
 from __future__ import annotations
 
 import logging
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
@@ -68,6 +69,10 @@ class StreamTracks:
                              f"{self.uv_px.shape[:3]}")
         if F > 1 and np.any(np.diff(self.frame_index) <= 0):
             raise ReconError(f"stream {self.stream}: frame indices must increase")
+        if np.any(self.conf < 0) or np.any(self.conf > 1):
+            f, v, j = np.argwhere((self.conf < 0) | (self.conf > 1))[0]
+            raise ReconError(f"stream {self.stream}: camera {self.cameras[v]}: frame {int(self.frame_index[f])}: joint "
+                             f"{j}: confidence {self.conf[f, v, j]:g} outside [0, 1] (NaN = not detected)")
         # Cleaned copies for interpolation: finite pixels, confidence 0 wherever there is no usable detection.
         finite = np.all(np.isfinite(self.uv_px), axis=-1)
         self._uv = np.where(finite[..., None], self.uv_px, 0.0)
@@ -93,7 +98,11 @@ def stream_of_camera(bundle: Bundle, name: str) -> tuple[str, SyncTable]:
     cam = bundle.cameras[name]
     sync = bundle.sync
     if cam.type == CameraType.KINECT_COLOR:
-        stream = f"KINECTNODE{int(name.split('_')[1])}"
+        node = re.fullmatch(r"\d+_0*([1-9]\d*)", name)
+        if node is None:
+            raise ReconError(f"bundle {bundle.seq}: Kinect colour camera {name!r} is not named 50_<n>, so its "
+                             "Kinect's sync table KINECTNODE<n> is unknown")
+        stream = f"KINECTNODE{node.group(1)}"
         tables, file = (sync.kinect_color if sync else {}), f"ksynctables_{bundle.seq}.json (kinect.color)"
     else:
         stream = str(cam.type)

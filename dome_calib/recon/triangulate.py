@@ -248,7 +248,8 @@ def triangulate(views: ViewSet, uv_px: np.ndarray, conf: np.ndarray,
     Args:
         views: the V cameras (order of the second axis of ``uv_px``).
         uv_px: (P, V, 2) OpenCV pixels; NaN = no detection.
-        conf: (P, V) detection confidence; <= ``options.min_confidence`` or NaN = no detection.
+        conf: (P, V) detection confidence in [0, 1] (else ReconError); <= ``options.min_confidence`` or NaN = no
+            detection.
     Returns:
         :class:`Triangulation`.
     Example:
@@ -262,6 +263,10 @@ def triangulate(views: ViewSet, uv_px: np.ndarray, conf: np.ndarray,
     if uv_px.shape != (P, V, 2) or V != len(views.names):
         raise ReconError(f"detections have shape {uv_px.shape} / confidences {conf.shape} but expected "
                          f"(P, {len(views.names)}, 2) / (P, {len(views.names)}) for the {len(views.names)} views")
+    if np.any(conf < 0) or np.any(conf > 1):
+        bad = np.argwhere((conf < 0) | (conf > 1))[0]
+        raise ReconError(f"confidence {conf[tuple(bad)]:g} of point {bad[0]} in view {views.names[bad[1]]} is outside "
+                         "[0, 1] (NaN = not detected)")
     valid = np.isfinite(conf) & (conf > options.min_confidence) & np.all(np.isfinite(uv_px), axis=-1)
     w = np.where(valid, conf, 0.0)
     uv = np.where(valid[..., None], uv_px, 0.0)

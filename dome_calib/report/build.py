@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import shutil
 import tempfile
 from dataclasses import dataclass, field
@@ -19,6 +20,7 @@ import numpy as np
 from dome_calib.bundle import Bundle, CameraType
 from dome_calib.bundle_io import replace_folder
 from dome_calib.errors import ReportError
+from dome_calib.io_utils import new_mode
 from dome_calib.residuals import Residuals
 
 logger = logging.getLogger(__name__)
@@ -133,6 +135,7 @@ def write_report(bundle_folder: str | Path, bundle: Bundle, residuals: Residuals
     content = build_report(bundle, residuals, options, **kwargs)
     staging = Path(tempfile.mkdtemp(prefix=f".{REPORT_DIR}.new.", dir=folder))
     try:
+        os.chmod(staging, new_mode(0o777))  # mkdtemp makes 0700; report/ gets the mode mkdir() would give
         if residuals is not None:
             residuals.save(staging / RESIDUALS_FILE)
         if options.plots:

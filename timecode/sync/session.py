@@ -118,6 +118,13 @@ class _Where:
             return default
         return obj[key]
 
+    def known(self, obj: Any, fld: str, keys: set[str]) -> None:
+        """Unknown keys fail loudly (a typo would otherwise fall back to a default without a word)."""
+        unknown = sorted(set(obj) - keys) if isinstance(obj, dict) else []
+        if unknown:
+            where = f"{fld}.{unknown[0]}" if fld else unknown[0]
+            raise self.fail(where, f"unknown key (known here: {', '.join(sorted(keys))})")
+
     def ints(self, obj: Any, fld: str, key: str, *, increasing: bool) -> np.ndarray:
         raw = self.get(obj, fld, key)
         name = f"{fld}.{key}"
@@ -159,6 +166,7 @@ def _load_json(path: Path) -> Any:
 
 def _read_stream(w: _Where, name: str, obj: Any, ltc: LtcRecording) -> FrameStream:
     fld = f"streams.{name}"
+    w.known(obj, fld, {"clock", "index", "ref_index", "ref_timecode", "timecode"})
     clock = w.get(obj, fld, "clock")
     if clock not in ("vga", "hd"):
         raise w.fail(f"{fld}.clock", f"must be 'vga' or 'hd', got {clock!r}")
@@ -188,19 +196,23 @@ def _read_stream(w: _Where, name: str, obj: Any, ltc: LtcRecording) -> FrameStre
 
 def _read_kinect(w: _Where, folder: Path, name: str, obj: Any) -> KinectNode:
     fld = f"kinect.{name}"
+    w.known(obj, fld, {"audio", "audio_channel", "timestamps"})
     audio = w.get(obj, fld, "audio", None)
     audio_path = None if audio is None else folder / str(audio)
     ts_path = folder / str(w.get(obj, fld, "timestamps"))
     ts = _load_json(ts_path)
     wt = _Where(ts_path)
+    wt.known(ts, "", {"audio_blocks", "color", "depth"})
     blocks = wt.get(ts, "", "audio_blocks", {"first_sample": [0], "device_time_100ns": [0]} if audio is None else ...)
     frames = {}
     for kind in ("color", "depth"):
         o = wt.get(ts, "", kind)
+        wt.known(o, kind, {"index", "device_time_100ns"})
         frames[kind] = DeviceFrames(index=wt.ints(o, kind, "index", increasing=True),
                                     device_time_100ns=wt.ints(o, kind, "device_time_100ns", increasing=False))
         if frames[kind].index.size != frames[kind].device_time_100ns.size:
             raise wt.fail(f"{kind}.device_time_100ns", "must have one entry per index")
+    wt.known(blocks, "audio_blocks", {"first_sample", "device_time_100ns"})
     first = wt.ints(blocks, "audio_blocks", "first_sample", increasing=True)
     dev = wt.ints(blocks, "audio_blocks", "device_time_100ns", increasing=False)
     if first.size != dev.size:
@@ -223,6 +235,7 @@ def load_session(folder: str | Path) -> Session:
     path = folder / "session.json"
     data = _load_json(path)
     w = _Where(path)
+    w.known(data, "", {"format", "version", "seq", "ltc", "streams", "kinect"})
     if w.get(data, "", "format") != FORMAT:
         raise w.fail("format", f"expected {FORMAT!r}")
     if w.get(data, "", "version") != VERSION:
@@ -231,6 +244,7 @@ def load_session(folder: str | Path) -> Session:
     if not isinstance(seq, str) or not seq or "/" in seq:
         raise w.fail("seq", "expected a non-empty name without '/'")
     lo = w.get(data, "", "ltc")
+    w.known(lo, "ltc", {"file", "vga_channel", "hd_channel", "vga_rate", "hd_rate"})
     channels = {}
     for key, default in (("vga_channel", 0), ("hd_channel", 1)):
         ch = w.get(lo, "ltc", key, default)
