@@ -163,7 +163,7 @@ def check_output_folder(out: Path) -> str | None:
     """Before any work: ``out`` must be new, an empty folder or a bundle folder (which will be replaced whole).
 
     Returns the seq of the bundle it holds (None when new or empty). Raises :class:`DomeCalibError` for a path
-    that is not a folder (file, FIFO, symbolic link, ...) or a folder of other things.
+    that is not a folder (file, FIFO, a symbolic link: resolve it first, ...) or a folder of other things.
     """
     out = Path(out)
     if out.is_symlink() or (out.exists() and not out.is_dir()):

@@ -56,6 +56,8 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
     """
     options = options or CalibrateOptions()
     capture, out = Path(capture), Path(out)
+    if out.is_symlink():  # as every -o: a symlink is followed, the folder it points to is replaced, the link stays
+        out = out.resolve()
     scenes, expected = capture_contents(capture)
     if options.only_changed and options.prior is None:
         raise DomeCalibError("--only-changed needs --prior (the bundle the unchanged cameras are taken from)")

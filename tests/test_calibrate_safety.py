@@ -108,7 +108,7 @@ def test_a_stale_lock_of_a_dead_run_is_taken_over_with_a_warning(tmp_path, captu
 
 
 # ------------------------------------------------------------------------------------------ output checks
-@pytest.mark.parametrize("kind", ["file", "fifo", "symlink", "foreign folder"])
+@pytest.mark.parametrize("kind", ["file", "fifo", "symlink to a file", "foreign folder"])
 def test_an_output_that_is_not_a_bundle_folder_is_refused_before_any_work(tmp_path, capture, stand_in_stages, kind):
     cap, _ = capture
     out = tmp_path / "out"
@@ -116,18 +116,27 @@ def test_an_output_that_is_not_a_bundle_folder_is_refused_before_any_work(tmp_pa
         out.write_text("precious")
     elif kind == "fifo":
         os.mkfifo(out)
-    elif kind == "symlink":
-        (tmp_path / "elsewhere").mkdir()
+    elif kind == "symlink to a file":
+        (tmp_path / "elsewhere").write_text("precious")
         out.symlink_to(tmp_path / "elsewhere")
     else:
         out.mkdir()
         (out / "thesis.tex").write_text("precious")
-    with pytest.raises(DomeCalibError, match="out: (the output is|not a calibration bundle)"):
+    with pytest.raises(DomeCalibError, match="(out|elsewhere): (the output is|not a calibration bundle)"):
         pipeline.run_calibration(cap, out, _options())
     assert stand_in_stages == {"sfm": 0, "ba": 0}
     assert not (tmp_path / "out.work").exists()
     if kind == "file":
         assert out.read_text() == "precious"
+
+
+def test_a_symlink_to_a_bundle_folder_is_followed_and_stays(tmp_path, capture, stand_in_stages):
+    cap, truth = capture
+    real = write_bundle(type(truth)(seq="old", cameras=dict(truth.cameras)), tmp_path / "real")
+    link = tmp_path / "link"
+    link.symlink_to(real)
+    pipeline.run_calibration(cap, link, _options(seq="new"))
+    assert link.is_symlink() and load_bundle(link).seq == "new" and load_bundle(real).seq == "new"
 
 
 def test_a_bundle_folder_of_another_seq_is_replaced_whole(tmp_path, capture, stand_in_stages):
