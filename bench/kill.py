@@ -1,15 +1,17 @@
 """Kill `dome-calib calibrate` with SIGKILL at random moments (seeded) and check what a stop leaves behind.
 
     .venv/bin/python bench/kill.py                 # 20 kills on the tiny synthetic dome, 2 tent positions
-    .venv/bin/python bench/kill.py --kills 3 --write-kills 2   # what tests/test_calibrate_kill.py runs (slow)
+    .venv/bin/python bench/kill.py --kills 3 --late-kills 2   # what tests/test_calibrate_kill.py runs (slow)
 
 The output folder starts as an "old" bundle (the design layout, seq "old"). Each round starts calibrate on the
 tiny capture into it and SIGKILLs the whole process group (workers included) after a random delay in
 [0, 1.1 x the uninterrupted wall time); when a run was allowed to finish, the work folder is emptied so the next
-round's kill lands in a stage again. Then ``--write-kills`` rounds aim at the last stage, where OUT is replaced:
-with the other stages finished, each run is killed 0-50 ms after its staging folder appears. After every kill
-the output folder must load and hold either the old bundle or the new one. Finally a rerun completes, and its
-cameras are compared with an uninterrupted run's.
+round's kill lands in a stage again. Then ``--late-kills`` rounds aim at the end of the run: with the SfM
+finished and only the bundle adjustment's result removed from the work folder, each run does the bundle
+adjustment, the world frame and the write (bundle and report staged beside OUT, then swapped in), and is killed
+at a random moment of that (0 to 1.1 x its uninterrupted time). After every kill the output folder must load
+and hold either the old bundle or the new one. Finally a rerun completes, and its cameras are compared with an
+uninterrupted run's.
 Prints one JSON object per line.
 """
 from __future__ import annotations
@@ -42,21 +44,11 @@ def calibrate_cmd(capture: Path, out: Path) -> list[str]:
             str(out), "--seq", SEQ]
 
 
-def run(cmd: list[str], kill_after_s: float | None = None, kill_when: Path | None = None,
-        then_s: float = 0.0) -> tuple[int, float, str]:
-    """Run ``cmd`` in its own process group; SIGKILL the group after ``kill_after_s``, or ``then_s`` after the
-    path ``kill_when`` appears. Returns (rc, seconds, stderr)."""
+def run(cmd: list[str], kill_after_s: float | None = None) -> tuple[int, float, str]:
+    """Run ``cmd`` in its own process group; SIGKILL the group after ``kill_after_s``. (rc, seconds, stderr)."""
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, cwd=ROOT)
-    if kill_when is not None:
-        while proc.poll() is None and not kill_when.exists():
-            time.sleep(0.002)
-        time.sleep(then_s)
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-        _, err = proc.communicate()
-        return proc.returncode, time.perf_counter() - t0, err
     try:
         _, err = proc.communicate(timeout=kill_after_s)
     except subprocess.TimeoutExpired:
@@ -91,7 +83,7 @@ def compare(a: dict, b: dict) -> dict:
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--kills", type=int, default=20, help="kills at random moments of the whole run")
-    ap.add_argument("--write-kills", type=int, default=10, help="kills while OUT is being replaced")
+    ap.add_argument("--late-kills", type=int, default=10, help="kills during BA, world frame and the write of OUT")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--scenes", type=int, default=2)
     ap.add_argument("--work", type=Path, help="keep the capture and runs here (default: a temp folder)")
@@ -127,26 +119,29 @@ def main(argv: list[str] | None = None) -> dict:
                           "stderr_lines": len([line for line in err.splitlines() if line.strip()])}), flush=True)
         if finished:
             shutil.rmtree(work, ignore_errors=True)  # the next kill lands in a stage again
-    write_outcomes = {"old": 0, "new": 0, "unloadable": 0, "finished": 0}
-    if args.write_kills:
-        run(calibrate_cmd(capture, out))  # every stage finished: the next runs go straight to the write
+    late_outcomes = {"old": 0, "new": 0, "unloadable": 0, "finished": 0}
+    late_s = 0.0
+    if args.late_kills:
+        run(calibrate_cmd(capture, out))  # every stage finished once
+        (work / "ba.pkl").unlink()
+        _, late_s, _ = run(calibrate_cmd(capture, out))  # BA, world frame and write only
         shutil.rmtree(out)
         write_bundle(nominal_dome("tiny", 0).__class__(seq="old", cameras=nominal_dome("tiny", 0).cameras), out)
-    for k in range(args.write_kills):
-        then_s = float(rng.uniform(0.0, 0.05))
-        rc, seconds, err = run(calibrate_cmd(capture, out), kill_when=out.with_name(f".{out.name}.staging"),
-                               then_s=then_s)
+    for k in range(args.late_kills):
+        (work / "ba.pkl").unlink(missing_ok=True)
+        delay = float(rng.uniform(0.0, 1.1 * late_s))
+        rc, seconds, err = run(calibrate_cmd(capture, out), kill_after_s=delay)
         state = output_state(out)
-        write_outcomes["finished" if rc == 0 else state if state in ("old", "new") else "unloadable"] += 1
-        print(json.dumps({"bench": "kill", "write_round": k + 1, "kill_after_staging_s": round(then_s, 3), "rc": rc,
-                          "output": state}), flush=True)
+        late_outcomes["finished" if rc == 0 else state if state in ("old", "new") else "unloadable"] += 1
+        print(json.dumps({"bench": "kill", "late_round": k + 1, "kill_after_s": round(delay, 2),
+                          "late_run_s": round(late_s, 2), "rc": rc, "output": state}), flush=True)
         if rc == 0 or state == "new":  # the old bundle back, so that old and new stay distinguishable
             shutil.rmtree(out)
             write_bundle(nominal_dome("tiny", 0).__class__(seq="old", cameras=nominal_dome("tiny", 0).cameras), out)
     rc, seconds, err = run(calibrate_cmd(capture, out))
     final = load_bundle(out)
     summary = {"bench": "kill", "what": "summary", "kills": args.kills, "seed": args.seed, **outcomes,
-               "write_kills": args.write_kills, "write_phase": write_outcomes,
+               "late_kills": args.late_kills, "late_phase": late_outcomes,
                "rerun_rc": rc, "rerun_seconds": round(seconds, 1),
                "vs_uninterrupted": compare(final.cameras, reference.cameras)}
     print(json.dumps(summary), flush=True)
