@@ -75,7 +75,7 @@ def report(
 ) -> None:
     """Write BUNDLE/report/: report.json, the dome plot coloured by residual, residual histograms, observation
     counts, and the list of cameras to check with the reason."""
-    from dome_calib.pipeline import report_bundle
+    from dome_calib.report.command import report_bundle
 
     typer.echo(report_bundle(bundle, prior=prior, min_observations=min_observations))
 

@@ -17,7 +17,6 @@ those that moved; ``--only-changed`` then re-estimates just those, all other cam
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 from functools import partial
 from pathlib import Path
@@ -26,19 +25,17 @@ import numpy as np
 
 from dome_calib.bundle import CameraType, camera_type_from_name
 from dome_calib.bundle_io import check_output_folder, load_bundle, recover_folder
-from dome_calib.compare import detect_changes
 from dome_calib.errors import DomeCalibError
 from dome_calib.normalize import normalize
 from dome_calib.pipeline_finish import (CalibrateOptions, Calibrated, CalibrationInputs, CalibrationResult,
                                         capture_contents, finish)
 from dome_calib.pipeline_quick import run_quick
 from dome_calib.pipeline_stages import run_ba_stage, run_sfm_stage
-from dome_calib.report import ReportOptions, load_residuals, write_report
 from dome_calib.workstate import WorkState, input_fingerprint
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["CalibrateOptions", "CalibrationResult", "format_result", "report_bundle", "run_calibration", "run_full"]
+__all__ = ["CalibrateOptions", "CalibrationResult", "format_result", "run_calibration", "run_full"]
 
 STAGE_LABELS = {"sfm": "features, pairs, matching, per-scene mapping, merging scenes",
                 "ba": "bundle adjustment (5 distortion parameters, outlier rejection)",
@@ -125,33 +122,4 @@ def format_result(result: CalibrationResult, max_rows: int = 12) -> str:
     lines.append(f"stage times: {times}")
     lines.append(f"bundle: {result.bundle_dir}/calibration_{result.bundle.seq}.json")
     lines.append(f"report: {result.report_dir}/ (report.json, dome.png, residuals.png, observations.png)")
-    return "\n".join(lines)
-
-
-def report_bundle(bundle_folder: Path, *, prior: Path | None = None, min_observations: int = 100) -> str:
-    """`dome-calib report`: (re)write ``<bundle>/report/`` from the bundle, the residuals saved by calibrate,
-    and optionally a prior bundle (cameras moved since). Returns a short text for the terminal."""
-    bundle = load_bundle(bundle_folder)
-    residuals = load_residuals(bundle_folder)
-    changes = None
-    if prior is not None:
-        changes = {n: c.reasons for n, c in detect_changes(bundle.cameras, load_bundle(prior).cameras).items()}
-    old_path = Path(bundle_folder) / "report" / "report.json"
-    kept = {}
-    if old_path.exists():  # what only calibrate knew (world frame, stage times) survives a re-report
-        try:
-            old = json.loads(old_path.read_text(encoding="utf-8"))
-            kept = {k: old[k] for k in ("world_frame", "stage_seconds") if k in old}
-        except ValueError:
-            logger.warning("%s: unreadable, replaced", old_path)
-    target = write_report(bundle_folder, bundle, residuals, ReportOptions(min_observations=min_observations),
-                          changes=changes, extra=kept)
-    content = json.loads((target / "report.json").read_text(encoding="utf-8"))
-    lines = [f"report: {target}  ({', '.join(content.get('plots', []))})"]
-    if not content["has_residuals"]:
-        lines.append("  no residuals saved with this bundle: geometry only (run `dome-calib calibrate` to get them)")
-    else:
-        lines.append(f"  RMS {content['rms_px']:.3f} px over {len(content['per_camera'])} cameras")
-    lines.append(f"  cameras to check: {len(content['to_check'])}")
-    lines += [f"    {row['name']}: {'; '.join(row['reasons'])}" for row in content["to_check"][:20]]
     return "\n".join(lines)
