@@ -16,6 +16,7 @@ The stages only ever call ``executor.map(fn, items)`` and never know where the t
 """
 from __future__ import annotations
 
+import re
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -89,14 +90,17 @@ class DaskExecutor:
     """Tasks on a Dask cluster (see the module docstring). Use as a context manager, or call :meth:`shutdown`."""
 
     def __init__(self, address: str, *, routes: Mapping[Callable, Route] | None = None, retries: int = 2,
-                 max_in_flight: int | None = None, connect_timeout_s: float = CONNECT_TIMEOUT_S,
+                 max_in_flight: int | None = None, connect_timeout_s: float | None = None,
                  client: Any = None) -> None:
         from distributed import Client
 
         self.address = address
+        connect_timeout_s = CONNECT_TIMEOUT_S if connect_timeout_s is None else connect_timeout_s
         self.routes = dict(routes or {})
         self.retries = retries
         self.stats: dict[str, MapStats] = {}
+        if client is None and not re.fullmatch(r"(tcp|tls|inproc)://[^\s:/]+:\d{1,5}", address):
+            raise DomeCalibError(f"scheduler {address!r}: not an address of the form tcp://HOST:PORT")
         if client is not None:  # an existing client (a LocalCluster's): not ours to close
             self.client, self._own = client, False
         else:
