@@ -21,7 +21,8 @@ from pathlib import Path
 
 from dome_calib.errors import CaptureError
 from dome_calib.executor import Executor, make_executor
-from dome_calib.executor_dask import DaskExecutor, Route
+from dome_calib.io_utils import atomic_write_text
+from projector.features import extract_image
 
 CAPTURE_ROOT_ENV = "DOME_CALIB_CAPTURE_ROOT"
 WORKER_WAIT_S = 20.0  # how long a run waits for the capture's node workers to connect
@@ -65,8 +66,6 @@ class NodeImageTask:
     head_capture: str
 
     def __call__(self, task: tuple) -> object:
-        from projector.features import extract_image
-
         camera, path, options = task
         return extract_image((camera, node_image_path(self.head_capture, path), options))
 
@@ -88,7 +87,7 @@ def open_executor(capture: Path, scheduler: str | None, stats: dict | None = Non
         with make_executor() as pool:
             yield pool
         return
-    from projector.features import extract_image
+    from dome_calib.executor_dask import DaskExecutor, Route  # distributed takes ~0.5 s to load: --scheduler only
 
     nodes = capture_nodes(capture)
     node_of = {cam: node for node, cams in nodes.items() for cam in cams}
@@ -108,8 +107,6 @@ def open_executor(capture: Path, scheduler: str | None, stats: dict | None = Non
 def write_cluster_stats(path: Path, stats: dict) -> None:
     """The cluster's per-stage tallies beside the run's other work files (nothing for a local run)."""
     if stats:
-        from dome_calib.io_utils import atomic_write_text
-
         atomic_write_text(path, json.dumps(stats, indent=1))
 
 

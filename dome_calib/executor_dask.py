@@ -16,11 +16,17 @@ The stages only ever call ``executor.map(fn, items)`` and never know where the t
 """
 from __future__ import annotations
 
+import dataclasses
+import inspect
 import re
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
+
+import numpy as np
+from dask.sizeof import sizeof
+from distributed import Client, as_completed, get_worker
 
 from dome_calib.errors import DomeCalibError
 
@@ -35,7 +41,7 @@ class Route:
     """Where one task function's items run: ``worker_of(item)`` a worker name (None: any worker), and
     ``task_fn`` the module-level function the worker calls instead of the mapped one (None: the same)."""
 
-    worker_of: Callable[[Any], str | None]
+    worker_of: Callable[[Any], Any]  # a worker's name (--name; a LocalCluster's are ints) or None
     task_fn: Callable[[Any], Any] | None = None
 
 
@@ -59,11 +65,6 @@ def payload_bytes(obj: Any, _depth: int = 0) -> int:
     """Bytes of a task's argument or result as sent: numpy arrays by ``nbytes``, containers and dataclasses
     summed over their contents, anything else by Dask's ``sizeof`` (objects such as pycolmap's two-view geometry
     are counted by their Python size only: an underestimate)."""
-    import dataclasses
-
-    import numpy as np
-    from dask.sizeof import sizeof
-
     if _depth > 4:
         return int(sizeof(obj))
     if isinstance(obj, np.ndarray):
@@ -79,8 +80,6 @@ def payload_bytes(obj: Any, _depth: int = 0) -> int:
 
 def _timed(fn: Callable[[T], R], item: T) -> tuple[str, float, R]:
     """Worker side: run ``fn(item)``; return (this worker's name, seconds, result)."""
-    from distributed import get_worker
-
     t0 = time.perf_counter()
     result = fn(item)
     return str(get_worker().name), time.perf_counter() - t0, result
@@ -92,8 +91,6 @@ class DaskExecutor:
     def __init__(self, address: str, *, routes: Mapping[Callable, Route] | None = None, retries: int = 2,
                  max_in_flight: int | None = None, connect_timeout_s: float | None = None,
                  client: Any = None) -> None:
-        from distributed import Client
-
         self.address = address
         connect_timeout_s = CONNECT_TIMEOUT_S if connect_timeout_s is None else connect_timeout_s
         self.routes = dict(routes or {})
@@ -150,8 +147,6 @@ class DaskExecutor:
 
     def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
         """Results in completion order; at most ``max_in_flight`` futures at once (default 4 per worker thread)."""
-        from distributed import as_completed
-
         stats = self.stats.setdefault(getattr(fn, "__name__", str(fn)), MapStats())
         limit = self._max_in_flight or max(4, 4 * sum(self.client.nthreads().values()))
         t0 = time.perf_counter()
@@ -204,6 +199,4 @@ _END = object()
 
 
 def _has_n_workers(client: Any) -> bool:
-    import inspect
-
     return "n_workers" in inspect.signature(client.scheduler_info).parameters
