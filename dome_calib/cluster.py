@@ -22,7 +22,7 @@ from pathlib import Path
 from dome_calib.errors import CaptureError
 from dome_calib.executor import Executor, make_executor
 from dome_calib.io_utils import atomic_write_text
-from projector.features import extract_image
+from projector.features import ImageResult, extract_image
 
 CAPTURE_ROOT_ENV = "DOME_CALIB_CAPTURE_ROOT"
 WORKER_WAIT_S = 20.0  # how long a run waits for the capture's node workers to connect
@@ -67,7 +67,10 @@ class NodeImageTask:
 
     def __call__(self, task: tuple) -> object:
         camera, path, options = task
-        return extract_image((camera, node_image_path(self.head_capture, path), options))
+        local = node_image_path(self.head_capture, path)
+        if not os.path.isfile(local):  # reported per camera like any unusable image, naming the node's path
+            return ImageResult(camera=camera, failure=f"image not found on this node ({local})")
+        return extract_image((camera, local, options))
 
 
 @dataclass(frozen=True)
