@@ -53,6 +53,9 @@ def calibrate(
                             "folder's name)."),
     work: Path = typer.Option(None, "--work", help="Work folder for intermediate results; a rerun resumes from "
                               "it (default: OUT.work beside the bundle)."),
+    scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler (tcp://HOST:PORT): features and "
+                                  "matching run on its workers; images listed under capture.json's \"nodes\" are "
+                                  "read on the worker of that --name (default: the local process pool)."),
     verbose: bool = typer.Option(False, "--verbose", "-v", help="Log every bundle-adjustment iteration."),
 ) -> None:
     """Calibrate every camera of the dome from one capture session: features, matching, reconstruction, bundle
@@ -61,7 +64,7 @@ def calibrate(
         from dome_calib.pipeline import CalibrateOptions, format_result, run_calibration
 
         logging.getLogger("dome_calib.ba").setLevel(logging.INFO if verbose else logging.WARNING)
-        options = CalibrateOptions(prior=prior, only_changed=only_changed, seq=seq, work_dir=work,
+        options = CalibrateOptions(prior=prior, only_changed=only_changed, seq=seq, work_dir=work, scheduler=scheduler,
                                    progress=sys.stderr.isatty())  # no spinners in a log file
         typer.echo(format_result(run_calibration(capture, out, options)))
 

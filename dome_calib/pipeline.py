@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle import CameraType, camera_type_from_name
+from dome_calib.cluster import capture_nodes, format_cluster, open_executor, write_cluster_stats
 from dome_calib.bundle_io import check_output_folder, load_bundle, recover_folder
 from dome_calib.errors import DomeCalibError
 from dome_calib.normalize import normalize
@@ -69,11 +70,21 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
         return run_quick(inputs, state) if options.only_changed else run_full(inputs, state)
 
 
+def node_cameras(inputs: CalibrationInputs, options: CalibrateOptions) -> list[str] | None:
+    """The capture's cameras when a cluster reads their images on the capture nodes (not here), else None."""
+    return list(inputs.expected) if options.scheduler and capture_nodes(inputs.capture) else None
+
+
 def run_full(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
     """Every camera from the images: SfM, bundle adjustment, world frame, then :func:`finish`."""
     options, prior = inputs.options, inputs.prior
-    sfm = state.run("sfm", partial(run_sfm_stage, inputs.capture, state.folder / "sfm", prior=prior,
-                                   progress=options.progress))
+    cluster: dict = {}
+    with open_executor(inputs.capture, options.scheduler, cluster) as executor:
+        sfm = state.run("sfm", partial(run_sfm_stage, inputs.capture, state.folder / "sfm", prior=prior,
+                                       progress=options.progress, executor=executor,
+                                       scenes=inputs.scenes if node_cameras(inputs, options) else None,
+                                       cameras=node_cameras(inputs, options)))
+    write_cluster_stats(state.folder / "cluster.json", cluster)
     ba = state.run("ba", partial(run_ba_stage, sfm.problem, progress=options.progress))
     normalized = state.time("normalize", partial(normalize, ba.cameras, options.normalize,
                                                  prior=prior.cameras if prior else None,
@@ -83,7 +94,7 @@ def run_full(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
                             center_sigma_cm={n: s * to_cm for n, s in ba.center_sigma.items()},
                             source=f"dome-calib calibrate {inputs.capture.name} ({len(inputs.scenes)} scenes)")
     result = finish(inputs, state, calibrated)
-    return dataclasses.replace(result, sfm=sfm, ba=ba, stats={"sfm": sfm.stats, "ba": ba.stats})
+    return dataclasses.replace(result, sfm=sfm, ba=ba, stats={"sfm": sfm.stats, "ba": ba.stats, "cluster": cluster})
 
 
 def format_result(result: CalibrationResult, max_rows: int = 12) -> str:
@@ -122,4 +133,5 @@ def format_result(result: CalibrationResult, max_rows: int = 12) -> str:
     lines.append(f"stage times: {times}")
     lines.append(f"bundle: {result.bundle_dir}/calibration_{result.bundle.seq}.json")
     lines.append(f"report: {result.report_dir}/ (report.json, dome.png, residuals.png, observations.png)")
+    lines += format_cluster(result.stats.get("cluster") or {})
     return "\n".join(lines)

@@ -47,6 +47,7 @@ class CalibrateOptions:
     changes: ChangeOptions = field(default_factory=ChangeOptions)
     report: ReportOptions = field(default_factory=ReportOptions)
     max_center_sigma_cm: float = 0.5  # flag cameras whose centre is less certain than this (1 sigma)
+    scheduler: str | None = None  # a Dask scheduler (tcp://HOST:PORT) for features and matching; None: local pool
 
 
 @dataclass(kw_only=True)

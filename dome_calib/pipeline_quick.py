@@ -19,6 +19,7 @@ The prior is right for most cameras, so one scene is enough and no mapping is ne
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 from dataclasses import dataclass, field
@@ -32,7 +33,8 @@ from dome_calib.align import Alignment
 from dome_calib.ba.problem import ParamGroup, camera_to_params
 from dome_calib.bundle import Bundle
 from dome_calib.compare import CameraChange, camera_error
-from dome_calib.executor import make_executor
+from dome_calib.cluster import capture_nodes, open_executor, write_cluster_stats
+from dome_calib.executor import Executor, make_executor
 from dome_calib.normalize import Normalized, WorldReference
 from dome_calib.pipeline_finish import Calibrated, CalibrationInputs, CalibrationResult, finish
 from dome_calib.pipeline_stages import (BAOutcome, ba_options, observation_residuals, problem_from_observations,
@@ -45,7 +47,7 @@ from projector.features import nominal_camera
 from projector.known_poses import observations_from_known, register_cameras, triangulate_known, verified_partners
 from projector.matching import match_pairs
 from projector.pairs import PairOptions, pairs_from_prior
-from projector.sfm import SfmOptions, match_scene
+from projector.sfm import SfmOptions, mapper_image_dir, match_scene
 
 QUICK_BA = dataclasses.replace(ba_options(), compute_uncertainty=False)  # few free cameras: not needed
 
@@ -127,19 +129,24 @@ def _options(progress: bool, pairs_per_camera: int) -> SfmOptions:
     return options
 
 
-def match_first_scene(capture: Path, work: Path, scene: str, prior: Bundle, progress: bool) -> MatchedScene:
-    """Stage ``match``: features, pairs and verified matches of one scene, in ``work/<scene>/database.db``."""
+def match_first_scene(capture: Path, work: Path, scene: str, prior: Bundle, progress: bool, *,
+                      executor: Executor | None = None, cameras: list[str] | None = None) -> MatchedScene:
+    """Stage ``match``: features, pairs and verified matches of one scene, in ``work/<scene>/database.db``
+    (``cameras``: the images are on the capture nodes, read by the executor's workers there)."""
     quiet_colmap()
-    with make_executor() as executor:
-        feats, pairs, matches = match_scene(capture, work, scene, dict(prior.cameras),
-                                            _options(progress, DETECT_PAIRS_PER_CAMERA), executor)
-    return MatchedScene(scene=scene, database=work / scene / "database.db", image_dir=capture / "scenes" / scene,
+    options = _options(progress, DETECT_PAIRS_PER_CAMERA)
+    options.cameras = cameras
+    with make_executor() if executor is None else contextlib.nullcontext(executor) as pool:
+        feats, pairs, matches = match_scene(capture, work, scene, dict(prior.cameras), options, pool)
+    return MatchedScene(scene=scene, database=work / scene / "database.db",
+                        image_dir=mapper_image_dir(capture, work, scene, options),
                         cameras=sorted(feats.num_features), failures=dict(feats.failures), pairs=len(pairs),
                         verified_pairs=matches.num_verified_pairs, inlier_matches=matches.num_inlier_matches,
                         seconds={"features": feats.seconds, "matching": matches.seconds})
 
 
-def detect_suspects(matched: MatchedScene, prior: Bundle, progress: bool) -> Suspects:
+def detect_suspects(matched: MatchedScene, prior: Bundle, progress: bool, *,
+                    executor: Executor | None = None) -> Suspects:
     """Stage ``detect``: cameras inconsistent with the prior (module docstring), then their extra pairs."""
     errors = pair_errors(str(matched.database), prior.cameras)
     verdict = changed_cameras(errors)
@@ -153,8 +160,8 @@ def detect_suspects(matched: MatchedScene, prior: Bundle, progress: bool) -> Sus
     extra = [p for p in pairs_from_prior(prior.cameras, known, PairOptions(max_pairs_per_camera=SUSPECT_PAIRS_PER_CAMERA))
              if (p[0] in s) != (p[1] in s)]
     if extra:
-        with make_executor() as executor:
-            match_pairs(str(matched.database), extra, options=_options(progress, 0).matching, executor=executor,
+        with make_executor() if executor is None else contextlib.nullcontext(executor) as pool:
+            match_pairs(str(matched.database), extra, options=_options(progress, 0).matching, executor=pool,
                         scene=matched.scene)
     return Suspects(suspects=suspects, unknown=unknown, bad_pair_px=verdict.bad_pair_px, extra_pairs=len(extra))
 
@@ -244,8 +251,14 @@ def run_quick(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
     prior, progress = inputs.prior, inputs.options.progress
     work = state.folder / "quick"
     scene = inputs.scenes[0]
-    matched = state.run("match", partial(match_first_scene, inputs.capture, work, scene, prior, progress))
-    det = state.run("detect", partial(detect_suspects, matched, prior, progress))
+    options = inputs.options
+    cameras = list(inputs.expected) if options.scheduler and capture_nodes(inputs.capture) else None
+    cluster: dict = {}
+    with open_executor(inputs.capture, options.scheduler, cluster) as executor:
+        matched = state.run("match", partial(match_first_scene, inputs.capture, work, scene, prior, progress,
+                                             executor=executor, cameras=cameras))
+        det = state.run("detect", partial(detect_suspects, matched, prior, progress, executor=executor))
+    write_cluster_stats(state.folder / "cluster.json", cluster)
     est = state.run("quick_ba", partial(reestimate, matched, det, prior, work, progress))
     failures = {n: f"no usable image in {scene}: {why}" for n, why in matched.failures.items()}
     failures.update({n: f"changed since the prior but not re-estimated: {why}" for n, why in est.failed.items()})
@@ -266,4 +279,4 @@ def run_quick(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
              "inlier_matches": matched.inlier_matches, "suspects": det.suspects, "bad_pair_px": det.bad_pair_px,
              "extra_pairs": det.extra_pairs, "points": est.points, "observations": est.observations,
              "held_cameras": est.held_cameras, "seconds": matched.seconds}
-    return dataclasses.replace(finish(inputs, state, calibrated), ba=est.ba, stats={"quick": stats})
+    return dataclasses.replace(finish(inputs, state, calibrated), ba=est.ba, stats={"quick": stats, "cluster": cluster})

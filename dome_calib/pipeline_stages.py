@@ -23,6 +23,7 @@ from dome_calib.camera import project
 from dome_calib.errors import CaptureError
 from dome_calib.residuals import Residuals, observed_minus_projected
 from projector.observations import Observations
+from dome_calib.executor import Executor
 from projector.sfm import SfmOptions, report_dict, run_sfm
 
 logger = logging.getLogger(__name__)
@@ -88,11 +89,13 @@ def quiet_colmap() -> None:
 
 
 def run_sfm_stage(capture: Path, work_dir: Path, *, prior: Bundle | None, progress: bool = True,
-                  scenes: list[str] | None = None) -> SfmOutcome:
+                  scenes: list[str] | None = None, executor: Executor | None = None,
+                  cameras: list[str] | None = None) -> SfmOutcome:
     """Features, pairs, matching, per-scene mapping and merging (:func:`projector.sfm.run_sfm`), seeded by the
     prior bundle or, without one, the nominal dome layout. Raises CaptureError if no scene reconstructs."""
     quiet_colmap()
-    result = run_sfm(capture, work_dir, SfmOptions(scenes=scenes, show_progress=progress), prior=prior)
+    result = run_sfm(capture, work_dir, SfmOptions(scenes=scenes, show_progress=progress, cameras=cameras),
+                     prior=prior, executor=executor)
     if result.observations is None:
         why = "; ".join(f"{f.scene or 'capture'}: {f.reason}" for f in result.failures if not f.camera)
         raise CaptureError(f"{capture}: no scene could be reconstructed ({why or 'no registered cameras'})")

@@ -131,6 +131,7 @@ def nominal_camera(name: str, resolution: tuple[int, int]) -> Camera:
 def extract_features(
     image_dir: str | Path, database_path: str | Path, *, prior: Mapping[str, Camera] | None = None,
     options: FeatureOptions | None = None, executor: Executor | None = None, scene: str = "",
+    cameras: list[str] | None = None,
 ) -> FeatureReport:
     """Extract SIFT features of every ``<camera>.png`` in ``image_dir`` into the COLMAP database.
 
@@ -139,6 +140,8 @@ def extract_features(
         database_path: the scene's database (created if missing; images already holding features are reused).
         prior: cameras by name whose intrinsics initialise the database cameras (nominal intrinsics otherwise).
         executor: where the per-image tasks run (default: in this process).
+        cameras: the images' camera names when they are not all here (on the capture nodes, read by the
+            executor's workers there); default every ``*.png`` of ``image_dir``.
     Returns:
         :class:`FeatureReport` with features per camera and failures per camera with the reason.
     """
@@ -149,7 +152,8 @@ def extract_features(
     t0 = time.perf_counter()
     report = FeatureReport(scene=scene or image_dir.name)
     database_path.parent.mkdir(parents=True, exist_ok=True)
-    paths = sorted(image_dir.glob("*.png"))
+    paths = (sorted(image_dir / f"{c}.png" for c in cameras) if cameras is not None
+             else sorted(image_dir.glob("*.png")))
     with pycolmap.Database.open(str(database_path)) as db:
         done = images_with_features(db)
         for name, image_id in done.items():

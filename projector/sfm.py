@@ -46,6 +46,9 @@ class SfmOptions:
     merge: MergeOptions = field(default_factory=MergeOptions)
     scenes: list[str] | None = None  # default: every folder in CAPTURE/scenes
     num_workers: int | None = None  # default: all available cores
+    # the cameras' images are on the capture nodes, not under CAPTURE/scenes/ here (capture.json's "nodes"):
+    # features of these names are asked for, scenes are taken as given (default: found under scenes/)
+    cameras: list[str] | None = None
     show_progress: bool = True
 
 
@@ -126,7 +129,8 @@ def match_scene(
     """Features, pairs and matching of one scene into ``work_dir/<scene>/database.db`` (resumable)."""
     image_dir = capture_dir / "scenes" / scene
     db_path = work_dir / scene / "database.db"
-    feats = extract_features(image_dir, db_path, prior=prior, options=options.features, executor=executor, scene=scene)
+    feats = extract_features(image_dir, db_path, prior=prior, options=options.features, executor=executor, scene=scene,
+                             cameras=options.cameras)
     names = sorted(feats.num_features)
     pairs = select_pairs(names, prior, options.pairs)
     write_pairs(work_dir / scene / "pairs.txt", pairs)
@@ -140,14 +144,24 @@ def match_scene(
     return feats, pairs, matches
 
 
+def mapper_image_dir(capture_dir: Path, work_dir: Path, scene: str, options: SfmOptions) -> Path:
+    """The image folder the mappers are given: the scene's, or an empty one when the images are on the capture
+    nodes (``options.cameras``): the mappers read only the database, but COLMAP wants the folder to exist."""
+    if options.cameras is None:
+        return capture_dir / "scenes" / scene
+    empty = work_dir / scene / "images_on_nodes"
+    empty.mkdir(parents=True, exist_ok=True)
+    return empty
+
+
 def run_scene(
     capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera], options: SfmOptions,
     executor: Executor,
 ) -> SceneStats:
     """Features, pairs, matching and mapping of one scene."""
     feats, pairs, matches = match_scene(capture_dir, work_dir, scene, prior, options, executor)
-    model = map_scene(work_dir / scene / "database.db", capture_dir / "scenes" / scene, work_dir / scene / "sparse",
-                      options=options.mapping, scene=scene)
+    model = map_scene(work_dir / scene / "database.db", mapper_image_dir(capture_dir, work_dir, scene, options),
+                      work_dir / scene / "sparse", options=options.mapping, scene=scene)
     return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model)
 
 
@@ -173,7 +187,7 @@ def run_sfm(
     for sub in (options.features, options.matching):
         sub.show_progress = options.show_progress
     capture_dir, work_dir = Path(capture_dir), Path(work_dir)
-    scenes = list_scenes(capture_dir, options.scenes)
+    scenes = list(options.scenes) if options.cameras is not None and options.scenes else list_scenes(capture_dir, options.scenes)
     prior_cams = _prior_cameras(prior)
     t0 = time.perf_counter()
     stats: dict[str, SceneStats] = {}

@@ -68,7 +68,7 @@ def stand_in_stages(monkeypatch, capture):
     _, truth = capture
     calls = {"sfm": 0, "ba": 0}
 
-    def sfm(capture_dir, work_dir, *, prior, progress=True, scenes=None):
+    def sfm(capture_dir, work_dir, *, prior, progress=True, scenes=None, executor=None, cameras=None):
         calls["sfm"] += 1
         return SfmOutcome(problem=_problem(truth), failures={"01_24": "saw no tent in any scene"})
 

@@ -1,0 +1,130 @@
+"""Where the SfM front end's tasks run: the local process pool, or a Dask cluster (``--scheduler``).
+
+A capture may say which capture node holds which cameras' images (``capture.json``:
+``"nodes": {"node07": ["07_01", "07_02"], ...}``; node names are the workers' ``dask worker --name``). Feature
+extraction of those images is then pinned to that node's worker and reads the image from the node's own disk:
+``$DOME_CALIB_CAPTURE_ROOT`` in the worker's environment, a folder with the capture's layout
+(``scenes/<scene>/<camera>.png``), or else the head's CAPTURE path. Only the features (keypoints and
+descriptors, ~0.5 MB a VGA image) come back. Matching, mapping and the bundle adjustment read the scene
+database the head writes: matching tasks go to any worker, which therefore reads the head's work folder by the
+same path (a shared mount, or one machine). A capture without ``"nodes"`` is read from its shared path by any
+worker.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from dome_calib.errors import CaptureError
+from dome_calib.executor import Executor, make_executor
+from dome_calib.io_utils import atomic_write_text
+from projector.features import ImageResult, extract_image
+
+CAPTURE_ROOT_ENV = "DOME_CALIB_CAPTURE_ROOT"
+WORKER_WAIT_S = 20.0  # how long a run waits for the capture's node workers to connect
+
+
+def capture_nodes(capture: Path) -> dict[str, list[str]]:
+    """``capture.json``'s ``"nodes"`` (node -> cameras), {} if absent; one line if malformed or a camera is on
+    two nodes."""
+    meta_path = capture / "capture.json"
+    if not meta_path.exists():
+        return {}
+    try:
+        nodes = json.loads(meta_path.read_text(encoding="utf-8")).get("nodes", {})
+    except (ValueError, AttributeError) as exc:
+        raise CaptureError(f"{meta_path}: malformed ({exc})") from exc
+    if not isinstance(nodes, dict) or not all(isinstance(v, list) and all(isinstance(c, str) for c in v)
+                                              for v in nodes.values()):
+        raise CaptureError(f"{meta_path}: field 'nodes' must map a worker name to a list of camera names")
+    seen: dict[str, str] = {}
+    for node, cams in sorted(nodes.items()):
+        for cam in cams:
+            if cam in seen:
+                raise CaptureError(f"{meta_path}: camera {cam} is listed under nodes {seen[cam]} and {node}")
+            seen[cam] = node
+    return {str(n): sorted(c) for n, c in sorted(nodes.items())}
+
+
+def node_image_path(head_capture: str, path: str) -> str:
+    """Worker side: the image's path on this node (``$DOME_CALIB_CAPTURE_ROOT`` replaces the head's CAPTURE)."""
+    root = os.environ.get(CAPTURE_ROOT_ENV)
+    if not root:
+        return path
+    rel = os.path.relpath(path, head_capture)
+    return path if rel.startswith("..") else os.path.join(root, rel)
+
+
+@dataclass(frozen=True)
+class NodeImageTask:
+    """Worker-side task of a pinned image: find it on this node, then run the feature task (picklable)."""
+
+    head_capture: str
+
+    def __call__(self, task: tuple) -> object:
+        camera, path, options = task
+        local = node_image_path(self.head_capture, path)
+        if not os.path.isfile(local):  # reported per camera like any unusable image, naming the node's path
+            return ImageResult(camera=camera, failure=f"image not found on this node ({local})")
+        return extract_image((camera, local, options))
+
+
+@dataclass(frozen=True)
+class _CameraNode:
+    node_of: dict[str, str]
+
+    def __call__(self, task: tuple) -> str | None:
+        return self.node_of.get(task[0])
+
+
+@contextlib.contextmanager
+def open_executor(capture: Path, scheduler: str | None, stats: dict | None = None) -> Iterator[Executor]:
+    """The executor of one run: the local pool without ``scheduler``, else a :class:`DaskExecutor` whose feature
+    tasks are pinned to the capture's nodes (after waiting for those workers). ``stats`` receives the cluster's
+    per-stage tallies when the block ends."""
+    if scheduler is None:
+        with make_executor() as pool:
+            yield pool
+        return
+    from dome_calib.executor_dask import DaskExecutor, Route  # distributed takes ~0.5 s to load: --scheduler only
+
+    nodes = capture_nodes(capture)
+    node_of = {cam: node for node, cams in nodes.items() for cam in cams}
+    routes = {extract_image: Route(worker_of=_CameraNode(node_of), task_fn=NodeImageTask(str(capture.resolve())))}
+    with DaskExecutor(scheduler, routes=routes) as executor:
+        if nodes:
+            executor.wait_for_workers(nodes, WORKER_WAIT_S)
+        else:
+            executor.wait_for_any_worker(WORKER_WAIT_S)
+        try:
+            yield executor
+        finally:
+            if stats is not None:
+                stats.update(executor.stats_dict())
+
+
+def write_cluster_stats(path: Path, stats: dict) -> None:
+    """The cluster's per-stage tallies beside the run's other work files (nothing for a local run)."""
+    if stats:
+        atomic_write_text(path, json.dumps(stats, indent=1))
+
+
+def stage_name(fn_name: str) -> str:
+    return {"extract_image": "features", "match_batch": "matching"}.get(fn_name, fn_name)
+
+
+def format_cluster(stats: dict) -> list[str]:
+    """Lines for the calibrate summary: where each stage ran."""
+    if not stats:
+        return []
+    lines = [f"cluster {stats['scheduler']}:"]
+    for fn_name, s in stats["stages"].items():
+        workers = ", ".join(f"{w} {n}" for w, n in s["workers"].items())
+        lines.append(f"  {stage_name(fn_name)}: {s['tasks']} tasks on {workers}; {s['wall_s']:.1f} s wall, "
+                     f"{s['task_s']:.1f} s in tasks; {(s['bytes_out'] + s['bytes_back']) / 1e6:.1f} MB moved")
+    lines.append("  mapping, bundle adjustment, normalize: on this machine")
+    return lines
