@@ -37,7 +37,7 @@ logger = logging.getLogger(__name__)
 
 STATE_FILE = "state.json"
 STAGE_LABELS = {"sfm": "features, pairs, matching, per-scene mapping, merging scenes",
-                "ba": "bundle adjustment (5 distortion parameters, outlier rejection)",
+                "ba": "bundle adjustment (lens terms chosen per camera, outlier rejection)",
                 "match": "features, pairs and matching of one scene",
                 "detect": "which cameras disagree with the prior", "quick_ba": "re-estimating the changed cameras"}
 STATE_VERSION = 1
@@ -220,6 +220,7 @@ def finish(*, out: Path, seq: str, expected: list[str], failures: dict[str, str]
     write_bundle(bundle, out)
     extra = {"world_frame": normalized.as_dict(), "stage_seconds": seconds,
              "center_sigma_cm": {n: round(s, 4) for n, s in sorted(sigma_cm.items())},
+             "lens_model": ba.lens_model if ba else None,
              "changes_vs_prior": {n: c.as_dict() for n, c in (changes or {}).items()} if prior else None}
     report_dir = write_report(out, bundle, residuals, options.report, changes=reasons, missing=missing, extra=extra)
     seconds["write"] = time.perf_counter() - t0
@@ -287,7 +288,7 @@ def report_bundle(bundle_folder: Path, *, prior: Path | None = None, min_observa
     if old_path.exists():  # what only calibrate knew (world frame, stage times) survives a re-report
         try:
             old = json.loads(old_path.read_text(encoding="utf-8"))
-            kept = {k: old[k] for k in ("world_frame", "stage_seconds") if k in old}
+            kept = {k: old[k] for k in ("world_frame", "stage_seconds", "lens_model") if k in old}
         except ValueError:
             logger.warning("%s: unreadable, replaced", old_path)
     target = write_report(bundle_folder, bundle, residuals, ReportOptions(min_observations=min_observations),

@@ -1,0 +1,394 @@
+"""Which lens terms of each camera the observations support: free those, hold the others at the prior.
+
+A camera seen in one view of one scene (a real capture with few tent positions, a camera at the edge of the
+dome) does not pin down five distortion terms and a principal point: the bundle adjustment then fits them to
+noise and the pose pays for it (a principal-point shift looks like a small rotation). This module chooses, per
+camera, which of ``cx, cy, k1, k2, p1, p2, k3`` to refine; the focal lengths are always refined (a prior's focal
+can be off by percents, and the depth of the scene pins it).
+
+1. Smallest model: a bundle adjustment with every lens term but the focal lengths held at the prior (well posed
+   however few the views; a fit with everything free can wander far on weak data, so it is not the reference).
+2. At that solution the problem is linearised once over every term the caller left free (reduced camera system
+   S with the points eliminated, right-hand side b: the quadratic model of the fit with everything free). The
+   pixel noise sigma is the one that model's fit leaves (evaluated after a Levenberg-Marquardt step, with its
+   degrees of freedom): the smallest model's own residuals also hold the unmodelled lens.
+3. Groups are judged top-down, ``principal point -> k3 -> p1, p2 -> k2 -> k1``, each in the quadratic model with
+   the groups above it as already decided (Gauss-Newton step ``S^-1 b`` for where the fit would move it from the
+   prior, ``sigma^2 S^-1`` for how well). A group is **held at the prior** when both
+
+   - it is poorly determined: one standard deviation of what it adds to the camera's image moves some point of
+     a grid over the whole image (the region a calibration is used in, not only where the tent was seen) by more
+     than ``max_sigma_px`` (0.5 px, two to three times the feature noise). For a distortion group "what it adds"
+     lets the camera's other free distortion terms follow it as the data tie them (k3 alone moves the corners
+     by many pixels, but k1 and k2 largely compensate where the points are): the field ``A Sigma_gg A^T`` with
+     ``A = J_g + J_r Sigma_rg Sigma_gg^-1``. The principal point is judged by itself against a wider limit,
+     ``max_principal_point_sigma_px`` (5 px): a principal point held a few pixels off turns its camera and,
+     through the shared points, drags the weak common mode of every camera's principal point and rotation (on
+     the panel dome, holding one camera's principal point 2.5 px off moved the median principal-point error of
+     all 60 cameras from 1.2 to 2.2 px), so it is held only when the data leave it grossly open (11 to 22 px for
+     one view of a real scene; at most 3.8 px on the synthetic panel dome); and
+   - the residuals do not need it: its Wald statistic (the change from the prior in units of its covariance,
+     ``d^T Sigma^-1 d``, i.e. the cost increase in chi^2 units when it is held) is below a BIC penalty,
+     ``ln(n)`` per term with ``n`` the camera's residual count.
+
+4. A bundle adjustment of the chosen model from the smallest model's solution (held terms at the prior). The
+   decisions are then taken again at that solution (the linearisation is now close to the chosen fit); if they
+   change, solve again (at most :data:`MAX_PASSES` passes). Usually two or three solves in all; the linear
+   algebra is one factorisation of the reduced camera system per level and pass.
+
+Comparisons use quantised values (:data:`QUANTUM`), so the same observations give the same model on every machine.
+"""
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+
+from dome_calib.ba.blas import blas_threads
+from dome_calib.ba.evaluate import residuals, residuals_and_jacobians
+from dome_calib.ba.problem import CAMERA_PARAMS, BAProblem
+from dome_calib.ba.result import BAResult
+from dome_calib.ba.schur import build_structure, linearize, point_step, reduced_system
+from dome_calib.camera import distort_with_jacobians, pixels_to_normalized
+
+logger = logging.getLogger(__name__)
+
+#: The lens terms (columns 6..14 of a camera's parameters); the focal lengths are always free.
+LENS_TERMS = CAMERA_PARAMS[6:]
+FOCAL_TERMS = ("fx", "fy")
+#: Groups in the order they are judged: (name, terms, is a distortion group).
+LEVELS: tuple[tuple[str, tuple[str, ...], bool], ...] = (
+    ("principal_point", ("cx", "cy"), False),
+    ("k3", ("k3",), True),
+    ("tangential", ("p1", "p2"), True),
+    ("k2", ("k2",), True),
+    ("k1", ("k1",), True),
+)
+DISTORTION_COLUMNS = tuple(CAMERA_PARAMS.index(t) for t in ("k1", "k2", "p1", "p2", "k3"))
+#: Comparisons are made on values rounded to this (px and chi^2 alike).
+QUANTUM = 1e-3
+
+
+@dataclass(kw_only=True)
+class LensModelOptions:
+    """Rule of :func:`select_lens_model`. A distortion group is determined when one standard deviation of it
+    moves no point of the image by more than ``max_sigma_px``; the principal point when its standard deviation is
+    at most ``max_principal_point_sigma_px``. ``bic_per_term``: Wald penalty per term is ``ln(n)`` (BIC), n =
+    residuals of the camera; False: 2 per term (AIC). ``grid``: columns x rows of image points judged."""
+
+    max_sigma_px: float = 0.5
+    max_principal_point_sigma_px: float = 5.0
+    bic_per_term: bool = True
+    grid: tuple[int, int] = (17, 13)
+
+    def limit_px(self, level: str) -> float:
+        return self.max_principal_point_sigma_px if level == "principal_point" else self.max_sigma_px
+
+
+@dataclass(kw_only=True)
+class GroupDecision:
+    """One level for one camera. sigma_px: largest 1-sigma image displacement of the group (px); wald_chi2:
+    predicted change from the prior in chi^2 units; penalty_chi2: what it has to reach to be needed."""
+
+    group: str
+    terms: tuple[str, ...]
+    free: bool
+    reason: str
+    sigma_px: float | None = None
+    wald_chi2: float | None = None
+    penalty_chi2: float | None = None
+
+    def as_dict(self) -> dict:
+        out = {"group": self.group, "terms": list(self.terms), "free": self.free, "reason": self.reason}
+        for key in ("sigma_px", "wald_chi2", "penalty_chi2"):
+            value = getattr(self, key)
+            if value is not None:
+                out[key] = round(float(value), 3)
+        return out
+
+
+@dataclass(kw_only=True)
+class CameraLensModel:
+    """The lens terms of one camera that were refined and those held at the prior, with the decisions."""
+
+    name: str
+    free: list[str]
+    held: list[str]
+    decisions: list[GroupDecision] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return {"free": self.free, "held": self.held, "decisions": [d.as_dict() for d in self.decisions]}
+
+
+@dataclass(kw_only=True)
+class LensModel:
+    """Per camera (by name) the chosen lens model; ``noise_px``: the pixel sigma the tests used; ``solves``:
+    bundle adjustments run; ``note``: why nothing was selected, if so."""
+
+    cameras: dict[str, CameraLensModel]
+    options: LensModelOptions
+    solves: int
+    noise_px: float | None = None
+    note: str = ""
+
+    def as_dict(self) -> dict:
+        o = self.options
+        rule = (f"fx, fy always free; cx,cy | k3 | p1,p2 | k2 | k1 judged in that order and held at the prior when "
+                f"one sigma of what the group adds moves some image point by more than {o.max_sigma_px:g} px "
+                f"({o.max_principal_point_sigma_px:g} px for cx,cy) AND its Wald chi2 is below "
+                f"{'ln(residuals) (BIC)' if o.bic_per_term else '2 (AIC)'} per term")
+        return {"rule": rule, "max_sigma_px": o.max_sigma_px,
+                "max_principal_point_sigma_px": o.max_principal_point_sigma_px,
+                "penalty": "bic" if o.bic_per_term else "aic", "noise_px": self.noise_px, "solves": self.solves,
+                "note": self.note,
+                "cameras": {n: c.as_dict() for n, c in sorted(self.cameras.items())}}
+
+    def held_count(self) -> int:
+        return sum(len(c.held) for c in self.cameras.values())
+
+
+def image_jacobian(camera_params: np.ndarray, resolution: tuple[int, int], grid: tuple[int, int]) -> np.ndarray:
+    """(N, 2, 9) d pixel / d lens term (LENS_TERMS order) at the rays of a grid of N pixels spanning the image,
+    for fixed rays (pose and points unchanged). Rays that the lens cannot undistort are left out."""
+    w, h = resolution
+    u, v = np.meshgrid(np.linspace(0.0, w - 1.0, grid[0]), np.linspace(0.0, h - 1.0, grid[1]))
+    p = np.asarray(camera_params, dtype=float)
+    xn = pixels_to_normalized(np.stack([u.ravel(), v.ravel()], -1), p[6:10], p[10:15])
+    xn = xn[np.all(np.isfinite(xn), axis=1)]
+    xd, _, J_dist = distort_with_jacobians(xn, np.broadcast_to(p[10:15], (len(xn), 5)))
+    J = np.zeros((len(xn), 2, 9))
+    J[:, 0, 0], J[:, 1, 1] = xd[:, 0], xd[:, 1]
+    J[:, 0, 2] = J[:, 1, 3] = 1.0
+    J[:, :, 4:] = J_dist * p[6:8][None, :, None]
+    return J
+
+
+def field_sigma_px(cov: np.ndarray, J: np.ndarray, group: list[int] | None = None) -> float:
+    """Largest 1-sigma displacement (px) over N image points that terms with covariance (k, k) and image
+    Jacobian (N, 2, k) leave open: ``sqrt`` of the largest eigenvalue of ``J Sigma J^T`` at any point.
+
+    With ``group`` (indices into the k terms), only what that group adds: the other terms follow it as the
+    data tie them (their regression on it), so the displacement per unit of the group is
+    ``A = J_g + J_r Sigma_rg Sigma_gg^-1`` and its field covariance ``A Sigma_gg A^T`` (the part of the field
+    covariance that holding the group would remove).
+    """
+    if group is not None and len(group) < cov.shape[0]:
+        rest = [k for k in range(cov.shape[0]) if k not in group]
+        S_gg = cov[np.ix_(group, group)]
+        regression = cov[np.ix_(rest, group)] @ np.linalg.pinv(S_gg, rcond=1e-12, hermitian=True)
+        J, cov = J[:, :, group] + J[:, :, rest] @ regression, S_gg
+    V = np.einsum("nik,kl,njl->nij", J, cov, J)
+    return float(np.sqrt(max(np.linalg.eigvalsh(V)[:, -1].max(initial=0.0), 0.0)))
+
+
+def wald_chi2(cov: np.ndarray, delta: np.ndarray) -> float:
+    """``delta^T Sigma^-1 delta``: a change (k,) from the prior in units of its covariance (k, k)."""
+    return float(delta @ np.linalg.pinv(cov, rcond=1e-12, hermitian=True) @ delta)
+
+
+def _q(x: float) -> float:
+    return round(x / QUANTUM) * QUANTUM
+
+
+def _penalty(n_obs: int, n_terms: int, options: LensModelOptions) -> float:
+    return n_terms * (float(np.log(max(2 * n_obs, 2))) if options.bic_per_term else 2.0)
+
+
+def _decide(level: str, terms: tuple[str, ...], sigma_px: float, wald: float, penalty: float,
+            options: LensModelOptions) -> GroupDecision:
+    determined = _q(sigma_px) <= _q(options.limit_px(level))
+    needed = _q(wald) >= _q(penalty)
+    if determined:
+        reason = f"determined: one sigma moves the image by at most {sigma_px:.3f} px"
+    elif needed:
+        reason = (f"needed: the fit moves it from the prior by chi2 {wald:.1f} >= {penalty:.1f}, although one sigma "
+                  f"moves the image by {sigma_px:.3f} px")
+    else:
+        reason = (f"held at the prior: one sigma would move the image by {sigma_px:.3f} px and the fit needs it "
+                  f"only by chi2 {wald:.1f} < {penalty:.1f}")
+    return GroupDecision(group=level, terms=terms, free=determined or needed, reason=reason, sigma_px=sigma_px,
+                         wald_chi2=wald, penalty_chi2=penalty)
+
+
+@dataclass(kw_only=True)
+class QuadraticModel:
+    """The bundle adjustment linearised at a solution, over the candidate free parameters (points eliminated):
+    S (F, F) reduced normal matrix, b (F,) right-hand side (S step = b), ``index`` (C, 15) position of each
+    camera parameter in S or -1, ``noise_px``: pixel sigma predicted for the model with every candidate free."""
+
+    S: np.ndarray
+    b: np.ndarray
+    index: np.ndarray
+    noise_px: float
+    n_threads: int = 2
+
+    @classmethod
+    def at(cls, result: BAResult, candidate_free: np.ndarray, n_threads: int = 2) -> QuadraticModel:
+        """Linearise the problem of ``result`` at its solution over the ``candidate_free`` parameters (C, 15).
+
+        The noise sigma is estimated from the residuals one Gauss-Newton step of the model with every candidate
+        free would leave (evaluated, not predicted: the cost there is never below that model's optimum), with
+        the degrees of freedom of that model; if that step does not lower the cost, from the predicted decrease.
+        """
+        p = result.problem
+        st = build_structure(p.camera_index, p.point_index, result.inlier, candidate_free & ~result.gauge.held,
+                             p.n_points)
+        res, Jc, Jp = residuals_and_jacobians(p.camera_params, p.points_cm, st.cam, st.pt, p.uv_px[st.obs])
+        cost = 0.5 * float(np.sum(res * res))
+        lin = linearize(st, res, Jc, Jp, np.ones(len(st.obs)))
+        del res, Jc, Jp
+        S, b, Li, y_blocks = reduced_system(st, lin, 0.0, n_threads=n_threads)
+        f = st.free_flat
+        S, b = S[np.ix_(f, f)], b[f]
+        index = np.full((p.n_cameras, 15), -1, dtype=np.int64)
+        local = np.full(len(st.active_cameras) * 15, -1, dtype=np.int64)
+        local[f] = np.arange(len(f))
+        index[st.active_cameras] = local.reshape(-1, 15)
+        model = cls(S=S, b=b, index=index, noise_px=0.0, n_threads=n_threads)
+        everything = index >= 0
+        dof = max(2 * len(st.obs) - len(f) - 3 * int(st.live_points.sum()), 1)
+        evaluated = []
+        for damping in (1e-6, 1e-4, 1e-2):  # Levenberg-Marquardt steps: the undamped one can overshoot
+            step = model.step(everything, damping=damping)[0]
+            dp = point_step(st, lin, Li, y_blocks, step[st.active_cameras])
+            r = residuals(p.camera_params + step, p.points_cm + dp, st.cam, st.pt, p.uv_px[st.obs])
+            evaluated.append(0.5 * float(np.sum(r * r)))
+        cost_fit = min(evaluated, default=np.inf)
+        if not cost_fit < cost:  # no step lowered the cost: fall back on the predicted decrease
+            cost_fit = cost - 0.5 * float(b[index[everything]] @ model.step(everything)[0][everything])
+        model.noise_px = float(np.sqrt(max(2.0 * cost_fit, 1e-24) / dof))
+        return model
+
+    def step(self, free: np.ndarray, columns_of: dict[int, list[int]] | None = None, *, damping: float = 0.0
+             ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+        """Gauss-Newton step (C, 15) over the parameters marked ``free`` (C, 15) (zero elsewhere), and for each
+        camera in ``columns_of`` the (k, k) block of the inverse of their normal matrix for its listed columns.
+        ``damping``: Levenberg-Marquardt, times the diagonal."""
+        sel = np.flatnonzero(free.ravel() & (self.index.ravel() >= 0))
+        idx = self.index.ravel()[sel]
+        pos = np.full(self.index.size, -1, dtype=np.int64)
+        pos[sel] = np.arange(len(sel))
+        d = np.sqrt(np.maximum(np.diag(self.S)[idx], 1e-300))
+        with blas_threads(self.n_threads):
+            for ridge in (0.0, 1e-12, 1e-9, 1e-6):  # a tiny ridge if some direction is not observable at all
+                Ss = self.S[np.ix_(idx, idx)]
+                Ss /= d[:, None]
+                Ss /= d[None, :]  # Jacobi scaling: lens and pose columns differ by many decades
+                Ss[np.diag_indices_from(Ss)] += damping + ridge
+                try:
+                    factor = scipy.linalg.cho_factor(Ss, overwrite_a=True, check_finite=False)
+                    break
+                except scipy.linalg.LinAlgError:
+                    if ridge == 1e-6:
+                        raise
+            x = scipy.linalg.cho_solve(factor, self.b[idx] / d, check_finite=False) / d
+            blocks = {}
+            if columns_of:
+                cols = [(c, [int(pos[c * 15 + j]) for j in js]) for c, js in columns_of.items()]
+                flat = [k for _, ks in cols for k in ks]
+                E = np.zeros((len(d), len(flat)))
+                E[flat, np.arange(len(flat))] = 1.0 / d[flat]
+                X = scipy.linalg.cho_solve(factor, E, check_finite=False) / d[:, None]
+                start = 0
+                for c, ks in cols:
+                    blocks[c] = X[ks, start:start + len(ks)]
+                    start += len(ks)
+        full = np.zeros(self.index.size)
+        full[sel] = x
+        return full.reshape(self.index.shape), blocks
+
+
+#: At most this many decide-and-solve passes (each one after the first judges again at the last solution).
+MAX_PASSES = 3
+
+
+def _walk(model: QuadraticModel, point: BAResult, initial: BAProblem, candidate: np.ndarray, judged: list[int],
+          options: LensModelOptions) -> tuple[np.ndarray, dict[str, list[GroupDecision]]]:
+    """The groups judged top-down in the quadratic model at ``point``: the free mask and the decisions."""
+    names = initial.camera_names
+    sigma2 = model.noise_px ** 2
+    free = candidate.copy()
+    decisions: dict[str, list[GroupDecision]] = {n: [] for n in names}
+    for level, terms, distortion in LEVELS:
+        cols = [CAMERA_PARAMS.index(t) for t in terms]
+        groups = {i: [c for c in cols if free[i, c] and model.index[i, c] >= 0] for i in judged}
+        groups = {i: g for i, g in groups.items() if g}
+        if not groups:
+            continue
+        # a distortion group is judged by what it adds to the camera's distortion field (the other free
+        # distortion terms following it); the principal point by itself
+        field = {i: [c for c in DISTORTION_COLUMNS if free[i, c]] if distortion else g for i, g in groups.items()}
+        step, blocks = model.step(free, field)
+        for i, g in sorted(groups.items()):
+            J = image_jacobian(point.problem.camera_params[i], initial.cameras[i].resolution, options.grid)
+            in_field = [field[i].index(c) for c in g]
+            sigma_px = field_sigma_px(sigma2 * blocks[i], J[:, :, [c - 6 for c in field[i]]], in_field)
+            delta = point.problem.camera_params[i, g] + step[i, g] - initial.camera_params[i, g]
+            wald = wald_chi2(sigma2 * blocks[i][np.ix_(in_field, in_field)], delta)
+            penalty = _penalty(int(point.camera_n_obs[i]), len(g), options)
+            decision = _decide(level, tuple(CAMERA_PARAMS[c] for c in g), sigma_px, wald, penalty, options)
+            decisions[names[i]].append(decision)
+            if not decision.free:
+                free[i, g] = False
+    return free, decisions
+
+
+def select_lens_model(initial: BAProblem, solve: Callable[[BAProblem, bool], BAResult],
+                      options: LensModelOptions | None = None, *, n_threads: int = 2) -> tuple[BAResult, LensModel]:
+    """Bundle adjustment with, per camera, only the lens terms the observations support (module docstring).
+
+    Args:
+        initial: the problem as given; its parameter values are the prior that held terms keep, its ``free``
+            mask the most that may be refined (terms the caller holds stay held and are not judged).
+        solve: the bundle adjustment, ``solve(problem, with_uncertainty)``, e.g.
+            ``lambda p, u: bundle_adjust(p, dataclasses.replace(options, compute_uncertainty=u))``.
+    Returns:
+        the result of the final solve (the chosen model, with uncertainties) and the per-camera :class:`LensModel`.
+    Example:
+        >>> result, lens = select_lens_model(problem, lambda p, u: bundle_adjust(p, BAOptions(compute_uncertainty=u)))
+        >>> lens.cameras["00_03"].held
+        ['cx', 'cy', 'p1', 'p2', 'k3']
+    """
+    options = options or LensModelOptions()
+    candidate = initial.free.copy()
+    lens_cols = [CAMERA_PARAMS.index(t) for t in LENS_TERMS if t not in FOCAL_TERMS]
+    judged = [i for i in range(initial.n_cameras) if candidate[i, lens_cols].any()]
+    if not judged:  # nothing to choose (e.g. every lens term held by the caller)
+        return solve(initial, True), _lens_model(initial, candidate, {}, options, 1, None)
+    smallest = initial.copy()
+    smallest.free[:, lens_cols] = False
+    point, solves = solve(smallest, False), 1
+    free = smallest.free
+    for _ in range(MAX_PASSES):
+        model = QuadraticModel.at(point, candidate, n_threads=n_threads)
+        chosen, decisions = _walk(model, point, initial, candidate, judged, options)
+        if solves > 1 and np.array_equal(chosen, free):
+            break  # the chosen model's own solution confirms it
+        free = chosen
+        logger.info("lens model: %d of %d candidate lens terms freed (noise %.3f px)",
+                    int(free[judged][:, lens_cols].sum()), int(candidate[judged][:, lens_cols].sum()), model.noise_px)
+        trial = point.problem.copy()
+        trial.camera_params[~free] = initial.camera_params[~free]  # held terms back at the prior
+        trial.free = free.copy()
+        point, solves = solve(trial, True), solves + 1
+    return point, _lens_model(initial, free, decisions, options, solves, model.noise_px)
+
+
+def _lens_model(initial: BAProblem, free: np.ndarray, decisions: dict[str, list[GroupDecision]],
+                options: LensModelOptions, solves: int, noise_px: float | None) -> LensModel:
+    cameras = {}
+    for i, name in enumerate(initial.camera_names):
+        rows = list(decisions.get(name, []))
+        seen = {d.group for d in rows}
+        for level, terms, _ in LEVELS:
+            by_caller = tuple(t for t in terms if not initial.free[i, CAMERA_PARAMS.index(t)])
+            if level not in seen and by_caller:
+                rows.append(GroupDecision(group=level, terms=by_caller, free=False, reason="held by the caller"))
+        cameras[name] = CameraLensModel(
+            name=name, free=[t for t in LENS_TERMS if free[i, CAMERA_PARAMS.index(t)]],
+            held=[t for t in LENS_TERMS if not free[i, CAMERA_PARAMS.index(t)]], decisions=rows)
+    return LensModel(cameras=cameras, options=options, solves=solves, noise_px=noise_px,
+                     note="" if noise_px is not None else "no lens term to choose: the caller's free mask is used")
