@@ -143,6 +143,8 @@ def test_well_observed_cameras_keep_every_lens_term_free():
         assert np.linalg.norm(cam.intr[2:] - truth[n].intr[2:]) < 3.0 * pp_sigma_px < 2.0  # within 3 sigma, px
         assert distortion_difference_px(cam, truth[n]) < 1.0  # px over the whole image
     assert {d["group"] for d in lens["01_01"]["decisions"]} == {"principal_point", "k3", "tangential", "k2", "k1"}
+    tangential = next(d for d in lens["01_01"]["decisions"] if d["group"] == "tangential")
+    assert "principal point" in tangential["reason"]  # decentering is only held together with the principal point
     assert outcome.lens_model["solves"] == 2  # the smallest model, then the chosen one (confirmed, not re-solved)
 
 

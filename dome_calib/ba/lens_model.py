@@ -28,8 +28,13 @@ can be off by percents, and the depth of the scene pins it).
      all 60 cameras from 1.2 to 2.2 px), so it is held only when the data leave it grossly open (11 to 22 px for
      one view of a real scene; at most 3.8 px on the synthetic panel dome); and
    - the residuals do not need it: its Wald statistic (the change from the prior in units of its covariance,
-     ``d^T Sigma^-1 d``, i.e. the cost increase in chi^2 units when it is held) is below a BIC penalty,
-     ``ln(n)`` per term with ``n`` the camera's residual count.
+     ``d^T Sigma^-1 d``, i.e. the cost increase in chi^2 units when it is held) stays below the chi^2 quantile
+     of ``needed_p_value`` (1 %: 6.63 for one term, 9.21 for two), i.e. the data do not contradict the prior.
+
+   The tangential pair is judged only on cameras whose principal point is held: decentering is, to first
+   order, a principal-point shift growing with the radius, so with the principal point free a held p1, p2 is
+   paid for by it (on the panel dome, holding one HD camera's p1, p2 at the design values moved its principal
+   point by 7 px and turned it by 0.3 deg).
 
 4. A bundle adjustment of the chosen model from the smallest model's solution (held terms at the prior). The
    decisions are then taken again at that solution (the linearisation is now close to the chosen fit); if they
@@ -46,6 +51,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
+import scipy.stats
 
 from dome_calib.ba.blas import blas_threads
 from dome_calib.ba.evaluate import residuals, residuals_and_jacobians
@@ -67,6 +73,7 @@ LEVELS: tuple[tuple[str, tuple[str, ...], bool], ...] = (
     ("k2", ("k2",), True),
     ("k1", ("k1",), True),
 )
+PRINCIPAL_POINT_COLUMNS = [CAMERA_PARAMS.index("cx"), CAMERA_PARAMS.index("cy")]
 DISTORTION_COLUMNS = tuple(CAMERA_PARAMS.index(t) for t in ("k1", "k2", "p1", "p2", "k3"))
 #: Comparisons are made on values rounded to this (px and chi^2 alike).
 QUANTUM = 1e-3
@@ -76,12 +83,12 @@ QUANTUM = 1e-3
 class LensModelOptions:
     """Rule of :func:`select_lens_model`. A distortion group is determined when one standard deviation of it
     moves no point of the image by more than ``max_sigma_px``; the principal point when its standard deviation is
-    at most ``max_principal_point_sigma_px``. ``bic_per_term``: Wald penalty per term is ``ln(n)`` (BIC), n =
-    residuals of the camera; False: 2 per term (AIC). ``grid``: columns x rows of image points judged."""
+    at most ``max_principal_point_sigma_px``. It is needed when its Wald statistic reaches the chi^2 quantile
+    (as many degrees of freedom as terms) of ``needed_p_value``. ``grid``: columns x rows of image points."""
 
     max_sigma_px: float = 0.5
     max_principal_point_sigma_px: float = 5.0
-    bic_per_term: bool = True
+    needed_p_value: float = 0.01
     grid: tuple[int, int] = (17, 13)
 
     def limit_px(self, level: str) -> float:
@@ -139,10 +146,10 @@ class LensModel:
         rule = (f"fx, fy always free; cx,cy | k3 | p1,p2 | k2 | k1 judged in that order and held at the prior when "
                 f"one sigma of what the group adds moves some image point by more than {o.max_sigma_px:g} px "
                 f"({o.max_principal_point_sigma_px:g} px for cx,cy) AND its Wald chi2 is below "
-                f"{'ln(residuals) (BIC)' if o.bic_per_term else '2 (AIC)'} per term")
+                f"the chi2 quantile of p = {o.needed_p_value:g} (the prior is not contradicted at that level)")
         return {"rule": rule, "max_sigma_px": o.max_sigma_px,
                 "max_principal_point_sigma_px": o.max_principal_point_sigma_px,
-                "penalty": "bic" if o.bic_per_term else "aic", "noise_px": self.noise_px, "solves": self.solves,
+                "needed_p_value": o.needed_p_value, "noise_px": self.noise_px, "solves": self.solves,
                 "note": self.note,
                 "cameras": {n: c.as_dict() for n, c in sorted(self.cameras.items())}}
 
@@ -194,7 +201,7 @@ def _q(x: float) -> float:
 
 
 def _penalty(n_obs: int, n_terms: int, options: LensModelOptions) -> float:
-    return n_terms * (float(np.log(max(2 * n_obs, 2))) if options.bic_per_term else 2.0)
+    return float(scipy.stats.chi2.isf(options.needed_p_value, n_terms))
 
 
 def _decide(level: str, terms: tuple[str, ...], sigma_px: float, wald: float, penalty: float,
@@ -315,6 +322,8 @@ def _walk(model: QuadraticModel, point: BAResult, initial: BAProblem, candidate:
     for level, terms, distortion in LEVELS:
         cols = [CAMERA_PARAMS.index(t) for t in terms]
         groups = {i: [c for c in cols if free[i, c] and model.index[i, c] >= 0] for i in judged}
+        if level == "tangential":  # decentering is held only with the principal point it would push
+            groups = {i: g for i, g in groups.items() if not free[i, PRINCIPAL_POINT_COLUMNS].any()}
         groups = {i: g for i, g in groups.items() if g}
         if not groups:
             continue
@@ -384,9 +393,14 @@ def _lens_model(initial: BAProblem, free: np.ndarray, decisions: dict[str, list[
         rows = list(decisions.get(name, []))
         seen = {d.group for d in rows}
         for level, terms, _ in LEVELS:
+            if level in seen:
+                continue
             by_caller = tuple(t for t in terms if not initial.free[i, CAMERA_PARAMS.index(t)])
-            if level not in seen and by_caller:
+            if by_caller:
                 rows.append(GroupDecision(group=level, terms=by_caller, free=False, reason="held by the caller"))
+            elif level == "tangential" and noise_px is not None:
+                rows.append(GroupDecision(group=level, terms=terms, free=True, reason="free with the principal point "
+                                          "(decentering is held only together with it)"))
         cameras[name] = CameraLensModel(
             name=name, free=[t for t in LENS_TERMS if free[i, CAMERA_PARAMS.index(t)]],
             held=[t for t in LENS_TERMS if not free[i, CAMERA_PARAMS.index(t)]], decisions=rows)
