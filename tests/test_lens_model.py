@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 from dome_calib.ba import BAOptions, BAProblem, bundle_adjust
 from dome_calib.ba.lens_model import (LENS_TERMS, QUANTUM, LensModelOptions, _decide, field_sigma_px,
                                       image_jacobian, wald_chi2)
-from dome_calib.ba.problem import camera_to_params
+from dome_calib.ba.quadratic import QuadraticModel
 from dome_calib.bundle import Bundle, Camera, CameraType, write_bundle
 from dome_calib.camera import intr_to_K, pixels_to_normalized, project
 from dome_calib.compare import compare_cameras, distortion_difference_px
@@ -70,6 +70,23 @@ def test_field_sigma_and_wald_of_one_term_and_of_independent_pairs():
     assert wald_chi2(np.diag([4.0, 1.0]), np.array([2.0, 1.0])) == pytest.approx(2.0)
     Jc = np.ones((1, 2, 2))
     assert field_sigma_px(np.array([[1.0, -1.0], [-1.0, 1.0]]), Jc) == pytest.approx(0.0, abs=1e-7)
+
+
+def test_quadratic_model_at_an_optimum_matches_the_bundle_adjustment():
+    """At the solution of a problem, the quadratic model over the same free parameters takes no step, predicts
+    the solver's own noise sigma and gives the covariance its uncertainty module reports (1e-6 relative)."""
+    problem, _ = _ring_problem(prior_off=False, inner_fraction=1.0, n_points=800)
+    result = bundle_adjust(problem, BAOptions(function_tolerance=1e-12, parameter_tolerance=1e-14))
+    model = QuadraticModel.at(result, problem.free)
+    lens = {i: list(range(6, 15)) for i in range(problem.n_cameras)}
+    step, blocks = model.step(problem.free, lens)
+    assert np.abs(step[:, 6:10]).max() < 1e-4 and np.abs(step[:, 10:]).max() < 1e-6  # px, unitless
+    assert model.noise_px == pytest.approx(result.sigma_px, rel=1e-6)
+    u = result.uncertainty
+    for i in range(problem.n_cameras):
+        sigma = np.sqrt(np.diag(blocks[i])) * model.noise_px
+        assert sigma[:4] == pytest.approx(u.sigma_intr_px[i], rel=1e-6)
+        assert sigma[4:] == pytest.approx(u.sigma_dist[i], rel=1e-6)
 
 
 def test_decisions_compare_quantised_values():
