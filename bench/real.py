@@ -50,7 +50,7 @@ sys.path.insert(0, str(ROOT))
 from dome_calib.align import AlignOptions, rotation_angle_deg, transform_cameras  # noqa: E402
 from dome_calib.bundle import Bundle, Camera, CameraType, load_bundle, write_bundle  # noqa: E402
 from dome_calib.camera import colmap_to_opencv_px, opencv_to_colmap_px  # noqa: E402
-from dome_calib.compare import camera_error, compare_cameras  # noqa: E402
+from dome_calib.compare import compare_cameras  # noqa: E402
 from dome_calib.rotation import rotvec_to_matrix  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "real" / "herzjesu_p8"

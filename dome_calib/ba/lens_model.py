@@ -209,7 +209,8 @@ def _q(x: float) -> float:
     return round(x / QUANTUM) * QUANTUM
 
 
-def _penalty(n_obs: int, n_terms: int, options: LensModelOptions) -> float:
+def _penalty(n_terms: int, options: LensModelOptions) -> float:
+    """The Wald chi^2 a group of ``n_terms`` must reach to count as needed (its ``needed_p_value`` quantile)."""
     return float(scipy.stats.chi2.isf(options.needed_p_value, n_terms))
 
 
@@ -258,7 +259,7 @@ def _walk(model: QuadraticModel, point: BAResult, initial: BAProblem, candidate:
             sigma_px = field_sigma_px(sigma2 * blocks[i], J[:, :, [c - 6 for c in field[i]]], in_field)
             delta = point.problem.camera_params[i, g] + step[i, g] - initial.camera_params[i, g]
             wald = wald_chi2(sigma2 * blocks[i][np.ix_(in_field, in_field)], delta)
-            penalty = _penalty(int(point.camera_n_obs[i]), len(g), options)
+            penalty = _penalty(len(g), options)
             decision = _decide(level, tuple(CAMERA_PARAMS[c] for c in g), sigma_px, wald, penalty, options)
             decisions[names[i]].append(decision)
             if not decision.free:
