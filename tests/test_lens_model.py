@@ -264,3 +264,9 @@ def test_real_one_view_cameras_hold_what_they_cannot_determine(real_crop):
     assert report["lens_model"]["cameras"]["00_00"]["held"] == lens["00_00"]["held"]
     assert report["per_camera"]["00_00"]["lens_held"] == lens["00_00"]["held"]
     assert "cx" not in report["per_camera"]["00_00"]["lens_free"]
+    from dome_calib.pipeline import report_bundle
+
+    report_bundle(out)  # `dome-calib report` rewrites the report: the lens model, known only to calibrate, stays
+    again = json.loads((out / "report" / "report.json").read_text())
+    assert again["lens_model"] == report["lens_model"]
+    assert again["per_camera"]["00_00"]["lens_held"] == lens["00_00"]["held"]
