@@ -39,7 +39,7 @@ logger = logging.getLogger(__name__)
 __all__ = ["CalibrateOptions", "CalibrationResult", "format_result", "run_calibration", "run_full"]
 
 STAGE_LABELS = {"sfm": "features, pairs, matching, per-scene mapping, merging scenes",
-                "ba": "bundle adjustment (5 distortion parameters, outlier rejection)",
+                "ba": "bundle adjustment (lens terms chosen per camera, outlier rejection)",
                 "normalize": "world frame", "write": "bundle and report",
                 "match": "features, pairs and matching of one scene",
                 "detect": "which cameras disagree with the prior", "quick_ba": "re-estimating the changed cameras"}
@@ -92,6 +92,7 @@ def run_full(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
     to_cm = normalized.alignment.scale  # BA units -> cm
     calibrated = Calibrated(normalized=normalized, failures=sfm.failures, residuals=ba.residuals,
                             center_sigma_cm={n: s * to_cm for n, s in ba.center_sigma.items()},
+                            lens_model=ba.lens_model,
                             source=f"dome-calib calibrate {inputs.capture.name} ({len(inputs.scenes)} scenes)")
     result = finish(inputs, state, calibrated)
     return dataclasses.replace(result, sfm=sfm, ba=ba, stats={"sfm": sfm.stats, "ba": ba.stats, "cluster": cluster})

@@ -74,6 +74,7 @@ class Calibrated:
     center_sigma_cm: dict[str, float] = field(default_factory=dict)  # 1-sigma centre uncertainty
     changes: dict[str, CameraChange] | None = None  # None: detect against the prior
     notes: dict[str, str] = field(default_factory=dict)  # camera -> a further reason to check it
+    lens_model: dict | None = None  # the BA's per-camera lens terms refined and held, with why (report.json)
 
 
 @dataclass(kw_only=True)
@@ -138,6 +139,7 @@ def finish(inputs: CalibrationInputs, state: WorkState, calibrated: Calibrated) 
                                              "views of the tent; add a tent position it sees")
     extra = {"world_frame": calibrated.normalized.as_dict(), "stage_seconds": dict(state.seconds),
              "center_sigma_cm": {n: round(s, 4) for n, s in sorted(sigma_cm.items())},
+             "lens_model": calibrated.lens_model,
              "changes_vs_prior": {n: c.as_dict() for n, c in (changes or {}).items()} if prior else None}
     state.time("write", lambda: _write_out(inputs, bundle, calibrated.residuals, reasons, missing, extra))
     report_dir = inputs.out / REPORT_DIR

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,7 +17,9 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
+from dome_calib.ba.lens_model import LensModelOptions, select_lens_model
 from dome_calib.ba.problem import BAProblem
+from dome_calib.ba.result import BAResult
 from dome_calib.ba.solver import BAOptions, bundle_adjust
 from dome_calib.bundle import Bundle, Camera
 from dome_calib.camera import project
@@ -48,6 +51,7 @@ class BAOutcome:
     inlier: np.ndarray  # (M,) bool over the problem's observations
     stats: dict = field(default_factory=dict)  # iterations, cost, rms, seconds
     center_sigma: dict[str, float] = field(default_factory=dict)  # 1-sigma centre uncertainty, problem units
+    lens_model: dict | None = None  # per camera the lens terms refined / held and why (LensModel.as_dict)
 
 
 def observation_residuals(problem: BAProblem) -> np.ndarray:
@@ -178,21 +182,41 @@ def prune_problem(problem: BAProblem, *, min_observations: int = MIN_CAMERA_OBSE
 
 def ba_options() -> BAOptions:
     """The bundle adjustment as calibrate runs it (the solver's defaults: Huber, outlier rounds, then least
-    squares), with the parameter uncertainties the report uses to flag poorly determined cameras."""
+    squares), with the parameter uncertainties the report uses to flag poorly determined cameras and the lens
+    model selection uses to choose each camera's free lens terms."""
     return BAOptions(compute_uncertainty=True)
 
 
-def run_ba_stage(problem: BAProblem, *, progress: bool = True, options: BAOptions | None = None) -> BAOutcome:
-    """Five-parameter bundle adjustment with the outlier schedule (:func:`dome_calib.ba.bundle_adjust`); the
-    problem's free mask is respected (quick recalibration frees only the changed cameras)."""
-    options = options or ba_options()
+def _solve(problem: BAProblem, options: BAOptions, with_uncertainty: bool = True) -> BAResult:
+    options = dataclasses.replace(options, compute_uncertainty=options.compute_uncertainty and with_uncertainty)
     try:
-        result = bundle_adjust(problem, options)
+        return bundle_adjust(problem, options)
     except np.linalg.LinAlgError as exc:  # the covariance, not the solve, can fail on a near-singular system
         if not options.compute_uncertainty:
             raise
         logger.warning("bundle adjustment: no parameter uncertainties (%s); solving without them", exc)
-        result = bundle_adjust(problem, dataclasses.replace(options, compute_uncertainty=False))
+        return bundle_adjust(problem, dataclasses.replace(options, compute_uncertainty=False))
+
+
+def run_ba_stage(problem: BAProblem, *, progress: bool = True, options: BAOptions | None = None,
+                 lens: LensModelOptions | None = None) -> BAOutcome:
+    """Bundle adjustment with the outlier schedule (:func:`dome_calib.ba.bundle_adjust`); the problem's free mask
+    is the most that is refined (quick recalibration frees only the changed cameras).
+
+    When the solver computes uncertainties (calibrate's :func:`ba_options`), each camera's lens model is chosen
+    first (:func:`dome_calib.ba.lens_model.select_lens_model`, rule ``lens``: a solve with the focal lengths as
+    the only free lens terms, then only the lens terms the observations determine or need are freed for the
+    final solve; the others stay at the prior). Without uncertainties (the quick path's solver options) the
+    given free mask is used as it is, in one solve."""
+    options = options or ba_options()
+    lens_model = None
+    t0 = time.perf_counter()
+    if options.compute_uncertainty:
+        result, chosen = select_lens_model(problem, lambda p, u: _solve(p, options, u), lens,
+                                           n_threads=options.n_threads)
+        lens_model = chosen.as_dict()
+    else:
+        result = _solve(problem, options)
     refined = result.problem
     used = np.asarray(result.used, dtype=bool)
     sigma = {}
@@ -208,6 +232,7 @@ def run_ba_stage(problem: BAProblem, *, progress: bool = True, options: BAOption
                      inlier=used,
                      stats={"iterations": len(result.iterations), "cost": result.cost, "rms_px": result.rms_px,
                             "sigma_px": result.sigma_px, "n_used": int(used.sum()),
-                            "n_rejected": int((~used).sum()), "seconds": result.time_s,
+                            "n_rejected": int((~used).sum()), "seconds": time.perf_counter() - t0,
+                            "solves": lens_model["solves"] if lens_model else 1,
                             "termination": list(result.termination)},
-                     center_sigma=sigma)
+                     center_sigma=sigma, lens_model=lens_model)

@@ -328,17 +328,25 @@ def solve_free(S: np.ndarray, rhs: np.ndarray, free_flat: np.ndarray, *, n_threa
     return x
 
 
+def point_step(st: Structure, lin: Linearization, Li: np.ndarray, y_blocks: np.ndarray, dc: np.ndarray
+               ) -> np.ndarray:
+    """(P, 3) point update that goes with the camera update dc (A, 15) (back-substitution of the Schur
+    complement; ``Li``, ``y_blocks`` from :func:`reduced_system`); zero for points that are not refined."""
+    h = np.einsum("pjl,pl->pj", Li, lin.g_p)
+    t = np.einsum("mkj,mk->mj", y_blocks, dc[st.cam_local[st.act]])
+    q = _segment_sum(t.T, st.pt[st.act], st.n_points)
+    dp = -np.einsum("plj,pl->pj", Li, h + q)
+    dp[~st.live_points] = 0.0
+    return dp
+
+
 def solve_step(st: Structure, lin: Linearization, lam: float, *, n_threads: int = 2) -> Step:
     """Solve the damped normal equations (H + lam D) d = -g by the Schur complement on the points."""
     A = len(st.active_cameras)
     S, rhs, Li, y_blocks = reduced_system(st, lin, lam, n_threads=n_threads)
     dc = solve_free(S, rhs, st.free_flat, n_threads=n_threads).reshape(A, 15)
     del S
-    h = np.einsum("pjl,pl->pj", Li, lin.g_p)
-    t = np.einsum("mkj,mk->mj", y_blocks, dc[st.cam_local[st.act]])
-    q = _segment_sum(t.T, st.pt[st.act], st.n_points)
-    dp = -np.einsum("plj,pl->pj", Li, h + q)
-    dp[~st.live_points] = 0.0
+    dp = point_step(st, lin, Li, y_blocks, dc)
     g_dot = float(np.sum(lin.g_c * dc) + np.sum(lin.g_p * dp))
     d_dot = float(np.sum(lin.D_c * dc * dc) + np.sum(lin.D_p * dp * dp))
     return Step(dc=dc, dp=dp, predicted_decrease=0.5 * (-g_dot + lam * d_dot))

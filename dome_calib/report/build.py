@@ -82,7 +82,9 @@ def build_report(bundle: Bundle, residuals: Residuals | None = None, options: Re
     Args:
         changes: camera -> reasons it differs from a prior (from :func:`dome_calib.compare.detect_changes`).
         missing: cameras expected but not calibrated -> why (e.g. "saw no tent").
-        extra: more sections to include as-is (world frame, timings, comparison with ground truth).
+        extra: more sections to include as-is (world frame, timings, comparison with ground truth). A
+            ``"lens_model"`` section (:meth:`dome_calib.ba.lens_model.LensModel.as_dict`) also gives every camera
+            row its ``lens_free`` and ``lens_held`` terms; the reasons stay in the section.
     """
     options = options or ReportOptions()
     rows = camera_rows(bundle, residuals, options, changes)
@@ -106,14 +108,19 @@ def build_report(bundle: Bundle, residuals: Residuals | None = None, options: Re
         overall = float(np.sqrt(np.mean(residuals.residual_px ** 2)))  # per coordinate
     to_check = [{"name": r.name, "type": str(r.type), "reasons": r.reasons} for r in rows.values() if r.reasons]
     to_check += [{"name": n, "type": None, "reasons": [f"not calibrated: {why}"]} for n, why in sorted((missing or {}).items())]
+    per_camera = {r.name: {"type": str(r.type), "center_cm": r.center_cm, "observations": r.observations,
+                           "rms_px": r.rms_px} for r in rows.values()}
+    lens = ((extra or {}).get("lens_model") or {}).get("cameras", {})
+    for name, model in lens.items():
+        if name in per_camera:
+            per_camera[name] |= {"lens_free": model["free"], "lens_held": model["held"]}
     return {
         "seq": bundle.seq, "calib_data_source": bundle.calib_data_source, "cameras": len(bundle.cameras),
         "has_residuals": residuals is not None, "rms_px": overall, "per_type": per_type,
         "rules": {"min_observations": options.min_observations, "high_rms_factor": options.high_rms_factor,
                   "high_rms_floor_px": options.high_rms_floor_px},
         "to_check": to_check,
-        "per_camera": {r.name: {"type": str(r.type), "center_cm": r.center_cm, "observations": r.observations,
-                                "rms_px": r.rms_px} for r in rows.values()},
+        "per_camera": per_camera,
         **(extra or {}),
     }
 

@@ -27,7 +27,7 @@ def report_bundle(bundle_folder: Path, *, prior: Path | None = None, min_observa
     if old_path.exists():  # what only calibrate knew (world frame, stage times) survives a re-report
         try:
             old = json.loads(old_path.read_text(encoding="utf-8"))
-            kept = {k: old[k] for k in ("world_frame", "stage_seconds") if k in old}
+            kept = {k: old[k] for k in ("world_frame", "stage_seconds", "lens_model") if k in old}
         except ValueError:
             logger.warning("%s: unreadable, replaced", old_path)
     target = write_report(bundle_folder, bundle, residuals, ReportOptions(min_observations=min_observations),

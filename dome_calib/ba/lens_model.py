@@ -1,0 +1,330 @@
+"""Which lens terms of each camera the observations support: free those, hold the others at the prior.
+
+A camera seen in one view of one scene (a real capture with few tent positions, a camera at the edge of the
+dome) does not pin down five distortion terms and a principal point: the bundle adjustment then fits them to
+noise and the pose pays for it (a principal-point shift looks like a small rotation). This module chooses, per
+camera, which of ``cx, cy, k1, k2, p1, p2, k3`` to refine; the focal lengths are always refined (a prior's focal
+can be off by percents, and the depth of the scene pins it).
+
+1. Smallest model: a bundle adjustment with every lens term but the focal lengths held at the prior (well posed
+   however few the views; a fit with everything free can wander far on weak data, so it is not the reference).
+2. At that solution the problem is linearised once over every term the caller left free (reduced camera system
+   S with the points eliminated, right-hand side b: the quadratic model of the fit with everything free). The
+   pixel noise sigma is the one that model's fit leaves (evaluated after a Levenberg-Marquardt step, with its
+   degrees of freedom): the smallest model's own residuals also hold the unmodelled lens.
+3. Groups are judged in the order ``principal point, k3, p1 + p2, k2, k1``, each in the quadratic model with
+   the groups before it as already decided (Gauss-Newton step ``S^-1 b`` for where the fit would move it from the
+   prior, ``sigma^2 S^-1`` for how well). A group is **held at the prior** when both
+
+   - it is poorly determined: one standard deviation of what it adds to the camera's image moves some point of
+     a grid over the whole image (the region a calibration is used in, not only where the tent was seen) by more
+     than ``max_sigma_px`` (0.5 px, two to three times the feature noise). For a distortion group "what it adds"
+     lets the camera's other free distortion terms follow it as the data tie them (k3 alone moves the corners
+     by many pixels, but k1 and k2 largely compensate where the points are): the field ``A Sigma_gg A^T`` with
+     ``A = J_g + J_r Sigma_rg Sigma_gg^-1``. The principal point is judged by itself against a wider limit,
+     ``max_principal_point_sigma_px`` (5 px): a principal point held a few pixels off turns its camera and,
+     through the shared points, drags the weak common mode of every camera's principal point and rotation (on
+     the panel dome, holding one camera's principal point 2.5 px off moved the median principal-point error of
+     all 60 cameras from 1.2 to 2.2 px), so it is held only when the data leave it grossly open (11 to 22 px for
+     one view of a real scene; at most 3.9 px on the synthetic panel dome); and
+   - the residuals do not need it: its Wald statistic (the change from the prior in units of its covariance,
+     ``d^T Sigma^-1 d``, i.e. the cost increase in chi^2 units when it is held) stays below the chi^2 quantile
+     of ``needed_p_value`` (1 %: 6.63 for one term, 9.21 for two), i.e. the data do not contradict the prior.
+
+   The principal point's verdict sorts the cameras. Where it is determined, the camera is seen from enough
+   directions that only the corners of its lens can be open, where k3 lives: only k3 is judged, p1, p2, k2 and
+   k1 stay free. Holding them there would cost more than it saves: decentering is to first order a
+   principal-point shift growing with the radius, and k2 trades with the focal length, so a design value held
+   a little off is paid for by the principal point, the rotation and, through the shared points, the dome's
+   common focal-and-depth mode (on the panel dome: one HD camera's p1, p2 held at the design moved its principal
+   point by 7 px and turned it by 0.3 deg; k2 held on 16 cameras moved the mean signed focal error of all 60
+   from -0.02 % (only k3 held) to +0.07..0.09 %). Where the principal point is held (one view per camera),
+   every distortion group is judged.
+
+4. A bundle adjustment of the chosen model from the smallest model's solution (held terms at the prior). The
+   decisions are then taken again at that solution (the linearisation is now close to the chosen fit); if they
+   change, solve again (at most :data:`MAX_PASSES` passes). Usually two or three solves in all; the linear
+   algebra is one factorisation of the reduced camera system per level and pass.
+
+Comparisons use quantised values (:data:`QUANTUM`), so the same observations give the same model on every machine.
+"""
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.stats
+
+from dome_calib.ba.problem import CAMERA_PARAMS, BAProblem
+from dome_calib.ba.quadratic import QuadraticModel
+from dome_calib.ba.result import BAResult
+from dome_calib.camera import distort_with_jacobians, pixels_to_normalized
+
+logger = logging.getLogger(__name__)
+
+#: The lens terms (columns 6..14 of a camera's parameters); the focal lengths are always free.
+LENS_TERMS = CAMERA_PARAMS[6:]
+FOCAL_TERMS = ("fx", "fy")
+#: Groups in the order they are judged: (name, terms, is a distortion group).
+LEVELS: tuple[tuple[str, tuple[str, ...], bool], ...] = (
+    ("principal_point", ("cx", "cy"), False),
+    ("k3", ("k3",), True),
+    ("tangential", ("p1", "p2"), True),
+    ("k2", ("k2",), True),
+    ("k1", ("k1",), True),
+)
+#: Groups judged only on cameras whose principal point is held.
+PRINCIPAL_POINT_HELD_ONLY = ("tangential", "k2", "k1")
+PRINCIPAL_POINT_COLUMNS = [CAMERA_PARAMS.index("cx"), CAMERA_PARAMS.index("cy")]
+DISTORTION_COLUMNS = tuple(CAMERA_PARAMS.index(t) for t in ("k1", "k2", "p1", "p2", "k3"))
+#: Comparisons are made on values rounded to this (px and chi^2 alike).
+QUANTUM = 1e-3
+
+
+@dataclass(kw_only=True)
+class LensModelOptions:
+    """Rule of :func:`select_lens_model`. A distortion group is determined when one standard deviation of it
+    moves no point of the image by more than ``max_sigma_px``; the principal point when its standard deviation is
+    at most ``max_principal_point_sigma_px``. It is needed when its Wald statistic reaches the chi^2 quantile
+    (as many degrees of freedom as terms) of ``needed_p_value``. ``grid``: columns x rows of image points."""
+
+    max_sigma_px: float = 0.5
+    max_principal_point_sigma_px: float = 5.0
+    needed_p_value: float = 0.01
+    grid: tuple[int, int] = (17, 13)
+
+    def limit_px(self, level: str) -> float:
+        return self.max_principal_point_sigma_px if level == "principal_point" else self.max_sigma_px
+
+
+@dataclass(kw_only=True)
+class GroupDecision:
+    """One level for one camera. sigma_px: largest 1-sigma image displacement of the group (px); wald_chi2:
+    predicted change from the prior in chi^2 units; penalty_chi2: what it has to reach to be needed."""
+
+    group: str
+    terms: tuple[str, ...]
+    free: bool
+    reason: str
+    sigma_px: float | None = None
+    wald_chi2: float | None = None
+    penalty_chi2: float | None = None
+
+    def as_dict(self) -> dict:
+        out = {"group": self.group, "terms": list(self.terms), "free": self.free, "reason": self.reason}
+        for key in ("sigma_px", "wald_chi2", "penalty_chi2"):
+            value = getattr(self, key)
+            if value is not None:
+                out[key] = round(float(value), 3)
+        return out
+
+
+@dataclass(kw_only=True)
+class CameraLensModel:
+    """The lens terms of one camera that were refined and those held at the prior, with the decisions."""
+
+    name: str
+    free: list[str]
+    held: list[str]
+    decisions: list[GroupDecision] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return {"free": self.free, "held": self.held, "decisions": [d.as_dict() for d in self.decisions]}
+
+
+@dataclass(kw_only=True)
+class LensModel:
+    """Per camera (by name) the chosen lens model; ``noise_px``: the pixel sigma the tests used; ``solves``:
+    bundle adjustments run; ``note``: why nothing was selected, if so."""
+
+    cameras: dict[str, CameraLensModel]
+    options: LensModelOptions
+    solves: int
+    noise_px: float | None = None
+    note: str = ""
+
+    def as_dict(self) -> dict:
+        o = self.options
+        rule = (f"fx, fy always free; cx,cy | k3 | p1,p2 | k2 | k1 judged in that order and held at the prior when "
+                f"one sigma of what the group adds moves some image point by more than {o.max_sigma_px:g} px "
+                f"({o.max_principal_point_sigma_px:g} px for cx,cy) AND its Wald chi2 is below "
+                f"the chi2 quantile of p = {o.needed_p_value:g} (the prior is not contradicted at that level); "
+                "p1,p2, k2, k1 are judged only where cx,cy are held")
+        return {"rule": rule, "max_sigma_px": o.max_sigma_px,
+                "max_principal_point_sigma_px": o.max_principal_point_sigma_px,
+                "needed_p_value": o.needed_p_value, "noise_px": self.noise_px, "solves": self.solves,
+                "note": self.note,
+                "cameras": {n: c.as_dict() for n, c in sorted(self.cameras.items())}}
+
+    def held_count(self) -> int:
+        return sum(len(c.held) for c in self.cameras.values())
+
+
+def image_jacobian(camera_params: np.ndarray, resolution: tuple[int, int], grid: tuple[int, int]) -> np.ndarray:
+    """(N, 2, 9) d pixel / d lens term (LENS_TERMS order) at the rays of a grid of N pixels spanning the image,
+    for fixed rays (pose and points unchanged). Rays that the lens cannot undistort are left out."""
+    w, h = resolution
+    u, v = np.meshgrid(np.linspace(0.0, w - 1.0, grid[0]), np.linspace(0.0, h - 1.0, grid[1]))
+    p = np.asarray(camera_params, dtype=float)
+    xn = pixels_to_normalized(np.stack([u.ravel(), v.ravel()], -1), p[6:10], p[10:15])
+    xn = xn[np.all(np.isfinite(xn), axis=1)]
+    xd, _, J_dist = distort_with_jacobians(xn, np.broadcast_to(p[10:15], (len(xn), 5)))
+    J = np.zeros((len(xn), 2, 9))
+    J[:, 0, 0], J[:, 1, 1] = xd[:, 0], xd[:, 1]
+    J[:, 0, 2] = J[:, 1, 3] = 1.0
+    J[:, :, 4:] = J_dist * p[6:8][None, :, None]
+    return J
+
+
+def field_sigma_px(cov: np.ndarray, J: np.ndarray, group: list[int] | None = None) -> float:
+    """Largest 1-sigma displacement (px) over N image points that terms with covariance (k, k) and image
+    Jacobian (N, 2, k) leave open: ``sqrt`` of the largest eigenvalue of ``J Sigma J^T`` at any point.
+
+    With ``group`` (indices into the k terms), only what that group adds: the other terms follow it as the
+    data tie them (their regression on it), so the displacement per unit of the group is
+    ``A = J_g + J_r Sigma_rg Sigma_gg^-1`` and its field covariance ``A Sigma_gg A^T`` (the part of the field
+    covariance that holding the group would remove).
+    """
+    if group is not None and len(group) < cov.shape[0]:
+        rest = [k for k in range(cov.shape[0]) if k not in group]
+        S_gg = cov[np.ix_(group, group)]
+        regression = cov[np.ix_(rest, group)] @ np.linalg.pinv(S_gg, rcond=1e-12, hermitian=True)
+        J, cov = J[:, :, group] + J[:, :, rest] @ regression, S_gg
+    V = np.einsum("nik,kl,njl->nij", J, cov, J)
+    return float(np.sqrt(max(np.linalg.eigvalsh(V)[:, -1].max(initial=0.0), 0.0)))
+
+
+def wald_chi2(cov: np.ndarray, delta: np.ndarray) -> float:
+    """``delta^T Sigma^-1 delta``: a change (k,) from the prior in units of its covariance (k, k)."""
+    return float(delta @ np.linalg.pinv(cov, rcond=1e-12, hermitian=True) @ delta)
+
+
+def _cols(terms: tuple[str, ...]) -> list[int]:
+    return [CAMERA_PARAMS.index(t) for t in terms]
+
+
+def _q(x: float) -> float:
+    return round(x / QUANTUM) * QUANTUM
+
+
+def _penalty(n_terms: int, options: LensModelOptions) -> float:
+    """The Wald chi^2 a group of ``n_terms`` must reach to count as needed (its ``needed_p_value`` quantile)."""
+    return float(scipy.stats.chi2.isf(options.needed_p_value, n_terms))
+
+
+def _decide(level: str, terms: tuple[str, ...], sigma_px: float, wald: float, penalty: float,
+            options: LensModelOptions) -> GroupDecision:
+    determined = _q(sigma_px) <= _q(options.limit_px(level))
+    needed = _q(wald) >= _q(penalty)
+    if determined:
+        reason = f"determined: one sigma moves the image by at most {sigma_px:.3f} px"
+    elif needed:
+        reason = (f"needed: the fit moves it from the prior by chi2 {wald:.1f} >= {penalty:.1f}, although one sigma "
+                  f"moves the image by {sigma_px:.3f} px")
+    else:
+        reason = (f"held at the prior: one sigma would move the image by {sigma_px:.3f} px and the fit needs it "
+                  f"only by chi2 {wald:.1f} < {penalty:.1f}")
+    return GroupDecision(group=level, terms=terms, free=determined or needed, reason=reason, sigma_px=sigma_px,
+                         wald_chi2=wald, penalty_chi2=penalty)
+
+
+#: At most this many decide-and-solve passes (each one after the first judges again at the last solution).
+MAX_PASSES = 3
+
+
+def _walk(model: QuadraticModel, point: BAResult, initial: BAProblem, candidate: np.ndarray, judged: list[int],
+          options: LensModelOptions) -> tuple[np.ndarray, dict[str, list[GroupDecision]]]:
+    """The groups judged top-down in the quadratic model at ``point``: the free mask and the decisions."""
+    names = initial.camera_names
+    sigma2 = model.noise_px ** 2
+    free = candidate.copy()
+    decisions: dict[str, list[GroupDecision]] = {n: [] for n in names}
+    for level, terms, distortion in LEVELS:
+        cols = [CAMERA_PARAMS.index(t) for t in terms]
+        groups = {i: [c for c in cols if free[i, c] and model.index[i, c] >= 0] for i in judged}
+        if level in PRINCIPAL_POINT_HELD_ONLY:  # see the module docstring: judged only with the principal point held
+            groups = {i: g for i, g in groups.items() if not free[i, PRINCIPAL_POINT_COLUMNS].any()}
+        groups = {i: g for i, g in groups.items() if g}
+        if not groups:
+            continue
+        # a distortion group is judged by what it adds to the camera's distortion field (the other free
+        # distortion terms following it); the principal point by itself
+        field = {i: [c for c in DISTORTION_COLUMNS if free[i, c]] if distortion else g for i, g in groups.items()}
+        step, blocks = model.step(free, field)
+        for i, g in sorted(groups.items()):
+            J = image_jacobian(point.problem.camera_params[i], initial.cameras[i].resolution, options.grid)
+            in_field = [field[i].index(c) for c in g]
+            sigma_px = field_sigma_px(sigma2 * blocks[i], J[:, :, [c - 6 for c in field[i]]], in_field)
+            delta = point.problem.camera_params[i, g] + step[i, g] - initial.camera_params[i, g]
+            wald = wald_chi2(sigma2 * blocks[i][np.ix_(in_field, in_field)], delta)
+            penalty = _penalty(len(g), options)
+            decision = _decide(level, tuple(CAMERA_PARAMS[c] for c in g), sigma_px, wald, penalty, options)
+            decisions[names[i]].append(decision)
+            if not decision.free:
+                free[i, g] = False
+    return free, decisions
+
+
+def select_lens_model(initial: BAProblem, solve: Callable[[BAProblem, bool], BAResult],
+                      options: LensModelOptions | None = None, *, n_threads: int = 2) -> tuple[BAResult, LensModel]:
+    """Bundle adjustment with, per camera, only the lens terms the observations support (module docstring).
+
+    Args:
+        initial: the problem as given; its parameter values are the prior that held terms keep, its ``free``
+            mask the most that may be refined (terms the caller holds stay held and are not judged).
+        solve: the bundle adjustment, ``solve(problem, with_uncertainty)``, e.g.
+            ``lambda p, u: bundle_adjust(p, dataclasses.replace(options, compute_uncertainty=u))``.
+    Returns:
+        the result of the final solve (the chosen model, with uncertainties) and the per-camera :class:`LensModel`.
+    Example:
+        >>> result, lens = select_lens_model(problem, lambda p, u: bundle_adjust(p, BAOptions(compute_uncertainty=u)))
+        >>> lens.cameras["00_03"].held
+        ['cx', 'cy', 'p1', 'p2', 'k3']
+    """
+    options = options or LensModelOptions()
+    candidate = initial.free.copy()
+    lens_cols = [CAMERA_PARAMS.index(t) for t in LENS_TERMS if t not in FOCAL_TERMS]
+    judged = [i for i in range(initial.n_cameras) if candidate[i, lens_cols].any()]
+    if not judged:  # nothing to choose (e.g. every lens term held by the caller)
+        return solve(initial, True), _lens_model(initial, candidate, {}, options, 1, None)
+    smallest = initial.copy()
+    smallest.free[:, lens_cols] = False
+    point, solves = solve(smallest, False), 1
+    free = smallest.free
+    for _ in range(MAX_PASSES):
+        model = QuadraticModel.at(point, candidate, n_threads=n_threads)
+        chosen, decisions = _walk(model, point, initial, candidate, judged, options)
+        if solves > 1 and np.array_equal(chosen, free):
+            break  # the chosen model's own solution confirms it
+        free = chosen
+        logger.info("lens model: %d of %d candidate lens terms freed (noise %.3f px)",
+                    int(free[judged][:, lens_cols].sum()), int(candidate[judged][:, lens_cols].sum()), model.noise_px)
+        trial = point.problem.copy()
+        trial.camera_params[~free] = initial.camera_params[~free]  # held terms back at the prior
+        trial.free = free.copy()
+        point, solves = solve(trial, True), solves + 1
+    return point, _lens_model(initial, free, decisions, options, solves, model.noise_px)
+
+
+def _lens_model(initial: BAProblem, free: np.ndarray, decisions: dict[str, list[GroupDecision]],
+                options: LensModelOptions, solves: int, noise_px: float | None) -> LensModel:
+    cameras = {}
+    for i, name in enumerate(initial.camera_names):
+        rows = list(decisions.get(name, []))
+        seen = {d.group for d in rows}
+        for level, terms, _ in LEVELS:
+            if level in seen:
+                continue
+            by_caller = tuple(t for t in terms if not initial.free[i, CAMERA_PARAMS.index(t)])
+            if by_caller:
+                rows.append(GroupDecision(group=level, terms=by_caller, free=False, reason="held by the caller"))
+            elif level in PRINCIPAL_POINT_HELD_ONLY and noise_px is not None and free[i, _cols(terms)].all():
+                rows.append(GroupDecision(group=level, terms=terms, free=True, reason="free: the principal point is "
+                                          "determined, so only k3 is judged"))
+        cameras[name] = CameraLensModel(
+            name=name, free=[t for t in LENS_TERMS if free[i, CAMERA_PARAMS.index(t)]],
+            held=[t for t in LENS_TERMS if not free[i, CAMERA_PARAMS.index(t)]], decisions=rows)
+    return LensModel(cameras=cameras, options=options, solves=solves, noise_px=noise_px,
+                     note="" if noise_px is not None else "no lens term to choose: the caller's free mask is used")

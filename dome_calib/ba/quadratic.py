@@ -1,0 +1,108 @@
+"""The bundle adjustment as a quadratic model at a solution: what freeing parameters would do, without solving.
+
+At a solution of some problem (a :class:`dome_calib.ba.result.BAResult`), the Gauss-Newton normal equations over a
+set of candidate camera parameters, with the points eliminated (Schur complement, :mod:`dome_calib.ba.schur`):
+``S step = b``. For any subset of those parameters, one Cholesky factorisation of the matching block gives the
+step the fit would take if that subset were free (``S^-1 b``) and, times the pixel noise sigma squared, the
+covariance the subset would then have. :mod:`dome_calib.ba.lens_model` judges lens terms with it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from dome_calib.ba.blas import blas_threads
+from dome_calib.ba.evaluate import residuals, residuals_and_jacobians
+from dome_calib.ba.result import BAResult
+from dome_calib.ba.schur import build_structure, linearize, point_step, reduced_system
+
+
+@dataclass(kw_only=True)
+class QuadraticModel:
+    """The bundle adjustment linearised at a solution, over the candidate free parameters (points eliminated):
+    S (F, F) reduced normal matrix, b (F,) right-hand side (S step = b), ``index`` (C, 15) position of each
+    camera parameter in S or -1, ``noise_px``: pixel sigma predicted for the model with every candidate free."""
+
+    S: np.ndarray
+    b: np.ndarray
+    index: np.ndarray
+    noise_px: float
+    n_threads: int = 2
+
+    @classmethod
+    def at(cls, result: BAResult, candidate_free: np.ndarray, n_threads: int = 2) -> QuadraticModel:
+        """Linearise the problem of ``result`` at its solution over the ``candidate_free`` parameters (C, 15).
+
+        The noise sigma is the one the fit with every candidate free would leave: the residual cost after a
+        Levenberg-Marquardt step of that model (the lowest of three dampings; evaluated, not predicted, so never
+        below that model's optimum; the undamped step can overshoot along weak directions), over its degrees of
+        freedom. If no step lowers the cost, the predicted decrease is used.
+        """
+        p = result.problem
+        st = build_structure(p.camera_index, p.point_index, result.inlier, candidate_free & ~result.gauge.held,
+                             p.n_points)
+        res, Jc, Jp = residuals_and_jacobians(p.camera_params, p.points_cm, st.cam, st.pt, p.uv_px[st.obs])
+        cost = 0.5 * float(np.sum(res * res))
+        lin = linearize(st, res, Jc, Jp, np.ones(len(st.obs)))
+        del res, Jc, Jp
+        S, b, Li, y_blocks = reduced_system(st, lin, 0.0, n_threads=n_threads)
+        f = st.free_flat
+        S, b = S[np.ix_(f, f)], b[f]
+        index = np.full((p.n_cameras, 15), -1, dtype=np.int64)
+        local = np.full(len(st.active_cameras) * 15, -1, dtype=np.int64)
+        local[f] = np.arange(len(f))
+        index[st.active_cameras] = local.reshape(-1, 15)
+        model = cls(S=S, b=b, index=index, noise_px=0.0, n_threads=n_threads)
+        everything = index >= 0
+        dof = max(2 * len(st.obs) - len(f) - 3 * int(st.live_points.sum()), 1)
+        evaluated = []
+        for damping in (1e-6, 1e-4, 1e-2):  # Levenberg-Marquardt steps: the undamped one can overshoot
+            step = model.step(everything, damping=damping)[0]
+            dp = point_step(st, lin, Li, y_blocks, step[st.active_cameras])
+            r = residuals(p.camera_params + step, p.points_cm + dp, st.cam, st.pt, p.uv_px[st.obs])
+            evaluated.append(0.5 * float(np.sum(r * r)))
+        cost_fit = min(evaluated, default=np.inf)
+        if not cost_fit < cost:  # no step lowered the cost: fall back on the predicted decrease
+            cost_fit = cost - 0.5 * float(b[index[everything]] @ model.step(everything)[0][everything])
+        model.noise_px = float(np.sqrt(max(2.0 * cost_fit, 1e-24) / dof))
+        return model
+
+    def step(self, free: np.ndarray, columns_of: dict[int, list[int]] | None = None, *, damping: float = 0.0
+             ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+        """Gauss-Newton step (C, 15) over the parameters marked ``free`` (C, 15) (zero elsewhere), and for each
+        camera in ``columns_of`` the (k, k) block of the inverse of their normal matrix for its listed columns.
+        ``damping``: Levenberg-Marquardt, times the diagonal."""
+        sel = np.flatnonzero(free.ravel() & (self.index.ravel() >= 0))
+        idx = self.index.ravel()[sel]
+        pos = np.full(self.index.size, -1, dtype=np.int64)
+        pos[sel] = np.arange(len(sel))
+        d = np.sqrt(np.maximum(np.diag(self.S)[idx], 1e-300))
+        with blas_threads(self.n_threads):
+            for ridge in (0.0, 1e-12, 1e-9, 1e-6):  # a tiny ridge if some direction is not observable at all
+                Ss = self.S[np.ix_(idx, idx)]
+                Ss /= d[:, None]
+                Ss /= d[None, :]  # Jacobi scaling: lens and pose columns differ by many decades
+                Ss[np.diag_indices_from(Ss)] += damping + ridge
+                try:
+                    factor = scipy.linalg.cho_factor(Ss, overwrite_a=True, check_finite=False)
+                    break
+                except scipy.linalg.LinAlgError:
+                    if ridge == 1e-6:
+                        raise
+            x = scipy.linalg.cho_solve(factor, self.b[idx] / d, check_finite=False) / d
+            blocks = {}
+            if columns_of:
+                cols = [(c, [int(pos[c * 15 + j]) for j in js]) for c, js in columns_of.items()]
+                flat = [k for _, ks in cols for k in ks]
+                E = np.zeros((len(d), len(flat)))
+                E[flat, np.arange(len(flat))] = 1.0 / d[flat]
+                X = scipy.linalg.cho_solve(factor, E, check_finite=False) / d[:, None]
+                start = 0
+                for c, ks in cols:
+                    blocks[c] = X[ks, start:start + len(ks)]
+                    start += len(ks)
+        full = np.zeros(self.index.size)
+        full[sel] = x
+        return full.reshape(self.index.shape), blocks

@@ -1,0 +1,273 @@
+"""Lens-model selection (dome_calib.ba.lens_model): per camera, only the lens terms the observations support.
+
+Known truth: a synthetic ring of cameras whose points fill every image and whose prior lens is off like a design
+value (every term determined or needed: all nine freed and recovered); the same ring seeing only the middle of
+its images with the prior lens exact (k3 is neither determined over the image nor needed: held, so the corners
+stay right); real photographs, one view each (tests/data/real_crop, the Strecha Herz-Jesu reference cameras): the
+principal point and k3 are held, and the focal lengths come out far better than with everything free.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from dome_calib.ba import BAOptions, BAProblem, bundle_adjust
+from dome_calib.ba.lens_model import (LENS_TERMS, QUANTUM, LensModelOptions, _decide, field_sigma_px,
+                                      image_jacobian, wald_chi2)
+from dome_calib.ba.quadratic import QuadraticModel
+from dome_calib.bundle import Bundle, Camera, CameraType
+from dome_calib.bundle_io import write_bundle
+from dome_calib.camera import intr_to_K, pixels_to_normalized, project
+from dome_calib.compare import compare_cameras, distortion_difference_px
+from dome_calib.pipeline_stages import run_ba_stage
+from dome_calib.rotation import rotvec_to_matrix
+
+REAL_CROP = Path(__file__).parent / "data" / "real_crop"
+TRUE_LENS = dict(intr=np.array([745.0, 748.0, 322.0, 236.0]), dist=np.array([-0.30, 0.12, 8e-4, -6e-4, 0.05]))
+
+
+# ------------------------------------------------------------------------------------------ unit level
+@settings(max_examples=25, deadline=None)
+@given(k1=st.floats(-0.35, 0.1), k2=st.floats(-0.1, 0.2), p=st.floats(-1e-3, 1e-3), k3=st.floats(-0.1, 0.1),
+       f=st.floats(400.0, 1500.0), dc=st.floats(-20.0, 20.0))
+def test_image_jacobian_matches_finite_differences(k1, k2, p, k3, f, dc):
+    """d pixel / d lens term at fixed rays, against central differences of the OpenCV projection (1e-6 px)."""
+    params = np.zeros(15)
+    params[6:10] = [f, 1.01 * f, 319.5 + dc, 239.5 - dc]
+    params[10:15] = [k1, k2, p, -p, k3]
+    J = image_jacobian(params, (640, 480), (5, 4))
+    w, h = 640, 480
+    u, v = np.meshgrid(np.linspace(0, w - 1, 5), np.linspace(0, h - 1, 4))
+    xn = pixels_to_normalized(np.stack([u.ravel(), v.ravel()], -1), params[6:10], params[10:15])
+    xn = xn[np.all(np.isfinite(xn), axis=1)]
+    X = np.concatenate([xn, np.ones((len(xn), 1))], axis=1)  # rays at depth 1, camera at the origin
+    for j in range(9):
+        eps = 1e-6 * max(1.0, abs(params[6 + j]))
+        hi, lo = params.copy(), params.copy()
+        hi[6 + j] += eps
+        lo[6 + j] -= eps
+        num = (project(X, np.eye(3), np.zeros(3), hi[6:10], hi[10:15]).uv_px
+               - project(X, np.eye(3), np.zeros(3), lo[6:10], lo[10:15]).uv_px) / (2 * eps)
+        assert np.abs(num - J[:, :, j]).max() < 1e-6 * max(1.0, np.abs(J[:, :, j]).max()), LENS_TERMS[j]
+
+
+def test_field_sigma_and_wald_of_one_term_and_of_independent_pairs():
+    """One term: sigma field = sigma * max |J|, Wald = (delta / sigma)^2; two independent terms add up; two
+    perfectly anti-correlated terms with opposite image effects leave no field uncertainty."""
+    J = np.zeros((3, 2, 1))
+    J[:, 0, 0] = [0.5, -2.0, 1.0]
+    assert field_sigma_px(np.array([[0.25 ** 2]]), J) == pytest.approx(0.5, abs=1e-12)
+    assert wald_chi2(np.array([[0.25 ** 2]]), np.array([0.75])) == pytest.approx(9.0, abs=1e-12)
+    J2 = np.zeros((1, 2, 2))
+    J2[0, 0, 0] = J2[0, 1, 1] = 1.0  # cx, cy
+    assert field_sigma_px(np.diag([4.0, 1.0]), J2) == pytest.approx(2.0)
+    assert wald_chi2(np.diag([4.0, 1.0]), np.array([2.0, 1.0])) == pytest.approx(2.0)
+    Jc = np.ones((1, 2, 2))
+    assert field_sigma_px(np.array([[1.0, -1.0], [-1.0, 1.0]]), Jc) == pytest.approx(0.0, abs=1e-7)
+
+
+def test_quadratic_model_at_an_optimum_matches_the_bundle_adjustment():
+    """At the solution of a problem, the quadratic model over the same free parameters takes no step, predicts
+    the solver's own noise sigma and gives the covariance its uncertainty module reports (1e-6 relative)."""
+    problem, _ = _ring_problem(prior_off=False, inner_fraction=1.0, n_points=800)
+    result = bundle_adjust(problem, BAOptions(function_tolerance=1e-12, parameter_tolerance=1e-14))
+    model = QuadraticModel.at(result, problem.free)
+    lens = {i: list(range(6, 15)) for i in range(problem.n_cameras)}
+    step, blocks = model.step(problem.free, lens)
+    assert np.abs(step[:, 6:10]).max() < 1e-4 and np.abs(step[:, 10:]).max() < 1e-6  # px, unitless
+    assert model.noise_px == pytest.approx(result.sigma_px, rel=1e-6)
+    u = result.uncertainty
+    for i in range(problem.n_cameras):
+        sigma = np.sqrt(np.diag(blocks[i])) * model.noise_px
+        assert sigma[:4] == pytest.approx(u.sigma_intr_px[i], rel=1e-6)
+        assert sigma[4:] == pytest.approx(u.sigma_dist[i], rel=1e-6)
+
+
+def test_decisions_compare_quantised_values():
+    """A term within half a quantum of the limit counts as at the limit: the same verdict on every machine."""
+    o = LensModelOptions()
+    at_limit = _decide("k3", ("k3",), o.max_sigma_px + 0.4 * QUANTUM, 0.0, 7.0, o)
+    assert at_limit.free and at_limit.reason.startswith("determined")
+    above = _decide("k3", ("k3",), o.max_sigma_px + 2 * QUANTUM, 7.0 - 2 * QUANTUM, 7.0, o)
+    assert not above.free and above.reason.startswith("held at the prior")
+    needed = _decide("k3", ("k3",), 3.0, 7.0 - 0.4 * QUANTUM, 7.0, o)
+    assert needed.free and needed.reason.startswith("needed")
+    pp = _decide("principal_point", ("cx", "cy"), 4.9, 0.0, 14.0, o)  # the principal point's wider limit (5 px)
+    assert pp.free
+
+
+# ------------------------------------------------------------------------------------------ synthetic ring
+def _ring_problem(*, prior_off: bool, inner_fraction: float, seed: int = 0, n_points: int = 3000,
+                  noise_px: float = 0.15) -> tuple[BAProblem, dict[str, Camera]]:
+    """12 VGA cameras around a ring (two heights, rolls -50..50 deg), 300 cm from the origin, looking at it;
+    points in a 3 m cube that fills their images (``inner_fraction`` < 1: only observations within that fraction
+    of the half-diagonal of an image are kept). Start: poses off by 1 cm / 0.2 deg, points by 1 cm; lens = the
+    truth (``prior_off`` False) or off like a design value: 2 % focal, 4 px principal point, another distortion
+    (1 to 3 px over the image per term)."""
+    rng = np.random.default_rng(seed)
+    truth = {}
+    for k, yaw in enumerate(np.radians(np.arange(12) * 30.0)):
+        centre = 300.0 * np.array([np.sin(yaw), 0.3 * (-1) ** k, -np.cos(yaw)])
+        z = -centre / np.linalg.norm(centre)
+        x = np.cross([0.0, 1.0, 0.0], z)
+        x /= np.linalg.norm(x)
+        roll = np.radians(25.0 * (k % 5 - 2))
+        R = rotvec_to_matrix(roll * np.array([0.0, 0.0, 1.0])) @ np.stack([x, np.cross(z, x), z])
+        truth[f"01_{k + 1:02d}"] = Camera(name=f"01_{k + 1:02d}", type=CameraType.VGA, resolution=(640, 480),
+                                          K=intr_to_K(TRUE_LENS["intr"]), dist=TRUE_LENS["dist"].copy(), R=R,
+                                          t_cm=-R @ centre, panel=1, node=k + 1)
+    X = rng.uniform(-150.0, 150.0, size=(n_points, 3))
+    names = sorted(truth)
+    proj = project(X, np.stack([truth[n].R for n in names]), np.stack([truth[n].t_cm for n in names]),
+                   np.stack([truth[n].intr for n in names]), np.stack([truth[n].dist for n in names]))
+    seen = proj.in_image(np.array([truth[n].resolution for n in names]))
+    centre_px = np.array([319.5, 239.5])
+    seen &= np.linalg.norm(proj.uv_px - centre_px, axis=-1) <= inner_fraction * np.linalg.norm(centre_px)
+    keep = seen.sum(axis=0) >= 2
+    X, seen, uv = X[keep], seen[:, keep], proj.uv_px[:, keep]
+    ci, pi = np.nonzero(seen)
+    uv_obs = uv[ci, pi] + rng.normal(0.0, noise_px, (len(ci), 2))
+    start = {}
+    for n, c in truth.items():
+        R = rotvec_to_matrix(np.radians(0.2) * rng.normal(size=3) / np.sqrt(3)) @ c.R
+        centre = c.center_cm + rng.normal(0.0, 1.0, 3)
+        K, dist = c.K.copy(), c.dist.copy()
+        if prior_off:
+            K[0, 0] *= 1.02
+            K[1, 1] *= 1.02
+            K[:2, 2] += [4.0, -4.0]
+            dist = dist + np.array([0.03, -0.04, 1.5e-3, 1.5e-3, 0.15])
+        start[n] = replace(c, R=R, t_cm=-R @ centre, K=K, dist=dist)
+    problem = BAProblem.from_cameras(start, {"scene_01": X + rng.normal(0.0, 1.0, X.shape)}, camera_index=ci,
+                                     point_index=pi, uv_px=uv_obs, camera_names=names)
+    return problem, truth
+
+
+def test_well_observed_cameras_keep_every_lens_term_free():
+    problem, truth = _ring_problem(prior_off=True, inner_fraction=1.0)
+    outcome = run_ba_stage(problem, progress=False)
+    lens = outcome.lens_model["cameras"]
+    assert all(lens[n]["free"] == list(LENS_TERMS) and lens[n]["held"] == [] for n in truth), lens
+    for n, cam in outcome.cameras.items():  # recovered: the prior was off by 2 %, 4 px and another lens
+        assert np.abs(cam.intr[:2] / truth[n].intr[:2] - 1.0).max() < 2e-3  # 0.2 %
+        pp_sigma_px = next(d["sigma_px"] for d in lens[n]["decisions"] if d["group"] == "principal_point")
+        assert np.linalg.norm(cam.intr[2:] - truth[n].intr[2:]) < 3.0 * pp_sigma_px < 2.0  # within 3 sigma, px
+        assert distortion_difference_px(cam, truth[n]) < 1.0  # px over the whole image
+    assert {d["group"] for d in lens["01_01"]["decisions"]} == {"principal_point", "k3", "tangential", "k2", "k1"}
+    tangential = next(d for d in lens["01_01"]["decisions"] if d["group"] == "tangential")
+    assert "principal point" in tangential["reason"]  # decentering is only held together with the principal point
+    assert outcome.lens_model["solves"] == 2  # the smallest model, then the chosen one (confirmed, not re-solved)
+
+
+def test_image_centre_only_holds_k3_at_an_exact_prior():
+    """Seen only within half of the image radius, k3 moves the corners by several px per sigma and the fit
+    does not need it: held at the prior (here exact), so the corners stay right."""
+    problem, truth = _ring_problem(prior_off=False, inner_fraction=0.5)
+    outcome = run_ba_stage(problem, progress=False)
+    lens = outcome.lens_model["cameras"]
+    for n in truth:
+        assert "k3" in lens[n]["held"] and "fx" in lens[n]["free"], lens[n]
+        k3 = next(d for d in lens[n]["decisions"] if d["group"] == "k3")
+        assert k3["sigma_px"] > 0.5 and k3["wald_chi2"] < k3["penalty_chi2"]
+        assert outcome.problem.camera(n).dist[4] == problem.camera(n).dist[4]  # bit-identical prior value
+        assert distortion_difference_px(outcome.cameras[n], truth[n]) < 1.0
+    everything_free = bundle_adjust(problem, BAOptions(compute_uncertainty=False))
+    worst_free = max(distortion_difference_px(everything_free.problem.camera(n), truth[n]) for n in truth)
+    worst_chosen = max(distortion_difference_px(outcome.cameras[n], truth[n]) for n in truth)
+    assert worst_chosen < worst_free  # extrapolating a free k3 to the corners is what the selection avoids
+
+
+def test_without_uncertainties_the_stage_keeps_the_callers_mask():
+    """The quick path's solver options (no covariance): one solve, the given free mask, no lens model."""
+    problem, _ = _ring_problem(prior_off=False, inner_fraction=0.5, n_points=600)
+    problem.fix("k3", "01_02")
+    outcome = run_ba_stage(problem, progress=False, options=BAOptions(compute_uncertainty=False))
+    assert outcome.lens_model is None and outcome.stats["solves"] == 1
+    assert np.array_equal(outcome.problem.free, problem.free)
+
+
+# ------------------------------------------------------------------------------------------ real photographs
+def _strecha_cameras(scale: float, cm_per_m: float = 25.0) -> dict[str, Camera]:
+    """Reference cameras of tests/data/real_crop for images ``scale`` times the full 3072 x 2048 size, in a
+    dome-sized frame (centroid at the origin, cm_per_m cm per survey metre, R re-orthonormalised)."""
+    raw = {}
+    for i, path in enumerate(sorted(REAL_CROP.glob("*.camera"))):
+        rows = [[float(v) for v in line.split()] for line in path.read_text().splitlines() if line.strip()]
+        raw[f"00_{i:02d}"] = (np.array(rows[0:3]), np.array(rows[4:7]), np.array(rows[7]), rows[8])
+    centroid = np.mean([c for _, _, c, _ in raw.values()], axis=0)
+    cams = {}
+    for name, (K, R_wfc, C, size) in raw.items():
+        U, _, Vt = np.linalg.svd(R_wfc.T)
+        R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+        intr = np.array([K[0, 0] * scale, K[1, 1] * scale, (K[0, 2] + 0.5) * scale - 0.5,
+                         (K[1, 2] + 0.5) * scale - 0.5])
+        cams[name] = Camera(name=name, type=CameraType.HD, resolution=(round(size[0] * scale), round(size[1] * scale)),
+                            K=intr_to_K(intr), dist=np.zeros(5), R=R, t_cm=-R @ ((C - centroid) * cm_per_m), panel=0,
+                            node=int(name[3:]) + 1)
+    return cams
+
+
+@pytest.fixture(scope="module")
+def real_crop(tmp_path_factory):
+    """A one-scene capture of 4 real photographs (768 x 512) and a prior perturbed like an old calibration
+    (centres 0.5 cm, rotations 1 deg, focal +3 %; centres within the world-frame fit's 1 cm inlier threshold),
+    calibrated with `calibrate --prior`."""
+    from dome_calib.pipeline import CalibrateOptions, run_calibration
+
+    root = tmp_path_factory.mktemp("real_crop")
+    reference = _strecha_cameras(0.25)
+    capture = root / "capture"
+    (capture / "scenes" / "scene_01").mkdir(parents=True)
+    for name, jpg in zip(sorted(reference), sorted(REAL_CROP.glob("*.jpg"))):
+        cv2.imwrite(str(capture / "scenes" / "scene_01" / f"{name}.png"), cv2.imread(str(jpg), cv2.IMREAD_GRAYSCALE))
+    (capture / "capture.json").write_text(json.dumps({"scenes": ["scene_01"], "cameras": sorted(reference)}))
+    rng = np.random.default_rng(0)
+    prior = {}
+    for n, c in sorted(reference.items()):
+        d, a = rng.normal(size=3), rng.normal(size=3)
+        R = rotvec_to_matrix(np.radians(1.0) * a / np.linalg.norm(a)) @ c.R
+        K = c.K.copy()
+        K[0, 0] *= 1.03
+        K[1, 1] *= 1.03
+        prior[n] = replace(c, R=R, t_cm=-R @ (c.center_cm + 0.5 * d / np.linalg.norm(d)), K=K)
+    write_bundle(Bundle(seq="prior", cameras=prior), root / "prior")
+    result = run_calibration(capture, root / "out", CalibrateOptions(prior=root / "prior", progress=False,
+                                                                     work_dir=root / "work"))
+    return result, reference, root / "out"
+
+
+def test_real_one_view_cameras_hold_what_they_cannot_determine(real_crop):
+    result, reference, out = real_crop
+    assert sorted(result.bundle.cameras) == sorted(reference)
+    lens = result.ba.lens_model["cameras"]
+    for n in reference:
+        assert {"cx", "cy", "k3"} <= set(lens[n]["held"]) and {"fx", "fy"} <= set(lens[n]["free"]), lens[n]
+        pp = next(d for d in lens[n]["decisions"] if d["group"] == "principal_point")
+        assert pp["sigma_px"] > 5.0 and not pp["free"]  # one view: the principal point is open by > 5 px
+    chosen = compare_cameras(result.bundle.cameras, reference).summary()["all"]
+    assert chosen["focal_pct_max"] < 3.0 and chosen["principal_px_max"] == 0.0  # held at the prior (exact here)
+    assert chosen["distortion_px_max"] < 1.5  # px over the whole image; the reference lens is distortion-free
+    everything_free = bundle_adjust(result.sfm.problem, BAOptions(compute_uncertainty=False))
+    free_cams = {n: everything_free.problem.camera(n) for n in everything_free.problem.camera_names}
+    free_err = compare_cameras(free_cams, reference).summary()["all"]
+    # what holding the undetermined terms buys on four one-view cameras (everything free: focal ~12 %, 30 px)
+    assert free_err["focal_pct_median"] > 3 * chosen["focal_pct_median"]
+    assert free_err["center_cm_median"] > 3 * chosen["center_cm_median"]
+    assert free_err["principal_px_median"] > 10.0 and free_err["distortion_px_max"] > 5.0
+    report = json.loads((out / "report" / "report.json").read_text())
+    assert report["lens_model"]["cameras"]["00_00"]["held"] == lens["00_00"]["held"]
+    assert report["per_camera"]["00_00"]["lens_held"] == lens["00_00"]["held"]
+    assert "cx" not in report["per_camera"]["00_00"]["lens_free"]
+    from dome_calib.report.command import report_bundle
+
+    report_bundle(out)  # `dome-calib report` rewrites the report: the lens model, known only to calibrate, stays
+    again = json.loads((out / "report" / "report.json").read_text())
+    assert again["lens_model"] == report["lens_model"]
+    assert again["per_camera"]["00_00"]["lens_held"] == lens["00_00"]["held"]
