@@ -20,12 +20,15 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import soundfile as sf
+
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import (check_output_folder, load_bundle, recover_folder, replace_folder, staging_folder,
                                   write_bundle)
 from dome_calib.errors import CaptureError, DomeCalibError
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.kinect.calibrate import KinectCalibOptions, SensorCalibration, calibrate_kinect_folder
+from dome_calib.kinect.detect import find_sensor_frames
 from dome_calib.pipeline import CalibrateOptions, CalibrationResult, format_result, run_calibration
 from timecode.errors import TimecodeError
 from timecode.sync.pipeline import sync_session, write_sync
@@ -73,6 +76,20 @@ def session_parts(session: Path) -> dict[str, Path]:
     return parts
 
 
+def _check_audio(loaded) -> None:
+    """CaptureError naming the file when a session audio file is missing or not audio (before any work)."""
+    paths = [(loaded.ltc.path, "ltc.file")] + [(n.audio_path, f"kinect.{name}.audio")
+                                               for name, n in loaded.kinects.items() if n.audio_path is not None]
+    for path, field_name in paths:
+        if not path.is_file():
+            raise CaptureError(f"{path}: audio file not found (session.json field '{field_name}')")
+        try:
+            sf.info(str(path))
+        except (sf.LibsndfileError, RuntimeError) as exc:
+            raise CaptureError(f"{path}: cannot read audio (session.json field '{field_name}': "
+                               f"{str(exc).splitlines()[0]})") from None
+
+
 def _kinect_pillar(results: list[SensorCalibration], bundle: Bundle) -> dict:
     sensors = [r.summary() for r in results]
     have = {s["color_camera"] for s in sensors}
@@ -117,10 +134,12 @@ def run_session(session: Path, out: Path, options: SessionOptions | None = None,
     stage = on_stage or (lambda name: None)
     parts = session_parts(session)
     check_output_folder(out)
-    try:  # the sync description is read (and refused) before the calibration
+    try:  # the sync description and its audio files are read (and refused) before the calibration
         loaded = load_session(parts["sync"])
     except TimecodeError as exc:
         raise DomeCalibError(str(exc)) from None  # the same one line, as a dome-calib error
+    _check_audio(loaded)
+    find_sensor_frames(parts["kinect"])  # Kinect folders and pairing, likewise
     seq = options.seq or session.resolve().name
     work = out.with_name(out.name + ".work")
     seconds: dict[str, float] = {}
