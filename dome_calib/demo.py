@@ -167,7 +167,8 @@ def format_pillars(fig: dict) -> list[str]:
     prod, gt, vga = sk["produced_all"], sk["truth_all"], sk["produced_vga"]
     ratio = prod["mpjpe_mm"] / gt["mpjpe_mm"]
     lines.append("")
-    lines.append(f"person (19 joints, {prod['times']} VGA frame times, dome-calib triangulate from every stream):")
+    lines.append(f"person (19 joints, {prod['times']} times on a 100 Hz grid, dome-calib triangulate from every "
+                 "stream):")
     lines.append(f"  produced bundle, all streams   MPJPE {prod['mpjpe_mm']:6.2f} mm  (p95 {prod['p95_mm']:.1f} mm, "
                  f"{100 * prod['reconstructed']:.0f} % of joints)")
     lines.append(f"  ground-truth bundle, all       MPJPE {gt['mpjpe_mm']:6.2f} mm  (produced / truth {ratio:.3f}, "

@@ -1,8 +1,9 @@
 """`dome-calib session`: calibrate + kinect + sync into one bundle from one small synthetic session.
 
 The spatial calibration's heavy stages are replaced by the exact stand-ins of test_calibrate (the real run is
-`make demo` and bench/product.py); the Kinect calibration and the sync run for real on a small session: one
-Kinect (KINECTNODE4 on the dome's 50_04) with 6 good board frames, 3 s of LTC audio.
+`make demo` and bench/product.py); the Kinect calibration and the sync run for real on the small session of
+conftest.small_product_session: one Kinect (KINECTNODE4 on the dome's 50_04) with 6 good board frames, 3 s of
+LTC audio.
 """
 from __future__ import annotations
 
@@ -13,30 +14,17 @@ import pytest
 
 import dome_calib.pipeline as pipeline
 from dome_calib.bundle_io import load_bundle, write_bundle
-from dome_calib.layout import nominal_dome
 from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, residuals_of
-from dome_calib.synth.kinect_boards import KinectBoardsOptions, generate_kinect_boards
-from dome_calib.synth.sync_session import SynthSessionOptions, load_truth, make_session
+from dome_calib.synth.sync_session import load_truth
 
 from .test_calibrate import _problem
 
 VGA_HD_AIM_US = 10.0  # the issue's aim for VGA and HD frame times against the truth
 
 
-@pytest.fixture(scope="module")
-def small_session(tmp_path_factory):
-    """capture/ (scene list only: SfM is stood in), kinect/ (one sensor, real images), sync/ (real LTC audio)."""
-    truth = nominal_dome("tiny", seed=0)
-    root = tmp_path_factory.mktemp("session") / "sess"
-    cap = root / "capture"
-    (cap / "scenes" / "scene_01").mkdir(parents=True)
-    (cap / "capture.json").write_text(json.dumps({"preset": "tiny", "seed": 0, "scenes": ["scene_01"],
-                                                  "cameras": sorted(truth.cameras)}))
-    write_bundle(truth, cap / "ground_truth")
-    generate_kinect_boards(truth, root / "kinect", KinectBoardsOptions(sensors=["KINECTNODE4"], good_frames=6,
-                                                                      blurred_frames=1, cut_off_frames=0))
-    make_session(root / "sync", SynthSessionOptions(duration_s=3.0, kinect_nodes=("KINECTNODE4",)))
-    return root, truth
+@pytest.fixture
+def small_session(small_product_session):
+    return small_product_session
 
 
 @pytest.fixture

@@ -4,7 +4,7 @@
 - Sync: every stream's frame times (us) against the true times; Kinect frames against the bound the simulated
   timestamp jitter allows (frame jitter plus the clock fit's own share of the audio block jitter).
 - Skeleton: MPJPE (mm) of the person triangulated from the session's detections with the produced bundle
-  (cameras + sync) and with the ground-truth bundle, at the true VGA frame times. The produced bundle's world is
+  (cameras + sync) and with the ground-truth bundle, on a 100 Hz grid of universal times. The produced bundle's world is
   fixed by the design layout, not the truth's: its skeleton is moved by the similarity that aligns its cameras
   to the true ones (as `dome-calib compare` does) before the error is taken.
 """
@@ -52,7 +52,9 @@ def sync_errors(produced: Bundle, session: Path) -> dict[str, dict]:
     loaded = load_session(session / "sync")
     block_jitter_us = float(truth.params["kinect_block_jitter_us"])
     out = {}
-    for key, table in sorted(_tables(produced).items()):
+    tables = _tables(produced)
+    for key in sorted(tables, key=lambda k: ("/" in k, k != "vga", k)):  # vga, hd, then the Kinects
+        table = tables[key]
         common, i_p, i_t = np.intersect1d(table.index, truth.index[key], return_indices=True)
         err_us = (table.univ_time_ms[i_p] - truth.univ_ms[key][i_t]) * 1000.0
         row = {"frames": int(common.size), "err_rms_us": float(np.sqrt(np.mean(err_us ** 2))),
@@ -76,13 +78,18 @@ def _world_to_truth(produced: Bundle, truth: Bundle):
 
 
 def skeleton_mpjpe(bundle: Bundle, truth: Bundle, session: Path, *, streams: str = "all",
-                   margin_ms: float = 150.0) -> dict:
-    """MPJPE (mm) of the session's person triangulated with ``bundle`` at the true VGA frame times."""
+                   margin_ms: float = 150.0, step_ms: float = 10.0) -> dict:
+    """MPJPE (mm) of the session's person triangulated with ``bundle`` on a 100 Hz grid of universal times.
+
+    A grid, not a stream's own frame times: at a frame's exact true time the ground-truth bundle would need that
+    frame alone while a bundle whose times are off by a nanosecond interpolates two (and loses the joint where
+    the neighbour is a missed detection); between frames both bundles interpolate alike.
+    """
     tracks, _ = load_detection_streams(bundle, session / "detections.json")
     if streams == "vga":
         tracks = [t for t in tracks if t.stream == "vga"]
     vga = truth.sync.streams["vga"].univ_time_ms
-    times = vga[(vga > vga[0] + margin_ms) & (vga < vga[-1] - margin_ms)]
+    times = np.arange(vga[0] + margin_ms, vga[-1] - margin_ms, step_ms)
     views = view_set(bundle, [n for t in tracks for n in t.cameras])
     seq = triangulate_streams(views, tracks, times)
     X = seq.X_cm if bundle is truth else _world_to_truth(bundle, truth)(seq.X_cm)

@@ -45,7 +45,10 @@ class SessionOptions:
     seed: int = 0
     seq: str = "session"
     duration_s: float = 4.0  # audio and streams; the person is detected over all of it
-    kinect_good_frames: int = 14  # board poses per Kinect (+2 blurred, +2 cut off)
+    kinect_good_frames: int = 14  # board poses per Kinect (+ blurred, + cut off)
+    kinect_blurred_frames: int = 2
+    kinect_cut_off_frames: int = 2
+    kinect_sensors: tuple[str, ...] | None = None  # default: every Kinect colour camera of the dome
     noise_px: float = 2.0  # 2D detection noise (std per coordinate)
     wrong_fraction: float = 0.05  # detections on the mirror joint or anywhere in the image
     miss_fraction: float = 0.10  # detections missing (occlusion, detector misses)
@@ -85,7 +88,7 @@ def make_product_session(folder: str | Path, options: SessionOptions | None = No
     o = options or SessionOptions()
     folder = Path(folder)
     manifest = folder / MANIFEST
-    wanted = {"version": VERSION, "options": asdict(o)}
+    wanted = {"version": VERSION, "options": json.loads(json.dumps(asdict(o)))}
     if manifest.is_file() and json.loads(manifest.read_text(encoding="utf-8")).get("options") == wanted["options"]:
         return folder
     step = progress or (lambda what: None)
@@ -98,8 +101,9 @@ def make_product_session(folder: str | Path, options: SessionOptions | None = No
     write_capture(folder / "capture", SynthOptions(preset=o.preset, n_scenes=o.scenes, seed=o.seed,
                                                    layout=layout / f"calibration_{dome.seq}.json", overwrite=True))
     step("Kinect checkerboard pairs")
-    boards = generate_kinect_boards(dome, folder / "kinect", KinectBoardsOptions(good_frames=o.kinect_good_frames,
-                                                                                seed=o.seed))
+    boards = generate_kinect_boards(dome, folder / "kinect", KinectBoardsOptions(
+        sensors=list(o.kinect_sensors) if o.kinect_sensors else None, good_frames=o.kinect_good_frames,
+        blurred_frames=o.kinect_blurred_frames, cut_off_frames=o.kinect_cut_off_frames, seed=o.seed))
     step("LTC audio and Kinect microphones")
     nodes = tuple(sorted(boards["sensors"], key=lambda n: int(n.removeprefix("KINECTNODE"))))
     sync_truth = make_session(folder / "sync", SynthSessionOptions(seed=o.seed, seq=o.seq, duration_s=o.duration_s,
@@ -108,7 +112,9 @@ def make_product_session(folder: str | Path, options: SessionOptions | None = No
                    kinect=truth_kcalibration(boards), sync=truth_sync(sync_truth))
     write_bundle(truth, folder / "ground_truth")
     step("person and 2D detections")
-    tracks = synthetic_tracks(truth, sorted(truth.cameras), seed=o.seed,
+    seen_by = [n for n, c in sorted(truth.cameras.items())  # Kinect colour cameras only with a synced node
+               if c.type != "kinect-color" or f"KINECTNODE{int(n[3:])}" in nodes]
+    tracks = synthetic_tracks(truth, seen_by, seed=o.seed,
                               noise=DetectionNoise(noise_px=o.noise_px, wrong_fraction=o.wrong_fraction))
     doc = _detections_doc(tracks, np.random.default_rng(o.seed + 7), o.miss_fraction)
     atomic_write_text(folder / "detections.json", json.dumps(doc, separators=(",", ":")) + "\n")
