@@ -35,7 +35,7 @@ def format_session(result) -> str:
 
 
 def session(
-    folder: Path = typer.Argument(..., help="Session folder: capture/ (tent images), kinect/ (checkerboard pairs), "
+    folder: Path = typer.Argument(..., metavar="SESSION", help="Session folder: capture/ (tent images), kinect/ (checkerboard pairs), "
                                   "sync/ (session.json, ltc.wav, Kinect audio); see README 'Session layout'.",
                                   show_default=False),
     out: Path = typer.Option(..., "-o", "--out", help="Bundle folder to write (created, or a bundle replaced "
