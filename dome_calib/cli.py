@@ -127,6 +127,10 @@ from dome_calib.cli_kinect import register as _register_kinect  # noqa: E402  (k
 
 _register_kinect(app)
 
+from dome_calib.cli_session import register as _register_session  # noqa: E402  (session)
+
+_register_session(app)
+
 
 def main() -> None:
     run_cli(app, prog="dome-calib")

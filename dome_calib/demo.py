@@ -1,10 +1,13 @@
-"""`dome-calib demo` (the README's first command, `make demo`): synthesise a small dome capture, calibrate it
-with the real pipeline, compare the result with the ground truth, and print what a technician would look at.
+"""`dome-calib demo` (the README's first command, `make demo`): the whole product on one synthetic session.
 
-Everything lands in one folder (default ``demo_out/``): ``as_built/`` (the synthetic dome's cameras),
-``capture/`` (images + ground truth), ``bundle/``
-(the calibration and its ``report/``), ``bundle.work/`` (resumable intermediate results). A rerun reuses the
-capture if it was made with the same preset, scenes and seed.
+Synthesise a session with one ground truth (:mod:`dome_calib.synth.session`: tent captures, Kinect boards, LTC
+audio and Kinect microphones, a walking person's 2D detections), run `dome-calib session` on it (calibrate,
+kinect, sync into one bundle), then judge every pillar against the truth: cameras, Kinect depth-to-colour, each
+stream's frame times, and the person triangulated from all streams with the bundle just produced.
+
+Everything lands in one folder (default ``demo_out/``): ``session/`` (the synthetic session and its
+``ground_truth/``), ``bundle/`` (calibration, kcalibration, sync tables and ``report/``), ``bundle.work/``
+(resumable intermediate results). A rerun reuses the session if it was made with the same preset, scenes, seed.
 """
 from __future__ import annotations
 
@@ -20,10 +23,11 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.compare import Comparison, compare_cameras
 from dome_calib.errors import DomeCalibError
-from dome_calib.pipeline import CalibrateOptions, CalibrationResult, format_result, run_calibration
-from dome_calib.synth.capture import SynthOptions
-from dome_calib.synth.capture import synthesize as write_capture
-from dome_calib.synth.dome import as_built_dome
+from dome_calib.pipeline import CalibrationResult, format_result
+from dome_calib.session import SessionOptions, SessionResult, run_session
+from dome_calib.synth.product_eval import evaluate
+from dome_calib.synth.session import SessionOptions as SynthSessionOptions
+from dome_calib.synth.session import make_product_session
 
 logger = logging.getLogger(__name__)
 
@@ -48,26 +52,24 @@ class DemoResult:
     synth_seconds: float  # 0 when the capture was reused
     calibration: CalibrationResult
     comparison: Comparison
+    session: SessionResult
+    figures: dict  # dome_calib.synth.product_eval.evaluate: kinect, sync, skeleton
 
 
-def synthesize(capture: Path, preset: str, scenes: int, seed: int, progress: bool = True) -> float:
-    """Write the synthetic capture of the dome AS BUILT (:func:`dome_calib.synth.dome.as_built_dome`: not the
-    design that calibrate starts from) unless the same one is already there; returns the seconds spent."""
-    layout = capture.parent / "as_built" / "calibration_as_built.json"
-    meta = capture / "capture.json"
-    if meta.exists() and layout.exists():
-        old = json.loads(meta.read_text(encoding="utf-8"))
-        if (old.get("preset") == preset and old.get("seed") == seed and len(old.get("scenes", [])) == scenes
-                and old.get("layout") == str(layout)):
-            logger.info("reusing the synthetic capture in %s", capture)
-            return 0.0
-
+def synthesize(session: Path, preset: str, scenes: int, seed: int, progress: bool = True) -> float:
+    """Write the synthetic session (the dome AS BUILT, not the design calibrate starts from) unless the same one
+    is already there; returns the seconds spent (0 when reused)."""
+    options = SynthSessionOptions(preset=preset, scenes=scenes, seed=seed)
     t0 = time.perf_counter()
-    write_bundle(as_built_dome(preset, seed), layout.parent)
-    with _progress_bar(f"synthesising {preset} capture", progress) as update:
-        write_capture(capture, SynthOptions(preset=preset, n_scenes=scenes, seed=seed, layout=layout, overwrite=True),
-                      progress=update)
-    return time.perf_counter() - t0
+    made = []
+
+    def step(what: str) -> None:
+        made.append(what)
+        if progress:
+            logger.info("synthesising the %s session: %s", preset, what)
+
+    make_product_session(session, options, progress=step)
+    return time.perf_counter() - t0 if made else 0.0
 
 
 @contextlib.contextmanager
@@ -96,13 +98,15 @@ def run_demo(out: Path, options: DemoOptions | None = None) -> DemoResult:
     if scenes < 1:
         raise DomeCalibError(f"--scenes {scenes}: need at least one tent position")
     out = Path(out)
-    capture = out / "capture"
-    synth_s = synthesize(capture, options.preset, scenes, options.seed, options.progress)
-    calibration = run_calibration(capture, out / "bundle", CalibrateOptions(seq="demo", progress=options.progress))
-    truth = load_bundle(capture / "ground_truth")
-    comparison = compare_cameras(calibration.bundle.cameras, truth.cameras)
+    session = out / "session"
+    synth_s = synthesize(session, options.preset, scenes, options.seed, options.progress)
+    result = run_session(session, out / "bundle", SessionOptions(seq="demo", progress=options.progress),
+                         on_stage=lambda name: logger.info("session: %s", name))
+    truth = load_bundle(session / "ground_truth")
+    comparison = compare_cameras(result.calibration.bundle.cameras, truth.cameras)
+    figures = evaluate(result.bundle, truth, session)
     return DemoResult(out=out, preset=options.preset, scenes=scenes, seed=options.seed, synth_seconds=synth_s,
-                      calibration=calibration, comparison=comparison)
+                      calibration=result.calibration, comparison=comparison, session=result, figures=figures)
 
 
 def format_demo(result: DemoResult) -> str:
@@ -111,7 +115,7 @@ def format_demo(result: DemoResult) -> str:
     summary = cmp.summary()
     lines = [f"dome-calib demo: synthetic '{result.preset}' dome, {len(cal.expected)} cameras, "
              f"{result.scenes} tent positions, seed {result.seed}"]
-    lines.append(f"  capture: {result.out / 'capture'}" + (f" (synthesised in {result.synth_seconds:.0f} s)"
+    lines.append(f"  session: {result.out / 'session'}" + (f" (synthesised in {result.synth_seconds:.0f} s)"
                                                           if result.synth_seconds else " (reused)"))
     lines.append("  ground truth: the dome as built (cameras off the design by ~1.5 cm and ~3 deg, other lenses);\n"
                  "  the calibration starts from the design layout (no --prior)")
@@ -130,9 +134,48 @@ def format_demo(result: DemoResult) -> str:
     lines.append("  (lens: median over cameras of the largest distortion difference over the whole image, corners\n"
                  "   included where the tent never appears)")
     lines.append("")
-    lines.append(f"bundle: {cal.bundle_dir}/calibration_{cal.bundle.seq}.json")
-    lines.append(f"report: {cal.report_dir}/dome.png (open it), report.json")
+    lines += format_pillars(result.figures)
+    lines.append("")
+    bundle_dir = result.session.bundle_dir
+    lines.append(f"bundle: {bundle_dir}/calibration_{cal.bundle.seq}.json (+ kcalibration, synctables, ksynctables)")
+    lines.append(f"report: {bundle_dir / 'report'}/dome.png (open it), report.json, session.json, sync.json")
     return "\n".join(lines)
+
+
+#: The aims the issue sets (README, 'The whole product'): VGA/HD frame times, produced over ground-truth MPJPE.
+AIM_VGA_HD_RMS_US = 10.0
+AIM_MPJPE_RATIO = 1.10
+
+
+def format_pillars(fig: dict) -> list[str]:
+    """Kinect, sync and skeleton lines of the demo (also used by bench/product.py's text mode)."""
+    ok = lambda good: "ok" if good else "MISSED"  # noqa: E731
+    lines = ["Kinect depth-to-colour (dome-calib kinect, against the truth):"]
+    for name, e in fig["kinect"].items():
+        lines.append(f"  {name:<13}translation {e['t_err_mm']:6.2f} mm   rotation {e['rot_err_deg']:.3f} deg")
+    lines.append("")
+    lines.append("sync (timecode sync from the session's own LTC audio; frame times against the truth):")
+    for key, e in fig["sync"].items():
+        if "/" in key:
+            aim = f"bound {e['bound_rms_us']:6.1f} us (jitter {e['jitter_rms_us']:.0f} us)"
+            good = e["err_rms_us"] <= e["bound_rms_us"]
+        else:
+            aim, good = f"aim   {AIM_VGA_HD_RMS_US:6.1f} us", e["err_rms_us"] <= AIM_VGA_HD_RMS_US
+        lines.append(f"  {key:<19}{e['frames']:>5} frames  error {e['err_rms_us']:8.2f} us RMS, "
+                     f"{e['err_max_us']:8.2f} us max;  {aim}  {ok(good)}")
+    sk = fig["skeleton"]
+    prod, gt, vga = sk["produced_all"], sk["truth_all"], sk["produced_vga"]
+    ratio = prod["mpjpe_mm"] / gt["mpjpe_mm"]
+    lines.append("")
+    lines.append(f"person (19 joints, {prod['times']} times on a 100 Hz grid, dome-calib triangulate from every "
+                 "stream):")
+    lines.append(f"  produced bundle, all streams   MPJPE {prod['mpjpe_mm']:6.2f} mm  (p95 {prod['p95_mm']:.1f} mm, "
+                 f"{100 * prod['reconstructed']:.0f} % of joints)")
+    lines.append(f"  ground-truth bundle, all       MPJPE {gt['mpjpe_mm']:6.2f} mm  (produced / truth {ratio:.3f}, "
+                 f"aim <= {AIM_MPJPE_RATIO:.2f})  {ok(ratio <= AIM_MPJPE_RATIO)}")
+    lines.append(f"  produced bundle, VGA only      MPJPE {vga['mpjpe_mm']:6.2f} mm  (all streams lower: "
+                 f"{ok(prod['mpjpe_mm'] < vga['mpjpe_mm'])})")
+    return lines
 
 
 def _format_calibration_lines(cal: CalibrationResult) -> list[str]:

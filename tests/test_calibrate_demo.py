@@ -3,27 +3,27 @@ exact stand-ins of test_calibrate (the real end-to-end run is `make demo`, timed
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 import dome_calib.demo as demo
 import dome_calib.pipeline as pipeline
-from dome_calib.bundle_io import write_bundle
 from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, residuals_of
-from dome_calib.layout import nominal_dome
 
 from .test_calibrate import _problem
 
 
-def test_demo_prints_what_a_technician_needs(tmp_path, monkeypatch):
-    truth = nominal_dome("tiny", seed=0)
+def test_demo_prints_what_a_technician_needs(tmp_path, monkeypatch, small_product_session):
+    """Every pillar's lines, on conftest's small session (one Kinect, 3 s) with SfM and BA stood in by the truth."""
+    import shutil
 
-    def fake_synth(capture, preset, scenes, seed, progress=True):
-        (capture / "scenes" / "scene_01").mkdir(parents=True)
-        (capture / "capture.json").write_text(json.dumps({"preset": preset, "seed": seed, "scenes": ["scene_01"],
-                                                          "cameras": sorted(truth.cameras)}))
-        write_bundle(truth, capture / "ground_truth")
+    root, truth = small_product_session
+
+    def fake_synth(session, preset, scenes, seed, progress=True):
+        shutil.copytree(root, session)
         return 1.0
 
     def fake_ba(problem, *, progress=True):
@@ -40,11 +40,22 @@ def test_demo_prints_what_a_technician_needs(tmp_path, monkeypatch):
     out = result.output
     assert "synthetic 'tiny' dome, 16 cameras" in out
     assert "calibrated 16 of 16 cameras (vga 8/8, hd 5/5, kinect-color 3/3)" in out
-    assert "reprojection RMS 0.3" in out  # the stand-in's 0.3 px noise
+    rms_px = float(re.search(r"reprojection RMS ([0-9.]+) px", out).group(1))
+    assert rms_px == pytest.approx(0.3, abs=0.02)  # the stand-in's 0.3 px noise per coordinate
     assert "centre error   0.00 mm median" in out  # exact stand-in: the truth comes back
     assert "worst cameras:" in out
     assert f"report: {tmp_path / 'demo' / 'bundle' / 'report'}/dome.png" in out
     assert (tmp_path / "demo" / "bundle" / "report" / "dome.png").exists()
+    # the other pillars: Kinect against the truth, each stream's sync error, the person from every stream
+    assert "Kinect depth-to-colour (dome-calib kinect, against the truth):\n  KINECTNODE4  translation" in out
+    sync = [ln.split() for ln in out.splitlines() if " frames  error " in ln]
+    assert [r[0] for r in sync] == ["vga", "hd", "KINECTNODE4/color", "KINECTNODE4/depth"]
+    assert all(r[-1] == "ok" for r in sync), sync
+    person = {ln.split("MPJPE")[0].strip(): float(ln.split("MPJPE")[1].split()[0]) for ln in out.splitlines()
+              if "MPJPE" in ln}
+    # exact cameras: the produced bundle differs from the truth only by its sync tables (from the audio)
+    assert person["produced bundle, all streams"] == pytest.approx(person["ground-truth bundle, all"], rel=0.02)
+    assert person["produced bundle, all streams"] < person["produced bundle, VGA only"]
 
 
 def test_demo_bad_preset(dome_calib_cli):

@@ -50,6 +50,7 @@ class SynthSessionOptions:
     dropped_frames: int = 2  # frames missing from each camera stream (VGA, HD, Kinect colour and depth)
     hd_timecode_every: int = 1  # HD frames carry an embedded timecode every this many frames (0: none)
     n_kinects: int = 2
+    kinect_nodes: tuple[str, ...] | None = None  # node names (default KINECTNODE1..n_kinects), e.g. the dome's
     kinect_missing_audio: tuple[str, ...] = ()  # nodes whose microphone recorded nothing
     kinect_sample_rate: int = 16000
     kinect_max_drift_ppm: float = 50.0  # device and audio clocks drift uniformly within +-this
@@ -158,8 +159,8 @@ def make_session(folder: str | Path, options: SynthSessionOptions | None = None)
 
     kinect_doc, kinect_ts = {}, {}
     hd_ticks_s = ticks_s["hd"]
-    for i in range(1, o.n_kinects + 1):
-        name = f"KINECTNODE{i}"
+    nodes = o.kinect_nodes if o.kinect_nodes is not None else [f"KINECTNODE{i}" for i in range(1, o.n_kinects + 1)]
+    for name in nodes:
         d_audio, d_dev = rng.uniform(-o.kinect_max_drift_ppm, o.kinect_max_drift_ppm, 2)
         t0 = 0.2 + rng.uniform(0, 0.2)  # true time of the first Kinect audio sample
         dur = o.duration_s - t0 - 0.2 - rng.uniform(0, 0.2)
