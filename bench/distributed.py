@@ -30,6 +30,8 @@ from pathlib import Path
 if Path(sys.path[0]).resolve() == Path(__file__).resolve().parent:
     sys.path.pop(0)  # this file is named distributed.py: the `distributed` package must not resolve to it
 
+from dome_calib.synth.capture import split_onto_nodes  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 FULL = {"images": 1563, "pairs": 22500, "features_s_2cores": 117.0, "matching_s_2cores": 207.0,
@@ -70,27 +72,6 @@ def calibrate(capture: Path, out: Path, scheduler: str | None) -> dict:
     pairs = sum(sc["pairs"] for sc in sfm["scenes"].values())
     return {"wall_s": round(wall, 1), "stages_s": {k: round(v, 1) for k, v in stages.items()}, "pairs": pairs,
             "cluster": cluster.get("stages", {}), "load_before": load0, "load_after": loadavg()}
-
-
-def split_capture(capture: Path, base: Path) -> tuple[Path, dict[str, Path]]:
-    """The head folder (capture.json with "nodes" only) and one image folder per node (half the cameras each)."""
-    meta = json.loads((capture / "capture.json").read_text())
-    cams = sorted(meta["cameras"])
-    nodes = {"nodeA": cams[0::2], "nodeB": cams[1::2]}
-    head = base / "head"
-    shutil.rmtree(head, ignore_errors=True)
-    head.mkdir(parents=True)
-    (head / "capture.json").write_text(json.dumps({**meta, "nodes": nodes}, indent=1))
-    folders = {}
-    for node, node_cams in nodes.items():
-        shutil.rmtree(base / node, ignore_errors=True)
-        for scene in meta["scenes"]:
-            dst = base / node / "scenes" / scene
-            dst.mkdir(parents=True)
-            for c in node_cams:
-                shutil.copy(capture / "scenes" / scene / f"{c}.png", dst)
-        folders[node] = base / node
-    return head, folders
 
 
 def start_cluster(base: Path, folders: dict[str, Path]) -> tuple[str, list[subprocess.Popen]]:
@@ -172,7 +153,7 @@ def main(argv: list[str] | None = None) -> None:
     emit({"bench": "distributed", "run": "local_cluster_2x1", "preset": args.preset, **runs["local_cluster"],
           "per_task": per_task(runs["local_cluster"], 2)})
 
-    head, folders = split_capture(capture, base)
+    head, folders = split_onto_nodes(capture, base, ("nodeA", "nodeB"))
     address, procs = start_cluster(base, folders)
     try:
         runs["workers"] = calibrate(head, base / "out_workers", address)

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -18,6 +17,7 @@ import numpy as np
 import pytest
 
 from dome_calib.bundle_io import load_bundle
+from dome_calib.synth.capture import split_onto_nodes
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -46,20 +46,7 @@ def split_capture(tmp_path_factory):
     full = base / "capture"
     res = _cli("synth", full, "--preset", "tiny", "--scenes", "1", "--overwrite")
     assert res.returncode == 0, res.stderr
-    meta = json.loads((full / "capture.json").read_text())
-    cams = sorted(meta["cameras"])
-    nodes = {NODES[0]: cams[0::2], NODES[1]: cams[1::2]}
-    head = base / "head"
-    head.mkdir()
-    (head / "capture.json").write_text(json.dumps({**meta, "nodes": nodes}, indent=1))
-    folders = {}
-    for node, node_cams in nodes.items():
-        for scene in meta["scenes"]:
-            dst = base / node / "scenes" / scene
-            dst.mkdir(parents=True)
-            for c in node_cams:
-                shutil.copy(full / "scenes" / scene / f"{c}.png", dst)
-        folders[node] = base / node
+    head, folders = split_onto_nodes(full, base, NODES)
     return full, head, folders
 
 

@@ -215,3 +215,27 @@ def synthesize(out: str | Path, options: SynthOptions,
         raise
     logger.debug("capture %s: %d images in %.1f s", out, total, seconds)
     return CaptureSummary(folder=out, scenes=names, cameras=cameras, n_images=total, seconds=seconds)
+
+
+def split_onto_nodes(capture: Path, base: Path, node_names: tuple[str, ...]) -> tuple[Path, dict[str, Path]]:
+    """Lay a capture out as if its images sat on capture nodes (for tests and bench/distributed.py): ``base/head``
+    holds capture.json with ``"nodes"`` (cameras dealt round-robin in name order) and no images; ``base/<node>``
+    holds that node's images in the usual ``scenes/<scene>/`` layout. Returns (head folder, {node: its folder});
+    existing node folders are replaced."""
+    meta = json.loads((capture / "capture.json").read_text(encoding="utf-8"))
+    cams = sorted(meta["cameras"])
+    nodes = {name: cams[k::len(node_names)] for k, name in enumerate(node_names)}
+    head = base / "head"
+    shutil.rmtree(head, ignore_errors=True)
+    head.mkdir(parents=True)
+    (head / "capture.json").write_text(json.dumps({**meta, "nodes": nodes}, indent=1), encoding="utf-8")
+    folders = {}
+    for node, node_cams in nodes.items():
+        shutil.rmtree(base / node, ignore_errors=True)
+        for scene in meta["scenes"]:
+            dst = base / node / "scenes" / scene
+            dst.mkdir(parents=True)
+            for c in node_cams:
+                shutil.copy(capture / "scenes" / scene / f"{c}.png", dst)
+        folders[node] = base / node
+    return head, folders
