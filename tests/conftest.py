@@ -24,21 +24,12 @@ def dome_calib_cli(monkeypatch, capsys):
     """Run ``dome-calib ARGS`` in this process through ``run_cli`` (as the installed command does): the
     one-line errors and exit codes are the command's own, without a second Python starting (~1.5 s each).
     Returns a ``subprocess.CompletedProcess`` (returncode, stdout, stderr)."""
-    import subprocess
-    import sys
-
     from dome_calib.cli import main
 
-    def run(*args: str) -> subprocess.CompletedProcess:
-        monkeypatch.setattr(sys, "argv", ["dome-calib", *map(str, args)])
-        capsys.readouterr()
-        code = 0
-        try:
-            main()
-        except SystemExit as exc:
-            code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-        out = capsys.readouterr()
-        return subprocess.CompletedProcess(["dome-calib", *args], code, out.out, out.err)
+    from .cli_runner import run_in_process
+
+    def run(*args: str):
+        return run_in_process(main, "dome-calib", args, monkeypatch, capsys)
 
     return run
 

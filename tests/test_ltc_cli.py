@@ -5,7 +5,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +14,8 @@ import soundfile as sf
 from timecode.encoder import EncoderOptions, encode_ltc
 from timecode.rates import RATE_25, RATE_29_97_DF
 
+from .cli_runner import run_in_process
+
 DATA = Path(__file__).parent / "data" / "ltc"
 
 
@@ -22,15 +23,8 @@ def _run(args, monkeypatch, capsys) -> tuple[int, str, str]:
     """Run ``timecode ARGS`` in-process through run_cli, as the installed command does."""
     from timecode.cli import main
 
-    monkeypatch.setattr(sys, "argv", ["timecode", *map(str, args)])
-    capsys.readouterr()
-    code = 0
-    try:
-        main()
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    out = capsys.readouterr()
-    return code, out.out, out.err
+    done = run_in_process(main, "timecode", args, monkeypatch, capsys)
+    return done.returncode, done.stdout, done.stderr
 
 
 @pytest.fixture(scope="module")
