@@ -191,7 +191,7 @@ def _nearest(cands: list[Camera], point_cm: np.ndarray, n: int, taken: set[str] 
     """Names of the ``n`` cameras of ``cands`` nearest ``point_cm``; distances compared to 1 um, equal ones by
     name (six ring cameras lie at one distance from a panel centre by design: their last bits differ between
     machines)."""
-    cands = sorted((c for c in cands if c.name not in taken), key=lambda c: c.name)
+    cands = [c for c in cands if c.name not in taken]  # order_by breaks equal distances by name
     d = [float(np.linalg.norm(c.center_cm - point_cm)) for c in cands]
     return [cands[i].name for i in order_by(d, [c.name for c in cands], LENGTH_QUANTUM_CM)[:n]]
 
