@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/ba.py            # 520 real cameras, 3 scenes, 100k points, ~1M observations
     .venv/bin/python bench/ba.py --small    # 130 cameras, 10k points, ~100k observations (a minute or two)
+    .venv/bin/python bench/ba.py --small --load   # the same while two CPU-bound processes share the 2 cores
 
 Problem: the real Panoptic layout and distortion (tests/data/panoptic/calibration_160906_band1.json, 520
 cameras), points on a tent-like surface, Gaussian pixel noise sigma = 0.5 px, 1 % gross outliers; the start
@@ -9,6 +10,7 @@ is perturbed like an SfM result (centres ~3 cm per axis, rotation 0.2 deg, focal
 distortion zero, points 1 cm). Each solver runs in its own process (peak memory = that process's max RSS):
 
 - ours: dome_calib.ba.bundle_adjust from the perturbed start (Huber 2 px, reject at 5 sigma, least squares);
+  ``time_s`` is the solve (the work Ceres does), ``uncertainty_s`` the covariance calibrate adds after it;
 - oracle: the same solver from ground truth (the maximum-likelihood optimum of the same schedule);
 - colmap: pycolmap's Ceres BA, FULL_OPENCV with k4, k5, k6 held at zero (pyceres SubsetManifold), TWO_CAMS_FROM_WORLD
   gauge, 2 threads, the same schedule (Huber 2 px on all observations, the same rejection rule, then least squares);
@@ -20,6 +22,7 @@ cost_true_inliers = 0.5 * sum |r|^2 over the observations that are not gross out
 from __future__ import annotations
 
 import argparse
+import os
 import json
 import pickle
 import resource
@@ -46,15 +49,18 @@ def peak_rss_gb() -> float:
 
 # ----------------------------------------------------------------------------------------------- workers
 def worker_ours(data: dict, start_key: str) -> dict:
-    from dome_calib.ba import BAOptions, bundle_adjust
+    from dome_calib.ba import BAOptions, bundle_adjust, solution_uncertainty
 
     problem = data[start_key]
     t0, c0 = time.perf_counter(), time.process_time()
-    res = bundle_adjust(problem, BAOptions(n_threads=2))
+    res = bundle_adjust(problem, BAOptions(n_threads=2, compute_uncertainty=False))  # the work Ceres does
     elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
-    u = res.uncertainty
+    t1 = time.perf_counter()
+    u = res.uncertainty = solution_uncertainty(res, n_threads=2)  # what calibrate adds: timed apart
+    uncertainty_s = time.perf_counter() - t1
     return dict(camera_params=res.problem.camera_params, points_cm=res.problem.points_cm, used=res.used,
-                time_s=elapsed, cpu_s=cpu, iterations=len(res.iterations), cost=res.cost, n_params=res.n_params,
+                time_s=elapsed, cpu_s=cpu, uncertainty_s=uncertainty_s, iterations=len(res.iterations),
+                cost=res.cost, n_params=res.n_params,
                 n_used=int(res.used.sum()), termination=res.termination,
                 sigma_center_centroid_cm_median=float(np.median(u.sigma_center_centroid_cm))
                 if u is not None and u.sigma_center_centroid_cm is not None else None,
@@ -320,6 +326,8 @@ def main() -> None:
     ap.add_argument("--workdir", help="keep the problem and solutions in this folder (default: a temp folder)")
     ap.add_argument("--only", help="comma-separated subset of ours,oracle,colmap,k1")
     ap.add_argument("--reuse", action="store_true", help="reuse solutions already in --workdir (same seed/size)")
+    ap.add_argument("--load", action="store_true",
+                    help="run two CPU-bound processes beside every solver (a busy 2-core machine)")
     ap.add_argument("--peer-time-limit-s", type=float, default=PEER_TIME_LIMIT_S,
                     help="cap on each of the two Ceres stages (s); default: none")
     args = ap.parse_args()
@@ -343,6 +351,29 @@ def main() -> None:
         print(json.dumps(out))
         return
     t0 = time.perf_counter()
+    load = start_load(2) if args.load else []
+    try:
+        run_all(args, t0)
+    finally:
+        for proc in load:
+            proc.kill()
+
+
+LOAD_SCRIPT = ("import numpy as np\n"
+               "a = np.random.default_rng(0).random(1 << 20)\n"
+               "while True:\n"
+               "    a = np.sqrt(a * a + 1.0) - 0.5\n")
+
+
+def start_load(n: int) -> list[subprocess.Popen]:
+    """``n`` single-threaded CPU-bound processes (numpy element-wise loops), killed when the bench ends."""
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    procs = [subprocess.Popen([sys.executable, "-c", LOAD_SCRIPT], env=env) for _ in range(n)]
+    emit(dict(bench="ba", what="load", processes=n, pids=[p.pid for p in procs]))
+    return procs
+
+
+def run_all(args, t0: float) -> None:
     data = make_data(args.small, args.seed)
     truth, is_outlier, sigma = data["truth"], data["is_outlier"], data["noise_px"]
     emit(dict(bench="ba", what="problem", cameras=truth.n_cameras, scenes=len(truth.scene_names),
@@ -370,7 +401,8 @@ def main() -> None:
             m = metrics(sol, truth, is_outlier, sigma, region)
             runs[kind] = (sol, m)
             info = {k: v for k, v in sol.items() if k not in ("camera_params", "points_cm", "used")}
-            line = dict(bench="ba", what=kind, **info, **m)
+            line = dict(bench="ba", what=kind, **info, **m, load=args.load,
+                        load_average_1min=round(os.getloadavg()[0], 2))
             emit({k: (round(v, 6) if isinstance(v, float) else v) for k, v in line.items()})
     if not {"ours", "oracle", "k1"} <= set(runs):
         return
@@ -395,6 +427,8 @@ def main() -> None:
     if "colmap" in runs:
         col_sol, col = runs["colmap"]
         ratios["time_ours_over_colmap"] = runs["ours"][0]["time_s"] / col_sol["time_s"]
+        ratios["time_ours_with_uncertainty_over_colmap"] = ((runs["ours"][0]["time_s"] + runs["ours"][0]["uncertainty_s"])
+                                                            / col_sol["time_s"])
         ratios["cost_true_inliers_colmap_over_oracle"] = col["cost_true_inliers"] / oracle["cost_true_inliers"]
         ratios["cost_common_colmap_over_oracle"] = common_cost(col_sol) / common_cost(runs["oracle"][0])
         ratios["center_err_mm_median_colmap_over_oracle"] = col["center_err_mm_median"] / oracle["center_err_mm_median"]
@@ -403,7 +437,8 @@ def main() -> None:
     ratios["k1_only_rms_over_sigma_true_inliers"] = k1["rms_over_sigma_true_inliers"]
     ratios["ours_rms_over_sigma_true_inliers"] = ours["rms_over_sigma_true_inliers"]
     emit({k: (round(v, 5) if isinstance(v, float) else v) for k, v in ratios.items()})
-    emit(dict(bench="ba", what="total", wall_s=round(time.perf_counter() - t0, 1)))
+    emit(dict(bench="ba", what="total", wall_s=round(time.perf_counter() - t0, 1), load=args.load,
+              load_average_1min=round(os.getloadavg()[0], 2)))
 
 
 if __name__ == "__main__":

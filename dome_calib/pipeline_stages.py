@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
-from dome_calib.ba.lens_model import LensModelOptions, select_lens_model
+from dome_calib.ba.lens_model import LensModelOptions, select_lens_model, warm_solver
 from dome_calib.ba.problem import BAProblem
 from dome_calib.ba.result import BAResult
-from dome_calib.ba.solver import BAOptions, bundle_adjust
+from dome_calib.ba.solver import BAOptions, bundle_adjust, solution_uncertainty
 from dome_calib.bundle import Bundle, Camera
 from dome_calib.camera import project
 from dome_calib.errors import CaptureError
@@ -187,15 +187,14 @@ def ba_options() -> BAOptions:
     return BAOptions(compute_uncertainty=True)
 
 
-def _solve(problem: BAProblem, options: BAOptions, with_uncertainty: bool = True) -> BAResult:
-    options = dataclasses.replace(options, compute_uncertainty=options.compute_uncertainty and with_uncertainty)
+def _with_uncertainty(result: BAResult, options: BAOptions) -> BAResult:
+    """The result with its camera uncertainties (the covariance, not the solve, can fail on a near-singular
+    system: then without them, with a warning)."""
     try:
-        return bundle_adjust(problem, options)
-    except np.linalg.LinAlgError as exc:  # the covariance, not the solve, can fail on a near-singular system
-        if not options.compute_uncertainty:
-            raise
-        logger.warning("bundle adjustment: no parameter uncertainties (%s); solving without them", exc)
-        return bundle_adjust(problem, dataclasses.replace(options, compute_uncertainty=False))
+        result.uncertainty = solution_uncertainty(result, n_threads=options.n_threads)
+    except np.linalg.LinAlgError as exc:
+        logger.warning("bundle adjustment: no parameter uncertainties (%s)", exc)
+    return result
 
 
 def run_ba_stage(problem: BAProblem, *, progress: bool = True, options: BAOptions | None = None,
@@ -210,13 +209,14 @@ def run_ba_stage(problem: BAProblem, *, progress: bool = True, options: BAOption
     given free mask is used as it is, in one solve."""
     options = options or ba_options()
     lens_model = None
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     if options.compute_uncertainty:
-        result, chosen = select_lens_model(problem, lambda p, u: _solve(p, options, u), lens,
-                                           n_threads=options.n_threads)
+        solve_only = dataclasses.replace(options, compute_uncertainty=False)  # uncertainties once, at the end
+        result, chosen = select_lens_model(problem, warm_solver(solve_only), lens, n_threads=options.n_threads)
+        result = _with_uncertainty(result, options)
         lens_model = chosen.as_dict()
     else:
-        result = _solve(problem, options)
+        result = bundle_adjust(problem, options)
     refined = result.problem
     used = np.asarray(result.used, dtype=bool)
     sigma = {}
@@ -233,6 +233,9 @@ def run_ba_stage(problem: BAProblem, *, progress: bool = True, options: BAOption
                      stats={"iterations": len(result.iterations), "cost": result.cost, "rms_px": result.rms_px,
                             "sigma_px": result.sigma_px, "n_used": int(used.sum()),
                             "n_rejected": int((~used).sum()), "seconds": time.perf_counter() - t0,
+                            "cpu_seconds": time.process_time() - cpu0,
+                            "iterations_per_solve": lens_model["iterations_per_solve"] if lens_model else
+                            [len(result.iterations)],
                             "solves": lens_model["solves"] if lens_model else 1,
                             "termination": list(result.termination)},
                      center_sigma=sigma, lens_model=lens_model)

@@ -269,3 +269,33 @@ def test_robust_weights_give_the_robust_gradient():
         d /= (z + h) - np.maximum(z - h, 0)
         assert np.allclose(w, d, rtol=1e-5, atol=1e-7), kind
     assert robust_cost_and_weight(z, "huber", 2.0)[1][-1] == pytest.approx(0.2)  # s / |r| = 2 / 10
+
+
+def test_warm_start_skips_the_robust_stage_and_reaches_the_cold_solution(cameras):
+    sp = small(cameras, n_points=2500, target_observations=20000, noise_px=0.5, outlier_fraction=0.03, seed=5)
+    cold = bundle_adjust(sp.start, quick())
+    # from its own solution and inliers: already converged, re-judging changes (almost) nothing
+    again = bundle_adjust(cold.problem, quick(), start_inlier=cold.inlier, start_lambda=cold.final_lambda)
+    assert len(again.iterations) <= 3
+    assert again.cost == pytest.approx(cold.cost, rel=1e-6)
+    assert np.sum(again.inlier != cold.inlier) <= 1e-3 * len(cold.inlier)
+    # from the perturbed start with the cold run's inliers: the least-squares minimum of that set, gross outliers
+    # never enter (the robust stage is skipped, so a wrong start set would show here)
+    warm = bundle_adjust(sp.start, quick(), start_inlier=cold.inlier)
+    assert warm.cost == pytest.approx(cold.cost, rel=1e-4)
+    assert not np.any(warm.used & sp.is_outlier & ~cold.inlier)
+    with pytest.raises(ValueError, match="start_inlier"):
+        bundle_adjust(sp.start, quick(), start_inlier=cold.inlier[:-1])
+
+
+def test_outlier_rounds_stop_when_rejudging_changes_almost_nothing(cameras):
+    sp = small(cameras, n_points=2500, target_observations=20000, noise_px=0.5, outlier_fraction=0.03, seed=5)
+    strict = bundle_adjust(sp.start, quick(outlier_change_tolerance=0.0))
+    loose = bundle_adjust(sp.start, quick(outlier_change_tolerance=1e-3))
+    assert len(loose.termination) <= len(strict.termination)
+    assert np.sum(loose.inlier != strict.inlier) <= 1e-3 * len(strict.inlier) * len(strict.termination)
+    common = loose.used & strict.used
+    moved = np.linalg.norm(loose.residuals_px[common] - strict.residuals_px[common], axis=1)
+    # px: the same solution within a small fraction of the 0.5 px noise; only points whose track gained or lost
+    # an observation move by more
+    assert np.percentile(moved, 99) < 0.02 and moved.max() < 0.5

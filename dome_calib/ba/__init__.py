@@ -13,7 +13,7 @@ from dome_calib.ba.gauge import Gauge, GaugeMode, choose_gauge
 from dome_calib.ba.problem import CAMERA_PARAMS, BAProblem, BAProblemError, ParamGroup
 from dome_calib.ba.result import BAResult, CameraUncertainty, IterationLog
 from dome_calib.ba.robust import LossKind
-from dome_calib.ba.solver import BAOptions, bundle_adjust
+from dome_calib.ba.solver import BAOptions, bundle_adjust, solution_uncertainty
 
 __all__ = ["CAMERA_PARAMS", "BAOptions", "BAProblem", "BAProblemError", "BAResult", "CameraUncertainty", "Gauge",
            "GaugeMode", "IterationLog", "LossKind", "ParamGroup", "bundle_adjust", "choose_gauge"]

@@ -44,7 +44,10 @@ can be off by percents, and the depth of the scene pins it).
 4. A bundle adjustment of the chosen model from the smallest model's solution (held terms at the prior). The
    decisions are then taken again at that solution (the linearisation is now close to the chosen fit); if they
    change, solve again (at most :data:`MAX_PASSES` passes). Usually two or three solves in all; the linear
-   algebra is one factorisation of the reduced camera system per level and pass.
+   algebra is one factorisation of the reduced camera system per level and pass. Every solve after the first
+   is warm-started (``solve(problem, previous)``): from the previous solution, its inliers and damping, so it
+   skips the robust stage and re-judges the outliers at the new model's noise; it costs a few iterations, not a
+   whole schedule. Uncertainties are the caller's, once, at the returned solution.
 
 Comparisons use quantised values (:data:`QUANTUM`), so the same observations give the same model on every machine.
 """
@@ -60,6 +63,7 @@ import scipy.stats
 from dome_calib.ba.problem import CAMERA_PARAMS, BAProblem
 from dome_calib.ba.quadratic import QuadraticModel
 from dome_calib.ba.result import BAResult
+from dome_calib.ba.solver import BAOptions, bundle_adjust
 from dome_calib.camera import distort_with_jacobians, pixels_to_normalized
 
 logger = logging.getLogger(__name__)
@@ -144,6 +148,7 @@ class LensModel:
     solves: int
     noise_px: float | None = None
     note: str = ""
+    iterations: list[int] = field(default_factory=list)  # Levenberg-Marquardt iterations of each solve
 
     def as_dict(self) -> dict:
         o = self.options
@@ -155,6 +160,7 @@ class LensModel:
         return {"rule": rule, "max_sigma_px": o.max_sigma_px,
                 "max_principal_point_sigma_px": o.max_principal_point_sigma_px,
                 "needed_p_value": o.needed_p_value, "noise_px": self.noise_px, "solves": self.solves,
+                "iterations_per_solve": list(self.iterations),
                 "note": self.note,
                 "cameras": {n: c.as_dict() for n, c in sorted(self.cameras.items())}}
 
@@ -267,19 +273,31 @@ def _walk(model: QuadraticModel, point: BAResult, initial: BAProblem, candidate:
     return free, decisions
 
 
-def select_lens_model(initial: BAProblem, solve: Callable[[BAProblem, bool], BAResult],
+def warm_solver(options: BAOptions) -> Callable[[BAProblem, BAResult | None], BAResult]:
+    """The ``solve`` of :func:`select_lens_model` with :func:`dome_calib.ba.solver.bundle_adjust`: the whole
+    schedule for the first solve, warm starts (previous inliers and damping) for the others."""
+    def solve(problem: BAProblem, previous: BAResult | None) -> BAResult:
+        if previous is None:
+            return bundle_adjust(problem, options)
+        return bundle_adjust(problem, options, start_inlier=previous.inlier, start_lambda=previous.final_lambda)
+    return solve
+
+
+def select_lens_model(initial: BAProblem, solve: Callable[[BAProblem, BAResult | None], BAResult],
                       options: LensModelOptions | None = None, *, n_threads: int = 2) -> tuple[BAResult, LensModel]:
     """Bundle adjustment with, per camera, only the lens terms the observations support (module docstring).
 
     Args:
         initial: the problem as given; its parameter values are the prior that held terms keep, its ``free``
             mask the most that may be refined (terms the caller holds stay held and are not judged).
-        solve: the bundle adjustment, ``solve(problem, with_uncertainty)``, e.g.
-            ``lambda p, u: bundle_adjust(p, dataclasses.replace(options, compute_uncertainty=u))``.
+        solve: the bundle adjustment, ``solve(problem, previous)``: the first call with None (the whole
+            schedule from ``initial``), the later ones with the previous solve's result to warm-start from (its
+            inliers and final damping; ``problem`` starts at its solution), see :func:`warm_solver`.
     Returns:
-        the result of the final solve (the chosen model, with uncertainties) and the per-camera :class:`LensModel`.
+        the result of the final solve (the chosen model; uncertainties as ``solve`` gives them) and the
+        per-camera :class:`LensModel`.
     Example:
-        >>> result, lens = select_lens_model(problem, lambda p, u: bundle_adjust(p, BAOptions(compute_uncertainty=u)))
+        >>> result, lens = select_lens_model(problem, warm_solver(BAOptions(compute_uncertainty=False)))
         >>> lens.cameras["00_03"].held
         ['cx', 'cy', 'p1', 'p2', 'k3']
     """
@@ -288,10 +306,11 @@ def select_lens_model(initial: BAProblem, solve: Callable[[BAProblem, bool], BAR
     lens_cols = [CAMERA_PARAMS.index(t) for t in LENS_TERMS if t not in FOCAL_TERMS]
     judged = [i for i in range(initial.n_cameras) if candidate[i, lens_cols].any()]
     if not judged:  # nothing to choose (e.g. every lens term held by the caller)
-        return solve(initial, True), _lens_model(initial, candidate, {}, options, 1, None)
+        return solve(initial, None), _lens_model(initial, candidate, {}, options, 1, None)
     smallest = initial.copy()
     smallest.free[:, lens_cols] = False
-    point, solves = solve(smallest, False), 1
+    point, solves = solve(smallest, None), 1
+    iterations = [len(point.iterations)]
     free = smallest.free
     for _ in range(MAX_PASSES):
         model = QuadraticModel.at(point, candidate, n_threads=n_threads)
@@ -304,8 +323,11 @@ def select_lens_model(initial: BAProblem, solve: Callable[[BAProblem, bool], BAR
         trial = point.problem.copy()
         trial.camera_params[~free] = initial.camera_params[~free]  # held terms back at the prior
         trial.free = free.copy()
-        point, solves = solve(trial, True), solves + 1
-    return point, _lens_model(initial, free, decisions, options, solves, model.noise_px)
+        point, solves = solve(trial, point), solves + 1
+        iterations.append(len(point.iterations))
+    chosen_model = _lens_model(initial, free, decisions, options, solves, model.noise_px)
+    chosen_model.iterations = iterations
+    return point, chosen_model
 
 
 def _lens_model(initial: BAProblem, free: np.ndarray, decisions: dict[str, list[GroupDecision]],

@@ -5,7 +5,9 @@ observations until it has found the basin (looser tolerance); then observations 
 exceeds a threshold (``outlier_threshold_px``, or ``outlier_sigmas`` x the robust noise estimate) are
 rejected and the problem is re-solved with ``final_loss`` (least squares by default: the maximum-likelihood
 cost for Gaussian pixel noise once the gross outliers are gone). ``outlier_rounds`` repeats reject/re-solve;
-each round re-judges every observation, so wrongly rejected ones come back.
+each round re-judges every observation, so wrongly rejected ones come back; the rounds stop once a re-judging
+changes at most ``outlier_change_tolerance`` of the observations (the solution it would move is then the same
+within its noise).
 
 LM follows Ceres' strategy: damping lambda * clamp(diag(J^T W J)), gain ratio rho = actual / predicted
 decrease, on failure lambda *= nu, nu *= 2; on success lambda *= max(1/10, 1 - (2 rho - 1)^3) (Nielsen's
@@ -25,7 +27,7 @@ from dome_calib.ba.blas import blas_threads
 from dome_calib.ba.evaluate import residuals, residuals_and_jacobians
 from dome_calib.ba.gauge import Gauge, GaugeMode, choose_gauge
 from dome_calib.ba.problem import BAProblem
-from dome_calib.ba.result import BAResult, IterationLog, camera_statistics
+from dome_calib.ba.result import BAResult, CameraUncertainty, IterationLog, camera_statistics
 from dome_calib.ba.robust import LossKind, robust_cost_and_weight, robust_sigma_px
 from dome_calib.ba.schur import Structure, build_structure, linearize, solve_step
 from dome_calib.ba.uncertainty import camera_uncertainty
@@ -47,7 +49,10 @@ class BAOptions:
     max_consecutive_rejections: int = 12
     loss: LossKind = LossKind.HUBER
     loss_scale_px: float = 2.0
-    outlier_rounds: int = 3  # at most; stops early when re-judging changes no observation
+    outlier_rounds: int = 3  # at most; stops early when re-judging changes (almost) no observation
+    # re-judging has converged when it changes at most this fraction of the observations (for the dome's ~1e5-1e6
+    # observations, tens to hundreds moving across the threshold by a hair; 0: none may change)
+    outlier_change_tolerance: float = 1e-3
     outlier_threshold_px: float | None = None  # None: outlier_sigmas x robust noise estimate (dof-corrected)
     outlier_sigmas: float = 5.0
     final_loss: LossKind = LossKind.TRIVIAL
@@ -141,35 +146,65 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
     return state, reason, lam
 
 
-def bundle_adjust(problem: BAProblem, options: BAOptions | None = None) -> BAResult:
+def bundle_adjust(problem: BAProblem, options: BAOptions | None = None, *,
+                  start_inlier: np.ndarray | None = None, start_lambda: float | None = None) -> BAResult:
     """Refine cameras and points of ``problem`` (not modified); returns a :class:`BAResult`.
 
     The gauge is fixed as described in :mod:`dome_calib.ba.gauge`; parameters with ``problem.free`` False stay
     bit-identical. Per-iteration progress goes to the ``dome_calib.ba.solver`` logger at INFO level.
+
+    ``start_inlier`` (M,) bool: a warm start, the inliers of an earlier solve of the same observations from
+    which ``problem`` starts (e.g. the same problem with other parameters free). The robust first stage, whose
+    job is to find the basin and expose the gross outliers, is then skipped: the schedule starts with the
+    final loss on those inliers and the outlier rounds re-judge every observation as usual (stopping as soon
+    as a round changes none). ``start_lambda``: the damping to start with (e.g. the one the earlier solve
+    ended with): a warm start from the large default damping creeps along the dome's weak directions (common
+    focal length and depth) and can stop on the function tolerance before it has moved them.
     Example:
         >>> result = bundle_adjust(problem, BAOptions(loss="huber", loss_scale_px=2.0))
         >>> bundle = result.problem.to_bundle(seq="160906_band1")
     """
     options = options or BAOptions()
+    if start_inlier is not None and np.shape(start_inlier) != (problem.n_observations,):
+        raise ValueError(f"start_inlier has shape {np.shape(start_inlier)}, the problem has "
+                         f"{problem.n_observations} observations")
     with blas_threads(1):  # small BLAS calls: one thread (see dome_calib.ba.blas); the big Cholesky takes more
-        return _bundle_adjust(problem, options)
+        return _bundle_adjust(problem, options, start_inlier, start_lambda)
 
 
-def _bundle_adjust(problem: BAProblem, options: BAOptions) -> BAResult:
+def solution_uncertainty(result: BAResult, *, n_threads: int = 2) -> CameraUncertainty:
+    """The camera uncertainties of a solve's solution (what ``BAOptions.compute_uncertainty`` adds to it), for
+    a result computed without them: the same reduced system at ``result.problem`` over its used observations."""
+    p = result.problem
+    st = build_structure(p.camera_index, p.point_index, result.inlier, p.free & ~result.gauge.held, p.n_points)
+    with blas_threads(1):
+        return camera_uncertainty(p, st, result.sigma_px, n_threads=n_threads, gauge=result.gauge)
+
+
+def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndarray | None,
+                   start_lambda: float | None) -> BAResult:
     t0 = time.perf_counter()
     gauge: Gauge = choose_gauge(problem, mode=options.gauge, reference_camera=options.gauge_reference_camera,
                                 scale_camera=options.gauge_scale_camera)
     free = problem.free & ~gauge.held
     state = _State(camera_params=problem.camera_params.copy(), points_cm=problem.points_cm.copy())
     M = problem.n_observations
-    inlier = np.ones(M, dtype=bool)
+    warm = start_inlier is not None
+    inlier = np.asarray(start_inlier, dtype=bool).copy() if warm else np.ones(M, dtype=bool)
     rounds = options.outlier_rounds
     st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points,
                          n_groups=options.n_camera_groups)
-    ftol = options.first_stage_function_tolerance if rounds else options.function_tolerance
-    state, reason, lam = _levenberg_marquardt(problem, state, st, options, loss=LossKind(options.loss),
-                                              scale=options.loss_scale_px, ftol=ftol, stage=0,
-                                              lam=options.initial_lambda)
+    if warm:  # already in the basin, gross outliers known: the final loss on the given inliers
+        state, reason, lam = _levenberg_marquardt(problem, state, st, options, loss=LossKind(options.final_loss),
+                                                  scale=options.final_loss_scale_px,
+                                                  ftol=options.function_tolerance, stage=0,
+                                                  lam=options.initial_lambda if start_lambda is None else
+                                                  max(start_lambda, _MIN_LAMBDA))
+    else:
+        ftol = options.first_stage_function_tolerance if rounds else options.function_tolerance
+        state, reason, lam = _levenberg_marquardt(problem, state, st, options, loss=LossKind(options.loss),
+                                                  scale=options.loss_scale_px, ftol=ftol, stage=0,
+                                                  lam=options.initial_lambda)
     reasons = [reason]
     threshold_px = None
     for rnd in range(1, rounds + 1):
@@ -187,7 +222,7 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions) -> BAResult:
         changed = int(np.sum(new_inlier != inlier))
         logger.info("ba outliers round %d: threshold %.3f px, %d of %d observations rejected (%d changed)", rnd,
                     threshold_px, int((~new_inlier).sum()), M, changed)
-        if rnd > 1 and changed == 0:
+        if changed <= options.outlier_change_tolerance * M and (rnd > 1 or warm):
             break
         inlier = new_inlier
         st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points,
