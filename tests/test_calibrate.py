@@ -16,6 +16,7 @@ from dome_calib.ba.problem import BAProblem
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.camera import project
 from dome_calib.executor import default_num_workers
+from dome_calib.report.command import report_bundle
 from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, observation_residuals, residuals_of
 from dome_calib.layout import nominal_dome
 
@@ -150,6 +151,8 @@ def test_scheduler_run_reports_where_each_stage_ran_also_when_resumed(tmp_path, 
         again = pipeline.run_calibration(cap, out, options)
         assert again.resumed == ["sfm", "ba"] and stand_in_stages["sfm"] == 1
         assert json.loads((out / "report" / "report.json").read_text())["cluster"] == section
+    report_bundle(out)  # `dome-calib report` rewrites the report: where the stages ran, known only to calibrate, stays
+    assert json.loads((out / "report" / "report.json").read_text())["cluster"] == section
 
 
 def test_calibrate_with_prior_reports_moved_camera(tmp_path, capture, stand_in_stages):
