@@ -22,15 +22,19 @@ def synth(
                                 "(calibration_<seq>.json) instead of the nominal dome."),
     cameras: str = typer.Option(None, "--cameras", help="Render only these cameras of the preset, comma-separated "
                                 "(e.g. 01_01,00_00)."),
-    workers: int = typer.Option(2, help="Processes rendering in parallel."),
+    workers: int = typer.Option(2, help="Processes rendering in parallel (on this machine, without --scheduler)."),
+    scheduler: str = typer.Option(None, "--scheduler", help="Render on a Dask cluster: the address of its "
+                                  "`dask scheduler` (tcp://HOST:PORT). The images come back to this machine; the "
+                                  "same bytes as rendered locally."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace OUT if it exists."),
 ) -> None:
     """Make a synthetic capture with ground truth: the projectors' random patterns on a white tent at several
     positions, seen by every camera of the preset, plus the true calibration in OUT/ground_truth/."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from dome_calib.synth.capture import SynthOptions, synthesize
+    from dome_calib.cluster import format_cluster, open_executor
     from dome_calib.layout import Preset
+    from dome_calib.synth.capture import SynthOptions, synthesize
 
     try:
         preset_value = Preset(preset)
@@ -39,16 +43,24 @@ def synth(
     options = SynthOptions(preset=preset_value, n_scenes=scenes, seed=seed, layout=layout, workers=workers,
                            cameras=[c.strip() for c in cameras.split(",") if c.strip()] if cameras else None,
                            overwrite=overwrite)
+    if workers < 1:
+        raise DomeCalibError(f"--workers {workers}: expected at least 1")
+    if out.exists() and not overwrite:  # before connecting to a cluster
+        raise DomeCalibError(f"{out}: already exists (choose another folder or pass --overwrite)")
     columns = (TextColumn("rendering"), BarColumn(), MofNCompleteColumn(), TextColumn("images"), TimeElapsedColumn())
-    with Progress(*columns, transient=False) as bar:
+    cluster: dict = {}
+    with open_executor(None, scheduler, cluster, workers=workers) as executor, \
+            Progress(*columns, transient=False) as bar:
         task = bar.add_task("render", total=None)
 
         def progress(done: int, total: int) -> None:
             bar.update(task, completed=done, total=total)
 
-        summary = synthesize(out, options, progress)
+        summary = synthesize(out, options, progress, executor=executor)
     typer.echo(f"{summary.folder}: {summary.n_images} images ({len(summary.cameras)} cameras x "
                f"{len(summary.scenes)} scenes) in {summary.seconds:.1f} s")
+    for line in format_cluster(cluster, on_this_machine="scene layout, ground truth, writing the PNGs"):
+        typer.echo(line)
 
 
 def patterns(

@@ -13,7 +13,7 @@ import concurrent.futures as cf
 import multiprocessing
 import os
 import signal
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Hashable, Iterable, Iterator, Sequence
 from typing import Any, Protocol, TypeVar, runtime_checkable
 
 from dome_calib.workers import single_threaded_children
@@ -36,6 +36,31 @@ class Executor(Protocol):
     def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
         """Yield ``fn(item)`` for every item, in COMPLETION order is allowed: results must carry their key."""
         ...
+
+
+def in_order(results: Iterable[R], keys: Sequence[Hashable], key_of: Callable[[R], Hashable]) -> Iterator[R]:
+    """Results that arrive in completion order (``executor.map``), yielded in the order of ``keys``.
+
+    What the head writes (database rows, ids) must not depend on which worker finished first: results that come
+    early wait in a buffer until every result before them has arrived. The executors submit in ``keys`` order
+    with a bounded number of tasks in flight, so the buffer stays about that size. A key that never arrives is
+    an error (a lost task), as is a result whose key is not in ``keys``.
+    """
+    position = {k: i for i, k in enumerate(keys)}
+    if len(position) != len(keys):
+        raise ValueError("in_order: duplicate keys")
+    waiting: dict[int, R] = {}
+    nxt = 0
+    for res in results:
+        k = key_of(res)
+        if k not in position:
+            raise ValueError(f"in_order: result for unknown key {k!r}")
+        waiting[position[k]] = res
+        while nxt in waiting:
+            yield waiting.pop(nxt)
+            nxt += 1
+    if nxt != len(keys):
+        raise RuntimeError(f"in_order: no result for {keys[nxt]!r} ({len(keys) - nxt} missing)")
 
 
 def default_num_workers() -> int:

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle import CameraType, camera_type_from_name
-from dome_calib.cluster import capture_nodes, format_cluster, open_executor, write_cluster_stats
+from dome_calib.cluster import capture_nodes, cluster_section, format_cluster, open_executor, settle_cluster_stats
 from dome_calib.bundle_io import check_output_folder, load_bundle, recover_folder
 from dome_calib.errors import DomeCalibError
 from dome_calib.normalize import normalize
@@ -84,7 +84,7 @@ def run_full(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
                                        progress=options.progress, executor=executor,
                                        scenes=inputs.scenes if node_cameras(inputs, options) else None,
                                        cameras=node_cameras(inputs, options)))
-    write_cluster_stats(state.folder / "cluster.json", cluster)
+    cluster = settle_cluster_stats(state.folder / "cluster.json", cluster, resumed="sfm" in state.resumed)
     ba = state.run("ba", partial(run_ba_stage, sfm.problem, progress=options.progress))
     normalized = state.time("normalize", partial(normalize, ba.cameras, options.normalize,
                                                  prior=prior.cameras if prior else None,
@@ -93,6 +93,7 @@ def run_full(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
     calibrated = Calibrated(normalized=normalized, failures=sfm.failures, residuals=ba.residuals,
                             center_sigma_cm={n: s * to_cm for n, s in ba.center_sigma.items()},
                             lens_model=ba.lens_model,
+                            cluster=cluster_section(cluster, ["mapping", "merge", "bundle adjustment", "normalize"]),
                             source=f"dome-calib calibrate {inputs.capture.name} ({len(inputs.scenes)} scenes)")
     result = finish(inputs, state, calibrated)
     return dataclasses.replace(result, sfm=sfm, ba=ba, stats={"sfm": sfm.stats, "ba": ba.stats, "cluster": cluster})

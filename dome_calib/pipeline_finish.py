@@ -75,6 +75,7 @@ class Calibrated:
     changes: dict[str, CameraChange] | None = None  # None: detect against the prior
     notes: dict[str, str] = field(default_factory=dict)  # camera -> a further reason to check it
     lens_model: dict | None = None  # the BA's per-camera lens terms refined and held, with why (report.json)
+    cluster: dict | None = None  # where each stage ran: report.json's "cluster" (dome_calib.cluster.cluster_section)
 
 
 @dataclass(kw_only=True)
@@ -140,6 +141,7 @@ def finish(inputs: CalibrationInputs, state: WorkState, calibrated: Calibrated) 
     extra = {"world_frame": calibrated.normalized.as_dict(), "stage_seconds": dict(state.seconds),
              "center_sigma_cm": {n: round(s, 4) for n, s in sorted(sigma_cm.items())},
              "lens_model": calibrated.lens_model,
+             "cluster": calibrated.cluster,
              "changes_vs_prior": {n: c.as_dict() for n, c in (changes or {}).items()} if prior else None}
     state.time("write", lambda: _write_out(inputs, bundle, calibrated.residuals, reasons, missing, extra))
     report_dir = inputs.out / REPORT_DIR

@@ -33,7 +33,7 @@ from dome_calib.align import Alignment
 from dome_calib.ba.problem import ParamGroup, camera_to_params
 from dome_calib.bundle import Bundle
 from dome_calib.compare import CameraChange, camera_error
-from dome_calib.cluster import capture_nodes, open_executor, write_cluster_stats
+from dome_calib.cluster import capture_nodes, cluster_section, open_executor, settle_cluster_stats
 from dome_calib.executor import Executor, make_executor
 from dome_calib.normalize import Normalized, WorldReference
 from dome_calib.pipeline_finish import Calibrated, CalibrationInputs, CalibrationResult, finish
@@ -258,7 +258,8 @@ def run_quick(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
         matched = state.run("match", partial(match_first_scene, inputs.capture, work, scene, prior, progress,
                                              executor=executor, cameras=cameras))
         det = state.run("detect", partial(detect_suspects, matched, prior, progress, executor=executor))
-    write_cluster_stats(state.folder / "cluster.json", cluster)
+    cluster = settle_cluster_stats(state.folder / "cluster.json", cluster,
+                                   resumed="match" in state.resumed and "detect" in state.resumed)
     est = state.run("quick_ba", partial(reestimate, matched, det, prior, work, progress))
     failures = {n: f"no usable image in {scene}: {why}" for n, why in matched.failures.items()}
     failures.update({n: f"changed since the prior but not re-estimated: {why}" for n, why in est.failed.items()})
@@ -273,6 +274,7 @@ def run_quick(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
     calibrated = Calibrated(normalized=normalized, failures=failures, changes=changes_of(est, prior), notes=unchecked,
                             residuals=est.ba.residuals if est.ba is not None else Residuals.empty(),
                             center_sigma_cm=sigma_cm,
+                            cluster=cluster_section(cluster, ["re-estimation (known-pose triangulation, bundle adjustment)"]),
                             source=f"dome-calib calibrate --only-changed {inputs.capture.name} "
                                    f"({len(est.changed)} cameras re-estimated)")
     stats = {"scene": scene, "pairs": matched.pairs, "verified_pairs": matched.verified_pairs,

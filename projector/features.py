@@ -2,7 +2,8 @@
 
 One task per image (:func:`extract_image`, run through an :mod:`dome_calib.executor`): read the PNG, check it
 (unreadable, wrong size, blank, overexposed), run pycolmap's CPU SIFT with one thread, and return keypoints
-and uint8 descriptors; the main process writes them to the database. A rerun skips images that already have
+and uint8 descriptors; the main process writes them to the database in camera-name order (not completion
+order), so the database's ids do not depend on where or when the tasks ran. A rerun skips images that already have
 features. Images that fail a check or give too few features are reported per camera and left out of the
 database, so mapping never sees them.
 """
@@ -10,7 +11,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,7 +20,7 @@ import numpy as np
 import pycolmap
 
 from dome_calib.bundle import NOMINAL_RESOLUTION, Camera, CameraType, camera_type_from_name
-from dome_calib.executor import Executor, SerialExecutor
+from dome_calib.executor import Executor, SerialExecutor, in_order
 from dome_calib.layout import INTRINSICS_STATS
 from projector.database import add_image, camera_of_image, descriptors_to_uint8, image_name, images_with_features, write_features
 from projector.progress import progress_bar
@@ -128,6 +129,13 @@ def nominal_camera(name: str, resolution: tuple[int, int]) -> Camera:
                   R=np.eye(3), t_cm=np.zeros(3), panel=0, node=0)
 
 
+def _advancing(results: Iterable, advance: Callable[[int], None]) -> Iterator:
+    """Pass results through, advancing the progress bar as each one arrives (before any reordering)."""
+    for res in results:
+        advance(1)
+        yield res
+
+
 def extract_features(
     image_dir: str | Path, database_path: str | Path, *, prior: Mapping[str, Camera] | None = None,
     options: FeatureOptions | None = None, executor: Executor | None = None, scene: str = "",
@@ -162,8 +170,10 @@ def extract_features(
         todo = [(p.stem, str(p), options) for p in paths if image_name(p.stem) not in done]
         with progress_bar(f"features {report.scene}", len(paths), enabled=options.show_progress) as advance:
             advance(len(done))
-            for res in executor.map(extract_image, todo):
-                advance(1)
+            # written in camera-name order whatever the completion order: image, camera and rig ids are the
+            # same on every run, pool or cluster (mapping visits images by id)
+            arrived = _advancing(executor.map(extract_image, todo), advance)
+            for res in in_order(arrived, [t[0] for t in todo], lambda r: r.camera):
                 if res.failure is not None:
                     report.failures[res.camera] = res.failure
                     logger.warning("%s %s: %s", report.scene, res.camera, res.failure)

@@ -3,8 +3,8 @@
 One task per batch of pairs (:func:`match_batch`): the worker reads features and cameras from the scene's
 database (read-only), matches descriptors and verifies the matches with pycolmap's two-view geometry
 (``estimate_two_view_geometry``: E / F / H RANSAC with the known intrinsics); the main process writes raw
-matches and the two-view geometries into the database, where the mapper reads them. A rerun skips pairs that
-already have matches.
+matches and the two-view geometries into the database in pair order (not completion order), where the mapper
+reads them. A rerun skips pairs that already have matches.
 
 Descriptor matching is mutual nearest neighbour with Lowe's ratio test and a maximum angular distance,
 COLMAP's SIFT rule (``SiftMatchingOptions``: max_ratio 0.8, max_distance 0.7, cross_check), computed with one
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
-from dome_calib.executor import Executor, SerialExecutor
+from dome_calib.executor import Executor, SerialExecutor, in_order
 from projector.database import FeatureReader, image_name
 from projector.pairs import Pair
 from projector.progress import progress_bar
@@ -200,7 +200,9 @@ def match_pairs(
         tasks = [(str(database_path), batch, options) for batch in _batches(todo, options.pairs_per_task)]
         with progress_bar(f"matching {report.scene}", report.num_pairs, enabled=options.show_progress) as advance:
             advance(report.reused)
-            for results in executor.map(match_batch, tasks):
+            # written in pair order whatever the completion order (the database's rows do not depend on the workers)
+            arrived = executor.map(match_batch, tasks)
+            for results in in_order(arrived, [tuple(t[1][0]) for t in tasks], lambda rs: tuple(rs[0].pair)):
                 with pycolmap.DatabaseTransaction(db):
                     for r in results:
                         ia, ib = ids[image_name(r.pair[0])], ids[image_name(r.pair[1])]

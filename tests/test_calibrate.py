@@ -15,6 +15,8 @@ from dome_calib.align import sim3_apply, transform_cameras
 from dome_calib.ba.problem import BAProblem
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.camera import project
+from dome_calib.executor import default_num_workers
+from dome_calib.report.command import report_bundle
 from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, observation_residuals, residuals_of
 from dome_calib.layout import nominal_dome
 
@@ -102,9 +104,55 @@ def test_calibrate_writes_bundle_and_report_and_resumes(tmp_path, capture, stand
     assert "calibrated 16 of 17 cameras (vga 8/9, hd 5/5, kinect-color 3/3)" in text
     assert "nominal dome geometry" in text and "01_24: not calibrated" in text
     assert stand_in_stages == {"sfm": 1, "ba": 1}
+    n = default_num_workers()  # no --scheduler: the local pool (in this process when there is one core)
+    assert rep["cluster"] == {"executor": "local", "processes": n, "on_this_machine": ON_THE_HEAD,
+                              "description": f"local process pool, {n} processes" if n > 1
+                              else "in the calling process (1 worker)"}
     again = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=False))
     assert stand_in_stages == {"sfm": 1, "ba": 1}  # both taken from the work folder
     assert again.resumed == ["sfm", "ba"]
+
+
+ON_THE_HEAD = ["mapping", "merge", "bundle adjustment", "normalize"]
+
+
+def test_scheduler_run_reports_where_each_stage_ran_also_when_resumed(tmp_path, capture, stand_in_stages,
+                                                                      monkeypatch):
+    """The report's "cluster" section: per stage the workers and their task counts, seconds and MB moved; a
+    rerun that takes the SfM from the work folder reports the run that computed it."""
+    from distributed import LocalCluster
+
+    from projector.features import FeatureOptions, extract_image
+
+    cap, truth = capture
+    names = sorted(truth.cameras)
+
+    def sfm(capture_dir, work_dir, *, prior, progress=True, scenes=None, executor=None, cameras=None):
+        stand_in_stages["sfm"] += 1  # feature tasks on images no worker has: per-camera failures, as on one machine
+        tasks = [(n, str(capture_dir / "scenes" / "scene_01" / f"{n}.png"), FeatureOptions()) for n in names]
+        failed = {r.camera: r.failure for r in executor.map(extract_image, tasks)}
+        assert sorted(failed) == names and all("image not found" in f for f in failed.values())
+        return SfmOutcome(problem=_problem(truth), failures={"01_24": "saw no tent in any scene"})
+
+    monkeypatch.setattr(pipeline, "run_sfm_stage", sfm)
+    out = tmp_path / "bundle"
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, protocol="tcp",
+                      dashboard_address=":0") as lc:
+        options = pipeline.CalibrateOptions(seq="test", progress=False, scheduler=lc.scheduler_address)
+        result = pipeline.run_calibration(cap, out, options)
+        section = json.loads((out / "report" / "report.json").read_text())["cluster"]
+        assert section["executor"] == "dask" and section["scheduler"] == lc.scheduler_address
+        assert list(section["stages"]) == ["features"] and section["on_this_machine"] == ON_THE_HEAD
+        features = section["stages"]["features"]
+        assert features["tasks"] == len(names) == sum(features["workers"].values())
+        assert set(features["workers"]) <= {"0", "1"} and features["mb_moved"] > 0
+        assert features["wall_s"] >= 0 and features["task_s"] >= 0
+        assert f"features: {len(names)} tasks on" in pipeline.format_result(result)
+        again = pipeline.run_calibration(cap, out, options)
+        assert again.resumed == ["sfm", "ba"] and stand_in_stages["sfm"] == 1
+        assert json.loads((out / "report" / "report.json").read_text())["cluster"] == section
+    report_bundle(out)  # `dome-calib report` rewrites the report: where the stages ran, known only to calibrate, stays
+    assert json.loads((out / "report" / "report.json").read_text())["cluster"] == section
 
 
 def test_calibrate_with_prior_reports_moved_camera(tmp_path, capture, stand_in_stages):

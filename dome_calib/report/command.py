@@ -24,10 +24,10 @@ def report_bundle(bundle_folder: Path, *, prior: Path | None = None, min_observa
         changes = {n: c.reasons for n, c in detect_changes(bundle.cameras, load_bundle(prior).cameras).items()}
     old_path = Path(bundle_folder) / "report" / "report.json"
     kept = {}
-    if old_path.exists():  # what only calibrate knew (world frame, stage times) survives a re-report
+    if old_path.exists():  # what only calibrate knew (world frame, stage times, where it ran) survives a re-report
         try:
             old = json.loads(old_path.read_text(encoding="utf-8"))
-            kept = {k: old[k] for k in ("world_frame", "stage_seconds", "lens_model") if k in old}
+            kept = {k: old[k] for k in ("world_frame", "stage_seconds", "lens_model", "cluster") if k in old}
         except ValueError:
             logger.warning("%s: unreadable, replaced", old_path)
     target = write_report(bundle_folder, bundle, residuals, ReportOptions(min_observations=min_observations),

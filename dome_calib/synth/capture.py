@@ -1,4 +1,5 @@
-"""Write a synthetic capture folder (the CONTRACTS.md layout) with ground truth, rendering cameras in parallel.
+"""Write a synthetic capture folder (the CONTRACTS.md layout) with ground truth, rendering cameras in parallel
+through the project's executor (the local process pool, or a Dask cluster with ``dome-calib synth --scheduler``).
 
 ```
 CAPTURE/
@@ -7,15 +8,20 @@ CAPTURE/
   ground_truth/                bundle folder (calibration_synth.json), tent_<scene>.npz, projectors.json
 ```
 The folder is assembled under ``.<name>.tmp-<pid>`` beside the target and renamed into place at the end, so a
-reader never sees a half-written capture. Deterministic for a seed (noise is seeded per scene and camera).
+reader never sees a half-written capture. Deterministic for a seed (noise is seeded per scene and camera; each
+worker prepares the scenes from the seed itself), so the PNGs are the same bytes whichever executor rendered them.
 """
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import json
 import logging
 import multiprocessing
 import os
+import pickle
 import shutil
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -24,16 +30,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from dome_calib.bundle import Bundle, CameraType
+from dome_calib.bundle import Bundle, Camera, CameraType
 
 from dome_calib.bundle_io import write_bundle
 from dome_calib.errors import DomeCalibError
+from dome_calib.executor import Executor, make_executor
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.layout import Preset, nominal_dome
 from dome_calib.synth.dome import Projector, dome_from_calibration, projectors
 from dome_calib.synth.render import RenderOptions, SceneState, camera_rays, prepare_scene, render_image
-from dome_calib.synth.tent import TENT_CONES, TENT_ELLIPSOIDS, scene_poses, tent_mesh
-from dome_calib.workers import single_threaded_children
+from dome_calib.synth.tent import TENT_CONES, TENT_ELLIPSOIDS, TentPose, scene_poses, tent_mesh
 from projector.patterns import make_patterns
 
 logger = logging.getLogger(__name__)
@@ -75,28 +81,61 @@ def _projector_json(p: Projector) -> dict:
             "t": p.t_cm.tolist()}
 
 
-# The rendering job of this process: set directly when rendering in-process, or by the pool initializer in each
-# worker (workers are spawned, not forked: forking a process whose OpenCV/BLAS threads hold locks can deadlock).
-_JOB: dict = {}
+@dataclass(frozen=True)
+class RenderJob:
+    """What every rendering task of one capture shares (small and picklable: it travels with each task). The
+    scenes are prepared from it on each worker, once (:func:`_prepared_scenes`)."""
+
+    seed: int
+    scenes: tuple[tuple[str, TentPose], ...]  # (scene name, tent pose)
+    render: RenderOptions
 
 
-def _worker_init(job: dict) -> None:
-    cv2.setNumThreads(1)
-    _JOB.update(job)
+@dataclass(kw_only=True)
+class RenderedCamera:
+    """What one rendering task returns: the camera's PNG files (bytes, by scene) and its seconds on the worker."""
+
+    camera: str
+    png: dict[str, bytes]
+    seconds: float  # rendering and encoding this camera
+    prepare_s: float = 0.0  # preparing the scenes first (the worker's first task only)
 
 
-def _render_camera(name: str) -> tuple[str, int, float]:
-    """Render one camera for every scene and write its PNGs; returns (name, images written, seconds)."""
+# This process's prepared scenes for one job (a worker keeps them across its tasks; a new job replaces them).
+_PREPARED: dict[bytes, list[SceneState]] = {}
+_PREPARED_LOCK = threading.Lock()
+
+
+def _prepared_scenes(job: RenderJob) -> list[SceneState]:
+    """The job's scenes (projector depth maps and patterns), prepared once per process: deterministic for the
+    job, so every worker holds the same ones."""
+    key = hashlib.sha256(pickle.dumps(job)).digest()
+    with _PREPARED_LOCK:
+        if key not in _PREPARED:
+            _PREPARED.clear()
+            projs = projectors(job.seed)
+            patterns = make_patterns(job.seed, tuple(sorted(projs)))
+            _PREPARED[key] = [prepare_scene(name, pose, projs, patterns, job.render) for name, pose in job.scenes]
+        return _PREPARED[key]
+
+
+def render_camera(task: tuple[RenderJob, Camera]) -> RenderedCamera:
+    """Task: render one camera for every scene of the job; its PNGs come back as bytes (the head writes them, so
+    a worker needs no access to the capture folder)."""
+    job, cam = task
+    if multiprocessing.parent_process() is not None:  # a pool or Dask worker process: one OpenCV thread per task
+        cv2.setNumThreads(1)
     t0 = time.perf_counter()
-    job = _JOB
-    cam = job["bundle"].cameras[name]
-    rays = camera_rays(cam, job["render"])
-    for scene in job["scenes"]:
-        img = render_image(rays, scene, job["render"], job["seed"])
-        path = job["folder"] / "scenes" / scene.name / f"{name}.png"
-        if not cv2.imwrite(str(path), img, PNG_PARAMS):
-            raise OSError(f"{path}: could not write the image")
-    return name, len(job["scenes"]), time.perf_counter() - t0
+    scenes = _prepared_scenes(job)
+    prepare_s, t0 = time.perf_counter() - t0, time.perf_counter()
+    rays = camera_rays(cam, job.render)
+    png = {}
+    for scene in scenes:
+        ok, buf = cv2.imencode(".png", render_image(rays, scene, job.render, job.seed), PNG_PARAMS)
+        if not ok:
+            raise OSError(f"camera {cam.name}, {scene.name}: PNG encoding failed")
+        png[scene.name] = buf.tobytes()
+    return RenderedCamera(camera=cam.name, png=png, seconds=time.perf_counter() - t0, prepare_s=prepare_s)
 
 
 def _cost(bundle: Bundle, name: str) -> float:
@@ -121,9 +160,12 @@ def load_layout(options: SynthOptions) -> Bundle:
     return bundle
 
 
-def synthesize(out: str | Path, options: SynthOptions,
-               progress: Callable[[int, int], None] | None = None) -> CaptureSummary:
+def synthesize(out: str | Path, options: SynthOptions, progress: Callable[[int, int], None] | None = None, *,
+               executor: Executor | None = None) -> CaptureSummary:
     """Generate a capture folder at ``out``. ``progress(done_images, total_images)`` is called as images finish.
+
+    The cameras are rendered by ``executor`` (one task per camera: the local pool, or a Dask cluster), by
+    default a local pool of ``options.workers`` processes; the images are the same bytes either way.
 
     Raises :class:`DomeCalibError` for a bad request (scene count, existing output, missing layout file).
     """
@@ -137,7 +179,6 @@ def synthesize(out: str | Path, options: SynthOptions,
         raise DomeCalibError(f"{out}: already exists (choose another folder or pass --overwrite)")
     bundle = load_layout(options)
     projs = projectors(options.seed)
-    patterns = make_patterns(options.seed, tuple(sorted(projs)))
     poses = scene_poses(options.n_scenes, options.seed)
     names = [scene_name(i) for i in range(options.n_scenes)]
     cameras = sorted(bundle.cameras)
@@ -152,39 +193,26 @@ def synthesize(out: str | Path, options: SynthOptions,
             (tmp / "scenes" / s).mkdir(parents=True)
         gt = tmp / "ground_truth"
         write_bundle(bundle, gt)
-        scenes: list[SceneState] = []
         for s, pose in zip(names, poses):
-            scenes.append(prepare_scene(s, pose, projs, patterns, options.render))
             V, F = tent_mesh(pose)
             np.savez_compressed(gt / f"tent_{s}.npz", vertices_cm=V, faces=F.astype(np.int32),
                                 yaw_rad=pose.yaw_rad, position_cm=pose.T_cm)
-        t_prepared = time.perf_counter()
-        job = dict(bundle=bundle, scenes=scenes, render=options.render, seed=options.seed, folder=tmp)
+        job = RenderJob(seed=options.seed, scenes=tuple(zip(names, poses)), render=options.render)
         order = sorted(cameras, key=lambda n: (-_cost(bundle, n), n))  # big images first: better load balance
         done = 0
-        camera_seconds = {}
-        pool = None
-        try:
-            if options.workers == 1:
-                _JOB.update(job)
-                results = map(_render_camera, order)
-            else:
-                with single_threaded_children():
-                    pool = multiprocessing.get_context("spawn").Pool(options.workers, initializer=_worker_init,
-                                                                     initargs=(job,))
-                results = pool.imap_unordered(_render_camera, order)
-            for name, n, seconds in results:
-                done += n
-                camera_seconds[name] = round(seconds, 3)
-                if progress:
-                    progress(done, total)
-            if pool is not None:
-                pool.close()
-                pool.join()
-        finally:
-            _JOB.clear()
-            if pool is not None:
-                pool.terminate()
+        prepare_s = 0.0
+        with contextlib.ExitStack() as stack:
+            pool = executor if executor is not None else stack.enter_context(make_executor(options.workers))
+            try:
+                for res in pool.map(render_camera, [(job, bundle.cameras[n]) for n in order]):
+                    for scene, data in res.png.items():  # files by name: the completion order does not matter
+                        (tmp / "scenes" / scene / f"{res.camera}.png").write_bytes(data)
+                    done += len(res.png)
+                    prepare_s = max(prepare_s, res.prepare_s)  # each worker prepares once, in parallel
+                    if progress:
+                        progress(done, total)
+            finally:
+                _PREPARED.clear()  # if this process rendered (1 worker), free its scenes
         atomic_write_text(gt / "projectors.json", json.dumps(
             {"projectors": [_projector_json(p) for _, p in sorted(projs.items())],
              "patterns": f"projector.patterns.make_patterns(seed={options.seed}) == `dome-calib patterns OUT "
@@ -200,7 +228,7 @@ def synthesize(out: str | Path, options: SynthOptions,
                                 "ellipsoids": [vars(e) for e in TENT_ELLIPSOIDS]},
             "projectors": sorted(projs), "pattern_seed": options.seed,
             "ground_truth": "ground_truth/calibration_synth.json",
-            "seconds": {"total": round(seconds, 2), "prepare_scenes": round(t_prepared - t_start, 2)},
+            "seconds": {"total": round(seconds, 2), "prepare_scenes": round(prepare_s, 2)},
         }
         atomic_write_text(tmp / "capture.json", json.dumps(meta, indent=1))
         if out.exists():
