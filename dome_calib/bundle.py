@@ -107,6 +107,11 @@ class KinectCalibration:
     panoptic_calib_data_source: str = ""
 
 
+#: A universal time this close to a frame's time IS that frame's time (ms; half a microsecond: far below the sync's
+#: own accuracy, far above the float rounding of ms times on a day-long timeline, ~1e-8 ms).
+FRAME_TIME_TOLERANCE_MS = 5e-4
+
+
 @dataclass(kw_only=True)
 class SyncTable:
     """Frames of one stream on universal time. ``index`` (F,) int frame indices; ``univ_time_ms`` (F,) strictly
@@ -143,13 +148,17 @@ class SyncTable:
         Returns ``(index0, index1, w0, w1)`` with ``value(t) ~= w0 * value[index0] + w1 * value[index1]``;
         weights are NaN for times outside the stream's span (no extrapolation). Consecutive entries of the
         table are bracketed, so a dropped frame widens the gap instead of being bridged by a wrong index.
+        A time within ``FRAME_TIME_TOLERANCE_MS`` of a frame's time is that frame alone (its weight exactly 1, the
+        other's exactly 0; at the ends of the table too): a grid that meets frame times only up to float rounding
+        must not need the neighbouring frame (a missed detection there would drop the joint).
         """
         t = np.asarray(univ_time_ms, dtype=float)
+        tol = FRAME_TIME_TOLERANCE_MS
         hi = np.clip(np.searchsorted(self.univ_time_ms, t, side="right"), 1, len(self.index) - 1)
         lo = hi - 1
         t0, t1 = self.univ_time_ms[lo], self.univ_time_ms[hi]
-        w1 = (t - t0) / (t1 - t0)
-        outside = (t < self.univ_time_ms[0]) | (t > self.univ_time_ms[-1])
+        w1 = np.where(t - t0 <= tol, 0.0, np.where(t1 - t <= tol, 1.0, (t - t0) / (t1 - t0)))
+        outside = (t < self.univ_time_ms[0] - tol) | (t > self.univ_time_ms[-1] + tol)
         w1 = np.where(outside, np.nan, w1)
         return self.index[lo], self.index[hi], 1.0 - w1, w1
 

@@ -142,7 +142,8 @@ def format_demo(result: DemoResult) -> str:
     return "\n".join(lines)
 
 
-#: The aims the issue sets (README, 'The whole product'): VGA/HD frame times, produced over ground-truth MPJPE.
+#: The aims the issue sets (README, 'The whole product'): VGA/HD frame times, produced over ground-truth MPJPE
+#: (session-aligned, see dome_calib.synth.product_eval).
 AIM_VGA_HD_RMS_US = 10.0
 AIM_MPJPE_RATIO = 1.10
 
@@ -165,16 +166,21 @@ def format_pillars(fig: dict) -> list[str]:
                      f"{e['err_max_us']:8.2f} us max;  {aim}  {ok(good)}")
     sk = fig["skeleton"]
     prod, gt, vga = sk["produced_all"], sk["truth_all"], sk["produced_vga"]
-    ratio = prod["mpjpe_mm"] / gt["mpjpe_mm"]
+    ratio = {k: prod[k] / gt[k] for k in ("mpjpe_mm", "mpjpe_cameras_mm", "mpjpe_world_mm")}
     lines.append("")
     lines.append(f"person (19 joints, {prod['times']} times on a 100 Hz grid, dome-calib triangulate from every "
                  "stream):")
-    lines.append(f"  produced bundle, all streams   MPJPE {prod['mpjpe_mm']:6.2f} mm  (p95 {prod['p95_mm']:.1f} mm, "
-                 f"{100 * prod['reconstructed']:.0f} % of joints)")
-    lines.append(f"  ground-truth bundle, all       MPJPE {gt['mpjpe_mm']:6.2f} mm  (produced / truth {ratio:.3f}, "
-                 f"aim <= {AIM_MPJPE_RATIO:.2f})  {ok(ratio <= AIM_MPJPE_RATIO)}")
-    lines.append(f"  produced bundle, VGA only      MPJPE {vga['mpjpe_mm']:6.2f} mm  (all streams lower: "
-                 f"{ok(prod['mpjpe_mm'] < vga['mpjpe_mm'])})")
+    for label, e in (("produced bundle, all streams", prod), ("ground-truth bundle, all", gt),
+                     ("produced bundle, VGA only", vga)):
+        lines.append(f"  {label:<30} MPJPE {e['mpjpe_mm']:6.2f} mm session-aligned, {e['mpjpe_cameras_mm']:6.2f} "
+                     f"cameras-aligned, {e['mpjpe_world_mm']:6.2f} world;  PA {e['pa_mpjpe_mm']:.2f};  p95 "
+                     f"{e['p95_mm']:.1f} mm, {100 * e['reconstructed']:.0f} % of joints")
+    lines.append(f"  produced / truth {ratio['mpjpe_mm']:.3f} session-aligned (aim <= {AIM_MPJPE_RATIO:.2f})  "
+                 f"{ok(ratio['mpjpe_mm'] <= AIM_MPJPE_RATIO)};  {ratio['mpjpe_cameras_mm']:.3f} cameras-aligned, "
+                 f"{ratio['mpjpe_world_mm']:.3f} world;  all streams below VGA only: "
+                 f"{ok(prod['mpjpe_mm'] < vga['mpjpe_mm'])}")
+    lines.append("  (session-aligned: one rigid motion for the whole session, scale kept; the aim judges it because the\n"
+                 "   world is fixed by the design layout and the camera centres pin the volume only to a few mm)")
     return lines
 
 

@@ -47,6 +47,10 @@ class CalibrateOptions:
     changes: ChangeOptions = field(default_factory=ChangeOptions)
     report: ReportOptions = field(default_factory=ReportOptions)
     max_center_sigma_cm: float = 0.5  # flag cameras whose centre is less certain than this (1 sigma)
+    # ... or RELATIVE_SIGMA times less certain than the dome's median camera (and above RELATIVE_SIGMA_FLOOR_CM):
+    # the covariance is only as good as the noise model, so a camera far less determined than the others is
+    # checked even under the absolute bound (a camera 5x less determined is ~5x as likely to be off)
+    center_sigma_ratio: float = 5.0
     scheduler: str | None = None  # a Dask scheduler (tcp://HOST:PORT) for features and matching; None: local pool
 
 
@@ -120,6 +124,30 @@ def capture_contents(capture: Path) -> tuple[list[str], list[str]]:
     return scenes, cams
 
 
+#: The relative rule needs a dome's worth of cameras to know the typical one (a quick recalibration frees a few).
+RELATIVE_SIGMA_MIN_CAMERAS = 8
+#: Below this (1 sigma, cm) a centre is never flagged by the relative rule: a millimetre does not matter.
+RELATIVE_SIGMA_FLOOR_CM = 0.1
+
+
+def center_sigma_flags(sigma_cm: dict[str, float], options: CalibrateOptions) -> dict[str, str]:
+    """Camera -> why its position is poorly determined: its centre's 1-sigma uncertainty (cm) is above
+    ``max_center_sigma_cm``, or above ``center_sigma_ratio`` times the median of the cameras (at least
+    RELATIVE_SIGMA_MIN_CAMERAS of them) and above RELATIVE_SIGMA_FLOOR_CM. Uncertainties are compared after
+    rounding to 1e-6 cm, so the list does not rest on the last bits of the covariance."""
+    q = {n: round(s, 6) for n, s in sigma_cm.items()}
+    median = float(np.median(list(q.values()))) if len(q) >= RELATIVE_SIGMA_MIN_CAMERAS else float("inf")
+    hint = "few or one-sided views of the tent; add a tent position it sees"
+    out = {}
+    for n, s in sorted(q.items()):
+        if s > options.max_center_sigma_cm:
+            out[n] = f"position poorly determined (+-{s:.1f} cm, 1 sigma): {hint}"
+        elif s > RELATIVE_SIGMA_FLOOR_CM and s > options.center_sigma_ratio * median:
+            out[n] = (f"position much less determined than the other cameras' (+-{s:.2f} cm, 1 sigma, "
+                      f"{s / median:.1f} x the median {median:.3f} cm): {hint}")
+    return out
+
+
 def finish(inputs: CalibrationInputs, state: WorkState, calibrated: Calibrated) -> CalibrationResult:
     """Cameras to check (changes against the prior, cameras not calibrated, poorly determined centres), then
     the bundle and its report in OUT, replaced whole (module docstring)."""
@@ -134,10 +162,8 @@ def finish(inputs: CalibrationInputs, state: WorkState, calibrated: Calibrated) 
     for n, note in calibrated.notes.items():
         reasons.setdefault(n, []).append(note)
     sigma_cm = {n: s for n, s in calibrated.center_sigma_cm.items() if n in bundle.cameras}
-    for n, s in sigma_cm.items():
-        if s > options.max_center_sigma_cm:
-            reasons.setdefault(n, []).append(f"position poorly determined (+-{s:.1f} cm, 1 sigma): few or one-sided "
-                                             "views of the tent; add a tent position it sees")
+    for n, why in center_sigma_flags(sigma_cm, options).items():
+        reasons.setdefault(n, []).append(why)
     extra = {"world_frame": calibrated.normalized.as_dict(), "stage_seconds": dict(state.seconds),
              "center_sigma_cm": {n: round(s, 4) for n, s in sorted(sigma_cm.items())},
              "lens_model": calibrated.lens_model,

@@ -8,8 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from dome_calib.bundle import Bundle, KinectSensor, SyncTable, SyncTables
+from dome_calib.bundle import FRAME_TIME_TOLERANCE_MS, Bundle, KinectSensor, SyncTable, SyncTables
 
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.errors import BundleFormatError
@@ -236,6 +238,24 @@ def test_sync_lookup_by_index_nearest_and_bracket():
     np.testing.assert_allclose(w1[:2], [0.25, 0.25])
     np.testing.assert_allclose(w0[:2] + w1[:2], 1.0)
     assert np.isnan(w0[2]) and np.isnan(w1[2])
+
+
+@settings(max_examples=60, deadline=None)
+@given(start_ms=st.floats(0.0, 8.64e7), period_ms=st.floats(10.0, 50.0), k=st.integers(0, 9),
+       off=st.floats(-0.99, 0.99), frac=st.floats(0.05, 0.95))
+def test_bracket_takes_a_frame_alone_within_the_tolerance_and_interpolates_between(start_ms, period_ms, k, off, frac):
+    """Property: a time within FRAME_TIME_TOLERANCE_MS of frame k gives frame k weight exactly 1 (anywhere on a
+    day-long timeline, first and last frame included); a time well between two frames gets weights in (0, 1)
+    summing to 1 that interpolate the time itself."""
+    times = start_ms + period_ms * np.arange(10)
+    table = SyncTable(index=np.arange(100, 110), univ_time_ms=times)
+    i0, i1, w0, w1 = (np.asarray(v).item() for v in table.bracket(times[k] + off * FRAME_TIME_TOLERANCE_MS))
+    assert {i0: w0, i1: w1}.get(100 + k) == 1.0 and min(w0, w1) == 0.0
+    if k < 9:
+        t = times[k] + frac * period_ms
+        i0, i1, w0, w1 = (np.asarray(v).item() for v in table.bracket(t))
+        assert (i0, i1) == (100 + k, 101 + k) and 0.0 < w1 < 1.0 and w0 + w1 == pytest.approx(1.0)
+        assert w0 * times[k] + w1 * times[k + 1] == pytest.approx(t, abs=1e-6)
 
 
 def test_atomic_write_gives_normal_permissions_and_leaves_nothing_on_error(tmp_path):

@@ -214,3 +214,22 @@ def test_prune_problem_drops_unusable_cameras():
     assert np.all(np.bincount(pruned.point_index) >= 2)
     # the remaining observations are the same pixels of the same points through the same cameras
     assert np.abs(observation_residuals(pruned)).max() < 5 * NOISE_PX
+
+
+def test_center_sigma_flags_absolute_and_relative_to_the_dome():
+    """A centre more uncertain than 0.5 cm (1 sigma) is flagged; so is one 5x less determined than the dome's
+    median camera (the BA's covariance is only as good as its noise model) unless it is below a millimetre or
+    too few cameras were solved to know the typical one (a quick recalibration)."""
+    from dome_calib.pipeline_finish import RELATIVE_SIGMA_FLOOR_CM, center_sigma_flags
+
+    options = pipeline.CalibrateOptions()
+    dome = {f"01_{k:02d}": 0.08 for k in range(1, 20)}  # median 0.08 cm
+    flags = center_sigma_flags(dome | {"50_05": 0.465, "00_15": 0.69, "50_08": 0.175}, options)
+    assert sorted(flags) == ["00_15", "50_05"]
+    assert "position poorly determined (+-0.7 cm" in flags["00_15"]
+    assert "much less determined than the other cameras' (+-0.47 cm, 1 sigma, 5.8 x the median 0.080 cm)" in \
+        flags["50_05"]
+    tight = {n: s / 10 for n, s in dome.items()}  # a sub-mm dome: 5x its median is still below the floor
+    assert center_sigma_flags(tight | {"50_05": 0.9 * RELATIVE_SIGMA_FLOOR_CM}, options) == {}
+    assert center_sigma_flags({"50_05": 0.465, "01_01": 0.05, "01_02": 0.05}, options) == {}  # too few to compare
+    assert list(center_sigma_flags({"50_05": 0.6, "01_01": 0.05}, options)) == ["50_05"]  # absolute: always

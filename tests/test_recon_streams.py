@@ -6,7 +6,7 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from dome_calib.bundle import SyncTable
+from dome_calib.bundle import FRAME_TIME_TOLERANCE_MS, SyncTable
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.project import view_set
 from dome_calib.synth.skeleton import MIRROR19, clock_table, skeleton_cm, synthetic_tracks
@@ -40,6 +40,30 @@ def test_interpolation_is_exact_for_linear_motion_and_empty_outside_the_span():
     np.testing.assert_allclose(uv[inside, 0, 0, 0], 100 + 0.5 * times[inside], atol=1e-9)
     np.testing.assert_allclose(uv[inside, 0, 0, 1], 200 - 0.25 * times[inside], atol=1e-9)
     assert conf[[0, 5], 0, 0].tolist() == [0.0, 0.0] and np.isnan(uv[[0, 5]]).all()
+
+
+def test_a_time_nanoseconds_off_a_frame_takes_that_frame_alone_next_to_a_missed_detection():
+    """A 100 Hz grid hits frame times only up to float rounding (a few ns on a ~1e7 ms timeline): within
+    FRAME_TIME_TOLERANCE_MS the frame is taken alone, so a missed detection in the neighbouring frame does not drop
+    the joint; beyond the tolerance the neighbour is needed (and the joint is dropped) as before."""
+    table = clock_table(Fraction(25), start_ms=36_000_000.0, duration_ms=400.0)
+    linear, f = _linear_tracks(table), 4
+    conf = linear.conf.copy()
+    conf[[f - 1, f + 1]] = np.nan  # missed detections on both sides of frame f
+    tracks = StreamTracks(stream="vga", table=table, cameras=linear.cameras, frame_index=linear.frame_index,
+                          uv_px=linear.uv_px, conf=conf)
+    t_f = table.univ_time_ms[f]
+    off_ms = np.array([-3e-6, 3e-6, -0.9 * FRAME_TIME_TOLERANCE_MS, 0.9 * FRAME_TIME_TOLERANCE_MS])
+    uv, conf = interpolate_stream(tracks, t_f + off_ms)
+    assert conf[:, 0, 0].tolist() == [1.0] * 4
+    np.testing.assert_allclose(uv[:, 0, 0, 0], 100 + 0.5 * t_f, atol=1e-9)  # frame f's detection, no blend
+    uv, conf = interpolate_stream(tracks, t_f + np.array([-2.0, 2.0]) * FRAME_TIME_TOLERANCE_MS)
+    assert conf[:, 0, 0].tolist() == [0.0, 0.0]  # beyond the tolerance the missed neighbour is needed
+    # the same at the ends of the table: a few ns outside the span is the end frame, further out is nothing
+    i0, i1, w0, w1 = table.bracket(table.univ_time_ms[[0, -1]] + np.array([-3e-6, 3e-6]))
+    assert (w0[0], w1[0], i0[0]) == (1.0, 0.0, table.index[0]) and (w0[1], w1[1], i1[1]) == (0.0, 1.0, table.index[-1])
+    w = table.bracket(table.univ_time_ms[[0, -1]] + np.array([-2.0, 2.0]) * FRAME_TIME_TOLERANCE_MS)[3]
+    assert np.isnan(w).all()
 
 
 def test_nearest_mode_takes_the_closer_frame():
