@@ -21,6 +21,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import resource
 import shutil
 import sys
 import time
@@ -118,6 +119,8 @@ def run(args) -> None:
     emit(bench="dome", stage="calibrate", preset=args.preset, seconds_total=round(total, 1),
          resumed_stages=result.resumed,  # their seconds are those measured when they ran
          load_average_1min=round(os.getloadavg()[0], 1),
+         peak_rss_gb={"calibrate": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6, 2),
+                      "largest_worker": round(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1e6, 2)},
          seconds={k: round(v, 1) for k, v in result.stage_seconds.items()}, sfm=result.sfm.stats,
          ba={k: v for k, v in result.ba.stats.items() if k != "termination"},
          calibrated=len(result.bundle.cameras), expected=len(result.expected), not_calibrated=result.failures,
