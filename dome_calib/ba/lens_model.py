@@ -45,8 +45,8 @@ can be off by percents, and the depth of the scene pins it).
    decisions are then taken again at that solution (the linearisation is now close to the chosen fit); if they
    change, solve again (at most :data:`MAX_PASSES` passes). Usually two or three solves in all; the linear
    algebra is one factorisation of the reduced camera system per level and pass. Every solve after the first
-   is warm-started (``solve(problem, previous)``): from the previous solution, its inliers and damping, so it
-   skips the robust stage and re-judges the outliers at the new model's noise; it costs a few iterations, not a
+   is warm-started (``solve(problem, previous)``): from the previous solution and its inliers, so it skips the
+   robust stage and re-judges the outliers at the new model's noise; it costs a few iterations, not a
    whole schedule. Uncertainties are the caller's, once, at the returned solution.
 
 Comparisons use quantised values (:data:`QUANTUM`), so the same observations give the same model on every machine.
@@ -275,11 +275,11 @@ def _walk(model: QuadraticModel, point: BAResult, initial: BAProblem, candidate:
 
 def warm_solver(options: BAOptions) -> Callable[[BAProblem, BAResult | None], BAResult]:
     """The ``solve`` of :func:`select_lens_model` with :func:`dome_calib.ba.solver.bundle_adjust`: the whole
-    schedule for the first solve, warm starts (previous inliers and damping) for the others."""
+    schedule for the first solve, warm starts (the previous solution and inliers) for the others."""
     def solve(problem: BAProblem, previous: BAResult | None) -> BAResult:
         if previous is None:
             return bundle_adjust(problem, options)
-        return bundle_adjust(problem, options, start_inlier=previous.inlier, start_lambda=previous.final_lambda)
+        return bundle_adjust(problem, options, start_inlier=previous.inlier)
     return solve
 
 
@@ -292,7 +292,7 @@ def select_lens_model(initial: BAProblem, solve: Callable[[BAProblem, BAResult |
             mask the most that may be refined (terms the caller holds stay held and are not judged).
         solve: the bundle adjustment, ``solve(problem, previous)``: the first call with None (the whole
             schedule from ``initial``), the later ones with the previous solve's result to warm-start from (its
-            inliers and final damping; ``problem`` starts at its solution), see :func:`warm_solver`.
+            inliers; ``problem`` starts at its solution), see :func:`warm_solver`.
     Returns:
         the result of the final solve (the chosen model; uncertainties as ``solve`` gives them) and the
         per-camera :class:`LensModel`.

@@ -76,11 +76,6 @@ class BAResult:
     time_s: float = 0.0
     extra: dict = field(default_factory=dict)
 
-    @property
-    def final_lambda(self) -> float | None:
-        """The Levenberg-Marquardt damping of the last accepted step (None if no step was taken)."""
-        return self.iterations[-1].lam if self.iterations else None
-
     def to_bundle(self, **kwargs) -> Bundle:
         """The refined cameras as a :class:`Bundle` (see :meth:`BAProblem.to_bundle` for the arguments)."""
         return self.problem.to_bundle(**kwargs)
