@@ -156,8 +156,8 @@ def bundle_adjust(problem: BAProblem, options: BAOptions | None = None, *,
     ``start_inlier`` (M,) bool: a warm start, the inliers of an earlier solve of the same observations from
     which ``problem`` starts (e.g. the same problem with other parameters free). The robust first stage, whose
     job is to find the basin and expose the gross outliers, is then skipped: the schedule starts with the
-    final loss on those inliers and the outlier rounds re-judge every observation as usual (stopping as soon
-    as a round changes none).
+    final loss on those inliers (to ``first_stage_function_tolerance`` when outlier rounds follow) and the
+    outlier rounds re-judge every observation as usual (stopping as soon as a round changes almost none).
     The damping starts at ``options.initial_lambda`` as in a cold start: the earlier solve's last damping is far
     too small for a problem with other parameters free (measured on the panel dome: 6 rejected steps, 30 % more
     reduced systems, for the same minimum).
@@ -194,10 +194,13 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndar
     rounds = options.outlier_rounds
     st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points,
                          n_groups=options.n_camera_groups)
-    if warm:  # already in the basin, gross outliers known: the final loss on the given inliers
+    if warm:  # in the basin, gross outliers known: the final loss on the given inliers, to the first stage's
+        # looser tolerance when rounds follow (they re-judge and converge it; measured on the panel dome's
+        # lens-model solve: 24 iterations instead of 28 for the same minimum)
         state, reason, lam = _levenberg_marquardt(problem, state, st, options, loss=LossKind(options.final_loss),
                                                   scale=options.final_loss_scale_px,
-                                                  ftol=options.function_tolerance, stage=0,
+                                                  ftol=options.first_stage_function_tolerance if rounds
+                                                  else options.function_tolerance, stage=0,
                                                   lam=options.initial_lambda)
     else:
         ftol = options.first_stage_function_tolerance if rounds else options.function_tolerance
@@ -221,7 +224,7 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndar
         changed = int(np.sum(new_inlier != inlier))
         logger.info("ba outliers round %d: threshold %.3f px, %d of %d observations rejected (%d changed)", rnd,
                     threshold_px, int((~new_inlier).sum()), M, changed)
-        if changed <= options.outlier_change_tolerance * M and (rnd > 1 or warm):
+        if changed <= options.outlier_change_tolerance * M and rnd > 1:  # round 1 always converges fully
             break
         inlier = new_inlier
         st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points,
