@@ -37,12 +37,15 @@ class Registration:
     point3D_ids: np.ndarray  # (N,) ids in the reconstruction
     uv_px: np.ndarray  # (N, 2) OpenCV pixels
     num_candidates: int
+    keypoint_idx: np.ndarray  # (N,) the observations' keypoint indices in the camera's image of the database
 
 
 def triangulate_known(database_path: str | Path, image_dir: str | Path, output_dir: str | Path,
-                      cameras: Mapping[str, Camera], names: Iterable[str]) -> pycolmap.Reconstruction:
+                      cameras: Mapping[str, Camera], names: Iterable[str],
+                      options: pycolmap.IncrementalPipelineOptions | None = None) -> pycolmap.Reconstruction:
     """Points of a scene triangulated from the verified matches of ``names``, held at ``cameras`` (pose and
-    intrinsics). Images of other cameras stay out of the reconstruction."""
+    intrinsics). Images of other cameras stay out of the reconstruction. ``options``: the triangulator's and
+    filter's thresholds (default COLMAP's)."""
     names = set(names)
     rec = pycolmap.Reconstruction()
     with pycolmap.Database.open(str(database_path)) as db:
@@ -59,7 +62,7 @@ def triangulate_known(database_path: str | Path, image_dir: str | Path, output_d
     if output_dir.exists():
         shutil.rmtree(output_dir)
     output_dir.mkdir(parents=True)
-    options = pycolmap.IncrementalPipelineOptions()
+    options = options or pycolmap.IncrementalPipelineOptions()
     return pycolmap.triangulate_points(rec, str(database_path), str(image_dir), str(output_dir), options=options)
 
 
@@ -148,7 +151,7 @@ def register_cameras(database_path: str | Path, rec: pycolmap.Reconstruction, ca
             R = np.asarray(pose.rotation.matrix())
             done[name] = Registration(camera=replace(cam, R=R, t_cm=np.asarray(pose.translation, float)),
                                       point3D_ids=pts[inl], uv_px=colmap_to_opencv_px(uv_colmap[inl]),
-                                      num_candidates=len(kp))
+                                      num_candidates=len(kp), keypoint_idx=kp[inl])
     return done, failed
 
 

@@ -124,6 +124,54 @@ def _load_models(output_dir: Path) -> dict[int, pycolmap.Reconstruction]:
     return models
 
 
+def best_model(models: dict[int, pycolmap.Reconstruction]) -> pycolmap.Reconstruction | None:
+    """The model with the most registered images (ties: the lowest model number)."""
+    return max(sorted(models.items()), key=lambda kv: kv[1].num_reg_images(), default=(None, None))[1]
+
+
+def describe_model(best: pycolmap.Reconstruction | None, database_path: str | Path, scene: str,
+                   min_points_per_image: int, failure: str | None = None,
+                   reasons: dict[str, str] | None = None) -> SceneModel:
+    """The :class:`SceneModel` of a scene's reconstruction ``best``: its registered cameras (those seeing at least
+    ``min_points_per_image`` of its points) and, for every other camera of the database, why not (``reasons``
+    first, given per camera by the caller)."""
+    reasons = reasons or {}
+    with pycolmap.Database.open(str(database_path)) as db:
+        all_images = {im.image_id: camera_of_image(im.name) for im in db.read_all_images()}
+        verified_ids = set()
+        pair_ids, counts = db.read_two_view_geometry_num_inliers()
+        for pid, n in zip(pair_ids, counts):
+            if n > 0:
+                verified_ids.update(pycolmap.pair_id_to_image_pair(pid))
+    result = SceneModel(scene=scene, reconstruction=best, failure=failure)
+    if best is None and failure is None:
+        result.failure = "no model: too few verified pairs to reconstruct"
+    weak: dict[str, str] = {}
+    registered: set[str] = set()
+    for image_id in best.reg_image_ids() if best is not None else []:
+        image = best.image(image_id)
+        if image.num_points3D < min_points_per_image:
+            weak[camera_of_image(image.name)] = (f"registered with only {image.num_points3D} 3D points "
+                                                 f"(< {min_points_per_image}): pose unreliable")
+        else:
+            registered.add(image.name)
+    result.registered = sorted(camera_of_image(n) for n in registered)
+    for image_id, cam in sorted(all_images.items(), key=lambda kv: kv[1]):
+        if cam in result.registered:
+            continue
+        if cam in weak:
+            result.unregistered[cam] = weak[cam]
+        elif cam in reasons:
+            result.unregistered[cam] = reasons[cam]
+        elif image_id not in verified_ids:
+            result.unregistered[cam] = "no verified image pair (overlap too small or no tent in view)"
+        elif best is None:
+            result.unregistered[cam] = result.failure or "scene did not reconstruct"
+        else:
+            result.unregistered[cam] = "not registered in the scene's largest model"
+    return result
+
+
 def map_scene(
     database_path: str | Path, image_dir: str | Path, output_dir: str | Path, *,
     options: MappingOptions | None = None, scene: str = "",
@@ -150,39 +198,9 @@ def map_scene(
     else:
         failure = None
         logger.info("%s: reusing %d model(s) in %s", scene, len(models), output_dir)
-    with pycolmap.Database.open(str(database_path)) as db:
-        all_images = {im.image_id: camera_of_image(im.name) for im in db.read_all_images()}
-        verified_ids = set()
-        pair_ids, counts = db.read_two_view_geometry_num_inliers()
-        for pid, n in zip(pair_ids, counts):
-            if n > 0:
-                verified_ids.update(pycolmap.pair_id_to_image_pair(pid))
-    best = max(models.values(), key=lambda r: r.num_reg_images(), default=None)
-    result = SceneModel(scene=scene, reconstruction=best, num_models=len(models), failure=failure)
-    if best is None and failure is None:
-        result.failure = "no model: too few verified pairs to reconstruct"
-    weak: dict[str, str] = {}
-    registered: set[str] = set()
-    for image_id in best.reg_image_ids() if best is not None else []:
-        image = best.image(image_id)
-        if image.num_points3D < options.min_points_per_image:
-            weak[camera_of_image(image.name)] = (f"registered with only {image.num_points3D} 3D points "
-                                                 f"(< {options.min_points_per_image}): pose unreliable")
-        else:
-            registered.add(image.name)
-    result.registered = sorted(camera_of_image(n) for n in registered)
-    for image_id, cam in sorted(all_images.items(), key=lambda kv: kv[1]):
-        if cam in result.registered:
-            continue
-        if cam in weak:
-            result.unregistered[cam] = weak[cam]
-        elif image_id not in verified_ids:
-            result.unregistered[cam] = "no verified image pair (overlap too small or no tent in view)"
-        elif best is None:
-            result.unregistered[cam] = result.failure or "scene did not reconstruct"
-        else:
-            result.unregistered[cam] = "not registered in the scene's largest model"
+    result = describe_model(best_model(models), database_path, scene, options.min_points_per_image, failure)
+    result.num_models = len(models)
     result.seconds = time.perf_counter() - t0
     logger.info("%s: %d models, %d/%d cameras registered, %.1f s", scene, len(models), len(result.registered),
-                len(all_images), result.seconds)
+                len(result.registered) + len(result.unregistered), result.seconds)
     return result

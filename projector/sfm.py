@@ -2,13 +2,21 @@
 
 Stages (each also callable on its own, hloc style): :func:`projector.features.extract_features`,
 :func:`projector.pairs.pairs_from_prior` / ``pairs_exhaustive``, :func:`projector.matching.match_pairs`,
-:func:`projector.mapping.map_scene`, :func:`projector.merge.merge_scenes`.
+:func:`projector.mapping.map_scene`, :func:`projector.known_scene.map_known_scene`,
+:func:`projector.merge.merge_scenes`.
+
+Order: the features of every scene; then the reference scene (the most images with features, ties by name) is
+matched and mapped with GLOMAP; every other scene is matched and triangulated with the cameras held at the
+reference's poses (:mod:`projector.known_scene`), or mapped with GLOMAP when that gives too little (logged, and
+said in the report) or when ``SfmOptions.known_poses.enabled`` is off.
 
 Work folder layout (everything resumable)::
 
     WORK/<scene>/database.db     COLMAP database (open it in COLMAP with CAPTURE/scenes/<scene> as image folder)
     WORK/<scene>/pairs.txt       the matched pairs, one "a.png b.png" per line
-    WORK/<scene>/sparse/<k>/     pycolmap models
+    WORK/<scene>/sparse/<k>/     pycolmap models of GLOMAP (the reference scene, and any scene that fell back)
+    WORK/<scene>/known/model/    pycolmap model of a scene triangulated with the reference's poses
+    WORK/<scene>/known/reference.json   the reference model it was made from (a digest: reused only if it matches)
 """
 from __future__ import annotations
 
@@ -27,6 +35,8 @@ from dome_calib.io_utils import atomic_write_text
 from dome_calib.layout import nominal_dome
 from dome_calib.executor import Executor, make_executor
 from projector.features import FeatureOptions, FeatureReport, extract_features, nominal_camera
+from projector.known_scene import KnownPoseOptions, map_known_scene
+from projector.database import camera_of_image
 from projector.mapping import MappingOptions, SceneModel, map_scene
 from projector.matching import MatchOptions, MatchReport, match_pairs
 from projector.merge import Alignment, MergeOptions, merge_scenes
@@ -43,6 +53,7 @@ class SfmOptions:
     pairs: PairOptions = field(default_factory=PairOptions)
     matching: MatchOptions = field(default_factory=MatchOptions)
     mapping: MappingOptions = field(default_factory=MappingOptions)
+    known_poses: KnownPoseOptions = field(default_factory=KnownPoseOptions)  # later scenes at the reference's poses
     merge: MergeOptions = field(default_factory=MergeOptions)
     scenes: list[str] | None = None  # default: every folder in CAPTURE/scenes
     num_workers: int | None = None  # default: all available cores
@@ -67,6 +78,8 @@ class SceneStats:
     pairs: int
     matches: MatchReport
     model: SceneModel
+    mapping: str = "glomap"  # or "known poses (from <reference scene>)"
+    fallback: str | None = None  # why the known-pose path was not used, when it was tried
 
 
 @dataclass(kw_only=True)
@@ -122,15 +135,22 @@ def write_pairs(path: Path, pairs: list[Pair]) -> None:
     atomic_write_text(path, "".join(f"{a}.png {b}.png\n" for a, b in pairs))
 
 
+def scene_features(capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera], options: SfmOptions,
+                   executor: Executor) -> FeatureReport:
+    """Features of one scene into ``work_dir/<scene>/database.db`` (resumable)."""
+    return extract_features(capture_dir / "scenes" / scene, work_dir / scene / "database.db", prior=prior,
+                            options=options.features, executor=executor, scene=scene, cameras=options.cameras)
+
+
 def match_scene(
     capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera], options: SfmOptions,
-    executor: Executor,
+    executor: Executor, feats: FeatureReport | None = None,
 ) -> tuple[FeatureReport, list[Pair], MatchReport]:
-    """Features, pairs and matching of one scene into ``work_dir/<scene>/database.db`` (resumable)."""
-    image_dir = capture_dir / "scenes" / scene
+    """Features (unless given), pairs and matching of one scene into ``work_dir/<scene>/database.db``
+    (resumable)."""
     db_path = work_dir / scene / "database.db"
-    feats = extract_features(image_dir, db_path, prior=prior, options=options.features, executor=executor, scene=scene,
-                             cameras=options.cameras)
+    if feats is None:
+        feats = scene_features(capture_dir, work_dir, scene, prior, options, executor)
     names = sorted(feats.num_features)
     pairs = select_pairs(names, prior, options.pairs)
     write_pairs(work_dir / scene / "pairs.txt", pairs)
@@ -154,15 +174,32 @@ def mapper_image_dir(capture_dir: Path, work_dir: Path, scene: str, options: Sfm
     return empty
 
 
+def reference_scene(feats: Mapping[str, FeatureReport]) -> str:
+    """The scene mapped with GLOMAP first: the most images with features (ties: the first name)."""
+    return min(feats, key=lambda s: (-len(feats[s].num_features), s))
+
+
 def run_scene(
     capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera], options: SfmOptions,
-    executor: Executor,
+    executor: Executor, feats: FeatureReport | None = None, reference: SceneModel | None = None,
 ) -> SceneStats:
-    """Features, pairs, matching and mapping of one scene."""
-    feats, pairs, matches = match_scene(capture_dir, work_dir, scene, prior, options, executor)
-    model = map_scene(work_dir / scene / "database.db", mapper_image_dir(capture_dir, work_dir, scene, options),
-                      work_dir / scene / "sparse", options=options.mapping, scene=scene)
-    return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model)
+    """Features (unless given), pairs, matching and the scene's model: triangulated with the cameras held at
+    ``reference``'s poses when given and that works, else mapped with GLOMAP."""
+    feats, pairs, matches = match_scene(capture_dir, work_dir, scene, prior, options, executor, feats)
+    db_path, image_dir = work_dir / scene / "database.db", mapper_image_dir(capture_dir, work_dir, scene, options)
+    fallback = None
+    if reference is not None and reference.reconstruction is not None and options.known_poses.enabled:
+        model, fallback = map_known_scene(db_path, image_dir, work_dir / scene / "known", reference,
+                                          options.known_poses, scene=scene)
+        if fallback is None:
+            return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model,
+                              mapping=f"known poses (from {reference.scene})")
+        logger.warning("%s: mapping with GLOMAP instead: %s", scene, fallback)
+        known_seconds = model.seconds
+    model = map_scene(db_path, image_dir, work_dir / scene / "sparse", options=options.mapping, scene=scene)
+    if fallback is not None:
+        model.seconds += known_seconds
+    return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model, fallback=fallback)
 
 
 def run_sfm(
@@ -193,8 +230,14 @@ def run_sfm(
     stats: dict[str, SceneStats] = {}
     # our own pool is stopped at once (workers quiet) if a scene fails or the run is interrupted
     with make_executor(options.num_workers) if executor is None else contextlib.nullcontext(executor) as pool:
+        feats = {scene: scene_features(capture_dir, work_dir, scene, prior_cams, options, pool) for scene in scenes}
+        ref = reference_scene(feats)
+        stats[ref] = run_scene(capture_dir, work_dir, ref, prior_cams, options, pool, feats[ref])
         for scene in scenes:
-            stats[scene] = run_scene(capture_dir, work_dir, scene, prior_cams, options, pool)
+            if scene != ref:
+                stats[scene] = run_scene(capture_dir, work_dir, scene, prior_cams, options, pool, feats[scene],
+                                         reference=stats[ref].model)
+    stats = {scene: stats[scene] for scene in scenes}
     t_scenes = time.perf_counter() - t0
     failures: list[CameraFailure] = []
     for s in stats.values():
@@ -232,11 +275,23 @@ def run_sfm(
     unregistered = {c: "; ".join(reasons.get(c, ["not registered"])) for c in all_cams if c not in cameras}
     for c, r in unregistered.items():
         logger.warning("camera %s not registered in any scene: %s", c, r)
-    seconds = {"scenes": t_scenes, "merge": time.perf_counter() - t1, "total": time.perf_counter() - t0}
+    seconds = {"features": sum(s.features.seconds for s in stats.values()),
+               "matching": sum(s.matches.seconds for s in stats.values()),
+               "mapping": sum(s.model.seconds for s in stats.values()),
+               "scenes": t_scenes, "merge": time.perf_counter() - t1, "total": time.perf_counter() - t0}
     result = SfmResult(observations=observations, cameras=cameras, scenes=stats, failures=failures, unregistered=unregistered,
                        scene_alignment=scene_alignment, prior_alignment=prior_alignment, seconds=seconds)
     atomic_write_text(work_dir / "sfm_report.json", json.dumps(report_dict(result), indent=1))
     return result
+
+
+def num_observations(model: SceneModel) -> int:
+    """Observations (track elements) of the scene's points in its registered cameras' images."""
+    rec = model.reconstruction
+    if rec is None:
+        return 0
+    registered = set(model.registered)
+    return sum(rec.image(i).num_points3D for i in rec.reg_image_ids() if camera_of_image(rec.image(i).name) in registered)
 
 
 def report_dict(result: SfmResult) -> dict:
@@ -249,7 +304,9 @@ def report_dict(result: SfmResult) -> dict:
                        "features_mean": (sum(st.features.num_features.values()) / max(len(st.features.num_features), 1)),
                        "pairs": st.pairs, "verified_pairs": st.matches.num_verified_pairs,
                        "inlier_matches": st.matches.num_inlier_matches, "registered": len(st.model.registered),
+                       "mapping": st.mapping, **({"fallback": st.fallback} if st.fallback else {}),
                        "points": st.model.reconstruction.num_points3D() if st.model.reconstruction else 0,
+                       "observations": num_observations(st.model),
                        "seconds": {"features": round(st.features.seconds, 1), "matching": round(st.matches.seconds, 1),
                                    "mapping": round(st.model.seconds, 1)}}
                    for s, st in result.scenes.items()},

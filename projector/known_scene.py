@@ -1,0 +1,203 @@
+"""Later scenes of a capture without mapping: the tent triangulated with the cameras held at the first scene's poses.
+
+The scenes of a capture see the same cameras. Once the reference scene is mapped (GLOMAP, :mod:`projector.mapping`),
+every camera it registered has a pose good to about a centimetre and a tenth of a degree, in the reference's
+frame. A later scene then needs no mapping of its own:
+
+1. its points are triangulated from its verified matches with those cameras held at the reference's poses and
+   intrinsics (the mapper keeps the prior's), by COLMAP's point triangulator (:func:`projector.known_poses.
+   triangulate_known`), with the thresholds below (chosen by the end-to-end accuracy, not by generosity);
+2. each camera with features in the scene that the reference did not register is registered against those points
+   by absolute pose (:func:`projector.known_poses.register_cameras`, LO-RANSAC then refinement) and its inlier
+   observations join the points' tracks.
+
+The result is an ordinary :class:`projector.mapping.SceneModel` in the reference's frame and unit, so
+:func:`projector.merge.merge_scenes` aligns it (about the identity) and runs its consistency checks as for a
+mapped scene. When too few cameras register or too few points triangulate (the reference is poor, or the scene
+shares too little with it), :func:`map_known_scene` says so and the caller maps the scene with GLOMAP instead.
+
+Work folder: ``WORK/<scene>/known/model/`` (the model) and ``known/reference.json`` (which reference model it was
+made from, by a digest of its poses and intrinsics). A rerun reuses the model only if the digest matches.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+
+from dome_calib.bundle import Camera, camera_type_from_name
+from dome_calib.io_utils import atomic_write_text
+from projector.database import camera_of_image, intrinsics_from_colmap, to_colmap_camera
+from projector.known_poses import register_cameras, triangulate_known, verified_partners
+from projector.mapping import SceneModel, describe_model
+
+logger = logging.getLogger(__name__)
+
+#: Reprojection error (px) for merging tracks and completing them with more observations (COLMAP's default). The
+#: held poses are GLOMAP's (~1 cm / 0.1 deg off) with the design's intrinsics (HD focal lengths up to 23 % off as
+#: built), so a point reprojects ~1 px off (median; 95 % within 2.5 px on the panel bench) and a generous limit looked
+#: right; measured, it is not: with GLOMAP's own 15 px the long tracks collect wrong observations (the observations'
+#: noise 0.209 px against 0.202 from GLOMAP's scenes) and the bundle adjustment lands further from the oracle on the
+#: panel bench (centres x1.06-1.09, focal x1.22-1.33 of the oracle's error, against x0.99 / x1.06 before); with 4 px
+#: it lands as close as before (README, "Structure from motion").
+KNOWN_MAX_REPROJ_ERROR_PX = 4.0
+#: Reprojection error (px) above which an observation is dropped after the points are refined (COLMAP's default).
+#: Per scene this keeps 98-99 % of the observations GLOMAP's own run of the scene gives on the panel bench (HD
+#: cameras 83 %, VGA 101 %); 8 px would keep the HD cameras' all, but only measured with 15 px above (see there).
+KNOWN_FILTER_MAX_REPROJ_ERROR_PX = 4.0
+#: Smallest triangulation angle (deg) of a point (GLOMAP's; COLMAP's default 1.5 drops far-apart views' points).
+KNOWN_MIN_TRI_ANGLE_DEG = 1.0
+#: The scene falls back to GLOMAP when fewer than this fraction of its cameras with a verified pair register ...
+KNOWN_MIN_REGISTERED_FRACTION = 0.9
+#: ... or fewer than this many points triangulate (a poor reference, or a scene sharing little with it).
+KNOWN_MIN_POINTS = 100
+
+
+@dataclass(kw_only=True)
+class KnownPoseOptions:
+    enabled: bool = True  # False: every scene is mapped with GLOMAP
+    max_reproj_error_px: float = KNOWN_MAX_REPROJ_ERROR_PX
+    filter_max_reproj_error_px: float = KNOWN_FILTER_MAX_REPROJ_ERROR_PX
+    min_tri_angle_deg: float = KNOWN_MIN_TRI_ANGLE_DEG
+    min_registered_fraction: float = KNOWN_MIN_REGISTERED_FRACTION
+    min_points: int = KNOWN_MIN_POINTS
+    min_points_per_image: int = 30  # as the mapper's (MappingOptions.min_points_per_image)
+    reuse: bool = True
+
+
+def triangulator_options(options: KnownPoseOptions) -> pycolmap.IncrementalPipelineOptions:
+    o = pycolmap.IncrementalPipelineOptions()
+    o.triangulation.merge_max_reproj_error = options.max_reproj_error_px
+    o.triangulation.complete_max_reproj_error = options.max_reproj_error_px
+    o.triangulation.min_angle = options.min_tri_angle_deg
+    o.mapper.filter_max_reproj_error = options.filter_max_reproj_error_px
+    o.mapper.filter_min_tri_angle = options.min_tri_angle_deg
+    o.random_seed = 0
+    o.triangulation.random_seed = 0
+    return o
+
+
+def reference_cameras(reference: SceneModel) -> dict[str, Camera]:
+    """The reference scene's registered cameras: pose in ITS frame and unit (not cm), intrinsics as mapped."""
+    rec = reference.reconstruction
+    out = {}
+    for name in reference.registered:
+        image = rec.find_image_with_name(f"{name}.png")
+        colmap_cam = rec.camera(image.camera_id)
+        K, dist = intrinsics_from_colmap(colmap_cam)
+        pose = image.cam_from_world()
+        out[name] = Camera(name=name, type=camera_type_from_name(name), resolution=(colmap_cam.width, colmap_cam.height),
+                           K=K, dist=dist, R=np.asarray(pose.rotation.matrix()), t_cm=np.asarray(pose.translation, float),
+                           panel=0, node=0)
+    return out
+
+
+def reference_digest(reference: SceneModel) -> str:
+    """Digest of the reference's registered cameras (names, poses, intrinsics: exact doubles, as stored)."""
+    h = hashlib.sha256(reference.scene.encode())
+    for name, cam in sorted(reference_cameras(reference).items()):
+        h.update(name.encode())
+        for a in (cam.R, cam.t_cm, cam.K, cam.dist):
+            h.update(np.ascontiguousarray(a, dtype="<f8").tobytes())
+    return h.hexdigest()
+
+
+def _database_cameras(database_path: Path) -> tuple[dict[str, Camera], dict[str, int]]:
+    """Cameras of the scene's database (the prior's intrinsics, identity pose) and their image ids, by name."""
+    cams, ids = {}, {}
+    with pycolmap.Database.open(str(database_path)) as db:
+        for im in db.read_all_images():
+            name = camera_of_image(im.name)
+            colmap_cam = db.read_camera(im.camera_id)
+            K, dist = intrinsics_from_colmap(colmap_cam)
+            cams[name] = Camera(name=name, type=camera_type_from_name(name),
+                                resolution=(colmap_cam.width, colmap_cam.height), K=K, dist=dist, R=np.eye(3),
+                                t_cm=np.zeros(3), panel=0, node=0)
+            ids[name] = im.image_id
+    return cams, ids
+
+
+def _add_registered(rec: pycolmap.Reconstruction, database_path: Path, regs: dict, ids: dict[str, int]) -> None:
+    """Put the cameras registered by absolute pose into ``rec``: image, pose, and their inlier observations."""
+    with pycolmap.Database.open(str(database_path)) as db:
+        for name, reg in sorted(regs.items()):
+            image_id = ids[name]
+            db_image = db.read_image(image_id)
+            colmap_cam = to_colmap_camera(reg.camera)
+            colmap_cam.camera_id = db_image.camera_id
+            rec.add_camera_with_trivial_rig(colmap_cam)
+            keypoints = np.asarray(db.read_keypoints(image_id)[:, :2], dtype=np.float64)
+            image = pycolmap.Image(name=db_image.name, keypoints=keypoints, camera_id=db_image.camera_id,
+                                   image_id=image_id)
+            rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(reg.camera.R),
+                                                                       reg.camera.t_cm))
+            for kp, pid in zip(reg.keypoint_idx, reg.point3D_ids):
+                rec.add_observation(int(pid), pycolmap.TrackElement(image_id, int(kp)))
+
+
+def _load(folder: Path, digest: str) -> pycolmap.Reconstruction | None:
+    stamp = folder / "reference.json"
+    try:
+        if json.loads(stamp.read_text())["digest"] != digest:
+            return None
+        return pycolmap.Reconstruction(str(folder / "model"))
+    except (OSError, ValueError, KeyError):
+        return None
+
+
+def map_known_scene(database_path: str | Path, image_dir: str | Path, output_dir: str | Path,
+                    reference: SceneModel, options: KnownPoseOptions | None = None,
+                    scene: str = "") -> tuple[SceneModel, str | None]:
+    """The scene's model with the reference's cameras held (module docstring), and None; or, when the result is
+    too poor to use (``options``' limits), the model and the reason to map the scene with GLOMAP instead."""
+    options = options or KnownPoseOptions()
+    database_path, output_dir = Path(database_path), Path(output_dir)
+    scene = scene or database_path.parent.name
+    t0 = time.perf_counter()
+    digest = reference_digest(reference)
+    rec = _load(output_dir, digest) if options.reuse else None
+    pnp_failed: dict[str, str] = {}
+    if rec is not None:
+        logger.info("%s: reusing the known-pose model in %s", scene, output_dir)
+    else:
+        held = reference_cameras(reference)
+        db_cams, ids = _database_cameras(database_path)
+        in_scene = sorted(n for n in held if n in ids)
+        rec = triangulate_known(database_path, image_dir, output_dir / "triangulated", held, in_scene,
+                                triangulator_options(options))
+        regs, pnp_failed = register_cameras(database_path, rec, db_cams, sorted(set(ids) - set(held)))
+        _add_registered(rec, database_path, regs, ids)
+        shutil.rmtree(output_dir / "triangulated", ignore_errors=True)
+        staging = output_dir / "model.staging"
+        shutil.rmtree(staging, ignore_errors=True)
+        staging.mkdir(parents=True)
+        rec.write(str(staging))
+        shutil.rmtree(output_dir / "model", ignore_errors=True)
+        staging.rename(output_dir / "model")
+        atomic_write_text(output_dir / "reference.json", json.dumps({"reference": reference.scene, "digest": digest,
+                                                                      "absolute_pose_failures": pnp_failed}, indent=1))
+    if not pnp_failed and (output_dir / "reference.json").exists():
+        pnp_failed = json.loads((output_dir / "reference.json").read_text()).get("absolute_pose_failures", {})
+    model = describe_model(rec, database_path, scene, options.min_points_per_image,
+                           reasons={n: f"absolute pose against the points of {reference.scene}'s cameras: {why}"
+                                    for n, why in pnp_failed.items()})
+    model.num_models = 1
+    model.seconds = time.perf_counter() - t0
+    n_verified = len(verified_partners(database_path))
+    need = options.min_registered_fraction * n_verified
+    why = None
+    if len(model.registered) < need:
+        why = (f"known poses registered only {len(model.registered)} of the {n_verified} cameras with a verified pair "
+               f"(need {options.min_registered_fraction:.0%})")
+    elif rec.num_points3D() < options.min_points:
+        why = f"known poses triangulated only {rec.num_points3D()} points (need {options.min_points})"
+    logger.info("%s: known poses from %s: %d cameras registered, %d points, %.1f s%s", scene, reference.scene,
+                len(model.registered), rec.num_points3D(), model.seconds, f" ({why})" if why else "")
+    return model, why

@@ -1,0 +1,130 @@
+"""Later scenes triangulated with the cameras held at the reference scene's poses (projector.known_scene), against
+the same scenes mapped with GLOMAP, and the fallback to GLOMAP when the known-pose model is too poor."""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dome_calib.bundle_io import load_bundle
+from projector.known_scene import KNOWN_FILTER_MAX_REPROJ_ERROR_PX, KnownPoseOptions, map_known_scene
+from projector.known_poses import PNP_MAX_ERROR_PX
+from projector.sfm import SfmOptions, report_dict, run_sfm
+
+CAMERAS = ["00_00", "01_01", "01_02", "01_03", "01_04", "01_05", "01_06", "01_11", "01_12"]
+ONLY_LATER = "01_05"  # not in scene_01 (the reference): registered by absolute pose in scene_02
+ONLY_FIRST = "01_12"  # not in scene_02, so both scenes have 8 images and scene_01 wins the tie by name
+CENTRE_TOL_CM = 1.0  # SfM centres after the similarity to the (ground-truth) prior, before the bundle adjustment
+TOL_PX = 1e-6
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory) -> Path:
+    from dome_calib.synth.capture import SynthOptions, synthesize
+
+    capture = tmp_path_factory.mktemp("known") / "capture"
+    synthesize(capture, SynthOptions(preset="full", n_scenes=2, seed=1, cameras=CAMERAS, workers=2))
+    (capture / "scenes" / "scene_01" / f"{ONLY_LATER}.png").unlink()
+    (capture / "scenes" / "scene_02" / f"{ONLY_FIRST}.png").unlink()
+    return capture
+
+
+def _run(capture: Path, work: Path, **known) -> object:
+    options = SfmOptions(show_progress=False, num_workers=2)
+    for k, v in known.items():
+        setattr(options.known_poses, k, v)
+    return run_sfm(capture, work, options, prior=load_bundle(capture / "ground_truth"))
+
+
+@pytest.fixture(scope="module")
+def runs(capture, tmp_path_factory):
+    """The known-pose run, then a GLOMAP-only run on a copy of its databases (features and matches reused)."""
+    work = tmp_path_factory.mktemp("known_work")
+    known = _run(capture, work)
+    glomap_work = tmp_path_factory.mktemp("glomap_work")
+    for scene in ("scene_01", "scene_02"):
+        (glomap_work / scene).mkdir()
+        shutil.copy(work / scene / "database.db", glomap_work / scene / "database.db")
+    glomap = _run(capture, glomap_work, enabled=False)
+    return known, glomap, work
+
+
+def test_later_scene_takes_the_known_pose_path(runs):
+    known, glomap, work = runs
+    scenes = report_dict(known)["scenes"]
+    assert scenes["scene_01"]["mapping"] == "glomap"
+    assert scenes["scene_02"]["mapping"] == "known poses (from scene_01)"
+    assert "fallback" not in scenes["scene_02"]
+    assert (work / "scene_02" / "known" / "model").is_dir() and not (work / "scene_02" / "sparse").exists()
+    assert all(s["mapping"] == "glomap" for s in report_dict(glomap)["scenes"].values())
+    # the camera the reference lacks is registered by absolute pose; every camera ends up calibrated
+    assert ONLY_LATER in known.scenes["scene_02"].model.registered
+    assert sorted(known.cameras) == sorted(CAMERAS) and not known.unregistered
+
+
+def test_cameras_points_and_observations_match_a_glomap_run(runs, capture):
+    known, glomap, _ = runs
+    gt = load_bundle(capture / "ground_truth").cameras
+    for result in (known, glomap):
+        err_cm = {n: float(np.linalg.norm(result.cameras[n].center_cm - gt[n].center_cm)) for n in CAMERAS}
+        assert max(err_cm.values()) < CENTRE_TOL_CM, err_cm
+    a, b = report_dict(known)["scenes"]["scene_02"], report_dict(glomap)["scenes"]["scene_02"]
+    assert a["registered"] == b["registered"] == len(CAMERAS) - 1
+    # the bundle adjustment gets about the same observation set as from GLOMAP's own scene
+    assert 0.8 < a["observations"] / b["observations"] < 1.25, (a, b)
+    assert 0.8 < a["points"] / b["points"] < 1.25, (a, b)
+    # the known-pose scene is in the reference's frame: the merge's alignment is the identity
+    al = known.scene_alignment["scene_02"]
+    assert abs(al.scale - 1) < 1e-3 and np.allclose(al.rotation, np.eye(3), atol=1e-3)
+
+
+def test_every_observation_within_the_filter_thresholds(runs):
+    """Invariant of the known-pose model: triangulated observations within the filter's error, absolute-pose
+    observations within the RANSAC threshold; tracks of at least 2 views. (A track may hold two keypoints of one
+    image, as GLOMAP's do: about 6 % of the points on the panel bench, either way.)"""
+    known, _, _ = runs
+    rec = known.scenes["scene_02"].model.reconstruction
+    limit = max(KNOWN_FILTER_MAX_REPROJ_ERROR_PX, PNP_MAX_ERROR_PX) + TOL_PX
+    worst = 0.0
+    for p in rec.points3D.values():
+        assert len({el.image_id for el in p.track.elements}) >= 2
+        for el in p.track.elements:
+            image = rec.image(el.image_id)
+            uv = rec.camera(image.camera_id).img_from_cam(image.cam_from_world() * p.xyz)
+            worst = max(worst, float(np.linalg.norm(uv - image.points2D[el.point2D_idx].xy)))
+    assert 0 < worst <= limit
+
+
+def test_forced_fallback_maps_with_glomap_and_says_why(capture, runs, tmp_path):
+    _, _, work = runs
+    for scene in ("scene_01", "scene_02"):
+        (tmp_path / scene).mkdir()
+        shutil.copy(work / scene / "database.db", tmp_path / scene / "database.db")
+    result = _run(capture, tmp_path, min_registered_fraction=1.01)
+    s2 = report_dict(result)["scenes"]["scene_02"]
+    assert s2["mapping"] == "glomap" and "known poses registered only" in s2["fallback"]
+    assert (tmp_path / "scene_02" / "sparse" / "0").is_dir()
+    assert sorted(result.cameras) == sorted(CAMERAS)
+    saved = json.loads((tmp_path / "sfm_report.json").read_text())
+    assert saved["scenes"]["scene_02"]["fallback"] == s2["fallback"]
+
+
+def test_rerun_reuses_the_model_only_for_the_same_reference(runs, capture):
+    known, _, work = runs
+    reference = known.scenes["scene_01"].model
+    stamp = work / "scene_02" / "known" / "reference.json"
+    before = stamp.read_text()
+    model_file = work / "scene_02" / "known" / "model" / "points3D.bin"
+    mtime = model_file.stat().st_mtime_ns
+    args = (work / "scene_02" / "database.db", capture / "scenes" / "scene_02", work / "scene_02" / "known")
+    again, why = map_known_scene(*args, reference, KnownPoseOptions(), scene="scene_02")
+    assert why is None and model_file.stat().st_mtime_ns == mtime and stamp.read_text() == before
+    assert again.registered == known.scenes["scene_02"].model.registered
+    # another reference (one camera fewer held): the model is made again and registers that camera by pose
+    other = type(reference)(scene=reference.scene, reconstruction=reference.reconstruction,
+                            registered=[n for n in reference.registered if n != "01_01"])
+    redone, why = map_known_scene(*args, other, KnownPoseOptions(), scene="scene_02")
+    assert why is None and stamp.read_text() != before and "01_01" in redone.registered
