@@ -6,9 +6,10 @@ Stages (each also callable on its own, hloc style): :func:`projector.features.ex
 :func:`projector.merge.merge_scenes`.
 
 Order: the features of every scene; then the reference scene (the most images with features, ties by name) is
-matched and mapped with GLOMAP; every other scene is matched and triangulated with the cameras held at the
-reference's poses (:mod:`projector.known_scene`), or mapped with GLOMAP when that gives too little (logged, and
-said in the report) or when ``SfmOptions.known_poses.enabled`` is off.
+matched and mapped with GLOMAP; every other scene is matched and mapped with GLOMAP too, or, when
+``SfmOptions.known_poses.enabled`` is on (opt-in: faster, but measured noisier on the full dome, see the README),
+triangulated with the cameras held at the reference's poses (:mod:`projector.known_scene`), falling back on GLOMAP
+when that gives too little (logged, and said in the report).
 
 Work folder layout (everything resumable)::
 

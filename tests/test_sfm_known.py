@@ -43,7 +43,7 @@ def _run(capture: Path, work: Path, **known) -> object:
 def runs(capture, tmp_path_factory):
     """The known-pose run, then a GLOMAP-only run on a copy of its databases (features and matches reused)."""
     work = tmp_path_factory.mktemp("known_work")
-    known = _run(capture, work)
+    known = _run(capture, work, enabled=True)
     glomap_work = tmp_path_factory.mktemp("glomap_work")
     for scene in ("scene_01", "scene_02"):
         (glomap_work / scene).mkdir()
@@ -103,7 +103,7 @@ def test_forced_fallback_maps_with_glomap_and_says_why(capture, runs, tmp_path):
     for scene in ("scene_01", "scene_02"):
         (tmp_path / scene).mkdir()
         shutil.copy(work / scene / "database.db", tmp_path / scene / "database.db")
-    result = _run(capture, tmp_path, min_registered_fraction=1.01)
+    result = _run(capture, tmp_path, enabled=True, min_registered_fraction=1.01)
     s2 = report_dict(result)["scenes"]["scene_02"]
     assert s2["mapping"] == "glomap" and "known poses registered only" in s2["fallback"]
     assert (tmp_path / "scene_02" / "sparse" / "0").is_dir()
