@@ -140,15 +140,19 @@ class CameraLensModel:
 
 @dataclass(kw_only=True)
 class LensModel:
-    """Per camera (by name) the chosen lens model; ``noise_px``: the pixel sigma the tests used; ``solves``:
-    bundle adjustments run; ``note``: why nothing was selected, if so."""
+    """Per camera (by name) the chosen lens model; ``iterations``: the Levenberg-Marquardt iterations of each
+    bundle adjustment run (``solves`` of them); ``noise_px``: the pixel sigma the tests used; ``note``: why nothing
+    was selected, if so."""
 
     cameras: dict[str, CameraLensModel]
     options: LensModelOptions
-    solves: int
+    iterations: list[int]
     noise_px: float | None = None
     note: str = ""
-    iterations: list[int] = field(default_factory=list)  # Levenberg-Marquardt iterations of each solve
+
+    @property
+    def solves(self) -> int:
+        return len(self.iterations)
 
     def as_dict(self) -> dict:
         o = self.options
@@ -306,16 +310,17 @@ def select_lens_model(initial: BAProblem, solve: Callable[[BAProblem, BAResult |
     lens_cols = [CAMERA_PARAMS.index(t) for t in LENS_TERMS if t not in FOCAL_TERMS]
     judged = [i for i in range(initial.n_cameras) if candidate[i, lens_cols].any()]
     if not judged:  # nothing to choose (e.g. every lens term held by the caller)
-        return solve(initial, None), _lens_model(initial, candidate, {}, options, 1, None)
+        result = solve(initial, None)
+        return result, _lens_model(initial, candidate, {}, options, [len(result.iterations)], None)
     smallest = initial.copy()
     smallest.free[:, lens_cols] = False
-    point, solves = solve(smallest, None), 1
+    point = solve(smallest, None)
     iterations = [len(point.iterations)]
     free = smallest.free
     for _ in range(MAX_PASSES):
         model = QuadraticModel.at(point, candidate, n_threads=n_threads)
         chosen, decisions = _walk(model, point, initial, candidate, judged, options)
-        if solves > 1 and np.array_equal(chosen, free):
+        if len(iterations) > 1 and np.array_equal(chosen, free):
             break  # the chosen model's own solution confirms it
         free = chosen
         logger.info("lens model: %d of %d candidate lens terms freed (noise %.3f px)",
@@ -323,15 +328,13 @@ def select_lens_model(initial: BAProblem, solve: Callable[[BAProblem, BAResult |
         trial = point.problem.copy()
         trial.camera_params[~free] = initial.camera_params[~free]  # held terms back at the prior
         trial.free = free.copy()
-        point, solves = solve(trial, point), solves + 1
+        point = solve(trial, point)
         iterations.append(len(point.iterations))
-    chosen_model = _lens_model(initial, free, decisions, options, solves, model.noise_px)
-    chosen_model.iterations = iterations
-    return point, chosen_model
+    return point, _lens_model(initial, free, decisions, options, iterations, model.noise_px)
 
 
 def _lens_model(initial: BAProblem, free: np.ndarray, decisions: dict[str, list[GroupDecision]],
-                options: LensModelOptions, solves: int, noise_px: float | None) -> LensModel:
+                options: LensModelOptions, iterations: list[int], noise_px: float | None) -> LensModel:
     cameras = {}
     for i, name in enumerate(initial.camera_names):
         rows = list(decisions.get(name, []))
@@ -348,5 +351,5 @@ def _lens_model(initial: BAProblem, free: np.ndarray, decisions: dict[str, list[
         cameras[name] = CameraLensModel(
             name=name, free=[t for t in LENS_TERMS if free[i, CAMERA_PARAMS.index(t)]],
             held=[t for t in LENS_TERMS if not free[i, CAMERA_PARAMS.index(t)]], decisions=rows)
-    return LensModel(cameras=cameras, options=options, solves=solves, noise_px=noise_px,
+    return LensModel(cameras=cameras, options=options, iterations=list(iterations), noise_px=noise_px,
                      note="" if noise_px is not None else "no lens term to choose: the caller's free mask is used")

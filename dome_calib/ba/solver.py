@@ -194,19 +194,13 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndar
     rounds = options.outlier_rounds
     st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points,
                          n_groups=options.n_camera_groups)
-    if warm:  # in the basin, gross outliers known: the final loss on the given inliers, to the first stage's
-        # looser tolerance when rounds follow (they re-judge and converge it; measured on the panel dome's
-        # lens-model solve: 24 iterations instead of 28 for the same minimum)
-        state, reason, lam = _levenberg_marquardt(problem, state, st, options, loss=LossKind(options.final_loss),
-                                                  scale=options.final_loss_scale_px,
-                                                  ftol=options.first_stage_function_tolerance if rounds
-                                                  else options.function_tolerance, stage=0,
-                                                  lam=options.initial_lambda)
-    else:
-        ftol = options.first_stage_function_tolerance if rounds else options.function_tolerance
-        state, reason, lam = _levenberg_marquardt(problem, state, st, options, loss=LossKind(options.loss),
-                                                  scale=options.loss_scale_px, ftol=ftol, stage=0,
-                                                  lam=options.initial_lambda)
+    # stage 0: cold, the robust loss on everything until the basin is found; warm (in the basin, gross outliers
+    # known), the final loss on the given inliers. Both to the first stage's looser tolerance when rounds follow
+    # (they re-judge and converge it; measured on the panel dome's warm lens-model solve: 24 iterations, not 28)
+    loss, scale = (options.final_loss, options.final_loss_scale_px) if warm else (options.loss, options.loss_scale_px)
+    ftol = options.first_stage_function_tolerance if rounds else options.function_tolerance
+    state, reason, lam = _levenberg_marquardt(problem, state, st, options, loss=LossKind(loss), scale=scale,
+                                              ftol=ftol, stage=0, lam=options.initial_lambda)
     reasons = [reason]
     threshold_px = None
     for rnd in range(1, rounds + 1):
