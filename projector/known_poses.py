@@ -40,6 +40,18 @@ class Registration:
     keypoint_idx: np.ndarray  # (N,) the observations' keypoint indices in the camera's image of the database
 
 
+def add_posed_image(rec: pycolmap.Reconstruction, db: pycolmap.Database, db_image: pycolmap.Image,
+                    camera: Camera) -> None:
+    """Put a database image into ``rec`` at ``camera``'s pose and intrinsics, with its keypoints (no observations)."""
+    colmap_cam = to_colmap_camera(camera)
+    colmap_cam.camera_id = db_image.camera_id
+    rec.add_camera_with_trivial_rig(colmap_cam)
+    keypoints = np.asarray(db.read_keypoints(db_image.image_id)[:, :2], dtype=np.float64)
+    image = pycolmap.Image(name=db_image.name, keypoints=keypoints, camera_id=db_image.camera_id,
+                           image_id=db_image.image_id)
+    rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(camera.R), camera.t_cm))
+
+
 def triangulate_known(database_path: str | Path, image_dir: str | Path, output_dir: str | Path,
                       cameras: Mapping[str, Camera], names: Iterable[str],
                       options: pycolmap.IncrementalPipelineOptions | None = None) -> pycolmap.Reconstruction:
@@ -49,15 +61,9 @@ def triangulate_known(database_path: str | Path, image_dir: str | Path, output_d
     names = set(names)
     rec = pycolmap.Reconstruction()
     with pycolmap.Database.open(str(database_path)) as db:
-        images = [im for im in db.read_all_images() if camera_of_image(im.name) in names]
-        for im in images:
-            cam = cameras[camera_of_image(im.name)]
-            colmap_cam = to_colmap_camera(cam)
-            colmap_cam.camera_id = im.camera_id
-            rec.add_camera_with_trivial_rig(colmap_cam)
-            keypoints = np.asarray(db.read_keypoints(im.image_id)[:, :2], dtype=np.float64)
-            image = pycolmap.Image(name=im.name, keypoints=keypoints, camera_id=im.camera_id, image_id=im.image_id)
-            rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(cam.R), cam.t_cm))
+        for im in db.read_all_images():
+            if camera_of_image(im.name) in names:
+                add_posed_image(rec, db, im, cameras[camera_of_image(im.name)])
     output_dir = Path(output_dir)
     if output_dir.exists():
         shutil.rmtree(output_dir)

@@ -34,8 +34,8 @@ import pycolmap
 
 from dome_calib.bundle import Camera, camera_type_from_name
 from dome_calib.io_utils import atomic_write_text
-from projector.database import camera_of_image, intrinsics_from_colmap, to_colmap_camera
-from projector.known_poses import register_cameras, triangulate_known, verified_partners
+from projector.database import camera_of_image, intrinsics_from_colmap
+from projector.known_poses import add_posed_image, register_cameras, triangulate_known, verified_partners
 from projector.mapping import SceneModel, describe_model
 
 logger = logging.getLogger(__name__)
@@ -130,26 +130,18 @@ def _add_registered(rec: pycolmap.Reconstruction, database_path: Path, regs: dic
     """Put the cameras registered by absolute pose into ``rec``: image, pose, and their inlier observations."""
     with pycolmap.Database.open(str(database_path)) as db:
         for name, reg in sorted(regs.items()):
-            image_id = ids[name]
-            db_image = db.read_image(image_id)
-            colmap_cam = to_colmap_camera(reg.camera)
-            colmap_cam.camera_id = db_image.camera_id
-            rec.add_camera_with_trivial_rig(colmap_cam)
-            keypoints = np.asarray(db.read_keypoints(image_id)[:, :2], dtype=np.float64)
-            image = pycolmap.Image(name=db_image.name, keypoints=keypoints, camera_id=db_image.camera_id,
-                                   image_id=image_id)
-            rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(reg.camera.R),
-                                                                       reg.camera.t_cm))
+            add_posed_image(rec, db, db.read_image(ids[name]), reg.camera)
             for kp, pid in zip(reg.keypoint_idx, reg.point3D_ids):
-                rec.add_observation(int(pid), pycolmap.TrackElement(image_id, int(kp)))
+                rec.add_observation(int(pid), pycolmap.TrackElement(ids[name], int(kp)))
 
 
-def _load(folder: Path, digest: str) -> pycolmap.Reconstruction | None:
-    stamp = folder / "reference.json"
+def _load(folder: Path, digest: str) -> tuple[pycolmap.Reconstruction, dict[str, str]] | None:
+    """The saved model and its absolute-pose failures, if they were made from the reference of ``digest``."""
     try:
-        if json.loads(stamp.read_text())["digest"] != digest:
+        stamp = json.loads((folder / "reference.json").read_text())
+        if stamp["digest"] != digest:
             return None
-        return pycolmap.Reconstruction(str(folder / "model"))
+        return pycolmap.Reconstruction(str(folder / "model")), stamp.get("absolute_pose_failures", {})
     except (OSError, ValueError, KeyError):
         return None
 
@@ -164,9 +156,9 @@ def map_known_scene(database_path: str | Path, image_dir: str | Path, output_dir
     scene = scene or database_path.parent.name
     t0 = time.perf_counter()
     digest = reference_digest(reference)
-    rec = _load(output_dir, digest) if options.reuse else None
-    pnp_failed: dict[str, str] = {}
-    if rec is not None:
+    saved = _load(output_dir, digest) if options.reuse else None
+    if saved is not None:
+        rec, pnp_failed = saved
         logger.info("%s: reusing the known-pose model in %s", scene, output_dir)
     else:
         held = reference_cameras(reference)
@@ -185,8 +177,6 @@ def map_known_scene(database_path: str | Path, image_dir: str | Path, output_dir
         staging.rename(output_dir / "model")
         atomic_write_text(output_dir / "reference.json", json.dumps({"reference": reference.scene, "digest": digest,
                                                                       "absolute_pose_failures": pnp_failed}, indent=1))
-    if not pnp_failed and (output_dir / "reference.json").exists():
-        pnp_failed = json.loads((output_dir / "reference.json").read_text()).get("absolute_pose_failures", {})
     model = describe_model(rec, database_path, scene, options.min_points_per_image,
                            reasons={n: f"absolute pose against the points of {reference.scene}'s cameras: {why}"
                                     for n, why in pnp_failed.items()})
