@@ -113,7 +113,7 @@ def sim3_rotation(tgt_from_src: pycolmap.Sim3d) -> np.ndarray:
     return np.asarray(tgt_from_src.rotation.matrix())
 
 
-def _rigid_fit(src: np.ndarray, tgt: np.ndarray) -> pycolmap.Sim3d:
+def rigid_fit(src: np.ndarray, tgt: np.ndarray) -> pycolmap.Sim3d:
     """Least-squares rotation + translation (scale 1): Kabsch on centred points."""
     mu_s, mu_t = src.mean(axis=0), tgt.mean(axis=0)
     U, _, Vt = np.linalg.svd((tgt - mu_t).T @ (src - mu_s))
@@ -146,10 +146,10 @@ def align_points(src: np.ndarray, tgt: np.ndarray, options: AlignOptions | None 
     if options.estimate_scale:
         sim = pycolmap.estimate_sim3d(src[inliers], tgt[inliers]) or found["tgt_from_src"]
     else:
-        sim = _rigid_fit(src[inliers], tgt[inliers])
+        sim = rigid_fit(src[inliers], tgt[inliers])
         inliers = np.linalg.norm(sim3_apply(sim, src) - tgt, axis=1) <= options.max_error_cm
         if inliers.sum() >= MIN_SHARED_CAMERAS:
-            sim = _rigid_fit(src[inliers], tgt[inliers])
+            sim = rigid_fit(src[inliers], tgt[inliers])
     return sim, inliers
 
 

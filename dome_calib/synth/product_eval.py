@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dome_calib.align import align_cameras, sim3_rotation
+from dome_calib.align import align_cameras, rigid_fit, sim3_apply
 from dome_calib.bundle import Bundle
 from dome_calib.recon.formats import load_detection_streams
 from dome_calib.recon.project import view_set
@@ -93,16 +93,7 @@ def sync_errors(produced: Bundle, session: Path) -> dict[str, dict]:
 
 def _world_to_truth(produced: Bundle, truth: Bundle):
     al = align_cameras(produced.cameras, truth.cameras)
-    R, t, s = sim3_rotation(al.tgt_from_src), np.asarray(al.tgt_from_src.translation), float(al.tgt_from_src.scale)
-    return lambda X: s * X @ R.T + t
-
-
-def _rigid(src: np.ndarray, tgt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares rotation R and translation t with ``tgt ~ src @ R.T + t`` (Kabsch on (N, 3) points)."""
-    mu_s, mu_t = src.mean(axis=0), tgt.mean(axis=0)
-    U, _, Vt = np.linalg.svd((tgt - mu_t).T @ (src - mu_s))
-    R = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-    return R, mu_t - mu_s @ R.T
+    return lambda X: sim3_apply(al.tgt_from_src, X)
 
 
 def session_rigid_fit(X_cm: np.ndarray, X_true_cm: np.ndarray, *, gate_mm: float = GROSS_JOINT_ERROR_MM):
@@ -113,12 +104,12 @@ def session_rigid_fit(X_cm: np.ndarray, X_true_cm: np.ndarray, *, gate_mm: float
     """
     ok = np.all(np.isfinite(X_cm), axis=-1)
     src, tgt = X_cm[ok], X_true_cm[ok]
-    R, t = _rigid(src, tgt)
+    fit = rigid_fit(src, tgt)
     for _ in range(2):
-        keep = np.linalg.norm(src @ R.T + t - tgt, axis=1) * 10.0 <= gate_mm
+        keep = np.linalg.norm(sim3_apply(fit, src) - tgt, axis=1) * 10.0 <= gate_mm
         if keep.sum() >= 3:
-            R, t = _rigid(src[keep], tgt[keep])
-    return lambda X: X @ R.T + t
+            fit = rigid_fit(src[keep], tgt[keep])
+    return lambda X: sim3_apply(fit, X)
 
 
 def pa_mpjpe_mm(X_cm: np.ndarray, X_true_cm: np.ndarray) -> float:
