@@ -201,8 +201,9 @@ def quick(args, root: Path, truth: Bundle) -> None:
     ours = accuracy(result.bundle.cameras, moved, names)
     emit(bench="dome", stage="quick", seconds_total=round(sum(result.stage_seconds.values()), 1),
          resumed_stages=result.resumed,
-         seconds={k: round(v, 1) for k, v in result.stage_seconds.items()}, found=found,
-         found_exactly_the_changed=found == names, missed=sorted(set(names) - set(found)),
+         seconds={k: round(v, 1) for k, v in result.stage_seconds.items()},
+         match_split_s={k: round(v, 1) for k, v in result.stats["quick"]["seconds"].items()}, found=found,
+         load_average_1min=os.getloadavg()[0], found_exactly_the_changed=found == names, missed=sorted(set(names) - set(found)),
          given_new_intrinsics=sorted(n for n, c in result.changes.items() if any("replaced?" in r for r in c.reasons)),
          counts={k: v for k, v in result.stats["quick"].items() if k not in ("suspects", "seconds")},
          false_alarms=sorted(set(found) - set(names)), **ours)
