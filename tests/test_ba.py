@@ -286,7 +286,13 @@ def test_warm_start_skips_the_robust_stage_and_reaches_the_cold_solution(cameras
     common = warm.used & cold.used
     assert common.sum() >= 0.99 * cold.used.sum()
     cost = lambda r: 0.5 * np.sum(r.residuals_px[common] ** 2)  # noqa: E731
-    assert cost(warm) == pytest.approx(cost(cold), rel=1e-3)
+    # each is the minimum of its own set; the few observations only one of them uses (each up to 0.5 x 2.3^2 px^2
+    # at the threshold) move the other's cost on the common set by ~1e-3; re-converged on the common set, both
+    # reach one minimum
+    assert cost(warm) == pytest.approx(cost(cold), rel=2e-3)
+    strict = quick(outlier_rounds=0, loss="trivial", function_tolerance=1e-12)
+    on_common = [bundle_adjust(r.problem, strict, start_inlier=common).cost for r in (warm, cold)]
+    assert on_common[0] == pytest.approx(on_common[1], rel=1e-6)
     assert not np.any(warm.used & sp.is_outlier & ~cold.inlier)
     with pytest.raises(ValueError, match="start_inlier"):
         bundle_adjust(sp.start, quick(), start_inlier=cold.inlier[:-1])

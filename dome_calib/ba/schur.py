@@ -340,13 +340,44 @@ def point_step(st: Structure, lin: Linearization, Li: np.ndarray, y_blocks: np.n
     return dp
 
 
+@dataclass(kw_only=True)
+class ReducedSystem:
+    """The damped reduced camera system of one linearisation, kept so that a rejected step can be retried with
+    more camera damping without eliminating the points again: S (A*15, A*15) and rhs as :func:`reduced_system`,
+    built with damping ``lam`` on cameras and points; Li, y_blocks for the back-substitution."""
+
+    S: np.ndarray
+    rhs: np.ndarray
+    Li: np.ndarray
+    y_blocks: np.ndarray
+    lam: float
+
+
+def build_reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: int = 2) -> ReducedSystem:
+    S, rhs, Li, y_blocks = reduced_system(st, lin, lam, n_threads=n_threads)
+    return ReducedSystem(S=S, rhs=rhs, Li=Li, y_blocks=y_blocks, lam=lam)
+
+
+def solve_reduced(st: Structure, lin: Linearization, system: ReducedSystem, lam_cameras: float, *,
+                  n_threads: int = 2, keep: bool = True) -> Step:
+    """The step of ``system`` with the cameras damped by ``lam_cameras`` instead of ``system.lam`` (the points
+    keep ``system.lam``): the exact solution of (H + Lambda) d = -g with Lambda = blockdiag(lam_cameras D_c,
+    system.lam D_p), so the predicted decrease is exact for that damping. ``keep``: leave ``system.S`` intact
+    (factorise a copy) for another retry."""
+    A = len(st.active_cameras)
+    S = system.S.copy() if keep else system.S
+    if lam_cameras != system.lam:
+        d = np.arange(A * 15)
+        S[d, d] += (lam_cameras - system.lam) * lin.D_c.ravel()
+    dc = solve_free(S, system.rhs, st.free_flat, n_threads=n_threads).reshape(A, 15)
+    del S
+    dp = point_step(st, lin, system.Li, system.y_blocks, dc)
+    g_dot = float(np.sum(lin.g_c * dc) + np.sum(lin.g_p * dp))
+    d_dot = float(lam_cameras * np.sum(lin.D_c * dc * dc) + system.lam * np.sum(lin.D_p * dp * dp))
+    return Step(dc=dc, dp=dp, predicted_decrease=0.5 * (-g_dot + d_dot))
+
+
 def solve_step(st: Structure, lin: Linearization, lam: float, *, n_threads: int = 2) -> Step:
     """Solve the damped normal equations (H + lam D) d = -g by the Schur complement on the points."""
-    A = len(st.active_cameras)
-    S, rhs, Li, y_blocks = reduced_system(st, lin, lam, n_threads=n_threads)
-    dc = solve_free(S, rhs, st.free_flat, n_threads=n_threads).reshape(A, 15)
-    del S
-    dp = point_step(st, lin, Li, y_blocks, dc)
-    g_dot = float(np.sum(lin.g_c * dc) + np.sum(lin.g_p * dp))
-    d_dot = float(np.sum(lin.D_c * dc * dc) + np.sum(lin.D_p * dp * dp))
-    return Step(dc=dc, dp=dp, predicted_decrease=0.5 * (-g_dot + lam * d_dot))
+    return solve_reduced(st, lin, build_reduced_system(st, lin, lam, n_threads=n_threads), lam, n_threads=n_threads,
+                         keep=False)

@@ -37,11 +37,13 @@ from dome_calib.ba.gauge import Gauge, GaugeMode, choose_gauge
 from dome_calib.ba.problem import BAProblem
 from dome_calib.ba.result import BAResult, CameraUncertainty, IterationLog, camera_statistics
 from dome_calib.ba.robust import LossKind, robust_cost_and_weight, robust_sigma_px
-from dome_calib.ba.schur import Structure, build_structure, linearize, solve_step
+from dome_calib.ba.schur import Structure, build_reduced_system, build_structure, linearize, solve_reduced
 from dome_calib.ba.uncertainty import camera_uncertainty
 
 logger = logging.getLogger(__name__)
 _MIN_LAMBDA = 1e-12
+#: rejected steps in a row retried on the same reduced system (camera damping raised, points damped as before)
+CHEAP_RETRIES = 3
 
 
 @dataclass(kw_only=True)
@@ -143,9 +145,18 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
             reason = "gradient_tolerance"
             break
         rejections = 0
+        system = None
         while True:
             try:
-                step = solve_step(st, lin, lam, n_threads=options.n_threads)
+                # in the basin (least squares), a rejected step is retried with more damping on the cameras only
+                # (a new factorisation of the kept reduced system, not a new elimination of the points); after
+                # CHEAP_RETRIES, from scratch. Far from it (the robust stage), where the points' own steps can be
+                # what fails, always from scratch (a test with 3 % outliers kept 24 wrongly rejected inliers)
+                cheap = CHEAP_RETRIES if loss is LossKind.TRIVIAL else 0
+                if system is None or rejections % (cheap + 1) == 0:
+                    system = None
+                    system = build_reduced_system(st, lin, lam, n_threads=options.n_threads)
+                step = solve_reduced(st, lin, system, lam, n_threads=options.n_threads)
                 new_state = _apply(state, st, step.dc, step.dp)
                 new_cost, new_r = _cost(new_state, problem, st, loss, scale)
             except np.linalg.LinAlgError:
