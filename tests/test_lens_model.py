@@ -184,6 +184,38 @@ def test_image_centre_only_holds_k3_at_an_exact_prior():
     assert worst_chosen < worst_free  # extrapolating a free k3 to the corners is what the selection avoids
 
 
+@pytest.mark.parametrize("settled_fraction, solves", [(0.05, 2), (0.0, 3)])
+def test_a_pass_flipping_few_terms_keeps_the_solved_choice(monkeypatch, settled_fraction, solves):
+    """A second pass that would flip one term (of the ring's judged lens terms) ends the selection at 5 % (the
+    solved choice and its own decisions are returned), and is solved again at 0."""
+    import dome_calib.ba.lens_model as lens_model_module
+    from dome_calib.ba.lens_model import select_lens_model, warm_solver
+    from dome_calib.ba.problem import CAMERA_PARAMS
+
+    problem, _ = _ring_problem(prior_off=True, inner_fraction=1.0, n_points=600)
+    K3 = CAMERA_PARAMS.index("k3")
+    walks: list[bool] = []  # camera 0's k3 free, per pass
+    real_walk = lens_model_module._walk
+
+    def walk(*args, **kwargs):
+        free, decisions = real_walk(*args, **kwargs)
+        if len(walks) == 1:  # the second pass flips camera 0's k3
+            free = free.copy()
+            free[0, K3] = not free[0, K3]
+        walks.append(bool(free[0, K3]))
+        return free, decisions
+
+    monkeypatch.setattr(lens_model_module, "_walk", walk)
+    options = LensModelOptions(settled_fraction=settled_fraction)
+    result, lens = select_lens_model(problem, warm_solver(BAOptions(compute_uncertainty=False)), options)
+    assert lens.solves == solves if solves == 2 else lens.solves >= solves
+    for i, name in enumerate(problem.camera_names):  # what is reported is what was solved
+        solved = [t for t in LENS_TERMS if result.problem.free[i, CAMERA_PARAMS.index(t)]]
+        assert lens.cameras[name].free == solved
+    if solves == 2:  # settled: the first pass's choice, not the flip
+        assert result.problem.free[0, K3] == walks[0] != walks[1]
+
+
 def test_without_uncertainties_the_stage_keeps_the_callers_mask():
     """The quick path's solver options (no covariance): one solve, the given free mask, no lens model."""
     problem, _ = _ring_problem(prior_off=False, inner_fraction=0.5, n_points=600)
