@@ -62,7 +62,7 @@ class Structure:
 
 
 def build_structure(camera_index: np.ndarray, point_index: np.ndarray, obs_mask: np.ndarray, free: np.ndarray,
-                    n_points: int, *, n_groups: int = 4) -> Structure:
+                    n_points: int, *, n_groups: int = 16) -> Structure:
     """Sort the kept observations, drop points seen fewer than twice, and index the free camera parameters."""
     keep = np.flatnonzero(obs_mask)
     counts = np.bincount(point_index[keep], minlength=n_points)
@@ -160,16 +160,23 @@ def chol3_inverse(V: np.ndarray) -> np.ndarray:
     return Li
 
 
+def free_columns(st: Structure) -> np.ndarray:
+    """The camera-parameter columns (of 15) free in at least one active camera: every other column of every camera
+    Jacobian is zero, so the products leave it out (the smallest lens model frees 8 of 15: Y Y^T ~3.5x cheaper)."""
+    return np.flatnonzero(st.free.any(axis=0)) if len(st.free) else np.zeros(0, dtype=np.int64)
+
+
 def _yyt_into(S4: np.ndarray, y_blocks: np.ndarray, st: Structure, n_threads: int) -> None:
-    """S4 (A, 15, A, 15) -= Y Y^T with Y given by camera-sorted (Ma_active, 15, 3) blocks."""
+    """S4 (A, k, A, k) -= Y Y^T with Y given by camera-sorted (Ma_active, k, 3) blocks."""
     P, g = st.n_points, st.groups
     pt_act = st.pt[st.act]
+    nk = y_blocks.shape[1]
 
     def group_matrix(k: int) -> sp.bsr_matrix:
         a0, a1 = g[k], g[k + 1]
         s, e = st.act_starts[a0], st.act_starts[a1]
         return sp.bsr_matrix((y_blocks[s:e], pt_act[s:e], st.act_starts[a0:a1 + 1] - s),
-                             shape=(15 * (a1 - a0), 3 * P), copy=False)
+                             shape=(nk * (a1 - a0), 3 * P), copy=False)
 
     n = len(g) - 1
     Ys = [group_matrix(k) for k in range(n)]
@@ -180,8 +187,8 @@ def _yyt_into(S4: np.ndarray, y_blocks: np.ndarray, st: Structure, n_threads: in
     def product(ij: tuple[int, int]) -> None:
         i, j = ij
         R = Ys[i] @ Yts[j]
-        if not isinstance(R, sp.bsr_matrix) or R.blocksize != (15, 15):
-            R = sp.bsr_matrix(R, blocksize=(15, 15))
+        if not isinstance(R, sp.bsr_matrix) or R.blocksize != (nk, nk):
+            R = sp.bsr_matrix(R, blocksize=(nk, nk))
         rows = np.repeat(np.arange(len(R.indptr) - 1), np.diff(R.indptr)) + g[i]
         cols = R.indices + g[j]
         S4[rows, :, cols, :] = -R.data
@@ -208,7 +215,8 @@ class Step:
 def reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: int = 2
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Damped reduced camera system over ALL active-camera parameters: (S (A*15, A*15), rhs (A*15,), L^{-1}
-    (P, 3, 3), y blocks (Ma_active, 15, 3)). Fixed parameters have zero rows and columns."""
+    (P, 3, 3), y blocks (Ma_active, k, 3) over the :func:`free_columns` k). Fixed parameters have zero rows and
+    columns."""
     A = len(st.active_cameras)
     Li = chol3_inverse(lin.V + lam * lin.D_p[:, :, None] * np.eye(3))
     Jp, w = lin.Jp, lin.w
@@ -219,15 +227,26 @@ def reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: 
         m[:, j] = w * sum(Jp[:, l] * Lg[j, l] for l in range(j + 1))
     if not st.act.all():
         m = m[:, :, st.act]
-    yT = lin.Jc[0][:, None, :] * m[0][None] + lin.Jc[1][:, None, :] * m[1][None]  # (15, 3, Ma_active)
+    cols = free_columns(st)
+    Jc0, Jc1 = lin.Jc[0][cols], lin.Jc[1][cols]
+    yT = Jc0[:, None, :] * m[0][None] + Jc1[:, None, :] * m[1][None]  # (k, 3, Ma_active)
+    del Jc0, Jc1
     y_blocks = np.ascontiguousarray(yT.transpose(2, 0, 1))
     h = np.einsum("pjl,pl->pj", Li, lin.g_p)
     hg = h[st.pt[st.act]]
-    rhs = -lin.g_c + _segment_sum(np.einsum("kjm,mj->km", yT, hg), st.cam_local[st.act], A)
+    rhs = -lin.g_c
+    if len(cols):
+        rhs[:, cols] += _segment_sum(np.einsum("kjm,mj->km", yT, hg), st.cam_local[st.act], A)
     del yT
     S = np.zeros((A * 15, A * 15))
     S4 = S.reshape(A, 15, A, 15)
-    _yyt_into(S4, y_blocks, st, n_threads)
+    if len(cols) == 15:
+        _yyt_into(S4, y_blocks, st, n_threads)
+    elif len(cols):
+        compact = np.zeros((A, len(cols), A, len(cols)))
+        _yyt_into(compact, y_blocks, st, n_threads)
+        S4[np.ix_(np.arange(A), cols, np.arange(A), cols)] = compact
+        del compact
     idx = np.arange(A)
     S4[idx, :, idx, :] += lin.U + lam * lin.D_c[:, :, None] * np.eye(15)
     return S, rhs.ravel(), Li, y_blocks
@@ -333,7 +352,7 @@ def point_step(st: Structure, lin: Linearization, Li: np.ndarray, y_blocks: np.n
     """(P, 3) point update that goes with the camera update dc (A, 15) (back-substitution of the Schur
     complement; ``Li``, ``y_blocks`` from :func:`reduced_system`); zero for points that are not refined."""
     h = np.einsum("pjl,pl->pj", Li, lin.g_p)
-    t = np.einsum("mkj,mk->mj", y_blocks, dc[st.cam_local[st.act]])
+    t = np.einsum("mkj,mk->mj", y_blocks, dc[:, free_columns(st)][st.cam_local[st.act]])
     q = _segment_sum(t.T, st.pt[st.act], st.n_points)
     dp = -np.einsum("plj,pl->pj", Li, h + q)
     dp[~st.live_points] = 0.0

@@ -74,7 +74,9 @@ class BAOptions:
     gauge_reference_camera: str | None = None
     gauge_scale_camera: str | None = None
     n_threads: int = 2
-    n_camera_groups: int = 4  # blocks of the Y Y^T product (upper triangle of group pairs is computed)
+    # blocks of the Y Y^T product (upper triangle of group pairs is computed; within a group both triangles, so
+    # finer groups waste less: Y Y^T of the full dome 5.8 s with 4 groups, 4.6 s with 16; the panel 0.51 -> 0.38 s)
+    n_camera_groups: int = 16
     compute_uncertainty: bool = True
 
 
