@@ -49,9 +49,10 @@ class MatchOptions:
     ransac_max_error_px: float = 4.0
     # RANSAC's floor on hypotheses per model (COLMAP: 100). The trial count still grows with the outlier ratio
     # (confidence 0.999), so only clean pairs stop earlier: projector-pattern pairs are ~100 % inliers and need a
-    # few hypotheses, and 100 of each of E, F and H were two thirds of the matching time (full dome, 150 pairs:
-    # 9.9 -> 4.9 ms per pair, inlier sets identical but for one match in one pair, no configuration changed)
-    ransac_min_num_trials: int = 20
+    # few hypotheses, and 100 of each of E, F and H were two thirds of the verification time (full dome, 150
+    # pairs: 9.9 ms per pair with 100, 4.9 with 20, 4.2 with 10; inlier sets identical to 100's but for one match
+    # in one pair, no configuration changed)
+    ransac_min_num_trials: int = 10
     # the most distinctive matches of a pair; verification time grows with the count, and a few hundred
     # well-spread matches per pair are plenty for mapping and the bundle adjustment (None: keep all)
     max_matches_per_pair: int | None = 512
