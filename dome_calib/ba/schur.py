@@ -228,7 +228,7 @@ def reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: 
     if not st.act.all():
         m = m[:, :, st.act]
     cols = free_columns(st)
-    Jc0, Jc1 = lin.Jc[0][cols], lin.Jc[1][cols]
+    Jc0, Jc1 = (lin.Jc[0], lin.Jc[1]) if len(cols) == 15 else (lin.Jc[0][cols], lin.Jc[1][cols])  # views if all
     yT = Jc0[:, None, :] * m[0][None] + Jc1[:, None, :] * m[1][None]  # (k, 3, Ma_active)
     del Jc0, Jc1
     y_blocks = np.ascontiguousarray(yT.transpose(2, 0, 1))
@@ -252,8 +252,8 @@ def reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: 
     return S, rhs.ravel(), Li, y_blocks
 
 
-def _cholesky_solve(S: np.ndarray, b: np.ndarray, n_threads: int) -> np.ndarray:
-    """Solve S x = b (S SPD, overwritten) by dense LAPACK Cholesky.
+def _cholesky_solve(S: np.ndarray, b: np.ndarray, n_threads: int, overwrite: bool = True) -> np.ndarray:
+    """Solve S x = b (S SPD; overwritten if ``overwrite``) by dense LAPACK Cholesky.
 
     Large systems first try a single-precision factor (half the work of double precision) used as the
     preconditioner of a double-precision conjugate-gradient solve on the Jacobi-scaled system, which reaches
@@ -267,7 +267,7 @@ def _cholesky_solve(S: np.ndarray, b: np.ndarray, n_threads: int) -> np.ndarray:
             x = _mixed_precision_solve(S, b)
             if x is not None:
                 return x
-        factor = scipy.linalg.cho_factor(S.T, lower=False, overwrite_a=True, check_finite=False)
+        factor = scipy.linalg.cho_factor(S.T, lower=False, overwrite_a=overwrite, check_finite=False)
         return scipy.linalg.cho_solve(factor, b, check_finite=False)
 
 
@@ -318,10 +318,12 @@ def _mixed_precision_solve(S: np.ndarray, b: np.ndarray, *, rtol: float = 1e-13,
     return None
 
 
-def solve_free(S: np.ndarray, rhs: np.ndarray, free_flat: np.ndarray, *, n_threads: int = 2) -> np.ndarray:
+def solve_free(S: np.ndarray, rhs: np.ndarray, free_flat: np.ndarray, *, n_threads: int = 2,
+               overwrite: bool = True) -> np.ndarray:
     """Solve the reduced system for the free parameters by dense Cholesky; zeros elsewhere.
 
-    Raises numpy.linalg.LinAlgError if the system is not positive definite. ``S`` is overwritten.
+    Raises numpy.linalg.LinAlgError if the system is not positive definite. ``S`` is overwritten, or with
+    ``overwrite`` False only the rows and columns of fixed parameters are (set to the identity's).
     """
     n = len(rhs)
     x = np.zeros(n)
@@ -340,7 +342,7 @@ def solve_free(S: np.ndarray, rhs: np.ndarray, free_flat: np.ndarray, *, n_threa
         Sf = S[np.ix_(free_flat, free_flat)]
         b = rhs[free_flat]
     try:
-        sol = _cholesky_solve(Sf, b, n_threads)
+        sol = _cholesky_solve(Sf, b, n_threads, overwrite=overwrite or not full)
     except scipy.linalg.LinAlgError as exc:
         raise np.linalg.LinAlgError(str(exc)) from None
     x[free_flat] = sol[free_flat] if full else sol
@@ -352,7 +354,8 @@ def point_step(st: Structure, lin: Linearization, Li: np.ndarray, y_blocks: np.n
     """(P, 3) point update that goes with the camera update dc (A, 15) (back-substitution of the Schur
     complement; ``Li``, ``y_blocks`` from :func:`reduced_system`); zero for points that are not refined."""
     h = np.einsum("pjl,pl->pj", Li, lin.g_p)
-    t = np.einsum("mkj,mk->mj", y_blocks, dc[:, free_columns(st)][st.cam_local[st.act]])
+    cols = free_columns(st)
+    t = np.einsum("mkj,mk->mj", y_blocks, (dc if len(cols) == 15 else dc[:, cols])[st.cam_local[st.act]])
     q = _segment_sum(t.T, st.pt[st.act], st.n_points)
     dp = -np.einsum("plj,pl->pj", Li, h + q)
     dp[~st.live_points] = 0.0
@@ -369,26 +372,29 @@ class ReducedSystem:
     rhs: np.ndarray
     Li: np.ndarray
     y_blocks: np.ndarray
-    lam: float
+    lam: float  # the points' damping (and the cameras' as built)
+    lam_cameras: float  # the cameras' damping S holds now
 
 
 def build_reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: int = 2) -> ReducedSystem:
     S, rhs, Li, y_blocks = reduced_system(st, lin, lam, n_threads=n_threads)
-    return ReducedSystem(S=S, rhs=rhs, Li=Li, y_blocks=y_blocks, lam=lam)
+    return ReducedSystem(S=S, rhs=rhs, Li=Li, y_blocks=y_blocks, lam=lam, lam_cameras=lam)
 
 
 def solve_reduced(st: Structure, lin: Linearization, system: ReducedSystem, lam_cameras: float, *,
                   n_threads: int = 2, keep: bool = True) -> Step:
     """The step of ``system`` with the cameras damped by ``lam_cameras`` instead of ``system.lam`` (the points
     keep ``system.lam``): the exact solution of (H + Lambda) d = -g with Lambda = blockdiag(lam_cameras D_c,
-    system.lam D_p), so the predicted decrease is exact for that damping. ``keep``: leave ``system.S`` intact
-    (factorise a copy) for another retry."""
+    system.lam D_p), so the predicted decrease is exact for that damping. ``keep``: ``system.S`` stays usable for
+    another retry (its diagonal is moved to ``lam_cameras`` in place, the factorisation works on a copy only
+    where the solver needs one: no copy of the 7,800-unknown system on the mixed-precision path)."""
     A = len(st.active_cameras)
-    S = system.S.copy() if keep else system.S
-    if lam_cameras != system.lam:
+    S = system.S
+    if lam_cameras != system.lam_cameras:
         d = np.arange(A * 15)
-        S[d, d] += (lam_cameras - system.lam) * lin.D_c.ravel()
-    dc = solve_free(S, system.rhs, st.free_flat, n_threads=n_threads).reshape(A, 15)
+        S[d, d] += (lam_cameras - system.lam_cameras) * lin.D_c.ravel()
+        system.lam_cameras = lam_cameras
+    dc = solve_free(S, system.rhs, st.free_flat, n_threads=n_threads, overwrite=not keep).reshape(A, 15)
     del S
     dp = point_step(st, lin, system.Li, system.y_blocks, dc)
     g_dot = float(np.sum(lin.g_c * dc) + np.sum(lin.g_p * dp))
