@@ -203,7 +203,8 @@ def quick(args, root: Path, truth: Bundle) -> None:
          resumed_stages=result.resumed,
          seconds={k: round(v, 1) for k, v in result.stage_seconds.items()},
          match_split_s={k: round(v, 1) for k, v in result.stats["quick"]["seconds"].items()}, found=found,
-         load_average_1min=os.getloadavg()[0], found_exactly_the_changed=found == names, missed=sorted(set(names) - set(found)),
+         load_average_1min=round(os.getloadavg()[0], 1), found_exactly_the_changed=found == names,
+         missed=sorted(set(names) - set(found)),
          given_new_intrinsics=sorted(n for n, c in result.changes.items() if any("replaced?" in r for r in c.reasons)),
          counts={k: v for k, v in result.stats["quick"].items() if k not in ("suspects", "seconds")},
          false_alarms=sorted(set(found) - set(names)), **ours)

@@ -354,8 +354,7 @@ def point_step(st: Structure, lin: Linearization, Li: np.ndarray, y_blocks: np.n
     """(P, 3) point update that goes with the camera update dc (A, 15) (back-substitution of the Schur
     complement; ``Li``, ``y_blocks`` from :func:`reduced_system`); zero for points that are not refined."""
     h = np.einsum("pjl,pl->pj", Li, lin.g_p)
-    cols = free_columns(st)
-    t = np.einsum("mkj,mk->mj", y_blocks, (dc if len(cols) == 15 else dc[:, cols])[st.cam_local[st.act]])
+    t = np.einsum("mkj,mk->mj", y_blocks, dc[:, free_columns(st)][st.cam_local[st.act]])
     q = _segment_sum(t.T, st.pt[st.act], st.n_points)
     dp = -np.einsum("plj,pl->pj", Li, h + q)
     dp[~st.live_points] = 0.0

@@ -100,11 +100,13 @@ def _decrease(rho: float) -> float:
     return 0.1 if rho > 0.5 else max(0.1, 1.0 - (2.0 * rho - 1.0) ** 3)
 
 
-def _outlier_verdicts(r: np.ndarray, judged: np.ndarray, st: Structure, options: BAOptions
+def _outlier_verdicts(r: np.ndarray, st: Structure, options: BAOptions, judged: np.ndarray | None = None
                       ) -> tuple[np.ndarray, float]:
     """(inlier mask of the rows of ``r``, threshold px): ``options.outlier_threshold_px``, or ``outlier_sigmas`` x the
-    robust noise of the rows ``judged`` (bool) corrected for the degrees of freedom of the fit of ``st``."""
+    robust noise of the rows ``judged`` (bool; default all) corrected for the degrees of freedom of the fit of
+    ``st``."""
     err = np.linalg.norm(r, axis=1)
+    judged = np.ones(len(r), dtype=bool) if judged is None else judged
     threshold_px = options.outlier_threshold_px
     if threshold_px is None:
         n_res = 2 * len(st.obs)
@@ -132,7 +134,12 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
     ``outlier_change_tolerance`` of them differ)."""
     nu = 2.0
     cost, r0 = _cost(state, problem, st, loss, scale)
-    verdicts = _outlier_verdicts(r0, np.ones(len(r0), bool), st, options)[0] if until_outliers_settle else None
+    verdicts = _outlier_verdicts(r0, st, options)[0] if until_outliers_settle else None
+    # in the basin (least squares), a rejected step is retried with more damping on the cameras only (a new
+    # factorisation of the kept reduced system, not a new elimination of the points); after CHEAP_RETRIES, from
+    # scratch. Far from it (the robust stage), where the points' own steps can be what fails, always from scratch
+    # (a test with 3 % outliers kept 24 wrongly rejected inliers)
+    cheap = CHEAP_RETRIES if loss is LossKind.TRIVIAL else 0
     n_res = 2 * len(st.obs)
     reason = "max_iterations"
     t_start = time.perf_counter()
@@ -150,13 +157,8 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
         system = None
         while True:
             try:
-                # in the basin (least squares), a rejected step is retried with more damping on the cameras only
-                # (a new factorisation of the kept reduced system, not a new elimination of the points); after
-                # CHEAP_RETRIES, from scratch. Far from it (the robust stage), where the points' own steps can be
-                # what fails, always from scratch (a test with 3 % outliers kept 24 wrongly rejected inliers)
-                cheap = CHEAP_RETRIES if loss is LossKind.TRIVIAL else 0
                 if system is None or rejections % (cheap + 1) == 0:
-                    system = None
+                    system = None  # the old system's memory goes before the new one is built
                     system = build_reduced_system(st, lin, lam, n_threads=options.n_threads)
                 step = solve_reduced(st, lin, system, lam, n_threads=options.n_threads)
                 new_state = _apply(state, st, step.dc, step.dp)
@@ -189,7 +191,7 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
             reason = "function_tolerance"
             break
         if verdicts is not None:
-            new_verdicts = _outlier_verdicts(new_r, np.ones(len(new_r), bool), st, options)[0]
+            new_verdicts = _outlier_verdicts(new_r, st, options)[0]
             settled = int(np.sum(new_verdicts != verdicts)) <= options.outlier_change_tolerance * len(new_r)
             verdicts = new_verdicts
             if settled:
@@ -262,7 +264,7 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndar
     for rnd in range(1, rounds + 1):
         r_all = residuals(state.camera_params, state.points_cm, problem.camera_index, problem.point_index,
                           problem.uv_px)
-        new_inlier, threshold_px = _outlier_verdicts(r_all, inlier, st, options)
+        new_inlier, threshold_px = _outlier_verdicts(r_all, st, options, judged=inlier)
         changed = int(np.sum(new_inlier != inlier))
         logger.info("ba outliers round %d: threshold %.3f px, %d of %d observations rejected (%d changed)", rnd,
                     threshold_px, int((~new_inlier).sum()), M, changed)
