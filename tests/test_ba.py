@@ -33,7 +33,7 @@ def small(cameras, **kw) -> "object":
 
 
 def quick(**kw) -> BAOptions:
-    return BAOptions(n_threads=1, compute_uncertainty=False, **kw)
+    return BAOptions(**{"n_threads": 1, "compute_uncertainty": False, **kw})
 
 
 def test_noise_free_problem_is_solved_exactly(cameras):
@@ -46,8 +46,10 @@ def test_noise_free_problem_is_solved_exactly(cameras):
 
 def test_gauge_is_held_and_solution_does_not_move_when_rerun(cameras):
     sp = small(cameras, noise_px=0.5)
-    res = bundle_adjust(sp.start, quick(outlier_rounds=0, loss="trivial", function_tolerance=1e-12))
+    res = bundle_adjust(sp.start, quick(outlier_rounds=0, loss="trivial", function_tolerance=1e-12,
+                                        gauge="two_cameras"))
     gauge = res.gauge
+    assert not gauge.inner
     a = sp.start.camera_position(gauge.reference_camera)
     b = sp.start.camera_position(gauge.scale_camera)
     assert np.array_equal(res.problem.camera_params[a, 0:6], sp.start.camera_params[a, 0:6])
@@ -59,6 +61,42 @@ def test_gauge_is_held_and_solution_does_not_move_when_rerun(cameras):
     assert np.abs(centers(again.problem) - centers(res.problem)).max() < 1e-5  # cm (0.1 micrometre)
     assert np.abs(again.problem.points_cm - res.problem.points_cm).max() < 1e-5  # cm
     assert again.cost <= res.cost * (1 + 1e-9)
+
+
+def _centers(p):
+    return np.array([p.camera(n).center_cm for n in p.camera_names])
+
+
+def _similarity(X, Y):
+    """scale, rotation, translation of the least-squares similarity Y ~ s R X + t (Umeyama)."""
+    mx, my = X.mean(0), Y.mean(0)
+    U, sv, Vt = np.linalg.svd((Y - my).T @ (X - mx) / len(X))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    s = float(np.trace(np.diag(sv) @ D) / np.mean(np.sum((X - mx) ** 2, axis=1)))
+    return s, R, my - s * R @ mx
+
+
+def test_inner_constraint_gauge_reaches_the_held_gauge_solution(cameras):
+    """Mode auto without held poses: the 7 similarity directions are constrained in the solve, no camera is held.
+    Same minimum as the two-camera gauge, a similarity apart (same cost, aligned centres and points, the same
+    centre uncertainties in the centroid gauge up to the scale), in no more iterations."""
+    sp = small(cameras, noise_px=0.5)
+    p = sp.start
+    opts = dict(outlier_rounds=0, loss="trivial", function_tolerance=1e-12, compute_uncertainty=True)
+    inner = bundle_adjust(p, quick(**opts))
+    held = bundle_adjust(p, quick(**opts, gauge="two_cameras"))
+    assert inner.gauge.inner and "inner constraints" in inner.gauge.describe() and not held.gauge.inner
+    assert abs(inner.cost - held.cost) <= 1e-9 * held.cost
+    s, R, t = _similarity(_centers(inner.problem), _centers(held.problem))
+    moved = s * _centers(inner.problem) @ R.T + t
+    assert np.abs(moved - _centers(held.problem)).max() < 1e-4  # cm (1 micrometre)
+    live = np.bincount(p.point_index, minlength=p.n_points) >= 2  # points seen once are not refined
+    pts = s * inner.problem.points_cm[live] @ R.T + t
+    assert np.abs(pts - held.problem.points_cm[live]).max() < 1e-4  # cm
+    spread = lambda r: np.linalg.norm(r.uncertainty.sigma_center_centroid_cm, axis=1)  # noqa: E731  (frame-free)
+    np.testing.assert_allclose(s * spread(inner), spread(held), rtol=1e-3)
+    assert len(inner.iterations) <= len(held.iterations)
 
 
 def test_fixed_parameters_stay_bit_identical(cameras):

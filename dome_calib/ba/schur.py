@@ -375,8 +375,14 @@ class ReducedSystem:
     lam_cameras: float  # the cameras' damping S holds now
 
 
-def build_reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: int = 2) -> ReducedSystem:
+def build_reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: int = 2,
+                         gauge_basis: np.ndarray | None = None) -> ReducedSystem:
+    """The damped reduced system; ``gauge_basis`` (A*15, k): S += B B^T (inner constraints, see
+    :func:`dome_calib.ba.gauge.inner_constraint_basis`)."""
     S, rhs, Li, y_blocks = reduced_system(st, lin, lam, n_threads=n_threads)
+    if gauge_basis is not None:
+        for i in range(0, len(S), 1024):  # in row blocks: no second (A*15)^2 temporary
+            S[i:i + 1024] += gauge_basis[i:i + 1024] @ gauge_basis.T
     return ReducedSystem(S=S, rhs=rhs, Li=Li, y_blocks=y_blocks, lam=lam, lam_cameras=lam)
 
 

@@ -33,7 +33,7 @@ import numpy as np
 
 from dome_calib.ba.blas import blas_threads
 from dome_calib.ba.evaluate import residuals, residuals_and_jacobians
-from dome_calib.ba.gauge import Gauge, GaugeMode, choose_gauge
+from dome_calib.ba.gauge import Gauge, GaugeMode, choose_gauge, inner_constraint_basis
 from dome_calib.ba.problem import BAProblem
 from dome_calib.ba.result import BAResult, CameraUncertainty, IterationLog, camera_statistics
 from dome_calib.ba.robust import LossKind, robust_cost_and_weight, robust_sigma_px
@@ -127,7 +127,7 @@ def _apply(state: _State, st: Structure, dc: np.ndarray, dp: np.ndarray) -> _Sta
 
 
 def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, options: BAOptions, *,
-                         loss: LossKind, scale: float, ftol: float, stage: int, lam: float,
+                         loss: LossKind, scale: float, ftol: float, stage: int, lam: float, inner: bool = False,
                          until_outliers_settle: bool = False) -> tuple[_State, str, float]:
     """LM iterations from ``state``; ``until_outliers_settle``: also stop (reason ``outliers_settled``) once two
     accepted iterates in a row give the same outlier verdicts on the structure's observations (at most
@@ -153,13 +153,15 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
         if g_max <= options.gradient_tolerance * max(cost, 1e-300):
             reason = "gradient_tolerance"
             break
+        basis = (inner_constraint_basis(state.camera_params[st.active_cameras], st.free, lin.D_c) if inner
+                 else None)
         rejections = 0
         system = None
         while True:
             try:
                 if system is None or rejections % (cheap + 1) == 0:
                     system = None  # the old system's memory goes before the new one is built
-                    system = build_reduced_system(st, lin, lam, n_threads=options.n_threads)
+                    system = build_reduced_system(st, lin, lam, n_threads=options.n_threads, gauge_basis=basis)
                 step = solve_reduced(st, lin, system, lam, n_threads=options.n_threads)
                 new_state = _apply(state, st, step.dc, step.dp)
                 new_cost, new_r = _cost(new_state, problem, st, loss, scale)
@@ -243,7 +245,8 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndar
     t0 = time.perf_counter()
     gauge: Gauge = choose_gauge(problem, mode=options.gauge, reference_camera=options.gauge_reference_camera,
                                 scale_camera=options.gauge_scale_camera)
-    free = problem.free & ~gauge.held
+    # inner constraints: the gauge's parameters stay free in the solve and are held only for the uncertainties
+    free = problem.free if gauge.inner else problem.free & ~gauge.held
     state = _State(camera_params=problem.camera_params.copy(), points_cm=problem.points_cm.copy())
     M = problem.n_observations
     warm = start_inlier is not None
@@ -258,7 +261,7 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndar
     ftol = options.first_stage_function_tolerance if rounds else options.function_tolerance
     state, reason, lam = _levenberg_marquardt(
         problem, state, st, options, loss=LossKind(loss), scale=scale, ftol=ftol, stage=0, lam=options.initial_lambda,
-        until_outliers_settle=bool(rounds) and options.first_stage_stops_when_outliers_settle)
+        inner=gauge.inner, until_outliers_settle=bool(rounds) and options.first_stage_stops_when_outliers_settle)
     reasons = [reason]
     threshold_px = None
     for rnd in range(1, rounds + 1):
@@ -275,11 +278,15 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndar
                              n_groups=options.n_camera_groups)
         state, reason, lam = _levenberg_marquardt(problem, state, st, options, loss=LossKind(options.final_loss),
                                                   scale=options.final_loss_scale_px,
-                                                  ftol=options.function_tolerance, stage=rnd, lam=lam)
+                                                  ftol=options.function_tolerance, stage=rnd, lam=lam,
+                                                  inner=gauge.inner)
         reasons.append(reason)
     refined = problem.copy()
     refined.camera_params = state.camera_params
     refined.points_cm = state.points_cm
+    if gauge.inner:  # statistics and uncertainties with the gauge held (7 fewer unknowns, a regular system)
+        st = build_structure(problem.camera_index, problem.point_index, inlier, problem.free & ~gauge.held,
+                             problem.n_points, n_groups=options.n_camera_groups)
     result = camera_statistics(refined, st, inlier, gauge=gauge, iterations=state.iterations,
                                termination=reasons, outlier_threshold_px=threshold_px)
     if options.compute_uncertainty:
