@@ -6,8 +6,8 @@ reconstruction. A rerun loads ``output_dir/0`` instead of mapping again.
 
 Intrinsics: the prior's distortion is kept fixed (``refine_extra_params=False``): COLMAP's FULL_OPENCV has
 three rational terms that must stay zero to remain the OpenCV 5-parameter model, and a scene's SfM is only
-the initial value of the multi-scene bundle adjustment, which refines all five terms. Focal lengths are
-refined (a nominal prior can be off by a few percent for HD cameras).
+the initial value of the multi-scene bundle adjustment, which refines all five terms. Focal lengths and principal
+points are held too by default (``MappingOptions``): the bundle adjustment's lens-model selection refines them.
 """
 from __future__ import annotations
 
