@@ -4,8 +4,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pycolmap
 import pytest
 
+from dome_calib.align import sim3_apply
 from dome_calib.ba import BAOptions, BAProblem, BAProblemError, GaugeMode, ParamGroup, bundle_adjust
 from dome_calib.ba.evaluate import residuals, residuals_and_jacobians
 from dome_calib.ba.gauge import choose_gauge
@@ -67,16 +69,6 @@ def _centers(p):
     return np.array([p.camera(n).center_cm for n in p.camera_names])
 
 
-def _similarity(X, Y):
-    """scale, rotation, translation of the least-squares similarity Y ~ s R X + t (Umeyama)."""
-    mx, my = X.mean(0), Y.mean(0)
-    U, sv, Vt = np.linalg.svd((Y - my).T @ (X - mx) / len(X))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = U @ D @ Vt
-    s = float(np.trace(np.diag(sv) @ D) / np.mean(np.sum((X - mx) ** 2, axis=1)))
-    return s, R, my - s * R @ mx
-
-
 def test_inner_constraint_gauge_reaches_the_held_gauge_solution(cameras):
     """Mode auto without held poses: the 7 similarity directions are constrained in the solve, no camera is held.
     Same minimum as the two-camera gauge, a similarity apart (same cost, aligned centres and points, the same
@@ -88,14 +80,13 @@ def test_inner_constraint_gauge_reaches_the_held_gauge_solution(cameras):
     held = bundle_adjust(p, quick(**opts, gauge="two_cameras"))
     assert inner.gauge.inner and "inner constraints" in inner.gauge.describe() and not held.gauge.inner
     assert abs(inner.cost - held.cost) <= 1e-9 * held.cost
-    s, R, t = _similarity(_centers(inner.problem), _centers(held.problem))
-    moved = s * _centers(inner.problem) @ R.T + t
-    assert np.abs(moved - _centers(held.problem)).max() < 1e-4  # cm (1 micrometre)
+    sim = pycolmap.estimate_sim3d(_centers(inner.problem), _centers(held.problem))  # least squares, held <- inner
+    assert np.abs(sim3_apply(sim, _centers(inner.problem)) - _centers(held.problem)).max() < 1e-4  # cm (1 um)
     live = np.bincount(p.point_index, minlength=p.n_points) >= 2  # points seen once are not refined
-    pts = s * inner.problem.points_cm[live] @ R.T + t
+    pts = sim3_apply(sim, inner.problem.points_cm[live])
     assert np.abs(pts - held.problem.points_cm[live]).max() < 1e-4  # cm
     spread = lambda r: np.linalg.norm(r.uncertainty.sigma_center_centroid_cm, axis=1)  # noqa: E731  (frame-free)
-    np.testing.assert_allclose(s * spread(inner), spread(held), rtol=1e-3)
+    np.testing.assert_allclose(sim.scale * spread(inner), spread(held), rtol=1e-3)
     assert len(inner.iterations) <= len(held.iterations)
 
 
