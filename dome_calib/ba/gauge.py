@@ -67,12 +67,13 @@ class Gauge:
     def describe(self) -> str:
         if self.reference_camera is None and self.scale_camera is None:
             return "gauge fixed by the user's fixed camera poses"
-        parts = ["inner constraints on all camera poses in the solve; uncertainties relative to"] if self.inner else []
+        parts = []
         if self.reference_camera is not None:
             parts.append(f"pose of {self.reference_camera} held")
         if self.scale_camera is not None:
             parts.append(f"t_{'xyz'[self.scale_component]} of {self.scale_camera} held (scale)")
-        return ", ".join(parts)
+        held = ", ".join(parts)
+        return f"inner constraints on all camera poses in the solve; for the uncertainties {held}" if self.inner else held
 
 
 def choose_gauge(problem: BAProblem, *, mode: GaugeMode | str = GaugeMode.AUTO,
