@@ -1,12 +1,14 @@
 """Later scenes of a capture without mapping: the tent triangulated with the cameras held at the first scene's poses.
 
-The scenes of a capture see the same cameras. Once the reference scene is mapped (GLOMAP, :mod:`projector.mapping`),
-every camera it registered has a pose good to about a centimetre and a tenth of a degree, in the reference's
-frame. A later scene then needs no mapping of its own:
+The scenes of a capture see the same cameras. Once the reference scene is mapped (GLOMAP, :mod:`projector.mapping`,
+with its focal lengths refined: ``KnownPoseOptions.refine_reference_focal``), every camera it registered has a pose
+good to about a centimetre and a tenth of a degree, in the reference's frame. A later scene then needs no mapping
+of its own, and fewer pairs (:func:`projector.sfm.known_scene_pairs`: chosen by the reference's geometry,
+``pairs_per_camera`` partners per camera):
 
 1. its points are triangulated from its verified matches with those cameras held at the reference's poses and
-   intrinsics (the mapper keeps the prior's), by COLMAP's point triangulator (:func:`projector.known_poses.
-   triangulate_known`), with the thresholds below (chosen by the end-to-end accuracy, not by generosity);
+   intrinsics, by COLMAP's point triangulator (:func:`projector.known_poses.triangulate_known`), with the
+   thresholds below (chosen by the end-to-end accuracy, not by generosity);
 2. each camera with features in the scene that the reference did not register is registered against those points
    by absolute pose (:func:`projector.known_poses.register_cameras`, LO-RANSAC then refinement) and its inlier
    observations join the points' tracks.
@@ -62,9 +64,17 @@ KNOWN_MIN_POINTS = 100
 
 @dataclass(kw_only=True)
 class KnownPoseOptions:
-    # opt-in: on the full dome its later scenes gave noisier observations (the ground-truth oracle's centres 1.51 ->
-    # 2.18 mm median) for 122 s less mapping; on the panel dome they were better (README, SfM)
-    enabled: bool = False  # False: every scene is mapped with GLOMAP
+    enabled: bool = True  # False: every scene is mapped with GLOMAP (README, SfM: measured both ways)
+    # the reference scene's GLOMAP refines focal lengths, and the later scenes are triangulated with them: with the
+    # design's (HD up to 23 % off as built) the full dome's later scenes lost HD observations at 4 px and the
+    # ground-truth oracle's centres went 1.51 -> 2.18 mm median; refined, the bundle adjustment's ratios to the
+    # oracle are as good as with every scene mapped (README)
+    refine_reference_focal: bool = True
+    # partners per camera of a later scene, by the reference's geometry (GLOMAP's scenes: PairOptions'
+    # max_pairs_per_camera, 25): a point needs two views to be triangulated at known poses. Full dome, per later
+    # scene: 3,209 pairs, 19 s of matching (15: 4,577, 28 s; 25: 7,511, 43 s); ratios to the oracle as good with
+    # each (README, SfM)
+    pairs_per_camera: int = 10
     max_reproj_error_px: float = KNOWN_MAX_REPROJ_ERROR_PX
     filter_max_reproj_error_px: float = KNOWN_FILTER_MAX_REPROJ_ERROR_PX
     min_tri_angle_deg: float = KNOWN_MIN_TRI_ANGLE_DEG

@@ -8,6 +8,8 @@ Intrinsics: the prior's distortion is kept fixed (``refine_extra_params=False``)
 three rational terms that must stay zero to remain the OpenCV 5-parameter model, and a scene's SfM is only
 the initial value of the multi-scene bundle adjustment, which refines all five terms. Focal lengths and principal
 points are held too by default (``MappingOptions``): the bundle adjustment's lens-model selection refines them.
+:func:`projector.sfm.run_sfm` has the reference scene's focal lengths refined when the later scenes are
+triangulated at its poses (``KnownPoseOptions.refine_reference_focal``).
 """
 from __future__ import annotations
 

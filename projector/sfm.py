@@ -6,10 +6,11 @@ Stages (each also callable on its own, hloc style): :func:`projector.features.ex
 :func:`projector.merge.merge_scenes`.
 
 Order: the features of every scene; then the reference scene (the most images with features, ties by name) is
-matched and mapped with GLOMAP; every other scene is matched and mapped with GLOMAP too, or, when
-``SfmOptions.known_poses.enabled`` is on (opt-in: faster, but measured noisier on the full dome, see the README),
-triangulated with the cameras held at the reference's poses (:mod:`projector.known_scene`), falling back on GLOMAP
-when that gives too little (logged, and said in the report).
+matched and mapped with GLOMAP, refining focal lengths; every other scene is matched on fewer pairs chosen by the
+reference's geometry (:func:`known_scene_pairs`) and triangulated with the cameras held at the reference's poses
+and intrinsics (:mod:`projector.known_scene`), falling back on the full pair set and GLOMAP when that gives too
+little (logged, and said in the report). ``SfmOptions.known_poses.enabled = False`` maps every scene with GLOMAP
+on the prior's pairs, holding the prior's intrinsics (slower; measured in the README).
 
 Work folder layout (everything resumable)::
 
@@ -29,6 +30,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from dome_calib.align import AlignmentError, align_cameras, transform_cameras
 from dome_calib.bundle import Bundle, Camera
 from dome_calib.bundle_io import load_bundle
 from dome_calib.errors import CaptureError
@@ -36,7 +38,7 @@ from dome_calib.io_utils import atomic_write_text
 from dome_calib.layout import nominal_dome
 from dome_calib.executor import Executor, make_executor
 from projector.features import FeatureOptions, FeatureReport, extract_features, nominal_camera
-from projector.known_scene import KnownPoseOptions, map_known_scene
+from projector.known_scene import KnownPoseOptions, map_known_scene, reference_cameras
 from projector.database import camera_of_image
 from projector.mapping import MappingOptions, SceneModel, map_scene
 from projector.matching import MatchOptions, MatchReport, match_pairs
@@ -145,15 +147,16 @@ def scene_features(capture_dir: Path, work_dir: Path, scene: str, prior: Mapping
 
 def match_scene(
     capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera], options: SfmOptions,
-    executor: Executor, feats: FeatureReport | None = None,
+    executor: Executor, feats: FeatureReport | None = None, pairs: list[Pair] | None = None,
 ) -> tuple[FeatureReport, list[Pair], MatchReport]:
-    """Features (unless given), pairs and matching of one scene into ``work_dir/<scene>/database.db``
-    (resumable)."""
+    """Features (unless given), pairs (unless given: :func:`select_pairs` from the prior) and matching of one scene
+    into ``work_dir/<scene>/database.db`` (resumable)."""
     db_path = work_dir / scene / "database.db"
     if feats is None:
         feats = scene_features(capture_dir, work_dir, scene, prior, options, executor)
     names = sorted(feats.num_features)
-    pairs = select_pairs(names, prior, options.pairs)
+    if pairs is None:
+        pairs = select_pairs(names, prior, options.pairs)
     write_pairs(work_dir / scene / "pairs.txt", pairs)
     matches = match_pairs(db_path, pairs, options=options.matching, executor=executor, scene=scene)
     if options.pairs.unknown_strategy == UnknownStrategy.SUBSET and any(n not in prior for n in names):
@@ -163,6 +166,29 @@ def match_scene(
             write_pairs(work_dir / scene / "pairs.txt", pairs)
             matches = match_pairs(db_path, pairs, options=options.matching, executor=executor, scene=scene)
     return feats, pairs, matches
+
+
+def known_scene_pairs(names: list[str], prior: Mapping[str, Camera], reference: SceneModel,
+                      options: SfmOptions) -> list[Pair]:
+    """Pairs of a scene to be triangulated at the reference's poses, chosen by the reference's geometry.
+
+    The cameras the reference registered are placed as it found them (its poses moved into the prior's frame by
+    a similarity on their centres, and its intrinsics: the focal lengths it refined), the others as the prior has
+    them; then :func:`select_pairs` with ``options.known_poses.pairs_per_camera`` partners per camera instead of
+    ``options.pairs.max_pairs_per_camera``: with the poses known a point needs only two views to be triangulated,
+    and tracks grow through the partners' partners. Falls back on the prior alone when the reference cannot be
+    aligned to it.
+    """
+    geometry = dict(prior)
+    held = reference_cameras(reference)
+    try:
+        sim = align_cameras(held, prior).tgt_from_src
+    except AlignmentError as exc:
+        logger.warning("%s: pairs from the prior (the reference does not align to it: %s)", reference.scene, exc)
+    else:
+        geometry.update(transform_cameras(held, sim))
+    pair_options = replace(options.pairs, max_pairs_per_camera=options.known_poses.pairs_per_camera)
+    return select_pairs(names, geometry, pair_options)
 
 
 def mapper_image_dir(capture_dir: Path, work_dir: Path, scene: str, options: SfmOptions) -> Path:
@@ -186,10 +212,14 @@ def run_scene(
 ) -> SceneStats:
     """Features (unless given), pairs, matching and the scene's model: triangulated with the cameras held at
     ``reference``'s poses when given and that works, else mapped with GLOMAP."""
-    feats, pairs, matches = match_scene(capture_dir, work_dir, scene, prior, options, executor, feats)
+    if feats is None:
+        feats = scene_features(capture_dir, work_dir, scene, prior, options, executor)
+    known = reference is not None and reference.reconstruction is not None and options.known_poses.enabled
+    pairs = known_scene_pairs(sorted(feats.num_features), prior, reference, options) if known else None
+    feats, pairs, matches = match_scene(capture_dir, work_dir, scene, prior, options, executor, feats, pairs)
     db_path, image_dir = work_dir / scene / "database.db", mapper_image_dir(capture_dir, work_dir, scene, options)
     fallback = None
-    if reference is not None and reference.reconstruction is not None and options.known_poses.enabled:
+    if known:
         model, fallback = map_known_scene(db_path, image_dir, work_dir / scene / "known", reference,
                                           options.known_poses, scene=scene)
         if fallback is None:
@@ -197,6 +227,10 @@ def run_scene(
                               mapping=f"known poses (from {reference.scene})")
         logger.warning("%s: mapping with GLOMAP instead: %s", scene, fallback)
         known_seconds = model.seconds
+        if pairs is not None:  # GLOMAP registers the cameras too: the prior's full pair set (matched ones reused)
+            known_matching = matches.seconds
+            feats, pairs, matches = match_scene(capture_dir, work_dir, scene, prior, options, executor, feats)
+            matches.seconds += known_matching
     model = map_scene(db_path, image_dir, work_dir / scene / "sparse", options=options.mapping, scene=scene)
     if fallback is not None:
         model.seconds += known_seconds
@@ -233,7 +267,10 @@ def run_sfm(
     with make_executor(options.num_workers) if executor is None else contextlib.nullcontext(executor) as pool:
         feats = {scene: scene_features(capture_dir, work_dir, scene, prior_cams, options, pool) for scene in scenes}
         ref = reference_scene(feats)
-        stats[ref] = run_scene(capture_dir, work_dir, ref, prior_cams, options, pool, feats[ref])
+        ref_options = options
+        if options.known_poses.enabled and options.known_poses.refine_reference_focal and len(scenes) > 1:
+            ref_options = replace(options, mapping=replace(options.mapping, refine_focal_length=True))
+        stats[ref] = run_scene(capture_dir, work_dir, ref, prior_cams, ref_options, pool, feats[ref])
         for scene in scenes:
             if scene != ref:
                 stats[scene] = run_scene(capture_dir, work_dir, scene, prior_cams, options, pool, feats[scene],
@@ -260,7 +297,7 @@ def run_sfm(
     observations, cameras, scene_alignment, prior_alignment = None, {}, {}, None
     try:
         merge_options = replace(options.merge, use_colmap_intrinsics=options.merge.use_colmap_intrinsics
-                                or options.mapping.refine_focal_length or options.mapping.refine_principal_point)
+                                or ref_options.mapping.refine_focal_length or options.mapping.refine_principal_point)
         merged = merge_scenes([s.model for s in stats.values()], prior_cams, merge_options, align_to=known)
     except ValueError as exc:
         failures.append(CameraFailure(camera="", scene="", stage="merge", reason=str(exc)))

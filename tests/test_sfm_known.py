@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,13 +13,14 @@ import pytest
 from dome_calib.bundle_io import load_bundle
 from projector.known_scene import KNOWN_FILTER_MAX_REPROJ_ERROR_PX, KnownPoseOptions, map_known_scene
 from projector.known_poses import PNP_MAX_ERROR_PX
-from projector.sfm import SfmOptions, report_dict, run_sfm
+from projector.sfm import SfmOptions, known_scene_pairs, report_dict, run_sfm, select_pairs
 
 CAMERAS = ["00_00", "01_01", "01_02", "01_03", "01_04", "01_05", "01_06", "01_11", "01_12"]
 ONLY_LATER = "01_05"  # not in scene_01 (the reference): registered by absolute pose in scene_02
 ONLY_FIRST = "01_12"  # not in scene_02, so both scenes have 8 images and scene_01 wins the tie by name
 CENTRE_TOL_CM = 1.0  # SfM centres after the similarity to the (ground-truth) prior, before the bundle adjustment
 TOL_PX = 1e-6
+FOCAL_TOL = 0.01  # reference's refined focal length against the truth (relative), before the bundle adjustment
 
 
 @pytest.fixture(scope="module")
@@ -128,3 +130,45 @@ def test_rerun_reuses_the_model_only_for_the_same_reference(runs, capture):
                             registered=[n for n in reference.registered if n != "01_01"])
     redone, why = map_known_scene(*args, other, KnownPoseOptions(), scene="scene_02")
     assert why is None and stamp.read_text() != before and "01_01" in redone.registered
+
+
+def test_the_reference_refines_focal_lengths_only_for_the_known_pose_path(runs, capture):
+    """With known poses the reference scene's GLOMAP refines focal lengths (the later scenes are triangulated with
+    them); mapping every scene with GLOMAP keeps the prior's."""
+    known, glomap, _ = runs
+    gt = load_bundle(capture / "ground_truth").cameras
+    for result, refined in ((known, True), (glomap, False)):
+        rec = result.scenes["scene_01"].model.reconstruction
+        for name in result.scenes["scene_01"].model.registered:
+            fx = rec.camera(rec.find_image_with_name(f"{name}.png").camera_id).params[0]
+            if refined:
+                assert fx != gt[name].K[0, 0] and abs(fx / gt[name].K[0, 0] - 1) < FOCAL_TOL, name
+            else:
+                assert fx == gt[name].K[0, 0], name
+
+
+def test_later_scene_pairs_follow_the_reference_not_the_prior(runs, capture):
+    """known_scene_pairs places the cameras where the reference found them: a prior with two cameras' poses
+    swapped gives other pairs on its own, the reference's pairs are those of the true layout."""
+    known, _, _ = runs
+    gt = dict(load_bundle(capture / "ground_truth").cameras)
+    options = SfmOptions()
+    options.pairs.exhaustive_below = 2  # 9 cameras: choose by geometry, not all pairs
+    options.pairs.k_nearest = 1
+    options.known_poses.pairs_per_camera = 2
+    names = sorted(CAMERAS)
+    reference = known.scenes["scene_01"].model
+    swapped = dict(gt)
+    a, b = "01_02", "01_06"
+    swapped[a] = replace(gt[b], name=a)
+    swapped[b] = replace(gt[a], name=b)
+    limited = replace(options.pairs, max_pairs_per_camera=2)
+    truth_pairs = select_pairs(names, gt, limited)
+    assert select_pairs(names, swapped, limited) != truth_pairs
+    # the reference registered both swapped cameras: their partners come from its poses
+    assert {a, b} <= set(reference.registered)
+    assert known_scene_pairs(names, swapped, reference, options) == truth_pairs
+    # every camera keeps a partner
+    pairs = known_scene_pairs(names, gt, reference, options)
+    count = {n: sum(n in p for p in pairs) for n in names}
+    assert min(count.values()) >= 1
