@@ -331,8 +331,8 @@ def test_warm_start_skips_the_robust_stage_and_reaches_the_cold_solution(cameras
 
 def test_outlier_rounds_stop_when_rejudging_changes_almost_nothing(cameras):
     sp = small(cameras, n_points=2500, target_observations=20000, noise_px=0.5, outlier_fraction=0.03, seed=5)
-    strict = bundle_adjust(sp.start, quick(outlier_change_tolerance=0.0))
-    loose = bundle_adjust(sp.start, quick(outlier_change_tolerance=1e-3))
+    strict = bundle_adjust(sp.start, quick(outlier_change_tolerance=0.0, intermediate_round_iterations=0))
+    loose = bundle_adjust(sp.start, quick(outlier_change_tolerance=1e-3, intermediate_round_iterations=0))
     assert len(loose.termination) <= len(strict.termination)
     assert np.sum(loose.inlier != strict.inlier) <= 1e-3 * len(strict.inlier) * len(strict.termination)
     # px: the same solution within a small fraction of the 0.5 px noise; only points whose track gained or lost
@@ -350,10 +350,35 @@ def test_superlinear_stop_saves_an_iteration_and_ends_at_the_same_minimum(camera
     1e-6 (relative), residuals within 0.01 px of the 0.5 px noise, fewer iterations."""
     for seed in (5, 6):
         sp = small(cameras, n_points=2500, target_observations=20000, noise_px=0.5, outlier_fraction=0.03, seed=seed)
-        strict = bundle_adjust(sp.start, quick(superlinear_tolerance=0.0))
-        fast = bundle_adjust(sp.start, quick())
+        strict = bundle_adjust(sp.start, quick(superlinear_tolerance=0.0, intermediate_round_iterations=0))
+        fast = bundle_adjust(sp.start, quick(intermediate_round_iterations=0))
         assert "superlinear" in fast.termination and "superlinear" not in strict.termination
         assert len(fast.iterations) < len(strict.iterations)
         assert np.array_equal(fast.inlier, strict.inlier)
         assert fast.cost == pytest.approx(strict.cost, rel=1e-6)
         assert np.abs(fast.residuals_px - strict.residuals_px)[strict.used].max() < 0.01
+
+
+def test_intermediate_rounds_take_one_step_and_the_solve_ends_converged(cameras):
+    """A round that is not the last takes one Gauss-Newton step (it only hands its residuals to the next
+    re-judging); when the re-judging settles after such a step, that round is converged and judged again, so the
+    solve ends converged (settled, or with the rounds used up, as without the cap). Against converging every round: the same gross outliers rejected,
+    verdicts within 0.5 % of the observations (a settled re-judging is a fixed point up to 0.1 % per round and its
+    5-sigma threshold follows its own verdicts: measured 0 to 0.23 %), the same minimum on the common inliers
+    (re-converged, within 1e-6), residuals within a tenth of the 0.5 px noise (99th percentile). The iterations
+    it saves are measured on the full dome (README, Bundle adjustment): on these small problems a round's first
+    step is still far from its minimum and the count comes out about the same."""
+    for seed in (5, 6, 7):
+        sp = small(cameras, n_points=2500, target_observations=20000, noise_px=0.5, outlier_fraction=0.03, seed=seed)
+        every = bundle_adjust(sp.start, quick(intermediate_round_iterations=0))
+        fast = bundle_adjust(sp.start, quick())
+        assert "capped" in fast.termination and "capped" not in every.termination
+        assert fast.termination[-1] != "capped"  # the solve never ends on a capped round
+        assert np.sum(fast.used & sp.is_outlier) <= np.sum(every.used & sp.is_outlier)
+        assert np.sum(fast.inlier != every.inlier) <= 5e-3 * len(every.inlier)
+        common = fast.used & every.used
+        moved = np.linalg.norm(fast.residuals_px - every.residuals_px, axis=1)
+        assert np.percentile(moved[common], 99) < 0.05
+        strict = quick(outlier_rounds=0, loss="trivial", function_tolerance=1e-12)
+        on_common = [bundle_adjust(r.problem, strict, start_inlier=common).cost for r in (fast, every)]
+        assert on_common[0] == pytest.approx(on_common[1], rel=1e-6)
