@@ -289,9 +289,12 @@ def test_real_one_view_cameras_hold_what_they_cannot_determine(real_crop):
     everything_free = bundle_adjust(result.sfm.problem, BAOptions(compute_uncertainty=False))
     free_cams = {n: everything_free.problem.camera(n) for n in everything_free.problem.camera_names}
     free_err = compare_cameras(free_cams, reference).summary()["all"]
-    # what holding the undetermined terms buys on four one-view cameras (everything free: focal ~12 %, 30 px)
+    # what holding the undetermined terms buys on four one-view cameras. Everything free, the lens terms are
+    # undetermined and where the solve ends along them depends on its path: converging every outlier round, focal
+    # 15.4 %, principal point 41 px, centres 2.2 cm; one step per intermediate round, 7.0 %, 17 px, 0.79 cm
+    # (chosen: 2.0 %, held, 0.46 cm either way)
     assert free_err["focal_pct_median"] > 3 * chosen["focal_pct_median"]
-    assert free_err["center_cm_median"] > 3 * chosen["center_cm_median"]
+    assert free_err["center_cm_median"] > 1.5 * chosen["center_cm_median"]
     assert free_err["principal_px_median"] > 10.0 and free_err["distortion_px_max"] > 5.0
     report = json.loads((out / "report" / "report.json").read_text())
     assert report["lens_model"]["cameras"]["00_00"]["held"] == lens["00_00"]["held"]

@@ -1,8 +1,14 @@
 """Residuals and Jacobians of all observations at once (vectorised over observations, no Python loops).
 
 Residual of observation i: ``r_i = project(camera cam_i, point pt_i) - uv_i`` (px, OpenCV convention).
+
+With ``n_threads`` > 1 and many observations, contiguous slices of the observations are evaluated in threads
+(numpy's elementwise kernels release the GIL; every observation is computed alone, so the result is
+bit-identical to one thread's).
 """
 from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -23,15 +29,41 @@ def project_observations(camera_params: np.ndarray, points_cm: np.ndarray, cam: 
     return distort(xn, p[:, DIST]) * p[:, 6:8] + p[:, 8:10]
 
 
+#: observations from which the evaluation is split across threads (below, the threads' overhead is not repaid)
+THREADED_MIN_OBSERVATIONS = 100_000
+
+
+def _slices(M: int, n_threads: int) -> list[slice]:
+    """Contiguous slices of M observations, one per thread (one slice below THREADED_MIN_OBSERVATIONS)."""
+    n = max(1, min(n_threads, M // (THREADED_MIN_OBSERVATIONS // 2))) if n_threads > 1 else 1
+    cuts = np.linspace(0, M, n + 1).astype(np.int64)
+    return [slice(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:])]
+
+
+def _run(jobs: list, n_threads: int) -> None:
+    if len(jobs) == 1:
+        jobs[0]()
+        return
+    with ThreadPoolExecutor(max_workers=n_threads) as pool:
+        for f in [pool.submit(job) for job in jobs]:
+            f.result()
+
+
 def residuals(camera_params: np.ndarray, points_cm: np.ndarray, cam: np.ndarray, pt: np.ndarray,
-              uv_px: np.ndarray) -> np.ndarray:
+              uv_px: np.ndarray, *, n_threads: int = 1) -> np.ndarray:
     """(M, 2) reprojection residuals in px, the solver's sign: projected - observed (reports use observed - projected,
     :mod:`dome_calib.residuals`)."""
-    return project_observations(camera_params, points_cm, cam, pt) - uv_px
+    out = np.empty((len(cam), 2))
+
+    def job(sl: slice) -> None:
+        out[sl] = project_observations(camera_params, points_cm, cam[sl], pt[sl]) - uv_px[sl]
+
+    _run([lambda sl=sl: job(sl) for sl in _slices(len(cam), n_threads)], n_threads)
+    return out
 
 
 def residuals_and_jacobians(camera_params: np.ndarray, points_cm: np.ndarray, cam: np.ndarray, pt: np.ndarray,
-                            uv_px: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                            uv_px: np.ndarray, *, n_threads: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Residuals, camera and point Jacobians of M observations, component-major for speed.
 
     Returns:
@@ -45,6 +77,17 @@ def residuals_and_jacobians(camera_params: np.ndarray, points_cm: np.ndarray, ca
     rv = camera_params[:, ROT]
     R = rotvec_to_matrix(rv)
     B = R @ right_jacobian(rv)  # (C, 3, 3) per camera
+    M = len(cam)
+    res, Jc, Jp = np.empty((2, M)), np.empty((2, 15, M)), np.empty((2, 3, M))
+    _run([lambda sl=sl: _residuals_and_jacobians_into(camera_params, points_cm, cam[sl], pt[sl], uv_px[sl], R, B,
+                                                      res[:, sl], Jc[:, :, sl], Jp[:, :, sl])
+          for sl in _slices(M, n_threads)], n_threads)
+    return res, Jc, Jp
+
+
+def _residuals_and_jacobians_into(camera_params: np.ndarray, points_cm: np.ndarray, cam: np.ndarray, pt: np.ndarray,
+                                  uv_px: np.ndarray, R: np.ndarray, B: np.ndarray, res: np.ndarray, Jc: np.ndarray,
+                                  Jp: np.ndarray) -> None:
     Rg = [[np.ascontiguousarray(R[:, i, j])[cam] for j in range(3)] for i in range(3)]
     Bg = [[np.ascontiguousarray(B[:, i, j])[cam] for j in range(3)] for i in range(3)]
     Xw = [np.ascontiguousarray(points_cm[:, j])[pt] for j in range(3)]
@@ -64,16 +107,12 @@ def residuals_and_jacobians(camera_params: np.ndarray, points_cm: np.ndarray, ca
     j00 = radial + 2.0 * x * x * d_radial + 2.0 * p1 * y + 6.0 * p2 * x
     j01 = xy2 * d_radial + 2.0 * p1 * x + 2.0 * p2 * y
     j11 = radial + 2.0 * y * y * d_radial + 6.0 * p1 * y + 2.0 * p2 * x
-    M = len(cam)
-    res = np.empty((2, M))
     res[0] = fx * xd + cx - uv_px[:, 0]
     res[1] = fy * yd + cy - uv_px[:, 1]
-    Jc = np.empty((2, 15, M))
     fiz, giz = fx * iz, fy * iz
     Jt = Jc[:, 3:6]  # d res / d t = d res / d X_cam
     Jt[0, 0], Jt[0, 1], Jt[0, 2] = fiz * j00, fiz * j01, -fiz * (j00 * x + j01 * y)
     Jt[1, 0], Jt[1, 1], Jt[1, 2] = giz * j01, giz * j11, -giz * (j01 * x + j11 * y)
-    Jp = np.empty((2, 3, M))
     for k in range(2):
         a = Jt[k]
         q = (Xr[1] * a[2] - Xr[2] * a[1], Xr[2] * a[0] - Xr[0] * a[2], Xr[0] * a[1] - Xr[1] * a[0])  # X_r x a
@@ -87,4 +126,3 @@ def residuals_and_jacobians(camera_params: np.ndarray, points_cm: np.ndarray, ca
     Jc[0, 12], Jc[1, 12] = fx * xy2, fy * (r2 + 2.0 * y * y)
     Jc[0, 13], Jc[1, 13] = fx * (r2 + 2.0 * x * x), fy * xy2
     Jc[0, 14], Jc[1, 14] = fx * x * r4 * r2, fy * y * r4 * r2
-    return res, Jc, Jp

@@ -43,7 +43,8 @@ class QuadraticModel:
         p = result.problem
         st = build_structure(p.camera_index, p.point_index, result.inlier, candidate_free & ~result.gauge.held,
                              p.n_points)
-        res, Jc, Jp = residuals_and_jacobians(p.camera_params, p.points_cm, st.cam, st.pt, p.uv_px[st.obs])
+        res, Jc, Jp = residuals_and_jacobians(p.camera_params, p.points_cm, st.cam, st.pt, p.uv_px[st.obs],
+                                              n_threads=n_threads)
         cost = 0.5 * float(np.sum(res * res))
         lin = linearize(st, res, Jc, Jp, np.ones(len(st.obs)))
         del res, Jc, Jp
@@ -61,7 +62,7 @@ class QuadraticModel:
         for damping in (1e-6, 1e-4, 1e-2):  # Levenberg-Marquardt steps: the undamped one can overshoot
             step = model.step(everything, damping=damping)[0]
             dp = point_step(st, lin, Li, y_blocks, step[st.active_cameras])
-            r = residuals(p.camera_params + step, p.points_cm + dp, st.cam, st.pt, p.uv_px[st.obs])
+            r = residuals(p.camera_params + step, p.points_cm + dp, st.cam, st.pt, p.uv_px[st.obs], n_threads=n_threads)
             evaluated.append(0.5 * float(np.sum(r * r)))
         cost_fit = min(evaluated, default=np.inf)
         if not cost_fit < cost:  # no step lowered the cost: fall back on the predicted decrease

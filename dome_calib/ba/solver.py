@@ -99,9 +99,9 @@ class _State:
     iterations: list[IterationLog] = field(default_factory=list)
 
 
-def _cost(state: _State, problem: BAProblem, st: Structure, loss: LossKind, scale: float
+def _cost(state: _State, problem: BAProblem, st: Structure, loss: LossKind, scale: float, n_threads: int = 1
           ) -> tuple[float, np.ndarray]:
-    r = residuals(state.camera_params, state.points_cm, st.cam, st.pt, problem.uv_px[st.obs])
+    r = residuals(state.camera_params, state.points_cm, st.cam, st.pt, problem.uv_px[st.obs], n_threads=n_threads)
     rho, _ = robust_cost_and_weight(np.sum(r * r, axis=1), loss, scale)
     c = 0.5 * float(np.sum(rho))
     return (c if np.isfinite(c) else np.inf), r
@@ -147,7 +147,7 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
     ``outlier_change_tolerance`` of them differ). ``max_iterations``: a cap below ``options.max_iterations``
     (reason ``capped`` when it ends the stage)."""
     nu = 2.0
-    cost, r0 = _cost(state, problem, st, loss, scale)
+    cost, r0 = _cost(state, problem, st, loss, scale, options.n_threads)
     verdicts = _outlier_verdicts(r0, st, options)[0] if until_outliers_settle else None
     # in the basin (least squares), a rejected step is retried with more damping on the cameras only (a new
     # factorisation of the kept reduced system, not a new elimination of the points); after CHEAP_RETRIES, from
@@ -163,7 +163,7 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
         reason = "capped"
     for it in range(1, cap + 1):
         res, Jc, Jp = residuals_and_jacobians(state.camera_params, state.points_cm, st.cam, st.pt,
-                                              problem.uv_px[st.obs])
+                                              problem.uv_px[st.obs], n_threads=options.n_threads)
         _, w = robust_cost_and_weight(res[0] ** 2 + res[1] ** 2, loss, scale)
         lin = linearize(st, res, Jc, Jp, w)
         del res, Jc, Jp
@@ -182,7 +182,7 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
                     system = build_reduced_system(st, lin, lam, n_threads=options.n_threads, gauge_basis=basis)
                 step = solve_reduced(st, lin, system, lam, n_threads=options.n_threads)
                 new_state = _apply(state, st, step.dc, step.dp)
-                new_cost, new_r = _cost(new_state, problem, st, loss, scale)
+                new_cost, new_r = _cost(new_state, problem, st, loss, scale, options.n_threads)
             except np.linalg.LinAlgError:
                 step, new_cost, new_r = None, np.inf, None
             rho = (cost - new_cost) / step.predicted_decrease if step and step.predicted_decrease > 0 else -1.0
@@ -292,7 +292,7 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndar
     rnd = 1
     while rnd <= rounds:
         r_all = residuals(state.camera_params, state.points_cm, problem.camera_index, problem.point_index,
-                          problem.uv_px)
+                          problem.uv_px, n_threads=options.n_threads)
         new_inlier, threshold_px = _outlier_verdicts(r_all, st, options, judged=inlier)
         changed = int(np.sum(new_inlier != inlier))
         logger.info("ba outliers round %d: threshold %.3f px, %d of %d observations rejected (%d changed)", rnd,

@@ -53,7 +53,7 @@ def camera_uncertainty(problem: BAProblem, st: Structure, sigma_px: float, *, ga
     """Standard deviations of camera parameters (see :class:`dome_calib.ba.result.CameraUncertainty`)."""
     C, A = problem.n_cameras, len(st.active_cameras)
     res, Jc, Jp = residuals_and_jacobians(problem.camera_params, problem.points_cm, st.cam, st.pt,
-                                          problem.uv_px[st.obs])
+                                          problem.uv_px[st.obs], n_threads=n_threads)
     lin = linearize(st, res, Jc, Jp, np.ones(len(st.obs)))
     del res, Jc, Jp
     S, _, _, _ = reduced_system(st, lin, 0.0, n_threads=n_threads)
