@@ -7,7 +7,9 @@ rejected and the problem is re-solved with ``final_loss`` (least squares by defa
 cost for Gaussian pixel noise once the gross outliers are gone). ``outlier_rounds`` repeats reject/re-solve;
 each round re-judges every observation, so wrongly rejected ones come back; the rounds stop once a re-judging
 changes at most ``outlier_change_tolerance`` of the observations (the solution it would move is then the same
-within its noise).
+within its noise). A round that is not the last takes ``intermediate_round_iterations`` LM steps (1): it only
+hands its residuals to the next re-judging; if that re-judging settles, the round is converged and judged again,
+so a solve ends on a converged stage.
 
 LM follows Ceres' strategy: damping lambda * clamp(diag(J^T W J)), gain ratio rho = actual / predicted
 decrease, on failure lambda *= nu, nu *= 2; on success lambda *= max(1/10, 1 - (2 rho - 1)^3) (Nielsen's
