@@ -9,8 +9,9 @@ Order: the features of every scene; then the reference scene (the most images wi
 matched and mapped with GLOMAP, refining focal lengths; every other scene is matched on fewer pairs chosen by the
 reference's geometry (:func:`known_scene_pairs`) and triangulated with the cameras held at the reference's poses
 and intrinsics (:mod:`projector.known_scene`), falling back on the full pair set and GLOMAP when that gives too
-little (logged, and said in the report). ``SfmOptions.known_poses.enabled = False`` maps every scene with GLOMAP
-on the prior's pairs, holding the prior's intrinsics (slower; measured in the README).
+little (logged, and said in the report). ``SfmOptions.known_poses.enabled = False``, or a reference with fewer than
+``known_poses.min_images`` images (40: a small capture's GLOMAP runs take seconds), maps every scene with GLOMAP
+on the prior's pairs, holding the prior's intrinsics (slower on the dome; measured in the README).
 
 Work folder layout (everything resumable)::
 
@@ -267,6 +268,10 @@ def run_sfm(
     with make_executor(options.num_workers) if executor is None else contextlib.nullcontext(executor) as pool:
         feats = {scene: scene_features(capture_dir, work_dir, scene, prior_cams, options, pool) for scene in scenes}
         ref = reference_scene(feats)
+        if len(feats[ref].num_features) < options.known_poses.min_images and options.known_poses.enabled:
+            logger.info("known poses: %s has %d images with features (< %d): every scene mapped with GLOMAP", ref,
+                        len(feats[ref].num_features), options.known_poses.min_images)
+            options = replace(options, known_poses=replace(options.known_poses, enabled=False))
         ref_options = options
         if options.known_poses.enabled and options.known_poses.refine_reference_focal and len(scenes) > 1:
             ref_options = replace(options, mapping=replace(options.mapping, refine_focal_length=True))

@@ -36,6 +36,7 @@ def capture(tmp_path_factory) -> Path:
 
 def _run(capture: Path, work: Path, **known) -> object:
     options = SfmOptions(show_progress=False, num_workers=2)
+    options.known_poses.min_images = 0  # these 8-image scenes are below the size from which known poses are used
     for k, v in known.items():
         setattr(options.known_poses, k, v)
     return run_sfm(capture, work, options, prior=load_bundle(capture / "ground_truth"))
@@ -112,6 +113,20 @@ def test_forced_fallback_maps_with_glomap_and_says_why(capture, runs, tmp_path):
     assert sorted(result.cameras) == sorted(CAMERAS)
     saved = json.loads((tmp_path / "sfm_report.json").read_text())
     assert saved["scenes"]["scene_02"]["fallback"] == s2["fallback"]
+
+
+def test_small_captures_map_every_scene_with_glomap(capture, runs, tmp_path):
+    """Below ``min_images`` in the reference scene, known poses are not used (they only save time, and a small
+    capture's GLOMAP runs take seconds): every scene is mapped with GLOMAP on the prior's pairs."""
+    _, _, work = runs
+    for scene in ("scene_01", "scene_02"):
+        (tmp_path / scene).mkdir()
+        shutil.copy(work / scene / "database.db", tmp_path / scene / "database.db")
+    result = _run(capture, tmp_path, min_images=9)  # scene_01 has 8 images with features
+    scenes = report_dict(result)["scenes"]
+    assert [scenes[s]["mapping"] for s in ("scene_01", "scene_02")] == ["glomap", "glomap"]
+    assert not scenes["scene_02"].get("fallback")
+    assert sorted(result.cameras) == sorted(CAMERAS)
 
 
 def test_rerun_reuses_the_model_only_for_the_same_reference(runs, capture):
