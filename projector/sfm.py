@@ -268,9 +268,10 @@ def run_sfm(
     with make_executor(options.num_workers) if executor is None else contextlib.nullcontext(executor) as pool:
         feats = {scene: scene_features(capture_dir, work_dir, scene, prior_cams, options, pool) for scene in scenes}
         ref = reference_scene(feats)
-        if len(feats[ref].num_features) < options.known_poses.min_images and options.known_poses.enabled:
+        n_ref = len(feats[ref].num_features)
+        if options.known_poses.enabled and len(scenes) > 1 and n_ref < options.known_poses.min_images:
             logger.info("known poses: %s has %d images with features (< %d): every scene mapped with GLOMAP", ref,
-                        len(feats[ref].num_features), options.known_poses.min_images)
+                        n_ref, options.known_poses.min_images)
             options = replace(options, known_poses=replace(options.known_poses, enabled=False))
         ref_options = options
         if options.known_poses.enabled and options.known_poses.refine_reference_focal and len(scenes) > 1:

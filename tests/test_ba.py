@@ -362,8 +362,8 @@ def test_superlinear_stop_saves_an_iteration_and_ends_at_the_same_minimum(camera
 def test_intermediate_rounds_take_one_step_and_the_solve_ends_converged(cameras):
     """A round that is not the last takes one Gauss-Newton step (it only hands its residuals to the next
     re-judging); when the re-judging settles after such a step, that round is converged and judged again, so the
-    solve ends converged (settled, or with the rounds used up, as without the cap). Against converging every round: the same gross outliers rejected,
-    verdicts within 0.5 % of the observations (a settled re-judging is a fixed point up to 0.1 % per round and its
+    solve ends converged (settled, or with the rounds used up, as without the cap). Against converging every
+    round: the same gross outliers rejected, verdicts within 0.5 % of the observations (a settled re-judging is a fixed point up to 0.1 % per round and its
     5-sigma threshold follows its own verdicts: measured 0 to 0.23 %), the same minimum on the common inliers
     (re-converged, within 1e-6), residuals within a tenth of the 0.5 px noise (99th percentile). The iterations
     it saves are measured on the full dome (README, Bundle adjustment): on these small problems a round's first

@@ -34,6 +34,13 @@ def capture(tmp_path_factory) -> Path:
     return capture
 
 
+def _copy_databases(work: Path, to: Path) -> None:
+    """The matched scene databases of ``work`` into a fresh work folder ``to`` (features and matches reused)."""
+    for scene in ("scene_01", "scene_02"):
+        (to / scene).mkdir()
+        shutil.copy(work / scene / "database.db", to / scene / "database.db")
+
+
 def _run(capture: Path, work: Path, **known) -> object:
     options = SfmOptions(show_progress=False, num_workers=2)
     options.known_poses.min_images = 0  # these 8-image scenes are below the size from which known poses are used
@@ -48,9 +55,7 @@ def runs(capture, tmp_path_factory):
     work = tmp_path_factory.mktemp("known_work")
     known = _run(capture, work, enabled=True)
     glomap_work = tmp_path_factory.mktemp("glomap_work")
-    for scene in ("scene_01", "scene_02"):
-        (glomap_work / scene).mkdir()
-        shutil.copy(work / scene / "database.db", glomap_work / scene / "database.db")
+    _copy_databases(work, glomap_work)
     glomap = _run(capture, glomap_work, enabled=False)
     return known, glomap, work
 
@@ -102,10 +107,7 @@ def test_every_observation_within_the_filter_thresholds(runs):
 
 
 def test_forced_fallback_maps_with_glomap_and_says_why(capture, runs, tmp_path):
-    _, _, work = runs
-    for scene in ("scene_01", "scene_02"):
-        (tmp_path / scene).mkdir()
-        shutil.copy(work / scene / "database.db", tmp_path / scene / "database.db")
+    _copy_databases(runs[2], tmp_path)
     result = _run(capture, tmp_path, enabled=True, min_registered_fraction=1.01)
     s2 = report_dict(result)["scenes"]["scene_02"]
     assert s2["mapping"] == "glomap" and "known poses registered only" in s2["fallback"]
@@ -118,10 +120,7 @@ def test_forced_fallback_maps_with_glomap_and_says_why(capture, runs, tmp_path):
 def test_small_captures_map_every_scene_with_glomap(capture, runs, tmp_path):
     """Below ``min_images`` in the reference scene, known poses are not used (they only save time, and a small
     capture's GLOMAP runs take seconds): every scene is mapped with GLOMAP on the prior's pairs."""
-    _, _, work = runs
-    for scene in ("scene_01", "scene_02"):
-        (tmp_path / scene).mkdir()
-        shutil.copy(work / scene / "database.db", tmp_path / scene / "database.db")
+    _copy_databases(runs[2], tmp_path)
     result = _run(capture, tmp_path, min_images=9)  # scene_01 has 8 images with features
     scenes = report_dict(result)["scenes"]
     assert [scenes[s]["mapping"] for s in ("scene_01", "scene_02")] == ["glomap", "glomap"]

@@ -8,11 +8,10 @@ bit-identical to one thread's).
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 
 from dome_calib.ba.problem import DIST, INTR, ROT, TRANS
+from dome_calib.ba.threads import run_in_threads
 from dome_calib.camera import MIN_DEPTH, distort
 from dome_calib.rotation import right_jacobian, rotvec_to_matrix
 
@@ -35,18 +34,9 @@ THREADED_MIN_OBSERVATIONS = 100_000
 
 def _slices(M: int, n_threads: int) -> list[slice]:
     """Contiguous slices of M observations, one per thread (one slice below THREADED_MIN_OBSERVATIONS)."""
-    n = max(1, min(n_threads, M // (THREADED_MIN_OBSERVATIONS // 2))) if n_threads > 1 else 1
-    cuts = np.linspace(0, M, n + 1).astype(np.int64)
+    n = n_threads if M >= THREADED_MIN_OBSERVATIONS else 1
+    cuts = np.linspace(0, M, max(n, 1) + 1).astype(np.int64)
     return [slice(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:])]
-
-
-def _run(jobs: list, n_threads: int) -> None:
-    if len(jobs) == 1:
-        jobs[0]()
-        return
-    with ThreadPoolExecutor(max_workers=n_threads) as pool:
-        for f in [pool.submit(job) for job in jobs]:
-            f.result()
 
 
 def residuals(camera_params: np.ndarray, points_cm: np.ndarray, cam: np.ndarray, pt: np.ndarray,
@@ -58,7 +48,7 @@ def residuals(camera_params: np.ndarray, points_cm: np.ndarray, cam: np.ndarray,
     def job(sl: slice) -> None:
         out[sl] = project_observations(camera_params, points_cm, cam[sl], pt[sl]) - uv_px[sl]
 
-    _run([lambda sl=sl: job(sl) for sl in _slices(len(cam), n_threads)], n_threads)
+    run_in_threads(job, _slices(len(cam), n_threads), n_threads)
     return out
 
 
@@ -79,9 +69,12 @@ def residuals_and_jacobians(camera_params: np.ndarray, points_cm: np.ndarray, ca
     B = R @ right_jacobian(rv)  # (C, 3, 3) per camera
     M = len(cam)
     res, Jc, Jp = np.empty((2, M)), np.empty((2, 15, M)), np.empty((2, 3, M))
-    _run([lambda sl=sl: _residuals_and_jacobians_into(camera_params, points_cm, cam[sl], pt[sl], uv_px[sl], R, B,
-                                                      res[:, sl], Jc[:, :, sl], Jp[:, :, sl])
-          for sl in _slices(M, n_threads)], n_threads)
+
+    def job(sl: slice) -> None:
+        _residuals_and_jacobians_into(camera_params, points_cm, cam[sl], pt[sl], uv_px[sl], R, B, res[:, sl],
+                                      Jc[:, :, sl], Jp[:, :, sl])
+
+    run_in_threads(job, _slices(M, n_threads), n_threads)
     return res, Jc, Jp
 
 

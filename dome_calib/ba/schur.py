@@ -20,7 +20,6 @@ by a dense LAPACK Cholesky.
 from __future__ import annotations
 
 import logging
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +27,7 @@ import scipy.linalg
 import scipy.sparse as sp
 
 from dome_calib.ba.blas import blas_threads
+from dome_calib.ba.threads import run_in_threads
 
 logger = logging.getLogger(__name__)
 
@@ -195,12 +195,7 @@ def _yyt_into(S4: np.ndarray, y_blocks: np.ndarray, st: Structure, n_threads: in
         if i != j:
             S4[cols, :, rows, :] = -R.data.transpose(0, 2, 1)
 
-    if n_threads > 1 and len(jobs) > 1:
-        with ThreadPoolExecutor(max_workers=n_threads) as pool:
-            list(pool.map(product, jobs))
-    else:
-        for job in jobs:
-            product(job)
+    run_in_threads(product, jobs, n_threads)
 
 
 @dataclass(kw_only=True)
