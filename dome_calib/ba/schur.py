@@ -11,9 +11,8 @@ V_p = L_p L_p^T (3 x 3 Cholesky, batched over all points). With y_i = W_i L_p^{-
     S = blockdiag(U + lambda D_c) - Y Y^T,   Y the block-sparse (cameras x 15) x (points x 3) matrix of the y_i,
     S dc = -g_c + sum_i y_i L_p^{-1} g_p,     dp = -L_p^{-T} (L_p^{-1} g_p + sum_i y_i^T dc_a).
 
-Y Y^T is the crux (about sum over points of track_length^2 block products, ~10^7 at dome scale). It is done
-by scipy's block-sparse (BSR, 15 x 3 blocks) products, split into camera groups so that only the upper
-triangle of group pairs is computed, in threads (scipy's sparse kernels release the GIL). The reduced
+Y Y^T is the crux (about half the sum over points of track_length^2 block products, 3.4e7 on the full dome),
+done by the compiled kernel of :mod:`dome_calib.ba.yyt` (upper triangle of blocks, in threads). The reduced
 system is dense for the dome (most cameras share points with most cameras on their side), so it is solved
 by a dense LAPACK Cholesky.
 """
@@ -24,10 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
-import scipy.sparse as sp
 
 from dome_calib.ba.blas import blas_threads
-from dome_calib.ba.threads import run_in_threads
+from dome_calib.ba.yyt import subtract_yyt
 
 logger = logging.getLogger(__name__)
 
@@ -44,7 +42,8 @@ class Structure:
     active_cameras (A,): cameras with at least one free parameter; cam_local (Ma,): their local index or -1.
     act (Ma,) bool: observation by an active camera (a contiguous block per camera).
     free_flat (F,): free parameters as indices into the (A * 15) flattened active-camera parameters.
-    groups: camera-group boundaries [0, ..., A] for the blocked Y Y^T product.
+    pt_order (Ma_active,): the active observations stably sorted by point (so by camera within a point);
+    pt_ptr (P + 1,): each point's slice of ``pt_order``.
     """
 
     obs: np.ndarray
@@ -57,12 +56,13 @@ class Structure:
     act_starts: np.ndarray  # (A + 1,) offsets of each active camera's observations among the active ones
     free: np.ndarray  # (A, 15) bool
     free_flat: np.ndarray
-    groups: np.ndarray
+    pt_order: np.ndarray
+    pt_ptr: np.ndarray
     live_points: np.ndarray  # (P,) bool: points with >= 2 observations (the others are not refined)
 
 
 def build_structure(camera_index: np.ndarray, point_index: np.ndarray, obs_mask: np.ndarray, free: np.ndarray,
-                    n_points: int, *, n_groups: int = 16) -> Structure:
+                    n_points: int) -> Structure:
     """Sort the kept observations, drop points seen fewer than twice, and index the free camera parameters."""
     keep = np.flatnonzero(obs_mask)
     counts = np.bincount(point_index[keep], minlength=n_points)
@@ -80,13 +80,12 @@ def build_structure(camera_index: np.ndarray, point_index: np.ndarray, obs_mask:
     act = cam_local >= 0
     act_starts = np.concatenate([[0], np.cumsum(n_obs_cam[active])]).astype(np.int64)
     free_a = free[active]
-    # groups of active cameras with about equal observation counts
-    G = max(1, min(n_groups, len(active)))
-    cuts = np.searchsorted(act_starts, np.linspace(0, act_starts[-1], G + 1)[1:-1])
-    groups = np.unique(np.concatenate([[0], cuts, [len(active)]])).astype(np.int64)
+    pt_act = pt[act]
+    pt_order = np.argsort(pt_act, kind="stable")
+    pt_ptr = np.concatenate([[0], np.cumsum(np.bincount(pt_act, minlength=n_points))]).astype(np.int64)
     return Structure(obs=obs, cam=cam, pt=pt, n_points=n_points, active_cameras=active, cam_local=cam_local,
                      act=act, act_starts=act_starts, free=free_a, free_flat=np.flatnonzero(free_a.ravel()),
-                     groups=groups, live_points=live)
+                     pt_order=pt_order, pt_ptr=pt_ptr, live_points=live)
 
 
 @dataclass(kw_only=True)
@@ -168,34 +167,7 @@ def free_columns(st: Structure) -> np.ndarray:
 
 def _yyt_into(S4: np.ndarray, y_blocks: np.ndarray, st: Structure, n_threads: int) -> None:
     """S4 (A, k, A, k) -= Y Y^T with Y given by camera-sorted (Ma_active, k, 3) blocks."""
-    P, g = st.n_points, st.groups
-    pt_act = st.pt[st.act]
-    nk = y_blocks.shape[1]
-
-    def group_matrix(k: int) -> sp.bsr_matrix:
-        a0, a1 = g[k], g[k + 1]
-        s, e = st.act_starts[a0], st.act_starts[a1]
-        return sp.bsr_matrix((y_blocks[s:e], pt_act[s:e], st.act_starts[a0:a1 + 1] - s),
-                             shape=(nk * (a1 - a0), 3 * P), copy=False)
-
-    n = len(g) - 1
-    Ys = [group_matrix(k) for k in range(n)]
-    Yts = [Y.T for Y in Ys]  # BSR (3, 15) blocks, transposed in C++
-    jobs = sorted(((i, j) for i in range(n) for j in range(i, n)),
-                  key=lambda ij: -(Ys[ij[0]].nnz + Ys[ij[1]].nnz))
-
-    def product(ij: tuple[int, int]) -> None:
-        i, j = ij
-        R = Ys[i] @ Yts[j]
-        if not isinstance(R, sp.bsr_matrix) or R.blocksize != (nk, nk):
-            R = sp.bsr_matrix(R, blocksize=(nk, nk))
-        rows = np.repeat(np.arange(len(R.indptr) - 1), np.diff(R.indptr)) + g[i]
-        cols = R.indices + g[j]
-        S4[rows, :, cols, :] = -R.data
-        if i != j:
-            S4[cols, :, rows, :] = -R.data.transpose(0, 2, 1)
-
-    run_in_threads(product, jobs, n_threads)
+    subtract_yyt(S4, y_blocks, st.pt_order, st.pt_ptr, st.pt[st.act], st.act_starts, n_threads)
 
 
 @dataclass(kw_only=True)

@@ -88,9 +88,6 @@ class BAOptions:
     gauge_reference_camera: str | None = None
     gauge_scale_camera: str | None = None
     n_threads: int = 2
-    # blocks of the Y Y^T product (upper triangle of group pairs is computed; within a group both triangles, so
-    # finer groups waste less: Y Y^T of the full dome 5.8 s with 4 groups, 4.6 s with 16; the panel 0.51 -> 0.38 s)
-    n_camera_groups: int = 16
     compute_uncertainty: bool = True
 
 
@@ -277,8 +274,7 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndar
     warm = start_inlier is not None
     inlier = np.asarray(start_inlier, dtype=bool).copy() if warm else np.ones(M, dtype=bool)
     rounds = options.outlier_rounds
-    st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points,
-                         n_groups=options.n_camera_groups)
+    st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points)
     # stage 0: cold, the robust loss on everything until the basin is found; warm (in the basin, gross outliers
     # known), the final loss on the given inliers. Both to the first stage's looser tolerance when rounds follow
     # (they re-judge and converge it; measured on the panel dome's warm lens-model solve: 24 iterations, not 28)
@@ -309,8 +305,7 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndar
             reasons.append(reason)
             continue
         inlier = new_inlier
-        st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points,
-                             n_groups=options.n_camera_groups)
+        st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points)
         cap = options.intermediate_round_iterations if rnd < rounds and options.intermediate_round_iterations else None
         state, reason, lam = final_stage(state, st, options, stage=rnd, lam=lam, max_iterations=cap)
         reasons.append(reason)
@@ -320,7 +315,7 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndar
     refined.points_cm = state.points_cm
     if gauge.inner:  # statistics and uncertainties with the gauge held (7 fewer unknowns, a regular system)
         st = build_structure(problem.camera_index, problem.point_index, inlier, problem.free & ~gauge.held,
-                             problem.n_points, n_groups=options.n_camera_groups)
+                             problem.n_points)
     result = camera_statistics(refined, st, inlier, gauge=gauge, iterations=state.iterations,
                                termination=reasons, outlier_threshold_px=threshold_px)
     if options.compute_uncertainty:
