@@ -42,7 +42,7 @@ def test_yyt_kernel_equals_dense_product(seed, n_cams, n_points, nk, duplicates)
     s, y = _random_case(seed, n_cams, n_points, nk, duplicates)
     A = len(s.active_cameras)
     S4 = np.full((A, nk, A, nk), 2.0)  # the kernel subtracts from what is there
-    subtract_yyt(S4, y, s.pt_order, s.pt_ptr, s.pt[s.act], s.act_starts, n_threads=2)
+    subtract_yyt(S4, y, s, n_threads=2)
     expected = 2.0 - _dense_yyt(s, y)
     np.testing.assert_allclose(S4.reshape(A * nk, A * nk), expected, rtol=0, 
                                atol=1e-10 * max(1.0, np.abs(expected).max(initial=0.0)))
@@ -54,7 +54,7 @@ def test_yyt_kernel_is_the_same_on_any_number_of_threads():
     out = []
     for threads in (1, 2, 3):
         S4 = np.zeros((A, 15, A, 15))
-        subtract_yyt(S4, y, s.pt_order, s.pt_ptr, s.pt[s.act], s.act_starts, n_threads=threads)
+        subtract_yyt(S4, y, s, n_threads=threads)
         out.append(S4)
     assert np.array_equal(out[0], out[1]) and np.array_equal(out[0], out[2])
     S = out[0].reshape(A * 15, A * 15)

@@ -43,7 +43,8 @@ class Structure:
     act (Ma,) bool: observation by an active camera (a contiguous block per camera).
     free_flat (F,): free parameters as indices into the (A * 15) flattened active-camera parameters.
     pt_order (Ma_active,): the active observations stably sorted by point (so by camera within a point);
-    pt_ptr (P + 1,): each point's slice of ``pt_order``.
+    pt_ptr (P + 1,): each point's slice of ``pt_order``; pt_pos (Ma_active,): the inverse of ``pt_order``;
+    cam_pt (Ma_active,): the active camera (local index) of each observation in ``pt_order``.
     """
 
     obs: np.ndarray
@@ -58,6 +59,8 @@ class Structure:
     free_flat: np.ndarray
     pt_order: np.ndarray
     pt_ptr: np.ndarray
+    pt_pos: np.ndarray
+    cam_pt: np.ndarray
     live_points: np.ndarray  # (P,) bool: points with >= 2 observations (the others are not refined)
 
 
@@ -83,9 +86,12 @@ def build_structure(camera_index: np.ndarray, point_index: np.ndarray, obs_mask:
     pt_act = pt[act]
     pt_order = np.argsort(pt_act, kind="stable")
     pt_ptr = np.concatenate([[0], np.cumsum(np.bincount(pt_act, minlength=n_points))]).astype(np.int64)
+    pt_pos = np.empty_like(pt_order)
+    pt_pos[pt_order] = np.arange(len(pt_order))
     return Structure(obs=obs, cam=cam, pt=pt, n_points=n_points, active_cameras=active, cam_local=cam_local,
                      act=act, act_starts=act_starts, free=free_a, free_flat=np.flatnonzero(free_a.ravel()),
-                     pt_order=pt_order, pt_ptr=pt_ptr, live_points=live)
+                     pt_order=pt_order, pt_ptr=pt_ptr, pt_pos=pt_pos,
+                     cam_pt=cam_local[act][pt_order], live_points=live)
 
 
 @dataclass(kw_only=True)
@@ -165,11 +171,6 @@ def free_columns(st: Structure) -> np.ndarray:
     return np.flatnonzero(st.free.any(axis=0)) if len(st.free) else np.zeros(0, dtype=np.int64)
 
 
-def _yyt_into(S4: np.ndarray, y_blocks: np.ndarray, st: Structure, n_threads: int) -> None:
-    """S4 (A, k, A, k) -= Y Y^T with Y given by camera-sorted (Ma_active, k, 3) blocks."""
-    subtract_yyt(S4, y_blocks, st.pt_order, st.pt_ptr, st.pt[st.act], st.act_starts, n_threads)
-
-
 @dataclass(kw_only=True)
 class Step:
     """A solved LM step: dc (A, 15) (zero on fixed parameters), dp (P, 3), and the model's cost decrease."""
@@ -208,10 +209,10 @@ def reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: 
     S = np.zeros((A * 15, A * 15))
     S4 = S.reshape(A, 15, A, 15)
     if len(cols) == 15:
-        _yyt_into(S4, y_blocks, st, n_threads)
+        subtract_yyt(S4, y_blocks, st, n_threads)
     elif len(cols):
         compact = np.zeros((A, len(cols), A, len(cols)))
-        _yyt_into(compact, y_blocks, st, n_threads)
+        subtract_yyt(compact, y_blocks, st, n_threads)
         S4[np.ix_(np.arange(A), cols, np.arange(A), cols)] = compact
         del compact
     idx = np.arange(A)

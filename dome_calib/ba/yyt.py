@@ -15,10 +15,15 @@ because the tent points' camera sets differ too much).
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numba
 import numpy as np
 
 from dome_calib.ba.threads import run_in_threads
+
+if TYPE_CHECKING:
+    from dome_calib.ba.schur import Structure
 
 _LANES = 4  # block width padded to a multiple of this (15 -> 16: aligned SIMD rows)
 
@@ -66,24 +71,27 @@ def _rows_kernel(S4, ypt, cam_pt, pt_ptr, pos, pt, act_starts, rows, nk):  # pra
             touched[b] = False
 
 
-def subtract_yyt(S4: np.ndarray, y_blocks: np.ndarray, pt_order: np.ndarray, pt_ptr: np.ndarray,
-                 pt_act: np.ndarray, act_starts: np.ndarray, n_threads: int) -> None:
-    """S4 (A, k, A, k) -= Y Y^T.
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def _point_major(y_blocks, pt_order, W):  # pragma: no cover - compiled
+    out = np.zeros((len(pt_order), 3, W))
+    for jj in range(len(pt_order)):
+        src = y_blocks[pt_order[jj]]
+        for r in range(src.shape[0]):
+            for l in range(3):
+                out[jj, l, r] = src[r, l]
+    return out
 
-    y_blocks (Ma, k, 3): the y blocks of the active observations sorted by (camera, point), camera a's at
-    ``act_starts[a]:act_starts[a + 1]``, their points ``pt_act`` (Ma,); ``pt_order`` (Ma,) the stable sort of
-    them by point and ``pt_ptr`` (P + 1,) each point's slice of it.
-    """
+
+def subtract_yyt(S4: np.ndarray, y_blocks: np.ndarray, st: Structure, n_threads: int) -> None:
+    """S4 (A, k, A, k) -= Y Y^T, Y given by the active observations' (Ma_active, k, 3) blocks in the structure's
+    (camera, point) order (its point-major order, ``pt_order`` / ``pt_ptr`` / ``pt_pos`` / ``cam_pt``, drives the
+    kernel)."""
     A, nk = S4.shape[0], S4.shape[1]
     if A == 0 or nk == 0 or len(y_blocks) == 0:
         return
-    W = -(-nk // _LANES) * _LANES
-    ypt = np.zeros((len(y_blocks), 3, W))
-    ypt[:, :, :nk] = y_blocks[pt_order].transpose(0, 2, 1)
-    pos = np.empty_like(pt_order)
-    pos[pt_order] = np.arange(len(pt_order))
-    cam_pt = np.repeat(np.arange(A), np.diff(act_starts))[pt_order]
+    ypt = _point_major(y_blocks, st.pt_order, -(-nk // _LANES) * _LANES)
+    pt_act = st.pt[st.act]
     n_jobs = max(1, min(A, 8 * n_threads))
     jobs = [np.arange(t, A, n_jobs) for t in range(n_jobs)]
-    run_in_threads(lambda rows: _rows_kernel(S4, ypt, cam_pt, pt_ptr, pos, pt_act, act_starts, rows, nk), jobs,
-                   n_threads)
+    run_in_threads(lambda rows: _rows_kernel(S4, ypt, st.cam_pt, st.pt_ptr, st.pt_pos, pt_act, st.act_starts, rows,
+                                             nk), jobs, n_threads)
