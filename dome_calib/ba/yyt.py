@@ -15,15 +15,10 @@ because the tent points' camera sets differ too much).
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numba
 import numpy as np
 
 from dome_calib.ba.threads import run_in_threads
-
-if TYPE_CHECKING:
-    from dome_calib.ba.schur import Structure
 
 _LANES = 4  # block width padded to a multiple of this (15 -> 16: aligned SIMD rows)
 
@@ -82,9 +77,9 @@ def _point_major(y_blocks, pt_order, W):  # pragma: no cover - compiled
     return out
 
 
-def subtract_yyt(S4: np.ndarray, y_blocks: np.ndarray, st: Structure, n_threads: int) -> None:
+def subtract_yyt(S4: np.ndarray, y_blocks: np.ndarray, st, n_threads: int) -> None:
     """S4 (A, k, A, k) -= Y Y^T, Y given by the active observations' (Ma_active, k, 3) blocks in the structure's
-    (camera, point) order (its point-major order, ``pt_order`` / ``pt_ptr`` / ``pt_pos`` / ``cam_pt``, drives the
+    (camera, point) order; ``st`` is the :class:`dome_calib.ba.schur.Structure` (its point-major order, ``pt_order`` / ``pt_ptr`` / ``pt_pos`` / ``cam_pt``, drives the
     kernel)."""
     A, nk = S4.shape[0], S4.shape[1]
     if A == 0 or nk == 0 or len(y_blocks) == 0:
