@@ -44,7 +44,7 @@ def test_yyt_kernel_equals_dense_product(seed, n_cams, n_points, nk, duplicates)
     S4 = np.full((A, nk, A, nk), 2.0)  # the kernel subtracts from what is there
     subtract_yyt(S4, y, s, n_threads=2)
     expected = 2.0 - _dense_yyt(s, y)
-    np.testing.assert_allclose(S4.reshape(A * nk, A * nk), expected, rtol=0, 
+    np.testing.assert_allclose(S4.reshape(A * nk, A * nk), expected, rtol=0,
                                atol=1e-10 * max(1.0, np.abs(expected).max(initial=0.0)))
 
 

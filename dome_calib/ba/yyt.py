@@ -10,7 +10,7 @@ first cameras have the most blocks right of the diagonal.
 
 Why compiled: the products are rank-3 updates of 15 x 15 blocks at scattered places, which no dense or sparse
 library kernel at hand does well (scipy's block-sparse product runs generic, unvectorised block loops: 7.4 s
-on the full dome on 2 threads against 3.3 s here; dense products over clusters of points waste 8x or more,
+on the full dome on 2 threads against 2.0 s here; dense products over clusters of points waste 8x or more,
 because the tent points' camera sets differ too much).
 """
 from __future__ import annotations
@@ -79,8 +79,8 @@ def _point_major(y_blocks, pt_order, W):  # pragma: no cover - compiled
 
 def subtract_yyt(S4: np.ndarray, y_blocks: np.ndarray, st, n_threads: int) -> None:
     """S4 (A, k, A, k) -= Y Y^T, Y given by the active observations' (Ma_active, k, 3) blocks in the structure's
-    (camera, point) order; ``st`` is the :class:`dome_calib.ba.schur.Structure` (its point-major order, ``pt_order`` / ``pt_ptr`` / ``pt_pos`` / ``cam_pt``, drives the
-    kernel)."""
+    (camera, point) order. ``st`` is the :class:`dome_calib.ba.schur.Structure`; its point-major order
+    (``pt_order``, ``pt_ptr``, ``pt_pos``, ``cam_pt``) drives the kernel."""
     A, nk = S4.shape[0], S4.shape[1]
     if A == 0 or nk == 0 or len(y_blocks) == 0:
         return
