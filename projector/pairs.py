@@ -112,8 +112,10 @@ def pairs_from_prior(cameras: Mapping[str, Camera], names: Iterable[str], option
     if len(known) <= options.exhaustive_below:
         return pairs_exhaustive(known)
     seen, dirs = visibility(cameras, known, options)
-    v = seen.astype(np.int64)
-    shared = v @ v.T  # (C, C) samples seen by both: exact integers
+    v = seen.astype(np.float64)
+    # (C, C) samples seen by both. A float product goes through BLAS (~100x faster than numpy's integer matmul)
+    # and is still exact: sums of 0/1 products stay far below 2**53 in any summation order
+    shared = (v @ v.T).astype(np.int64)
     # cosines quantised: cameras at one angle by design compare equal on every machine, then go by name
     cos_q = quantize(dirs @ dirs.T, UNIT_QUANTUM)
     score = np.where(cos_q >= quantize(np.cos(np.radians(options.max_view_angle_deg)), UNIT_QUANTUM), shared, 0)
