@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import time
+import uuid
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -118,14 +119,19 @@ def match_descriptors(d1: np.ndarray, d2: np.ndarray, *, max_ratio: float = 0.8,
     return np.stack([rows[keep][order], best[keep][order]], axis=1).astype(np.uint32)
 
 
-_READERS: dict[str, FeatureReader] = {}  # per worker process
+_READERS: dict[str, tuple[str, FeatureReader]] = {}  # per worker process: path -> (call, reader)
 _MATCHERS: dict[tuple, object] = {}
 
 
-def _reader(database_path: str) -> FeatureReader:
-    if database_path not in _READERS:
-        _READERS[database_path] = FeatureReader(database_path)
-    return _READERS[database_path]
+def _reader(database_path: str, call: str) -> FeatureReader:
+    """The worker's reader of a database for one :func:`match_pairs` call. Its cache lives no longer than the call:
+    features can change between calls (the quick path extracts suspects again), and a worker outlives calls."""
+    held = _READERS.get(database_path)
+    if held is None or held[0] != call:
+        if held is not None:
+            held[1].close()
+        _READERS[database_path] = held = (call, FeatureReader(database_path))
+    return held[1]
 
 
 def _pycolmap_match(d1: np.ndarray, d2: np.ndarray, options: MatchOptions) -> np.ndarray:
@@ -151,11 +157,12 @@ def verify_options(options: MatchOptions):
     return vo
 
 
-def match_batch(task: tuple[str, list[Pair], MatchOptions]) -> list[PairResult]:
-    """Task: match and verify a batch of pairs of one database. ``task = (database_path, pairs, options)``."""
+def match_batch(task: tuple[str, list[Pair], MatchOptions, str]) -> list[PairResult]:
+    """Task: match and verify a batch of pairs of one database. ``task = (database_path, pairs, options, call)``
+    (``call``: unique per :func:`match_pairs` call)."""
 
-    database_path, pairs, options = task
-    reader = _reader(database_path)
+    database_path, pairs, options, call = task
+    reader = _reader(database_path, call)
     vo = verify_options(options)
     out = []
     for a, b in pairs:
@@ -212,7 +219,8 @@ def match_pairs(
             else:
                 todo.append((a, b))
         report.num_pairs = report.reused + len(todo)
-        tasks = [(str(database_path), batch, options) for batch in _batches(todo, options.pairs_per_task)]
+        call = uuid.uuid4().hex  # names this call's feature readers in the workers (never part of a result)
+        tasks = [(str(database_path), batch, options, call) for batch in _batches(todo, options.pairs_per_task)]
         with progress_bar(f"matching {report.scene}", report.num_pairs, enabled=options.show_progress) as advance:
             advance(report.reused)
             # written in pair order whatever the completion order (the database's rows do not depend on the workers)
