@@ -42,7 +42,8 @@ STAGE_LABELS = {"sfm": "features, pairs, matching, per-scene mapping, merging sc
                 "ba": "bundle adjustment (lens terms chosen per camera, outlier rejection)",
                 "normalize": "world frame", "write": "bundle and report",
                 "match": "features, pairs and matching of one scene",
-                "detect": "which cameras disagree with the prior", "quick_ba": "re-estimating the changed cameras"}
+                "detect": "which cameras disagree with the prior",
+                "suspect_match": "matching the suspects with more partners", "quick_ba": "re-estimating the changed cameras"}
 
 
 def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None = None) -> CalibrationResult:

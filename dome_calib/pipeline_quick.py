@@ -3,12 +3,16 @@
 The prior is right for most cameras, so one scene is enough and no mapping is needed:
 
 1. ``match``: features, prior-based pairs (fewer per camera than a full run) and verified matches of the first
-   scene (:func:`projector.sfm.match_scene`).
+   scene (:func:`projector.sfm.match_scene`). Images larger than DETECT_MAX_IMAGE_PX (HD, Kinect colour) are
+   reduced by an integer factor for this round (their keypoints are still in full-resolution pixels).
 2. ``detect``: every verified pair is tested against the PRIOR's relative pose and lenses (Sampson distance,
    :mod:`projector.consistency`); cameras most of whose pairs disagree are suspects (greedy, worst first, so
    an unchanged camera beside a disturbed panel is cleared once the panel is flagged). Cameras the prior does
-   not know are suspects too. The suspects are then matched with more unchanged partners.
-3. ``quick_ba``: the tent is triangulated from the unchanged partners of the suspects at their prior
+   not know are suspects too. Only reads the database.
+3. ``suspect_match``: a suspect whose image was reduced gets its features again at full resolution (its old
+   features and matches are dropped first, so a rerun redoes exactly this); the suspects are then matched with
+   more unchanged partners.
+4. ``quick_ba``: the tent is triangulated from the unchanged partners of the suspects at their prior
    calibration (:func:`projector.known_poses.triangulate_known`); each suspect is registered against those
    points (absolute pose); bundle adjustment with only the suspects' poses free (and the points), then with
    all their parameters free: a camera whose residual RMS the new intrinsics lower by more than noise fitting
@@ -42,8 +46,8 @@ from dome_calib.pipeline_stages import (BAOutcome, ba_options, observation_resid
 from dome_calib.residuals import Residuals
 from dome_calib.workstate import WorkState
 from projector.consistency import changed_cameras, pair_errors
-from projector.database import camera_of_image
-from projector.features import nominal_camera
+from projector.database import camera_of_image, drop_features
+from projector.features import extract_features, nominal_camera, reduction_factor
 from projector.known_poses import observations_from_known, register_cameras, triangulate_known, verified_partners
 from projector.matching import match_pairs
 from projector.pairs import PairOptions, pairs_from_prior
@@ -53,6 +57,12 @@ QUICK_BA = dataclasses.replace(ba_options(), compute_uncertainty=False)  # few f
 
 logger = logging.getLogger(__name__)
 
+#: Longer side (px) above which an image is reduced for the first round. 960 halves the HD and Kinect colour
+#: images (1920x1080), whose focal length is about twice the VGA cameras': reduced, they resolve the tent about as
+#: finely as a VGA camera, which is what detection needs. Measured on one HD image of the full bench: SIFT 0.62 ->
+#: 0.15 s, 5,698 -> 1,145 keypoints, which lie a median 0.14 px from a full-resolution keypoint. Suspects among
+#: them are extracted again at full resolution before they are re-estimated.
+DETECT_MAX_IMAGE_PX = 960
 #: Pairs per camera in the first matching round (enough to judge every camera against the prior) ...
 DETECT_PAIRS_PER_CAMERA = 12
 #: ... and partners among the unchanged cameras matched to each suspect afterwards (its registration).
@@ -90,7 +100,15 @@ class Suspects:
     suspects: list[str]
     unknown: list[str]  # cameras the prior does not know
     bad_pair_px: float  # Sampson distance above which a pair disagrees with the prior
+
+
+@dataclass(kw_only=True)
+class SuspectMatches:
+    """Stage ``suspect_match``: suspects extracted again at full resolution, and the extra pairs matched."""
+
+    full_resolution: list[str]  # suspects whose first-round features came from a reduced image
     extra_pairs: int
+    seconds: dict[str, float]  # features, matching
 
 
 @dataclass(kw_only=True)
@@ -121,9 +139,10 @@ def _robust_camera_rms(problem, used: np.ndarray) -> np.ndarray:
     return out
 
 
-def _options(progress: bool, pairs_per_camera: int) -> SfmOptions:
+def _options(progress: bool, pairs_per_camera: int, max_image_size_px: int = 0) -> SfmOptions:
     options = SfmOptions(show_progress=progress)
     options.pairs.max_pairs_per_camera = pairs_per_camera
+    options.features.max_image_size_px = max_image_size_px
     for sub in (options.features, options.matching):
         sub.show_progress = progress
     return options
@@ -134,7 +153,7 @@ def match_first_scene(capture: Path, work: Path, scene: str, prior: Bundle, prog
     """Stage ``match``: features, pairs and verified matches of one scene, in ``work/<scene>/database.db``
     (``cameras``: the images are on the capture nodes, read by the executor's workers there)."""
     quiet_colmap()
-    options = _options(progress, DETECT_PAIRS_PER_CAMERA)
+    options = _options(progress, DETECT_PAIRS_PER_CAMERA, DETECT_MAX_IMAGE_PX)
     options.cameras = cameras
     with make_executor() if executor is None else contextlib.nullcontext(executor) as pool:
         feats, pairs, matches = match_scene(capture, work, scene, dict(prior.cameras), options, pool)
@@ -145,25 +164,50 @@ def match_first_scene(capture: Path, work: Path, scene: str, prior: Bundle, prog
                         seconds={"features": feats.seconds, "matching": matches.seconds})
 
 
-def detect_suspects(matched: MatchedScene, prior: Bundle, progress: bool, *,
-                    executor: Executor | None = None) -> Suspects:
-    """Stage ``detect``: cameras inconsistent with the prior (module docstring), then their extra pairs."""
+def detect_suspects(matched: MatchedScene, prior: Bundle) -> Suspects:
+    """Stage ``detect``: cameras inconsistent with the prior, or unknown to it (module docstring)."""
     errors = pair_errors(str(matched.database), prior.cameras)
     verdict = changed_cameras(errors)
-    cameras = matched.cameras
-    unknown = [n for n in cameras if n not in prior.cameras]
+    unknown = [n for n in matched.cameras if n not in prior.cameras]
     suspects = sorted(set(verdict.changed) | set(verdict.unchecked) | set(unknown))
     logger.info("quick recalibration: %d suspect camera(s) (bad pair above %.2f px)", len(suspects),
                 verdict.bad_pair_px)
-    known = [n for n in cameras if n in prior.cameras]
-    s = set(suspects)
-    extra = [p for p in pairs_from_prior(prior.cameras, known, PairOptions(max_pairs_per_camera=SUSPECT_PAIRS_PER_CAMERA))
-             if (p[0] in s) != (p[1] in s)]
-    if extra:
-        with make_executor() if executor is None else contextlib.nullcontext(executor) as pool:
-            match_pairs(str(matched.database), extra, options=_options(progress, 0).matching, executor=pool,
-                        scene=matched.scene)
-    return Suspects(suspects=suspects, unknown=unknown, bad_pair_px=verdict.bad_pair_px, extra_pairs=len(extra))
+    return Suspects(suspects=suspects, unknown=unknown, bad_pair_px=verdict.bad_pair_px)
+
+
+def reduced_cameras(database: Path, cameras: list[str]) -> list[str]:
+    """Those of ``cameras`` whose first-round features came from a reduced image (by the image size)."""
+    with pycolmap.Database.open(str(database)) as db:
+        sizes = {camera_of_image(im.name): db.read_camera(im.camera_id) for im in db.read_all_images()}
+    return [n for n in cameras
+            if n in sizes and reduction_factor(sizes[n].width, sizes[n].height, DETECT_MAX_IMAGE_PX) > 1]
+
+
+def match_suspects(matched: MatchedScene, det: Suspects, prior: Bundle, capture: Path, progress: bool, *,
+                   executor: Executor | None = None) -> SuspectMatches:
+    """Stage ``suspect_match``: reduced suspects extracted again at full resolution (on the capture nodes when
+    the executor's workers are there), then every suspect matched with SUSPECT_PAIRS_PER_CAMERA unchanged
+    partners."""
+    suspects, seconds = det.suspects, {"features": 0.0, "matching": 0.0}
+    full = reduced_cameras(matched.database, suspects)
+    options = _options(progress, 0)
+    with make_executor() if executor is None else contextlib.nullcontext(executor) as pool:
+        if full:
+            drop_features(matched.database, full)
+            feats = extract_features(capture / "scenes" / matched.scene, matched.database, prior=prior.cameras,
+                                     options=options.features, executor=pool, scene=matched.scene, cameras=full)
+            seconds["features"] = feats.seconds
+            logger.info("quick recalibration: %d suspect(s) extracted again at full resolution", len(full))
+        known = [n for n in matched.cameras if n in prior.cameras]
+        s = set(suspects)
+        extra = [p for p in pairs_from_prior(prior.cameras, known,
+                                             PairOptions(max_pairs_per_camera=SUSPECT_PAIRS_PER_CAMERA))
+                 if (p[0] in s) != (p[1] in s)]
+        if extra:
+            report = match_pairs(str(matched.database), extra, options=options.matching, executor=pool,
+                                 scene=matched.scene)
+            seconds["matching"] = report.seconds
+    return SuspectMatches(full_resolution=full, extra_pairs=len(extra), seconds=seconds)
 
 
 def reestimate(matched: MatchedScene, det: Suspects, prior: Bundle, work: Path, progress: bool) -> Reestimated:
@@ -257,9 +301,11 @@ def run_quick(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
     with open_executor(inputs.capture, options.scheduler, cluster) as executor:
         matched = state.run("match", partial(match_first_scene, inputs.capture, work, scene, prior, progress,
                                              executor=executor, cameras=cameras))
-        det = state.run("detect", partial(detect_suspects, matched, prior, progress, executor=executor))
+        det = state.run("detect", partial(detect_suspects, matched, prior))
+        extra = state.run("suspect_match", partial(match_suspects, matched, det, prior, inputs.capture, progress,
+                                                   executor=executor))
     cluster = settle_cluster_stats(state.folder / "cluster.json", cluster,
-                                   resumed="match" in state.resumed and "detect" in state.resumed)
+                                   resumed=all(s in state.resumed for s in ("match", "detect", "suspect_match")))
     est = state.run("quick_ba", partial(reestimate, matched, det, prior, work, progress))
     failures = {n: f"no usable image in {scene}: {why}" for n, why in matched.failures.items()}
     failures.update({n: f"changed since the prior but not re-estimated: {why}" for n, why in est.failed.items()})
@@ -279,6 +325,7 @@ def run_quick(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
                                    f"({len(est.changed)} cameras re-estimated)")
     stats = {"scene": scene, "pairs": matched.pairs, "verified_pairs": matched.verified_pairs,
              "inlier_matches": matched.inlier_matches, "suspects": det.suspects, "bad_pair_px": det.bad_pair_px,
-             "extra_pairs": det.extra_pairs, "points": est.points, "observations": est.observations,
-             "held_cameras": est.held_cameras, "seconds": matched.seconds}
+             "full_resolution": extra.full_resolution, "extra_pairs": extra.extra_pairs, "points": est.points, "observations": est.observations,
+             "held_cameras": est.held_cameras,
+             "seconds": {**matched.seconds, **{f"suspect_{k}": v for k, v in extra.seconds.items()}}}
     return dataclasses.replace(finish(inputs, state, calibrated), ba=est.ba, stats={"quick": stats, "cluster": cluster})

@@ -92,6 +92,30 @@ def write_features(db: pycolmap.Database, image_id: int, keypoints: np.ndarray, 
                                                                np.ascontiguousarray(descriptors_u8)))
 
 
+#: COLMAP's pair id: ``image_id1 * PAIR_ID_BASE + image_id2`` with ``image_id1 < image_id2``.
+PAIR_ID_BASE = 2147483647
+
+
+def drop_features(database_path: str | Path, cameras: list[str]) -> int:
+    """Delete the keypoints and descriptors of ``cameras``' images, and every match and two-view geometry of
+    theirs, so that the next feature extraction and matching redo exactly them (the images and their cameras
+    stay). One transaction; call with no ``pycolmap.Database`` open on the file. Returns how many images."""
+    with sqlite3.connect(str(database_path), timeout=60.0) as conn:
+        ids = [row[0] for row in conn.execute(
+            f"SELECT image_id FROM images WHERE name IN ({','.join('?' * len(cameras))})",
+            [image_name(c) for c in cameras])]
+        if not ids:
+            return 0
+        marks = ",".join("?" * len(ids))
+        for table in ("keypoints", "descriptors"):
+            conn.execute(f"DELETE FROM {table} WHERE image_id IN ({marks})", ids)
+        for table in ("matches", "two_view_geometries"):
+            conn.execute(f"DELETE FROM {table} WHERE pair_id / {PAIR_ID_BASE} IN ({marks}) "
+                         f"OR pair_id % {PAIR_ID_BASE} IN ({marks})", ids + ids)
+    conn.close()
+    return len(ids)
+
+
 def images_with_features(db: pycolmap.Database) -> dict[str, int]:
     """Image name -> image id of every image that already has keypoints (for resuming)."""
     return {im.name: im.image_id for im in db.read_all_images() if db.exists_keypoints(im.image_id)}

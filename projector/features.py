@@ -39,6 +39,9 @@ class FeatureOptions:
     blank_max_std: float = 3.0  # grey-level std below this: blank image
     overexposed_fraction: float = 0.5  # more than this fraction of pixels >= 250: overexposed
     min_features: int = 60  # fewer: the camera does not see the tent (or sees too little of it)
+    #: 0: full resolution. Else an image whose longer side exceeds this is reduced by the smallest integer factor
+    #: that fits (box filter, :func:`reduction_factor`) and its keypoints are put back in full-resolution pixels.
+    max_image_size_px: int = 0
     show_progress: bool = True
 
 
@@ -93,8 +96,27 @@ def check_image(image: np.ndarray | None, options: FeatureOptions) -> str | None
     return None
 
 
+def reduction_factor(width: int, height: int, max_image_size_px: int) -> int:
+    """The integer factor an image is reduced by before SIFT: 1, or the smallest that brings its longer side to at
+    most ``max_image_size_px`` (0: no limit). 1920x1080 at 960 -> 2."""
+    if max_image_size_px <= 0:
+        return 1
+    return max(1, -(-max(width, height) // max_image_size_px))
+
+
+def _reduced(image: np.ndarray, factor: int) -> np.ndarray:
+    """The image reduced ``factor`` times by averaging factor x factor blocks (a trailing partial block is cut)."""
+    h, w = (image.shape[0] // factor) * factor, (image.shape[1] // factor) * factor
+    return cv2.resize(image[:h, :w], (w // factor, h // factor), interpolation=cv2.INTER_AREA)
+
+
 def extract_image(task: tuple[str, str, FeatureOptions]) -> ImageResult:
-    """Task: SIFT of one image file. ``task = (camera_name, image_path, options)``. Never raises for bad images."""
+    """Task: SIFT of one image file. ``task = (camera_name, image_path, options)``. Never raises for bad images.
+
+    With ``options.max_image_size_px`` a large image is reduced by an integer factor f first; COLMAP pixel
+    coordinates have their origin at the image corner, so a keypoint at (x, y) of the reduced image is at
+    (f x, f y) of the full one exactly (the block of f x f pixels it averages), and its scale is f times larger.
+    """
 
     camera, path, options = task
     t0 = time.perf_counter()
@@ -105,8 +127,13 @@ def extract_image(task: tuple[str, str, FeatureOptions]) -> ImageResult:
     reason = check_image(image, options)
     if reason is not None:
         return ImageResult(camera=camera, failure=reason, seconds=time.perf_counter() - t0)
-    kps, desc = _extractor(options).extract(pycolmap.Bitmap.from_array(np.ascontiguousarray(image)))
+    factor = reduction_factor(image.shape[1], image.shape[0], options.max_image_size_px)
+    small = image if factor == 1 else _reduced(image, factor)
+    kps, desc = _extractor(options).extract(pycolmap.Bitmap.from_array(np.ascontiguousarray(small)))
     kp = pycolmap.keypoints_to_matrix(kps)
+    if factor > 1:
+        kp = kp.copy()
+        kp[:, :3] *= factor  # x, y (corner-origin px) and scale; the orientation stays
     d = descriptors_to_uint8(desc.data)
     result = ImageResult(camera=camera, keypoints=kp, descriptors=d, shape=image.shape, seconds=time.perf_counter() - t0)
     if len(kp) < options.min_features:

@@ -152,7 +152,7 @@ def test_quick_recalibration_with_nothing_changed_keeps_the_prior(tmp_path):
     names = write_scene_database(db, prior, prior, seed=3)
     matched = quick.MatchedScene(scene="scene_01", database=db, image_dir=tmp_path, cameras=names, failures={},
                                  pairs=0, verified_pairs=0, inlier_matches=0, seconds={})
-    det = quick.detect_suspects(matched, prior, progress=False)
+    det = quick.detect_suspects(matched, prior)
     assert det.suspects == []
     est = quick.reestimate(matched, det, prior, tmp_path / "work", progress=False)
     assert est.changed == [] and est.ba is None

@@ -161,3 +161,89 @@ def test_camera_unknown_to_the_prior_is_still_registered(broken_capture, tmp_pat
     assert np.linalg.norm(result.cameras[unknown].center_cm - gt[unknown].center_cm) < 2.0
     pairs = (tmp_path / "scene_01" / "pairs.txt").read_text().splitlines()
     assert sum(f"{unknown}.png" in line for line in pairs) == len(GOOD) - 1
+
+
+def test_reduced_image_keypoints_are_in_full_resolution_pixels(broken_capture):
+    """An HD image halved for SIFT (the quick path's first round): fewer keypoints, each where the full-resolution
+    SIFT finds one (COLMAP's corner-origin pixels scale exactly), at the same scale."""
+    from scipy.spatial import cKDTree
+
+    from projector.features import extract_image, reduction_factor
+
+    assert [reduction_factor(w, h, 960) for w, h in ((640, 480), (960, 540), (1920, 1080), (1921, 1080))] == [1, 1, 2, 3]
+    assert reduction_factor(1920, 1080, 0) == 1
+    path = str(broken_capture / "scenes" / "scene_01" / "00_00.png")
+    full = extract_image(("00_00", path, FeatureOptions(show_progress=False)))
+    half = extract_image(("00_00", path, FeatureOptions(show_progress=False, max_image_size_px=960)))
+    assert half.failure is None and half.shape == full.shape == (1080, 1920)
+    assert 100 < len(half.keypoints) < len(full.keypoints) / 2
+    dist_px, nearest = cKDTree(full.keypoints[:, :2]).query(half.keypoints[:, :2])
+    assert np.median(dist_px) < 0.3  # px (full resolution)
+    close = dist_px < 1.0
+    assert close.mean() > 0.7
+    assert np.median(half.keypoints[close, 2] / full.keypoints[nearest[close], 2]) == pytest.approx(1.0, abs=0.05)
+
+
+def test_dropped_features_are_extracted_and_matched_again(sfm_result, broken_capture, tmp_path):
+    """drop_features removes one image's features and every pair of it; extraction and matching then redo
+    exactly that image and those pairs, and give what they gave the first time."""
+    import sqlite3
+
+    import pycolmap
+
+    from projector.database import drop_features
+
+    _, work = sfm_result
+    db = tmp_path / "database.db"
+    with sqlite3.connect(work / "scene_01" / "database.db") as src, sqlite3.connect(db) as dst:
+        src.backup(dst)  # with what is still in the write-ahead log
+    src.close(), dst.close()
+    pairs = pairs_exhaustive(GOOD)
+    hd = "00_00"
+
+    def inliers() -> dict:
+        with pycolmap.Database.open(str(db)) as d:
+            ids = {im.name: im.image_id for im in d.read_all_images()}
+            return {p: len(d.read_two_view_geometry(ids[f"{p[0]}.png"], ids[f"{p[1]}.png"]).inlier_matches)
+                    for p in pairs if d.exists_two_view_geometry(ids[f"{p[0]}.png"], ids[f"{p[1]}.png"])}
+
+    before = inliers()
+    assert drop_features(db, [hd, "not_a_camera"]) == 1
+    after_drop = inliers()
+    assert sorted(after_drop) == sorted(p for p in before if hd not in p)
+    feats = extract_features(broken_capture / "scenes" / "scene_01", db, cameras=[hd],
+                             options=FeatureOptions(show_progress=False))
+    assert feats.reused == len(GOOD) - 1 and sorted(feats.num_features) == GOOD  # only the HD image extracted
+    again = match_pairs(db, pairs, options=MatchOptions(show_progress=False))
+    assert again.reused == sum(hd not in p for p in pairs)
+    assert inliers() == before
+
+
+def test_quick_recalibration_gives_a_disturbed_hd_camera_full_resolution(broken_capture, tmp_path):
+    """calibrate --only-changed on rendered images, the prior with the HD camera turned 1 deg: it is found from
+    its halved image, extracted again at full resolution, re-estimated near the truth; the others keep the prior."""
+    import dataclasses
+
+    from scipy.spatial.transform import Rotation
+
+    import dome_calib.pipeline as pipeline
+    from dome_calib.bundle import Bundle
+    from dome_calib.bundle_io import write_bundle
+    from dome_calib.compare import camera_error
+
+    truth = load_bundle(broken_capture / "ground_truth")
+    hd = "00_00"
+    cams = dict(truth.cameras)
+    c = cams[hd]
+    cams[hd] = dataclasses.replace(c, R=Rotation.from_rotvec([0.0, np.radians(1.0), 0.0]).as_matrix() @ c.R)
+    prior = write_bundle(Bundle(seq="prior", cameras=cams), tmp_path / "prior")
+    result = pipeline.run_calibration(broken_capture, tmp_path / "out", pipeline.CalibrateOptions(
+        prior=prior, only_changed=True, progress=False))
+    assert sorted(result.changes) == [hd]
+    assert result.stats["quick"]["full_resolution"] == [hd]
+    out = load_bundle(tmp_path / "out")
+    err = camera_error(out.cameras[hd], truth.cameras[hd])
+    assert err.rotation_deg < 0.05 and err.center_cm < 1.0, err
+    for n in GOOD:
+        if n != hd:
+            np.testing.assert_array_equal(out.cameras[n].R, cams[n].R)
