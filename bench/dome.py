@@ -3,6 +3,7 @@
     .venv/bin/python bench/dome.py --preset panel          # ~60 cameras, 3 scenes
     .venv/bin/python bench/dome.py --preset full           # 521 cameras, 3 scenes
     .venv/bin/python bench/dome.py --preset full --quick   # + quick recalibration after a panel was disturbed
+    .venv/bin/python bench/dome.py --preset full --quick-only --rigid   # only that, the panel moved as one body
 
 Prints one JSON object per line: the synthetic capture, the wall time of every calibrate stage, accuracy against
 ground truth (after a similarity alignment), and the oracle: the same bundle adjustment started from the ground
@@ -157,20 +158,26 @@ def run(args) -> None:
         quick(args, root, truth)
 
 
-def perturb_panel(truth: Bundle, panel: int, seed: int) -> tuple[Bundle, list[str], str]:
-    """Move the cameras of one panel 2-5 cm, rotate them 1-2 deg; replace one (focal -4 %, other distortion)."""
+def perturb_panel(truth: Bundle, panel: int, seed: int, rigid: bool = False) -> tuple[Bundle, list[str], str]:
+    """Move the cameras of one panel 2-5 cm, rotate them 1-2 deg (``rigid``: the panel as one body, turned about
+    its centre, so its cameras keep their relative poses); replace one (focal -4 %, other distortion)."""
     from scipy.spatial.transform import Rotation
+
+    def motion():
+        d, axis = rng.normal(size=3), rng.normal(size=3)
+        dR = Rotation.from_rotvec(np.radians(rng.uniform(1, 2)) * axis / np.linalg.norm(axis)).as_matrix()
+        return dR, rng.uniform(2, 5) * d / np.linalg.norm(d)
 
     rng = np.random.default_rng(seed)
     cams = dict(truth.cameras)
     names = sorted(n for n, c in cams.items() if c.panel == panel and c.type == "vga")
+    middle = np.mean([cams[n].center_cm for n in names], axis=0)
+    body = motion() if rigid else None
     for n in names:
         c = cams[n]
-        d = rng.normal(size=3)
-        axis = rng.normal(size=3)
-        dR = Rotation.from_rotvec(np.radians(rng.uniform(1, 2)) * axis / np.linalg.norm(axis)).as_matrix()
-        center = c.center_cm + rng.uniform(2, 5) * d / np.linalg.norm(d)
-        R = dR @ c.R
+        dR, shift = body if rigid else motion()
+        center = (middle + dR @ (c.center_cm - middle) if rigid else c.center_cm) + shift
+        R = c.R @ dR.T if rigid else dR @ c.R
         cams[n] = dataclasses.replace(c, R=R, t_cm=-R @ center)
     replaced = names[len(names) // 2]
     c = cams[replaced]
@@ -183,16 +190,17 @@ def perturb_panel(truth: Bundle, panel: int, seed: int) -> tuple[Bundle, list[st
 
 def quick(args, root: Path, truth: Bundle) -> None:
     """Issue 8's quick recalibration: one panel disturbed, `calibrate --prior --only-changed`."""
-    moved, names, replaced = perturb_panel(truth, args.panel, args.seed + 100)
-    layout = root / "quick_truth"
+    moved, names, replaced = perturb_panel(truth, args.panel, args.seed + 100, rigid=args.rigid)
+    kind = "quick_rigid" if args.rigid else "quick"
+    layout = root / f"{kind}_truth"
     write_bundle(dataclasses.replace(moved, seq="quick"), layout)
-    capture = root / "quick_capture"
+    capture = root / f"{kind}_capture"
     t = synth(capture, args.preset, 1, args.seed, layout=layout / "calibration_quick.json")  # --only-changed uses 1
-    emit(bench="dome", stage="quick_synth", seconds=round(t, 1), perturbed=names, replaced=replaced)
-    out = root / "quick_bundle"
+    emit(bench="dome", stage="quick_synth", seconds=round(t, 1), perturbed=names, replaced=replaced, rigid=args.rigid)
+    out = root / f"{kind}_bundle"
     shutil.rmtree(out, ignore_errors=True)
     if not args.resume:
-        shutil.rmtree(root / "quick_bundle.work", ignore_errors=True)
+        shutil.rmtree(root / f"{kind}_bundle.work", ignore_errors=True)
     t0 = time.perf_counter()
     result = run_calibration(capture, out, CalibrateOptions(prior=Path(root / "capture" / "ground_truth"),
                                                             only_changed=True, progress=False))
@@ -229,6 +237,8 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="also run the quick-recalibration scenario")
     parser.add_argument("--quick-only", action="store_true", help="only the quick-recalibration scenario")
     parser.add_argument("--panel", type=int, default=1, help="panel disturbed in the quick scenario")
+    parser.add_argument("--rigid", action="store_true", help="quick scenario: the panel moved as one rigid body "
+                        "(its cameras keep their relative poses) instead of each camera on its own")
     run(parser.parse_args())
 
 

@@ -35,7 +35,7 @@ import pycolmap
 
 from dome_calib.align import Alignment
 from dome_calib.ba.problem import ParamGroup, camera_to_params
-from dome_calib.bundle import Bundle
+from dome_calib.bundle import Bundle, CameraType
 from dome_calib.compare import CameraChange, camera_error
 from dome_calib.cluster import capture_nodes, cluster_section, open_executor, settle_cluster_stats
 from dome_calib.executor import Executor, make_executor
@@ -100,6 +100,7 @@ class Suspects:
     suspects: list[str]
     unknown: list[str]  # cameras the prior does not know
     bad_pair_px: float  # Sampson distance above which a pair disagrees with the prior
+    panels: list[int] = field(default_factory=list)  # VGA panels suspect as a whole (their pairs with others bad)
 
 
 @dataclass(kw_only=True)
@@ -167,12 +168,17 @@ def match_first_scene(capture: Path, work: Path, scene: str, prior: Bundle, prog
 def detect_suspects(matched: MatchedScene, prior: Bundle) -> Suspects:
     """Stage ``detect``: cameras inconsistent with the prior, or unknown to it (module docstring)."""
     errors = pair_errors(str(matched.database), prior.cameras)
-    verdict = changed_cameras(errors)
+    panels = {n: c.panel for n, c in prior.cameras.items() if c.type == CameraType.VGA}  # rigid groups
+    verdict = changed_cameras(errors, group_of=panels)
     unknown = [n for n in matched.cameras if n not in prior.cameras]
     suspects = sorted(set(verdict.changed) | set(verdict.unchecked) | set(unknown))
+    for panel, (fraction, n_bad) in sorted(verdict.changed_groups.items()):
+        logger.info("quick recalibration: panel %d suspect as a whole (%d of its pairs with other panels bad, "
+                    "%.0f %%)", panel, n_bad, 100 * fraction)
     logger.info("quick recalibration: %d suspect camera(s) (bad pair above %.2f px)", len(suspects),
                 verdict.bad_pair_px)
-    return Suspects(suspects=suspects, unknown=unknown, bad_pair_px=verdict.bad_pair_px)
+    return Suspects(suspects=suspects, unknown=unknown, bad_pair_px=verdict.bad_pair_px,
+                    panels=sorted(verdict.changed_groups))
 
 
 def reduced_cameras(database: Path, cameras: list[str]) -> list[str]:
@@ -324,7 +330,8 @@ def run_quick(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
                             source=f"dome-calib calibrate --only-changed {inputs.capture.name} "
                                    f"({len(est.changed)} cameras re-estimated)")
     stats = {"scene": scene, "pairs": matched.pairs, "verified_pairs": matched.verified_pairs,
-             "inlier_matches": matched.inlier_matches, "suspects": det.suspects, "bad_pair_px": det.bad_pair_px,
+             "inlier_matches": matched.inlier_matches, "suspects": det.suspects, "suspect_panels": det.panels,
+             "bad_pair_px": det.bad_pair_px,
              "full_resolution": extra.full_resolution, "extra_pairs": extra.extra_pairs, "points": est.points, "observations": est.observations,
              "held_cameras": est.held_cameras,
              "seconds": {**matched.seconds, **{f"suspect_{k}": v for k, v in extra.seconds.items()}}}

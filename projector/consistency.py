@@ -11,6 +11,12 @@ bad. A pair is bad when either camera changed, so an unchanged camera beside a d
 too; the cameras are therefore flagged greedily, worst first (the largest fraction of bad pairs among the
 partners not flagged yet), and each flag removes that camera's pairs from its partners' counts. Every changed
 camera has all of its pairs bad; after they are flagged, their unchanged neighbours are left with good pairs.
+
+A panel that moved as a whole keeps the relative poses of its cameras: their pairs with each other stay good,
+and most of a VGA camera's partners are on its own panel (a median 3 of its ~13 first-round pairs leave it on
+the full dome), so no single camera looks changed. Rigid groups (``group_of``: the VGA panels) are therefore
+candidates of the same greedy too, scored by their pairs that leave the group; a flagged group flags all of its
+cameras, each then confirmed or cleared by the re-estimation.
 """
 from __future__ import annotations
 
@@ -32,6 +38,7 @@ NOISE_FACTOR = 6.0
 BAD_PAIR_PX_BOUNDS = (0.3, 2.0)
 MAX_BAD_FRACTION = 0.5  # a camera with more than this fraction of bad pairs (among unflagged partners) changed
 MIN_PAIR_MATCHES = 20
+MIN_GROUP_PAIRS = 5  # a rigid group is judged on at least this many pairs leaving it
 
 
 @dataclass(kw_only=True)
@@ -47,6 +54,7 @@ class Consistency:
     pair_error_px: dict[Pair, float] = field(default_factory=dict)
     changed: dict[str, tuple[float, int]] = field(default_factory=dict)
     unchecked: list[str] = field(default_factory=list)  # cameras with no usable pair
+    changed_groups: dict[int, tuple[float, int]] = field(default_factory=dict)  # rigid groups flagged as a whole
 
 
 def _sampson_px(x1: np.ndarray, x2: np.ndarray, a: Camera, b: Camera) -> np.ndarray:
@@ -102,31 +110,58 @@ def bad_pair_threshold_px(pair_error_px: Mapping[Pair, float]) -> float:
 
 
 def changed_cameras(pair_error_px: Mapping[Pair, float], *, bad_px: float | None = None,
-                    max_bad_fraction: float = MAX_BAD_FRACTION) -> Consistency:
-    """Greedy verdict (module docstring): flag the camera with the largest fraction of bad pairs among its
-    unflagged partners while that fraction exceeds ``max_bad_fraction``. ``bad_px`` default:
-    :func:`bad_pair_threshold_px`."""
+                    max_bad_fraction: float = MAX_BAD_FRACTION,
+                    group_of: Mapping[str, int] | None = None) -> Consistency:
+    """Greedy verdict (module docstring): flag the candidate with the largest fraction of bad pairs among its
+    pairs with unflagged cameras while that fraction exceeds ``max_bad_fraction``. Candidates are the cameras and
+    the rigid groups of ``group_of`` (camera -> group; a group is scored on its pairs that leave it, and needs
+    MIN_GROUP_PAIRS of them). Equal scores: the larger count of bad pairs, then cameras before groups, then the
+    first name. ``bad_px`` default: :func:`bad_pair_threshold_px`."""
     bad_px = bad_pair_threshold_px(pair_error_px) if bad_px is None else bad_px
+    group_of = group_of or {}
     partners: dict[str, dict[str, bool]] = {}
     for (a, b), e in pair_error_px.items():
         partners.setdefault(a, {})[b] = e > bad_px
         partners.setdefault(b, {})[a] = e > bad_px
+    members: dict[int, list[str]] = {}
+    for cam in sorted(partners):
+        if cam in group_of:
+            members.setdefault(group_of[cam], []).append(cam)
     flagged: dict[str, tuple[float, int]] = {}
+    flagged_groups: dict[int, tuple[float, int]] = {}
+
+    def score(live: list[bool], minimum: int) -> tuple[float, int] | None:
+        n_bad = sum(live)
+        if len(live) < minimum or n_bad / len(live) <= max_bad_fraction:
+            return None
+        return n_bad / len(live), n_bad
+
     while True:
-        best, best_key = None, (0.0, 0)
-        for cam, p in sorted(partners.items()):  # equal fractions: the first name wins, whatever the input order
+        best, best_key = None, (0.0, 0, 0)
+        for cam, p in sorted(partners.items()):  # equal scores: the first name wins, whatever the input order
             if cam in flagged:
                 continue
-            live = [bad for other, bad in p.items() if other not in flagged]
-            n_bad = sum(live)
-            if not live or n_bad / len(live) <= max_bad_fraction:
+            key = score([bad for other, bad in p.items() if other not in flagged], 1)
+            if key is not None and key + (1,) > best_key:
+                best, best_key = cam, key + (1,)
+        for group, cams in sorted(members.items()):
+            todo = [c for c in cams if c not in flagged]
+            if len(todo) < 2:
                 continue
-            key = (n_bad / len(live), n_bad)
-            if key > best_key:
-                best, best_key = cam, key
+            live = [bad for c in todo for other, bad in partners[c].items()
+                    if other not in flagged and group_of.get(other) != group]
+            key = score(live, MIN_GROUP_PAIRS)
+            if key is not None and key + (0,) > best_key:
+                best, best_key = group, key + (0,)
         if best is None:
             break
-        flagged[best] = best_key
+        if best_key[2] == 1:
+            flagged[best] = best_key[:2]
+        else:
+            flagged_groups[best] = best_key[:2]
+            for c in members[best]:
+                flagged.setdefault(c, best_key[:2])
     unchecked = sorted(c for c, p in partners.items()
                        if c not in flagged and not any(o not in flagged for o in p))
-    return Consistency(pair_error_px=dict(pair_error_px), changed=flagged, unchecked=unchecked, bad_pair_px=bad_px)
+    return Consistency(pair_error_px=dict(pair_error_px), changed=flagged, unchecked=unchecked, bad_pair_px=bad_px,
+                       changed_groups=flagged_groups)

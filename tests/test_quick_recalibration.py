@@ -156,3 +156,50 @@ def test_quick_recalibration_with_nothing_changed_keeps_the_prior(tmp_path):
     assert det.suspects == []
     est = quick.reestimate(matched, det, prior, tmp_path / "work", progress=False)
     assert est.changed == [] and est.ba is None
+
+
+def test_greedy_verdict_flags_a_group_that_moved_as_a_whole():
+    """Panel p moved rigidly: its internal pairs stay good, each camera has only one bad pair of three, yet every
+    pair leaving the panel is bad: the group is flagged, its neighbours (q, x) are not."""
+    p, q = ["p1", "p2", "p3", "p4", "p5"], ["q1", "q2", "q3"]
+    err = {pair: 0.1 for pair in itertools.combinations(p, 2)}
+    err.update({pair: 0.1 for pair in itertools.combinations(q + ["x", "y"], 2)})
+    err.update({(a, b): 9.0 for a, b in zip(p, q + ["x", "y"])})  # one pair each leaves the panel
+    group_of = {n: 1 for n in p} | {n: 2 for n in q}
+    alone = changed_cameras(err, bad_px=1.0)
+    assert alone.changed == {}  # camera by camera, nothing looks changed
+    verdict = changed_cameras(err, bad_px=1.0, group_of=group_of)
+    assert sorted(verdict.changed) == p and verdict.changed_groups == {1: (1.0, 5)}
+    few = {pair: e for pair, e in err.items() if pair not in (("p4", "x"), ("p5", "y"))}
+    assert changed_cameras(few, bad_px=1.0, group_of=group_of).changed == {}  # 3 pairs leaving it: too few to judge
+
+
+def test_rigidly_moved_panel_is_found_and_reestimated(tmp_path):
+    """The eight panel-1 cameras moved together (2 cm and 1 deg about the panel's centre): their mutual pairs fit
+    the prior, their pairs with the HD and Kinect cameras do not. All eight are found and re-estimated; the
+    cameras off the panel keep the prior."""
+    import dome_calib.pipeline_quick as quick
+
+    prior = _neighbourhood()
+    panel = [n for n in CAMERAS if n.startswith("01_")]
+    centre = np.mean([prior.cameras[n].center_cm for n in panel], axis=0)
+    turn = Rotation.from_rotvec([0.0, np.radians(1.0), 0.0]).as_matrix()
+    now = dict(prior.cameras)
+    for n in panel:
+        c = now[n]
+        R = c.R @ turn.T  # world turned about the panel centre, then shifted: a rigid motion of the panel
+        C = centre + turn @ (c.center_cm - centre) + [2.0, 0.0, 0.0]
+        now[n] = dataclasses.replace(c, R=R, t_cm=-R @ C)
+    current = Bundle(seq="now", cameras=now)
+    db = tmp_path / "scene_01" / "database.db"
+    db.parent.mkdir()
+    names = write_scene_database(db, current, prior, seed=5)
+    matched = quick.MatchedScene(scene="scene_01", database=db, image_dir=tmp_path, cameras=names, failures={},
+                                 pairs=0, verified_pairs=0, inlier_matches=0, seconds={})
+    det = quick.detect_suspects(matched, prior)
+    assert det.suspects == sorted(panel) and det.panels == [1]
+    est = quick.reestimate(matched, det, prior, tmp_path / "work", progress=False)
+    assert sorted(est.changed) == sorted(panel)
+    for n in panel:
+        e = camera_error(est.ba.cameras[n], current.cameras[n])
+        assert e.center_cm < 0.3 and e.rotation_deg < 0.05, (n, e)
