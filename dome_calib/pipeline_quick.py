@@ -51,7 +51,7 @@ from projector.features import extract_features, nominal_camera, reduction_facto
 from projector.known_poses import observations_from_known, register_cameras, triangulate_known, verified_partners
 from projector.matching import match_pairs
 from projector.pairs import PairOptions, pairs_from_prior
-from projector.sfm import SfmOptions, mapper_image_dir, match_scene
+from projector.sfm import SfmOptions, mapper_image_dir, match_scene, read_pairs, write_pairs
 
 QUICK_BA = dataclasses.replace(ba_options(), compute_uncertainty=False)  # few free cameras: not needed
 
@@ -95,17 +95,18 @@ class MatchedScene:
 
 @dataclass(kw_only=True)
 class Suspects:
-    """Stage ``detect``: cameras inconsistent with the prior (or unknown to it), and the extra pairs matched."""
+    """Stage ``detect``: cameras inconsistent with the prior (or unknown to it); VGA panels suspect as a whole."""
 
     suspects: list[str]
     unknown: list[str]  # cameras the prior does not know
     bad_pair_px: float  # Sampson distance above which a pair disagrees with the prior
-    panels: list[int] = field(default_factory=list)  # VGA panels suspect as a whole (their pairs with others bad)
+    panels: list[int] = field(default_factory=list)  # VGA panels suspect as a whole (the pairs leaving them bad)
 
 
 @dataclass(kw_only=True)
 class SuspectMatches:
-    """Stage ``suspect_match``: suspects extracted again at full resolution, and the extra pairs matched."""
+    """Stage ``suspect_match``: suspects extracted again at full resolution (their first-round pairs matched
+    again), and the extra pairs matched."""
 
     full_resolution: list[str]  # suspects whose first-round features came from a reduced image
     extra_pairs: int
@@ -171,10 +172,12 @@ def detect_suspects(matched: MatchedScene, prior: Bundle) -> Suspects:
     panels = {n: c.panel for n, c in prior.cameras.items() if c.type == CameraType.VGA}  # rigid groups
     verdict = changed_cameras(errors, group_of=panels)
     unknown = [n for n in matched.cameras if n not in prior.cameras]
-    suspects = sorted(set(verdict.changed) | set(verdict.unchecked) | set(unknown))
+    # a panel suspect as a whole: all of its cameras with an image, also those without a usable pair
+    on_panels = [n for n in matched.cameras if panels.get(n, -1) in verdict.changed_groups]
+    suspects = sorted(set(verdict.changed) | set(verdict.unchecked) | set(unknown) | set(on_panels))
     for panel, (fraction, n_bad) in sorted(verdict.changed_groups.items()):
-        logger.info("quick recalibration: panel %d suspect as a whole (%d of its pairs with other panels bad, "
-                    "%.0f %%)", panel, n_bad, 100 * fraction)
+        logger.info("quick recalibration: panel %d suspect as a whole (%d of the pairs leaving it bad, %.0f %%)",
+                    panel, n_bad, 100 * fraction)
     logger.info("quick recalibration: %d suspect camera(s) (bad pair above %.2f px)", len(suspects),
                 verdict.bad_pair_px)
     return Suspects(suspects=suspects, unknown=unknown, bad_pair_px=verdict.bad_pair_px,
@@ -192,27 +195,34 @@ def reduced_cameras(database: Path, cameras: list[str]) -> list[str]:
 def match_suspects(matched: MatchedScene, det: Suspects, prior: Bundle, capture: Path, progress: bool, *,
                    executor: Executor | None = None) -> SuspectMatches:
     """Stage ``suspect_match``: reduced suspects extracted again at full resolution (on the capture nodes when
-    the executor's workers are there), then every suspect matched with SUSPECT_PAIRS_PER_CAMERA unchanged
-    partners."""
+    the executor's workers are there) and their first-round pairs matched again (those of ``pairs.txt``, so that
+    a rerun after an interruption restores them all), then every suspect matched with SUSPECT_PAIRS_PER_CAMERA
+    unchanged partners; ``pairs.txt`` then lists every pair matched."""
     suspects, seconds = det.suspects, {"features": 0.0, "matching": 0.0}
     full = reduced_cameras(matched.database, suspects)
     options = _options(progress, 0)
+    pairs_file = matched.database.parent / "pairs.txt"
+    first_round = read_pairs(pairs_file)
     with make_executor() if executor is None else contextlib.nullcontext(executor) as pool:
+        again: list = []
         if full:
-            drop_features(matched.database, full)
+            dropped = drop_features(matched.database, full)
             feats = extract_features(capture / "scenes" / matched.scene, matched.database, prior=prior.cameras,
                                      options=options.features, executor=pool, scene=matched.scene, cameras=full)
             seconds["features"] = feats.seconds
+            f = set(full)
+            again = sorted(set(dropped) | {p for p in first_round if p[0] in f or p[1] in f})
             logger.info("quick recalibration: %d suspect(s) extracted again at full resolution", len(full))
         known = [n for n in matched.cameras if n in prior.cameras]
         s = set(suspects)
         extra = [p for p in pairs_from_prior(prior.cameras, known,
                                              PairOptions(max_pairs_per_camera=SUSPECT_PAIRS_PER_CAMERA))
                  if (p[0] in s) != (p[1] in s)]
-        if extra:
-            report = match_pairs(str(matched.database), extra, options=options.matching, executor=pool,
-                                 scene=matched.scene)
+        if extra or again:
+            report = match_pairs(str(matched.database), sorted(set(extra) | set(again)), options=options.matching,
+                                 executor=pool, scene=matched.scene)
             seconds["matching"] = report.seconds
+            write_pairs(pairs_file, sorted(set(first_round) | set(extra) | set(again)))
     return SuspectMatches(full_resolution=full, extra_pairs=len(extra), seconds=seconds)
 
 

@@ -42,7 +42,8 @@ T = TypeVar("T")
 
 STATE_FILE = "state.json"
 LOCK_FILE = "lock"
-STATE_VERSION = 2  # 2: stage results are the typed outcomes of pipeline_stages / pipeline_quick
+STATE_VERSION = 3  # 2: stage results are the typed outcomes of pipeline_stages / pipeline_quick; 3: the quick
+# path's first round on halved HD images and its suspect_match stage
 
 
 class WorkFolderBusy(DomeCalibError):

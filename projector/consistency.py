@@ -45,7 +45,8 @@ MIN_GROUP_PAIRS = 5  # a rigid group is judged on at least this many pairs leavi
 class Consistency:
     """Per-pair median Sampson distance (px) under the prior, and the verdict per camera.
 
-    changed: camera -> (fraction of bad pairs when it was flagged, number of those pairs).
+    changed: camera -> (fraction of bad pairs when it was flagged, number of those pairs); a camera flagged with
+    its group carries the group's.
     A flag is a suspicion (an unchanged camera whose partners nearly all changed can be flagged): the quick
     recalibration re-estimates flagged cameras and keeps as changed only those the new pose explains better.
     """
@@ -116,7 +117,7 @@ def changed_cameras(pair_error_px: Mapping[Pair, float], *, bad_px: float | None
     pairs with unflagged cameras while that fraction exceeds ``max_bad_fraction``. Candidates are the cameras and
     the rigid groups of ``group_of`` (camera -> group; a group is scored on its pairs that leave it, and needs
     MIN_GROUP_PAIRS of them). Equal scores: the larger count of bad pairs, then cameras before groups, then the
-    first name. ``bad_px`` default: :func:`bad_pair_threshold_px`."""
+    first name (for groups the lowest). ``bad_px`` default: :func:`bad_pair_threshold_px`."""
     bad_px = bad_pair_threshold_px(pair_error_px) if bad_px is None else bad_px
     group_of = group_of or {}
     partners: dict[str, dict[str, bool]] = {}

@@ -11,6 +11,7 @@ i.e. per physical camera of the scene.
 """
 from __future__ import annotations
 
+import contextlib
 import sqlite3
 from collections import OrderedDict
 from pathlib import Path
@@ -96,24 +97,25 @@ def write_features(db: pycolmap.Database, image_id: int, keypoints: np.ndarray, 
 PAIR_ID_BASE = 2147483647
 
 
-def drop_features(database_path: str | Path, cameras: list[str]) -> int:
+def drop_features(database_path: str | Path, cameras: list[str]) -> list[tuple[str, str]]:
     """Delete the keypoints and descriptors of ``cameras``' images, and every match and two-view geometry of
     theirs, so that the next feature extraction and matching redo exactly them (the images and their cameras
-    stay). One transaction; call with no ``pycolmap.Database`` open on the file. Returns how many images."""
-    with sqlite3.connect(str(database_path), timeout=60.0) as conn:
-        ids = [row[0] for row in conn.execute(
-            f"SELECT image_id FROM images WHERE name IN ({','.join('?' * len(cameras))})",
-            [image_name(c) for c in cameras])]
+    stay). One transaction; call with no ``pycolmap.Database`` open on the file. Returns the pairs (camera
+    names, sorted) whose matches were deleted: matching them again restores what there was."""
+    with contextlib.closing(sqlite3.connect(str(database_path), timeout=60.0)) as conn, conn:
+        names = {row[0]: camera_of_image(row[1]) for row in conn.execute("SELECT image_id, name FROM images")}
+        ids = sorted(i for i, n in names.items() if n in set(cameras))
         if not ids:
-            return 0
+            return []
         marks = ",".join("?" * len(ids))
+        where = f"pair_id / {PAIR_ID_BASE} IN ({marks}) OR pair_id % {PAIR_ID_BASE} IN ({marks})"
+        pairs = sorted({tuple(sorted((names[pid // PAIR_ID_BASE], names[pid % PAIR_ID_BASE])))
+                        for (pid,) in conn.execute(f"SELECT pair_id FROM matches WHERE {where}", ids + ids)})
         for table in ("keypoints", "descriptors"):
             conn.execute(f"DELETE FROM {table} WHERE image_id IN ({marks})", ids)
         for table in ("matches", "two_view_geometries"):
-            conn.execute(f"DELETE FROM {table} WHERE pair_id / {PAIR_ID_BASE} IN ({marks}) "
-                         f"OR pair_id % {PAIR_ID_BASE} IN ({marks})", ids + ids)
-    conn.close()
-    return len(ids)
+            conn.execute(f"DELETE FROM {table} WHERE {where}", ids + ids)
+    return pairs
 
 
 def images_with_features(db: pycolmap.Database) -> dict[str, int]:

@@ -139,6 +139,14 @@ def write_pairs(path: Path, pairs: list[Pair]) -> None:
     atomic_write_text(path, "".join(f"{a}.png {b}.png\n" for a, b in pairs))
 
 
+def read_pairs(path: Path) -> list[Pair]:
+    """The pairs :func:`write_pairs` wrote (camera names); none if the file is missing."""
+    if not path.exists():
+        return []
+    return [(camera_of_image(a), camera_of_image(b))
+            for a, b in (line.split() for line in path.read_text().splitlines() if line.strip())]
+
+
 def scene_features(capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera], options: SfmOptions,
                    executor: Executor) -> FeatureReport:
     """Features of one scene into ``work_dir/<scene>/database.db`` (resumable)."""

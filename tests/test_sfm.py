@@ -185,8 +185,10 @@ def test_reduced_image_keypoints_are_in_full_resolution_pixels(broken_capture):
 
 
 def test_dropped_features_are_extracted_and_matched_again(sfm_result, broken_capture, tmp_path):
-    """drop_features removes one image's features and every pair of it; extraction and matching then redo
-    exactly that image and those pairs, and give what they gave the first time."""
+    """drop_features removes images' features and every pair of theirs (either image of a pair: the first and a
+    middle one are dropped); extraction and matching then redo exactly those images and pairs, and give what they
+    gave the first time, even after the same process matched them from other features in between (the workers'
+    feature cache lives for one matching call)."""
     import sqlite3
 
     import pycolmap
@@ -199,29 +201,37 @@ def test_dropped_features_are_extracted_and_matched_again(sfm_result, broken_cap
         src.backup(dst)  # with what is still in the write-ahead log
     src.close(), dst.close()
     pairs = pairs_exhaustive(GOOD)
-    hd = "00_00"
+    hd, middle = "00_00", GOOD[len(GOOD) // 2]
+    dropped = (hd, middle)
 
     def inliers() -> dict:
         with pycolmap.Database.open(str(db)) as d:
             ids = {im.name: im.image_id for im in d.read_all_images()}
-            return {p: len(d.read_two_view_geometry(ids[f"{p[0]}.png"], ids[f"{p[1]}.png"]).inlier_matches)
+            return {p: np.asarray(d.read_two_view_geometry(ids[f"{p[0]}.png"], ids[f"{p[1]}.png"]).inlier_matches
+                                  ).tobytes()  # the inlier keypoint pairs themselves (counts stop at 512)
                     for p in pairs if d.exists_two_view_geometry(ids[f"{p[0]}.png"], ids[f"{p[1]}.png"])}
 
+    def redo(options: FeatureOptions) -> None:
+        removed = drop_features(db, [hd, middle, "not_a_camera"])
+        assert removed == sorted(p for p in pairs if set(p) & set(dropped))
+        assert sorted(inliers()) == sorted(p for p in pairs if not set(p) & set(dropped))
+        feats = extract_features(broken_capture / "scenes" / "scene_01", db, cameras=list(dropped), options=options)
+        assert feats.reused == len(GOOD) - 2 and sorted(feats.num_features) == GOOD  # only those two extracted
+        again = match_pairs(db, pairs, options=MatchOptions(show_progress=False))
+        assert again.reused == sum(not set(p) & set(dropped) for p in pairs)
+
     before = inliers()
-    assert drop_features(db, [hd, "not_a_camera"]) == 1
-    after_drop = inliers()
-    assert sorted(after_drop) == sorted(p for p in before if hd not in p)
-    feats = extract_features(broken_capture / "scenes" / "scene_01", db, cameras=[hd],
-                             options=FeatureOptions(show_progress=False))
-    assert feats.reused == len(GOOD) - 1 and sorted(feats.num_features) == GOOD  # only the HD image extracted
-    again = match_pairs(db, pairs, options=MatchOptions(show_progress=False))
-    assert again.reused == sum(hd not in p for p in pairs)
+    redo(FeatureOptions(show_progress=False, max_image_size_px=960))  # the HD image halved
+    assert inliers() != before
+    redo(FeatureOptions(show_progress=False))
     assert inliers() == before
 
 
-def test_quick_recalibration_gives_a_disturbed_hd_camera_full_resolution(broken_capture, tmp_path):
-    """calibrate --only-changed on rendered images, the prior with the HD camera turned 1 deg: it is found from
-    its halved image, extracted again at full resolution, re-estimated near the truth; the others keep the prior."""
+@pytest.mark.parametrize("change", ["turned", "new"])
+def test_quick_recalibration_gives_a_disturbed_hd_camera_full_resolution(broken_capture, tmp_path, change):
+    """calibrate --only-changed on rendered images, the prior with the HD camera turned 1 deg (or without it: a
+    new camera): it is a suspect from its halved image, extracted again at full resolution with its first-round
+    pairs matched again, and re-estimated near the truth; the others keep the prior."""
     import dataclasses
 
     from scipy.spatial.transform import Rotation
@@ -234,8 +244,9 @@ def test_quick_recalibration_gives_a_disturbed_hd_camera_full_resolution(broken_
     truth = load_bundle(broken_capture / "ground_truth")
     hd = "00_00"
     cams = dict(truth.cameras)
-    c = cams[hd]
-    cams[hd] = dataclasses.replace(c, R=Rotation.from_rotvec([0.0, np.radians(1.0), 0.0]).as_matrix() @ c.R)
+    c = cams.pop(hd)
+    if change == "turned":
+        cams[hd] = dataclasses.replace(c, R=Rotation.from_rotvec([0.0, np.radians(1.0), 0.0]).as_matrix() @ c.R)
     prior = write_bundle(Bundle(seq="prior", cameras=cams), tmp_path / "prior")
     result = pipeline.run_calibration(broken_capture, tmp_path / "out", pipeline.CalibrateOptions(
         prior=prior, only_changed=True, progress=False))
@@ -243,7 +254,10 @@ def test_quick_recalibration_gives_a_disturbed_hd_camera_full_resolution(broken_
     assert result.stats["quick"]["full_resolution"] == [hd]
     out = load_bundle(tmp_path / "out")
     err = camera_error(out.cameras[hd], truth.cameras[hd])
-    assert err.rotation_deg < 0.05 and err.center_cm < 1.0, err
+    # a new camera starts from nominal intrinsics and gets all of them from five VGA partners in one scene:
+    # 1.7 cm / 0.21 deg here, the same to the last digit without the halved first round
+    within_cm, within_deg = (1.0, 0.05) if change == "turned" else (3.0, 0.4)
+    assert err.rotation_deg < within_deg and err.center_cm < within_cm, err
     for n in GOOD:
         if n != hd:
             np.testing.assert_array_equal(out.cameras[n].R, cams[n].R)
