@@ -58,8 +58,9 @@ QUICK_BA = dataclasses.replace(ba_options(), compute_uncertainty=False)  # few f
 logger = logging.getLogger(__name__)
 
 #: Longer side (px) above which an image is reduced for the first round. 960 halves the HD and Kinect colour
-#: images (1920x1080), whose focal length is about twice the VGA cameras': reduced, they resolve the tent about as
-#: finely as a VGA camera, which is what detection needs. Measured on one HD image of the full bench: SIFT 0.62 ->
+#: images (1920x1080). An HD focal length is about twice a VGA camera's (1,455 against 745 px median on the dome),
+#: so a halved HD image resolves the tent about as finely as a VGA camera, which is what detection needs; a halved
+#: Kinect colour image (1,056 px) at 0.7 of that. Measured on one HD image of the full bench: SIFT 0.62 ->
 #: 0.15 s, 5,698 -> 1,145 keypoints, which lie a median 0.14 px from a full-resolution keypoint. Suspects among
 #: them are extracted again at full resolution before they are re-estimated.
 DETECT_MAX_IMAGE_PX = 960
