@@ -261,3 +261,35 @@ def test_quick_recalibration_gives_a_disturbed_hd_camera_full_resolution(broken_
     for n in GOOD:
         if n != hd:
             np.testing.assert_array_equal(out.cameras[n].R, cams[n].R)
+
+
+def test_quick_recalibration_rerun_after_a_failed_suspect_match(broken_capture, tmp_path, monkeypatch):
+    """The run stops inside suspect_match, after the features of the HD camera (new to the prior) were dropped:
+    the rerun resumes after detect, restores its first-round pairs from pairs.txt (a new camera has no other
+    partners) and gives the same bundle as a run that never stopped."""
+    import dome_calib.pipeline as pipeline
+    import dome_calib.pipeline_quick as quick
+    from dome_calib.bundle import Bundle
+    from dome_calib.bundle_io import write_bundle
+
+    truth = load_bundle(broken_capture / "ground_truth")
+    hd = "00_00"
+    cams = {n: c for n, c in truth.cameras.items() if n != hd}
+    prior = write_bundle(Bundle(seq="prior", cameras=cams), tmp_path / "prior")
+    options = pipeline.CalibrateOptions(prior=prior, only_changed=True, progress=False)
+    real = quick.extract_features
+
+    def power_cut(*args, **kwargs):
+        raise RuntimeError("power cut")
+
+    monkeypatch.setattr(quick, "extract_features", power_cut)
+    with pytest.raises(RuntimeError, match="power cut"):
+        pipeline.run_calibration(broken_capture, tmp_path / "out", options)
+    assert not (tmp_path / "out").exists()
+    monkeypatch.setattr(quick, "extract_features", real)
+    again = pipeline.run_calibration(broken_capture, tmp_path / "out", options)
+    assert again.resumed == ["match", "detect"] and sorted(again.changes) == [hd]
+    pipeline.run_calibration(broken_capture, tmp_path / "fresh", options)
+    resumed, fresh = load_bundle(tmp_path / "out").cameras[hd], load_bundle(tmp_path / "fresh").cameras[hd]
+    np.testing.assert_array_equal(resumed.R, fresh.R)
+    np.testing.assert_array_equal(resumed.t_cm, fresh.t_cm)
