@@ -43,7 +43,8 @@ STAGE_LABELS = {"sfm": "features, pairs, matching, per-scene mapping, merging sc
                 "normalize": "world frame", "write": "bundle and report",
                 "match": "features, pairs and matching of one scene",
                 "detect": "which cameras disagree with the prior",
-                "suspect_match": "halved suspects again at full resolution; suspects matched with more partners", "quick_ba": "re-estimating the changed cameras"}
+                "suspect_match": "halved suspects again at full resolution; suspects matched with more partners",
+                "quick_ba": "re-estimating the changed cameras"}
 
 
 def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None = None) -> CalibrationResult:

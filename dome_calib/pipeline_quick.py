@@ -185,12 +185,17 @@ def detect_suspects(matched: MatchedScene, prior: Bundle) -> Suspects:
                     panels=sorted(verdict.changed_groups))
 
 
+def _image_sizes(database: str | Path) -> dict[str, tuple[int, int]]:
+    """Camera name -> (width, height) of its image, as the scene database holds it."""
+    with pycolmap.Database.open(str(database)) as db:
+        cams = {camera_of_image(im.name): db.read_camera(im.camera_id) for im in db.read_all_images()}
+    return {n: (c.width, c.height) for n, c in cams.items()}
+
+
 def reduced_cameras(database: Path, cameras: list[str]) -> list[str]:
     """Those of ``cameras`` whose first-round features came from a reduced image (by the image size)."""
-    with pycolmap.Database.open(str(database)) as db:
-        sizes = {camera_of_image(im.name): db.read_camera(im.camera_id) for im in db.read_all_images()}
-    return [n for n in cameras
-            if n in sizes and reduction_factor(sizes[n].width, sizes[n].height, DETECT_MAX_IMAGE_PX) > 1]
+    sizes = _image_sizes(database)
+    return [n for n in cameras if n in sizes and reduction_factor(*sizes[n], DETECT_MAX_IMAGE_PX) > 1]
 
 
 def match_suspects(matched: MatchedScene, det: Suspects, prior: Bundle, capture: Path, progress: bool, *,
@@ -238,10 +243,9 @@ def reestimate(matched: MatchedScene, det: Suspects, prior: Bundle, work: Path, 
     partners = {p for n in suspects for p in graph.get(n, ())} - s  # unchanged cameras paired with a suspect
     cameras = dict(prior.cameras)
     if det.unknown:
-        with pycolmap.Database.open(database) as db:
-            sizes = {camera_of_image(im.name): db.read_camera(im.camera_id) for im in db.read_all_images()}
+        sizes = _image_sizes(database)
         for n in det.unknown:
-            cameras[n] = nominal_camera(n, (sizes[n].width, sizes[n].height))
+            cameras[n] = nominal_camera(n, sizes[n])
     rec = triangulate_known(database, str(matched.image_dir), work / "known_points", cameras, partners)
     regs, failed = register_cameras(database, rec, cameras, suspects)
     for n, why in failed.items():
@@ -342,8 +346,8 @@ def run_quick(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
                                    f"({len(est.changed)} cameras re-estimated)")
     stats = {"scene": scene, "pairs": matched.pairs, "verified_pairs": matched.verified_pairs,
              "inlier_matches": matched.inlier_matches, "suspects": det.suspects, "suspect_panels": det.panels,
-             "bad_pair_px": det.bad_pair_px,
-             "full_resolution": extra.full_resolution, "extra_pairs": extra.extra_pairs, "points": est.points, "observations": est.observations,
+             "bad_pair_px": det.bad_pair_px, "full_resolution": extra.full_resolution,
+             "extra_pairs": extra.extra_pairs, "points": est.points, "observations": est.observations,
              "held_cameras": est.held_cameras,
              "seconds": {**matched.seconds, **{f"suspect_{k}": v for k, v in extra.seconds.items()}}}
     return dataclasses.replace(finish(inputs, state, calibrated), ba=est.ba, stats={"quick": stats, "cluster": cluster})

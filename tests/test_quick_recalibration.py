@@ -78,6 +78,17 @@ def write_scene_database(path, current: Bundle, prior: Bundle, seed: int = 0, n_
     return names
 
 
+def _matched_scene(tmp_path, current: Bundle, prior: Bundle, seed: int):
+    """The quick path's stage ``match`` as :func:`write_scene_database` leaves it (no images on disk)."""
+    import dome_calib.pipeline_quick as quick
+
+    db = tmp_path / "scene_01" / "database.db"
+    db.parent.mkdir()
+    names = write_scene_database(db, current, prior, seed=seed)
+    return quick.MatchedScene(scene="scene_01", database=db, image_dir=tmp_path, cameras=names, failures={},
+                              pairs=0, verified_pairs=0, inlier_matches=0, seconds={})
+
+
 @pytest.fixture
 def scene(tmp_path):
     prior = _neighbourhood()
@@ -147,11 +158,7 @@ def test_quick_recalibration_with_nothing_changed_keeps_the_prior(tmp_path):
     import dome_calib.pipeline_quick as quick
 
     prior = _neighbourhood()
-    db = tmp_path / "scene_01" / "database.db"
-    db.parent.mkdir()
-    names = write_scene_database(db, prior, prior, seed=3)
-    matched = quick.MatchedScene(scene="scene_01", database=db, image_dir=tmp_path, cameras=names, failures={},
-                                 pairs=0, verified_pairs=0, inlier_matches=0, seconds={})
+    matched = _matched_scene(tmp_path, prior, prior, seed=3)
     det = quick.detect_suspects(matched, prior)
     assert det.suspects == []
     est = quick.reestimate(matched, det, prior, tmp_path / "work", progress=False)
@@ -191,11 +198,7 @@ def test_rigidly_moved_panel_is_found_and_reestimated(tmp_path):
         C = centre + turn @ (c.center_cm - centre) + [2.0, 0.0, 0.0]
         now[n] = dataclasses.replace(c, R=R, t_cm=-R @ C)
     current = Bundle(seq="now", cameras=now)
-    db = tmp_path / "scene_01" / "database.db"
-    db.parent.mkdir()
-    names = write_scene_database(db, current, prior, seed=5)
-    matched = quick.MatchedScene(scene="scene_01", database=db, image_dir=tmp_path, cameras=names, failures={},
-                                 pairs=0, verified_pairs=0, inlier_matches=0, seconds={})
+    matched = _matched_scene(tmp_path, current, prior, seed=5)
     det = quick.detect_suspects(matched, prior)
     assert det.suspects == sorted(panel) and det.panels == [1]
     est = quick.reestimate(matched, det, prior, tmp_path / "work", progress=False)
