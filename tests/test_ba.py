@@ -153,19 +153,30 @@ def test_outliers_rejected_and_cost_matches_oracle(cameras):
     assert again.cost <= oracle.cost * (1 + 1e-6)
 
 
-def test_reduced_system_step_matches_dense_normal_equations(cameras):
-    """Schur-complement step == dense solve of (J^T W J + lambda D) d = -J^T W r with a finite-difference J."""
+@pytest.mark.parametrize("variant", ["k3 held on one camera", "one camera held, no distortion, 2 threads"])
+def test_reduced_system_step_matches_dense_normal_equations(cameras, variant):
+    """Schur-complement step == dense solve of (J^T W J + lambda D) d = -J^T W r with a finite-difference J.
+    Second variant: a camera with nothing free (its observations constrain the points only) and fewer than 15
+    free columns (the compact Y Y^T), the blocks computed in threads."""
     sp = small(cameras[:6], n_points=40, target_observations=300, noise_px=0.5, seed=1)
     p = sp.start
-    p.fix(ParamGroup.K3, cameras=[p.camera_names[2]])
+    threads = 1
+    if variant.startswith("k3"):
+        p.fix(ParamGroup.K3, cameras=[p.camera_names[2]])
+    else:
+        p.fix(ParamGroup.DISTORTION)
+        threads = 2
     gauge = choose_gauge(p)
     free = p.free & ~gauge.held
+    if threads == 2:
+        free[3] = False
     st = build_structure(p.camera_index, p.point_index, np.ones(p.n_observations, bool), free, p.n_points)
+    assert st.act.all() == (threads == 1)
     res, Jc, Jp = residuals_and_jacobians(p.camera_params, p.points_cm, st.cam, st.pt, p.uv_px[st.obs])
     w = np.random.default_rng(0).uniform(0.2, 1.0, len(st.obs))
-    lin = linearize(st, res, Jc.copy(), Jp, w)
+    lin = linearize(st, res, Jc.copy(), Jp, w, n_threads=threads)
     lam = 1e-3
-    step = solve_step(st, lin, lam, n_threads=1)
+    step = solve_step(st, lin, lam, n_threads=threads)
     # dense finite-difference Jacobian over (free camera params, live points)
     cam_cols = [(c, k) for c in range(p.n_cameras) for k in range(15) if free[c, k]]
     pts = np.flatnonzero(st.live_points)

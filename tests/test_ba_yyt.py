@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dome_calib.ba.schur import build_structure
-from dome_calib.ba.yyt import subtract_yyt
+from dome_calib.ba.yyt import LANES, subtract_yyt
 
 
 def _random_case(seed: int, n_cams: int, n_points: int, nk: int, duplicates: bool):
@@ -26,6 +26,14 @@ def _random_case(seed: int, n_cams: int, n_points: int, nk: int, duplicates: boo
     return s, y
 
 
+def _point_major(s, y: np.ndarray) -> np.ndarray:
+    """The (camera, point)-ordered (Ma, k, 3) blocks as the kernel reads them: transposed, point-major, padded."""
+    nk = y.shape[1]
+    ypt = np.zeros((len(y), 3, -(-nk // LANES) * LANES))
+    ypt[:, :, :nk] = y[s.pt_order].transpose(0, 2, 1)
+    return ypt
+
+
 def _dense_yyt(s, y: np.ndarray) -> np.ndarray:
     A, nk = len(s.active_cameras), y.shape[1]
     Y = np.zeros((A * nk, 3 * s.n_points))
@@ -42,7 +50,7 @@ def test_yyt_kernel_equals_dense_product(seed, n_cams, n_points, nk, duplicates)
     s, y = _random_case(seed, n_cams, n_points, nk, duplicates)
     A = len(s.active_cameras)
     S4 = np.full((A, nk, A, nk), 2.0)  # the kernel subtracts from what is there
-    subtract_yyt(S4, y, s, n_threads=2)
+    subtract_yyt(S4, _point_major(s, y), s, n_threads=2)
     expected = 2.0 - _dense_yyt(s, y)
     np.testing.assert_allclose(S4.reshape(A * nk, A * nk), expected, rtol=0,
                                atol=1e-10 * max(1.0, np.abs(expected).max(initial=0.0)))
@@ -54,7 +62,7 @@ def test_yyt_kernel_is_the_same_on_any_number_of_threads():
     out = []
     for threads in (1, 2, 3):
         S4 = np.zeros((A, 15, A, 15))
-        subtract_yyt(S4, y, s, n_threads=threads)
+        subtract_yyt(S4, _point_major(s, y), s, n_threads=threads)
         out.append(S4)
     assert np.array_equal(out[0], out[1]) and np.array_equal(out[0], out[2])
     S = out[0].reshape(A * 15, A * 15)

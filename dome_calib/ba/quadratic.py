@@ -46,9 +46,9 @@ class QuadraticModel:
         res, Jc, Jp = residuals_and_jacobians(p.camera_params, p.points_cm, st.cam, st.pt, p.uv_px[st.obs],
                                               n_threads=n_threads)
         cost = 0.5 * float(np.sum(res * res))
-        lin = linearize(st, res, Jc, Jp, np.ones(len(st.obs)))
+        lin = linearize(st, res, Jc, Jp, np.ones(len(st.obs)), n_threads=n_threads)
         del res, Jc, Jp
-        S, b, Li, y_blocks = reduced_system(st, lin, 0.0, n_threads=n_threads)
+        S, b, Li, ypt = reduced_system(st, lin, 0.0, n_threads=n_threads)
         f = st.free_flat
         S, b = S[np.ix_(f, f)], b[f]
         index = np.full((p.n_cameras, 15), -1, dtype=np.int64)
@@ -61,7 +61,7 @@ class QuadraticModel:
         evaluated = []
         for damping in (1e-6, 1e-4, 1e-2):  # Levenberg-Marquardt steps: the undamped one can overshoot
             step = model.step(everything, damping=damping)[0]
-            dp = point_step(st, lin, Li, y_blocks, step[st.active_cameras])
+            dp = point_step(st, lin, Li, ypt, step[st.active_cameras])
             r = residuals(p.camera_params + step, p.points_cm + dp, st.cam, st.pt, p.uv_px[st.obs], n_threads=n_threads)
             evaluated.append(0.5 * float(np.sum(r * r)))
         cost_fit = min(evaluated, default=np.inf)

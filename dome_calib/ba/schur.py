@@ -12,7 +12,8 @@ V_p = L_p L_p^T (3 x 3 Cholesky, batched over all points). With y_i = W_i L_p^{-
     S dc = -g_c + sum_i y_i L_p^{-1} g_p,     dp = -L_p^{-T} (L_p^{-1} g_p + sum_i y_i^T dc_a).
 
 Y Y^T is the crux (about half the sum over points of track_length^2 block products, 3.4e7 on the full dome),
-done by the compiled kernel of :mod:`dome_calib.ba.yyt` (upper triangle of blocks, in threads). The reduced
+done by the compiled kernel of :mod:`dome_calib.ba.yyt` (upper triangle of blocks, in threads); the per-observation
+blocks (U, V, g, y, and the back-substitution) by those of :mod:`dome_calib.ba.blocks`. The reduced
 system is dense for the dome (most cameras share points with most cameras on their side), so it is solved
 by a dense LAPACK Cholesky.
 """
@@ -25,7 +26,8 @@ import numpy as np
 import scipy.linalg
 
 from dome_calib.ba.blas import blas_threads
-from dome_calib.ba.yyt import subtract_yyt
+from dome_calib.ba.blocks import linearize_blocks, point_step_blocks, y_blocks
+from dome_calib.ba.yyt import LANES, subtract_yyt
 
 logger = logging.getLogger(__name__)
 
@@ -113,32 +115,13 @@ class Linearization:
     D_p: np.ndarray
 
 
-def _segment_sum(values: np.ndarray, seg: np.ndarray, n: int) -> np.ndarray:
-    """(K, M) values summed per segment id (M,) -> (n, K)."""
-    return np.stack([np.bincount(seg, weights=v, minlength=n) for v in values], axis=1)
-
-
-def linearize(st: Structure, res: np.ndarray, Jc: np.ndarray, Jp: np.ndarray, w: np.ndarray) -> Linearization:
-    """Blocks of J^T W J and J^T W r from component-major residuals (2, Ma) and Jacobians (2, 15|3, Ma)."""
-    A, P = len(st.active_cameras), st.n_points
+def linearize(st: Structure, res: np.ndarray, Jc: np.ndarray, Jp: np.ndarray, w: np.ndarray, *, n_threads: int = 2
+              ) -> Linearization:
+    """Blocks of J^T W J and J^T W r from component-major residuals (2, Ma) and Jacobians (2, 15|3, Ma) (``Jc`` is
+    modified: its fixed columns are zeroed, in place when every observation's camera is active)."""
     if not st.act.all():
         Jc = Jc[:, :, st.act]
-    Jc *= st.free[st.cam_local[st.act]].T[None]  # hold fixed parameters: zero their columns
-    wr = res * w
-    cl = st.cam_local[st.act]
-    g_c = _segment_sum(Jc[0] * wr[0, st.act] + Jc[1] * wr[1, st.act], cl, A) if A else np.zeros((0, 15))
-    g_p = _segment_sum(Jp[0] * wr[0] + Jp[1] * wr[1], st.pt, P)
-    U = np.empty((A, 15, 15))
-    sw = np.sqrt(w[st.act])
-    sJ0, sJ1 = Jc[0] * sw, Jc[1] * sw
-    for a in range(A):
-        s, e = st.act_starts[a], st.act_starts[a + 1]
-        U[a] = sJ0[:, s:e] @ sJ0[:, s:e].T + sJ1[:, s:e] @ sJ1[:, s:e].T
-    pairs = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
-    Vu = _segment_sum(np.stack([w * (Jp[0, i] * Jp[0, j] + Jp[1, i] * Jp[1, j]) for i, j in pairs]), st.pt, P)
-    V = np.empty((P, 3, 3))
-    for k, (i, j) in enumerate(pairs):
-        V[:, i, j] = V[:, j, i] = Vu[:, k]
+    U, g_c, V, g_p = linearize_blocks(Jc, Jp, res, w, st, n_threads)
     D_c = np.clip(np.einsum("aii->ai", U), _MIN_DIAG, _MAX_DIAG)
     D_p = np.clip(np.einsum("pii->pi", V), _MIN_DIAG, _MAX_DIAG)
     return Linearization(Jc=Jc, Jp=Jp, w=w, U=U, V=V, g_c=g_c, g_p=g_p, D_c=D_c, D_p=D_p)
@@ -183,41 +166,27 @@ class Step:
 def reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: int = 2
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Damped reduced camera system over ALL active-camera parameters: (S (A*15, A*15), rhs (A*15,), L^{-1}
-    (P, 3, 3), y blocks (Ma_active, k, 3) over the :func:`free_columns` k). Fixed parameters have zero rows and
-    columns."""
+    (P, 3, 3), y blocks transposed in point-major order (Ma_active, 3, W) over the :func:`free_columns` k, zero
+    past k up to W, a multiple of :data:`dome_calib.ba.yyt.LANES`). Fixed parameters have zero rows and columns."""
     A = len(st.active_cameras)
     Li = chol3_inverse(lin.V + lam * lin.D_p[:, :, None] * np.eye(3))
-    Jp, w = lin.Jp, lin.w
-    # m = w Jp L^{-T}: (2, 3, Ma), row j = sum_l Jp[:, l] Li[pt, j, l]
-    Lg = {(j, l): np.ascontiguousarray(Li[:, j, l])[st.pt] for j in range(3) for l in range(j + 1)}
-    m = np.empty_like(Jp)
-    for j in range(3):
-        m[:, j] = w * sum(Jp[:, l] * Lg[j, l] for l in range(j + 1))
-    if not st.act.all():
-        m = m[:, :, st.act]
-    cols = free_columns(st)
-    Jc0, Jc1 = (lin.Jc[0], lin.Jc[1]) if len(cols) == 15 else (lin.Jc[0][cols], lin.Jc[1][cols])  # views if all
-    yT = Jc0[:, None, :] * m[0][None] + Jc1[:, None, :] * m[1][None]  # (k, 3, Ma_active)
-    del Jc0, Jc1
-    y_blocks = np.ascontiguousarray(yT.transpose(2, 0, 1))
     h = np.einsum("pjl,pl->pj", Li, lin.g_p)
-    hg = h[st.pt[st.act]]
+    cols = free_columns(st)
+    ypt, rc = y_blocks(lin.Jc, lin.Jp, lin.w, Li, h, cols, -(-len(cols) // LANES) * LANES, st, n_threads)
     rhs = -lin.g_c
-    if len(cols):
-        rhs[:, cols] += _segment_sum(np.einsum("kjm,mj->km", yT, hg), st.cam_local[st.act], A)
-    del yT
+    rhs[:, cols] += rc
     S = np.zeros((A * 15, A * 15))
     S4 = S.reshape(A, 15, A, 15)
     if len(cols) == 15:
-        subtract_yyt(S4, y_blocks, st, n_threads)
+        subtract_yyt(S4, ypt, st, n_threads)
     elif len(cols):
         compact = np.zeros((A, len(cols), A, len(cols)))
-        subtract_yyt(compact, y_blocks, st, n_threads)
+        subtract_yyt(compact, ypt, st, n_threads)
         S4[np.ix_(np.arange(A), cols, np.arange(A), cols)] = compact
         del compact
     idx = np.arange(A)
     S4[idx, :, idx, :] += lin.U + lam * lin.D_c[:, :, None] * np.eye(15)
-    return S, rhs.ravel(), Li, y_blocks
+    return S, rhs.ravel(), Li, ypt
 
 
 def _cholesky_solve(S: np.ndarray, b: np.ndarray, n_threads: int, overwrite: bool = True) -> np.ndarray:
@@ -317,28 +286,23 @@ def solve_free(S: np.ndarray, rhs: np.ndarray, free_flat: np.ndarray, *, n_threa
     return x
 
 
-def point_step(st: Structure, lin: Linearization, Li: np.ndarray, y_blocks: np.ndarray, dc: np.ndarray
-               ) -> np.ndarray:
+def point_step(st: Structure, lin: Linearization, Li: np.ndarray, ypt: np.ndarray, dc: np.ndarray) -> np.ndarray:
     """(P, 3) point update that goes with the camera update dc (A, 15) (back-substitution of the Schur
-    complement; ``Li``, ``y_blocks`` from :func:`reduced_system`); zero for points that are not refined."""
+    complement; ``Li``, ``ypt`` from :func:`reduced_system`); zero for points that are not refined."""
     h = np.einsum("pjl,pl->pj", Li, lin.g_p)
-    t = np.einsum("mkj,mk->mj", y_blocks, dc[:, free_columns(st)][st.cam_local[st.act]])
-    q = _segment_sum(t.T, st.pt[st.act], st.n_points)
-    dp = -np.einsum("plj,pl->pj", Li, h + q)
-    dp[~st.live_points] = 0.0
-    return dp
+    return point_step_blocks(Li, h, ypt, free_columns(st), dc, st)
 
 
 @dataclass(kw_only=True)
 class ReducedSystem:
     """The damped reduced camera system of one linearisation, kept so that a rejected step can be retried with
     more camera damping without eliminating the points again: S (A*15, A*15) and rhs as :func:`reduced_system`,
-    built with damping ``lam`` on cameras and points; Li, y_blocks for the back-substitution."""
+    built with damping ``lam`` on cameras and points; Li, ypt (the y blocks, point-major) for the back-substitution."""
 
     S: np.ndarray
     rhs: np.ndarray
     Li: np.ndarray
-    y_blocks: np.ndarray
+    ypt: np.ndarray
     lam: float  # the points' damping (and the cameras' as built)
     lam_cameras: float  # the cameras' damping S holds now
 
@@ -347,11 +311,11 @@ def build_reduced_system(st: Structure, lin: Linearization, lam: float, *, n_thr
                          gauge_basis: np.ndarray | None = None) -> ReducedSystem:
     """The damped reduced system; ``gauge_basis`` (A*15, k): S += B B^T (inner constraints, see
     :func:`dome_calib.ba.gauge.inner_constraint_basis`)."""
-    S, rhs, Li, y_blocks = reduced_system(st, lin, lam, n_threads=n_threads)
+    S, rhs, Li, ypt = reduced_system(st, lin, lam, n_threads=n_threads)
     if gauge_basis is not None:
         for i in range(0, len(S), 1024):  # in row blocks: no second (A*15)^2 temporary
             S[i:i + 1024] += gauge_basis[i:i + 1024] @ gauge_basis.T
-    return ReducedSystem(S=S, rhs=rhs, Li=Li, y_blocks=y_blocks, lam=lam, lam_cameras=lam)
+    return ReducedSystem(S=S, rhs=rhs, Li=Li, ypt=ypt, lam=lam, lam_cameras=lam)
 
 
 def solve_reduced(st: Structure, lin: Linearization, system: ReducedSystem, lam_cameras: float, *,
@@ -369,7 +333,7 @@ def solve_reduced(st: Structure, lin: Linearization, system: ReducedSystem, lam_
         system.lam_cameras = lam_cameras
     dc = solve_free(S, system.rhs, st.free_flat, n_threads=n_threads, overwrite=not keep).reshape(A, 15)
     del S
-    dp = point_step(st, lin, system.Li, system.y_blocks, dc)
+    dp = point_step(st, lin, system.Li, system.ypt, dc)
     g_dot = float(np.sum(lin.g_c * dc) + np.sum(lin.g_p * dp))
     d_dot = float(lam_cameras * np.sum(lin.D_c * dc * dc) + system.lam * np.sum(lin.D_p * dp * dp))
     return Step(dc=dc, dp=dp, predicted_decrease=0.5 * (-g_dot + d_dot))

@@ -164,7 +164,7 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
         res, Jc, Jp = residuals_and_jacobians(state.camera_params, state.points_cm, st.cam, st.pt,
                                               problem.uv_px[st.obs], n_threads=options.n_threads)
         _, w = robust_cost_and_weight(res[0] ** 2 + res[1] ** 2, loss, scale)
-        lin = linearize(st, res, Jc, Jp, w)
+        lin = linearize(st, res, Jc, Jp, w, n_threads=options.n_threads)
         del res, Jc, Jp
         g_max = max(np.abs(lin.g_c).max(initial=0.0), np.abs(lin.g_p).max(initial=0.0))
         if g_max <= options.gradient_tolerance * max(cost, 1e-300):

@@ -54,7 +54,7 @@ def camera_uncertainty(problem: BAProblem, st: Structure, sigma_px: float, *, ga
     C, A = problem.n_cameras, len(st.active_cameras)
     res, Jc, Jp = residuals_and_jacobians(problem.camera_params, problem.points_cm, st.cam, st.pt,
                                           problem.uv_px[st.obs], n_threads=n_threads)
-    lin = linearize(st, res, Jc, Jp, np.ones(len(st.obs)))
+    lin = linearize(st, res, Jc, Jp, np.ones(len(st.obs)), n_threads=n_threads)
     del res, Jc, Jp
     S, _, _, _ = reduced_system(st, lin, 0.0, n_threads=n_threads)
     del lin

@@ -20,7 +20,7 @@ import numpy as np
 
 from dome_calib.ba.threads import run_in_threads
 
-_LANES = 4  # block width padded to a multiple of this (15 -> 16: aligned SIMD rows)
+LANES = 4  # block width padded to a multiple of this (15 -> 16: aligned SIMD rows)
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
@@ -66,25 +66,14 @@ def _rows_kernel(S4, ypt, cam_pt, pt_ptr, pos, pt, act_starts, rows, nk):  # pra
             touched[b] = False
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
-def _point_major(y_blocks, pt_order, W):  # pragma: no cover - compiled
-    out = np.zeros((len(pt_order), 3, W))
-    for jj in range(len(pt_order)):
-        src = y_blocks[pt_order[jj]]
-        for r in range(src.shape[0]):
-            for l in range(3):
-                out[jj, l, r] = src[r, l]
-    return out
-
-
-def subtract_yyt(S4: np.ndarray, y_blocks: np.ndarray, st, n_threads: int) -> None:
-    """S4 (A, k, A, k) -= Y Y^T, Y given by the active observations' (Ma_active, k, 3) blocks in the structure's
-    (camera, point) order. ``st`` is the :class:`dome_calib.ba.schur.Structure`; its point-major order
-    (``pt_order``, ``pt_ptr``, ``pt_pos``, ``cam_pt``) drives the kernel."""
+def subtract_yyt(S4: np.ndarray, ypt: np.ndarray, st, n_threads: int) -> None:
+    """S4 (A, k, A, k) -= Y Y^T, Y given by the active observations' y blocks transposed, in the structure's
+    point-major order (Ma_active, 3, W >= k; :func:`dome_calib.ba.blocks.y_blocks`). ``st`` is the
+    :class:`dome_calib.ba.schur.Structure`; its point-major order (``pt_ptr``, ``pt_pos``, ``cam_pt``) drives the
+    kernel."""
     A, nk = S4.shape[0], S4.shape[1]
-    if A == 0 or nk == 0 or len(y_blocks) == 0:
+    if A == 0 or nk == 0 or len(ypt) == 0:
         return
-    ypt = _point_major(y_blocks, st.pt_order, -(-nk // _LANES) * _LANES)
     pt_act = st.pt[st.act]
     n_jobs = max(1, min(A, 8 * n_threads))
     jobs = [np.arange(t, A, n_jobs) for t in range(n_jobs)]
