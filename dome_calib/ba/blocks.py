@@ -3,8 +3,10 @@
 What numpy did here in a dozen passes over the observations with (observations x 15 x 3) temporaries, one thread,
 these kernels do in one pass each, in threads over contiguous ranges of cameras (numba releases the GIL), writing
 the elimination's y blocks straight in the point-major order the Y Y^T kernel (:mod:`dome_calib.ba.yyt`) reads.
-Measured on the panel dome's SfM problem (179,242 observations, 59 free cameras, one LM iteration): linearisation
-84 -> see README, reduced system without Y Y^T 115 -> see README.
+Measured on the panel dome's SfM problem (179,242 observations, 59 free cameras, 2 threads, one LM iteration):
+linearisation 84 -> 32 ms, the reduced system without Y Y^T 115 -> 20 ms (Y Y^T itself ~145 ms, and no longer
+a point-major copy of the y blocks first), back-substitution and Cholesky 26 -> 11 ms; the panel's whole bundle
+adjustment stage (3 solves, 24 reduced systems) 11.5 -> 6.5 s.
 
 Every output element is written by one thread, and every sum runs over the observations in the structure's
 (camera, point) order, so the results do not depend on the number of threads, on the ranges, or on the machine
