@@ -118,6 +118,14 @@ def drop_features(database_path: str | Path, cameras: list[str]) -> list[tuple[s
     return pairs
 
 
+def drop_matches(database_path: str | Path) -> None:
+    """Delete every match and two-view geometry of the database (features, images and cameras stay), in one
+    transaction: the scene is then as if it had never been matched."""
+    with pycolmap.Database.open(str(database_path)) as db, pycolmap.DatabaseTransaction(db):
+        db.clear_matches()
+        db.clear_two_view_geometries()
+
+
 def images_with_features(db: pycolmap.Database) -> dict[str, int]:
     """Image name -> image id of every image that already has keypoints (for resuming)."""
     return {im.name: im.image_id for im in db.read_all_images() if db.exists_keypoints(im.image_id)}

@@ -102,19 +102,27 @@ def _incremental_options(options: MappingOptions) -> pycolmap.IncrementalPipelin
 
 def _run_mapper(mapper: Mapper, database_path: Path, image_dir: str | Path, output_dir: Path,
                 options: MappingOptions, scene: str) -> tuple[dict[int, pycolmap.Reconstruction], str | None]:
-    if output_dir.exists():
-        shutil.rmtree(output_dir)
-    output_dir.mkdir(parents=True)
+    """Map into a staging folder beside ``output_dir``, renamed to it once the mapper has written every model: a
+    run stopped while mapping (or while the mapper runs in a thread of a process that stops) leaves no half-written
+    model for a rerun to load."""
+    staging = output_dir.parent / f".{output_dir.name}.staging"
+    for old in (output_dir, staging):
+        if old.exists():
+            shutil.rmtree(old)
+    staging.mkdir(parents=True)
     try:
         if mapper == Mapper.GLOBAL:
-            models = pycolmap.global_mapping(str(database_path), str(image_dir), str(output_dir),
+            models = pycolmap.global_mapping(str(database_path), str(image_dir), str(staging),
                                              _global_options(options))
         else:
-            models = pycolmap.incremental_mapping(str(database_path), str(image_dir), str(output_dir),
+            models = pycolmap.incremental_mapping(str(database_path), str(image_dir), str(staging),
                                                   _incremental_options(options))
     except Exception as exc:  # noqa: BLE001 - a scene that fails to map is reported, not fatal
         logger.warning("%s: %s mapping failed: %s", scene, mapper.value, exc)
+        shutil.rmtree(staging)
+        output_dir.mkdir(parents=True)
         return {}, f"{mapper.value} mapping failed: {exc}"
+    staging.rename(output_dir)
     return dict(models), (None if models else f"{mapper.value} mapping gave no model")
 
 

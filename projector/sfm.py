@@ -26,8 +26,10 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import shutil
+import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -40,7 +42,7 @@ from dome_calib.layout import nominal_dome
 from dome_calib.executor import Executor, make_executor
 from projector.features import FeatureOptions, FeatureReport, extract_features, nominal_camera
 from projector.known_scene import KnownPoseOptions, map_known_scene, reference_cameras
-from projector.database import camera_of_image
+from projector.database import camera_of_image, drop_matches
 from projector.mapping import MappingOptions, SceneModel, map_scene
 from projector.matching import MatchOptions, MatchReport, match_pairs
 from projector.merge import Alignment, MergeOptions, merge_scenes
@@ -61,6 +63,9 @@ class SfmOptions:
     merge: MergeOptions = field(default_factory=MergeOptions)
     scenes: list[str] | None = None  # default: every folder in CAPTURE/scenes
     num_workers: int | None = None  # default: all available cores
+    # the likely reference scene is mapped (GLOMAP, in a thread) while the other scenes' features are extracted;
+    # False: one after the other (the same result, a few seconds slower)
+    map_reference_early: bool = True
     # the cameras' images are on the capture nodes, not under CAPTURE/scenes/ here (capture.json's "nodes"):
     # features of these names are asked for, scenes are taken as given (default: found under scenes/)
     cameras: list[str] | None = None
@@ -215,6 +220,38 @@ def reference_scene(feats: Mapping[str, FeatureReport]) -> str:
     return min(feats, key=lambda s: (-len(feats[s].num_features), s))
 
 
+def likely_reference(capture_dir: Path, scenes: list[str], options: SfmOptions) -> str:
+    """The scene that will most likely be :func:`reference_scene` before any features exist: the most images
+    (ties: the first name; every scene when the images are on the capture nodes)."""
+    if options.cameras is not None:
+        return scenes[0]
+    return min(scenes, key=lambda s: (-sum(1 for _ in (capture_dir / "scenes" / s).glob("*.png")), s))
+
+
+class _InThread:
+    """``fn(*args, **kwargs)`` run in a daemon thread (pycolmap's mappers release the GIL, so the process pool's
+    results keep being written meanwhile); :meth:`result` waits and re-raises its error. A daemon: an interrupted
+    run exits at once instead of waiting for the mapper (whose output is staged, :mod:`projector.mapping`)."""
+
+    def __init__(self, fn: Callable[..., object], /, *args: object, **kwargs: object) -> None:
+        self._out: object = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, args=(fn, args, kwargs), daemon=True)
+        self._thread.start()
+
+    def _run(self, fn: Callable[..., object], args: tuple, kwargs: dict) -> None:
+        try:
+            self._out = fn(*args, **kwargs)
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller by result()
+            self._error = exc
+
+    def result(self) -> object:
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        return self._out
+
+
 def run_scene(
     capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera], options: SfmOptions,
     executor: Executor, feats: FeatureReport | None = None, reference: SceneModel | None = None,
@@ -246,6 +283,29 @@ def run_scene(
     return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model, fallback=fallback)
 
 
+def _known_poses_apply(options: SfmOptions, n_scenes: int, n_reference_images: int) -> bool:
+    return options.known_poses.enabled and n_scenes > 1 and n_reference_images >= options.known_poses.min_images
+
+
+def _reference_options(options: SfmOptions) -> SfmOptions:
+    """The reference scene's options: its focal lengths refined when later scenes are triangulated at its poses."""
+    if options.known_poses.enabled and options.known_poses.refine_reference_focal:
+        return replace(options, mapping=replace(options.mapping, refine_focal_length=True))
+    return options
+
+
+def _map_reference_early(capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera],
+                         options: SfmOptions, executor: Executor, feats: FeatureReport) -> Callable[[], SceneStats]:
+    """:func:`run_scene` of the (likely) reference scene, its GLOMAP run in a thread: matched here, then returns a
+    call that waits for the mapping and gives the scene's :class:`SceneStats`."""
+    feats, pairs, matches = match_scene(capture_dir, work_dir, scene, prior, options, executor, feats)
+    mapping = _InThread(map_scene, work_dir / scene / "database.db",
+                        mapper_image_dir(capture_dir, work_dir, scene, options), work_dir / scene / "sparse",
+                        options=options.mapping, scene=scene)
+    return lambda: SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches,
+                              model=mapping.result())
+
+
 def run_sfm(
     capture_dir: str | Path, work_dir: str | Path, options: SfmOptions | None = None,
     prior: Bundle | Mapping[str, Camera] | str | Path | None = None, executor: Executor | None = None,
@@ -274,17 +334,38 @@ def run_sfm(
     stats: dict[str, SceneStats] = {}
     # our own pool is stopped at once (workers quiet) if a scene fails or the run is interrupted
     with make_executor(options.num_workers) if executor is None else contextlib.nullcontext(executor) as pool:
-        feats = {scene: scene_features(capture_dir, work_dir, scene, prior_cams, options, pool) for scene in scenes}
+        # the likely reference first: once it is matched, GLOMAP maps it in a thread while the process pool
+        # extracts the other scenes' features (GLOMAP leaves a core idle for a good part of its run)
+        likely = likely_reference(capture_dir, scenes, options)
+        feats = {likely: scene_features(capture_dir, work_dir, likely, prior_cams, options, pool)}
+        early = None
+        if options.map_reference_early and _known_poses_apply(options, len(scenes), len(feats[likely].num_features)):
+            early = _map_reference_early(capture_dir, work_dir, likely, prior_cams, _reference_options(options),
+                                         pool, feats[likely])
+        try:
+            feats.update({scene: scene_features(capture_dir, work_dir, scene, prior_cams, options, pool)
+                          for scene in scenes if scene != likely})
+        except Exception:
+            if early is not None:  # no mapper left writing in the background of a process that goes on
+                early()
+            raise
+        feats = {scene: feats[scene] for scene in scenes}
         ref = reference_scene(feats)
         n_ref = len(feats[ref].num_features)
         if options.known_poses.enabled and len(scenes) > 1 and n_ref < options.known_poses.min_images:
             logger.info("known poses: %s has %d images with features (< %d): every scene mapped with GLOMAP", ref,
                         n_ref, options.known_poses.min_images)
             options = replace(options, known_poses=replace(options.known_poses, enabled=False))
-        ref_options = options
-        if options.known_poses.enabled and options.known_poses.refine_reference_focal and len(scenes) > 1:
-            ref_options = replace(options, mapping=replace(options.mapping, refine_focal_length=True))
-        stats[ref] = run_scene(capture_dir, work_dir, ref, prior_cams, ref_options, pool, feats[ref])
+        ref_options = _reference_options(options) if len(scenes) > 1 else options
+        if early is not None:
+            stats[likely] = early()
+            if ref != likely:  # another scene has more images with features: as if the likely one was never mapped
+                logger.info("reference %s, not %s: %s's matches and model dropped", ref, likely, likely)
+                del stats[likely]
+                drop_matches(work_dir / likely / "database.db")
+                shutil.rmtree(work_dir / likely / "sparse")
+        if ref not in stats:
+            stats[ref] = run_scene(capture_dir, work_dir, ref, prior_cams, ref_options, pool, feats[ref])
         for scene in scenes:
             if scene != ref:
                 stats[scene] = run_scene(capture_dir, work_dir, scene, prior_cams, options, pool, feats[scene],

@@ -186,3 +186,50 @@ def test_later_scene_pairs_follow_the_reference_not_the_prior(runs, capture):
     pairs = known_scene_pairs(names, gt, reference, options)
     count = {n: sum(n in p for p in pairs) for n in names}
     assert min(count.values()) >= 1
+
+
+def _pairs_in_database(path: Path) -> set[tuple[str, str]]:
+    import pycolmap
+
+    from projector.database import camera_of_image
+
+    with pycolmap.Database.open(str(path)) as db:
+        names = {im.image_id: camera_of_image(im.name) for im in db.read_all_images()}
+        pair_ids, _ = db.read_two_view_geometry_num_inliers()
+        return {tuple(sorted(names[i] for i in pycolmap.pair_id_to_image_pair(pid))) for pid in pair_ids}
+
+
+def test_a_likely_reference_that_is_not_the_reference_leaves_no_trace(capture, tmp_path):
+    """scene_01 has as many images as scene_02 and the first name, so it is matched and mapped early; one of its
+    images is blank, so scene_02 has more images with features and is the reference. scene_01's early matches and
+    model are dropped: it is matched on the reference's pairs alone and triangulated at its poses, as in a run that
+    maps nothing early."""
+    import cv2
+
+    shutil.copytree(capture, tmp_path / "capture")
+    cap = tmp_path / "capture"
+    shutil.copy(capture / "scenes" / "scene_01" / f"{ONLY_FIRST}.png", cap / "scenes" / "scene_02" / f"{ONLY_FIRST}.png")
+    shutil.copy(capture / "scenes" / "scene_02" / f"{ONLY_LATER}.png", cap / "scenes" / "scene_01" / f"{ONLY_LATER}.png")
+    blank = cap / "scenes" / "scene_01" / "01_03.png"
+    cv2.imwrite(str(blank), np.full(cv2.imread(str(blank), cv2.IMREAD_GRAYSCALE).shape, 128, np.uint8))
+    results = {}
+    for early in (True, False):
+        options = SfmOptions(show_progress=False, num_workers=2, map_reference_early=early)
+        options.known_poses.min_images = 0
+        options.pairs.exhaustive_below = 0  # pairs by the geometry, so that ...
+        options.known_poses.pairs_per_camera = 2  # ... scene_01 has fewer than as a reference: an early one shows
+        work = tmp_path / f"work_{early}"
+        results[early] = run_sfm(cap, work, options, prior=load_bundle(capture / "ground_truth"))
+        scenes = report_dict(results[early])["scenes"]
+        assert scenes["scene_02"]["mapping"] == "glomap"
+        assert scenes["scene_01"]["mapping"] == "known poses (from scene_02)"
+        assert not (work / "scene_01" / "sparse").exists() and not (work / "scene_01" / ".sparse.staging").exists()
+        pairs = {tuple(sorted(line.replace(".png", "").split())) for line in
+                 (work / "scene_01" / "pairs.txt").read_text().splitlines()}
+        assert _pairs_in_database(work / "scene_01" / "database.db") <= pairs  # no pair of the early matching left
+    early, late = results[True], results[False]
+    assert early.scenes["scene_01"].pairs < early.scenes["scene_02"].pairs
+    assert _pairs_in_database(tmp_path / "work_True" / "scene_01" / "database.db") == \
+        _pairs_in_database(tmp_path / "work_False" / "scene_01" / "database.db")
+    assert sorted(early.cameras) == sorted(late.cameras) and "01_03" in early.failures[0].camera
+    assert early.scenes["scene_01"].pairs == late.scenes["scene_01"].pairs
