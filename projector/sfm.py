@@ -245,11 +245,62 @@ class _InThread:
         except BaseException as exc:  # noqa: BLE001 - handed to the caller by result()
             self._error = exc
 
+    def wait(self) -> None:
+        """Wait for the call to end (its result or error left alone)."""
+        self._thread.join()
+
     def result(self) -> object:
         self._thread.join()
         if self._error is not None:
             raise self._error
         return self._out
+
+
+@dataclass(kw_only=True)
+class MatchedScene:
+    """A scene matched for its model (:func:`match_for_model`): what :func:`model_of_matched` maps."""
+
+    scene: str
+    features: FeatureReport
+    pairs: list[Pair]
+    matches: MatchReport
+    reference: SceneModel | None  # the model its cameras are held at, or None: GLOMAP
+
+
+def match_for_model(capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera], options: SfmOptions,
+                    executor: Executor, feats: FeatureReport, reference: SceneModel | None = None) -> MatchedScene:
+    """Pairs and matching of a scene for :func:`model_of_matched`: the reference's geometry's pairs when the scene
+    is to be triangulated at ``reference``'s poses, else the prior's."""
+    if not (reference is not None and reference.reconstruction is not None and options.known_poses.enabled):
+        reference = None
+    pairs = known_scene_pairs(sorted(feats.num_features), prior, reference, options) if reference else None
+    feats, pairs, matches = match_scene(capture_dir, work_dir, scene, prior, options, executor, feats, pairs)
+    return MatchedScene(scene=scene, features=feats, pairs=pairs, matches=matches, reference=reference)
+
+
+def model_of_matched(capture_dir: Path, work_dir: Path, prior: Mapping[str, Camera], options: SfmOptions,
+                     executor: Executor, matched: MatchedScene) -> SceneStats:
+    """The scene's model: triangulated with the cameras held at the reference's poses when it has one and that
+    works, else mapped with GLOMAP (after matching the prior's full pair set, when it fell back)."""
+    scene, feats, pairs, matches, reference = (matched.scene, matched.features, matched.pairs, matched.matches,
+                                               matched.reference)
+    db_path, image_dir = work_dir / scene / "database.db", mapper_image_dir(capture_dir, work_dir, scene, options)
+    fallback = None
+    if reference is not None:
+        model, fallback = map_known_scene(db_path, image_dir, work_dir / scene / "known", reference,
+                                          options.known_poses, scene=scene)
+        if fallback is None:
+            return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model,
+                              mapping=f"known poses (from {reference.scene})")
+        logger.warning("%s: mapping with GLOMAP instead: %s", scene, fallback)
+        known_seconds, known_matching = model.seconds, matches.seconds
+        # GLOMAP registers the cameras too: the prior's full pair set (matched ones reused)
+        feats, pairs, matches = match_scene(capture_dir, work_dir, scene, prior, options, executor, feats)
+        matches.seconds += known_matching
+    model = map_scene(db_path, image_dir, work_dir / scene / "sparse", options=options.mapping, scene=scene)
+    if fallback is not None:
+        model.seconds += known_seconds
+    return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model, fallback=fallback)
 
 
 def run_scene(
@@ -260,27 +311,8 @@ def run_scene(
     ``reference``'s poses when given and that works, else mapped with GLOMAP."""
     if feats is None:
         feats = scene_features(capture_dir, work_dir, scene, prior, options, executor)
-    known = reference is not None and reference.reconstruction is not None and options.known_poses.enabled
-    pairs = known_scene_pairs(sorted(feats.num_features), prior, reference, options) if known else None
-    feats, pairs, matches = match_scene(capture_dir, work_dir, scene, prior, options, executor, feats, pairs)
-    db_path, image_dir = work_dir / scene / "database.db", mapper_image_dir(capture_dir, work_dir, scene, options)
-    fallback = None
-    if known:
-        model, fallback = map_known_scene(db_path, image_dir, work_dir / scene / "known", reference,
-                                          options.known_poses, scene=scene)
-        if fallback is None:
-            return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model,
-                              mapping=f"known poses (from {reference.scene})")
-        logger.warning("%s: mapping with GLOMAP instead: %s", scene, fallback)
-        known_seconds = model.seconds
-        if pairs is not None:  # GLOMAP registers the cameras too: the prior's full pair set (matched ones reused)
-            known_matching = matches.seconds
-            feats, pairs, matches = match_scene(capture_dir, work_dir, scene, prior, options, executor, feats)
-            matches.seconds += known_matching
-    model = map_scene(db_path, image_dir, work_dir / scene / "sparse", options=options.mapping, scene=scene)
-    if fallback is not None:
-        model.seconds += known_seconds
-    return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model, fallback=fallback)
+    matched = match_for_model(capture_dir, work_dir, scene, prior, options, executor, feats, reference)
+    return model_of_matched(capture_dir, work_dir, prior, options, executor, matched)
 
 
 def _known_poses_apply(options: SfmOptions, n_scenes: int, n_reference_images: int) -> bool:
@@ -295,15 +327,11 @@ def _reference_options(options: SfmOptions) -> SfmOptions:
 
 
 def _map_reference_early(capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera],
-                         options: SfmOptions, executor: Executor, feats: FeatureReport) -> Callable[[], SceneStats]:
-    """:func:`run_scene` of the (likely) reference scene, its GLOMAP run in a thread: matched here, then returns a
-    call that waits for the mapping and gives the scene's :class:`SceneStats`."""
-    feats, pairs, matches = match_scene(capture_dir, work_dir, scene, prior, options, executor, feats)
-    mapping = _InThread(map_scene, work_dir / scene / "database.db",
-                        mapper_image_dir(capture_dir, work_dir, scene, options), work_dir / scene / "sparse",
-                        options=options.mapping, scene=scene)
-    return lambda: SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches,
-                              model=mapping.result())
+                         options: SfmOptions, executor: Executor, feats: FeatureReport) -> _InThread:
+    """:func:`run_scene` of the (likely) reference scene: matched here, then mapped with GLOMAP in a thread, whose
+    result is the scene's :class:`SceneStats`."""
+    matched = match_for_model(capture_dir, work_dir, scene, prior, options, executor, feats)
+    return _InThread(model_of_matched, capture_dir, work_dir, prior, options, executor, matched)
 
 
 def run_sfm(
@@ -347,7 +375,7 @@ def run_sfm(
                           for scene in scenes if scene != likely})
         except Exception:
             if early is not None:  # no mapper left writing in the background of a process that goes on
-                early()
+                early.wait()
             raise
         feats = {scene: feats[scene] for scene in scenes}
         ref = reference_scene(feats)
@@ -358,7 +386,7 @@ def run_sfm(
             options = replace(options, known_poses=replace(options.known_poses, enabled=False))
         ref_options = _reference_options(options) if len(scenes) > 1 else options
         if early is not None:
-            stats[likely] = early()
+            stats[likely] = early.result()
             if ref != likely:  # another scene has more images with features: as if the likely one was never mapped
                 logger.info("reference %s, not %s: %s's matches and model dropped", ref, likely, likely)
                 del stats[likely]
@@ -366,10 +394,20 @@ def run_sfm(
                 shutil.rmtree(work_dir / likely / "sparse")
         if ref not in stats:
             stats[ref] = run_scene(capture_dir, work_dir, ref, prior_cams, ref_options, pool, feats[ref])
-        for scene in scenes:
-            if scene != ref:
-                stats[scene] = run_scene(capture_dir, work_dir, scene, prior_cams, options, pool, feats[scene],
-                                         reference=stats[ref].model)
+        # each later scene is triangulated (single-threaded COLMAP, mostly) in a thread while the next is matched
+        later: list[_InThread] = []
+        try:
+            for scene in scenes:
+                if scene != ref:
+                    matched = match_for_model(capture_dir, work_dir, scene, prior_cams, options, pool, feats[scene],
+                                              stats[ref].model)
+                    later.append(_InThread(model_of_matched, capture_dir, work_dir, prior_cams, options, pool,
+                                           matched))
+        except Exception:
+            for job in later:
+                job.wait()
+            raise
+        stats.update({s.scene: s for s in (job.result() for job in later)})
     stats = {scene: stats[scene] for scene in scenes}
     t_scenes = time.perf_counter() - t0
     failures: list[CameraFailure] = []
