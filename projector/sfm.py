@@ -5,13 +5,20 @@ Stages (each also callable on its own, hloc style): :func:`projector.features.ex
 :func:`projector.mapping.map_scene`, :func:`projector.known_scene.map_known_scene`,
 :func:`projector.merge.merge_scenes`.
 
-Order: the features of every scene; then the reference scene (the most images with features, ties by name) is
-matched and mapped with GLOMAP, refining focal lengths; every other scene is matched on fewer pairs chosen by the
-reference's geometry (:func:`known_scene_pairs`) and triangulated with the cameras held at the reference's poses
-and intrinsics (:mod:`projector.known_scene`), falling back on the full pair set and GLOMAP when that gives too
-little (logged, and said in the report). ``SfmOptions.known_poses.enabled = False``, or a reference with fewer than
+Order: the reference scene (the most images with features, ties by name) is matched and mapped with GLOMAP,
+refining focal lengths; every other scene is matched on fewer pairs chosen by the reference's geometry
+(:func:`known_scene_pairs`) and triangulated with the cameras held at the reference's poses and intrinsics
+(:mod:`projector.known_scene`), falling back on the full pair set and GLOMAP when that gives too little (logged, and
+said in the report). ``SfmOptions.known_poses.enabled = False``, or a reference with fewer than
 ``known_poses.min_images`` images (40: a small capture's GLOMAP runs take seconds), maps every scene with GLOMAP
 on the prior's pairs, holding the prior's intrinsics (slower on the dome; measured in the README).
+
+Overlap (the same result, the two cores kept busy; ``SfmOptions.map_reference_early``): the likely reference (the
+most images, ties by name: :func:`likely_reference`) has its features extracted and is matched first, then GLOMAP
+maps it in a thread while the process pool extracts the other scenes' features; should another scene then have more
+images with features, it is the reference and the likely one's matches and model are dropped
+(:func:`projector.database.drop_matches`) before it is matched as a later scene. Each later scene is triangulated
+in a thread while the next one is matched. Measured on the panel bench: 2-3 s of its minute.
 
 Work folder layout (everything resumable)::
 
