@@ -410,10 +410,12 @@ def run_sfm(
                                               stats[ref].model)
                     later.append(_InThread(model_of_matched, capture_dir, work_dir, prior_cams, options, pool,
                                            matched))
-        except Exception:
+        except Exception:  # no mapper left running in a process that goes on (an interrupt does not wait)
             for job in later:
                 job.wait()
             raise
+        for job in later:  # every one finished before the first error is raised
+            job.wait()
         stats.update({s.scene: s for s in (job.result() for job in later)})
     stats = {scene: stats[scene] for scene in scenes}
     t_scenes = time.perf_counter() - t0
