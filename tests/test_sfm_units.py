@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from dome_calib.bundle import Camera, CameraType
 from dome_calib.panoptic_io import read_calibration
@@ -146,3 +148,17 @@ def test_nominal_camera_types():
     vga = nominal_camera("05_07", (640, 480))
     assert hd.type == CameraType.HD and vga.type == CameraType.VGA
     assert 1300 < hd.K[0, 0] < 1700 and 700 < vga.K[0, 0] < 800
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**31))
+def test_match_descriptors_do_not_depend_on_the_order_of_summation(seed):
+    """Another BLAS kernel sums the descriptor products in another order: permuting the 128 dimensions does the
+    same here. uint8 descriptors give exact products, so the matches (and their order) stay the same."""
+    rng = np.random.default_rng(seed)
+    a = np.clip(np.round(_sift_like(rng, 1500) * 512), 0, 255).astype(np.uint8)
+    b = np.clip(np.round((a[rng.permutation(1500)] + rng.normal(0, 6, (1500, 128)))), 0, 255).astype(np.uint8)
+    perm = rng.permutation(128)
+    m = match_descriptors(a, b, max_matches=400)
+    assert len(m) == 400
+    assert np.array_equal(m, match_descriptors(a[:, perm], b[:, perm], max_matches=400))
