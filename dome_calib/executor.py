@@ -13,6 +13,7 @@ import concurrent.futures as cf
 import multiprocessing
 import os
 import signal
+import threading
 from collections.abc import Callable, Hashable, Iterable, Iterator, Sequence
 from typing import Any, Protocol, TypeVar, runtime_checkable
 
@@ -116,10 +117,17 @@ class LocalProcessExecutor:
         self._max_in_flight = max(1, self.num_workers * max_in_flight_per_worker)
         self._pool = cf.ProcessPoolExecutor(self.num_workers, mp_context=multiprocessing.get_context("spawn"),
                                             initializer=_worker_ignores_sigint)
+        self._lock = threading.Lock()
 
     def submit(self, fn: Callable[..., R], /, *args: Any, **kwargs: Any) -> Future[R]:
-        with single_threaded_children():  # the pool starts its worker processes on demand, inside submit
-            return self._pool.submit(fn, *args, **kwargs)
+        # the pool starts its worker processes on demand, inside submit: the thread limits go into the environment
+        # only until every worker is running (setenv races with getenv in another thread: GLOMAP maps in one
+        # while features are submitted, projector.sfm), and one submit at a time changes it
+        with self._lock:
+            if len(getattr(self._pool, "_processes", None) or {}) >= self.num_workers:
+                return self._pool.submit(fn, *args, **kwargs)
+            with single_threaded_children():
+                return self._pool.submit(fn, *args, **kwargs)
 
     def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
         """Results in completion order, with a bounded number of tasks in flight (memory stays flat)."""

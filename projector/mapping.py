@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import shutil
+import tempfile
 import time
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -100,16 +101,21 @@ def _incremental_options(options: MappingOptions) -> pycolmap.IncrementalPipelin
     return o
 
 
+def remove_model_folder(output_dir: Path) -> None:
+    """Remove a mapper's output folder and any staging folder beside it (left by a run that stopped)."""
+    shutil.rmtree(output_dir, ignore_errors=True)
+    for stale in output_dir.parent.glob(f".{output_dir.name}.staging.*"):
+        shutil.rmtree(stale, ignore_errors=True)
+
+
 def _run_mapper(mapper: Mapper, database_path: Path, image_dir: str | Path, output_dir: Path,
                 options: MappingOptions, scene: str) -> tuple[dict[int, pycolmap.Reconstruction], str | None]:
-    """Map into a staging folder beside ``output_dir``, renamed to it once the mapper has written every model: a
-    run stopped while mapping (or while the mapper runs in a thread of a process that stops) leaves no half-written
-    model for a rerun to load."""
-    staging = output_dir.parent / f".{output_dir.name}.staging"
-    for old in (output_dir, staging):
-        if old.exists():
-            shutil.rmtree(old)
-    staging.mkdir(parents=True)
+    """Map into a staging folder of its own beside ``output_dir``, renamed to it once the mapper has written every
+    model: a run stopped while mapping (or while the mapper runs in a thread of a process that stops) leaves no
+    half-written model for a rerun to load."""
+    remove_model_folder(output_dir)
+    output_dir.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{output_dir.name}.staging.", dir=output_dir.parent))
     try:
         if mapper == Mapper.GLOBAL:
             models = pycolmap.global_mapping(str(database_path), str(image_dir), str(staging),
@@ -117,12 +123,12 @@ def _run_mapper(mapper: Mapper, database_path: Path, image_dir: str | Path, outp
         else:
             models = pycolmap.incremental_mapping(str(database_path), str(image_dir), str(staging),
                                                   _incremental_options(options))
+        staging.rename(output_dir)
     except Exception as exc:  # noqa: BLE001 - a scene that fails to map is reported, not fatal
         logger.warning("%s: %s mapping failed: %s", scene, mapper.value, exc)
-        shutil.rmtree(staging)
-        output_dir.mkdir(parents=True)
+        shutil.rmtree(staging, ignore_errors=True)
+        output_dir.mkdir(parents=True, exist_ok=True)
         return {}, f"{mapper.value} mapping failed: {exc}"
-    staging.rename(output_dir)
     return dict(models), (None if models else f"{mapper.value} mapping gave no model")
 
 

@@ -13,18 +13,22 @@ said in the report). ``SfmOptions.known_poses.enabled = False``, or a reference 
 ``known_poses.min_images`` images (40: a small capture's GLOMAP runs take seconds), maps every scene with GLOMAP
 on the prior's pairs, holding the prior's intrinsics (slower on the dome; measured in the README).
 
-Overlap (the same result, the two cores kept busy; ``SfmOptions.map_reference_early``): the likely reference (the
-most images, ties by name: :func:`likely_reference`) has its features extracted and is matched first, then GLOMAP
-maps it in a thread while the process pool extracts the other scenes' features; should another scene then have more
-images with features, it is the reference and the likely one's matches and model are dropped
+Overlap (the same result, the two cores kept busy): the likely reference (the most images, ties by name:
+:func:`likely_reference`) has its features extracted and is matched first, then GLOMAP maps it in a thread while the
+process pool extracts the other scenes' features (``SfmOptions.map_reference_early``; not on a rerun that finds
+the other scenes' databases: their features are finished first, and the reference is then known). Should another
+scene then have more images with features, it is the reference and the likely one's matches and model are dropped
 (:func:`projector.database.drop_matches`) before it is matched as a later scene. Each later scene is triangulated
-in a thread while the next one is matched. Measured on the panel bench: 2-3 s of its minute.
+at the reference's poses in a thread while the next one is matched, one at a time (:func:`known_model`); a
+fallback to GLOMAP runs after all are matched. The threads use no executor. Measured on the panel bench: 2-3 s
+of its minute.
 
 Work folder layout (everything resumable)::
 
     WORK/<scene>/database.db     COLMAP database (open it in COLMAP with CAPTURE/scenes/<scene> as image folder)
     WORK/<scene>/pairs.txt       the matched pairs, one "a.png b.png" per line
-    WORK/<scene>/sparse/<k>/     pycolmap models of GLOMAP (the reference scene, and any scene that fell back)
+    WORK/<scene>/sparse/<k>/     pycolmap models of GLOMAP (the reference scene, and any scene that fell back);
+                                 written into WORK/<scene>/.sparse.staging.*/ and renamed when complete
     WORK/<scene>/known/model/    pycolmap model of a scene triangulated with the reference's poses
     WORK/<scene>/known/reference.json   the reference model it was made from (a digest: reused only if it matches)
 """
@@ -33,7 +37,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import shutil
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -50,7 +53,7 @@ from dome_calib.executor import Executor, make_executor
 from projector.features import FeatureOptions, FeatureReport, extract_features, nominal_camera
 from projector.known_scene import KnownPoseOptions, map_known_scene, reference_cameras
 from projector.database import camera_of_image, drop_matches
-from projector.mapping import MappingOptions, SceneModel, map_scene
+from projector.mapping import MappingOptions, SceneModel, map_scene, remove_model_folder
 from projector.matching import MatchOptions, MatchReport, match_pairs
 from projector.merge import Alignment, MergeOptions, merge_scenes
 from projector.observations import Observations
@@ -252,9 +255,10 @@ class _InThread:
         except BaseException as exc:  # noqa: BLE001 - handed to the caller by result()
             self._error = exc
 
-    def wait(self) -> None:
-        """Wait for the call to end (its result or error left alone)."""
+    def wait(self) -> BaseException | None:
+        """Wait for the call to end; its error, if it raised (not raised here)."""
         self._thread.join()
+        return self._error
 
     def result(self) -> object:
         self._thread.join()
@@ -285,17 +289,28 @@ def match_for_model(capture_dir: Path, work_dir: Path, scene: str, prior: Mappin
     return MatchedScene(scene=scene, features=feats, pairs=pairs, matches=matches, reference=reference)
 
 
+def known_model(capture_dir: Path, work_dir: Path, options: SfmOptions, matched: MatchedScene
+                ) -> tuple[SceneModel, str | None]:
+    """The scene triangulated with its cameras held at ``matched.reference``'s poses (:func:`map_known_scene`):
+    the model and None, or the model and why to map the scene with GLOMAP instead. Uses no executor: it runs in a
+    thread while the next scene is matched."""
+    scene = matched.scene
+    return map_known_scene(work_dir / scene / "database.db", mapper_image_dir(capture_dir, work_dir, scene, options),
+                           work_dir / scene / "known", matched.reference, options.known_poses, scene=scene)
+
+
 def model_of_matched(capture_dir: Path, work_dir: Path, prior: Mapping[str, Camera], options: SfmOptions,
-                     executor: Executor, matched: MatchedScene) -> SceneStats:
+                     executor: Executor | None, matched: MatchedScene,
+                     known: tuple[SceneModel, str | None] | None = None) -> SceneStats:
     """The scene's model: triangulated with the cameras held at the reference's poses when it has one and that
-    works, else mapped with GLOMAP (after matching the prior's full pair set, when it fell back)."""
+    works (``known``: :func:`known_model`'s result when already computed), else mapped with GLOMAP (after matching
+    the prior's full pair set, when it fell back)."""
     scene, feats, pairs, matches, reference = (matched.scene, matched.features, matched.pairs, matched.matches,
                                                matched.reference)
     db_path, image_dir = work_dir / scene / "database.db", mapper_image_dir(capture_dir, work_dir, scene, options)
     fallback = None
     if reference is not None:
-        model, fallback = map_known_scene(db_path, image_dir, work_dir / scene / "known", reference,
-                                          options.known_poses, scene=scene)
+        model, fallback = known if known is not None else known_model(capture_dir, work_dir, options, matched)
         if fallback is None:
             return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model,
                               mapping=f"known poses (from {reference.scene})")
@@ -335,10 +350,15 @@ def _reference_options(options: SfmOptions) -> SfmOptions:
 
 def _map_reference_early(capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera],
                          options: SfmOptions, executor: Executor, feats: FeatureReport) -> _InThread:
-    """:func:`run_scene` of the (likely) reference scene: matched here, then mapped with GLOMAP in a thread, whose
-    result is the scene's :class:`SceneStats`."""
+    """:func:`run_scene` of the (likely) reference scene: matched here, then mapped with GLOMAP in a thread (no
+    executor used there), whose result is the scene's :class:`SceneStats`."""
     matched = match_for_model(capture_dir, work_dir, scene, prior, options, executor, feats)
-    return _InThread(model_of_matched, capture_dir, work_dir, prior, options, executor, matched)
+    return _InThread(model_of_matched, capture_dir, work_dir, prior, options, None, matched)
+
+
+def _log_thread_error(what: str, error: BaseException | None) -> None:
+    if error is not None:
+        logger.warning("%s: %s: %s", what, type(error).__name__, error)
 
 
 def run_sfm(
@@ -373,16 +393,20 @@ def run_sfm(
         # extracts the other scenes' features (GLOMAP leaves a core idle for a good part of its run)
         likely = likely_reference(capture_dir, scenes, options)
         feats = {likely: scene_features(capture_dir, work_dir, likely, prior_cams, options, pool)}
+        # a rerun first finishes the features it had begun: once every scene has them, the reference is known
+        feats.update({scene: scene_features(capture_dir, work_dir, scene, prior_cams, options, pool)
+                      for scene in scenes if scene != likely and (work_dir / scene / "database.db").exists()})
         early = None
-        if options.map_reference_early and _known_poses_apply(options, len(scenes), len(feats[likely].num_features)):
+        if (options.map_reference_early and len(feats) < len(scenes)
+                and _known_poses_apply(options, len(scenes), len(feats[likely].num_features))):
             early = _map_reference_early(capture_dir, work_dir, likely, prior_cams, _reference_options(options),
                                          pool, feats[likely])
         try:
             feats.update({scene: scene_features(capture_dir, work_dir, scene, prior_cams, options, pool)
-                          for scene in scenes if scene != likely})
+                          for scene in scenes if scene not in feats})
         except Exception:
             if early is not None:  # no mapper left writing in the background of a process that goes on
-                early.wait()
+                _log_thread_error(f"{likely}: early mapping", early.wait())
             raise
         feats = {scene: feats[scene] for scene in scenes}
         ref = reference_scene(feats)
@@ -392,31 +416,37 @@ def run_sfm(
                         n_ref, options.known_poses.min_images)
             options = replace(options, known_poses=replace(options.known_poses, enabled=False))
         ref_options = _reference_options(options) if len(scenes) > 1 else options
-        if early is not None:
+        if early is not None and ref == likely:
             stats[likely] = early.result()
-            if ref != likely:  # another scene has more images with features: as if the likely one was never mapped
-                logger.info("reference %s, not %s: %s's matches and model dropped", ref, likely, likely)
-                del stats[likely]
-                drop_matches(work_dir / likely / "database.db")
-                shutil.rmtree(work_dir / likely / "sparse")
+        elif early is not None:  # another scene has more images with features: as if the likely one was never mapped
+            _log_thread_error(f"{likely}: early mapping (dropped)", early.wait())
+            logger.info("reference %s, not %s: %s's matches and model dropped", ref, likely, likely)
+            drop_matches(work_dir / likely / "database.db")
+            remove_model_folder(work_dir / likely / "sparse")
         if ref not in stats:
             stats[ref] = run_scene(capture_dir, work_dir, ref, prior_cams, ref_options, pool, feats[ref])
-        # each later scene is triangulated (single-threaded COLMAP, mostly) in a thread while the next is matched
-        later: list[_InThread] = []
+        # each later scene is triangulated at the reference's poses (single-threaded COLMAP, mostly) in a thread
+        # while the next one is matched, one at a time; a fallback to GLOMAP runs here, after all are matched
+        later: list[tuple[MatchedScene, _InThread | None]] = []
         try:
             for scene in scenes:
                 if scene != ref:
                     matched = match_for_model(capture_dir, work_dir, scene, prior_cams, options, pool, feats[scene],
                                               stats[ref].model)
-                    later.append(_InThread(model_of_matched, capture_dir, work_dir, prior_cams, options, pool,
-                                           matched))
+                    if later and later[-1][1] is not None:
+                        later[-1][1].wait()
+                    later.append((matched, _InThread(known_model, capture_dir, work_dir, options, matched)
+                                  if matched.reference is not None else None))
         except Exception:  # no mapper left running in a process that goes on (an interrupt does not wait)
-            for job in later:
-                job.wait()
+            for matched, job in later:
+                if job is not None:
+                    _log_thread_error(f"{matched.scene}: triangulation at known poses", job.wait())
             raise
-        for job in later:  # every one finished before the first error is raised
-            job.wait()
-        stats.update({s.scene: s for s in (job.result() for job in later)})
+        if later and later[-1][1] is not None:  # none still running when an error is raised below
+            later[-1][1].wait()
+        for matched, job in later:
+            stats[matched.scene] = model_of_matched(capture_dir, work_dir, prior_cams, options, pool, matched,
+                                                    job.result() if job is not None else None)
     stats = {scene: stats[scene] for scene in scenes}
     t_scenes = time.perf_counter() - t0
     failures: list[CameraFailure] = []

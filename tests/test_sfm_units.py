@@ -162,3 +162,14 @@ def test_match_descriptors_do_not_depend_on_the_order_of_summation(seed):
     m = match_descriptors(a, b, max_matches=400)
     assert len(m) == 400
     assert np.array_equal(m, match_descriptors(a[:, perm], b[:, perm], max_matches=400))
+
+
+def test_match_descriptors_match_each_keypoint_once_when_rows_tie():
+    """Two identical descriptors in the first image tie exactly as the nearest of one in the second: one match."""
+    rng = np.random.default_rng(3)
+    a = np.clip(np.round(_sift_like(rng, 200) * 512), 0, 255).astype(np.uint8)
+    b = a[rng.permutation(200)].copy()
+    a[7] = a[3]
+    m = match_descriptors(a, b, max_ratio=1.01)  # the ratio test would not drop row 3 or 7: they are not ambiguous
+    assert len(np.unique(m[:, 1])) == len(m) and len(np.unique(m[:, 0])) == len(m)
+    assert 3 in m[:, 0] and 7 not in m[:, 0]

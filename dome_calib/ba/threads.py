@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable, Iterable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 from typing import TypeVar
 
 T = TypeVar("T")
@@ -29,7 +29,10 @@ def run_in_threads(fn: Callable[[T], object], jobs: Iterable[T], n_threads: int)
     """Call ``fn(job)`` for every job, in up to ``n_threads`` threads; an exception in any job is raised here."""
     jobs = list(jobs)
     if n_threads > 1 and len(jobs) > 1:
-        list(_pool(n_threads).map(fn, jobs))
+        futures = [_pool(n_threads).submit(fn, job) for job in jobs]
+        wait(futures)  # every job done (none still writing into the caller's arrays) before an error is raised
+        for fut in futures:
+            fut.result()
     else:
         for job in jobs:
             fn(job)
