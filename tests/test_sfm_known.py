@@ -229,6 +229,16 @@ def test_a_likely_reference_that_is_not_the_reference_leaves_no_trace(capture, t
         assert _pairs_in_database(work / "scene_01" / "database.db") <= pairs  # no pair of the early matching left
     early, late = results[True], results[False]
     assert early.scenes["scene_01"].pairs < early.scenes["scene_02"].pairs
+    # a rerun finds every scene's features first: it knows the reference and maps nothing early again
+    before = _pairs_in_database(tmp_path / "work_True" / "scene_01" / "database.db")
+    options = SfmOptions(show_progress=False, num_workers=2)
+    options.known_poses.min_images = 0
+    options.pairs.exhaustive_below = 0
+    options.known_poses.pairs_per_camera = 2
+    again = run_sfm(cap, tmp_path / "work_True", options, prior=load_bundle(capture / "ground_truth"))
+    assert _pairs_in_database(tmp_path / "work_True" / "scene_01" / "database.db") == before
+    assert again.scenes["scene_01"].matches.reused == again.scenes["scene_01"].pairs
+    assert not (tmp_path / "work_True" / "scene_01" / "sparse").exists()
     assert _pairs_in_database(tmp_path / "work_True" / "scene_01" / "database.db") == \
         _pairs_in_database(tmp_path / "work_False" / "scene_01" / "database.db")
     assert sorted(early.cameras) == sorted(late.cameras) and "01_03" in early.failures[0].camera
