@@ -83,7 +83,6 @@ def linearize_blocks(Jc: np.ndarray, Jp: np.ndarray, res: np.ndarray, w: np.ndar
     zeroed in place. ``st`` is the :class:`dome_calib.ba.schur.Structure`."""
     A, P = len(st.active_cameras), st.n_points
     wr = np.ascontiguousarray(res * w)
-    act_index = np.flatnonzero(st.act)
     U, g_c = np.zeros((A, 15, 15)), np.zeros((A, 15))
     V, g_p = np.zeros((P, 3, 3)), np.zeros((P, 3))
     free = np.ascontiguousarray(st.free)
@@ -92,7 +91,7 @@ def linearize_blocks(Jc: np.ndarray, Jp: np.ndarray, res: np.ndarray, w: np.ndar
 
     def run(job: tuple[str, int, int]) -> None:
         if job[0] == "c":
-            _camera_blocks(Jc, wr, w, act_index, free, st.act_starts, job[1], job[2], U, g_c)
+            _camera_blocks(Jc, wr, w, st.act_index, free, st.act_starts, job[1], job[2], U, g_c)
         else:
             _point_blocks(Jp, wr, w, pt, V, g_p)
 
@@ -149,11 +148,9 @@ def y_blocks(Jc: np.ndarray, Jp: np.ndarray, w: np.ndarray, Li: np.ndarray, h: n
     n = int(st.act_starts[-1]) if A else 0
     ypt = np.empty((n, 3, width))
     rc = np.zeros((A, len(cols)))
-    act_index = np.flatnonzero(st.act)
-    pt_act = np.ascontiguousarray(st.pt[st.act])
     cols = np.ascontiguousarray(cols, dtype=np.int64)
-    run_in_threads(lambda rng: _y_rows(Jc, Jp, w, act_index, pt_act, st.pt_pos, Li, h, cols, st.act_starts, rng[0],
-                                       rng[1], ypt, rc), camera_ranges(st.act_starts, 2 * n_threads), n_threads)
+    run_in_threads(lambda rng: _y_rows(Jc, Jp, w, st.act_index, st.pt_act, st.pt_pos, Li, h, cols, st.act_starts,
+                                       rng[0], rng[1], ypt, rc), camera_ranges(st.act_starts, 2 * n_threads), n_threads)
     return ypt, rc
 
 

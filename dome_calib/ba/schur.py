@@ -57,6 +57,8 @@ class Structure:
     cam_local: np.ndarray
     act: np.ndarray
     act_starts: np.ndarray  # (A + 1,) offsets of each active camera's observations among the active ones
+    act_index: np.ndarray  # (Ma_active,) the active observations' positions in ``obs`` order
+    pt_act: np.ndarray  # (Ma_active,) the active observations' points
     free: np.ndarray  # (A, 15) bool
     free_flat: np.ndarray
     pt_order: np.ndarray
@@ -91,7 +93,8 @@ def build_structure(camera_index: np.ndarray, point_index: np.ndarray, obs_mask:
     pt_pos = np.empty_like(pt_order)
     pt_pos[pt_order] = np.arange(len(pt_order))
     return Structure(obs=obs, cam=cam, pt=pt, n_points=n_points, active_cameras=active, cam_local=cam_local,
-                     act=act, act_starts=act_starts, free=free_a, free_flat=np.flatnonzero(free_a.ravel()),
+                     act=act, act_starts=act_starts, act_index=np.flatnonzero(act), pt_act=pt_act, free=free_a,
+                     free_flat=np.flatnonzero(free_a.ravel()),
                      pt_order=pt_order, pt_ptr=pt_ptr, pt_pos=pt_pos,
                      cam_pt=cam_local[act][pt_order], live_points=live)
 

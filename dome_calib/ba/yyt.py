@@ -74,8 +74,7 @@ def subtract_yyt(S4: np.ndarray, ypt: np.ndarray, st, n_threads: int) -> None:
     A, nk = S4.shape[0], S4.shape[1]
     if A == 0 or nk == 0 or len(ypt) == 0:
         return
-    pt_act = st.pt[st.act]
     n_jobs = max(1, min(A, 8 * n_threads))
     jobs = [np.arange(t, A, n_jobs) for t in range(n_jobs)]
-    run_in_threads(lambda rows: _rows_kernel(S4, ypt, st.cam_pt, st.pt_ptr, st.pt_pos, pt_act, st.act_starts, rows,
+    run_in_threads(lambda rows: _rows_kernel(S4, ypt, st.cam_pt, st.pt_ptr, st.pt_pos, st.pt_act, st.act_starts, rows,
                                              nk), jobs, n_threads)
