@@ -124,10 +124,15 @@ class LocalProcessExecutor:
         # only until every worker is running (setenv races with getenv in another thread: GLOMAP maps in one
         # while features are submitted, projector.sfm), and one submit at a time changes it
         with self._lock:
-            if len(getattr(self._pool, "_processes", None) or {}) >= self.num_workers:
+            if len(self._processes()) >= self.num_workers:
                 return self._pool.submit(fn, *args, **kwargs)
             with single_threaded_children():
                 return self._pool.submit(fn, *args, **kwargs)
+
+    def _processes(self) -> list[multiprocessing.Process]:
+        """The pool's running worker processes (ProcessPoolExecutor has no public handle on them; ``_processes``
+        is stable since Python 3.2)."""
+        return list((getattr(self._pool, "_processes", None) or {}).values())
 
     def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
         """Results in completion order, with a bounded number of tasks in flight (memory stays flat)."""
@@ -148,8 +153,7 @@ class LocalProcessExecutor:
 
     def terminate(self) -> None:
         """Stop now: drop queued tasks and end the worker processes (SIGKILL) without waiting for their tasks."""
-        # ProcessPoolExecutor has no public handle on its processes; _processes is stable since Python 3.2
-        processes = list((getattr(self._pool, "_processes", None) or {}).values())
+        processes = self._processes()
         self._pool.shutdown(wait=False, cancel_futures=True)
         for proc in processes:  # SIGKILL: pycolmap's glog would print a stack trace on SIGTERM
             if proc.is_alive():

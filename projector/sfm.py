@@ -261,9 +261,9 @@ class _InThread:
         return self._error
 
     def result(self) -> object:
-        self._thread.join()
-        if self._error is not None:
-            raise self._error
+        error = self.wait()
+        if error is not None:
+            raise error
         return self._out
 
 
