@@ -35,7 +35,7 @@ import numpy as np
 import pycolmap
 
 from dome_calib.bundle import Camera, camera_type_from_name
-from dome_calib.io_utils import atomic_write_text
+from dome_calib.io_utils import atomic_folder, atomic_write_text
 from projector.database import camera_of_image, intrinsics_from_colmap
 from projector.known_poses import add_posed_image, register_cameras, triangulate_known, verified_partners
 from projector.mapping import SceneModel, describe_model
@@ -184,12 +184,8 @@ def map_known_scene(database_path: str | Path, image_dir: str | Path, output_dir
         regs, pnp_failed = register_cameras(database_path, rec, db_cams, sorted(set(ids) - set(held)))
         _add_registered(rec, database_path, regs, ids)
         shutil.rmtree(output_dir / "triangulated", ignore_errors=True)
-        staging = output_dir / "model.staging"
-        shutil.rmtree(staging, ignore_errors=True)
-        staging.mkdir(parents=True)
-        rec.write(str(staging))
-        shutil.rmtree(output_dir / "model", ignore_errors=True)
-        staging.rename(output_dir / "model")
+        with atomic_folder(output_dir / "model") as staging:
+            rec.write(str(staging))
         atomic_write_text(output_dir / "reference.json", json.dumps({"reference": reference.scene, "digest": digest,
                                                                       "absolute_pose_failures": pnp_failed}, indent=1))
     model = describe_model(rec, database_path, scene, options.min_points_per_image,

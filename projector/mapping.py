@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import logging
 import shutil
-import tempfile
 import time
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -23,6 +22,7 @@ from pathlib import Path
 
 import pycolmap
 
+from dome_calib.io_utils import atomic_folder
 from projector.database import camera_of_image
 
 logger = logging.getLogger(__name__)
@@ -102,31 +102,30 @@ def _incremental_options(options: MappingOptions) -> pycolmap.IncrementalPipelin
 
 
 def remove_model_folder(output_dir: Path) -> None:
-    """Remove a mapper's output folder and any staging folder beside it (left by a run that stopped)."""
+    """Remove a mapper's output folder and any staging or set-aside folder :func:`atomic_folder` left beside it
+    (a run that stopped)."""
     shutil.rmtree(output_dir, ignore_errors=True)
-    for stale in output_dir.parent.glob(f".{output_dir.name}.staging.*"):
-        shutil.rmtree(stale, ignore_errors=True)
+    for kind in ("new", "old"):
+        for stale in output_dir.parent.glob(f".{output_dir.name}.{kind}.*"):
+            shutil.rmtree(stale, ignore_errors=True)
 
 
 def _run_mapper(mapper: Mapper, database_path: Path, image_dir: str | Path, output_dir: Path,
                 options: MappingOptions, scene: str) -> tuple[dict[int, pycolmap.Reconstruction], str | None]:
-    """Map into a staging folder of its own beside ``output_dir``, renamed to it once the mapper has written every
-    model: a run stopped while mapping (or while the mapper runs in a thread of a process that stops) leaves no
-    half-written model for a rerun to load."""
+    """Map into a staging folder of its own beside ``output_dir`` (:func:`atomic_folder`), renamed to it once the
+    mapper has written every model: a run stopped while mapping (or while the mapper runs in a thread of a process
+    that stops) leaves no half-written model for a rerun to load."""
     remove_model_folder(output_dir)
-    output_dir.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{output_dir.name}.staging.", dir=output_dir.parent))
     try:
-        if mapper == Mapper.GLOBAL:
-            models = pycolmap.global_mapping(str(database_path), str(image_dir), str(staging),
-                                             _global_options(options))
-        else:
-            models = pycolmap.incremental_mapping(str(database_path), str(image_dir), str(staging),
-                                                  _incremental_options(options))
-        staging.rename(output_dir)
+        with atomic_folder(output_dir) as staging:
+            if mapper == Mapper.GLOBAL:
+                models = pycolmap.global_mapping(str(database_path), str(image_dir), str(staging),
+                                                 _global_options(options))
+            else:
+                models = pycolmap.incremental_mapping(str(database_path), str(image_dir), str(staging),
+                                                      _incremental_options(options))
     except Exception as exc:  # noqa: BLE001 - a scene that fails to map is reported, not fatal
         logger.warning("%s: %s mapping failed: %s", scene, mapper.value, exc)
-        shutil.rmtree(staging, ignore_errors=True)
         output_dir.mkdir(parents=True, exist_ok=True)
         return {}, f"{mapper.value} mapping failed: {exc}"
     return dict(models), (None if models else f"{mapper.value} mapping gave no model")

@@ -28,7 +28,7 @@ Work folder layout (everything resumable)::
     WORK/<scene>/database.db     COLMAP database (open it in COLMAP with CAPTURE/scenes/<scene> as image folder)
     WORK/<scene>/pairs.txt       the matched pairs, one "a.png b.png" per line
     WORK/<scene>/sparse/<k>/     pycolmap models of GLOMAP (the reference scene, and any scene that fell back);
-                                 written into WORK/<scene>/.sparse.staging.*/ and renamed when complete
+                                 written into WORK/<scene>/.sparse.new.*/ and renamed when complete
     WORK/<scene>/known/model/    pycolmap model of a scene triangulated with the reference's poses
     WORK/<scene>/known/reference.json   the reference model it was made from (a digest: reused only if it matches)
 """
