@@ -268,7 +268,7 @@ class _InThread:
 
 
 @dataclass(kw_only=True)
-class MatchedScene:
+class MatchedForModel:
     """A scene matched for its model (:func:`match_for_model`): what :func:`model_of_matched` maps."""
 
     scene: str
@@ -279,17 +279,17 @@ class MatchedScene:
 
 
 def match_for_model(capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera], options: SfmOptions,
-                    executor: Executor, feats: FeatureReport, reference: SceneModel | None = None) -> MatchedScene:
+                    executor: Executor, feats: FeatureReport, reference: SceneModel | None = None) -> MatchedForModel:
     """Pairs and matching of a scene for :func:`model_of_matched`: the reference's geometry's pairs when the scene
     is to be triangulated at ``reference``'s poses, else the prior's."""
     if not (reference is not None and reference.reconstruction is not None and options.known_poses.enabled):
         reference = None
     pairs = known_scene_pairs(sorted(feats.num_features), prior, reference, options) if reference else None
     feats, pairs, matches = match_scene(capture_dir, work_dir, scene, prior, options, executor, feats, pairs)
-    return MatchedScene(scene=scene, features=feats, pairs=pairs, matches=matches, reference=reference)
+    return MatchedForModel(scene=scene, features=feats, pairs=pairs, matches=matches, reference=reference)
 
 
-def known_model(capture_dir: Path, work_dir: Path, options: SfmOptions, matched: MatchedScene
+def known_model(capture_dir: Path, work_dir: Path, options: SfmOptions, matched: MatchedForModel
                 ) -> tuple[SceneModel, str | None]:
     """The scene triangulated with its cameras held at ``matched.reference``'s poses (:func:`map_known_scene`):
     the model and None, or the model and why to map the scene with GLOMAP instead. Uses no executor: it runs in a
@@ -300,7 +300,7 @@ def known_model(capture_dir: Path, work_dir: Path, options: SfmOptions, matched:
 
 
 def model_of_matched(capture_dir: Path, work_dir: Path, prior: Mapping[str, Camera], options: SfmOptions,
-                     executor: Executor | None, matched: MatchedScene,
+                     executor: Executor | None, matched: MatchedForModel,
                      known: tuple[SceneModel, str | None] | None = None) -> SceneStats:
     """The scene's model: triangulated with the cameras held at the reference's poses when it has one and that
     works (``known``: :func:`known_model`'s result when already computed), else mapped with GLOMAP (after matching
@@ -427,7 +427,7 @@ def run_sfm(
             stats[ref] = run_scene(capture_dir, work_dir, ref, prior_cams, ref_options, pool, feats[ref])
         # each later scene is triangulated at the reference's poses (single-threaded COLMAP, mostly) in a thread
         # while the next one is matched, one at a time; a fallback to GLOMAP runs here, after all are matched
-        later: list[tuple[MatchedScene, _InThread | None]] = []
+        later: list[tuple[MatchedForModel, _InThread | None]] = []
         try:
             for scene in scenes:
                 if scene != ref:
