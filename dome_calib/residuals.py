@@ -7,6 +7,7 @@ function, before anything is reported or saved (``report/residuals.npz``).
 """
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -68,7 +69,7 @@ class Residuals:
             with np.load(path) as data:
                 names, idx, res = [str(n) for n in data["camera_names"]], data["camera_index"], data["residual_px"]
                 uv = data["uv_px"] if "uv_px" in data.files else None
-        except (OSError, ValueError, KeyError) as exc:
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:  # a cut copy: BadZipFile
             raise ReportError(f"{path}: not a residual file ({exc})") from exc
         if res.ndim != 2 or res.shape[1] != 2 or idx.shape != (len(res),) or (len(idx) and idx.max() >= len(names)):
             raise ReportError(f"{path}: residual_px {res.shape} / camera_index {idx.shape} do not match")
