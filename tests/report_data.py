@@ -48,7 +48,7 @@ def synthetic_residuals(bundle: Bundle, *, loose_lens: str, skewed: str, few: st
         r = rng.normal(0.0, SIGMA_PX[cam.type], size=(m, 2))
         if n == loose_lens:
             d = (uv - [w / 2, h / 2]) / (w / 2)
-            r += 4.0 * d * np.sum(d ** 2, axis=1, keepdims=True)
+            r += 6.0 * d * np.sum(d ** 2, axis=1, keepdims=True)
         if n == skewed:
             r[:, 0] += 4.0 * (uv[:, 1] / h - 0.5)
         bad = rng.random(m) < 0.003

@@ -27,6 +27,7 @@ from dome_calib.bundle import Bundle, CameraType, camera_type_from_name
 from dome_calib.bundle_io import replace_folder
 from dome_calib.errors import ReportError
 from dome_calib.io_utils import new_mode
+from dome_calib.report.page import write_page
 from dome_calib.residuals import Residuals
 
 logger = logging.getLogger(__name__)
@@ -168,7 +169,6 @@ def write_report(bundle_folder: str | Path, bundle: Bundle, residuals: Residuals
     # in-function import: matplotlib takes ~0.5 s to load, and `dome-calib report --help` or a report without
     # plots need none of it
     from dome_calib.report.plots import plot_dome, plot_observations, plot_residual_histograms
-    from dome_calib.report.page import write_page
 
     options = options or ReportOptions()
     folder = Path(bundle_folder)

@@ -131,14 +131,45 @@ def _per_camera_residuals(residuals: Residuals, cameras: dict[str, list[int] | N
     return arrows, coverage
 
 
-def _sync_section(sync: dict, session: dict | None) -> dict:
-    """Per stream the clock fit's error (us), drift, frames and the frames dropped (misread LTC frames, clock-fit
-    outliers; for a Kinect the frames missing from its timeline), from sync.json."""
+def dropped_frames(bundle_folder: Path) -> dict[str, int]:
+    """Per stream ("vga", "hd", "KINECTNODE4/color", ...) the frames missing from its sync table: indices between
+    its first and last frame that have no time (synctables_*.json, ksynctables_*.json beside report/)."""
+    tables: dict[str, list] = {}
+    for path in sorted(bundle_folder.glob("synctables_*.json"))[:1]:
+        for key, t in _load_or_empty(path).items():
+            if isinstance(t, dict) and isinstance(t.get("index"), list):
+                tables[key] = t["index"]
+    for path in sorted(bundle_folder.glob("ksynctables_*.json"))[:1]:
+        for kind, nodes in ((_load_or_empty(path).get("kinect") or {}).items()):
+            for node, t in (nodes or {}).items():
+                if isinstance(t, dict) and isinstance(t.get("index"), list):
+                    tables[f"{node}/{kind}"] = t["index"]
+    out = {}
+    for key, index in tables.items():
+        idx = np.unique(np.asarray(index, dtype=np.int64)) if index else np.zeros(0, np.int64)
+        out[key] = int(idx[-1] - idx[0] + 1 - len(idx)) if len(idx) else 0
+    return out
+
+
+def _load_or_empty(path: Path) -> dict:
+    try:
+        value = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return value if isinstance(value, dict) else {}
+
+
+def _sync_section(sync: dict, session: dict | None, dropped: dict[str, int] | None = None) -> dict:
+    """Per stream the clock fit's error (us), drift, frames and the frames dropped (missing from its sync table;
+    and misread LTC frames, clock-fit outliers), from sync.json and the bundle's sync tables."""
     channels = sync.get("channels") or {}
     streams = []
+    kinect_max = {node: max((d.get("residual_max_us") or 0.0 for d in k.get("device_clock") or []), default=None)
+                  for node, k in (sync.get("kinect") or {}).items() if isinstance(k, dict)}
     for name, s in sorted((sync.get("streams") or {}).items()):
-        ch = channels.get(name) or {}
-        streams.append({"stream": name, "frames": s.get("n_frames"), "first_ms": s.get("first_ms"),
+        ch = channels.get(name) or {"residual_max_us": kinect_max.get(name.split("/")[0])}
+        streams.append({"stream": name, "frames": s.get("n_frames"), "dropped": (dropped or {}).get(name),
+                        "first_ms": s.get("first_ms"),
                         "span_s": None if s.get("last_ms") is None or s.get("first_ms") is None
                         else round((s["last_ms"] - s["first_ms"]) / 1e3, 3),
                         "drift_ppm": s.get("drift_ppm"), "residual_rms_us": s.get("residual_rms_us"),
@@ -156,7 +187,8 @@ def _seg_max(channel: dict) -> float | None:
 
 
 def page_data(report: dict | None, residuals: Residuals | None, *, session: dict | None = None,
-              sync: dict | None = None, missing: list[str] | None = None) -> dict:
+              sync: dict | None = None, dropped: dict[str, int] | None = None,
+              missing: list[str] | None = None) -> dict:
     """Everything the page shows, as plain data (the template's ``DATA``)."""
     missing = list(missing or [])
     report = report or {}
@@ -182,7 +214,7 @@ def page_data(report: dict | None, residuals: Residuals | None, *, session: dict
                                           "rms_px", "per_type", "world_frame", "stage_seconds", "cluster", "rules")}
     return {"summary": summary, "to_check": report.get("to_check") or [], "cameras": rows,
             "previous": report.get("previous"), "hist": hist, "arrows": arrows, "coverage": coverage,
-            "max_arrows": MAX_ARROWS, "sync": _sync_section(sync, session) if sync else None,
+            "max_arrows": MAX_ARROWS, "sync": _sync_section(sync, session, dropped) if sync else None,
             "kinect": (((session or {}).get("pillars") or {}).get("kinect")) if session else None,
             "session": {"stage_seconds": session.get("stage_seconds"),
                         "pillars": {k: {"achieved": v.get("achieved"), "to_check": v.get("to_check")}
@@ -223,7 +255,8 @@ def read_report_folder(folder: Path, residuals: Residuals | None = None) -> dict
             missing.append("residuals.npz: not found: no residual plots, distributions or coverage")
     session = _read_json(folder / "session.json", missing, "the session's Kinect section")
     sync = _read_json(folder / "sync.json", missing, "the sync section")
-    return page_data(report, residuals, session=session, sync=sync, missing=missing)
+    dropped = dropped_frames(folder.parent) if sync else None
+    return page_data(report, residuals, session=session, sync=sync, dropped=dropped, missing=missing)
 
 
 def render_page(data: dict) -> str:
