@@ -247,3 +247,33 @@ def test_session_report_page_has_the_sync_and_kinect_sections(browser, small_pro
     assert "50_05: Kinect colour camera without checkerboard pairs" in kinect
     assert len(browser.find_elements(By.CSS_SELECTOR, "#rows tr")) == len(truth.cameras)
     assert _console_errors(browser) == []
+
+
+def test_scrambled_report_json_page_shows_what_it_can_without_an_error(browser, tmp_path):
+    """A report.json whose sections have the wrong types (damaged by hand or by another tool): the page lists
+    them as not shown, draws the cameras it can, and the console stays clean."""
+    from dome_calib.report.page import write_page
+
+    tiny = nominal_dome("tiny", seed=0)
+    folder = tmp_path / "report"
+    folder.mkdir()
+    per_camera = {n: {"type": str(c.type), "center_cm": c.center_cm.tolist(), "observations": 300, "rms_px": 0.5,
+                      "resolution": list(c.resolution), "panel": c.panel} for n, c in tiny.cameras.items()}
+    per_camera["01_01"] |= {"rms_px": "high", "center_cm": [1, 2], "observations": None, "resolution": "640x480"}
+    scrambled = {"report_version": 2, "seq": 7, "per_type": {"vga": None, "hd": 3}, "expected_per_type": {"vga": 3},
+                 "rms_px": float("inf"), "stage_seconds": {"sfm": "long"},
+                 "cluster": {"executor": "dask", "stages": {"features": None}, "on_this_machine": "head"},
+                 "to_check": [{"name": "01_02", "reasons": "moved"}, "01_03", {"reasons": ["x"]}],
+                 "previous": {"added": "01_01", "cameras": 5, "seq": ["x"]}, "per_camera": per_camera,
+                 "world_frame": "prior", "lens_model": {"cameras": {"01_02": {"free": "fx", "decisions": [None]}}}}
+    (folder / "report.json").write_text(json.dumps(scrambled))
+    (folder / "sync.json").write_text(json.dumps({"streams": {"vga": None}}))
+    (folder / "session.json").write_text(json.dumps({"pillars": {"kinect": {"sensors": [None, {"sensor": 4}]}}}))
+    _open(browser, write_page(folder))
+    missing = browser.find_element("id", "missing").text
+    assert "seq, world_frame of an unexpected type" in missing and "sync.json: unexpected layout" in missing
+    assert len(browser.find_elements("css selector", "#rows tr")) == 16
+    assert len(browser.find_elements("css selector", "#top circle.cam")) == 15  # 01_01 has no usable centre
+    browser.find_element("css selector", '#rows tr[data-cam="01_02"]').click()
+    assert "no residuals saved for this camera" in browser.find_element("id", "selpanel").text
+    assert _console_errors(browser) == []

@@ -9,6 +9,8 @@ import warnings
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import dome_calib.pipeline as pipeline
 from dome_calib.bundle_io import load_bundle, write_bundle
@@ -209,3 +211,55 @@ def test_report_cli_unreadable_report_json_says_so_in_one_line(tmp_path, dome_ca
     assert proc.returncode == 0, proc.stderr
     assert sum("report.json: unreadable" in line for line in proc.stdout.splitlines()) == 1
     assert json.loads((folder / "report" / "report.json").read_text())["seq"] == tiny.seq
+
+
+JSON_VALUES = st.recursive(st.none() | st.booleans() | st.integers(-5, 10**6) | st.floats(allow_nan=True)
+                           | st.text(max_size=4),
+                           lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=3), inner,
+                                                                                        max_size=3), max_leaves=6)
+
+
+@pytest.fixture(scope="module")
+def tiny_report_files(tmp_path_factory):
+    """report.json, session.json and sync.json of a tiny report, and its residuals."""
+    tiny = nominal_dome("tiny", seed=0)
+    folder = write_bundle(tiny, tmp_path_factory.mktemp("tiny") / "b")
+    res = synthetic_residuals(tiny, loose_lens="01_01", skewed="01_02", few="01_03")
+    target = write_report(folder, tiny, res, extra={"center_sigma_cm": {n: 0.05 for n in tiny.cameras}})
+    report = json.loads((target / "report.json").read_text())
+    session = {"pillars": {"kinect": {"achieved": "1 Kinect", "sensors": [{"sensor": "KINECTNODE4",
+                                                                            "color_camera": "50_04",
+                                                                            "frames_used": 6, "rms_ir_px": 0.1}],
+                                      "to_check": []},
+                           "sync": {"to_check": ["x"]}}, "stage_seconds": {"calibrate": 1.0}}
+    sync = {"streams": {"vga": {"n_frames": 65, "first_ms": 1.0, "last_ms": 2.0}},
+            "channels": {"vga": {"n_misread": 0, "segments": [{"residual_max_us": 0.2}]}},
+            "kinect": {"KINECTNODE4": {"status": "synced", "device_clock": [{"residual_max_us": 3.0}]}}}
+    return report, session, sync, res
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_page_data_of_a_mutated_report_never_fails_and_stays_plain_json(tiny_report_files, data):
+    """Any value of report.json (top level or in a camera's entry), session.json or sync.json replaced by any JSON
+    value: the page data is still built and is plain JSON (NaN and infinities dropped); nothing raises."""
+    from dome_calib.report.page import page_data, render_page
+
+    report, session, sync, res = (json.loads(json.dumps(x)) if isinstance(x, dict) else x
+                                  for x in tiny_report_files)
+    which = data.draw(st.sampled_from(["report", "camera", "session", "sync"]))
+    value = data.draw(JSON_VALUES)
+    if which == "report":
+        report[data.draw(st.sampled_from(sorted(report)))] = value
+    elif which == "camera":
+        cam = report["per_camera"][data.draw(st.sampled_from(sorted(report["per_camera"])))]
+        cam[data.draw(st.sampled_from(sorted(cam)))] = value
+    elif which == "session" and data.draw(st.booleans()):
+        session[data.draw(st.sampled_from(sorted(session)))] = value
+    elif which == "session":
+        session["pillars"]["kinect"]["sensors"] = value
+    else:
+        sync[data.draw(st.sampled_from(sorted(sync)))] = value
+    built = page_data(report, res, session=session, sync=sync)
+    json.dumps(built, allow_nan=False)
+    assert "report-data" in render_page(built)

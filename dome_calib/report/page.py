@@ -43,8 +43,37 @@ def _b64(a: np.ndarray, dtype: str) -> str:
     return base64.b64encode(np.ascontiguousarray(a, dtype=dtype).tobytes()).decode("ascii")
 
 
-def _finite(v) -> float | None:
-    return None if v is None or not np.isfinite(v) else float(v)
+def _num(v) -> float | None:
+    """A finite number, else None (bool, strings, NaN and the like from a damaged file are not numbers)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        return None
+    return v
+
+
+def _dict(v) -> dict:
+    return v if isinstance(v, dict) else {}
+
+
+def _strs(v) -> list[str]:
+    return [x for x in v if isinstance(x, str)] if isinstance(v, list) else []
+
+
+def _nums(v, n: int) -> list[float] | None:
+    """A list of n finite numbers, else None."""
+    if not isinstance(v, list) or len(v) != n or any(_num(x) is None for x in v):
+        return None
+    return v
+
+
+def _plain(v):
+    """JSON-safe copy: non-finite floats become None (sync.json and session.json may hold NaN)."""
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, list):
+        return [_plain(x) for x in v]
+    return v
 
 
 def arrows_of(uv_px: np.ndarray, res_px: np.ndarray, max_arrows: int = MAX_ARROWS) -> dict:
@@ -80,38 +109,50 @@ def histogram_of(norms_px: np.ndarray) -> dict:
             "median_px": round(float(np.median(norms_px)), 4)}
 
 
-def _lens_text(model: dict | None, held: str | None) -> tuple[str, str]:
+def _lens_text(model: dict, held: str | None) -> tuple[str, str]:
     """Short text for the table and the reasons behind it (tooltip)."""
     if held:
         return "all held", held
     if not model:
         return "", ""
     why = "; ".join(f"{d.get('group')}: {'free' if d.get('free') else 'held'} ({d.get('reason', '')})"
-                    for d in model.get("decisions", []))
-    free, kept = " ".join(model.get("free", [])), " ".join(model.get("held", []))
+                    for d in model.get("decisions") or [] if isinstance(d, dict))
+    free, kept = " ".join(_strs(model.get("free"))), " ".join(_strs(model.get("held")))
     return (f"free {free}" + (f"; held {kept}" if kept else "")), why
 
 
+def to_check_list(report: dict) -> list[dict]:
+    """The report's cameras to check as ``{"name", "reasons"}`` (entries of another shape left out)."""
+    rows = report.get("to_check")
+    return [{"name": r["name"], "reasons": _strs(r.get("reasons"))} for r in (rows if isinstance(rows, list) else [])
+            if isinstance(r, dict) and isinstance(r.get("name"), str)]
+
+
 def camera_table(report: dict) -> list[dict]:
-    """One row per camera, in name order, with everything the table, the dome view and the panel show."""
-    per_cam = report.get("per_camera") or {}
-    sigma_c = report.get("center_sigma_cm") or {}
-    sigma_r = report.get("rotation_sigma_deg") or {}
-    lens = ((report.get("lens_model") or {}).get("cameras")) or {}
-    prev = (report.get("previous") or {}).get("cameras") or {}
-    check = {row["name"]: row.get("reasons", []) for row in report.get("to_check") or []}
+    """One row per camera, in name order, with everything the table, the dome view and the panel show. Fields
+    of the wrong type (an older or damaged report.json) are left empty."""
+    per_cam = _dict(report.get("per_camera"))
+    sigma_c, sigma_r = _dict(report.get("center_sigma_cm")), _dict(report.get("rotation_sigma_deg"))
+    lens = _dict(_dict(report.get("lens_model")).get("cameras"))
+    prev = _dict(_dict(report.get("previous")).get("cameras"))
+    check = {r["name"]: r["reasons"] for r in to_check_list(report)}
     rows = []
     for name in sorted(per_cam):
-        c = per_cam[name]
-        lens_text, lens_why = _lens_text(lens.get(name), c.get("held"))
-        p = prev.get(name) or {}
-        rows.append({"name": name, "type": c.get("type"), "panel": c.get("panel"),
-                     "obs": c.get("observations"), "rms": _finite(c.get("rms_px")),
-                     "csig_mm": round(sigma_c[name] * 10.0, 3) if name in sigma_c else None,
-                     "rsig_deg": sigma_r.get(name), "lens": lens_text, "lens_why": lens_why,
-                     "held": c.get("held"), "moved_mm": p.get("moved_mm"), "turned_deg": p.get("turned_deg"),
-                     "focal_pct": p.get("focal_pct"), "c": c.get("center_cm"), "d": c.get("view_dir"),
-                     "res": c.get("resolution"), "check": check.get(name, [])})
+        c = _dict(per_cam[name])
+        held = c.get("held") if isinstance(c.get("held"), str) else None
+        lens_text, lens_why = _lens_text(_dict(lens.get(name)), held)
+        p = _dict(prev.get(name))
+        panel, obs, res = c.get("panel"), c.get("observations"), _nums(c.get("resolution"), 2)
+        csig = _num(sigma_c.get(name))
+        rows.append({"name": name, "type": c.get("type") if isinstance(c.get("type"), str) else None,
+                     "panel": panel if isinstance(panel, int) and not isinstance(panel, bool) else None,
+                     "obs": obs if isinstance(obs, int) and not isinstance(obs, bool) else None,
+                     "rms": _num(c.get("rms_px")), "csig_mm": None if csig is None else round(csig * 10.0, 3),
+                     "rsig_deg": _num(sigma_r.get(name)), "lens": lens_text, "lens_why": lens_why, "held": held,
+                     "moved_mm": _num(p.get("moved_mm")), "turned_deg": _num(p.get("turned_deg")),
+                     "focal_pct": _num(p.get("focal_pct")), "c": _nums(c.get("center_cm"), 3),
+                     "d": _nums(c.get("view_dir"), 3), "res": res if res and min(res) > 0 else None,
+                     "check": check.get(name, [])})
     return rows
 
 
@@ -146,7 +187,10 @@ def dropped_frames(bundle_folder: Path) -> dict[str, int]:
                     tables[f"{node}/{kind}"] = t["index"]
     out = {}
     for key, index in tables.items():
-        idx = np.unique(np.asarray(index, dtype=np.int64)) if index else np.zeros(0, np.int64)
+        try:
+            idx = np.unique(np.asarray(index, dtype=np.int64)) if index else np.zeros(0, np.int64)
+        except (TypeError, ValueError, OverflowError):  # not frame indices: no count rather than a wrong one
+            continue
         out[key] = int(idx[-1] - idx[0] + 1 - len(idx)) if len(idx) else 0
     return out
 
@@ -186,20 +230,70 @@ def _seg_max(channel: dict) -> float | None:
     return max(values) if values else None
 
 
+#: report.json's summary keys and the type each must have to be shown.
+SUMMARY_TYPES = {"seq": str, "calib_data_source": str, "cameras": int, "expected_per_type": dict,
+                 "has_residuals": bool, "rms_px": (int, float), "per_type": dict, "world_frame": dict,
+                 "stage_seconds": dict, "cluster": dict, "rules": dict}
+#: The errors a section of an unexpected layout raises while it is read.
+LAYOUT_ERRORS = (TypeError, AttributeError, KeyError, ValueError, IndexError)
+
+
+def _previous(report: dict) -> dict | None:
+    p = report.get("previous")
+    if not isinstance(p, dict):
+        return None
+    out = {k: p[k] for k in ("source", "seq", "compared", "error") if isinstance(p.get(k), str)}
+    return out | {"added": _strs(p.get("added")), "gone": _strs(p.get("gone"))}
+
+
+def _kinect_section(session: dict) -> dict | None:
+    k = _dict(_dict(session.get("pillars")).get("kinect"))
+    if not k:
+        return None
+    sensors = [s for s in k.get("sensors") or [] if isinstance(s, dict)] if isinstance(k.get("sensors"), list) else []
+    return {"achieved": k.get("achieved") if isinstance(k.get("achieved"), str) else "", "sensors": sensors,
+            "to_check": _strs(k.get("to_check"))}
+
+
+def _session_section(session: dict) -> dict:
+    pillars = {name: {"achieved": v.get("achieved"), "to_check": _strs(v.get("to_check"))}
+               for name, v in _dict(session.get("pillars")).items() if isinstance(v, dict)}
+    return {"stage_seconds": {k: v for k, v in _dict(session.get("stage_seconds")).items() if _num(v) is not None},
+            "pillars": pillars}
+
+
+def _guarded(missing: list[str], what: str, default, fn, *args):
+    """``fn(*args)``; a file of an unexpected layout costs its section (named in ``missing``), not the page."""
+    try:
+        return fn(*args)
+    except LAYOUT_ERRORS as exc:
+        missing.append(f"{what}: unexpected layout ({type(exc).__name__}: {exc}): not shown")
+        return default
+
+
 def page_data(report: dict | None, residuals: Residuals | None, *, session: dict | None = None,
               sync: dict | None = None, dropped: dict[str, int] | None = None,
               missing: list[str] | None = None) -> dict:
-    """Everything the page shows, as plain data (the template's ``DATA``)."""
+    """Everything the page shows, as plain data (the template's ``DATA``). Every part is read defensively:
+    what is missing or of another shape is listed in ``"missing"`` and the rest is shown."""
     missing = list(missing or [])
-    report = report or {}
+    report = _dict(report)
     for key, what in (("per_camera", "the camera table and the dome"), ("to_check", "the cameras to check"),
                       ("per_type", "the RMS per camera type")):
         if report and key not in report:
             missing.append(f"report.json has no \"{key}\" (an older or damaged report): {what} cannot be shown")
-    if report and report.get("report_version", 1) < 2:
+    version = report.get("report_version", 1)
+    if report and (not isinstance(version, int) or version < 2):
         missing.append("report.json is from an older version (no panels, image sizes or what the calibration held): "
                        "rerun `dome-calib calibrate` for the full page")
-    rows = camera_table(report)
+    summary = {k: v for k, v in report.items() if k in SUMMARY_TYPES and isinstance(v, SUMMARY_TYPES[k])
+               and not (isinstance(v, bool) and SUMMARY_TYPES[k] is not bool)}
+    if "stage_seconds" in summary:
+        summary["stage_seconds"] = {k: v for k, v in summary["stage_seconds"].items() if _num(v) is not None}
+    wrong = sorted(k for k in SUMMARY_TYPES if k in report and report[k] is not None and k not in summary)
+    if wrong:
+        missing.append(f"report.json: {', '.join(wrong)} of an unexpected type: not shown")
+    rows = _guarded(missing, "report.json per_camera", [], camera_table, report)
     arrows, coverage, hist = {}, {}, {}
     if residuals is not None:
         known = {r["name"]: r["res"] for r in rows}
@@ -207,19 +301,16 @@ def page_data(report: dict | None, residuals: Residuals | None, *, session: dict
         if residuals.uv_px is None:
             missing.append("residuals.npz holds no pixel positions (written before they were saved): the residuals "
                            "over the image cannot be drawn; rerun `dome-calib calibrate`")
-        types = sorted({r["type"] for r in rows if r["type"]})
-        for t in types:
+        for t in sorted({r["type"] for r in rows if r["type"]}):
             hist[t] = histogram_of(residuals.norms_of({r["name"] for r in rows if r["type"] == t}))
-    summary = {k: report.get(k) for k in ("seq", "calib_data_source", "cameras", "expected_per_type", "has_residuals",
-                                          "rms_px", "per_type", "world_frame", "stage_seconds", "cluster", "rules")}
-    return {"summary": summary, "to_check": report.get("to_check") or [], "cameras": rows,
-            "previous": report.get("previous"), "hist": hist, "arrows": arrows, "coverage": coverage,
-            "max_arrows": MAX_ARROWS, "sync": _sync_section(sync, session, dropped) if sync else None,
-            "kinect": (((session or {}).get("pillars") or {}).get("kinect")) if session else None,
-            "session": {"stage_seconds": session.get("stage_seconds"),
-                        "pillars": {k: {"achieved": v.get("achieved"), "to_check": v.get("to_check")}
-                                    for k, v in (session.get("pillars") or {}).items()}} if session else None,
-            "missing": missing}
+    session = _dict(session) if session is not None else None
+    return _plain({
+        "summary": summary, "to_check": to_check_list(report), "cameras": rows, "previous": _previous(report),
+        "hist": hist, "arrows": arrows, "coverage": coverage, "max_arrows": MAX_ARROWS,
+        "sync": _guarded(missing, "sync.json", None, _sync_section, sync, session, dropped) if sync else None,
+        "kinect": _guarded(missing, "session.json (Kinect)", None, _kinect_section, session) if session else None,
+        "session": _guarded(missing, "session.json", None, _session_section, session) if session else None,
+        "missing": missing})
 
 
 def _read_json(path: Path, missing: list[str], what: str) -> dict | None:
