@@ -105,10 +105,12 @@ def _open(driver, page: Path) -> dict:
                 ready_ms: window.__reportReady};""")
 
 
-def _visible_rows(driver) -> list:
-    from selenium.webdriver.common.by import By
-
-    return [r for r in driver.find_elements(By.CSS_SELECTOR, "#rows tr") if r.is_displayed()]
+def _rows(driver, visible_only: bool = False) -> list[list[str]]:
+    """[name, type] of the table's rows in their order (one script call: 521 element round trips take seconds)."""
+    return driver.execute_script("""
+        return [...document.querySelectorAll('#rows tr')]
+            .filter(r => !arguments[0] || r.getClientRects().length > 0)
+            .map(r => [r.dataset.cam, r.dataset.type]);""", visible_only)
 
 
 def _check_page(driver, report_dir: Path, planted) -> None:
@@ -118,22 +120,21 @@ def _check_page(driver, report_dir: Path, planted) -> None:
 
     rep = json.loads((report_dir / "report.json").read_text())
     per_cam = rep["per_camera"]
-    rows = driver.find_elements(By.CSS_SELECTOR, "#rows tr")
-    assert sorted(r.get_attribute("data-cam") for r in rows) == sorted(per_cam)  # one row per camera
+    assert sorted(n for n, _ in _rows(driver)) == sorted(per_cam)  # one row per camera
     # sort by RMS: the largest first
     header = next(th for th in driver.find_elements(By.CSS_SELECTOR, "#head th") if th.text.startswith("RMS"))
     header.click()
-    order = [r.get_attribute("data-cam") for r in driver.find_elements(By.CSS_SELECTOR, "#rows tr")]
+    order = [n for n, _ in _rows(driver)]
     rms = [per_cam[n]["rms_px"] for n in order]
     assert rms[0] == max(rms) and order[0] == planted.loose_lens
     assert all(a >= b for a, b in zip(rms, rms[1:]))
     # filter by type: only that type is left
     Select(driver.find_element(By.ID, "ftype")).select_by_value("hd")
-    shown = _visible_rows(driver)
-    assert {r.get_attribute("data-type") for r in shown} == {"hd"}
+    shown = _rows(driver, visible_only=True)
+    assert {t for _, t in shown} == {"hd"}
     assert len(shown) == sum(c["type"] == "hd" for c in per_cam.values())
     Select(driver.find_element(By.ID, "ftype")).select_by_value("")
-    assert len(_visible_rows(driver)) == len(per_cam)
+    assert len(_rows(driver, visible_only=True)) == len(per_cam)
     # a camera clicked in the dome's top view: its row is selected and its residuals drawn
     name = planted.skewed
     driver.find_element(By.CSS_SELECTOR, f'#top circle[data-cam="{name}"]').click()
