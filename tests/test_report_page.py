@@ -136,8 +136,14 @@ def _check_page(driver, report_dir: Path, planted) -> None:
     Select(driver.find_element(By.ID, "ftype")).select_by_value("")
     assert len(_rows(driver, visible_only=True)) == len(per_cam)
     # a camera clicked in the dome's top view: its row is selected and its residuals drawn
+    from selenium.webdriver.common.action_chains import ActionChains
+
     name = planted.skewed
-    driver.find_element(By.CSS_SELECTOR, f'#top circle[data-cam="{name}"]').click()
+    circle = driver.find_element(By.CSS_SELECTOR, f'#top circle[data-cam="{name}"]')
+    ActionChains(driver).move_to_element(circle).perform()  # hovering names the camera and gives its figures
+    tip = driver.find_element(By.ID, "tip")
+    assert tip.is_displayed() and name in tip.text and "observations" in tip.text and "RMS" in tip.text
+    circle.click()
     selected = driver.find_elements(By.CSS_SELECTOR, "#rows tr.sel")
     assert [r.get_attribute("data-cam") for r in selected] == [name]
     quiver = driver.find_element(By.ID, "quiver")
