@@ -16,13 +16,20 @@ $(STAMP): $(BIN)/python pyproject.toml
 
 venv: $(STAMP)
 
-# System packages the tests need: libltc (the reference LTC codec, cross-checked through ctypes).
+# System packages the tests need: libltc (the reference LTC codec, cross-checked through ctypes), and Debian's
+# chromium with its chromedriver (the report page's browser tests, tests/test_report_page.py).
 system-deps:
 	@if ! ldconfig -p | grep -q 'libltc\.so'; then \
 	  if command -v apt-get >/dev/null 2>&1; then \
 	    SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
 	    $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libltc11 >/dev/null; \
 	  else echo "make: cannot install libltc11 (no apt-get); install it by hand" >&2; exit 1; fi; \
+	fi
+	@if [ ! -x /usr/bin/chromium ] || [ ! -x /usr/bin/chromedriver ]; then \
+	  if command -v apt-get >/dev/null 2>&1; then \
+	    SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	    $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq chromium chromium-driver >/dev/null; \
+	  else echo "make: cannot install chromium and chromium-driver (no apt-get); install them by hand" >&2; exit 1; fi; \
 	fi
 
 demo: $(STAMP)

@@ -45,6 +45,8 @@ def calibrate(
     out: Path = typer.Option(..., "-o", "--out", help="Bundle folder to write (created).", show_default=False),
     prior: Path = typer.Option(None, "--prior", help="Previous calibration bundle of this dome: sets the world "
                                "frame, seeds the matching, and shows which cameras moved."),
+    previous: Path = typer.Option(None, "--previous", help="Bundle the report compares with (how far each camera "
+                                  "moved and turned since; default: --prior, else the bundle OUT already holds)."),
     only_changed: bool = typer.Option(False, "--only-changed", help="Quick recalibration after a hardware "
                                       "change: uses the first scene only, finds the cameras that no longer agree "
                                       "with --prior and re-estimates just those; the rest stay exactly as in "
@@ -64,7 +66,8 @@ def calibrate(
         from dome_calib.pipeline import CalibrateOptions, format_result, run_calibration
 
         logging.getLogger("dome_calib.ba").setLevel(logging.INFO if verbose else logging.WARNING)
-        options = CalibrateOptions(prior=prior, only_changed=only_changed, seq=seq, work_dir=work, scheduler=scheduler,
+        options = CalibrateOptions(prior=prior, previous=previous, only_changed=only_changed, seq=seq, work_dir=work,
+                                   scheduler=scheduler,
                                    progress=sys.stderr.isatty())  # no spinners in a log file
         typer.echo(format_result(run_calibration(capture, out, options)))
 
@@ -73,14 +76,19 @@ def calibrate(
 def report(
     bundle: Path = typer.Argument(..., help="Bundle folder; the report is written to BUNDLE/report/.",
                                   show_default=False),
-    prior: Path = typer.Option(None, "--prior", help="Previous bundle: list the cameras that moved since."),
-    min_observations: int = typer.Option(100, help="Flag cameras with fewer observations than this."),
+    previous: Path = typer.Option(None, "--previous", "--prior", help="Previous calibration bundle: per camera "
+                                  "how far it moved and turned since, its focal change, cameras added or gone; the "
+                                  "cameras that moved are listed to check (default: the comparison the calibration "
+                                  "made, kept)."),
+    min_observations: int = typer.Option(None, help="Flag estimated cameras with fewer observations than this "
+                                         "(default: the calibration's rule, 100)."),
 ) -> None:
-    """Write BUNDLE/report/: report.json, the dome plot coloured by residual, residual histograms, observation
-    counts, and the list of cameras to check with the reason."""
+    """Rebuild BUNDLE/report/ and its page BUNDLE/report/index.html (open it in a browser: summary, cameras to
+    check, camera table, dome, residuals over each image, distributions, Kinect and sync in a session bundle) from
+    the bundle, the residuals its calibration saved and what the calibration found (kept)."""
     from dome_calib.report.command import report_bundle
 
-    typer.echo(report_bundle(bundle, prior=prior, min_observations=min_observations))
+    typer.echo(report_bundle(bundle, previous=previous, min_observations=min_observations))
 
 
 @app.command()

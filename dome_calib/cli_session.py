@@ -30,7 +30,7 @@ def format_session(result) -> str:
     lines.append("stage times: " + ", ".join(f"{k} {v:.1f} s" for k, v in result.stage_seconds.items()))
     lines.append(f"bundle: {result.bundle_dir}/calibration_{result.bundle.seq}.json (+ kcalibration, synctables, "
                  "ksynctables)")
-    lines.append(f"report: {result.bundle_dir}/report/session.json, dome.png, sync.json")
+    lines.append(f"report: {result.bundle_dir}/report/index.html (open it in a browser; also session.json, sync.json)")
     return "\n".join(lines)
 
 

@@ -138,7 +138,8 @@ def format_demo(result: DemoResult) -> str:
     lines.append("")
     bundle_dir = result.session.bundle_dir
     lines.append(f"bundle: {bundle_dir}/calibration_{cal.bundle.seq}.json (+ kcalibration, synctables, ksynctables)")
-    lines.append(f"report: {bundle_dir / 'report'}/dome.png (open it), report.json, session.json, sync.json")
+    lines.append(f"report: {bundle_dir / 'report'}/index.html (open it in a browser), report.json, session.json, "
+                 "sync.json")
     return "\n".join(lines)
 
 

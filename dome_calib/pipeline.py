@@ -63,6 +63,8 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
         raise DomeCalibError("--only-changed needs --prior (the bundle the unchanged cameras are taken from)")
     check_output_folder(out)
     prior = load_bundle(options.prior) if options.prior is not None else None
+    if options.previous is not None:  # the report compares with it at the end: refuse a bad one before the work
+        load_bundle(options.previous)
     inputs = CalibrationInputs(capture=capture, out=out, seq=options.seq or capture.resolve().name, scenes=scenes,
                                expected=expected, prior=prior, options=options)
     work = Path(options.work_dir) if options.work_dir else out.with_name(out.name + ".work")
@@ -94,6 +96,7 @@ def run_full(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
     to_cm = normalized.alignment.scale  # BA units -> cm
     calibrated = Calibrated(normalized=normalized, failures=sfm.failures, residuals=ba.residuals,
                             center_sigma_cm={n: s * to_cm for n, s in ba.center_sigma.items()},
+                            rotation_sigma_deg=getattr(ba, "rotation_sigma_deg", {}),  # {}: a work folder from before
                             lens_model=ba.lens_model,
                             cluster=cluster_section(cluster, ["mapping", "merge", "bundle adjustment", "normalize"]),
                             source=f"dome-calib calibrate {inputs.capture.name} ({len(inputs.scenes)} scenes)")
@@ -118,8 +121,11 @@ def format_result(result: CalibrationResult, max_rows: int = 12) -> str:
         norms = result.residuals.norms_of(names)
         if len(norms):
             type_rms.append(f"{cam_type} {np.sqrt(np.mean(norms ** 2) / 2):.3f}")
-    lines.append(f"reprojection RMS {result.rms_px:.3f} px per coordinate ({', '.join(type_rms)}) over "
-                 f"{len(result.residuals.residual_px):,} observations")
+    if len(result.residuals.residual_px):
+        lines.append(f"reprojection RMS {result.rms_px:.3f} px per coordinate ({', '.join(type_rms)}) over "
+                     f"{len(result.residuals.residual_px):,} observations")
+    else:
+        lines.append("reprojection RMS: none (no camera was re-estimated; every camera held from the prior)")
     lines.append(result.normalized.describe())
     if result.changes is not None:
         lines.append(f"changed since the prior: {len(result.changes)} camera(s)")
@@ -136,6 +142,6 @@ def format_result(result: CalibrationResult, max_rows: int = 12) -> str:
                       for k, v in result.stage_seconds.items())
     lines.append(f"stage times: {times}")
     lines.append(f"bundle: {result.bundle_dir}/calibration_{result.bundle.seq}.json")
-    lines.append(f"report: {result.report_dir}/ (report.json, dome.png, residuals.png, observations.png)")
+    lines.append(f"report: {result.report_dir}/index.html (open it in a browser; also report.json and plots)")
     lines += format_cluster(result.stats.get("cluster") or {})
     return "\n".join(lines)

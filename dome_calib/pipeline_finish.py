@@ -19,10 +19,10 @@ import numpy as np
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import bundle_files, check_output_folder, replace_folder, staging_folder, write_bundle
 from dome_calib.compare import CameraChange, ChangeOptions, detect_changes
-from dome_calib.errors import CaptureError
+from dome_calib.errors import CaptureError, DomeCalibError
 from dome_calib.normalize import Normalized, NormalizeOptions
 from dome_calib.pipeline_stages import BAOutcome, SfmOutcome
-from dome_calib.report import REPORT_DIR, ReportOptions, write_report
+from dome_calib.report import REPORT_DIR, ReportOptions, previous_section, write_report
 from dome_calib.residuals import Residuals
 from dome_calib.workstate import WorkState
 
@@ -39,6 +39,8 @@ class CalibrateOptions:
     """What `dome-calib calibrate` does. ``seq`` defaults to the capture folder's name."""
 
     prior: Path | None = None
+    previous: Path | None = None  # the report's "change since the previous calibration"; None: the prior, else OUT's
+    previous_from_out: bool = True  # without previous or prior: the bundle OUT held (session: its OUT is elsewhere)
     only_changed: bool = False
     seq: str | None = None
     work_dir: Path | None = None
@@ -76,6 +78,8 @@ class Calibrated:
     residuals: Residuals  # observed - projected, px
     source: str  # calibDataSource of the bundle
     center_sigma_cm: dict[str, float] = field(default_factory=dict)  # 1-sigma centre uncertainty
+    rotation_sigma_deg: dict[str, float] = field(default_factory=dict)  # 1-sigma rotation uncertainty
+    held: dict[str, str] = field(default_factory=dict)  # camera -> why it was taken as it is, not estimated
     changes: dict[str, CameraChange] | None = None  # None: detect against the prior
     notes: dict[str, str] = field(default_factory=dict)  # camera -> a further reason to check it
     lens_model: dict | None = None  # the BA's per-camera lens terms refined and held, with why (report.json)
@@ -103,7 +107,10 @@ class CalibrationResult:
 
     @property
     def rms_px(self) -> float:
-        return float(np.sqrt(np.mean(self.residuals.residual_px ** 2)))  # per coordinate
+        """Per coordinate; NaN when no camera was estimated (a quick run that held every camera)."""
+        if not len(self.residuals.residual_px):
+            return float("nan")
+        return float(np.sqrt(np.mean(self.residuals.residual_px ** 2)))
 
 
 def capture_contents(capture: Path) -> tuple[list[str], list[str]]:
@@ -166,10 +173,15 @@ def finish(inputs: CalibrationInputs, state: WorkState, calibrated: Calibrated) 
         reasons.setdefault(n, []).append(why)
     extra = {"world_frame": calibrated.normalized.as_dict(), "stage_seconds": dict(state.seconds),
              "center_sigma_cm": {n: round(s, 4) for n, s in sorted(sigma_cm.items())},
+             "rotation_sigma_deg": {n: round(s, 5) for n, s in sorted(calibrated.rotation_sigma_deg.items())
+                                    if n in bundle.cameras},
+             "previous": previous_section(bundle, options.previous or options.prior or (
+                 _held_bundle(inputs.out) if options.previous_from_out else None)),
              "lens_model": calibrated.lens_model,
              "cluster": calibrated.cluster,
              "changes_vs_prior": {n: c.as_dict() for n, c in (changes or {}).items()} if prior else None}
-    state.time("write", lambda: _write_out(inputs, bundle, calibrated.residuals, reasons, missing, extra))
+    state.time("write", lambda: _write_out(inputs, bundle, calibrated.residuals, reasons, missing, extra,
+                                           calibrated.held))
     report_dir = inputs.out / REPORT_DIR
     content = json.loads((report_dir / "report.json").read_text(encoding="utf-8"))
     return CalibrationResult(bundle_dir=inputs.out, report_dir=report_dir, bundle=bundle, expected=inputs.expected,
@@ -179,22 +191,31 @@ def finish(inputs: CalibrationInputs, state: WorkState, calibrated: Calibrated) 
 
 
 def _write_out(inputs: CalibrationInputs, bundle: Bundle, residuals: Residuals, reasons: dict[str, list[str]],
-               missing: dict[str, str], extra: dict) -> None:
+               missing: dict[str, str], extra: dict, held: dict[str, str]) -> None:
     """Stage the bundle, its report and the carried files beside OUT, then swap them in."""
     out = inputs.out
     old_seq = check_output_folder(out)  # again: OUT may have changed while the stages ran
     staging = staging_folder(out)
     try:
         write_bundle(bundle, staging)
-        write_report(staging, bundle, residuals, inputs.options.report, changes=reasons, missing=missing, extra=extra)
-        if old_seq == bundle.seq:
+        if old_seq == bundle.seq:  # first: the report page shows the carried sync report
             _carry_over(out, staging, bundle.seq)
         elif old_seq is not None:
             logger.warning("%s: held the bundle of seq %r; replaced by seq %r", out, old_seq, bundle.seq)
+        write_report(staging, bundle, residuals, inputs.options.report, changes=reasons, missing=missing, extra=extra,
+                     held=held)
         replace_folder(staging, out)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
+
+
+def _held_bundle(out: Path) -> Path | None:
+    """OUT itself when it holds a bundle (read before it is replaced): the report's previous calibration."""
+    try:
+        return out if check_output_folder(out) is not None else None
+    except DomeCalibError:
+        return None
 
 
 def _carry_over(old: Path, staging: Path, seq: str) -> None:

@@ -341,6 +341,9 @@ def run_quick(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
     calibrated = Calibrated(normalized=normalized, failures=failures, changes=changes_of(est, prior), notes=unchecked,
                             residuals=est.ba.residuals if est.ba is not None else Residuals.empty(),
                             center_sigma_cm=sigma_cm,
+                            rotation_sigma_deg=getattr(est.ba, "rotation_sigma_deg", {}) if est.ba is not None else {},
+                            held={n: "held from the prior (agrees with it)" if n not in unchecked else
+                                  "held from the prior (not checked)" for n in cameras if n not in est.changed},
                             cluster=cluster_section(cluster, ["re-estimation (known-pose triangulation, bundle adjustment)"]),
                             source=f"dome-calib calibrate --only-changed {inputs.capture.name} "
                                    f"({len(est.changed)} cameras re-estimated)")

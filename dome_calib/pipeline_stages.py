@@ -51,6 +51,7 @@ class BAOutcome:
     inlier: np.ndarray  # (M,) bool over the problem's observations
     stats: dict = field(default_factory=dict)  # iterations, cost, rms, seconds
     center_sigma: dict[str, float] = field(default_factory=dict)  # 1-sigma centre uncertainty, problem units
+    rotation_sigma_deg: dict[str, float] = field(default_factory=dict)  # 1-sigma rotation uncertainty (norm of 3)
     lens_model: dict | None = None  # per camera the lens terms refined / held and why (LensModel.as_dict)
 
 
@@ -75,7 +76,7 @@ def residuals_of(problem: BAProblem, inlier: np.ndarray | None = None) -> Residu
     res = observation_residuals(problem)
     keep = np.all(np.isfinite(res), axis=1) if inlier is None else (inlier & np.all(np.isfinite(res), axis=1))
     return Residuals(camera_names=list(problem.camera_names), camera_index=problem.camera_index[keep],
-                     residual_px=res[keep])
+                     residual_px=res[keep], uv_px=problem.uv_px[keep])
 
 
 def problem_from_observations(observations: Observations) -> BAProblem:
@@ -219,16 +220,19 @@ def run_ba_stage(problem: BAProblem, *, progress: bool = True, options: BAOption
         result = bundle_adjust(problem, options)
     refined = result.problem
     used = np.asarray(result.used, dtype=bool)
-    sigma = {}
+    sigma, rot_sigma = {}, {}
     if result.uncertainty is not None:
         u = result.uncertainty
         s3 = u.sigma_center_centroid_cm if u.sigma_center_centroid_cm is not None else u.sigma_center_cm
         sigma = {n: float(np.linalg.norm(s3[i])) for i, n in enumerate(refined.camera_names)
                  if refined.free[i].any() and np.all(np.isfinite(s3[i]))}
+        rot_sigma = {n: float(np.linalg.norm(u.sigma_rot_deg[i])) for i, n in enumerate(refined.camera_names)
+                     if refined.free[i].any() and np.all(np.isfinite(u.sigma_rot_deg[i]))}
     projected_px = refined.uv_px + np.asarray(result.residuals_px)  # the solver's residual: projected - observed
     return BAOutcome(problem=refined, cameras={n: refined.camera(n) for n in refined.camera_names},
                      residuals=Residuals(camera_names=list(refined.camera_names), camera_index=refined.camera_index[used],
-                                         residual_px=observed_minus_projected(refined.uv_px[used], projected_px[used])),
+                                         residual_px=observed_minus_projected(refined.uv_px[used], projected_px[used]),
+                                         uv_px=refined.uv_px[used]),
                      inlier=used,
                      stats={"iterations": len(result.iterations), "cost": result.cost, "rms_px": result.rms_px,
                             "sigma_px": result.sigma_px, "n_used": int(used.sum()),
@@ -238,4 +242,4 @@ def run_ba_stage(problem: BAProblem, *, progress: bool = True, options: BAOption
                             [len(result.iterations)],
                             "solves": lens_model["solves"] if lens_model else 1,
                             "termination": list(result.termination)},
-                     center_sigma=sigma, lens_model=lens_model)
+                     center_sigma=sigma, rotation_sigma_deg=rot_sigma, lens_model=lens_model)

@@ -7,6 +7,7 @@ function, before anything is reported or saved (``report/residuals.npz``).
 """
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,16 +28,21 @@ class Residuals:
 
     RMS values are per coordinate, ``sqrt(mean(r_x^2 + r_y^2) / 2)``, as the bundle adjustment reports them (so
     RMS / pixel noise sigma is near 1 at the optimum); histograms show the norm ``|r|``.
+
+    ``uv_px`` is where each observation was seen in its image (OpenCV px): the report draws the residuals over
+    the image with it. Files written before it was saved load with ``uv_px = None``.
     """
 
     camera_names: list[str]  # (C,)
     camera_index: np.ndarray  # (M,) int into camera_names
     residual_px: np.ndarray  # (M, 2) observed - projected, px
+    uv_px: np.ndarray | None = None  # (M, 2) observed pixel, OpenCV px; None: not saved (older residuals.npz)
 
     @classmethod
     def empty(cls) -> Residuals:
         """No observations (a quick recalibration that changed no camera)."""
-        return cls(camera_names=[], camera_index=np.zeros(0, np.int64), residual_px=np.zeros((0, 2)))
+        return cls(camera_names=[], camera_index=np.zeros(0, np.int64), residual_px=np.zeros((0, 2)),
+                   uv_px=np.zeros((0, 2)))
 
     def per_camera(self) -> dict[str, tuple[int, float | None]]:
         """name -> (observation count, per-coordinate RMS px; None without observations)."""
@@ -52,16 +58,22 @@ class Residuals:
         return np.linalg.norm(self.residual_px[keep], axis=1)
 
     def save(self, path: Path) -> None:
+        """``camera_names``, ``camera_index``, ``residual_px`` (float32) and, when known, ``uv_px`` (float32)."""
+        extra = {} if self.uv_px is None else {"uv_px": np.asarray(self.uv_px, dtype=np.float32)}
         np.savez_compressed(path, camera_names=np.asarray(self.camera_names), camera_index=self.camera_index,
-                            residual_px=self.residual_px.astype(np.float32))
+                            residual_px=self.residual_px.astype(np.float32), **extra)
 
     @classmethod
     def load(cls, path: Path) -> Residuals:
         try:
             with np.load(path) as data:
                 names, idx, res = [str(n) for n in data["camera_names"]], data["camera_index"], data["residual_px"]
-        except (OSError, ValueError, KeyError) as exc:
+                uv = data["uv_px"] if "uv_px" in data.files else None
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:  # a cut copy: BadZipFile
             raise ReportError(f"{path}: not a residual file ({exc})") from exc
         if res.ndim != 2 or res.shape[1] != 2 or idx.shape != (len(res),) or (len(idx) and idx.max() >= len(names)):
             raise ReportError(f"{path}: residual_px {res.shape} / camera_index {idx.shape} do not match")
-        return cls(camera_names=names, camera_index=idx.astype(np.int64), residual_px=res.astype(float))
+        if uv is not None and uv.shape != res.shape:
+            raise ReportError(f"{path}: uv_px {uv.shape} does not match residual_px {res.shape}")
+        return cls(camera_names=names, camera_index=idx.astype(np.int64), residual_px=res.astype(float),
+                   uv_px=None if uv is None else uv.astype(float))

@@ -29,6 +29,7 @@ from dome_calib.errors import CaptureError, DomeCalibError
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.kinect.calibrate import KinectCalibOptions, SensorCalibration, calibrate_kinect_folder
 from dome_calib.kinect.detect import find_sensor_frames
+from dome_calib.report.page import write_page
 from dome_calib.pipeline import CalibrateOptions, CalibrationResult, format_result, run_calibration
 from timecode.errors import TimecodeError
 from timecode.sync.pipeline import sync_session, write_sync
@@ -133,7 +134,7 @@ def run_session(session: Path, out: Path, options: SessionOptions | None = None,
         out = out.resolve()
     stage = on_stage or (lambda name: None)
     parts = session_parts(session)
-    check_output_folder(out)
+    held_seq = check_output_folder(out)  # a bundle there is the report's previous calibration
     try:  # the sync description and its audio files are read (and refused) before the calibration
         loaded = load_session(parts["sync"])
     except TimecodeError as exc:
@@ -147,7 +148,8 @@ def run_session(session: Path, out: Path, options: SessionOptions | None = None,
     t0 = time.perf_counter()
     stage("calibrate")
     cal = run_calibration(parts["capture"], work / "calibration",
-                          CalibrateOptions(seq=seq, work_dir=work / "calibration.work", progress=options.progress))
+                          CalibrateOptions(seq=seq, work_dir=work / "calibration.work", progress=options.progress,
+                                           previous=out if held_seq is not None else None, previous_from_out=False))
     seconds["calibrate"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -176,6 +178,7 @@ def run_session(session: Path, out: Path, options: SessionOptions | None = None,
         write_bundle(bundle, staging)
         write_sync(synced, staging)
         atomic_write_text(staging / "report" / "session.json", json.dumps(report, indent=1) + "\n")
+        write_page(staging / "report")  # the page again, now with the Kinect and sync sections
         load_bundle(staging)  # what is swapped in reads back
         replace_folder(staging, out)
     except BaseException:

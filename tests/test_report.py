@@ -69,7 +69,7 @@ def test_write_report_whole_or_nothing(tmp_path, tiny, monkeypatch):
     folder = write_bundle(tiny, tmp_path / "b")
     target = write_report(folder, tiny, _residuals(tiny))
     assert {p.name for p in target.iterdir()} == {"report.json", "residuals.npz", "dome.png", "residuals.png",
-                                                   "observations.png"}
+                                                   "observations.png", "index.html"}
     assert load_residuals(folder) is not None
     before = (target / "report.json").read_text()
 

@@ -3,7 +3,13 @@ the plots, written as ``<bundle>/report/`` (report.json, residuals.npz, dome.png
 observations.png) all at once: built in a temporary folder beside it, then renamed into place.
 
 Residuals come from the bundle adjustment (:class:`Residuals`); a bundle without them still gets a report of
-its geometry, and the report says the residuals are missing.
+its geometry, and the report says the residuals are missing. A camera the run took as it was (``held``: the
+quick path keeps every camera that agrees with the prior) is reported as held: the observation rule is for
+cameras that were estimated from their observations.
+
+What the calibration found beyond the residuals (its reasons to check a camera, the cameras it could not
+calibrate, the cameras it held) is saved in report.json's ``"found"`` section, so that `dome-calib report` can
+rebuild the report from the folder without losing it (:mod:`dome_calib.report.command`).
 """
 from __future__ import annotations
 
@@ -17,16 +23,24 @@ from pathlib import Path
 
 import numpy as np
 
-from dome_calib.bundle import Bundle, CameraType
+from dome_calib.bundle import Bundle, CameraType, camera_type_from_name
 from dome_calib.bundle_io import replace_folder
 from dome_calib.errors import ReportError
 from dome_calib.io_utils import new_mode
+from dome_calib.report.page import write_page
 from dome_calib.residuals import Residuals
 
 logger = logging.getLogger(__name__)
 
 REPORT_DIR = "report"
 RESIDUALS_FILE = "residuals.npz"
+#: Files other commands write into report/ (dome-calib session, timecode sync): carried into a rewritten report.
+KEPT_FILES = ("session.json", "sync.json")
+#: report.json's keys that build_report computes (a rebuild recomputes them; it keeps every other key).
+REBUILT_KEYS = frozenset({"report_version", "seq", "calib_data_source", "cameras", "expected_per_type",
+                          "has_residuals", "rms_px", "per_type", "rules", "to_check", "per_camera", "found", "plots"})
+#: report.json's layout: 2 adds "found", "expected_per_type" and per camera panel, resolution, view_dir, held.
+REPORT_VERSION = 2
 
 
 @dataclass(kw_only=True)
@@ -46,16 +60,20 @@ class CameraRow:
     center_cm: list[float]
     observations: int | None
     rms_px: float | None
+    held: str | None = None  # why the run took it as it was instead of estimating it
     reasons: list[str] = field(default_factory=list)
 
 
 def camera_rows(bundle: Bundle, residuals: Residuals | None, options: ReportOptions,
-                changes: dict[str, list[str]] | None = None) -> dict[str, CameraRow]:
-    """One row per camera of the bundle with its statistics and the reasons to check it."""
+                changes: dict[str, list[str]] | None = None,
+                held: dict[str, str] | None = None) -> dict[str, CameraRow]:
+    """One row per camera of the bundle with its statistics and the reasons to check it. A held camera is not
+    judged by its observation count (it was not estimated from them); its RMS, if it was observed, still is."""
+    held = held or {}
     stats = residuals.per_camera() if residuals is not None else {}
     rows = {n: CameraRow(name=n, type=c.type, center_cm=[round(float(v), 3) for v in c.center_cm],
                          observations=stats.get(n, (0, None))[0] if residuals is not None else None,
-                         rms_px=stats.get(n, (0, None))[1] if residuals is not None else None)
+                         rms_px=stats.get(n, (0, None))[1] if residuals is not None else None, held=held.get(n))
             for n, c in sorted(bundle.cameras.items())}
     if residuals is not None:
         for cam_type in CameraType:
@@ -64,30 +82,32 @@ def camera_rows(bundle: Bundle, residuals: Residuals | None, options: ReportOpti
             for r in rows.values():
                 if r.type != cam_type:
                     continue
-                if r.observations < options.min_observations:
+                if r.held is None and r.observations < options.min_observations:
                     r.reasons.append(f"too few observations ({r.observations} < {options.min_observations})")
                 if r.rms_px is not None and r.rms_px > limit:
                     r.reasons.append(f"high RMS {r.rms_px:.2f} px (limit {limit:.2f} px for {cam_type})")
     for name, reasons in (changes or {}).items():
         if name in rows:
-            rows[name].reasons.extend(reasons)
+            rows[name].reasons.extend(r for r in reasons if r not in rows[name].reasons)
     return rows
 
 
 def build_report(bundle: Bundle, residuals: Residuals | None = None, options: ReportOptions | None = None, *,
                  changes: dict[str, list[str]] | None = None, missing: dict[str, str] | None = None,
-                 extra: dict | None = None) -> dict:
+                 held: dict[str, str] | None = None, extra: dict | None = None) -> dict:
     """The content of report.json (plain data).
 
     Args:
-        changes: camera -> reasons it differs from a prior (from :func:`dome_calib.compare.detect_changes`).
+        changes: camera -> reasons to check it that the calibration found (moved since the prior, position poorly
+            determined, not checked, ...).
         missing: cameras expected but not calibrated -> why (e.g. "saw no tent").
+        held: cameras taken as they were (not estimated) -> why (e.g. "held from the prior (agrees with it)").
         extra: more sections to include as-is (world frame, timings, comparison with ground truth). A
             ``"lens_model"`` section (:meth:`dome_calib.ba.lens_model.LensModel.as_dict`) also gives every camera
             row its ``lens_free`` and ``lens_held`` terms; the reasons stay in the section.
     """
     options = options or ReportOptions()
-    rows = camera_rows(bundle, residuals, options, changes)
+    rows = camera_rows(bundle, residuals, options, changes, held)
     unknown = sorted(set(residuals.camera_names) - set(bundle.cameras)) if residuals is not None else []
     if unknown:
         raise ReportError(f"residuals name cameras not in bundle {bundle.seq}: {', '.join(unknown[:5])}")
@@ -109,18 +129,31 @@ def build_report(bundle: Bundle, residuals: Residuals | None = None, options: Re
     to_check = [{"name": r.name, "type": str(r.type), "reasons": r.reasons} for r in rows.values() if r.reasons]
     to_check += [{"name": n, "type": None, "reasons": [f"not calibrated: {why}"]} for n, why in sorted((missing or {}).items())]
     per_camera = {r.name: {"type": str(r.type), "center_cm": r.center_cm, "observations": r.observations,
-                           "rms_px": r.rms_px} for r in rows.values()}
+                           "rms_px": r.rms_px, "panel": int(bundle.cameras[r.name].panel),
+                           "resolution": [int(v) for v in bundle.cameras[r.name].resolution],
+                           "view_dir": [round(float(v), 4) for v in bundle.cameras[r.name].R[2]]}  # optical axis, world
+                  | ({"held": r.held} if r.held else {}) for r in rows.values()}
+    expected = {}
+    for name in list(rows) + sorted(missing or {}):
+        t = str(rows[name].type) if name in rows else str(camera_type_from_name(name))
+        entry = expected.setdefault(t, {"calibrated": 0, "expected": 0})
+        entry["expected"] += 1
+        entry["calibrated"] += name in rows
     lens = ((extra or {}).get("lens_model") or {}).get("cameras", {})
     for name, model in lens.items():
         if name in per_camera:
             per_camera[name] |= {"lens_free": model["free"], "lens_held": model["held"]}
     return {
+        "report_version": REPORT_VERSION,
         "seq": bundle.seq, "calib_data_source": bundle.calib_data_source, "cameras": len(bundle.cameras),
+        "expected_per_type": expected,
         "has_residuals": residuals is not None, "rms_px": overall, "per_type": per_type,
         "rules": {"min_observations": options.min_observations, "high_rms_factor": options.high_rms_factor,
                   "high_rms_floor_px": options.high_rms_floor_px},
         "to_check": to_check,
         "per_camera": per_camera,
+        "found": {"reasons": {n: list(v) for n, v in sorted((changes or {}).items()) if v},
+                  "missing": dict(sorted((missing or {}).items())), "held": dict(sorted((held or {}).items()))},
         **(extra or {}),
     }
 
@@ -129,7 +162,9 @@ def write_report(bundle_folder: str | Path, bundle: Bundle, residuals: Residuals
                  options: ReportOptions | None = None, **kwargs) -> Path:
     """Build the report and write ``<bundle_folder>/report/`` whole (temp folder, then rename). Returns its path.
 
-    Keyword arguments go to :func:`build_report` (changes, missing, extra).
+    Keyword arguments go to :func:`build_report` (changes, missing, held, extra). Files that other commands put
+    in ``report/`` (session.json, sync.json) are kept; ``index.html`` is written last, from the folder's files
+    (:func:`dome_calib.report.page.write_page`).
     """
     # in-function import: matplotlib takes ~0.5 s to load, and `dome-calib report --help` or a report without
     # plots need none of it
@@ -153,6 +188,10 @@ def write_report(bundle_folder: str | Path, bundle: Bundle, residuals: Residuals
         (staging / "report.json").write_text(json.dumps(content, indent=1, allow_nan=False, default=_json_default),
                                              encoding="utf-8")
         target = folder / REPORT_DIR
+        for name in KEPT_FILES:  # what other commands added to report/ survives a new report
+            if (target / name).is_file():
+                shutil.copy2(target / name, staging / name)
+        write_page(staging, residuals=residuals)
         replace_folder(staging, target)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)

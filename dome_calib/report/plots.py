@@ -11,6 +11,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from dome_calib.bundle import Bundle, CameraType
+from dome_calib.report.page import histogram_of  # the page's bins: one definition of the tail
 
 _MARKER = {CameraType.VGA: ("o", 22), CameraType.HD: ("s", 60), CameraType.KINECT_COLOR: ("^", 70)}
 _COLOR = {CameraType.VGA: "tab:blue", CameraType.HD: "tab:orange", CameraType.KINECT_COLOR: "tab:green"}
@@ -79,15 +80,24 @@ def plot_dome(bundle: Bundle, report: dict, path: Path) -> Path:
 
 
 def plot_residual_histograms(bundle: Bundle, residuals, path: Path) -> Path:
-    """Histogram of residual norms (px) per camera type, log counts."""
+    """Histogram of residual norms (px) per camera type, log counts: regular bins up to the 99.5th percentile,
+    then the tail as one red bar labelled with its range, count and maximum (nothing clipped away)."""
     types = [t for t in CameraType if bundle.of_type(t)]
     fig = Figure(figsize=(4.5 * max(len(types), 1), 3.8), layout="constrained")
     axes = np.atleast_1d(fig.subplots(1, max(len(types), 1)))
     for ax, cam_type in zip(axes, types):
         norms = residuals.norms_of(set(bundle.of_type(cam_type)))
         if len(norms):
-            hi = max(float(np.percentile(norms, 99.9)), 1e-3)
-            ax.hist(np.minimum(norms, hi), bins=60, range=(0.0, hi), color=_COLOR[cam_type], log=True)
+            h = histogram_of(norms)
+            edges = np.asarray(h["edges_px"])
+            width = edges[1] - edges[0]
+            ax.bar(edges[:-1], h["counts"], width=width, align="edge", color=_COLOR[cam_type], log=True)
+            tail = h["tail"]
+            if tail["count"]:
+                ax.bar([edges[-1] + width], [tail["count"]], width=3 * width, align="edge", color="tab:red", log=True)
+                ax.annotate(f"> {tail['from_px']:.2f} px: {tail['count']}\nmax {tail['max_px']:.2f} px",
+                            (edges[-1] + 2.5 * width, tail["count"]), xytext=(0, 4), textcoords="offset points",
+                            ha="center", fontsize=7, color="tab:red")
             ax.set_title(f"{cam_type}: {len(norms)} obs, RMS {np.sqrt(np.mean(norms ** 2) / 2):.3f} px per coord.")
         else:
             ax.set_title(f"{cam_type}: no observations")
