@@ -36,6 +36,15 @@ def format_sensor_line(summary: dict) -> list[str]:
     return lines
 
 
+def check_output_bundle(out: Path, inputs: list[Path]) -> None:
+    """Before the detection work: the bundle folder written into must not be an input's folder (or hold one) and
+    must be writable."""
+    from dome_calib.io_utils import check_writable, refuse_output_among_inputs
+
+    refuse_output_among_inputs(out, inputs, whole_folder=True)
+    check_writable(out, into=True)
+
+
 def kinect(
     kinect_folder: Path = typer.Argument(..., help="Kinect checkerboard capture: KINECTNODE<n>/ir_<k>.png, "
                                          "color_<k>.png (and depth_<k>.png) per sensor.", show_default=False),
@@ -58,6 +67,7 @@ def kinect(
 
     options = KinectCalibOptions(board=_board(board, square_mm), color_intrinsics=ColorIntrinsics.ESTIMATE
                                  if estimate_color_intrinsics else ColorIntrinsics.BUNDLE)
+    check_output_bundle(out or bundle, [kinect_folder])
     dome = load_bundle(bundle)
     total = sum(len(f.indices) for f in find_sensor_frames(kinect_folder).values())
     columns = (TextColumn("detecting boards"), BarColumn(), MofNCompleteColumn(), TextColumn("frame pairs"),

@@ -33,6 +33,7 @@ def synth(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from dome_calib.cluster import format_cluster, open_executor
+    from dome_calib.io_utils import check_writable
     from dome_calib.layout import Preset
     from dome_calib.synth.capture import SynthOptions, synthesize
 
@@ -47,6 +48,7 @@ def synth(
         raise DomeCalibError(f"--workers {workers}: expected at least 1")
     if out.exists() and not overwrite:  # before connecting to a cluster
         raise DomeCalibError(f"{out}: already exists (choose another folder or pass --overwrite)")
+    check_writable(out)
     columns = (TextColumn("rendering"), BarColumn(), MofNCompleteColumn(), TextColumn("images"), TimeElapsedColumn())
     cluster: dict = {}
     with open_executor(None, scheduler, cluster, workers=workers) as executor, \

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import os
 import signal
@@ -60,6 +61,25 @@ def interrupt_as_one_line(prog: str) -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+#: errno values of a write the disk or folder refused: full, over quota, read-only, not permitted.
+STORAGE_ERRNOS = {errno.ENOSPC: "no space left on the disk", errno.EDQUOT: "disk quota exceeded",
+                  errno.EROFS: "read-only file system", errno.EACCES: "permission denied"}
+#: The same, as SQLite (pycolmap's database, sqlite3) and C++ libraries say it in a RuntimeError's text.
+_STORAGE_TEXTS = {"database or disk is full": "no space left on the disk",
+                  "no space left on device": "no space left on the disk",
+                  "disk quota exceeded": "disk quota exceeded",
+                  "attempt to write a readonly database": "read-only file system"}
+
+
+def storage_failure(exc: BaseException) -> str | None:
+    """What the disk refused (e.g. "no space left on the disk") when ``exc`` is a failed write, else None: an
+    OSError with a STORAGE_ERRNOS errno, or any exception whose text is SQLite's or the C library's for it."""
+    if isinstance(exc, OSError) and exc.errno in STORAGE_ERRNOS:
+        return STORAGE_ERRNOS[exc.errno]
+    text = str(exc).lower()
+    return next((why for key, why in _STORAGE_TEXTS.items() if key in text), None)
+
+
 def run_cli(app: Callable[..., object], *, prog: str, user_errors: tuple[type[BaseException], ...] = ()) -> None:
     """Run a typer app; turn user errors into one line on stderr and exit code 1, no traceback.
 
@@ -76,4 +96,10 @@ def run_cli(app: Callable[..., object], *, prog: str, user_errors: tuple[type[Ba
         if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
             msg = f"{exc.filename}: {msg}"
         print(f"{prog}: error: {msg}", file=sys.stderr)
+        sys.exit(1)
+    except Exception as exc:  # a write the disk refused, as a library reports it (RuntimeError, sqlite3 error)
+        why = storage_failure(exc)
+        if why is None or os.environ.get("DOME_CALIB_DEBUG"):
+            raise
+        print(f"{prog}: error: {why} ({str(exc).splitlines()[0]}); free space or write elsewhere", file=sys.stderr)
         sys.exit(1)

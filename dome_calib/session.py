@@ -26,7 +26,7 @@ from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import (check_output_folder, load_bundle, recover_folder, replace_folder, staging_folder,
                                   write_bundle)
 from dome_calib.errors import CaptureError, DomeCalibError
-from dome_calib.io_utils import atomic_write_text
+from dome_calib.io_utils import atomic_write_text, refuse_output_among_inputs
 from dome_calib.kinect.calibrate import KinectCalibOptions, SensorCalibration, calibrate_kinect_folder
 from dome_calib.kinect.detect import find_sensor_frames
 from dome_calib.pipeline import CalibrateOptions, CalibrationResult, format_result, run_calibration
@@ -134,6 +134,7 @@ def run_session(session: Path, out: Path, options: SessionOptions | None = None,
     stage = on_stage or (lambda name: None)
     parts = session_parts(session)
     check_output_folder(out)
+    refuse_output_among_inputs(out, [session], whole_folder=True)
     try:  # the sync description and its audio files are read (and refused) before the calibration
         loaded = load_session(parts["sync"])
     except TimecodeError as exc:

@@ -85,6 +85,16 @@ def input_files(inputs: Sequence[Path], raw: RawFormat | None) -> tuple[list[Pat
     return files, len(inputs) > 1 or any(p.is_dir() for p in inputs)
 
 
+def check_output(output: str, inputs: Sequence[Path], raw: RawFormat | None) -> None:
+    """Before anything is read: ``-o`` must be a file that can be written and none of the inputs (the same file by
+    another path or a link; a folder's audio files count), else one line (OutputPathError)."""
+    from dome_calib.io_utils import output_file, refuse_output_among_inputs
+
+    output_file(output)
+    files, _ = input_files(inputs, raw)
+    refuse_output_among_inputs(output, [*inputs, *files])
+
+
 def run_decode(inputs: Sequence[Path], *, channel: str, fps: str, fmt: str, raw: RawFormat | None) -> BatchResult:
     """Decode every input file (folders: their audio files) into one output; a file that fails is one line in
     ``failures`` and the others go on. A single input keeps the single-file JSON layout."""

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle_io import load_bundle
-from dome_calib.io_utils import output_file
+from dome_calib.io_utils import output_file, refuse_output_among_inputs
 from dome_calib.recon.depth import depth_folder_reader, pointcloud_at, write_ply
 from dome_calib.recon.formats import (check_output_folder, check_times, default_times, fps_type_of,
                                       load_detection_streams, write_skeletons)
@@ -74,6 +74,7 @@ def pointcloud_file(bundle_folder: str | Path, time_ms: float, depth_folder: str
                     progress: Callable[[int, int], None] | None = None) -> PointCloudSummary:
     """Depth frames nearest to ``time_ms`` of every Kinect -> one world point cloud PLY at ``out`` (checked first)."""
     output_file(out)
+    refuse_output_among_inputs(out, [*Path(bundle_folder).glob("*"), *Path(depth_folder).glob("*/*")])
     bundle = load_bundle(bundle_folder)
     cloud = pointcloud_at(bundle, time_ms, depth_folder_reader(depth_folder), max_offset_ms=max_offset_ms,
                           correct_bias=correct_bias, progress=progress)
