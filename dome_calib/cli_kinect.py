@@ -64,11 +64,13 @@ def kinect(
     from dome_calib.bundle_io import load_bundle, write_bundle
     from dome_calib.kinect.calibrate import ColorIntrinsics, KinectCalibOptions, calibrate_kinect_folder
     from dome_calib.kinect.detect import find_sensor_frames
+    from dome_calib.layout import check_dome_scale
 
     options = KinectCalibOptions(board=_board(board, square_mm), color_intrinsics=ColorIntrinsics.ESTIMATE
                                  if estimate_color_intrinsics else ColorIntrinsics.BUNDLE)
     check_output_bundle(out or bundle, [kinect_folder])
     dome = load_bundle(bundle)
+    check_dome_scale(dome.cameras, f"--bundle {bundle}")
     total = sum(len(f.indices) for f in find_sensor_frames(kinect_folder).values())
     columns = (TextColumn("detecting boards"), BarColumn(), MofNCompleteColumn(), TextColumn("frame pairs"),
                TimeElapsedColumn())

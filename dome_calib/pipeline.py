@@ -28,6 +28,7 @@ from dome_calib.cluster import capture_nodes, cluster_section, format_cluster, o
 from dome_calib.bundle_io import check_output_folder, load_bundle, recover_folder
 from dome_calib.errors import DomeCalibError
 from dome_calib.io_utils import refuse_output_among_inputs
+from dome_calib.layout import check_dome_scale
 from dome_calib.normalize import normalize
 from dome_calib.pipeline_finish import (CalibrateOptions, Calibrated, CalibrationInputs, CalibrationResult,
                                         capture_contents, finish)
@@ -68,6 +69,8 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
     refuse_output_among_inputs(work, [capture, out, *([options.prior] if options.prior else [])], option="--work",
                                whole_folder=True)  # a work folder of other inputs is emptied
     prior = load_bundle(options.prior) if options.prior is not None else None
+    if prior is not None:
+        check_dome_scale(prior.cameras, f"--prior {options.prior}")
     inputs = CalibrationInputs(capture=capture, out=out, seq=options.seq or capture.resolve().name, scenes=scenes,
                                expected=expected, prior=prior, options=options)
     fingerprint = input_fingerprint(capture, scenes, expected, options.prior, {"only_changed": options.only_changed})

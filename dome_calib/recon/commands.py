@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle_io import load_bundle
+from dome_calib.layout import check_dome_scale
 from dome_calib.io_utils import output_file, refuse_output_among_inputs
 from dome_calib.recon.depth import depth_folder_reader, pointcloud_at, write_ply
 from dome_calib.recon.formats import (check_output_folder, check_times, default_times, fps_type_of,
@@ -40,6 +41,7 @@ def triangulate_file(bundle_folder: str | Path, detections: str | Path, out: str
     """
     check_output_folder(out)
     bundle = load_bundle(bundle_folder)
+    check_dome_scale(bundle.cameras, f"--bundle {bundle_folder}")
     streams, parsed = load_detection_streams(bundle, detections)
     if parsed["times_ms"] is not None:
         times = parsed["times_ms"]
@@ -76,6 +78,7 @@ def pointcloud_file(bundle_folder: str | Path, time_ms: float, depth_folder: str
     output_file(out)
     refuse_output_among_inputs(out, [*Path(bundle_folder).glob("*"), *Path(depth_folder).glob("*/*")])
     bundle = load_bundle(bundle_folder)
+    check_dome_scale(bundle.cameras, f"--bundle {bundle_folder}")
     cloud = pointcloud_at(bundle, time_ms, depth_folder_reader(depth_folder), max_offset_ms=max_offset_ms,
                           correct_bias=correct_bias, progress=progress)
     write_ply(out, cloud)
