@@ -11,7 +11,7 @@ import hashlib
 from collections import defaultdict
 from pathlib import Path
 
-from dome_calib.bundle import CAMERA_NAMES_HELP, is_camera_name
+from dome_calib.bundle import CAMERA_NAMES_HELP, is_camera_name, kinect_node_camera
 from dome_calib.errors import CaptureError
 
 
@@ -84,3 +84,22 @@ def check_capture(capture: Path, scenes: list[str], cameras: list[str], *, liste
                 raise CaptureError(f"{p}: camera {p.stem} is not among the cameras of {where}: add it there or "
                                    "move the file out")
         check_same_pictures(images)
+
+
+def cross_check_kinects(*, kinect_folder: Path, nodes: list[str], sync_file: Path, synced: list[str],
+                        capture: Path, cameras: list[str]) -> None:
+    """A session's Kinects named alike in its three parts, before any work: the ``kinect/KINECTNODE<n>`` folders,
+    the Kinect nodes of the sync description and the colour cameras ``50_<nn>`` of the capture. A Kinect missing
+    from one part (a typo, KINECTNODE7 for 9) would be calibrated without sync, or synced without calibration,
+    without a word. CaptureError naming the node and where it is missing."""
+    on_capture = {kinect_node_camera(n): n for n in {*nodes, *synced}}
+    for camera, node in sorted(on_capture.items(), key=lambda kv: str(kv[0])):
+        if camera not in cameras:
+            raise CaptureError(f"{node}: its colour camera {camera} is not a camera of the capture {capture} "
+                               f"(its Kinect cameras: {', '.join(sorted(c for c in cameras if c.startswith('50_'))) or 'none'})")
+    for node in sorted(set(nodes) - set(synced)):
+        raise CaptureError(f"{kinect_folder / node}: no Kinect {node} in {sync_file} (it names "
+                           f"{', '.join(sorted(synced)) or 'none'}): add its audio there or fix the name")
+    for node in sorted(set(synced) - set(nodes)):
+        raise CaptureError(f"{sync_file}: names {node}, which has no folder in {kinect_folder} (it holds "
+                           f"{', '.join(sorted(nodes)) or 'none'}): fix the name or add its checkerboard pairs")

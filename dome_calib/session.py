@@ -25,10 +25,12 @@ import soundfile as sf
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import (check_output_folder, load_bundle, recover_folder, replace_folder, staging_folder,
                                   write_bundle)
+from dome_calib.capture_checks import cross_check_kinects
 from dome_calib.errors import CaptureError, DomeCalibError
 from dome_calib.io_utils import atomic_write_text, refuse_output_among_inputs
 from dome_calib.kinect.calibrate import KinectCalibOptions, SensorCalibration, calibrate_kinect_folder
 from dome_calib.kinect.detect import find_sensor_frames
+from dome_calib.pipeline_finish import capture_contents
 from dome_calib.pipeline import CalibrateOptions, CalibrationResult, format_result, run_calibration
 from timecode.errors import TimecodeError
 from timecode.sync.pipeline import sync_session, write_sync
@@ -140,7 +142,9 @@ def run_session(session: Path, out: Path, options: SessionOptions | None = None,
     except TimecodeError as exc:
         raise DomeCalibError(str(exc)) from None  # the same one line, as a dome-calib error
     _check_audio(loaded)
-    find_sensor_frames(parts["kinect"])  # Kinect folders and pairing, likewise
+    kinect_nodes = find_sensor_frames(parts["kinect"])  # Kinect folders and pairing, likewise
+    cross_check_kinects(kinect_folder=parts["kinect"], nodes=list(kinect_nodes), sync_file=parts["sync"] / "session.json",
+                        synced=list(loaded.kinects), capture=parts["capture"], cameras=capture_contents(parts["capture"])[1])
     seq = options.seq or session.resolve().name
     work = out.with_name(out.name + ".work")
     seconds: dict[str, float] = {}

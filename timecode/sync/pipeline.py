@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import soundfile as sf
 
+from dome_calib.bundle import kinect_node_camera
 from dome_calib.bundle_io import bundle_seq, load_bundle, write_bundle
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.panoptic_io import format_ksynctables, format_synctables
@@ -142,6 +143,24 @@ def output_seq(bundle: str | Path, seq: str | None, session_seq: str) -> str:
     if seq is not None and seq != held:
         raise SyncError(f"{folder}: holds calibration_{held}.json; --seq {seq} differs (omit --seq to use {held!r})")
     return held
+
+
+def check_nodes_in_bundle(bundle: str | Path, session: Session) -> None:
+    """Before decoding: when ``bundle`` holds a calibration, every Kinect node of the session must be a Kinect of it
+    (its colour camera 50_<nn>, and a sensor of its kcalibration when it has one); SyncError naming the node."""
+    folder = Path(bundle)
+    if bundle_seq(folder) is None:
+        return
+    b = load_bundle(folder)
+    cameras = sorted(n for n in b.cameras if n.startswith("50_"))
+    for node in sorted(session.kinects):
+        camera = kinect_node_camera(node)
+        if camera not in b.cameras:
+            raise SyncError(f"{session.folder / 'session.json'}: field 'kinect.{node}': the bundle {folder} has no "
+                            f"colour camera {camera} (its Kinect cameras: {', '.join(cameras) or 'none'})")
+        if b.kinect is not None and node not in b.kinect.sensors:
+            raise SyncError(f"{session.folder / 'session.json'}: field 'kinect.{node}': not a sensor of the bundle's "
+                            f"kcalibration (it has {', '.join(b.kinect.sensors) or 'none'})")
 
 
 def write_sync(result: SyncResult, bundle: str | Path, *, seq: str | None = None) -> list[Path]:
