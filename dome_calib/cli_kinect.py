@@ -18,7 +18,7 @@ def _board(spec: str, square_mm: float):
         cols, rows = (int(v) for v in spec.lower().split("x"))
     except ValueError:
         raise DomeCalibError(f"--board {spec}: expected inner corners as COLSxROWS, e.g. 9x6") from None
-    if cols < 3 or rows < 3 or cols == rows or square_mm <= 0:
+    if cols < 3 or rows < 3 or cols == rows or not 0 < square_mm < float("inf"):  # NaN too
         raise DomeCalibError(f"--board {spec} --square-mm {square_mm:g}: need at least 3x3 inner corners, "
                              "different counts along the two sides, and a positive square size")
     return Checkerboard(cols=cols, rows=rows, square_mm=square_mm)

@@ -61,6 +61,25 @@ def interrupt_as_one_line(prog: str) -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+def non_finite_fields(options: object) -> list[str]:
+    """``name=value`` of the float fields of a dataclass ``options`` that are NaN or infinite (a ``<`` or ``<=``
+    bound check lets NaN through: every comparison with it is false)."""
+    import dataclasses
+    import math
+
+    return [f"{f.name}={getattr(options, f.name)}" for f in dataclasses.fields(options)
+            if isinstance(getattr(options, f.name), float) and not math.isfinite(getattr(options, f.name))]
+
+
+def require_finite(error: type[Exception], **values: float | None) -> None:
+    """``error`` naming the first of ``values`` (option name -> number, None skipped) that is NaN or infinite."""
+    import math
+
+    for name, value in values.items():
+        if value is not None and not math.isfinite(value):
+            raise error(f"{name} {value}: expected a finite number")
+
+
 #: errno values of a write the disk or folder refused: full, over quota, read-only, not permitted.
 STORAGE_ERRNOS = {errno.ENOSPC: "no space left on the disk", errno.EDQUOT: "disk quota exceeded",
                   errno.EROFS: "read-only file system", errno.EACCES: "permission denied"}

@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle_io import load_bundle
+from dome_calib.errors import require_finite
 from dome_calib.layout import check_dome_scale
+from dome_calib.recon.errors import ReconError
 from dome_calib.io_utils import output_file, refuse_output_among_inputs
 from dome_calib.recon.depth import depth_folder_reader, pointcloud_at, write_ply
 from dome_calib.recon.formats import (check_output_folder, check_times, default_times, fps_type_of,
@@ -75,6 +77,7 @@ def pointcloud_file(bundle_folder: str | Path, time_ms: float, depth_folder: str
                     max_offset_ms: float | None = None, correct_bias: bool = True,
                     progress: Callable[[int, int], None] | None = None) -> PointCloudSummary:
     """Depth frames nearest to ``time_ms`` of every Kinect -> one world point cloud PLY at ``out`` (checked first)."""
+    require_finite(ReconError, **{"--time-ms": time_ms, "--max-offset-ms": max_offset_ms})
     output_file(out)
     refuse_output_among_inputs(out, [*Path(bundle_folder).glob("*"), *Path(depth_folder).glob("*/*")])
     bundle = load_bundle(bundle_folder)
