@@ -3,10 +3,12 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import importlib
 import logging
 import os
 import signal
 import sys
+import threading
 from collections.abc import Callable, Iterator
 
 logger = logging.getLogger("dome_calib")
@@ -44,11 +46,28 @@ def _terminate_as_interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
+#: Libraries whose import installs C-level signal handlers over Python's (pycolmap: glog's failure handler, which
+#: prints a C stack and kills the process on SIGTERM): imported before the handler below is installed.
+HANDLER_REPLACING_IMPORTS = ("pycolmap",)
+_active = 0  # interrupt_as_one_line blocks open
+
+
+def restore_interrupt_handler() -> None:
+    """Inside :func:`interrupt_as_one_line`: put its SIGTERM handler back (a library loaded since may have replaced
+    it at the C level, where ``signal.getsignal`` does not see it). Call before long work; a no-op outside."""
+    if _active and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+
+
 @contextlib.contextmanager
 def interrupt_as_one_line(prog: str) -> Iterator[None]:
     """SIGINT or SIGTERM inside the block: one line on stderr ("interrupted during STAGE; rerun the same command
     to resume" when a pipeline stage was running), exit code 130, no traceback (``DOME_CALIB_DEBUG=1``: raise)."""
+    global _active
+    for name in HANDLER_REPLACING_IMPORTS:  # their handlers first, ours over them
+        importlib.import_module(name)
     previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+    _active += 1
     try:
         yield
     except KeyboardInterrupt as exc:
@@ -58,6 +77,7 @@ def interrupt_as_one_line(prog: str) -> Iterator[None]:
         print(f"{prog}: interrupted{where}; rerun the same command to resume", file=sys.stderr)
         sys.exit(EXIT_INTERRUPTED)
     finally:
+        _active -= 1
         signal.signal(signal.SIGTERM, previous)
 
 

@@ -33,7 +33,7 @@ from typing import TypeVar
 from rich.console import Console
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-from dome_calib.errors import DomeCalibError, Interrupted, storage_failure
+from dome_calib.errors import DomeCalibError, Interrupted, restore_interrupt_handler, storage_failure
 from dome_calib.io_utils import atomic_path, atomic_write_text
 
 logger = logging.getLogger(__name__)
@@ -221,6 +221,7 @@ class WorkState:
     def time(self, name: str, fn: Callable[[], T]) -> T:
         """``fn()`` timed as stage ``name`` (not kept); an interrupt names the stage (:class:`Interrupted`)."""
         self.current = name
+        restore_interrupt_handler()  # a library loaded during an earlier stage may have replaced it
         t0 = time.perf_counter()
         try:
             with _stage_status(f"{name}: {self.labels.get(name, name)}", self.progress):
