@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
 from functools import partial
 from pathlib import Path
 
@@ -57,7 +58,8 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
     cannot be fixed; ``out`` is untouched then. An interrupt raises :class:`dome_calib.errors.Interrupted`.
     """
     options = options or CalibrateOptions()
-    capture, out = Path(capture), Path(out)
+    # absolute: the paths in the tasks are read by pool or cluster workers whose working folder is not ours
+    capture, out = Path(os.path.abspath(capture)), Path(os.path.abspath(out))
     if out.is_symlink():  # as every -o: a symlink is followed, the folder it points to is replaced, the link stays
         out = out.resolve()
     scenes, expected = capture_contents(capture)
@@ -65,7 +67,7 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
         raise DomeCalibError("--only-changed needs --prior (the bundle the unchanged cameras are taken from)")
     check_output_folder(out)
     refuse_output_among_inputs(out, [capture], whole_folder=True)  # replaced whole: it must not hold the capture
-    work = Path(options.work_dir) if options.work_dir else out.with_name(out.name + ".work")
+    work = Path(os.path.abspath(options.work_dir)) if options.work_dir else out.with_name(out.name + ".work")
     refuse_output_among_inputs(work, [capture, out, *([options.prior] if options.prior else [])], option="--work",
                                whole_folder=True)  # a work folder of other inputs is emptied
     prior = load_bundle(options.prior) if options.prior is not None else None
