@@ -20,7 +20,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import soundfile as sf
 
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import (check_output_folder, load_bundle, recover_folder, replace_folder, staging_folder,
@@ -32,6 +31,7 @@ from dome_calib.kinect.calibrate import KinectCalibOptions, SensorCalibration, c
 from dome_calib.kinect.detect import find_sensor_frames
 from dome_calib.pipeline_finish import capture_contents
 from dome_calib.pipeline import CalibrateOptions, CalibrationResult, format_result, run_calibration
+from timecode.audio_io import AudioReader
 from timecode.errors import TimecodeError
 from timecode.sync.pipeline import sync_session, write_sync
 from timecode.sync.session import load_session
@@ -86,10 +86,11 @@ def _check_audio(loaded) -> None:
         if not path.is_file():
             raise CaptureError(f"{path}: audio file not found (session.json field '{field_name}')")
         try:
-            sf.info(str(path))
-        except (sf.LibsndfileError, RuntimeError) as exc:
+            with AudioReader(path):  # header and its last sample: a half-copied file fails here, not after calibrate
+                pass
+        except TimecodeError as exc:
             raise CaptureError(f"{path}: cannot read audio (session.json field '{field_name}': "
-                               f"{str(exc).splitlines()[0]})") from None
+                               f"{str(exc).removeprefix(f'{path}: ').splitlines()[0]})") from None
 
 
 def _kinect_pillar(results: list[SensorCalibration], bundle: Bundle) -> dict:

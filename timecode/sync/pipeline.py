@@ -15,6 +15,7 @@ from dome_calib.io_utils import atomic_write_text
 from dome_calib.panoptic_io import format_ksynctables, format_synctables
 from timecode.errors import TimecodeError
 from timecode.rates import FrameRate
+from timecode.audio_io import AudioReader
 from timecode.decoder import DecodeOptions, decode_file, decode_samples
 from timecode.sync.clock import ClockError, FrameStarts
 from timecode.sync.report import sync_report
@@ -29,9 +30,10 @@ def _check_channel(path: Path, channel: int, field: str, file_field: str) -> Non
     if not path.is_file():
         raise SessionError(f"{path}: audio file not found (session.json field '{file_field}')")
     try:
-        n = sf.info(str(path)).channels
-    except (sf.LibsndfileError, RuntimeError) as exc:
-        raise SessionError(f"{path}: cannot read audio ({exc})") from None
+        with AudioReader(path) as reader:  # the header and its last sample: a half-copied file fails here
+            n = reader.info.channels
+    except TimecodeError as exc:
+        raise SessionError(f"{exc} (session.json field '{file_field}')") from None
     if channel >= n:
         raise SessionError(f"{path}: session.json field '{field}' = {channel} but the file has {n} channel(s) "
                            "(channels count from 0)")
@@ -45,7 +47,8 @@ def _decode(path: Path, channel: int, rate: FrameRate, source: str, start: int =
         if start == 0 and stop is None:
             (ch,) = decode_file(path, options=opts, channels=[channel])
         else:
-            data, fs = sf.read(str(path), start=start, stop=stop, dtype="float32", always_2d=True)
+            with AudioReader(path) as reader:  # a damaged or cut-short file: one line naming it
+                data, fs = reader.read(start, reader.info.frames if stop is None else stop), reader.info.sample_rate
             (ch,) = decode_samples(data[:, channel], fs, options=opts)
     except TimecodeError as exc:
         raise ClockError(f"{source}: {exc}") from None
