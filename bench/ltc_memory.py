@@ -2,7 +2,7 @@
 
 Each length's noise is written in blocks to a temporary WAV (16-bit, 48 kHz, mono: the size the capture nodes
 record), then decoded in a fresh Python process (``timecode.decoder.decode_file``, as the command runs it); its peak
-resident memory comes from ``resource.getrusage(RUSAGE_CHILDREN)``. Flat memory across lengths means the decoder
+resident memory is that child's own ``ru_maxrss`` (``os.wait4``). Flat memory across lengths means the decoder
 keeps a block, not the file. The truth: noise holds no LTC, so 0 frames must be found.
 
     python bench/ltc_memory.py                 # 1 min, 30 min, 2 h
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
+import os
 import subprocess
 import sys
 import tempfile
@@ -28,7 +28,7 @@ SAMPLE_RATE = 48000
 BLOCK_S = 60
 
 _CHILD = """
-import resource, sys
+import sys
 from timecode.decoder import decode_file
 result = decode_file(sys.argv[1])
 print(sum(len(ch) for ch in result))
@@ -48,14 +48,15 @@ def measure(seconds: int, folder: Path) -> dict:
     path = folder / f"noise_{seconds}s.wav"
     write_noise(path, seconds)
     t0 = time.perf_counter()
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    done = subprocess.run([sys.executable, "-c", _CHILD, str(path)], capture_output=True, text=True, check=True)
-    peak_kb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss  # the largest child so far: run in order
+    proc = subprocess.Popen([sys.executable, "-c", _CHILD, str(path)], stdout=subprocess.PIPE, text=True)
+    out = proc.stdout.read()
+    _, status, usage = os.wait4(proc.pid, 0)  # this child's own rusage: its peak resident memory (kB on Linux)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode != 0:
+        raise SystemExit(f"decoding {path} failed (exit {proc.returncode})")
     row = {"duration_s": seconds, "file_mb": round(path.stat().st_size / 2**20, 1),
-           "peak_rss_mb": round(peak_kb / 1024, 1), "frames": int(done.stdout.split()[-1]),
+           "peak_rss_mb": round(usage.ru_maxrss / 1024, 1), "frames": int(out.split()[-1]),
            "seconds": round(time.perf_counter() - t0, 1)}
-    if peak_kb < before:
-        row["note"] = "peak not above an earlier child's"
     path.unlink()
     return row
 
@@ -65,7 +66,7 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, nargs="+", default=[1, 30, 120])
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="ltc_memory.") as tmp:
-        for minutes in sorted(args.minutes):  # ascending: RUSAGE_CHILDREN's maximum is then this child's
+        for minutes in args.minutes:
             print(json.dumps(measure(int(round(minutes * 60)), Path(tmp))), flush=True)
 
 
