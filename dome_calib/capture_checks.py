@@ -11,6 +11,8 @@ import hashlib
 from collections import defaultdict
 from pathlib import Path
 
+import cv2
+
 from dome_calib.bundle import CAMERA_NAMES_HELP, is_camera_name, kinect_node_camera
 from dome_calib.errors import CaptureError
 
@@ -38,8 +40,6 @@ BLANK_MAX_STD = 3.0
 
 
 def _blank(path: Path) -> bool:
-    import cv2  # only for a picture found twice
-
     image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
     return image is not None and float(image.std()) < BLANK_MAX_STD
 

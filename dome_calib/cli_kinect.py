@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 
 from dome_calib.errors import DomeCalibError
+from dome_calib.io_utils import check_writable, refuse_output_among_inputs
 
 
 def _board(spec: str, square_mm: float):
@@ -39,8 +40,6 @@ def format_sensor_line(summary: dict) -> list[str]:
 def check_output_bundle(out: Path, inputs: list[Path]) -> None:
     """Before the detection work: the bundle folder written into must not be an input's folder (or hold one) and
     must be writable."""
-    from dome_calib.io_utils import check_writable, refuse_output_among_inputs
-
     refuse_output_among_inputs(out, inputs, whole_folder=True)
     check_writable(out, into=True)
 
@@ -64,13 +63,11 @@ def kinect(
     from dome_calib.bundle_io import load_bundle, write_bundle
     from dome_calib.kinect.calibrate import ColorIntrinsics, KinectCalibOptions, calibrate_kinect_folder
     from dome_calib.kinect.detect import find_sensor_frames
-    from dome_calib.layout import check_dome_scale
 
     options = KinectCalibOptions(board=_board(board, square_mm), color_intrinsics=ColorIntrinsics.ESTIMATE
                                  if estimate_color_intrinsics else ColorIntrinsics.BUNDLE)
     check_output_bundle(out or bundle, [kinect_folder])
     dome = load_bundle(bundle)
-    check_dome_scale(dome.cameras, f"--bundle {bundle}")
     total = sum(len(f.indices) for f in find_sensor_frames(kinect_folder).values())
     columns = (TextColumn("detecting boards"), BarColumn(), MofNCompleteColumn(), TextColumn("frame pairs"),
                TimeElapsedColumn())

@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 
 from dome_calib.errors import DomeCalibError
+from dome_calib.io_utils import check_writable
 
 
 def synth(
@@ -33,7 +34,6 @@ def synth(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from dome_calib.cluster import format_cluster, open_executor
-    from dome_calib.io_utils import check_writable
     from dome_calib.layout import Preset
     from dome_calib.synth.capture import SynthOptions, synthesize
 

@@ -2,9 +2,11 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import errno
 import importlib
 import logging
+import math
 import os
 import signal
 import sys
@@ -47,7 +49,7 @@ def _terminate_as_interrupt(signum: int, frame: object) -> None:
 
 
 #: Libraries whose import installs C-level signal handlers over Python's (pycolmap: glog's failure handler, which
-#: prints a C stack and kills the process on SIGTERM): imported before the handler below is installed.
+#: prints a C stack and kills the process on SIGTERM): imported first inside the block, then ours put back over
 HANDLER_REPLACING_IMPORTS = ("pycolmap",)
 _active = 0  # interrupt_as_one_line blocks open
 
@@ -64,11 +66,12 @@ def interrupt_as_one_line(prog: str) -> Iterator[None]:
     """SIGINT or SIGTERM inside the block: one line on stderr ("interrupted during STAGE; rerun the same command
     to resume" when a pipeline stage was running), exit code 130, no traceback (``DOME_CALIB_DEBUG=1``: raise)."""
     global _active
-    for name in HANDLER_REPLACING_IMPORTS:  # their handlers first, ours over them
-        importlib.import_module(name)
     previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
     _active += 1
     try:
+        for name in HANDLER_REPLACING_IMPORTS:  # their handlers first, ours over them
+            importlib.import_module(name)
+        restore_interrupt_handler()
         yield
     except KeyboardInterrupt as exc:
         if os.environ.get("DOME_CALIB_DEBUG"):
@@ -84,17 +87,12 @@ def interrupt_as_one_line(prog: str) -> Iterator[None]:
 def non_finite_fields(options: object) -> list[str]:
     """``name=value`` of the float fields of a dataclass ``options`` that are NaN or infinite (a ``<`` or ``<=``
     bound check lets NaN through: every comparison with it is false)."""
-    import dataclasses
-    import math
-
     return [f"{f.name}={getattr(options, f.name)}" for f in dataclasses.fields(options)
             if isinstance(getattr(options, f.name), float) and not math.isfinite(getattr(options, f.name))]
 
 
 def require_finite(error: type[Exception], **values: float | None) -> None:
     """``error`` naming the first of ``values`` (option name -> number, None skipped) that is NaN or infinite."""
-    import math
-
     for name, value in values.items():
         if value is not None and not math.isfinite(value):
             raise error(f"{name} {value}: expected a finite number")

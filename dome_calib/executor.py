@@ -14,6 +14,7 @@ import multiprocessing
 import os
 import signal
 import threading
+import time
 from collections.abc import Callable, Hashable, Iterable, Iterator, Sequence
 from typing import Any, Protocol, TypeVar, runtime_checkable
 
@@ -104,8 +105,6 @@ PARENT_POLL_S = 0.5
 def _exit_when_orphaned(parent_pid: int) -> None:
     """A worker's watchdog: when its parent is gone (SIGKILL, SIGHUP or SIGTERM ended it before it could stop its
     pool), the worker is re-parented (its parent pid changes) and ends at once instead of running on for ever."""
-    import time
-
     while os.getppid() == parent_pid:
         time.sleep(PARENT_POLL_S)
     os._exit(1)

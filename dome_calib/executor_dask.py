@@ -20,6 +20,7 @@ import dataclasses
 import inspect
 import re
 import time
+from concurrent.futures import CancelledError
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
@@ -184,8 +185,6 @@ class DaskExecutor:
     def scheduler_gone(self, exc: BaseException) -> bool:
         """Whether ``exc`` (from a future) means the connection to the scheduler is lost, not that a task failed:
         the futures are cancelled, the comm closed, or the client no longer running."""
-        from concurrent.futures import CancelledError
-
         if isinstance(exc, (CancelledError, OSError, TimeoutError)) or "closing" in str(exc) or "closed" in str(exc):
             return True
         return getattr(self.client, "status", "running") not in ("running", "connecting")

@@ -59,7 +59,10 @@ def test_a_bundle_in_metres_is_refused_by_the_commands_that_place_things_in_the_
     write_bundle(_in_metres(truth), tmp_path / "m")
     det = tmp_path / "det.json"
     det.write_text("{}")
-    args = {"kinect": ["kinect", tmp_path, "--bundle", tmp_path / "m", "-o", tmp_path / "o"],
+    for kind in ("ir", "color"):  # a Kinect folder as find_sensor_frames lists it (the images are not read first)
+        (tmp_path / "kinect" / "KINECTNODE4").mkdir(parents=True, exist_ok=True)
+        (tmp_path / "kinect" / "KINECTNODE4" / f"{kind}_0000.png").write_bytes(b"")
+    args = {"kinect": ["kinect", tmp_path / "kinect", "--bundle", tmp_path / "m", "-o", tmp_path / "o"],
             "triangulate": ["triangulate", det, "--bundle", tmp_path / "m", "-o", tmp_path / "o"],
             "pointcloud": ["pointcloud", "--bundle", tmp_path / "m", "--time-ms", "0", "--depth", tmp_path,
                            "-o", tmp_path / "o.ply"]}[command]
