@@ -25,7 +25,7 @@ from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import (check_output_folder, load_bundle, recover_folder, replace_folder, staging_folder,
                                   write_bundle)
 from dome_calib.capture_checks import cross_check_kinects
-from dome_calib.errors import CaptureError, DomeCalibError
+from dome_calib.errors import BundleFormatError, CaptureError, DomeCalibError
 from dome_calib.io_utils import atomic_write_text, refuse_output_among_inputs
 from dome_calib.kinect.calibrate import KinectCalibOptions, SensorCalibration, calibrate_kinect_folder
 from dome_calib.kinect.detect import find_sensor_frames
@@ -182,7 +182,10 @@ def run_session(session: Path, out: Path, options: SessionOptions | None = None,
         write_bundle(bundle, staging)
         write_sync(synced, staging)
         atomic_write_text(staging / "report" / "session.json", json.dumps(report, indent=1) + "\n")
-        load_bundle(staging)  # what is swapped in reads back
+        try:
+            load_bundle(staging)  # what is swapped in reads back
+        except BundleFormatError as exc:  # name the output, not the staging folder removed below
+            raise BundleFormatError(f"{str(exc).replace(str(staging), str(out))} (nothing written to {out})") from None
         replace_folder(staging, out)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)

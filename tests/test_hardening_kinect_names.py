@@ -96,3 +96,35 @@ def test_the_writers_never_write_a_kinect_name_their_readers_refuse():
     format_ksynctables({"KINECTNODE4": table}, {})
     with pytest.raises(BundleFormatError, match="'KINECT4': not named KINECTNODE<n>"):
         format_ksynctables({"KINECT4": table}, {})
+
+
+def test_a_session_bundle_that_does_not_read_back_names_the_output_not_the_staging_folder(
+        small_product_session, tmp_path, dome_calib_cli, monkeypatch):
+    """Whatever slips through to the final read-back check is named by OUT (the staging folder is gone then)."""
+    import numpy as np
+
+    import dome_calib.pipeline as pipeline
+    import dome_calib.session as session
+    from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, residuals_of
+
+    from .test_calibrate import _problem
+
+    root, truth = small_product_session
+
+    def fake_ba(problem, *, progress=True):
+        return BAOutcome(problem=problem, cameras={n: problem.camera(n) for n in problem.camera_names},
+                         residuals=residuals_of(problem), inlier=np.ones(problem.n_observations, bool))
+
+    monkeypatch.setattr(pipeline, "run_sfm_stage", lambda *a, **k: SfmOutcome(problem=_problem(truth)))
+    monkeypatch.setattr(pipeline, "run_ba_stage", fake_ba)
+
+    def broken_sync(result, folder, **kw):  # a writer that leaves a file its reader refuses
+        (folder / "ksynctables_sess.json").write_text('{"kinect": {"color": {"KINECT4": {}}, "depth": {}}}')
+
+    monkeypatch.setattr(session, "write_sync", broken_sync)
+    out = tmp_path / "bundle"
+    done = dome_calib_cli("session", root, "-o", out)
+    assert done.returncode == 1
+    error = [ln for ln in done.stderr.splitlines() if "error:" in ln][0]
+    assert f"{out}/ksynctables_sess.json" in error and "staging" not in error and f"nothing written to {out}" in error
+    assert not out.exists()
