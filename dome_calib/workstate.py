@@ -16,6 +16,7 @@ the next run then finds the dead holder's record, warns, and takes the folder ov
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import hashlib
 import json
@@ -136,6 +137,16 @@ def _describe(holder: dict) -> str:
     return f"pid {holder['pid']} on {holder.get('host', '?')}, started {holder.get('started', '?')}"
 
 
+def _in_folder(exc: OSError, folder: Path) -> bool:
+    """Whether a failed file operation was in ``folder`` (a write the work folder's disk refused), or names no
+    file; a permission error on a file elsewhere is not the work folder's."""
+    if exc.errno == errno.EACCES:
+        return False
+    if not exc.filename:
+        return True
+    return os.path.abspath(str(exc.filename)).startswith(os.path.abspath(folder) + os.sep)
+
+
 def _refuse_foreign_folder(folder: Path) -> None:
     """A work folder of other inputs is emptied: refuse a folder with content that no run made (no state.json and
     no lock file), before anything in it is deleted."""
@@ -230,8 +241,8 @@ class WorkState:
             raise Interrupted(name) from exc
         except Exception as exc:
             why = storage_failure(exc)
-            if why is None:
-                raise
+            if why is None or (isinstance(exc, OSError) and not _in_folder(exc, self.folder)):
+                raise  # not a write to the work folder (an unreadable image, ...): run_cli names its own path
             raise DomeCalibError(f"{self.folder}: {why} while stage {name} wrote its work; free space there or give "
                                  "--work on another disk, then rerun the same command to resume") from exc
         self.seconds[name] = time.perf_counter() - t0

@@ -157,14 +157,17 @@ def test_check_writable_probes_the_nearest_existing_folder(tmp_path):
 # ------------------------------------------------------------------------------------------ disk full
 @pytest.mark.parametrize("failure", [
     RuntimeError("[database_sqlite.cc:1362] SQLite error: database or disk is full"),  # pycolmap's database
-    OSError(errno.ENOSPC, "No space left on device", "sfm/scene_01/database.db"),
-    OSError(errno.EDQUOT, "Disk quota exceeded", "sfm/x.npz"),
+    "ENOSPC", "EDQUOT",
 ])
 def test_a_full_disk_in_the_work_folder_is_one_line_naming_it(tmp_path, capture, stand_in_stages, monkeypatch,
                                                                dome_calib_cli, failure):
     cap, _ = capture
 
-    def sfm(*a, **k):
+    def sfm(capture_dir, work_dir, **k):
+        if failure == "ENOSPC":
+            raise OSError(errno.ENOSPC, "No space left on device", str(work_dir / "scene_01" / "database.db"))
+        if failure == "EDQUOT":
+            raise OSError(errno.EDQUOT, "Disk quota exceeded", str(work_dir / "x.npz"))
         raise failure
 
     monkeypatch.setattr(pipeline, "run_sfm_stage", sfm)
@@ -173,6 +176,20 @@ def test_a_full_disk_in_the_work_folder_is_one_line_naming_it(tmp_path, capture,
     assert done.stderr.strip().splitlines() == [done.stderr.strip()]
     assert f"{tmp_path / 'work'}: " in done.stderr and "while stage sfm wrote" in done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_an_unreadable_input_inside_a_stage_is_not_called_a_full_work_folder(tmp_path, capture, stand_in_stages,
+                                                                             monkeypatch, dome_calib_cli):
+    cap, _ = capture
+
+    def sfm(capture_dir, work_dir, **k):
+        raise PermissionError(errno.EACCES, "Permission denied", str(capture_dir / "scenes" / "scene_01" / "01_01.png"))
+
+    monkeypatch.setattr(pipeline, "run_sfm_stage", sfm)
+    done = dome_calib_cli("calibrate", cap, "-o", tmp_path / "out", "--work", tmp_path / "work")
+    assert done.returncode == 1
+    assert done.stderr.strip() == ("dome-calib: error: [Errno 13] Permission denied: "
+                                   f"'{cap / 'scenes' / 'scene_01' / '01_01.png'}'")  # the file, not the work folder
 
 
 def test_run_cli_says_a_storage_failure_of_any_library_in_one_line(capsys):
