@@ -176,3 +176,13 @@ def test_a_listed_scene_missing_on_disk_is_one_line_naming_it(tmp_path, capture,
                                    f"{cap / 'scenes' / 'scene_02'} is missing: copy the scene there or remove it "
                                    "from the list")
     assert stand_in_stages == {"sfm": 0, "ba": 0}
+
+
+def test_compare_against_a_reference_in_metres_is_refused(tmp_path, capture, dome_calib_cli):
+    _, truth = capture
+    write_bundle(truth, tmp_path / "cm")
+    write_bundle(_in_metres(truth), tmp_path / "m")
+    done = dome_calib_cli("compare", tmp_path / "cm", tmp_path / "m")
+    assert done.returncode == 1 and f"{tmp_path / 'm'}: " in done.stderr and "t looks like metres" in done.stderr
+    done = dome_calib_cli("compare", tmp_path / "m", tmp_path / "cm")  # an estimate in any scale: aligned
+    assert done.returncode == 0, done.stderr
