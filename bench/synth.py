@@ -82,7 +82,7 @@ def verified_matches(capture: Path, scene: str, a: str, b: str, sift) -> dict:
     meta = json.loads((capture / "capture.json").read_text())
     p = meta["tent_poses"][scene]
     pose = TentPose(yaw_rad=p["yaw_rad"], x_cm=p["x_cm"], z_cm=p["z_cm"])
-    imgs = [cv2.imread(str(capture / "scenes" / scene / f"{n}.png"), cv2.IMREAD_GRAYSCALE) for n in (a, b)]
+    imgs = [cv2.imread(str(capture / "scenes" / scene / f"{n}.png"), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION) for n in (a, b)]
     (ka, da), (kb, db) = (sift.detectAndCompute(im, None) for im in imgs)
     pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(da, db, k=2)
     good = [m for m, n in (p for p in pairs if len(p) == 2) if m.distance < 0.8 * n.distance]
@@ -116,7 +116,7 @@ def feature_stats(capture: Path, sift) -> None:
             names = sorted(gt.of_type(ctype))
             counts, fracs = [], []
             for n in names:
-                img = cv2.imread(str(capture / "scenes" / scene / f"{n}.png"), cv2.IMREAD_GRAYSCALE)
+                img = cv2.imread(str(capture / "scenes" / scene / f"{n}.png"), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
                 counts.append(len(sift.detect(img)))
                 fracs.append(tent_fraction(CameraRays(gt.cameras[n]), pose))
             counts, fracs = np.array(counts), np.array(fracs)

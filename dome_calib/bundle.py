@@ -8,6 +8,7 @@ Conventions: world = Panoptic frame (origin at the floor centre, y down, cm); ``
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -20,6 +21,27 @@ class CameraType(StrEnum):
     VGA = "vga"
     HD = "hd"
     KINECT_COLOR = "kinect-color"
+
+
+#: A Panoptic camera name: VGA ``01_01``..``20_24`` (panel_camera), HD ``00_00``..``00_30``, Kinect colour
+#: ``50_01``..``50_10``.
+CAMERA_NAME = re.compile(r"(?:(?:0[1-9]|1\d|20)_(?:0[1-9]|1\d|2[0-4]))|(?:00_(?:[0-2]\d|30))|(?:50_(?:0[1-9]|10))")
+CAMERA_NAMES_HELP = "VGA 01_01..20_24 (panel_camera), HD 00_00..00_30, Kinect colour 50_01..50_10"
+
+
+#: A Kinect sensor's node name, ``KINECTNODE1``..``KINECTNODE10``; its colour camera is ``50_<nn>``.
+KINECT_NODE_NAME = re.compile(r"KINECTNODE([1-9]|10)")
+
+
+def kinect_node_camera(node: str) -> str | None:
+    """``KINECTNODE3`` -> ``50_03`` (its colour camera); None when ``node`` is not a Kinect node name."""
+    match = KINECT_NODE_NAME.fullmatch(node)
+    return f"50_{int(match.group(1)):02d}" if match else None
+
+
+def is_camera_name(name: str) -> bool:
+    """Whether ``name`` is a Panoptic camera name (:data:`CAMERA_NAME`)."""
+    return CAMERA_NAME.fullmatch(name) is not None
 
 
 def camera_type_from_name(name: str) -> CameraType:

@@ -18,6 +18,7 @@ from pathlib import Path
 from dome_calib import panoptic_io as pio
 from dome_calib.bundle import Bundle, SyncTables
 from dome_calib.errors import BundleFormatError, DomeCalibError
+from dome_calib.io_utils import check_writable
 
 logger = logging.getLogger(__name__)
 
@@ -168,6 +169,7 @@ def check_output_folder(out: Path) -> str | None:
     out = Path(out)
     if out.is_symlink() or (out.exists() and not out.is_dir()):
         raise DomeCalibError(f"{out}: the output is {_kind(out)}, not a folder; give a new or bundle folder")
+    check_writable(out)  # it is replaced whole, beside itself: before the work, not after it
     if not out.exists():
         return None
     found = sorted(out.glob("calibration_*.json"))

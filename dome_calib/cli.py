@@ -101,9 +101,9 @@ def compare(
     """Per-camera centre, rotation, focal and distortion errors of BUNDLE against GROUND_TRUTH, after a
     similarity alignment on the camera centres."""
     from dome_calib.bundle_io import load_bundle
-    from dome_calib.compare import compare_cameras, format_comparison
+    from dome_calib.compare import compare_bundles, format_comparison
 
-    cmp = compare_cameras(load_bundle(bundle).cameras, load_bundle(ground_truth).cameras)
+    cmp = compare_bundles(load_bundle(bundle), load_bundle(ground_truth), reference_source=str(ground_truth))
     typer.echo(json.dumps(cmp.as_dict(), indent=1) if json_out else format_comparison(cmp))
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 
 from dome_calib.errors import DomeCalibError
+from dome_calib.io_utils import check_writable, refuse_output_among_inputs
 
 
 def _board(spec: str, square_mm: float):
@@ -18,7 +19,7 @@ def _board(spec: str, square_mm: float):
         cols, rows = (int(v) for v in spec.lower().split("x"))
     except ValueError:
         raise DomeCalibError(f"--board {spec}: expected inner corners as COLSxROWS, e.g. 9x6") from None
-    if cols < 3 or rows < 3 or cols == rows or square_mm <= 0:
+    if cols < 3 or rows < 3 or cols == rows or not 0 < square_mm < float("inf"):  # NaN too
         raise DomeCalibError(f"--board {spec} --square-mm {square_mm:g}: need at least 3x3 inner corners, "
                              "different counts along the two sides, and a positive square size")
     return Checkerboard(cols=cols, rows=rows, square_mm=square_mm)
@@ -34,6 +35,13 @@ def format_sensor_line(summary: dict) -> list[str]:
              f"baseline {s['baseline_mm']:.1f} mm  {bias}"]
     lines += [f"    rejected frame {k}: {reason}" for k, reason in s["rejected"].items()]
     return lines
+
+
+def check_output_bundle(out: Path, inputs: list[Path]) -> None:
+    """Before the detection work: the bundle folder written into must not be an input's folder (or hold one) and
+    must be writable."""
+    refuse_output_among_inputs(out, inputs, whole_folder=True)
+    check_writable(out, into=True)
 
 
 def kinect(
@@ -58,6 +66,7 @@ def kinect(
 
     options = KinectCalibOptions(board=_board(board, square_mm), color_intrinsics=ColorIntrinsics.ESTIMATE
                                  if estimate_color_intrinsics else ColorIntrinsics.BUNDLE)
+    check_output_bundle(out or bundle, [kinect_folder])
     dome = load_bundle(bundle)
     total = sum(len(f.indices) for f in find_sensor_frames(kinect_folder).values())
     columns = (TextColumn("detecting boards"), BarColumn(), MofNCompleteColumn(), TextColumn("frame pairs"),

@@ -40,6 +40,12 @@ def triangulate(
                f"cameras) -> {summary.out}")
 
 
+def exact_ms(time_ms: float) -> str:
+    """A time for a file name, exact (two times, two names): 36001040 -> '36001040', 0.5 -> '0.5' (shortest
+    round trip), never ``{:g}``'s six digits (36001000 and 36001040 both '3.6001e+07')."""
+    return str(int(time_ms)) if float(time_ms).is_integer() else repr(float(time_ms))
+
+
 def pointcloud(
     bundle: Path = typer.Option(..., "--bundle", help="Calibration bundle folder (needs kcalibration_<seq>.json and "
                                 "ksynctables_<seq>.json).", show_default=False),
@@ -58,7 +64,7 @@ def pointcloud(
 
     from dome_calib.recon.commands import pointcloud_file
 
-    out = out or Path(f"pointcloud_{time_ms:g}ms.ply")
+    out = out or Path(f"pointcloud_{exact_ms(time_ms)}ms.ply")
     columns = (TextColumn("depth to world"), BarColumn(), MofNCompleteColumn(), TextColumn("Kinects"),
                TimeElapsedColumn())
     with Progress(*columns, transient=True) as bar:

@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 
 from dome_calib.errors import DomeCalibError
+from dome_calib.io_utils import check_writable
 
 
 def synth(
@@ -47,6 +48,7 @@ def synth(
         raise DomeCalibError(f"--workers {workers}: expected at least 1")
     if out.exists() and not overwrite:  # before connecting to a cluster
         raise DomeCalibError(f"{out}: already exists (choose another folder or pass --overwrite)")
+    check_writable(out)
     columns = (TextColumn("rendering"), BarColumn(), MofNCompleteColumn(), TextColumn("images"), TimeElapsedColumn())
     cluster: dict = {}
     with open_executor(None, scheduler, cluster, workers=workers) as executor, \

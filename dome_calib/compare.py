@@ -16,8 +16,9 @@ import numpy as np
 
 from dome_calib.align import AlignOptions, align_cameras, transform_cameras
 from dome_calib.rotation import rotation_angle_deg
-from dome_calib.bundle import Camera, CameraType
+from dome_calib.bundle import Bundle, Camera, CameraType
 from dome_calib.camera import distort, pixels_to_normalized
+from dome_calib.layout import check_dome_scale
 
 logger = logging.getLogger(__name__)
 
@@ -117,6 +118,14 @@ def compare_cameras(estimate: dict[str, Camera], reference: dict[str, Camera],
     return Comparison(cameras=errors, scale=float(alignment.tgt_from_src.scale), align_inliers=len(alignment.inliers),
                       only_in_estimate=sorted(set(estimate) - set(reference)),
                       only_in_reference=sorted(set(reference) - set(estimate)))
+
+
+def compare_bundles(estimate: Bundle, reference: Bundle, *, reference_source: str = "GROUND_TRUTH") -> Comparison:
+    """:func:`compare_cameras` of two bundles read from files, the reference first checked to be a dome in
+    centimetres (:func:`dome_calib.layout.check_dome_scale`): its unit is the errors' unit, so a reference in metres
+    would report metres as cm. The estimate may be in any frame and scale (the similarity takes it)."""
+    check_dome_scale(reference.cameras, reference_source)
+    return compare_cameras(estimate.cameras, reference.cameras)
 
 
 def format_comparison(cmp: Comparison, worst: int = 5) -> str:

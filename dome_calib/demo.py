@@ -23,6 +23,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.compare import Comparison, compare_cameras
 from dome_calib.errors import DomeCalibError
+from dome_calib.io_utils import check_writable
 from dome_calib.pipeline import CalibrationResult, format_result
 from dome_calib.session import SessionOptions, SessionResult, run_session
 from dome_calib.synth.product_eval import evaluate
@@ -98,6 +99,7 @@ def run_demo(out: Path, options: DemoOptions | None = None) -> DemoResult:
     if scenes < 1:
         raise DomeCalibError(f"--scenes {scenes}: need at least one tent position")
     out = Path(out)
+    check_writable(out)  # before the synthesis and the calibration
     session = out / "session"
     synth_s = synthesize(session, options.preset, scenes, options.seed, options.progress)
     result = run_session(session, out / "bundle", SessionOptions(seq="demo", progress=options.progress),

@@ -2,10 +2,15 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import errno
+import importlib
 import logging
+import math
 import os
 import signal
 import sys
+import threading
 from collections.abc import Callable, Iterator
 
 logger = logging.getLogger("dome_calib")
@@ -43,12 +48,30 @@ def _terminate_as_interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
+#: Libraries whose import installs C-level signal handlers over Python's (pycolmap: glog's failure handler, which
+#: prints a C stack and kills the process on SIGTERM): imported first inside the block, then ours put back over
+HANDLER_REPLACING_IMPORTS = ("pycolmap",)
+_active = 0  # interrupt_as_one_line blocks open
+
+
+def restore_interrupt_handler() -> None:
+    """Inside :func:`interrupt_as_one_line`: put its SIGTERM handler back (a library loaded since may have replaced
+    it at the C level, where ``signal.getsignal`` does not see it). Call before long work; a no-op outside."""
+    if _active and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+
+
 @contextlib.contextmanager
 def interrupt_as_one_line(prog: str) -> Iterator[None]:
     """SIGINT or SIGTERM inside the block: one line on stderr ("interrupted during STAGE; rerun the same command
     to resume" when a pipeline stage was running), exit code 130, no traceback (``DOME_CALIB_DEBUG=1``: raise)."""
+    global _active
     previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+    _active += 1
     try:
+        for name in HANDLER_REPLACING_IMPORTS:  # their handlers first, ours over them
+            importlib.import_module(name)
+        restore_interrupt_handler()
         yield
     except KeyboardInterrupt as exc:
         if os.environ.get("DOME_CALIB_DEBUG"):
@@ -57,7 +80,41 @@ def interrupt_as_one_line(prog: str) -> Iterator[None]:
         print(f"{prog}: interrupted{where}; rerun the same command to resume", file=sys.stderr)
         sys.exit(EXIT_INTERRUPTED)
     finally:
+        _active -= 1
         signal.signal(signal.SIGTERM, previous)
+
+
+def non_finite_fields(options: object) -> list[str]:
+    """``name=value`` of the float fields of a dataclass ``options`` that are NaN or infinite (a ``<`` or ``<=``
+    bound check lets NaN through: every comparison with it is false)."""
+    return [f"{f.name}={getattr(options, f.name)}" for f in dataclasses.fields(options)
+            if isinstance(getattr(options, f.name), float) and not math.isfinite(getattr(options, f.name))]
+
+
+def require_finite(error: type[Exception], **values: float | None) -> None:
+    """``error`` naming the first of ``values`` (option name -> number, None skipped) that is NaN or infinite."""
+    for name, value in values.items():
+        if value is not None and not math.isfinite(value):
+            raise error(f"{name} {value}: expected a finite number")
+
+
+#: errno values of a write the disk or folder refused: full, over quota, read-only, not permitted.
+STORAGE_ERRNOS = {errno.ENOSPC: "no space left on the disk", errno.EDQUOT: "disk quota exceeded",
+                  errno.EROFS: "read-only file system", errno.EACCES: "permission denied"}
+#: The same, as SQLite (pycolmap's database, sqlite3) and C++ libraries say it in a RuntimeError's text.
+_STORAGE_TEXTS = {"database or disk is full": "no space left on the disk",
+                  "no space left on device": "no space left on the disk",
+                  "disk quota exceeded": "disk quota exceeded",
+                  "attempt to write a readonly database": "read-only file system"}
+
+
+def storage_failure(exc: BaseException) -> str | None:
+    """What the disk refused (e.g. "no space left on the disk") when ``exc`` is a failed write, else None: an
+    OSError with a STORAGE_ERRNOS errno, or any exception whose text is SQLite's or the C library's for it."""
+    if isinstance(exc, OSError) and exc.errno in STORAGE_ERRNOS:
+        return STORAGE_ERRNOS[exc.errno]
+    text = str(exc).lower()
+    return next((why for key, why in _STORAGE_TEXTS.items() if key in text), None)
 
 
 def run_cli(app: Callable[..., object], *, prog: str, user_errors: tuple[type[BaseException], ...] = ()) -> None:
@@ -76,4 +133,10 @@ def run_cli(app: Callable[..., object], *, prog: str, user_errors: tuple[type[Ba
         if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
             msg = f"{exc.filename}: {msg}"
         print(f"{prog}: error: {msg}", file=sys.stderr)
+        sys.exit(1)
+    except Exception as exc:  # a write the disk refused, as a library reports it (RuntimeError, sqlite3 error)
+        why = storage_failure(exc)
+        if why is None or os.environ.get("DOME_CALIB_DEBUG"):
+            raise
+        print(f"{prog}: error: {why} ({str(exc).splitlines()[0]}); free space or write elsewhere", file=sys.stderr)
         sys.exit(1)

@@ -14,6 +14,7 @@ import multiprocessing
 import os
 import signal
 import threading
+import time
 from collections.abc import Callable, Hashable, Iterable, Iterator, Sequence
 from typing import Any, Protocol, TypeVar, runtime_checkable
 
@@ -97,10 +98,24 @@ class SerialExecutor:
         self.shutdown()
 
 
+#: Seconds between a worker's checks that the process that started it is still there.
+PARENT_POLL_S = 0.5
+
+
+def _exit_when_orphaned(parent_pid: int) -> None:
+    """A worker's watchdog: when its parent is gone (SIGKILL, SIGHUP or SIGTERM ended it before it could stop its
+    pool), the worker is re-parented (its parent pid changes) and ends at once instead of running on for ever."""
+    while os.getppid() == parent_pid:
+        time.sleep(PARENT_POLL_S)
+    os._exit(1)
+
+
 def _worker_ignores_sigint() -> None:
     """Worker initializer: Ctrl-C reaches the whole process group; the parent alone handles it and stops the
-    workers (:meth:`LocalProcessExecutor.terminate`), so no worker prints a traceback."""
+    workers (:meth:`LocalProcessExecutor.terminate`), so no worker prints a traceback. A daemon thread ends the
+    worker when its parent dies (:func:`_exit_when_orphaned`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_exit_when_orphaned, args=(os.getppid(),), name="parent-watchdog", daemon=True).start()
 
 
 class LocalProcessExecutor:

@@ -20,6 +20,7 @@ import dataclasses
 import inspect
 import re
 import time
+from concurrent.futures import CancelledError
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
@@ -161,7 +162,7 @@ class DaskExecutor:
                 if in_flight >= limit:
                     break
             for fut in pending:
-                worker, seconds, result = fut.result()
+                worker, seconds, result = self._result(fut)
                 fut.release()
                 in_flight -= 1
                 stats.tasks += 1
@@ -181,12 +182,33 @@ class DaskExecutor:
             for fut in list(pending.futures):
                 fut.cancel()
 
+    def scheduler_gone(self, exc: BaseException) -> bool:
+        """Whether ``exc`` (from a future) means the connection to the scheduler is lost, not that a task failed:
+        the futures are cancelled, the comm closed, or the client no longer running."""
+        if isinstance(exc, (CancelledError, OSError, TimeoutError)) or "closing" in str(exc) or "closed" in str(exc):
+            return True
+        return getattr(self.client, "status", "running") not in ("running", "connecting")
+
+    def _result(self, fut):
+        """``fut.result()``; a lost scheduler becomes one line naming it (a task's own error passes through)."""
+        try:
+            return fut.result()
+        except Exception as exc:
+            if not self.scheduler_gone(exc):
+                raise
+            raise DomeCalibError(f"the scheduler at {self.address} went away during the run ({type(exc).__name__}"
+                                 f"{': ' + str(exc).splitlines()[0] if str(exc) else ''}); restart it and its "
+                                 "workers, then rerun the same command to resume") from None
+
     def stats_dict(self) -> dict:
         return {"scheduler": self.address, "stages": {k: v.as_dict() for k, v in sorted(self.stats.items())}}
 
     def shutdown(self) -> None:
         if self._own:
-            self.client.close(timeout=CONNECT_TIMEOUT_S)
+            try:
+                self.client.close(timeout=CONNECT_TIMEOUT_S)
+            except (OSError, TimeoutError, RuntimeError):  # the scheduler is gone: nothing left to close
+                pass
 
     def __enter__(self) -> DaskExecutor:
         return self

@@ -12,7 +12,7 @@ import os
 import shutil
 import stat
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from dome_calib.errors import DomeCalibError
@@ -40,10 +40,12 @@ def output_file(path: str | os.PathLike[str]) -> Path:
     try:
         mode = target.stat().st_mode
     except FileNotFoundError:
+        check_writable(target)
         return target
     if not stat.S_ISREG(mode):
         raise OutputPathError(f"{given}: is {_kind(mode)}, not a file; outputs are written whole and renamed into "
                               "place, so give a file path")
+    check_writable(target)
     return target
 
 
@@ -54,9 +56,11 @@ def output_folder(path: str | os.PathLike[str]) -> Path:
     try:
         mode = target.stat().st_mode
     except FileNotFoundError:
+        check_writable(target)
         return target
     if not stat.S_ISDIR(mode):
         raise OutputPathError(f"{given}: is {_kind(mode) if not stat.S_ISREG(mode) else 'a file'}, not a folder")
+    check_writable(target)
     return target
 
 
@@ -132,3 +136,48 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
     """Write ``data`` to ``path`` atomically."""
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet): not the same file
+        return False
+
+
+def refuse_output_among_inputs(output: str | os.PathLike[str], inputs: Iterable[str | os.PathLike[str]], *,
+                               option: str = "-o", whole_folder: bool = False) -> None:
+    """OutputPathError when the output is one of the inputs (the same file or folder by any path, hard or symbolic
+    link: compared by device and inode), or, for an output folder replaced whole (``whole_folder``), one that holds
+    an input. Call it before anything is read or written."""
+    out = Path(output)
+    if not out.exists():
+        return
+    out_real = Path(os.path.realpath(out))
+    for given in inputs:
+        given = Path(given)
+        if _same(out, given):
+            raise OutputPathError(f"{option} {out}: is the input {given} (the same file); writing the output would "
+                                  "destroy it: give another output path")
+        if whole_folder and out.is_dir() and Path(os.path.realpath(given)).is_relative_to(out_real):
+            raise OutputPathError(f"{option} {out}: holds the input {given}; writing the output would replace it: "
+                                  "give another output folder")
+
+
+def check_writable(path: str | os.PathLike[str], *, into: bool = False) -> None:
+    """OutputPathError when the output ``path`` cannot be written, checked before any work: nothing can be created
+    in the folder it goes in (its nearest existing ancestor; ``into``: ``path`` itself when it is a folder that
+    files are written into), because the folder or its file system is read-only or not ours. Probed by creating
+    and removing a temporary folder there, so it holds for root and for read-only mounts alike."""
+    given = Path(path)
+    folder = Path(os.path.abspath(given))
+    if not (into and folder.is_dir()):
+        folder = folder.parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        probe = tempfile.mkdtemp(prefix=".write-probe.", dir=folder)
+    except OSError as exc:
+        raise OutputPathError(f"{given}: cannot write in {folder} ({exc.strerror or exc}); give an output in a "
+                              "folder you can write to") from None
+    os.rmdir(probe)

@@ -243,3 +243,27 @@ def nominal_dome(preset: Preset | str = Preset.FULL, seed: int = 0) -> Bundle:
                   calib_data_source=f"dome_calib.synth nominal dome, preset {Preset(preset)}, seed {seed}")
 
 
+
+
+#: A dome bundle's cameras sit on the design sphere: their median distance from the dome centre lies within this
+#: factor of DOME_RADIUS_CM. A bundle in metres (every other tool's unit) is 100 x too small, in mm 10 x too large.
+DOME_SCALE_TOLERANCE = 5.0
+
+
+def check_dome_scale(cameras: dict[str, Camera], source: str) -> None:
+    """DomeCalibError when the cameras cannot be a dome in centimetres: the median distance of their centres from
+    the world origin (the floor centre; a unit-free point, unlike the dome centre 140 cm above it) is more than
+    DOME_SCALE_TOLERANCE x off the design radius (a prior written in metres puts every camera ~2.7 "cm" from it).
+    Refused, not converted: the unit is a guess until the file says."""
+    if len(cameras) < 2:
+        return
+    centres = np.array([c.center_cm for c in cameras.values()])
+    median = float(np.median(np.linalg.norm(centres, axis=1)))
+    ratio = median / DOME_RADIUS_CM
+    if 1 / DOME_SCALE_TOLERANCE <= ratio <= DOME_SCALE_TOLERANCE:
+        return
+    unit = ("metres" if 0.002 < ratio < 0.05 else "millimetres" if 3 < ratio < 30 else "another unit or frame")
+    factor = "x 100" if unit == "metres" else "/ 10" if unit == "millimetres" else "into cm"
+    raise DomeCalibError(f"{source}: its camera centres lie {median:.4g} from the world origin (median) where a "
+                         f"dome in cm has about {DOME_RADIUS_CM:g}: t looks like {unit}; convert t {factor} (the Panoptic "
+                         "bundle is in centimetres) and give it again")

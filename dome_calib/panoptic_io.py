@@ -327,6 +327,8 @@ def format_kcalibration(kinect: KinectCalibration) -> str:
     """:class:`KinectCalibration` -> text of ``kcalibration_<seq>.json`` (Panoptic layout plus our convention)."""
     sensors = []
     for name, s in kinect.sensors.items():
+        if not KINECT_NODE.fullmatch(name):  # what read_kcalibration would refuse is never written
+            raise BundleFormatError(f"Kinect sensor {name!r}: not named KINECTNODE<n>; it would not read back")
         extra = dict(s.extra)
         tail = extra.pop("distCoeffs_depth_tail", [])
         sensors.append({
@@ -403,6 +405,9 @@ def format_synctables(streams: dict[str, SyncTable]) -> str:
 
 
 def format_ksynctables(color: dict[str, SyncTable], depth: dict[str, SyncTable]) -> str:
+    for node in [*color, *depth]:  # what read_ksynctables would refuse is never written
+        if not KINECT_NODE.fullmatch(node):
+            raise BundleFormatError(f"Kinect sync table {node!r}: not named KINECTNODE<n>; it would not read back")
     return dumps({"kinect": {
         "color": {n: _table_json(t) for n, t in color.items()},
         "depth": {n: _table_json(t) for n, t in depth.items()},

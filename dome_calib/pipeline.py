@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
 from functools import partial
 from pathlib import Path
 
@@ -27,6 +28,8 @@ from dome_calib.bundle import CameraType, camera_type_from_name
 from dome_calib.cluster import capture_nodes, cluster_section, format_cluster, open_executor, settle_cluster_stats
 from dome_calib.bundle_io import check_output_folder, load_bundle, recover_folder
 from dome_calib.errors import DomeCalibError
+from dome_calib.io_utils import refuse_output_among_inputs
+from dome_calib.layout import check_dome_scale
 from dome_calib.normalize import normalize
 from dome_calib.pipeline_finish import (CalibrateOptions, Calibrated, CalibrationInputs, CalibrationResult,
                                         capture_contents, finish)
@@ -55,19 +58,25 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
     cannot be fixed; ``out`` is untouched then. An interrupt raises :class:`dome_calib.errors.Interrupted`.
     """
     options = options or CalibrateOptions()
-    capture, out = Path(capture), Path(out)
+    # absolute: the paths in the tasks are read by pool or cluster workers whose working folder is not ours
+    capture, out = Path(os.path.abspath(capture)), Path(os.path.abspath(out))
     if out.is_symlink():  # as every -o: a symlink is followed, the folder it points to is replaced, the link stays
         out = out.resolve()
     scenes, expected = capture_contents(capture)
     if options.only_changed and options.prior is None:
         raise DomeCalibError("--only-changed needs --prior (the bundle the unchanged cameras are taken from)")
     check_output_folder(out)
+    refuse_output_among_inputs(out, [capture], whole_folder=True)  # replaced whole: it must not hold the capture
+    work = Path(os.path.abspath(options.work_dir)) if options.work_dir else out.with_name(out.name + ".work")
+    refuse_output_among_inputs(work, [capture, out, *([options.prior] if options.prior else [])], option="--work",
+                               whole_folder=True)  # a work folder of other inputs is emptied
     prior = load_bundle(options.prior) if options.prior is not None else None
     if options.previous is not None:  # the report compares with it at the end: refuse a bad one before the work
         load_bundle(options.previous)
+    if prior is not None:
+        check_dome_scale(prior.cameras, f"--prior {options.prior}")
     inputs = CalibrationInputs(capture=capture, out=out, seq=options.seq or capture.resolve().name, scenes=scenes,
                                expected=expected, prior=prior, options=options)
-    work = Path(options.work_dir) if options.work_dir else out.with_name(out.name + ".work")
     fingerprint = input_fingerprint(capture, scenes, expected, options.prior, {"only_changed": options.only_changed})
     with WorkState.open(work, fingerprint, progress=options.progress, labels=STAGE_LABELS) as state:
         recover_folder(out)

@@ -18,6 +18,7 @@ import numpy as np
 
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import bundle_files, check_output_folder, replace_folder, staging_folder, write_bundle
+from dome_calib.capture_checks import check_capture
 from dome_calib.compare import CameraChange, ChangeOptions, detect_changes
 from dome_calib.errors import CaptureError, DomeCalibError
 from dome_calib.normalize import Normalized, NormalizeOptions
@@ -121,13 +122,16 @@ def capture_contents(capture: Path) -> tuple[list[str], list[str]]:
     if meta_path.exists():
         try:
             meta = json.loads(meta_path.read_text(encoding="utf-8"))
-            return list(meta["scenes"]), list(meta["cameras"])
+            scenes, cams = list(meta["scenes"]), list(meta["cameras"])
         except (ValueError, KeyError, TypeError) as exc:
             raise CaptureError(f"{meta_path}: malformed ({exc})") from exc
+        check_capture(capture, scenes, cams, listed=True, local=not meta.get("nodes"))
+        return scenes, cams
     scenes = sorted(p.name for p in (capture / "scenes").glob("*") if p.is_dir())
     if not scenes:
         raise CaptureError(f"{capture}: no capture.json and no scenes/<scene>/ folders")
     cams = sorted({p.stem for s in scenes for p in (capture / "scenes" / s).glob("*.png")})
+    check_capture(capture, scenes, cams, listed=False)
     return scenes, cams
 
 

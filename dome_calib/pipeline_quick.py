@@ -37,6 +37,7 @@ from dome_calib.align import Alignment
 from dome_calib.ba.problem import ParamGroup, camera_to_params
 from dome_calib.bundle import Bundle, CameraType
 from dome_calib.compare import CameraChange, camera_error
+from dome_calib.errors import DomeCalibError
 from dome_calib.cluster import capture_nodes, cluster_section, open_executor, settle_cluster_stats
 from dome_calib.executor import Executor, make_executor
 from dome_calib.normalize import Normalized, WorldReference
@@ -102,6 +103,8 @@ class Suspects:
     unknown: list[str]  # cameras the prior does not know
     bad_pair_px: float  # Sampson distance above which a pair disagrees with the prior
     panels: list[int] = field(default_factory=list)  # VGA panels suspect as a whole (the pairs leaving them bad)
+    held_pair_px: float = float("nan")  # median Sampson distance (px) of the pairs of two non-suspects (nan: none)
+    held_cameras: int = 0  # cameras with a verified pair that are not suspects (the ones the quick path holds)
 
 
 @dataclass(kw_only=True)
@@ -181,8 +184,37 @@ def detect_suspects(matched: MatchedScene, prior: Bundle) -> Suspects:
                     panel, n_bad, 100 * fraction)
     logger.info("quick recalibration: %d suspect camera(s) (bad pair above %.2f px)", len(suspects),
                 verdict.bad_pair_px)
+    s = set(suspects)
+    held_errors = [e for (a, b), e in errors.items() if a not in s and b not in s]
     return Suspects(suspects=suspects, unknown=unknown, bad_pair_px=verdict.bad_pair_px,
-                    panels=sorted(verdict.changed_groups))
+                    panels=sorted(verdict.changed_groups),
+                    held_pair_px=float(np.median(held_errors)) if held_errors else float("nan"),
+                    held_cameras=len({n for pair in errors for n in pair} - s))
+
+
+#: The quick path holds every camera it does not suspect at the prior: the prior still holds when at least
+#: MIN_HELD_CAMERAS of them remain and their pairs agree with it to feature noise (a few tenths of a pixel; a
+#: dome whose cameras all moved 2 cm: 1-4 px).
+MIN_HELD_CAMERAS = 2
+MAX_HELD_PAIR_PX = 1.0
+
+
+class PriorNoLongerHolds(DomeCalibError):
+    """--only-changed with a prior that most of the dome no longer agrees with."""
+
+
+def check_prior_holds(det: Suspects, prior_source: str | Path, n_cameras: int) -> None:
+    """PriorNoLongerHolds (one line, "run a full calibration") when the cameras the quick path would hold at the
+    prior are too few or disagree with it themselves (MIN_HELD_CAMERAS, MAX_HELD_PAIR_PX)."""
+    if det.held_cameras < MIN_HELD_CAMERAS:
+        why = f"{len(det.suspects)} of {n_cameras} cameras disagree with it, {det.held_cameras} left to hold"
+    elif not det.held_pair_px <= MAX_HELD_PAIR_PX:
+        why = (f"even the {det.held_cameras} cameras that look unchanged disagree with it (median epipolar error "
+               f"{det.held_pair_px:.2f} px, feature noise is a few tenths)")
+    else:
+        return
+    raise PriorNoLongerHolds(f"--prior {prior_source}: no longer holds for this capture ({why}): too much changed for "
+                             "--only-changed; run a full calibration (without --only-changed)")
 
 
 def _image_sizes(database: str | Path) -> dict[str, tuple[int, int]]:
@@ -241,6 +273,10 @@ def reestimate(matched: MatchedScene, det: Suspects, prior: Bundle, work: Path, 
     database = str(matched.database)
     graph = verified_partners(database)
     partners = {p for n in suspects for p in graph.get(n, ())} - s  # unchanged cameras paired with a suspect
+    if len(partners) < MIN_HELD_CAMERAS:  # the known-pose triangulation needs two posed images
+        raise PriorNoLongerHolds(f"the suspects ({', '.join(suspects[:3])}{', ...' if len(suspects) > 3 else ''}) "
+                                 f"share verified pairs with {len(partners)} unchanged camera(s), need "
+                                 f"{MIN_HELD_CAMERAS}: run a full calibration (without --only-changed)")
     cameras = dict(prior.cameras)
     if det.unknown:
         sizes = _image_sizes(database)
@@ -323,6 +359,7 @@ def run_quick(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
         matched = state.run("match", partial(match_first_scene, inputs.capture, work, scene, prior, progress,
                                              executor=executor, cameras=cameras))
         det = state.run("detect", partial(detect_suspects, matched, prior))
+        check_prior_holds(det, inputs.options.prior, len(matched.cameras))
         extra = state.run("suspect_match", partial(match_suspects, matched, det, prior, inputs.capture, progress,
                                                    executor=executor))
     cluster = settle_cluster_stats(state.folder / "cluster.json", cluster,

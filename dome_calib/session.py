@@ -20,17 +20,19 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import soundfile as sf
 
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import (check_output_folder, load_bundle, recover_folder, replace_folder, staging_folder,
                                   write_bundle)
-from dome_calib.errors import CaptureError, DomeCalibError
-from dome_calib.io_utils import atomic_write_text
+from dome_calib.capture_checks import cross_check_kinects
+from dome_calib.errors import BundleFormatError, CaptureError, DomeCalibError
+from dome_calib.io_utils import atomic_write_text, refuse_output_among_inputs
 from dome_calib.kinect.calibrate import KinectCalibOptions, SensorCalibration, calibrate_kinect_folder
 from dome_calib.kinect.detect import find_sensor_frames
 from dome_calib.report.page import write_page
+from dome_calib.pipeline_finish import capture_contents
 from dome_calib.pipeline import CalibrateOptions, CalibrationResult, format_result, run_calibration
+from timecode.audio_io import AudioReader
 from timecode.errors import TimecodeError
 from timecode.sync.pipeline import sync_session, write_sync
 from timecode.sync.session import load_session
@@ -85,10 +87,11 @@ def _check_audio(loaded) -> None:
         if not path.is_file():
             raise CaptureError(f"{path}: audio file not found (session.json field '{field_name}')")
         try:
-            sf.info(str(path))
-        except (sf.LibsndfileError, RuntimeError) as exc:
+            with AudioReader(path):  # header and its last sample: a half-copied file fails here, not after calibrate
+                pass
+        except TimecodeError as exc:
             raise CaptureError(f"{path}: cannot read audio (session.json field '{field_name}': "
-                               f"{str(exc).splitlines()[0]})") from None
+                               f"{str(exc).removeprefix(f'{path}: ').splitlines()[0]})") from None
 
 
 def _kinect_pillar(results: list[SensorCalibration], bundle: Bundle) -> dict:
@@ -135,12 +138,15 @@ def run_session(session: Path, out: Path, options: SessionOptions | None = None,
     stage = on_stage or (lambda name: None)
     parts = session_parts(session)
     held_seq = check_output_folder(out)  # a bundle there is the report's previous calibration
+    refuse_output_among_inputs(out, [session], whole_folder=True)
     try:  # the sync description and its audio files are read (and refused) before the calibration
         loaded = load_session(parts["sync"])
     except TimecodeError as exc:
         raise DomeCalibError(str(exc)) from None  # the same one line, as a dome-calib error
     _check_audio(loaded)
-    find_sensor_frames(parts["kinect"])  # Kinect folders and pairing, likewise
+    kinect_nodes = find_sensor_frames(parts["kinect"])  # Kinect folders and pairing, likewise
+    cross_check_kinects(kinect_folder=parts["kinect"], nodes=list(kinect_nodes), sync_file=parts["sync"] / "session.json",
+                        synced=list(loaded.kinects), capture=parts["capture"], cameras=capture_contents(parts["capture"])[1])
     seq = options.seq or session.resolve().name
     work = out.with_name(out.name + ".work")
     seconds: dict[str, float] = {}
@@ -179,7 +185,10 @@ def run_session(session: Path, out: Path, options: SessionOptions | None = None,
         write_sync(synced, staging)
         atomic_write_text(staging / "report" / "session.json", json.dumps(report, indent=1) + "\n")
         write_page(staging / "report")  # the page again, now with the Kinect and sync sections
-        load_bundle(staging)  # what is swapped in reads back
+        try:
+            load_bundle(staging)  # what is swapped in reads back
+        except BundleFormatError as exc:  # name the output, not the staging folder removed below
+            raise BundleFormatError(f"{str(exc).replace(str(staging), str(out))} (nothing written to {out})") from None
         replace_folder(staging, out)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)

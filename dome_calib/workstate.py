@@ -16,6 +16,7 @@ the next run then finds the dead holder's record, warns, and takes the folder ov
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import hashlib
 import json
@@ -33,7 +34,7 @@ from typing import TypeVar
 from rich.console import Console
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-from dome_calib.errors import DomeCalibError, Interrupted
+from dome_calib.errors import DomeCalibError, Interrupted, restore_interrupt_handler, storage_failure
 from dome_calib.io_utils import atomic_path, atomic_write_text
 
 logger = logging.getLogger(__name__)
@@ -136,6 +137,27 @@ def _describe(holder: dict) -> str:
     return f"pid {holder['pid']} on {holder.get('host', '?')}, started {holder.get('started', '?')}"
 
 
+def _in_folder(exc: OSError, folder: Path) -> bool:
+    """Whether a failed file operation was in ``folder`` (a write the work folder's disk refused), or names no
+    file; a permission error on a file elsewhere is not the work folder's."""
+    if exc.errno == errno.EACCES:
+        return False
+    if not exc.filename:
+        return True
+    return os.path.abspath(str(exc.filename)).startswith(os.path.abspath(folder) + os.sep)
+
+
+def _refuse_foreign_folder(folder: Path) -> None:
+    """A work folder of other inputs is emptied: refuse a folder with content that no run made (no state.json and
+    no lock file), before anything in it is deleted."""
+    if not folder.is_dir() or (folder / STATE_FILE).exists() or (folder / LOCK_FILE).exists():
+        return
+    content = sorted(p.name for p in folder.iterdir())
+    if content:
+        raise DomeCalibError(f"--work {folder}: holds {', '.join(content[:3])}{', ...' if len(content) > 3 else ''}, "
+                             "not a work folder of an earlier run (it would be emptied); give a new or empty folder")
+
+
 class WorkState:
     """Finished stages and their timings for one run; use :meth:`open` (locks the folder)."""
 
@@ -155,6 +177,7 @@ class WorkState:
     def open(cls, folder: Path, fingerprint: dict, **kwargs) -> Iterator[WorkState]:
         """Lock the work folder, load or reset its state, and release the lock at the end."""
         state = cls(folder, fingerprint, **kwargs)
+        _refuse_foreign_folder(state.folder)
         state.folder.mkdir(parents=True, exist_ok=True)
         state._lock.acquire()
         try:
@@ -173,6 +196,9 @@ class WorkState:
                 logger.info("work folder %s was made for other inputs: starting over", self.folder)
                 self._empty()
             state = {"version": STATE_VERSION, "fingerprint": self.fingerprint, "stages": {}}
+            # on disk before the first stage starts: a stop inside it leaves work (SfM's databases) that a rerun
+            # with the same inputs recognises and resumes, instead of "made for other inputs: starting over"
+            atomic_write_text(self.path, json.dumps(state, indent=1))
         self.state = state
 
     def _empty(self) -> None:
@@ -206,12 +232,19 @@ class WorkState:
     def time(self, name: str, fn: Callable[[], T]) -> T:
         """``fn()`` timed as stage ``name`` (not kept); an interrupt names the stage (:class:`Interrupted`)."""
         self.current = name
+        restore_interrupt_handler()  # a library loaded during an earlier stage may have replaced it
         t0 = time.perf_counter()
         try:
             with _stage_status(f"{name}: {self.labels.get(name, name)}", self.progress):
                 value = fn()
         except KeyboardInterrupt as exc:
             raise Interrupted(name) from exc
+        except Exception as exc:
+            why = storage_failure(exc)
+            if why is None or (isinstance(exc, OSError) and not _in_folder(exc, self.folder)):
+                raise  # not a write to the work folder (an unreadable image, ...): run_cli names its own path
+            raise DomeCalibError(f"{self.folder}: {why} while stage {name} wrote its work; free space there or give "
+                                 "--work on another disk, then rerun the same command to resume") from exc
         self.seconds[name] = time.perf_counter() - t0
         self.current = None
         return value

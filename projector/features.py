@@ -121,7 +121,7 @@ def extract_image(task: tuple[str, str, FeatureOptions]) -> ImageResult:
     camera, path, options = task
     t0 = time.perf_counter()
     try:
-        image = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
+        image = cv2.imread(path, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)  # the sensor's pixels: no EXIF turn
     except cv2.error:
         image = None
     reason = check_image(image, options)

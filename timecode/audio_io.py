@@ -97,13 +97,41 @@ class AudioReader:
                              "for headerless files give --raw-format and --raw-rate") from None
         if self.info.frames == 0:
             raise AudioError(f"{self.path}: the file holds no audio samples")
+        if self._sf is not None:
+            self._check_end()
+
+    def _check_end(self) -> None:
+        """AudioError when the last sample the header promises cannot be read: a half-copied file (cut short, or a
+        header claiming more samples than the file holds). Seeking there is cheap; decoding would fail only at
+        the end, after the rest of the file (and, in a batch, of the other files) was decoded."""
+        n = self.info.frames
+        try:
+            self._sf.seek(n - 1)
+            got = len(self._sf.read(1, dtype="float32", always_2d=True))
+        except (sf.LibsndfileError, RuntimeError) as exc:
+            why = exc.error_string if isinstance(exc, sf.LibsndfileError) else str(exc)
+            got, detail = 0, f": {why.strip()}"
+        else:
+            detail = ""
+        if got < 1:
+            raise AudioError(f"{self.path}: cut short or damaged: its header promises {n} samples but sample {n - 1} "
+                             f"cannot be read{detail} (a half-copied file? copy it again)")
+        self._sf.seek(0)
 
     def read(self, start: int, stop: int) -> npt.NDArray[np.float32]:
         """Samples [start, stop) as float32, shape (n, channels)."""
         start, stop = max(0, start), min(self.info.frames, stop)
         if self._sf is not None:
-            self._sf.seek(start)
-            return self._sf.read(stop - start, dtype="float32", always_2d=True)
+            try:
+                self._sf.seek(start)
+                data = self._sf.read(stop - start, dtype="float32", always_2d=True)
+            except (sf.LibsndfileError, RuntimeError) as exc:
+                why = exc.error_string if isinstance(exc, sf.LibsndfileError) else str(exc)
+                raise AudioError(f"{self.path}: damaged: samples {start}..{stop} cannot be read ({why.strip()})") from None
+            if len(data) < stop - start:
+                raise AudioError(f"{self.path}: cut short: its header promises {self.info.frames} samples, reading "
+                                 f"stopped at sample {start + len(data)} (a half-copied file? copy it again)")
+            return data
         return to_float32(np.asarray(self._mm[start:stop]))
 
     def blocks(self, block: int, margin: int) -> Iterator[tuple[int, int, int, npt.NDArray[np.float32]]]:

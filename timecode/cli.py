@@ -47,10 +47,12 @@ def decode(
     its first edge in samples with sub-sample precision (start_samples; start_s = seconds). Several files or a
     folder make one table with a file column; a file that fails is one line on stderr, the others go on, and
     the exit code is then 1."""
-    from timecode.decode_command import raw_format as make_raw, run_decode
+    from timecode.decode_command import check_output, raw_format as make_raw, run_decode
 
-    result = run_decode([Path(f) for f in files], channel=channel, fps=fps, fmt=fmt,
-                        raw=make_raw(raw_format, raw_rate, raw_channels))
+    raw = make_raw(raw_format, raw_rate, raw_channels)
+    if output:
+        check_output(output, [Path(f) for f in files], raw)
+    result = run_decode([Path(f) for f in files], channel=channel, fps=fps, fmt=fmt, raw=raw)
     for line in result.warnings:
         print(f"timecode: warning: {line}", file=sys.stderr)
     for line in result.failures:

@@ -9,6 +9,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+from dome_calib.io_utils import output_file, refuse_output_among_inputs
 from timecode.audio_io import AudioReader, RawFormat, RawSampleFormat
 from timecode.decoder import DecodeOptions, RateMismatchError, decode_file
 from timecode.errors import NoLTCError, TimecodeError
@@ -83,6 +84,14 @@ def input_files(inputs: Sequence[Path], raw: RawFormat | None) -> tuple[list[Pat
         else:
             files.append(p)
     return files, len(inputs) > 1 or any(p.is_dir() for p in inputs)
+
+
+def check_output(output: str, inputs: Sequence[Path], raw: RawFormat | None) -> None:
+    """Before anything is read: ``-o`` must be a file that can be written and none of the inputs (the same file by
+    another path or a link; a folder's audio files count), else one line (OutputPathError)."""
+    output_file(output)
+    files, _ = input_files(inputs, raw)
+    refuse_output_among_inputs(output, [*inputs, *files])
 
 
 def run_decode(inputs: Sequence[Path], *, channel: str, fps: str, fmt: str, raw: RawFormat | None) -> BatchResult:

@@ -14,6 +14,7 @@ Example:
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 from collections.abc import Callable, Iterator, Sequence
@@ -27,6 +28,7 @@ from scipy.signal import resample_poly
 from timecode.assemble import RateMismatchError, decode_edges, pole_to_tau
 from timecode.audio_io import AudioReader, RawFormat, to_float32
 from timecode.droop import Droop
+from timecode.edge_store import EdgeStore, holds_sync_word
 from timecode.edges import block_droop, edge_params, find_edges
 from timecode.errors import TimecodeError
 from timecode.rates import FrameRate
@@ -109,7 +111,7 @@ def _decode(blocks, n_samples: int, n_channels: int, fs: int, opts: DecodeOption
     margin = 8 * stat
     droops: dict[int, Droop | None] = {c: (None if opts.ac_coupling else Droop(corner_hz=0.0, sample_rate=fs * up))
                                        for c in chans}
-    parts: dict[int, list[tuple[npt.NDArray, ...]]] = {c: [] for c in chans}
+    parts = {c: EdgeStore() for c in chans}  # a block's edges are dropped where no LTC is near (memory bound)
     poles: dict[int, list[float]] = {c: [] for c in chans}
     nonfinite = dict.fromkeys(chans, 0)
 
@@ -128,7 +130,8 @@ def _decode(blocks, n_samples: int, n_channels: int, fs: int, opts: DecodeOption
         be = find_edges(x, params, droops[c])
         t = be.t / up + d0
         keep = (t >= core0 - 0.5) & (t < core1 - 0.5)
-        parts[c].append((t[keep], be.rising[keep], be.amplitude[keep], be.impulse[keep]))
+        parts[c].add((t[keep], be.rising[keep], be.amplitude[keep], be.impulse[keep]),
+                     holds_sync_word(be.t, be.rising, fs * up))
         if be.impulse[keep].any():
             poles[c].append(be.pole ** (1.0 / up))
 
@@ -140,13 +143,12 @@ def _decode(blocks, n_samples: int, n_channels: int, fs: int, opts: DecodeOption
                 progress(core1, n_samples)
 
     def finish(c: int) -> ChannelDecode:
-        t, rising, amp, imp = ((np.concatenate(a) for a in zip(*parts[c])) if parts[c] else
-                               (np.zeros(0), np.zeros(0, bool), np.zeros(0, np.float32), np.zeros(0, bool)))
+        t, rising, amp, imp = parts[c].arrays()
         dr = droops[c]
-        return decode_edges(t, rising, amp, fs, impulse=imp, n_samples=n_samples, channel=c, rate=opts.rate,
+        return dataclasses.replace(decode_edges(t, rising, amp, fs, impulse=imp, n_samples=n_samples, channel=c, rate=opts.rate,
                             ac_coupling_hz=dr.corner_hz if dr is not None and dr.active else 0.0,
                             impulse_tau_samples=pole_to_tau(poles[c]), n_nonfinite=nonfinite[c],
-                            edge_margin_samples=(2 * params.sigma_samples + 2) / up)
+                            edge_margin_samples=(2 * params.sigma_samples + 2) / up), n_edges=parts[c].n_edges)
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
         return list(pool.map(finish, chans))

@@ -25,6 +25,7 @@ import numpy as np
 from dome_calib.bundle import Bundle, Camera, KinectCalibration, KinectSensor
 from dome_calib.camera import intr_to_K
 from dome_calib.errors import CaptureError
+from dome_calib.layout import check_dome_scale
 from dome_calib.kinect.board import Checkerboard
 from dome_calib.kinect.depth_bias import DepthBiasOptions, DepthBiasResult, fit_depth_bias
 from dome_calib.kinect.detect import (DetectOptions, SensorFrames, detect_board, find_sensor_frames, read_depth_mm,
@@ -189,6 +190,7 @@ def calibrate_kinect_folder(kinect_folder: str | Path, bundle: Bundle, opts: Kin
     Raises :class:`CaptureError` for a folder, sensor or frame that cannot be used (one line naming it).
     """
     opts = opts or KinectCalibOptions()
+    check_dome_scale(bundle.cameras, f"the dome bundle (calibration_{bundle.seq}.json)")  # metres would misplace them
     all_frames = find_sensor_frames(kinect_folder)
     for name in all_frames:
         if color_camera_name(name) not in bundle.cameras:

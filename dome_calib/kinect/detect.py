@@ -21,6 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from dome_calib.bundle import kinect_node_camera
 from dome_calib.errors import CaptureError
 from dome_calib.kinect.board import Checkerboard
 
@@ -63,7 +64,11 @@ def find_sensor_frames(kinect_folder: str | Path) -> dict[str, SensorFrames]:
     root = Path(kinect_folder)
     if not root.is_dir():
         raise CaptureError(f"{root}: not a folder")
-    nodes = sorted((p for p in root.iterdir() if p.is_dir() and re.fullmatch(r"KINECTNODE\d+", p.name)),
+    for p in sorted(root.iterdir()):
+        if p.is_dir() and p.name.upper().startswith("KINECT") and kinect_node_camera(p.name) is None:
+            raise CaptureError(f"{p}: not a Kinect node name (KINECTNODE1..KINECTNODE10, the sensor of colour camera "
+                               "50_01..50_10): rename the folder")
+    nodes = sorted((p for p in root.iterdir() if p.is_dir() and kinect_node_camera(p.name) is not None),
                    key=lambda p: int(p.name.removeprefix("KINECTNODE")))
     if not nodes:
         raise CaptureError(f"{root}: no KINECTNODE<n> folders (expected KINECTNODE1/ir_0000.png, ...)")

@@ -9,7 +9,10 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle_io import load_bundle
-from dome_calib.io_utils import output_file
+from dome_calib.errors import require_finite
+from dome_calib.layout import check_dome_scale
+from dome_calib.recon.errors import ReconError
+from dome_calib.io_utils import output_file, refuse_output_among_inputs
 from dome_calib.recon.depth import depth_folder_reader, pointcloud_at, write_ply
 from dome_calib.recon.formats import (check_output_folder, check_times, default_times, fps_type_of,
                                       load_detection_streams, write_skeletons)
@@ -40,6 +43,7 @@ def triangulate_file(bundle_folder: str | Path, detections: str | Path, out: str
     """
     check_output_folder(out)
     bundle = load_bundle(bundle_folder)
+    check_dome_scale(bundle.cameras, f"--bundle {bundle_folder}")
     streams, parsed = load_detection_streams(bundle, detections)
     if parsed["times_ms"] is not None:
         times = parsed["times_ms"]
@@ -73,8 +77,11 @@ def pointcloud_file(bundle_folder: str | Path, time_ms: float, depth_folder: str
                     max_offset_ms: float | None = None, correct_bias: bool = True,
                     progress: Callable[[int, int], None] | None = None) -> PointCloudSummary:
     """Depth frames nearest to ``time_ms`` of every Kinect -> one world point cloud PLY at ``out`` (checked first)."""
+    require_finite(ReconError, **{"--time-ms": time_ms, "--max-offset-ms": max_offset_ms})
     output_file(out)
+    refuse_output_among_inputs(out, [*Path(bundle_folder).glob("*"), *Path(depth_folder).glob("*/*")])
     bundle = load_bundle(bundle_folder)
+    check_dome_scale(bundle.cameras, f"--bundle {bundle_folder}")
     cloud = pointcloud_at(bundle, time_ms, depth_folder_reader(depth_folder), max_offset_ms=max_offset_ms,
                           correct_bias=correct_bias, progress=progress)
     write_ply(out, cloud)

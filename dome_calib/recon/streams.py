@@ -40,7 +40,7 @@ class InterpolationOptions:
 
     def __post_init__(self) -> None:
         self.mode = Interpolation(self.mode)
-        if self.max_gap_frames < 1.0:
+        if not 1.0 <= self.max_gap_frames < float("inf"):  # NaN and infinity too
             raise ReconError(f"max_gap_frames={self.max_gap_frames} but expected >= 1 (one frame period)")
 
 

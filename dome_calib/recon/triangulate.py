@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dome_calib.camera import MIN_DEPTH
+from dome_calib.errors import non_finite_fields
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.kernel import F32, CameraKernel, Evaluation, normal_equations
 from dome_calib.recon.project import ViewSet
@@ -56,6 +57,8 @@ class TriangulationOptions:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        if bad := non_finite_fields(self):
+            raise ReconError(f"{bad[0]} but expected a finite number")
         if self.inlier_threshold_px <= 0:
             raise ReconError(f"inlier_threshold_px={self.inlier_threshold_px} but expected > 0")
         if self.ransac_hypotheses < 1 or self.ransac_score_views < 2 or self.lm_iterations < 0:

@@ -9,11 +9,13 @@ from pathlib import Path
 import numpy as np
 import soundfile as sf
 
+from dome_calib.bundle import kinect_node_camera
 from dome_calib.bundle_io import bundle_seq, load_bundle, write_bundle
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.panoptic_io import format_ksynctables, format_synctables
 from timecode.errors import TimecodeError
 from timecode.rates import FrameRate
+from timecode.audio_io import AudioReader
 from timecode.decoder import DecodeOptions, decode_file, decode_samples
 from timecode.sync.clock import ClockError, FrameStarts
 from timecode.sync.report import sync_report
@@ -28,9 +30,10 @@ def _check_channel(path: Path, channel: int, field: str, file_field: str) -> Non
     if not path.is_file():
         raise SessionError(f"{path}: audio file not found (session.json field '{file_field}')")
     try:
-        n = sf.info(str(path)).channels
-    except (sf.LibsndfileError, RuntimeError) as exc:
-        raise SessionError(f"{path}: cannot read audio ({exc})") from None
+        with AudioReader(path) as reader:  # the header and its last sample: a half-copied file fails here
+            n = reader.info.channels
+    except TimecodeError as exc:
+        raise SessionError(f"{exc} (session.json field '{file_field}')") from None
     if channel >= n:
         raise SessionError(f"{path}: session.json field '{field}' = {channel} but the file has {n} channel(s) "
                            "(channels count from 0)")
@@ -44,7 +47,8 @@ def _decode(path: Path, channel: int, rate: FrameRate, source: str, start: int =
         if start == 0 and stop is None:
             (ch,) = decode_file(path, options=opts, channels=[channel])
         else:
-            data, fs = sf.read(str(path), start=start, stop=stop, dtype="float32", always_2d=True)
+            with AudioReader(path) as reader:  # a damaged or cut-short file: one line naming it
+                data, fs = reader.read(start, reader.info.frames if stop is None else stop), reader.info.sample_rate
             (ch,) = decode_samples(data[:, channel], fs, options=opts)
     except TimecodeError as exc:
         raise ClockError(f"{source}: {exc}") from None
@@ -142,6 +146,24 @@ def output_seq(bundle: str | Path, seq: str | None, session_seq: str) -> str:
     if seq is not None and seq != held:
         raise SyncError(f"{folder}: holds calibration_{held}.json; --seq {seq} differs (omit --seq to use {held!r})")
     return held
+
+
+def check_nodes_in_bundle(bundle: str | Path, session: Session) -> None:
+    """Before decoding: when ``bundle`` holds a calibration, every Kinect node of the session must be a Kinect of it
+    (its colour camera 50_<nn>, and a sensor of its kcalibration when it has one); SyncError naming the node."""
+    folder = Path(bundle)
+    if bundle_seq(folder) is None:
+        return
+    b = load_bundle(folder)
+    cameras = sorted(n for n in b.cameras if n.startswith("50_"))
+    for node in sorted(session.kinects):
+        camera = kinect_node_camera(node)
+        if camera not in b.cameras:
+            raise SyncError(f"{session.folder / 'session.json'}: field 'kinect.{node}': the bundle {folder} has no "
+                            f"colour camera {camera} (its Kinect cameras: {', '.join(cameras) or 'none'})")
+        if b.kinect is not None and node not in b.kinect.sensors:
+            raise SyncError(f"{session.folder / 'session.json'}: field 'kinect.{node}': not a sensor of the bundle's "
+                            f"kcalibration (it has {', '.join(b.kinect.sensors) or 'none'})")
 
 
 def write_sync(result: SyncResult, bundle: str | Path, *, seq: str | None = None) -> list[Path]:

@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from dome_calib.bundle import kinect_node_camera
 from dome_calib.io_utils import atomic_write_text
 from timecode.errors import TimecodeError
 from timecode.labels import LabelError, label_to_frames
@@ -260,6 +261,10 @@ def load_session(folder: str | Path) -> Session:
     kin_obj = w.get(data, "", "kinect", {})
     if not isinstance(kin_obj, dict):
         raise w.fail("kinect", "expected an object keyed by KINECTNODE<n>")
+    for n in kin_obj:
+        if kinect_node_camera(n) is None:  # a typo would sync no sensor, or write tables no reader accepts
+            raise w.fail(f"kinect.{n}", "not a Kinect node name (KINECTNODE1..KINECTNODE10, as the kinect/ folders "
+                                        "and the colour cameras 50_01..50_10 are numbered)")
     kinects = {n: _read_kinect(w, folder, n, o) for n, o in kin_obj.items()}
     return Session(folder=folder, seq=seq, ltc=ltc, streams=streams, kinects=kinects)
 

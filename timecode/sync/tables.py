@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dome_calib.bundle import SyncTable, SyncTables
+from dome_calib.errors import non_finite_fields
 from timecode.errors import TimecodeError
 from timecode.sync.clock import (ChannelClock, ClockError, ClockFitOptions, FrameStarts, LineFit, fit_channel_clock,
                                   restarts_of, robust_line)
@@ -42,6 +43,12 @@ class SyncOptions:
     device_outlier_floor_ms: float = 1.0  # ... never below this
     device_break_ms: float = 50.0  # a block whose timestamp step disagrees this much starts a new device segment
     strict_kinect: bool = False  # True: a Kinect that cannot be synced is an error; False: flagged and skipped
+
+    def __post_init__(self) -> None:
+        if bad := non_finite_fields(self):
+            raise SyncError(f"{bad[0]}: expected a finite number")
+        if self.max_extrapolation_s < 0:
+            raise SyncError(f"max extrapolation {self.max_extrapolation_s} s: expected >= 0")
 
 
 @dataclass(kw_only=True)
