@@ -1,0 +1,73 @@
+"""The file-level stage behind ``dome-calib reconstruct``: an OpenPose folder + a bundle -> body3DScene files."""
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dome_calib.bundle_io import load_bundle
+from dome_calib.recon.errors import ReconError
+from dome_calib.recon.formats import FPS_TYPE
+from dome_calib.recon.openpose_io import parse_camera_map, read_openpose_folder
+from dome_calib.recon.people import PeopleOptions, reconstruct_people_chunked
+from dome_calib.recon.people_io import camera_report, check_people_folder, write_people
+from dome_calib.recon.people_time import PeopleStream, people_streams
+from dome_calib.recon.project import view_set
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ReconstructSummary:
+    out: Path
+    times: int
+    cameras: int
+    body_model: str
+    reference: str
+    people: int
+    body_frames: int
+    flagged_cameras: list[str]
+    median_reprojection_px: float | None
+
+
+def reference_times(streams: list[PeopleStream], reference: str | None) -> tuple[np.ndarray, np.ndarray, str]:
+    """The times to reconstruct: the reference stream's frames that have detection files -> (times_ms, frame
+    numbers, stream). Reference: given, else "vga", else "hd", else the stream with most cameras."""
+    by_name = {s.stream: s for s in streams}
+    if reference is not None and reference not in by_name:
+        raise ReconError(f"reference stream {reference!r} has no detections (streams: {', '.join(sorted(by_name))})")
+    name = reference or next((n for n in ("vga", "hd") if n in by_name),
+                             max(streams, key=lambda s: (len(s.cameras), s.stream)).stream)
+    s = by_name[name]
+    return s.table.times_of(s.frame_index), s.frame_index, name
+
+
+def reconstruct_folder(detections: str | Path, bundle_folder: str | Path, out: str | Path, *,
+                       body_model: str | None = None, camera_map: str | dict[str, str] | None = None,
+                       reference: str | None = None, options: PeopleOptions | None = None, executor=None,
+                       progress: Callable[[int, int], None] | None = None) -> ReconstructSummary:
+    """Detections folder (OpenPose JSON per camera) + bundle -> ``out`` (body3DScene per time, cameras.json).
+
+    Everything is read and checked before any work, and ``out`` is written only at the end (staged, then renamed):
+    bad input leaves nothing behind.
+    """
+    options = options or PeopleOptions()
+    check_people_folder(out)
+    bundle = load_bundle(bundle_folder)
+    mapping = camera_map if isinstance(camera_map, dict) else parse_camera_map(camera_map)
+    det = read_openpose_folder(detections, body_model=body_model, camera_map=mapping, cameras=set(bundle.cameras))
+    streams = people_streams(bundle, det.people, det.files, shared_fps=options.shared_fps)
+    times, numbers, ref = reference_times(streams, reference)
+    names = [n for s in streams for n in s.cameras]
+    views = view_set(bundle, names)
+    seq = reconstruct_people_chunked(views, streams, times, options, executor=executor, progress=progress)
+    write_people(out, seq, numbers, FPS_TYPE.get(ref, "custom"))
+    report = camera_report(seq.cameras)
+    ids = {int(i) for b in seq.bodies for i in b.ids}
+    return ReconstructSummary(out=Path(out), times=len(times), cameras=len(names), body_model=det.body_model.value,
+                              reference=ref, people=len(ids), body_frames=sum(len(b.ids) for b in seq.bodies),
+                              flagged_cameras=report["flagged"],
+                              median_reprojection_px=report["median_reprojection_px"])
