@@ -14,6 +14,7 @@ joints: a camera that moved since calibration has a large median and a small sha
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -257,7 +258,11 @@ def reconstruct_people_chunked(views: ViewSet, streams: list[PeopleStream], time
     if len(t) <= step + options.overlap_times:
         return reconstruct_people(views, streams, t, options, progress=progress)
     starts = list(range(0, len(t), step))
-    tasks = [(i, views, streams, t[s: min(s + step + options.overlap_times, len(t))], options)
+    if len(t) - starts[-1] <= options.overlap_times:
+        starts.pop()  # the previous chunk's overlap already reaches the end
+    # Short tracks are dropped after stitching: a track cut by a chunk boundary is short only in its chunk.
+    chunk_options = dataclasses.replace(options, tracking=dataclasses.replace(options.tracking, min_track_frames=1))
+    tasks = [(i, views, streams, t[s: min(s + step + options.overlap_times, len(t))], chunk_options)
              for i, s in enumerate(starts)]
     results: dict[int, PeopleSequence] = {}
     runner = map if executor is None else executor.map
@@ -289,8 +294,27 @@ def reconstruct_people_chunked(views: ViewSet, streams: list[PeopleStream], time
                     next_id += 1
         next_id = max([next_id] + [v + 1 for v in id_map.values()])
         prev_map = id_map
-        own = seq.bodies[:step]
+        own = seq.bodies[:step] if i < len(starts) - 1 else seq.bodies
         bodies += [Bodies(X_cm=b.X_cm, confidence=b.confidence, n_inliers=b.n_inliers, n_views=b.n_views,
                           ids=np.array([id_map[int(x)] for x in b.ids], dtype=np.int64)) for b in own]
         agreement.add(seq.cameras)
-    return PeopleSequence(times_ms=t, bodies=bodies, cameras=agreement)
+    return PeopleSequence(times_ms=t, bodies=_drop_short(bodies, options.tracking.min_track_frames), cameras=agreement)
+
+
+def _drop_short(bodies: list[Bodies], min_frames: int) -> list[Bodies]:
+    """Bodies of tracks seen at fewer than ``min_frames`` times removed; ids renumbered 0, 1, ... in order of first
+    appearance (ids stay unique: a removed track's id is not given to anyone)."""
+    all_ids = np.concatenate([b.ids for b in bodies] + [np.zeros(0, np.int64)])
+    uniq, counts = np.unique(all_ids, return_counts=True)
+    keep = set(uniq[counts >= min_frames].tolist())
+    first = {}
+    for b in bodies:
+        for i in b.ids:
+            if int(i) in keep and int(i) not in first:
+                first[int(i)] = len(first)
+    out = []
+    for b in bodies:
+        k = np.array([int(i) in keep for i in b.ids], dtype=bool)
+        out.append(Bodies(X_cm=b.X_cm[k], confidence=b.confidence[k], n_inliers=b.n_inliers[k],
+                          n_views=b.n_views[k], ids=np.array([first[int(i)] for i in b.ids[k]], dtype=np.int64)))
+    return out

@@ -49,6 +49,8 @@ def greedy_match(cost: np.ndarray, gate: np.ndarray | float) -> np.ndarray:
     """
     c = np.round(np.where(cost < gate, cost, np.inf), 3)
     batch, (A, B) = c.shape[:-2], c.shape[-2:]
+    if A == 0 or B == 0:
+        return np.full((*batch, A), -1, dtype=np.int64)
     c = c.reshape(-1, A * B).copy()
     out = np.full((c.shape[0], A), -1, dtype=np.int64)
     rows = np.arange(c.shape[0])
