@@ -314,3 +314,37 @@ def test_bad_input():
         DetectorModel(swap_lr=1.5)
     with pytest.raises(DetectorError, match="naming 'x'"):
         write_openpose_folder("/nonexistent/never", {}, naming="x")
+
+
+def test_group_session_read_back_by_the_reconstruct_reader(tmp_path):
+    from dome_calib.recon.openpose_io import read_openpose_folder
+    from dome_calib.synth.group_session import GroupSessionOptions, make_group_session
+
+    bundle = real_bundle(n_vga=2, start_ms=0.0, duration_ms=4000.0)
+    cams = ["00_02", "00_07", "50_01", sorted(bundle.of_type("vga"))[0]]
+    options = GroupSessionOptions(group=GroupOptions(n_people=6, scenario="leave", start_ms=300.0,
+                                                     duration_ms=3000.0, seed=1),
+                                  detector=DetectorModel(seed=4), body_model="BODY_25B", cameras=cams)
+    truth = make_group_session(tmp_path / "group", bundle, options)
+    read = read_openpose_folder(tmp_path / "group" / "detections", body_model="BODY_25B", cameras=set(bundle.cameras))
+    det = synth_detections(bundle, truth, cameras=cams, univ_time_ms=(300.0, 3300.0), model=DetectorModel(seed=4))
+    assert sorted(read.people) == sorted(cams)
+    for cam in cams:
+        assert sorted(read.people[cam]) == sorted(det[cam])
+        for f, people in det[cam].items():  # the peer's reader rebuilds neck and body centre as midpoints
+            keep = [k for k in range(19) if k not in (0, 2)]
+            np.testing.assert_array_equal(read.people[cam][f][:, keep], people[:, keep])
+    doc = json.loads((tmp_path / "group" / "group_truth.json").read_text())
+    assert doc["reference_stream"] == "vga" and doc["units"] == "cm" and doc["roles"]["0"] == "leave"
+    vga = bundle.sync.streams["vga"]
+    frames = [fr["frame"] for fr in doc["frames"]]
+    np.testing.assert_allclose([fr["univ_time_ms"] for fr in doc["frames"]], vga.times_of(np.array(frames)),
+                               atol=1e-4)
+    X, present = truth.joints_cm(vga.times_of(np.array(frames)))
+    for k, fr in enumerate(doc["frames"]):
+        assert [b["id"] for b in fr["bodies"]] == [i for i in truth.ids if present[k, i]]
+        for b in fr["bodies"]:
+            np.testing.assert_allclose(b["joints19"], X[k, b["id"]], atol=1e-3)
+    listed = [{b["id"] for b in fr["bodies"]} for fr in doc["frames"]]
+    assert 0 in listed[0] and 0 not in listed[-1]  # the leaver leaves
+    assert 0 < doc["detector"]["miss_hidden"] < 1

@@ -244,7 +244,7 @@ def _draw_layout(roles: list[str], duration_ms: float, rng: np.random.Generator)
             spots.append((centre + radius * np.array([np.cos(a), np.sin(a)]), centre))
             centres.append(centre)
     spot_of = dict(zip(standing + ([] if slots == len(standing) else enterer), range(slots)))
-    leave_spot = None
+    leave_spot, left_ms = None, 0.0  # the leaver's place, and when the leaver is ~80 % of the way out
     for i in standing + enterer:
         role = roles[i]
         if role == "enter":
@@ -265,12 +265,13 @@ def _draw_layout(roles: list[str], duration_ms: float, rng: np.random.Generator)
             out_dir = xz / max(np.linalg.norm(xz), 1e-6) if np.linalg.norm(xz) > 20 else np.array([1.0, 0.0])
             out = out_dir * OUTSIDE_RADIUS_CM
             t0 = rng.uniform(0.1, 0.25) * D
-            kw.update(waypoints_ms=(t0, t0 + np.linalg.norm(out - xz) / 0.09),
-                      waypoints_cm=(tuple(xz), tuple(out)))
+            walk_ms = np.linalg.norm(out - xz) / 0.09
+            left_ms = t0 + 0.7 * walk_ms
+            kw.update(waypoints_ms=(t0, t0 + walk_ms), waypoints_cm=(tuple(xz), tuple(out)))
         else:  # enter: from outside, at an angle to the place's own direction, to the place
             az = np.arctan2(xz[1], xz[0]) + rng.choice([-1, 1]) * rng.uniform(0.5, 1.2)
             origin = OUTSIDE_RADIUS_CM * np.array([np.cos(az), np.sin(az)])
-            t1 = rng.uniform(0.8, 0.95) * D
+            t1 = max(rng.uniform(0.8, 0.95) * D, left_ms + rng.uniform(0.0, 500.0))  # arrives when the place is free
             kw.update(waypoints_ms=(t1 - np.linalg.norm(origin - xz) / 0.09, t1),
                       waypoints_cm=(tuple(origin), tuple(xz)))
         plans[i] = PersonPlan(**kw)
