@@ -110,8 +110,8 @@ def test_segment_distance_and_capsule_hit():
                              np.array([[20.0, 3, 0]]))[0] == pytest.approx(9.0)
     rad2 = rng.uniform(1, 900, size=(4000, 1))
     d1, d2v, r = q1 - p1, (q2 - p2)[:, None], (p1 - p2)[:, None]
-    hit = _capsule_hit(d1, np.sum(d1 * d1, -1), r, np.sum(r * r, -1), np.sum(d2v * r, -1), d2v,
-                       np.sum(d2v * d2v, -1), rad2)[:, 0]
+    hit = _capsule_hit(tuple(d1.T), np.sum(d1 * d1, -1), tuple(np.moveaxis(r, -1, 0)), np.sum(r * r, -1),
+                       np.sum(d2v * r, -1), tuple(np.moveaxis(d2v, -1, 0)), np.sum(d2v * d2v, -1), rad2)[:, 0]
     clear = np.abs(d2 - rad2[:, 0]) > 1e-6 * rad2[:, 0]
     assert np.array_equal(hit[clear], (d2 < rad2[:, 0])[clear])
 

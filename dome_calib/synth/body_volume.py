@@ -63,11 +63,14 @@ def segment_distance2(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.nda
     return np.einsum("ij,ij->i", diff, diff)
 
 
-def _capsule_hit(d1, a, r, rr, f, d2, e, rad2):
-    """Rays p1 + s d1 (s in [0, 1]; (n, 3), a = |d1|^2 (n,)) against capsules A + t d2 (r = p1 - A (n, K, 3),
-    rr = |r|^2, f = d2.r, e = |d2|^2, rad2 = radius^2 (n, K)): (n, K) bool, the segment enters the capsule."""
-    b = np.einsum("nkc,nc->nk", d2, d1)
-    c = np.einsum("nkc,nc->nk", r, d1)
+def _capsule_hit(d1: tuple[np.ndarray, ...], a: np.ndarray, r: tuple[np.ndarray, ...], rr: np.ndarray, f: np.ndarray,
+                 d2: tuple[np.ndarray, ...], e: np.ndarray, rad2: np.ndarray) -> np.ndarray:
+    """Segments p1 + s d1 (s in [0, 1]; d1 = (x, y, z) components (n,), a = |d1|^2 (n,)) against capsules
+    A + t d2 (t in [0, 1]; r = p1 - A as components (n, K), rr = |r|^2, f = d2.r; d2 components, e = |d2|^2,
+    rad2 = radius^2 (n, K)): (n, K) bool, the segment comes closer to the axis than the radius (Ericson's closest
+    points of two segments, with the products precomputed; components keep every array contiguous)."""
+    b = d2[0] * d1[0][:, None] + d2[1] * d1[1][:, None] + d2[2] * d1[2][:, None]
+    c = r[0] * d1[0][:, None] + r[1] * d1[1][:, None] + r[2] * d1[2][:, None]
     a = a[:, None]
     denom = a * e - b * b
     parallel = denom <= 1e-12 * a * e
@@ -123,7 +126,9 @@ def occluded_joints(cam_centres_cm: np.ndarray, X: np.ndarray, present: np.ndarr
     end = C[:, None] + ray * (1.0 - RAY_STOP_CM / np.maximum(length, RAY_STOP_CM + 1e-9))[..., None]
     d1_all = end - C[:, None]  # (V, M, 3)
     a_all = np.maximum(np.sum(d1_all * d1_all, -1), 1e-12)  # (V, M)
-    hidden = np.zeros((V, M), dtype=bool)
+    d1c = tuple(np.ascontiguousarray(d1_all[..., i]).ravel() for i in range(3))  # (V * M,) each
+    a_flat = a_all.ravel()
+    hidden = np.zeros(V * M, dtype=bool)
     for group in _GROUPS:  # upper and lower body: two tighter bounding spheres than one per person
         Ag, Bg, rad2 = A[:, group], B[:, group], rad[:, group] ** 2  # (Q, K, 3), (Q, K)
         K = len(group)
@@ -131,24 +136,27 @@ def occluded_joints(cam_centres_cm: np.ndarray, X: np.ndarray, present: np.ndarr
         centre = pts.mean(axis=1)  # (Q, 3)
         R = np.max(np.linalg.norm(pts - centre[:, None], axis=-1) + np.sqrt(np.concatenate([rad2, rad2], 1)), 1)
         w = centre[None] - C[:, None]  # (V, Q, 3)
-        dw = np.einsum("vmk,vqk->vmq", d1_all, w)  # (V, M, Q)
+        dw = np.matmul(d1_all, w.transpose(0, 2, 1))  # (V, M, Q)
         s = np.clip(dw / a_all[..., None], 0.0, 1.0)
         dist2 = np.sum(w * w, -1)[:, None] - 2 * s * dw + s * s * a_all[..., None]
         v_i, m_i, q_i = np.nonzero(dist2 < (R ** 2)[None, None])
-        # Per (view, capsule): r = C - A, its squared norm and its dot with the axis; per capsule: the axis.
+        # Per (view, capsule): r = C - A by component, its squared norm and its dot with the axis.
         d2 = Bg - Ag  # (Q, K, 3)
         e = np.sum(d2 * d2, -1)  # (Q, K)
         r = C[:, None, None] - Ag[None]  # (V, Q, K, 3)
-        f = np.einsum("vqkc,qkc->vqk", r, d2)
-        rr = np.sum(r * r, -1)
-        skip = inside[:, :, group]  # (M, Q, K)
+        f = np.einsum("vqkc,qkc->vqk", r, d2).reshape(V * Q, K)
+        rr = np.sum(r * r, -1).reshape(V * Q, K)
+        rc = tuple(np.ascontiguousarray(r[..., i]).reshape(V * Q, K) for i in range(3))
+        d2c = tuple(np.ascontiguousarray(d2[..., i]) for i in range(3))
+        skip = inside[:, :, group].reshape(M * Q, K)
         step = max(_CHUNK // K, 1)
         for lo in range(0, len(v_i), step):
             v, m, q = (x[lo:lo + step] for x in (v_i, m_i, q_i))
-            hit = _capsule_hit(d1_all[v, m], a_all[v, m], r[v, q], rr[v, q], f[v, q], d2[q], e[q], rad2[q])
-            hit &= ~skip[m, q]
-            h = np.any(hit, axis=1)
-            hidden[v[h], m[h]] = True
+            vm, vq = v * M + m, v * Q + q
+            hit = _capsule_hit(tuple(x[vm] for x in d1c), a_flat[vm], tuple(x[vq] for x in rc), rr[vq], f[vq],
+                               tuple(x[q] for x in d2c), e[q], rad2[q])
+            hit &= ~skip[m * Q + q]
+            hidden[vm[np.any(hit, axis=1)]] = True
     hidden = hidden.reshape(V, Q, 19)
     # Face joints facing away.
     h = head_centre_cm(Xp)  # (Q, 3)
