@@ -210,7 +210,7 @@ def roles_of(scenario: str, n_people: int) -> list[str]:
 def _draw_layout(roles: list[str], duration_ms: float, rng: np.random.Generator) -> list[PersonPlan]:
     D = duration_ms
     scale = rng.uniform(0.9, 1.1, len(roles))
-    gait = rng.uniform(0.0, 1111.0, len(roles))
+    gait = rng.uniform(0.0, 4000.0, len(roles))  # stride (1.1 s) and the slow arm gesture (4 s) out of step
     plans: dict[int, PersonPlan] = {}
     # Walkers: two rings, odd walkers the other way round on the outer ring; the first two meet mid-way.
     walkers = [i for i, r in enumerate(roles) if r == "walk"]
