@@ -348,3 +348,38 @@ def test_group_session_read_back_by_the_reconstruct_reader(tmp_path):
     listed = [{b["id"] for b in fr["bodies"]} for fr in doc["frames"]]
     assert 0 in listed[0] and 0 not in listed[-1]  # the leaver leaves
     assert 0 < doc["detector"]["miss_hidden"] < 1
+
+
+def test_product_session_with_a_group(tmp_path, monkeypatch):
+    """The synthetic product session's group option: OpenPose folders of every synced colour camera and the truth,
+    within the span all streams cover (the tent capture stubbed as in conftest's small_product_session)."""
+    import dome_calib.synth.session as synth_session
+    from dome_calib.bundle_io import load_bundle, write_bundle
+    from dome_calib.recon.openpose_io import read_openpose_folder
+    from dome_calib.synth.capture import load_layout
+    from dome_calib.synth.group_session import session_span_ms
+
+    def stub_capture(out, options):
+        (out / "scenes" / "scene_01").mkdir(parents=True)
+        cams = load_layout(options)
+        (out / "capture.json").write_text(json.dumps({"preset": str(options.preset), "seed": options.seed,
+                                                      "scenes": ["scene_01"], "cameras": sorted(cams.cameras)}))
+        write_bundle(cams, out / "ground_truth")
+
+    monkeypatch.setattr(synth_session, "write_capture", stub_capture)
+    root = tmp_path / "sess"
+    synth_session.make_product_session(root, synth_session.SessionOptions(
+        duration_s=2.0, kinect_sensors=("KINECTNODE4",), kinect_good_frames=4, kinect_blurred_frames=0,
+        kinect_cut_off_frames=0, group_people=4))
+    truth_bundle = load_bundle(root / "ground_truth")
+    manifest = json.loads((root / "dome_session.json").read_text())
+    assert manifest["parts"]["group"] == "group" and manifest["options"]["group_people"] == 4
+    read = read_openpose_folder(root / "group" / "detections", body_model="BODY_25",
+                                cameras=set(truth_bundle.cameras))
+    colour = {n for n, c in truth_bundle.cameras.items() if c.type in ("vga", "hd")} | {"50_04"}
+    assert set(read.people) == colour
+    start, duration = session_span_ms(truth_bundle)
+    doc = json.loads((root / "group" / "group_truth.json").read_text())
+    times = [fr["univ_time_ms"] for fr in doc["frames"]]
+    assert start <= min(times) and max(times) <= start + duration and len(times) > 20
+    assert sum(len(p) for c in read.people.values() for p in c.values()) > 100

@@ -42,6 +42,19 @@ class GroupSessionOptions:
     cameras: list[str] | None = None
 
 
+def session_span_ms(bundle: Bundle, margin_ms: float = 100.0) -> tuple[float, float]:
+    """(start_ms, duration_ms): the universal times every colour stream of ``bundle`` covers (VGA, HD and each
+    Kinect colour camera's table), less ``margin_ms`` at both ends; DetectorError if they do not overlap."""
+    if bundle.sync is None:
+        raise DetectorError(f"bundle {bundle.seq}: no sync tables, so no span of universal time to fill")
+    tables = [*bundle.sync.streams.values(), *bundle.sync.kinect_color.values()]
+    start = max(float(t.univ_time_ms[0]) for t in tables if len(t.index)) + margin_ms
+    end = min(float(t.univ_time_ms[-1]) for t in tables if len(t.index)) - margin_ms
+    if end <= start:
+        raise DetectorError(f"bundle {bundle.seq}: the streams' sync tables share no span of universal time")
+    return start, end - start
+
+
 def truth_document(truth: GroupTruth, times_ms: np.ndarray, frames: np.ndarray, *, stream: str,
                    options: GroupOptions, counts: DetectionCounts | None = None) -> dict:
     """The ``group_truth.json`` document of ``truth`` at ``times_ms`` (frames: the reference stream's indices)."""
