@@ -174,16 +174,18 @@ def test_detector_rates_measured_on_the_output(scene):
     model = DetectorModel(noise_px=1.0, occluded_noise=1.0, miss_base=0.1, miss_occluded=0.5, miss_border=0.0,
                           swap_lr=0.2, swap_limb=0.0, neighbour_limb=0.0, false_people_per_view=0.3, seed=5)
     counts = DetectionCounts()
-    det = synth_detections(bundle, truth, cameras=cams, model=model, counts=counts)
+    det, who = synth_detections(bundle, truth, cameras=cams, model=model, counts=counts, with_ids=True)
     ref = _truth_in_images(bundle, truth, cams, det)
-    n_people = n_swapped = n_false = 0
+    n_people = n_swapped = n_false = agree = 0
     miss = {False: [0, 0], True: [0, 0]}  # hidden -> [missed, seen]
     z = []
     first_ids = []
     for key, people in ((k, v) for cam in cams for k, v in (((cam, f), d) for f, d in det[cam].items())):
         uv, seen, hidden, sigma = ref[key]
         ids = []
-        for person, (p, swapped) in zip(people, _assign(people, uv, seen)):
+        assert who[key[0]][key[1]].shape == (len(people),)
+        for person, (p, swapped), w in zip(people, _assign(people, uv, seen), who[key[0]][key[1]]):
+            agree += int(w == (truth.ids[p] if p >= 0 else -1))
             if p < 0:
                 n_false += 1
                 continue
@@ -204,6 +206,7 @@ def test_detector_rates_measured_on_the_output(scene):
             first_ids.append((ids[0] == min(ids), 1.0 / len(ids)))
     z = np.concatenate(z)
     assert n_people > 2500
+    assert agree >= 0.995 * (n_people + n_false)  # the true identities given with_ids are the matched ones
     assert abs(np.std(z) - 1.0) < 0.05 and abs(np.mean(z)) < 0.05  # the pixel noise model
     assert abs(n_swapped / n_people - 0.2) < 0.025
     # misses among the people detected (those with too few joints are not there: a slight bias down)

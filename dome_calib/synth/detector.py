@@ -186,13 +186,17 @@ def _stream_tables(bundle: Bundle, cameras: list[str], start_ms: float, end_ms: 
 
 def synth_detections(bundle: Bundle, truth: GroupTruth, *, cameras: list[str] | None = None,
                      univ_time_ms: tuple[float, float] | None = None, model: DetectorModel | None = None,
-                     counts: DetectionCounts | None = None) -> dict[str, dict[int, np.ndarray]]:
+                     counts: DetectionCounts | None = None, with_ids: bool = False
+                     ) -> dict[str, dict[int, np.ndarray]] | tuple[dict[str, dict[int, np.ndarray]],
+                                                                    dict[str, dict[int, np.ndarray]]]:
     """OpenPose-like detections of ``truth`` in each camera at its own stream's frame times.
 
     Args:
         cameras: VGA, HD or Kinect colour cameras of ``bundle`` (default: all of them).
         univ_time_ms: (start, end) universal times (ms); default the group's span.
         counts: filled with what the detector did (observed failure rates), if given.
+        with_ids: also return, in the same shape and order, each detection's true person id (``truth.ids``;
+            -1 = a false person), for oracles and benches (a detector gives no identity).
     Returns:
         camera name -> {that camera's own stream frame index (from the bundle's synctables / ksynctables, or
         :func:`shared_clock` when the bundle has none) -> (N, 19, 3) [x_px, y_px, confidence] in joints19 order
@@ -208,6 +212,8 @@ def synth_detections(bundle: Bundle, truth: GroupTruth, *, cameras: list[str] | 
     lo, hi = univ_time_ms if univ_time_ms is not None else (truth.start_ms, truth.start_ms + truth.duration_ms)
     height_cm = NOMINAL_HEIGHT_CM * np.array([p.scale for p in truth.plans])
     out: dict[str, dict[int, np.ndarray]] = {n: {} for n in names}
+    ids_out: dict[str, dict[int, np.ndarray]] = {n: {} for n in names}
+    person_ids = np.array(truth.ids, dtype=np.int64)
     for stream, (table, cams) in sorted(_stream_tables(bundle, names, lo, hi).items()):
         keep = (table.univ_time_ms >= lo) & (table.univ_time_ms <= hi)
         frames, times = table.index[keep], table.univ_time_ms[keep]
@@ -230,22 +236,24 @@ def synth_detections(bundle: Bundle, truth: GroupTruth, *, cameras: list[str] | 
             occ = np.stack([occluded_joints(vs.center_cm, Xf[k], pf[k]) for k in range(nf)])  # (nf, V, P, 19)
             h_px = vs.intr[None, :, 1:2] * height_cm[None, None] / np.maximum(depth, 1.0)
             images = [(cams[v], int(frames[f0 + k])) for k in range(nf) for v in range(V)]
-            dets, c = _detect(model, images, uv.reshape(-1, P, 19, 2), inside.reshape(-1, P, 19),
+            dets, who, c = _detect(model, images, uv.reshape(-1, P, 19, 2), inside.reshape(-1, P, 19),
                               front.reshape(-1, P, 19), occ.reshape(-1, P, 19),
                               np.repeat(pf, V, axis=0), h_px.reshape(-1, P),
                               np.tile(vs.resolution.astype(float), (nf, 1)))
-            for (cam, frame), d in zip(images, dets):
+            for (cam, frame), d, w in zip(images, dets, who):
                 out[cam][frame] = d
+                ids_out[cam][frame] = np.where(w >= 0, person_ids[np.maximum(w, 0)], -1)
             if counts is not None:
                 counts.add(c)
-    return out
+    return (out, ids_out) if with_ids else out
 
 
 def _detect(model: DetectorModel, images: list[tuple[str, int]], uv: np.ndarray, inside: np.ndarray,
             front: np.ndarray, occ: np.ndarray, present: np.ndarray, h_px: np.ndarray, wh: np.ndarray
-            ) -> tuple[list[np.ndarray], DetectionCounts]:
+            ) -> tuple[list[np.ndarray], list[np.ndarray], DetectionCounts]:
     """The detector on n images at once: uv (n, P, 19, 2), inside/front/occ (n, P, 19), present (n, P), h_px
-    (n, P) person heights, wh (n, 2) image sizes -> per image (N, 19, 3) detections (random order), counts."""
+    (n, P) person heights, wh (n, 2) image sizes -> per image (N, 19, 3) detections (random order), per image (N,)
+    person index (-1: false person), counts."""
     n, P = present.shape
     m = model
     FM = MAX_FALSE_PEOPLE
@@ -317,7 +325,9 @@ def _detect(model: DetectorModel, images: list[tuple[str, int]], uv: np.ndarray,
     rows[..., 2] = np.round(rows[..., 2], 4)
     keep_all = np.concatenate([keep, false_keep], 1)
     order = np.argsort(np.concatenate([u_p[..., 5], u_f[:, 1 + FM * 25:1 + FM * 26]], 1), axis=1, kind="stable")
-    dets = [rows[i, order[i][keep_all[i, order[i]]]] for i in range(n)]
+    picked = [order[i][keep_all[i, order[i]]] for i in range(n)]
+    dets = [rows[i, k] for i, k in enumerate(picked)]
+    who = [np.where(k < P, k, -1) for k in picked]  # person index, -1: false person
     not_hidden = cand & ~occ
     c = DetectionCounts(
         images=n, people_in_view=int(in_view.sum()), people_cut=int(cut.sum()), people_detected=int(keep.sum()),
@@ -329,7 +339,7 @@ def _detect(model: DetectorModel, images: list[tuple[str, int]], uv: np.ndarray,
         joints_border_detected=int((detected & not_hidden & (near_border > 0)).sum()),
         swaps_whole=int(whole.sum()), swaps_limb=int(limb_swap.sum()), neighbour_eligible=int(eligible.sum()),
         neighbour_limbs=int(borrow.sum()), false_people=int(false_keep.sum()))
-    return dets, c
+    return dets, who, c
 
 
 def _false_people(m: DetectorModel, u: np.ndarray, z: np.ndarray, wh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
