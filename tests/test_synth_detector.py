@@ -5,6 +5,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from dome_calib.bundle import Bundle
 from dome_calib.recon.body_models import JOINT_NAMES, to_joints19
@@ -386,3 +388,20 @@ def test_product_session_with_a_group(tmp_path, monkeypatch):
     times = [fr["univ_time_ms"] for fr in doc["frames"]]
     assert start <= min(times) and max(times) <= start + duration and len(times) > 20
     assert sum(len(p) for c in read.people.values() for p in c.values()) > 100
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(-300.0, 300.0, allow_nan=False), min_size=12, max_size=12))
+def test_segment_distance_properties(coords):
+    """Symmetric in the two segments, blind to their direction, never above any sampled pair's distance."""
+    p1, q1, p2, q2 = (np.array([coords[3 * k:3 * k + 3]]) for k in range(4))
+    if min(np.linalg.norm(q1 - p1), np.linalg.norm(q2 - p2)) < 1e-3:
+        return
+    d = segment_distance2(p1, q1, p2, q2)[0]
+    for other in (segment_distance2(p2, q2, p1, q1), segment_distance2(q1, p1, p2, q2),
+                  segment_distance2(p1, q1, q2, p2)):
+        assert other[0] == pytest.approx(d, rel=1e-6, abs=1e-6)
+    s = np.linspace(0.0, 1.0, 101)[:, None]
+    a, b = p1 + s * (q1 - p1), p2 + s * (q2 - p2)
+    dense = np.min(np.sum((a[:, None] - b[None]) ** 2, axis=-1))
+    assert d <= dense + 1e-6
