@@ -95,7 +95,7 @@ def test_select_pairs_bounded_and_spread():
     assert uses.max() <= int(np.ceil(2 * 120 / len(views.names))) + 1
     ax = views.R[:, 2]
     cos = np.abs((ax[pairs[:, 0]] * ax[pairs[:, 1]]).sum(1))
-    assert np.all(cos < np.cos(np.radians(15)))
+    assert np.all(cos < np.cos(np.radians(3)))
     np.testing.assert_array_equal(select_pairs(views, 120), pairs)  # deterministic
 
 

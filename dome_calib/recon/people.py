@@ -23,7 +23,7 @@ from fractions import Fraction
 import numpy as np
 
 from dome_calib.recon.kernel import CameraKernel
-from dome_calib.recon.people_assoc import AssociationOptions, assign, propose, select_pairs
+from dome_calib.recon.people_assoc import AssociationOptions, assign, propose, residual_pairs, select_pairs
 from dome_calib.recon.people_time import PeopleStream, interpolate_people
 from dome_calib.recon.project import ViewSet
 from dome_calib.recon.tracking import (TrackingOptions, skeleton_distance_cm, smooth_track, stitch_chunks,
@@ -128,8 +128,8 @@ def _triangulate_assigned(views: ViewSet, kp: np.ndarray, skeletons: list[np.nda
 
 
 def _dedupe(X: np.ndarray, n_inl: np.ndarray, duplicate_cm: float) -> np.ndarray:
-    """(P,) keep mask: of skeletons closer than ``duplicate_cm`` (mean joint distance) the best supported stays
-    (most inlier views; ties by order)."""
+    """(P,) keep mask: of skeletons closer than ``duplicate_cm`` (median joint distance) the best supported stays
+    (most inlier views, or joints for proposals; ties by order)."""
     P = len(X)
     keep = np.ones(P, bool)
     if P < 2:
@@ -143,16 +143,40 @@ def _dedupe(X: np.ndarray, n_inl: np.ndarray, duplicate_cm: float) -> np.ndarray
     return keep
 
 
+def _residual(views: ViewSet, kernel: CameraKernel, kp: np.ndarray, skeletons: np.ndarray, A: np.ndarray,
+              a: AssociationOptions) -> tuple[np.ndarray, np.ndarray]:
+    """Proposals from the detections that no proposal took (see :mod:`~dome_calib.recon.people_assoc`, step 4):
+    (V, P) assignment -> (V, P + P_new) and the (P + P_new, 19, 3) skeletons."""
+    V, N = kp.shape[:2]
+    taken = np.zeros((V, N), bool)
+    v, p = np.nonzero(A >= 0)
+    taken[v, A[v, p]] = True
+    left = ~taken & ((kp[..., 2] > a.min_joint_conf).sum(-1) >= a.min_common_joints)
+    has_left = left.any(1)
+    if has_left.sum() < a.min_person_views:
+        return A, skeletons
+    kp_left = np.where(left[..., None, None], kp, 0.0)
+    new = propose(views, kernel, kp_left, residual_pairs(views, has_left, a.max_pairs), a)
+    if len(new) == 0:
+        return A, skeletons
+    B = assign(kernel, new, kp_left, a)
+    keep = (B >= 0).sum(0) >= a.min_person_views
+    return np.concatenate([A, B[:, keep]], axis=1), np.concatenate([skeletons, new[keep]])
+
+
 def associate_batch(views: ViewSet, kernel: CameraKernel, pairs: np.ndarray, kp: np.ndarray,
                     options: PeopleOptions) -> tuple[list[Bodies], CameraAgreement]:
     """(T, V, N, 19, 3) people at T times -> the bodies of each time (ids -1) and the cameras' agreement."""
     a = options.association
     T, V = kp.shape[:2]
     skeletons = [propose(views, kernel, kp[t], pairs, a) for t in range(T)]
-    for _ in range(a.passes):
+    skeletons = [S[_dedupe(S, np.isfinite(S).all(-1), a.duplicate_cm)] for S in skeletons]
+    for n_pass in range(a.passes):
         assigned = []
         for t in range(T):
             A = assign(kernel, skeletons[t], kp[t], a)
+            if n_pass == 0:
+                A, skeletons[t] = _residual(views, kernel, kp[t], skeletons[t], A, a)
             A = A[:, (A >= 0).sum(0) >= a.min_person_views]
             assigned.append(A)
         tri, uv = _triangulate_assigned(views, kp, skeletons, assigned, options)

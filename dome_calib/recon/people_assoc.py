@@ -15,6 +15,10 @@ Method (linear in views; see docs/reconstruct.md for the measurements behind the
    ``assign_cap_cm``, so a swapped or borrowed limb costs a bounded amount); one-to-one per view by
    :func:`~dome_calib.recon.people_time.greedy_match` below ``assign_gate_cm``. Cost: V x N x proposals x 19.
 
+4. **Residual proposals.** Detections that no proposal took, in the views that have them, propose again over
+   pairs of those views only (a person seen by few views has few pairs among the sampled ones: this finds them;
+   the views with leftovers are few, so the cost stays small).
+
 The caller triangulates each proposal from its assigned detections with the robust
 :func:`~dome_calib.recon.triangulate.triangulate` (per-joint RANSAC removes swapped joints and borrowed limbs),
 then may assign again against the triangulated skeletons.
@@ -47,12 +51,13 @@ class AssociationOptions:
     bone_ratio: a hypothesis's median bone length / nominal adult length must lie in this range.
     min_person_views: a person needs this many assigned views (2 views always agree with each other).
     passes: assignment + triangulation rounds (the second assigns against the triangulated skeletons).
-    duplicate_cm: two people whose mean joint distance is below this are one (the one with more views stays).
+    duplicate_cm: two people whose median joint distance is below this are one (the one with more views stays);
+        people's centres are >= ~50 cm apart.
     """
 
-    max_pairs: int = 120
+    max_pairs: int = 48
     min_joint_conf: float = 0.05
-    min_common_joints: int = 5
+    min_common_joints: int = 4
     max_ray_gap_cm: float = 10.0
     cluster_radius_cm: float = 30.0
     assign_gate_cm: float = 12.0
@@ -61,7 +66,7 @@ class AssociationOptions:
     passes: int = 2
     min_cluster_weight: float = 15.0
     bone_ratio: tuple[float, float] = (0.6, 1.5)
-    duplicate_cm: float = 12.0
+    duplicate_cm: float = 25.0
 
     def __post_init__(self) -> None:
         if self.max_pairs < 1 or self.min_common_joints < 2 or self.passes < 1 or self.min_person_views < 2:
@@ -108,8 +113,8 @@ def nan_median(a: np.ndarray, axis: int) -> np.ndarray:
 
 def select_pairs(views: ViewSet, max_pairs: int) -> np.ndarray:
     """(Q, 2) view index pairs, Q <= max_pairs: axes closest to perpendicular first, each view in at most
-    ceil(2 max_pairs / V) + 1 pairs, ties by view names. Pairs with axes within 15 deg of (anti)parallel are never
-    taken."""
+    ceil(2 max_pairs / V) + 1 pairs, ties by view names. Pairs with axes within 3 deg of (anti)parallel are never
+    taken (a panel's own cameras, 5-15 deg apart, still pair up when nothing better is there)."""
     V = len(views.names)
     if V < 2:
         return np.zeros((0, 2), dtype=np.int64)
@@ -119,7 +124,7 @@ def select_pairs(views: ViewSet, max_pairs: int) -> np.ndarray:
     score = np.round(np.abs(np.degrees(np.arccos(cos)) - 90.0), 1)
     name_rank = np.argsort(np.argsort(np.array(views.names)))
     order = np.lexsort((name_rank[b], name_rank[a], score))
-    order = order[score[order] <= 75.0]
+    order = order[score[order] <= 87.0]  # not within 3 deg of (anti)parallel: no depth from those
     if len(order) <= max_pairs:
         return np.stack([a[order], b[order]], axis=1)
     limit = int(np.ceil(2 * max_pairs / V)) + 1
@@ -134,6 +139,15 @@ def select_pairs(views: ViewSet, max_pairs: int) -> np.ndarray:
                 break
     keep = np.array(keep, dtype=np.int64)
     return np.stack([a[keep], b[keep]], axis=1)
+
+
+def residual_pairs(views: ViewSet, has_left: np.ndarray, max_pairs: int) -> np.ndarray:
+    """View pairs (indices into ``views``) among the views whose ``has_left`` (V,) is set: the views that kept
+    detections no proposal took (:func:`select_pairs` on them, twice ``max_pairs``: they hold few detections)."""
+    idx = np.flatnonzero(has_left)
+    if len(idx) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    return idx[select_pairs(views.subset([views.names[i] for i in idx]), 2 * max_pairs)]
 
 
 def world_rays(views: ViewSet, kernel: CameraKernel, kp: np.ndarray) -> np.ndarray:

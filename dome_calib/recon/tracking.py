@@ -1,8 +1,8 @@
 """Identity over time: the same person keeps the same id; people enter and leave; an id is never reused.
 
 :func:`track_bodies` links the people of consecutive times by the Hungarian method
-(``scipy.optimize.linear_sum_assignment``) on the mean 3D joint distance between each track's predicted skeleton
-(constant velocity from its last two observations) and each body, gated. Tracks not seen for ``max_missed_ms``
+(``scipy.optimize.linear_sum_assignment``) on the median 3D joint distance between each track's predicted skeleton
+(the whole body at constant velocity from its last two observations) and each body, gated. Tracks not seen for ``max_missed_ms``
 end; tracks shorter than ``min_track_frames`` are dropped (a false body lasts a frame or two). Ids are given in
 order of first appearance (then creation order), once.
 
@@ -30,7 +30,7 @@ class TrackingOptions:
     ``gate_cm + gate_cm_per_s x elapsed``; max_missed_ms: a track unseen longer ends; min_track_frames: shorter
     tracks are dropped; smooth_half_window: half width (in observations) of the smoothing window, 0 = off."""
 
-    gate_cm: float = 30.0
+    gate_cm: float = 40.0
     gate_cm_per_s: float = 100.0
     max_missed_ms: float = 500.0
     min_track_frames: int = 3
@@ -42,12 +42,14 @@ class TrackingOptions:
 
 
 def skeleton_distance_cm(A: np.ndarray, B: np.ndarray, min_common: int = 3) -> np.ndarray:
-    """Mean distance over common joints of (P, 19, 3) and (Q, 19, 3) skeletons -> (P, Q) cm (inf if fewer than
-    ``min_common`` joints are in both)."""
+    """Median distance over common joints of (P, 19, 3) and (Q, 19, 3) skeletons -> (P, Q) cm (inf if fewer than
+    ``min_common`` joints are in both). The median: one wrong joint (a swapped or borrowed limb) does not move it."""
     d = np.linalg.norm(A[:, None] - B[None], axis=-1)  # (P, Q, 19), NaN where either lacks the joint
-    ok = np.isfinite(d)
-    n = ok.sum(-1)
-    return np.where(n >= min_common, np.where(ok, d, 0).sum(-1) / np.maximum(n, 1), np.inf)
+    n = np.isfinite(d).sum(-1)
+    s = np.sort(d, axis=-1)  # NaN last
+    lo = np.take_along_axis(s, np.maximum((n - 1) // 2, 0)[..., None], axis=-1)[..., 0]
+    hi = np.take_along_axis(s, np.maximum(n // 2, 0)[..., None], axis=-1)[..., 0]
+    return np.where(n >= min_common, 0.5 * (lo + hi), np.inf)
 
 
 def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
@@ -87,8 +89,10 @@ def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
                 continue
             dt = t - last_t[i]
             v = (X[c] - last_X[i]) / dt if dt > 0 else np.zeros((19, 3))
-            centre_v = np.nanmean(v, axis=0) if np.isfinite(v).any() else np.zeros(3)
-            vel[i] = np.where(np.isfinite(v), v, np.nan_to_num(centre_v))
+            # one velocity for the whole body (median over joints): a joint's own velocity from two noisy positions
+            # would throw the prediction off by the noise again at every step
+            have = np.isfinite(v).all(-1)
+            vel[i] = np.broadcast_to(np.median(v[have], axis=0) if have.any() else np.zeros(3), (19, 3)).copy()
             last_X[i] = np.where(np.isfinite(X[c]), X[c], last_X[i] + vel[i] * dt)
             last_t[i] = t
     n_tracks = len(last_X)
