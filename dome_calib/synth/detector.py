@@ -237,9 +237,8 @@ def synth_detections(bundle: Bundle, truth: GroupTruth, *, cameras: list[str] | 
             h_px = vs.intr[None, :, 1:2] * height_cm[None, None] / np.maximum(depth, 1.0)
             images = [(cams[v], int(frames[f0 + k])) for k in range(nf) for v in range(V)]
             dets, who, c = _detect(model, images, uv.reshape(-1, P, 19, 2), inside.reshape(-1, P, 19),
-                              front.reshape(-1, P, 19), occ.reshape(-1, P, 19),
-                              np.repeat(pf, V, axis=0), h_px.reshape(-1, P),
-                              np.tile(vs.resolution.astype(float), (nf, 1)))
+                                   front.reshape(-1, P, 19), occ.reshape(-1, P, 19), np.repeat(pf, V, axis=0),
+                                   h_px.reshape(-1, P), np.tile(vs.resolution.astype(float), (nf, 1)))
             for (cam, frame), d, w in zip(images, dets, who):
                 out[cam][frame] = d
                 ids_out[cam][frame] = np.where(w >= 0, person_ids[np.maximum(w, 0)], -1)
@@ -277,6 +276,7 @@ def _detect(model: DetectorModel, images: list[tuple[str, int]], uv: np.ndarray,
     near_border = np.clip(1.0 - d_border / max(m.miss_border_px, 1e-9), 0.0, 1.0) * (m.miss_border_px > 0)
     p_miss = 1.0 - (1.0 - m.miss_base) * (1.0 - occ * m.miss_occluded) * (1.0 - m.miss_border * near_border)
     detected = cand & (u_miss >= p_miss)
+    found = detected.copy()  # the detector's own misses, before a neighbour's limb replaces joints
     img_h = wh[:, 1][:, None]
     h_net = np.maximum(h_px * m.net_height_px / img_h, 1.0)  # (n, P)
     sigma = m.noise_px * (img_h / m.net_height_px) * (1.0 + m.noise_small_px / h_net)
@@ -333,10 +333,10 @@ def _detect(model: DetectorModel, images: list[tuple[str, int]], uv: np.ndarray,
         images=n, people_in_view=int(in_view.sum()), people_cut=int(cut.sum()), people_detected=int(keep.sum()),
         people_cut_detected=int((keep & cut).sum()),
         joints_visible=int((not_hidden & (near_border == 0)).sum()),
-        joints_visible_detected=int((detected & not_hidden & (near_border == 0)).sum()),
-        joints_hidden=int((cand & occ).sum()), joints_hidden_detected=int((detected & cand & occ).sum()),
+        joints_visible_detected=int((found & not_hidden & (near_border == 0)).sum()),
+        joints_hidden=int((cand & occ).sum()), joints_hidden_detected=int((found & cand & occ).sum()),
         joints_border=int((not_hidden & (near_border > 0)).sum()),
-        joints_border_detected=int((detected & not_hidden & (near_border > 0)).sum()),
+        joints_border_detected=int((found & not_hidden & (near_border > 0)).sum()),
         swaps_whole=int(whole.sum()), swaps_limb=int(limb_swap.sum()), neighbour_eligible=int(eligible.sum()),
         neighbour_limbs=int(borrow.sum()), false_people=int(false_keep.sum()))
     return dets, who, c
