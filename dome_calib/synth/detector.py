@@ -42,7 +42,7 @@ from dome_calib.recon.project import project_points, view_set
 from dome_calib.recon.streams import stream_of_camera
 from dome_calib.synth.body_volume import occluded_joints
 from dome_calib.synth.group import GroupTruth
-from dome_calib.synth.skeleton import MIRROR19
+from dome_calib.synth.skeleton import MIRROR19, walking_body_local_cm
 
 logger = logging.getLogger(__name__)
 
@@ -52,8 +52,6 @@ MAX_FALSE_PEOPLE = 3
 _LIMBS = np.array([[4, 5], [10, 11], [7, 8], [13, 14]])  # l arm, r arm, l leg, r leg: (middle, end)
 _SWAP_PAIRS = [np.array([4, 5, 10, 11]), np.array([7, 8, 13, 14])]  # arms' / legs' lower joints
 _CHAINS = [[0, 1, 15, 16, 17, 18], [3, 4, 5], [9, 10, 11], [6, 7, 8], [12, 13, 14], [0, 2, 3, 9, 6, 12]]
-#: A front view of the body (x right in the image, y down), height 1, centred: the false people's template.
-_TEMPLATE = None
 _DETECT_CHUNK_IMAGES = 4000
 
 
@@ -153,14 +151,15 @@ def image_rng(seed: int, camera: str, frame: int) -> np.random.Generator:
     return np.random.default_rng([int(seed), zlib.crc32(camera.encode("utf-8")), int(frame)])
 
 
-def _template() -> np.ndarray:
-    global _TEMPLATE
-    if _TEMPLATE is None:
-        from dome_calib.synth.skeleton import walking_body_local_cm
-        rest = walking_body_local_cm(np.zeros(1))[0][:, :2]
-        rest = rest - 0.5 * (rest.max(0) + rest.min(0))
-        _TEMPLATE = rest / np.ptp(rest[:, 1])
-    return _TEMPLATE
+def _front_template() -> np.ndarray:
+    """(19, 2) the walking body at rest seen from the front (x right in the image, y down), height 1, centred."""
+    rest = walking_body_local_cm(np.zeros(1))[0][:, :2]
+    rest = rest - 0.5 * (rest.max(0) + rest.min(0))
+    return rest / np.ptp(rest[:, 1])
+
+
+#: The false people's template (image x right, y down, height 1).
+_TEMPLATE = _front_template()
 
 
 def _stream_tables(bundle: Bundle, cameras: list[str], start_ms: float, end_ms: float
@@ -355,7 +354,7 @@ def _false_people(m: DetectorModel, u: np.ndarray, z: np.ndarray, wh: np.ndarray
     height = wh[:, 1][:, None] * (0.08 + 0.3 * g[..., 2])
     angle = (g[..., 3] - 0.5) * 0.6
     c, s = np.cos(angle), np.sin(angle)
-    T = _template()  # (19, 2)
+    T = _TEMPLATE  # (19, 2)
     px = (c[..., None] * T[:, 0] - s[..., None] * T[:, 1]) * height[..., None] + centre[..., 0:1]
     py = (s[..., None] * T[:, 0] + c[..., None] * T[:, 1]) * height[..., None] + centre[..., 1:2]
     xy = np.stack([px, py], -1) + 0.03 * height[..., None, None] * z
