@@ -79,7 +79,8 @@ def frame_of_file(path: Path) -> int:
     return int(match.group(1))
 
 
-def _people_of_file(path: Path, camera: str, frame: int, model: BodyModel | None) -> tuple[np.ndarray, BodyModel | None]:
+def _people_of_file(path: Path, camera: str, frame: int,
+                    model: BodyModel | None) -> tuple[np.ndarray, BodyModel | None]:
     """One OpenPose file -> ((N, J, 3) keypoints in the file's model order, the model: given or told by J)."""
     where = f"{path}: camera {camera}: frame {frame}"
     try:

@@ -2,10 +2,10 @@
 
 Per batch of universal times: every stream's people are brought to the times
 (:func:`~dome_calib.recon.people_time.interpolate_people`); at each time the people are proposed and each view's
-detections assigned to them (:mod:`dome_calib.recon.people_assoc`); all proposals of the batch are triangulated
-together by the robust :func:`~dome_calib.recon.triangulate.triangulate`; the triangulated skeletons are assigned
-again and re-triangulated (``passes``); duplicates merge. Then :func:`~dome_calib.recon.tracking.track_bodies`
-gives ids. :func:`reconstruct_people` runs one chunk of times in one process;
+detections assigned to them (:mod:`dome_calib.recon.people_assoc`); with ``passes`` = 2 the assigned detections
+are triangulated linearly (DLT) and assigned again against those skeletons; then all people of the batch are
+triangulated in one call of the robust :func:`~dome_calib.recon.triangulate.triangulate`; duplicates merge.
+Then :func:`~dome_calib.recon.tracking.track_bodies` gives ids. :func:`reconstruct_people` runs one chunk of times in one process;
 :func:`reconstruct_people_chunked` splits a long session into overlapping chunks on an executor and stitches ids.
 
 The per-camera agreement (:class:`CameraAgreement`) counts, per camera, the people it detected and the ones used
@@ -28,7 +28,8 @@ from dome_calib.recon.people_time import PeopleStream, interpolate_people
 from dome_calib.recon.project import ViewSet
 from dome_calib.recon.tracking import (TrackingOptions, skeleton_distance_cm, smooth_track, stitch_chunks,
                                       track_bodies)
-from dome_calib.recon.triangulate import TriangulationOptions, reprojection_error_px, triangulate
+from dome_calib.recon.triangulate import (TriangulationOptions, reprojection_error_px, triangulate, triangulate_dlt,
+                                         undistort_detections)
 
 logger = logging.getLogger(__name__)
 
@@ -111,11 +112,10 @@ def _gather_people(streams: list[PeopleStream], times: np.ndarray, max_gap_frame
     return np.concatenate([np.pad(p, ((0, 0), (0, 0), (0, N - p.shape[2]), (0, 0), (0, 0))) for p in parts], axis=1)
 
 
-def _triangulate_assigned(views: ViewSet, kp: np.ndarray, skeletons: list[np.ndarray], assigned: list[np.ndarray],
-                          options: PeopleOptions):
-    """Triangulate every proposal of every time of a batch from its assigned detections (one call)."""
+def _gather_assigned(kp: np.ndarray, assigned: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The assigned detections of every proposal of every time: uv (sum P * 19, V, 2) (NaN = none), conf."""
     uvs, confs = [], []
-    V = len(views.names)
+    V = kp.shape[1]
     for t, A in enumerate(assigned):
         det = kp[t][np.arange(V)[:, None], np.maximum(A, 0)]  # (V, P, 19, 3)
         det = np.where((A >= 0)[..., None, None], det, 0.0)
@@ -123,8 +123,17 @@ def _triangulate_assigned(views: ViewSet, kp: np.ndarray, skeletons: list[np.nda
         confs.append(det[..., 2].transpose(1, 2, 0))
     uv = np.concatenate(uvs).reshape(-1, V, 2) if uvs else np.zeros((0, V, 2))
     conf = np.concatenate(confs).reshape(-1, V).astype(float) if confs else np.zeros((0, V))
-    uv = np.where((conf > 0)[..., None], uv, np.nan)
-    return triangulate(views, uv, np.clip(conf, 0, 1), options.triangulation), uv
+    return np.where((conf > 0)[..., None], uv, np.nan), np.clip(conf, 0, 1)
+
+
+def _linear_skeletons(views: ViewSet, kernel: CameraKernel, kp: np.ndarray, assigned: list[np.ndarray]
+                      ) -> np.ndarray:
+    """Weighted linear (DLT) triangulation of the assigned detections: (sum P, 19, 3) cm, for assigning again
+    (outliers are not removed here: the assignment caps each joint's cost)."""
+    uv, conf = _gather_assigned(kp, assigned)
+    valid = conf > 0
+    xn = undistort_detections(kernel, np.nan_to_num(uv), valid)
+    return triangulate_dlt(views, xn, np.where(valid, conf, 0.0)).reshape(-1, 19, 3)
 
 
 def _dedupe(X: np.ndarray, n_inl: np.ndarray, duplicate_cm: float) -> np.ndarray:
@@ -171,25 +180,31 @@ def associate_batch(views: ViewSet, kernel: CameraKernel, pairs: np.ndarray, kp:
     T, V = kp.shape[:2]
     skeletons = [propose(views, kernel, kp[t], pairs, a) for t in range(T)]
     skeletons = [S[_dedupe(S, np.isfinite(S).all(-1), a.duplicate_cm)] for S in skeletons]
-    for n_pass in range(a.passes):
-        assigned = []
-        for t in range(T):
-            A = assign(kernel, skeletons[t], kp[t], a)
-            if n_pass == 0:
-                A, skeletons[t] = _residual(views, kernel, kp[t], skeletons[t], A, a)
-            A = A[:, (A >= 0).sum(0) >= a.min_person_views]
-            assigned.append(A)
-        tri, uv = _triangulate_assigned(views, kp, skeletons, assigned, options)
+    assigned = []
+    for t in range(T):
+        A = assign(kernel, skeletons[t], kp[t], a)
+        A, skeletons[t] = _residual(views, kernel, kp[t], skeletons[t], A, a)
+        assigned.append(A[:, (A >= 0).sum(0) >= a.min_person_views])
+    for _ in range(a.passes - 1):  # assign again against linear triangulations of the assigned detections
+        X = _linear_skeletons(views, kernel, kp, assigned)
         sizes = np.cumsum([0] + [A.shape[1] for A in assigned])
-        X = tri.X_cm.reshape(-1, 19, 3)
-        n_inl = tri.n_inliers.reshape(-1, 19)
-        skeletons, keeps = [], []
         for t in range(T):
-            sl = slice(sizes[t], sizes[t + 1])
-            keep = (np.isfinite(X[sl]).all(-1).sum(1) >= options.min_body_joints)
-            keep &= _dedupe(X[sl], n_inl[sl], a.duplicate_cm)
-            keeps.append(keep)
-            skeletons.append(X[sl][keep])
+            S = X[sizes[t]: sizes[t + 1]]
+            S = S[np.isfinite(S).all(-1).sum(1) >= options.min_body_joints]
+            S = S[_dedupe(S, np.isfinite(S).all(-1), a.duplicate_cm)]
+            A = assign(kernel, S, kp[t], a)
+            assigned[t] = A[:, (A >= 0).sum(0) >= a.min_person_views]
+    uv, c = _gather_assigned(kp, assigned)
+    tri = triangulate(views, uv, c, options.triangulation)
+    sizes = np.cumsum([0] + [A.shape[1] for A in assigned])
+    X = tri.X_cm.reshape(-1, 19, 3)
+    n_inl = tri.n_inliers.reshape(-1, 19)
+    keeps = []
+    for t in range(T):
+        sl = slice(sizes[t], sizes[t + 1])
+        keep = (np.isfinite(X[sl]).all(-1).sum(1) >= options.min_body_joints)
+        keep &= _dedupe(X[sl], n_inl[sl], a.duplicate_cm)
+        keeps.append(keep)
     conf = tri.confidence.reshape(-1, 19)
     n_views = np.concatenate([(A >= 0).sum(0) for A in assigned]) if assigned else np.zeros(0, np.int64)
     bodies = []
@@ -285,7 +300,7 @@ def reconstruct_people_chunked(views: ViewSet, streams: list[PeopleStream], time
     if len(t) - starts[-1] <= options.overlap_times:
         starts.pop()  # the previous chunk's overlap already reaches the end
     # Short tracks are dropped after stitching: a track cut by a chunk boundary is short only in its chunk.
-    chunk_options = dataclasses.replace(options, tracking=dataclasses.replace(options.tracking, min_track_frames=1))
+    chunk_options = dataclasses.replace(options, tracking=dataclasses.replace(options.tracking, drop_short=False))
     tasks = [(i, views, streams, t[s: min(s + step + options.overlap_times, len(t))], chunk_options)
              for i, s in enumerate(starts)]
     results: dict[int, PeopleSequence] = {}

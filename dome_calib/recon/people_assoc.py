@@ -47,10 +47,13 @@ class AssociationOptions:
     cluster_radius_cm: hypotheses within this distance of a cluster centre belong to it.
     assign_gate_cm, assign_cap_cm: a detection joins a proposal if its mean capped error (cm at the person's depth)
         is below the gate.
-    min_cluster_weight: a proposal needs hypotheses whose common joints add up to this.
+    min_cluster_weight, relative_cluster_weight: a proposal needs hypotheses whose common joints add up to this, and
+        to this share of the densest cluster's (ghosts of crossing rays scatter into small clusters; a person seen
+        by few views who falls below is found by the residual proposals).
     bone_ratio: a hypothesis's median bone length / nominal adult length must lie in this range.
     min_person_views: a person needs this many assigned views (2 views always agree with each other).
-    passes: assignment + triangulation rounds (the second assigns against the triangulated skeletons).
+    passes: assignment rounds (the second assigns against linear triangulations of the first's detections; the
+        robust triangulation runs once, at the end).
     duplicate_cm: two people whose median joint distance is below this are one (the one with more views stays);
         people's centres are >= ~50 cm apart.
     """
@@ -65,6 +68,7 @@ class AssociationOptions:
     min_person_views: int = 3
     passes: int = 2
     min_cluster_weight: float = 15.0
+    relative_cluster_weight: float = 0.1
     bone_ratio: tuple[float, float] = (0.6, 1.5)
     duplicate_cm: float = 25.0
 
@@ -76,6 +80,9 @@ class AssociationOptions:
             if getattr(self, name) <= 0:
                 raise ReconError(f"{name}={getattr(self, name)} but expected > 0")
 
+
+#: A detection is compared joint by joint only with proposals whose 2D centre is this close (cm at their depth).
+CANDIDATE_CM = 80.0
 
 #: Joints whose mean is a hypothesis's centre (when at least two are there): the torso, rarely occluded all at once.
 _TORSO = [JOINTS19.index(n) for n in ("neck", "body_center", "l_shoulder", "r_shoulder", "l_hip", "r_hip")]
@@ -211,9 +218,10 @@ def cluster_hypotheses(centres: np.ndarray, joints: np.ndarray, weights: np.ndar
     left = np.ones(M, bool)
     density = np.where(near, weights[None], 0.0).sum(1)
     out = []
+    floor = max(options.min_cluster_weight, options.relative_cluster_weight * float(density.max()))
     while left.any():
         seed = int(np.argmax(np.where(left, density, -1.0)))
-        if density[seed] < options.min_cluster_weight:
+        if density[seed] < floor:
             break
         members = left & near[seed]
         centre = np.round(np.median(centres[members], axis=0), 3)
@@ -241,12 +249,20 @@ def assign(kernel: CameraKernel, skeletons: np.ndarray, kp: np.ndarray, options:
     cm_per_px = (zc / kernel.fx).reshape(P, 19, V).transpose(2, 0, 1)  # (V, P, 19)
     pvalid = (have.reshape(P, 19)[None] & np.isfinite(proj[..., 0]) & (cm_per_px > 0))
     det = kp[..., 2] > options.min_joint_conf  # (V, N, 19)
-    both = det[:, :, None] & pvalid[:, None]  # (V, N, P, 19)
-    diff = kp[:, :, None, :, :2] - proj[:, None]
-    err = np.sqrt((diff * diff).sum(-1)) * cm_per_px[:, None]
-    err = np.minimum(np.where(both, err, 0.0), options.assign_cap_cm)
+    # Candidates first: detection and proposal whose 2D centres (mean of their joints) are within
+    # CANDIDATE_CM at the proposal's depth; the full per-joint cost only for those (a few per detection).
+    pc = np.where(pvalid[..., None], proj, 0.0).sum(2) / np.maximum(pvalid.sum(2), 1)[..., None]  # (V, P, 2)
+    scale = np.where(pvalid, cm_per_px, 0.0).sum(2) / np.maximum(pvalid.sum(2), 1)  # (V, P) cm per px
+    dc = np.where(det[..., None], kp[..., :2], 0.0).sum(2) / np.maximum(det.sum(2), 1)[..., None]  # (V, N, 2)
+    gap = np.linalg.norm(dc[:, :, None] - pc[:, None], axis=-1) * scale[:, None]  # (V, N, P)
+    cand = (gap < CANDIDATE_CM) & (det.sum(2) >= options.min_common_joints)[..., None] & (pvalid.sum(2) > 0)[:, None]
+    v, i, p = np.nonzero(cand)
+    both = det[v, i] & pvalid[v, p]  # (K, 19)
+    diff = kp[v, i, :, :2] - proj[v, p]
+    err = np.minimum(np.where(both, np.sqrt((diff * diff).sum(-1)) * cm_per_px[v, p], 0.0), options.assign_cap_cm)
     n = both.sum(-1)
-    cost = np.where(n >= options.min_common_joints, err.sum(-1) / np.maximum(n, 1), np.inf)  # (V, N, P)
+    cost = np.full((V, N, P), np.inf)
+    cost[v, i, p] = np.where(n >= options.min_common_joints, err.sum(-1) / np.maximum(n, 1), np.inf)
     match = greedy_match(cost, options.assign_gate_cm)  # (V, N) -> proposal
     out = np.full((V, P), -1, dtype=np.int64)
     v, i = np.nonzero(match >= 0)

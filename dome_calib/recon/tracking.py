@@ -2,9 +2,11 @@
 
 :func:`track_bodies` links the people of consecutive times by the Hungarian method
 (``scipy.optimize.linear_sum_assignment``) on the median 3D joint distance between each track's predicted skeleton
-(the whole body at constant velocity from its last two observations) and each body, gated. Tracks not seen for ``max_missed_ms``
-end; tracks shorter than ``min_track_frames`` are dropped (a false body lasts a frame or two). Ids are given in
-order of first appearance (then creation order), once.
+(the whole body at constant velocity from its last two observations) and each body, gated: confirmed tracks
+first, then tentative ones (seen fewer than ``min_track_frames`` times) with the bodies left. Confirmed tracks not
+seen for ``max_missed_ms`` end, tentative ones at their first miss; tracks shorter than ``min_track_frames`` are
+dropped (a false body lasts a frame or two). Ids are given in order of first appearance (then creation order),
+once.
 
 :func:`smooth_track` is optional smoothing: a local linear least-squares fit over a centred window of the track's
 own observation times. A linear fit reproduces any constant-velocity motion exactly (also at the ends of a track
@@ -26,15 +28,18 @@ from dome_calib.recon.errors import ReconError
 
 @dataclass(kw_only=True)
 class TrackingOptions:
-    """gate_cm: a body continues a track if its mean joint distance to the track's prediction is below
+    """gate_cm: a body continues a track if its median joint distance to the track's prediction is below
     ``gate_cm + gate_cm_per_s x elapsed``; max_missed_ms: a track unseen longer ends; min_track_frames: shorter
-    tracks are dropped; smooth_half_window: half width (in observations) of the smoothing window, 0 = off."""
+    tracks are dropped, and a track is tentative until seen this often (matched after the confirmed ones, ended
+    by a single miss); smooth_half_window: half width (in observations) of the smoothing window, 0 = off;
+    drop_short: False keeps short tracks (a chunk of a long session: they are dropped after stitching)."""
 
     gate_cm: float = 40.0
     gate_cm_per_s: float = 100.0
     max_missed_ms: float = 500.0
     min_track_frames: int = 3
     smooth_half_window: int = 0
+    drop_short: bool = True
 
     def __post_init__(self) -> None:
         if self.gate_cm <= 0 or self.max_missed_ms < 0 or self.min_track_frames < 1 or self.smooth_half_window < 0:
@@ -64,19 +69,31 @@ def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
     last_X: list[np.ndarray] = []
     last_t: list[float] = []
     vel: list[np.ndarray] = []
+    seen: list[int] = []
     active: list[int] = []
+    prev_t = -np.inf
     for k, (t, X) in enumerate(zip(np.asarray(times_ms, dtype=float), bodies)):
-        active = [i for i in active if t - last_t[i] <= options.max_missed_ms]
+        # confirmed tracks survive gaps up to max_missed_ms; a tentative one (seen fewer than min_track_frames
+        # times) ends as soon as it misses a time
+        active = [i for i in active if t - last_t[i] <= options.max_missed_ms
+                  and (seen[i] >= options.min_track_frames or last_t[i] >= prev_t)]
+        prev_t = t
         P = len(X)
-        if active and P:
-            pred = np.stack([last_X[i] + vel[i] * (t - last_t[i]) for i in active])
-            cost = skeleton_distance_cm(pred, X)
-            gate = options.gate_cm + options.gate_cm_per_s * 1e-3 * np.array([t - last_t[i] for i in active])
+        # confirmed tracks first, then tentative ones with the bodies left (a one-frame false body next to a
+        # person cannot take the person's track)
+        for group in ([i for i in active if seen[i] >= options.min_track_frames],
+                      [i for i in active if seen[i] < options.min_track_frames]):
+            free = np.flatnonzero(track_of[k] < 0)
+            if not group or not len(free):
+                continue
+            pred = np.stack([last_X[i] + vel[i] * (t - last_t[i]) for i in group])
+            cost = skeleton_distance_cm(pred, X[free])
+            gate = options.gate_cm + options.gate_cm_per_s * 1e-3 * np.array([t - last_t[i] for i in group])
             cost = np.where(cost < gate[:, None], np.round(cost, 3), 1e6)
             rows, cols = linear_sum_assignment(cost)
             for r, c in zip(rows, cols):
                 if cost[r, c] < 1e6:
-                    track_of[k][c] = active[r]
+                    track_of[k][free[c]] = group[r]
         for c in range(P):
             i = track_of[k][c]
             if i < 0:
@@ -85,8 +102,10 @@ def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
                 last_X.append(X[c].copy())
                 last_t.append(t)
                 vel.append(np.zeros((19, 3)))
+                seen.append(1)
                 active.append(i)
                 continue
+            seen[i] += 1
             dt = t - last_t[i]
             v = (X[c] - last_X[i]) / dt if dt > 0 else np.zeros((19, 3))
             # one velocity for the whole body (median over joints): a joint's own velocity from two noisy positions
@@ -98,7 +117,7 @@ def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
     n_tracks = len(last_X)
     length = np.bincount(np.concatenate([tr[tr >= 0] for tr in track_of] + [np.zeros(0, np.int64)]),
                          minlength=n_tracks)
-    keep = length >= options.min_track_frames
+    keep = length >= (options.min_track_frames if options.drop_short else 1)
     new_id = np.full(n_tracks, -1, dtype=np.int64)
     new_id[keep] = np.arange(int(keep.sum()))  # creation order = order of first appearance
     return [np.where(tr >= 0, new_id[np.maximum(tr, 0)], -1) for tr in track_of]
