@@ -200,3 +200,19 @@ def test_association_refuses_bad_options():
         AssociationOptions(min_person_views=1)
     with pytest.raises(ReconError):
         AssociationOptions(assign_gate_cm=0)
+
+
+def test_false_bodies_next_to_a_person_do_not_take_its_track():
+    """One-frame false bodies 30 cm from a walking person (a duplicate from a few views): the person keeps its id."""
+    times = np.arange(0, 1200, 40.0)
+    X = []
+    for k, t in enumerate(times):
+        person = np.zeros((19, 3)) + [0.1 * t, -90, 0] + np.arange(19)[:, None]
+        bodies = [person]
+        if k in (10, 14):
+            bodies.insert(0, person + [30.0, 0, 0])  # listed first, closer to the prediction's lead
+        X.append(np.stack(bodies))
+    ids = track_bodies(times, X)
+    person_ids = {int(i[-1]) for i in ids}
+    assert person_ids == {0}
+    assert int(ids[10][0]) == -1 and int(ids[14][0]) == -1  # the false bodies: dropped, no id given

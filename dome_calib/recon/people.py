@@ -5,8 +5,9 @@ Per batch of universal times: every stream's people are brought to the times
 detections assigned to them (:mod:`dome_calib.recon.people_assoc`); with ``passes`` = 2 the assigned detections
 are triangulated linearly (DLT) and assigned again against those skeletons; then all people of the batch are
 triangulated in one call of the robust :func:`~dome_calib.recon.triangulate.triangulate`; duplicates merge.
-Then :func:`~dome_calib.recon.tracking.track_bodies` gives ids. :func:`reconstruct_people` runs one chunk of times in one process;
-:func:`reconstruct_people_chunked` splits a long session into overlapping chunks on an executor and stitches ids.
+Then :func:`~dome_calib.recon.tracking.track_bodies` gives ids. :func:`reconstruct_people` runs one chunk of times
+in one process; :func:`reconstruct_people_chunked` splits a long session into overlapping chunks on an executor
+and stitches ids.
 
 The per-camera agreement (:class:`CameraAgreement`) counts, per camera, the people it detected and the ones used
 by a reconstructed body, and a histogram of the pixel distance between its used joints and the reconstructed
