@@ -142,7 +142,7 @@ def test_bad_input_one_line_nothing_written(group, dome_calib_cli, tmp_path, cas
 
 def test_camera_map_dotted_names_and_no_sync_tables(dome_calib_cli, tmp_path):
     """A rig without sync tables (one shared frame index, as Pose2Sim's), folders named cam01.. mapped to the
-    bundle's cameras, files named cam01.0042.json, COCO-18 keypoints."""
+    bundle's cameras, files named cam01.0042.json, COCO-18 keypoints, smoothing on."""
     full = real_bundle(kinect=False, sync=False, n_vga=40)
     bundle = _small(full, n_vga=8, n_hd=0)
     write_bundle(bundle, tmp_path / "bundle")
@@ -153,7 +153,7 @@ def test_camera_map_dotted_names_and_no_sync_tables(dome_calib_cli, tmp_path):
                           naming="dotted")
     mapping = ",".join(f"{f}={n}" for n, f in folder_of.items())
     out = dome_calib_cli("reconstruct", str(tmp_path / "det"), "--bundle", str(tmp_path / "bundle"),
-                         "--camera-map", mapping, "--fps", "30")
+                         "--camera-map", mapping, "--fps", "30", "--smooth", "2")
     assert out.returncode == 0, out.stderr
     files = sorted((tmp_path / "det_people").glob("body3DScene_*.json"))
     assert [int(f.stem.split("_")[1]) for f in files] == frames.tolist()
