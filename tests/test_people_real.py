@@ -107,3 +107,23 @@ def test_pose2sim_balancing(run, dome_calib_cli):
     per_joint = np.nanmedian(dist, axis=0)
     assert np.all(per_joint < 6.0), dict(zip(COMMON, per_joint.round(1)))
     assert np.isfinite(dist).mean() > 0.9
+
+
+def test_the_partial_person_is_a_two_view_onlooker(run, dome_calib_cli):
+    """Cameras 01 and 02's second person is consistent between them (their rays meet, its bones are a person's):
+    with --min-views 2 it becomes a second body, with its own id, ~3 m from the participant, in most frames."""
+    root, _ = run
+    out = dome_calib_cli("reconstruct", str(root / "pose"), "--bundle", str(root / "bundle"), "--body-model",
+                         "BODY_25B", "--camera-map", CAMERA_MAP, "--fps", "60", "--min-views", "2", "-o",
+                         str(root / "out2"))
+    assert out.returncode == 0, out.stderr
+    frames, dist = 0, []
+    for f in sorted((root / "out2").glob("body3DScene_*.json")):
+        _, bodies = read_scene(f)
+        assert set(bodies) <= {0, 1} and 0 in bodies
+        if 1 in bodies:
+            frames += 1
+            a, b = (np.where(bodies[i][:, 3:] < 0, np.nan, bodies[i][:, :3]) for i in (0, 1))
+            dist.append(np.linalg.norm(np.nanmedian(a, 0) - np.nanmedian(b, 0)))
+            assert np.all(bodies[1][:, 3] < 0.6)  # low-confidence detections
+    assert frames > 50 and 250 < np.median(dist) < 400
