@@ -37,24 +37,13 @@ def reconstruct(
     """Reconstruct groups of people from per-camera OpenPose detections: find each person across the cameras,
     triangulate their joints in the world frame (cm), keep their id over time, and write one Panoptic
     body3DScene file per time plus cameras.json (how well each camera agrees: a camera that moved shows up)."""
-    from fractions import Fraction
-
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from dome_calib.cluster import open_executor
-    from dome_calib.recon.errors import ReconError
-    from dome_calib.recon.people import PeopleOptions
-    from dome_calib.recon.people_assoc import AssociationOptions
-    from dome_calib.recon.people_commands import reconstruct_folder
-    from dome_calib.recon.tracking import TrackingOptions
+    from dome_calib.recon.people_commands import people_options, reconstruct_folder
 
-    try:
-        shared_fps = Fraction(fps)
-    except (ValueError, ZeroDivisionError):
-        raise ReconError(f"--fps {fps!r}: not a frame rate (e.g. 30, 60 or 30000/1001)") from None
     out = out or detections.with_name(f"{detections.name}_people")
-    options = PeopleOptions(association=AssociationOptions(min_person_views=min_views),
-                            tracking=TrackingOptions(smooth_half_window=smooth), shared_fps=shared_fps)
+    options = people_options(min_views=min_views, smooth=smooth, fps=fps)
     columns = (TextColumn("reconstructing"), BarColumn(), MofNCompleteColumn(), TextColumn("times"),
                TimeElapsedColumn())
     with open_executor(None, scheduler, workers=workers) as executor, Progress(*columns, transient=True) as bar:

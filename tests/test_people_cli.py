@@ -166,3 +166,14 @@ def test_camera_map_dotted_names_and_no_sync_tables(dome_calib_cli, tmp_path):
             X = np.where(j[:, 3:] < 0, np.nan, j[:, :3])
             # COCO-18 has no body_center: it comes from the hips
             assert np.nanmin(np.nanmean(np.linalg.norm(X[None] - truth[k], axis=-1), axis=1)) < 3.0
+
+
+@pytest.mark.parametrize("args, message", [(["--fps", "abc"], "--fps 'abc': not a frame rate"),
+                                           (["--min-views", "1"], "min_person_views >= 2"),
+                                           (["--smooth", "-1"], "smooth_half_window >= 0")])
+def test_bad_options_one_line(group, dome_calib_cli, tmp_path, args, message):
+    root, _, _ = group
+    out = dome_calib_cli("reconstruct", str(root / "det"), "--bundle", str(root / "bundle"), "-o", str(tmp_path / "o"),
+                         "--body-model", "BODY_25", *args)
+    assert message in _one_line_error(out)
+    assert not (tmp_path / "o").exists()

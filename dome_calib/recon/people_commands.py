@@ -4,6 +4,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -13,9 +14,11 @@ from dome_calib.recon.errors import ReconError
 from dome_calib.recon.formats import FPS_TYPE
 from dome_calib.recon.openpose_io import parse_camera_map, read_openpose_folder
 from dome_calib.recon.people import PeopleOptions, reconstruct_people_chunked
+from dome_calib.recon.people_assoc import AssociationOptions
 from dome_calib.recon.people_io import camera_report, check_people_folder, write_people
 from dome_calib.recon.people_time import PeopleStream, people_streams
 from dome_calib.recon.project import view_set
+from dome_calib.recon.tracking import TrackingOptions
 
 logger = logging.getLogger(__name__)
 
@@ -31,6 +34,19 @@ class ReconstructSummary:
     body_frames: int
     flagged_cameras: list[str]
     median_reprojection_px: float | None
+
+
+def people_options(*, min_views: int = 3, smooth: int = 0, fps: str = "30") -> PeopleOptions:
+    """The command's options: people need ``min_views`` cameras, ``smooth`` observations either side (0 = off),
+    ``fps`` (e.g. "30", "30000/1001") for a bundle without sync tables. ReconError names a bad value."""
+    try:
+        shared_fps = Fraction(fps)
+    except (ValueError, ZeroDivisionError):
+        raise ReconError(f"--fps {fps!r}: not a frame rate (e.g. 30, 60 or 30000/1001)") from None
+    if shared_fps <= 0:
+        raise ReconError(f"--fps {fps!r}: a frame rate must be > 0")
+    return PeopleOptions(association=AssociationOptions(min_person_views=min_views),
+                         tracking=TrackingOptions(smooth_half_window=smooth), shared_fps=shared_fps)
 
 
 def reference_times(streams: list[PeopleStream], reference: str | None) -> tuple[np.ndarray, np.ndarray, str]:
