@@ -216,3 +216,16 @@ def test_false_bodies_next_to_a_person_do_not_take_its_track():
     person_ids = {int(i[-1]) for i in ids}
     assert person_ids == {0}
     assert int(ids[10][0]) == -1 and int(ids[14][0]) == -1  # the false bodies: dropped, no id given
+
+
+def test_slice_stream_keeps_what_brackets_the_chunk(scene):
+    from dome_calib.recon.people import slice_stream
+
+    bundle, cams, people, _ = scene
+    for s in people_streams(bundle, people):
+        t = s.table.times_of(s.frame_index)
+        t0, t1 = t[5] + 1.0, t[9] - 1.0
+        cut = slice_stream(s, t0, t1, 2.5)
+        assert len(cut.frame_index) < len(s.frame_index)
+        grid = np.linspace(t0, t1, 7)
+        np.testing.assert_array_equal(interpolate_people(cut, grid), interpolate_people(s, grid))

@@ -280,6 +280,16 @@ def _track(times: np.ndarray, bodies: list[Bodies], options: TrackingOptions) ->
     return out
 
 
+def slice_stream(stream: PeopleStream, t0_ms: float, t1_ms: float, max_gap_frames: float) -> PeopleStream:
+    """The frames of a stream that can bracket a time in [t0, t1] (a chunk's task carries only those)."""
+    times = stream.table.times_of(stream.frame_index)
+    period = float(np.median(np.diff(stream.table.univ_time_ms))) if len(stream.table.index) > 1 else 0.0
+    margin = (max_gap_frames + 1.0) * period
+    keep = (times >= t0_ms - margin) & (times <= t1_ms + margin)
+    return PeopleStream(stream=stream.stream, table=stream.table, cameras=stream.cameras,
+                        frame_index=stream.frame_index[keep], kp=stream.kp[keep])
+
+
 def _chunk_task(args: tuple) -> tuple[int, PeopleSequence]:
     """Executor task: one chunk of times (module level, picklable)."""
     index, views, streams, times, options = args
@@ -302,8 +312,11 @@ def reconstruct_people_chunked(views: ViewSet, streams: list[PeopleStream], time
         starts.pop()  # the previous chunk's overlap already reaches the end
     # Short tracks are dropped after stitching: a track cut by a chunk boundary is short only in its chunk.
     chunk_options = dataclasses.replace(options, tracking=dataclasses.replace(options.tracking, drop_short=False))
-    tasks = [(i, views, streams, t[s: min(s + step + options.overlap_times, len(t))], chunk_options)
-             for i, s in enumerate(starts)]
+    tasks = []
+    for i, s in enumerate(starts):
+        times = t[s: min(s + step + options.overlap_times, len(t))]
+        tasks.append((i, views, [slice_stream(st, times[0], times[-1], options.max_gap_frames) for st in streams],
+                      times, chunk_options))
     results: dict[int, PeopleSequence] = {}
     runner = map if executor is None else executor.map
     for index, seq in runner(_chunk_task, tasks):
