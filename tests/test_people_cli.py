@@ -177,3 +177,24 @@ def test_bad_options_one_line(group, dome_calib_cli, tmp_path, args, message):
                          "--body-model", "BODY_25", *args)
     assert message in _one_line_error(out)
     assert not (tmp_path / "o").exists()
+
+
+def test_long_session_chunks_read_their_own_files(group, tmp_path):
+    """Chunks of 5 times (overlap 2) on a 2-process pool, each task reading only its chunk's OpenPose files: the
+    same people with the same ids as one run over everything."""
+    from dome_calib.executor import LocalProcessExecutor
+    from dome_calib.recon.people import PeopleOptions
+    from dome_calib.recon.people_commands import reconstruct_folder
+
+    root, bundle, _ = group
+    whole = reconstruct_folder(root / "det", root / "bundle", tmp_path / "whole", body_model="BODY_25")
+    with LocalProcessExecutor(2) as pool:
+        chunked = reconstruct_folder(root / "det", root / "bundle", tmp_path / "chunked", body_model="BODY_25",
+                                     options=PeopleOptions(chunk_times=5, overlap_times=2), executor=pool)
+    assert (chunked.times, chunked.people, chunked.body_frames) == (whole.times, whole.people, whole.body_frames)
+    for a, b in zip(sorted((tmp_path / "whole").glob("body3D*")), sorted((tmp_path / "chunked").glob("body3D*"))):
+        _, A = read_scene(a)
+        _, B = read_scene(b)
+        assert sorted(A) == sorted(B)
+        for i in A:
+            np.testing.assert_allclose(A[i], B[i], atol=1e-2)

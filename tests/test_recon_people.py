@@ -12,7 +12,8 @@ from dome_calib.bundle import SyncTable
 from dome_calib.executor import LocalProcessExecutor
 from dome_calib.recon.people import PeopleOptions, reconstruct_people, reconstruct_people_chunked
 from dome_calib.recon.people_assoc import AssociationOptions, nan_median, select_pairs
-from dome_calib.recon.people_time import PeopleStream, greedy_match, interpolate_people, people_streams
+from dome_calib.recon.people_time import (InMemorySource, PeopleStream, greedy_match, interpolate_people,
+                                          people_streams)
 from dome_calib.recon.project import view_set
 from dome_calib.recon.tracking import TrackingOptions, smooth_track, track_bodies
 
@@ -218,14 +219,12 @@ def test_false_bodies_next_to_a_person_do_not_take_its_track():
     assert int(ids[10][0]) == -1 and int(ids[14][0]) == -1  # the false bodies: dropped, no id given
 
 
-def test_slice_stream_keeps_what_brackets_the_chunk(scene):
-    from dome_calib.recon.people import slice_stream
-
+def test_a_chunk_keeps_what_brackets_its_times(scene):
     bundle, cams, people, _ = scene
-    for s in people_streams(bundle, people):
-        t = s.table.times_of(s.frame_index)
-        t0, t1 = t[5] + 1.0, t[9] - 1.0
-        cut = slice_stream(s, t0, t1, 2.5)
+    streams = people_streams(bundle, people)
+    t = streams[0].table.times_of(streams[0].frame_index)
+    t0, t1 = t[5] + 1.0, t[9] - 1.0
+    for s, cut in zip(streams, InMemorySource(streams).chunk(t0, t1, 2.5)):
         assert len(cut.frame_index) < len(s.frame_index)
         grid = np.linspace(t0, t1, 7)
         np.testing.assert_array_equal(interpolate_people(cut, grid), interpolate_people(s, grid))

@@ -132,13 +132,11 @@ def _people_of_file(path: Path, camera: str, frame: int,
     return kp, model
 
 
-def read_openpose_folder(folder: str | Path, *, body_model: BodyModel | str | None = None,
-                         camera_map: dict[str, str] | None = None, cameras: set[str] | None = None
-                         ) -> OpenPoseDetections:
-    """Read every camera sub-folder of ``folder`` (see the module docstring).
+def index_openpose_folder(folder: str | Path, *, camera_map: dict[str, str] | None = None,
+                          cameras: set[str] | None = None) -> dict[str, dict[int, Path]]:
+    """The files of ``folder`` without reading them: camera -> {frame -> path} (see the module docstring).
 
     Args:
-        body_model: the detector's model; None: told by the joint count, refused where it is ambiguous (25).
         camera_map: sub-folder name -> camera name (sub-folders not in it keep their own name).
         cameras: the bundle's camera names; a sub-folder naming another camera is refused.
     """
@@ -146,8 +144,6 @@ def read_openpose_folder(folder: str | Path, *, body_model: BodyModel | str | No
     if not folder.is_dir():
         raise ReconError(f"{folder}: detections folder not found (expected one sub-folder per camera)")
     camera_map = camera_map or {}
-    model = parse_body_model(body_model) if isinstance(body_model, str) else body_model
-    people: dict[str, dict[int, np.ndarray]] = {}
     files: dict[str, dict[int, Path]] = {}
     subfolders = sorted(p for p in folder.iterdir() if p.is_dir())
     unknown_map = sorted(set(camera_map) - {p.name for p in subfolders})
@@ -161,24 +157,54 @@ def read_openpose_folder(folder: str | Path, *, body_model: BodyModel | str | No
         if cameras is not None and camera not in cameras:
             hint = "" if sub.name in camera_map else " (map folder names to cameras with --camera-map)"
             raise ReconError(f"{sub}: camera {camera} is not in the bundle's calibration{hint}")
-        if camera in people:
+        if camera in files:
             raise ReconError(f"{sub}: camera {camera} has a second folder")
-        people[camera], files[camera] = {}, {}
+        files[camera] = {}
         for path in json_files:
             frame = frame_of_file(path)
-            if frame in people[camera]:
+            if frame in files[camera]:
                 raise ReconError(f"{path}: camera {camera}: frame {frame}: a second file for this frame "
                                  f"({files[camera][frame].name})")
-            kp, model = _people_of_file(path, camera, frame, model)
-            people[camera][frame] = kp
             files[camera][frame] = path
-    if not people:
+    if not files:
         raise ReconError(f"{folder}: no camera sub-folder with OpenPose .json files")
-    if model is None:
-        raise ReconError(f"{folder}: no person detected in any file, so the body model is unknown")
+    return files
+
+
+def body_model_of(files: dict[str, dict[int, Path]], body_model: BodyModel | str | None) -> BodyModel:
+    """The given model, or the one told by the first file with a person (in camera, frame order); a joint count
+    that fits two models (25: BODY_25, BODY_25B) is refused naming that file."""
+    if body_model is not None:
+        return parse_body_model(body_model) if isinstance(body_model, str) else body_model
+    for camera in sorted(files):
+        for frame, path in sorted(files[camera].items()):
+            kp, model = _people_of_file(path, camera, frame, None)
+            if model is not None:
+                return model
+    first = next(iter(files.values()))
+    raise ReconError(f"{next(iter(first.values())).parent.parent}: no person detected in any file, so the body "
+                     "model is unknown (give --body-model)")
+
+
+def read_openpose_files(files: dict[str, dict[int, Path]], model: BodyModel) -> dict[str, dict[int, np.ndarray]]:
+    """Read the files (camera -> {frame -> path}) -> camera -> {frame -> (N, 19, 3) joints19}."""
     n_joints = len(JOINT_NAMES[model])
-    for camera, frames in people.items():
-        for frame, kp in frames.items():
-            frames[frame] = to_joints19(kp.reshape(-1, n_joints, 3), model)
+    out: dict[str, dict[int, np.ndarray]] = {}
+    for camera, frames in files.items():
+        out[camera] = {}
+        for frame, path in frames.items():
+            kp, _ = _people_of_file(path, camera, frame, model)
+            out[camera][frame] = to_joints19(kp.reshape(-1, n_joints, 3), model)
+    return out
+
+
+def read_openpose_folder(folder: str | Path, *, body_model: BodyModel | str | None = None,
+                         camera_map: dict[str, str] | None = None, cameras: set[str] | None = None
+                         ) -> OpenPoseDetections:
+    """Read every camera sub-folder of ``folder`` (see the module docstring; :func:`index_openpose_folder` for the
+    arguments). body_model: the detector's model; None: told by the joint count, refused where it is ambiguous."""
+    files = index_openpose_folder(folder, camera_map=camera_map, cameras=cameras)
+    model = body_model_of(files, body_model)
+    people = read_openpose_files(files, model)
     logger.info("read %d cameras, %d files, body model %s", len(people), sum(len(f) for f in people.values()), model)
     return OpenPoseDetections(people=people, files=files, body_model=model)

@@ -25,7 +25,7 @@ import numpy as np
 
 from dome_calib.recon.kernel import CameraKernel
 from dome_calib.recon.people_assoc import AssociationOptions, assign, propose, residual_pairs, select_pairs
-from dome_calib.recon.people_time import PeopleStream, interpolate_people
+from dome_calib.recon.people_time import FileSource, InMemorySource, PeopleStream, interpolate_people
 from dome_calib.recon.project import ViewSet
 from dome_calib.recon.tracking import (TrackingOptions, skeleton_distance_cm, smooth_track, stitch_chunks,
                                       track_bodies)
@@ -280,32 +280,29 @@ def _track(times: np.ndarray, bodies: list[Bodies], options: TrackingOptions) ->
     return out
 
 
-def slice_stream(stream: PeopleStream, t0_ms: float, t1_ms: float, max_gap_frames: float) -> PeopleStream:
-    """The frames of a stream that can bracket a time in [t0, t1] (a chunk's task carries only those)."""
-    times = stream.table.times_of(stream.frame_index)
-    period = float(np.median(np.diff(stream.table.univ_time_ms))) if len(stream.table.index) > 1 else 0.0
-    margin = (max_gap_frames + 1.0) * period
-    keep = (times >= t0_ms - margin) & (times <= t1_ms + margin)
-    return PeopleStream(stream=stream.stream, table=stream.table, cameras=stream.cameras,
-                        frame_index=stream.frame_index[keep], kp=stream.kp[keep])
-
-
 def _chunk_task(args: tuple) -> tuple[int, PeopleSequence]:
-    """Executor task: one chunk of times (module level, picklable)."""
-    index, views, streams, times, options = args
+    """Executor task: one chunk of times (module level, picklable); reads the chunk's detections from ``source``."""
+    index, views, source, times, options = args
+    streams = source.chunk(float(times[0]), float(times[-1]), options.max_gap_frames)
     return index, reconstruct_people(views, streams, times, options)
 
 
-def reconstruct_people_chunked(views: ViewSet, streams: list[PeopleStream], times_ms: np.ndarray,
-                               options: PeopleOptions | None = None, *, executor=None,
+def reconstruct_people_chunked(views: ViewSet, source: list[PeopleStream] | InMemorySource | FileSource,
+                               times_ms: np.ndarray, options: PeopleOptions | None = None, *, executor=None,
                                progress: Callable[[int, int], None] | None = None) -> PeopleSequence:
     """:func:`reconstruct_people` over chunks of ``chunk_times`` times that overlap by ``overlap_times``, run on
     ``executor`` (``map``; a local pool or Dask; None: in this process); ids stitched over the overlaps
-    (:func:`~dome_calib.recon.tracking.stitch_chunks`), new ones numbered on, never reused."""
+    (:func:`~dome_calib.recon.tracking.stitch_chunks`), new ones numbered on, never reused.
+
+    source: the streams, or a :class:`~dome_calib.recon.people_time.FileSource` whose chunks each task reads from
+    disk itself (only the frames that bracket the chunk's times).
+    """
     options = options or PeopleOptions()
+    source = InMemorySource(source) if isinstance(source, list) else source
     t = np.asarray(times_ms, dtype=float)
     step = options.chunk_times
     if len(t) <= step + options.overlap_times:
+        streams = source.chunk(float(t[0]), float(t[-1]), options.max_gap_frames) if len(t) else []
         return reconstruct_people(views, streams, t, options, progress=progress)
     starts = list(range(0, len(t), step))
     if len(t) - starts[-1] <= options.overlap_times:
@@ -315,8 +312,7 @@ def reconstruct_people_chunked(views: ViewSet, streams: list[PeopleStream], time
     tasks = []
     for i, s in enumerate(starts):
         times = t[s: min(s + step + options.overlap_times, len(t))]
-        tasks.append((i, views, [slice_stream(st, times[0], times[-1], options.max_gap_frames) for st in streams],
-                      times, chunk_options))
+        tasks.append((i, views, source, times, chunk_options))
     results: dict[int, PeopleSequence] = {}
     runner = map if executor is None else executor.map
     for index, seq in runner(_chunk_task, tasks):

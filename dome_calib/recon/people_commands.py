@@ -12,11 +12,11 @@ import numpy as np
 from dome_calib.bundle_io import load_bundle
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.formats import FPS_TYPE
-from dome_calib.recon.openpose_io import parse_camera_map, read_openpose_folder
+from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, parse_camera_map
 from dome_calib.recon.people import PeopleOptions, reconstruct_people_chunked
 from dome_calib.recon.people_assoc import AssociationOptions
 from dome_calib.recon.people_io import camera_report, check_people_folder, write_people
-from dome_calib.recon.people_time import PeopleStream, people_streams
+from dome_calib.recon.people_time import FileSource, StreamLayout, stream_layouts
 from dome_calib.recon.project import view_set
 from dome_calib.recon.tracking import TrackingOptions
 
@@ -49,7 +49,7 @@ def people_options(*, min_views: int = 3, smooth: int = 0, fps: str = "30") -> P
                          tracking=TrackingOptions(smooth_half_window=smooth), shared_fps=shared_fps)
 
 
-def reference_times(streams: list[PeopleStream], reference: str | None) -> tuple[np.ndarray, np.ndarray, str]:
+def reference_times(streams: list[StreamLayout], reference: str | None) -> tuple[np.ndarray, np.ndarray, str]:
     """The times to reconstruct: the reference stream's frames that have detection files -> (times_ms, frame
     numbers, stream). Reference: given, else "vga", else "hd", else the stream with most cameras."""
     by_name = {s.stream: s for s in streams}
@@ -67,23 +67,26 @@ def reconstruct_folder(detections: str | Path, bundle_folder: str | Path, out: s
                        progress: Callable[[int, int], None] | None = None) -> ReconstructSummary:
     """Detections folder (OpenPose JSON per camera) + bundle -> ``out`` (body3DScene per time, cameras.json).
 
-    Everything is read and checked before any work, and ``out`` is written only at the end (staged, then renamed):
-    bad input leaves nothing behind.
+    The folder's names and frames are checked before any work; each chunk of times reads its own files (a long
+    session is never in memory at once; a bad file stops the run when its chunk is read). ``out`` is written only
+    at the end (staged, then renamed): bad input leaves nothing behind.
     """
     options = options or PeopleOptions()
     check_people_folder(out)
     bundle = load_bundle(bundle_folder)
     mapping = camera_map if isinstance(camera_map, dict) else parse_camera_map(camera_map)
-    det = read_openpose_folder(detections, body_model=body_model, camera_map=mapping, cameras=set(bundle.cameras))
-    streams = people_streams(bundle, det.people, det.files, shared_fps=options.shared_fps)
-    times, numbers, ref = reference_times(streams, reference)
-    names = [n for s in streams for n in s.cameras]
+    files = index_openpose_folder(detections, camera_map=mapping, cameras=set(bundle.cameras))
+    model = body_model_of(files, body_model)
+    layouts = stream_layouts(bundle, files, files, shared_fps=options.shared_fps)
+    times, numbers, ref = reference_times(layouts, reference)
+    source = FileSource(layouts=layouts, files=files, body_model=model)
+    names = source.cameras
     views = view_set(bundle, names)
-    seq = reconstruct_people_chunked(views, streams, times, options, executor=executor, progress=progress)
+    seq = reconstruct_people_chunked(views, source, times, options, executor=executor, progress=progress)
     write_people(out, seq, numbers, FPS_TYPE.get(ref, "custom"))
     report = camera_report(seq.cameras)
     ids = {int(i) for b in seq.bodies for i in b.ids}
-    return ReconstructSummary(out=Path(out), times=len(times), cameras=len(names), body_model=det.body_model.value,
+    return ReconstructSummary(out=Path(out), times=len(times), cameras=len(names), body_model=model.value,
                               reference=ref, people=len(ids), body_frames=sum(len(b.ids) for b in seq.bodies),
                               flagged_cameras=report["flagged"],
                               median_reprojection_px=report["median_reprojection_px"])

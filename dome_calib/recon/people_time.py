@@ -14,6 +14,7 @@ A bundle without sync tables: every camera shares one frame index; universal tim
 """
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -21,7 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle import Bundle, SyncTable
+from dome_calib.recon.body_models import BodyModel
 from dome_calib.recon.errors import ReconError
+from dome_calib.recon.openpose_io import read_openpose_files
 from dome_calib.recon.streams import stream_of_camera
 
 SHARED_STREAM = "shared"
@@ -67,10 +70,22 @@ def greedy_match(cost: np.ndarray, gate: np.ndarray | float) -> np.ndarray:
     return out.reshape(*batch, A)
 
 
-def people_streams(bundle: Bundle, people: dict[str, dict[int, np.ndarray]],
+@dataclass(frozen=True)
+class StreamLayout:
+    """Which cameras and frames a stream has, before any detection is read: frame_index (F,) increasing, all in
+    ``table``."""
+
+    stream: str
+    table: SyncTable
+    cameras: list[str]
+    frame_index: np.ndarray
+
+
+def stream_layouts(bundle: Bundle, frames_of: dict[str, Iterable[int]],
                    files: dict[str, dict[int, Path]] | None = None, *, shared_fps: Fraction = Fraction(30)
-                   ) -> list[PeopleStream]:
-    """camera -> {frame -> (N, 19, 3)} -> one :class:`PeopleStream` per stream (VGA, HD, each Kinect).
+                   ) -> list[StreamLayout]:
+    """camera -> its frame indices -> one :class:`StreamLayout` per stream (VGA, HD, each Kinect; one shared stream
+    when the bundle has no sync tables, universal time = frame / ``shared_fps``).
 
     A frame that the camera's sync table lacks is refused (ReconError naming file, camera and frame).
     """
@@ -78,33 +93,101 @@ def people_streams(bundle: Bundle, people: dict[str, dict[int, np.ndarray]],
     groups: dict[str, list[str]] = {}
     tables: dict[str, SyncTable] = {}
     if bundle.sync is None:
-        frames = np.unique(np.array([f for c in people.values() for f in c], dtype=np.int64))
+        frames = np.unique(np.array([f for c in frames_of.values() for f in c], dtype=np.int64))
         period = float(1000 / Fraction(shared_fps))
         tables[SHARED_STREAM] = SyncTable(index=frames, univ_time_ms=frames * period)
-        groups[SHARED_STREAM] = sorted(people)
+        groups[SHARED_STREAM] = sorted(frames_of)
     else:
-        for name in sorted(people):
+        for name in sorted(frames_of):
             stream, table = stream_of_camera(bundle, name)
             groups.setdefault(stream, []).append(name)
             tables[stream] = table
     out = []
     for stream, names in groups.items():
         table = tables[stream]
-        frames = np.unique(np.array([f for n in names for f in people[n]], dtype=np.int64))
+        frames = np.unique(np.array([f for n in names for f in frames_of[n]], dtype=np.int64))
         inside = np.isin(frames, table.index)
         if not inside.all():
             f = int(frames[~inside][0])
-            cam = next(n for n in names if f in people[n])
+            cam = next(n for n in names if f in set(frames_of[n]))
             where = files.get(cam, {}).get(f, f"camera {cam}")
             raise ReconError(f"{where}: camera {cam}: frame {f}: not in the {stream} sync table (frames "
                              f"{int(table.index[0])}..{int(table.index[-1])})")
-        N = max([len(p) for n in names for p in people[n].values()] + [1])
-        kp = np.zeros((len(frames), len(names), N, 19, 3), dtype=np.float32)
-        for v, n in enumerate(names):
-            for f, p in people[n].items():
-                kp[np.searchsorted(frames, f), v, : len(p)] = p
-        out.append(PeopleStream(stream=stream, table=table, cameras=names, frame_index=frames, kp=kp))
+        out.append(StreamLayout(stream=stream, table=table, cameras=names, frame_index=frames))
     return out
+
+
+def fill_stream(layout: StreamLayout, people: dict[str, dict[int, np.ndarray]]) -> PeopleStream:
+    """A layout's cameras' people (camera -> {frame -> (N, 19, 3)}; frames outside the layout ignored) ->
+    :class:`PeopleStream`."""
+    names, frames = layout.cameras, layout.frame_index
+    N = max([len(p) for n in names for f, p in people.get(n, {}).items()] + [1])
+    kp = np.zeros((len(frames), len(names), N, 19, 3), dtype=np.float32)
+    for v, n in enumerate(names):
+        for f, p in people.get(n, {}).items():
+            k = np.searchsorted(frames, f)
+            if k < len(frames) and frames[k] == f:
+                kp[k, v, : len(p)] = p
+    return PeopleStream(stream=layout.stream, table=layout.table, cameras=names, frame_index=frames, kp=kp)
+
+
+def people_streams(bundle: Bundle, people: dict[str, dict[int, np.ndarray]],
+                   files: dict[str, dict[int, Path]] | None = None, *, shared_fps: Fraction = Fraction(30)
+                   ) -> list[PeopleStream]:
+    """camera -> {frame -> (N, 19, 3)} -> one :class:`PeopleStream` per stream (see :func:`stream_layouts`)."""
+    return [fill_stream(layout, people) for layout in stream_layouts(bundle, people, files, shared_fps=shared_fps)]
+
+
+def frames_near(layout: StreamLayout, t0_ms: float, t1_ms: float, max_gap_frames: float) -> np.ndarray:
+    """(F,) bool: the layout's frames that can bracket a time in [t0, t1]."""
+    times = layout.table.times_of(layout.frame_index)
+    period = float(np.median(np.diff(layout.table.univ_time_ms))) if len(layout.table.index) > 1 else 0.0
+    margin = (max_gap_frames + 1.0) * period
+    return (times >= t0_ms - margin) & (times <= t1_ms + margin)
+
+
+@dataclass(frozen=True)
+class InMemorySource:
+    """Streams already read; :meth:`chunk` keeps the frames that bracket a span of times."""
+
+    streams: list[PeopleStream]
+
+    @property
+    def cameras(self) -> list[str]:
+        return [n for s in self.streams for n in s.cameras]
+
+    def chunk(self, t0_ms: float, t1_ms: float, max_gap_frames: float) -> list[PeopleStream]:
+        out = []
+        for s in self.streams:
+            keep = frames_near(s, t0_ms, t1_ms, max_gap_frames)  # PeopleStream has StreamLayout's fields
+            out.append(PeopleStream(stream=s.stream, table=s.table, cameras=s.cameras, frame_index=s.frame_index[keep],
+                                    kp=s.kp[keep]))
+        return out
+
+
+@dataclass(frozen=True)
+class FileSource:
+    """Detections still on disk (camera -> {frame -> OpenPose file}): :meth:`chunk` reads only the files of the
+    frames that bracket a span of times, so a long session is never in memory at once (each executor task reads its
+    own chunk's files: workers need the detections folder at the same path)."""
+
+    layouts: list[StreamLayout]
+    files: dict[str, dict[int, Path]]
+    body_model: BodyModel
+
+    @property
+    def cameras(self) -> list[str]:
+        return [n for s in self.layouts for n in s.cameras]
+
+    def chunk(self, t0_ms: float, t1_ms: float, max_gap_frames: float) -> list[PeopleStream]:
+        out = []
+        for layout in self.layouts:
+            frames = layout.frame_index[frames_near(layout, t0_ms, t1_ms, max_gap_frames)]
+            wanted = set(frames.tolist())
+            files = {n: {f: p for f, p in self.files.get(n, {}).items() if f in wanted} for n in layout.cameras}
+            sub = StreamLayout(stream=layout.stream, table=layout.table, cameras=layout.cameras, frame_index=frames)
+            out.append(fill_stream(sub, read_openpose_files(files, self.body_model)))
+        return out
 
 
 def _person_size_px(kp: np.ndarray) -> np.ndarray:
