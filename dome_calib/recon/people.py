@@ -24,7 +24,8 @@ from fractions import Fraction
 import numpy as np
 
 from dome_calib.recon.kernel import CameraKernel
-from dome_calib.recon.people_assoc import AssociationOptions, assign, propose, residual_pairs, select_pairs
+from dome_calib.recon.people_assoc import (AssociationOptions, assign, propose, residual_pairs, select_pairs,
+                                          world_rays)
 from dome_calib.recon.people_time import FileSource, InMemorySource, PeopleStream, interpolate_people
 from dome_calib.recon.project import ViewSet
 from dome_calib.recon.tracking import (TrackingOptions, skeleton_distance_cm, smooth_track, stitch_chunks,
@@ -154,7 +155,7 @@ def _dedupe(X: np.ndarray, n_inl: np.ndarray, duplicate_cm: float) -> np.ndarray
 
 
 def _residual(views: ViewSet, kernel: CameraKernel, kp: np.ndarray, skeletons: np.ndarray, A: np.ndarray,
-              a: AssociationOptions) -> tuple[np.ndarray, np.ndarray]:
+              a: AssociationOptions, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Proposals from the detections that no proposal took (see :mod:`~dome_calib.recon.people_assoc`, step 4):
     (V, P) assignment -> (V, P + P_new) and the (P + P_new, 19, 3) skeletons."""
     V, N = kp.shape[:2]
@@ -166,7 +167,7 @@ def _residual(views: ViewSet, kernel: CameraKernel, kp: np.ndarray, skeletons: n
     if has_left.sum() < a.min_person_views:
         return A, skeletons
     kp_left = np.where(left[..., None, None], kp, 0.0)
-    new = propose(views, kernel, kp_left, residual_pairs(views, has_left, a.max_pairs), a)
+    new = propose(views, kernel, kp_left, residual_pairs(views, has_left, a.max_pairs), a, rays)
     if len(new) == 0:
         return A, skeletons
     B = assign(kernel, new, kp_left, a)
@@ -179,12 +180,13 @@ def associate_batch(views: ViewSet, kernel: CameraKernel, pairs: np.ndarray, kp:
     """(T, V, N, 19, 3) people at T times -> the bodies of each time (ids -1) and the cameras' agreement."""
     a = options.association
     T, V = kp.shape[:2]
-    skeletons = [propose(views, kernel, kp[t], pairs, a) for t in range(T)]
+    rays = [world_rays(views, kernel, kp[t]) for t in range(T)]
+    skeletons = [propose(views, kernel, kp[t], pairs, a, rays[t]) for t in range(T)]
     skeletons = [S[_dedupe(S, np.isfinite(S).all(-1), a.duplicate_cm)] for S in skeletons]
     assigned = []
     for t in range(T):
         A = assign(kernel, skeletons[t], kp[t], a)
-        A, skeletons[t] = _residual(views, kernel, kp[t], skeletons[t], A, a)
+        A, skeletons[t] = _residual(views, kernel, kp[t], skeletons[t], A, a, rays[t])
         assigned.append(A[:, (A >= 0).sum(0) >= a.min_person_views])
     for _ in range(a.passes - 1):  # assign again against linear triangulations of the assigned detections
         X = _linear_skeletons(views, kernel, kp, assigned)

@@ -271,8 +271,9 @@ def assign(kernel: CameraKernel, skeletons: np.ndarray, kp: np.ndarray, options:
 
 
 def propose(views: ViewSet, kernel: CameraKernel, kp: np.ndarray, pairs: np.ndarray,
-            options: AssociationOptions) -> np.ndarray:
-    """(V, N, 19, 3) detections at one time -> (P, 19, 3) proposal skeletons (cm, NaN joints possible)."""
-    rays = world_rays(views, kernel, kp)
+            options: AssociationOptions, rays: np.ndarray | None = None) -> np.ndarray:
+    """(V, N, 19, 3) detections at one time -> (P, 19, 3) proposal skeletons (cm, NaN joints possible).
+    ``rays``: :func:`world_rays` of these detections if already computed."""
+    rays = world_rays(views, kernel, kp) if rays is None else rays
     centres, joints, weights = pair_hypotheses(views, rays, kp, pairs, options)
     return cluster_hypotheses(centres, joints, weights, options)
