@@ -139,6 +139,10 @@ from dome_calib.cli_session import register as _register_session  # noqa: E402  
 
 _register_session(app)
 
+from dome_calib.cli_people import register as _register_people  # noqa: E402  (reconstruct)
+
+_register_people(app)
+
 
 def main() -> None:
     run_cli(app, prog="dome-calib")

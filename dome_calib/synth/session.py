@@ -7,6 +7,8 @@
     SESSION/sync/              ltc.wav (VGA + HD LTC), Kinect microphones, frame stamps (synth.sync_session; sync)
     SESSION/detections.json    2D joints of a walking person in every VGA, HD and Kinect colour camera, at each
                                stream's own frames (synth.skeleton; triangulate)
+    SESSION/group/             optional (group_people > 0): a group of people as OpenPose folders per camera and
+                               its truth (synth.group_session; reconstruct)
     SESSION/ground_truth/      the truth as one bundle: cameras as built, Kinect depth-colour calibration, the
                                true frame times (synctables/ksynctables) of every stream
 
@@ -27,7 +29,10 @@ from dome_calib.bundle import Bundle, SyncTable, SyncTables
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.synth.capture import SynthOptions, synthesize as write_capture
+from dome_calib.synth.detector import DetectorModel
 from dome_calib.synth.dome import as_built_dome
+from dome_calib.synth.group import GroupOptions
+from dome_calib.synth.group_session import GroupSessionOptions, make_group_session, session_span_ms
 from dome_calib.synth.kinect_boards import KinectBoardsOptions, generate_kinect_boards, truth_kcalibration
 from dome_calib.synth.skeleton import DetectionNoise, synthetic_tracks
 from dome_calib.synth.sync_session import SynthSessionOptions, SynthTruth, make_session
@@ -52,6 +57,8 @@ class SessionOptions:
     noise_px: float = 2.0  # 2D detection noise (std per coordinate)
     wrong_fraction: float = 0.05  # detections on the mirror joint or anywhere in the image
     miss_fraction: float = 0.10  # detections missing (occlusion, detector misses)
+    group_people: int = 0  # > 0: also a group of this many people, OpenPose folders in group/ (synth.group_session)
+    group_scenario: str = "mixed"
 
 
 def truth_sync(truth: SynthTruth) -> SyncTables:
@@ -118,9 +125,17 @@ def make_product_session(folder: str | Path, options: SessionOptions | None = No
                               noise=DetectionNoise(noise_px=o.noise_px, wrong_fraction=o.wrong_fraction))
     doc = _detections_doc(tracks, np.random.default_rng(o.seed + 7), o.miss_fraction)
     atomic_write_text(folder / "detections.json", json.dumps(doc, separators=(",", ":")) + "\n")
-    atomic_write_text(manifest, json.dumps(wanted | {
-        "parts": {"capture": "capture", "kinect": "kinect", "sync": "sync", "detections": "detections.json",
-                  "ground_truth": "ground_truth"}}, indent=1) + "\n")
+    parts = {"capture": "capture", "kinect": "kinect", "sync": "sync", "detections": "detections.json",
+             "ground_truth": "ground_truth"}
+    if o.group_people:
+        step("a group of people and its OpenPose detections")
+        start_ms, duration_ms = session_span_ms(truth)
+        make_group_session(folder / "group", truth, GroupSessionOptions(
+            group=GroupOptions(n_people=o.group_people, scenario=o.group_scenario, start_ms=start_ms,
+                               duration_ms=duration_ms, seed=o.seed), detector=DetectorModel(seed=o.seed),
+            cameras=seen_by))
+        parts["group"] = "group"
+    atomic_write_text(manifest, json.dumps(wanted | {"parts": parts}, indent=1) + "\n")
     return folder
 
 

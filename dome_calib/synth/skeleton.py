@@ -35,15 +35,12 @@ def _rot_x(angle: np.ndarray) -> np.ndarray:
     return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
 
 
-def skeleton_cm(univ_time_ms: np.ndarray, *, radius_cm: float = 60.0, speed_cm_s: float = 60.0) -> np.ndarray:
-    """(T,) universal times (ms) -> (T, 19, 3) joint positions in the Panoptic world (cm, y down, floor y = 0)."""
+def walking_body_local_cm(univ_time_ms: np.ndarray) -> np.ndarray:
+    """(T,) universal times (ms) -> (T, 19, 3) the walking body's joints in its own frame, cm: offsets from the body
+    centre along (lateral: "left" joints at -x, down, forward). Stride 0.9 Hz, arms raised slowly, head turning;
+    :func:`skeleton_cm` places it on its circle, :mod:`dome_calib.synth.group` takes its bone directions."""
     t = np.asarray(univ_time_ms, dtype=float) / 1000.0
-    phase = speed_cm_s * t / radius_cm  # angle on the circle
     gait = 2 * np.pi * 0.9 * t  # stride frequency 0.9 Hz
-    center = np.stack([radius_cm * np.cos(phase), -95.0 - 2.0 * np.cos(2 * gait), radius_cm * np.sin(phase)], -1)
-    fwd = np.stack([-np.sin(phase), np.zeros_like(t), np.cos(phase)], -1)  # walking direction
-    right = np.cross(fwd, [0.0, -1.0, 0.0])  # lateral axis (up = -y); "left" joints sit at -1 on it
-    # Body-frame offsets (lateral, down, forward) in cm.
     swing = 0.45 * np.sin(gait)
     raise_arm = 0.6 * (1 - np.cos(2 * np.pi * 0.25 * t))  # slow raise of the arms
     local = np.zeros((len(t), 19, 3))
@@ -72,6 +69,18 @@ def skeleton_cm(univ_time_ms: np.ndarray, *, radius_cm: float = 60.0, speed_cm_s
     hx, hz = local[:, head, 0].copy(), local[:, head, 2].copy()
     local[:, head, 0] = np.cos(yaw)[:, None] * hx + np.sin(yaw)[:, None] * hz
     local[:, head, 2] = -np.sin(yaw)[:, None] * hx + np.cos(yaw)[:, None] * hz
+    return local
+
+
+def skeleton_cm(univ_time_ms: np.ndarray, *, radius_cm: float = 60.0, speed_cm_s: float = 60.0) -> np.ndarray:
+    """(T,) universal times (ms) -> (T, 19, 3) joint positions in the Panoptic world (cm, y down, floor y = 0)."""
+    t = np.asarray(univ_time_ms, dtype=float) / 1000.0
+    phase = speed_cm_s * t / radius_cm  # angle on the circle
+    gait = 2 * np.pi * 0.9 * t  # stride frequency 0.9 Hz
+    center = np.stack([radius_cm * np.cos(phase), -95.0 - 2.0 * np.cos(2 * gait), radius_cm * np.sin(phase)], -1)
+    fwd = np.stack([-np.sin(phase), np.zeros_like(t), np.cos(phase)], -1)  # walking direction
+    right = np.cross(fwd, [0.0, -1.0, 0.0])  # lateral axis (up = -y); "left" joints sit at -1 on it
+    local = walking_body_local_cm(univ_time_ms)
     down = np.array([0.0, 1.0, 0.0])
     return (center[:, None] + local[..., 0:1] * right[:, None] + local[..., 1:2] * down
             + local[..., 2:3] * fwd[:, None])

@@ -1,0 +1,279 @@
+"""Cross-view association of unlabelled 2D people at one universal time: which detection in which view is whom.
+
+Method (linear in views; see docs/reconstruct.md for the measurements behind the choices):
+
+1. **Proposals from a bounded set of view pairs.** :func:`select_pairs` picks at most ``max_pairs`` pairs of views
+   whose optical axes are far from parallel and anti-parallel (score |angle - 90 deg|, each view used a bounded
+   number of times, ties by name). For every pair and every pair of people in it, all common joints are
+   triangulated at once (midpoint of the two rays); the person pair is a 3D hypothesis if the median ray gap is
+   below ``max_ray_gap_cm`` over at least ``min_common_joints`` joints. Cost: pairs x N^2 x 19, not V^2.
+2. **Clustering in 3D.** Hypothesis centres (median of their joints, quantised to 0.1 mm) are clustered greedily
+   around the densest one (weight = common joints), radius ``cluster_radius_cm``; each cluster is a proposal whose
+   skeleton is the per-joint median of its hypotheses.
+3. **Assignment per view.** Every proposal skeleton is projected into every view; a detection's cost against a
+   proposal is the mean over common joints of the pixel distance converted to cm at the joint's depth (capped at
+   ``assign_cap_cm``, so a swapped or borrowed limb costs a bounded amount); one-to-one per view by
+   :func:`~dome_calib.recon.people_time.greedy_match` below ``assign_gate_cm``. Cost: V x N x proposals x 19.
+
+4. **Residual proposals.** Detections that no proposal took, in the views that have them, propose again over
+   pairs of those views only (a person seen by few views has few pairs among the sampled ones: this finds them;
+   the views with leftovers are few, so the cost stays small).
+
+The caller triangulates each proposal from its assigned detections with the robust
+:func:`~dome_calib.recon.triangulate.triangulate` (per-joint RANSAC removes swapped joints and borrowed limbs),
+then may assign again against the triangulated skeletons.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dome_calib.recon.body_models import JOINTS19
+from dome_calib.recon.errors import ReconError
+from dome_calib.recon.kernel import F32, CameraKernel
+from dome_calib.recon.people_time import greedy_match
+from dome_calib.recon.project import ViewSet
+
+
+@dataclass(kw_only=True)
+class AssociationOptions:
+    """Options of the association (lengths in cm of world, confidences in [0, 1]).
+
+    max_pairs: view pairs that propose people at each time (bounds the cost on the full dome).
+    min_joint_conf: joints with lower detection confidence are ignored by association (not by triangulation).
+    min_common_joints: joints two detections must share to form a hypothesis / to be compared with a proposal.
+    max_ray_gap_cm: median closest-approach distance of a pair hypothesis's rays.
+    cluster_radius_cm: hypotheses within this distance of a cluster centre belong to it.
+    assign_gate_cm, assign_cap_cm: a detection joins a proposal if its mean capped error (cm at the person's depth)
+        is below the gate.
+    min_cluster_weight, relative_cluster_weight: a proposal needs hypotheses whose common joints add up to this, and
+        to this share of the densest cluster's (ghosts of crossing rays scatter into small clusters; a person seen
+        by few views who falls below is found by the residual proposals).
+    bone_ratio: a hypothesis's median bone length / nominal adult length must lie in this range.
+    min_person_views: a person needs this many assigned views (2 views always agree with each other).
+    passes: assignment rounds (the second assigns against linear triangulations of the first's detections; the
+        robust triangulation runs once, at the end).
+    duplicate_cm: two people whose median joint distance is below this are one (the one with more views stays);
+        people's centres are >= ~50 cm apart.
+    """
+
+    max_pairs: int = 48
+    min_joint_conf: float = 0.05
+    min_common_joints: int = 4
+    max_ray_gap_cm: float = 10.0
+    cluster_radius_cm: float = 30.0
+    assign_gate_cm: float = 12.0
+    assign_cap_cm: float = 40.0
+    min_person_views: int = 3
+    passes: int = 2
+    min_cluster_weight: float = 15.0
+    relative_cluster_weight: float = 0.1
+    bone_ratio: tuple[float, float] = (0.6, 1.5)
+    duplicate_cm: float = 25.0
+
+    def __post_init__(self) -> None:
+        if self.max_pairs < 1 or self.min_common_joints < 2 or self.passes < 1 or self.min_person_views < 2:
+            raise ReconError("max_pairs >= 1, min_common_joints >= 2, passes >= 1 and min_person_views >= 2 are "
+                             "required")
+        for name in ("max_ray_gap_cm", "cluster_radius_cm", "assign_gate_cm", "assign_cap_cm"):
+            if getattr(self, name) <= 0:
+                raise ReconError(f"{name}={getattr(self, name)} but expected > 0")
+
+
+#: A detection is compared joint by joint only with proposals whose 2D centre is this close (cm at their depth).
+CANDIDATE_CM = 80.0
+
+#: Joints whose mean is a hypothesis's centre (when at least two are there): the torso, rarely occluded all at once.
+_TORSO = [JOINTS19.index(n) for n in ("neck", "body_center", "l_shoulder", "r_shoulder", "l_hip", "r_hip")]
+
+
+#: Nominal lengths (cm) of bones that a ghost (two people's rays crossing) stretches or shrinks: torso, shoulders,
+#: hips, upper arms, forearms, thighs, shins of an adult.
+_BONES = [(JOINTS19.index(a), JOINTS19.index(b), length) for a, b, length in (
+    ("neck", "body_center", 52.0), ("l_shoulder", "r_shoulder", 36.0), ("l_hip", "r_hip", 22.0),
+    ("l_shoulder", "l_elbow", 28.0), ("r_shoulder", "r_elbow", 28.0), ("l_elbow", "l_wrist", 25.0),
+    ("r_elbow", "r_wrist", 25.0), ("l_hip", "l_knee", 44.0), ("r_hip", "r_knee", 44.0), ("l_knee", "l_ankle", 42.0),
+    ("r_knee", "r_ankle", 42.0))]
+
+
+def plausible_bones(X: np.ndarray, ratio: tuple[float, float]) -> np.ndarray:
+    """(M, 19, 3) skeletons -> (M,) bool: the median of (bone length / nominal) over the bones present lies within
+    ``ratio`` (True if fewer than 2 bones are present). A ghost at another depth than its people is scaled by the
+    depth ratio and fails."""
+    a, b, nominal = (np.array(v) for v in zip(*_BONES))
+    length = np.linalg.norm(X[:, a] - X[:, b], axis=-1) / nominal  # (M, B), NaN where a joint is missing
+    med = nan_median(length, axis=-1)
+    n = np.isfinite(length).sum(-1)
+    return (n < 2) | ((med >= ratio[0]) & (med <= ratio[1]))
+
+
+def nan_median(a: np.ndarray, axis: int) -> np.ndarray:
+    """Median along ``axis`` ignoring NaN (NaN where all are NaN); a sort, without numpy's slow masked path."""
+    a = np.moveaxis(np.asarray(a), axis, -1)
+    s = np.sort(a, axis=-1)  # NaN last
+    n = np.isfinite(s).sum(-1)
+    lo = np.take_along_axis(s, np.maximum((n - 1) // 2, 0)[..., None], axis=-1)[..., 0]
+    hi = np.take_along_axis(s, np.maximum(n // 2, 0)[..., None], axis=-1)[..., 0]
+    return np.where(n > 0, 0.5 * (lo + hi), np.nan)
+
+
+def select_pairs(views: ViewSet, max_pairs: int) -> np.ndarray:
+    """(Q, 2) view index pairs, Q <= max_pairs: axes closest to perpendicular first, each view in at most
+    ceil(2 max_pairs / V) + 1 pairs, ties by view names. Pairs with axes within 3 deg of (anti)parallel are never
+    taken (a panel's own cameras, 5-15 deg apart, still pair up when nothing better is there)."""
+    V = len(views.names)
+    if V < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    axis = views.R[:, 2, :]  # optical axis in the world
+    a, b = np.triu_indices(V, 1)
+    cos = np.clip((axis[a] * axis[b]).sum(-1), -1, 1)
+    score = np.round(np.abs(np.degrees(np.arccos(cos)) - 90.0), 1)
+    name_rank = np.argsort(np.argsort(np.array(views.names)))
+    order = np.lexsort((name_rank[b], name_rank[a], score))
+    order = order[score[order] <= 87.0]  # not within 3 deg of (anti)parallel: no depth from those
+    if len(order) <= max_pairs:
+        return np.stack([a[order], b[order]], axis=1)
+    limit = int(np.ceil(2 * max_pairs / V)) + 1
+    used = np.zeros(V, dtype=np.int64)
+    keep = []
+    for k in order:
+        if used[a[k]] < limit and used[b[k]] < limit:
+            keep.append(k)
+            used[a[k]] += 1
+            used[b[k]] += 1
+            if len(keep) == max_pairs:
+                break
+    keep = np.array(keep, dtype=np.int64)
+    return np.stack([a[keep], b[keep]], axis=1)
+
+
+def residual_pairs(views: ViewSet, has_left: np.ndarray, max_pairs: int) -> np.ndarray:
+    """View pairs (indices into ``views``) among the views whose ``has_left`` (V,) is set: the views that kept
+    detections no proposal took (:func:`select_pairs` on them, twice ``max_pairs``: they hold few detections)."""
+    idx = np.flatnonzero(has_left)
+    if len(idx) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    return idx[select_pairs(views.subset([views.names[i] for i in idx]), 2 * max_pairs)]
+
+
+def world_rays(views: ViewSet, kernel: CameraKernel, kp: np.ndarray) -> np.ndarray:
+    """(V, N, 19, 3) detections -> (V, N, 19, 3) world ray directions R^T [x, y, 1] (undistorted)."""
+    V, N = kp.shape[:2]
+    u = kp[..., 0].transpose(1, 2, 0).reshape(-1, V)
+    v = kp[..., 1].transpose(1, 2, 0).reshape(-1, V)
+    x, y = kernel.undistort(u, v)
+    xh = np.stack([x, y, np.ones_like(x)], axis=-1).reshape(N, 19, V, 3).transpose(2, 0, 1, 3)
+    return np.einsum("vji,vnkj->vnki", views.R.astype(F32), xh)
+
+
+def pair_hypotheses(views: ViewSet, rays: np.ndarray, kp: np.ndarray, pairs: np.ndarray,
+                    options: AssociationOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """3D hypotheses from detection pairs of the view pairs.
+
+    Returns centres (M, 3) cm, joints (M, 19, 3) cm (NaN where not triangulated) and weights (M,) (common joints).
+    """
+    if len(pairs) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 19, 3)), np.zeros(0)
+    C = views.center_cm.astype(F32)
+    va, vb = pairs[:, 0], pairs[:, 1]
+    da, db = rays[va][:, :, None], rays[vb][:, None]  # (Q, N, 1, 19, 3), (Q, 1, N, 19, 3)
+    ok = (kp[va][:, :, None, :, 2] > options.min_joint_conf) & (kp[vb][:, None, :, :, 2] > options.min_joint_conf)
+    w0 = (C[va] - C[vb])[:, None, None, None, :]
+    a, b, c = (da * da).sum(-1), (da * db).sum(-1), (db * db).sum(-1)
+    d, e = (da * w0).sum(-1), (db * w0).sum(-1)
+    den = a * c - b * b
+    ok &= den > 1e-3 * a * c
+    den = np.where(ok, den, 1.0)
+    s, t = (b * e - c * d) / den, (a * e - b * d) / den
+    ok &= (s > 0) & (t > 0)
+    pa = C[va][:, None, None, None, :] + s[..., None] * da
+    pb = C[vb][:, None, None, None, :] + t[..., None] * db
+    diff = pa - pb
+    gap = np.sqrt((diff * diff).sum(-1))
+    n = ok.sum(-1)
+    gap_med = nan_median(np.where(ok, gap, np.nan), axis=-1)
+    good = (n >= options.min_common_joints) & (np.nan_to_num(gap_med, nan=np.inf) < options.max_ray_gap_cm)
+    q, i, j = np.nonzero(good)
+    X = np.where(ok[q, i, j][..., None], 0.5 * (pa[q, i, j] + pb[q, i, j]), np.nan).astype(float)
+    plausible = plausible_bones(X, options.bone_ratio)
+    X, q, i, j = X[plausible], q[plausible], i[plausible], j[plausible]
+    torso = X[:, _TORSO]
+    n_torso = np.isfinite(torso[..., 0]).sum(1)
+    centres = np.where((n_torso >= 2)[:, None], np.nanmean(np.where(n_torso[:, None, None] >= 2, torso, 0.0), axis=1)
+                       if len(X) else np.zeros((0, 3)), nan_median(X, axis=1))
+    centres = np.round(centres, 3)
+    return centres, X, n[q, i, j].astype(float)
+
+
+def cluster_hypotheses(centres: np.ndarray, joints: np.ndarray, weights: np.ndarray,
+                       options: AssociationOptions) -> np.ndarray:
+    """Greedy density clustering of hypothesis centres -> (P, 19, 3) proposal skeletons (per-joint medians)."""
+    M = len(centres)
+    if M == 0:
+        return np.zeros((0, 19, 3))
+    r2 = options.cluster_radius_cm ** 2
+    sq = (centres * centres).sum(1)
+    near = (sq[:, None] + sq[None] - 2 * centres @ centres.T) < r2
+    left = np.ones(M, bool)
+    density = np.where(near, weights[None], 0.0).sum(1)
+    out = []
+    floor = max(options.min_cluster_weight, options.relative_cluster_weight * float(density.max()))
+    while left.any():
+        seed = int(np.argmax(np.where(left, density, -1.0)))
+        if density[seed] < floor:
+            break
+        members = left & near[seed]
+        centre = np.round(np.median(centres[members], axis=0), 3)
+        members = left & (((centres - centre) ** 2).sum(1) < r2)
+        members[seed] = True
+        out.append(nan_median(joints[members], axis=0))
+        left &= ~members
+        density -= np.where(near[:, members], weights[members][None], 0.0).sum(1)
+    if not out:
+        return np.zeros((0, 19, 3))
+    return np.stack(out)
+
+
+def assign(kernel: CameraKernel, skeletons: np.ndarray, kp: np.ndarray, options: AssociationOptions) -> np.ndarray:
+    """Each view's detection of each proposal: (P, 19, 3) skeletons, (V, N, 19, 3) detections -> (V, P) index
+    into N or -1."""
+    P, V, N = len(skeletons), kp.shape[0], kp.shape[1]
+    if P == 0 or N == 0:
+        return np.full((V, P), -1, dtype=np.int64)
+    X = skeletons.reshape(-1, 3)
+    have = np.all(np.isfinite(X), axis=1)
+    xc, yc, zc = kernel.camera_points(np.where(have[:, None], X, 0.0))  # (P*19, V)
+    ev = kernel.evaluate(np.where(have[:, None], X, 0.0), np.zeros_like(zc), np.zeros_like(zc), jacobian=False)
+    proj = np.stack([ev.r_u, ev.r_v], axis=-1).reshape(P, 19, V, 2).transpose(2, 0, 1, 3)  # (V, P, 19, 2)
+    cm_per_px = (zc / kernel.fx).reshape(P, 19, V).transpose(2, 0, 1)  # (V, P, 19)
+    pvalid = (have.reshape(P, 19)[None] & np.isfinite(proj[..., 0]) & (cm_per_px > 0))
+    det = kp[..., 2] > options.min_joint_conf  # (V, N, 19)
+    # Candidates first: detection and proposal whose 2D centres (mean of their joints) are within
+    # CANDIDATE_CM at the proposal's depth; the full per-joint cost only for those (a few per detection).
+    pc = np.where(pvalid[..., None], proj, 0.0).sum(2) / np.maximum(pvalid.sum(2), 1)[..., None]  # (V, P, 2)
+    scale = np.where(pvalid, cm_per_px, 0.0).sum(2) / np.maximum(pvalid.sum(2), 1)  # (V, P) cm per px
+    dc = np.where(det[..., None], kp[..., :2], 0.0).sum(2) / np.maximum(det.sum(2), 1)[..., None]  # (V, N, 2)
+    gap = np.linalg.norm(dc[:, :, None] - pc[:, None], axis=-1) * scale[:, None]  # (V, N, P)
+    cand = (gap < CANDIDATE_CM) & (det.sum(2) >= options.min_common_joints)[..., None] & (pvalid.sum(2) > 0)[:, None]
+    v, i, p = np.nonzero(cand)
+    both = det[v, i] & pvalid[v, p]  # (K, 19)
+    diff = kp[v, i, :, :2] - proj[v, p]
+    err = np.minimum(np.where(both, np.sqrt((diff * diff).sum(-1)) * cm_per_px[v, p], 0.0), options.assign_cap_cm)
+    n = both.sum(-1)
+    cost = np.full((V, N, P), np.inf)
+    cost[v, i, p] = np.where(n >= options.min_common_joints, err.sum(-1) / np.maximum(n, 1), np.inf)
+    match = greedy_match(cost, options.assign_gate_cm)  # (V, N) -> proposal
+    out = np.full((V, P), -1, dtype=np.int64)
+    v, i = np.nonzero(match >= 0)
+    out[v, match[v, i]] = i
+    return out
+
+
+def propose(views: ViewSet, kernel: CameraKernel, kp: np.ndarray, pairs: np.ndarray,
+            options: AssociationOptions, rays: np.ndarray | None = None) -> np.ndarray:
+    """(V, N, 19, 3) detections at one time -> (P, 19, 3) proposal skeletons (cm, NaN joints possible).
+    ``rays``: :func:`world_rays` of these detections if already computed."""
+    rays = world_rays(views, kernel, kp) if rays is None else rays
+    centres, joints, weights = pair_hypotheses(views, rays, kp, pairs, options)
+    return cluster_hypotheses(centres, joints, weights, options)

@@ -1,0 +1,100 @@
+"""Files out of ``dome-calib reconstruct``: one Panoptic ``body3DScene_<k:08d>.json`` per time and ``cameras.json``.
+
+body3DScene (as the Panoptic toolbox reads it, several bodies)::
+
+    {"version": 0.7, "univTime": t_ms, "fpsType": "vga_25", "bodies": [{"id": 3, "joints19": [x, y, z, c] * 19,
+     "inlierViews19": [n] * 19}, ...]}
+
+x, y, z world cm (Panoptic frame), c = mean detection confidence of the supporting views, -1 (x = y = z = 0) for a
+joint not reconstructed; inlierViews19 = the number of views supporting each joint.
+
+cameras.json: per camera the people it detected, the share of them used by a reconstructed body and the median
+pixel distance between its used joints and the reconstructed joints; ``flagged`` lists the cameras that disagree
+(median error above ``max(3 x the cameras' median, 5 px)`` or a share used below half the cameras' median): a
+camera that moved since calibration, a bad lens, or a camera that sees nobody well.
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+
+from dome_calib.io_utils import atomic_folder, output_folder
+from dome_calib.recon.errors import ReconError
+from dome_calib.recon.people import Bodies, CameraAgreement, PeopleSequence
+
+CAMERAS_FILE = "cameras.json"
+_OURS = re.compile(r"body3DScene_-?\d+\.json")
+
+
+def check_people_folder(folder: str | Path) -> Path:
+    """The output folder ``-o`` may replace: absent, empty or an earlier run's (body3DScene files and
+    cameras.json only); anything else is refused before any work."""
+    target = output_folder(folder)
+    if target.is_dir():
+        other = sorted(p.name for p in target.iterdir() if not (_OURS.fullmatch(p.name) or p.name == CAMERAS_FILE))
+        if other:
+            raise ReconError(f"{folder}: holds {other[0]!r}, which is not an output of reconstruct: the folder is "
+                             "replaced as a whole, so give a new folder or one of an earlier run")
+    return target
+
+
+def scene_json(time_ms: float, bodies: Bodies, fps_type: str) -> dict:
+    """One body3DScene object (bodies sorted by id)."""
+    out = []
+    for p in np.argsort(bodies.ids, kind="stable"):
+        flat: list[float] = []
+        for j in range(19):
+            X, c = bodies.X_cm[p, j], float(bodies.confidence[p, j])
+            if np.all(np.isfinite(X)) and c >= 0:
+                flat += [round(float(v), 4) for v in X] + [round(c, 4)]
+            else:
+                flat += [0.0, 0.0, 0.0, -1.0]
+        out.append({"id": int(bodies.ids[p]), "joints19": flat,
+                    "inlierViews19": [int(n) for n in bodies.n_inliers[p]]})
+    return {"version": 0.7, "univTime": round(float(time_ms), 4), "fpsType": fps_type, "bodies": out}
+
+
+def camera_report(agreement: CameraAgreement) -> dict:
+    """The per-camera agreement as a JSON object (see the module docstring)."""
+    med = agreement.median_px()
+    share = np.where(agreement.detected > 0, agreement.used / np.maximum(agreement.detected, 1), np.nan)
+    all_med = float(np.nanmedian(med)) if np.isfinite(med).any() else float("nan")
+    all_share = float(np.nanmedian(share)) if np.isfinite(share).any() else float("nan")
+    flagged = []
+    cams = {}
+    for v, name in enumerate(agreement.names):
+        bad_err = np.isfinite(med[v]) and med[v] > max(3.0 * all_med, 5.0)
+        bad_share = np.isfinite(share[v]) and share[v] < 0.5 * all_share
+        if bad_err or bad_share:
+            flagged.append(name)
+        cams[name] = {"detected": int(agreement.detected[v]), "used": int(agreement.used[v]),
+                      "share_used": None if not np.isfinite(share[v]) else round(float(share[v]), 4),
+                      "median_reprojection_px": None if not np.isfinite(med[v]) else round(float(med[v]), 2)}
+    return {"median_reprojection_px": None if not np.isfinite(all_med) else round(all_med, 2),
+            "median_share_used": None if not np.isfinite(all_share) else round(all_share, 4),
+            "flagged": flagged, "cameras": cams}
+
+
+def write_people(folder: str | Path, seq: PeopleSequence, numbers: np.ndarray, fps_type: str) -> list[Path]:
+    """Write the body3DScene files and cameras.json into ``folder``, replacing it as a whole (staged beside it,
+    then renamed)."""
+    folder = check_people_folder(folder)
+    names = []
+    with atomic_folder(folder) as staging:
+        for k, number in enumerate(numbers):
+            names.append(f"body3DScene_{int(number):08d}.json")
+            obj = scene_json(seq.times_ms[k], seq.bodies[k], fps_type)
+            (staging / names[-1]).write_text(json.dumps(obj, allow_nan=False) + "\n", encoding="utf-8")
+        (staging / CAMERAS_FILE).write_text(json.dumps(camera_report(seq.cameras), indent=1, allow_nan=False) + "\n",
+                                            encoding="utf-8")
+    return [folder / n for n in names]
+
+
+def read_scene(path: str | Path) -> tuple[float, dict[int, np.ndarray]]:
+    """A body3DScene file -> (univTime ms, {id: (19, 4) [x, y, z, c]})."""
+    data = json.loads(Path(path).read_text(encoding="utf-8"))
+    return float(data["univTime"]), {int(b["id"]): np.asarray(b["joints19"], dtype=float).reshape(19, 4)
+                                     for b in data["bodies"]}

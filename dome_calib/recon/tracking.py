@@ -1,0 +1,179 @@
+"""Identity over time: the same person keeps the same id; people enter and leave; an id is never reused.
+
+:func:`track_bodies` links the people of consecutive times by the Hungarian method
+(``scipy.optimize.linear_sum_assignment``) on the median 3D joint distance between each track's predicted skeleton
+(the whole body at constant velocity from its last two observations) and each body, gated: confirmed tracks
+first, then tentative ones (seen fewer than ``min_track_frames`` times) with the bodies left. Confirmed tracks not
+seen for ``max_missed_ms`` end, tentative ones at their first miss; tracks shorter than ``min_track_frames`` are
+dropped (a false body lasts a frame or two). Ids are given in order of first appearance (then creation order),
+once.
+
+:func:`smooth_track` is optional smoothing: a local linear least-squares fit over a centred window of the track's
+own observation times. A linear fit reproduces any constant-velocity motion exactly (also at the ends of a track
+and across uneven time steps), so it does not bias a moving joint; it lags only under acceleration (by
+acceleration x window^2 / 6 at most in the middle of a track).
+
+:func:`stitch_chunks` joins the ids of time chunks that overlap: tracks of two chunks that hold the same people
+in the overlap are the same track.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from dome_calib.recon.errors import ReconError
+
+
+@dataclass(kw_only=True)
+class TrackingOptions:
+    """gate_cm: a body continues a track if its median joint distance to the track's prediction is below
+    ``gate_cm + gate_cm_per_s x elapsed``; max_missed_ms: a track unseen longer ends; min_track_frames: shorter
+    tracks are dropped, and a track is tentative until seen this often (matched after the confirmed ones, ended
+    by a single miss); smooth_half_window: half width (in observations) of the smoothing window, 0 = off;
+    drop_short: False keeps short tracks (a chunk of a long session: they are dropped after stitching)."""
+
+    gate_cm: float = 40.0
+    gate_cm_per_s: float = 100.0
+    max_missed_ms: float = 500.0
+    min_track_frames: int = 3
+    smooth_half_window: int = 0
+    drop_short: bool = True
+
+    def __post_init__(self) -> None:
+        if self.gate_cm <= 0 or self.max_missed_ms < 0 or self.min_track_frames < 1 or self.smooth_half_window < 0:
+            raise ReconError("gate_cm > 0, max_missed_ms >= 0, min_track_frames >= 1, smooth_half_window >= 0")
+
+
+def skeleton_distance_cm(A: np.ndarray, B: np.ndarray, min_common: int = 3) -> np.ndarray:
+    """Median distance over common joints of (P, 19, 3) and (Q, 19, 3) skeletons -> (P, Q) cm (inf if fewer than
+    ``min_common`` joints are in both). The median: one wrong joint (a swapped or borrowed limb) does not move it."""
+    d = np.linalg.norm(A[:, None] - B[None], axis=-1)  # (P, Q, 19), NaN where either lacks the joint
+    n = np.isfinite(d).sum(-1)
+    s = np.sort(d, axis=-1)  # NaN last
+    lo = np.take_along_axis(s, np.maximum((n - 1) // 2, 0)[..., None], axis=-1)[..., 0]
+    hi = np.take_along_axis(s, np.maximum(n // 2, 0)[..., None], axis=-1)[..., 0]
+    return np.where(n >= min_common, 0.5 * (lo + hi), np.inf)
+
+
+def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
+                 options: TrackingOptions | None = None) -> list[np.ndarray]:
+    """Ids of the bodies of each time.
+
+    Args: times_ms (T,) increasing; bodies[t] (P_t, 19, 3) cm (NaN = joint missing).
+    Returns: ids[t] (P_t,) int: 0, 1, ... in order of first appearance; -1 for bodies of dropped short tracks.
+    """
+    options = options or TrackingOptions()
+    track_of = [np.full(len(b), -1, dtype=np.int64) for b in bodies]
+    last_X: list[np.ndarray] = []
+    last_t: list[float] = []
+    vel: list[np.ndarray] = []
+    seen: list[int] = []
+    active: list[int] = []
+    prev_t = -np.inf
+    for k, (t, X) in enumerate(zip(np.asarray(times_ms, dtype=float), bodies)):
+        # confirmed tracks survive gaps up to max_missed_ms; a tentative one (seen fewer than min_track_frames
+        # times) ends as soon as it misses a time
+        active = [i for i in active if t - last_t[i] <= options.max_missed_ms
+                  and (seen[i] >= options.min_track_frames or last_t[i] >= prev_t)]
+        prev_t = t
+        P = len(X)
+        # confirmed tracks first, then tentative ones with the bodies left (a one-frame false body next to a
+        # person cannot take the person's track)
+        for group in ([i for i in active if seen[i] >= options.min_track_frames],
+                      [i for i in active if seen[i] < options.min_track_frames]):
+            free = np.flatnonzero(track_of[k] < 0)
+            if not group or not len(free):
+                continue
+            pred = np.stack([last_X[i] + vel[i] * (t - last_t[i]) for i in group])
+            cost = skeleton_distance_cm(pred, X[free])
+            gate = options.gate_cm + options.gate_cm_per_s * 1e-3 * np.array([t - last_t[i] for i in group])
+            cost = np.where(cost < gate[:, None], np.round(cost, 3), 1e6)
+            rows, cols = linear_sum_assignment(cost)
+            for r, c in zip(rows, cols):
+                if cost[r, c] < 1e6:
+                    track_of[k][free[c]] = group[r]
+        for c in range(P):
+            i = track_of[k][c]
+            if i < 0:
+                i = len(last_X)
+                track_of[k][c] = i
+                last_X.append(X[c].copy())
+                last_t.append(t)
+                vel.append(np.zeros((19, 3)))
+                seen.append(1)
+                active.append(i)
+                continue
+            seen[i] += 1
+            dt = t - last_t[i]
+            v = (X[c] - last_X[i]) / dt if dt > 0 else np.zeros((19, 3))
+            # one velocity for the whole body (median over joints): a joint's own velocity from two noisy positions
+            # would throw the prediction off by the noise again at every step
+            have = np.isfinite(v).all(-1)
+            vel[i] = np.broadcast_to(np.median(v[have], axis=0) if have.any() else np.zeros(3), (19, 3)).copy()
+            last_X[i] = np.where(np.isfinite(X[c]), X[c], last_X[i] + vel[i] * dt)
+            last_t[i] = t
+    n_tracks = len(last_X)
+    length = np.bincount(np.concatenate([tr[tr >= 0] for tr in track_of] + [np.zeros(0, np.int64)]),
+                         minlength=n_tracks)
+    keep = length >= (options.min_track_frames if options.drop_short else 1)
+    new_id = np.full(n_tracks, -1, dtype=np.int64)
+    new_id[keep] = np.arange(int(keep.sum()))  # creation order = order of first appearance
+    return [np.where(tr >= 0, new_id[np.maximum(tr, 0)], -1) for tr in track_of]
+
+
+def smooth_track(times_ms: np.ndarray, X: np.ndarray, half_window: int) -> np.ndarray:
+    """Local linear fit of one track: times (L,), X (L, 19, 3) (NaN = missing) -> (L, 19, 3).
+
+    Each point is replaced by the value at its time of the least-squares line through the observations of its
+    window (``half_window`` observations either side, fewer at the ends); joints missing at the point stay
+    missing, and fits with fewer than 2 observations keep the point.
+    """
+    if half_window <= 0 or len(X) < 3:
+        return X.copy()
+    t = np.asarray(times_ms, dtype=float)
+    out = X.copy()
+    for k in range(len(t)):
+        lo, hi = max(0, k - half_window), min(len(t), k + half_window + 1)
+        dt = (t[lo:hi] - t[k])[:, None, None]
+        Y = X[lo:hi]
+        w = np.isfinite(Y).all(-1, keepdims=True)
+        Yz = np.where(w, Y, 0.0)
+        n, s1, s2 = w.sum(0), (w * dt).sum(0), (w * dt * dt).sum(0)
+        m0, m1 = Yz.sum(0), (Yz * dt).sum(0)
+        det = n * s2 - s1 * s1
+        ok = (n >= 2) & (det > 1e-9) & np.isfinite(X[k]).all(-1, keepdims=True)
+        intercept = (s2 * m0 - s1 * m1) / np.where(ok, det, 1.0)
+        out[k] = np.where(ok, intercept, X[k])
+    return out
+
+
+def stitch_chunks(prev_X: list[np.ndarray], prev_ids: list[np.ndarray], next_X: list[np.ndarray],
+                  next_ids: list[np.ndarray], gate_cm: float) -> dict[int, int]:
+    """Match the tracks of two chunks over their shared (overlap) times.
+
+    Args: per overlap time, each chunk's bodies (P, 19, 3) and their ids (local to the chunk, -1 = dropped).
+    Returns: {next chunk's id: previous chunk's id} for tracks whose mean distance over the overlap is below
+    ``gate_cm`` (Hungarian over the track pairs).
+    """
+    sums: dict[tuple[int, int], list[float]] = {}
+    for Xa, ia, Xb, ib in zip(prev_X, prev_ids, next_X, next_ids):
+        if len(Xa) == 0 or len(Xb) == 0:
+            continue
+        d = skeleton_distance_cm(Xa, Xb)
+        for p in range(len(Xa)):
+            for q in range(len(Xb)):
+                if ia[p] >= 0 and ib[q] >= 0 and np.isfinite(d[p, q]):
+                    sums.setdefault((int(ib[q]), int(ia[p])), []).append(float(d[p, q]))
+    if not sums:
+        return {}
+    nexts = sorted({k[0] for k in sums})
+    prevs = sorted({k[1] for k in sums})
+    cost = np.full((len(nexts), len(prevs)), 1e6)
+    for (b, a), ds in sums.items():
+        mean = float(np.mean(ds))
+        if mean < gate_cm:
+            cost[nexts.index(b), prevs.index(a)] = round(mean, 3)
+    rows, cols = linear_sum_assignment(cost)
+    return {nexts[r]: prevs[c] for r, c in zip(rows, cols) if cost[r, c] < 1e6}

@@ -1,0 +1,200 @@
+"""`dome-calib reconstruct`: an OpenPose folder of a group + a bundle -> tracked people; bad input: one line, exit 1,
+nothing written."""
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from dome_calib.bundle import Bundle
+from dome_calib.bundle_io import write_bundle
+from dome_calib.recon.people_io import read_scene
+from dome_calib.rotation import rotvec_to_matrix
+from dome_calib.synth.detector import write_openpose_folder
+
+from .people_helpers import group_detections, group_joints_cm
+from .recon_helpers import real_bundle
+
+N_PEOPLE = 3
+
+
+def _small(bundle: Bundle, n_vga: int = 14, n_hd: int = 6) -> Bundle:
+    vga = sorted(bundle.of_type("vga"))[:: max(len(bundle.of_type("vga")) // n_vga, 1)][:n_vga]
+    hd = sorted(bundle.of_type("hd"))[:: 5][:n_hd]
+    cams = {n: bundle.cameras[n] for n in vga + hd}
+    return Bundle(seq=bundle.seq, cameras=cams, calib_data_source=bundle.calib_data_source, sync=bundle.sync)
+
+
+def _one_line_error(out) -> str:
+    assert out.returncode == 1, out.stdout + out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("dome-calib: error:"), out.stderr
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def group(tmp_path_factory):
+    root = tmp_path_factory.mktemp("people_cli")
+    bundle = _small(real_bundle(kinect=False, n_vga=40, start_ms=1000.0, duration_ms=600.0, seed=3))
+    write_bundle(bundle, root / "bundle")
+    people, _ = group_detections(bundle, sorted(bundle.cameras), N_PEOPLE, seed=4)
+    write_openpose_folder(root / "det", people, body_model="BODY_25")
+    return root, bundle, people
+
+
+def test_reconstruct_writes_tracked_people(group, dome_calib_cli):
+    root, bundle, _ = group
+    out = dome_calib_cli("reconstruct", str(root / "det"), "--bundle", str(root / "bundle"), "-o", str(root / "out"),
+                         "--body-model", "BODY_25")
+    assert out.returncode == 0, out.stderr
+    assert f"{N_PEOPLE} people" in out.stdout
+    vga = bundle.sync.streams["vga"]
+    files = sorted((root / "out").glob("body3DScene_*.json"))
+    assert [int(f.stem.split("_")[1]) for f in files] == vga.index.tolist()
+    truth = group_joints_cm(vga.univ_time_ms, N_PEOPLE, seed=4)
+    id_of_truth: dict[int, set[int]] = {p: set() for p in range(N_PEOPLE)}
+    errors = []
+    for k, f in enumerate(files):
+        t_ms, bodies = read_scene(f)
+        assert t_ms == pytest.approx(vga.univ_time_ms[k], abs=1e-3)
+        assert json.loads(f.read_text())["fpsType"] == "vga_25"
+        if k in (0, len(files) - 1):
+            continue  # the HD stream does not bracket the table's first and last VGA frames
+        assert len(bodies) == N_PEOPLE
+        for i, j in bodies.items():
+            X = np.where(j[:, 3:] < 0, np.nan, j[:, :3])
+            d = np.nanmean(np.linalg.norm(X[None] - truth[k], axis=-1), axis=1)
+            p = int(np.argmin(d))
+            id_of_truth[p].add(i)
+            errors.append(d[p])
+    assert all(len(ids) == 1 for ids in id_of_truth.values())  # one id per person, all the time
+    assert np.median(errors) < 1.0 and np.max(errors) < 5.0  # cm; 2 px noise, ~20 views
+    cams = json.loads((root / "out" / "cameras.json").read_text())
+    assert sorted(cams["cameras"]) == sorted(bundle.cameras) and cams["flagged"] == []
+    assert all(c["median_reprojection_px"] < 4.0 and c["share_used"] > 0.8 for c in cams["cameras"].values())
+
+
+def test_a_moved_camera_stands_out(group, dome_calib_cli, tmp_path):
+    """The detections come from the true cameras; the bundle given to reconstruct has one camera turned by 1 deg."""
+    root, bundle, _ = group
+    moved = sorted(bundle.of_type("vga"))[3]
+    cams = dict(bundle.cameras)
+    cam = cams[moved]
+    # turned by 1 deg about its own vertical axis, around its centre (the centre stays where it is)
+    R = rotvec_to_matrix(np.radians([0.0, 1.0, 0.0])) @ cam.R
+    centre = -cam.R.T @ cam.t_cm
+    cams[moved] = dataclasses.replace(cam, R=R, t_cm=-R @ centre)
+    write_bundle(Bundle(seq=bundle.seq, cameras=cams, calib_data_source="moved", sync=bundle.sync), tmp_path / "b")
+    out = dome_calib_cli("reconstruct", str(root / "det"), "--bundle", str(tmp_path / "b"), "-o",
+                         str(tmp_path / "out"), "--body-model", "BODY_25")
+    assert out.returncode == 0, out.stderr
+    report = json.loads((tmp_path / "out" / "cameras.json").read_text())
+    assert report["flagged"] == [moved]
+    others = [c for n, c in report["cameras"].items() if n != moved]
+    mine = report["cameras"][moved]
+    worst_other = max(c["median_reprojection_px"] for c in others)
+    assert (mine["median_reprojection_px"] or np.inf) > 3 * worst_other or mine["share_used"] < 0.5
+    assert moved in out.stdout
+
+
+def _copy_det(src, dst, limit=4):
+    """The first ``limit`` frames of each camera of an OpenPose folder."""
+    for cam in sorted(p for p in src.iterdir()):
+        (dst / cam.name).mkdir(parents=True)
+        for f in sorted(cam.iterdir())[:limit]:
+            (dst / cam.name / f.name).write_text(f.read_text())
+
+
+@pytest.mark.parametrize("case", ["absent_camera", "outside_sync", "malformed", "joint_count", "ambiguous"])
+def test_bad_input_one_line_nothing_written(group, dome_calib_cli, tmp_path, case):
+    root, bundle, _ = group
+    det = tmp_path / "det"
+    _copy_det(root / "det", det)
+    cam = sorted(bundle.of_type("hd"))[0]
+    first = sorted((det / cam).iterdir())[0]
+    frame = int(first.name.split("_")[-2])
+    args = ["--body-model", "BODY_25"]
+    if case == "absent_camera":
+        (det / cam).rename(det / "99_99")
+        expect = ["99_99", "not in the bundle"]
+    elif case == "outside_sync":
+        bad = det / cam / f"{cam}_{999999:012d}_keypoints.json"
+        bad.write_text(first.read_text())
+        expect = [str(bad), cam, "frame 999999", "sync table"]
+    elif case == "malformed":
+        first.write_text('{"people": [')
+        expect = [str(first), cam, f"frame {frame}", "not valid JSON"]
+    elif case == "joint_count":
+        first.write_text(json.dumps({"people": [{"pose_keypoints_2d": [1.0, 2.0, 0.5] * 21}]}))
+        expect = [str(first), cam, f"frame {frame}", "21 joints", "fits no body model"]
+    else:
+        args = []
+        expect = ["25 joints", "BODY_25 and BODY_25B", "--body-model"]
+    out = dome_calib_cli("reconstruct", str(det), "--bundle", str(root / "bundle"), "-o", str(tmp_path / "out"), *args)
+    line = _one_line_error(out)
+    for e in expect:
+        assert e in line, line
+    assert not (tmp_path / "out").exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["det"]  # no staging folder left either
+
+
+def test_camera_map_dotted_names_and_no_sync_tables(dome_calib_cli, tmp_path):
+    """A rig without sync tables (one shared frame index, as Pose2Sim's), folders named cam01.. mapped to the
+    bundle's cameras, files named cam01.0042.json, COCO-18 keypoints, smoothing on."""
+    full = real_bundle(kinect=False, sync=False, n_vga=40)
+    bundle = _small(full, n_vga=8, n_hd=0)
+    write_bundle(bundle, tmp_path / "bundle")
+    frames = np.arange(40, 52)
+    people, _ = group_detections(bundle, sorted(bundle.cameras), 2, seed=5, shared_frames=frames)
+    folder_of = {n: f"cam{k + 1:02d}" for k, n in enumerate(sorted(bundle.cameras))}
+    write_openpose_folder(tmp_path / "det", {folder_of[n]: d for n, d in people.items()}, body_model="COCO_18",
+                          naming="dotted")
+    mapping = ",".join(f"{f}={n}" for n, f in folder_of.items())
+    out = dome_calib_cli("reconstruct", str(tmp_path / "det"), "--bundle", str(tmp_path / "bundle"),
+                         "--camera-map", mapping, "--fps", "30", "--smooth", "2")
+    assert out.returncode == 0, out.stderr
+    files = sorted((tmp_path / "det_people").glob("body3DScene_*.json"))
+    assert [int(f.stem.split("_")[1]) for f in files] == frames.tolist()
+    truth = group_joints_cm(frames * 1000.0 / 30.0, 2, seed=5)
+    for k, f in enumerate(files):
+        t_ms, bodies = read_scene(f)
+        assert t_ms == pytest.approx(frames[k] * 1000 / 30, abs=1e-3)
+        assert sorted(bodies) == [0, 1]
+        for j in bodies.values():
+            X = np.where(j[:, 3:] < 0, np.nan, j[:, :3])
+            # COCO-18 has no body_center: it comes from the hips
+            assert np.nanmin(np.nanmean(np.linalg.norm(X[None] - truth[k], axis=-1), axis=1)) < 3.0
+
+
+@pytest.mark.parametrize("args, message", [(["--fps", "abc"], "--fps 'abc': not a frame rate"),
+                                           (["--min-views", "1"], "min_person_views >= 2"),
+                                           (["--smooth", "-1"], "smooth_half_window >= 0")])
+def test_bad_options_one_line(group, dome_calib_cli, tmp_path, args, message):
+    root, _, _ = group
+    out = dome_calib_cli("reconstruct", str(root / "det"), "--bundle", str(root / "bundle"), "-o", str(tmp_path / "o"),
+                         "--body-model", "BODY_25", *args)
+    assert message in _one_line_error(out)
+    assert not (tmp_path / "o").exists()
+
+
+def test_long_session_chunks_read_their_own_files(group, tmp_path):
+    """Chunks of 5 times (overlap 2) on a 2-process pool, each task reading only its chunk's OpenPose files: the
+    same people with the same ids as one run over everything."""
+    from dome_calib.executor import LocalProcessExecutor
+    from dome_calib.recon.people import PeopleOptions
+    from dome_calib.recon.people_commands import reconstruct_folder
+
+    root, bundle, _ = group
+    whole = reconstruct_folder(root / "det", root / "bundle", tmp_path / "whole", body_model="BODY_25")
+    with LocalProcessExecutor(2) as pool:
+        chunked = reconstruct_folder(root / "det", root / "bundle", tmp_path / "chunked", body_model="BODY_25",
+                                     options=PeopleOptions(chunk_times=5, overlap_times=2), executor=pool)
+    assert (chunked.times, chunked.people, chunked.body_frames) == (whole.times, whole.people, whole.body_frames)
+    for a, b in zip(sorted((tmp_path / "whole").glob("body3D*")), sorted((tmp_path / "chunked").glob("body3D*"))):
+        _, A = read_scene(a)
+        _, B = read_scene(b)
+        assert sorted(A) == sorted(B)
+        for i in A:
+            np.testing.assert_allclose(A[i], B[i], atol=1e-2)

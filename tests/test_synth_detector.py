@@ -1,0 +1,407 @@
+"""The body volume (occlusion) and the OpenPose-like detector of dome_calib.synth: hand-built occlusions, a brute-force
+occlusion check, failure rates over many frames, OpenPose JSON round trips, determinism per camera."""
+import json
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from dome_calib.bundle import Bundle
+from dome_calib.recon.body_models import JOINT_NAMES, to_joints19
+from dome_calib.recon.project import project_points, view_set
+from dome_calib.synth.body_volume import (_FACE, _FACE_MIN_COS, CAPSULE_RADIUS_CM, INSIDE_MARGIN_CM, RAY_STOP_CM,
+                                          _capsule_hit, capsules_cm, occluded_joints, segment_distance2)
+from dome_calib.synth.detector import (DetectionCounts, DetectorError, DetectorModel, image_rng, openpose_file_name,
+                                       shared_clock, synth_detections, write_openpose_folder)
+from dome_calib.synth.group import GroupOptions, GroupTruth, PersonPlan, make_group
+from dome_calib.synth.skeleton import MIRROR19
+
+from .recon_helpers import real_bundle
+
+TORSO = [0, 2, 3, 9, 6, 12]  # neck, body centre, shoulders, hips
+
+
+def _standing(*spots):
+    """People standing at (x, z, facing_rad) spots."""
+    plans = tuple(PersonPlan(id=i, role="talk", waypoints_cm=((x, z),), facing_rad=f) for i, (x, z, f) in
+                  enumerate(spots))
+    return GroupTruth(ids=list(range(len(plans))), plans=plans, start_ms=0.0, duration_ms=1000.0)
+
+
+def test_a_person_between_camera_and_another_hides_the_right_joints():
+    camera = np.array([[0.0, -120.0, -400.0]])
+    facing_camera = -math.pi / 2  # forward = -z
+    X, _ = _standing((0.0, 0.0, facing_camera), (0.0, -120.0, facing_camera)).joints_cm(np.zeros(1))
+    occ = occluded_joints(camera, X[0])
+    assert occ[0, 0, TORSO].all()  # the one behind: torso hidden by the blocker
+    assert not occ[0, 1, TORSO + [1, 15, 17]].any()  # the blocker itself faces the camera, all seen
+    # Moving the blocker aside reveals them.
+    X, _ = _standing((0.0, 0.0, facing_camera), (150.0, -120.0, facing_camera)).joints_cm(np.zeros(1))
+    occ = occluded_joints(camera, X[0])
+    assert not occ[0, 0, TORSO + [1, 15, 17, 16, 18]].any()
+    # An absent blocker hides nothing and is not tested.
+    X, _ = _standing((0.0, 0.0, facing_camera), (0.0, -120.0, facing_camera)).joints_cm(np.zeros(1))
+    occ = occluded_joints(camera, X[0], np.array([True, False]))
+    assert not occ[0, 0, TORSO].any() and not occ[0, 1].any()
+
+
+def test_self_occlusion_from_behind_and_from_the_side():
+    X, _ = _standing((0.0, 0.0, -math.pi / 2)).joints_cm(np.zeros(1))  # facing -z; its right is -x
+    behind, front = np.array([0.0, -120.0, 400.0]), np.array([0.0, -120.0, -400.0])
+    right_side = np.array([-400.0, -120.0, 0.0])
+    occ = occluded_joints(np.stack([behind, front, right_side]), X[0])[:, 0]
+    assert occ[0, [1, 15, 17]].all() and not occ[1, [1, 15, 17, 16, 18]].any()  # face from behind / front
+    assert not occ[0, [0, 3, 9, 6, 12]].any()  # shoulders, hips and neck are seen from behind
+    assert occ[2, [3, 6, 16]].all()  # from its right: left shoulder, hip and ear hidden by the body
+    assert not occ[2, [9, 12, 18]].any()
+
+
+def test_occlusion_equals_brute_force():
+    truth = make_group(GroupOptions(n_people=8, scenario="mixed", seed=3))
+    X, present = truth.joints_cm(np.array([2200.0]))
+    X, present = X[0], present[0]
+    bundle = real_bundle(n_vga=30, kinect=False, sync=False)
+    C = view_set(bundle).center_cm
+    fast = occluded_joints(C, X, present)
+    # Brute force: every ray against every capsule of every present person.
+    A, B, r = capsules_cm(X)
+    P = len(X)
+    ray_end = X[None] - RAY_STOP_CM * (X[None] - C[:, None, None]) / np.linalg.norm(
+        X[None] - C[:, None, None], axis=-1, keepdims=True)  # (V, P, 19, 3)
+    V = len(C)
+    shape = (V, P, 19, P, 12)
+    p1 = np.broadcast_to(C[:, None, None, None, None], shape + (3,)).reshape(-1, 3)
+    q1 = np.broadcast_to(ray_end[:, :, :, None, None], shape + (3,)).reshape(-1, 3)
+    p2 = np.broadcast_to(A[None, None, None], shape + (3,)).reshape(-1, 3)
+    q2 = np.broadcast_to(B[None, None, None], shape + (3,)).reshape(-1, 3)
+    hit = (segment_distance2(p1, q1, p2, q2) < np.broadcast_to(r ** 2, shape).reshape(-1)).reshape(shape)
+    own_inside = np.zeros((P, 19, P, 12), dtype=bool)
+    for p in range(P):
+        for k in range(12):  # point to capsule axis
+            d = B[p, k] - A[p, k]
+            t = np.clip((X[p] - A[p, k]) @ d / (d @ d), 0.0, 1.0)
+            dist = np.linalg.norm(X[p] - A[p, k] - t[:, None] * d, axis=-1)
+            own_inside[p, :, p, k] = dist < CAPSULE_RADIUS_CM[k] + INSIDE_MARGIN_CM
+    hit &= ~own_inside[None] & present[None, None, None, :, None]
+    slow = hit.any(axis=(3, 4))
+    head = 0.5 * (X[:, 16] + X[:, 18])
+    for k, j in enumerate(_FACE):
+        n = X[:, j] - head
+        to_cam = C[:, None] - X[None, :, j]
+        cos = np.sum(n * to_cam, -1) / np.linalg.norm(n, axis=-1) / np.linalg.norm(to_cam, axis=-1)
+        slow[:, :, j] |= cos < _FACE_MIN_COS[k]
+    slow &= present[None, :, None]
+    assert 0.15 < slow[:, present].mean() < 0.7
+    assert np.array_equal(fast, slow), np.argwhere(fast != slow)[:5]
+
+
+def test_segment_distance_and_capsule_hit():
+    rng = np.random.default_rng(0)
+    p1, q1, p2, q2 = (rng.normal(size=(4000, 3)) * 30 for _ in range(4))
+    d2 = segment_distance2(p1, q1, p2, q2)
+    s = np.linspace(0, 1, 401)
+    a = p1[:, None] + s[None, :, None] * (q1 - p1)[:, None]
+    b = p2[:, None] + s[None, :, None] * (q2 - p2)[:, None]
+    for i in range(0, 4000, 200):  # dense sampling bounds the true distance from above
+        dense = np.min(np.linalg.norm(a[i][:, None] - b[i][None], axis=-1))
+        assert math.sqrt(d2[i]) <= dense + 1e-9 and dense - math.sqrt(d2[i]) < 0.2
+    # parallel segments
+    assert segment_distance2(np.zeros((1, 3)), np.array([[10.0, 0, 0]]), np.array([[5.0, 3, 0]]),
+                             np.array([[20.0, 3, 0]]))[0] == pytest.approx(9.0)
+    rad2 = rng.uniform(1, 900, size=(4000, 1))
+    d1, d2v, r = q1 - p1, (q2 - p2)[:, None], (p1 - p2)[:, None]
+    hit = _capsule_hit(tuple(d1.T), np.sum(d1 * d1, -1), tuple(np.moveaxis(r, -1, 0)), np.sum(r * r, -1),
+                       np.sum(d2v * r, -1), tuple(np.moveaxis(d2v, -1, 0)), np.sum(d2v * d2v, -1), rad2)[:, 0]
+    clear = np.abs(d2 - rad2[:, 0]) > 1e-6 * rad2[:, 0]
+    assert np.array_equal(hit[clear], (d2 < rad2[:, 0])[clear])
+
+
+@pytest.fixture(scope="module")
+def scene():
+    bundle = real_bundle(n_vga=12, start_ms=0.0, duration_ms=4000.0)
+    truth = make_group(GroupOptions(n_people=8, scenario="mixed", seed=2))
+    cams = sorted(bundle.of_type("vga"))[:12] + sorted(bundle.of_type("hd"))[::3]
+    return bundle, truth, cams
+
+
+def _truth_in_images(bundle, truth, cams, det):
+    """Per (camera, frame): truth pixels (P, 19, 2), seen (P, 19), hidden (P, 19), sigma_px (P,) expected."""
+    from dome_calib.recon.streams import stream_of_camera
+
+    out = {}
+    for cam in cams:
+        _, table = stream_of_camera(bundle, cam)
+        frames = np.array(sorted(det[cam]))
+        X, present = truth.joints_cm(table.times_of(frames))
+        vs = view_set(bundle, [cam])
+        proj = project_points(vs, X.reshape(-1, 3))
+        P = X.shape[1]
+        uv = proj.uv_px[0].reshape(len(frames), P, 19, 2)
+        seen = proj.visible[0].reshape(len(frames), P, 19) & present[..., None]
+        fy, h_img = vs.intr[0, 1], vs.resolution[0, 1]
+        depth = proj.depth_cm[0].reshape(len(frames), P, 19)[..., 2]
+        h_net = fy * 170.0 * np.array([p.scale for p in truth.plans]) / depth * 368.0 / h_img
+        sigma = 1.0 * h_img / 368.0 * (1.0 + 120.0 / h_net)
+        for k, f in enumerate(frames):
+            hidden = occluded_joints(vs.center_cm, X[k], present[k])[0]
+            out[cam, int(f)] = (uv[k], seen[k], hidden, sigma[k])
+    return out
+
+
+def _assign(people, uv, seen):
+    """Per detection: (index of the true person, left/right swapped) or (-1, False) for a false person; each true
+    person at most once, the best matches first (median pixel error over the detected joints, < 25 px)."""
+    if len(people) == 0:
+        return []
+    refs = np.stack([uv, uv[:, MIRROR19]], 1)  # (P, 2, 19, 2)
+    seens = np.stack([seen, seen[:, MIRROR19]], 1)  # (P, 2, 19)
+    err = np.linalg.norm(people[:, None, None, :, :2] - np.where(seens[..., None], refs, 0.0)[None], axis=-1)
+    err = np.where(seens[None], err, np.inf)
+    err = np.where(people[:, None, None, :, 2] > 0, err, np.nan)  # (N, P, 2, 19)
+    med = np.nanmedian(err, axis=-1)
+    options = [(float(med[d, p, w]), d, p, bool(w)) for d, p, w in np.argwhere(med < 25.0)]
+    out, used = [(-1, False)] * len(people), set()
+    for _, d, p, swapped in sorted(options):
+        if out[d][0] < 0 and p not in used:
+            out[d] = (p, swapped)
+            used.add(p)
+    return out
+
+
+def test_detector_rates_measured_on_the_output(scene):
+    bundle, truth, cams = scene
+    cams = cams[:6] + cams[12:18]  # 6 VGA, 6 HD
+    model = DetectorModel(noise_px=1.0, occluded_noise=1.0, miss_base=0.1, miss_occluded=0.5, miss_border=0.0,
+                          swap_lr=0.2, swap_limb=0.0, neighbour_limb=0.0, false_people_per_view=0.3, seed=5)
+    counts = DetectionCounts()
+    det, who = synth_detections(bundle, truth, cameras=cams, model=model, counts=counts, with_ids=True)
+    ref = _truth_in_images(bundle, truth, cams, det)
+    n_people = n_swapped = n_false = agree = 0
+    miss = {False: [0, 0], True: [0, 0]}  # hidden -> [missed, seen]
+    z = []
+    first_ids = []
+    for key, people in ((k, v) for cam in cams for k, v in (((cam, f), d) for f, d in det[cam].items())):
+        uv, seen, hidden, sigma = ref[key]
+        ids = []
+        assert who[key[0]][key[1]].shape == (len(people),)
+        for person, (p, swapped), w in zip(people, _assign(people, uv, seen), who[key[0]][key[1]]):
+            agree += int(w == (truth.ids[p] if p >= 0 else -1))
+            if p < 0:
+                n_false += 1
+                continue
+            ids.append(p)
+            n_people += 1
+            n_swapped += swapped
+            truth_uv = uv[p][MIRROR19] if swapped else uv[p]
+            ok = person[:, 2] > 0
+            assert np.all(seen[p][MIRROR19][ok] if swapped else seen[p][ok])  # only joints in the image
+            z.append(((person[ok, :2] - truth_uv[ok]) / sigma[p]).ravel())
+            h = hidden[p][MIRROR19] if swapped else hidden[p]
+            s = seen[p][MIRROR19] if swapped else seen[p]
+            for flag in (False, True):
+                sel = s & (h == flag)
+                miss[flag][0] += int((~ok & sel).sum())
+                miss[flag][1] += int(sel.sum())
+        if len(ids) >= 2:
+            first_ids.append((ids[0] == min(ids), 1.0 / len(ids)))
+    z = np.concatenate(z)
+    assert n_people > 2500
+    assert agree >= 0.995 * (n_people + n_false)  # the true identities given with_ids are the matched ones
+    assert abs(np.std(z) - 1.0) < 0.05 and abs(np.mean(z)) < 0.05  # the pixel noise model
+    assert abs(n_swapped / n_people - 0.2) < 0.025
+    # misses among the people detected (those with too few joints are not there: a slight bias down)
+    assert abs(miss[False][0] / miss[False][1] - 0.1) < 0.02
+    assert abs(miss[True][0] / miss[True][1] - (1 - 0.9 * 0.5)) < 0.05
+    assert abs(n_false - counts.false_people) <= 0.01 * counts.false_people  # a few land on a true person
+    assert 0.15 < n_false / counts.images < 0.3
+    first, chance = np.mean(first_ids, axis=0)  # random order: the first is the lowest id by chance only
+    assert abs(first - chance) < 0.03
+    rates = counts.rates()
+    assert abs(rates["miss_visible"] - 0.1) < 0.01 and abs(rates["miss_hidden"] - 0.55) < 0.02
+
+
+def test_detector_default_rates_and_failure_modes(scene):
+    bundle, truth, cams = scene
+    model = DetectorModel(seed=1, swap_lr=0.05, swap_limb=0.1, neighbour_limb=0.5, false_people_per_view=0.2)
+    counts = DetectionCounts()
+    det = synth_detections(bundle, truth, cameras=cams, model=model, counts=counts)
+    r = counts.rates()
+    assert abs(r["miss_visible"] - model.miss_base) < 0.01
+    assert abs(r["miss_hidden"] - (1 - (1 - model.miss_base) * (1 - model.miss_occluded))) < 0.02
+    assert r["miss_border_zone"] > r["miss_visible"] + 0.1  # misses rise at the border
+    assert abs(r["swap_whole"] - 0.05) < 0.01 and abs(r["swap_limb"] - 0.1) < 0.015
+    assert counts.neighbour_eligible > 500 and abs(r["neighbour_limb"] - 0.5) < 0.05
+    assert 0.1 < r["false_people_per_view"] <= 0.2 + 0.03
+    assert counts.people_cut > 1000 and 0.5 < r["cut_people_detected"] < 1.0  # truncated people still detected
+    # Confidence follows visibility: hidden joints that are detected have low confidence.
+    ref = _truth_in_images(bundle, truth, cams[:6], det)
+    conf = {False: [], True: []}
+    for (cam, f), (uv, seen, hidden, _) in ref.items():
+        people = det[cam][f]
+        for person, (p, swapped) in zip(people, _assign(people, uv, seen)):
+            if p >= 0 and not swapped:
+                ok = (person[:, 2] > 0) & seen[p]
+                conf[False] += person[ok & ~hidden[p], 2].tolist()
+                conf[True] += person[ok & hidden[p], 2].tolist()
+    assert np.mean(conf[True]) + 0.25 < np.mean(conf[False])
+    # Without truncation, a person cut by the border is not detected at all.
+    counts2 = DetectionCounts()
+    synth_detections(bundle, truth, cameras=cams[:4], model=DetectorModel(truncate_border=False), counts=counts2)
+    assert counts2.people_cut > 0 and counts2.people_cut_detected == 0
+
+
+def test_detections_per_camera_are_deterministic(scene):
+    bundle, truth, cams = scene
+    model = DetectorModel(seed=9)
+    alone = synth_detections(bundle, truth, cameras=["00_05"], model=model)
+    many = synth_detections(bundle, truth, cameras=["00_05", cams[0], "50_03"], model=model,
+                            univ_time_ms=(1000.0, 3000.0))
+    assert set(many["00_05"]) < set(alone["00_05"]) and len(many["00_05"]) > 50
+    for f, d in many["00_05"].items():
+        assert np.array_equal(d, alone["00_05"][f])
+    other = synth_detections(bundle, truth, cameras=["00_05"], model=DetectorModel(seed=10))
+    assert any(not np.array_equal(d, other["00_05"][f]) for f, d in alone["00_05"].items())
+    a, b = image_rng(3, "00_05", 140).random(4), image_rng(3, "00_05", 141).random(4)
+    assert not np.array_equal(a, b) and np.array_equal(a, image_rng(3, "00_05", 140).random(4))
+    # Each stream at its own frames: VGA, HD and Kinect frame indices come from their own sync tables.
+    for cam, stream in (("00_05", "hd"), (cams[0], "vga")):
+        table = bundle.sync.streams[stream]
+        t = table.times_of(np.array(sorted(many[cam])))
+        assert np.all((t >= 1000.0) & (t <= 3000.0))
+    kin = bundle.sync.kinect_color["KINECTNODE3"]
+    assert set(many["50_03"]) == set(kin.index[(kin.univ_time_ms >= 1000.0) & (kin.univ_time_ms <= 3000.0)].tolist())
+
+
+@pytest.mark.parametrize("body_model, naming", [("BODY_25", "openpose"), ("COCO_18", "dotted"),
+                                                ("BODY_25B", "openpose"), ("PANOPTIC19", "dotted")])
+def test_openpose_files_read_back_the_same_pixels(scene, tmp_path, body_model, naming):
+    bundle, truth, _ = scene
+    det = synth_detections(bundle, truth, cameras=["00_01", "50_02"], univ_time_ms=(500.0, 800.0),
+                           model=DetectorModel(false_people_per_view=0.5, seed=2))
+    out = write_openpose_folder(tmp_path / "det", det, body_model=body_model, naming=naming)
+    assert sorted(p.name for p in out.iterdir()) == ["00_01", "50_02"]
+    n = 0
+    for cam, frames in det.items():
+        assert len(list((out / cam).iterdir())) == len(frames)
+        for f, people in frames.items():
+            doc = json.loads((out / cam / openpose_file_name(cam, f, naming)).read_text())
+            assert doc["version"] == 1.3
+            assert all(p["person_id"] == [-1] and p["face_keypoints_2d"] == [] for p in doc["people"])
+            kp = np.array([p["pose_keypoints_2d"] for p in doc["people"]], dtype=float).reshape(
+                len(doc["people"]), len(JOINT_NAMES[body_model]), 3)
+            back = to_joints19(kp, body_model)
+            direct = [k for k, name in enumerate(JOINT_NAMES["PANOPTIC19"]) if name in JOINT_NAMES[body_model]]
+            assert np.array_equal(back[:, direct], np.where(people[:, direct, 2:] > 0, people[:, direct], 0.0))
+            n += len(people)
+    assert n > 10
+    assert openpose_file_name("00_01", 42) == "00_01_000000000042_keypoints.json"
+    assert openpose_file_name("00_01", 42, "dotted") == "00_01.0042.json"
+
+
+def test_without_sync_tables_all_cameras_share_one_clock(scene):
+    bundle, truth, _ = scene
+    plain = Bundle(seq="plain", cameras={n: bundle.cameras[n] for n in ("00_01", "01_01")})
+    det = synth_detections(plain, truth, univ_time_ms=(0.0, 400.0))
+    assert sorted(det["00_01"]) == sorted(det["01_01"]) == list(range(11)) == shared_clock(0.0, 400.0).index.tolist()
+
+
+def test_bad_input():
+    bundle = real_bundle(n_vga=2, kinect=False, sync=True)
+    truth = make_group(GroupOptions(n_people=2))
+    with pytest.raises(DetectorError, match="no camera named '99_99'"):
+        synth_detections(bundle, truth, cameras=["99_99"])
+    with pytest.raises(DetectorError, match="50_01.*KINECTNODE1"):
+        bundle.sync.kinect_color.pop("KINECTNODE1")
+        synth_detections(bundle, truth, cameras=["50_01"])
+    with pytest.raises(DetectorError, match="swap_lr=1.5"):
+        DetectorModel(swap_lr=1.5)
+    with pytest.raises(DetectorError, match="naming 'x'"):
+        write_openpose_folder("/nonexistent/never", {}, naming="x")
+
+
+def test_group_session_read_back_by_the_reconstruct_reader(tmp_path):
+    from dome_calib.recon.openpose_io import read_openpose_folder
+    from dome_calib.synth.group_session import GroupSessionOptions, make_group_session
+
+    bundle = real_bundle(n_vga=2, start_ms=0.0, duration_ms=4000.0)
+    cams = ["00_02", "00_07", "50_01", sorted(bundle.of_type("vga"))[0]]
+    options = GroupSessionOptions(group=GroupOptions(n_people=6, scenario="leave", start_ms=300.0,
+                                                     duration_ms=3000.0, seed=1),
+                                  detector=DetectorModel(seed=4), body_model="BODY_25B", cameras=cams)
+    truth = make_group_session(tmp_path / "group", bundle, options)
+    read = read_openpose_folder(tmp_path / "group" / "detections", body_model="BODY_25B", cameras=set(bundle.cameras))
+    det = synth_detections(bundle, truth, cameras=cams, univ_time_ms=(300.0, 3300.0), model=DetectorModel(seed=4))
+    assert sorted(read.people) == sorted(cams)
+    for cam in cams:
+        assert sorted(read.people[cam]) == sorted(det[cam])
+        for f, people in det[cam].items():  # the peer's reader rebuilds neck and body centre as midpoints
+            keep = [k for k in range(19) if k not in (0, 2)]
+            np.testing.assert_array_equal(read.people[cam][f][:, keep], people[:, keep])
+    doc = json.loads((tmp_path / "group" / "group_truth.json").read_text())
+    assert doc["reference_stream"] == "vga" and doc["units"] == "cm" and doc["roles"]["0"] == "leave"
+    vga = bundle.sync.streams["vga"]
+    frames = [fr["frame"] for fr in doc["frames"]]
+    np.testing.assert_allclose([fr["univ_time_ms"] for fr in doc["frames"]], vga.times_of(np.array(frames)),
+                               atol=1e-4)
+    X, present = truth.joints_cm(vga.times_of(np.array(frames)))
+    for k, fr in enumerate(doc["frames"]):
+        assert [b["id"] for b in fr["bodies"]] == [i for i in truth.ids if present[k, i]]
+        for b in fr["bodies"]:
+            np.testing.assert_allclose(b["joints19"], X[k, b["id"]], atol=1e-3)
+    listed = [{b["id"] for b in fr["bodies"]} for fr in doc["frames"]]
+    assert 0 in listed[0] and 0 not in listed[-1]  # the leaver leaves
+    assert 0 < doc["detector"]["miss_hidden"] < 1
+
+
+def test_product_session_with_a_group(tmp_path, monkeypatch):
+    """The synthetic product session's group option: OpenPose folders of every synced colour camera and the truth,
+    within the span all streams cover (the tent capture stubbed as in conftest's small_product_session)."""
+    import dome_calib.synth.session as synth_session
+    from dome_calib.bundle_io import load_bundle, write_bundle
+    from dome_calib.recon.openpose_io import read_openpose_folder
+    from dome_calib.synth.capture import load_layout
+    from dome_calib.synth.group_session import session_span_ms
+
+    def stub_capture(out, options):
+        (out / "scenes" / "scene_01").mkdir(parents=True)
+        cams = load_layout(options)
+        (out / "capture.json").write_text(json.dumps({"preset": str(options.preset), "seed": options.seed,
+                                                      "scenes": ["scene_01"], "cameras": sorted(cams.cameras)}))
+        write_bundle(cams, out / "ground_truth")
+
+    monkeypatch.setattr(synth_session, "write_capture", stub_capture)
+    root = tmp_path / "sess"
+    synth_session.make_product_session(root, synth_session.SessionOptions(
+        duration_s=2.0, kinect_sensors=("KINECTNODE4",), kinect_good_frames=4, kinect_blurred_frames=0,
+        kinect_cut_off_frames=0, group_people=4))
+    truth_bundle = load_bundle(root / "ground_truth")
+    manifest = json.loads((root / "dome_session.json").read_text())
+    assert manifest["parts"]["group"] == "group" and manifest["options"]["group_people"] == 4
+    read = read_openpose_folder(root / "group" / "detections", body_model="BODY_25",
+                                cameras=set(truth_bundle.cameras))
+    colour = {n for n, c in truth_bundle.cameras.items() if c.type in ("vga", "hd")} | {"50_04"}
+    assert set(read.people) == colour
+    start, duration = session_span_ms(truth_bundle)
+    doc = json.loads((root / "group" / "group_truth.json").read_text())
+    times = [fr["univ_time_ms"] for fr in doc["frames"]]
+    assert start <= min(times) and max(times) <= start + duration and len(times) > 20
+    assert sum(len(p) for c in read.people.values() for p in c.values()) > 100
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(-300.0, 300.0, allow_nan=False), min_size=12, max_size=12))
+def test_segment_distance_properties(coords):
+    """Symmetric in the two segments, blind to their direction, never above any sampled pair's distance."""
+    p1, q1, p2, q2 = (np.array([coords[3 * k:3 * k + 3]]) for k in range(4))
+    if min(np.linalg.norm(q1 - p1), np.linalg.norm(q2 - p2)) < 1e-3:
+        return
+    d = segment_distance2(p1, q1, p2, q2)[0]
+    for other in (segment_distance2(p2, q2, p1, q1), segment_distance2(q1, p1, p2, q2),
+                  segment_distance2(p1, q1, q2, p2)):
+        assert other[0] == pytest.approx(d, rel=1e-6, abs=1e-6)
+    s = np.linspace(0.0, 1.0, 101)[:, None]
+    a, b = p1 + s * (q1 - p1), p2 + s * (q2 - p2)
+    dense = np.min(np.sum((a[:, None] - b[None]) ** 2, axis=-1))
+    assert d <= dense + 1e-6
