@@ -131,6 +131,10 @@ from dome_calib.cli_session import register as _register_session  # noqa: E402  
 
 _register_session(app)
 
+from dome_calib.cli_interop import register as _register_interop  # noqa: E402  (export, import)
+
+_register_interop(app)
+
 
 def main() -> None:
     run_cli(app, prog="dome-calib")
