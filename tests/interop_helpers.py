@@ -48,3 +48,37 @@ def ray_gap_px(a: Camera, b: Camera) -> float:
     cos = np.clip(np.sum(rays[0][ok_a] * rays[1][ok_a], axis=1), -1, 1)
     sin = np.linalg.norm(np.cross(rays[0][ok_a], rays[1][ok_a]), axis=1)
     return float(np.max(np.arctan2(sin, cos), initial=0.0) * a.intr[:2].max())
+
+
+# ------------------------------------------------------------- Pose2Sim's demo: its 3D result and the detections
+#: BODY_25B joint index of each TRC marker (Pose2Sim ``skeletons.py``, BODY_25B tree).
+BODY_25B = {"Nose": 0, "LShoulder": 5, "RShoulder": 6, "LElbow": 7, "RElbow": 8, "LWrist": 9, "RWrist": 10,
+            "LHip": 11, "RHip": 12, "LKnee": 13, "RKnee": 14, "LAnkle": 15, "RAnkle": 16, "Neck": 17, "Head": 18,
+            "LBigToe": 19, "LSmallToe": 20, "LHeel": 21, "RBigToe": 22, "RSmallToe": 23, "RHeel": 24}
+#: Pose2Sim writes TRC y-up for OpenSim (``common.py: zup2yup``: columns Y, Z, X of its z-up world), so the
+#: calibration's world point of a TRC row is (trc_z, trc_x, trc_y).
+WORLD_FROM_TRC_AXES = [2, 0, 1]
+
+
+def read_trc(path) -> tuple[np.ndarray, list[str], np.ndarray]:
+    """(frame numbers (F,), marker names (J,), positions (F, J, 3) in the file's axes and unit)."""
+    lines = path.read_text().splitlines()
+    names = [n for n in lines[3].split("\t")[2:] if n]
+    rows = np.array([[float(v) for v in line.split("\t")[:2 + 3 * len(names)]] for line in lines[5:] if line.strip()])
+    return rows[:, 0].astype(int), names, rows[:, 2:].reshape(len(rows), len(names), 3)
+
+
+def read_openpose_person(folder, prefix: str, frames: int) -> np.ndarray:
+    """(frames, 25, 3) x, y, confidence of the most confident person per frame (NaN where undetected)."""
+    import json
+
+    out = np.full((frames, 25, 3), np.nan)
+    for f in range(frames):
+        people = json.loads((folder / f"{prefix}.{f:04d}.json").read_text())["people"]
+        if not people:
+            continue
+        kp = [np.array(p["pose_keypoints_2d"], dtype=float).reshape(25, 3) for p in people]
+        best = max(kp, key=lambda a: float(np.mean(a[a[:, 2] > 0, 2])) if np.any(a[:, 2] > 0) else 0.0)
+        best[best[:, 2] <= 0] = np.nan
+        out[f] = best
+    return out
