@@ -62,7 +62,7 @@ def _open(path: Path) -> cv2.FileStorage:
         raise InteropError(f"{path}: missing (an EasyMocap calibration is a folder with {' and '.join(FILES)})")
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error:
+    except (cv2.error, SystemError):  # OpenCV 5's binding raises SystemError for a parse error
         fs = None
     if fs is None or not fs.isOpened():
         raise InteropError(f"{path}: not an OpenCV FileStorage YAML file (expected EasyMocap's {path.name})")
