@@ -18,6 +18,15 @@ class FormatChoice(StrEnum):  # the same values as dome_calib.interop.convert.Fo
     nerfstudio = "nerfstudio"
 
 
+class UpChoice(StrEnum):
+    px = "+x"
+    nx = "-x"
+    py = "+y"
+    ny = "-y"
+    pz = "+z"
+    nz = "-z"
+
+
 class UnitChoice(StrEnum):
     mm = "mm"
     cm = "cm"
@@ -38,6 +47,9 @@ def export(
                              show_default=False),
     unit: UnitChoice = typer.Option(None, "--unit", help="Length unit of the written translations (default: m; "
                                     "aniposelib mm, the usual board unit; pose2sim and easymocap are always m)."),
+    world_up: UpChoice = typer.Option(None, "--world-up", help="Axis that points up in the written world (ours: "
+                                      "-y). Default: +z for pose2sim (Pose2Sim turns z-up into OpenSim's y-up), "
+                                      "our -y kept for the others; nerfstudio is always +z."),
     names: str = typer.Option(None, "--names", help=_NAMES_HELP),
     text: bool = typer.Option(False, "--text", help="colmap: write .txt files instead of .bin."),
 ) -> None:
@@ -46,9 +58,11 @@ def export(
     from dome_calib.interop.common import ExportOptions, parse_names
     from dome_calib.interop.convert import export_bundle
 
-    options = ExportOptions(unit=unit and str(unit), names=parse_names(names), binary=not text)
+    options = ExportOptions(unit=unit and str(unit), world_up=world_up and str(world_up), names=parse_names(names),
+                            binary=not text)
     result = export_bundle(bundle, str(to), out, options)
-    typer.echo(f"{result.cameras} cameras -> {result.out} ({result.format}, lengths in {result.unit})")
+    typer.echo(f"{result.cameras} cameras -> {result.out} ({result.format}, lengths in {result.unit}, "
+               f"up {result.world_up})")
     for line in result.dropped:
         typer.echo(f"not carried: {line}")
     for name, shift in result.corner_shift_px.items():
@@ -67,6 +81,10 @@ def import_(
                                     "(the calibration board's squares: give --square-size-mm)."),
     square_size_mm: float = typer.Option(None, "--square-size-mm", help="With --unit squares: the board's square "
                                          "side in mm."),
+    world_up: UpChoice = typer.Option(None, "--world-up", help="Axis that points up in SOURCE's world; it is "
+                                      "turned to our -y (x kept where possible). Default: +z for pose2sim, none "
+                                      "(world kept) for colmap, aniposelib, easymocap; nerfstudio: undone from its "
+                                      "applied_transform."),
     names: str = typer.Option(None, "--names", help=_NAMES_HELP),
     seq: str = typer.Option(None, "--seq", help="Sequence name for calibration_<seq>.json (default: the output "
                             "folder's name)."),
@@ -77,9 +95,10 @@ def import_(
     from dome_calib.interop.convert import import_calibration
 
     options = ImportOptions(unit=unit and str(unit), square_size_mm=square_size_mm, names=parse_names(names),
-                            seq=seq or out.resolve().name)
+                            world_up=world_up and str(world_up), seq=seq or out.resolve().name)
     result = import_calibration(source, str(from_), out, options)
-    typer.echo(f"{result.cameras} cameras from {source} ({result.format}, lengths in {result.unit}) -> {result.out}")
+    typer.echo(f"{result.cameras} cameras from {source} ({result.format}, lengths in {result.unit}, "
+               f"up {result.world_up}) -> {result.out}")
 
 
 def register(app: typer.Typer) -> None:

@@ -230,3 +230,53 @@ def test_opencv_filestorage_reads_the_easymocap_files_as_easymocap_does(real_bun
         worst = max(worst, float(np.abs(uv.reshape(-1, 2) - pixels(cam, X_cm)).max()))
     print(f"OpenCV (EasyMocap's reading) vs our model, 520 real cameras: {worst:.2e} px")
     assert worst < ROUND_TRIP_TOL_PX
+
+
+@pytest.mark.parametrize("up", ["+x", "-x", "+y", "+z", "-z"])
+def test_world_up_turns_the_world_and_back(synthetic_bundle, tmp_path, up):
+    """Exported with up = UP and imported saying so: our world again. Imported as kept: the same cameras in the
+    turned world (a point X of ours is M^T X there)."""
+    from dome_calib.interop.common import PANOPTIC_FROM_UP
+
+    export = ExportOptions(world_up=up)
+    original, again, result = round_trip(synthetic_bundle, Format.EASYMOCAP, tmp_path, export, world_up=up)
+    assert result.world_up == up
+    assert max(worst_gaps(original, again)) < ROUND_TRIP_TOL_PX
+    import_calibration(tmp_path / OUT[Format.EASYMOCAP], Format.EASYMOCAP, tmp_path / "kept")
+    kept = load_bundle(tmp_path / "kept")
+    M = PANOPTIC_FROM_UP[up]
+    for name, cam in list(original.cameras.items())[::50]:
+        X = world_points_cm(cam)
+        assert np.abs(pixels(kept.cameras[name], X @ M) - pixels(cam, X)).max() < ROUND_TRIP_TOL_PX
+        up_axis = M.T @ np.array([0.0, -1.0, 0.0])  # our up, in the file's world
+        assert np.allclose(up_axis, np.eye(3)[" xyz".index(up[1]) - 1] * (1 if up[0] == "+" else -1))
+
+
+@pytest.mark.parametrize(("model", "params"), [
+    ("SIMPLE_PINHOLE", [900.0, 330.2, 241.7]),
+    ("PINHOLE", [900.0, 905.5, 330.2, 241.7]),
+    ("SIMPLE_RADIAL", [900.0, 330.2, 241.7, -0.12]),
+    ("RADIAL", [900.0, 330.2, 241.7, -0.12, 0.03]),
+    ("OPENCV", [900.0, 905.5, 330.2, 241.7, -0.12, 0.03, 4e-4, -2e-4]),
+    ("FULL_OPENCV", [900.0, 905.5, 330.2, 241.7, -0.12, 0.03, 4e-4, -2e-4, 0.01, 0.0, 0.0, 0.0]),
+])
+def test_colmap_models_written_by_pycolmap_import_as_pycolmap_projects(tmp_path, model, params):
+    """A plain COLMAP model (one camera shared by three images, trivial rigs, text files): every image becomes a
+    camera of ours that projects as pycolmap does (minus COLMAP's half pixel)."""
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(pycolmap.Camera(model=model, width=640, height=480, params=params, camera_id=1))
+    rotations = Rotation.from_euler("xyz", [[0.1, -0.2, 0.05], [-0.3, 0.4, 0.2], [0.2, 0.1, -2.9]]).as_matrix()
+    for i, R in enumerate(rotations, start=1):
+        pose = pycolmap.Rigid3d(pycolmap.Rotation3d(R), np.array([0.1 * i, -0.2, 1.5 + i]))
+        rec.add_image_with_trivial_frame(pycolmap.Image(name=f"frames/img{i}.jpg", camera_id=1, image_id=i),
+                                         pose)
+    (tmp_path / "model").mkdir()
+    rec.write_text(str(tmp_path / "model"))
+    import_calibration(tmp_path / "model", Format.COLMAP, tmp_path / "b", ImportOptions(unit="m"))
+    bundle = load_bundle(tmp_path / "b")
+    assert list(bundle.cameras) == ["frames/img1", "frames/img2", "frames/img3"]
+    for image_id, (name, cam) in zip(sorted(rec.images), bundle.cameras.items()):
+        X_cm = world_points_cm(cam)
+        image = rec.images[image_id]
+        uv = rec.cameras[1].img_from_cam(image.cam_from_world() * (X_cm / 100.0)) - COLMAP_PIXEL_OFFSET_PX
+        assert np.abs(uv - pixels(cam, X_cm)).max() < ROUND_TRIP_TOL_PX, name

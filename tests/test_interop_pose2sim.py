@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from dome_calib.bundle_io import load_bundle
-from dome_calib.interop.common import ImportOptions
+from dome_calib.interop.common import PANOPTIC_FROM_UP, ImportOptions
 from dome_calib.interop.convert import import_calibration
 
 from .interop_helpers import BODY_25B, WORLD_FROM_TRC_AXES, pixels, read_openpose_person, read_trc
@@ -25,7 +25,8 @@ MEDIAN_LIMIT_PX = 25.0
 def medians_px(bundle, axes=WORLD_FROM_TRC_AXES, scale_cm=100.0, frame_shift=0) -> dict[str, tuple[float, int]]:
     """Camera -> (median pixel distance between the reprojected TRC markers and the detections, pairs used)."""
     frame_numbers, names, markers = read_trc(TRC)
-    world_cm = markers[..., axes] * scale_cm  # TRC frame n holds frame index n - 1
+    # the calibration's z-up world, turned to ours as the import turns it; TRC frame n holds frame index n - 1
+    world_cm = markers[..., axes] * scale_cm @ PANOPTIC_FROM_UP["+z"].T
     joints = [BODY_25B[n] for n in names]
     out = {}
     for cam_name, cam in bundle.cameras.items():
@@ -51,6 +52,8 @@ def test_the_imported_cameras_are_pose2sims(imported):
     assert cam.resolution == (1088, 1920)
     assert cam.K[0, 0] == 1681.244873046875 and cam.dist[4] == 0.0
     assert np.allclose(cam.t_cm, [32.11048899999996, 95.63320600000009, 289.07130499999996], atol=1e-12)
+    centres = np.array([c.center_cm for c in imported.cameras.values()])
+    assert np.all(centres[:, 1] < -50)  # the phones stand above the lab floor: up is -y, as in our world
 
 
 def test_pose2sims_result_reprojects_onto_the_detections(imported):

@@ -24,6 +24,16 @@ CM_PER_UNIT = {"mm": 0.1, "cm": 1.0, "m": 100.0}
 #: ``--unit`` choices: a length unit, or the calibration board's squares (needs the square size).
 UNIT_CHOICES = (*CM_PER_UNIT, "squares")
 _PANOPTIC_NAME = re.compile(r"(\d\d)_(\d\d)")
+#: A file world whose up axis is the key -> the rotation M (det +1) with ``X_panoptic = M @ X_file``: the axis
+#: becomes -y (Panoptic up), and x stays x where it can (z up: the usual z-up-to-y-down turn about x).
+PANOPTIC_FROM_UP = {
+    "-y": np.eye(3),
+    "+y": np.diag([1.0, -1.0, -1.0]),
+    "+z": np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]),
+    "-z": np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]),
+    "+x": np.array([[0, 1.0, 0], [-1.0, 0, 0], [0, 0, 1.0]]),
+    "-x": np.array([[0, -1.0, 0], [1.0, 0, 0], [0, 0, 1.0]]),
+}
 
 
 class InteropError(BundleFormatError):
@@ -49,6 +59,7 @@ class ExportOptions:
     the name written; ``binary``: COLMAP binary (else text) files."""
 
     unit: str | None = None
+    world_up: str | None = None  # the written world's up axis ("+z", "-y", ...); None: the format's default
     names: dict[str, str] = field(default_factory=dict)
     binary: bool = True
 
@@ -60,6 +71,7 @@ class ImportOptions:
 
     unit: str | None = None
     square_size_mm: float | None = None
+    world_up: str | None = None  # the file world's up axis, turned into Panoptic -y; None: the format's default
     names: dict[str, str] = field(default_factory=dict)
     seq: str = "imported"
 
@@ -72,6 +84,7 @@ class ExportResult:
     format: str
     out: Path
     unit: str
+    world_up: str
     cameras: int
     dropped: list[str] = field(default_factory=list)
     corner_shift_px: dict[str, float] = field(default_factory=dict)
@@ -129,15 +142,25 @@ def exact_rotation(R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return R_exact, -R_exact @ centre
 
 
-def to_foreign(bundle: Bundle, options: ExportOptions, unit: str, where: str) -> list[ForeignCamera]:
-    """Our cameras, in the bundle's order, as foreign records with translations in ``unit`` and names mapped
-    (rotations made exact, centres kept: :func:`exact_rotation`)."""
+def panoptic_from_up(world_up: str, where: str) -> np.ndarray:
+    """(3, 3) rotation ``X_panoptic = M @ X_file`` for a file world whose up axis is ``world_up``."""
+    key = world_up if world_up[0] in "+-" else f"+{world_up}"
+    if key not in PANOPTIC_FROM_UP:
+        raise InteropError(f"{where}: --world-up {world_up!r}: expected one of x, -x, y, -y, z, -z")
+    return PANOPTIC_FROM_UP[key]
+
+
+def to_foreign(bundle: Bundle, options: ExportOptions, unit: str, world_up: str, where: str) -> list[ForeignCamera]:
+    """Our cameras, in the bundle's order, as foreign records in a world whose up axis is ``world_up``, with
+    translations in ``unit`` and names mapped (rotations made exact, centres kept: :func:`exact_rotation`)."""
     names = rename(list(bundle.cameras), options.names, where)
     scale = 1.0 / cm_per_unit(unit, None, where)
+    M = panoptic_from_up(world_up, where)
     out = []
     for new, c in zip(names, bundle.cameras.values()):
         R, t_cm = exact_rotation(c.R, c.t_cm)
-        out.append(ForeignCamera(name=new, size=c.resolution, K=c.K.copy(), dist=c.dist.copy(), R=R, t=t_cm * scale))
+        out.append(ForeignCamera(name=new, size=c.resolution, K=c.K.copy(), dist=c.dist.copy(), R=R @ M,
+                                 t=t_cm * scale))
     return out
 
 
@@ -160,10 +183,12 @@ def checked(cam: ForeignCamera, path: Path) -> ForeignCamera:
     return out
 
 
-def to_bundle(cams: list[ForeignCamera], cm_per_file_unit: float, options: ImportOptions, path: Path,
-              source: str) -> Bundle:
-    """Foreign cameras (already :func:`checked`) -> a bundle in their order, translations in cm, names mapped.
-    Camera type, panel and node come from Panoptic names (``PP_NN``); other names are VGA, panel 0, node 0."""
+def to_bundle(cams: list[ForeignCamera], cm_per_file_unit: float, world_up: str, options: ImportOptions,
+              path: Path, source: str) -> Bundle:
+    """Foreign cameras (already :func:`checked`) -> a bundle in their order, translations in cm, the file's up axis
+    ``world_up`` turned to -y (Panoptic), names mapped. Camera type, panel and node come from Panoptic names
+    (``PP_NN``); other names are VGA, panel 0, node 0."""
+    M = panoptic_from_up(world_up, str(path))
     seen: set[str] = set()
     for cam in cams:
         if cam.name in seen:
@@ -174,7 +199,7 @@ def to_bundle(cams: list[ForeignCamera], cm_per_file_unit: float, options: Impor
     for name, cam in zip(names, cams):
         m = _PANOPTIC_NAME.fullmatch(name)
         cameras[name] = Camera(name=name, type=camera_type_from_name(name), resolution=cam.size, K=cam.K,
-                               dist=cam.dist, R=cam.R, t_cm=cam.t * cm_per_file_unit,
+                               dist=cam.dist, R=cam.R @ M.T, t_cm=cam.t * cm_per_file_unit,
                                panel=int(m.group(1)) if m else 0, node=int(m.group(2)) if m else 0)
     return Bundle(seq=options.seq, cameras=cameras, calib_data_source=source)
 

@@ -33,6 +33,10 @@ class Format(StrEnum):
 FIXED_UNIT = {Format.POSE2SIM: pose2sim.UNIT, Format.EASYMOCAP: easymocap.UNIT}
 DEFAULT_UNIT = {Format.COLMAP: "m", Format.ANIPOSELIB: aniposelib.DEFAULT_UNIT, Format.POSE2SIM: pose2sim.UNIT,
                 Format.EASYMOCAP: easymocap.UNIT, Format.NERFSTUDIO: nerfstudio.DEFAULT_UNIT}
+#: The world's up axis in each format's files: Pose2Sim's is z (its TRC writer turns z-up into OpenSim's y-up,
+#: ``common.py: zup2yup``); nerfstudio's z up is written as its own ``applied_transform`` (see nerfstudio.py);
+#: the others have no convention: our world is kept (up = -y).
+DEFAULT_UP = {Format.POSE2SIM: "+z"}
 #: Files a folder output may already hold and still be replaced whole (anything else: refused).
 _FOLDER_FILES = {Format.COLMAP: {f"{k}.{e}" for k in colmap.MODEL_FILES for e in ("bin", "txt")},
                  Format.EASYMOCAP: set(easymocap.FILES)}
@@ -44,6 +48,7 @@ class ImportResult:
     format: str
     cameras: int
     unit: str  # the source file's length unit (stated by it, or given with --unit)
+    world_up: str  # the source world's up axis, turned to Panoptic -y
 
 
 def _replaceable_folder(out: Path, allowed: set[str] | None, what: str) -> None:
@@ -72,6 +77,13 @@ def _export_unit(fmt: Format, unit: str | None, where: str) -> str:
     return unit
 
 
+def _world_up(fmt: Format, world_up: str | None, where: str) -> str:
+    if fmt is Format.NERFSTUDIO and world_up is not None:
+        raise InteropError(f"{where}: nerfstudio worlds are z up, recorded in the file's applied_transform; "
+                           "--world-up does not apply")
+    return world_up or DEFAULT_UP.get(fmt, "-y")
+
+
 def _not_carried(bundle: Bundle, fmt: Format) -> list[str]:
     lines = []
     if bundle.kinect is not None:
@@ -96,8 +108,11 @@ def export_bundle(bundle_folder: str | Path, fmt: Format | str, out: str | Path,
     out = Path(out)
     bundle = load_bundle(bundle_folder)
     unit = _export_unit(fmt, options.unit, str(out))
-    cams = to_foreign(bundle, options, "cm" if fmt is Format.NERFSTUDIO else unit, str(bundle_folder))
-    result = ExportResult(format=str(fmt), out=out, unit=unit, cameras=len(cams), dropped=_not_carried(bundle, fmt))
+    up = _world_up(fmt, options.world_up, str(out))
+    cams = to_foreign(bundle, options, "cm" if fmt is Format.NERFSTUDIO else unit, up, str(bundle_folder))
+    up = "+z" if fmt is Format.NERFSTUDIO else up
+    result = ExportResult(format=str(fmt), out=out, unit=unit, world_up=up, cameras=len(cams),
+                          dropped=_not_carried(bundle, fmt))
     if fmt in _FOLDER_FILES:
         _replaceable_folder(out, _FOLDER_FILES[fmt], f"a {fmt} export")
         with atomic_folder(out) as staging:
@@ -147,8 +162,8 @@ def _read(fmt: Format, src: Path) -> tuple[list[ForeignCamera], str | None, Path
 
 
 def read_foreign(src: str | Path, fmt: Format | str, options: ImportOptions | None = None) -> tuple[Bundle, str]:
-    """Read another tool's calibration into a bundle (nothing written; translations converted to cm) and name the
-    source's length unit."""
+    """Read another tool's calibration into a bundle (nothing written; translations converted to cm, the file's up
+    axis turned to Panoptic -y) and name the source's length unit."""
     options = options or ImportOptions()
     fmt = Format(fmt)
     cams, stated, path = _read(fmt, Path(src))
@@ -159,8 +174,11 @@ def read_foreign(src: str | Path, fmt: Format | str, options: ImportOptions | No
         raise InteropError(f"{path}: a {fmt} calibration does not record its length unit; give --unit "
                            "(mm, cm, m, or squares with --square-size-mm)")
     scale = cm_per_unit(unit, options.square_size_mm, str(path))
+    up = _world_up(fmt, options.world_up, str(path))
     cams = [checked(c, path) for c in cams]
-    return to_bundle(cams, scale, options, path, source=f"imported from {fmt} ({path.name}, unit {unit})"), unit
+    turned = "" if up == "-y" else f", its up axis {up} turned to -y"
+    source = f"imported from {fmt} ({path.name}, unit {unit}{turned})"
+    return to_bundle(cams, scale, up, options, path, source), unit
 
 
 def import_calibration(src: str | Path, fmt: Format | str, out: str | Path,
@@ -169,8 +187,10 @@ def import_calibration(src: str | Path, fmt: Format | str, out: str | Path,
     options = options or ImportOptions()
     out = Path(out)
     bundle, unit = read_foreign(src, fmt, options)
+    up = _world_up(Format(fmt), options.world_up, str(src))
     _replaceable_folder(out, None, "a bundle")
     with atomic_folder(out) as staging:
         write_bundle(bundle, staging)
         load_bundle(staging)  # the loader every stage uses accepts it, or nothing is replaced
-    return ImportResult(out=out, format=str(Format(fmt)), cameras=len(bundle.cameras), unit=unit)
+    return ImportResult(out=out, format=str(Format(fmt)), cameras=len(bundle.cameras), unit=unit,
+                        world_up=up)
