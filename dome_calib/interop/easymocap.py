@@ -10,6 +10,7 @@ absent); when both are present they must agree.
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import cv2
@@ -23,6 +24,8 @@ UNIT = "m"
 FILES = ("intri.yml", "extri.yml")
 #: ``R_`` and ``Rot_`` of one camera may differ by this much (EasyMocap writes both with 6 decimals).
 ROTATION_AGREEMENT_DEG = 1e-3
+#: Names that make valid FileStorage keys (``K_<name>``) and survive EasyMocap's ``name.split('.')[0]``.
+_KEY_NAME = re.compile(r"[A-Za-z0-9_-]+")
 
 
 def _write_names(fs: cv2.FileStorage, names: list[str]) -> None:
@@ -35,9 +38,9 @@ def _write_names(fs: cv2.FileStorage, names: list[str]) -> None:
 def write_easymocap(cams: list[ForeignCamera], folder: Path) -> list[Path]:
     """Write ``intri.yml`` and ``extri.yml`` into ``folder`` (translations already in metres)."""
     for cam in cams:
-        if "." in cam.name or not cam.name.strip():
-            raise InteropError(f"camera {cam.name}: field 'name': EasyMocap keys cameras by the name up to its first "
-                               "'.'; rename it with --names")
+        if not _KEY_NAME.fullmatch(cam.name):
+            raise InteropError(f"camera {cam.name!r}: field 'name': EasyMocap's YAML keys (K_<name>, ...) take "
+                               "letters, digits, '_' and '-' only; rename it with --names")
     names = [c.name for c in cams]
     intri = cv2.FileStorage(str(folder / "intri.yml"), cv2.FILE_STORAGE_WRITE)
     _write_names(intri, names)

@@ -18,13 +18,12 @@ from __future__ import annotations
 
 import json
 from pathlib import Path, PurePosixPath
-from typing import Any
 
 import numpy as np
 
 from dome_calib import panoptic_io as pio
 from dome_calib.camera import COLMAP_PIXEL_OFFSET_PX
-from dome_calib.interop.common import ForeignCamera, InteropError
+from dome_calib.interop.common import ForeignCamera
 
 DEFAULT_UNIT = "m"
 #: Panoptic world -> z-up world: x kept, y_new = z, z_new = -y (up = -y becomes +z). det +1.
