@@ -10,44 +10,65 @@ from dome_calib.camera import pixels_to_normalized, project
 DEPTHS_CM = (30.0, 300.0, 3000.0)
 
 
-def grid_px(cam: Camera, n: int = 9) -> np.ndarray:
-    """(n*n, 2) OpenCV pixels covering the image edge to edge, the four outer corners included."""
-    w, h = cam.resolution
-    u, v = np.meshgrid(np.linspace(-0.5, w - 0.5, n), np.linspace(-0.5, h - 0.5, n))
-    return np.stack([u.ravel(), v.ravel()], axis=1)
+def _stack(cams: list[Camera]) -> dict[str, np.ndarray]:
+    return {"R": np.stack([c.R for c in cams]), "t": np.stack([c.t_cm for c in cams]),
+            "intr": np.stack([c.intr for c in cams]), "dist": np.stack([c.dist for c in cams]),
+            "wh": np.array([c.resolution for c in cams], dtype=float)}
 
 
-def world_points_cm(cam: Camera, n: int = 9) -> np.ndarray:
-    """(3 n^2, 3) world points (cm) on the pinhole rays of the grid pixels, at 30 cm, 3 m and 30 m."""
-    xn = (grid_px(cam, n) - cam.intr[2:]) / cam.intr[:2]
-    rays = np.concatenate([xn, np.ones((len(xn), 1))], axis=1)
-    X_cam = np.concatenate([d * rays for d in DEPTHS_CM])
-    return (X_cam - cam.t_cm) @ cam.R  # R^T (X_cam - t), row-wise
+def grid_px(cams: list[Camera], n: int = 9) -> np.ndarray:
+    """(C, n*n, 2) OpenCV pixels covering each image edge to edge, the four outer corners included."""
+    s = np.stack(np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n)), axis=-1).reshape(-1, 2)
+    return -0.5 + _stack(cams)["wh"][:, None, :] * s[None]
 
 
-def pixels(cam: Camera, X_cm: np.ndarray) -> np.ndarray:
-    return project(X_cm, cam.R, cam.t_cm, cam.intr, cam.dist).uv_px
+def world_points_cm(cam: Camera | list[Camera], n: int = 9) -> np.ndarray:
+    """(3 n^2, 3) world points (cm) on the pinhole rays of the grid pixels at 30 cm, 3 m and 30 m; (C, 3 n^2, 3)
+    for a list of cameras."""
+    cams = cam if isinstance(cam, list) else [cam]
+    k = _stack(cams)
+    xn = (grid_px(cams, n) - k["intr"][:, None, 2:]) / k["intr"][:, None, :2]
+    rays = np.concatenate([xn, np.ones(xn.shape[:-1] + (1,))], axis=-1)
+    X_cam = np.concatenate([d * rays for d in DEPTHS_CM], axis=1)
+    X = (X_cam - k["t"][:, None, :]) @ k["R"]  # R^T (X_cam - t), row-wise
+    return X if isinstance(cam, list) else X[0]
+
+
+def pixels(cam: Camera | list[Camera], X_cm: np.ndarray) -> np.ndarray:
+    """Our model's pixels of world points: (N, 2) for one camera, (C, N, 2) for a list and (C, N, 3) points."""
+    if not isinstance(cam, list):
+        return project(X_cm, cam.R, cam.t_cm, cam.intr, cam.dist).uv_px
+    k = _stack(cam)
+    return project(X_cm, k["R"], k["t"], k["intr"], k["dist"]).uv_px
+
+
+def gaps_px(a: list[Camera], b: list[Camera]) -> tuple[np.ndarray, np.ndarray]:
+    """Per camera pair (C,): the largest pixel distance between the two cameras' projections of ``a``'s grid world
+    points, and the largest angle (as px at ``a``'s focal length) between the world rays both unproject from the
+    grid pixels. Pixels beyond the lens's monotonic range (no ray) must be so for both."""
+    X = world_points_cm(a)
+    proj = np.linalg.norm(pixels(a, X) - pixels(b, X), axis=-1).max(axis=1)
+    grid = grid_px(a)
+    rays = []
+    for cams in (a, b):
+        k = _stack(cams)
+        xn = pixels_to_normalized(grid, k["intr"][:, None], k["dist"][:, None])
+        d = np.concatenate([xn, np.ones(xn.shape[:-1] + (1,))], axis=-1) @ k["R"]  # world directions R^T x
+        rays.append(d / np.linalg.norm(d, axis=-1, keepdims=True))
+    ok_a, ok_b = np.isfinite(rays[0][..., 0]), np.isfinite(rays[1][..., 0])
+    assert np.array_equal(ok_a, ok_b), "one camera unprojects a pixel the other cannot"
+    cos = np.sum(rays[0] * rays[1], axis=-1)
+    sin = np.linalg.norm(np.cross(rays[0], rays[1]), axis=-1)
+    angle = np.where(ok_a, np.arctan2(sin, cos), 0.0)
+    return proj, angle.max(axis=1) * _stack(a)["intr"][:, :2].max(axis=1)
 
 
 def projection_gap_px(a: Camera, b: Camera) -> float:
-    """Largest pixel distance between the two cameras' projections of ``a``'s grid world points."""
-    X = world_points_cm(a)
-    return float(np.linalg.norm(pixels(a, X) - pixels(b, X), axis=1).max())
+    return float(gaps_px([a], [b])[0][0])
 
 
 def ray_gap_px(a: Camera, b: Camera) -> float:
-    """Largest angle (as px at ``a``'s focal length) between the world rays both cameras unproject from the grid
-    pixels. Pixels beyond the lens's monotonic range (no ray) must be so for both."""
-    rays = []
-    for cam in (a, b):
-        xn = pixels_to_normalized(grid_px(a), cam.intr, cam.dist)
-        d = np.concatenate([xn, np.ones((len(xn), 1))], axis=1) @ cam.R  # world directions R^T x
-        rays.append(d / np.linalg.norm(d, axis=1, keepdims=True))
-    ok_a, ok_b = np.isfinite(rays[0][:, 0]), np.isfinite(rays[1][:, 0])
-    assert np.array_equal(ok_a, ok_b), "one camera unprojects a pixel the other cannot"
-    cos = np.clip(np.sum(rays[0][ok_a] * rays[1][ok_a], axis=1), -1, 1)
-    sin = np.linalg.norm(np.cross(rays[0][ok_a], rays[1][ok_a]), axis=1)
-    return float(np.max(np.arctan2(sin, cos), initial=0.0) * a.intr[:2].max())
+    return float(gaps_px([a], [b])[1][0])
 
 
 # ------------------------------------------------------------- Pose2Sim's demo: its 3D result and the detections
