@@ -277,3 +277,31 @@ def test_colmap_models_written_by_pycolmap_import_as_pycolmap_projects(tmp_path,
         image = rec.images[image_id]
         uv = rec.cameras[1].img_from_cam(image.cam_from_world() * (X_cm / 100.0)) - COLMAP_PIXEL_OFFSET_PX
         assert np.abs(uv - pixels(cam, X_cm)).max() < ROUND_TRIP_TOL_PX, name
+
+
+def test_pose2sim_file_reads_as_pose2sim_reads_it(real_bundle, tmp_path):
+    """Pose2Sim's ``retrieve_calib_params``: ``toml.load``, the tables in file order but the settings ones, then
+    OpenCV with ``matrix``, ``distortions`` (4), ``rotation`` (Rodrigues) and ``translation`` (m) in its z-up
+    world. Pose2Sim itself is not installable here (OpenSim); its reading library and steps are."""
+    import toml
+
+    from dome_calib.interop.common import PANOPTIC_FROM_UP
+
+    export_bundle(real_bundle, Format.POSE2SIM, tmp_path / "Calib.toml")
+    calib = toml.load(tmp_path / "Calib.toml")
+    keys = [c for c in calib if c not in ["metadata", "capture_volume", "charuco", "checkerboard"]
+            and isinstance(calib[c], dict)]
+    bundle = load_bundle(real_bundle)
+    assert keys == list(bundle.cameras) and [calib[k]["name"] for k in keys] == keys
+    worst = 0.0
+    for key in keys:
+        cam, table = bundle.cameras[key], calib[key]
+        assert len(table["distortions"]) == 4 and table["fisheye"] is False
+        assert [int(v) for v in table["size"]] == list(cam.resolution)
+        X_cm = world_points_cm(cam)
+        X_zup_m = X_cm @ PANOPTIC_FROM_UP["+z"] / 100.0  # our point in Pose2Sim's z-up world, metres
+        uv, _ = cv2.projectPoints(X_zup_m, np.array(table["rotation"]), np.array(table["translation"]),
+                                  np.array(table["matrix"]), np.array(table["distortions"]))
+        worst = max(worst, float(np.abs(uv.reshape(-1, 2) - pixels(_without_k3(cam), X_cm)).max()))
+    print(f"Pose2Sim's reading vs our model without k3, 520 real cameras: {worst:.2e} px")
+    assert worst < ROUND_TRIP_TOL_PX
