@@ -12,6 +12,9 @@ $(BIN)/python:
 
 $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
+	# aniposelib, the peer reader of our calibration.toml in the tests, without its opencv-contrib-python: that
+	# wheel ships the same cv2 package as our headless one and would overwrite it (pyproject.toml says more)
+	$(BIN)/python -m pip install --quiet --no-deps 'aniposelib==0.8.0'
 	touch $(STAMP)
 
 venv: $(STAMP)

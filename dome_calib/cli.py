@@ -143,6 +143,10 @@ from dome_calib.cli_people import register as _register_people  # noqa: E402  (r
 
 _register_people(app)
 
+from dome_calib.cli_interop import register as _register_interop  # noqa: E402  (export, import)
+
+_register_interop(app)
+
 
 def main() -> None:
     run_cli(app, prog="dome-calib")

@@ -3,22 +3,22 @@ cameras 01-02) through `dome-calib reconstruct`, judged by reprojection and agai
 from __future__ import annotations
 
 import json
-import tarfile
-import tomllib
+import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from dome_calib.bundle import Bundle, Camera, CameraType
+from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import write_bundle
+from dome_calib.interop.common import ImportOptions
+from dome_calib.interop.convert import read_foreign
 from dome_calib.recon.body_models import JOINTS19
 from dome_calib.recon.openpose_io import read_openpose_folder
 from dome_calib.recon.people_io import read_scene
 from dome_calib.recon.project import project_points, view_set
-from dome_calib.rotation import rotvec_to_matrix
 
-DATA = Path(__file__).parent / "data" / "pose2sim_balancing" / "pose2sim_balancing.tar.gz"
+DATA = Path(__file__).parent / "data" / "pose2sim_balancing"
 CM_PER_M = 100.0
 #: Pose2Sim's TRC is written for OpenSim (y up); the calibration's world has z up: world = (Z, X, Y) of the TRC.
 #: Found by trying the 24 proper axis permutations against our result and checked by reprojection below.
@@ -31,18 +31,13 @@ CAMERA_MAP = ",".join(f"cam{k:02d}_json=00_{k:02d}" for k in range(1, 5))
 
 
 def pose2sim_bundle(toml_path: Path) -> Bundle:
-    """Pose2Sim's calibration TOML -> a bundle (Rodrigues rvec, t in m -> cm, k3 = 0; its z-up world kept).
-    Cameras cam_01..cam_04 become 00_01..00_04 (no sync tables: the four share one frame index)."""
-    cal = tomllib.loads(toml_path.read_text(encoding="utf-8"))
-    cams = {}
-    for k, key in enumerate(sorted(k for k, v in cal.items() if isinstance(v, dict) and "matrix" in v)):
-        c = cal[key]
-        name = f"00_{k + 1:02d}"
-        cams[name] = Camera(name=name, type=CameraType.HD, resolution=(int(c["size"][0]), int(c["size"][1])),
-                            K=np.array(c["matrix"], dtype=float), dist=np.array(list(c["distortions"]) + [0.0]),
-                            R=rotvec_to_matrix(np.array(c["rotation"], dtype=float)),
-                            t_cm=np.array(c["translation"], dtype=float) * CM_PER_M, panel=0, node=k + 1)
-    return Bundle(seq="pose2sim", cameras=cams, calib_data_source="Pose2Sim Calib_qualisys.toml")
+    """Pose2Sim's calibration TOML -> a bundle through our own importer (``dome-calib import --from pose2sim``),
+    its z-up world kept (``world_up="-y"``: no turn), cameras cam_01..cam_04 named 00_01..00_04 (no sync tables:
+    the four share one frame index)."""
+    names = {f"cam_{k:02d}": f"00_{k:02d}" for k in range(1, 5)}
+    bundle, unit = read_foreign(toml_path, "pose2sim", ImportOptions(world_up="-y", names=names, seq="pose2sim"))
+    assert unit == "m" and sorted(bundle.cameras) == sorted(names.values())
+    return bundle
 
 
 def read_trc_cm(path: Path) -> tuple[list[str], np.ndarray]:
@@ -56,9 +51,9 @@ def read_trc_cm(path: Path) -> tuple[list[str], np.ndarray]:
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     root = tmp_path_factory.mktemp("pose2sim")
-    with tarfile.open(DATA) as tar:
-        tar.extractall(root, filter="data")
-    bundle = pose2sim_bundle(root / "calibration" / "Calib_qualisys.toml")
+    for part in ("pose", "pose2sim_result"):  # the fixture, read-only in place; outputs go beside the copy
+        shutil.copytree(DATA / part, root / part)
+    bundle = pose2sim_bundle(DATA / "calibration" / "Calib_qualisys.toml")
     write_bundle(bundle, root / "bundle")
     return root, bundle
 

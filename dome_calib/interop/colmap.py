@@ -1,0 +1,136 @@
+"""COLMAP sparse models (cameras, images, rigs, frames; binary or text), read and written by pycolmap itself.
+
+Export: one COLMAP camera per dome camera (``FULL_OPENCV`` when k3 is non-zero, else ``OPENCV``), all cameras
+as the sensors of one rig (the first camera is the reference sensor) and one frame holding one image per camera,
+named ``<camera>.png``. No 3D points: a bundle keeps its calibration's residuals (``report/residuals.npz``) but
+not the observed pixels nor the points, so ``points3D`` is written empty.
+
+Conventions (COLMAP's documentation, "Output Format" and "Cameras"): ``x_cam = R(q) X + t`` (world to camera,
+quaternion ``QW QX QY QZ``), the world's unit is whatever the reconstruction had, pixel coordinates put the centre
+of the top-left pixel at (0.5, 0.5): principal points are ours + 0.5.
+
+Import: any model pycolmap reads (``Reconstruction(folder)``); every registered image becomes one camera named
+after its image file (without extension). Camera models ``SIMPLE_PINHOLE``, ``PINHOLE``, ``SIMPLE_RADIAL``,
+``RADIAL``, ``OPENCV`` and ``FULL_OPENCV`` with k4 = k5 = k6 = 0 map exactly onto ours; any other is refused.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path, PurePosixPath
+
+import numpy as np
+import pycolmap
+
+from dome_calib.camera import COLMAP_PIXEL_OFFSET_PX
+from dome_calib.interop.common import ForeignCamera, InteropError
+
+logger = logging.getLogger(__name__)
+
+MODEL_FILES = ("cameras", "images", "points3D", "rigs", "frames")
+#: COLMAP model -> function of its params giving (fx, fy, cx, cy, [k1, k2, p1, p2, k3]) in COLMAP pixels.
+_MODELS = {
+    "SIMPLE_PINHOLE": lambda p: (p[0], p[0], p[1], p[2], [0, 0, 0, 0, 0]),
+    "PINHOLE": lambda p: (p[0], p[1], p[2], p[3], [0, 0, 0, 0, 0]),
+    "SIMPLE_RADIAL": lambda p: (p[0], p[0], p[1], p[2], [p[3], 0, 0, 0, 0]),
+    "RADIAL": lambda p: (p[0], p[0], p[1], p[2], [p[3], p[4], 0, 0, 0]),
+    "OPENCV": lambda p: (p[0], p[1], p[2], p[3], [p[4], p[5], p[6], p[7], 0]),
+    "FULL_OPENCV": lambda p: (p[0], p[1], p[2], p[3], [p[4], p[5], p[6], p[7], p[8]]),
+}
+
+
+def _camera_sensor(camera_id: int) -> pycolmap.sensor_t:
+    return pycolmap.sensor_t(type=pycolmap.SensorType.CAMERA, id=camera_id)
+
+
+def _rigid(cam: ForeignCamera) -> pycolmap.Rigid3d:
+    return pycolmap.Rigid3d(pycolmap.Rotation3d(cam.R), cam.t)
+
+
+def colmap_camera(cam: ForeignCamera, camera_id: int) -> pycolmap.Camera:
+    """Our camera as a COLMAP camera: FULL_OPENCV if k3 != 0 else OPENCV; principal point + 0.5 px."""
+    fx, fy, cx, cy = cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2]
+    k1, k2, p1, p2, k3 = (float(v) for v in cam.dist)
+    params = [fx, fy, cx + COLMAP_PIXEL_OFFSET_PX, cy + COLMAP_PIXEL_OFFSET_PX, k1, k2, p1, p2]
+    model = "OPENCV" if k3 == 0.0 else "FULL_OPENCV"
+    if model == "FULL_OPENCV":
+        params += [k3, 0.0, 0.0, 0.0]
+    return pycolmap.Camera(model=model, width=cam.size[0], height=cam.size[1], params=params, camera_id=camera_id)
+
+
+def build_reconstruction(cams: list[ForeignCamera]) -> pycolmap.Reconstruction:
+    """Cameras (in order, ids 1..C) as one rig and one frame of one image each; no points."""
+    rec = pycolmap.Reconstruction()
+    ref_from_world = _rigid(cams[0])
+    rig = pycolmap.Rig(rig_id=1)
+    rig.add_ref_sensor(_camera_sensor(1))
+    for i, cam in enumerate(cams, start=1):
+        rec.add_camera(colmap_camera(cam, i))
+        if i > 1:
+            rig.add_sensor(_camera_sensor(i), _rigid(cam) * ref_from_world.inverse())
+    rec.add_rig(rig)
+    frame = pycolmap.Frame(frame_id=1, rig_id=1, rig_from_world=ref_from_world)
+    for i in range(1, len(cams) + 1):
+        frame.add_data_id(pycolmap.data_t(sensor_id=_camera_sensor(i), id=i))
+    rec.add_frame(frame)
+    for i, cam in enumerate(cams, start=1):
+        rec.add_image(pycolmap.Image(name=f"{cam.name}.png", camera_id=i, image_id=i, frame_id=1))
+    return rec
+
+
+def write_colmap(cams: list[ForeignCamera], folder: Path, *, binary: bool) -> list[Path]:
+    """Write the model into ``folder`` (an empty staging folder) with pycolmap's own writer."""
+    rec = build_reconstruction(cams)
+    (rec.write_binary if binary else rec.write_text)(str(folder))
+    return sorted(folder.iterdir())
+
+
+def _model_files(folder: Path) -> None:
+    if not folder.is_dir():
+        raise InteropError(f"{folder}: not a folder (a COLMAP model is a folder with cameras, images and points3D "
+                           "files, .bin or .txt)")
+    for kind in ("cameras", "images"):
+        if not any((folder / f"{kind}.{ext}").is_file() for ext in ("bin", "txt")):
+            raise InteropError(f"{folder}: no {kind}.bin or {kind}.txt: not a COLMAP model")
+
+
+def foreign_from_colmap(camera: pycolmap.Camera, cam_from_world: pycolmap.Rigid3d, name: str,
+                        where: str) -> ForeignCamera:
+    """One COLMAP image's camera and pose as a foreign camera (OpenCV pixels); refuses models we cannot hold."""
+    model = camera.model.name
+    if model not in _MODELS:
+        raise InteropError(f"{where}: camera {name}: field 'model': COLMAP model {model} cannot be represented "
+                           f"(this toolkit holds OpenCV's [k1, k2, p1, p2, k3]; accepted: {', '.join(_MODELS)})")
+    params = np.asarray(camera.params, dtype=float)
+    if model == "FULL_OPENCV" and np.any(params[9:12] != 0):
+        raise InteropError(f"{where}: camera {name}: field 'params': FULL_OPENCV with k4..k6 = "
+                           f"{params[9:12].tolist()} cannot be represented (rational radial model; ours has "
+                           "k1, k2, k3 only)")
+    fx, fy, cx, cy, dist = _MODELS[model](params)
+    K = np.array([[fx, 0.0, cx - COLMAP_PIXEL_OFFSET_PX], [0.0, fy, cy - COLMAP_PIXEL_OFFSET_PX], [0, 0, 1.0]])
+    return ForeignCamera(name=name, size=(int(camera.width), int(camera.height)), K=K,
+                         dist=np.asarray(dist, dtype=float), R=cam_from_world.rotation.matrix(),
+                         t=np.asarray(cam_from_world.translation, dtype=float))
+
+
+def read_colmap(folder: Path) -> list[ForeignCamera]:
+    """Every registered image of the model in ``folder`` as a camera, in image-id order."""
+    _model_files(folder)
+    try:
+        rec = pycolmap.Reconstruction(str(folder))
+    except Exception as exc:  # pycolmap raises plain RuntimeError / ValueError for unreadable files
+        raise InteropError(f"{folder}: not a readable COLMAP model ({str(exc).strip().splitlines()[-1][:120]})") \
+            from None
+    cams, unposed = [], []
+    for image_id in sorted(rec.images):
+        image = rec.images[image_id]
+        name = str(PurePosixPath(image.name).with_suffix(""))
+        if not image.has_pose:
+            unposed.append(name)
+            continue
+        cams.append(foreign_from_colmap(image.camera, image.cam_from_world(), name, str(folder)))
+    if unposed:
+        logger.warning("%s: %d image(s) without a pose left out (%s%s)", folder, len(unposed),
+                       ", ".join(unposed[:4]), ", ..." if len(unposed) > 4 else "")
+    if not cams:
+        raise InteropError(f"{folder}: the model has no registered image (nothing to import)")
+    return cams

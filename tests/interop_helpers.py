@@ -1,0 +1,105 @@
+"""Helpers of the interop tests: pixel grids over the whole image, world points behind them, projection and ray
+gaps between two cameras (px)."""
+from __future__ import annotations
+
+import numpy as np
+
+from dome_calib.bundle import Camera
+from dome_calib.camera import pixels_to_normalized, project
+
+DEPTHS_CM = (30.0, 300.0, 3000.0)
+
+
+def _stack(cams: list[Camera]) -> dict[str, np.ndarray]:
+    return {"R": np.stack([c.R for c in cams]), "t": np.stack([c.t_cm for c in cams]),
+            "intr": np.stack([c.intr for c in cams]), "dist": np.stack([c.dist for c in cams]),
+            "wh": np.array([c.resolution for c in cams], dtype=float)}
+
+
+def grid_px(cams: list[Camera], n: int = 9) -> np.ndarray:
+    """(C, n*n, 2) OpenCV pixels covering each image edge to edge, the four outer corners included."""
+    s = np.stack(np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n)), axis=-1).reshape(-1, 2)
+    return -0.5 + _stack(cams)["wh"][:, None, :] * s[None]
+
+
+def world_points_cm(cam: Camera | list[Camera], n: int = 9) -> np.ndarray:
+    """(3 n^2, 3) world points (cm) on the pinhole rays of the grid pixels at 30 cm, 3 m and 30 m; (C, 3 n^2, 3)
+    for a list of cameras."""
+    cams = cam if isinstance(cam, list) else [cam]
+    k = _stack(cams)
+    xn = (grid_px(cams, n) - k["intr"][:, None, 2:]) / k["intr"][:, None, :2]
+    rays = np.concatenate([xn, np.ones(xn.shape[:-1] + (1,))], axis=-1)
+    X_cam = np.concatenate([d * rays for d in DEPTHS_CM], axis=1)
+    X = (X_cam - k["t"][:, None, :]) @ k["R"]  # R^T (X_cam - t), row-wise
+    return X if isinstance(cam, list) else X[0]
+
+
+def pixels(cam: Camera | list[Camera], X_cm: np.ndarray) -> np.ndarray:
+    """Our model's pixels of world points: (N, 2) for one camera, (C, N, 2) for a list and (C, N, 3) points."""
+    if not isinstance(cam, list):
+        return project(X_cm, cam.R, cam.t_cm, cam.intr, cam.dist).uv_px
+    k = _stack(cam)
+    return project(X_cm, k["R"], k["t"], k["intr"], k["dist"]).uv_px
+
+
+def gaps_px(a: list[Camera], b: list[Camera]) -> tuple[np.ndarray, np.ndarray]:
+    """Per camera pair (C,): the largest pixel distance between the two cameras' projections of ``a``'s grid world
+    points, and the largest angle (as px at ``a``'s focal length) between the world rays both unproject from the
+    grid pixels. Pixels beyond the lens's monotonic range (no ray) must be so for both."""
+    X = world_points_cm(a)
+    proj = np.linalg.norm(pixels(a, X) - pixels(b, X), axis=-1).max(axis=1)
+    grid = grid_px(a)
+    rays = []
+    for cams in (a, b):
+        k = _stack(cams)
+        xn = pixels_to_normalized(grid, k["intr"][:, None], k["dist"][:, None])
+        d = np.concatenate([xn, np.ones(xn.shape[:-1] + (1,))], axis=-1) @ k["R"]  # world directions R^T x
+        rays.append(d / np.linalg.norm(d, axis=-1, keepdims=True))
+    ok_a, ok_b = np.isfinite(rays[0][..., 0]), np.isfinite(rays[1][..., 0])
+    assert np.array_equal(ok_a, ok_b), "one camera unprojects a pixel the other cannot"
+    cos = np.sum(rays[0] * rays[1], axis=-1)
+    sin = np.linalg.norm(np.cross(rays[0], rays[1]), axis=-1)
+    angle = np.where(ok_a, np.arctan2(sin, cos), 0.0)
+    return proj, angle.max(axis=1) * _stack(a)["intr"][:, :2].max(axis=1)
+
+
+def projection_gap_px(a: Camera, b: Camera) -> float:
+    return float(gaps_px([a], [b])[0][0])
+
+
+def ray_gap_px(a: Camera, b: Camera) -> float:
+    return float(gaps_px([a], [b])[1][0])
+
+
+# ------------------------------------------------------------- Pose2Sim's demo: its 3D result and the detections
+#: BODY_25B joint index of each TRC marker (Pose2Sim ``skeletons.py``, BODY_25B tree).
+BODY_25B = {"Nose": 0, "LShoulder": 5, "RShoulder": 6, "LElbow": 7, "RElbow": 8, "LWrist": 9, "RWrist": 10,
+            "LHip": 11, "RHip": 12, "LKnee": 13, "RKnee": 14, "LAnkle": 15, "RAnkle": 16, "Neck": 17, "Head": 18,
+            "LBigToe": 19, "LSmallToe": 20, "LHeel": 21, "RBigToe": 22, "RSmallToe": 23, "RHeel": 24}
+#: Pose2Sim writes TRC y-up for OpenSim (``common.py: zup2yup``: columns Y, Z, X of its z-up world), so the
+#: calibration's world point of a TRC row is (trc_z, trc_x, trc_y).
+WORLD_FROM_TRC_AXES = [2, 0, 1]
+
+
+def read_trc(path) -> tuple[np.ndarray, list[str], np.ndarray]:
+    """(frame numbers (F,), marker names (J,), positions (F, J, 3) in the file's axes and unit)."""
+    lines = path.read_text().splitlines()
+    names = [n for n in lines[3].split("\t")[2:] if n]
+    rows = np.array([[float(v) for v in line.split("\t")[:2 + 3 * len(names)]] for line in lines[5:] if line.strip()])
+    return rows[:, 0].astype(int), names, rows[:, 2:].reshape(len(rows), len(names), 3)
+
+
+def read_openpose_person(folder, prefix: str, frames: int) -> np.ndarray:
+    """(frames, 25, 3) x, y, confidence of the most confident person per frame (NaN where undetected)."""
+    import json
+
+    out = np.full((frames, 25, 3), np.nan)
+    for f in range(frames):
+        people = json.loads((folder / f"{prefix}.{f:04d}.json").read_text())["people"]
+        if not people:
+            continue
+        kp = [np.array(p["pose_keypoints_2d"], dtype=float).reshape(25, 3) for p in people]
+        best = max(kp, key=lambda a: float(np.mean(a[a[:, 2] > 0, 2])) if np.any(a[:, 2] > 0) else 0.0)
+        best[best[:, 2] <= 0] = np.nan
+        out[f] = best
+    return out

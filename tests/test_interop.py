@@ -1,0 +1,307 @@
+"""Export / import round trips (every camera's projection and rays over the whole image), and the peers' own
+readers: pycolmap, aniposelib's CameraGroup.load, OpenCV's FileStorage for EasyMocap."""
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pycolmap
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from dome_calib.bundle import Bundle, Camera, CameraType
+from dome_calib.bundle_io import load_bundle, write_bundle
+from dome_calib.camera import COLMAP_PIXEL_OFFSET_PX, pixels_to_normalized
+from dome_calib.interop.common import ExportOptions, ImportOptions
+from dome_calib.interop.convert import Format, export_bundle, import_calibration
+from dome_calib.layout import nominal_dome
+from dome_calib.panoptic_io import read_calibration
+
+from .conftest import REAL_CALIBRATION
+from .interop_helpers import gaps_px, pixels, world_points_cm
+
+ROUND_TRIP_TOL_PX = 1e-6
+OUT = {Format.COLMAP: "model", Format.ANIPOSELIB: "calibration.toml", Format.POSE2SIM: "Calib.toml",
+       Format.EASYMOCAP: "easymocap", Format.NERFSTUDIO: "transforms.json"}
+NEEDS_UNIT = {Format.COLMAP, Format.ANIPOSELIB}  # files that do not say their unit (ours record it for aniposelib)
+
+
+@pytest.fixture(scope="module")
+def real_bundle(tmp_path_factory) -> Path:
+    cameras, source = read_calibration(REAL_CALIBRATION)
+    folder = tmp_path_factory.mktemp("real") / "bundle"
+    write_bundle(Bundle(seq="160906_band1", cameras=cameras, calib_data_source=source), folder)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def synthetic_bundle(tmp_path_factory) -> Path:
+    """The nominal full dome: 521 cameras (480 VGA, 31 HD, 10 Kinect colour), distortion with k3."""
+    folder = tmp_path_factory.mktemp("synth") / "bundle"
+    write_bundle(nominal_dome("full", seed=3), folder)
+    return folder
+
+
+def _without_k3(cam: Camera) -> Camera:
+    return Camera(**{**cam.__dict__, "dist": np.array([*cam.dist[:4], 0.0])})
+
+
+def round_trip(bundle_folder: Path, fmt: Format, work: Path, export: ExportOptions | None = None,
+               unit: str | None = None, **import_kw):
+    """Export then import; returns (original bundle, imported bundle, export result)."""
+    result = export_bundle(bundle_folder, fmt, work / OUT[fmt], export or ExportOptions())
+    import_unit = unit if unit is not None else (result.unit if fmt is Format.COLMAP else None)
+    import_calibration(work / OUT[fmt], fmt, work / "back", ImportOptions(unit=import_unit, **import_kw))
+    return load_bundle(bundle_folder), load_bundle(work / "back"), result
+
+
+def worst_gaps(original: Bundle, again: Bundle, drop_k3: bool = False) -> tuple[float, float]:
+    assert list(again.cameras) == list(original.cameras)  # same names, same order
+    assert [c.resolution for c in again.cameras.values()] == [c.resolution for c in original.cameras.values()]
+    expected = [_without_k3(c) if drop_k3 else c for c in original.cameras.values()]
+    proj, rays = gaps_px(expected, list(again.cameras.values()))
+    return float(proj.max()), float(rays.max())
+
+
+@pytest.mark.parametrize("fmt", list(Format))
+def test_round_trip_real_calibration(real_bundle, tmp_path, fmt):
+    original, again, result = round_trip(real_bundle, fmt, tmp_path)
+    proj, rays = worst_gaps(original, again, drop_k3=fmt is Format.POSE2SIM)
+    print(f"{fmt}: round trip of the real 520 cameras: projection {proj:.2e} px, rays {rays:.2e} px")
+    assert len(again.cameras) == 520
+    assert proj < ROUND_TRIP_TOL_PX and rays < ROUND_TRIP_TOL_PX
+    assert {c.type for c in again.cameras.values()} == {CameraType.VGA, CameraType.HD, CameraType.KINECT_COLOR}
+    assert (result.corner_shift_px != {}) == (fmt is Format.POSE2SIM)
+
+
+def test_pose2sim_reports_what_dropping_k3_moves_at_the_corner(real_bundle, tmp_path):
+    original, again, result = round_trip(real_bundle, Format.POSE2SIM, tmp_path)
+    assert set(result.corner_shift_px) == {n for n, c in original.cameras.items() if c.dist[4] != 0}
+    names = list(result.corner_shift_px)  # measured independently: through the written file
+    cams, imported = [original.cameras[n] for n in names], [again.cameras[n] for n in names]
+    wh = np.array([c.resolution for c in cams], dtype=float)
+    corners = -0.5 + wh[:, None, :] * np.array([[0, 0], [1, 0], [0, 1], [1, 1]])[None]  # (C, 4, 2)
+    intr, dist = np.stack([c.intr for c in cams]), np.stack([c.dist for c in cams])
+    xn = pixels_to_normalized(corners, intr[:, None], dist[:, None])
+    X = (np.concatenate([xn, np.ones((len(cams), 4, 1))], axis=-1) * 200.0
+         - np.stack([c.t_cm for c in cams])[:, None]) @ np.stack([c.R for c in cams])
+    moved = np.linalg.norm(pixels(imported, X) - corners, axis=-1).max(axis=1)
+    stated = np.array([result.corner_shift_px[n] for n in names])
+    defined = np.isfinite(xn).all(axis=(1, 2))  # beyond the lens's range the figure uses the pinhole direction
+    assert np.abs(moved[defined] - stated[defined]).max() < 1e-6
+    checked = int(defined.sum())
+    assert checked > 400
+    assert any("k3 dropped for 520 camera(s)" in line for line in result.dropped)
+
+
+@pytest.mark.parametrize("fmt", list(Format))
+def test_round_trip_synthetic_full_dome(synthetic_bundle, tmp_path, fmt):
+    original, again, _ = round_trip(synthetic_bundle, fmt, tmp_path)
+    proj, rays = worst_gaps(original, again, drop_k3=fmt is Format.POSE2SIM)
+    print(f"{fmt}: round trip of the synthetic 521 cameras: projection {proj:.2e} px, rays {rays:.2e} px")
+    assert len(again.cameras) == 521
+    assert proj < ROUND_TRIP_TOL_PX and rays < ROUND_TRIP_TOL_PX
+
+
+@pytest.mark.parametrize(("fmt", "export_unit", "import_kw"), [
+    (Format.COLMAP, "mm", {"unit": "mm"}),
+    (Format.ANIPOSELIB, "cm", {"unit": "squares", "square_size_mm": 10.0}),  # 1 square of 10 mm = 1 cm
+    (Format.NERFSTUDIO, "cm", {}),
+])
+def test_units_and_names_are_applied_both_ways(synthetic_bundle, tmp_path, fmt, export_unit, import_kw):
+    names = {"00_00": "hd_first", "01_01": "vga_first"}
+    export = ExportOptions(unit=export_unit, names=names, binary=False)
+    if fmt is Format.ANIPOSELIB:  # a foreign aniposelib file does not name its unit: drop ours
+        result = export_bundle(synthetic_bundle, fmt, tmp_path / "a.toml", export)
+        text = (tmp_path / "a.toml").read_text().replace(f'unit = "{result.unit}"\n', "")
+        (tmp_path / OUT[fmt]).write_text(text)
+        import_calibration(tmp_path / OUT[fmt], fmt, tmp_path / "back",
+                           ImportOptions(names={v: k for k, v in names.items()}, **import_kw))
+        original, again = load_bundle(synthetic_bundle), load_bundle(tmp_path / "back")
+    else:
+        original, again, _ = round_trip(synthetic_bundle, fmt, tmp_path, export,
+                                        names={v: k for k, v in names.items()}, **import_kw)
+    assert max(worst_gaps(original, again)) < ROUND_TRIP_TOL_PX
+
+
+camera_strategy = st.fixed_dictionaries({
+    "quat": st.tuples(*[st.floats(-1, 1)] * 4).filter(lambda q: np.linalg.norm(q) > 0.1),
+    "t_cm": st.tuples(*[st.floats(-2000, 2000)] * 3),
+    "f_px": st.floats(200, 3000), "aspect": st.floats(0.98, 1.02),
+    "c_frac": st.tuples(st.floats(0.3, 0.7), st.floats(0.3, 0.7)),
+    "k": st.tuples(st.floats(-0.4, 0.1), st.floats(-0.05, 0.2), st.floats(-1e-3, 1e-3), st.floats(-1e-3, 1e-3),
+                   st.sampled_from([0.0, -0.05, 0.03])),
+    "size": st.sampled_from([(640, 480), (1920, 1080), (1088, 1920)]),
+})
+
+
+def _camera(name: str, d: dict) -> Camera:
+    w, h = d["size"]
+    f = d["f_px"]
+    K = np.array([[f, 0, d["c_frac"][0] * w], [0, f * d["aspect"], d["c_frac"][1] * h], [0, 0, 1.0]])
+    return Camera(name=name, type=CameraType.VGA, resolution=(w, h), K=K, dist=np.array(d["k"], dtype=float),
+                  R=Rotation.from_quat(d["quat"]).as_matrix(), t_cm=np.array(d["t_cm"]), panel=0, node=0)
+
+
+@settings(max_examples=15, deadline=None)
+@given(cams=st.lists(camera_strategy, min_size=1, max_size=12), fmt=st.sampled_from(list(Format)))
+def test_round_trip_of_mutated_cameras(cams, fmt):
+    """Any rotation, position, focal, principal point and distortion, 1-12 cameras (order and > 10 names)."""
+    names = [f"cam_{i}" for i in range(len(cams))]  # cam_10 sorts before cam_2 as a string
+    bundle = Bundle(seq="h", cameras={n: _camera(n, d) for n, d in zip(names, cams)})
+    with tempfile.TemporaryDirectory() as tmp:
+        write_bundle(bundle, Path(tmp) / "b")
+        original, again, _ = round_trip(Path(tmp) / "b", fmt, Path(tmp))
+        assert worst_gaps(original, again, drop_k3=fmt is Format.POSE2SIM)[0] < ROUND_TRIP_TOL_PX
+        assert list(again.cameras) == list(original.cameras)  # the bundle file's order (type, then name)
+
+
+# ------------------------------------------------------------------------------------------ the peers' own readers
+@pytest.mark.parametrize("binary", [True, False])
+def test_pycolmap_reads_the_model_and_projects_like_us(real_bundle, tmp_path, binary):
+    export_bundle(real_bundle, Format.COLMAP, tmp_path / "model", ExportOptions(unit="m", binary=binary))
+    assert sorted(p.name for p in (tmp_path / "model").iterdir()) == sorted(
+        f"{k}.{'bin' if binary else 'txt'}" for k in ("cameras", "images", "points3D", "rigs", "frames"))
+    rec = pycolmap.Reconstruction(str(tmp_path / "model"))
+    bundle = load_bundle(real_bundle)
+    assert rec.num_rigs() == 1 and rec.num_frames() == 1 and rec.num_images() == 520
+    assert rec.rigs[1].num_sensors() == 520
+    names = [rec.images[i].name for i in sorted(rec.images)]
+    assert names == [f"{n}.png" for n in bundle.cameras]
+    worst = 0.0
+    for image_id in sorted(rec.images):
+        image = rec.images[image_id]
+        cam = bundle.cameras[image.name.removesuffix(".png")]
+        X_cm = world_points_cm(cam)
+        X_cam_m = image.cam_from_world() * (X_cm / 100.0)
+        uv = rec.cameras[image.camera_id].img_from_cam(X_cam_m) - COLMAP_PIXEL_OFFSET_PX
+        worst = max(worst, float(np.abs(uv - pixels(cam, X_cm)).max()))
+        assert rec.cameras[image.camera_id].model.name == ("FULL_OPENCV" if cam.dist[4] else "OPENCV")
+    print(f"pycolmap vs our model, 520 real cameras: {worst:.2e} px")
+    assert worst < ROUND_TRIP_TOL_PX
+
+
+@pytest.mark.parametrize("which", ["real", "synthetic"])
+def test_aniposelib_loads_every_camera_in_our_order_and_projects_like_us(real_bundle, synthetic_bundle, tmp_path,
+                                                                         which):
+    from aniposelib.cameras import CameraGroup
+
+    folder = real_bundle if which == "real" else synthetic_bundle
+    export_bundle(folder, Format.ANIPOSELIB, tmp_path / "calibration.toml")  # mm, the default
+    group = CameraGroup.load(str(tmp_path / "calibration.toml"))
+    bundle = load_bundle(folder)
+    assert [c.get_name() for c in group.cameras] == list(bundle.cameras)
+    assert len(group.cameras) == (520 if which == "real" else 521)
+    assert group.metadata["unit"] == "mm"
+    worst = 0.0
+    for peer, cam in zip(group.cameras, bundle.cameras.values()):
+        X_cm = world_points_cm(cam)
+        uv = peer.project(X_cm * 10.0).reshape(-1, 2)
+        worst = max(worst, float(np.abs(uv - pixels(cam, X_cm)).max()))
+    print(f"aniposelib vs our model, {len(group.cameras)} {which} cameras: {worst:.2e} px")
+    assert worst < ROUND_TRIP_TOL_PX
+
+
+def test_opencv_filestorage_reads_the_easymocap_files_as_easymocap_does(real_bundle, tmp_path):
+    export_bundle(real_bundle, Format.EASYMOCAP, tmp_path / "cal")
+    intri = cv2.FileStorage(str(tmp_path / "cal" / "intri.yml"), cv2.FILE_STORAGE_READ)
+    extri = cv2.FileStorage(str(tmp_path / "cal" / "extri.yml"), cv2.FILE_STORAGE_READ)
+    node = intri.getNode("names")
+    names = [node.at(i).string() for i in range(node.size())]
+    bundle = load_bundle(real_bundle)
+    assert names == list(bundle.cameras)
+    worst = 0.0
+    for name in names:  # as EasyMocap's read_camera: K_, dist_, H_, W_, R_ (Rodrigues) and T_ (m)
+        cam = bundle.cameras[name]
+        K, dist = intri.getNode(f"K_{name}").mat(), intri.getNode(f"dist_{name}").mat()
+        assert dist.shape == (1, 5)
+        assert (int(intri.getNode(f"W_{name}").real()), int(intri.getNode(f"H_{name}").real())) == cam.resolution
+        rvec, T = extri.getNode(f"R_{name}").mat(), extri.getNode(f"T_{name}").mat()
+        assert np.abs(cv2.Rodrigues(rvec)[0] - extri.getNode(f"Rot_{name}").mat()).max() < 1e-12
+        X_cm = world_points_cm(cam)
+        uv, _ = cv2.projectPoints(X_cm / 100.0, rvec, T, K, dist)
+        worst = max(worst, float(np.abs(uv.reshape(-1, 2) - pixels(cam, X_cm)).max()))
+    print(f"OpenCV (EasyMocap's reading) vs our model, 520 real cameras: {worst:.2e} px")
+    assert worst < ROUND_TRIP_TOL_PX
+
+
+@pytest.mark.parametrize("up", ["+x", "-x", "+y", "+z", "-z"])
+def test_world_up_turns_the_world_and_back(synthetic_bundle, tmp_path, up):
+    """Exported with up = UP and imported saying so: our world again. Imported as kept: the same cameras in the
+    turned world (a point X of ours is M^T X there)."""
+    from dome_calib.interop.common import PANOPTIC_FROM_UP
+
+    export = ExportOptions(world_up=up)
+    original, again, result = round_trip(synthetic_bundle, Format.EASYMOCAP, tmp_path, export, world_up=up)
+    assert result.world_up == up
+    assert max(worst_gaps(original, again)) < ROUND_TRIP_TOL_PX
+    import_calibration(tmp_path / OUT[Format.EASYMOCAP], Format.EASYMOCAP, tmp_path / "kept")
+    kept = load_bundle(tmp_path / "kept")
+    M = PANOPTIC_FROM_UP[up]
+    ours, theirs = list(original.cameras.values()), list(kept.cameras.values())
+    X = world_points_cm(ours)
+    assert np.abs(pixels(theirs, X @ M) - pixels(ours, X)).max() < ROUND_TRIP_TOL_PX
+    up_axis = M.T @ np.array([0.0, -1.0, 0.0])  # our up, in the file's world
+    assert np.allclose(up_axis, np.eye(3)[" xyz".index(up[1]) - 1] * (1 if up[0] == "+" else -1))
+
+
+@pytest.mark.parametrize(("model", "params"), [
+    ("SIMPLE_PINHOLE", [900.0, 330.2, 241.7]),
+    ("PINHOLE", [900.0, 905.5, 330.2, 241.7]),
+    ("SIMPLE_RADIAL", [900.0, 330.2, 241.7, -0.12]),
+    ("RADIAL", [900.0, 330.2, 241.7, -0.12, 0.03]),
+    ("OPENCV", [900.0, 905.5, 330.2, 241.7, -0.12, 0.03, 4e-4, -2e-4]),
+    ("FULL_OPENCV", [900.0, 905.5, 330.2, 241.7, -0.12, 0.03, 4e-4, -2e-4, 0.01, 0.0, 0.0, 0.0]),
+])
+def test_colmap_models_written_by_pycolmap_import_as_pycolmap_projects(tmp_path, model, params):
+    """A plain COLMAP model (one camera shared by three images, trivial rigs, text files): every image becomes a
+    camera of ours that projects as pycolmap does (minus COLMAP's half pixel)."""
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(pycolmap.Camera(model=model, width=640, height=480, params=params, camera_id=1))
+    rotations = Rotation.from_euler("xyz", [[0.1, -0.2, 0.05], [-0.3, 0.4, 0.2], [0.2, 0.1, -2.9]]).as_matrix()
+    for i, R in enumerate(rotations, start=1):
+        pose = pycolmap.Rigid3d(pycolmap.Rotation3d(R), np.array([0.1 * i, -0.2, 1.5 + i]))
+        rec.add_image_with_trivial_frame(pycolmap.Image(name=f"frames/img{i}.jpg", camera_id=1, image_id=i),
+                                         pose)
+    (tmp_path / "model").mkdir()
+    rec.write_text(str(tmp_path / "model"))
+    import_calibration(tmp_path / "model", Format.COLMAP, tmp_path / "b", ImportOptions(unit="m"))
+    bundle = load_bundle(tmp_path / "b")
+    assert list(bundle.cameras) == ["frames/img1", "frames/img2", "frames/img3"]
+    for image_id, (name, cam) in zip(sorted(rec.images), bundle.cameras.items()):
+        X_cm = world_points_cm(cam)
+        image = rec.images[image_id]
+        uv = rec.cameras[1].img_from_cam(image.cam_from_world() * (X_cm / 100.0)) - COLMAP_PIXEL_OFFSET_PX
+        assert np.abs(uv - pixels(cam, X_cm)).max() < ROUND_TRIP_TOL_PX, name
+
+
+def test_pose2sim_file_reads_as_pose2sim_reads_it(real_bundle, tmp_path):
+    """Pose2Sim's ``retrieve_calib_params``: ``toml.load``, the tables in file order but the settings ones, then
+    OpenCV with ``matrix``, ``distortions`` (4), ``rotation`` (Rodrigues) and ``translation`` (m) in its z-up
+    world. Pose2Sim itself is not installable here (OpenSim); its reading library and steps are."""
+    import toml
+
+    from dome_calib.interop.common import PANOPTIC_FROM_UP
+
+    export_bundle(real_bundle, Format.POSE2SIM, tmp_path / "Calib.toml")
+    calib = toml.load(tmp_path / "Calib.toml")
+    keys = [c for c in calib if c not in ["metadata", "capture_volume", "charuco", "checkerboard"]
+            and isinstance(calib[c], dict)]
+    bundle = load_bundle(real_bundle)
+    assert keys == list(bundle.cameras) and [calib[k]["name"] for k in keys] == keys
+    worst = 0.0
+    for key in keys:
+        cam, table = bundle.cameras[key], calib[key]
+        assert len(table["distortions"]) == 4 and table["fisheye"] is False
+        assert [int(v) for v in table["size"]] == list(cam.resolution)
+        X_cm = world_points_cm(cam)
+        X_zup_m = X_cm @ PANOPTIC_FROM_UP["+z"] / 100.0  # our point in Pose2Sim's z-up world, metres
+        uv, _ = cv2.projectPoints(X_zup_m, np.array(table["rotation"]), np.array(table["translation"]),
+                                  np.array(table["matrix"]), np.array(table["distortions"]))
+        worst = max(worst, float(np.abs(uv.reshape(-1, 2) - pixels(_without_k3(cam), X_cm)).max()))
+    print(f"Pose2Sim's reading vs our model without k3, 520 real cameras: {worst:.2e} px")
+    assert worst < ROUND_TRIP_TOL_PX
