@@ -49,7 +49,8 @@ from dome_calib.bundle_io import load_bundle
 from dome_calib.errors import CaptureError
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.layout import nominal_dome
-from dome_calib.executor import Executor, make_executor
+from dome_calib.executor import Executor
+from dome_calib.executor.local import make_executor
 from projector.features import FeatureOptions, FeatureReport, extract_features, nominal_camera
 from projector.known_scene import KnownPoseOptions, map_known_scene, reference_cameras
 from projector.database import camera_of_image, drop_matches

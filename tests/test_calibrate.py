@@ -10,14 +10,15 @@ import pytest
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
-import dome_calib.pipeline as pipeline
+import dome_calib.pipeline.full as pipeline
 from dome_calib.align import sim3_apply, transform_cameras
 from dome_calib.ba.problem import BAProblem
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.camera import project
 from dome_calib.executor import default_num_workers
 from dome_calib.report.command import report_bundle
-from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, observation_residuals, residuals_of
+from dome_calib.pipeline.stages import observation_residuals, residuals_of
+from dome_calib.pipeline.types import BAOutcome, SfmOutcome
 from dome_calib.layout import nominal_dome
 
 SFM_FRAME = pycolmap.Sim3d(0.05, pycolmap.Rotation3d(Rotation.from_rotvec([0.2, 1.3, -0.4]).as_matrix()), [1, 2, 3])
@@ -185,7 +186,7 @@ def test_calibrate_cli_only_changed_needs_prior(tmp_path, capture):
 
 def test_ba_stage_on_noisy_observations():
     """The real bundle adjustment through the pipeline's adapter: RMS / noise near 1, nothing rejected wrongly."""
-    from dome_calib.pipeline_stages import run_ba_stage
+    from dome_calib.pipeline.stages import run_ba_stage
 
     truth = nominal_dome("tiny", seed=0)
     outcome = run_ba_stage(_problem(truth, seed=1), progress=False)
@@ -196,7 +197,7 @@ def test_ba_stage_on_noisy_observations():
 
 
 def test_prune_problem_drops_unusable_cameras():
-    from dome_calib.pipeline_stages import prune_problem
+    from dome_calib.pipeline.stages import prune_problem
 
     truth = nominal_dome("tiny", seed=0)
     problem = _problem(truth)
@@ -220,7 +221,7 @@ def test_center_sigma_flags_absolute_and_relative_to_the_dome():
     """A centre more uncertain than 0.5 cm (1 sigma) is flagged; so is one 5x less determined than the dome's
     median camera (the BA's covariance is only as good as its noise model) unless it is below a millimetre or
     too few cameras were solved to know the typical one (a quick recalibration)."""
-    from dome_calib.pipeline_finish import RELATIVE_SIGMA_FLOOR_CM, center_sigma_flags
+    from dome_calib.pipeline.finish import RELATIVE_SIGMA_FLOOR_CM, center_sigma_flags
 
     options = pipeline.CalibrateOptions()
     dome = {f"01_{k:02d}": 0.08 for k in range(1, 20)}  # median 0.08 cm

@@ -26,7 +26,7 @@ from dome_calib.bundle import Bundle, Camera, CameraType
 from dome_calib.bundle_io import write_bundle
 from dome_calib.camera import intr_to_K, pixels_to_normalized, project
 from dome_calib.compare import compare_cameras, distortion_difference_px
-from dome_calib.pipeline_stages import run_ba_stage
+from dome_calib.pipeline.stages import run_ba_stage
 from dome_calib.rotation import rotvec_to_matrix
 
 REAL_CROP = Path(__file__).parent / "data" / "real_crop"
@@ -251,7 +251,8 @@ def real_crop(tmp_path_factory):
     """A one-scene capture of 4 real photographs (768 x 512) and a prior perturbed like an old calibration
     (centres 0.5 cm, rotations 1 deg, focal +3 %; centres within the world-frame fit's 1 cm inlier threshold),
     calibrated with `calibrate --prior`."""
-    from dome_calib.pipeline import CalibrateOptions, run_calibration
+    from dome_calib.pipeline.full import run_calibration
+    from dome_calib.pipeline.types import CalibrateOptions
 
     root = tmp_path_factory.mktemp("real_crop")
     reference = _strecha_cameras(0.25)

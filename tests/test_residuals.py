@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 
 from dome_calib.layout import nominal_dome
-from dome_calib.pipeline_stages import ba_options, observation_residuals, run_ba_stage
+from dome_calib.pipeline.stages import ba_options, observation_residuals, run_ba_stage
 from dome_calib.residuals import Residuals, observed_minus_projected
 
 from .test_calibrate import _problem

@@ -14,7 +14,7 @@ from dome_calib.camera import project
 from projector.features import FeatureOptions, extract_features
 from projector.matching import MatchOptions, match_pairs
 from projector.pairs import pairs_exhaustive
-from dome_calib.pipeline_stages import problem_from_observations
+from dome_calib.pipeline.stages import problem_from_observations
 from projector.sfm import SfmOptions, run_sfm
 
 CAMERAS = ["00_00", "01_01", "01_02", "01_03", "01_04", "01_05", "01_06", "01_11", "01_12"]
@@ -236,7 +236,7 @@ def test_quick_recalibration_gives_a_disturbed_hd_camera_full_resolution(broken_
 
     from scipy.spatial.transform import Rotation
 
-    import dome_calib.pipeline as pipeline
+    import dome_calib.pipeline.full as pipeline
     from dome_calib.bundle import Bundle
     from dome_calib.bundle_io import write_bundle
     from dome_calib.compare import camera_error
@@ -267,8 +267,8 @@ def test_quick_recalibration_rerun_after_a_failed_suspect_match(broken_capture, 
     """The run stops inside suspect_match, after the features of the HD camera (new to the prior) were dropped:
     the rerun resumes after detect, restores its first-round pairs from pairs.txt (a new camera has no other
     partners) and gives the same bundle as a run that never stopped."""
-    import dome_calib.pipeline as pipeline
-    import dome_calib.pipeline_quick as quick
+    import dome_calib.pipeline.full as pipeline
+    import dome_calib.pipeline.quick as quick
     from dome_calib.bundle import Bundle
     from dome_calib.bundle_io import write_bundle
 

@@ -6,13 +6,14 @@
     write (bundle and report staged beside OUT, then swapped in) -> OUT/
 
 Resumable: every finished stage leaves its result in the work folder (``OUT.work`` by default,
-:class:`dome_calib.workstate.WorkState`, locked while a run uses it) and a rerun with the same inputs (images and
-prior by size and mtime, options) starts after the last finished stage; SfM also reuses its own databases.
-OUT is checked before any work and replaced whole at the end (:mod:`dome_calib.pipeline_finish`).
+:class:`dome_calib.pipeline.workstate.WorkState`, locked while a run uses it) and a rerun with the same inputs
+(images and prior by size and mtime, options) starts after the last finished stage; SfM also reuses its own
+databases.
+OUT is checked before any work and replaced whole at the end (:mod:`dome_calib.pipeline.finish`).
 
 With ``--prior`` the cameras are compared with the prior bundle (cm, deg, intrinsics) and the report lists
 those that moved; ``--only-changed`` then re-estimates just those, all other cameras held at the prior
-(:mod:`dome_calib.pipeline_quick`).
+(:mod:`dome_calib.pipeline.quick`).
 """
 from __future__ import annotations
 
@@ -24,19 +25,20 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle import CameraType, camera_type_from_name
-from dome_calib.cluster import capture_nodes, cluster_section, format_cluster, open_executor, settle_cluster_stats
+from dome_calib.pipeline.capture import capture_contents, capture_nodes
+from dome_calib.pipeline.cluster import cluster_section, format_cluster, open_executor, settle_cluster_stats
 from dome_calib.bundle_io import check_output_folder, load_bundle, recover_folder
 from dome_calib.errors import DomeCalibError
 from dome_calib.normalize import normalize
-from dome_calib.pipeline_finish import (CalibrateOptions, Calibrated, CalibrationInputs, CalibrationResult,
-                                        capture_contents, finish)
-from dome_calib.pipeline_quick import run_quick
-from dome_calib.pipeline_stages import run_ba_stage, run_sfm_stage
-from dome_calib.workstate import WorkState, input_fingerprint
+from dome_calib.pipeline.finish import finish
+from dome_calib.pipeline.quick import run_quick
+from dome_calib.pipeline.stages import run_ba_stage, run_sfm_stage
+from dome_calib.pipeline.types import CalibrateOptions, Calibrated, CalibrationInputs, CalibrationResult
+from dome_calib.pipeline.workstate import WorkState, input_fingerprint
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["CalibrateOptions", "CalibrationResult", "format_result", "run_calibration", "run_full"]
+__all__ = ["format_result", "run_calibration", "run_full"]
 
 STAGE_LABELS = {"sfm": "features, pairs, matching, per-scene mapping, merging scenes",
                 "ba": "bundle adjustment (lens terms chosen per camera, outlier rejection)",

@@ -27,7 +27,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.ndimage import maximum_filter1d, median_filter, uniform_filter1d
 
-from timecode.bits import classify
+from timecode.decode.bits import classify
 
 #: Shortest LTC half-bit (30 fps + 15 %), seconds.
 MIN_HALF_BIT_S = 1.0 / (2 * 30 * 80 * 1.15)

@@ -1,4 +1,4 @@
-"""Body of ``timecode sync`` (kept out of timecode/cli.py so --help stays fast and the shell stays thin)."""
+"""Body of ``timecode sync`` (kept out of timecode/cli/__init__.py so --help stays fast and the shell stays thin)."""
 from __future__ import annotations
 
 import sys

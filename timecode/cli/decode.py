@@ -10,9 +10,9 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from timecode.audio_io import AudioReader, RawFormat, RawSampleFormat
-from timecode.decoder import DecodeOptions, RateMismatchError, decode_file
+from timecode.decode.decoder import DecodeOptions, RateMismatchError, decode_file
 from timecode.errors import NoLTCError, TimecodeError
-from timecode.formats import OutputFormat, render
+from timecode.decode.formats import OutputFormat, render
 from timecode.rates import FrameRate, parse_rate
 
 

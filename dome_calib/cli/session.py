@@ -1,4 +1,5 @@
-"""`dome-calib session`: a thin shell over dome_calib.session (imported inside the command: --help stays fast)."""
+"""`dome-calib session`: a thin shell over dome_calib.pipeline.session (imported inside the command: --help
+stays fast)."""
 from __future__ import annotations
 
 import logging
@@ -12,8 +13,8 @@ from dome_calib.errors import interrupt_as_one_line
 
 def format_session(result) -> str:
     """What `dome-calib session` prints: per pillar what was achieved and what to check."""
-    from dome_calib.cli_kinect import format_sensor_line
-    from dome_calib.pipeline import format_result
+    from dome_calib.cli.kinect import format_sensor_line
+    from dome_calib.pipeline.full import format_result
     from timecode.sync.report import summary_lines
 
     lines = ["calibration (cameras):"]
@@ -46,7 +47,7 @@ def session(
     every stream from the LTC audio; write one bundle (calibration, kcalibration, synctables, ksynctables) and
     one report saying per pillar what was achieved and what to check. Rerun to resume the calibration."""
     with interrupt_as_one_line("dome-calib"):
-        from dome_calib.session import SessionOptions, run_session
+        from dome_calib.pipeline.session import SessionOptions, run_session
 
         logging.getLogger("dome_calib.ba").setLevel(logging.WARNING)
         tty = sys.stderr.isatty()

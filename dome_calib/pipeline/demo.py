@@ -20,11 +20,12 @@ from pathlib import Path
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from dome_calib.bundle_io import load_bundle, write_bundle
+from dome_calib.bundle_io import load_bundle
 from dome_calib.compare import Comparison, compare_cameras
 from dome_calib.errors import DomeCalibError
-from dome_calib.pipeline import CalibrationResult, format_result
-from dome_calib.session import SessionOptions, SessionResult, run_session
+from dome_calib.pipeline.full import format_result
+from dome_calib.pipeline.session import SessionOptions, SessionResult, run_session
+from dome_calib.pipeline.types import CalibrationResult
 from dome_calib.synth.product_eval import evaluate
 from dome_calib.synth.session import SessionOptions as SynthSessionOptions
 from dome_calib.synth.session import make_product_session

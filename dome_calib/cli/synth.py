@@ -32,7 +32,7 @@ def synth(
     positions, seen by every camera of the preset, plus the true calibration in OUT/ground_truth/."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from dome_calib.cluster import format_cluster, open_executor
+    from dome_calib.pipeline.cluster import format_cluster, open_executor
     from dome_calib.layout import Preset
     from dome_calib.synth.capture import SynthOptions, synthesize
 

@@ -37,14 +37,17 @@ from dome_calib.align import Alignment
 from dome_calib.ba.problem import ParamGroup, camera_to_params
 from dome_calib.bundle import Bundle, CameraType
 from dome_calib.compare import CameraChange, camera_error
-from dome_calib.cluster import capture_nodes, cluster_section, open_executor, settle_cluster_stats
-from dome_calib.executor import Executor, make_executor
+from dome_calib.pipeline.capture import capture_nodes
+from dome_calib.pipeline.cluster import cluster_section, open_executor, settle_cluster_stats
+from dome_calib.executor import Executor
+from dome_calib.executor.local import make_executor
 from dome_calib.normalize import Normalized, WorldReference
-from dome_calib.pipeline_finish import Calibrated, CalibrationInputs, CalibrationResult, finish
-from dome_calib.pipeline_stages import (BAOutcome, ba_options, observation_residuals, problem_from_observations,
+from dome_calib.pipeline.finish import finish
+from dome_calib.pipeline.stages import (ba_options, observation_residuals, problem_from_observations,
                                         quiet_colmap, run_ba_stage)
 from dome_calib.residuals import Residuals
-from dome_calib.workstate import WorkState
+from dome_calib.pipeline.types import BAOutcome, Calibrated, CalibrationInputs, CalibrationResult
+from dome_calib.pipeline.workstate import WorkState
 from projector.consistency import changed_cameras, pair_errors
 from projector.database import camera_of_image, drop_features
 from projector.features import extract_features, nominal_camera, reduction_factor

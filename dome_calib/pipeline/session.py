@@ -29,7 +29,8 @@ from dome_calib.errors import CaptureError, DomeCalibError
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.kinect.calibrate import KinectCalibOptions, SensorCalibration, calibrate_kinect_folder
 from dome_calib.kinect.detect import find_sensor_frames
-from dome_calib.pipeline import CalibrateOptions, CalibrationResult, format_result, run_calibration
+from dome_calib.pipeline.full import run_calibration
+from dome_calib.pipeline.types import CalibrateOptions, CalibrationResult
 from timecode.errors import TimecodeError
 from timecode.sync.pipeline import sync_session, write_sync
 from timecode.sync.session import load_session

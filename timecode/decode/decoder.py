@@ -24,13 +24,13 @@ import numpy as np
 import numpy.typing as npt
 from scipy.signal import resample_poly
 
-from timecode.assemble import RateMismatchError, decode_edges, pole_to_tau
+from timecode.decode.assemble import RateMismatchError, decode_edges, pole_to_tau
 from timecode.audio_io import AudioReader, RawFormat, to_float32
-from timecode.droop import Droop
-from timecode.edges import block_droop, edge_params, find_edges
+from timecode.decode.droop import Droop
+from timecode.decode.edges import block_droop, edge_params, find_edges
 from timecode.errors import TimecodeError
 from timecode.rates import FrameRate
-from timecode.result import ChannelDecode
+from timecode.decode.result import ChannelDecode
 
 logger = logging.getLogger(__name__)
 

@@ -21,14 +21,14 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from timecode.bits import EdgeStream, edge_stream, find_frames, with_virtual_edges
-from timecode.bitclock import fit_frame_times
-from timecode.continuity import continuity, detect_rate, rate_contradiction, rate_evidence
+from timecode.decode.bits import EdgeStream, edge_stream, find_frames, with_virtual_edges
+from timecode.decode.bitclock import fit_frame_times
+from timecode.decode.continuity import continuity, detect_rate, rate_contradiction, rate_evidence
 from timecode.errors import TimecodeError
 from timecode.frame import bgf_bits, pack_bits, unpack_bits
 from timecode.labels import frames_to_labels, labels_to_frames, labels_valid
 from timecode.rates import FrameRate
-from timecode.result import ChannelDecode
+from timecode.decode.result import ChannelDecode
 
 #: Frame bits that carry the label (BCD digits) and the drop-frame and colour-frame flags.
 LABEL_BITS = np.array([*range(0, 4), 8, 9, 10, 11, *range(16, 20), *range(24, 27), *range(32, 36), *range(40, 43),

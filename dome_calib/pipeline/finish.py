@@ -1,5 +1,5 @@
-"""What the full and the quick calibration share: their options and inputs, the result, and :func:`finish`
-(change detection against the prior, cameras to check, then the bundle and its report replacing OUT whole).
+"""How the full and the quick calibration end (:func:`finish`): change detection against the prior, cameras to
+check, then the bundle and its report replacing OUT whole. Their types are in :mod:`dome_calib.pipeline.types`.
 
 OUT is never written in place: the bundle, its report and the files of the same seq that other commands added
 (Kinect calibration, sync tables) are staged in a sibling folder, then swapped in
@@ -11,20 +11,17 @@ from __future__ import annotations
 import json
 import logging
 import shutil
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import bundle_files, check_output_folder, replace_folder, staging_folder, write_bundle
-from dome_calib.compare import CameraChange, ChangeOptions, detect_changes
-from dome_calib.errors import CaptureError
-from dome_calib.normalize import Normalized, NormalizeOptions
-from dome_calib.pipeline_stages import BAOutcome, SfmOutcome
-from dome_calib.report import REPORT_DIR, ReportOptions, write_report
+from dome_calib.compare import detect_changes
+from dome_calib.pipeline.types import CalibrateOptions, Calibrated, CalibrationInputs, CalibrationResult
+from dome_calib.pipeline.workstate import WorkState
+from dome_calib.report import REPORT_DIR, write_report
 from dome_calib.residuals import Residuals
-from dome_calib.workstate import WorkState
 
 logger = logging.getLogger(__name__)
 
@@ -32,96 +29,6 @@ logger = logging.getLogger(__name__)
 #: of the same seq.
 CARRIED_KINDS = ("kcalibration", "synctables", "ksynctables")
 CARRIED_REPORT_FILES = ("sync.json",)
-
-
-@dataclass(kw_only=True)
-class CalibrateOptions:
-    """What `dome-calib calibrate` does. ``seq`` defaults to the capture folder's name."""
-
-    prior: Path | None = None
-    only_changed: bool = False
-    seq: str | None = None
-    work_dir: Path | None = None
-    progress: bool = True
-    normalize: NormalizeOptions = field(default_factory=NormalizeOptions)
-    changes: ChangeOptions = field(default_factory=ChangeOptions)
-    report: ReportOptions = field(default_factory=ReportOptions)
-    max_center_sigma_cm: float = 0.5  # flag cameras whose centre is less certain than this (1 sigma)
-    # ... or RELATIVE_SIGMA times less certain than the dome's median camera (and above RELATIVE_SIGMA_FLOOR_CM):
-    # the covariance is only as good as the noise model, so a camera far less determined than the others is
-    # checked even under the absolute bound (a camera 5x less determined is ~5x as likely to be off)
-    center_sigma_ratio: float = 5.0
-    scheduler: str | None = None  # a Dask scheduler (tcp://HOST:PORT) for features and matching; None: local pool
-
-
-@dataclass(kw_only=True)
-class CalibrationInputs:
-    """One run's inputs, read and checked before any work."""
-
-    capture: Path
-    out: Path
-    seq: str
-    scenes: list[str]
-    expected: list[str]  # cameras of the capture
-    prior: Bundle | None
-    options: CalibrateOptions
-
-
-@dataclass(kw_only=True)
-class Calibrated:
-    """What a runner hands to :func:`finish`: cameras in the Panoptic frame and what is known about them."""
-
-    normalized: Normalized
-    failures: dict[str, str]  # camera -> why it was not calibrated
-    residuals: Residuals  # observed - projected, px
-    source: str  # calibDataSource of the bundle
-    center_sigma_cm: dict[str, float] = field(default_factory=dict)  # 1-sigma centre uncertainty
-    changes: dict[str, CameraChange] | None = None  # None: detect against the prior
-    notes: dict[str, str] = field(default_factory=dict)  # camera -> a further reason to check it
-    lens_model: dict | None = None  # the BA's per-camera lens terms refined and held, with why (report.json)
-    cluster: dict | None = None  # where each stage ran: report.json's "cluster" (dome_calib.cluster.cluster_section)
-
-
-@dataclass(kw_only=True)
-class CalibrationResult:
-    """What a calibration produced, for the summary, the demo and the benchmarks."""
-
-    bundle_dir: Path
-    report_dir: Path
-    bundle: Bundle
-    expected: list[str]  # cameras of the capture
-    failures: dict[str, str]  # camera -> why it was not calibrated
-    normalized: Normalized
-    residuals: Residuals
-    stage_seconds: dict[str, float]
-    resumed: list[str]  # stages taken from the work folder
-    changes: dict[str, CameraChange] | None = None
-    to_check: list[dict] = field(default_factory=list)
-    stats: dict = field(default_factory=dict)  # per-stage counts and times
-    sfm: SfmOutcome | None = None  # full run
-    ba: BAOutcome | None = None  # full run; quick run: the re-estimation (None if no camera changed)
-
-    @property
-    def rms_px(self) -> float:
-        return float(np.sqrt(np.mean(self.residuals.residual_px ** 2)))  # per coordinate
-
-
-def capture_contents(capture: Path) -> tuple[list[str], list[str]]:
-    """Scenes and cameras named by ``capture.json`` (or found under scenes/)."""
-    if not capture.is_dir():
-        raise CaptureError(f"{capture}: not a folder")
-    meta_path = capture / "capture.json"
-    if meta_path.exists():
-        try:
-            meta = json.loads(meta_path.read_text(encoding="utf-8"))
-            return list(meta["scenes"]), list(meta["cameras"])
-        except (ValueError, KeyError, TypeError) as exc:
-            raise CaptureError(f"{meta_path}: malformed ({exc})") from exc
-    scenes = sorted(p.name for p in (capture / "scenes").glob("*") if p.is_dir())
-    if not scenes:
-        raise CaptureError(f"{capture}: no capture.json and no scenes/<scene>/ folders")
-    cams = sorted({p.stem for s in scenes for p in (capture / "scenes" / s).glob("*.png")})
-    return scenes, cams
 
 
 #: The relative rule needs a dome's worth of cameras to know the typical one (a quick recalibration frees a few).

@@ -61,7 +61,8 @@ def calibrate(
     """Calibrate every camera of the dome from one capture session: features, matching, reconstruction, bundle
     adjustment, world frame, then the bundle and its report. Rerun the same command to resume after a stop."""
     with interrupt_as_one_line("dome-calib"):  # SIGINT / SIGTERM: one line naming the stage, exit 130
-        from dome_calib.pipeline import CalibrateOptions, format_result, run_calibration
+        from dome_calib.pipeline.full import format_result, run_calibration
+        from dome_calib.pipeline.types import CalibrateOptions
 
         logging.getLogger("dome_calib.ba").setLevel(logging.INFO if verbose else logging.WARNING)
         options = CalibrateOptions(prior=prior, only_changed=only_changed, seq=seq, work_dir=work, scheduler=scheduler,
@@ -110,27 +111,31 @@ def demo(
     """Demonstration: synthesise a small dome capture, calibrate it, compare with the ground truth, and print
     what a technician would look at."""
     logging.getLogger("dome_calib.ba").setLevel(logging.WARNING)
-    from dome_calib.demo import DemoOptions, format_demo, run_demo
+    from dome_calib.pipeline.demo import DemoOptions, format_demo, run_demo
 
     typer.echo(format_demo(run_demo(out, DemoOptions(preset=preset, scenes=scenes, seed=seed))))
 
 
-from dome_calib.cli_synth import register as _register_synth  # noqa: E402  (synth, patterns)
+def main() -> None:
+    run_cli(app, prog="dome-calib")
+
+
+# ---- command registration: one module per room under dome_calib/cli/, each with a `register(app)` ----------
+# (keep this block at the bottom: a new command adds its two lines here, `from dome_calib.cli.<room> import
+# register as _register_<room>` then `_register_<room>(app)`; the modules import their stages inside the commands)
+from dome_calib.cli.synth import register as _register_synth  # noqa: E402  (synth, patterns)
 
 _register_synth(app)
 
-from dome_calib.cli_recon import register as _register_recon  # noqa: E402  (triangulate, pointcloud)
+from dome_calib.cli.recon import register as _register_recon  # noqa: E402  (triangulate, pointcloud)
 
 _register_recon(app)
 
-from dome_calib.cli_kinect import register as _register_kinect  # noqa: E402  (kinect, kinect-synth)
+from dome_calib.cli.kinect import register as _register_kinect  # noqa: E402  (kinect, kinect-synth)
 
 _register_kinect(app)
 
-from dome_calib.cli_session import register as _register_session  # noqa: E402  (session)
+from dome_calib.cli.session import register as _register_session  # noqa: E402  (session)
 
 _register_session(app)
-
-
-def main() -> None:
-    run_cli(app, prog="dome-calib")
+# ---- end of command registration ------------------------------------------------------------------------------

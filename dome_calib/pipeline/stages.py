@@ -11,7 +11,6 @@ import logging
 import os
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -25,33 +24,12 @@ from dome_calib.bundle import Bundle, Camera
 from dome_calib.camera import project
 from dome_calib.errors import CaptureError
 from dome_calib.residuals import Residuals, observed_minus_projected
-from projector.observations import Observations
 from dome_calib.executor import Executor
+from dome_calib.pipeline.types import BAOutcome, SfmOutcome
+from projector.observations import Observations
 from projector.sfm import SfmOptions, report_dict, run_sfm
 
 logger = logging.getLogger(__name__)
-
-
-@dataclass(kw_only=True)
-class SfmOutcome:
-    """The merged multi-scene reconstruction (initial BA problem) and the cameras that failed, with why."""
-
-    problem: BAProblem
-    failures: dict[str, str] = field(default_factory=dict)
-    stats: dict = field(default_factory=dict)  # per-stage counts and times from the front end
-
-
-@dataclass(kw_only=True)
-class BAOutcome:
-    """The refined problem (its own gauge frame), cameras by name, and the final residuals of the inliers."""
-
-    problem: BAProblem
-    cameras: dict[str, Camera]
-    residuals: Residuals
-    inlier: np.ndarray  # (M,) bool over the problem's observations
-    stats: dict = field(default_factory=dict)  # iterations, cost, rms, seconds
-    center_sigma: dict[str, float] = field(default_factory=dict)  # 1-sigma centre uncertainty, problem units
-    lens_model: dict | None = None  # per camera the lens terms refined / held and why (LensModel.as_dict)
 
 
 def observation_residuals(problem: BAProblem) -> np.ndarray:

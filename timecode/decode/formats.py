@@ -19,7 +19,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from timecode.result import EXTRAPOLATED, ChannelDecode
+from timecode.decode.result import EXTRAPOLATED, ChannelDecode
 
 #: One decoded file: its name as given and its channels.
 FileDecode = tuple[str, Sequence[ChannelDecode]]

@@ -30,9 +30,9 @@ import numpy.typing as npt
 from scipy.ndimage import maximum_filter1d, median_filter
 
 from timecode.audio_io import to_float32
-from timecode.droop import Droop, compensate, estimate_droop
-from timecode.bits import half_bit_estimate
-from timecode.impulses import find_impulses, impulses_readable
+from timecode.decode.droop import Droop, compensate, estimate_droop
+from timecode.decode.bits import half_bit_estimate
+from timecode.decode.impulses import find_impulses, impulses_readable
 
 #: Highest and lowest LTC bit rates considered (30 fps +15 %, 23.976 fps -15 %), bits per second.
 MAX_BIT_RATE = 30 * 80 * 1.15

@@ -42,8 +42,9 @@ T = TypeVar("T")
 
 STATE_FILE = "state.json"
 LOCK_FILE = "lock"
-STATE_VERSION = 3  # 2: stage results are the typed outcomes of pipeline_stages / pipeline_quick; 3: the quick
-# path's first round on halved HD images and its suspect_match stage
+STATE_VERSION = 4  # 2: stage results are the typed outcomes of pipeline_stages / pipeline_quick; 3: the quick
+# path's first round on halved HD images and its suspect_match stage; 4: the pickled types moved into
+# dome_calib.pipeline (types, quick): a work folder of an older version is emptied, not unpickled
 
 
 class WorkFolderBusy(DomeCalibError):

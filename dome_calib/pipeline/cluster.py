@@ -19,35 +19,14 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from dome_calib.errors import CaptureError
-from dome_calib.executor import Executor, make_executor
+from dome_calib.executor import Executor
+from dome_calib.executor.local import make_executor
 from dome_calib.io_utils import atomic_write_text
+from dome_calib.pipeline.capture import capture_nodes
 from projector.features import ImageResult, extract_image
 
 CAPTURE_ROOT_ENV = "DOME_CALIB_CAPTURE_ROOT"
 WORKER_WAIT_S = 20.0  # how long a run waits for the capture's node workers to connect
-
-
-def capture_nodes(capture: Path) -> dict[str, list[str]]:
-    """``capture.json``'s ``"nodes"`` (node -> cameras), {} if absent; one line if malformed or a camera is on
-    two nodes."""
-    meta_path = capture / "capture.json"
-    if not meta_path.exists():
-        return {}
-    try:
-        nodes = json.loads(meta_path.read_text(encoding="utf-8")).get("nodes", {})
-    except (ValueError, AttributeError) as exc:
-        raise CaptureError(f"{meta_path}: malformed ({exc})") from exc
-    if not isinstance(nodes, dict) or not all(isinstance(v, list) and all(isinstance(c, str) for c in v)
-                                              for v in nodes.values()):
-        raise CaptureError(f"{meta_path}: field 'nodes' must map a worker name to a list of camera names")
-    seen: dict[str, str] = {}
-    for node, cams in sorted(nodes.items()):
-        for cam in cams:
-            if cam in seen:
-                raise CaptureError(f"{meta_path}: camera {cam} is listed under nodes {seen[cam]} and {node}")
-            seen[cam] = node
-    return {str(n): sorted(c) for n, c in sorted(nodes.items())}
 
 
 def node_image_path(head_capture: str, path: str) -> str:
@@ -99,7 +78,7 @@ def open_executor(capture: Path | None, scheduler: str | None, stats: dict | Non
                 stats.update(local_pool_stats(pool))
             yield pool
         return
-    from dome_calib.executor_dask import DaskExecutor, Route  # distributed takes ~0.5 s to load: --scheduler only
+    from dome_calib.executor.dask import DaskExecutor, Route  # distributed takes ~0.5 s to load: --scheduler only
 
     nodes = capture_nodes(capture) if capture is not None else {}
     routes = {}
