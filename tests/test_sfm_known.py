@@ -247,11 +247,11 @@ def test_a_likely_reference_that_is_not_the_reference_leaves_no_trace(capture, t
 
 def test_an_error_in_a_later_scenes_mapping_thread_is_raised(capture, tmp_path, monkeypatch):
     """A later scene is triangulated in a thread while the next is matched: its error reaches the caller."""
-    import projector.sfm as sfm
+    import projector.scene as scene
 
     def broken(*args, **kwargs):
         raise RuntimeError("triangulator exploded")
 
-    monkeypatch.setattr(sfm, "map_known_scene", broken)
+    monkeypatch.setattr(scene, "map_known_scene", broken)
     with pytest.raises(RuntimeError, match="triangulator exploded"):
         _run(capture, tmp_path / "work", enabled=True)

@@ -3,7 +3,7 @@
 The prior is right for most cameras, so one scene is enough and no mapping is needed:
 
 1. ``match``: features, prior-based pairs (fewer per camera than a full run) and verified matches of the first
-   scene (:func:`projector.sfm.match_scene`). Images larger than DETECT_MAX_IMAGE_PX (HD, Kinect colour) are
+   scene (:func:`projector.scene.match_scene`). Images larger than DETECT_MAX_IMAGE_PX (HD, Kinect colour) are
    reduced by an integer factor for this round (their keypoints are still in full-resolution pixels).
 2. ``detect``: every verified pair is tested against the PRIOR's relative pose and lenses (Sampson distance,
    :mod:`projector.consistency`); cameras most of whose pairs disagree are suspects (greedy, worst first, so
@@ -54,7 +54,8 @@ from projector.features import extract_features, nominal_camera, reduction_facto
 from projector.known_poses import observations_from_known, register_cameras, triangulate_known, verified_partners
 from projector.matching import match_pairs
 from projector.pairs import PairOptions, pairs_from_prior
-from projector.sfm import SfmOptions, mapper_image_dir, match_scene, read_pairs, write_pairs
+from projector.scene import mapper_image_dir, match_scene, read_pairs, write_pairs
+from projector.sfm_types import SfmOptions
 
 QUICK_BA = dataclasses.replace(ba_options(), compute_uncertainty=False)  # few free cameras: not needed
 
