@@ -120,7 +120,7 @@ def run(args) -> None:
     if not args.resume:
         shutil.rmtree(root / "bundle.work", ignore_errors=True)
     t0 = time.perf_counter()
-    result = run_calibration(capture, out, CalibrateOptions(seq=f"bench_{args.preset}", progress=False))
+    result = run_calibration(capture, out, CalibrateOptions(seq=f"bench_{args.preset}"))
     total = time.perf_counter() - t0
     emit(bench="dome", stage="calibrate", preset=args.preset, seconds_total=round(total, 1),
          resumed_stages=result.resumed,  # their seconds are those measured when they ran
@@ -208,7 +208,7 @@ def quick(args, root: Path, truth: Bundle) -> None:
         shutil.rmtree(root / f"{kind}_bundle.work", ignore_errors=True)
     t0 = time.perf_counter()
     result = run_calibration(capture, out, CalibrateOptions(prior=Path(root / "capture" / "ground_truth"),
-                                                            only_changed=True, progress=False))
+                                                            only_changed=True))
     total = time.perf_counter() - t0
     found = sorted(result.changes)
     ours = accuracy(result.bundle.cameras, moved, names)

@@ -66,7 +66,7 @@ def main() -> None:
     shutil.rmtree(bundle_dir, ignore_errors=True)
     shutil.rmtree(bundle_dir.with_name(bundle_dir.name + ".work"), ignore_errors=True)  # a cold run, no resume
     t0 = time.perf_counter()
-    result = run_session(session, bundle_dir, SessionOptions(seq="product", progress=False))
+    result = run_session(session, bundle_dir, SessionOptions(seq="product"))
     total = time.perf_counter() - t0
     for name, s in result.calibration.stage_seconds.items():
         emit(what="stage", chain="session/calibrate", stage=name, wall_s=round(s, 2))

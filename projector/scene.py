@@ -22,6 +22,7 @@ from dome_calib.align import AlignmentError, align_cameras, transform_cameras
 from dome_calib.bundle import Camera
 from dome_calib.executor import Executor
 from dome_calib.io_utils import atomic_write_text
+from dome_calib.progress import task_progress
 from projector.database import camera_of_image
 from projector.features import FeatureReport, extract_features
 from projector.known_scene import map_known_scene, reference_cameras
@@ -55,7 +56,8 @@ def scene_features(capture_dir: Path, work_dir: Path, scene: str, prior: Mapping
                    executor: Executor) -> FeatureReport:
     """Features of one scene into ``work_dir/<scene>/database.db`` (resumable)."""
     return extract_features(capture_dir / "scenes" / scene, work_dir / scene / "database.db", prior=prior,
-                            options=options.features, executor=executor, scene=scene, cameras=options.cameras)
+                            options=options.features, executor=executor, scene=scene, cameras=options.cameras,
+                            progress=task_progress(options.progress, f"features {scene}"))
 
 
 def match_scene(
@@ -71,13 +73,15 @@ def match_scene(
     if pairs is None:
         pairs = select_pairs(names, prior, options.pairs)
     write_pairs(work_dir / scene / "pairs.txt", pairs)
-    matches = match_pairs(db_path, pairs, options=options.matching, executor=executor, scene=scene)
+    matches = match_pairs(db_path, pairs, options=options.matching, executor=executor, scene=scene,
+                          progress=task_progress(options.progress, f"matching {scene}"))
     if options.pairs.unknown_strategy == UnknownStrategy.SUBSET and any(n not in prior for n in names):
         extra = expand_pairs_from_matches(prior, names, matches.inliers, pairs, options.pairs)
         if extra:
             pairs = sorted(set(pairs) | set(extra))
             write_pairs(work_dir / scene / "pairs.txt", pairs)
-            matches = match_pairs(db_path, pairs, options=options.matching, executor=executor, scene=scene)
+            matches = match_pairs(db_path, pairs, options=options.matching, executor=executor, scene=scene,
+                                  progress=task_progress(options.progress, f"matching {scene}"))
     return feats, pairs, matches
 
 

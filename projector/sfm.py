@@ -104,8 +104,6 @@ def run_sfm(
         >>> result.observations.camera_names[:3], len(result.observations.uv_px)
     """
     options = options or SfmOptions()
-    for sub in (options.features, options.matching):
-        sub.show_progress = options.show_progress
     capture_dir, work_dir = Path(capture_dir), Path(work_dir)
     scenes = list(options.scenes) if options.cameras is not None and options.scenes else list_scenes(capture_dir, options.scenes)
     prior_cams = prior_cameras(prior)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from dome_calib.bundle import Camera
+from dome_calib.progress import ProgressTasks
 from projector.features import FeatureOptions, FeatureReport
 from projector.known_scene import KnownPoseOptions
 from projector.mapping import MappingOptions, SceneModel
@@ -30,7 +31,7 @@ class SfmOptions:
     # the cameras' images are on the capture nodes, not under CAPTURE/scenes/ here (capture.json's "nodes"):
     # features of these names are asked for, scenes are taken as given (default: found under scenes/)
     cameras: list[str] | None = None
-    show_progress: bool = True
+    progress: ProgressTasks | None = None  # a bar per scene's features and matching (dome_calib.progress)
 
 
 @dataclass(kw_only=True)

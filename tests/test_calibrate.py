@@ -90,7 +90,7 @@ def stand_in_stages(monkeypatch, capture):
 def test_calibrate_writes_bundle_and_report_and_resumes(tmp_path, capture, stand_in_stages):
     cap, truth = capture
     out = tmp_path / "bundle"
-    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=False))
+    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test"))
     bundle = load_bundle(out)
     assert sorted(bundle.cameras) == sorted(truth.cameras)
     for n, c in truth.cameras.items():  # nominal-geometry frame = the synthetic truth frame
@@ -109,7 +109,7 @@ def test_calibrate_writes_bundle_and_report_and_resumes(tmp_path, capture, stand
     assert rep["cluster"] == {"executor": "local", "processes": n, "on_this_machine": ON_THE_HEAD,
                               "description": f"local process pool, {n} processes" if n > 1
                               else "in the calling process (1 worker)"}
-    again = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=False))
+    again = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test"))
     assert stand_in_stages == {"sfm": 1, "ba": 1}  # both taken from the work folder
     assert again.resumed == ["sfm", "ba"]
 
@@ -139,7 +139,7 @@ def test_scheduler_run_reports_where_each_stage_ran_also_when_resumed(tmp_path, 
     out = tmp_path / "bundle"
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, protocol="tcp",
                       dashboard_address=":0") as lc:
-        options = pipeline.CalibrateOptions(seq="test", progress=False, scheduler=lc.scheduler_address)
+        options = pipeline.CalibrateOptions(seq="test", scheduler=lc.scheduler_address)
         result = pipeline.run_calibration(cap, out, options)
         section = json.loads((out / "report" / "report.json").read_text())["cluster"]
         assert section["executor"] == "dask" and section["scheduler"] == lc.scheduler_address
@@ -163,7 +163,7 @@ def test_calibrate_with_prior_reports_moved_camera(tmp_path, capture, stand_in_s
     moved["01_02"] = type(c)(**{**c.__dict__, "t_cm": c.t_cm + np.array([0.0, 3.0, 0.0])})
     prior = write_bundle(type(truth)(seq="old", cameras=moved), tmp_path / "prior")
     out = tmp_path / "bundle"
-    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(prior=prior, progress=False))
+    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(prior=prior))
     assert sorted(result.changes) == ["01_02"]
     assert result.normalized.reference == "prior" and result.normalized.alignment.outliers == ["01_02"]
     assert "01_02: moved 3.0 cm" in pipeline.format_result(result)
@@ -189,7 +189,7 @@ def test_ba_stage_on_noisy_observations():
     from dome_calib.pipeline.stages import run_ba_stage
 
     truth = nominal_dome("tiny", seed=0)
-    outcome = run_ba_stage(_problem(truth, seed=1), progress=False)
+    outcome = run_ba_stage(_problem(truth, seed=1))
     rms = np.sqrt(np.mean(outcome.residuals.residual_px ** 2))
     assert 0.8 * NOISE_PX < rms < 1.05 * NOISE_PX  # below sigma by the fitted-parameter share, never above
     assert outcome.stats["n_rejected"] < 0.01 * outcome.problem.n_observations

@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _options(**kw):
-    return pipeline.CalibrateOptions(progress=False, **kw)
+    return pipeline.CalibrateOptions(**kw)
 
 
 def _write_png(path: Path, value: int) -> None:

@@ -134,8 +134,7 @@ def test_quick_recalibration_reestimates_only_the_changed(tmp_path, scene, monke
     monkeypatch.setattr(quick, "match_first_scene", lambda *a, **k: matched)
     prior_dir = write_bundle(prior, tmp_path / "prior")
     out = tmp_path / "quick"
-    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(prior=prior_dir, only_changed=True,
-                                                                          progress=False))
+    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(prior=prior_dir, only_changed=True))
     assert sorted(result.changes) == [MOVED, RELENSED]
     bundle = load_bundle(out)
     for n in prior.cameras:
@@ -161,7 +160,7 @@ def test_quick_recalibration_with_nothing_changed_keeps_the_prior(tmp_path):
     matched = _matched_scene(tmp_path, prior, prior, seed=3)
     det = quick.detect_suspects(matched, prior)
     assert det.suspects == []
-    est = quick.reestimate(matched, det, prior, tmp_path / "work", progress=False)
+    est = quick.reestimate(matched, det, prior, tmp_path / "work")
     assert est.changed == [] and est.ba is None
 
 
@@ -201,7 +200,7 @@ def test_rigidly_moved_panel_is_found_and_reestimated(tmp_path):
     matched = _matched_scene(tmp_path, current, prior, seed=5)
     det = quick.detect_suspects(matched, prior)
     assert det.suspects == sorted(panel) and det.panels == [1]
-    est = quick.reestimate(matched, det, prior, tmp_path / "work", progress=False)
+    est = quick.reestimate(matched, det, prior, tmp_path / "work")
     assert sorted(est.changed) == sorted(panel)
     for n in panel:
         e = camera_error(est.ba.cameras[n], current.cameras[n])

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import logging
-import sys
 from pathlib import Path
 
 import typer
@@ -61,13 +60,16 @@ def calibrate(
     """Calibrate every camera of the dome from one capture session: features, matching, reconstruction, bundle
     adjustment, world frame, then the bundle and its report. Rerun the same command to resume after a stop."""
     with interrupt_as_one_line("dome-calib"):  # SIGINT / SIGTERM: one line naming the stage, exit 130
+        from dome_calib.cli.progress import ProgressBars
         from dome_calib.pipeline.full import format_result, run_calibration
         from dome_calib.pipeline.types import CalibrateOptions
 
         logging.getLogger("dome_calib.ba").setLevel(logging.INFO if verbose else logging.WARNING)
-        options = CalibrateOptions(prior=prior, only_changed=only_changed, seq=seq, work_dir=work, scheduler=scheduler,
-                                   progress=sys.stderr.isatty())  # no spinners in a log file
-        typer.echo(format_result(run_calibration(capture, out, options)))
+        with ProgressBars() as bars:  # no bars in a log file
+            options = CalibrateOptions(prior=prior, only_changed=only_changed, seq=seq, work_dir=work,
+                                       scheduler=scheduler, progress=bars.tasks)
+            result = run_calibration(capture, out, options)
+        typer.echo(format_result(result))
 
 
 @app.command()
@@ -111,9 +113,12 @@ def demo(
     """Demonstration: synthesise a small dome capture, calibrate it, compare with the ground truth, and print
     what a technician would look at."""
     logging.getLogger("dome_calib.ba").setLevel(logging.WARNING)
+    from dome_calib.cli.progress import ProgressBars
     from dome_calib.pipeline.demo import DemoOptions, format_demo, run_demo
 
-    typer.echo(format_demo(run_demo(out, DemoOptions(preset=preset, scenes=scenes, seed=seed))))
+    with ProgressBars() as bars:
+        result = run_demo(out, DemoOptions(preset=preset, scenes=scenes, seed=seed, progress=bars.tasks))
+    typer.echo(format_demo(result))
 
 
 def main() -> None:

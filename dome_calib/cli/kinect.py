@@ -50,8 +50,7 @@ def kinect(
     """Calibrate each Kinect's depth camera against its colour camera from checkerboard pairs: IR intrinsics,
     depth-to-colour transform, depth bias. Writes kcalibration_<seq>.json with the depth cameras placed in the
     dome's world. Frames with a blurred, cut-off or missing board are skipped and listed with the reason."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
+    from dome_calib.cli.progress import ProgressBars
     from dome_calib.bundle_io import load_bundle, write_bundle
     from dome_calib.kinect.calibrate import ColorIntrinsics, KinectCalibOptions, calibrate_kinect_folder
     from dome_calib.kinect.detect import find_sensor_frames
@@ -60,12 +59,9 @@ def kinect(
                                  if estimate_color_intrinsics else ColorIntrinsics.BUNDLE)
     dome = load_bundle(bundle)
     total = sum(len(f.indices) for f in find_sensor_frames(kinect_folder).values())
-    columns = (TextColumn("detecting boards"), BarColumn(), MofNCompleteColumn(), TextColumn("frame pairs"),
-               TimeElapsedColumn())
-    with Progress(*columns, transient=True) as bar:
-        task = bar.add_task("detect", total=total)
+    with ProgressBars(transient=True) as bars:
         results, updated = calibrate_kinect_folder(kinect_folder, dome, options,
-                                                   on_frame=lambda: bar.advance(task))
+                                                   on_frame=bars.counter("detecting boards: frame pairs", total))
     target = write_bundle(updated, out or bundle)
     for r in results:
         typer.echo("\n".join(format_sensor_line(r.summary())))

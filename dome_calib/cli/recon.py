@@ -22,19 +22,14 @@ def triangulate(
 ) -> None:
     """Triangulate 2D joint detections from all cameras (VGA, HD, Kinect colour, each at its own frame rate) into
     3D skeletons in the world frame (cm), one Panoptic body3DScene file per time."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
+    from dome_calib.cli.progress import ProgressBars
     from dome_calib.recon.commands import triangulate_file
     from dome_calib.recon.triangulate import TriangulationOptions
 
     out = out or detections.with_name(f"{detections.stem}_skeletons")
     options = TriangulationOptions(inlier_threshold_px=threshold_px, min_views=min_views)
-    columns = (TextColumn("triangulating"), BarColumn(), MofNCompleteColumn(), TextColumn("times"),
-               TimeElapsedColumn())
-    with Progress(*columns, transient=True) as bar:
-        task = bar.add_task("triangulate", total=None)
-        summary = triangulate_file(bundle, detections, out, options=options,
-                                   progress=lambda done, total: bar.update(task, completed=done, total=total))
+    with ProgressBars(transient=True) as bars:
+        summary = triangulate_file(bundle, detections, out, options=options, progress=bars.task("triangulating times"))
     typer.echo(f"{summary.times} times x {summary.joints} joints from streams {', '.join(summary.streams)}: "
                f"{summary.reconstructed} joints reconstructed (median {summary.median_inlier_views:.0f} supporting "
                f"cameras) -> {summary.out}")
@@ -54,17 +49,13 @@ def pointcloud(
 ) -> None:
     """Turn the depth frames of every Kinect nearest to a universal time into one point cloud in the world frame
     (cm), each point tagged with its Kinect and the frame's time offset (ms)."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
+    from dome_calib.cli.progress import ProgressBars
     from dome_calib.recon.commands import pointcloud_file
 
     out = out or Path(f"pointcloud_{time_ms:g}ms.ply")
-    columns = (TextColumn("depth to world"), BarColumn(), MofNCompleteColumn(), TextColumn("Kinects"),
-               TimeElapsedColumn())
-    with Progress(*columns, transient=True) as bar:
-        task = bar.add_task("pointcloud", total=None)
+    with ProgressBars(transient=True) as bars:
         summary = pointcloud_file(bundle, time_ms, depth, out, max_offset_ms=max_offset_ms,
-                                  progress=lambda done, total: bar.update(task, completed=done, total=total))
+                                  progress=bars.task("depth to world: Kinects"))
     offsets = ", ".join(f"{s} {o:+.1f} ms" for s, o in zip(summary.sensors, summary.time_offsets_ms))
     typer.echo(f"{summary.points} points from {len(summary.sensors)} Kinects ({offsets}) -> {summary.out}")
 

@@ -3,7 +3,6 @@ stays fast)."""
 from __future__ import annotations
 
 import logging
-import sys
 from pathlib import Path
 
 import typer
@@ -47,15 +46,16 @@ def session(
     every stream from the LTC audio; write one bundle (calibration, kcalibration, synctables, ksynctables) and
     one report saying per pillar what was achieved and what to check. Rerun to resume the calibration."""
     with interrupt_as_one_line("dome-calib"):
+        from dome_calib.cli.progress import ProgressBars
         from dome_calib.pipeline.session import SessionOptions, run_session
 
         logging.getLogger("dome_calib.ba").setLevel(logging.WARNING)
-        tty = sys.stderr.isatty()
 
         def stage(name: str) -> None:
             typer.echo(f"dome-calib session: {name}", err=True)
 
-        result = run_session(folder, out, SessionOptions(seq=seq, progress=tty), on_stage=stage)
+        with ProgressBars() as bars:  # none in a log file
+            result = run_session(folder, out, SessionOptions(seq=seq, progress=bars.tasks), on_stage=stage)
         typer.echo(format_session(result))
 
 

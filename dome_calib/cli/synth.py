@@ -30,8 +30,7 @@ def synth(
 ) -> None:
     """Make a synthetic capture with ground truth: the projectors' random patterns on a white tent at several
     positions, seen by every camera of the preset, plus the true calibration in OUT/ground_truth/."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
+    from dome_calib.cli.progress import ProgressBars
     from dome_calib.pipeline.cluster import format_cluster, open_executor
     from dome_calib.layout import Preset
     from dome_calib.synth.capture import SynthOptions, synthesize
@@ -47,16 +46,9 @@ def synth(
         raise DomeCalibError(f"--workers {workers}: expected at least 1")
     if out.exists() and not overwrite:  # before connecting to a cluster
         raise DomeCalibError(f"{out}: already exists (choose another folder or pass --overwrite)")
-    columns = (TextColumn("rendering"), BarColumn(), MofNCompleteColumn(), TextColumn("images"), TimeElapsedColumn())
     cluster: dict = {}
-    with open_executor(None, scheduler, cluster, workers=workers) as executor, \
-            Progress(*columns, transient=False) as bar:
-        task = bar.add_task("render", total=None)
-
-        def progress(done: int, total: int) -> None:
-            bar.update(task, completed=done, total=total)
-
-        summary = synthesize(out, options, progress, executor=executor)
+    with open_executor(None, scheduler, cluster, workers=workers) as executor, ProgressBars() as bars:
+        summary = synthesize(out, options, bars.task("rendering images"), executor=executor)
     typer.echo(f"{summary.folder}: {summary.n_images} images ({len(summary.cameras)} cameras x "
                f"{len(summary.scenes)} scenes) in {summary.seconds:.1f} s")
     for line in format_cluster(cluster, on_this_machine="scene layout, ground truth, writing the PNGs"):

@@ -11,14 +11,11 @@ Everything lands in one folder (default ``demo_out/``): ``session/`` (the synthe
 """
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
-
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from dome_calib.bundle_io import load_bundle
 from dome_calib.compare import Comparison, compare_cameras
@@ -26,6 +23,7 @@ from dome_calib.errors import DomeCalibError
 from dome_calib.pipeline.full import format_result
 from dome_calib.pipeline.session import SessionOptions, SessionResult, run_session
 from dome_calib.pipeline.types import CalibrationResult
+from dome_calib.progress import ProgressTasks
 from dome_calib.synth.product_eval import evaluate
 from dome_calib.synth.session import SessionOptions as SynthSessionOptions
 from dome_calib.synth.session import make_product_session
@@ -41,7 +39,7 @@ class DemoOptions:
     preset: str = "tiny"  # panel's SfM alone needs ~6.5 CPU-minutes: over the 5-minute budget on 2 cores
     scenes: int | None = None
     seed: int = 0
-    progress: bool = True
+    progress: ProgressTasks | None = None  # the calibration's bars (dome_calib.progress); also logs the synthesis
 
 
 @dataclass(kw_only=True)
@@ -73,23 +71,6 @@ def synthesize(session: Path, preset: str, scenes: int, seed: int, progress: boo
     return time.perf_counter() - t0 if made else 0.0
 
 
-@contextlib.contextmanager
-def _progress_bar(description: str, enabled: bool):
-    """A rich progress bar fed by ``update(done, total)`` callbacks (a no-op when disabled)."""
-    if not enabled:
-        yield lambda done, total: None
-        return
-
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  transient=False) as bar:
-        task = bar.add_task(description, total=None)
-
-        def update(done: int, total: int) -> None:
-            bar.update(task, completed=done, total=total)
-
-        yield update
-
-
 def run_demo(out: Path, options: DemoOptions | None = None) -> DemoResult:
     """Synthesise, calibrate, compare. Raises DomeCalibError for an unknown preset."""
     options = options or DemoOptions()
@@ -100,7 +81,7 @@ def run_demo(out: Path, options: DemoOptions | None = None) -> DemoResult:
         raise DomeCalibError(f"--scenes {scenes}: need at least one tent position")
     out = Path(out)
     session = out / "session"
-    synth_s = synthesize(session, options.preset, scenes, options.seed, options.progress)
+    synth_s = synthesize(session, options.preset, scenes, options.seed, options.progress is not None)
     result = run_session(session, out / "bundle", SessionOptions(seq="demo", progress=options.progress),
                          on_stage=lambda name: logger.info("session: %s", name))
     truth = load_bundle(session / "ground_truth")

@@ -76,7 +76,8 @@ def finish(inputs: CalibrationInputs, state: WorkState, calibrated: Calibrated) 
              "lens_model": calibrated.lens_model,
              "cluster": calibrated.cluster,
              "changes_vs_prior": {n: c.as_dict() for n, c in (changes or {}).items()} if prior else None}
-    state.time("write", lambda: _write_out(inputs, bundle, calibrated.residuals, reasons, missing, extra))
+    with state.timing("write"):
+        _write_out(inputs, bundle, calibrated.residuals, reasons, missing, extra)
     report_dir = inputs.out / REPORT_DIR
     content = json.loads((report_dir / "report.json").read_text(encoding="utf-8"))
     return CalibrationResult(bundle_dir=inputs.out, report_dir=report_dir, bundle=bundle, expected=inputs.expected,

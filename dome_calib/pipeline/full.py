@@ -89,7 +89,7 @@ def run_full(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
                                        scenes=inputs.scenes if node_cameras(inputs, options) else None,
                                        cameras=node_cameras(inputs, options)))
     cluster = settle_cluster_stats(state.folder / "cluster.json", cluster, resumed="sfm" in state.resumed)
-    ba = state.run("ba", partial(run_ba_stage, sfm.problem, progress=options.progress))
+    ba = state.run("ba", partial(run_ba_stage, sfm.problem))
     normalized = state.time("normalize", partial(normalize, ba.cameras, options.normalize,
                                                  prior=prior.cameras if prior else None,
                                                  prior_source=str(options.prior) if options.prior else ""))

@@ -48,6 +48,7 @@ from dome_calib.pipeline.stages import (ba_options, observation_residuals, probl
 from dome_calib.residuals import Residuals
 from dome_calib.pipeline.types import BAOutcome, Calibrated, CalibrationInputs, CalibrationResult
 from dome_calib.pipeline.workstate import WorkState
+from dome_calib.progress import ProgressTasks
 from projector.consistency import changed_cameras, pair_errors
 from projector.database import camera_of_image, drop_features
 from projector.features import extract_features, nominal_camera, reduction_factor
@@ -146,16 +147,14 @@ def _robust_camera_rms(problem, used: np.ndarray) -> np.ndarray:
     return out
 
 
-def _options(progress: bool, pairs_per_camera: int, max_image_size_px: int = 0) -> SfmOptions:
-    options = SfmOptions(show_progress=progress)
+def _options(progress: ProgressTasks | None, pairs_per_camera: int, max_image_size_px: int = 0) -> SfmOptions:
+    options = SfmOptions(progress=progress)
     options.pairs.max_pairs_per_camera = pairs_per_camera
     options.features.max_image_size_px = max_image_size_px
-    for sub in (options.features, options.matching):
-        sub.show_progress = progress
     return options
 
 
-def match_first_scene(capture: Path, work: Path, scene: str, prior: Bundle, progress: bool, *,
+def match_first_scene(capture: Path, work: Path, scene: str, prior: Bundle, progress: ProgressTasks | None, *,
                       executor: Executor | None = None, cameras: list[str] | None = None) -> MatchedScene:
     """Stage ``match``: features, pairs and verified matches of one scene, in ``work/<scene>/database.db``
     (``cameras``: the images are on the capture nodes, read by the executor's workers there)."""
@@ -202,7 +201,8 @@ def reduced_cameras(database: Path, cameras: list[str]) -> list[str]:
     return [n for n in cameras if n in sizes and reduction_factor(*sizes[n], DETECT_MAX_IMAGE_PX) > 1]
 
 
-def match_suspects(matched: MatchedScene, det: Suspects, prior: Bundle, capture: Path, progress: bool, *,
+def match_suspects(matched: MatchedScene, det: Suspects, prior: Bundle, capture: Path,
+                   progress: ProgressTasks | None, *,
                    executor: Executor | None = None) -> SuspectMatches:
     """Stage ``suspect_match``: reduced suspects extracted again at full resolution (on the capture nodes when
     the executor's workers are there) and their first-round pairs matched again (those of ``pairs.txt``, so that
@@ -236,7 +236,7 @@ def match_suspects(matched: MatchedScene, det: Suspects, prior: Bundle, capture:
     return SuspectMatches(full_resolution=full, extra_pairs=len(extra), seconds=seconds)
 
 
-def reestimate(matched: MatchedScene, det: Suspects, prior: Bundle, work: Path, progress: bool) -> Reestimated:
+def reestimate(matched: MatchedScene, det: Suspects, prior: Bundle, work: Path) -> Reestimated:
     """Stage ``quick_ba``: triangulate with the unchanged cameras, register and refine the suspects."""
     suspects = det.suspects
     if not suspects:
@@ -266,10 +266,10 @@ def reestimate(matched: MatchedScene, det: Suspects, prior: Bundle, work: Path, 
     rms_prior = _robust_camera_rms(under_prior, np.ones(problem.n_observations, bool))
     problem.fix(ParamGroup.ALL)
     problem.unfix(ParamGroup.POSE, cameras=free)
-    posed = run_ba_stage(problem, progress=progress, options=QUICK_BA)
+    posed = run_ba_stage(problem, options=QUICK_BA)
     trial = posed.problem.copy()
     trial.unfix(ParamGroup.ALL, cameras=free)
-    free_all = run_ba_stage(trial, progress=progress, options=QUICK_BA)
+    free_all = run_ba_stage(trial, options=QUICK_BA)
     rms_posed = _robust_camera_rms(posed.problem, posed.inlier)
     rms_free = _robust_camera_rms(free_all.problem, free_all.inlier)
     pos = {n: problem.camera_position(n) for n in free}
@@ -281,7 +281,7 @@ def reestimate(matched: MatchedScene, det: Suspects, prior: Bundle, work: Path, 
     else:
         final = posed.problem.copy()
         final.unfix(ParamGroup.ALL, cameras=relensed)
-        ba = run_ba_stage(final, progress=progress, options=QUICK_BA)
+        ba = run_ba_stage(final, options=QUICK_BA)
     rms_new = _robust_camera_rms(ba.problem, ba.inlier)
     changed = [n for n in free if n not in prior.cameras
                or not rms_prior[pos[n]] <= CONFIRM_RMS_RATIO * rms_new[pos[n]]]
@@ -331,7 +331,7 @@ def run_quick(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
                                                    executor=executor))
     cluster = settle_cluster_stats(state.folder / "cluster.json", cluster,
                                    resumed=all(s in state.resumed for s in ("match", "detect", "suspect_match")))
-    est = state.run("quick_ba", partial(reestimate, matched, det, prior, work, progress))
+    est = state.run("quick_ba", partial(reestimate, matched, det, prior, work))
     failures = {n: f"no usable image in {scene}: {why}" for n, why in matched.failures.items()}
     failures.update({n: f"changed since the prior but not re-estimated: {why}" for n, why in est.failed.items()})
     cameras = {n: c for n, c in prior.cameras.items() if n not in est.failed}

@@ -31,6 +31,7 @@ from dome_calib.kinect.calibrate import KinectCalibOptions, SensorCalibration, c
 from dome_calib.kinect.detect import find_sensor_frames
 from dome_calib.pipeline.full import run_calibration
 from dome_calib.pipeline.types import CalibrateOptions, CalibrationResult
+from dome_calib.progress import ProgressTasks
 from timecode.errors import TimecodeError
 from timecode.sync.pipeline import sync_session, write_sync
 from timecode.sync.session import load_session
@@ -46,7 +47,7 @@ SYNC_CHECK_RESID_US = 50.0
 @dataclass(kw_only=True)
 class SessionOptions:
     seq: str | None = None  # default: the session folder's name
-    progress: bool = True
+    progress: ProgressTasks | None = None  # the calibration's bars (dome_calib.progress)
     kinect: KinectCalibOptions = field(default_factory=KinectCalibOptions)
     sync: SyncOptions = field(default_factory=SyncOptions)
 

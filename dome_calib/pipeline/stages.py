@@ -26,6 +26,7 @@ from dome_calib.errors import CaptureError
 from dome_calib.residuals import Residuals, observed_minus_projected
 from dome_calib.executor import Executor
 from dome_calib.pipeline.types import BAOutcome, SfmOutcome
+from dome_calib.progress import ProgressTasks
 from projector.observations import Observations
 from projector.sfm import SfmOptions, report_dict, run_sfm
 
@@ -70,13 +71,13 @@ def quiet_colmap() -> None:
         os.environ.setdefault("GLOG_minloglevel", "1")  # worker processes of the feature/matching executor
 
 
-def run_sfm_stage(capture: Path, work_dir: Path, *, prior: Bundle | None, progress: bool = True,
+def run_sfm_stage(capture: Path, work_dir: Path, *, prior: Bundle | None, progress: ProgressTasks | None = None,
                   scenes: list[str] | None = None, executor: Executor | None = None,
                   cameras: list[str] | None = None) -> SfmOutcome:
     """Features, pairs, matching, per-scene mapping and merging (:func:`projector.sfm.run_sfm`), seeded by the
     prior bundle or, without one, the nominal dome layout. Raises CaptureError if no scene reconstructs."""
     quiet_colmap()
-    result = run_sfm(capture, work_dir, SfmOptions(scenes=scenes, show_progress=progress, cameras=cameras),
+    result = run_sfm(capture, work_dir, SfmOptions(scenes=scenes, progress=progress, cameras=cameras),
                      prior=prior, executor=executor)
     if result.observations is None:
         why = "; ".join(f"{f.scene or 'capture'}: {f.reason}" for f in result.failures if not f.camera)
@@ -175,7 +176,7 @@ def _with_uncertainty(result: BAResult, options: BAOptions) -> BAResult:
     return result
 
 
-def run_ba_stage(problem: BAProblem, *, progress: bool = True, options: BAOptions | None = None,
+def run_ba_stage(problem: BAProblem, *, options: BAOptions | None = None,
                  lens: LensModelOptions | None = None) -> BAOutcome:
     """Bundle adjustment with the outlier schedule (:func:`dome_calib.ba.bundle_adjust`); the problem's free mask
     is the most that is refined (quick recalibration frees only the changed cameras).

@@ -13,6 +13,7 @@ from dome_calib.ba.problem import BAProblem
 from dome_calib.bundle import Bundle, Camera
 from dome_calib.compare import CameraChange, ChangeOptions
 from dome_calib.normalize import Normalized, NormalizeOptions
+from dome_calib.progress import ProgressTasks
 from dome_calib.report import ReportOptions
 from dome_calib.residuals import Residuals
 
@@ -47,7 +48,7 @@ class CalibrateOptions:
     only_changed: bool = False
     seq: str | None = None
     work_dir: Path | None = None
-    progress: bool = True
+    progress: ProgressTasks | None = None  # a bar per stage and per scene's features and matching (the CLI's)
     normalize: NormalizeOptions = field(default_factory=NormalizeOptions)
     changes: ChangeOptions = field(default_factory=ChangeOptions)
     report: ReportOptions = field(default_factory=ReportOptions)
@@ -84,7 +85,7 @@ class Calibrated:
     changes: dict[str, CameraChange] | None = None  # None: detect against the prior
     notes: dict[str, str] = field(default_factory=dict)  # camera -> a further reason to check it
     lens_model: dict | None = None  # the BA's per-camera lens terms refined and held, with why (report.json)
-    cluster: dict | None = None  # where each stage ran: report.json's "cluster" (dome_calib.pipeline.cluster.cluster_section)
+    cluster: dict | None = None  # where each stage ran: report.json's "cluster" (pipeline.cluster.cluster_section)
 
 
 @dataclass(kw_only=True)

@@ -1,8 +1,10 @@
 """The calibrate pipeline's work folder: which stages finished for which inputs, a lock, and stage timing.
 
-    with WorkState.open(work, fingerprint, progress=True) as state:
+    with WorkState.open(work, fingerprint, progress=tasks) as state:  # tasks: a bar per stage (dome_calib.progress)
         sfm = state.run("sfm", lambda: run_sfm_stage(...))   # taken from the folder if it finished before
         normalized = state.time("normalize", lambda: normalize(...))  # timed, not kept
+        with state.timing("write"):  # the same, for work done in the block
+            write_out(...)
 
 A stage's result is pickled into ``WORK/<stage>.pkl`` and listed in ``WORK/state.json`` with the inputs'
 fingerprint (:func:`input_fingerprint`: the content of every image and of the prior, by size and mtime, plus the
@@ -30,11 +32,9 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import TypeVar
 
-from rich.console import Console
-from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-
 from dome_calib.errors import DomeCalibError, Interrupted
 from dome_calib.io_utils import atomic_path, atomic_write_text
+from dome_calib.progress import ProgressTasks, task_progress
 
 logger = logging.getLogger(__name__)
 
@@ -77,16 +77,14 @@ def input_fingerprint(capture: Path, scenes: list[str], cameras: list[str], prio
 
 
 @contextlib.contextmanager
-def _stage_status(text: str, enabled: bool) -> Iterator[None]:
-    """A live spinner with the elapsed time on stderr while a stage runs (nothing when disabled)."""
-    if not enabled:
-        yield
-        return
-    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
-                  console=Console(stderr=True), transient=False) as bar:
-        task = bar.add_task(text, total=1)
-        yield
-        bar.update(task, completed=1)
+def _stage_status(text: str, tasks: ProgressTasks | None) -> Iterator[None]:
+    """A stage as a task of one unit: ``progress(0, 1)`` when it starts, ``progress(1, 1)`` when it ends."""
+    progress = task_progress(tasks, text)
+    if progress is not None:
+        progress(0, 1)
+    yield
+    if progress is not None:
+        progress(1, 1)
 
 
 class WorkLock:
@@ -140,7 +138,7 @@ def _describe(holder: dict) -> str:
 class WorkState:
     """Finished stages and their timings for one run; use :meth:`open` (locks the folder)."""
 
-    def __init__(self, folder: Path, fingerprint: dict, *, progress: bool = False,
+    def __init__(self, folder: Path, fingerprint: dict, *, progress: ProgressTasks | None = None,
                  labels: dict[str, str] | None = None) -> None:
         self.folder, self.fingerprint, self.progress = Path(folder), fingerprint, progress
         self.labels = labels or {}
@@ -206,13 +204,19 @@ class WorkState:
 
     def time(self, name: str, fn: Callable[[], T]) -> T:
         """``fn()`` timed as stage ``name`` (not kept); an interrupt names the stage (:class:`Interrupted`)."""
+        with self.timing(name):
+            return fn()
+
+    @contextlib.contextmanager
+    def timing(self, name: str) -> Iterator[None]:
+        """The block timed as stage ``name`` (not kept), for a caller that does the work itself (no callback into
+        it); an interrupt names the stage (:class:`Interrupted`)."""
         self.current = name
         t0 = time.perf_counter()
         try:
             with _stage_status(f"{name}: {self.labels.get(name, name)}", self.progress):
-                value = fn()
+                yield
         except KeyboardInterrupt as exc:
             raise Interrupted(name) from exc
         self.seconds[name] = time.perf_counter() - t0
         self.current = None
-        return value

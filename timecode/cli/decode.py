@@ -1,14 +1,11 @@
 """``timecode decode``: the work behind the CLI command (parse choices, decode with a progress bar, render)."""
 from __future__ import annotations
 
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
+from dome_calib.cli.progress import ProgressBars
 from timecode.audio_io import AudioReader, RawFormat, RawSampleFormat
 from timecode.decode.decoder import DecodeOptions, RateMismatchError, decode_file
 from timecode.errors import NoLTCError, TimecodeError
@@ -117,7 +114,7 @@ def _decode_one(path: Path, *, channel: str, rate: FrameRate | None, raw: RawFor
         info = reader.info
     chans = parse_channels(channel, info.channels)
     try:
-        result = _decode_with_progress(path, DecodeOptions(rate=rate), chans, raw, info.frames)
+        result = _decode_with_progress(path, DecodeOptions(rate=rate), chans, raw)
     except RateMismatchError as exc:
         raise RateMismatchError(f"{path}: {exc} (leave --fps auto to detect the rate)") from None
     found = [ch for ch in result if len(ch)]
@@ -128,12 +125,7 @@ def _decode_one(path: Path, *, channel: str, rate: FrameRate | None, raw: RawFor
     return result
 
 
-def _decode_with_progress(path: Path, options: DecodeOptions, channels: list[int] | None, raw: RawFormat | None,
-                          total: int):
-    console = Console(stderr=True)
-    with Progress(TextColumn("decoding"), BarColumn(), MofNCompleteColumn(), TextColumn("samples"),
-                  TimeRemainingColumn(), console=console, transient=True,
-                  disable=not sys.stderr.isatty()) as bar:
-        task = bar.add_task("decode", total=total)
+def _decode_with_progress(path: Path, options: DecodeOptions, channels: list[int] | None, raw: RawFormat | None):
+    with ProgressBars(transient=True) as bars:
         return decode_file(path, options=options, channels=channels, raw=raw,
-                           progress=lambda done, _n: bar.update(task, completed=done))
+                           progress=bars.task(f"decoding {path.name}: samples"))
