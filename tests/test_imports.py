@@ -210,7 +210,7 @@ def test_floors_every_module_has_one():
     assert floors["timecode.rates"] == FOUNDATION and floors["projector.sfm"] == STAGE
     assert floors["dome_calib.ba.solver"] == STAGE and floors["timecode.decode.decoder"] == STAGE
     assert floors["dome_calib.pipeline.full"] == PIPELINE and floors["timecode.sync.pipeline"] == PIPELINE
-    assert floors["dome_calib.cli"] == CLI and floors["timecode.cli.sync"] == CLI
+    assert floors["dome_calib.cli"] == CLI and floors["timecode.cli.sync_command"] == CLI
 
 
 def test_only_pipelines_cli_and_synth_import_across_rooms_and_nothing_imports_up():

@@ -47,7 +47,7 @@ def decode(
     its first edge in samples with sub-sample precision (start_samples; start_s = seconds). Several files or a
     folder make one table with a file column; a file that fails is one line on stderr, the others go on, and
     the exit code is then 1."""
-    from timecode.cli.decode import raw_format as make_raw, run_decode
+    from timecode.cli.decode_command import raw_format as make_raw, run_decode
 
     result = run_decode([Path(f) for f in files], channel=channel, fps=fps, fmt=fmt,
                         raw=make_raw(raw_format, raw_rate, raw_channels))
@@ -80,7 +80,7 @@ def sync(
                                               "outside the LTC that times them; farther is an error."),
 ) -> None:
     """Align the VGA, HD and Kinect clocks from LTC and write sync tables (universal time = ms on the HD LTC)."""
-    from timecode.cli.sync import run_sync
+    from timecode.cli.sync_command import run_sync
 
     run_sync(Path(session), Path(output), seq=seq, strict_kinect=strict_kinect,
              max_extrapolation_s=max_extrapolation_s)
