@@ -97,7 +97,7 @@ def noop(x: int) -> int:
 
 def round_trip_overhead(address: str, tasks: int = 400) -> float:
     """Seconds of a worker slot per no-op task through the executor (the scheduler's own cost per task)."""
-    from dome_calib.executor_dask import DaskExecutor
+    from dome_calib.executor.dask import DaskExecutor
 
     with DaskExecutor(address) as ex:
         slots = sum(ex.client.nthreads().values())

@@ -42,8 +42,9 @@ if __name__ == "__main__":
     from dome_calib.bundle import Bundle
     from dome_calib.bundle_io import load_bundle, write_bundle
     from dome_calib.compare import compare_cameras
-    from dome_calib.pipeline import CalibrateOptions, run_calibration
-    from dome_calib.pipeline_stages import ba_options as _ba_options
+    from dome_calib.pipeline.full import run_calibration
+    from dome_calib.pipeline.types import CalibrateOptions
+    from dome_calib.pipeline.stages import ba_options as _ba_options
     from dome_calib.synth.dome import as_built_dome
 
 
@@ -119,7 +120,7 @@ def run(args) -> None:
     if not args.resume:
         shutil.rmtree(root / "bundle.work", ignore_errors=True)
     t0 = time.perf_counter()
-    result = run_calibration(capture, out, CalibrateOptions(seq=f"bench_{args.preset}", progress=False))
+    result = run_calibration(capture, out, CalibrateOptions(seq=f"bench_{args.preset}"))
     total = time.perf_counter() - t0
     emit(bench="dome", stage="calibrate", preset=args.preset, seconds_total=round(total, 1),
          resumed_stages=result.resumed,  # their seconds are those measured when they ran
@@ -143,7 +144,7 @@ def run(args) -> None:
     theirs = accuracy(o_cams, truth)
     both = result.ba.inlier & o.used
     ours_r = result.ba.problem  # same observations, our solution
-    from dome_calib.pipeline_stages import observation_residuals
+    from dome_calib.pipeline.stages import observation_residuals
 
     cost_ours = 0.5 * float(np.sum(observation_residuals(ours_r)[both] ** 2))
     cost_oracle = 0.5 * float(np.sum(np.asarray(o.residuals_px)[both] ** 2))
@@ -207,7 +208,7 @@ def quick(args, root: Path, truth: Bundle) -> None:
         shutil.rmtree(root / f"{kind}_bundle.work", ignore_errors=True)
     t0 = time.perf_counter()
     result = run_calibration(capture, out, CalibrateOptions(prior=Path(root / "capture" / "ground_truth"),
-                                                            only_changed=True, progress=False))
+                                                            only_changed=True))
     total = time.perf_counter() - t0
     found = sorted(result.changes)
     ours = accuracy(result.bundle.cameras, moved, names)

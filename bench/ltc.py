@@ -44,7 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tests import libltc_ctypes as L  # noqa: E402
 from timecode.audio_io import RawFormat, RawSampleFormat  # noqa: E402
-from timecode.decoder import DecodeOptions, decode_file  # noqa: E402
+from timecode.decode.decoder import DecodeOptions, decode_file  # noqa: E402
 from timecode.encoder import EncodedLTC, EncoderOptions, encode_ltc  # noqa: E402
 from timecode.labels import frames_to_label, labels_to_frames  # noqa: E402
 from timecode.rates import RATES, FrameRate  # noqa: E402
@@ -214,7 +214,7 @@ def run_case(spec: dict, seconds: float, folder: Path, seed: int, baseline: Path
 _ELSEWHERE = """
 import sys, json
 sys.path.insert(0, sys.argv[1])
-from timecode.decoder import decode_file
+from timecode.decode.decoder import decode_file
 try:
     (ch,) = decode_file(sys.argv[2])
     fwd = ~ch.reverse

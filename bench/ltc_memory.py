@@ -1,7 +1,7 @@
 """Peak memory of `timecode decode` on noise (an unplugged LTC input) against the recording's length.
 
 Each length's noise is written in blocks to a temporary WAV (16-bit, 48 kHz, mono: the size the capture nodes
-record), then decoded in a fresh Python process (``timecode.decoder.decode_file``, as the command runs it); its peak
+record), then decoded in a fresh Python process (``timecode.decode.decoder.decode_file``, as the command runs it); its peak
 resident memory is that child's own ``ru_maxrss`` (``os.wait4``). Flat memory across lengths means the decoder
 keeps a block, not the file. The truth: noise holds no LTC, so 0 frames must be found.
 
@@ -29,7 +29,7 @@ BLOCK_S = 60
 
 _CHILD = """
 import sys
-from timecode.decoder import decode_file
+from timecode.decode.decoder import decode_file
 result = decode_file(sys.argv[1])
 print(sum(len(ch) for ch in result))
 """

@@ -29,8 +29,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dome_calib.bundle_io import load_bundle  # noqa: E402
 from dome_calib.compare import compare_cameras  # noqa: E402
-from dome_calib.demo import AIM_MPJPE_RATIO, AIM_VGA_HD_RMS_US  # noqa: E402
-from dome_calib.session import SessionOptions, run_session  # noqa: E402
+from dome_calib.pipeline.demo import AIM_MPJPE_RATIO, AIM_VGA_HD_RMS_US  # noqa: E402
+from dome_calib.pipeline.session import SessionOptions, run_session  # noqa: E402
 from dome_calib.synth.product_eval import evaluate  # noqa: E402
 from dome_calib.synth.session import SessionOptions as SynthSessionOptions  # noqa: E402
 from dome_calib.synth.session import make_product_session  # noqa: E402
@@ -66,7 +66,7 @@ def main() -> None:
     shutil.rmtree(bundle_dir, ignore_errors=True)
     shutil.rmtree(bundle_dir.with_name(bundle_dir.name + ".work"), ignore_errors=True)  # a cold run, no resume
     t0 = time.perf_counter()
-    result = run_session(session, bundle_dir, SessionOptions(seq="product", progress=False))
+    result = run_session(session, bundle_dir, SessionOptions(seq="product"))
     total = time.perf_counter() - t0
     for name, s in result.calibration.stage_seconds.items():
         emit(what="stage", chain="session/calibrate", stage=name, wall_s=round(s, 2))

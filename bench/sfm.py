@@ -113,7 +113,7 @@ def main() -> int:
         from dome_calib.layout import nominal_dome
 
         prior = nominal_dome("full", 1)  # another draw of the nominal layout: not the truth
-    options = SfmOptions(show_progress=False)
+    options = SfmOptions()
     options.mapping.mapper = Mapper(args.mapper)
     options.mapping.refine_focal_length = args.refine_focal
     t0 = time.perf_counter()

@@ -22,8 +22,8 @@ import pycolmap
 from dome_calib.bundle import NOMINAL_RESOLUTION, Camera, CameraType, camera_type_from_name
 from dome_calib.executor import Executor, SerialExecutor, in_order
 from dome_calib.layout import INTRINSICS_STATS
+from dome_calib.progress import Progress, counting
 from projector.database import add_image, camera_of_image, descriptors_to_uint8, image_name, images_with_features, write_features
-from projector.progress import progress_bar
 
 logger = logging.getLogger(__name__)
 
@@ -42,7 +42,6 @@ class FeatureOptions:
     #: 0: full resolution. Else an image whose longer side exceeds this is reduced by the smallest integer factor
     #: that fits (box filter, :func:`reduction_factor`) and its keypoints are put back in full-resolution pixels.
     max_image_size_px: int = 0
-    show_progress: bool = True
 
 
 @dataclass(kw_only=True)
@@ -157,7 +156,7 @@ def nominal_camera(name: str, resolution: tuple[int, int]) -> Camera:
 
 
 def _advancing(results: Iterable, advance: Callable[[int], None]) -> Iterator:
-    """Pass results through, advancing the progress bar as each one arrives (before any reordering)."""
+    """Pass results through, advancing the progress count as each one arrives (before any reordering)."""
     for res in results:
         advance(1)
         yield res
@@ -166,7 +165,7 @@ def _advancing(results: Iterable, advance: Callable[[int], None]) -> Iterator:
 def extract_features(
     image_dir: str | Path, database_path: str | Path, *, prior: Mapping[str, Camera] | None = None,
     options: FeatureOptions | None = None, executor: Executor | None = None, scene: str = "",
-    cameras: list[str] | None = None,
+    cameras: list[str] | None = None, progress: Progress | None = None,
 ) -> FeatureReport:
     """Extract SIFT features of every ``<camera>.png`` in ``image_dir`` into the COLMAP database.
 
@@ -177,6 +176,7 @@ def extract_features(
         executor: where the per-image tasks run (default: in this process).
         cameras: the images' camera names when they are not all here (on the capture nodes, read by the
             executor's workers there); default every ``*.png`` of ``image_dir``.
+        progress: called with (images done, images) as images arrive (those reused first).
     Returns:
         :class:`FeatureReport` with features per camera and failures per camera with the reason.
     """
@@ -195,7 +195,7 @@ def extract_features(
             report.num_features[camera_of_image(name)] = db.num_keypoints_for_image(image_id)
         report.reused = len(done)
         todo = [(p.stem, str(p), options) for p in paths if image_name(p.stem) not in done]
-        with progress_bar(f"features {report.scene}", len(paths), enabled=options.show_progress) as advance:
+        with counting(progress, len(paths)) as advance:
             advance(len(done))
             # written in camera-name order whatever the completion order: image, camera and rig ids are the
             # same on every run, pool or cluster (mapping visits images by id)

@@ -3,7 +3,7 @@
 The scenes of a capture see the same cameras. Once the reference scene is mapped (GLOMAP, :mod:`projector.mapping`,
 with its focal lengths refined: ``KnownPoseOptions.refine_reference_focal``), every camera it registered has a pose
 good to about a centimetre and a tenth of a degree, in the reference's frame. A later scene then needs no mapping
-of its own, and fewer pairs (:func:`projector.sfm.known_scene_pairs`: chosen by the reference's geometry,
+of its own, and fewer pairs (:func:`projector.scene.known_scene_pairs`: chosen by the reference's geometry,
 ``pairs_per_camera`` partners per camera):
 
 1. its points are triangulated from its verified matches with those cameras held at the reference's poses and

@@ -27,9 +27,9 @@ import numpy as np
 import pycolmap
 
 from dome_calib.executor import Executor, SerialExecutor, in_order
+from dome_calib.progress import Progress, counting
 from projector.database import FeatureReader, image_name
 from projector.pairs import Pair
-from projector.progress import progress_bar
 
 logger = logging.getLogger(__name__)
 
@@ -66,7 +66,6 @@ class MatchOptions:
     max_matches_per_pair: int | None = 512
     backend: MatchBackend = MatchBackend.BLAS
     pairs_per_task: int = 40
-    show_progress: bool = True
 
 
 @dataclass(kw_only=True)
@@ -213,11 +212,12 @@ def _batches(pairs: list[Pair], size: int) -> Iterable[list[Pair]]:
 
 def match_pairs(
     database_path: str | Path, pairs: Iterable[Pair], *, options: MatchOptions | None = None,
-    executor: Executor | None = None, scene: str = "",
+    executor: Executor | None = None, scene: str = "", progress: Progress | None = None,
 ) -> MatchReport:
     """Match and verify ``pairs`` (camera names) of a scene database; write matches and geometries into it.
 
     Pairs with an image that has no features in the database are skipped (listed in the report).
+    ``progress`` is called with (pairs done, pairs) as batches arrive (those reused first).
     Returns a :class:`MatchReport` (inlier counts of the verified pairs, totals, time).
     """
 
@@ -243,7 +243,7 @@ def match_pairs(
         report.num_pairs = report.reused + len(todo)
         call = uuid.uuid4().hex  # names this call's feature readers in the workers (never part of a result)
         tasks = [(str(database_path), batch, options, call) for batch in _batches(todo, options.pairs_per_task)]
-        with progress_bar(f"matching {report.scene}", report.num_pairs, enabled=options.show_progress) as advance:
+        with counting(progress, report.num_pairs) as advance:
             advance(report.reused)
             # written in pair order whatever the completion order (the database's rows do not depend on the workers)
             arrived = executor.map(match_batch, tasks)

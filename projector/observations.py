@@ -1,7 +1,7 @@
 """What the SfM front end hands on: initial cameras, 3D points per scene and their pixel observations.
 
 The front end does not know the bundle adjustment's parameter layout; the calibrate pipeline turns this into the
-solver's problem (:func:`dome_calib.pipeline_stages.problem_from_observations`).
+solver's problem (:func:`dome_calib.pipeline.stages.problem_from_observations`).
 """
 from __future__ import annotations
 

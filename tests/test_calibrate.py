@@ -10,14 +10,15 @@ import pytest
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
-import dome_calib.pipeline as pipeline
+import dome_calib.pipeline.full as pipeline
 from dome_calib.align import sim3_apply, transform_cameras
 from dome_calib.ba.problem import BAProblem
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.camera import project
 from dome_calib.executor import default_num_workers
 from dome_calib.report.command import report_bundle
-from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, observation_residuals, residuals_of
+from dome_calib.pipeline.stages import observation_residuals, residuals_of
+from dome_calib.pipeline.types import BAOutcome, SfmOutcome
 from dome_calib.layout import nominal_dome
 
 SFM_FRAME = pycolmap.Sim3d(0.05, pycolmap.Rotation3d(Rotation.from_rotvec([0.2, 1.3, -0.4]).as_matrix()), [1, 2, 3])
@@ -89,7 +90,7 @@ def stand_in_stages(monkeypatch, capture):
 def test_calibrate_writes_bundle_and_report_and_resumes(tmp_path, capture, stand_in_stages):
     cap, truth = capture
     out = tmp_path / "bundle"
-    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=False))
+    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test"))
     bundle = load_bundle(out)
     assert sorted(bundle.cameras) == sorted(truth.cameras)
     for n, c in truth.cameras.items():  # nominal-geometry frame = the synthetic truth frame
@@ -108,7 +109,7 @@ def test_calibrate_writes_bundle_and_report_and_resumes(tmp_path, capture, stand
     assert rep["cluster"] == {"executor": "local", "processes": n, "on_this_machine": ON_THE_HEAD,
                               "description": f"local process pool, {n} processes" if n > 1
                               else "in the calling process (1 worker)"}
-    again = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=False))
+    again = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test"))
     assert stand_in_stages == {"sfm": 1, "ba": 1}  # both taken from the work folder
     assert again.resumed == ["sfm", "ba"]
 
@@ -138,7 +139,7 @@ def test_scheduler_run_reports_where_each_stage_ran_also_when_resumed(tmp_path, 
     out = tmp_path / "bundle"
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, protocol="tcp",
                       dashboard_address=":0") as lc:
-        options = pipeline.CalibrateOptions(seq="test", progress=False, scheduler=lc.scheduler_address)
+        options = pipeline.CalibrateOptions(seq="test", scheduler=lc.scheduler_address)
         result = pipeline.run_calibration(cap, out, options)
         section = json.loads((out / "report" / "report.json").read_text())["cluster"]
         assert section["executor"] == "dask" and section["scheduler"] == lc.scheduler_address
@@ -162,7 +163,7 @@ def test_calibrate_with_prior_reports_moved_camera(tmp_path, capture, stand_in_s
     moved["01_02"] = type(c)(**{**c.__dict__, "t_cm": c.t_cm + np.array([0.0, 3.0, 0.0])})
     prior = write_bundle(type(truth)(seq="old", cameras=moved), tmp_path / "prior")
     out = tmp_path / "bundle"
-    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(prior=prior, progress=False))
+    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(prior=prior))
     assert sorted(result.changes) == ["01_02"]
     assert result.normalized.reference == "prior" and result.normalized.alignment.outliers == ["01_02"]
     assert "01_02: moved 3.0 cm" in pipeline.format_result(result)
@@ -185,10 +186,10 @@ def test_calibrate_cli_only_changed_needs_prior(tmp_path, capture):
 
 def test_ba_stage_on_noisy_observations():
     """The real bundle adjustment through the pipeline's adapter: RMS / noise near 1, nothing rejected wrongly."""
-    from dome_calib.pipeline_stages import run_ba_stage
+    from dome_calib.pipeline.stages import run_ba_stage
 
     truth = nominal_dome("tiny", seed=0)
-    outcome = run_ba_stage(_problem(truth, seed=1), progress=False)
+    outcome = run_ba_stage(_problem(truth, seed=1))
     rms = np.sqrt(np.mean(outcome.residuals.residual_px ** 2))
     assert 0.8 * NOISE_PX < rms < 1.05 * NOISE_PX  # below sigma by the fitted-parameter share, never above
     assert outcome.stats["n_rejected"] < 0.01 * outcome.problem.n_observations
@@ -196,7 +197,7 @@ def test_ba_stage_on_noisy_observations():
 
 
 def test_prune_problem_drops_unusable_cameras():
-    from dome_calib.pipeline_stages import prune_problem
+    from dome_calib.pipeline.stages import prune_problem
 
     truth = nominal_dome("tiny", seed=0)
     problem = _problem(truth)
@@ -220,7 +221,7 @@ def test_center_sigma_flags_absolute_and_relative_to_the_dome():
     """A centre more uncertain than 0.5 cm (1 sigma) is flagged; so is one 5x less determined than the dome's
     median camera (the BA's covariance is only as good as its noise model) unless it is below a millimetre or
     too few cameras were solved to know the typical one (a quick recalibration)."""
-    from dome_calib.pipeline_finish import RELATIVE_SIGMA_FLOOR_CM, center_sigma_flags
+    from dome_calib.pipeline.finish import RELATIVE_SIGMA_FLOOR_CM, center_sigma_flags
 
     options = pipeline.CalibrateOptions()
     dome = {f"01_{k:02d}": 0.08 for k in range(1, 20)}  # median 0.08 cm

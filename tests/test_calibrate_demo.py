@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-import dome_calib.demo as demo
-import dome_calib.pipeline as pipeline
-from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, residuals_of
+import dome_calib.pipeline.demo as demo
+import dome_calib.pipeline.full as pipeline
+from dome_calib.pipeline.stages import residuals_of
+from dome_calib.pipeline.types import BAOutcome, SfmOutcome
 
 from .test_calibrate import _problem
 

@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-import dome_calib.pipeline as pipeline
+import dome_calib.pipeline.full as pipeline
 from dome_calib import bundle_io
 from dome_calib.bundle_io import load_bundle, recover_folder, replace_folder, write_bundle
 from dome_calib.errors import CaptureError, DomeCalibError
-from dome_calib.workstate import WorkFolderBusy, WorkState
+from dome_calib.pipeline.workstate import WorkFolderBusy, WorkState
 
 from .test_calibrate import capture, stand_in_stages  # noqa: F401  (fixtures)
 
@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _options(**kw):
-    return pipeline.CalibrateOptions(progress=False, **kw)
+    return pipeline.CalibrateOptions(**kw)
 
 
 def _write_png(path: Path, value: int) -> None:
@@ -195,8 +195,8 @@ _SLOW_SFM = """
 import signal, sys, time
 signal.signal(signal.SIGINT, signal.default_int_handler)  # as from a terminal, even if this test runs in a background job
 from pathlib import Path
-import dome_calib.pipeline as pipeline
-from dome_calib.executor import LocalProcessExecutor
+import dome_calib.pipeline.full as pipeline
+from dome_calib.executor.local import LocalProcessExecutor
 
 MARKER = Path(sys.argv.pop())
 

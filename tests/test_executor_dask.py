@@ -9,9 +9,10 @@ import socket
 import numpy as np
 import pytest
 
-from dome_calib.cluster import capture_nodes, node_image_path
+from dome_calib.pipeline.capture import capture_nodes
+from dome_calib.pipeline.cluster import node_image_path
 from dome_calib.errors import CaptureError, DomeCalibError
-from dome_calib.executor_dask import DaskExecutor, Route, payload_bytes
+from dome_calib.executor.dask import DaskExecutor, Route, payload_bytes
 
 
 def square(x: int) -> int:
@@ -76,7 +77,7 @@ def test_unreachable_scheduler_is_one_line_within_the_timeout():
 
 
 def test_calibrate_cli_unreachable_scheduler(tmp_path, dome_calib_cli, monkeypatch):
-    import dome_calib.executor_dask as executor_dask
+    import dome_calib.executor.dask as executor_dask
 
     monkeypatch.setattr(executor_dask, "CONNECT_TIMEOUT_S", 0.5)
     cap = tmp_path / "cap"
@@ -113,7 +114,7 @@ def test_node_image_path_uses_the_nodes_own_folder(monkeypatch):
 
 
 def test_an_image_missing_on_its_node_is_a_per_camera_failure(tmp_path, monkeypatch):
-    from dome_calib.cluster import NodeImageTask
+    from dome_calib.pipeline.cluster import NodeImageTask
     from projector.features import FeatureOptions
 
     monkeypatch.setenv("DOME_CALIB_CAPTURE_ROOT", str(tmp_path / "node07"))

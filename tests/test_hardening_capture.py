@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-import dome_calib.pipeline as pipeline
+import dome_calib.pipeline.full as pipeline
 from dome_calib.bundle import Bundle, Camera
 from dome_calib.bundle_io import write_bundle
 from dome_calib.errors import CaptureError, DomeCalibError
@@ -22,7 +22,7 @@ from .test_calibrate import capture, stand_in_stages  # noqa: F401  (fixtures)
 
 
 def _options(**kw):
-    return pipeline.CalibrateOptions(progress=False, **kw)
+    return pipeline.CalibrateOptions(progress=None, **kw)
 
 
 def _in_metres(bundle: Bundle) -> Bundle:
@@ -93,7 +93,7 @@ def test_an_exif_rotated_image_is_read_as_the_sensor_saw_it(tmp_path):
     cv2.imwrite(str(plain), image)
     turned.write_bytes(_png_with_orientation(image, 3))
     assert np.array_equal(cv2.imread(str(turned), cv2.IMREAD_GRAYSCALE), image[::-1, ::-1])  # OpenCV's default
-    options = FeatureOptions(min_features=1, show_progress=False)
+    options = FeatureOptions(min_features=1)
     a = extract_image(("01_01", str(plain), options))
     b = extract_image(("01_02", str(turned), options))
     assert a.failure is None and len(a.keypoints) > 50

@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-import dome_calib.pipeline as pipeline
+import dome_calib.pipeline.full as pipeline
 from dome_calib.errors import DomeCalibError
 
 from .test_calibrate import capture, stand_in_stages  # noqa: F401  (fixtures)
@@ -24,7 +24,7 @@ def test_relative_capture_output_and_work_reach_the_stages_absolute(tmp_path, ca
     monkeypatch.setattr(pipeline, "run_sfm_stage", sfm)
     monkeypatch.chdir(tmp_path)
     result = pipeline.run_calibration(cap.relative_to(tmp_path), "out",
-                                      pipeline.CalibrateOptions(progress=False, work_dir="w"))
+                                      pipeline.CalibrateOptions(progress=None, work_dir="w"))
     assert seen["capture"].is_absolute() and seen["capture"] == cap
     assert seen["work"].is_absolute() and seen["work"].parent == tmp_path / "w"
     assert result.bundle_dir == tmp_path / "out" and (tmp_path / "out").is_dir()
@@ -38,7 +38,7 @@ def _slow(x: int) -> int:
 def test_a_scheduler_lost_mid_run_is_one_line_naming_it():
     from distributed import Client, LocalCluster
 
-    from dome_calib.executor_dask import DaskExecutor
+    from dome_calib.executor.dask import DaskExecutor
 
     cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None)
     client = Client(cluster, set_as_default=False)
@@ -57,7 +57,7 @@ def test_a_scheduler_lost_mid_run_is_one_line_naming_it():
 def test_a_task_error_is_not_taken_for_a_lost_scheduler():
     from distributed import Client, LocalCluster
 
-    from dome_calib.executor_dask import DaskExecutor
+    from dome_calib.executor.dask import DaskExecutor
 
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster, \
             Client(cluster, set_as_default=False) as client:

@@ -103,9 +103,10 @@ def test_a_session_bundle_that_does_not_read_back_names_the_output_not_the_stagi
     """Whatever slips through to the final read-back check is named by OUT (the staging folder is gone then)."""
     import numpy as np
 
-    import dome_calib.pipeline as pipeline
-    import dome_calib.session as session
-    from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, residuals_of
+    import dome_calib.pipeline.full as pipeline
+    import dome_calib.pipeline.session as session
+    from dome_calib.pipeline.stages import residuals_of
+    from dome_calib.pipeline.types import BAOutcome, SfmOutcome
 
     from .test_calibrate import _problem
 

@@ -12,7 +12,7 @@ from timecode.errors import TimecodeError
 
 
 def test_pointcloud_default_names_of_close_times_differ():
-    from dome_calib.cli_recon import exact_ms
+    from dome_calib.cli.recon import exact_ms
 
     assert exact_ms(36001000.0) == "36001000" and exact_ms(36001040.0) == "36001040"
     assert exact_ms(0.5) == "0.5" and exact_ms(36001000.25) == "36001000.25"

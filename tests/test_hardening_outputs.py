@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-import dome_calib.pipeline as pipeline
+import dome_calib.pipeline.full as pipeline
 from dome_calib.bundle_io import load_bundle
 from dome_calib.errors import DomeCalibError
 from dome_calib import io_utils
@@ -66,7 +66,7 @@ def test_timecode_decode_onto_its_own_recording_is_refused_and_the_recording_kep
 
 
 def test_timecode_decode_checks_its_output_before_reading(tmp_path, monkeypatch, capsys):
-    import timecode.decode_command as dc
+    import timecode.cli.decode_command as dc
 
     def no_reading(*a, **k):
         raise AssertionError("the input was read before the output was checked")
@@ -83,10 +83,10 @@ def test_an_output_folder_holding_the_capture_or_a_work_folder_that_is_an_input_
     cap, _ = capture
     (cap / "calibration_old.json").write_text("{}")  # the capture folder looks like a bundle: it would be replaced
     with pytest.raises(OutputPathError, match="is the input"):
-        pipeline.run_calibration(cap, cap, pipeline.CalibrateOptions(progress=False))
+        pipeline.run_calibration(cap, cap, pipeline.CalibrateOptions(progress=None))
     for work in (cap, cap / "scenes", tmp_path):
         with pytest.raises(DomeCalibError, match="--work"):  # an emptied work folder would delete the images
-            pipeline.run_calibration(cap, tmp_path / "out", pipeline.CalibrateOptions(progress=False, work_dir=work))
+            pipeline.run_calibration(cap, tmp_path / "out", pipeline.CalibrateOptions(progress=None, work_dir=work))
     assert (cap / "capture.json").exists() and (cap / "scenes" / "scene_01").is_dir()
     assert stand_in_stages == {"sfm": 0, "ba": 0}
 
@@ -232,9 +232,9 @@ def test_an_sfm_stopped_in_its_first_stage_is_resumed_not_thrown_away(tmp_path, 
     monkeypatch.setattr(pipeline, "run_sfm_stage", sfm)
     out = tmp_path / "bundle"
     with pytest.raises(KeyboardInterrupt):
-        pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(progress=False))
+        pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(progress=None))
     state = json.loads((tmp_path / "bundle.work" / "state.json").read_text())
     assert state["stages"] == {}
-    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(progress=False))
+    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(progress=None))
     assert seen == [False, True]  # the rerun found the first run's features
     assert load_bundle(out).cameras

@@ -9,8 +9,8 @@ import json
 import numpy as np
 import pytest
 
-import dome_calib.pipeline as pipeline
-import dome_calib.pipeline_quick as quick
+import dome_calib.pipeline.full as pipeline
+import dome_calib.pipeline.quick as quick
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import write_bundle
 from dome_calib.errors import DomeCalibError
@@ -76,4 +76,4 @@ def test_suspects_without_two_held_partners_are_refused_not_a_pycolmap_error(tmp
     matched = _matched_scene(tmp_path, truth, truth, seed=5)
     det = quick.Suspects(suspects=sorted(CAMERAS), unknown=[], bad_pair_px=2.0)  # every camera suspect
     with pytest.raises(DomeCalibError, match="0 unchanged camera.*run a full calibration"):
-        quick.reestimate(matched, det, truth, tmp_path / "work", progress=False)
+        quick.reestimate(matched, det, truth, tmp_path / "work")

@@ -19,7 +19,7 @@ import sys, time
 from pathlib import Path
 from dome_calib.errors import interrupt_as_one_line
 with interrupt_as_one_line("dome-calib"):
-    import dome_calib.pipeline  # as the calibrate command does: pycolmap loads inside the block
+    import dome_calib.pipeline.full  # as the calibrate command does: pycolmap loads inside the block
     Path(sys.argv[1]).write_text("ready")
     time.sleep(60)
 """
@@ -43,7 +43,7 @@ def test_sigterm_after_pycolmap_loaded_is_one_line_and_exit_130(tmp_path):
 
 def test_a_stage_restores_the_handler_a_library_replaced(tmp_path):
     from dome_calib import errors
-    from dome_calib.workstate import WorkState
+    from dome_calib.pipeline.workstate import WorkState
 
     with errors.interrupt_as_one_line("x"):
         signal.signal(signal.SIGTERM, signal.SIG_DFL)  # as a library loaded during a stage would

@@ -26,7 +26,7 @@ from dome_calib.bundle import Bundle, Camera, CameraType
 from dome_calib.bundle_io import write_bundle
 from dome_calib.camera import intr_to_K, pixels_to_normalized, project
 from dome_calib.compare import compare_cameras, distortion_difference_px
-from dome_calib.pipeline_stages import run_ba_stage
+from dome_calib.pipeline.stages import run_ba_stage
 from dome_calib.rotation import rotvec_to_matrix
 
 REAL_CROP = Path(__file__).parent / "data" / "real_crop"
@@ -152,7 +152,7 @@ def _ring_problem(*, prior_off: bool, inner_fraction: float, seed: int = 0, n_po
 
 def test_well_observed_cameras_keep_every_lens_term_free():
     problem, truth = _ring_problem(prior_off=True, inner_fraction=1.0)
-    outcome = run_ba_stage(problem, progress=False)
+    outcome = run_ba_stage(problem)
     lens = outcome.lens_model["cameras"]
     assert all(lens[n]["free"] == list(LENS_TERMS) and lens[n]["held"] == [] for n in truth), lens
     for n, cam in outcome.cameras.items():  # recovered: the prior was off by 2 %, 4 px and another lens
@@ -170,7 +170,7 @@ def test_image_centre_only_holds_k3_at_an_exact_prior():
     """Seen only within half of the image radius, k3 moves the corners by several px per sigma and the fit
     does not need it: held at the prior (here exact), so the corners stay right."""
     problem, truth = _ring_problem(prior_off=False, inner_fraction=0.5)
-    outcome = run_ba_stage(problem, progress=False)
+    outcome = run_ba_stage(problem)
     lens = outcome.lens_model["cameras"]
     for n in truth:
         assert "k3" in lens[n]["held"] and "fx" in lens[n]["free"], lens[n]
@@ -220,7 +220,7 @@ def test_without_uncertainties_the_stage_keeps_the_callers_mask():
     """The quick path's solver options (no covariance): one solve, the given free mask, no lens model."""
     problem, _ = _ring_problem(prior_off=False, inner_fraction=0.5, n_points=600)
     problem.fix("k3", "01_02")
-    outcome = run_ba_stage(problem, progress=False, options=BAOptions(compute_uncertainty=False))
+    outcome = run_ba_stage(problem, options=BAOptions(compute_uncertainty=False))
     assert outcome.lens_model is None and outcome.stats["solves"] == 1
     assert np.array_equal(outcome.problem.free, problem.free)
 
@@ -251,7 +251,8 @@ def real_crop(tmp_path_factory):
     """A one-scene capture of 4 real photographs (768 x 512) and a prior perturbed like an old calibration
     (centres 0.5 cm, rotations 1 deg, focal +3 %; centres within the world-frame fit's 1 cm inlier threshold),
     calibrated with `calibrate --prior`."""
-    from dome_calib.pipeline import CalibrateOptions, run_calibration
+    from dome_calib.pipeline.full import run_calibration
+    from dome_calib.pipeline.types import CalibrateOptions
 
     root = tmp_path_factory.mktemp("real_crop")
     reference = _strecha_cameras(0.25)
@@ -270,8 +271,7 @@ def real_crop(tmp_path_factory):
         K[1, 1] *= 1.03
         prior[n] = replace(c, R=R, t_cm=-R @ (c.center_cm + 0.5 * d / np.linalg.norm(d)), K=K)
     write_bundle(Bundle(seq="prior", cameras=prior), root / "prior")
-    result = run_calibration(capture, root / "out", CalibrateOptions(prior=root / "prior", progress=False,
-                                                                     work_dir=root / "work"))
+    result = run_calibration(capture, root / "out", CalibrateOptions(prior=root / "prior", work_dir=root / "work"))
     return result, reference, root / "out"
 
 

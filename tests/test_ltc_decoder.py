@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from scipy.signal import butter, lfilter
 
-from timecode.decoder import DecodeError, DecodeOptions, decode_samples
+from timecode.decode.decoder import DecodeError, DecodeOptions, decode_samples
 from timecode.encoder import EncodedLTC, EncoderOptions, encode_ltc, encode_ltc_labels, label_range
 from timecode.labels import labels_to_frames
 from timecode.rates import RATE_23_976, RATE_24, RATE_25, RATE_29_97, RATE_29_97_DF, RATE_30, RATES
-from timecode.result import Direction
+from timecode.decode.result import Direction
 
 A = 10 ** (-6 / 20)  # encoder default peak level
 
@@ -198,7 +198,7 @@ def test_decoder_rejects_bad_requests():
 
 
 def test_continuity_rules_on_label_sequences():
-    from timecode.continuity import continuity
+    from timecode.decode.continuity import continuity
 
     def run(counts, reverse=None):
         c = np.array(counts)

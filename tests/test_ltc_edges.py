@@ -9,11 +9,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from timecode.decoder import RateMismatchError, decode_samples
+from timecode.decode.decoder import RateMismatchError, decode_samples
 from timecode.encoder import EncodedLTC, EncoderOptions, encode_ltc
 from timecode.labels import labels_to_frames
 from timecode.rates import RATE_24, RATE_25, RATE_29_97_DF, RATE_30, RATES
-from timecode.result import EXTRAPOLATED, Extrapolated
+from timecode.decode.result import EXTRAPOLATED, Extrapolated
 
 FS = 48000
 
@@ -153,6 +153,6 @@ def test_a_rate_the_bit_stream_contradicts_is_refused():
 
 
 def _opts(rate):
-    from timecode.decoder import DecodeOptions
+    from timecode.decode.decoder import DecodeOptions
 
     return DecodeOptions(rate=rate)

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from timecode.decoder import decode_samples
+from timecode.decode.decoder import decode_samples
 from timecode.encoder import EncoderOptions, encode_ltc
-from timecode.impulses import pole_offset
+from timecode.decode.impulses import pole_offset
 from timecode.labels import labels_to_frames
 from timecode.rates import RATE_25, RATE_29_97_DF, RATE_30
-from timecode.result import Reading
+from timecode.decode.result import Reading
 
 FS = 48000
 

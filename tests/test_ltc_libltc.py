@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from timecode.decoder import decode_samples
+from timecode.decode.decoder import decode_samples
 from timecode.encoder import EncoderOptions, encode_ltc, label_range
 from timecode.rates import RATES
-from timecode.result import EXTRAPOLATED, Extrapolated
+from timecode.decode.result import EXTRAPOLATED, Extrapolated
 
 from . import libltc_ctypes as L
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import timecode.decoder as decoder
-from timecode.decoder import DecodeOptions, decode_samples
+import timecode.decode.decoder as decoder
+from timecode.decode.decoder import DecodeOptions, decode_samples
 from timecode.encoder import EncoderOptions, encode_ltc
 from timecode.rates import RATE_25
 

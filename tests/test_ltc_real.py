@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from timecode.audio_io import RawFormat, RawSampleFormat
-from timecode.decoder import decode_file
+from timecode.decode.decoder import decode_file
 from timecode.rates import RATE_24, RATE_25
-from timecode.result import EXTRAPOLATED, Extrapolated
+from timecode.decode.result import EXTRAPOLATED, Extrapolated
 
 DATA = Path(__file__).parent / "data" / "ltc"
 _ROW = re.compile(r"(\d\d):(\d\d):(\d\d)[:;.](\d\d)\s*\|\s*(-?\d+)\s+(-?\d+)")

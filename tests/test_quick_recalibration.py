@@ -80,7 +80,7 @@ def write_scene_database(path, current: Bundle, prior: Bundle, seed: int = 0, n_
 
 def _matched_scene(tmp_path, current: Bundle, prior: Bundle, seed: int):
     """The quick path's stage ``match`` as :func:`write_scene_database` leaves it (no images on disk)."""
-    import dome_calib.pipeline_quick as quick
+    import dome_calib.pipeline.quick as quick
 
     db = tmp_path / "scene_01" / "database.db"
     db.parent.mkdir()
@@ -120,8 +120,8 @@ def test_greedy_verdict_clears_neighbours_of_a_disturbed_group():
 
 
 def test_quick_recalibration_reestimates_only_the_changed(tmp_path, scene, monkeypatch):
-    import dome_calib.pipeline as pipeline
-    import dome_calib.pipeline_quick as quick
+    import dome_calib.pipeline.full as pipeline
+    import dome_calib.pipeline.quick as quick
     from dome_calib.bundle_io import load_bundle
 
     prior, current, db, names = scene
@@ -134,8 +134,7 @@ def test_quick_recalibration_reestimates_only_the_changed(tmp_path, scene, monke
     monkeypatch.setattr(quick, "match_first_scene", lambda *a, **k: matched)
     prior_dir = write_bundle(prior, tmp_path / "prior")
     out = tmp_path / "quick"
-    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(prior=prior_dir, only_changed=True,
-                                                                          progress=False))
+    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(prior=prior_dir, only_changed=True))
     assert sorted(result.changes) == [MOVED, RELENSED]
     bundle = load_bundle(out)
     for n in prior.cameras:
@@ -155,13 +154,13 @@ def test_quick_recalibration_reestimates_only_the_changed(tmp_path, scene, monke
 
 
 def test_quick_recalibration_with_nothing_changed_keeps_the_prior(tmp_path):
-    import dome_calib.pipeline_quick as quick
+    import dome_calib.pipeline.quick as quick
 
     prior = _neighbourhood()
     matched = _matched_scene(tmp_path, prior, prior, seed=3)
     det = quick.detect_suspects(matched, prior)
     assert det.suspects == []
-    est = quick.reestimate(matched, det, prior, tmp_path / "work", progress=False)
+    est = quick.reestimate(matched, det, prior, tmp_path / "work")
     assert est.changed == [] and est.ba is None
 
 
@@ -185,7 +184,7 @@ def test_rigidly_moved_panel_is_found_and_reestimated(tmp_path):
     """The eight panel-1 cameras moved together (2 cm and 1 deg about the panel's centre): their mutual pairs fit
     the prior, their pairs with the HD and Kinect cameras do not. All eight are found and re-estimated; the
     cameras off the panel keep the prior."""
-    import dome_calib.pipeline_quick as quick
+    import dome_calib.pipeline.quick as quick
 
     prior = _neighbourhood()
     panel = [n for n in CAMERAS if n.startswith("01_")]
@@ -201,7 +200,7 @@ def test_rigidly_moved_panel_is_found_and_reestimated(tmp_path):
     matched = _matched_scene(tmp_path, current, prior, seed=5)
     det = quick.detect_suspects(matched, prior)
     assert det.suspects == sorted(panel) and det.panels == [1]
-    est = quick.reestimate(matched, det, prior, tmp_path / "work", progress=False)
+    est = quick.reestimate(matched, det, prior, tmp_path / "work")
     assert sorted(est.changed) == sorted(panel)
     for n in panel:
         e = camera_error(est.ba.cameras[n], current.cameras[n])

@@ -228,7 +228,8 @@ def test_session_report_page_has_the_sync_and_kinect_sections(browser, small_pro
 
     root, truth = small_product_session
     import dome_calib.pipeline as pipeline
-    from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, residuals_of
+    from dome_calib.pipeline.stages import residuals_of
+    from dome_calib.pipeline.types import BAOutcome, SfmOutcome
 
     from .test_calibrate import _problem
 

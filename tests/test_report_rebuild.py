@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import dome_calib.pipeline as pipeline
+import dome_calib.pipeline.full as pipeline
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.layout import nominal_dome
 from dome_calib.report import Residuals, write_report
@@ -29,7 +29,7 @@ def _numpy_warnings(caught) -> list[str]:
 def test_quick_path_with_nothing_changed_reports_every_camera_held_not_too_few(tmp_path, monkeypatch):
     """The issue's case: nothing changed, yet "cameras to check: 16 (too few observations, 0 < 100)", "RMS nan px"
     and numpy warnings. Every camera is held from the prior: nothing to check, no RMS, no warning."""
-    import dome_calib.pipeline_quick as quick
+    import dome_calib.pipeline.quick as quick
 
     prior = _neighbourhood()
     matched = _matched_scene(tmp_path, prior, prior, seed=3)
@@ -42,7 +42,7 @@ def test_quick_path_with_nothing_changed_reports_every_camera_held_not_too_few(t
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(prior=prior_dir, only_changed=True,
-                                                                              progress=False))
+                                                                              progress=None))
         text = pipeline.format_result(result)
     assert _numpy_warnings(caught) == []
     assert result.to_check == [] and "nan" not in text and "too few" not in text
@@ -71,7 +71,7 @@ def test_report_rebuild_keeps_what_the_calibration_found(tmp_path, capture, stan
     and sync.json in report/: `dome-calib report` keeps all of it."""
     cap, _ = capture
     out = tmp_path / "bundle"
-    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=False))
+    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=None))
     report_dir = out / "report"
     before = json.loads((report_dir / "report.json").read_text())
     assert sorted(r["name"] for r in before["to_check"]) == ["01_24", UNCERTAIN]
@@ -92,7 +92,7 @@ def test_report_rebuild_of_a_report_json_from_before_found_was_saved(tmp_path, c
                                                                      dome_calib_cli):
     cap, _ = capture
     out = tmp_path / "bundle"
-    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=False))
+    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=None))
     path = out / "report" / "report.json"
     old = json.loads(path.read_text())
     for key in ("found", "report_version", "expected_per_type"):
@@ -109,14 +109,14 @@ def test_report_rebuild_of_a_report_json_from_before_found_was_saved(tmp_path, c
 def test_calibrate_compares_with_the_bundle_out_held_and_with_previous(tmp_path, capture, stand_in_stages):  # noqa: F811
     cap, truth = capture
     out = tmp_path / "bundle"
-    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=False))
+    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=None))
     assert json.loads((out / "report" / "report.json").read_text())["previous"] is None  # OUT was new
-    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=False))
+    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=None))
     prev = json.loads((out / "report" / "report.json").read_text())["previous"]
     assert prev["source"] == str(out.resolve()) and prev["added"] == [] and prev["gone"] == []
     assert max(c["moved_mm"] for c in prev["cameras"].values()) < 1e-6  # the same calibration again
     moved = write_bundle(moved_copy(load_bundle(out), {"01_02": 3.0}), tmp_path / "moved")
-    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=False, previous=moved))
+    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=None, previous=moved))
     rep = json.loads((out / "report" / "report.json").read_text())
     cams = rep["previous"]["cameras"]
     assert cams["01_02"]["moved_mm"] == pytest.approx(30.0, abs=0.5)  # the rigid fit leaves the moved camera out

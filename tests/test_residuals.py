@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 
 from dome_calib.layout import nominal_dome
-from dome_calib.pipeline_stages import ba_options, observation_residuals, run_ba_stage
+from dome_calib.pipeline.stages import ba_options, observation_residuals, run_ba_stage
 from dome_calib.residuals import Residuals, observed_minus_projected
 
 from .test_calibrate import _problem
@@ -28,7 +28,7 @@ def test_a_feature_seen_right_of_its_projection_has_a_positive_x_residual():
 def test_the_ba_stage_reports_observed_minus_projected_not_the_solver_sign(tmp_path):
     """The solver works with projected - observed; what the BA stage hands on (and saves) is the opposite."""
     problem = _problem(nominal_dome("tiny", seed=0), seed=1)
-    outcome = run_ba_stage(problem, progress=False, options=dataclasses.replace(ba_options(), compute_uncertainty=False))
+    outcome = run_ba_stage(problem, options=dataclasses.replace(ba_options(), compute_uncertainty=False))
     independent = observation_residuals(outcome.problem)[outcome.inlier]  # projected again from the solution
     assert np.abs(outcome.residuals.residual_px - independent).max() < TOL_PX
     outcome.residuals.save(tmp_path / "residuals.npz")

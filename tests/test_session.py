@@ -12,9 +12,10 @@ import json
 import numpy as np
 import pytest
 
-import dome_calib.pipeline as pipeline
+import dome_calib.pipeline.full as pipeline
 from dome_calib.bundle_io import load_bundle, write_bundle
-from dome_calib.pipeline_stages import BAOutcome, SfmOutcome, residuals_of
+from dome_calib.pipeline.stages import residuals_of
+from dome_calib.pipeline.types import BAOutcome, SfmOutcome
 from dome_calib.synth.sync_session import load_truth
 
 from .test_calibrate import _problem

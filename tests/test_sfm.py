@@ -14,7 +14,7 @@ from dome_calib.camera import project
 from projector.features import FeatureOptions, extract_features
 from projector.matching import MatchOptions, match_pairs
 from projector.pairs import pairs_exhaustive
-from dome_calib.pipeline_stages import problem_from_observations
+from dome_calib.pipeline.stages import problem_from_observations
 from projector.sfm import SfmOptions, run_sfm
 
 CAMERAS = ["00_00", "01_01", "01_02", "01_03", "01_04", "01_05", "01_06", "01_11", "01_12"]
@@ -63,7 +63,7 @@ def broken_capture(tmp_path_factory) -> Path:
 def sfm_result(broken_capture, tmp_path_factory):
     prior = load_bundle(broken_capture / "ground_truth")
     work = tmp_path_factory.mktemp("sfm_work")
-    return run_sfm(broken_capture, work, SfmOptions(show_progress=False, num_workers=2), prior=prior), work
+    return run_sfm(broken_capture, work, SfmOptions(num_workers=2), prior=prior), work
 
 
 def test_broken_images_are_reported_per_camera(sfm_result):
@@ -87,7 +87,7 @@ def test_missing_scenes_folder_is_a_one_line_error(tmp_path):
     from dome_calib.errors import CaptureError
 
     with pytest.raises(CaptureError, match="no scenes/ folder"):
-        run_sfm(tmp_path, tmp_path / "work", SfmOptions(show_progress=False))
+        run_sfm(tmp_path, tmp_path / "work", SfmOptions())
 
 
 def test_the_rest_registers_with_centres_within_1cm(sfm_result, broken_capture):
@@ -127,11 +127,11 @@ def test_observations_reproject_in_opencv_pixels(sfm_result):
 def test_rerun_reuses_database_and_model(sfm_result, broken_capture):
     result, work = sfm_result
     db = work / "scene_01" / "database.db"
-    feats = extract_features(broken_capture / "scenes" / "scene_01", db, options=FeatureOptions(show_progress=False))
+    feats = extract_features(broken_capture / "scenes" / "scene_01", db, options=FeatureOptions())
     assert feats.reused == len(GOOD) + 0 and feats.reused == len(feats.num_features) - 0
-    again = match_pairs(db, pairs_exhaustive(feats.num_features), options=MatchOptions(show_progress=False))
+    again = match_pairs(db, pairs_exhaustive(feats.num_features), options=MatchOptions())
     assert again.reused == again.num_pairs and again.num_verified_pairs == result.scenes["scene_01"].matches.num_verified_pairs
-    second = run_sfm(broken_capture, work, SfmOptions(show_progress=False, num_workers=1))
+    second = run_sfm(broken_capture, work, SfmOptions(num_workers=1))
     assert sorted(second.cameras) == GOOD
 
 
@@ -155,7 +155,7 @@ def test_camera_unknown_to_the_prior_is_still_registered(broken_capture, tmp_pat
     gt = load_bundle(broken_capture / "ground_truth").cameras
     unknown = "01_05"
     prior = {n: c for n, c in gt.items() if n != unknown}
-    result = run_sfm(broken_capture, tmp_path, SfmOptions(show_progress=False, num_workers=2, scenes=["scene_01"]),
+    result = run_sfm(broken_capture, tmp_path, SfmOptions(num_workers=2, scenes=["scene_01"]),
                      prior=prior)
     assert unknown in result.cameras
     assert np.linalg.norm(result.cameras[unknown].center_cm - gt[unknown].center_cm) < 2.0
@@ -173,8 +173,8 @@ def test_reduced_image_keypoints_are_in_full_resolution_pixels(broken_capture):
     assert [reduction_factor(w, h, 960) for w, h in ((640, 480), (960, 540), (1920, 1080), (1921, 1080))] == [1, 1, 2, 3]
     assert reduction_factor(1920, 1080, 0) == 1
     path = str(broken_capture / "scenes" / "scene_01" / "00_00.png")
-    full = extract_image(("00_00", path, FeatureOptions(show_progress=False)))
-    half = extract_image(("00_00", path, FeatureOptions(show_progress=False, max_image_size_px=960)))
+    full = extract_image(("00_00", path, FeatureOptions()))
+    half = extract_image(("00_00", path, FeatureOptions(max_image_size_px=960)))
     assert half.failure is None and half.shape == full.shape == (1080, 1920)
     assert 100 < len(half.keypoints) < len(full.keypoints) / 2
     dist_px, nearest = cKDTree(full.keypoints[:, :2]).query(half.keypoints[:, :2])
@@ -217,13 +217,13 @@ def test_dropped_features_are_extracted_and_matched_again(sfm_result, broken_cap
         assert sorted(inliers()) == sorted(p for p in pairs if not set(p) & set(dropped))
         feats = extract_features(broken_capture / "scenes" / "scene_01", db, cameras=list(dropped), options=options)
         assert feats.reused == len(GOOD) - 2 and sorted(feats.num_features) == GOOD  # only those two extracted
-        again = match_pairs(db, pairs, options=MatchOptions(show_progress=False))
+        again = match_pairs(db, pairs, options=MatchOptions())
         assert again.reused == sum(not set(p) & set(dropped) for p in pairs)
 
     before = inliers()
-    redo(FeatureOptions(show_progress=False, max_image_size_px=960))  # the HD image halved
+    redo(FeatureOptions(max_image_size_px=960))  # the HD image halved
     assert inliers() != before
-    redo(FeatureOptions(show_progress=False))
+    redo(FeatureOptions())
     assert inliers() == before
 
 
@@ -236,7 +236,7 @@ def test_quick_recalibration_gives_a_disturbed_hd_camera_full_resolution(broken_
 
     from scipy.spatial.transform import Rotation
 
-    import dome_calib.pipeline as pipeline
+    import dome_calib.pipeline.full as pipeline
     from dome_calib.bundle import Bundle
     from dome_calib.bundle_io import write_bundle
     from dome_calib.compare import camera_error
@@ -249,7 +249,7 @@ def test_quick_recalibration_gives_a_disturbed_hd_camera_full_resolution(broken_
         cams[hd] = dataclasses.replace(c, R=Rotation.from_rotvec([0.0, np.radians(1.0), 0.0]).as_matrix() @ c.R)
     prior = write_bundle(Bundle(seq="prior", cameras=cams), tmp_path / "prior")
     result = pipeline.run_calibration(broken_capture, tmp_path / "out", pipeline.CalibrateOptions(
-        prior=prior, only_changed=True, progress=False))
+        prior=prior, only_changed=True))
     assert sorted(result.changes) == [hd]
     assert result.stats["quick"]["full_resolution"] == [hd]
     out = load_bundle(tmp_path / "out")
@@ -267,8 +267,8 @@ def test_quick_recalibration_rerun_after_a_failed_suspect_match(broken_capture, 
     """The run stops inside suspect_match, after the features of the HD camera (new to the prior) were dropped:
     the rerun resumes after detect, restores its first-round pairs from pairs.txt (a new camera has no other
     partners) and gives the same bundle as a run that never stopped."""
-    import dome_calib.pipeline as pipeline
-    import dome_calib.pipeline_quick as quick
+    import dome_calib.pipeline.full as pipeline
+    import dome_calib.pipeline.quick as quick
     from dome_calib.bundle import Bundle
     from dome_calib.bundle_io import write_bundle
 
@@ -276,7 +276,7 @@ def test_quick_recalibration_rerun_after_a_failed_suspect_match(broken_capture, 
     hd = "00_00"
     cams = {n: c for n, c in truth.cameras.items() if n != hd}
     prior = write_bundle(Bundle(seq="prior", cameras=cams), tmp_path / "prior")
-    options = pipeline.CalibrateOptions(prior=prior, only_changed=True, progress=False)
+    options = pipeline.CalibrateOptions(prior=prior, only_changed=True)
     real = quick.extract_features
 
     def power_cut(*args, **kwargs):

@@ -11,7 +11,7 @@ from dome_calib.align import sim3_apply, transform_cameras
 from dome_calib.ba.problem import BAProblem
 from dome_calib.camera import project
 from dome_calib.errors import CaptureError
-from dome_calib.pipeline_stages import center_gate, prune_problem
+from dome_calib.pipeline.stages import center_gate, prune_problem
 from dome_calib.layout import nominal_dome
 
 MM_FROM_CM = pycolmap.Sim3d(10.0, pycolmap.Rotation3d(np.eye(3)), [0.0, 0.0, 0.0])

@@ -42,7 +42,7 @@ def _copy_databases(work: Path, to: Path) -> None:
 
 
 def _run(capture: Path, work: Path, **known) -> object:
-    options = SfmOptions(show_progress=False, num_workers=2)
+    options = SfmOptions(num_workers=2)
     options.known_poses.min_images = 0  # these 8-image scenes are below the size from which known poses are used
     for k, v in known.items():
         setattr(options.known_poses, k, v)
@@ -214,7 +214,7 @@ def test_a_likely_reference_that_is_not_the_reference_leaves_no_trace(capture, t
     cv2.imwrite(str(blank), np.full(cv2.imread(str(blank), cv2.IMREAD_GRAYSCALE).shape, 128, np.uint8))
     results = {}
     for early in (True, False):
-        options = SfmOptions(show_progress=False, num_workers=2, map_reference_early=early)
+        options = SfmOptions(num_workers=2, map_reference_early=early)
         options.known_poses.min_images = 0
         options.pairs.exhaustive_below = 0  # pairs by the geometry, so that ...
         options.known_poses.pairs_per_camera = 2  # ... scene_01 has fewer than as a reference: an early one shows
@@ -231,7 +231,7 @@ def test_a_likely_reference_that_is_not_the_reference_leaves_no_trace(capture, t
     assert early.scenes["scene_01"].pairs < early.scenes["scene_02"].pairs
     # a rerun finds every scene's features first: it knows the reference and maps nothing early again
     before = _pairs_in_database(tmp_path / "work_True" / "scene_01" / "database.db")
-    options = SfmOptions(show_progress=False, num_workers=2)
+    options = SfmOptions(num_workers=2)
     options.known_poses.min_images = 0
     options.pairs.exhaustive_below = 0
     options.known_poses.pairs_per_camera = 2
@@ -247,11 +247,11 @@ def test_a_likely_reference_that_is_not_the_reference_leaves_no_trace(capture, t
 
 def test_an_error_in_a_later_scenes_mapping_thread_is_raised(capture, tmp_path, monkeypatch):
     """A later scene is triangulated in a thread while the next is matched: its error reaches the caller."""
-    import projector.sfm as sfm
+    import projector.scene as scene
 
     def broken(*args, **kwargs):
         raise RuntimeError("triangulator exploded")
 
-    monkeypatch.setattr(sfm, "map_known_scene", broken)
+    monkeypatch.setattr(scene, "map_known_scene", broken)
     with pytest.raises(RuntimeError, match="triangulator exploded"):
         _run(capture, tmp_path / "work", enabled=True)

@@ -11,7 +11,8 @@ from dome_calib.bundle import Camera, CameraType
 from dome_calib.panoptic_io import read_calibration
 from dome_calib.rotation import rotvec_to_matrix
 from projector.database import intrinsics_from_colmap, to_colmap_camera
-from dome_calib.executor import Executor, LocalProcessExecutor, SerialExecutor
+from dome_calib.executor import Executor, SerialExecutor
+from dome_calib.executor.local import LocalProcessExecutor
 from projector.matching import match_descriptors
 from projector.merge import chordal_mean, robust_similarity
 from projector.pairs import (PairOptions, UnknownStrategy, expand_pairs_from_matches, pairs_exhaustive,

@@ -30,7 +30,7 @@ def _free_port() -> int:
 def test_a_dask_cluster_renders_the_same_bytes_as_this_process(tmp_path):
     from distributed import Client, LocalCluster
 
-    from dome_calib.executor_dask import DaskExecutor
+    from dome_calib.executor.dask import DaskExecutor
 
     options = SynthOptions(preset="tiny", n_scenes=1, seed=3, cameras=CAMERAS, workers=1)
     local = synthesize(tmp_path / "local", options)
@@ -50,7 +50,7 @@ def test_a_dask_cluster_renders_the_same_bytes_as_this_process(tmp_path):
 
 
 def test_synth_cli_unreachable_scheduler_is_one_line_and_writes_nothing(tmp_path, dome_calib_cli, monkeypatch):
-    import dome_calib.executor_dask as executor_dask
+    import dome_calib.executor.dask as executor_dask
 
     monkeypatch.setattr(executor_dask, "CONNECT_TIMEOUT_S", 0.5)
     res = dome_calib_cli("synth", tmp_path / "cap", "--preset", "tiny", "--scenes", "1",

@@ -34,7 +34,8 @@ from dome_calib.bundle import Bundle, Camera, CameraType
 
 from dome_calib.bundle_io import write_bundle
 from dome_calib.errors import DomeCalibError
-from dome_calib.executor import Executor, make_executor
+from dome_calib.executor import Executor
+from dome_calib.executor.local import make_executor
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.layout import Preset, nominal_dome
 from dome_calib.synth.dome import Projector, dome_from_calibration, projectors

@@ -16,7 +16,7 @@ from dome_calib.panoptic_io import format_ksynctables, format_synctables
 from timecode.errors import TimecodeError
 from timecode.rates import FrameRate
 from timecode.audio_io import AudioReader
-from timecode.decoder import DecodeOptions, decode_file, decode_samples
+from timecode.decode.decoder import DecodeOptions, decode_file, decode_samples
 from timecode.sync.clock import ClockError, FrameStarts
 from timecode.sync.report import sync_report
 from timecode.sync.session import Session, SessionError, load_session

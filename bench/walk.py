@@ -1,0 +1,134 @@
+"""A walk of the calibration (capture -> SfM -> BA -> world frame -> write): which modules it passes through.
+
+    .venv/bin/python bench/walk.py CAPTURE [--work /tmp/dome_walk]
+
+Runs `calibrate` on CAPTURE (from the design layout, no prior, no progress display) in this process with a
+profile hook on every thread (the worker processes are not followed: they run one task function each) and
+records every call that crosses from one of our modules (``dome_calib``, ``projector``, ``timecode``) into
+another (a generator resumed by its consumer is not a crossing). At each crossing the stack of our modules is
+read (consecutive frames of one module count once). One JSON object per line:
+
+- ``modules``: how many of our modules the walk enters, and how many it enters per package;
+- ``way_down``: the modules on the stack when ``run_sfm`` is called (its callers, from ``run_calibration``);
+- ``reentries``: crossings into a module that is already on the stack below another module (A -> B -> A: the
+  data goes out of A and comes back into it): how many distinct (stack) patterns and the first few;
+- ``run_sfm``: the crossings out of ``run_sfm``'s own frame into other modules' functions (each a hand-over of the
+  calibration's data and its return), and how many distinct functions they are.
+
+Works on any checkout (module names are read from the frames), so the same capture walks the old and the new
+house. Timings are meaningless under the hook and not printed.
+"""
+from __future__ import annotations
+
+import argparse
+import inspect
+import json
+import shutil
+import sys
+import threading
+from collections import Counter
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+OURS = ("dome_calib", "projector", "timecode")
+_GENERATOR = inspect.CO_GENERATOR | inspect.CO_COROUTINE | inspect.CO_ASYNC_GENERATOR
+
+
+def emit(**obj) -> None:
+    print(json.dumps(obj), flush=True)
+
+
+def _module(frame) -> str:
+    return frame.f_globals.get("__name__", "") or ""
+
+
+def _ours(name: str) -> bool:
+    return name.split(".")[0] in OURS
+
+
+def _stack(frame) -> list[str]:
+    """Our modules from the bottom of the stack to ``frame`` (consecutive frames of one module once)."""
+    mods = []
+    while frame is not None:
+        m = _module(frame)
+        if _ours(m) and (not mods or mods[-1] != m):
+            mods.append(m)
+        frame = frame.f_back
+    return mods[::-1]
+
+
+class Walk:
+    def __init__(self) -> None:
+        self.entered: Counter[str] = Counter()
+        self.reentries: Counter[tuple[str, ...]] = Counter()
+        self.way_down: list[str] | None = None
+        self.sfm_crossings: Counter[str] = Counter()
+        self.lock = threading.Lock()
+
+    def hook(self, frame, event, arg) -> None:
+        if event != "call":
+            return
+        callee = _module(frame)
+        if not _ours(callee):
+            return
+        if frame.f_code.co_flags & _GENERATOR:
+            return  # a generator is resumed by whoever iterates it: not a call into its module
+        caller = frame.f_back
+        name = frame.f_code.co_name
+        if caller is not None and caller.f_code.co_name == "run_sfm" and _module(caller).endswith("sfm") \
+                and callee != _module(caller):
+            with self.lock:
+                self.sfm_crossings[f"{callee}.{name}"] += 1
+        if name == "run_sfm" and self.way_down is None:
+            self.way_down = _stack(frame)
+        # find the nearest caller of ours (stdlib frames, functools.partial, threads in between are skipped)
+        f = caller
+        while f is not None and not _ours(_module(f)):
+            f = f.f_back
+        if f is not None and _module(f) == callee:
+            return
+        stack = _stack(frame)
+        with self.lock:
+            self.entered[callee] += 1
+            if callee in stack[:-1]:
+                first = stack.index(callee)
+                self.reentries[tuple(stack[first:])] += 1
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("capture", type=Path)
+    parser.add_argument("--work", type=Path, default=Path("/tmp/dome_walk"))
+    args = parser.parse_args()
+    try:  # the new house
+        from dome_calib.pipeline.full import run_calibration
+        from dome_calib.pipeline.types import CalibrateOptions
+    except ImportError:  # the flat house (before issue 35)
+        from dome_calib.pipeline import CalibrateOptions, run_calibration
+    shutil.rmtree(args.work, ignore_errors=True)
+    walk = Walk()
+    threading.setprofile(walk.hook)
+    sys.setprofile(walk.hook)
+    try:
+        options = CalibrateOptions(seq="walk")
+        if options.progress is True:  # the flat house: a bool (spinners); now None, no bars
+            options.progress = False
+        result = run_calibration(args.capture, args.work / "bundle", options)
+    finally:
+        sys.setprofile(None)
+        threading.setprofile(None)
+    per_package = Counter(m.split(".")[0] for m in walk.entered)
+    emit(bench="walk", stage="modules", cameras=len(result.bundle.cameras), entered=len(walk.entered),
+         per_package=dict(sorted(per_package.items())))
+    emit(bench="walk", stage="way_down", run_sfm_callers=walk.way_down, modules=len(walk.way_down or []))
+    patterns = sorted(walk.reentries, key=lambda p: (-walk.reentries[p], p))
+    emit(bench="walk", stage="reentries", patterns=len(patterns),
+         first=[" -> ".join(p) for p in patterns[:8]])
+    emit(bench="walk", stage="run_sfm", crossings=sum(walk.sfm_crossings.values()),
+         distinct=len(walk.sfm_crossings), functions=sorted(walk.sfm_crossings))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,59 @@
+"""`dome-calib reconstruct`: a thin shell over dome_calib.recon.people_commands.
+
+The stage is imported inside the command: `dome-calib --help` starts without loading it.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def reconstruct(
+    detections: Path = typer.Argument(..., help="Folder of OpenPose output: one sub-folder per camera (named as in "
+                                      "the bundle, or mapped with --camera-map), one JSON file per frame "
+                                      "(<name>_<frame:012d>_keypoints.json or cam01.0042.json; the last number is "
+                                      "the camera's own frame index).", show_default=False),
+    bundle: Path = typer.Option(..., "--bundle", help="Calibration bundle folder (calibration_<seq>.json; its "
+                                "synctables/ksynctables give each camera's frame times; without them all cameras "
+                                "share one frame index).", show_default=False),
+    out: Path = typer.Option(None, "-o", "--out", help="Folder for body3DScene_<frame>.json (one per time, every "
+                             "person with an id) and cameras.json (default: <DETECTIONS>_people beside DETECTIONS)."),
+    body_model: str = typer.Option(None, "--body-model", help="The detector's model: BODY_25, BODY_25B, COCO_18 or "
+                                   "PANOPTIC19. Needed for 25-joint files (BODY_25 and BODY_25B have the same "
+                                   "length)."),
+    camera_map: str = typer.Option(None, "--camera-map", help="Folder-to-camera names, e.g. "
+                                   "'cam01=00_01,cam02=00_02', or a JSON file {\"cam01\": \"00_01\"}."),
+    reference: str = typer.Option(None, "--reference", help="Stream whose frames are the output times (vga, hd, "
+                                  "KINECTNODE<n>; default vga, else hd)."),
+    min_views: int = typer.Option(3, "--min-views", help="A person must be seen by this many cameras."),
+    smooth: int = typer.Option(0, "--smooth", help="Smooth each person's joints over this many frames either side "
+                               "(a local straight-line fit: no lag for steady motion); 0 = off."),
+    fps: str = typer.Option("30", "--fps", help="Frame rate of a bundle without sync tables (for univTime)."),
+    workers: int = typer.Option(1, "--workers", help="Processes for long sessions (chunks of 600 times)."),
+    scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler (tcp://HOST:PORT) to run the chunks "
+                                  "on instead of local processes."),
+) -> None:
+    """Reconstruct groups of people from per-camera OpenPose detections: find each person across the cameras,
+    triangulate their joints in the world frame (cm), keep their id over time, and write one Panoptic
+    body3DScene file per time plus cameras.json (how well each camera agrees: a camera that moved shows up)."""
+    from dome_calib.cli.progress import ProgressBars
+    from dome_calib.pipeline.cluster import open_executor
+    from dome_calib.recon.people_commands import people_options, reconstruct_folder
+
+    out = out or detections.with_name(f"{detections.name}_people")
+    options = people_options(min_views=min_views, smooth=smooth, fps=fps)
+    with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:
+        summary = reconstruct_folder(detections, bundle, out, body_model=body_model, camera_map=camera_map,
+                                     reference=reference, options=options, executor=executor,
+                                     progress=bars.task("reconstructing times"))
+    err = "n/a" if summary.median_reprojection_px is None else f"{summary.median_reprojection_px:.1f} px"
+    flagged = ", ".join(summary.flagged_cameras) or "none"
+    typer.echo(f"{summary.times} times ({summary.reference}) from {summary.cameras} cameras ({summary.body_model}): "
+               f"{summary.people} people, {summary.body_frames} body-frames, median reprojection {err}; cameras "
+               f"that disagree: {flagged} -> {summary.out}")
+
+
+def register(app: typer.Typer) -> None:
+    """Add `reconstruct` to the `dome-calib` app."""
+    app.command()(reconstruct)

@@ -1,0 +1,92 @@
+"""One small task-executor interface for the embarrassingly parallel SfM stages.
+
+Feature extraction (one task per image) and matching (one task per batch of pairs) only ever call
+``executor.map(fn, items)`` with a module-level ``fn`` and picklable items, so any object with the
+:class:`Executor` shape can run them: the local process pool (:mod:`dome_calib.executor.local`) by default, or a
+thin adapter over ``dask.distributed.Client`` (:mod:`dome_calib.executor.dask`) (``submit`` returns a future with ``.result()``, which is what Dask's futures
+have) running on the dome's module nodes. Task functions read their inputs from paths, so the workers need
+the capture and work folders mounted at the same place.
+"""
+from __future__ import annotations
+
+import concurrent.futures as cf
+import os
+from collections.abc import Callable, Hashable, Iterable, Iterator, Sequence
+from typing import Any, Protocol, TypeVar, runtime_checkable
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+@runtime_checkable
+class Future(Protocol[R]):
+    def result(self, timeout: float | None = None) -> R: ...
+
+
+@runtime_checkable
+class Executor(Protocol):
+    """What the SfM stages need from an executor."""
+
+    def submit(self, fn: Callable[..., R], /, *args: Any, **kwargs: Any) -> Future[R]: ...
+
+    def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
+        """Yield ``fn(item)`` for every item, in COMPLETION order is allowed: results must carry their key."""
+        ...
+
+
+def in_order(results: Iterable[R], keys: Sequence[Hashable], key_of: Callable[[R], Hashable]) -> Iterator[R]:
+    """Results that arrive in completion order (``executor.map``), yielded in the order of ``keys``.
+
+    What the head writes (database rows, ids) must not depend on which worker finished first: results that come
+    early wait in a buffer until every result before them has arrived. The executors submit in ``keys`` order
+    with a bounded number of tasks in flight, so the buffer stays about that size. A key that never arrives is
+    an error (a lost task), as is a result whose key is not in ``keys``.
+    """
+    position = {k: i for i, k in enumerate(keys)}
+    if len(position) != len(keys):
+        raise ValueError("in_order: duplicate keys")
+    waiting: dict[int, R] = {}
+    nxt = 0
+    for res in results:
+        k = key_of(res)
+        if k not in position:
+            raise ValueError(f"in_order: result for unknown key {k!r}")
+        waiting[position[k]] = res
+        while nxt in waiting:
+            yield waiting.pop(nxt)
+            nxt += 1
+    if nxt != len(keys):
+        raise RuntimeError(f"in_order: no result for {keys[nxt]!r} ({len(keys) - nxt} missing)")
+
+
+def default_num_workers() -> int:
+    """Cores this process may use (affinity-aware), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - non-Linux
+        return max(1, os.cpu_count() or 1)
+
+
+class SerialExecutor:
+    """Runs tasks in this process, one after another (debugging, tests, tiny inputs)."""
+
+    def submit(self, fn: Callable[..., R], /, *args: Any, **kwargs: Any) -> Future[R]:
+        fut: cf.Future[R] = cf.Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller through the future
+            fut.set_exception(exc)
+        return fut
+
+    def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
+        for item in items:
+            yield fn(item)
+
+    def shutdown(self) -> None:
+        """Nothing to release (same lifecycle as the pool, so callers can always use ``with``)."""
+
+    def __enter__(self) -> SerialExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.shutdown()
