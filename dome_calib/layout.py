@@ -231,7 +231,7 @@ def nominal_dome(preset: Preset | str = Preset.FULL, seed: int = 0) -> Bundle:
     """Ground-truth bundle of the nominal (paper) dome, restricted to a preset's cameras.
 
     Args:
-        preset: "tiny" (12 cameras), "panel" (60) or "full" (521).
+        preset: "tiny" (16 cameras), "panel" (60) or "full" (521).
         seed: draws intrinsics, distortion, aim and roll jitter; the same seed gives the same cameras in every
             preset (a tiny camera is identical to the same-named full camera).
     Example:

@@ -112,7 +112,7 @@ def compare(
 @app.command()
 def demo(
     out: Path = typer.Option(Path("demo_out"), "-o", "--out", help="Folder for the capture, bundle and report."),
-    preset: str = typer.Option("tiny", help="Synthetic dome size: tiny (12 cameras, the default: a few minutes), "
+    preset: str = typer.Option("tiny", help="Synthetic dome size: tiny (16 cameras, the default: a few minutes), "
                                "panel (60 cameras, ~15 min on 2 cores) or full (521)."),
     scenes: int = typer.Option(None, help="Tent positions (default: the demo's choice for the preset)."),
     seed: int = typer.Option(0, help="Random seed of the synthetic capture."),

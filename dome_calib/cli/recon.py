@@ -10,8 +10,8 @@ import typer
 
 
 def triangulate(
-    detections: Path = typer.Argument(..., help="Detections JSON: 2D joints per camera per frame (see README, "
-                                      "'Reconstruction').", show_default=False),
+    detections: Path = typer.Argument(..., help="Detections JSON: 2D joints per camera per frame (see docs/recon.md, "
+                                      "'Detections file').", show_default=False),
     bundle: Path = typer.Option(..., "--bundle", help="Calibration bundle folder (calibration_<seq>.json plus "
                                 "synctables/ksynctables).", show_default=False),
     out: Path = typer.Option(None, "-o", "--out", help="Folder for the body3DScene_<k>.json skeleton files "

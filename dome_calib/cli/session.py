@@ -36,7 +36,7 @@ def format_session(result) -> str:
 
 def session(
     folder: Path = typer.Argument(..., metavar="SESSION", help="Session folder: capture/ (tent images), kinect/ (checkerboard pairs), "
-                                  "sync/ (session.json, ltc.wav, Kinect audio); see README 'Session layout'.",
+                                  "sync/ (session.json, ltc.wav, Kinect audio); see docs/session.md 'Session layout'.",
                                   show_default=False),
     out: Path = typer.Option(..., "-o", "--out", help="Bundle folder to write (created, or a bundle replaced "
                              "whole).", show_default=False),

@@ -15,7 +15,7 @@ from dome_calib.io_utils import check_writable
 def synth(
     out: Path = typer.Argument(..., help="Capture folder to create (scenes/, ground_truth/, capture.json).",
                                show_default=False),
-    preset: str = typer.Option("tiny", help="Which cameras: tiny (12, seconds), panel (60, one or two panels plus "
+    preset: str = typer.Option("tiny", help="Which cameras: tiny (16, seconds), panel (60, one or two panels plus "
                                "HD and Kinect colour), full (all 521)."),
     scenes: int = typer.Option(3, help="Number of tent positions (scene_01, scene_02, ...)."),
     seed: int = typer.Option(0, help="Random seed: same seed, same capture."),

@@ -1,6 +1,6 @@
 """`dome-calib session SESSION -o BUNDLE`: the technician's whole job in one run, one bundle out.
 
-A session folder holds what comes back from the dome (see README, 'Session layout')::
+A session folder holds what comes back from the dome (see docs/session.md, 'Session layout')::
 
     SESSION/capture/   projector-pattern tent captures        -> dome-calib calibrate (the cameras)
     SESSION/kinect/    Kinect checkerboard IR/colour pairs    -> dome-calib kinect (depth to colour, in the world)
@@ -75,7 +75,7 @@ def session_parts(session: Path) -> dict[str, Path]:
     for key, path in parts.items():
         if not path.is_dir():
             raise CaptureError(f"{path}: missing ({key} part of the session: expected the folder "
-                               f"{PARTS[key]}/ beside the others, see README 'Session layout')")
+                               f"{PARTS[key]}/ beside the others, see docs/session.md 'Session layout')")
     if not (parts["sync"] / "session.json").is_file():
         raise CaptureError(f"{parts['sync'] / 'session.json'}: missing (the sync part's description)")
     return parts

@@ -1,4 +1,4 @@
-"""JSON in/out of ``dome-calib triangulate`` (documented in README, "Reconstruction").
+"""JSON in/out of ``dome-calib triangulate`` (documented in docs/recon.md, "Detections file").
 
 In: a detections file (2D joints per camera per frame of that camera's own stream)::
 

@@ -70,7 +70,7 @@ def decode(
 
 @app.command()
 def sync(
-    session: str = typer.Argument(..., help="Session folder holding session.json, ltc.wav and kinect/ (see README, "
+    session: str = typer.Argument(..., help="Session folder holding session.json, ltc.wav and kinect/ (see docs/timecode.md, "
                                             "'Sync session layout')."),
     output: str = typer.Option(..., "-o", "--output", help="Bundle folder to write synctables_<seq>.json, "
                                "ksynctables_<seq>.json and report/sync.json into (an existing calibration is kept)."),
