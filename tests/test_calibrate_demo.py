@@ -45,7 +45,7 @@ def test_demo_prints_what_a_technician_needs(tmp_path, monkeypatch, small_produc
     assert rms_px == pytest.approx(0.3, abs=0.02)  # the stand-in's 0.3 px noise per coordinate
     assert "centre error   0.00 mm median" in out  # exact stand-in: the truth comes back
     assert "worst cameras:" in out
-    assert f"report: {tmp_path / 'demo' / 'bundle' / 'report'}/dome.png" in out
+    assert f"report: {tmp_path / 'demo' / 'bundle' / 'report'}/index.html (open it in a browser)" in out
     assert (tmp_path / "demo" / "bundle" / "report" / "dome.png").exists()
     # the other pillars: Kinect against the truth, each stream's sync error, the person from every stream
     assert "Kinect depth-to-colour (dome-calib kinect, against the truth):\n  KINECTNODE4  translation" in out

@@ -55,7 +55,7 @@ def test_a_stage_restores_the_handler_a_library_replaced(tmp_path):
 _POOL = """
 import os, sys, time
 from pathlib import Path
-from dome_calib.executor import LocalProcessExecutor
+from dome_calib.executor.local import LocalProcessExecutor
 pool = LocalProcessExecutor(2)
 futures = [pool.submit(time.sleep, 120) for _ in range(2)]  # both workers busy
 time.sleep(1.0)

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
 
 from dome_calib.bundle import SyncTable
-from dome_calib.executor import LocalProcessExecutor
+from dome_calib.executor.local import LocalProcessExecutor
 from dome_calib.recon.people import PeopleOptions, reconstruct_people, reconstruct_people_chunked
 from dome_calib.recon.people_assoc import AssociationOptions, nan_median, select_pairs
 from dome_calib.recon.people_time import (InMemorySource, PeopleStream, greedy_match, interpolate_people,

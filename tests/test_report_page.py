@@ -227,7 +227,7 @@ def test_session_report_page_has_the_sync_and_kinect_sections(browser, small_pro
     from dome_calib.synth.sync_session import load_truth
 
     root, truth = small_product_session
-    import dome_calib.pipeline as pipeline
+    import dome_calib.pipeline.full as pipeline
     from dome_calib.pipeline.stages import residuals_of
     from dome_calib.pipeline.types import BAOutcome, SfmOutcome
 

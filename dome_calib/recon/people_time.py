@@ -25,7 +25,7 @@ from dome_calib.bundle import Bundle, SyncTable
 from dome_calib.recon.body_models import BodyModel
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.openpose_io import read_openpose_files
-from dome_calib.recon.streams import stream_of_camera
+from dome_calib.recon.streams import cameras_by_stream
 
 SHARED_STREAM = "shared"
 
@@ -98,10 +98,7 @@ def stream_layouts(bundle: Bundle, frames_of: dict[str, Iterable[int]],
         tables[SHARED_STREAM] = SyncTable(index=frames, univ_time_ms=frames * period)
         groups[SHARED_STREAM] = sorted(frames_of)
     else:
-        for name in sorted(frames_of):
-            stream, table = stream_of_camera(bundle, name)
-            groups.setdefault(stream, []).append(name)
-            tables[stream] = table
+        groups, tables = cameras_by_stream(bundle, sorted(frames_of))
     out = []
     for stream, names in groups.items():
         table = tables[stream]

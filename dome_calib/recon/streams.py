@@ -112,6 +112,17 @@ def stream_of_camera(bundle: Bundle, name: str) -> tuple[str, SyncTable]:
     return stream, tables[stream]
 
 
+def cameras_by_stream(bundle: Bundle, names: list[str]) -> tuple[dict[str, list[str]], dict[str, SyncTable]]:
+    """Cameras grouped by the stream (clock) they belong to, in the order given, and each stream's sync table."""
+    groups: dict[str, list[str]] = {}
+    tables: dict[str, SyncTable] = {}
+    for name in names:
+        stream, table = stream_of_camera(bundle, name)
+        groups.setdefault(stream, []).append(name)
+        tables[stream] = table
+    return groups, tables
+
+
 def group_by_stream(bundle: Bundle, detections: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
                     ) -> list[StreamTracks]:
     """Per-camera detections -> one :class:`StreamTracks` per stream.
@@ -123,12 +134,7 @@ def group_by_stream(bundle: Bundle, detections: dict[str, tuple[np.ndarray, np.n
     J = {d[1].shape[1] for d in detections.values()}
     if len(J) > 1:
         raise ReconError(f"detections have different joint counts across cameras: {sorted(J)}")
-    groups: dict[str, list[str]] = {}
-    tables: dict[str, SyncTable] = {}
-    for name in sorted(detections):
-        stream, table = stream_of_camera(bundle, name)
-        groups.setdefault(stream, []).append(name)
-        tables[stream] = table
+    groups, tables = cameras_by_stream(bundle, sorted(detections))
     out = []
     for stream, names in groups.items():
         frames = np.unique(np.concatenate([np.asarray(detections[n][0], dtype=np.int64) for n in names]))

@@ -16,7 +16,7 @@ import numpy as np
 
 from dome_calib.bundle import Bundle, SyncTable, SyncTables
 from dome_calib.recon.project import project_points, view_set
-from dome_calib.recon.streams import StreamTracks, stream_of_camera
+from dome_calib.recon.streams import StreamTracks, cameras_by_stream
 
 #: Panoptic ``joints19`` order (hdPose3d_stage1_coco19).
 JOINTS19 = ["neck", "nose", "body_center", "l_shoulder", "l_elbow", "l_wrist", "l_hip", "l_knee", "l_ankle",
@@ -144,12 +144,7 @@ def synthetic_tracks(bundle: Bundle, cameras: list[str], *, truth_bundle: Bundle
     noise = noise or DetectionNoise()
     truth = truth_bundle or bundle
     rng = np.random.default_rng(seed)
-    groups: dict[str, list[str]] = {}
-    tables = {}
-    for name in cameras:
-        stream, table = stream_of_camera(bundle, name)
-        groups.setdefault(stream, []).append(name)
-        tables[stream] = table
+    groups, tables = cameras_by_stream(bundle, cameras)
     out = []
     for stream, names in groups.items():
         table = tables[stream]
