@@ -238,3 +238,39 @@ def test_an_sfm_stopped_in_its_first_stage_is_resumed_not_thrown_away(tmp_path, 
     pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(progress=None))
     assert seen == [False, True]  # the rerun found the first run's features
     assert load_bundle(out).cameras
+
+
+def test_export_import_and_reconstruct_onto_their_inputs_are_refused_and_the_inputs_kept(tmp_path, capture):
+    """The same cause in the commands added since: an output that is (or holds) an input is refused before
+    anything is read or written: export onto a file of the bundle, import onto its own source file, reconstruct
+    and triangulate into the folder that holds their detections or the bundle."""
+    from dome_calib.interop.convert import export_bundle, import_calibration
+    from dome_calib.recon.commands import triangulate_file
+    from dome_calib.recon.people_commands import reconstruct_folder
+
+    cap, _ = capture
+    bundle = cap / "ground_truth"
+    calib = bundle / "calibration_synth.json"
+    before = {p.name: p.read_bytes() for p in bundle.iterdir() if p.is_file()}
+    with pytest.raises(OutputPathError, match="is the input"):
+        export_bundle(bundle, "aniposelib", calib)
+    with pytest.raises(OutputPathError, match="holds the input"):
+        export_bundle(bundle, "colmap", cap)
+    toml = tmp_path / "calibration.toml"
+    export_bundle(bundle, "aniposelib", toml)
+    text = toml.read_bytes()
+    with pytest.raises(OutputPathError, match="is the input"):
+        import_calibration(toml, "aniposelib", toml)
+    assert toml.read_bytes() == text
+    detections = tmp_path / "detections"
+    (detections / "01_01").mkdir(parents=True)
+    with pytest.raises(OutputPathError, match="is the input"):
+        reconstruct_folder(detections, bundle, detections)
+    with pytest.raises(OutputPathError, match="holds the input"):
+        reconstruct_folder(detections, bundle, cap)
+    det_file = tmp_path / "det.json"
+    det_file.write_text("{}")
+    with pytest.raises(OutputPathError, match="holds the input"):
+        triangulate_file(bundle, det_file, tmp_path)
+    assert {p.name: p.read_bytes() for p in bundle.iterdir() if p.is_file()} == before
+    assert det_file.read_text() == "{}" and (detections / "01_01").is_dir()

@@ -16,7 +16,7 @@ from dome_calib.bundle_io import bundle_seq, load_bundle, write_bundle
 from dome_calib.interop import aniposelib, colmap, easymocap, nerfstudio, pose2sim
 from dome_calib.interop.common import (ExportOptions, ExportResult, ForeignCamera, ImportOptions, InteropError,
                                        checked, cm_per_unit, to_bundle, to_foreign)
-from dome_calib.io_utils import atomic_folder, atomic_path
+from dome_calib.io_utils import atomic_folder, atomic_path, refuse_output_among_inputs
 
 logger = logging.getLogger(__name__)
 
@@ -106,6 +106,7 @@ def export_bundle(bundle_folder: str | Path, fmt: Format | str, out: str | Path,
     options = options or ExportOptions()
     fmt = Format(fmt)
     out = Path(out)
+    refuse_output_among_inputs(out, [bundle_folder, *Path(bundle_folder).glob("*")], whole_folder=True)
     bundle = load_bundle(bundle_folder)
     unit = _export_unit(fmt, options.unit, str(out))
     up = _world_up(fmt, options.world_up, str(out))
@@ -186,6 +187,7 @@ def import_calibration(src: str | Path, fmt: Format | str, out: str | Path,
     """Import ``src`` as ``fmt`` into the bundle folder ``out`` (replaced whole; a non-bundle folder refused)."""
     options = options or ImportOptions()
     out = Path(out)
+    refuse_output_among_inputs(out, [src], whole_folder=True)
     bundle, unit = read_foreign(src, fmt, options)
     up = _world_up(Format(fmt), options.world_up, str(src))
     _replaceable_folder(out, None, "a bundle")

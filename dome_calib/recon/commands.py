@@ -41,6 +41,7 @@ def triangulate_file(bundle_folder: str | Path, detections: str | Path, out: str
     ``out`` is replaced as a whole; it is checked before any work. Explicit times outside every stream's detected
     frames: all of them -> ReconError (nothing written), some -> a warning with the count (no joints there).
     """
+    refuse_output_among_inputs(out, [detections, bundle_folder], whole_folder=True)  # OUT is replaced whole
     check_output_folder(out)
     bundle = load_bundle(bundle_folder)
     check_dome_scale(bundle.cameras, f"--bundle {bundle_folder}")

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle_io import load_bundle
+from dome_calib.io_utils import refuse_output_among_inputs
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.formats import FPS_TYPE
 from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, parse_camera_map
@@ -72,6 +73,7 @@ def reconstruct_folder(detections: str | Path, bundle_folder: str | Path, out: s
     at the end (staged, then renamed): bad input leaves nothing behind.
     """
     options = options or PeopleOptions()
+    refuse_output_among_inputs(out, [detections, bundle_folder], whole_folder=True)  # OUT is replaced whole
     check_people_folder(out)
     bundle = load_bundle(bundle_folder)
     mapping = camera_map if isinstance(camera_map, dict) else parse_camera_map(camera_map)
