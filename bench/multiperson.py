@@ -11,7 +11,7 @@ Prints one JSON object per line: one per (setup, people) with
   (same options, same interpolated detections) of perfectly associated detections (each detection labelled with the
   true person whose projection it matches), both over the joints that both reconstructed; ratio = ours / oracle;
 - found_8views: share of (time, true person) seen by >= 8 views (>= 5 detected joints, by the oracle labels) that
-  have a body within 20 cm (mean joint distance);
+  have a body within 20 cm (mean joint distance); oracle_found_8views: the same share of the oracle's bodies;
 - false_bodies_gt3: ids whose bodies match no true person for more than 3 consecutive times;
 - id_switches_per_1000: changes of the id matched to a true person between matches at most the tracker's
   ``max_missed_ms`` (0.5 s) apart, per 1,000 matched body-frames; new_id_after_long_gap counts the others (a person
