@@ -84,7 +84,8 @@ def synthesize(session: Path, preset: str, scenes: int, seed: int, progress: boo
 
 
 def run_demo(out: Path, options: DemoOptions | None = None) -> DemoResult:
-    """Synthesise, calibrate, compare. Raises DomeCalibError for an unknown preset."""
+    """Synthesise, calibrate, compare, reconstruct the group. Raises DomeCalibError for an unknown preset, a bad
+    number of tent positions or people."""
     options = options or DemoOptions()
     if options.preset not in DEFAULT_SCENES:
         raise DomeCalibError(f"unknown preset {options.preset!r}; choose one of {', '.join(DEFAULT_SCENES)}")
