@@ -1,7 +1,8 @@
 """Multi-person bench: synthetic groups (dome_calib.synth.group, 2, 5 and 8 people, "mixed" scenario: walking past,
 conversation, crouching, leaving) seen by an OpenPose-like detector (dome_calib.synth.detector: misses, occlusion,
 left/right and limb swaps, a neighbour's limb, false and truncated people) on every camera at its own frame times,
-reconstructed by dome_calib.recon.people and judged against the truth.
+reconstructed by dome_calib.recon.people and judged against the truth (dome_calib.synth.group_eval: the matching,
+the oracle and every figure below, shared with `dome-calib demo`).
 
 Run: .venv/bin/python bench/multiperson.py [--setups hd31,panel,full] [--people 2,5,8] [--seconds 3] [--seed 0]
 Prints one JSON object per line: one per (setup, people) with
@@ -10,7 +11,7 @@ Prints one JSON object per line: one per (setup, people) with
   (same options, same interpolated detections) of perfectly associated detections (each detection labelled with the
   true person whose projection it matches), both over the joints that both reconstructed; ratio = ours / oracle;
 - found_8views: share of (time, true person) seen by >= 8 views (>= 5 detected joints, by the oracle labels) that
-  have a body within 20 cm (mean joint distance);
+  have a body within 20 cm (mean joint distance); oracle_found_8views: the same share of the oracle's bodies;
 - false_bodies_gt3: ids whose bodies match no true person for more than 3 consecutive times;
 - id_switches_per_1000: changes of the id matched to a true person between matches at most the tracker's
   ``max_missed_ms`` (0.5 s) apart, per 1,000 matched body-frames; new_id_after_long_gap counts the others (a person
@@ -32,21 +33,17 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import time  # noqa: E402
 
-import numpy as np  # noqa: E402
-from scipy.optimize import linear_sum_assignment  # noqa: E402
-
 from dome_calib.bundle import Bundle  # noqa: E402
 from dome_calib.recon.people import PeopleOptions, reconstruct_people  # noqa: E402
 from dome_calib.recon.people_assoc import AssociationOptions  # noqa: E402
-from dome_calib.recon.people_time import people_streams, interpolate_people  # noqa: E402
-from dome_calib.recon.project import project_points, view_set  # noqa: E402
-from dome_calib.recon.triangulate import triangulate  # noqa: E402
+from dome_calib.recon.people_time import people_streams  # noqa: E402
+from dome_calib.recon.project import view_set  # noqa: E402
 from dome_calib.synth.detector import DetectorModel, synth_detections  # noqa: E402
 from dome_calib.synth.dome import as_built_dome  # noqa: E402
 from dome_calib.synth.group import GroupOptions, make_group  # noqa: E402
+from dome_calib.synth.group_eval import judge_group, oracle  # noqa: E402
 from dome_calib.synth.skeleton import synthetic_sync  # noqa: E402
 
-MATCH_CM = 20.0
 START_MS = 500.0
 
 
@@ -65,97 +62,9 @@ def setup_bundle(name: str, seed: int, duration_ms: float) -> tuple[Bundle, list
     return bundle, cams, "hd" if name == "hd31" else "vga"
 
 
-def _mean_joint_cm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    d = np.linalg.norm(A[:, None] - B[None], axis=-1)
-    n = np.isfinite(d).sum(-1)
-    return np.where(n >= 3, np.nansum(d, -1) / np.maximum(n, 1), np.inf)
-
-
-def oracle(views, streams, times, truth_X, present, options: PeopleOptions):
-    """Perfect association: each interpolated detection labelled with the true person whose projection it matches
-    (2D Hungarian on mean joint distance, gated at 30 % of the person's size), then the same triangulation.
-    Returns X (T, P, 19, 3) and the number of views seeing each true person (T, P)."""
-    T, P = present.shape
-    names = [n for s in streams for n in s.cameras]
-    V = len(names)
-    parts = [interpolate_people(s, times, max_gap_frames=options.max_gap_frames) for s in streams]
-    N = max(p.shape[2] for p in parts)
-    kp = np.concatenate([np.pad(p, ((0, 0), (0, 0), (0, N - p.shape[2]), (0, 0), (0, 0))) for p in parts], axis=1)
-    proj = project_points(views, truth_X.reshape(-1, 3)).uv_px.reshape(V, T, P, 19, 2)
-    uv = np.full((T, P, 19, V, 2), np.nan)
-    conf = np.zeros((T, P, 19, V))
-    seen = np.zeros((T, P), dtype=np.int64)
-    for t in range(T):
-        for v in range(V):
-            det = kp[t, v]
-            have = det[..., 2] > 0
-            live = np.flatnonzero(have.sum(1) >= 3)
-            if not len(live):
-                continue
-            d = np.linalg.norm(det[live][:, None, :, :2] - proj[v, t][None], axis=-1)
-            ok = have[live][:, None] & np.isfinite(d)
-            cost = np.where(ok.sum(-1) >= 3, np.where(ok, d, 0).sum(-1) / np.maximum(ok.sum(-1), 1), 1e9)
-            cost[:, ~present[t]] = 1e9
-            xy = np.where(have[live][..., None], det[live][..., :2], np.nan)
-            size = np.hypot(*(np.nanmax(xy, axis=1) - np.nanmin(xy, axis=1)).T)
-            r, c = linear_sum_assignment(cost)
-            for i, p in zip(r, c):
-                if cost[i, p] < max(0.3 * size[i], 15.0):
-                    row = det[live[i]]
-                    uv[t, p, :, v] = np.where(row[:, 2:3] > 0, row[:, :2], np.nan)
-                    conf[t, p, :, v] = row[:, 2]
-                    seen[t, p] += int((row[:, 2] > 0).sum() >= 5)
-    tri = triangulate(views, uv.reshape(-1, V, 2), np.clip(conf.reshape(-1, V), 0, 1), options.triangulation)
-    return tri.X_cm.reshape(T, P, 19, 3), seen
-
-
 def evaluate(seq, truth_X, present, oracle_X, seen, max_missed_ms: float) -> dict:
-    T, P = present.shape
-    match_id = np.full((T, P), -1)
-    ours = np.full((T, P, 19, 3), np.nan)
-    false_runs: dict[int, list[int]] = {}
-    for t, b in enumerate(seq.bodies):
-        matched_bodies = set()
-        if len(b.X_cm):
-            cost = _mean_joint_cm(b.X_cm, np.where(present[t][:, None, None], truth_X[t], np.nan))
-            r, c = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e9))
-            for i, p in zip(r, c):
-                if cost[i, p] < MATCH_CM:
-                    match_id[t, p] = b.ids[i]
-                    ours[t, p] = b.X_cm[i]
-                    matched_bodies.add(i)
-        for i, bid in enumerate(b.ids):
-            if i not in matched_bodies:
-                false_runs.setdefault(int(bid), []).append(t)
-    longest = {}
-    for bid, ts in false_runs.items():
-        run = best = 1
-        for a, c in zip(ts, ts[1:]):
-            run = run + 1 if c == a + 1 else 1
-            best = max(best, run)
-        longest[bid] = best
-    both = np.isfinite(ours).all(-1) & np.isfinite(oracle_X).all(-1)
-    err_ours = np.linalg.norm(ours - truth_X, axis=-1)[both]
-    err_oracle = np.linalg.norm(oracle_X - truth_X, axis=-1)[both]
-    eight = present & (seen >= 8)
-    switches = renamed = 0
-    for p in range(P):
-        k = np.flatnonzero(match_id[:, p] >= 0)
-        for a, c in zip(k, k[1:]):
-            if match_id[a, p] != match_id[c, p]:
-                if seq.times_ms[c] - seq.times_ms[a] <= max_missed_ms:
-                    switches += 1
-                else:
-                    renamed += 1  # unseen longer than the tracker keeps a track: a new id by design
-    matched = int((match_id >= 0).sum())
-    return {"mpjpe_cm": round(float(err_ours.mean()), 3), "oracle_mpjpe_cm": round(float(err_oracle.mean()), 3),
-            "ratio": round(float(err_ours.mean() / err_oracle.mean()), 3),
-            "found_8views": round(float((match_id >= 0)[eight].mean()), 4) if eight.any() else None,
-            "true_body_frames_8views": int(eight.sum()), "matched_body_frames": matched,
-            "false_bodies_gt3": int(sum(v > 3 for v in longest.values())),
-            "false_body_frames": int(sum(len(v) for v in false_runs.values())),
-            "id_switches": int(switches), "new_id_after_long_gap": int(renamed),
-            "id_switches_per_1000": round(1000.0 * switches / max(matched, 1), 3)}
+    return judge_group(seq.times_ms, [b.ids for b in seq.bodies], [b.X_cm for b in seq.bodies], truth_X, present,
+                       oracle_X, seen, max_missed_ms)
 
 
 def run(setup: str, n_people: int, seconds: float, seed: int, passes: int = 2, max_pairs: int = 48) -> dict:

@@ -116,15 +116,20 @@ def demo(
                                "panel (60 cameras, ~15 min on 2 cores) or full (521)."),
     scenes: int = typer.Option(None, help="Tent positions (default: the demo's choice for the preset)."),
     seed: int = typer.Option(0, help="Random seed of the synthetic capture."),
+    people: int = typer.Option(7, "--people", help="People in the synthetic group (1-10; 7: two walking past each "
+                               "other, a conversation, one crouching, one leaving, one coming in) whose OpenPose "
+                               "detections are reconstructed with the calibrated bundle and judged against the "
+                               "truth; 0: no group."),
 ) -> None:
-    """Demonstration: synthesise a small dome capture, calibrate it, compare with the ground truth, and print
-    what a technician would look at."""
+    """Demonstration: synthesise a small dome capture, calibrate it, compare with the ground truth, reconstruct a
+    group of people with the result, and print what a technician would look at."""
     logging.getLogger("dome_calib.ba").setLevel(logging.WARNING)
     from dome_calib.cli.progress import ProgressBars
     from dome_calib.pipeline.demo import DemoOptions, format_demo, run_demo
 
     with ProgressBars() as bars:
-        result = run_demo(out, DemoOptions(preset=preset, scenes=scenes, seed=seed, progress=bars.tasks))
+        result = run_demo(out, DemoOptions(preset=preset, scenes=scenes, seed=seed, people=people,
+                                           progress=bars.tasks))
     typer.echo(format_demo(result))
 
 
