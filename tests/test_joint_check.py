@@ -70,7 +70,8 @@ def test_a_joint_metres_off_is_dropped_and_only_it(t_ms, joint, off_cm, seed):
 
 def test_two_views_need_the_body():
     """A 2-view forearm that agrees with itself but not with the shoulder goes entirely; with 3 views the wrist
-    alone (no elbow left to judge it) stays if it is within reach."""
+    alone (no elbow left to judge it) stays if it is within reach. Across a joint nobody triangulated, the 2-view
+    wrist is linked to the shoulder by distance against the path's nominal length."""
     X = skeleton_cm(np.array([900.0]))[0]
     elbow, wrist = JOINTS19.index("l_elbow"), L_WRIST
     X[[elbow, wrist]] += [90.0, 0.0, 0.0]  # a neighbour's forearm, 90 cm to the side
@@ -81,6 +82,15 @@ def test_two_views_need_the_body():
     n[wrist] = 3
     keep = check_joints(X[None], n[None])[0]
     assert not keep[elbow] and keep[wrist]
+    # the elbow not triangulated at all: the 2-view wrist is judged against the shoulder over the path's 53 cm
+    Y = skeleton_cm(np.array([900.0]))[0]
+    Y[elbow] = np.nan
+    n = np.full(19, 8)
+    n[wrist] = 2
+    assert check_joints(Y[None], n[None])[0].sum() == 18  # its own wrist: kept
+    shoulder = Y[JOINTS19.index("l_shoulder")]
+    Y[wrist] = shoulder + (Y[wrist] - shoulder) / np.linalg.norm(Y[wrist] - shoulder) * 110.0  # 110 cm off it
+    assert not check_joints(Y[None], n[None])[0][wrist]
     # a person seen by two views only (every joint 2 views) keeps its consistent joints
     assert check_joints(skeleton_cm(np.array([900.0])), np.full((1, 19), 2)).all()
     assert check_joints(X[None], n[None], JointCheckOptions(enabled=False)).all()

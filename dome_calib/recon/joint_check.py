@@ -15,6 +15,8 @@ few degrees apart, so 10 px of detection error move the point along the ray by m
 3. **Few views need the body's word**: a joint with fewer than ``min_views_alone`` inlier views is kept only if a
    chain of plausible bones links it to a joint with at least that many (or, for a body whose best joint has
    fewer, to one with the body's most): two views always agree with each other, so the body has to agree too.
+   Across joints that were not triangulated (a wrist whose elbow nobody saw) the link is the tree path: the
+   distance within ratio x the path's nominal length + slack; never across a joint this check dropped.
 
 A dropped joint is missing (``c = -1``): a joint metres away from its body is never right. Cost per call: a few
 (B, 20) array operations per dropped joint; bodies without an implausible bone cost one pass.
@@ -26,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dome_calib.errors import non_finite_fields
-from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
+from dome_calib.recon.body_models import BONE_LENGTH_CM, BONES19, JOINTS19
 from dome_calib.recon.errors import ReconError
 
 _A = np.array([JOINTS19.index(a) for a, _ in BONE_LENGTH_CM])
@@ -36,6 +38,34 @@ _NOMINAL = np.array(list(BONE_LENGTH_CM.values()))
 _INCIDENCE = np.zeros((len(_A), 19), dtype=np.int64)
 _INCIDENCE[np.arange(len(_A)), _A] = 1
 _INCIDENCE[np.arange(len(_A)), _B] = 1
+
+
+def _tree_paths() -> tuple[np.ndarray, np.ndarray]:
+    """Over the joints19 tree (:data:`BONES19`): (19, 19) nominal length of the path between two joints (cm) and
+    (19, 19, 19) bool: joint k lies strictly inside the path from i to j."""
+    adjacent: dict[int, list[tuple[int, float]]] = {j: [] for j in range(19)}
+    for a, b in BONES19:
+        i, j = JOINTS19.index(a), JOINTS19.index(b)
+        adjacent[i].append((j, BONE_LENGTH_CM[(a, b)]))
+        adjacent[j].append((i, BONE_LENGTH_CM[(a, b)]))
+    length = np.zeros((19, 19))
+    inside = np.zeros((19, 19, 19), dtype=bool)
+    for start in range(19):
+        stack = [(start, 0.0, [])]
+        seen = {start}
+        while stack:
+            j, d, path = stack.pop()
+            length[start, j] = d
+            inside[start, j, path[1:]] = True  # path holds start and the joints before j
+            for k, bone in adjacent[j]:
+                if k not in seen:
+                    seen.add(k)
+                    stack.append((k, d + bone, path + [j]))
+    return length, inside
+
+
+#: Nominal tree-path length between two joints (cm) and the joints strictly between them.
+_PATH_CM, _INSIDE = _tree_paths()
 
 
 @dataclass(kw_only=True)
@@ -95,14 +125,23 @@ def check_joints(X: np.ndarray, n_inliers: np.ndarray, options: JointCheckOption
         key = ((share * 10 + n_bad) * 100_000 + (99_999 - np.minimum(n_inl, 99_999))) * 10_000 + dist_q
         worst = np.argmax(np.where(n_bad > 0, key, -1), axis=1)
         keep[rows[todo], worst[todo]] = False
-    # few views: linked to the body's well-seen joints by plausible bones (all kept bones are plausible now)
+    # few views: linked to the body's well-seen joints by plausible bones; where the joints between two kept ones
+    # were not triangulated at all, their distance against the tree path between them is the bone
     need = np.minimum(options.min_views_alone, np.where(keep, n_inl, 0).max(1))[:, None]
     linked = keep & (n_inl >= need)
+    ask = np.flatnonzero((keep & ~linked).any(1))
+    if len(ask) == 0:
+        return keep
+    k = keep[ask]
+    gap = (present[ask][:, None, None, :] & _INSIDE[None]).any(-1)  # a triangulated joint lies between
+    span = np.linalg.norm(X[ask][:, :, None] - X[ask][:, None], axis=-1)
+    link = (k[:, :, None] & k[:, None] & ~gap & (_PATH_CM > 0)
+            & (np.nan_to_num(span, nan=np.inf) <= options.max_bone_ratio * _PATH_CM + options.bone_slack_cm))
+    grown = linked[ask]
     for _ in range(18):
-        both = keep[:, _A] & keep[:, _B]
-        grown = linked | (keep & (((both & linked[:, _A]).astype(np.int64) @ _INCIDENCE
-                                   + (both & linked[:, _B]).astype(np.int64) @ _INCIDENCE) > 0))
-        if (grown == linked).all():
+        more = grown | (link & grown[:, None, :]).any(-1)
+        if (more == grown).all():
             break
-        linked = grown
+        grown = more
+    linked[ask] = grown
     return keep & linked
