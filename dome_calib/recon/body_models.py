@@ -39,6 +39,16 @@ BONES19 = [("neck", "nose"), ("neck", "body_center"), ("neck", "l_shoulder"), ("
            ("r_hip", "r_knee"), ("r_knee", "r_ankle"), ("nose", "l_eye"), ("l_eye", "l_ear"), ("nose", "r_eye"),
            ("r_eye", "r_ear")]
 
+#: Nominal adult length (cm) of each bone of :data:`BONES19` and of the two cross bones (shoulders, hips): the one
+#: table of bone lengths (the association's ghost test and the per-joint skeleton check both read it).
+BONE_LENGTH_CM: dict[tuple[str, str], float] = {
+    ("neck", "nose"): 20.0, ("neck", "body_center"): 52.0, ("neck", "l_shoulder"): 18.0,
+    ("neck", "r_shoulder"): 18.0, ("l_shoulder", "l_elbow"): 28.0, ("r_shoulder", "r_elbow"): 28.0,
+    ("l_elbow", "l_wrist"): 25.0, ("r_elbow", "r_wrist"): 25.0, ("body_center", "l_hip"): 11.0,
+    ("body_center", "r_hip"): 11.0, ("l_hip", "l_knee"): 44.0, ("r_hip", "r_knee"): 44.0, ("l_knee", "l_ankle"): 42.0,
+    ("r_knee", "r_ankle"): 42.0, ("nose", "l_eye"): 5.0, ("nose", "r_eye"): 5.0, ("l_eye", "l_ear"): 9.0,
+    ("r_eye", "r_ear"): 9.0, ("l_shoulder", "r_shoulder"): 36.0, ("l_hip", "r_hip"): 22.0}
+
 #: Left/right partner of each joints19 joint (itself for the midline joints): a left/right swap exchanges these.
 MIRROR19 = [JOINTS19.index(n.replace("l_", "#").replace("r_", "l_").replace("#", "r_")) for n in JOINTS19]
 

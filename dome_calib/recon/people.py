@@ -4,7 +4,8 @@ Per batch of universal times: every stream's people are brought to the times
 (:func:`~dome_calib.recon.people_time.interpolate_people`); at each time the people are proposed and each view's
 detections assigned to them (:mod:`dome_calib.recon.people_assoc`); with ``passes`` = 2 the assigned detections
 are triangulated linearly (DLT) and assigned again against those skeletons; then all people of the batch are
-triangulated in one call of the robust :func:`~dome_calib.recon.triangulate.triangulate`; duplicates merge.
+triangulated in one call of the robust :func:`~dome_calib.recon.triangulate.triangulate`, each body keeps the
+joints that agree with it (:func:`~dome_calib.recon.joint_check.check_joints`); duplicates merge.
 Then :func:`~dome_calib.recon.tracking.track_bodies` gives ids. :func:`reconstruct_people` runs one chunk of times
 in one process; :func:`reconstruct_people_chunked` splits a long session into overlapping chunks on an executor
 and stitches ids.
@@ -23,6 +24,7 @@ from fractions import Fraction
 
 import numpy as np
 
+from dome_calib.recon.joint_check import JointCheckOptions, check_joints
 from dome_calib.recon.kernel import CameraKernel
 from dome_calib.recon.people_assoc import (AssociationOptions, assign, propose, residual_pairs, select_pairs,
                                           world_rays)
@@ -42,7 +44,8 @@ ERROR_BINS = 2001
 
 @dataclass(kw_only=True)
 class PeopleOptions:
-    """Options of :func:`reconstruct_people`. min_body_joints: a body needs this many reconstructed joints;
+    """Options of :func:`reconstruct_people`. joint_check: which triangulated joints a body keeps
+    (:mod:`~dome_calib.recon.joint_check`); min_body_joints: a body needs this many reconstructed joints;
     max_gap_frames: stream brackets wider than this many frame periods are not bridged; batch_times: times
     triangulated together; chunk_times / overlap_times: the chunks of :func:`reconstruct_people_chunked`."""
 
@@ -50,6 +53,7 @@ class PeopleOptions:
     triangulation: TriangulationOptions = field(default_factory=lambda: TriangulationOptions(
         inlier_threshold_px=10.0, min_views=2, min_confidence=0.05))
     tracking: TrackingOptions = field(default_factory=TrackingOptions)
+    joint_check: JointCheckOptions = field(default_factory=JointCheckOptions)
     min_body_joints: int = 6
     max_gap_frames: float = 2.5
     batch_times: int = 16
@@ -200,15 +204,17 @@ def associate_batch(views: ViewSet, kernel: CameraKernel, pairs: np.ndarray, kp:
     uv, c = _gather_assigned(kp, assigned)
     tri = triangulate(views, uv, c, options.triangulation)
     sizes = np.cumsum([0] + [A.shape[1] for A in assigned])
-    X = tri.X_cm.reshape(-1, 19, 3)
-    n_inl = tri.n_inliers.reshape(-1, 19)
+    ok = check_joints(tri.X_cm.reshape(-1, 19, 3), tri.n_inliers.reshape(-1, 19), options.joint_check).reshape(-1)
+    X_flat = np.where(ok[:, None], tri.X_cm, np.nan)
+    X = X_flat.reshape(-1, 19, 3)
+    n_inl = np.where(ok, tri.n_inliers, 0).reshape(-1, 19)
     keeps = []
     for t in range(T):
         sl = slice(sizes[t], sizes[t + 1])
         keep = (np.isfinite(X[sl]).all(-1).sum(1) >= options.min_body_joints)
         keep &= _dedupe(X[sl], n_inl[sl], a.duplicate_cm)
         keeps.append(keep)
-    conf = tri.confidence.reshape(-1, 19)
+    conf = np.where(ok, tri.confidence, -1.0).reshape(-1, 19)
     n_views = np.concatenate([(A >= 0).sum(0) for A in assigned]) if assigned else np.zeros(0, np.int64)
     bodies = []
     for t in range(T):
@@ -219,8 +225,8 @@ def associate_batch(views: ViewSet, kernel: CameraKernel, pairs: np.ndarray, kp:
     agreement = CameraAgreement.empty(list(views.names))
     detected = (kp[..., 2] > a.min_joint_conf).sum(-1) >= a.min_common_joints  # (T, V, N)
     agreement.detected += detected.sum(axis=(0, 2))
-    err = reprojection_error_px(views, np.nan_to_num(tri.X_cm), np.nan_to_num(uv))  # (sumP*19, V)
-    used_joint = np.isfinite(uv[..., 0]) & np.isfinite(tri.X_cm).all(1)[:, None] & np.isfinite(err)
+    err = reprojection_error_px(views, np.nan_to_num(X_flat), np.nan_to_num(uv))  # (sumP*19, V)
+    used_joint = np.isfinite(uv[..., 0]) & np.isfinite(X_flat).all(1)[:, None] & np.isfinite(err)
     keep_all = np.concatenate(keeps) if keeps else np.zeros(0, bool)
     used_joint &= np.repeat(keep_all, 19)[:, None]
     for v in np.flatnonzero(used_joint.any(0)):

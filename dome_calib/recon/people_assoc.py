@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dome_calib.recon.body_models import JOINTS19
+from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.kernel import F32, CameraKernel
 from dome_calib.recon.people_time import greedy_match
@@ -88,13 +88,12 @@ CANDIDATE_CM = 80.0
 _TORSO = [JOINTS19.index(n) for n in ("neck", "body_center", "l_shoulder", "r_shoulder", "l_hip", "r_hip")]
 
 
-#: Nominal lengths (cm) of bones that a ghost (two people's rays crossing) stretches or shrinks: torso, shoulders,
-#: hips, upper arms, forearms, thighs, shins of an adult.
-_BONES = [(JOINTS19.index(a), JOINTS19.index(b), length) for a, b, length in (
-    ("neck", "body_center", 52.0), ("l_shoulder", "r_shoulder", 36.0), ("l_hip", "r_hip", 22.0),
-    ("l_shoulder", "l_elbow", 28.0), ("r_shoulder", "r_elbow", 28.0), ("l_elbow", "l_wrist", 25.0),
-    ("r_elbow", "r_wrist", 25.0), ("l_hip", "l_knee", 44.0), ("r_hip", "r_knee", 44.0), ("l_knee", "l_ankle", 42.0),
-    ("r_knee", "r_ankle", 42.0))]
+#: Bones that a ghost (two people's rays crossing) stretches or shrinks, with their nominal lengths
+#: (:data:`~dome_calib.recon.body_models.BONE_LENGTH_CM`): torso, shoulders, hips, upper arms, forearms, thighs, shins.
+_BONES = [(JOINTS19.index(a), JOINTS19.index(b), BONE_LENGTH_CM[(a, b)]) for a, b in (
+    ("neck", "body_center"), ("l_shoulder", "r_shoulder"), ("l_hip", "r_hip"), ("l_shoulder", "l_elbow"),
+    ("r_shoulder", "r_elbow"), ("l_elbow", "l_wrist"), ("r_elbow", "r_wrist"), ("l_hip", "l_knee"),
+    ("r_hip", "r_knee"), ("l_knee", "l_ankle"), ("r_knee", "r_ankle"))]
 
 
 def plausible_bones(X: np.ndarray, ratio: tuple[float, float]) -> np.ndarray:
