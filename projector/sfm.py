@@ -57,6 +57,7 @@ from projector.mapping import MappingOptions, SceneModel, map_scene, remove_mode
 from projector.matching import MatchOptions, MatchReport, match_pairs
 from projector.merge import Alignment, MergeOptions, merge_scenes
 from projector.observations import Observations
+from projector.refine import RefineOptions, RefineReport, refine_observations
 from projector.pairs import (Pair, PairOptions, UnknownStrategy, expand_pairs_from_matches, pairs_for_unknown,
                              pairs_from_prior)
 
@@ -71,6 +72,7 @@ class SfmOptions:
     mapping: MappingOptions = field(default_factory=MappingOptions)
     known_poses: KnownPoseOptions = field(default_factory=KnownPoseOptions)  # later scenes at the reference's poses
     merge: MergeOptions = field(default_factory=MergeOptions)
+    refine: RefineOptions = field(default_factory=RefineOptions)  # keypoints aligned across each track's views
     scenes: list[str] | None = None  # default: every folder in CAPTURE/scenes
     num_workers: int | None = None  # default: all available cores
     # the likely reference scene is mapped (GLOMAP, in a thread) while the other scenes' features are extracted;
@@ -118,6 +120,7 @@ class SfmResult:
     scene_alignment: dict[str, Alignment]
     prior_alignment: Alignment | None
     seconds: dict[str, float]
+    refine: RefineReport | None = None  # the keypoint refinement's report (None: not run)
 
 
 def _prior_cameras(prior: Bundle | Mapping[str, Camera] | str | Path | None) -> dict[str, Camera]:
@@ -466,7 +469,7 @@ def run_sfm(
                 rec_cam = s.model.reconstruction.camera(s.model.reconstruction.find_image_with_name(f"{c}.png").camera_id)
                 prior_cams[c] = nominal_camera(c, (rec_cam.width, rec_cam.height))
     t1 = time.perf_counter()
-    observations, cameras, scene_alignment, prior_alignment = None, {}, {}, None
+    observations, cameras, scene_alignment, prior_alignment, refined = None, {}, {}, None, None
     try:
         merge_options = replace(options.merge, use_colmap_intrinsics=options.merge.use_colmap_intrinsics
                                 or ref_options.mapping.refine_focal_length or options.mapping.refine_principal_point)
@@ -475,6 +478,10 @@ def run_sfm(
         failures.append(CameraFailure(camera="", scene="", stage="merge", reason=str(exc)))
     else:
         observations, cameras = merged.observations, merged.observations.cameras
+        # issue 36: every track's keypoints aligned across its views (projector.refine); images local only
+        if options.refine.enabled and options.cameras is None:
+            observations, refined = refine_observations(observations, lambda s: capture_dir / "scenes" / s,
+                                                        options.refine)
         scene_alignment, prior_alignment = merged.scene_alignment, merged.prior_alignment
         failures += [CameraFailure(camera="", scene=sc, stage="merge", reason=r) for sc, r in merged.unaligned_scenes.items()]
         failures += [CameraFailure(camera=c, scene=sc, stage="merge", reason=r) for (sc, c), r in merged.excluded.items()]
@@ -488,9 +495,10 @@ def run_sfm(
     seconds = {"features": sum(s.features.seconds for s in stats.values()),
                "matching": sum(s.matches.seconds for s in stats.values()),
                "mapping": sum(s.model.seconds for s in stats.values()),
-               "scenes": t_scenes, "merge": time.perf_counter() - t1, "total": time.perf_counter() - t0}
+               "scenes": t_scenes, "merge": time.perf_counter() - t1 - (refined.seconds if refined else 0.0),
+               "refine": refined.seconds if refined else 0.0, "total": time.perf_counter() - t0}
     result = SfmResult(observations=observations, cameras=cameras, scenes=stats, failures=failures, unregistered=unregistered,
-                       scene_alignment=scene_alignment, prior_alignment=prior_alignment, seconds=seconds)
+                       scene_alignment=scene_alignment, prior_alignment=prior_alignment, seconds=seconds, refine=refined)
     atomic_write_text(work_dir / "sfm_report.json", json.dumps(report_dict(result), indent=1))
     return result
 
@@ -525,4 +533,5 @@ def report_dict(result: SfmResult) -> dict:
                                    for s, a in result.scene_alignment.items()} if result.prior_alignment else None,
         "prior_alignment_rms_cm": result.prior_alignment.inlier_rms if result.prior_alignment else None,
         "seconds": result.seconds,
+        "refine": result.refine.as_dict() if result.refine else None,
     }
