@@ -159,7 +159,8 @@ def test_well_observed_cameras_keep_every_lens_term_free():
     for n, cam in outcome.cameras.items():  # recovered: the prior was off by 2 %, 4 px and another lens
         assert np.abs(cam.intr[:2] / truth[n].intr[:2] - 1.0).max() < 2e-3  # 0.2 %
         pp_sigma_px = next(d["sigma_px"] for d in lens[n]["decisions"] if d["group"] == "principal_point")
-        assert np.linalg.norm(cam.intr[2:] - truth[n].intr[2:]) < 3.0 * pp_sigma_px < 2.0  # within 3 sigma, px
+        # within 3 sigma, px (sigma at the 0.2 px noise floor; the ring's noise is 0.15 px)
+        assert np.linalg.norm(cam.intr[2:] - truth[n].intr[2:]) < 3.0 * pp_sigma_px < 2.7
         assert distortion_difference_px(cam, truth[n]) < 1.0  # px over the whole image
     assert {d["group"] for d in lens["01_01"]["decisions"]} == {"principal_point", "k3", "tangential", "k2", "k1"}
     tangential = next(d for d in lens["01_01"]["decisions"] if d["group"] == "tangential")
