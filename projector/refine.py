@@ -288,9 +288,12 @@ def refine_observations(obs: Observations, image_dir: Callable[[str], Path] | Ma
     ref_obs = reference_views(obs.point_index, obs.camera_index, JT, len(points))
     ref_of = ref_obs[obs.point_index]
     is_ref = ref_of == np.arange(obs.n_observations)
-    inv_ref = np.linalg.inv(JT[ref_obs[ref_obs >= 0]])
-    inv_of_point = np.zeros((len(points), 2, 2))
-    inv_of_point[ref_obs >= 0] = inv_ref
+    inv_of_point = np.full((len(points), 2, 2), np.nan)  # (J T)_ref^-1; nan where it has none (no warp: not moved)
+    M = JT[ref_obs[ref_obs >= 0]]
+    det = M[:, 0, 0] * M[:, 1, 1] - M[:, 0, 1] * M[:, 1, 0]
+    det = np.where(np.abs(det) > 1e-12, det, np.nan)
+    inv_of_point[ref_obs >= 0] = np.stack([np.stack([M[:, 1, 1], -M[:, 0, 1]], -1),
+                                           np.stack([-M[:, 1, 0], M[:, 0, 0]], -1)], 1) / det[:, None, None]
     A = JT @ inv_of_point[obs.point_index]
     ok_warp = np.all(np.isfinite(A), axis=(1, 2)) & np.isfinite(obs.uv_px).all(axis=1)
     offsets, weights = _patch_grid(options)
