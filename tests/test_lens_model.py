@@ -294,10 +294,11 @@ def test_real_one_view_cameras_hold_what_they_cannot_determine(real_crop):
     # what holding the undetermined terms buys on four one-view cameras. Everything free, the lens terms are
     # undetermined and where the solve ends along them depends on its path: converging every outlier round, focal
     # 15.4 %, principal point 41 px, centres 2.2 cm; one step per intermediate round, 7.0 %, 17 px, 0.79 cm
-    # (chosen: 2.0 %, held, 0.46 cm either way)
+    # (chosen: 2.0 %, held, 0.46 cm either way); on the refined keypoints (projector.refine) everything free still
+    # leaves the principal points 9.7 px off (median)
     assert free_err["focal_pct_median"] > 3 * chosen["focal_pct_median"]
     assert free_err["center_cm_median"] > 1.5 * chosen["center_cm_median"]
-    assert free_err["principal_px_median"] > 10.0 and free_err["distortion_px_max"] > 5.0
+    assert free_err["principal_px_median"] > 5.0 and free_err["distortion_px_max"] > 5.0
     report = json.loads((out / "report" / "report.json").read_text())
     assert report["lens_model"]["cameras"]["00_00"]["held"] == lens["00_00"]["held"]
     assert report["per_camera"]["00_00"]["lens_held"] == lens["00_00"]["held"]
