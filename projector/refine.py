@@ -19,8 +19,13 @@ ICCV 2021, here on raw intensity, with the surface giving the warp):
    ``max_shift_px`` and the patches' weighted correlation reaches ``min_zncc``; else it stays where SIFT put it.
 
 The reference keypoint itself is not moved: its error moves all the refined keypoints of its track consistently
-(``A`` times it), i.e. the 3D point along the surface, which the bundle adjustment absorbs. Images are read one at
-a time (twice: reference patches, then the fit), in two threads; the fit is compiled (numba, no GIL).
+(``A`` times it), i.e. the 3D point along the surface, which the bundle adjustment absorbs. Each scene's images
+are read once (8-bit grey, kept while the scene is refined), in two threads; the fit is compiled (numba, no GIL),
+its result per observation independent of the threads' order. The verdicts (correlation, shift) compare values
+quantised to 1e-6, so the same keypoints move on every machine.
+
+Measured (docs/accuracy.md): feature noise against the rendered truth 0.195 -> 0.046 px (panel dome), 0.226 ->
+0.058 px (full dome: 1.25 M observations in 22 s on two shared cores).
 """
 from __future__ import annotations
 
@@ -338,7 +343,9 @@ def refine_observations(obs: Observations, image_dir: Callable[[str], Path] | Ma
             list(pool.map(align, items))
             images = {}
     norm = np.linalg.norm(shift, axis=1)
-    moved = np.isfinite(zncc) & (zncc >= options.min_zncc) & (norm <= options.max_shift_px)
+    q = 1e-6  # verdicts on quantised values: the same keypoints move on every machine
+    moved = (np.isfinite(zncc) & (np.round(np.nan_to_num(zncc, nan=-1.0) / q) >= round(options.min_zncc / q))
+             & (np.round(norm / q) <= round(options.max_shift_px / q)))
     uv = obs.uv_px.astype(np.float64, copy=True)
     uv[moved] += shift[moved]
     report.references = int(is_ref.sum())
