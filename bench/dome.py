@@ -8,7 +8,9 @@
 Prints one JSON object per line: the synthetic capture, the wall time of every calibrate stage, accuracy against
 ground truth (after a similarity alignment), and the oracle: the same bundle adjustment started from the ground
 truth on the same matched observations (the best these observations allow), with ratios ours / oracle.
-"Feature noise" is the per-coordinate RMS with the ground-truth cameras held and only the points fitted.
+"Feature noise" is the per-coordinate RMS with the ground-truth cameras held and only the points fitted: of the
+observations the bundle adjustment got (``feature_noise_px``) and of the SfM's before the keypoint refinement
+(``feature_noise_sift_px``: SIFT's keypoints; the SfM run again on the same work folder with the refinement off).
 
 The synthetic dome is the dome AS BUILT (``dome_calib.synth.dome.as_built_dome``), not the design that calibrate
 starts from without --prior (``nominal_dome(preset, seed)``): another draw of every camera's intrinsics,
@@ -102,6 +104,26 @@ def oracle(problem, ba_problem, truth: Bundle, free_names: list[str] | None = No
     return {"points_only": pts_only, "result": result}
 
 
+def sift_feature_noise(capture: Path, work: Path, truth: Bundle) -> tuple[float, int]:
+    """Feature noise (px, per-coordinate RMS and observations used) of the SfM's observations BEFORE the keypoint
+    refinement: the same work folder's SfM again with the refinement off (features, matches and models reused),
+    its points fitted with the ground-truth cameras held, as the oracle's points-only fit."""
+    from dome_calib.pipeline.stages import problem_from_observations, prune_problem
+    from projector.refine import RefineOptions
+    from projector.sfm import SfmOptions, run_sfm
+
+    raw = run_sfm(capture, work, SfmOptions(refine=RefineOptions(enabled=False)))
+    problem, _ = prune_problem(problem_from_observations(raw.observations))
+    names = [n for n in problem.camera_names if n in truth.cameras]
+    sim = align_cameras({n: problem.camera(n) for n in names}, truth.cameras).tgt_from_src
+    for i, n in enumerate(problem.camera_names):
+        problem.camera_params[i] = camera_to_params(truth.cameras[n])
+    problem.points_cm = sim3_apply(sim, problem.points_cm)
+    problem.fix(ParamGroup.ALL)
+    fit = bundle_adjust(problem, dataclasses.replace(ba_options(), outlier_rounds=1))
+    return float(fit.rms_px), int(np.sum(fit.used))
+
+
 def run(args) -> None:
     root = Path(args.work) / args.preset
     capture = root / "capture"
@@ -149,8 +171,10 @@ def run(args) -> None:
     cost_ours = 0.5 * float(np.sum(observation_residuals(ours_r)[both] ** 2))
     cost_oracle = 0.5 * float(np.sum(np.asarray(o.residuals_px)[both] ** 2))
     noise = float(pts.rms_px)
+    sift_noise, sift_used = sift_feature_noise(capture, root / "bundle.work" / "sfm", truth)
     emit(bench="dome", stage="oracle", preset=args.preset, seconds=round(time.perf_counter() - t0, 1), **theirs,
-         feature_noise_px=noise, oracle_rms_px=o.rms_px)
+         feature_noise_px=noise, feature_noise_used=int(np.sum(pts.used)), feature_noise_sift_px=sift_noise,
+         feature_noise_sift_used=sift_used, refine=result.sfm.stats.get("refine"), oracle_rms_px=o.rms_px)
     emit(bench="dome", stage="ratios", preset=args.preset,
          cost_ours_over_oracle=cost_ours / cost_oracle,
          center_median_ours_over_oracle=ours["center_mm_median"] / theirs["center_mm_median"],

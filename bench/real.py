@@ -132,7 +132,7 @@ def build_capture(capture: Path, reference: dict[str, Camera], images: dict[str,
     shutil.rmtree(tmp, ignore_errors=True)
     (tmp / "scenes" / SCENE).mkdir(parents=True)
     for name, path in sorted(images.items()):
-        grey = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        grey = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
         if grey is None:
             raise SystemExit(f"{path}: camera {name}: unreadable image")
         w, h = reference[name].resolution

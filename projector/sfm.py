@@ -50,6 +50,7 @@ from projector.features import nominal_camera
 from projector.mapping import SceneModel
 from projector.merge import MergeOptions, MergeResult, merge_scenes
 from projector.overlap import features_of_scenes, later_scene_models, reference_model
+from projector.refine import refine_observations
 from projector.scene import (known_scene_pairs, reference_options, reference_scene, select_pairs,
                              with_known_poses_decided)
 from projector.sfm_types import CameraFailure, SceneStats, SfmOptions, SfmResult
@@ -127,16 +128,23 @@ def run_sfm(
     merge_options = replace(options.merge, use_colmap_intrinsics=options.merge.use_colmap_intrinsics
                             or ref_options.mapping.refine_focal_length or options.mapping.refine_principal_point)
     merged, merge_failures = _merge(stats, prior_cams, merge_options)
+    t_merge = time.perf_counter() - t1
     failures = _scene_failures(stats) + merge_failures
     cameras = merged.observations.cameras if merged else {}
+    # refine: every track's keypoints aligned across its views (the images are read here: local captures only)
+    observations, refined = merged.observations if merged else None, None
+    if observations is not None and options.refine.enabled and options.cameras is None:
+        observations, refined = refine_observations(observations, lambda s: capture_dir / "scenes" / s,
+                                                    options.refine)
     seconds = {"features": sum(s.features.seconds for s in stats.values()),
                "matching": sum(s.matches.seconds for s in stats.values()),
                "mapping": sum(s.model.seconds for s in stats.values()),
-               "scenes": t_scenes, "merge": time.perf_counter() - t1, "total": time.perf_counter() - t0}
-    result = SfmResult(observations=merged.observations if merged else None, cameras=cameras, scenes=stats,
+               "scenes": t_scenes, "merge": t_merge, "refine": refined.seconds if refined else 0.0,
+               "total": time.perf_counter() - t0}
+    result = SfmResult(observations=observations, cameras=cameras, scenes=stats,
                        failures=failures, unregistered=_unregistered(stats, cameras, failures),
                        scene_alignment=merged.scene_alignment if merged else {},
-                       prior_alignment=merged.prior_alignment if merged else None, seconds=seconds)
+                       prior_alignment=merged.prior_alignment if merged else None, seconds=seconds, refine=refined)
     atomic_write_text(work_dir / "sfm_report.json", json.dumps(report_dict(result), indent=1))
     return result
 
@@ -219,4 +227,5 @@ def report_dict(result: SfmResult) -> dict:
                                    for s, a in result.scene_alignment.items()} if result.prior_alignment else None,
         "prior_alignment_rms_cm": result.prior_alignment.inlier_rms if result.prior_alignment else None,
         "seconds": result.seconds,
+        "refine": result.refine.as_dict() if result.refine else None,
     }

@@ -13,6 +13,7 @@ from projector.matching import MatchOptions, MatchReport
 from projector.merge import Alignment, MergeOptions
 from projector.observations import Observations
 from projector.pairs import PairOptions
+from projector.refine import RefineOptions, RefineReport
 
 
 @dataclass(kw_only=True)
@@ -23,6 +24,7 @@ class SfmOptions:
     mapping: MappingOptions = field(default_factory=MappingOptions)
     known_poses: KnownPoseOptions = field(default_factory=KnownPoseOptions)  # later scenes at the reference's poses
     merge: MergeOptions = field(default_factory=MergeOptions)
+    refine: RefineOptions = field(default_factory=RefineOptions)  # keypoints aligned across each track's views
     scenes: list[str] | None = None  # default: every folder in CAPTURE/scenes
     num_workers: int | None = None  # default: all available cores
     # the likely reference scene is mapped (GLOMAP, in a thread) while the other scenes' features are extracted;
@@ -70,3 +72,4 @@ class SfmResult:
     scene_alignment: dict[str, Alignment]
     prior_alignment: Alignment | None
     seconds: dict[str, float]
+    refine: RefineReport | None = None  # the keypoint refinement's report (None: not run)

@@ -19,8 +19,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dome_calib.ba import BAOptions, BAProblem, bundle_adjust
-from dome_calib.ba.lens_model import (LENS_TERMS, QUANTUM, LensModelOptions, _decide, field_sigma_px,
+from dome_calib.ba.lens_model import (LENS_TERMS, QUANTUM, GroupDecision, LensModelOptions, _decide, field_sigma_px,
                                       image_jacobian, wald_chi2)
+from dome_calib.ba.problem import ParamGroup
 from dome_calib.ba.quadratic import QuadraticModel
 from dome_calib.bundle import Bundle, Camera, CameraType
 from dome_calib.bundle_io import write_bundle
@@ -158,7 +159,8 @@ def test_well_observed_cameras_keep_every_lens_term_free():
     for n, cam in outcome.cameras.items():  # recovered: the prior was off by 2 %, 4 px and another lens
         assert np.abs(cam.intr[:2] / truth[n].intr[:2] - 1.0).max() < 2e-3  # 0.2 %
         pp_sigma_px = next(d["sigma_px"] for d in lens[n]["decisions"] if d["group"] == "principal_point")
-        assert np.linalg.norm(cam.intr[2:] - truth[n].intr[2:]) < 3.0 * pp_sigma_px < 2.0  # within 3 sigma, px
+        # within 3 sigma, px (sigma at the 0.2 px noise floor; the ring's noise is 0.15 px)
+        assert np.linalg.norm(cam.intr[2:] - truth[n].intr[2:]) < 3.0 * pp_sigma_px < 2.7
         assert distortion_difference_px(cam, truth[n]) < 1.0  # px over the whole image
     assert {d["group"] for d in lens["01_01"]["decisions"]} == {"principal_point", "k3", "tangential", "k2", "k1"}
     tangential = next(d for d in lens["01_01"]["decisions"] if d["group"] == "tangential")
@@ -292,10 +294,11 @@ def test_real_one_view_cameras_hold_what_they_cannot_determine(real_crop):
     # what holding the undetermined terms buys on four one-view cameras. Everything free, the lens terms are
     # undetermined and where the solve ends along them depends on its path: converging every outlier round, focal
     # 15.4 %, principal point 41 px, centres 2.2 cm; one step per intermediate round, 7.0 %, 17 px, 0.79 cm
-    # (chosen: 2.0 %, held, 0.46 cm either way)
+    # (chosen: 2.0 %, held, 0.46 cm either way); on the refined keypoints (projector.refine) everything free still
+    # leaves the principal points 9.7 px off (median)
     assert free_err["focal_pct_median"] > 3 * chosen["focal_pct_median"]
     assert free_err["center_cm_median"] > 1.5 * chosen["center_cm_median"]
-    assert free_err["principal_px_median"] > 10.0 and free_err["distortion_px_max"] > 5.0
+    assert free_err["principal_px_median"] > 5.0 and free_err["distortion_px_max"] > 5.0
     report = json.loads((out / "report" / "report.json").read_text())
     assert report["lens_model"]["cameras"]["00_00"]["held"] == lens["00_00"]["held"]
     assert report["per_camera"]["00_00"]["lens_held"] == lens["00_00"]["held"]
@@ -306,3 +309,92 @@ def test_real_one_view_cameras_hold_what_they_cannot_determine(real_crop):
     again = json.loads((out / "report" / "report.json").read_text())
     assert again["lens_model"] == report["lens_model"]
     assert again["per_camera"]["00_00"]["lens_held"] == lens["00_00"]["held"]
+
+
+# ------------------------------------------------------------------------------------------ marginal, not conditional
+def _facade_problem(*, depth_cm: float, seed: int = 0, n_points: int = 1500) -> tuple[BAProblem, dict[str, Camera]]:
+    """8 HD-like cameras (1536 x 1024, f 1380 px) along a 4 m path 6 m from a facade 6 x 4 m whose points lie
+    within +-depth_cm/2 of a plane, each looking at it once (one view per camera, one scene); 0.25 px noise.
+    Start: rotations 1 deg off, centres 1 cm, focal +3 %, principal point and (zero) distortion exact."""
+    rng = np.random.default_rng(seed)
+    intr = np.array([1380.0, 1380.0, 767.5, 511.5])
+    truth = {}
+    for k in range(8):
+        centre = np.array([-200.0 + 400.0 * k / 7, 0.0, -600.0 + 30.0 * rng.normal()])
+        z = rng.normal(0.0, 20.0, 3) - centre
+        z /= np.linalg.norm(z)
+        x = np.cross([0.0, 1.0, 0.0], z)
+        x /= np.linalg.norm(x)
+        R = np.stack([x, np.cross(z, x), z])
+        truth[f"00_{k:02d}"] = Camera(name=f"00_{k:02d}", type=CameraType.HD, resolution=(1536, 1024),
+                                      K=intr_to_K(intr), dist=np.zeros(5), R=R, t_cm=-R @ centre, panel=0, node=k + 1)
+    X = np.stack([rng.uniform(-300, 300, n_points), rng.uniform(-200, 200, n_points),
+                  rng.uniform(-depth_cm / 2, depth_cm / 2, n_points)], axis=1)
+    names = sorted(truth)
+    proj = project(X, np.stack([truth[n].R for n in names]), np.stack([truth[n].t_cm for n in names]),
+                   np.stack([truth[n].intr for n in names]), np.stack([truth[n].dist for n in names]))
+    seen = proj.in_image(np.array([truth[n].resolution for n in names]))
+    keep = seen.sum(axis=0) >= 2
+    X, seen, uv = X[keep], seen[:, keep], proj.uv_px[:, keep]
+    ci, pi = np.nonzero(seen)
+    start = {}
+    for n, c in truth.items():
+        R = rotvec_to_matrix(np.radians(1.0) * rng.normal(size=3) / np.sqrt(3)) @ c.R
+        K = c.K.copy()
+        K[0, 0] *= 1.03
+        K[1, 1] *= 1.03
+        start[n] = replace(c, R=R, t_cm=-R @ (c.center_cm + rng.normal(0.0, 1.0, 3)), K=K)
+    problem = BAProblem.from_cameras(start, {"scene_01": X + rng.normal(0.0, 1.0, X.shape)}, camera_index=ci,
+                                     point_index=pi, uv_px=uv[ci, pi] + rng.normal(0.0, 0.25, (len(ci), 2)),
+                                     camera_names=names)
+    return problem, truth
+
+
+def _principal_point_sigmas(problem: BAProblem) -> tuple[list[GroupDecision], np.ndarray, np.ndarray]:
+    """The principal-point decisions of one walk at the focal-only solution, and per camera the marginal and the
+    conditional 1-sigma (px, largest axis) computed here independently from the reduced normal matrix."""
+    from dome_calib.ba.lens_model import _walk
+
+    smallest = problem.copy()
+    smallest.fix(ParamGroup.PRINCIPAL_POINT)
+    smallest.fix(ParamGroup.DISTORTION)
+    point = bundle_adjust(smallest, BAOptions(compute_uncertainty=False))
+    model = QuadraticModel.at(point, problem.free)
+    _, decisions = _walk(model, point, problem, problem.free.copy(), list(range(problem.n_cameras)),
+                         LensModelOptions())
+    cov = np.linalg.inv(model.S) * model.noise_px ** 2  # every free camera parameter; points eliminated
+    marginal, conditional = [], []
+    for i in range(problem.n_cameras):
+        ix = model.index[i, [8, 9]]
+        marginal.append(np.sqrt(np.linalg.eigvalsh(cov[np.ix_(ix, ix)])[-1]))
+        conditional.append(np.sqrt(np.linalg.eigvalsh(np.linalg.inv(model.S[np.ix_(ix, ix)]))[-1]) * model.noise_px)
+    pp = [next(d for d in decisions[n] if d.group == "principal_point") for n in problem.camera_names]
+    return pp, np.array(marginal), np.array(conditional)
+
+
+def test_one_view_of_a_shallow_scene_holds_the_principal_point_by_its_marginal_sigma():
+    """One view per camera of a nearly flat facade: the principal point trades with rotation and focal length
+    (a plane fixes only a homography, 8 numbers, against the 9 of pose, focal and principal point). Its own
+    diagonal block (everything else held) says 0.01 px; its marginal (the block of the inverse, rotation, focal,
+    the other cameras and the points free) says tens of px. The rule uses the marginal one and holds it."""
+    problem, truth = _facade_problem(depth_cm=5.0)
+    pp, marginal, conditional = _principal_point_sigmas(problem)
+    sigma = np.array([d.sigma_px for d in pp])
+    np.testing.assert_allclose(sigma, marginal, rtol=1e-3)  # what the rule judges is the marginal sigma
+    assert conditional.max() < 0.05 < 5.0 < 10.0 < marginal.min()  # the conditional one would free it
+    assert not any(d.free for d in pp), [d.reason for d in pp]
+    outcome = run_ba_stage(problem, progress=False)
+    for n in truth:
+        assert {"cx", "cy"} <= set(outcome.lens_model["cameras"][n]["held"])
+        assert np.array_equal(outcome.cameras[n].intr[2:], problem.camera(n).intr[2:])  # the prior, bit for bit
+
+
+def test_many_views_of_a_deep_scene_may_free_the_principal_point():
+    """The ring: twelve cameras around a 3 m cube of points that fills their images. The principal point's
+    marginal sigma is small (well under the 5 px limit, yet still several times its conditional one: the
+    rotation trade-off is there but the depth and the other views resolve it) and it is freed."""
+    problem, truth = _ring_problem(prior_off=True, inner_fraction=1.0, n_points=1500)
+    pp, marginal, conditional = _principal_point_sigmas(problem)
+    np.testing.assert_allclose([d.sigma_px for d in pp], marginal, rtol=1e-3)
+    assert marginal.max() < 2.0 and (marginal > 1.5 * conditional).all()
+    assert all(d.free for d in pp)

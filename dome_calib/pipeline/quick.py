@@ -56,6 +56,7 @@ from projector.features import extract_features, nominal_camera, reduction_facto
 from projector.known_poses import observations_from_known, register_cameras, triangulate_known, verified_partners
 from projector.matching import match_pairs
 from projector.pairs import PairOptions, pairs_from_prior
+from projector.refine import refine_observations
 from projector.scene import mapper_image_dir, match_scene, read_pairs, write_pairs
 from projector.sfm_types import SfmOptions
 
@@ -292,7 +293,10 @@ def reestimate(matched: MatchedScene, det: Suspects, prior: Bundle, work: Path) 
         logger.warning("quick recalibration: %s could not be re-estimated: %s", n, why)
     if not regs:
         return Reestimated(ba=None, failed=failed)
-    problem = problem_from_observations(observations_from_known(rec, cameras, regs, matched.scene))
+    observations = observations_from_known(rec, cameras, regs, matched.scene)
+    # issue 36: every track's keypoints aligned across its views (projector.refine), as in the full calibration
+    observations, _ = refine_observations(observations, {matched.scene: matched.image_dir})
+    problem = problem_from_observations(observations)
     free = sorted(regs)
     # the suspects' observations under the prior, against points the unchanged cameras triangulated
     under_prior = problem.copy()
