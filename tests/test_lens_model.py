@@ -383,7 +383,7 @@ def test_one_view_of_a_shallow_scene_holds_the_principal_point_by_its_marginal_s
     np.testing.assert_allclose(sigma, marginal, rtol=1e-3)  # what the rule judges is the marginal sigma
     assert conditional.max() < 0.05 < 5.0 < 10.0 < marginal.min()  # the conditional one would free it
     assert not any(d.free for d in pp), [d.reason for d in pp]
-    outcome = run_ba_stage(problem, progress=False)
+    outcome = run_ba_stage(problem)
     for n in truth:
         assert {"cx", "cy"} <= set(outcome.lens_model["cameras"][n]["held"])
         assert np.array_equal(outcome.cameras[n].intr[2:], problem.camera(n).intr[2:])  # the prior, bit for bit
