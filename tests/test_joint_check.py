@@ -37,10 +37,12 @@ def group_poses():
     return X[present]
 
 
-@given(st.integers(0, 10**6), st.floats(0.6, 1.3), st.booleans(), st.integers(0, 2**31 - 1))
+@given(st.integers(0, 10**6), st.floats(0.6, 1.15), st.booleans(), st.integers(0, 2**31 - 1))
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 def test_real_bodies_keep_every_joint(group_poses, k, scale, gaps, seed):
-    """Any pose of the synthetic group, scaled from a child (0.6) to a tall adult (1.3), 3 cm noise per joint:
+    """Any pose of the synthetic group, scaled from a child (0.6) to a tall adult (1.15: the group's tallest is
+    173 cm from ankle to nose, so 2.0 m, a person of about 2.1 m; at 1.3 hypothesis found a 2.4 m body whose ankle
+    stood 180 cm from its joints' median, the reach limit), 3 cm noise per joint:
     nothing dropped, whether joints are missing (then 3 to 12 views each) or all there (2 to 12: every 2-view
     joint has a plausible bone to the body)."""
     rng = np.random.default_rng(seed)
