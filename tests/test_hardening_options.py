@@ -67,13 +67,20 @@ def test_timecode_sync_max_extrapolation_nan_is_refused(tmp_path, value, monkeyp
 
 
 def test_options_objects_refuse_non_finite_numbers():
+    from dome_calib.recon.joint_check import JointCheckOptions
+    from dome_calib.recon.people import PeopleOptions
+    from dome_calib.recon.people_assoc import AssociationOptions
     from dome_calib.recon.streams import InterpolationOptions
+    from dome_calib.recon.tracking import TrackingOptions
     from dome_calib.recon.triangulate import TriangulationOptions
     from timecode.sync.tables import SyncOptions
 
     for make in (lambda v: TriangulationOptions(inlier_threshold_px=v), lambda v: TriangulationOptions(min_confidence=v),
                  lambda v: InterpolationOptions(max_gap_frames=v), lambda v: SyncOptions(max_extrapolation_s=v),
-                 lambda v: SyncOptions(device_break_ms=v)):
+                 lambda v: SyncOptions(device_break_ms=v), lambda v: PeopleOptions(max_gap_frames=v),
+                 lambda v: TrackingOptions(gate_cm=v), lambda v: TrackingOptions(max_missed_ms=v),
+                 lambda v: AssociationOptions(max_ray_gap_cm=v), lambda v: AssociationOptions(min_joint_conf=v),
+                 lambda v: JointCheckOptions(max_reach_cm=v)):
         for v in (math.nan, math.inf):
             with pytest.raises((DomeCalibError, TimecodeError)) as exc:
                 make(v)

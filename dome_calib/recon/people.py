@@ -24,6 +24,8 @@ from fractions import Fraction
 
 import numpy as np
 
+from dome_calib.errors import non_finite_fields
+from dome_calib.recon.errors import ReconError
 from dome_calib.recon.joint_check import JointCheckOptions, check_joints
 from dome_calib.recon.kernel import CameraKernel
 from dome_calib.recon.people_assoc import (AssociationOptions, assign, propose, residual_pairs, select_pairs,
@@ -60,6 +62,14 @@ class PeopleOptions:
     chunk_times: int = 600
     overlap_times: int = 12
     shared_fps: Fraction = Fraction(30)
+
+    def __post_init__(self) -> None:
+        if bad := non_finite_fields(self):  # a `<` check lets NaN through
+            raise ReconError(f"{bad[0]} but expected a finite number")
+        if self.max_gap_frames < 1.0 or self.min_body_joints < 1 or self.batch_times < 1 or self.chunk_times < 1 \
+                or not 0 <= self.overlap_times < self.chunk_times:
+            raise ReconError("max_gap_frames >= 1, min_body_joints >= 1, batch_times >= 1, chunk_times >= 1 and "
+                             "0 <= overlap_times < chunk_times are required")
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
+from dome_calib.errors import non_finite_fields
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.kernel import F32, CameraKernel
 from dome_calib.recon.people_time import greedy_match
@@ -73,6 +74,8 @@ class AssociationOptions:
     duplicate_cm: float = 25.0
 
     def __post_init__(self) -> None:
+        if bad := non_finite_fields(self):  # a `<=` check lets NaN through
+            raise ReconError(f"{bad[0]} but expected a finite number")
         if self.max_pairs < 1 or self.min_common_joints < 2 or self.passes < 1 or self.min_person_views < 2:
             raise ReconError("max_pairs >= 1, min_common_joints >= 2, passes >= 1 and min_person_views >= 2 are "
                              "required")

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from dome_calib.errors import non_finite_fields
 from dome_calib.recon.errors import ReconError
 
 
@@ -42,6 +43,8 @@ class TrackingOptions:
     drop_short: bool = True
 
     def __post_init__(self) -> None:
+        if bad := non_finite_fields(self):  # a `<=` check lets NaN through
+            raise ReconError(f"{bad[0]} but expected a finite number")
         if self.gate_cm <= 0 or self.max_missed_ms < 0 or self.min_track_frames < 1 or self.smooth_half_window < 0:
             raise ReconError("gate_cm > 0, max_missed_ms >= 0, min_track_frames >= 1, smooth_half_window >= 0")
 
