@@ -102,7 +102,7 @@ def main() -> None:
     ap.add_argument("--passes", type=int, default=2, help="assignment + triangulation rounds (ablation)")
     ap.add_argument("--max-pairs", type=int, default=48, help="view pairs proposing people per time (ablation)")
     args = ap.parse_args()
-    emit(bench="multiperson", note="machine shared with other jobs: timings pessimistic", cpus=os.cpu_count())
+    emit(bench="multiperson", cpus=os.cpu_count(), load_average_1min=round(os.getloadavg()[0], 1))
     rows = []
     for setup in args.setups.split(","):
         for n in [int(x) for x in args.people.split(",")]:
