@@ -34,24 +34,29 @@ def dome_calib_cli(monkeypatch, capsys):
     return run
 
 
+def stub_capture(out, options):
+    """Stand-in for the tent capture of a synthetic product session (``synth.session.write_capture``): the scene
+    list, ``capture.json`` and the ground truth only, no images (tests stand in for SfM and BA with the truth)."""
+    import json
+
+    from dome_calib.bundle_io import write_bundle
+    from dome_calib.synth.capture import load_layout
+
+    (out / "scenes" / "scene_01").mkdir(parents=True)
+    cams = load_layout(options)
+    (out / "capture.json").write_text(json.dumps({"preset": str(options.preset), "seed": options.seed,
+                                                  "scenes": ["scene_01"], "cameras": sorted(cams.cameras)}))
+    write_bundle(cams, out / "ground_truth")
+
+
 @pytest.fixture(scope="session")
 def small_product_session(tmp_path_factory):
     """A small whole-product session (dome_calib.synth.session) with its ground truth: the tiny dome as built,
     one Kinect (KINECTNODE4 on 50_04, 6 good + 1 blurred board frames), 3 s of LTC audio, the walking person's
     detections. The tent capture is a stub (scene list only): tests stand in for SfM and BA with the truth.
     Returns (session folder, ground-truth bundle)."""
-    import json
-
     import dome_calib.synth.session as synth_session
-    from dome_calib.bundle_io import load_bundle, write_bundle
-    from dome_calib.synth.capture import load_layout
-
-    def stub_capture(out, options):
-        (out / "scenes" / "scene_01").mkdir(parents=True)
-        cams = load_layout(options)
-        (out / "capture.json").write_text(json.dumps({"preset": str(options.preset), "seed": options.seed,
-                                                      "scenes": ["scene_01"], "cameras": sorted(cams.cameras)}))
-        write_bundle(cams, out / "ground_truth")
+    from dome_calib.bundle_io import load_bundle
 
     root = tmp_path_factory.mktemp("product") / "sess"
     with pytest.MonkeyPatch.context() as mp:

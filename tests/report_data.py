@@ -112,3 +112,12 @@ def write_synthetic_report(bundle: Bundle, folder: Path, *, seed: int = 0, missi
              "previous": previous_section(bundle, planted.previous)}
     write_report(folder, bundle, residuals, changes=changes, missing=missing, extra=extra)
     return planted
+
+
+def old_report_json(bundle: Bundle, seq: str, to_check: list[dict]) -> dict:
+    """A report.json as the first version of the report wrote it (its keys only: no lens model, no held cameras,
+    no previous calibration), for the cameras of ``bundle``: 300 observations and 0.5 px each."""
+    return {"seq": seq, "cameras": len(bundle.cameras), "has_residuals": True, "rms_px": 0.5, "to_check": to_check,
+            "per_camera": {n: {"type": str(c.type), "center_cm": c.center_cm.tolist(), "observations": 300,
+                               "rms_px": 0.5} for n, c in bundle.cameras.items()}}
+

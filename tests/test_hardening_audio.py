@@ -2,6 +2,7 @@
 `timecode decode` batch the good files' output is kept; `session` and `timecode sync` refuse it before any work."""
 from __future__ import annotations
 
+import json
 import shutil
 
 import numpy as np
@@ -28,6 +29,17 @@ def flacs(tmp_path_factory):
     b[at:at + 5] = ((total & ~((1 << 36) - 1)) | (1 << 31)).to_bytes(5, "big")
     (folder / "claims.flac").write_bytes(bytes(b))
     return folder
+
+
+def _session_with_ltc(root, flac, tmp_path):
+    """A copy of the small product session whose LTC recording is ``flac`` (session.json names it)."""
+    sess = tmp_path / "sess"
+    shutil.copytree(root, sess)
+    shutil.copy(flac, sess / "sync" / "ltc.flac")
+    doc = json.loads((sess / "sync" / "session.json").read_text())
+    doc["ltc"]["file"] = "ltc.flac"
+    (sess / "sync" / "session.json").write_text(json.dumps(doc))
+    return sess
 
 
 def _timecode(args, monkeypatch, capsys):
@@ -58,15 +70,7 @@ def test_the_reader_names_a_damaged_block(flacs):
 
 def test_session_refuses_a_half_copied_ltc_recording_before_the_calibration(small_product_session, flacs, tmp_path,
                                                                              dome_calib_cli):
-    import json
-
-    root, _ = small_product_session
-    sess = tmp_path / "sess"
-    shutil.copytree(root, sess)
-    shutil.copy(flacs / "claims.flac", sess / "sync" / "ltc.flac")
-    doc = json.loads((sess / "sync" / "session.json").read_text())
-    doc["ltc"]["file"] = "ltc.flac"
-    (sess / "sync" / "session.json").write_text(json.dumps(doc))
+    sess = _session_with_ltc(small_product_session[0], flacs / "claims.flac", tmp_path)
     done = dome_calib_cli("session", sess, "-o", tmp_path / "out")
     assert done.returncode == 1
     assert "ltc.flac: cannot read audio (session.json field 'ltc.file': cut short or damaged" in done.stderr
@@ -76,15 +80,7 @@ def test_session_refuses_a_half_copied_ltc_recording_before_the_calibration(smal
 
 def test_timecode_sync_refuses_a_half_copied_ltc_recording_before_decoding(small_product_session, flacs, tmp_path,
                                                                            monkeypatch, capsys):
-    import json
-
-    root, _ = small_product_session
-    sess = tmp_path / "sess"
-    shutil.copytree(root, sess)
-    shutil.copy(flacs / "half.flac", sess / "sync" / "ltc.flac")
-    doc = json.loads((sess / "sync" / "session.json").read_text())
-    doc["ltc"]["file"] = "ltc.flac"
-    (sess / "sync" / "session.json").write_text(json.dumps(doc))
+    sess = _session_with_ltc(small_product_session[0], flacs / "half.flac", tmp_path)
     done = _timecode(["sync", sess / "sync", "-o", tmp_path / "b"], monkeypatch, capsys)
     assert done.returncode == 1
     assert f"{sess / 'sync' / 'ltc.flac'}: cut short or damaged" in done.stderr and "ltc.file" in done.stderr

@@ -26,7 +26,7 @@ from dome_calib.bundle import Bundle
 from dome_calib.layout import nominal_dome
 
 from .conftest import REAL_CALIBRATION
-from .report_data import write_synthetic_report
+from .report_data import old_report_json, write_synthetic_report
 
 os.environ["SE_OFFLINE"] = "true"  # Selenium Manager: no download, no statistics
 os.environ["SE_AVOID_STATS"] = "true"
@@ -199,10 +199,7 @@ def test_hostile_report_folder_page_is_not_blank(browser, tmp_path):
     tiny = nominal_dome("tiny", seed=0)
     folder = tmp_path / "report"
     folder.mkdir()
-    old = {"seq": "old", "cameras": 16, "has_residuals": True, "rms_px": 0.5,
-           "to_check": [{"name": "01_03", "type": "vga", "reasons": ["moved 3.1 cm"]}],
-           "per_camera": {n: {"type": str(c.type), "center_cm": c.center_cm.tolist(), "observations": 300,
-                              "rms_px": 0.5} for n, c in tiny.cameras.items()}}
+    old = old_report_json(tiny, "old", [{"name": "01_03", "type": "vga", "reasons": ["moved 3.1 cm"]}])
     (folder / "report.json").write_text(json.dumps(old))
     _open(browser, write_page(folder))
     missing = browser.find_element("id", "missing")

@@ -17,7 +17,7 @@ from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.layout import nominal_dome
 from dome_calib.report import Residuals, write_report
 
-from .report_data import moved_copy, synthetic_residuals
+from .report_data import moved_copy, old_report_json, synthetic_residuals
 from .test_calibrate import CERTAIN, UNCERTAIN, capture, stand_in_stages  # noqa: F401  (fixtures)
 from .test_quick_recalibration import _matched_scene, _neighbourhood
 
@@ -157,10 +157,7 @@ def test_hostile_report_folder_page_says_what_is_missing(tmp_path):
     tiny = nominal_dome("tiny", seed=0)
     folder = tmp_path / "report"
     folder.mkdir()
-    old = {"seq": "x", "cameras": 16, "has_residuals": True, "rms_px": 0.5,
-           "to_check": [{"name": "01_01", "type": "vga", "reasons": ["moved 3 cm"]}],
-           "per_camera": {n: {"type": str(c.type), "center_cm": c.center_cm.tolist(), "observations": 300,
-                              "rms_px": 0.5} for n, c in tiny.cameras.items()}}
+    old = old_report_json(tiny, "x", [{"name": "01_01", "type": "vga", "reasons": ["moved 3 cm"]}])
     (folder / "report.json").write_text(json.dumps(old))
     data = read_report_folder(folder)
     text = " | ".join(data["missing"])

@@ -359,17 +359,11 @@ def test_product_session_with_a_group(tmp_path, monkeypatch):
     """The synthetic product session's group option: OpenPose folders of every synced colour camera and the truth,
     within the span all streams cover (the tent capture stubbed as in conftest's small_product_session)."""
     import dome_calib.synth.session as synth_session
-    from dome_calib.bundle_io import load_bundle, write_bundle
+    from dome_calib.bundle_io import load_bundle
     from dome_calib.recon.openpose_io import read_openpose_folder
-    from dome_calib.synth.capture import load_layout
     from dome_calib.synth.group_session import session_span_ms
 
-    def stub_capture(out, options):
-        (out / "scenes" / "scene_01").mkdir(parents=True)
-        cams = load_layout(options)
-        (out / "capture.json").write_text(json.dumps({"preset": str(options.preset), "seed": options.seed,
-                                                      "scenes": ["scene_01"], "cameras": sorted(cams.cameras)}))
-        write_bundle(cams, out / "ground_truth")
+    from .conftest import stub_capture
 
     monkeypatch.setattr(synth_session, "write_capture", stub_capture)
     root = tmp_path / "sess"
