@@ -14,20 +14,36 @@ Every problem is one line naming the file, the camera and the frame (:class:`Rec
 """
 from __future__ import annotations
 
-import json
 import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
+from pydantic import AfterValidator, ConfigDict, RootModel
 
 from dome_calib.recon.body_models import JOINT_NAMES, BodyModel, models_with_joints, parse_body_model, to_joints19
 from dome_calib.recon.errors import ReconError
+from dome_calib.schema import Field, FileSchema, Finite, parse_json, read_json
 
 logger = logging.getLogger(__name__)
 
 _LAST_NUMBER = re.compile(r"(\d+)(?!.*\d)")
+
+
+def _check_keypoints(values: list[float]) -> list[float]:
+    """``[x, y, c] * J``: a multiple of 3 numbers, every confidence >= 0 (pixels: any finite number)."""
+    if len(values) % 3:
+        raise ValueError(f"{len(values)} numbers, not a multiple of 3 ([x, y, c] per joint)")
+    for j, c in enumerate(values[2::3]):
+        if c < 0:
+            raise ValueError(f"joint {j}: confidence {c!r} is negative (expected [x_px, y_px, c] with c >= 0)")
+    return values
+
+
+#: ``[x_px, y_px, c] * J``, finite, c >= 0 (above 1 allowed: OpenPose's confidences are heatmap peaks).
+Keypoints = Annotated[list[Finite], AfterValidator(_check_keypoints)]
 
 
 @dataclass(frozen=True)
@@ -49,15 +65,7 @@ def parse_camera_map(text: str | None) -> dict[str, str]:
         return {}
     path = Path(text)
     if text.endswith(".json") or path.is_file():
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except OSError as exc:
-            raise ReconError(f"{path}: camera map cannot be read ({exc.strerror})") from None
-        except json.JSONDecodeError as exc:
-            raise ReconError(f"{path}: camera map is not valid JSON ({exc.msg} at line {exc.lineno})") from None
-        if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
-            raise ReconError(f"{path}: camera map must be a JSON object {{\"folder\": \"camera name\"}}")
-        return dict(data)
+        return dict(read_json(path, CameraMapFile, error=ReconError).root)
     out = {}
     for item in text.split(","):
         folder, sep, camera = item.strip().partition("=")
@@ -79,29 +87,58 @@ def frame_of_file(path: Path) -> int:
     return int(match.group(1))
 
 
+class CameraMapFile(RootModel[dict[str, Annotated[str, Field(min_length=1)]]]):
+    """A camera map file: ``{"cam01": "00_01", ...}``, detections sub-folder -> the bundle's camera name."""
+
+    model_config = ConfigDict(strict=True)
+
+
+class OpenPosePerson(FileSchema):
+    """One person of an OpenPose file: every field OpenPose has written (1.0 to 1.7); only the body is read.
+
+    ``pose_keypoints_2d`` (1.1 and later; ``pose_keypoints`` in 1.0): ``[x_px, y_px, c] * J``. ``c`` is the
+    detector's heatmap peak, not a probability: real output holds values a little above 1 (seen up to 1.04), which
+    are read as they are. A joint not detected is ``0, 0, 0``. Face, hands and 3D arrays are accepted, present or
+    empty, and not used.
+    """
+
+    person_id: list[int] | int = -1
+    pose_keypoints_2d: Keypoints | None = None
+    pose_keypoints: Keypoints | None = Field(None, description="OpenPose 1.0's name of pose_keypoints_2d")
+    face_keypoints_2d: list[Finite] = []
+    hand_left_keypoints_2d: list[Finite] = []
+    hand_right_keypoints_2d: list[Finite] = []
+    pose_keypoints_3d: list[Finite] = []
+    face_keypoints_3d: list[Finite] = []
+    hand_left_keypoints_3d: list[Finite] = []
+    hand_right_keypoints_3d: list[Finite] = []
+    face_keypoints: list[Finite] = []
+    hand_left_keypoints: list[Finite] = []
+    hand_right_keypoints: list[Finite] = []
+
+    def body(self) -> list[float]:
+        return self.pose_keypoints_2d if self.pose_keypoints_2d is not None else (self.pose_keypoints or [])
+
+
+class OpenPoseFile(FileSchema):
+    """An OpenPose JSON file (``--write_json``): ``{"version": 1.3, "people": [...], "part_candidates": [...]}``."""
+
+    people: list[OpenPosePerson]
+    version: Finite | str | None = None
+    part_candidates: list[dict[str, list[Finite]]] = []
+
+
 def _people_of_file(path: Path, camera: str, frame: int,
                     model: BodyModel | None) -> tuple[np.ndarray, BodyModel | None]:
     """One OpenPose file -> ((N, J, 3) keypoints in the file's model order, the model: given or told by J)."""
     where = f"{path}: camera {camera}: frame {frame}"
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError:
-        raise ReconError(f"{where}: not a UTF-8 text file") from None
-    except json.JSONDecodeError as exc:
-        raise ReconError(f"{where}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-    if not isinstance(data, dict) or not isinstance(data.get("people"), list):
-        raise ReconError(f"{where}: expected OpenPose's {{\"people\": [{{\"pose_keypoints_2d\": [x, y, c, ...]}}]}}")
-    rows = []
-    for k, person in enumerate(data["people"]):
-        kp = person.get("pose_keypoints_2d") if isinstance(person, dict) else None
-        if not isinstance(kp, list) or not all(type(v) in (int, float) or v is None for v in kp):
-            raise ReconError(f"{where}: person {k}: pose_keypoints_2d must be a list of numbers")
-        if not kp:
-            continue  # OpenPose writes an empty list when the body network was off for this person
-        if len(kp) % 3:
-            raise ReconError(f"{where}: person {k}: pose_keypoints_2d has {len(kp)} numbers, not a multiple of 3 "
-                             "([x, y, c] per joint)")
-        rows.append(np.array([np.nan if v is None else v for v in kp], dtype=float).reshape(-1, 3))
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ReconError(f"{where}: cannot be read ({exc.strerror})") from None
+    parsed = parse_json(where, data, OpenPoseFile, error=ReconError)
+    rows = [np.asarray(body, dtype=float).reshape(-1, 3) for body in (p.body() for p in parsed.people) if body]
+    # a person with an empty body (OpenPose's body network off for it) carries nothing
     if not rows:
         return np.zeros((0, len(JOINT_NAMES[model]) if model else 0, 3)), model
     counts = sorted({len(r) for r in rows})
@@ -120,16 +157,7 @@ def _people_of_file(path: Path, camera: str, frame: int,
     elif model not in fits:
         raise ReconError(f"{where}: {J} joints per person but body model {model.value} has "
                          f"{len(JOINT_NAMES[model])}")
-    kp = np.stack(rows)
-    conf = kp[..., 2]
-    bad = np.isinf(kp).any(axis=-1) | (conf < 0) | (conf > 1)
-    if np.any(bad):
-        p, j = np.argwhere(bad)[0]
-        raise ReconError(f"{where}: person {p}: joint {j}: {kp[p, j].tolist()} is not a pixel and a confidence in "
-                         "[0, 1]")
-    missing = np.isnan(kp).any(axis=-1)
-    kp[missing] = 0.0
-    return kp, model
+    return np.stack(rows), model
 
 
 def index_openpose_folder(folder: str | Path, *, camera_map: dict[str, str] | None = None,
