@@ -19,6 +19,8 @@ from dome_calib.rotation import rotation_angle_deg
 from dome_calib.bundle import Bundle, Camera, CameraType
 from dome_calib.camera import distort, pixels_to_normalized
 from dome_calib.layout import check_dome_scale
+from dome_calib.options import options
+from dome_calib.schema import NonNegFinite, PosFinite
 
 logger = logging.getLogger(__name__)
 
@@ -148,15 +150,15 @@ def format_comparison(cmp: Comparison, worst: int = 5) -> str:
     return "\n".join(lines)
 
 
-@dataclass(kw_only=True)
+@options
 class ChangeOptions:
     """Thresholds for calling a camera changed relative to a prior calibration."""
 
-    moved_cm: float = 1.0
-    rotated_deg: float = 0.3
-    focal_pct: float = 1.0
-    distortion_px: float = 2.0
-    align_max_error_cm: float = 1.0  # a camera further than this from the fit is not used to align
+    moved_cm: NonNegFinite = 1.0
+    rotated_deg: NonNegFinite = 0.3
+    focal_pct: NonNegFinite = 1.0
+    distortion_px: NonNegFinite = 2.0
+    align_max_error_cm: PosFinite = 1.0  # a camera further than this from the fit is not used to align
 
 
 @dataclass(kw_only=True)

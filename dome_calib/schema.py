@@ -21,6 +21,7 @@ an English sentence (and without a position for truncated JSON).
 """
 from __future__ import annotations
 
+import functools
 import json
 import math
 import tomllib
@@ -30,6 +31,7 @@ from typing import Annotated, Any, TypeVar
 
 import pydantic
 from pydantic import BaseModel, ConfigDict, Field
+from pydantic.json_schema import GenerateJsonSchema
 
 from dome_calib.errors import DomeCalibError
 
@@ -236,8 +238,21 @@ def _step(node: dict, part: int | str, defs: dict) -> dict | None:
     return None
 
 
+class _AnyObjectSchema(GenerateJsonSchema):
+    """JSON schema of a class whose fields may hold any object (an options dataclass's callback): those are ``{}``."""
+
+    def handle_invalid_for_json_schema(self, schema: Any, error_info: str) -> dict:
+        return {}
+
+
+@functools.cache
+def json_schema_of(schema: type) -> dict:
+    """The JSON schema of a model or a pydantic dataclass (fields of arbitrary classes described as ``{}``)."""
+    return pydantic.TypeAdapter(schema).json_schema(schema_generator=_AnyObjectSchema)
+
+
 def _node_at(schema: type[BaseModel], loc: tuple) -> tuple[dict | None, dict]:
-    root = schema.model_json_schema()
+    root = json_schema_of(schema)
     defs = root.get("$defs", {})
     node: dict | None = root
     for part in loc:

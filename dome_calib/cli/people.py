@@ -8,6 +8,8 @@ from pathlib import Path
 
 import typer
 
+from dome_calib.errors import flags
+
 
 def reconstruct(
     detections: Path = typer.Argument(..., help="Folder of OpenPose output: one sub-folder per camera (named as in "
@@ -42,7 +44,9 @@ def reconstruct(
     from dome_calib.recon.people_commands import people_options, reconstruct_folder
 
     out = out or detections.with_name(f"{detections.name}_people")
-    options = people_options(min_views=min_views, smooth=smooth, fps=fps)
+    with flags({"AssociationOptions.min_person_views": "--min-views", "TrackingOptions.smooth_half_window": "--smooth",
+                "PeopleOptions.shared_fps": "--fps"}):
+        options = people_options(min_views=min_views, smooth=smooth, fps=fps)
     with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:
         summary = reconstruct_folder(detections, bundle, out, body_model=body_model, camera_map=camera_map,
                                      reference=reference, options=options, executor=executor,

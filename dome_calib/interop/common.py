@@ -11,6 +11,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 
@@ -18,6 +19,8 @@ from dome_calib import panoptic_io as pio
 from dome_calib.bundle import Bundle, Camera, camera_type_from_name
 from dome_calib.camera import distort, pixels_to_normalized
 from dome_calib.errors import BundleFormatError
+from dome_calib.options import Field, options
+from dome_calib.schema import PosFinite
 
 #: Length units a file may use -> centimetres per unit.
 CM_PER_UNIT = {"mm": 0.1, "cm": 1.0, "m": 100.0}
@@ -53,7 +56,7 @@ class ForeignCamera:
     t: np.ndarray
 
 
-@dataclass(kw_only=True)
+@options
 class ExportOptions:
     """``unit``: length unit of the written translations (None: the format's default); ``names``: our name ->
     the name written; ``binary``: COLMAP binary (else text) files."""
@@ -64,16 +67,16 @@ class ExportOptions:
     binary: bool = True
 
 
-@dataclass(kw_only=True)
+@options
 class ImportOptions:
     """``unit``: length unit of the file when the format does not state it ("squares" needs
     ``square_size_mm``); ``names``: name in the file -> our name; ``seq``: the bundle's sequence name."""
 
     unit: str | None = None
-    square_size_mm: float | None = None
+    square_size_mm: PosFinite | None = None
     world_up: str | None = None  # the file world's up axis, turned into Panoptic -y; None: the format's default
     names: dict[str, str] = field(default_factory=dict)
-    seq: str = "imported"
+    seq: Annotated[str, Field(min_length=1)] = "imported"
 
 
 @dataclass(kw_only=True)

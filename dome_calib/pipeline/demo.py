@@ -19,6 +19,7 @@ import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import load_bundle
@@ -35,6 +36,7 @@ from dome_calib.synth.group_session import DETECTIONS, TRUTH_FILE
 from dome_calib.synth.product_eval import evaluate
 from dome_calib.synth.session import SessionOptions as SynthSessionOptions
 from dome_calib.synth.session import make_product_session
+from dome_calib.options import AtLeast, Field, options
 
 logger = logging.getLogger(__name__)
 
@@ -44,12 +46,12 @@ DEFAULT_SCENES = {"tiny": 3, "panel": 3, "full": 3}
 MAX_PEOPLE = 10
 
 
-@dataclass(kw_only=True)
+@options
 class DemoOptions:
     preset: str = "tiny"  # panel's SfM alone needs ~6.5 CPU-minutes: over the 5-minute budget on 2 cores
-    scenes: int | None = None
-    seed: int = 0
-    people: int = 7  # the group (scenario "mixed": walking past, talking, crouching, leaving, entering); 0: none
+    scenes: AtLeast(1) | None = None
+    seed: AtLeast(0) = 0
+    people: Annotated[int, Field(ge=0, le=10)] = 7  # the group (scenario "mixed": walking past, talking, crouching, leaving, entering); 0: none
     progress: ProgressTasks | None = None  # the calibration's bars (dome_calib.progress); also logs the synthesis
 
 

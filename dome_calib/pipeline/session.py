@@ -39,6 +39,7 @@ from timecode.errors import TimecodeError
 from timecode.sync.pipeline import sync_session, write_sync
 from timecode.sync.session import load_session
 from timecode.sync.tables import SyncOptions, SyncResult
+from dome_calib.options import options
 
 PARTS = {"capture": "capture", "kinect": "kinect", "sync": "sync"}
 #: A Kinect is flagged when its stereo RMS exceeds this (px) or fewer boards than this were usable.
@@ -47,7 +48,7 @@ KINECT_CHECK_RMS_PX, KINECT_MIN_FRAMES = 0.5, 6
 SYNC_CHECK_RESID_US = 50.0
 
 
-@dataclass(kw_only=True)
+@options
 class SessionOptions:
     seq: str | None = None  # default: the session folder's name
     progress: ProgressTasks | None = None  # the calibration's bars (dome_calib.progress)

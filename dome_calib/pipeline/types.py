@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 
@@ -16,6 +17,8 @@ from dome_calib.normalize import Normalized, NormalizeOptions
 from dome_calib.progress import ProgressTasks
 from dome_calib.report import ReportOptions
 from dome_calib.residuals import Residuals
+from dome_calib.options import Lax, options
+from dome_calib.schema import PosFinite
 
 
 @dataclass(kw_only=True)
@@ -41,25 +44,25 @@ class BAOutcome:
     lens_model: dict | None = None  # per camera the lens terms refined / held and why (LensModel.as_dict)
 
 
-@dataclass(kw_only=True)
+@options
 class CalibrateOptions:
     """What `dome-calib calibrate` does. ``seq`` defaults to the capture folder's name."""
 
-    prior: Path | None = None
-    previous: Path | None = None  # the report's "change since the previous calibration"; None: the prior, else OUT's
+    prior: Annotated[Path | None, Lax] = None
+    previous: Annotated[Path | None, Lax] = None  # the report's "change since the previous calibration"; None: the prior, else OUT's
     previous_from_out: bool = True  # without previous or prior: the bundle OUT held (session: its OUT is elsewhere)
     only_changed: bool = False
     seq: str | None = None
-    work_dir: Path | None = None
+    work_dir: Annotated[Path | None, Lax] = None
     progress: ProgressTasks | None = None  # a bar per stage and per scene's features and matching (the CLI's)
     normalize: NormalizeOptions = field(default_factory=NormalizeOptions)
     changes: ChangeOptions = field(default_factory=ChangeOptions)
     report: ReportOptions = field(default_factory=ReportOptions)
-    max_center_sigma_cm: float = 0.5  # flag cameras whose centre is less certain than this (1 sigma)
+    max_center_sigma_cm: PosFinite = 0.5  # flag cameras whose centre is less certain than this (1 sigma)
     # ... or RELATIVE_SIGMA times less certain than the dome's median camera (and above RELATIVE_SIGMA_FLOOR_CM):
     # the covariance is only as good as the noise model, so a camera far less determined than the others is
     # checked even under the absolute bound (a camera 5x less determined is ~5x as likely to be off)
-    center_sigma_ratio: float = 5.0
+    center_sigma_ratio: PosFinite = 5.0
     scheduler: str | None = None  # a Dask scheduler (tcp://HOST:PORT) for features and matching; None: local pool
 
 

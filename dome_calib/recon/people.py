@@ -20,11 +20,12 @@ import dataclasses
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Annotated
 from fractions import Fraction
 
 import numpy as np
 
-from dome_calib.errors import non_finite_fields
+from dome_calib.options import AtLeast, Field, PosFraction, options, require
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.joint_check import JointCheckOptions, check_joints
 from dome_calib.recon.kernel import CameraKernel
@@ -44,7 +45,7 @@ ERROR_BIN_PX = 0.1
 ERROR_BINS = 2001
 
 
-@dataclass(kw_only=True)
+@options
 class PeopleOptions:
     """Options of :func:`reconstruct_people`. joint_check: which triangulated joints a body keeps
     (:mod:`~dome_calib.recon.joint_check`); min_body_joints: a body needs this many reconstructed joints;
@@ -56,20 +57,14 @@ class PeopleOptions:
         inlier_threshold_px=10.0, min_views=2, min_confidence=0.05))
     tracking: TrackingOptions = field(default_factory=TrackingOptions)
     joint_check: JointCheckOptions = field(default_factory=JointCheckOptions)
-    min_body_joints: int = 6
-    max_gap_frames: float = 2.5
-    batch_times: int = 16
-    chunk_times: int = 600
-    overlap_times: int = 12
-    shared_fps: Fraction = Fraction(30)
+    min_body_joints: AtLeast(1) = 6
+    max_gap_frames: Annotated[float, Field(ge=1)] = 2.5
+    batch_times: AtLeast(1) = 16
+    chunk_times: AtLeast(1) = 600
+    overlap_times: AtLeast(0) = 12
+    shared_fps: PosFraction = Fraction(30)
 
-    def __post_init__(self) -> None:
-        if bad := non_finite_fields(self):  # a `<` check lets NaN through
-            raise ReconError(f"{bad[0]} but expected a finite number")
-        if self.max_gap_frames < 1.0 or self.min_body_joints < 1 or self.batch_times < 1 or self.chunk_times < 1 \
-                or not 0 <= self.overlap_times < self.chunk_times:
-            raise ReconError("max_gap_frames >= 1, min_body_joints >= 1, batch_times >= 1, chunk_times >= 1 and "
-                             "0 <= overlap_times < chunk_times are required")
+    _overlap = require(lambda o: o.overlap_times < o.chunk_times, "overlap_times {o.overlap_times} must be below chunk_times {o.chunk_times}")
 
 
 @dataclass(frozen=True)

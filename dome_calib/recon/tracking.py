@@ -23,11 +23,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from dome_calib.errors import non_finite_fields
+from dome_calib.options import AtLeast, options
 from dome_calib.recon.errors import ReconError
+from dome_calib.schema import NonNegFinite, PosFinite
 
 
-@dataclass(kw_only=True)
+@options
 class TrackingOptions:
     """gate_cm: a body continues a track if its median joint distance to the track's prediction is below
     ``gate_cm + gate_cm_per_s x elapsed``; max_missed_ms: a track unseen longer ends; min_track_frames: shorter
@@ -35,18 +36,12 @@ class TrackingOptions:
     by a single miss); smooth_half_window: half width (in observations) of the smoothing window, 0 = off;
     drop_short: False keeps short tracks (a chunk of a long session: they are dropped after stitching)."""
 
-    gate_cm: float = 40.0
-    gate_cm_per_s: float = 100.0
-    max_missed_ms: float = 500.0
-    min_track_frames: int = 3
-    smooth_half_window: int = 0
+    gate_cm: PosFinite = 40.0
+    gate_cm_per_s: NonNegFinite = 100.0
+    max_missed_ms: NonNegFinite = 500.0
+    min_track_frames: AtLeast(1) = 3
+    smooth_half_window: AtLeast(0) = 0
     drop_short: bool = True
-
-    def __post_init__(self) -> None:
-        if bad := non_finite_fields(self):  # a `<=` check lets NaN through
-            raise ReconError(f"{bad[0]} but expected a finite number")
-        if self.gate_cm <= 0 or self.max_missed_ms < 0 or self.min_track_frames < 1 or self.smooth_half_window < 0:
-            raise ReconError("gate_cm > 0, max_missed_ms >= 0, min_track_frames >= 1, smooth_half_window >= 0")
 
 
 def skeleton_distance_cm(A: np.ndarray, B: np.ndarray, min_common: int = 3) -> np.ndarray:

@@ -29,6 +29,8 @@ from dome_calib.errors import ReportError
 from dome_calib.io_utils import new_mode
 from dome_calib.report.page import write_page
 from dome_calib.residuals import Residuals
+from dome_calib.options import AtLeast, options
+from dome_calib.schema import NonNegFinite, PosFinite
 
 logger = logging.getLogger(__name__)
 
@@ -43,13 +45,13 @@ REBUILT_KEYS = frozenset({"report_version", "seq", "calib_data_source", "cameras
 REPORT_VERSION = 2
 
 
-@dataclass(kw_only=True)
+@options
 class ReportOptions:
     """Rules for the list of cameras to check."""
 
-    min_observations: int = 100
-    high_rms_factor: float = 2.5  # RMS above this many times the median RMS of the camera's type ...
-    high_rms_floor_px: float = 1.0  # ... and above this absolute level
+    min_observations: AtLeast(0) = 100
+    high_rms_factor: PosFinite = 2.5  # RMS above this many times the median RMS of the camera's type ...
+    high_rms_floor_px: NonNegFinite = 1.0  # ... and above this absolute level
     plots: bool = True
 
 

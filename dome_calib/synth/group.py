@@ -24,11 +24,14 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
+from typing import Annotated
 
 import numpy as np
 
 from dome_calib.errors import DomeCalibError
 from dome_calib.synth.skeleton import walking_body_local_cm
+from dome_calib.options import AtLeast, Field, options
+from dome_calib.schema import Finite, PosFinite
 
 logger = logging.getLogger(__name__)
 
@@ -57,15 +60,15 @@ class GroupError(DomeCalibError, ValueError):
     """Options that describe no group (unknown scenario, too many people, no layout found)."""
 
 
-@dataclass(kw_only=True)
+@options
 class GroupOptions:
     """What the group does. ``start_ms``: universal time of the start; the layout covers ``duration_ms``."""
 
-    n_people: int = 5  # 1..10
-    duration_ms: float = 4000.0
-    start_ms: float = 0.0
+    n_people: Annotated[int, Field(ge=1, le=10)] = 5  # 1..10
+    duration_ms: PosFinite = 4000.0
+    start_ms: Finite = 0.0
     scenario: str = "mixed"  # "walk_past", "conversation", "crouch", "leave", "mixed" (all of them)
-    seed: int = 0
+    seed: AtLeast(0) = 0
 
     def __post_init__(self) -> None:
         if self.scenario not in SCENARIOS:

@@ -24,6 +24,7 @@ from dome_calib.io_utils import atomic_write_text
 from dome_calib.synth.detector import (DetectionCounts, DetectorError, DetectorModel, shared_clock,
                                        synth_detections, write_openpose_folder)
 from dome_calib.synth.group import GroupOptions, GroupTruth, make_group
+from dome_calib.options import options
 
 logger = logging.getLogger(__name__)
 
@@ -31,7 +32,7 @@ TRUTH_FILE = "group_truth.json"
 DETECTIONS = "detections"
 
 
-@dataclass(kw_only=True)
+@options
 class GroupSessionOptions:
     """The group, the detector, how the files are written, which cameras (default: every colour camera)."""
 
