@@ -11,6 +11,7 @@ from typer.testing import CliRunner
 from dome_calib.bundle_io import write_bundle
 from dome_calib.report import ReportError, ReportOptions, Residuals, build_report, load_residuals, write_report
 from dome_calib.layout import nominal_dome
+from dome_calib.reasons import ReasonCode, reason
 
 
 @pytest.fixture(scope="module")
@@ -32,18 +33,18 @@ def _residuals(bundle, sigma_px=0.5, n_per_cam=300, few="01_01", noisy="00_00", 
 
 def test_build_report_flags_cameras(tiny):
     res = _residuals(tiny)
-    rep = build_report(tiny, res, ReportOptions(min_observations=100), changes={"01_03": ["moved 3.1 cm"]},
-                       missing={"01_24": "saw no tent"})
-    reasons = {row["name"]: " ".join(row["reasons"]) for row in rep["to_check"]}
+    rep = build_report(tiny, res, ReportOptions(min_observations=100),
+                       changes={"01_03": [reason(ReasonCode.MOVED, "moved 3.1 cm")]}, missing={"01_24": "saw no tent"})
+    reasons = {row.name: {r.code: r.text for r in row.reasons} for row in rep.to_check}
     assert set(reasons) == {"01_01", "00_00", "01_03", "01_24"}
-    assert "too few observations (20 < 100)" in reasons["01_01"]
-    assert "high RMS" in reasons["00_00"] and "moved 3.1 cm" in reasons["01_03"]
-    assert "not calibrated: saw no tent" in reasons["01_24"]
+    assert reasons["01_01"] == {ReasonCode.TOO_FEW_OBSERVATIONS: "too few observations (20 < 100)"}
+    assert list(reasons["00_00"]) == [ReasonCode.HIGH_RMS] and reasons["01_03"] == {ReasonCode.MOVED: "moved 3.1 cm"}
+    assert reasons["01_24"] == {ReasonCode.NOT_CALIBRATED: "not calibrated: saw no tent"}
     # per-coordinate RMS of Gaussian noise is sigma
-    vga_rms = rep["per_type"]["vga"]["rms_px"]
+    vga_rms = rep.per_type["vga"].rms_px
     assert vga_rms == pytest.approx(0.5, rel=0.05)
-    assert rep["per_camera"]["01_01"]["observations"] == 20
-    json.dumps(rep, allow_nan=False)  # plain, finite data
+    assert rep.per_camera["01_01"].observations == 20
+    json.loads(rep.model_dump_json())  # plain, finite data
 
 
 def test_residuals_round_trip_and_bad_file(tmp_path, tiny):

@@ -90,7 +90,9 @@ def report(
     the bundle, the residuals its calibration saved and what the calibration found (kept)."""
     from dome_calib.report.command import report_bundle
 
-    typer.echo(report_bundle(bundle, previous=previous, min_observations=min_observations))
+    with flags({"ReportOptions.min_observations": "--min-observations"}):
+        text = report_bundle(bundle, previous=previous, min_observations=min_observations)
+    typer.echo(text)
 
 
 @app.command()

@@ -15,7 +15,8 @@ from dome_calib.bundle import Bundle, Camera
 from dome_calib.compare import CameraChange, ChangeOptions
 from dome_calib.normalize import Normalized, NormalizeOptions
 from dome_calib.progress import ProgressTasks
-from dome_calib.report import ReportOptions
+from dome_calib.reasons import Reason
+from dome_calib.report import ReportOptions, ToCheck
 from dome_calib.residuals import Residuals
 from dome_calib.options import Lax, options
 from dome_calib.schema import PosFinite
@@ -91,7 +92,7 @@ class Calibrated:
     rotation_sigma_deg: dict[str, float] = field(default_factory=dict)  # 1-sigma rotation uncertainty
     held: dict[str, str] = field(default_factory=dict)  # camera -> why it was taken as it is, not estimated
     changes: dict[str, CameraChange] | None = None  # None: detect against the prior
-    notes: dict[str, str] = field(default_factory=dict)  # camera -> a further reason to check it
+    notes: dict[str, Reason] = field(default_factory=dict)  # camera -> a further reason to check it
     lens_model: dict | None = None  # the BA's per-camera lens terms refined and held, with why (report.json)
     cluster: dict | None = None  # where each stage ran: report.json's "cluster" (pipeline.cluster.cluster_section)
 
@@ -110,7 +111,7 @@ class CalibrationResult:
     stage_seconds: dict[str, float]
     resumed: list[str]  # stages taken from the work folder
     changes: dict[str, CameraChange] | None = None
-    to_check: list[dict] = field(default_factory=list)
+    to_check: list[ToCheck] = field(default_factory=list)  # report.json's cameras to check
     stats: dict = field(default_factory=dict)  # per-stage counts and times
     sfm: SfmOutcome | None = None  # full run
     ba: BAOutcome | None = None  # full run; quick run: the re-estimation (None if no camera changed)
