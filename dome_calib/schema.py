@@ -299,7 +299,8 @@ def describe_node(node: dict | None, defs: dict) -> str:
     words = _TYPES.get(kind, kind or "a value")
     bounds = [f"{op} {node[key]:g}" if isinstance(node[key], float) else f"{op} {node[key]}"
               for key, op in (("minimum", ">="), ("exclusiveMinimum", ">"), ("maximum", "<="),
-                              ("exclusiveMaximum", "<")) if key in node]
+                              ("exclusiveMaximum", "<")) if key in node
+              and not (key == "maximum" and node[key] == INT64_MAX)]  # the storage bound: said only when passed
     if kind == "string":
         if node.get("minLength") == 1:
             words = "a non-empty string"
@@ -337,6 +338,8 @@ def expected_at(schema: type[BaseModel], loc: tuple, err: Mapping | None = None)
     words = describe_node(node, defs)
     if err is not None and err["type"] == "finite_number" and "finite" not in words:
         words = f"{words} (finite)"
+    if err is not None and err["type"] == "less_than_equal" and "<=" not in words:  # the storage bound, passed
+        words = f"{words} and <= {err.get('ctx', {}).get('le')}"
     return words
 
 

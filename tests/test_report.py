@@ -105,3 +105,13 @@ def test_report_cli_bad_input(tmp_path, dome_calib_cli):
     proc = dome_calib_cli("report", tmp_path / "missing")
     assert proc.returncode == 1
     assert proc.stderr.count("\n") == 1 and "missing: not a folder" in proc.stderr
+
+
+def test_text_from_the_bundle_is_drawn_as_text_in_the_plots(tmp_path, tiny):
+    """A seq with matplotlib's math markup (an unbalanced ``$``) failed the whole report (ValueError from the math
+    parser): the plots draw names as they are."""
+    odd = dataclasses.replace(tiny, seq="take$\\frac{1$2", calib_data_source="$\\oops{")
+    folder = write_bundle(odd, tmp_path / "b")
+    target = write_report(folder, odd, _residuals(odd))
+    assert {"dome.png", "observations.png", "residuals.png"} <= {p.name for p in target.iterdir()}
+    assert json.loads((target / "report.json").read_text())["seq"] == "take$\\frac{1$2"
