@@ -197,3 +197,23 @@ def test_any_value_of_any_report_file_replaced_is_refused_in_one_line_or_shown_a
     else:
         json.dumps(built, allow_nan=False)
         assert "report-data" in render_page(built)
+
+
+def test_every_reason_of_an_older_layout_gets_the_code_its_text_meant():
+    """Layout 2's texts (the frozen table of the migration) -> codes, in to_check, found and changes_vs_prior; a
+    text that no code names is kept as a note."""
+    from dome_calib.report.schema import parse_report
+
+    doc = json.loads((REPORT_FILES / "report_v2.json").read_text())
+    doc["changes_vs_prior"] = {"01_03": {"name": "01_03", "moved_cm": 3.1, "rotated_deg": 0.52, "focal_pct": 0.1,
+                                         "distortion_px": None, "reasons": ["moved 3.1 cm", "rotated 0.52 deg"]}}
+    doc["found"]["reasons"]["01_04"] = ["new intrinsics (focal 4.1 %, distortion 0.3 px): replaced?",
+                                        "a technician's own note"]
+    report, version = parse_report("report.json", json.dumps(doc).encode())
+    assert version == 2 and report.report_version == 3
+    assert [(r.code, r.text) for r in report.changes_vs_prior["01_03"].reasons] == [
+        (ReasonCode.MOVED, "moved 3.1 cm"), (ReasonCode.ROTATED, "rotated 0.52 deg")]
+    assert [r.code for r in report.found.reasons["01_04"]] == [ReasonCode.INTRINSICS_CHANGED, ReasonCode.NOTE]
+    assert {r.name: [x.code for x in r.reasons] for r in report.to_check} == {
+        "00_12": [ReasonCode.TOO_FEW_OBSERVATIONS], "01_03": [ReasonCode.MOVED, ReasonCode.ROTATED],
+        "01_24": [ReasonCode.NOT_CALIBRATED]}

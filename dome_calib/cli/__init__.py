@@ -130,7 +130,8 @@ def demo(
     from dome_calib.pipeline.demo import DemoOptions, format_demo, run_demo
 
     with ProgressBars() as bars:
-        with flags({"DemoOptions.scenes": "--scenes", "DemoOptions.seed": "--seed", "DemoOptions.people": "--people"}):
+        with flags({"DemoOptions.preset": "--preset", "DemoOptions.scenes": "--scenes", "DemoOptions.seed": "--seed",
+                    "DemoOptions.people": "--people"}):
             options = DemoOptions(preset=preset, scenes=scenes, seed=seed, people=people, progress=bars.tasks)
         result = run_demo(out, options)
     typer.echo(format_demo(result))

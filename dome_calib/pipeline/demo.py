@@ -19,12 +19,11 @@ import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import load_bundle
 from dome_calib.compare import Comparison, compare_cameras
-from dome_calib.errors import DomeCalibError
 from dome_calib.io_utils import check_writable
 from dome_calib.pipeline.full import format_result
 from dome_calib.pipeline.session import SessionOptions, SessionResult, run_session
@@ -48,7 +47,8 @@ MAX_PEOPLE = 10
 
 @options
 class DemoOptions:
-    preset: str = "tiny"  # panel's SfM alone needs ~6.5 CPU-minutes: over the 5-minute budget on 2 cores
+    # tiny by default: panel's SfM alone needs ~6.5 CPU-minutes, over the 5-minute budget on 2 cores
+    preset: Literal[tuple(DEFAULT_SCENES)] = "tiny"
     scenes: AtLeast(1) | None = None
     seed: AtLeast(0) = 0
     # the group (scenario "mixed": walking past, talking, crouching, leaving, entering); 0: none
@@ -87,11 +87,9 @@ def synthesize(session: Path, preset: str, scenes: int, seed: int, progress: boo
 
 
 def run_demo(out: Path, options: DemoOptions | None = None) -> DemoResult:
-    """Synthesise, calibrate, compare, reconstruct the group. Raises DomeCalibError for an unknown preset, a bad
-    number of tent positions or people."""
+    """Synthesise, calibrate, compare, reconstruct the group. The options are checked by their declaration
+    (DemoOptions: preset, tent positions, people)."""
     options = options or DemoOptions()
-    if options.preset not in DEFAULT_SCENES:
-        raise DomeCalibError(f"unknown preset {options.preset!r}; choose one of {', '.join(DEFAULT_SCENES)}")
     scenes = options.scenes or DEFAULT_SCENES[options.preset]
     out = Path(out)
     check_writable(out)  # before the synthesis and the calibration

@@ -307,7 +307,7 @@ def _upgrade(old: ReportV2) -> Report:
             counts[t] = TypeCount(calibrated=c.calibrated + (name in old.per_camera), expected=c.expected + 1)
         expected = counts
     changes = None if old.changes_vs_prior is None else {
-        n: CameraChangeRow(**{**c.__dict__, "reasons": [reason_of_v2_text(t) for t in c.reasons]})
+        n: CameraChangeRow(**{**c.model_dump(), "reasons": [reason_of_v2_text(t) for t in c.reasons]})
         for n, c in old.changes_vs_prior.items()}
     fields = {k: getattr(old, k) for k in Report.model_fields if k not in (
         "report_version", "to_check", "found", "expected_per_type", "changes_vs_prior", "cameras")}
@@ -356,8 +356,8 @@ def _json_default(obj: object) -> object:
         return obj.item()
     if isinstance(obj, np.ndarray):
         return obj.tolist()
-    if isinstance(obj, Reason):
-        return obj.model_dump(mode="json")
+    if isinstance(obj, BaseModel):  # a typed section (a rebuild's kept ones), a reason
+        return obj.model_dump(mode="json", exclude_unset=True)
     raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
 
 

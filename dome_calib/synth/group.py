@@ -24,7 +24,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
 
@@ -67,16 +67,8 @@ class GroupOptions:
     n_people: Annotated[int, Field(ge=1, le=10)] = 5  # 1..10
     duration_ms: PosFinite = 4000.0
     start_ms: Finite = 0.0
-    scenario: str = "mixed"  # "walk_past", "conversation", "crouch", "leave", "mixed" (all of them)
+    scenario: Literal[SCENARIOS] = "mixed"  # "walk_past", "conversation", "crouch", "leave", "mixed" (all of them)
     seed: AtLeast(0) = 0
-
-    def __post_init__(self) -> None:
-        if self.scenario not in SCENARIOS:
-            raise GroupError(f"scenario {self.scenario!r} is unknown (known: {', '.join(SCENARIOS)})")
-        if not 1 <= self.n_people <= 10:
-            raise GroupError(f"n_people={self.n_people} but expected 1..10")
-        if not self.duration_ms > 0:
-            raise GroupError(f"duration_ms={self.duration_ms} but expected > 0")
 
 
 @dataclass(frozen=True, kw_only=True)
