@@ -1,10 +1,10 @@
 """What checking an options object's bounds costs where it is built: the options declared with
 :func:`dome_calib.options.options` (pydantic dataclasses, the choice) against the alternative considered (a small
 mechanism that reads the same ``Annotated`` bounds and checks them in ``__post_init__``) and against the code
-before (stdlib dataclasses with hand checks, from a checkout given by ``--baseline``), then how many options
+before (stdlib dataclasses with hand checks, at the revision ``--baseline-rev``), then how many options
 objects a reconstruction builds per time step, so that the cost is seen against the work.
 
-Run: .venv/bin/python bench/options_construction.py [--baseline /work/main] [--repeat 20000]
+Run: .venv/bin/python bench/options_construction.py [--baseline-rev 2a6a476] [--repeat 20000]
 
 Prints one JSON object per line: setup (load average, commits); per (class, variant) the microseconds to build
 one object with its defaults, with two fields given, and by ``dataclasses.replace``; then per variant the mean over
@@ -20,6 +20,7 @@ import math
 import os
 import subprocess
 import sys
+import tempfile
 import time
 import timeit
 import typing
@@ -167,17 +168,18 @@ def reconstruction_count() -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--baseline", type=Path, default=Path("/work/main"), help="checkout of the code before")
+    ap.add_argument("--baseline-rev", default="2a6a476", help="revision of the code before (hand checks)")
     ap.add_argument("--repeat", type=int, default=20000)
     args = ap.parse_args()
-
-    def commit(path: Path) -> str:
-        return subprocess.run(["git", "-C", str(path), "rev-parse", "--short", "HEAD"], capture_output=True,
-                              text=True).stdout.strip()
-
-    emit(setup="options construction", load_average=os.getloadavg(), commit=commit(ROOT),
-         baseline=str(args.baseline), baseline_commit=commit(args.baseline), repeat=args.repeat)
-    before = measure_in(args.baseline, args.repeat)
+    commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
+                            text=True).stdout.strip()
+    emit(setup="options construction", load_average=os.getloadavg(), commit=commit, baseline_rev=args.baseline_rev,
+         repeat=args.repeat)
+    with tempfile.TemporaryDirectory() as tmp:  # the baseline's tree, as git holds it
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", args.baseline_rev], capture_output=True,
+                                 check=True).stdout
+        subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
+        before = measure_in(Path(tmp), args.repeat)
     chosen, alternative = measure_here(args.repeat)
     variants = {"before (stdlib dataclass, hand checks)": before, "pydantic dataclass (chosen)": chosen,
                 "Annotated bounds in __post_init__ (alternative)": alternative}
