@@ -1,0 +1,177 @@
+"""`dome-calib export-people`: the demo's synthetic group and the real Pose2Sim capture written as TRC, C3D and BVH
+and read back by each format's own tools (OpenSim's TRC reader, Pose2Sim's `read_trc`, ezc3d, the `c3d` package,
+bvhio's forward kinematics): every joint within 1e-3 cm of ours, with the axes and units each file states, missing
+joints missing, ids kept."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from dome_calib.skeletons.bvh import constant_bone_body
+from dome_calib.skeletons.joints import JOINTS15, JOINTS19, MARKER, PARENT, Y_UP_FROM_PANOPTIC, Z_UP_FROM_PANOPTIC
+from dome_calib.skeletons.scenes import People, read_people
+
+from .skeletons_helpers import (bvhio_positions, c3d_package_read, demo_group_scenes, ezc3d_read, opensim_trc,
+                                pose2sim_trc, real_capture_scenes, write_scenes)
+
+TOL_CM = 1e-3
+
+
+@pytest.fixture(scope="module")
+def group(tmp_path_factory):
+    return demo_group_scenes(tmp_path_factory.mktemp("group") / "people")
+
+
+@pytest.fixture(scope="module")
+def real(tmp_path_factory):
+    return real_capture_scenes(tmp_path_factory.mktemp("real"))
+
+
+@pytest.fixture(params=["group", "real"])
+def dataset(request):
+    folder = request.getfixturevalue(request.param)
+    return request.param, folder, read_people(folder)
+
+
+def _export(dome_calib_cli, folder, fmt, out, *extra):
+    run = dome_calib_cli("export-people", folder, "--to", fmt, "-o", out, *extra)
+    assert run.returncode == 0, run.stderr
+    return run
+
+
+def _dense(people: People, pid: int, frames: np.ndarray, M: np.ndarray, scale: float) -> np.ndarray:
+    """Our joints of person ``pid`` at ``frames`` (file numbers), in another tool's axes and units (NaN where
+    missing or absent)."""
+    track = people.tracks[pid]
+    out = np.full((len(frames), len(people.joints), 3), np.nan)
+    at = {int(f): k for k, f in enumerate(frames)}
+    rows = [at[int(f)] for f in people.frames[track.rows]]
+    out[rows] = track.X_cm @ M.T * scale
+    return out
+
+
+def test_trc_read_by_opensim_and_pose2sim(dataset, dome_calib_cli, tmp_path):
+    name, folder, people = dataset
+    _export(dome_calib_cli, folder, "trc", tmp_path / "trc")
+    files = sorted(p.name for p in (tmp_path / "trc").iterdir())
+    assert files == sorted(f"person{pid}.trc" for pid in people.tracks)  # one file per person, ids kept
+    markers = [MARKER[j] for j in people.joints]
+    for pid, track in people.tracks.items():
+        path = tmp_path / "trc" / f"person{pid}.trc"
+        osim, p2s = opensim_trc(path), pose2sim_trc(path)
+        assert osim["markers"] == markers == p2s["markers"]
+        assert osim["units"] == "m" and osim["rate"] == pytest.approx(float(people.fps))
+        span = people.frames[track.rows[0]:track.rows[-1] + 1]  # every file of the person's span
+        np.testing.assert_array_equal(p2s["frames"], span + 1)  # TRC counts frames from 1
+        t_s = (people.times_ms[track.rows[0]:track.rows[-1] + 1] - people.times_ms[0]) / 1000.0
+        np.testing.assert_allclose(osim["times_s"], t_s, atol=1e-6)
+        ours_m = _dense(people, pid, span, Y_UP_FROM_PANOPTIC, 0.01)
+        for got in (osim["X"], p2s["X"]):
+            np.testing.assert_array_equal(np.isnan(got), np.isnan(ours_m))  # missing is missing, nothing else
+            assert np.nanmax(np.abs(got - ours_m)) * 100.0 < TOL_CM
+    if name == "group":  # joints written as not reconstructed (c = -1) came back missing above
+        assert sum(np.isnan(t.X_cm).any() for t in people.tracks.values()) == len(people.tracks)
+
+
+def test_c3d_read_by_ezc3d_and_the_c3d_package(dataset, dome_calib_cli, tmp_path):
+    _, folder, people = dataset
+    _export(dome_calib_cli, folder, "c3d", tmp_path / "c3d")
+    path = tmp_path / "c3d" / "people.c3d"
+    assert sorted(p.name for p in (tmp_path / "c3d").iterdir()) == ["people.c3d"]  # one file per capture
+    ez, pkg = ezc3d_read(path), c3d_package_read(path)
+    ids = list(people.tracks)
+    labels = [f"P{pid}:{MARKER[j]}" for pid in ids for j in people.joints]
+    assert ez["labels"] == labels == pkg["labels"]
+    assert ez["subjects"] == [f"P{pid}" for pid in ids] and ez["units"] == "mm" and ez["y_screen"] == "+Z"
+    assert ez["rate"] == pytest.approx(float(people.fps))
+    frames = np.arange(people.frames[0], people.frames[-1] + 1)
+    assert ez["first_frame"] == frames[0] and pkg["first_frame"] == frames[0] + 1  # C3D counts from 1
+    ours_mm = np.concatenate([_dense(people, pid, frames, Z_UP_FROM_PANOPTIC, 10.0) for pid in ids], axis=1)
+    np.testing.assert_array_equal(np.isnan(ez["X"]), np.isnan(ours_mm))
+    assert np.nanmax(np.abs(ez["X"] - ours_mm)) / 10.0 < TOL_CM
+    missing = np.isnan(ours_mm).any(-1)
+    assert np.all(pkg["residual"][missing] == -1) and np.all(pkg["residual"][~missing] == 0)  # C3D's missing
+    assert np.max(np.abs(pkg["X"][~missing] - ours_mm[~missing])) / 10.0 < TOL_CM
+
+
+def _chain_present(people: People, X: np.ndarray) -> np.ndarray:
+    """(F, J): the joint and every joint up its chain to the root are reconstructed."""
+    ok = np.isfinite(X).all(-1)
+    out = ok.copy()
+    for k, name in enumerate(people.joints):
+        parent = PARENT[name]
+        while parent is not None:
+            out[:, k] &= ok[:, people.joints.index(parent)]
+            parent = PARENT[parent]
+    return out
+
+
+def test_bvh_read_by_bvhio(dataset, dome_calib_cli, tmp_path):
+    """bvhio's forward kinematics puts every joint where the person's constant-bone skeleton is (1e-3 cm); where the
+    whole chain is reconstructed that is our joint up to the bone's length difference from its median: nothing on
+    the synthetic group (its bones are constant), the real reconstruction's stated below."""
+    name, folder, people = dataset
+    _export(dome_calib_cli, folder, "bvh", tmp_path / "bvh")
+    assert sorted(p.name for p in (tmp_path / "bvh").iterdir()) == sorted(f"person{i}.bvh" for i in people.tracks)
+    names = [MARKER[j] for j in people.joints]
+    gaps = []
+    for pid, track in people.tracks.items():
+        frame_time, got = bvhio_positions(tmp_path / "bvh" / f"person{pid}.bvh", names)
+        assert frame_time == pytest.approx(1.0 / float(people.fps), rel=1e-8)
+        first, reference = constant_bone_body(people, track, track.confidence >= 0)
+        assert first == people.frames[track.rows[0]] and len(got) == people.frames[track.rows[-1]] - first + 1
+        assert np.max(np.abs(got - reference)) < TOL_CM
+        ours = _dense(people, pid, np.arange(first, first + len(got)), Y_UP_FROM_PANOPTIC, 1.0)
+        held = _chain_present(people, ours)
+        gaps.append(np.linalg.norm(got - ours, axis=-1)[held])
+    gaps = np.concatenate(gaps)
+    if name == "group":
+        assert np.max(gaps) < TOL_CM
+    else:  # real: bone lengths vary frame to frame in a reconstruction
+        print(json.dumps({"bvh_vs_ours_real_cm": {"median": round(float(np.median(gaps)), 2),
+                                                  "p95": round(float(np.percentile(gaps, 95)), 2)}}))
+        assert np.median(gaps) < 5.0
+
+
+def test_ids_min_confidence_and_fps(group, dome_calib_cli, tmp_path):
+    people = read_people(group)
+    ids = list(people.tracks)[:2]
+    _export(dome_calib_cli, group, "trc", tmp_path / "some", "--ids", ",".join(map(str, ids)), "--min-confidence",
+            "0.95", "--fps", "30000/1001")
+    assert sorted(p.name for p in (tmp_path / "some").iterdir()) == sorted(f"person{i}.trc" for i in ids)
+    got = opensim_trc(tmp_path / "some" / f"person{ids[0]}.trc")
+    assert np.isnan(got["X"]).all() and got["rate"] == pytest.approx(30000 / 1001)  # every c is 0.9 < 0.95
+    run = dome_calib_cli("export-people", group, "--to", "bvh", "-o", tmp_path / "none", "--ids", "99")
+    assert run.returncode == 1 and "no person 99" in run.stderr and not (tmp_path / "none").exists()
+
+
+def test_joints15_files_of_the_older_panoptic_layout(dome_calib_cli, tmp_path):
+    """The "mpi15" layout (head top in place of the nose) exports with Pose2Sim's "Head" marker."""
+    rng = np.random.default_rng(1)
+    X = rng.uniform(-100, 100, (3, 15, 3))
+    bodies = [{4: np.concatenate([X[k], np.full((15, 1), 0.7)], axis=1)} for k in range(3)]
+    folder = write_scenes(tmp_path / "old", [0, 1, 2], [0.0, 40.0, 80.0], bodies, layout="joints15")
+    people = read_people(folder)
+    assert people.joints == JOINTS15 and people.joints[:1] + people.joints[2:] == JOINTS19[:1] + JOINTS19[2:15]
+    _export(dome_calib_cli, folder, "c3d", tmp_path / "c3d")
+    ez = ezc3d_read(tmp_path / "c3d" / "people.c3d")
+    assert ez["labels"][1] == "P4:Head"
+    np.testing.assert_allclose(ez["X"][:, :15], X @ Z_UP_FROM_PANOPTIC.T * 10.0, atol=1e-2)
+    _export(dome_calib_cli, folder, "bvh", tmp_path / "bvh")
+    _, got = bvhio_positions(tmp_path / "bvh" / "person4.bvh", [MARKER[j] for j in JOINTS15])
+    first, ref = constant_bone_body(people, people.tracks[4], people.tracks[4].confidence >= 0)
+    assert np.max(np.abs(got - ref)) < TOL_CM
+
+
+def test_export_refuses_a_folder_it_did_not_write_and_leaves_it(group, dome_calib_cli, tmp_path):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("keep me")
+    run = dome_calib_cli("export-people", group, "--to", "trc", "-o", out)
+    assert run.returncode == 1 and "notes.txt" in run.stderr and len(run.stderr.strip().splitlines()) == 1
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+    _export(dome_calib_cli, group, "trc", tmp_path / "again")
+    _export(dome_calib_cli, group, "bvh", tmp_path / "again")  # an earlier export's folder is replaced whole
+    assert all(p.suffix == ".bvh" for p in (tmp_path / "again").iterdir())
