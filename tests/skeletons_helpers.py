@@ -128,3 +128,28 @@ def bvhio_positions(path: Path, names: list[str]) -> tuple[float, np.ndarray]:
         root.loadPose(f, recursive=True)
         out[f] = [tuple(by_name[n].PositionWorld) for n in names]
     return bvhio.readAsBvh(str(path), loadKeyFrames=False).FrameTime, out
+
+
+def demo_group_reconstructed(tmp_path_factory) -> Path:
+    """The demo's group (7 people, "mixed", seed 0) seen by the tiny dome as built (16 cameras, sync tables) through
+    its synthetic OpenPose detector, reconstructed as ``dome-calib reconstruct`` does: a folder holding ``bundle/``,
+    ``session/detections/`` and ``people/`` (made once per test session, ~10 s)."""
+    from dome_calib.bundle_io import write_bundle
+    from dome_calib.recon.people_commands import people_options, reconstruct_folder
+    from dome_calib.synth.dome import as_built_dome
+    from dome_calib.synth.group_session import GroupSessionOptions, make_group_session
+    from dome_calib.synth.skeleton import synthetic_sync
+
+    root = tmp_path_factory.getbasetemp() / "skeletons_demo_group"
+    if (root / "people").is_dir():
+        return root
+    root.mkdir()
+    bundle = as_built_dome("tiny", seed=0)
+    bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=3000.0, seed=0)
+    write_bundle(bundle, root / "bundle")
+    make_group_session(root / "session", bundle, GroupSessionOptions(group=GroupOptions(
+        n_people=7, start_ms=500.0, duration_ms=2000.0, seed=0)))
+    reconstruct_folder(root / "session" / "detections", root / "bundle", root / "people.tmp", body_model="BODY_25",
+                       options=people_options())
+    (root / "people.tmp").rename(root / "people")
+    return root

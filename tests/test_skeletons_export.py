@@ -13,8 +13,8 @@ from dome_calib.skeletons.bvh import constant_bone_body
 from dome_calib.skeletons.joints import JOINTS15, JOINTS19, MARKER, PARENT, Y_UP_FROM_PANOPTIC, Z_UP_FROM_PANOPTIC
 from dome_calib.skeletons.scenes import People, read_people
 
-from .skeletons_helpers import (bvhio_positions, c3d_package_read, demo_group_scenes, ezc3d_read, opensim_trc,
-                                pose2sim_trc, real_capture_scenes, write_scenes)
+from .skeletons_helpers import (bvhio_positions, c3d_package_read, demo_group_reconstructed, demo_group_scenes,
+                                ezc3d_read, opensim_trc, pose2sim_trc, real_capture_scenes, write_scenes)
 
 TOL_CM = 1e-3
 
@@ -29,7 +29,12 @@ def real(tmp_path_factory):
     return real_capture_scenes(tmp_path_factory.mktemp("real"))
 
 
-@pytest.fixture(params=["group", "real"])
+@pytest.fixture(scope="module")
+def reconstructed(tmp_path_factory):
+    return demo_group_reconstructed(tmp_path_factory) / "people"
+
+
+@pytest.fixture(params=["group", "reconstructed", "real"])
 def dataset(request):
     folder = request.getfixturevalue(request.param)
     return request.param, folder, read_people(folder)
@@ -129,8 +134,8 @@ def test_bvh_read_by_bvhio(dataset, dome_calib_cli, tmp_path):
     gaps = np.concatenate(gaps)
     if name == "group":
         assert np.max(gaps) < TOL_CM
-    else:  # real: bone lengths vary frame to frame in a reconstruction
-        print(json.dumps({"bvh_vs_ours_real_cm": {"median": round(float(np.median(gaps)), 2),
+    else:  # reconstructions: bone lengths vary frame to frame
+        print(json.dumps({f"bvh_vs_ours_{name}_cm": {"median": round(float(np.median(gaps)), 2),
                                                   "p95": round(float(np.percentile(gaps, 95)), 2)}}))
         assert np.median(gaps) < 5.0
 

@@ -49,6 +49,39 @@ def export_people(
                f"{summary.joints_missing} missing -> {summary.out}")
 
 
+def people_page(
+    people: Path = typer.Argument(..., help=_PEOPLE_HELP, show_default=False),
+    out: Path = typer.Option(None, "-o", "--out", help="Page to write (default: PEOPLE/index.html)."),
+    bundle: Path = typer.Option(None, "--bundle", help="Calibration bundle folder: draws the cameras in the dome and "
+                                "lets you pick a camera to see the bodies reprojected into its image."),
+    detections: Path = typer.Option(None, "--detections", help="The OpenPose folder reconstruct read (needs "
+                                    "--bundle): the chosen camera's detections are drawn against the reprojected "
+                                    "bodies."),
+    camera_map: str = typer.Option(None, "--camera-map", help="Folder-to-camera names of the detections, as for "
+                                   "reconstruct: 'cam01=00_01,cam02=00_02' or a JSON file."),
+    body_model: str = typer.Option(None, "--body-model", help="The detector's model, as for reconstruct: BODY_25, "
+                                   "BODY_25B, COCO_18 or PANOPTIC19 (needed for 25-joint files)."),
+    cameras: str = typer.Option(None, "--cameras", help="Cameras whose detections go on the page, e.g. "
+                                "00_03,00_07 (default: in name order while the page holds at most 60,000 detected "
+                                "people)."),
+) -> None:
+    """Build a self-contained page (index.html, opens from the file system) to watch the people of a body3DScene
+    folder: the dome from the top and the side, every body over time with play, pause, step and a time slider, each
+    person's id and trail, and a camera's detections against the reprojected bodies."""
+    from dome_calib.cli.progress import ProgressBars
+    from dome_calib.pipeline.people_page import build_people_page
+
+    chosen = [c.strip() for c in cameras.split(",") if c.strip()] if cameras else None
+    with ProgressBars(transient=True) as bars:
+        summary = build_people_page(people, out=out, bundle=bundle, detections=detections, camera_map=camera_map,
+                                    body_model=body_model, cameras=chosen, progress=bars.task("reading files"))
+    det = f", detections of {len(summary.detection_cameras)} cameras" if summary.detection_cameras else ""
+    typer.echo(f"{summary.people} people, {summary.frames} frames, {summary.cameras} cameras{det} -> {summary.page}")
+    for note in summary.notes:
+        typer.echo(f"note: {note}")
+
+
 def register(app: typer.Typer) -> None:
-    """Add `export-people` to the `dome-calib` app."""
+    """Add `export-people` and `people-page` to the `dome-calib` app."""
     app.command("export-people")(export_people)
+    app.command("people-page")(people_page)
