@@ -55,7 +55,7 @@ def real_capture_scenes(root: Path) -> Path:
     does (BODY_25B, the cameras mapped): its body3DScene folder."""
     from dome_calib.interop.common import ImportOptions
     from dome_calib.interop.convert import import_calibration
-    from dome_calib.recon.people_commands import people_options, reconstruct_folder
+    from dome_calib.recon.people.commands import people_options, reconstruct_folder
 
     names = {f"cam_{k:02d}": f"00_{k:02d}" for k in range(1, 5)}
     import_calibration(DATA / "calibration" / "Calib_qualisys.toml", "pose2sim", root / "bundle",
@@ -135,7 +135,7 @@ def demo_group_reconstructed(tmp_path_factory) -> Path:
     its synthetic OpenPose detector, reconstructed as ``dome-calib reconstruct`` does: a folder holding ``bundle/``,
     ``session/detections/`` and ``people/`` (made once per test session, ~10 s)."""
     from dome_calib.bundle_io import write_bundle
-    from dome_calib.recon.people_commands import people_options, reconstruct_folder
+    from dome_calib.recon.people.commands import people_options, reconstruct_folder
     from dome_calib.synth.dome import as_built_dome
     from dome_calib.synth.group_session import GroupSessionOptions, make_group_session
     from dome_calib.synth.skeleton import synthetic_sync

@@ -13,10 +13,12 @@ import numpy as np
 import pytest
 
 from dome_calib.bundle_io import load_bundle
+from dome_calib.interop.common import ImportOptions
+from dome_calib.interop.convert import import_calibration
 from dome_calib.recon.project import project_points, view_set
 from dome_calib.skeletons.scenes import read_people
 
-from .skeletons_helpers import demo_group_reconstructed, write_scenes
+from .skeletons_helpers import CAMERA_MAP, DATA, demo_group_reconstructed, write_scenes
 from .test_report_page import _console_errors, browser  # noqa: F401 (the report page's browser fixture)
 
 
@@ -122,4 +124,24 @@ def test_many_people_load_and_play_without_error(browser, tmp_path, dome_calib_c
     browser.find_element("id", "play").click()
     time.sleep(1.2)  # 40 frames at 4 x 25 fps: the end
     assert _frame(browser) == 599 and browser.find_element("id", "play").get_attribute("data-playing") == "0"
+    assert _console_errors(browser) == []
+
+
+def test_reconstruct_writes_the_page_into_its_output(browser, tmp_path, dome_calib_cli):  # noqa: F811
+    """`dome-calib reconstruct` on the real Pose2Sim capture stages index.html with its body3DScene files: the page
+    names the output folder, has the four cameras and their detections; a rerun replaces the folder, page and all."""
+    import_calibration(DATA / "calibration" / "Calib_qualisys.toml", "pose2sim", tmp_path / "bundle",
+                       ImportOptions(names={f"cam_{k:02d}": f"00_{k:02d}" for k in range(1, 5)}))
+    args = ("reconstruct", DATA / "pose", "--bundle", tmp_path / "bundle", "--body-model", "BODY_25B",
+            "--camera-map", CAMERA_MAP, "--fps", "60", "-o", tmp_path / "out")
+    for _ in range(2):  # the second run replaces an earlier run's folder, index.html included
+        run = dome_calib_cli(*args)
+        assert run.returncode == 0, run.stderr
+    assert sorted(p.name for p in (tmp_path / "out").iterdir() if not p.name.startswith("body3DScene_")) == [
+        "cameras.json", "index.html"]
+    _open(browser, tmp_path / "out" / "index.html")
+    assert browser.find_element("id", "title").text == "People: out"
+    options = [o.get_attribute("value") for o in browser.find_elements("css selector", "#camera option")]
+    assert options == ["00_01", "00_02", "00_03", "00_04"]
+    assert int(browser.find_element("id", "cam").get_attribute("data-detected")) >= 1
     assert _console_errors(browser) == []

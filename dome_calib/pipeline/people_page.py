@@ -89,8 +89,10 @@ def read_detections(folder: str | Path, bundle: Bundle, people: People, *, camer
 def build_people_page(people_folder: str | Path, *, out: str | Path | None = None,
                       bundle: str | Path | Bundle | None = None, detections: str | Path | None = None,
                       camera_map: str | None = None, body_model: str | None = None, cameras: list[str] | None = None,
-                      progress: Callable[[int, int], None] | None = None) -> PeoplePageSummary:
-    """Write the people page of ``people_folder`` to ``out`` (default ``people_folder/index.html``)."""
+                      progress: Callable[[int, int], None] | None = None,
+                      shown_as: str | Path | None = None) -> PeoplePageSummary:
+    """Write the people page of ``people_folder`` to ``out`` (default ``people_folder/index.html``); ``shown_as``:
+    the folder the page names (default ``people_folder``)."""
     if detections is not None and bundle is None:
         raise PeopleFileError(f"{detections}: detections need the calibration bundle (--bundle) to be put on "
                               "universal time and compared with the reprojected bodies")
@@ -101,7 +103,23 @@ def build_people_page(people_folder: str | Path, *, out: str | Path | None = Non
     if detections is not None and cal is not None:
         det, notes = read_detections(detections, cal, people, camera_map=camera_map, body_model=body_model,
                                      cameras=cameras)
-    write_people_page(page, people, bundle=cal, detections=det, notes=notes)
+    write_people_page(page, people, bundle=cal, detections=det, notes=notes,
+                      folder=Path(shown_as) if shown_as is not None else None)
     return PeoplePageSummary(page=page, people=len(people.tracks), frames=len(people.frames),
                              cameras=len(cal.cameras) if cal is not None else 0,
                              detection_cameras=[d.camera for d in det], notes=notes)
+
+
+def people_page_writer(out: str | Path, bundle: str | Path, detections: str | Path, *,
+                       camera_map: str | dict[str, str] | None = None,
+                       body_model: str | None = None) -> Callable[[Path], None]:
+    """What ``reconstruct`` (writing ``out``) is given to add its page: ``write(staging)`` builds
+    ``staging/index.html`` from the body3DScene files just staged there, with the bundle and the detections
+    reconstruct read."""
+    mapping = ",".join(f"{k}={v}" for k, v in camera_map.items()) if isinstance(camera_map, dict) else camera_map
+
+    def write(staging: Path) -> None:
+        build_people_page(staging, bundle=bundle, detections=detections, camera_map=mapping, body_model=body_model,
+                          shown_as=out)
+
+    return write

@@ -79,9 +79,11 @@ def _detections(det: CameraDetections) -> dict:
 
 
 def page_data(people: People, *, bundle: Bundle | None = None, detections: list[CameraDetections] | None = None,
-              notes: list[str] | None = None) -> dict:
-    """Everything the page shows, as plain data (the template's ``DATA``)."""
+              notes: list[str] | None = None, folder: Path | None = None) -> dict:
+    """Everything the page shows, as plain data (the template's ``DATA``); ``folder``: the folder named on the page
+    (default: the one read; reconstruct reads its staging folder and names its output)."""
     notes = list(notes or [])
+    folder = Path(folder) if folder is not None else people.folder
     tracks, beyond = [], 0
     for pid, track in people.tracks.items():
         xyz, far = _mm_i16(track.X_cm)
@@ -90,7 +92,7 @@ def page_data(people: People, *, bundle: Bundle | None = None, detections: list[
                        "xyz": _b64(xyz, "<i2")})
     if beyond:
         notes.append(f"{beyond} joints beyond 32.7 m of the origin are not drawn")
-    return {"title": people.folder.name, "source": str(people.folder), "layout": people.layout,
+    return {"title": folder.name, "source": str(folder), "layout": people.layout,
             "joints": list(people.joints), "markers": [MARKER[j] for j in people.joints],
             "bones": bones(people.joints), "root": people.joints.index("body_center"),
             "fps": float(people.fps), "fps_type": people.fps_type, "frames": people.frames.tolist(),
@@ -108,9 +110,11 @@ def render_page(data: dict) -> str:
 
 
 def write_people_page(path: str | Path, people: People, *, bundle: Bundle | None = None,
-                      detections: list[CameraDetections] | None = None, notes: list[str] | None = None) -> Path:
-    """Write the page of ``people`` to ``path`` (atomic); returns the path."""
+                      detections: list[CameraDetections] | None = None, notes: list[str] | None = None,
+                      folder: Path | None = None) -> Path:
+    """Write the page of ``people`` to ``path`` (atomic); returns the path (``folder``: see :func:`page_data`)."""
     path = Path(path)
-    atomic_write_text(path, render_page(page_data(people, bundle=bundle, detections=detections, notes=notes)))
+    atomic_write_text(path, render_page(page_data(people, bundle=bundle, detections=detections, notes=notes,
+                                                  folder=folder)))
     logger.info("people page written to %s (%.0f kB)", path, path.stat().st_size / 1e3)
     return path
