@@ -39,12 +39,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from dome_calib.interop.common import PANOPTIC_FROM_UP  # noqa: E402
 from dome_calib.skeletons.bvh import constant_bone_body  # noqa: E402
 from dome_calib.skeletons.export import export_people  # noqa: E402
-from dome_calib.skeletons.joints import MARKER, PARENT, Y_UP_FROM_PANOPTIC, Z_UP_FROM_PANOPTIC  # noqa: E402
-from dome_calib.skeletons.scenes import People, read_people  # noqa: E402
+from dome_calib.skeletons.joints import MARKER, Y_UP_FROM_PANOPTIC, Z_UP_FROM_PANOPTIC  # noqa: E402
+from dome_calib.skeletons.scenes import read_people  # noqa: E402
 from tests.people_helpers import group_joints_cm  # noqa: E402
-from tests.skeletons_helpers import (DATA, bvhio_positions, c3d_package_read, demo_group_reconstructed,  # noqa: E402
-                                     demo_group_scenes, ezc3d_read, opensim_trc, pose2sim_trc, real_capture_scenes,
-                                     write_scenes)
+from tests.skeletons_helpers import (DATA, bvhio_positions, c3d_package_read, chain_present,  # noqa: E402
+                                     demo_group_reconstructed, demo_group_scenes, ezc3d_read, opensim_trc,
+                                     ours_dense, pose2sim_trc, real_capture_scenes, write_scenes)
 
 #: Pose2Sim's TRC (y up) -> the lab's z-up world of its calibration (tests/test_people_real.py found and checked it).
 LAB_FROM_P2S_TRC = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -54,27 +54,8 @@ def emit(**fields) -> None:
     print(json.dumps(fields), flush=True)
 
 
-def dense(people: People, pid: int, frames: np.ndarray, M: np.ndarray, scale: float) -> np.ndarray:
-    track = people.tracks[pid]
-    out = np.full((len(frames), len(people.joints), 3), np.nan)
-    at = {int(f): k for k, f in enumerate(frames)}
-    out[[at[int(f)] for f in people.frames[track.rows]]] = track.X_cm @ M.T * scale
-    return out
-
-
 def worst(got: np.ndarray, ours: np.ndarray, to_cm: float) -> float:
     return round(float(np.nanmax(np.abs(got - ours))) * to_cm, 7)
-
-
-def chain_present(people: People, X: np.ndarray) -> np.ndarray:
-    ok = np.isfinite(X).all(-1)
-    out = ok.copy()
-    for k, name in enumerate(people.joints):
-        parent = PARENT[name]
-        while parent is not None:
-            out[:, k] &= ok[:, people.joints.index(parent)]
-            parent = PARENT[parent]
-    return out
 
 
 def sizes(folder: Path) -> int:
@@ -95,7 +76,7 @@ def bench_formats(name: str, folder: Path, work: Path) -> None:
             kept = True
             for pid, track in people.tracks.items():
                 span = people.frames[track.rows[0]:track.rows[-1] + 1]
-                ours = dense(people, pid, span, Y_UP_FROM_PANOPTIC, 0.01)
+                ours = ours_dense(people, pid, span, Y_UP_FROM_PANOPTIC, 0.01)
                 osim, p2s = opensim_trc(out / f"person{pid}.trc"), pose2sim_trc(out / f"person{pid}.trc")
                 worst_osim = max(worst_osim, worst(osim["X"], ours, 100.0))
                 worst_p2s = max(worst_p2s, worst(p2s["X"], ours, 100.0))
@@ -103,7 +84,8 @@ def bench_formats(name: str, folder: Path, work: Path) -> None:
             fields |= {"opensim_max_cm": worst_osim, "pose2sim_max_cm": worst_p2s, "missing_kept": kept}
         elif fmt == "c3d":
             frames = np.arange(people.frames[0], people.frames[-1] + 1)
-            ours = np.concatenate([dense(people, pid, frames, Z_UP_FROM_PANOPTIC, 10.0) for pid in people.tracks], 1)
+            ours = np.concatenate([ours_dense(people, pid, frames, Z_UP_FROM_PANOPTIC, 10.0) for pid in people.tracks],
+                                  axis=1)
             ez, pkg = ezc3d_read(out / "people.c3d"), c3d_package_read(out / "people.c3d")
             missing = np.isnan(ours).any(-1)
             fields |= {"ezc3d_max_cm": worst(ez["X"], ours, 0.1),
@@ -116,7 +98,7 @@ def bench_formats(name: str, folder: Path, work: Path) -> None:
                 _, got = bvhio_positions(out / f"person{pid}.bvh", [MARKER[j] for j in people.joints])
                 first, ref = constant_bone_body(people, track, track.confidence >= 0)
                 vs_const = max(vs_const, float(np.max(np.abs(got - ref))))
-                ours = dense(people, pid, np.arange(first, first + len(got)), Y_UP_FROM_PANOPTIC, 1.0)
+                ours = ours_dense(people, pid, np.arange(first, first + len(got)), Y_UP_FROM_PANOPTIC, 1.0)
                 held = chain_present(people, ours)
                 gaps.append(np.linalg.norm(got - ours, axis=-1)[held])
                 n += int(np.isfinite(ours).all(-1).sum())

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dome_calib.skeletons.joints import PARENT
+from dome_calib.skeletons.scenes import People
 from dome_calib.synth.group import GroupOptions, make_group
 
 DATA = Path(__file__).parent / "data" / "pose2sim_balancing"
@@ -63,6 +65,28 @@ def real_capture_scenes(root: Path) -> Path:
     reconstruct_folder(DATA / "pose", root / "bundle", root / "people", body_model="BODY_25B", camera_map=CAMERA_MAP,
                        options=people_options(fps="60"))
     return root / "people"
+
+
+def ours_dense(people: People, pid: int, frames: np.ndarray, M: np.ndarray, scale: float) -> np.ndarray:
+    """Our joints of person ``pid`` at ``frames`` (file numbers), in another tool's axes (``M``) and units
+    (``scale`` per cm), NaN where missing or absent."""
+    track = people.tracks[pid]
+    out = np.full((len(frames), len(people.joints), 3), np.nan)
+    at = {int(f): k for k, f in enumerate(frames)}
+    out[[at[int(f)] for f in people.frames[track.rows]]] = track.X_cm @ M.T * scale
+    return out
+
+
+def chain_present(people: People, X: np.ndarray) -> np.ndarray:
+    """(F, J): the joint and every joint up its chain to the root are reconstructed in ``X`` (F, J, 3)."""
+    ok = np.isfinite(X).all(-1)
+    out = ok.copy()
+    for k, name in enumerate(people.joints):
+        parent = PARENT[name]
+        while parent is not None:
+            out[:, k] &= ok[:, people.joints.index(parent)]
+            parent = PARENT[parent]
+    return out
 
 
 # ---- the peers' readers ------------------------------------------------------------------------------------------

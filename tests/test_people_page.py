@@ -120,7 +120,8 @@ def test_many_people_load_and_play_without_error(browser, tmp_path, dome_calib_c
     assert browser.find_element("id", "top").get_attribute("data-bodies") == "10"
     browser.execute_script("document.getElementById('speed').value = '4';"
                            "document.getElementById('speed').dispatchEvent(new Event('change'));"
-                           "const s = document.getElementById('slider'); s.value = 560; s.dispatchEvent(new Event('input'));")
+                           "const s = document.getElementById('slider'); s.value = 560;"
+                           "s.dispatchEvent(new Event('input'));")
     browser.find_element("id", "play").click()
     time.sleep(1.2)  # 40 frames at 4 x 25 fps: the end
     assert _frame(browser) == 599 and browser.find_element("id", "play").get_attribute("data-playing") == "0"

@@ -1,5 +1,5 @@
-"""`dome-calib export-people`: the demo's synthetic group and the real Pose2Sim capture written as TRC, C3D and BVH
-and read back by each format's own tools (OpenSim's TRC reader, Pose2Sim's `read_trc`, ezc3d, the `c3d` package,
+"""`dome-calib export-people`: the demo's synthetic group (its truth, and reconstructed from its synthetic
+detections) and the real Pose2Sim capture written as TRC, C3D and BVH and read back by each format's own tools (OpenSim's TRC reader, Pose2Sim's `read_trc`, ezc3d, the `c3d` package,
 bvhio's forward kinematics): every joint within 1e-3 cm of ours, with the axes and units each file states, missing
 joints missing, ids kept."""
 from __future__ import annotations
@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 
 from dome_calib.skeletons.bvh import constant_bone_body
-from dome_calib.skeletons.joints import JOINTS15, JOINTS19, MARKER, PARENT, Y_UP_FROM_PANOPTIC, Z_UP_FROM_PANOPTIC
-from dome_calib.skeletons.scenes import People, read_people
+from dome_calib.skeletons.joints import JOINTS15, JOINTS19, MARKER, Y_UP_FROM_PANOPTIC, Z_UP_FROM_PANOPTIC
+from dome_calib.skeletons.scenes import read_people
 
-from .skeletons_helpers import (bvhio_positions, c3d_package_read, demo_group_reconstructed, demo_group_scenes,
-                                ezc3d_read, opensim_trc, pose2sim_trc, real_capture_scenes, write_scenes)
+from .skeletons_helpers import (bvhio_positions, c3d_package_read, chain_present, demo_group_reconstructed,
+                                demo_group_scenes, ezc3d_read, opensim_trc, ours_dense, pose2sim_trc,
+                                real_capture_scenes, write_scenes)
 
 TOL_CM = 1e-3
 
@@ -46,17 +47,6 @@ def _export(dome_calib_cli, folder, fmt, out, *extra):
     return run
 
 
-def _dense(people: People, pid: int, frames: np.ndarray, M: np.ndarray, scale: float) -> np.ndarray:
-    """Our joints of person ``pid`` at ``frames`` (file numbers), in another tool's axes and units (NaN where
-    missing or absent)."""
-    track = people.tracks[pid]
-    out = np.full((len(frames), len(people.joints), 3), np.nan)
-    at = {int(f): k for k, f in enumerate(frames)}
-    rows = [at[int(f)] for f in people.frames[track.rows]]
-    out[rows] = track.X_cm @ M.T * scale
-    return out
-
-
 def test_trc_read_by_opensim_and_pose2sim(dataset, dome_calib_cli, tmp_path):
     name, folder, people = dataset
     _export(dome_calib_cli, folder, "trc", tmp_path / "trc")
@@ -72,7 +62,7 @@ def test_trc_read_by_opensim_and_pose2sim(dataset, dome_calib_cli, tmp_path):
         np.testing.assert_array_equal(p2s["frames"], span + 1)  # TRC counts frames from 1
         t_s = (people.times_ms[track.rows[0]:track.rows[-1] + 1] - people.times_ms[0]) / 1000.0
         np.testing.assert_allclose(osim["times_s"], t_s, atol=1e-6)
-        ours_m = _dense(people, pid, span, Y_UP_FROM_PANOPTIC, 0.01)
+        ours_m = ours_dense(people, pid, span, Y_UP_FROM_PANOPTIC, 0.01)
         for got in (osim["X"], p2s["X"]):
             np.testing.assert_array_equal(np.isnan(got), np.isnan(ours_m))  # missing is missing, nothing else
             assert np.nanmax(np.abs(got - ours_m)) * 100.0 < TOL_CM
@@ -93,24 +83,12 @@ def test_c3d_read_by_ezc3d_and_the_c3d_package(dataset, dome_calib_cli, tmp_path
     assert ez["rate"] == pytest.approx(float(people.fps))
     frames = np.arange(people.frames[0], people.frames[-1] + 1)
     assert ez["first_frame"] == frames[0] and pkg["first_frame"] == frames[0] + 1  # C3D counts from 1
-    ours_mm = np.concatenate([_dense(people, pid, frames, Z_UP_FROM_PANOPTIC, 10.0) for pid in ids], axis=1)
+    ours_mm = np.concatenate([ours_dense(people, pid, frames, Z_UP_FROM_PANOPTIC, 10.0) for pid in ids], axis=1)
     np.testing.assert_array_equal(np.isnan(ez["X"]), np.isnan(ours_mm))
     assert np.nanmax(np.abs(ez["X"] - ours_mm)) / 10.0 < TOL_CM
     missing = np.isnan(ours_mm).any(-1)
     assert np.all(pkg["residual"][missing] == -1) and np.all(pkg["residual"][~missing] == 0)  # C3D's missing
     assert np.max(np.abs(pkg["X"][~missing] - ours_mm[~missing])) / 10.0 < TOL_CM
-
-
-def _chain_present(people: People, X: np.ndarray) -> np.ndarray:
-    """(F, J): the joint and every joint up its chain to the root are reconstructed."""
-    ok = np.isfinite(X).all(-1)
-    out = ok.copy()
-    for k, name in enumerate(people.joints):
-        parent = PARENT[name]
-        while parent is not None:
-            out[:, k] &= ok[:, people.joints.index(parent)]
-            parent = PARENT[parent]
-    return out
 
 
 def test_bvh_read_by_bvhio(dataset, dome_calib_cli, tmp_path):
@@ -128,8 +106,8 @@ def test_bvh_read_by_bvhio(dataset, dome_calib_cli, tmp_path):
         first, reference = constant_bone_body(people, track, track.confidence >= 0)
         assert first == people.frames[track.rows[0]] and len(got) == people.frames[track.rows[-1]] - first + 1
         assert np.max(np.abs(got - reference)) < TOL_CM
-        ours = _dense(people, pid, np.arange(first, first + len(got)), Y_UP_FROM_PANOPTIC, 1.0)
-        held = _chain_present(people, ours)
+        ours = ours_dense(people, pid, np.arange(first, first + len(got)), Y_UP_FROM_PANOPTIC, 1.0)
+        held = chain_present(people, ours)
         gaps.append(np.linalg.norm(got - ours, axis=-1)[held])
     gaps = np.concatenate(gaps)
     if name == "group":

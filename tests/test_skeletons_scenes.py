@@ -139,3 +139,20 @@ def test_any_mutated_field_is_read_or_refused_in_one_line(tmp_path, path, value)
         assert str(exc).startswith(str(folder / "body3DScene_00000001.json")) and "\n" not in str(exc)
     else:
         assert all(t.X_cm.shape[1:] == (19, 3) for t in people.tracks.values())
+
+
+def test_the_joint_layout_is_the_reconstructions_and_the_generators():
+    """joints19 is written down in three rooms (reconstruction, the synthetic generators, people out): one list."""
+    from dome_calib.recon.body_models import JOINTS19 as RECON
+    from dome_calib.skeletons.joints import JOINTS19, MARKER, PARENT
+    from dome_calib.synth.skeleton import JOINTS19 as SYNTH
+
+    assert list(JOINTS19) == RECON == SYNTH
+    assert set(MARKER) == set(PARENT) and len(set(MARKER.values())) == len(MARKER)
+
+
+def test_export_refuses_a_nan_confidence_bound(tmp_path, dome_calib_cli):
+    folder = _folder(tmp_path, {1: PANOPTIC_EXAMPLE})
+    run = dome_calib_cli("export-people", folder, "--to", "trc", "-o", tmp_path / "out", "--min-confidence", "nan")
+    assert run.returncode == 1 and "--min-confidence nan: expected a finite number" in run.stderr
+    assert not (tmp_path / "out").exists()

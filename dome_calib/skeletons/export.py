@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dome_calib.errors import require_finite
 from dome_calib.io_utils import atomic_folder, output_folder, refuse_output_among_inputs
 from dome_calib.skeletons.bvh import write_bvh
 from dome_calib.skeletons.c3d import write_c3d
@@ -44,6 +45,9 @@ class ExportPeopleOptions:
     min_confidence: float = 0.0
     fps: Fraction | None = None
     ids: list[int] | None = None
+
+    def __post_init__(self) -> None:
+        require_finite(PeopleFileError, **{"--min-confidence": self.min_confidence})
 
 
 @dataclass(frozen=True)
