@@ -130,6 +130,28 @@ def test_ids_min_confidence_and_fps(group, dome_calib_cli, tmp_path):
     assert run.returncode == 1 and "no person 99" in run.stderr and not (tmp_path / "none").exists()
 
 
+def test_c3d_frame_numbers_beyond_the_headers_16_bits(dome_calib_cli, tmp_path):
+    """Frame 100,000 (over an hour at 25 fps): C3D's header cannot hold it; TRIAL:ACTUAL_START_FIELD and
+    ACTUAL_END_FIELD do (two 16-bit words, low first: C3D counts from 1, so 100,001 and 100,004). The c3d package
+    reads the end as that; its first frame is one less (c3d 0.6.0's ``first_frame`` weighs the high word 65535, its
+    ``last_frame`` 65536), so it numbers our four records one less and reads a fifth past them."""
+    import ezc3d
+
+    X = np.random.default_rng(3).uniform(-50, 50, (3, 19, 3))
+    folder = write_scenes(tmp_path / "long", [100000, 100001, 100003], [0.0, 40.0, 120.0],
+                          [{2: np.c_[X[k], np.full(19, 0.5)]} for k in range(3)])
+    _export(dome_calib_cli, folder, "c3d", tmp_path / "c3d")
+    trial = ezc3d.c3d(str(tmp_path / "c3d" / "people.c3d"))["parameters"]["TRIAL"]
+    words = {k: [int(w) & 0xFFFF for w in trial[k]["value"]] for k in ("ACTUAL_START_FIELD", "ACTUAL_END_FIELD")}
+    assert {k: w[0] + 65536 * w[1] for k, w in words.items()} == {"ACTUAL_START_FIELD": 100001,
+                                                                  "ACTUAL_END_FIELD": 100004}
+    pkg = c3d_package_read(tmp_path / "c3d" / "people.c3d")
+    assert pkg["frames"][-1] == 100004  # it numbers from 100000: the records are ours, each numbered one less
+    residual, got = pkg["residual"][:4], pkg["X"][:4]
+    assert np.all(residual[2] == -1) and np.all(residual[[0, 1, 3]] == 0)  # frame 100002: no file
+    np.testing.assert_allclose(got[[0, 1, 3]], X @ Z_UP_FROM_PANOPTIC.T * 10.0, atol=1e-2)
+
+
 def test_joints15_files_of_the_older_panoptic_layout(dome_calib_cli, tmp_path):
     """The "mpi15" layout (head top in place of the nose) exports with Pose2Sim's "Head" marker."""
     rng = np.random.default_rng(1)

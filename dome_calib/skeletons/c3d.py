@@ -9,7 +9,8 @@ capture, written through ezc3d.
   ``POINT:Y_SCREEN`` ``+Z`` say so to viewers that read them (Mokka, Vicon).
 - Frames: one per frame number from the folder's first to its last file at ``POINT:RATE`` (the capture's rate);
   the header's first frame is the first file's frame number (C3D counts from 1: ``body3DScene_00000000`` is C3D
-  frame 1).
+  frame 1); frame numbers beyond the header's 16 bits (65,535: 44 min at 25 fps) go into ``TRIAL:ACTUAL_START_FIELD``
+  and ``ACTUAL_END_FIELD`` (two 16-bit words, low first), as Vicon writes long trials.
 - Missing: a joint not reconstructed, a frame without a file, a person not there: NaN to ezc3d, which writes the
   C3D missing value (residual -1; ezc3d and the ``c3d`` package read it back as missing). Present points have
   residual 0 ("no residual computed").
@@ -20,6 +21,7 @@ from pathlib import Path
 
 import ezc3d
 import numpy as np
+from ezc3d import ezc3d as ezc3d_core
 
 from dome_calib.skeletons.joints import MARKER, Z_UP_FROM_PANOPTIC
 from dome_calib.skeletons.scenes import People
@@ -45,6 +47,19 @@ def c3d_points(people: People, joint_ok: dict[int, np.ndarray]) -> tuple[list[st
     return labels, descriptions, points
 
 
+def _int_parameter(c3d: ezc3d.c3d, group: str, name: str, values: list[int]) -> None:
+    """An integer parameter (ezc3d's ``add_parameter`` stores every number list as floats)."""
+    c3d.add_parameter(group, name, values)
+    c3d["parameters"][group][name]["type"] = ezc3d_core.INT
+    c3d["parameters"][group][name]["value"] = np.asarray(values, dtype=int)
+
+
+def _words(frame: int) -> list[int]:
+    """A frame number as C3D's two 16-bit words (low, high), stored as signed integers."""
+    low, high = frame & 0xFFFF, (frame >> 16) & 0xFFFF
+    return [w - 65536 if w > 32767 else w for w in (low, high)]
+
+
 def write_c3d(path: Path, people: People, joint_ok: dict[int, np.ndarray]) -> Path:
     """Write the capture's C3D file at ``path``; returns it."""
     labels, descriptions, points = c3d_points(people, joint_ok)
@@ -56,10 +71,15 @@ def write_c3d(path: Path, people: People, joint_ok: dict[int, np.ndarray]) -> Pa
     c3d.add_parameter("POINT", "X_SCREEN", ["+X"])
     c3d.add_parameter("POINT", "Y_SCREEN", ["+Z"])
     names = [f"P{pid}" for pid in people.tracks]
-    c3d.add_parameter("SUBJECTS", "USED", [len(names)])
+    _int_parameter(c3d, "SUBJECTS", "USED", [len(names)])
     c3d.add_parameter("SUBJECTS", "NAMES", names or [""])
     c3d.add_parameter("SUBJECTS", "LABEL_PREFIXES", [f"{n}:" for n in names] or [""])
-    c3d["header"]["points"]["first_frame"] = int(people.frames[0])
+    first, last = int(people.frames[0]), int(people.frames[-1])
+    if 0 <= first and last + 1 <= 65535:
+        c3d["header"]["points"]["first_frame"] = first
+    else:  # the header's 16 bits cannot hold it: TRIAL:ACTUAL_START_FIELD / ACTUAL_END_FIELD (two 16-bit words)
+        _int_parameter(c3d, "TRIAL", "ACTUAL_START_FIELD", _words(first + 1))
+        _int_parameter(c3d, "TRIAL", "ACTUAL_END_FIELD", _words(last + 1))
     c3d["data"]["points"] = points
     c3d.write(str(path))
     return path

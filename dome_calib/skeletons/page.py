@@ -74,7 +74,7 @@ def _detections(det: CameraDetections) -> dict:
     packed = np.stack([np.clip(np.rint(kp[..., 0] * 4), -32767, 32767), np.clip(np.rint(kp[..., 1] * 4), -32767,
                                                                                   32767),
                        np.clip(np.rint(kp[..., 2] * 10000), 0, 32767)], axis=-1)
-    return {"times_ms": np.round(det.times_ms, 3).tolist(), "counts": _b64(np.minimum(counts, 255), "u1"),
+    return {"times_ms": np.round(det.times_ms, 3).tolist(), "counts": _b64(np.minimum(counts, 65535), "<u2"),
             "kp": _b64(packed, "<i2")}
 
 
