@@ -150,8 +150,10 @@ def test_colmap_models_we_cannot_represent_are_refused(dome_calib_cli, tiny, tmp
     model = tmp_path / "model"
     assert dome_calib_cli("export", tiny, "--to", "colmap", "-o", model).returncode == 0
     for camera_model, params, words in (
-        ("OPENCV_FISHEYE", [800, 800, 320, 240, 0.1, 0.01, 0, 0], ("model: COLMAP model OPENCV_FISHEYE cannot be represented",)),
-        ("FULL_OPENCV", [800, 800, 320, 240, 0.1, 0.01, 0, 0, 0, 0.02, 0, 0], ("params: FULL_OPENCV with k4..k6", "cannot be represented")),
+        ("OPENCV_FISHEYE", [800, 800, 320, 240, 0.1, 0.01, 0, 0],
+         ("model: COLMAP model OPENCV_FISHEYE cannot be represented",)),
+        ("FULL_OPENCV", [800, 800, 320, 240, 0.1, 0.01, 0, 0, 0, 0.02, 0, 0],
+         ("params: FULL_OPENCV with k4..k6", "cannot be represented")),
     ):
         rec = pycolmap.Reconstruction(str(model))
         first = rec.images[1]

@@ -4,8 +4,8 @@ Run Script; ``blender --background --python dome_cameras.py -- dome.blend`` save
 The script makes one camera object per camera in a collection "dome_calib cameras", at its pose in a z-up world
 in metres (Blender's: our -y up turned to +z, x kept), and one scene per camera, named after it, whose render
 settings are that camera's: Blender keeps the image size and the pixel aspect per scene, not per camera, so this is
-the only way every camera renders exactly as it sees. The first scene also holds the collection and shows the
-first camera. Blender's camera (checked with ``bpy`` 5.0: ``world_to_camera_view``):
+the only way every camera renders exactly as it sees (the scene open when the script runs becomes the first
+camera's). Blender's camera (checked with ``bpy`` 5.0: ``world_to_camera_view``):
 
 - ``sensor_fit = 'HORIZONTAL'``, ``sensor_width`` 36 mm, ``lens = fx * 36 / width`` (mm): fx in pixels;
 - ``pixel_aspect_x / pixel_aspect_y = fy / fx`` (the larger one 1: Blender takes values from 1 to 200);
@@ -82,8 +82,11 @@ def build():
         obj["dome_calib_K"] = [v for row in cam["K"] for v in row]
         obj["dome_calib_dist"] = cam["dist"]
         collection.objects.link(obj)
-        scene = first_scene if i == 0 else bpy.data.scenes.new(cam["name"])
-        if i > 0:
+        if i == 0:
+            scene = first_scene
+            scene.name = cam["name"]
+        else:
+            scene = bpy.data.scenes.new(cam["name"])
             scene.collection.children.link(collection)
         scene.camera = obj
         render = scene.render

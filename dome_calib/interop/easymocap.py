@@ -80,13 +80,13 @@ class Extrinsics(FileSchema):
 
     @field_validator("Rot")
     @classmethod
-    def _same_rotation(cls, Rot: list[list[float]] | None, info: ValidationInfo) -> list[list[float]] | None:  # noqa: N803
-        R = info.data.get("R")
-        if Rot is not None and R is not None:
-            gap = float(rotation_angle_deg(rotvec_to_matrix(np.array(R)), np.array(Rot)))
+    def _same_rotation(cls, rot: list[list[float]] | None, info: ValidationInfo) -> list[list[float]] | None:
+        rvec = info.data.get("R")
+        if rot is not None and rvec is not None:
+            gap = float(rotation_angle_deg(rotvec_to_matrix(np.array(rvec)), np.array(rot)))
             if not gap <= ROTATION_AGREEMENT_DEG:
                 raise ValueError(f"disagrees with R by {gap:.3g} deg (not the same rotation)")
-        return Rot
+        return rot
 
     def matrix(self) -> np.ndarray:
         return rotvec_to_matrix(np.array(self.R)) if self.R is not None else np.array(self.Rot)
