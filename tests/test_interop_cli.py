@@ -180,3 +180,32 @@ def test_outputs_that_hold_other_things_are_not_replaced(dome_calib_cli, tiny, t
     _check_refused(dome_calib_cli, tmp_path, ("export", tiny, "--to", "pose2sim", "--unit", "mm", "-o",
                                               tmp_path / "c.toml"), "in m by the format")
     assert (busy / "notes.txt").read_text() == "mine"
+
+
+def test_every_format_is_one_row_of_the_registry_and_its_module():
+    """The command line's choices, units and axes are the registry's; every row's module has what the row promises
+    (read for import, write for export); the unit and axis tables cover the registry's lists."""
+    import importlib
+    import inspect
+
+    from dome_calib.cli import interop as cli
+    from dome_calib.interop import registry
+    from dome_calib.interop.common import CM_PER_UNIT, PANOPTIC_FROM_UP
+
+    assert [e.value for e in cli.ExportFormat] == list(registry.EXPORT_FORMATS)
+    assert [e.value for e in cli.ImportFormat] == list(registry.IMPORT_FORMATS)
+    assert [e.value for e in cli.UpChoice] == list(registry.UP_AXES) == list(PANOPTIC_FROM_UP)
+    assert [e.value for e in cli.UnitChoice] == list(registry.UNIT_CHOICES)
+    assert list(CM_PER_UNIT) == list(registry.UNITS)
+    for row in registry.FORMATS:
+        module = importlib.import_module(row.module)
+        assert row.module == f"dome_calib.interop.{row.name}"
+        assert hasattr(module, "read") == row.reads and hasattr(module, "write") == row.writes, row.name
+        if row.writes:  # write(cams, out, unit, options)
+            assert list(inspect.signature(module.write).parameters)[0::2] == ["cams", "unit"], row.name
+        if row.reads:  # read(source, options)
+            assert len(inspect.signature(module.read).parameters) == 2, row.name
+        for unit in (row.fixed_unit, row.default_unit):
+            assert unit is None or unit in registry.UNITS
+        assert row.export_up in registry.UP_AXES and row.import_up in registry.UP_AXES
+        assert not row.folder_files or row.folder

@@ -21,7 +21,7 @@ from dome_calib.interop.convert import export_bundle, import_calibration
 from dome_calib.panoptic_io import read_calibration
 
 from .conftest import REAL_CALIBRATION
-from .interop_helpers import gaps_px, pixels, world_points_cm
+from .interop_helpers import calib_intri_extri, gaps_px, nerfstudio_round_trip, pixels, world_points_cm
 
 QCA = Path(__file__).parent / "data" / "pose2sim_qualisys" / "Calib.qca.txt"
 ZUP_M = PANOPTIC_FROM_UP["+z"] / 100.0  # our point (cm, row vector) @ ZUP_M: the same point in a z-up world, m
@@ -36,47 +36,6 @@ def real(tmp_path_factory) -> tuple[Path, Bundle]:
 
 
 # ------------------------------------------------------------------------------------------------- nerfstudio
-def _rotation_a_to_b(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """As nerfstudio's camera_utils.rotation_matrix (the 1e-8 in its denominator included)."""
-    a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
-    v, c = np.cross(a, b), float(a @ b)
-    s = np.linalg.norm(v)
-    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-    return np.eye(3) + vx + vx @ vx * ((1 - c) / (s**2 + 1e-8))
-
-
-def nerfstudio_round_trip(path: Path) -> tuple[list[str], np.ndarray]:
-    """Poses of ``transforms.json`` through nerfstudio's dataparser and back through its dataparser_transforms, in
-    float64 (nerfstudio holds poses in float32: ~1e-5 cm at 5 m). Followed as read, copying no code:
-    nerfstudio-project/nerfstudio ``nerfstudio/data/dataparsers/nerfstudio_dataparser.py`` @ 01595f7f
-    (``_generate_dataparser_outputs``: frames sorted by file name; ``auto_orient_and_center_poses`` with the defaults
-    orientation "up", centre "poses"; ``auto_scale_poses``: 1 / max |t|; ``applied_transform`` composed on the right
-    of the orientation transform; ``applied_scale`` multiplied into the scale), ``nerfstudio/cameras/camera_utils.py``
-    @ 0079b674 (``auto_orient_and_center_poses``, ``rotation_matrix``), ``nerfstudio/data/dataparsers/
-    base_dataparser.py`` @ c0464f8a (``transform_poses_to_original_space``: translations divided by the scale, then
-    the inverse of the 4x4 transform, OpenCV camera axes). Returns the frames' camera names and (F, 4, 4)
-    camera-to-world poses in the original world, OpenCV axes."""
-    meta = json.loads(path.read_text())
-    frames = [meta["frames"][i] for i in np.argsort([f["file_path"] for f in meta["frames"]])]
-    poses = np.array([f["transform_matrix"] for f in frames], dtype=float)
-    translation = poses[:, :3, 3].mean(axis=0)
-    up = poses[:, :3, 1].mean(axis=0)
-    rotation = _rotation_a_to_b(up, np.array([0.0, 0.0, 1.0]))
-    transform = np.concatenate([rotation, rotation @ -translation[:, None]], axis=1)  # (3, 4)
-    oriented = transform @ poses
-    scale = 1.0 / np.abs(oriented[:, :3, 3]).max()
-    oriented[:, :3, 3] *= scale
-    if "applied_transform" in meta:
-        transform = transform @ np.vstack([np.array(meta["applied_transform"]), [0, 0, 0, 1]])
-    if "applied_scale" in meta:
-        scale *= float(meta["applied_scale"])
-    back = np.concatenate([oriented, np.tile([[[0, 0, 0, 1.0]]], (len(oriented), 1, 1))], axis=1)
-    back[:, :3, 3] /= scale
-    back = np.einsum("ij,bjk->bik", np.linalg.inv(np.vstack([transform, [0, 0, 0, 1]])), back)
-    back[:, :3, 1:3] *= -1
-    return [f["camera_name"] for f in frames], back
-
-
 @pytest.mark.parametrize("unit", ["mm", "cm", "m"])
 def test_nerfstudio_maps_our_cameras_back_where_they_are(real, tmp_path, unit):
     """Through nerfstudio's dataparser and back (dataparser_transforms): every real camera within 1e-6 cm of ours,
@@ -102,39 +61,13 @@ def test_nerfstudio_maps_our_cameras_back_where_they_are(real, tmp_path, unit):
 
 
 # -------------------------------------------------------------------------------------------------- EasyMocap
-def _easymocap_yaml(path: Path, names: list[str], entries: list[tuple[str, np.ndarray]]) -> None:
-    """A FileStorage YAML file as EasyMocap's own FileStorage writer prints it (zju3dv/EasyMocap
-    ``easymocap/mytools/camera_utils.py`` @ 0ebb1d25: ``%YAML:1.0``, ``names`` as a list of quoted strings, each
-    matrix as ``!!opencv-matrix`` with 6 decimals); followed as read, no code copied."""
-    lines = ["%YAML:1.0", "---", "names:", *[f'  - "{n}"' for n in names]]
-    for key, m in entries:
-        m = np.atleast_2d(m)
-        lines += [f"{key}: !!opencv-matrix", f"  rows: {m.shape[0]}", f"  cols: {m.shape[1]}", "  dt: d",
-                  f"  data: [{', '.join(f'{v:.6f}' for v in m.ravel())}]"]
-    path.write_text("\r\n".join(lines) + "\r\n")
-
-
-def _calib_intri_extri(folder: Path, bundle: Bundle, names: list[str]) -> None:
-    """intri.yml as EasyMocap's calib_intri writes it (write_intri: K_ and dist_ only, no H_ / W_) and extri.yml as
-    calib_extri writes it (write_extri: R_, Rot_, T_), for our cameras in a z-up world, metres."""
-    folder.mkdir(parents=True)
-    cams = [bundle.cameras[n] for n in names]
-    _easymocap_yaml(folder / "intri.yml", names, [e for n, c in zip(names, cams)
-                                                   for e in ((f"K_{n}", c.K), (f"dist_{n}", c.dist[None]))])
-    extri = []
-    for n, c in zip(names, cams):
-        R = c.R @ PANOPTIC_FROM_UP["+z"]
-        extri += [(f"R_{n}", cv2.Rodrigues(R)[0]), (f"Rot_{n}", R), (f"T_{n}", c.t_cm[:, None] / 100.0)]
-    _easymocap_yaml(folder / "extri.yml", names, extri)
-
-
 def test_easymocaps_own_calibration_output_imports(real, tmp_path):
     """EasyMocap's calib_intri writes no H_ / W_ (its read_camera takes them only when present): the import takes
     the size from the images beside the files (images/<camera>/, EasyMocap's layout) or --image-size, and says
     which when it has neither. The cameras then project as EasyMocap reads them (6 decimals: to 1e-2 px)."""
     _, bundle = real
     names = ["00_00", "00_12", "01_01", "05_17"]
-    _calib_intri_extri(tmp_path / "emc", bundle, names)
+    calib_intri_extri(tmp_path / "emc", bundle, names)
     with pytest.raises(InteropError, match=r"intri\.yml: camera 00_00: H_00_00/W_00_00: missing .*--image-size"):
         import_calibration(tmp_path / "emc", "easymocap", tmp_path / "b")
     assert not (tmp_path / "b").exists()
