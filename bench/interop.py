@@ -36,8 +36,8 @@ from dome_calib.interop.common import (CM_PER_UNIT, PANOPTIC_FROM_UP, ExportOpti
                                        ImportOptions, corner_shift_px)
 from dome_calib.interop.convert import export_bundle, import_calibration, read_foreign  # noqa: E402
 from dome_calib.panoptic_io import read_calibration  # noqa: E402
-from tests.interop_helpers import (calib_intri_extri, gaps_px, nerfstudio_round_trip, pixels,  # noqa: E402
-                                   world_points_cm)
+from tests.interop_helpers import (calib_intri_extri, gaps_px, in_cam0_frame, kalibr_camchain,  # noqa: E402
+                                   nerfstudio_round_trip, pixels, projection_gap_worst_px, world_points_cm)
 
 REAL = ROOT / "tests" / "data" / "panoptic" / "calibration_160906_band1.json"
 QCA = ROOT / "tests" / "data" / "pose2sim_qualisys" / "Calib.qca.txt"
@@ -64,12 +64,6 @@ def worst_opencv(cams: list[Camera], rvecs, tvecs, Ks, dists, cm_to_file=ZUP_M) 
                                   np.asarray(d, float))
         worst = max(worst, float(np.abs(uv.reshape(-1, 2) - pixels(cam, X)).max()))
     return worst
-
-
-def projection_gap(truth: list[Camera], got: list[Camera]) -> float:
-    """Worst px between the two lists' projections of the truth's grid points."""
-    X = world_points_cm(truth)
-    return float(np.linalg.norm(pixels(truth, X) - pixels(got, X), axis=-1).max())
 
 
 def without(cam: Camera, k3: bool = False, all_terms: bool = False) -> Camera:
@@ -189,7 +183,7 @@ def import_rows(bundle: Bundle, work: Path) -> None:
         got, _ = read_foreign(src, fmt, ImportOptions(**options))
         found = ([got.cameras[c.name] for c in truth] if all(c.name in got.cameras for c in truth)
                  else list(got.cameras.values()))
-        return projection_gap(truth, found)
+        return projection_gap_worst_px(truth, found)
 
     from aniposelib.cameras import Camera as AniCamera
     from aniposelib.cameras import CameraGroup
@@ -236,27 +230,11 @@ def import_rows(bundle: Bundle, work: Path) -> None:
          cameras=n, worst_px=compare(work / "camera_array.toml", "caliscope", cams), lost="nothing", said="")
 
     import yaml
-    doc, previous = {}, None
-    for i, c in enumerate(cams):
-        U, _, Vt = np.linalg.svd(c.R)
-        Tm = np.eye(4)
-        Tm[:3, :3], Tm[:3, 3] = U @ Vt, c.t_cm / 100.0
-        entry = {"camera_model": "pinhole", "intrinsics": [float(c.K[0, 0]), float(c.K[1, 1]), float(c.K[0, 2]),
-                                                           float(c.K[1, 2])],
-                 "distortion_model": "radtan", "distortion_coeffs": [float(v) for v in c.dist[:4]],
-                 "resolution": list(c.resolution), "rostopic": f"/{c.name}/image_raw"}
-        if previous is not None:
-            entry["T_cn_cnm1"] = (Tm @ np.linalg.inv(previous)).tolist()
-        doc[f"cam{i}"], previous = entry, Tm
-    (work / "camchain.yaml").write_text(yaml.dump(doc))
+    (work / "camchain.yaml").write_text(yaml.dump(kalibr_camchain(cams)))
     got, _ = read_foreign(work / "camchain.yaml", "kalibr", ImportOptions())
-    U, _, Vt = np.linalg.svd(cams[0].R)
-    R0, t0 = U @ Vt, cams[0].t_cm
-    in_cam0 = [Camera(**{**without(c, k3=True).__dict__, "R": c.R @ R0.T, "t_cm": c.t_cm - c.R @ R0.T @ t0})
-               for c in cams]  # the truth in cam0's frame: X_cam0 = R0 X + t0
     emit(format="kalibr", direction="import", peer="Kalibr CameraChainParameters as read (kalibr_common/"
          "ConfigReader.py @ ea2791f0): yaml.dump of cam0.. with T_cn_cnm1", cameras=n,
-         worst_px=projection_gap(in_cam0, list(got.cameras.values())),
+         worst_px=projection_gap_worst_px(in_cam0_frame(cams), list(got.cameras.values())),
          lost="k3 (radtan has 4 terms); the world is cam0's frame", said="by Kalibr's model, not by us")
 
 

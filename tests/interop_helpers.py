@@ -175,3 +175,39 @@ def calib_intri_extri(folder: Path, bundle: Bundle, names: list[str]) -> None:
         R = c.R @ PANOPTIC_FROM_UP["+z"]
         extri += [(f"R_{n}", cv2.Rodrigues(R)[0]), (f"Rot_{n}", R), (f"T_{n}", c.t_cm[:, None] / 100.0)]
     _easymocap_yaml(folder / "extri.yml", names, extri)
+
+
+def kalibr_camchain(cams: list[Camera]) -> dict:
+    """``camchain.yaml``'s content for our cameras as Kalibr's CameraChainParameters writes it (ethz-asl/kalibr
+    ``aslam_offline_calibration/kalibr/python/kalibr_common/ConfigReader.py`` @ ea2791f0: ``cam0``, ``cam1``, ...,
+    ``pinhole`` + ``radtan``, ``T_cn_cnm1`` = ``T_cn_w @ inv(T_cnm1_w)`` as ``setExtrinsicsLastCamToHere`` stores
+    it, metres; dumped with ``yaml.dump``); followed as read, no code copied. k3 is left out (radtan has 4 terms)
+    and each rotation made exact."""
+    doc, previous = {}, None
+    for i, c in enumerate(cams):
+        U, _, Vt = np.linalg.svd(c.R)
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = U @ Vt, c.t_cm / 100.0
+        entry = {"camera_model": "pinhole", "intrinsics": [float(c.K[0, 0]), float(c.K[1, 1]), float(c.K[0, 2]),
+                                                           float(c.K[1, 2])],
+                 "distortion_model": "radtan", "distortion_coeffs": [float(v) for v in c.dist[:4]],
+                 "resolution": list(c.resolution), "rostopic": f"/{c.name}/image_raw", "cam_overlaps": []}
+        if previous is not None:
+            entry["T_cn_cnm1"] = (T @ np.linalg.inv(previous)).tolist()
+        doc[f"cam{i}"], previous = entry, T
+    return doc
+
+
+def in_cam0_frame(cams: list[Camera]) -> list[Camera]:
+    """Our cameras without k3, in the first camera's frame (Kalibr's world: X_cam0 = R0 X + t0), cm."""
+    U, _, Vt = np.linalg.svd(cams[0].R)
+    R0, t0 = U @ Vt, cams[0].t_cm
+    return [Camera(**{**c.__dict__, "dist": np.array([*c.dist[:4], 0.0]), "R": c.R @ R0.T,
+                      "t_cm": c.t_cm - c.R @ R0.T @ t0}) for c in cams]
+
+
+def projection_gap_worst_px(truth: list[Camera], got: list[Camera]) -> float:
+    """Worst px between the two lists' projections of the truth's grid points (no ray check: for files whose
+    cameras differ a little, written with few digits or without a term)."""
+    X = world_points_cm(truth)
+    return float(np.linalg.norm(pixels(truth, X) - pixels(got, X), axis=-1).max())

@@ -27,6 +27,8 @@ from dome_calib.interop.common import ExportOptions
 from dome_calib.interop.convert import export_bundle
 from dome_calib.layout import nominal_dome
 
+from .interop_helpers import kalibr_camchain
+
 QCA = Path(__file__).parent / "data" / "pose2sim_qualisys" / "Calib.qca.txt"
 HOSTILE = settings(max_examples=25, deadline=None, derandomize=True,
                    suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -119,57 +121,36 @@ TREE_FORMATS = {
 }
 
 
-@pytest.mark.parametrize("fmt", list(TREE_FORMATS))
-def test_mutated_files_are_read_or_refused_in_one_line(small, tmp_path_factory, fmt, monkeypatch, capsys):
-    name, parse, dump = TREE_FORMATS[fmt]
-    work = tmp_path_factory.mktemp(fmt)
-    export_bundle(small, fmt, work / name)
-    base = parse((work / name).read_text())
-    seen = {"accepted": 0, "refused": 0}
-
-    @HOSTILE
-    @given(path=st.sampled_from(_paths(base)), kind=st.sampled_from(KINDS))
-    def run(path, kind):
-        with tempfile.TemporaryDirectory(dir=work) as tmp:
-            source = Path(tmp) / name
-            source.write_text(dump(_mutate(base, path, kind)))
-            seen[_check([source, "--from", fmt, *(["--unit", "m"] if fmt == "aniposelib" else [])],
-                        Path(tmp) / "out", source, monkeypatch, capsys)] += 1
-
-    run()
-    assert seen["refused"] > 5, seen
-
-
-def _kalibr_doc() -> dict:
-    dome = nominal_dome("tiny", seed=1)
-    cams = [dome.cameras[n] for n in ("00_00", "01_01", "50_04")]
-    doc, previous = {}, None
-    for i, c in enumerate(cams):
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = c.R, c.t_cm / 100
-        entry = {"camera_model": "pinhole", "intrinsics": [float(c.K[0, 0]), float(c.K[1, 1]), float(c.K[0, 2]),
-                                                           float(c.K[1, 2])],
-                 "distortion_model": "radtan", "distortion_coeffs": [float(v) for v in c.dist[:4]],
-                 "resolution": list(c.resolution), "rostopic": f"/cam{i}/image_raw"}
-        if previous is not None:
-            entry["T_cn_cnm1"] = (T @ np.linalg.inv(previous)).tolist()
-        doc[f"cam{i}"], previous = entry, T
-    return doc
-
-
-def test_mutated_kalibr_camchains_are_read_or_refused_in_one_line(tmp_path, monkeypatch, capsys):
-    base = _kalibr_doc()
+def _mutations(base: dict, name: str, dump, args: list[str], tmp_path: Path, monkeypatch, capsys) -> dict[str, int]:
+    """Each mutation of the document ``base``, written by ``dump`` as ``name``, imported with ``args``."""
     seen = {"accepted": 0, "refused": 0}
 
     @HOSTILE
     @given(path=st.sampled_from(_paths(base)), kind=st.sampled_from(KINDS))
     def run(path, kind):
         with tempfile.TemporaryDirectory(dir=tmp_path) as tmp:
-            source = Path(tmp) / "camchain.yaml"
-            source.write_text(yaml.dump(_mutate(base, path, kind)))
-            seen[_check([source, "--from", "kalibr"], Path(tmp) / "out", source, monkeypatch, capsys)] += 1
+            source = Path(tmp) / name
+            source.write_text(dump(_mutate(base, path, kind)))
+            seen[_check([source, *args], Path(tmp) / "out", source, monkeypatch, capsys)] += 1
 
     run()
+    return seen
+
+
+@pytest.mark.parametrize("fmt", list(TREE_FORMATS))
+def test_mutated_files_are_read_or_refused_in_one_line(small, tmp_path, fmt, monkeypatch, capsys):
+    name, parse, dump = TREE_FORMATS[fmt]
+    export_bundle(small, fmt, tmp_path / name)
+    seen = _mutations(parse((tmp_path / name).read_text()), name, dump,
+                      ["--from", fmt, *(["--unit", "m"] if fmt == "aniposelib" else [])], tmp_path, monkeypatch,
+                      capsys)
+    assert seen["refused"] > 5, seen
+
+
+def test_mutated_kalibr_camchains_are_read_or_refused_in_one_line(tmp_path, monkeypatch, capsys):
+    dome = nominal_dome("tiny", seed=1)
+    base = kalibr_camchain([dome.cameras[n] for n in ("00_00", "01_01", "50_04")])
+    seen = _mutations(base, "camchain.yaml", yaml.dump, ["--from", "kalibr"], tmp_path, monkeypatch, capsys)
     assert seen["refused"] > 5, seen
 
 
@@ -181,17 +162,8 @@ def test_mutated_caliscope_camera_arrays_are_read_or_refused_in_one_line(tmp_pat
                                  "rotation": cv2.Rodrigues(c.R)[0].ravel().tolist(),
                                  "exposure": -4, "grid_count": 12, "fisheye": False}
                         for i, c in enumerate(dome.cameras[n] for n in ("00_00", "01_01", "50_04"))}}
-    seen = {"accepted": 0, "refused": 0}
-
-    @HOSTILE
-    @given(path=st.sampled_from(_paths(base)), kind=st.sampled_from(KINDS))
-    def run(path, kind):
-        with tempfile.TemporaryDirectory(dir=tmp_path) as tmp:
-            source = Path(tmp) / "camera_array.toml"
-            source.write_text(tomli_w.dumps(_strip_none(_mutate(base, path, kind))))
-            seen[_check([source, "--from", "caliscope"], Path(tmp) / "out", source, monkeypatch, capsys)] += 1
-
-    run()
+    seen = _mutations(base, "camera_array.toml", lambda d: tomli_w.dumps(_strip_none(d)), ["--from", "caliscope"],
+                      tmp_path, monkeypatch, capsys)
     assert seen["refused"] > 5, seen
 
 

@@ -21,7 +21,8 @@ from dome_calib.interop.convert import export_bundle, import_calibration
 from dome_calib.panoptic_io import read_calibration
 
 from .conftest import REAL_CALIBRATION
-from .interop_helpers import calib_intri_extri, gaps_px, nerfstudio_round_trip, pixels, world_points_cm
+from .interop_helpers import (calib_intri_extri, gaps_px, in_cam0_frame, kalibr_camchain, nerfstudio_round_trip, pixels,
+                              projection_gap_worst_px, world_points_cm)
 
 QCA = Path(__file__).parent / "data" / "pose2sim_qualisys" / "Calib.qca.txt"
 ZUP_M = PANOPTIC_FROM_UP["+z"] / 100.0  # our point (cm, row vector) @ ZUP_M: the same point in a z-up world, m
@@ -176,34 +177,13 @@ def test_kalibr_camchain_as_kalibr_writes_it(real, tmp_path):
     ``T_cn_cnm1`` from ``setExtrinsicsLastCamToHere``; followed as read, no code copied): imported, every camera
     projects as the truth expressed in cam0's frame within 1e-6 px."""
     _, bundle = real
-    names = list(bundle.cameras)[::13]
-    truth = []
-    for n in names:
-        c = bundle.cameras[n]
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = np.linalg.svd(c.R)[0] @ np.linalg.svd(c.R)[2], c.t_cm / 100.0
-        truth.append((c, T))
-    doc = {}
-    for i, (c, T) in enumerate(truth):
-        entry = {"camera_model": "pinhole", "intrinsics": [float(c.K[0, 0]), float(c.K[1, 1]), float(c.K[0, 2]),
-                                                           float(c.K[1, 2])],
-                 "distortion_model": "radtan", "distortion_coeffs": [float(v) for v in c.dist[:4]],
-                 "resolution": list(c.resolution), "rostopic": f"/{c.name}/image_raw", "cam_overlaps": []}
-        if i:
-            entry["T_cn_cnm1"] = (T @ np.linalg.inv(truth[i - 1][1])).tolist()
-        doc[f"cam{i}"] = entry
-    (tmp_path / "camchain.yaml").write_text(yaml.dump(doc))
+    cams = list(bundle.cameras.values())[::13]
+    (tmp_path / "camchain.yaml").write_text(yaml.dump(kalibr_camchain(cams)))
     import_calibration(tmp_path / "camchain.yaml", "kalibr", tmp_path / "b")
     again = load_bundle(tmp_path / "b")
-    assert list(again.cameras) == [f"cam{i}" for i in range(len(names))]
-    world_from_cam0 = np.linalg.inv(truth[0][1])
-    worst = 0.0
-    for (c, T), cam in zip(truth, again.cameras.values()):
-        X_cm = world_points_cm(c)  # in our world; in cam0's frame (m) as Kalibr's world
-        X_cam0_cm = (np.c_[X_cm / 100.0, np.ones(len(X_cm))] @ np.linalg.inv(world_from_cam0).T)[:, :3] * 100.0
-        expected, _ = cv2.projectPoints(X_cm / 100.0, cv2.Rodrigues(T[:3, :3])[0], T[:3, 3], c.K, c.dist[:4])
-        worst = max(worst, float(np.abs(pixels(cam, X_cam0_cm) - expected.reshape(-1, 2)).max()))
-    print(f"Kalibr camchain of {len(names)} real cameras: {worst:.2e} px")
+    assert list(again.cameras) == [f"cam{i}" for i in range(len(cams))]
+    worst = projection_gap_worst_px(in_cam0_frame(cams), list(again.cameras.values()))
+    print(f"Kalibr camchain of {len(cams)} real cameras: {worst:.2e} px")
     assert worst < 1e-6
 
 

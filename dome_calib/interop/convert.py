@@ -157,7 +157,8 @@ def check_import_output(out: Path, seq: str) -> None:
     and keeping them beside other cameras would mix two calibrations in one bundle."""
     if not _SEQ.fullmatch(seq):
         raise InteropError(f"--seq {seq!r}: a sequence name is part of the file name calibration_<seq>.json: no "
-                           "'/', '\\' or control characters, not starting with '.', at most 128 characters")
+                           "'/', '\\' or control characters, not starting with '.', at most 128 characters (without "
+                           "--seq: the output folder's name)")
     if out.exists() and not out.is_dir():
         raise InteropError(f"-o {out}: is a file; give a new or empty folder for the bundle")
     if out.is_dir():
