@@ -31,20 +31,31 @@ import pydantic
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: (module, class, two fields given) of options built per call of a stage or per chunk.
-CLASSES = [("dome_calib.recon.triangulate", "TriangulationOptions", {"inlier_threshold_px": 10.0, "min_views": 3}),
-           ("dome_calib.recon.people_assoc", "AssociationOptions", {"min_person_views": 3, "max_ray_gap_cm": 9.0}),
-           ("dome_calib.recon.tracking", "TrackingOptions", {"gate_cm": 30.0, "smooth_half_window": 2}),
-           ("dome_calib.align", "AlignOptions", {"max_error_cm": 1.0, "estimate_scale": False}),
-           ("timecode.sync.tables", "SyncOptions", {"max_extrapolation_s": 1.0, "device_break_ms": 40.0}),
-           ("dome_calib.ba.solver", "BAOptions", {"outlier_rounds": 2, "loss_scale_px": 1.5})]
+#: (modules where the class is, newest first; class; two fields given) of options built per call of a stage or per
+#: chunk (the people modules became a package after the baseline).
+CLASSES = [(["dome_calib.recon.triangulate"], "TriangulationOptions", {"inlier_threshold_px": 10.0, "min_views": 3}),
+           (["dome_calib.recon.people.proposals", "dome_calib.recon.people_assoc"], "AssociationOptions",
+            {"min_person_views": 3, "max_ray_gap_cm": 9.0}),
+           (["dome_calib.recon.people.tracking", "dome_calib.recon.tracking"], "TrackingOptions",
+            {"gate_cm": 30.0, "smooth_half_window": 2}),
+           (["dome_calib.align"], "AlignOptions", {"max_error_cm": 1.0, "estimate_scale": False}),
+           (["timecode.sync.tables"], "SyncOptions", {"max_extrapolation_s": 1.0, "device_break_ms": 40.0}),
+           (["dome_calib.ba.solver"], "BAOptions", {"outlier_rounds": 2, "loss_scale_px": 1.5})]
 
 _MEASURE = """
 import dataclasses, importlib, json, sys, timeit
 classes, repeat = json.loads(sys.argv[1]), int(sys.argv[2])
+
+def find(modules, name):
+    for m in modules:
+        try:
+            return getattr(importlib.import_module(m), name)
+        except ImportError:
+            continue
+
 out = {}
-for module, name, given in classes:
-    cls = getattr(importlib.import_module(module), name)
+for modules, name, given in classes:
+    cls = find(modules, name)
     made = cls()
     t = lambda f: min(timeit.repeat(f, number=repeat, repeat=5)) / repeat * 1e6
     out[name] = {"default_us": t(cls), "given_us": t(lambda: cls(**given)),
@@ -112,8 +123,8 @@ def measure_here(repeat: int) -> tuple[dict, dict]:
     import importlib
 
     chosen, alternative = {}, {}
-    for module, name, given in CLASSES:
-        cls = getattr(importlib.import_module(module), name)
+    for modules, name, given in CLASSES:
+        cls = getattr(importlib.import_module(modules[0]), name)
         for out, make in ((chosen, cls), (alternative, annotated_checker(cls))):
             made = make()
 
@@ -128,8 +139,8 @@ def measure_here(repeat: int) -> tuple[dict, dict]:
 def reconstruction_count() -> dict:
     """Options objects built while a 2-person group is reconstructed on the panel dome (1 s), and its time."""
     from dome_calib.options import options_classes
-    from dome_calib.recon.people import PeopleOptions, reconstruct_people
-    from dome_calib.recon.people_time import people_streams
+    from dome_calib.recon.people.run import PeopleOptions, reconstruct_people
+    from dome_calib.recon.people.sources import people_streams
     from dome_calib.recon.project import view_set
     from dome_calib.synth.detector import DetectorModel, synth_detections
     from dome_calib.synth.dome import as_built_dome

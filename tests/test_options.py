@@ -148,7 +148,7 @@ def test_defaults_are_taken_and_an_unknown_option_is_refused(name):
 def test_the_situations_of_the_issue():
     """RefineOptions checked nothing (window_sigma = 0 divided by zero in the patch weights); a `<=` check let NaN
     through; a check across fields reads as one line too."""
-    from dome_calib.recon.people import PeopleOptions
+    from dome_calib.recon.people.run import PeopleOptions
     from projector.refine import RefineOptions
     from timecode.sync.tables import SyncOptions
 

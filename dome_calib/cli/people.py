@@ -1,4 +1,4 @@
-"""`dome-calib reconstruct`: a thin shell over dome_calib.recon.people_commands.
+"""`dome-calib reconstruct`: a thin shell over dome_calib.recon.people.commands.
 
 The stage is imported inside the command: `dome-calib --help` starts without loading it.
 """
@@ -20,7 +20,8 @@ def reconstruct(
                                 "synctables/ksynctables give each camera's frame times; without them all cameras "
                                 "share one frame index).", show_default=False),
     out: Path = typer.Option(None, "-o", "--out", help="Folder for body3DScene_<frame>.json (one per time, every "
-                             "person with an id) and cameras.json (default: <DETECTIONS>_people beside DETECTIONS)."),
+                             "person with an id), cameras.json and index.html (a page to watch the people; default: "
+                             "<DETECTIONS>_people beside DETECTIONS)."),
     body_model: str = typer.Option(None, "--body-model", help="The detector's model: BODY_25, BODY_25B, COCO_18 or "
                                    "PANOPTIC19. Needed for 25-joint files (BODY_25 and BODY_25B have the same "
                                    "length)."),
@@ -41,7 +42,8 @@ def reconstruct(
     body3DScene file per time plus cameras.json (how well each camera agrees: a camera that moved shows up)."""
     from dome_calib.cli.progress import ProgressBars
     from dome_calib.pipeline.cluster import open_executor
-    from dome_calib.recon.people_commands import people_options, reconstruct_folder
+    from dome_calib.pipeline.people_page import people_page_writer
+    from dome_calib.recon.people.commands import people_options, reconstruct_folder
 
     out = out or detections.with_name(f"{detections.name}_people")
     with flags({"AssociationOptions.min_person_views": "--min-views", "TrackingOptions.smooth_half_window": "--smooth",
@@ -50,7 +52,9 @@ def reconstruct(
     with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:
         summary = reconstruct_folder(detections, bundle, out, body_model=body_model, camera_map=camera_map,
                                      reference=reference, options=options, executor=executor,
-                                     progress=bars.task("reconstructing times"))
+                                     progress=bars.task("reconstructing times"),
+                                     page=people_page_writer(out, bundle, detections, camera_map=camera_map,
+                                                             body_model=body_model))
     err = "n/a" if summary.median_reprojection_px is None else f"{summary.median_reprojection_px:.1f} px"
     flagged = ", ".join(summary.flagged_cameras) or "none"
     typer.echo(f"{summary.times} times ({summary.reference}) from {summary.cameras} cameras ({summary.body_model}): "

@@ -14,12 +14,13 @@ from dome_calib.io_utils import refuse_output_among_inputs
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.formats import FPS_TYPE
 from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, parse_camera_map
-from dome_calib.recon.people import PeopleOptions, reconstruct_people_chunked
-from dome_calib.recon.people_assoc import AssociationOptions
-from dome_calib.recon.people_io import camera_report, check_people_folder, write_people
-from dome_calib.recon.people_time import FileSource, StreamLayout, stream_layouts
+from dome_calib.recon.people.chunks import reconstruct_people_chunked
+from dome_calib.recon.people.proposals import AssociationOptions
+from dome_calib.recon.people.run import PeopleOptions
+from dome_calib.recon.people.scene_io import camera_report, check_people_folder, write_people
+from dome_calib.recon.people.sources import FileSource, StreamLayout, stream_layouts
+from dome_calib.recon.people.tracking import TrackingOptions
 from dome_calib.recon.project import view_set
-from dome_calib.recon.tracking import TrackingOptions
 
 logger = logging.getLogger(__name__)
 
@@ -65,8 +66,10 @@ def reference_times(streams: list[StreamLayout], reference: str | None) -> tuple
 def reconstruct_folder(detections: str | Path, bundle_folder: str | Path, out: str | Path, *,
                        body_model: str | None = None, camera_map: str | dict[str, str] | None = None,
                        reference: str | None = None, options: PeopleOptions | None = None, executor=None,
-                       progress: Callable[[int, int], None] | None = None) -> ReconstructSummary:
-    """Detections folder (OpenPose JSON per camera) + bundle -> ``out`` (body3DScene per time, cameras.json).
+                       progress: Callable[[int, int], None] | None = None,
+                       page: Callable[[Path], None] | None = None) -> ReconstructSummary:
+    """Detections folder (OpenPose JSON per camera) + bundle -> ``out`` (body3DScene per time, cameras.json; and
+    ``page(staging)``'s files: the caller's people page, dome_calib.pipeline.people_page.people_page_writer).
 
     The folder's names and frames are checked before any work; each chunk of times reads its own files (a long
     session is never in memory at once; a bad file stops the run when its chunk is read). ``out`` is written only
@@ -85,7 +88,7 @@ def reconstruct_folder(detections: str | Path, bundle_folder: str | Path, out: s
     names = source.cameras
     views = view_set(bundle, names)
     seq = reconstruct_people_chunked(views, source, times, options, executor=executor, progress=progress)
-    write_people(out, seq, numbers, FPS_TYPE.get(ref, "custom"))
+    write_people(out, seq, numbers, FPS_TYPE.get(ref, "custom"), also=page)
     report = camera_report(seq.cameras)
     ids = {int(i) for b in seq.bodies for i in b.ids}
     return ReconstructSummary(out=Path(out), times=len(times), cameras=len(names), body_model=model.value,
