@@ -21,9 +21,10 @@ A command that builds options from its flags names the flag the user typed inste
     --min-views 1: expected an integer >= 2
 
 Why pydantic dataclasses and not a hand-made check of ``Annotated`` metadata: ``bench/options_construction.py``
-measured both (and the stdlib dataclasses with their hand checks they replace) on the options that are built per
-call of a stage; pydantic's compiled validator was the fastest of the checked variants, and its errors carry the
-field, the input and the failed constraint, which the message is made of.
+measured both against the stdlib dataclasses with the hand checks they replace (docs/benchmarks.md): pydantic's
+compiled validator costs about what the hand checks cost (1.07 x with two fields given, 0.84 x with the defaults;
+a few microseconds, and no stage builds options per item), the hand-made reader of the same bounds 1.33 x; and its
+errors carry the field, the input and the failed constraint, which the message is made of.
 """
 from __future__ import annotations
 
