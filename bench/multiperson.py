@@ -1,7 +1,7 @@
 """Multi-person bench: synthetic groups (dome_calib.synth.group, 2, 5 and 8 people, "mixed" scenario: walking past,
 conversation, crouching, leaving) seen by an OpenPose-like detector (dome_calib.synth.detector: misses, occlusion,
 left/right and limb swaps, a neighbour's limb, false and truncated people) on every camera at its own frame times,
-reconstructed by dome_calib.recon.people and judged against the truth (dome_calib.synth.group_eval: the matching,
+reconstructed by dome_calib.recon.people.run and judged against the truth (dome_calib.synth.group_eval: the matching,
 the oracle and every figure below, shared with `dome-calib demo`).
 
 Run: .venv/bin/python bench/multiperson.py [--setups hd31,panel,full] [--people 2,5,8] [--seconds 3] [--seed 0]
@@ -34,9 +34,9 @@ import json  # noqa: E402
 import time  # noqa: E402
 
 from dome_calib.bundle import Bundle  # noqa: E402
-from dome_calib.recon.people import PeopleOptions, reconstruct_people  # noqa: E402
-from dome_calib.recon.people_assoc import AssociationOptions  # noqa: E402
-from dome_calib.recon.people_time import people_streams  # noqa: E402
+from dome_calib.recon.people.proposals import AssociationOptions  # noqa: E402
+from dome_calib.recon.people.run import PeopleOptions, reconstruct_people  # noqa: E402
+from dome_calib.recon.people.sources import people_streams  # noqa: E402
 from dome_calib.recon.project import view_set  # noqa: E402
 from dome_calib.synth.detector import DetectorModel, synth_detections  # noqa: E402
 from dome_calib.synth.dome import as_built_dome  # noqa: E402

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from dome_calib.recon.people import Bodies
-from dome_calib.recon.people_io import scene_json
+from dome_calib.recon.people.bodies import Bodies
+from dome_calib.recon.people.scene_io import scene_json
 from dome_calib.synth.group import GroupOptions, make_group
 from dome_calib.synth.group_eval import MATCH_CM, judge_group, load_group_truth, match_bodies, read_bodies
 from dome_calib.synth.group_session import truth_document

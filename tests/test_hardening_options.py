@@ -67,11 +67,11 @@ def test_timecode_sync_max_extrapolation_nan_is_refused(tmp_path, value, monkeyp
 
 
 def test_options_objects_refuse_non_finite_numbers():
-    from dome_calib.recon.joint_check import JointCheckOptions
-    from dome_calib.recon.people import PeopleOptions
-    from dome_calib.recon.people_assoc import AssociationOptions
+    from dome_calib.recon.people.joint_check import JointCheckOptions
+    from dome_calib.recon.people.proposals import AssociationOptions
+    from dome_calib.recon.people.run import PeopleOptions
     from dome_calib.recon.streams import InterpolationOptions
-    from dome_calib.recon.tracking import TrackingOptions
+    from dome_calib.recon.people.tracking import TrackingOptions
     from dome_calib.recon.triangulate import TriangulationOptions
     from timecode.sync.tables import SyncOptions
 

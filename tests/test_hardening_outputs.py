@@ -246,7 +246,7 @@ def test_export_import_and_reconstruct_onto_their_inputs_are_refused_and_the_inp
     and triangulate into the folder that holds their detections or the bundle."""
     from dome_calib.interop.convert import export_bundle, import_calibration
     from dome_calib.recon.commands import triangulate_file
-    from dome_calib.recon.people_commands import reconstruct_folder
+    from dome_calib.recon.people.commands import reconstruct_folder
 
     cap, _ = capture
     bundle = cap / "ground_truth"

@@ -1,4 +1,4 @@
-"""The skeleton check after triangulation (dome_calib.recon.joint_check): a joint that few views put far from its
+"""The skeleton check after triangulation (dome_calib.recon.people.joint_check): a joint that few views put far from its
 body is dropped, a real body (any pose, a child's or a tall adult's size) keeps every joint."""
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ from hypothesis import strategies as st
 
 from dome_calib.recon.body_models import BONE_LENGTH_CM, BONES19, JOINTS19
 from dome_calib.recon.errors import ReconError
-from dome_calib.recon.joint_check import JointCheckOptions, check_joints
+from dome_calib.recon.people.joint_check import JointCheckOptions, check_joints
 from dome_calib.recon.kernel import CameraKernel
-from dome_calib.recon.people import PeopleOptions, associate_batch
-from dome_calib.recon.people_assoc import select_pairs
+from dome_calib.recon.people.proposals import select_pairs
+from dome_calib.recon.people.run import PeopleOptions, associate_batch
 from dome_calib.recon.project import project_points, view_set
 from dome_calib.synth.group import GroupOptions, make_group
 from dome_calib.synth.skeleton import skeleton_cm

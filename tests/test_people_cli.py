@@ -10,7 +10,7 @@ import pytest
 
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import write_bundle
-from dome_calib.recon.people_io import read_scene
+from dome_calib.recon.people.scene_io import read_scene
 from dome_calib.rotation import rotvec_to_matrix
 from dome_calib.synth.detector import write_openpose_folder
 
@@ -183,8 +183,8 @@ def test_long_session_chunks_read_their_own_files(group, tmp_path):
     """Chunks of 5 times (overlap 2) on a 2-process pool, each task reading only its chunk's OpenPose files: the
     same people with the same ids as one run over everything."""
     from dome_calib.executor.local import LocalProcessExecutor
-    from dome_calib.recon.people import PeopleOptions
-    from dome_calib.recon.people_commands import reconstruct_folder
+    from dome_calib.recon.people.commands import reconstruct_folder
+    from dome_calib.recon.people.run import PeopleOptions
 
     root, bundle, _ = group
     whole = reconstruct_folder(root / "det", root / "bundle", tmp_path / "whole", body_model="BODY_25")

@@ -10,12 +10,14 @@ from scipy.optimize import linear_sum_assignment
 
 from dome_calib.bundle import SyncTable
 from dome_calib.executor.local import LocalProcessExecutor
-from dome_calib.recon.people import PeopleOptions, reconstruct_people, reconstruct_people_chunked
-from dome_calib.recon.people_assoc import AssociationOptions, nan_median, select_pairs
-from dome_calib.recon.people_time import (InMemorySource, PeopleStream, greedy_match, interpolate_people,
-                                          people_streams)
+from dome_calib.recon.people.chunks import reconstruct_people_chunked
+from dome_calib.recon.people.matching import greedy_match, nan_median
+from dome_calib.recon.people.proposals import AssociationOptions, select_pairs
+from dome_calib.recon.people.resample import interpolate_people
+from dome_calib.recon.people.run import PeopleOptions, reconstruct_people
+from dome_calib.recon.people.sources import InMemorySource, PeopleStream, people_streams
+from dome_calib.recon.people.tracking import TrackingOptions, smooth_track, track_bodies
 from dome_calib.recon.project import view_set
-from dome_calib.recon.tracking import TrackingOptions, smooth_track, track_bodies
 
 from .people_helpers import group_detections, group_joints_cm
 from .recon_helpers import real_bundle
@@ -228,3 +230,27 @@ def test_a_chunk_keeps_what_brackets_its_times(scene):
         assert len(cut.frame_index) < len(s.frame_index)
         grid = np.linspace(t0, t1, 7)
         np.testing.assert_array_equal(interpolate_people(cut, grid), interpolate_people(s, grid))
+
+
+def test_a_stream_without_frames_in_a_chunk_gives_nobody_there(scene):
+    """OpenPose run on only part of the HD frames: the chunks after them hold no HD frame at all. Those chunks are
+    reconstructed from the VGA cameras alone (it was an IndexError), the earlier ones from both."""
+    bundle, cams, people, _ = scene
+    hd_frames = sorted(bundle.sync.streams["hd"].index.tolist())[:6]
+    cut = {c: (p if bundle.cameras[c].type != "hd" else {f: k for f, k in p.items() if f in hd_frames})
+           for c, p in people.items()}
+    streams = people_streams(bundle, cut)
+    hd = next(s for s in streams if s.stream == "hd")
+    empty = PeopleStream(stream="hd", table=hd.table, cameras=hd.cameras, frame_index=hd.frame_index[:0],
+                         kp=hd.kp[:0])
+    grid = bundle.sync.streams["vga"].univ_time_ms[3:6]
+    assert interpolate_people(empty, grid).shape == (3, len(hd.cameras), 1, 19, 3)
+    assert not interpolate_people(empty, grid)[..., 2].any()
+    views = view_set(bundle, cams)
+    times = bundle.sync.streams["vga"].univ_time_ms[2:14]
+    seq = reconstruct_people_chunked(views, streams, times, PeopleOptions(chunk_times=4, overlap_times=2))
+    truth = group_joints_cm(times, 5, seed=6)
+    err, ids = _errors(seq, truth)
+    assert np.all(np.isfinite(err)) and err.max() < 3.0  # every person found at every time, from VGA alone later
+    late = InMemorySource(streams).chunk(float(times[-4]), float(times[-1]), 2.5)
+    assert len(next(s for s in late if s.stream == "hd").frame_index) == 0  # the case: a chunk without HD frames

@@ -107,6 +107,17 @@ def test_a_frame_without_detection_is_needed_only_if_it_has_weight():
     assert conf[:, 0, 0].tolist() == [1.0, 0.0, 0.0]
 
 
+def test_a_stream_holding_no_frame_gives_nothing():
+    """A stream whose detections do not reach the times (OpenPose run on part of its frames): no detection, no
+    IndexError; the same brackets serve the unlabelled people (recon.people.resample)."""
+    table = clock_table(Fraction(25), start_ms=0.0, duration_ms=400.0)
+    tracks = _linear_tracks(table)
+    none = StreamTracks(stream="hd", table=table, cameras=["00_00"], frame_index=tracks.frame_index[:0],
+                        uv_px=tracks.uv_px[:0], conf=tracks.conf[:0])
+    uv, conf = interpolate_stream(none, table.univ_time_ms[2:5] + 3.0)
+    assert uv.shape == (3, 1, 1, 2) and np.isnan(uv).all() and not conf.any()
+
+
 def test_streams_of_cameras_and_missing_tables():
     bundle = real_bundle(n_vga=10)
     assert stream_of_camera(bundle, "01_01")[0] == "vga"

@@ -1,4 +1,4 @@
-"""`dome-calib reconstruct`: a thin shell over dome_calib.recon.people_commands.
+"""`dome-calib reconstruct`: a thin shell over dome_calib.recon.people.commands.
 
 The stage is imported inside the command: `dome-calib --help` starts without loading it.
 """
@@ -39,7 +39,7 @@ def reconstruct(
     body3DScene file per time plus cameras.json (how well each camera agrees: a camera that moved shows up)."""
     from dome_calib.cli.progress import ProgressBars
     from dome_calib.pipeline.cluster import open_executor
-    from dome_calib.recon.people_commands import people_options, reconstruct_folder
+    from dome_calib.recon.people.commands import people_options, reconstruct_folder
 
     out = out or detections.with_name(f"{detections.name}_people")
     options = people_options(min_views=min_views, smooth=smooth, fps=fps)

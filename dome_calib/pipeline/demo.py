@@ -29,7 +29,7 @@ from dome_calib.pipeline.full import format_result
 from dome_calib.pipeline.session import SessionOptions, SessionResult, run_session
 from dome_calib.pipeline.types import CalibrationResult
 from dome_calib.progress import ProgressTasks, task_progress
-from dome_calib.recon.people_commands import people_options, reconstruct_folder
+from dome_calib.recon.people.commands import people_options, reconstruct_folder
 from dome_calib.synth.group_eval import judge_group_session, load_group_truth
 from dome_calib.synth.group_session import DETECTIONS, TRUTH_FILE
 from dome_calib.synth.product_eval import evaluate

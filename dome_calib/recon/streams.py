@@ -150,6 +150,64 @@ def group_by_stream(bundle: Bundle, detections: dict[str, tuple[np.ndarray, np.n
     return out
 
 
+def frame_period_ms(table: SyncTable) -> float:
+    """Nominal frame period of a stream: the median spacing of its sync table (ms; infinity with fewer than 2
+    frames: nothing to bridge)."""
+    return float(np.median(np.diff(table.univ_time_ms))) if len(table.index) > 1 else float("inf")
+
+
+@dataclass(frozen=True)
+class Brackets:
+    """A stream's two frames around each of (T,) universal times, as positions into the frames it holds.
+
+    pos0, pos1 (T,) positions in the stream's ``frame_index`` (0 where it lacks the frame); has0, has1 (T,) the
+    stream holds that frame; w0, w1 (T,) interpolation weights (``w0 + w1 = 1``; both 0 where not usable);
+    usable (T,) inside the table's span and the bracket no wider than ``max_gap_frames`` nominal periods.
+    """
+
+    pos0: np.ndarray
+    pos1: np.ndarray
+    has0: np.ndarray
+    has1: np.ndarray
+    w0: np.ndarray
+    w1: np.ndarray
+    usable: np.ndarray
+
+    @staticmethod
+    def take(values: np.ndarray, pos: np.ndarray, has: np.ndarray) -> np.ndarray:
+        """values (F, ...) of the stream's frames -> (T, ...) at the positions, 0 where the stream lacks the frame
+        (also when it holds no frame at all: a chunk of time its detections do not reach)."""
+        if len(values) == 0:
+            return np.zeros((len(pos),) + values.shape[1:], dtype=values.dtype)
+        mask = has.reshape((-1,) + (1,) * (values.ndim - 1))
+        return np.where(mask, values[pos], values.dtype.type(0))
+
+
+def frame_brackets(table: SyncTable, frame_index: np.ndarray, univ_time_ms: np.ndarray, *,
+                   max_gap_frames: float) -> Brackets:
+    """The frames (``frame_index`` (F,) increasing, F may be 0) around (T,) universal times (see :class:`Brackets`).
+
+    The one place where a stream is brought to universal times: :func:`interpolate_stream` (one person's tracks)
+    and :func:`dome_calib.recon.people.resample.interpolate_people` (unlabelled people) both read it.
+    """
+    t = np.asarray(univ_time_ms, dtype=float)
+    i0, i1, w0, w1 = table.bracket(t)
+    gap = table.univ_time_ms[np.searchsorted(table.index, i1)] - table.univ_time_ms[np.searchsorted(table.index, i0)]
+    usable = np.isfinite(w1) & (gap <= max_gap_frames * frame_period_ms(table))
+    frames = np.asarray(frame_index)
+
+    def position(idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if len(frames) == 0:
+            return np.zeros(len(idx), dtype=np.int64), np.zeros(len(idx), dtype=bool)
+        pos = np.clip(np.searchsorted(frames, idx), 0, len(frames) - 1)
+        return pos, frames[pos] == idx
+
+    (pos0, has0), (pos1, has1) = position(i0), position(i1)
+    w1 = np.where(usable, np.nan_to_num(w1, nan=0.0), 0.0)
+    return Brackets(pos0=pos0, pos1=pos1, has0=has0, has1=has1, w0=np.where(usable, 1.0 - w1, 0.0), w1=w1,
+                    usable=usable)
+
+
 def interpolate_stream(tracks: StreamTracks, univ_time_ms: np.ndarray, *, max_gap_frames: float = 2.5,
                        mode: Interpolation | str = Interpolation.LINEAR) -> tuple[np.ndarray, np.ndarray]:
     """Detections of one stream linearly interpolated to universal times.
@@ -164,28 +222,15 @@ def interpolate_stream(tracks: StreamTracks, univ_time_ms: np.ndarray, *, max_ga
         two frames' (a frame with weight 0 is not needed); 0 outside the span, across wide gaps or where a
         needed frame has no detection.
     """
-    t = np.asarray(univ_time_ms, dtype=float)
-    table = tracks.table
-    i0, i1, w0, w1 = table.bracket(t)
-    period = float(np.median(np.diff(table.univ_time_ms))) if len(table.index) > 1 else np.inf
-    gap = table.univ_time_ms[np.searchsorted(table.index, i1)] - table.univ_time_ms[np.searchsorted(table.index, i0)]
-    usable = np.isfinite(w1) & (gap <= max_gap_frames * period)
-    F = len(tracks.frame_index)
-
-    def lookup(idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        pos = np.clip(np.searchsorted(tracks.frame_index, idx), 0, max(F - 1, 0))
-        have = (F > 0) & (tracks.frame_index[pos] == idx) if F else np.zeros(idx.shape, bool)
-        return tracks._uv[pos], np.where(have[:, None, None], tracks._conf[pos], 0.0)
-
-    u0, c0 = lookup(i0)
-    u1, c1 = lookup(i1)
-    a0 = np.nan_to_num(w0, nan=0.0)[:, None, None]
-    a1 = np.nan_to_num(w1, nan=0.0)[:, None, None]
+    b = frame_brackets(tracks.table, tracks.frame_index, univ_time_ms, max_gap_frames=max_gap_frames)
+    u0, c0 = Brackets.take(tracks._uv, b.pos0, b.has0), Brackets.take(tracks._conf, b.pos0, b.has0)
+    u1, c1 = Brackets.take(tracks._uv, b.pos1, b.has1), Brackets.take(tracks._conf, b.pos1, b.has1)
+    a0, a1 = b.w0[:, None, None], b.w1[:, None, None]
     if Interpolation(mode) == Interpolation.NEAREST:
         a1 = (a1 > 0.5).astype(float)
         a0 = 1.0 - a1
     need0, need1 = a0 > 0, a1 > 0
-    ok = usable[:, None, None] & (~need0 | (c0 > 0)) & (~need1 | (c1 > 0))
+    ok = b.usable[:, None, None] & (~need0 | (c0 > 0)) & (~need1 | (c1 > 0))
     conf = np.where(ok, np.minimum(np.where(need0, c0, np.inf), np.where(need1, c1, np.inf)), 0.0)
     uv = a0[..., None] * u0 + a1[..., None] * u1
     uv = np.where((conf > 0)[..., None], uv, np.nan)

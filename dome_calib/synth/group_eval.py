@@ -29,9 +29,10 @@ from scipy.optimize import linear_sum_assignment
 
 from dome_calib.bundle import Bundle
 from dome_calib.recon.openpose_io import read_openpose_folder
-from dome_calib.recon.people import PeopleOptions
-from dome_calib.recon.people_io import read_scene
-from dome_calib.recon.people_time import PeopleStream, interpolate_people, people_streams
+from dome_calib.recon.people.resample import interpolate_people
+from dome_calib.recon.people.run import PeopleOptions
+from dome_calib.recon.people.scene_io import read_scene
+from dome_calib.recon.people.sources import PeopleStream, people_streams
 from dome_calib.recon.project import ViewSet, project_points, view_set
 from dome_calib.recon.triangulate import triangulate
 from dome_calib.synth.group_session import DETECTIONS, TRUTH_FILE

@@ -25,6 +25,8 @@ from scipy.optimize import linear_sum_assignment
 
 from dome_calib.errors import non_finite_fields
 from dome_calib.recon.errors import ReconError
+from dome_calib.recon.people.bodies import Bodies
+from dome_calib.recon.people.matching import skeleton_distance_cm
 
 
 @dataclass(kw_only=True)
@@ -47,17 +49,6 @@ class TrackingOptions:
             raise ReconError(f"{bad[0]} but expected a finite number")
         if self.gate_cm <= 0 or self.max_missed_ms < 0 or self.min_track_frames < 1 or self.smooth_half_window < 0:
             raise ReconError("gate_cm > 0, max_missed_ms >= 0, min_track_frames >= 1, smooth_half_window >= 0")
-
-
-def skeleton_distance_cm(A: np.ndarray, B: np.ndarray, min_common: int = 3) -> np.ndarray:
-    """Median distance over common joints of (P, 19, 3) and (Q, 19, 3) skeletons -> (P, Q) cm (inf if fewer than
-    ``min_common`` joints are in both). The median: one wrong joint (a swapped or borrowed limb) does not move it."""
-    d = np.linalg.norm(A[:, None] - B[None], axis=-1)  # (P, Q, 19), NaN where either lacks the joint
-    n = np.isfinite(d).sum(-1)
-    s = np.sort(d, axis=-1)  # NaN last
-    lo = np.take_along_axis(s, np.maximum((n - 1) // 2, 0)[..., None], axis=-1)[..., 0]
-    hi = np.take_along_axis(s, np.maximum(n // 2, 0)[..., None], axis=-1)[..., 0]
-    return np.where(n >= min_common, 0.5 * (lo + hi), np.inf)
 
 
 def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
@@ -124,6 +115,22 @@ def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
     new_id = np.full(n_tracks, -1, dtype=np.int64)
     new_id[keep] = np.arange(int(keep.sum()))  # creation order = order of first appearance
     return [np.where(tr >= 0, new_id[np.maximum(tr, 0)], -1) for tr in track_of]
+
+
+def apply_tracks(times_ms: np.ndarray, bodies: list[Bodies], options: TrackingOptions) -> list[Bodies]:
+    """Ids by :func:`track_bodies`; bodies of dropped tracks removed; optional smoothing per track
+    (:func:`smooth_track`)."""
+    times = np.asarray(times_ms, dtype=float)
+    ids = track_bodies(times, [b.X_cm for b in bodies], options)
+    out = [b.take(i >= 0, i[i >= 0]) for b, i in zip(bodies, ids)]
+    if options.smooth_half_window > 0:
+        for tid in sorted({int(x) for b in out for x in b.ids}):
+            where = [(k, int(np.flatnonzero(b.ids == tid)[0])) for k, b in enumerate(out) if np.any(b.ids == tid)]
+            X = np.stack([out[k].X_cm[p] for k, p in where])
+            Xs = smooth_track(times[[k for k, _ in where]], X, options.smooth_half_window)
+            for (k, p), x in zip(where, Xs):
+                out[k].X_cm[p] = x
+    return out
 
 
 def smooth_track(times_ms: np.ndarray, X: np.ndarray, half_window: int) -> np.ndarray:

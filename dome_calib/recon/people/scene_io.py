@@ -23,7 +23,9 @@ import numpy as np
 
 from dome_calib.io_utils import atomic_folder, output_folder
 from dome_calib.recon.errors import ReconError
-from dome_calib.recon.people import Bodies, CameraAgreement, PeopleSequence
+from dome_calib.recon.people.agreement import CameraAgreement
+from dome_calib.recon.people.bodies import Bodies
+from dome_calib.recon.people.run import PeopleSequence
 
 CAMERAS_FILE = "cameras.json"
 _OURS = re.compile(r"body3DScene_-?\d+\.json")

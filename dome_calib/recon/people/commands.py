@@ -14,12 +14,13 @@ from dome_calib.io_utils import refuse_output_among_inputs
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.formats import FPS_TYPE
 from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, parse_camera_map
-from dome_calib.recon.people import PeopleOptions, reconstruct_people_chunked
-from dome_calib.recon.people_assoc import AssociationOptions
-from dome_calib.recon.people_io import camera_report, check_people_folder, write_people
-from dome_calib.recon.people_time import FileSource, StreamLayout, stream_layouts
+from dome_calib.recon.people.chunks import reconstruct_people_chunked
+from dome_calib.recon.people.proposals import AssociationOptions
+from dome_calib.recon.people.run import PeopleOptions
+from dome_calib.recon.people.scene_io import camera_report, check_people_folder, write_people
+from dome_calib.recon.people.sources import FileSource, StreamLayout, stream_layouts
+from dome_calib.recon.people.tracking import TrackingOptions
 from dome_calib.recon.project import view_set
-from dome_calib.recon.tracking import TrackingOptions
 
 logger = logging.getLogger(__name__)
 

@@ -1,4 +1,4 @@
-"""Cross-view association of unlabelled 2D people at one universal time: which detection in which view is whom.
+"""Who might be there: 3D proposals of people at one universal time, from unlabelled 2D detections.
 
 Method (linear in views; see docs/reconstruct.md for the measurements behind the choices):
 
@@ -6,22 +6,14 @@ Method (linear in views; see docs/reconstruct.md for the measurements behind the
    whose optical axes are far from parallel and anti-parallel (score |angle - 90 deg|, each view used a bounded
    number of times, ties by name). For every pair and every pair of people in it, all common joints are
    triangulated at once (midpoint of the two rays); the person pair is a 3D hypothesis if the median ray gap is
-   below ``max_ray_gap_cm`` over at least ``min_common_joints`` joints. Cost: pairs x N^2 x 19, not V^2.
-2. **Clustering in 3D.** Hypothesis centres (median of their joints, quantised to 0.1 mm) are clustered greedily
-   around the densest one (weight = common joints), radius ``cluster_radius_cm``; each cluster is a proposal whose
-   skeleton is the per-joint median of its hypotheses.
-3. **Assignment per view.** Every proposal skeleton is projected into every view; a detection's cost against a
-   proposal is the mean over common joints of the pixel distance converted to cm at the joint's depth (capped at
-   ``assign_cap_cm``, so a swapped or borrowed limb costs a bounded amount); one-to-one per view by
-   :func:`~dome_calib.recon.people_time.greedy_match` below ``assign_gate_cm``. Cost: V x N x proposals x 19.
+   below ``max_ray_gap_cm`` over at least ``min_common_joints`` joints and its bones are a person's
+   (:func:`plausible_bones`). Cost: pairs x N^2 x 19, not V^2.
+2. **Clustering in 3D.** Hypothesis centres (mean of the torso joints, else median of all; quantised to 0.1 mm)
+   are clustered greedily around the densest one (weight = common joints), radius ``cluster_radius_cm``; each
+   cluster is a proposal whose skeleton is the per-joint median of its hypotheses.
 
-4. **Residual proposals.** Detections that no proposal took, in the views that have them, propose again over
-   pairs of those views only (a person seen by few views has few pairs among the sampled ones: this finds them;
-   the views with leftovers are few, so the cost stays small).
-
-The caller triangulates each proposal from its assigned detections with the robust
-:func:`~dome_calib.recon.triangulate.triangulate` (per-joint RANSAC removes swapped joints and borrowed limbs),
-then may assign again against the triangulated skeletons.
+Each view's detections are then assigned to the proposals (:mod:`dome_calib.recon.people.assign`, which also
+proposes again from the detections no proposal took, over :func:`residual_pairs`).
 """
 from __future__ import annotations
 
@@ -33,7 +25,7 @@ from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
 from dome_calib.errors import non_finite_fields
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.kernel import F32, CameraKernel
-from dome_calib.recon.people_time import greedy_match
+from dome_calib.recon.people.matching import nan_median
 from dome_calib.recon.project import ViewSet
 
 
@@ -84,9 +76,6 @@ class AssociationOptions:
                 raise ReconError(f"{name}={getattr(self, name)} but expected > 0")
 
 
-#: A detection is compared joint by joint only with proposals whose 2D centre is this close (cm at their depth).
-CANDIDATE_CM = 80.0
-
 #: Joints whose mean is a hypothesis's centre (when at least two are there): the torso, rarely occluded all at once.
 _TORSO = [JOINTS19.index(n) for n in ("neck", "body_center", "l_shoulder", "r_shoulder", "l_hip", "r_hip")]
 
@@ -108,16 +97,6 @@ def plausible_bones(X: np.ndarray, ratio: tuple[float, float]) -> np.ndarray:
     med = nan_median(length, axis=-1)
     n = np.isfinite(length).sum(-1)
     return (n < 2) | ((med >= ratio[0]) & (med <= ratio[1]))
-
-
-def nan_median(a: np.ndarray, axis: int) -> np.ndarray:
-    """Median along ``axis`` ignoring NaN (NaN where all are NaN); a sort, without numpy's slow masked path."""
-    a = np.moveaxis(np.asarray(a), axis, -1)
-    s = np.sort(a, axis=-1)  # NaN last
-    n = np.isfinite(s).sum(-1)
-    lo = np.take_along_axis(s, np.maximum((n - 1) // 2, 0)[..., None], axis=-1)[..., 0]
-    hi = np.take_along_axis(s, np.maximum(n // 2, 0)[..., None], axis=-1)[..., 0]
-    return np.where(n > 0, 0.5 * (lo + hi), np.nan)
 
 
 def select_pairs(views: ViewSet, max_pairs: int) -> np.ndarray:
@@ -235,41 +214,6 @@ def cluster_hypotheses(centres: np.ndarray, joints: np.ndarray, weights: np.ndar
     if not out:
         return np.zeros((0, 19, 3))
     return np.stack(out)
-
-
-def assign(kernel: CameraKernel, skeletons: np.ndarray, kp: np.ndarray, options: AssociationOptions) -> np.ndarray:
-    """Each view's detection of each proposal: (P, 19, 3) skeletons, (V, N, 19, 3) detections -> (V, P) index
-    into N or -1."""
-    P, V, N = len(skeletons), kp.shape[0], kp.shape[1]
-    if P == 0 or N == 0:
-        return np.full((V, P), -1, dtype=np.int64)
-    X = skeletons.reshape(-1, 3)
-    have = np.all(np.isfinite(X), axis=1)
-    xc, yc, zc = kernel.camera_points(np.where(have[:, None], X, 0.0))  # (P*19, V)
-    ev = kernel.evaluate(np.where(have[:, None], X, 0.0), np.zeros_like(zc), np.zeros_like(zc), jacobian=False)
-    proj = np.stack([ev.r_u, ev.r_v], axis=-1).reshape(P, 19, V, 2).transpose(2, 0, 1, 3)  # (V, P, 19, 2)
-    cm_per_px = (zc / kernel.fx).reshape(P, 19, V).transpose(2, 0, 1)  # (V, P, 19)
-    pvalid = (have.reshape(P, 19)[None] & np.isfinite(proj[..., 0]) & (cm_per_px > 0))
-    det = kp[..., 2] > options.min_joint_conf  # (V, N, 19)
-    # Candidates first: detection and proposal whose 2D centres (mean of their joints) are within
-    # CANDIDATE_CM at the proposal's depth; the full per-joint cost only for those (a few per detection).
-    pc = np.where(pvalid[..., None], proj, 0.0).sum(2) / np.maximum(pvalid.sum(2), 1)[..., None]  # (V, P, 2)
-    scale = np.where(pvalid, cm_per_px, 0.0).sum(2) / np.maximum(pvalid.sum(2), 1)  # (V, P) cm per px
-    dc = np.where(det[..., None], kp[..., :2], 0.0).sum(2) / np.maximum(det.sum(2), 1)[..., None]  # (V, N, 2)
-    gap = np.linalg.norm(dc[:, :, None] - pc[:, None], axis=-1) * scale[:, None]  # (V, N, P)
-    cand = (gap < CANDIDATE_CM) & (det.sum(2) >= options.min_common_joints)[..., None] & (pvalid.sum(2) > 0)[:, None]
-    v, i, p = np.nonzero(cand)
-    both = det[v, i] & pvalid[v, p]  # (K, 19)
-    diff = kp[v, i, :, :2] - proj[v, p]
-    err = np.minimum(np.where(both, np.sqrt((diff * diff).sum(-1)) * cm_per_px[v, p], 0.0), options.assign_cap_cm)
-    n = both.sum(-1)
-    cost = np.full((V, N, P), np.inf)
-    cost[v, i, p] = np.where(n >= options.min_common_joints, err.sum(-1) / np.maximum(n, 1), np.inf)
-    match = greedy_match(cost, options.assign_gate_cm)  # (V, N) -> proposal
-    out = np.full((V, P), -1, dtype=np.int64)
-    v, i = np.nonzero(match >= 0)
-    out[v, match[v, i]] = i
-    return out
 
 
 def propose(views: ViewSet, kernel: CameraKernel, kp: np.ndarray, pairs: np.ndarray,

@@ -1,0 +1,19 @@
+"""Groups of people from unlabelled per-camera detections: ``dome-calib reconstruct``.
+
+The modules, in the order the data flows (each a stage with typed inputs and results, testable alone):
+
+- :mod:`.sources`: every camera's people grouped by stream (layouts checked against the sync tables; in memory or
+  read from OpenPose files chunk by chunk);
+- :mod:`.resample`: a batch of universal times: each stream's people there (2D matching of the bracketing frames);
+- :mod:`.proposals`: who might be there: 3D proposals from bounded view pairs;
+- :mod:`.assign`: which detection in which view is whom (assignment, residual proposals, second pass);
+- :mod:`.bodies`: robust triangulation of the assigned detections, then the bodies of each time;
+- :mod:`.joint_check`: which triangulated joints a body keeps (called between the two steps of ``bodies``);
+- :mod:`.agreement`: how well each camera agrees with the bodies;
+- :mod:`.tracking`: ids over time;
+- :mod:`.run`: the straight run of the above over one chunk of times; :mod:`.chunks`: long sessions on an
+  executor;
+- :mod:`.scene_io`: body3DScene files and cameras.json; :mod:`.commands`: the file-level stage behind the command.
+
+:mod:`.matching` holds what several stages share (greedy matching, skeleton distance, de-duplication).
+"""

@@ -1,0 +1,67 @@
+"""How well each camera agrees with the bodies: the per-camera tallies behind ``cameras.json``.
+
+Per camera: the people it detected (with enough joints), the ones used by a reconstructed body, and a histogram of
+the pixel distance between its used joints and the reconstructed joints. A camera that moved since calibration has
+a large median and a small share used.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dome_calib.recon.people.bodies import PeopleTriangulation
+from dome_calib.recon.project import ViewSet
+from dome_calib.recon.triangulate import reprojection_error_px
+
+#: Histogram of reprojection errors per camera: bins of 0.1 px up to 200 px (the last bin holds everything above).
+ERROR_BIN_PX = 0.1
+ERROR_BINS = 2001
+
+
+@dataclass
+class CameraAgreement:
+    """Per camera (``names`` order): detected (V,) people detected (with enough joints), used (V,) of them in a
+    body, hist (V, ERROR_BINS) counts of |reprojection - detection| of the used joints in ERROR_BIN_PX bins."""
+
+    names: list[str]
+    detected: np.ndarray
+    used: np.ndarray
+    hist: np.ndarray
+
+    @classmethod
+    def empty(cls, names: list[str]) -> CameraAgreement:
+        V = len(names)
+        return cls(names, np.zeros(V, np.int64), np.zeros(V, np.int64), np.zeros((V, ERROR_BINS), np.int64))
+
+    def add(self, other: CameraAgreement) -> None:
+        self.detected += other.detected
+        self.used += other.used
+        self.hist += other.hist
+
+    def median_px(self) -> np.ndarray:
+        """(V,) median reprojection error of each camera's used joints (NaN if none), to the bin centre."""
+        n = self.hist.sum(1)
+        cum = np.cumsum(self.hist, axis=1)
+        k = np.argmax(cum >= (n[:, None] + 1) // 2, axis=1)
+        return np.where(n > 0, (k + 0.5) * ERROR_BIN_PX, np.nan)
+
+
+def tally_agreement(views: ViewSet, kp: np.ndarray, tri: PeopleTriangulation, ok: np.ndarray, kept: np.ndarray, *,
+                    min_joint_conf: float, min_common_joints: int) -> CameraAgreement:
+    """The cameras' agreement over a batch: kp (T, V, N, 19, 3) every detection; tri, ok (B, 19) the joints kept,
+    kept (B,) the people that became bodies. A person counts as detected with ``min_common_joints`` joints above
+    ``min_joint_conf`` (what the association can use)."""
+    agreement = CameraAgreement.empty(list(views.names))
+    detected = (kp[..., 2] > min_joint_conf).sum(-1) >= min_common_joints  # (T, V, N)
+    agreement.detected += detected.sum(axis=(0, 2))
+    X_flat = np.where(ok.reshape(-1)[:, None], tri.X_cm.reshape(-1, 3), np.nan)
+    uv = tri.uv_px
+    err = reprojection_error_px(views, np.nan_to_num(X_flat), np.nan_to_num(uv))  # (B * 19, V)
+    used_joint = np.isfinite(uv[..., 0]) & np.isfinite(X_flat).all(1)[:, None] & np.isfinite(err)
+    used_joint &= np.repeat(kept, 19)[:, None]
+    for v in np.flatnonzero(used_joint.any(0)):
+        b = np.minimum((err[used_joint[:, v], v] / ERROR_BIN_PX).astype(np.int64), ERROR_BINS - 1)
+        agreement.hist[v] += np.bincount(b, minlength=ERROR_BINS)
+    agreement.used += tri.assigned[kept].sum(0) if len(tri.assigned) else 0
+    return agreement

@@ -1,0 +1,126 @@
+"""Many people, no labels: OpenPose-style detections of every camera -> tracked 3D skeletons (joints19, world cm).
+
+The run, in the order the data flows (each step a function of its own module, testable alone):
+
+1. :func:`~dome_calib.recon.people.resample.gather_people`: every stream's people at a batch of universal times;
+2. :func:`~dome_calib.recon.people.assign.associate`: proposals (:mod:`~dome_calib.recon.people.proposals`) and
+   each view's detections assigned to them, per time;
+3. :func:`~dome_calib.recon.people.bodies.triangulate_people`: all people of the batch triangulated robustly in one
+   call;
+4. :func:`~dome_calib.recon.people.joint_check.check_joints`: the joints each body keeps;
+5. :func:`~dome_calib.recon.people.bodies.build_bodies`: enough joints, no duplicates;
+6. :func:`~dome_calib.recon.people.agreement.tally_agreement`: how each camera agrees;
+
+then, over the whole chunk of times, :func:`~dome_calib.recon.people.tracking.apply_tracks` gives ids.
+:func:`reconstruct_people` runs one chunk of times in one process;
+:func:`~dome_calib.recon.people.chunks.reconstruct_people_chunked` splits a long session into overlapping chunks on
+an executor and stitches ids.
+"""
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from fractions import Fraction
+
+import numpy as np
+
+from dome_calib.errors import non_finite_fields
+from dome_calib.recon.errors import ReconError
+from dome_calib.recon.kernel import CameraKernel
+from dome_calib.recon.people.agreement import CameraAgreement, tally_agreement
+from dome_calib.recon.people.assign import associate
+from dome_calib.recon.people.bodies import Bodies, build_bodies, triangulate_people
+from dome_calib.recon.people.joint_check import JointCheckOptions, check_joints
+from dome_calib.recon.people.proposals import AssociationOptions, select_pairs
+from dome_calib.recon.people.resample import gather_people
+from dome_calib.recon.people.sources import PeopleStream
+from dome_calib.recon.people.tracking import TrackingOptions, apply_tracks
+from dome_calib.recon.project import ViewSet
+from dome_calib.recon.triangulate import TriangulationOptions
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(kw_only=True)
+class PeopleOptions:
+    """Options of :func:`reconstruct_people`. joint_check: which triangulated joints a body keeps
+    (:mod:`~dome_calib.recon.people.joint_check`); min_body_joints: a body needs this many reconstructed joints;
+    max_gap_frames: stream brackets wider than this many frame periods are not bridged; batch_times: times
+    triangulated together; chunk_times / overlap_times: the chunks of :func:`reconstruct_people_chunked`."""
+
+    association: AssociationOptions = field(default_factory=AssociationOptions)
+    triangulation: TriangulationOptions = field(default_factory=lambda: TriangulationOptions(
+        inlier_threshold_px=10.0, min_views=2, min_confidence=0.05))
+    tracking: TrackingOptions = field(default_factory=TrackingOptions)
+    joint_check: JointCheckOptions = field(default_factory=JointCheckOptions)
+    min_body_joints: int = 6
+    max_gap_frames: float = 2.5
+    batch_times: int = 16
+    chunk_times: int = 600
+    overlap_times: int = 12
+    shared_fps: Fraction = Fraction(30)
+
+    def __post_init__(self) -> None:
+        if bad := non_finite_fields(self):  # a `<` check lets NaN through
+            raise ReconError(f"{bad[0]} but expected a finite number")
+        if self.max_gap_frames < 1.0 or self.min_body_joints < 1 or self.batch_times < 1 or self.chunk_times < 1 \
+                or not 0 <= self.overlap_times < self.chunk_times:
+            raise ReconError("max_gap_frames >= 1, min_body_joints >= 1, batch_times >= 1, chunk_times >= 1 and "
+                             "0 <= overlap_times < chunk_times are required")
+
+
+@dataclass
+class PeopleSequence:
+    """times_ms (T,), bodies[t] (:class:`Bodies`), cameras (:class:`CameraAgreement`)."""
+
+    times_ms: np.ndarray
+    bodies: list[Bodies]
+    cameras: CameraAgreement
+
+
+def associate_batch(views: ViewSet, kernel: CameraKernel, pairs: np.ndarray, kp: np.ndarray,
+                    options: PeopleOptions) -> tuple[list[Bodies], CameraAgreement]:
+    """(T, V, N, 19, 3) people at T times -> the bodies of each time (ids -1) and the cameras' agreement (steps 2-6
+    of the module docstring)."""
+    a = options.association
+    assigned = associate(views, kernel, pairs, kp, a, min_body_joints=options.min_body_joints)
+    tri = triangulate_people(views, kp, assigned, options.triangulation)
+    ok = check_joints(tri.X_cm, tri.n_inliers, options.joint_check)
+    bodies, kept = build_bodies(tri, ok, min_body_joints=options.min_body_joints, duplicate_cm=a.duplicate_cm)
+    agreement = tally_agreement(views, kp, tri, ok, kept, min_joint_conf=a.min_joint_conf,
+                                min_common_joints=a.min_common_joints)
+    return bodies, agreement
+
+
+def reconstruct_people(views: ViewSet, streams: list[PeopleStream], times_ms: np.ndarray,
+                       options: PeopleOptions | None = None, *,
+                       progress: Callable[[int, int], None] | None = None) -> PeopleSequence:
+    """Tracked people at (T,) universal times from the streams' unlabelled detections (one process).
+
+    Args:
+        views: holds every camera of ``streams``; streams: from :func:`~dome_calib.recon.people.sources.people_streams`.
+        progress: ``progress(done_times, total_times)`` after each batch.
+    Returns:
+        :class:`PeopleSequence`; ids from 0 in order of first appearance.
+    Example:
+        >>> seq = reconstruct_people(view_set(bundle, names), people_streams(bundle, det.people), vga_times_ms)
+    """
+    options = options or PeopleOptions()
+    t = np.asarray(times_ms, dtype=float)
+    names = [n for s in streams for n in s.cameras]
+    sub = views.subset(names)
+    kernel = CameraKernel(sub)
+    pairs = select_pairs(sub, options.association.max_pairs)
+    bodies: list[Bodies] = []
+    agreement = CameraAgreement.empty(names)
+    for start in range(0, len(t), options.batch_times):
+        sl = slice(start, min(start + options.batch_times, len(t)))
+        kp = gather_people(streams, t[sl], options.max_gap_frames)
+        got, agree = associate_batch(sub, kernel, pairs, kp, options)
+        bodies += got
+        agreement.add(agree)
+        if progress is not None:
+            progress(sl.stop, len(t))
+    bodies = apply_tracks(t, bodies, options.tracking)
+    return PeopleSequence(times_ms=t, bodies=bodies, cameras=agreement)
