@@ -63,12 +63,11 @@ def check_same_pictures(images: list[Path]) -> None:
 
 def check_capture(capture: Path, scenes: list[str], cameras: list[str], *, listed: bool,
                   local: bool = True) -> None:
-    """Before any work: the scenes and cameras of a capture (``listed``: as capture.json names them) and, when its
-    images are here (``local``; not on capture nodes), every ``scenes/<scene>/*.png``: named after a camera, a
-    camera of capture.json, and no two the same picture. CaptureError (one line naming the file) otherwise."""
+    """Before any work: when its images are here (``local``; not on capture nodes), every
+    ``scenes/<scene>/*.png`` of the capture's scenes: named after a camera, a camera of capture.json (``listed``:
+    the names come from it, already checked by its schema), and no two the same picture. CaptureError (one line
+    naming the file) otherwise."""
     where = capture / "capture.json" if listed else capture
-    if listed:  # else the names are the images', checked below naming each file
-        check_camera_names(cameras, f"{where}")
     if not local:
         return
     known = set(cameras)

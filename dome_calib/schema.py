@@ -29,19 +29,28 @@ from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
 import pydantic
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
 from dome_calib.errors import DomeCalibError
 
-__all__ = ["FileSchema", "OpenSchema", "InputFileError", "Finite", "NonNegInt", "PosInt", "PosFinite",
-           "NonNegFinite", "Vec", "Vec3", "Matrix3", "Matrix4", "read_json", "read_toml", "read_yaml", "validate",
-           "parse_json", "field_path", "describe_schema", "Field"]
+__all__ = ["FileSchema", "OpenSchema", "InputFileError", "FieldError", "Finite", "NonNegInt", "PosInt", "PosFinite",
+           "NonNegFinite", "Vec", "Vec3", "Matrix3", "Matrix4", "PlainName", "Unique", "read_json", "read_toml",
+           "read_yaml", "validate", "parse_json", "field_path", "describe_schema", "show", "words", "Field"]
 
 M = TypeVar("M", bound=BaseModel)
 
 
 class InputFileError(DomeCalibError, ValueError):
     """A file a user handed us does not match its schema; the message names the file and the field path."""
+
+
+class FieldError(ValueError):
+    """Raised by a schema's own check (a ``model_validator``) to name the field it is about, below the validated
+    object: ``FieldError(("nodes", "node08"), "camera 07_01 is also under node07")`` -> ``nodes.node08: ...``."""
+
+    def __init__(self, loc: tuple[int | str, ...], message: str) -> None:
+        super().__init__(message)
+        self.loc = tuple(loc)
 
 
 class FileSchema(BaseModel):
@@ -76,6 +85,37 @@ Matrix3 = Vec(3, Vec3)
 Matrix4 = Vec(4, Vec(4))
 
 
+def words(expected: str) -> dict:
+    """``Field(**words("a camera name"))``: what a field accepts, in the words of the one-line errors and the docs
+    (where its JSON schema alone would say only "a string")."""
+    return {"json_schema_extra": {"expected": expected}}
+
+
+def _plain_name(name: str) -> str:
+    if not name or "/" in name or "\\" in name or name in (".", "..") or not name.isprintable():
+        raise ValueError(f"expected a plain name (no '/', not '.' or '..', printable), got {show(name)}")
+    return name
+
+
+#: A name that becomes part of a path (a scene folder, a sequence, a capture node): no separator, not . or ..
+PlainName = Annotated[str, AfterValidator(_plain_name), Field(min_length=1, **words("a plain name (no '/')"))]
+
+
+def _unique(values: list) -> list:
+    seen: set = set()
+    for i, v in enumerate(values):
+        key = json.dumps(v, sort_keys=True) if isinstance(v, (list, dict)) else v
+        if key in seen:
+            raise FieldError((i,), f"{show(v)} is listed twice")
+        seen.add(key)
+    return values
+
+
+def Unique(item: Any, min_length: int = 0) -> Any:  # noqa: N802 (a type constructor)
+    """A list of ``item`` in which no value comes twice (at least ``min_length`` of them)."""
+    return Annotated[list[item], Field(min_length=min_length), AfterValidator(_unique)]
+
+
 # ---- reading --------------------------------------------------------------------------------------------------
 
 def parse_json(source: str | Path, data: bytes, schema: type[M], *, error: type[Exception] = InputFileError) -> M:
@@ -83,7 +123,7 @@ def parse_json(source: str | Path, data: bytes, schema: type[M], *, error: type[
     try:
         return schema.model_validate_json(data)
     except pydantic.ValidationError as exc:
-        raise error(one_line(source, exc, schema)) from None
+        raise error(one_line(source, exc, schema, raw=data)) from None
 
 
 def read_json(path: str | Path, schema: type[M], *, error: type[Exception] = InputFileError) -> M:
@@ -145,7 +185,7 @@ def validate(data: Any, schema: type[M], *, source: str | Path, error: type[Exce
     try:
         return schema.model_validate(data)
     except pydantic.ValidationError as exc:
-        raise error(one_line(source, exc, schema)) from None
+        raise error(one_line(source, exc, schema, data=data)) from None
 
 
 def _read_bytes(path: str | Path, error: type[Exception]) -> bytes:
@@ -185,27 +225,95 @@ def show(value: Any, limit: int = 40) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def one_line(source: str | Path, exc: pydantic.ValidationError, schema: type[BaseModel]) -> str:
-    """The first failure of ``exc`` as ``source: field.path: expected ..., got ...`` (+ how many more)."""
+_NO_DATA = object()
+
+
+def one_line(source: str | Path, exc: pydantic.ValidationError, schema: type[BaseModel], *, data: Any = _NO_DATA,
+             raw: bytes | None = None) -> str:
+    """The first failure of ``exc`` as ``source: [owner: ]field.path: expected ..., got ...`` (+ how many more).
+
+    ``data`` (the parsed input) or ``raw`` (the file's bytes, parsed here: only on failure) lets the line name the
+    owner of the field, the ``name`` of the list item it sits in (``camera 01_03: cameras[2].K``), and drops
+    pydantic's own tags (union members, validators) from the path."""
     errors = exc.errors(include_url=False)
     err = errors[0]
-    loc = tuple(err["loc"])
     kind = err["type"]
     more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
     if kind == "json_invalid":
+        if raw is not None and not _is_utf8(raw):
+            return f"{source}: not a UTF-8 text file"
         return f"{source}: not valid JSON ({err['msg'].removeprefix('Invalid JSON: ')}){more}"
-    where = field_path(loc) or "the file"
+    if raw is not None:
+        data = _loads(raw)
+    loc = tuple(err["loc"])
+    if isinstance(err.get("ctx", {}).get("error"), FieldError):  # a schema's own check, naming its field
+        loc += err["ctx"]["error"].loc
+    loc = _data_loc(data, loc, kind) if data is not _NO_DATA else loc
+    owner = _owner(data, loc) if data is not _NO_DATA else ""
+    where = f"{source}: {owner + ': ' if owner else ''}{field_path(loc) or 'the file'}"
     if kind == "missing":
-        return f"{source}: {where}: missing (expected {expected_at(schema, loc)}){more}"
+        return f"{where}: missing (expected {expected_at(schema, loc)}){more}"
     if kind == "extra_forbidden":
         known = _known_fields(schema, loc[:-1])
         hint = f" (known fields: {', '.join(known)})" if known else ""
-        return f"{source}: {where}: unknown field{hint}{more}"
+        return f"{where}: unknown field{hint}{more}"
     if kind in ("value_error", "assertion_error"):  # a model's own check: its message says what is wrong
         msg = str(err.get("ctx", {}).get("error", err["msg"])).removeprefix("Value error, ")
-        return f"{source}: {where}: {msg}{more}"
-    got = show(err.get("input"))
-    return f"{source}: {where}: expected {expected_at(schema, loc, err)}, got {got}{more}"
+        return f"{where}: {msg}{more}"
+    return f"{where}: expected {expected_at(schema, loc, err)}, got {show(err.get('input'))}{more}"
+
+
+def _is_utf8(raw: bytes) -> bool:
+    try:
+        raw.decode("utf-8")
+    except UnicodeDecodeError:
+        return False
+    return True
+
+
+def _loads(raw: bytes) -> Any:
+    """The file's JSON as Python (for naming the owner of a failing field), or _NO_DATA if that fails too."""
+    try:
+        return json.loads(raw)
+    except (ValueError, RecursionError):
+        return _NO_DATA
+
+
+def _data_loc(data: Any, loc: tuple, kind: str) -> tuple:
+    """pydantic's ``loc`` less its own tags (union members such as ``int`` or ``list[float]``, validators): the
+    parts that step into ``data``, and the last part of a missing or unknown field."""
+    out: list[int | str] = []
+    node = data
+    for i, part in enumerate(loc):
+        last = i == len(loc) - 1
+        if isinstance(node, list) and isinstance(part, int) and 0 <= part < len(node):
+            node = node[part]
+        elif isinstance(node, dict) and isinstance(part, str) and part in node:
+            node = node[part]
+        elif last and kind in ("missing", "extra_forbidden"):
+            node = None
+        else:
+            continue
+        out.append(part)
+    return tuple(out)
+
+
+def _owner(data: Any, loc: tuple) -> str:
+    """The innermost list item on the path that carries a string ``name``: ``camera 01_03`` (the list's field name,
+    singular), or ""."""
+    owner, node, parent = "", data, ""
+    for part in loc:
+        try:
+            node = node[part]
+        except (KeyError, IndexError, TypeError):
+            break
+        if isinstance(part, int) and isinstance(node, dict) and isinstance(node.get("name"), str) and node["name"]:
+            what = parent[:-1] if parent.endswith("s") else "item"
+            name = node["name"]
+            owner = f"{what} {name if name.isprintable() and len(name) <= 40 else show(name)}"
+        if isinstance(part, str):
+            parent = part
+    return owner
 
 
 def _resolve(node: dict, defs: dict) -> dict:
@@ -264,6 +372,8 @@ def describe_node(node: dict | None, defs: dict) -> str:
     if node is None:
         return "a valid value"
     node = _resolve(node, defs)
+    if "expected" in node:
+        return node["expected"]
     if "anyOf" in node:
         return " or ".join(dict.fromkeys(describe_node(o, defs) for o in node["anyOf"]))
     if "enum" in node:
@@ -274,17 +384,17 @@ def describe_node(node: dict | None, defs: dict) -> str:
     if kind == "object" and "properties" in node:
         return f"an object with {', '.join(node['properties'])}" if len(node["properties"]) <= 4 else "an object"
     if kind == "object" and isinstance(node.get("additionalProperties"), dict):
-        return f"an object of {_plural(describe_node(node['additionalProperties'], defs))}"
+        return f"an object mapping names to {_plural(describe_node(node['additionalProperties'], defs))}"
     if kind == "array":
         lo, hi = node.get("minItems"), node.get("maxItems")
-        count = (f"{lo} " if lo == hi and lo is not None else f"at least {lo} " if lo else
+        count = (f"{lo} " if lo == hi and lo is not None else f"at least {lo} " if lo and lo > 1 else
                  f"at most {hi} " if hi is not None else "")
+        article = "a non-empty list" if lo == 1 and hi is None else "a list"
         items = node.get("items") or (node.get("prefixItems") or [None])[0]
-        return f"a list of {count}{_plural(describe_node(items, defs))}" if items else f"a list of {count}items"
+        return f"{article} of {count}{_plural(describe_node(items, defs))}" if items else f"{article} of {count}items"
     words = _TYPES.get(kind, kind or "a value")
-    bounds = [f"{op} {node[key]:g}" if isinstance(node[key], float) else f"{op} {node[key]}"
-              for key, op in (("minimum", ">="), ("exclusiveMinimum", ">"), ("maximum", "<="),
-                              ("exclusiveMaximum", "<")) if key in node]
+    bounds = [f"{op} {_number(node[key])}" for key, op in (("minimum", ">="), ("exclusiveMinimum", ">"),
+                                                           ("maximum", "<="), ("exclusiveMaximum", "<")) if key in node]
     if kind == "string":
         if node.get("minLength") == 1:
             words = "a non-empty string"
@@ -295,7 +405,11 @@ def describe_node(node: dict | None, defs: dict) -> str:
     return " ".join([words, " and ".join(bounds)]).strip()
 
 
-_NOUNS = ("number", "integer", "string", "list", "object", "value", "item")
+def _number(value: float | int) -> str:
+    return "2^63-1" if value == INT64_MAX else f"{value:g}" if isinstance(value, float) else str(value)
+
+
+_NOUNS = ("number", "integer", "string", "list", "object", "value", "item", "name", "label", "path", "matrix")
 
 
 def _plural(words: str) -> str:
