@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
@@ -201,13 +202,18 @@ def _read_bytes(path: str | Path, error: type[Exception]) -> bytes:
 
 # ---- the one line -----------------------------------------------------------------------------------------------
 
+_PLAIN_KEY = re.compile(r"[A-Za-z0-9_\-<>]{1,40}")
+
+
 def field_path(loc: tuple[int | str, ...]) -> str:
     """pydantic's ``loc`` as a path: ``("ltc", "vga_channel")`` -> ``ltc.vga_channel``, ``("cameras", 3, "K")``
-    -> ``cameras[3].K``."""
+    -> ``cameras[3].K``; a key from the file that is not a plain word is quoted (``kinect.color["node one"]``)."""
     out = ""
     for part in loc:
         if isinstance(part, int):
             out += f"[{part}]"
+        elif not _PLAIN_KEY.fullmatch(part):
+            out += f"[{show(part)}]"
         else:
             out += f".{part}" if out else str(part)
     return out
@@ -406,7 +412,7 @@ def describe_node(node: dict | None, defs: dict) -> str:
 
 
 def _number(value: float | int) -> str:
-    return "2^63-1" if value == INT64_MAX else f"{value:g}" if isinstance(value, float) else str(value)
+    return "2^63-1" if value == INT64_MAX else "2^53" if value == 2**53 else f"{value:g}" if isinstance(value, float) else str(value)
 
 
 _NOUNS = ("number", "integer", "string", "list", "object", "value", "item", "name", "label", "path", "matrix")
