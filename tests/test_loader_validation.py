@@ -225,7 +225,7 @@ def test_bad_file_inside_a_bundle_names_it(tmp_path):
         load_bundle(tmp_path)
 
 
-# --- session.json: unknown keys fail loudly ---------------------------------------------------------------------
+# --- session.json: unknown fields fail loudly -------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("where", ["top", "ltc", "stream", "kinect"])
@@ -246,7 +246,7 @@ def test_session_json_typo_key_is_refused(tmp_path, where):
     obj, key, field = typo[where]
     obj[key] = 1
     (tmp_path / "session.json").write_text(json.dumps(doc))
-    with pytest.raises(SessionError, match=rf"session.json: field '{field}': unknown key") as err:
+    with pytest.raises(SessionError, match=rf"session.json: {field}: unknown field \(known fields: ") as err:
         load_session(tmp_path)
     assert "\n" not in str(err.value)
 
