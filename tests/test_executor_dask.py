@@ -120,10 +120,12 @@ def test_node_image_path_uses_the_nodes_own_folder(monkeypatch):
 
 
 def test_an_image_missing_on_its_node_is_a_per_camera_failure(tmp_path, monkeypatch):
-    from dome_calib.pipeline.cluster import NodeImageTask
+    from dome_calib.pipeline.cluster import ProvenImageTask
     from projector.features import FeatureOptions
 
     monkeypatch.setenv("DOME_CALIB_CAPTURE_ROOT", str(tmp_path / "node07"))
-    res = NodeImageTask(head_capture="/data/capture")(("07_01", "/data/capture/scenes/s1/07_01.png", FeatureOptions()))
-    assert res.camera == "07_01" and res.keypoints is None
-    assert res.failure.startswith("image not found on this node") and "node07/scenes/s1/07_01.png" in res.failure
+    task = ProvenImageTask(head_capture="/data/capture", pinned=frozenset({"07_01"}))
+    proven = task(("07_01", "/data/capture/scenes/s1/07_01.png", FeatureOptions()))
+    res = proven.result
+    assert proven.evidence is None and res.camera == "07_01" and res.keypoints is None
+    assert res.failure.startswith("image not found on this worker") and "node07/scenes/s1/07_01.png" in res.failure

@@ -15,7 +15,8 @@ from pydantic import AfterValidator, model_validator
 from dome_calib.bundle import CAMERA_NAMES_HELP, is_camera_name
 from dome_calib.capture_checks import check_capture
 from dome_calib.errors import CaptureError
-from dome_calib.schema import Field, FieldError, FileSchema, Finite, PlainName, Unique, read_json, show, words
+from dome_calib.schema import (Field, FieldError, FileSchema, Finite, NonNegInt, PlainName, Unique, read_json, show,
+                               words)
 
 CAPTURE_FILE = "capture.json"
 
@@ -37,6 +38,13 @@ class TentPose(FileSchema):
     z_cm: Finite
 
 
+class ImageFingerprint(FileSchema):
+    """What one image file is: its size and the SHA-256 of its bytes."""
+
+    bytes: NonNegInt
+    sha256: Annotated[str, Field(pattern=r"^[0-9a-f]{64}$", **words("64 lower-case hex digits"))]
+
+
 class CaptureFile(FileSchema):
     """``CAPTURE/capture.json``: the scenes and cameras of a capture and which capture node holds which cameras'
     images. Only ``scenes``, ``cameras`` and ``nodes`` are read by ``calibrate``; the other fields record how
@@ -46,6 +54,9 @@ class CaptureFile(FileSchema):
     cameras: Unique(CameraName, 1) = Field(description="every camera of the capture (its images <camera>.png)")
     nodes: dict[PlainName, Unique(CameraName)] = Field(
         {}, description="capture node (the worker's `dask worker --name`) -> the cameras whose images it holds")
+    images: dict[str, ImageFingerprint] = Field(
+        {}, description="<scene>/<camera> -> the image's size and SHA-256: what every cluster worker must read "
+                        "(for images that stay on the capture nodes, which this machine cannot read)")
     preset: str | None = Field(None, description="synth: the camera preset")
     seed: int | None = Field(None, description="synth: the random seed")
     generator_version: str | None = Field(None, description="synth: the generator's version")
@@ -70,6 +81,11 @@ class CaptureFile(FileSchema):
                 if cam in seen:
                     raise FieldError(("nodes", node, i), f"camera {cam} is listed under nodes {seen[cam]} and {node}")
                 seen[cam] = node
+        scenes = set(self.scenes)
+        for key in self.images:
+            scene, _, cam = key.partition("/")
+            if scene not in scenes or cam not in known:
+                raise FieldError(("images", key), "expected <scene>/<camera> of a listed scene and camera")
         return self
 
 
@@ -95,6 +111,12 @@ def capture_contents(capture: Path) -> tuple[list[str], list[str]]:
     cams = sorted({p.stem for s in scenes for p in (capture / "scenes" / s).glob("*.png")})
     check_capture(capture, scenes, cams, listed=False)
     return scenes, cams
+
+
+def capture_images(capture: Path) -> dict[str, tuple[int, str]]:
+    """``capture.json``'s ``"images"``: ``<scene>/<camera>`` -> (bytes, SHA-256), {} if absent."""
+    meta = read_capture_file(capture)
+    return {} if meta is None else {k: (v.bytes, v.sha256) for k, v in meta.images.items()}
 
 
 def capture_nodes(capture: Path) -> dict[str, list[str]]:

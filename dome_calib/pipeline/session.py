@@ -28,7 +28,7 @@ from dome_calib.capture_checks import cross_check_kinects
 from dome_calib.errors import BundleFormatError, CaptureError, DomeCalibError
 from dome_calib.io_utils import atomic_write_text, refuse_output_among_inputs
 from dome_calib.kinect.calibrate import KinectCalibOptions, SensorCalibration, calibrate_kinect_folder
-from dome_calib.kinect.detect import find_sensor_frames
+from dome_calib.kinect.detect import check_sensor_frames, find_sensor_frames
 from dome_calib.report.page import write_page
 from dome_calib.pipeline.capture import capture_contents
 from dome_calib.pipeline.full import run_calibration
@@ -130,7 +130,9 @@ def run_session(session: Path, out: Path, options: SessionOptions | None = None,
         check_session_audio(loaded, kinect_required=True)
     except TimecodeError as exc:
         raise DomeCalibError(str(exc)) from None  # the same one line, as a dome-calib error
-    kinect_nodes = find_sensor_frames(parts["kinect"])  # Kinect folders and pairing, likewise
+    kinect_nodes = find_sensor_frames(parts["kinect"])  # Kinect folders, pairing and image headers, likewise
+    for frames in kinect_nodes.values():
+        check_sensor_frames(frames, options.kinect.ir_size, None)
     cross_check_kinects(kinect_folder=parts["kinect"], nodes=list(kinect_nodes), sync_file=parts["sync"] / "session.json",
                         synced=list(loaded.kinects), capture=parts["capture"], cameras=capture_contents(parts["capture"])[1])
     seq = options.seq or session.resolve().name
