@@ -152,8 +152,9 @@ def read_yaml(path: str | Path, schema: type[M], *, error: type[Exception] = Inp
     _read_bytes(path, error)  # a missing or unreadable file named as such, not as OpenCV's message
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
-        raise error(f"{path}: not a YAML file OpenCV can read ({str(exc).strip().splitlines()[-1]})") from None
+    except (cv2.error, SystemError) as exc:  # SystemError: OpenCV's parser failed inside the constructor
+        why = str(exc.__cause__ or exc).strip().splitlines()
+        raise error(f"{path}: not a YAML file OpenCV can read ({why[-1] if why else 'unreadable'})") from None
     try:
         if not fs.isOpened():
             raise error(f"{path}: not a YAML file OpenCV can read")
@@ -244,13 +245,18 @@ def one_line(source: str | Path, exc: pydantic.ValidationError, schema: type[Bas
     errors = exc.errors(include_url=False)
     err = errors[0]
     kind = err["type"]
-    more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+    if raw is not None and kind != "json_invalid":
+        data = _loads(raw)
+    if data is not _NO_DATA:  # a union's branches fail at one place: that is one failure, not several
+        places = {_data_loc(data, tuple(e["loc"]), e["type"]) for e in errors}
+        n_more = len(places) - 1
+    else:
+        n_more = len(errors) - 1
+    more = f" (and {n_more} more)" if n_more > 0 else ""
     if kind == "json_invalid":
         if raw is not None and not _is_utf8(raw):
             return f"{source}: not a UTF-8 text file"
         return f"{source}: not valid JSON ({err['msg'].removeprefix('Invalid JSON: ')}){more}"
-    if raw is not None:
-        data = _loads(raw)
     loc = tuple(err["loc"])
     if isinstance(err.get("ctx", {}).get("error"), FieldError):  # a schema's own check, naming its field
         loc += err["ctx"]["error"].loc
