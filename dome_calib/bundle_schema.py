@@ -19,7 +19,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import AfterValidator, BeforeValidator, ConfigDict, RootModel, model_validator
 
-from dome_calib.schema import (INT64_MAX, Field, FieldError, FileSchema, OpenSchema, Vec, show, words)
+from dome_calib.schema import INT64_MAX, Field, FieldError, FileSchema, JsonData, OpenSchema, Vec, show, words
 
 #: |R R^T - I| up to this is kept as written (the real files store 10 significant digits: ~1e-10).
 ROTATION_EXACT_TOL = 1e-8
@@ -182,6 +182,7 @@ class KinectSensorEntry(FileSchema):
     as written."""
 
     model_config = ConfigDict(extra="allow")
+    __pydantic_extra__: dict[str, JsonData]  # kept as written, but JSON data without NaN
 
     name: KinectNodeName | None = Field(None, description="default: KINECTNODE1.. in file order")
     K_depth: CameraMatrix

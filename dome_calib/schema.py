@@ -21,13 +21,16 @@ an English sentence (and without a position for truncated JSON).
 """
 from __future__ import annotations
 
+import functools
 import json
 import math
 import re
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import Annotated, Any, TypeVar, Union
+
+from typing_extensions import TypeAliasType
 
 import pydantic
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
@@ -35,7 +38,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 from dome_calib.errors import DomeCalibError
 
 __all__ = ["FileSchema", "OpenSchema", "InputFileError", "FieldError", "Finite", "NonNegInt", "PosInt", "PosFinite",
-           "NonNegFinite", "Vec", "Vec3", "Matrix3", "Matrix4", "PlainName", "Unique", "read_json", "read_toml",
+           "NonNegFinite", "JsonData", "Vec", "Vec3", "Matrix3", "Matrix4", "PlainName", "Unique", "read_json", "read_toml",
            "read_yaml", "validate", "parse_json", "field_path", "describe_schema", "show", "words", "Field"]
 
 M = TypeVar("M", bound=BaseModel)
@@ -67,6 +70,12 @@ class OpenSchema(FileSchema):
     model_config = ConfigDict(extra="ignore")
 
 
+def words(expected: str) -> dict:
+    """``Field(**words("a camera name"))``: what a field accepts, in the words of the one-line errors and the docs
+    (where its JSON schema alone would say only "a string")."""
+    return {"json_schema_extra": {"expected": expected}}
+
+
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 PosFinite = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegFinite = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -74,6 +83,12 @@ NonNegFinite = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 INT64_MAX = 2**63 - 1
 NonNegInt = Annotated[int, Field(ge=0, le=INT64_MAX)]
 PosInt = Annotated[int, Field(ge=1, le=INT64_MAX)]
+
+
+#: Any JSON data without NaN or infinities: the type of fields kept as written (another tool's extras).
+JsonData = TypeAliasType("JsonData", Annotated[
+    Union[bool, int, Finite, str, None, list["JsonData"], dict[str, "JsonData"]],
+    Field(**words("any JSON data without NaN or infinities"))])
 
 
 def Vec(n: int, item: Any = Finite) -> Any:  # noqa: N802 (a type constructor)
@@ -84,12 +99,6 @@ def Vec(n: int, item: Any = Finite) -> Any:  # noqa: N802 (a type constructor)
 Vec3 = Vec(3)
 Matrix3 = Vec(3, Vec3)
 Matrix4 = Vec(4, Vec(4))
-
-
-def words(expected: str) -> dict:
-    """``Field(**words("a camera name"))``: what a field accepts, in the words of the one-line errors and the docs
-    (where its JSON schema alone would say only "a string")."""
-    return {"json_schema_extra": {"expected": expected}}
 
 
 def _plain_name(name: str) -> str:
@@ -248,8 +257,13 @@ def one_line(source: str | Path, exc: pydantic.ValidationError, schema: type[Bas
     if raw is not None and kind != "json_invalid":
         data = _loads(raw)
     if data is not _NO_DATA:  # a union's branches fail at one place: that is one failure, not several
-        places = {_data_loc(data, tuple(e["loc"]), e["type"]) for e in errors}
-        n_more = len(places) - 1
+        places = {_data_loc(data, tuple(e["loc"]), e["type"]): e for e in errors}
+        leaves = [p for p in places if not any(q[:len(p)] == p and q != p for q in places)]
+        n_more = len(leaves) - 1  # a union branch failing above another's failure is the same failure
+        first = next(iter(places))  # of the failures in the first field, the deepest (inside a union's branch)
+        err = max((e for p, e in places.items() if p[:1] == first[:1]), key=lambda e: len(
+            _data_loc(data, tuple(e["loc"]), e["type"])))
+        kind = err["type"]
     else:
         n_more = len(errors) - 1
     more = f" (and {n_more} more)" if n_more > 0 else ""
@@ -265,7 +279,7 @@ def one_line(source: str | Path, exc: pydantic.ValidationError, schema: type[Bas
     where = f"{source}: {owner + ': ' if owner else ''}{field_path(loc) or 'the file'}"
     if kind == "missing":
         return f"{where}: missing (expected {expected_at(schema, loc)}){more}"
-    if kind == "extra_forbidden":
+    if kind in ("extra_forbidden", "unexpected_keyword_argument"):  # the latter: a dataclass's
         known = _known_fields(schema, loc[:-1])
         hint = f" (known fields: {', '.join(known)})" if known else ""
         return f"{where}: unknown field{hint}{more}"
@@ -302,7 +316,7 @@ def _data_loc(data: Any, loc: tuple, kind: str) -> tuple:
             node = node[part]
         elif isinstance(node, dict) and isinstance(part, str) and part in node:
             node = node[part]
-        elif last and kind in ("missing", "extra_forbidden"):
+        elif last and kind in ("missing", "extra_forbidden", "unexpected_keyword_argument"):
             node = None
         else:
             continue
@@ -356,8 +370,14 @@ def _step(node: dict, part: int | str, defs: dict) -> dict | None:
     return None
 
 
+@functools.cache
+def json_schema(schema: type[BaseModel]) -> dict:
+    """The schema's JSON schema, made once (pydantic builds it anew on every call: ~ms for a file's schema)."""
+    return schema.model_json_schema()
+
+
 def _node_at(schema: type[BaseModel], loc: tuple) -> tuple[dict | None, dict]:
-    root = schema.model_json_schema()
+    root = json_schema(schema)
     defs = root.get("$defs", {})
     node: dict | None = root
     for part in loc:
@@ -379,15 +399,17 @@ _TYPES = {"integer": "an integer", "number": "a finite number", "string": "a str
           "array": "a list", "object": "an object", "null": "null"}
 
 
-def describe_node(node: dict | None, defs: dict) -> str:
+def describe_node(node: dict | None, defs: dict, depth: int = 0) -> str:
     """What a JSON-schema node accepts, in words: ``an integer >= 0``, ``a list of 3 numbers``, ``"vga" or "hd"``."""
     if node is None:
         return "a valid value"
+    if depth > 8:  # a recursive type (any JSON data): say no more
+        return "a value"
     node = _resolve(node, defs)
     if "expected" in node:
         return node["expected"]
     if "anyOf" in node:
-        return " or ".join(dict.fromkeys(describe_node(o, defs) for o in node["anyOf"]))
+        return " or ".join(dict.fromkeys(describe_node(o, defs, depth + 1) for o in node["anyOf"]))
     if "enum" in node:
         return " or ".join(json.dumps(v) for v in node["enum"])
     if "const" in node:
@@ -396,14 +418,19 @@ def describe_node(node: dict | None, defs: dict) -> str:
     if kind == "object" and "properties" in node:
         return f"an object with {', '.join(node['properties'])}" if len(node["properties"]) <= 4 else "an object"
     if kind == "object" and isinstance(node.get("additionalProperties"), dict):
-        return f"an object mapping names to {_plural(describe_node(node['additionalProperties'], defs))}"
+        return f"an object mapping names to {_plural(describe_node(node['additionalProperties'], defs, depth + 1))}"
     if kind == "array":
         lo, hi = node.get("minItems"), node.get("maxItems")
         count = (f"{lo} " if lo == hi and lo is not None else f"at least {lo} " if lo and lo > 1 else
                  f"at most {hi} " if hi is not None else "")
         article = "a non-empty list" if lo == 1 and hi is None else "a list"
         items = node.get("items") or (node.get("prefixItems") or [None])[0]
-        return f"{article} of {count}{_plural(describe_node(items, defs))}" if items else f"{article} of {count}items"
+        if not items:
+            return f"{article} of {count}items"
+        each = describe_node(items, defs, depth + 1)
+        if " or " in each:  # "a list of labels or nulls or null" would not say which is which
+            return f"{article} of {count}items, each {each}"
+        return f"{article} of {count}{_plural(each)}"
     words = _TYPES.get(kind, kind or "a value")
     bounds = [f"{op} {_number(node[key])}" for key, op in (("minimum", ">="), ("exclusiveMinimum", ">"),
                                                            ("maximum", "<="), ("exclusiveMaximum", "<")) if key in node]
@@ -418,7 +445,7 @@ def describe_node(node: dict | None, defs: dict) -> str:
 
 
 def _number(value: float | int) -> str:
-    return "2^63-1" if value == INT64_MAX else "2^53" if value == 2**53 else f"{value:g}" if isinstance(value, float) else str(value)
+    return "2^63-1" if value == INT64_MAX else "-2^63" if value == -INT64_MAX - 1 else "2^53" if value == 2**53 else f"{value:g}" if isinstance(value, float) else str(value)
 
 
 _NOUNS = ("number", "integer", "string", "list", "object", "value", "item", "name", "label", "path", "matrix")
@@ -453,32 +480,40 @@ def expected_at(schema: type[BaseModel], loc: tuple, err: Mapping | None = None)
 
 def describe_schema(schema: type[BaseModel]) -> list[tuple[str, str, bool, str]]:
     """The documentation of a file: (field path, what it accepts, required, description) for every field, nested
-    objects and lists of objects walked (``cameras[].K``)."""
-    root = schema.model_json_schema()
+    objects, lists of objects (``cameras[].K``) and maps (``streams.<name>.clock``) walked; a file that is itself a
+    map (a RootModel of a dict) starts at ``<name>``."""
+    root = json_schema(schema)
     defs = root.get("$defs", {})
     rows: list[tuple[str, str, bool, str]] = []
+
+    def row(path: str, sub: dict, required: bool) -> None:
+        rows.append((path, describe_node(sub, defs), required,
+                     _resolve(sub, defs).get("description", sub.get("description", ""))))
+        below(_resolve(sub, defs), path)
+
+    def below(target: dict, path: str) -> None:
+        for option in target.get("anyOf", [target]):
+            option = _resolve(option, defs)
+            if option.get("type") == "object" and "properties" in option:
+                walk(option, path)
+            elif option.get("type") == "array" and isinstance(option.get("items"), dict):
+                item = _resolve(option["items"], defs)
+                if item.get("type") == "object" and "properties" in item:
+                    walk(item, f"{path}[]")
+            elif option.get("type") == "object" and isinstance(option.get("additionalProperties"), dict):
+                value = _resolve(option["additionalProperties"], defs)
+                if value.get("type") == "object" and "properties" in value:
+                    walk(value, f"{path}.<name>" if path else "<name>")
 
     def walk(node: dict, prefix: str) -> None:
         node = _resolve(node, defs)
         required = set(node.get("required", []))
         for name, sub in node.get("properties", {}).items():
-            path = f"{prefix}.{name}" if prefix else name
-            rows.append((path, describe_node(sub, defs), name in required, _resolve(sub, defs).get(
-                "description", sub.get("description", ""))))
-            target = _resolve(sub, defs)
-            options = target.get("anyOf", [target])
-            for option in options:
-                option = _resolve(option, defs)
-                if option.get("type") == "object" and "properties" in option:
-                    walk(option, path)
-                elif option.get("type") == "array" and isinstance(option.get("items"), dict):
-                    item = _resolve(option["items"], defs)
-                    if item.get("type") == "object" and "properties" in item:
-                        walk(item, f"{path}[]")
-                elif option.get("type") == "object" and isinstance(option.get("additionalProperties"), dict):
-                    value = _resolve(option["additionalProperties"], defs)
-                    if value.get("type") == "object" and "properties" in value:
-                        walk(value, f"{path}.<name>")
+            row(f"{prefix}.{name}" if prefix else name, sub, name in required)
 
-    walk(root, "")
+    resolved = _resolve(root, defs)
+    if "properties" not in resolved and isinstance(resolved.get("additionalProperties"), dict):
+        row("<name>", resolved["additionalProperties"], True)
+    else:
+        walk(root, "")
     return rows

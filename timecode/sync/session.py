@@ -133,7 +133,7 @@ Label = Annotated[str, Field(min_length=1, **words("a timecode label HH:MM:SS:FF
 KinectNodeName = Annotated[str, AfterValidator(_kinect_node), Field(**words("KINECTNODE1..KINECTNODE10"))]
 Frames = Annotated[list[NonNegInt], Field(min_length=1), AfterValidator(_increasing),
                    Field(**words("a non-empty list of increasing frame indices (integers >= 0)"))]
-Int64 = Annotated[int, Field(ge=-2**63, le=2**63 - 1)]
+Int64 = Annotated[int, Field(ge=-2**63, le=2**63 - 1, **words("a 64-bit integer"))]
 
 
 class LtcSection(FileSchema):
@@ -259,6 +259,8 @@ def _stream(name: str, s: StreamSection, ltc: LtcRecording) -> FrameStream:
 
 def _kinect(folder: Path, path: Path, name: str, k: KinectSection) -> KinectNode:
     ts_path = folder / k.timestamps
+    if not ts_path.is_file():
+        raise SessionError(f"{path}: kinect.{name}.timestamps: {ts_path}: file not found")
     ts = read_json(ts_path, TimestampsFile, error=SessionError)
     if ts.audio_blocks is None and k.audio is not None:
         raise SessionError(f"{ts_path}: audio_blocks: missing (the Kinect has audio: {path} kinect.{name}.audio)")
