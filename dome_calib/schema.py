@@ -61,7 +61,7 @@ class FileSchema(BaseModel):
     """Base of every input file's schema: strict types, unknown fields refused, NaN/inf refused, immutable."""
 
     model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True,
-                              validate_default=False, hide_input_in_errors=False)
+                              validate_default=False, hide_input_in_errors=False, defer_build=True)
 
 
 class OpenSchema(FileSchema):
