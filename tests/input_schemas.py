@@ -221,7 +221,11 @@ OTHER_INPUTS = (
      "from each header and its last sample: readable, not cut short, the channel session.json names, a sample rate "
      "of 8-192 kHz (session: a Kinect's too; timecode sync: a Kinect's is reported NOT SYNCED unless "
      "--strict-kinect)", "`timecode.sync.pipeline.check_session_audio`", "tests/test_before_work.py"),
-    ("`--scheduler tcp://HOST:PORT`", "calibrate, session, synth",
+    ("audio files given to `timecode decode`", "timecode decode",
+     "every file's header (and last sample), the --channel asked and the sample rate, all before the first file is "
+     "decoded (a file that fails is one line; the others go on)", "`timecode.cli.decode_command.channels_of`",
+     "tests/test_before_work.py"),
+    ("`--scheduler tcp://HOST:PORT`", "calibrate, session, synth, reconstruct",
      "a bounded handshake (10 s): something listens, greets as Dask does, and is a scheduler (not a worker, not "
      "HTTP)", "`dome_calib.executor.dask.probe_scheduler`", "tests/test_scheduler_check.py"),
     ("the images each cluster worker reads", "calibrate --scheduler",

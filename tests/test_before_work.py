@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -134,3 +135,34 @@ def test_a_kinect_image_that_cannot_be_used_is_refused_before_any_detection(smal
     errors = [ln for ln in done.stderr.splitlines() if "error:" in ln]
     assert done.returncode == 1 and len(errors) == 1 and f"{target}: {words}" in errors[0], done.stderr
     assert _files(out) == before
+
+
+def test_timecode_decode_reads_every_header_before_decoding_any(tmp_path, monkeypatch):
+    """A folder of takes where a late one is no audio, one has too few channels and one too low a sample rate:
+    all three are known from their headers before the first file is decoded; the good one still decodes."""
+    import timecode.cli.decode_command as decode_command
+
+    src = Path(__file__).parent / "data" / "ltc" / "ltcsync_ltc.wav"
+    folder = tmp_path / "takes"
+    folder.mkdir()
+    data, rate = sf.read(src, always_2d=True)
+    sf.write(folder / "a_good.wav", np.repeat(data, 2, axis=1), rate)
+    sf.write(folder / "b_mono.wav", data, rate)
+    sf.write(folder / "c_4khz.wav", np.repeat(data[::12], 2, axis=1), 4000)
+    (folder / "d_text.wav").write_text("notes, saved under the wrong name")
+    events = []
+    real_channels, real_decode = decode_command.channels_of, decode_command._decode_with_progress
+    monkeypatch.setattr(decode_command, "channels_of", lambda p, *a: events.append(("header", p.name))
+                        or real_channels(p, *a))
+    monkeypatch.setattr(decode_command, "_decode_with_progress", lambda p, *a: events.append(("decode", p.name))
+                        or real_decode(p, *a))
+    result = decode_command.run_decode([folder], channel="1", fps="auto", fmt="csv", raw=None)
+    first_decode = next(i for i, (what, _) in enumerate(events) if what == "decode")
+    assert {name for what, name in events[:first_decode] if what == "header"} == {
+        "a_good.wav", "b_mono.wav", "c_4khz.wav", "d_text.wav"}
+    assert [name for what, name in events if what == "decode"] == ["a_good.wav"]
+    assert result.n_decoded == 1 and len(result.failures) == 3
+    text = "\n".join(result.failures)
+    assert "b_mono.wav" in text and "--channel 1: the file has 1 channel(s)" in text
+    assert "c_4khz.wav: sample rate 4000 Hz is outside the supported 8000-192000 Hz" in text
+    assert "d_text.wav: not a readable audio file" in text
