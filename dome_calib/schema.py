@@ -38,8 +38,9 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 from dome_calib.errors import DomeCalibError
 
 __all__ = ["FileSchema", "OpenSchema", "InputFileError", "FieldError", "Finite", "NonNegInt", "PosInt", "PosFinite",
-           "NonNegFinite", "JsonData", "Vec", "Vec3", "Matrix3", "Matrix4", "PlainName", "Unique", "read_json", "read_toml",
-           "read_yaml", "validate", "parse_json", "field_path", "describe_schema", "show", "words", "Field"]
+           "NonNegFinite", "JsonData", "Vec", "Vec3", "Matrix3", "Matrix4", "PlainName", "Unique", "read_json",
+           "read_toml", "read_yaml", "validate", "parse_json", "field_path", "describe_schema", "json_schema", "show",
+           "words", "Field"]
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -444,8 +445,14 @@ def describe_node(node: dict | None, defs: dict, depth: int = 0) -> str:
     return " ".join([words, " and ".join(bounds)]).strip()
 
 
+#: Bounds written as powers of two: the int64 range, and the integers a float holds exactly.
+_POWERS = {INT64_MAX: "2^63-1", -INT64_MAX - 1: "-2^63", 2**53: "2^53"}
+
+
 def _number(value: float | int) -> str:
-    return "2^63-1" if value == INT64_MAX else "-2^63" if value == -INT64_MAX - 1 else "2^53" if value == 2**53 else f"{value:g}" if isinstance(value, float) else str(value)
+    if value in _POWERS:
+        return _POWERS[value]
+    return f"{value:g}" if isinstance(value, float) else str(value)
 
 
 _NOUNS = ("number", "integer", "string", "list", "object", "value", "item", "name", "label", "path", "matrix")

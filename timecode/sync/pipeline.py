@@ -40,7 +40,8 @@ def audio_problem(path: Path, channel: int) -> tuple[str, str] | None:
     if channel >= info.channels:
         return "channel", f"{channel}, but {path} has {info.channels} channel(s) (numbered from 0)"
     if not MIN_RATE <= info.sample_rate <= MAX_RATE:
-        return "file", f"{path}: sample rate {info.sample_rate} Hz, outside the {MIN_RATE}-{MAX_RATE} Hz the LTC decoder reads"
+        return "file", (f"{path}: sample rate {info.sample_rate} Hz, outside the {MIN_RATE}-{MAX_RATE} Hz the LTC "
+                        "decoder reads")
     return None
 
 

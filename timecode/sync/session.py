@@ -40,10 +40,10 @@ from pydantic import AfterValidator, model_validator
 
 from dome_calib.bundle import kinect_node_camera
 from dome_calib.io_utils import atomic_write_text
-from dome_calib.schema import (Field, FieldError, FileSchema, NonNegInt, PlainName, read_json, show, words)
+from dome_calib.schema import Field, FieldError, FileSchema, NonNegInt, PlainName, read_json, show, words
 from timecode.errors import TimecodeError
 from timecode.labels import LabelError, label_to_frames
-from timecode.rates import RATES, FrameRate, RateError, parse_rate
+from timecode.rates import RATES, FrameRate, parse_rate
 
 FORMAT = "dome-sync-session"
 VERSION = 1
@@ -127,7 +127,8 @@ def _increasing(values: list[int]) -> list[int]:
     return values
 
 
-RateText = Annotated[str, AfterValidator(_rate), Field(**words(f"a frame rate: {' or '.join(json.dumps(r) for r in RATES)}"))]
+RateText = Annotated[str, AfterValidator(_rate),
+                     Field(**words(f"a frame rate: {' or '.join(json.dumps(r) for r in RATES)}"))]
 Path_ = Annotated[str, Field(min_length=1, **words("a path, relative to the session folder"))]
 Label = Annotated[str, Field(min_length=1, **words("a timecode label HH:MM:SS:FF (HH:MM:SS;FF drop frame)"))]
 KinectNodeName = Annotated[str, AfterValidator(_kinect_node), Field(**words("KINECTNODE1..KINECTNODE10"))]
@@ -268,8 +269,11 @@ def _kinect(folder: Path, path: Path, name: str, k: KinectSection) -> KinectNode
     return KinectNode(name=name, audio_path=None if k.audio is None else folder / k.audio,
                       audio_channel=k.audio_channel, block_first_sample=_ints(blocks.first_sample),
                       block_device_time_100ns=_ints(blocks.device_time_100ns),
-                      color=DeviceFrames(index=_ints(ts.color.index), device_time_100ns=_ints(ts.color.device_time_100ns)),
-                      depth=DeviceFrames(index=_ints(ts.depth.index), device_time_100ns=_ints(ts.depth.device_time_100ns)))
+                      color=_device_frames(ts.color), depth=_device_frames(ts.depth))
+
+
+def _device_frames(stamps: DeviceStamps) -> DeviceFrames:
+    return DeviceFrames(index=_ints(stamps.index), device_time_100ns=_ints(stamps.device_time_100ns))
 
 
 def load_session(folder: str | Path) -> Session:
