@@ -26,7 +26,8 @@ def check_camera_names(names: list[str], where: str) -> None:
                            "camera, e.g. the HD camera 00_03 -> 00_03.png")
 
 
-def _digest(path: Path) -> str:
+def file_sha256(path: str | Path) -> str:
+    """The SHA-256 of a file's bytes, as hex (read in 1 MB blocks)."""
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
@@ -55,7 +56,7 @@ def check_same_pictures(images: list[Path]) -> None:
             continue
         seen: dict[str, Path] = {}
         for p in sorted(same_size):
-            first = seen.setdefault(_digest(p), p)
+            first = seen.setdefault(file_sha256(p), p)
             if first != p and not _blank(p):
                 raise CaptureError(f"{p}: the same picture as {first} (a copy): two cameras cannot see the same "
                                    "image; remove the copy or put the camera's own image there")
@@ -63,12 +64,11 @@ def check_same_pictures(images: list[Path]) -> None:
 
 def check_capture(capture: Path, scenes: list[str], cameras: list[str], *, listed: bool,
                   local: bool = True) -> None:
-    """Before any work: the scenes and cameras of a capture (``listed``: as capture.json names them) and, when its
-    images are here (``local``; not on capture nodes), every ``scenes/<scene>/*.png``: named after a camera, a
-    camera of capture.json, and no two the same picture. CaptureError (one line naming the file) otherwise."""
+    """Before any work: when its images are here (``local``; not on capture nodes), every
+    ``scenes/<scene>/*.png`` of the capture's scenes: named after a camera, a camera of capture.json (``listed``:
+    the names come from it, already checked by its schema), and no two the same picture. CaptureError (one line
+    naming the file) otherwise."""
     where = capture / "capture.json" if listed else capture
-    if listed:  # else the names are the images', checked below naming each file
-        check_camera_names(cameras, f"{where}")
     if not local:
         return
     known = set(cameras)

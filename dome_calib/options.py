@@ -110,17 +110,17 @@ def options(cls: type[T]) -> type[T]:
     return made
 
 
-def require(predicate: Callable[[Any], bool], message: str) -> Any:
+def require(predicate: Callable[[Any], bool], message: str | Callable[[Any], str]) -> Any:
     """A check across fields of an options class, declared in its body::
 
         _overlap = require(lambda o: o.overlap_times < o.chunk_times,
                            "overlap_times {o.overlap_times} must be below chunk_times {o.chunk_times}")
 
-    ``message`` is formatted with the object as ``o``."""
+    ``message`` is formatted with the object as ``o`` (or is a function of it)."""
 
     def check(self: Any) -> Any:
         if not predicate(self):
-            raise ValueError(message.format(o=self))
+            raise ValueError(message(self) if callable(message) else message.format(o=self))
         return self
 
     return model_validator(mode="after")(check)

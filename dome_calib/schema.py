@@ -24,20 +24,24 @@ from __future__ import annotations
 import functools
 import json
 import math
+import re
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import Annotated, Any, TypeVar, Union
+
+from typing_extensions import TypeAliasType
 
 import pydantic
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 from pydantic.json_schema import GenerateJsonSchema
 
 from dome_calib.errors import DomeCalibError
 
-__all__ = ["FileSchema", "OpenSchema", "InputFileError", "Finite", "NonNegInt", "PosInt", "PosFinite",
-           "NonNegFinite", "Vec", "Vec3", "Matrix3", "Matrix4", "read_json", "read_toml", "read_yaml", "validate",
-           "parse_json", "field_path", "describe_schema", "Field"]
+__all__ = ["FileSchema", "OpenSchema", "InputFileError", "FieldError", "Finite", "NonNegInt", "PosInt", "PosFinite",
+           "NonNegFinite", "JsonData", "Vec", "Vec3", "Matrix3", "Matrix4", "PlainName", "Unique", "read_json",
+           "read_toml", "read_yaml", "validate", "parse_json", "field_path", "describe_schema", "json_schema", "show",
+           "words", "Field"]
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -46,17 +50,32 @@ class InputFileError(DomeCalibError, ValueError):
     """A file a user handed us does not match its schema; the message names the file and the field path."""
 
 
+class FieldError(ValueError):
+    """Raised by a schema's own check (a ``model_validator``) to name the field it is about, below the validated
+    object: ``FieldError(("nodes", "node08"), "camera 07_01 is also under node07")`` -> ``nodes.node08: ...``."""
+
+    def __init__(self, loc: tuple[int | str, ...], message: str) -> None:
+        super().__init__(message)
+        self.loc = tuple(loc)
+
+
 class FileSchema(BaseModel):
     """Base of every input file's schema: strict types, unknown fields refused, NaN/inf refused, immutable."""
 
     model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True,
-                              validate_default=False, hide_input_in_errors=False)
+                              validate_default=False, hide_input_in_errors=False, defer_build=True)
 
 
 class OpenSchema(FileSchema):
     """A schema for another tool's file whose extra fields are none of our business (they are ignored)."""
 
     model_config = ConfigDict(extra="ignore")
+
+
+def words(expected: str) -> dict:
+    """``Field(**words("a camera name"))``: what a field accepts, in the words of the one-line errors and the docs
+    (where its JSON schema alone would say only "a string")."""
+    return {"json_schema_extra": {"expected": expected}}
 
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
@@ -66,6 +85,12 @@ NonNegFinite = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 INT64_MAX = 2**63 - 1
 NonNegInt = Annotated[int, Field(ge=0, le=INT64_MAX)]
 PosInt = Annotated[int, Field(ge=1, le=INT64_MAX)]
+
+
+#: Any JSON data without NaN or infinities: the type of fields kept as written (another tool's extras).
+JsonData = TypeAliasType("JsonData", Annotated[
+    Union[bool, int, Finite, str, None, list["JsonData"], dict[str, "JsonData"]],
+    Field(**words("any JSON data without NaN or infinities"))])
 
 
 def Vec(n: int, item: Any = Finite) -> Any:  # noqa: N802 (a type constructor)
@@ -78,6 +103,31 @@ Matrix3 = Vec(3, Vec3)
 Matrix4 = Vec(4, Vec(4))
 
 
+def _plain_name(name: str) -> str:
+    if not name or "/" in name or "\\" in name or name in (".", "..") or not name.isprintable():
+        raise ValueError(f"expected a plain name (no '/', not '.' or '..', printable), got {show(name)}")
+    return name
+
+
+#: A name that becomes part of a path (a scene folder, a sequence, a capture node): no separator, not . or ..
+PlainName = Annotated[str, AfterValidator(_plain_name), Field(min_length=1, **words("a plain name (no '/')"))]
+
+
+def _unique(values: list) -> list:
+    seen: set = set()
+    for i, v in enumerate(values):
+        key = json.dumps(v, sort_keys=True) if isinstance(v, (list, dict)) else v
+        if key in seen:
+            raise FieldError((i,), f"{show(v)} is listed twice")
+        seen.add(key)
+    return values
+
+
+def Unique(item: Any, min_length: int = 0) -> Any:  # noqa: N802 (a type constructor)
+    """A list of ``item`` in which no value comes twice (at least ``min_length`` of them)."""
+    return Annotated[list[item], Field(min_length=min_length), AfterValidator(_unique)]
+
+
 # ---- reading --------------------------------------------------------------------------------------------------
 
 def parse_json(source: str | Path, data: bytes, schema: type[M], *, error: type[Exception] = InputFileError) -> M:
@@ -85,7 +135,7 @@ def parse_json(source: str | Path, data: bytes, schema: type[M], *, error: type[
     try:
         return schema.model_validate_json(data)
     except pydantic.ValidationError as exc:
-        raise error(one_line(source, exc, schema)) from None
+        raise error(one_line(source, exc, schema, raw=data)) from None
 
 
 def read_json(path: str | Path, schema: type[M], *, error: type[Exception] = InputFileError) -> M:
@@ -113,8 +163,9 @@ def read_yaml(path: str | Path, schema: type[M], *, error: type[Exception] = Inp
     _read_bytes(path, error)  # a missing or unreadable file named as such, not as OpenCV's message
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except (cv2.error, SystemError) as exc:  # OpenCV 5's binding raises SystemError for some parse errors
-        raise error(f"{path}: not a YAML file OpenCV can read ({str(exc).strip().splitlines()[-1]})") from None
+    except (cv2.error, SystemError) as exc:  # SystemError: OpenCV's parser failed inside the constructor
+        why = str(exc.__cause__ or exc).strip().splitlines()
+        raise error(f"{path}: not a YAML file OpenCV can read ({why[-1] if why else 'unreadable'})") from None
     try:
         if not fs.isOpened():
             raise error(f"{path}: not a YAML file OpenCV can read")
@@ -147,7 +198,7 @@ def validate(data: Any, schema: type[M], *, source: str | Path, error: type[Exce
     try:
         return schema.model_validate(data)
     except pydantic.ValidationError as exc:
-        raise error(one_line(source, exc, schema)) from None
+        raise error(one_line(source, exc, schema, data=data)) from None
 
 
 def _read_bytes(path: str | Path, error: type[Exception]) -> bytes:
@@ -163,13 +214,18 @@ def _read_bytes(path: str | Path, error: type[Exception]) -> bytes:
 
 # ---- the one line -----------------------------------------------------------------------------------------------
 
+_PLAIN_KEY = re.compile(r"[A-Za-z0-9_\-<>]{1,40}")
+
+
 def field_path(loc: tuple[int | str, ...]) -> str:
     """pydantic's ``loc`` as a path: ``("ltc", "vga_channel")`` -> ``ltc.vga_channel``, ``("cameras", 3, "K")``
-    -> ``cameras[3].K``."""
+    -> ``cameras[3].K``; a key from the file that is not a plain word is quoted (``kinect.color["node one"]``)."""
     out = ""
     for part in loc:
         if isinstance(part, int):
             out += f"[{part}]"
+        elif not _PLAIN_KEY.fullmatch(part):
+            out += f"[{show(part)}]"
         else:
             out += f".{part}" if out else str(part)
     return out
@@ -187,27 +243,105 @@ def show(value: Any, limit: int = 40) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def one_line(source: str | Path, exc: pydantic.ValidationError, schema: type[BaseModel]) -> str:
-    """The first failure of ``exc`` as ``source: field.path: expected ..., got ...`` (+ how many more)."""
+_NO_DATA = object()
+
+
+def one_line(source: str | Path, exc: pydantic.ValidationError, schema: type[BaseModel], *, data: Any = _NO_DATA,
+             raw: bytes | None = None) -> str:
+    """The first failure of ``exc`` as ``source: [owner: ]field.path: expected ..., got ...`` (+ how many more).
+
+    ``data`` (the parsed input) or ``raw`` (the file's bytes, parsed here: only on failure) lets the line name the
+    owner of the field, the ``name`` of the list item it sits in (``camera 01_03: cameras[2].K``), and drops
+    pydantic's own tags (union members, validators) from the path."""
     errors = exc.errors(include_url=False)
     err = errors[0]
-    loc = tuple(err["loc"])
     kind = err["type"]
-    more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+    if raw is not None and kind != "json_invalid":
+        data = _loads(raw)
+    if data is not _NO_DATA:  # a union's branches fail at one place: that is one failure, not several
+        places = {_data_loc(data, tuple(e["loc"]), e["type"]): e for e in errors}
+        leaves = [p for p in places if not any(q[:len(p)] == p and q != p for q in places)]
+        n_more = len(leaves) - 1  # a union branch failing above another's failure is the same failure
+        first = next(iter(places))  # of the failures in the first field, the deepest (inside a union's branch)
+        err = max((e for p, e in places.items() if p[:1] == first[:1]), key=lambda e: len(
+            _data_loc(data, tuple(e["loc"]), e["type"])))
+        kind = err["type"]
+    else:
+        n_more = len(errors) - 1
+    more = f" (and {n_more} more)" if n_more > 0 else ""
     if kind == "json_invalid":
+        if raw is not None and not _is_utf8(raw):
+            return f"{source}: not a UTF-8 text file"
         return f"{source}: not valid JSON ({err['msg'].removeprefix('Invalid JSON: ')}){more}"
-    where = field_path(loc) or "the file"
+    loc = tuple(err["loc"])
+    if isinstance(err.get("ctx", {}).get("error"), FieldError):  # a schema's own check, naming its field
+        loc += err["ctx"]["error"].loc
+    loc = _data_loc(data, loc, kind) if data is not _NO_DATA else loc
+    owner = _owner(data, loc) if data is not _NO_DATA else ""
+    where = f"{source}: {owner + ': ' if owner else ''}{field_path(loc) or 'the file'}"
     if kind == "missing":
-        return f"{source}: {where}: missing (expected {expected_at(schema, loc)}){more}"
-    if kind == "extra_forbidden":
+        return f"{where}: missing (expected {expected_at(schema, loc)}){more}"
+    if kind in ("extra_forbidden", "unexpected_keyword_argument"):  # the latter: a dataclass's
         known = _known_fields(schema, loc[:-1])
         hint = f" (known fields: {', '.join(known)})" if known else ""
-        return f"{source}: {where}: unknown field{hint}{more}"
+        return f"{where}: unknown field{hint}{more}"
     if kind in ("value_error", "assertion_error"):  # a model's own check: its message says what is wrong
         msg = str(err.get("ctx", {}).get("error", err["msg"])).removeprefix("Value error, ")
-        return f"{source}: {where}: {msg}{more}"
-    got = show(err.get("input"))
-    return f"{source}: {where}: expected {expected_at(schema, loc, err)}, got {got}{more}"
+        return f"{where}: {msg}{more}"
+    return f"{where}: expected {expected_at(schema, loc, err)}, got {show(err.get('input'))}{more}"
+
+
+def _is_utf8(raw: bytes) -> bool:
+    try:
+        raw.decode("utf-8")
+    except UnicodeDecodeError:
+        return False
+    return True
+
+
+def _loads(raw: bytes) -> Any:
+    """The file's JSON as Python (for naming the owner of a failing field), or _NO_DATA if that fails too."""
+    try:
+        return json.loads(raw)
+    except (ValueError, RecursionError):
+        return _NO_DATA
+
+
+def _data_loc(data: Any, loc: tuple, kind: str) -> tuple:
+    """pydantic's ``loc`` less its own tags (union members such as ``int`` or ``list[float]``, validators): the
+    parts that step into ``data``, and the last part of a missing or unknown field."""
+    out: list[int | str] = []
+    node = data
+    for i, part in enumerate(loc):
+        last = i == len(loc) - 1
+        if isinstance(node, list) and isinstance(part, int) and 0 <= part < len(node):
+            node = node[part]
+        elif isinstance(node, dict) and isinstance(part, str) and part in node:
+            node = node[part]
+        elif last and kind in ("missing", "extra_forbidden", "unexpected_keyword_argument"):
+            node = None
+        else:
+            continue
+        out.append(part)
+    return tuple(out)
+
+
+def _owner(data: Any, loc: tuple) -> str:
+    """The innermost list item on the path that carries a string ``name``: ``camera 01_03`` (the list's field name,
+    singular), or ""."""
+    owner, node, parent = "", data, ""
+    for part in loc:
+        try:
+            node = node[part]
+        except (KeyError, IndexError, TypeError):
+            break
+        if isinstance(part, int) and isinstance(node, dict) and isinstance(node.get("name"), str) and node["name"]:
+            what = parent[:-1] if parent.endswith("s") else "item"
+            name = node["name"]
+            owner = f"{what} {name if name.isprintable() and len(name) <= 40 else show(name)}"
+        if isinstance(part, str):
+            parent = part
+    return owner
 
 
 def _resolve(node: dict, defs: dict) -> dict:
@@ -246,13 +380,16 @@ class _AnyObjectSchema(GenerateJsonSchema):
 
 
 @functools.cache
-def json_schema_of(schema: type) -> dict:
-    """The JSON schema of a model or a pydantic dataclass (fields of arbitrary classes described as ``{}``)."""
+def json_schema(schema: type) -> dict:
+    """The schema's JSON schema, made once (pydantic builds it anew on every call: ~ms for a file's schema); a
+    pydantic dataclass's too (an options class, :mod:`dome_calib.options`: fields of any class described as ``{}``)."""
+    if isinstance(schema, type) and issubclass(schema, BaseModel):
+        return schema.model_json_schema()
     return pydantic.TypeAdapter(schema).json_schema(schema_generator=_AnyObjectSchema)
 
 
 def _node_at(schema: type[BaseModel], loc: tuple) -> tuple[dict | None, dict]:
-    root = json_schema_of(schema)
+    root = json_schema(schema)
     defs = root.get("$defs", {})
     node: dict | None = root
     for part in loc:
@@ -274,13 +411,17 @@ _TYPES = {"integer": "an integer", "number": "a finite number", "string": "a str
           "array": "a list", "object": "an object", "null": "null"}
 
 
-def describe_node(node: dict | None, defs: dict) -> str:
+def describe_node(node: dict | None, defs: dict, depth: int = 0) -> str:
     """What a JSON-schema node accepts, in words: ``an integer >= 0``, ``a list of 3 numbers``, ``"vga" or "hd"``."""
     if node is None:
         return "a valid value"
+    if depth > 8:  # a recursive type (any JSON data): say no more
+        return "a value"
     node = _resolve(node, defs)
+    if "expected" in node:
+        return node["expected"]
     if "anyOf" in node:
-        return " or ".join(dict.fromkeys(describe_node(o, defs) for o in node["anyOf"]))
+        return " or ".join(dict.fromkeys(describe_node(o, defs, depth + 1) for o in node["anyOf"]))
     if "enum" in node:
         return " or ".join(json.dumps(v) for v in node["enum"])
     if "const" in node:
@@ -289,18 +430,22 @@ def describe_node(node: dict | None, defs: dict) -> str:
     if kind == "object" and "properties" in node:
         return f"an object with {', '.join(node['properties'])}" if len(node["properties"]) <= 4 else "an object"
     if kind == "object" and isinstance(node.get("additionalProperties"), dict):
-        return f"an object of {_plural(describe_node(node['additionalProperties'], defs))}"
+        return f"an object mapping names to {_plural(describe_node(node['additionalProperties'], defs, depth + 1))}"
     if kind == "array":
         lo, hi = node.get("minItems"), node.get("maxItems")
-        count = (f"{lo} " if lo == hi and lo is not None else f"at least {lo} " if lo else
+        count = (f"{lo} " if lo == hi and lo is not None else f"at least {lo} " if lo and lo > 1 else
                  f"at most {hi} " if hi is not None else "")
+        article = "a non-empty list" if lo == 1 and hi is None else "a list"
         items = node.get("items") or (node.get("prefixItems") or [None])[0]
-        return f"a list of {count}{_plural(describe_node(items, defs))}" if items else f"a list of {count}items"
+        if not items:
+            return f"{article} of {count}items"
+        each = describe_node(items, defs, depth + 1)
+        if " or " in each:  # "a list of labels or nulls or null" would not say which is which
+            return f"{article} of {count}items, each {each}"
+        return f"{article} of {count}{_plural(each)}"
     words = _TYPES.get(kind, kind or "a value")
-    bounds = [f"{op} {node[key]:g}" if isinstance(node[key], float) else f"{op} {node[key]}"
-              for key, op in (("minimum", ">="), ("exclusiveMinimum", ">"), ("maximum", "<="),
-                              ("exclusiveMaximum", "<")) if key in node
-              and not (key == "maximum" and node[key] == INT64_MAX)]  # the storage bound: said only when passed
+    bounds = [f"{op} {_number(node[key])}" for key, op in (("minimum", ">="), ("exclusiveMinimum", ">"),
+                                                           ("maximum", "<="), ("exclusiveMaximum", "<")) if key in node]
     if kind == "string":
         if node.get("minLength") == 1:
             words = "a non-empty string"
@@ -311,7 +456,17 @@ def describe_node(node: dict | None, defs: dict) -> str:
     return " ".join([words, " and ".join(bounds)]).strip()
 
 
-_NOUNS = ("number", "integer", "string", "list", "object", "value", "item")
+#: Bounds written as powers of two: the int64 range, and the integers a float holds exactly.
+_POWERS = {INT64_MAX: "2^63-1", -INT64_MAX - 1: "-2^63", 2**53: "2^53"}
+
+
+def _number(value: float | int) -> str:
+    if value in _POWERS:
+        return _POWERS[value]
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+_NOUNS = ("number", "integer", "string", "list", "object", "value", "item", "name", "label", "path", "matrix")
 
 
 def _plural(words: str) -> str:
@@ -338,39 +493,45 @@ def expected_at(schema: type[BaseModel], loc: tuple, err: Mapping | None = None)
     words = describe_node(node, defs)
     if err is not None and err["type"] == "finite_number" and "finite" not in words:
         words = f"{words} (finite)"
-    if err is not None and err["type"] == "less_than_equal" and "<=" not in words:  # the storage bound, passed
-        words = f"{words} and <= {err.get('ctx', {}).get('le')}"
     return words
 
 
 def describe_schema(schema: type[BaseModel]) -> list[tuple[str, str, bool, str]]:
     """The documentation of a file: (field path, what it accepts, required, description) for every field, nested
-    objects and lists of objects walked (``cameras[].K``)."""
-    root = schema.model_json_schema()
+    objects, lists of objects (``cameras[].K``) and maps (``streams.<name>.clock``) walked; a file that is itself a
+    map (a RootModel of a dict) starts at ``<name>``."""
+    root = json_schema(schema)
     defs = root.get("$defs", {})
     rows: list[tuple[str, str, bool, str]] = []
+
+    def row(path: str, sub: dict, required: bool) -> None:
+        rows.append((path, describe_node(sub, defs), required,
+                     _resolve(sub, defs).get("description", sub.get("description", ""))))
+        below(_resolve(sub, defs), path)
+
+    def below(target: dict, path: str) -> None:
+        for option in target.get("anyOf", [target]):
+            option = _resolve(option, defs)
+            if option.get("type") == "object" and "properties" in option:
+                walk(option, path)
+            elif option.get("type") == "array" and isinstance(option.get("items"), dict):
+                item = _resolve(option["items"], defs)
+                if item.get("type") == "object" and "properties" in item:
+                    walk(item, f"{path}[]")
+            elif option.get("type") == "object" and isinstance(option.get("additionalProperties"), dict):
+                value = _resolve(option["additionalProperties"], defs)
+                if value.get("type") == "object" and "properties" in value:
+                    walk(value, f"{path}.<name>" if path else "<name>")
 
     def walk(node: dict, prefix: str) -> None:
         node = _resolve(node, defs)
         required = set(node.get("required", []))
         for name, sub in node.get("properties", {}).items():
-            path = f"{prefix}.{name}" if prefix else name
-            rows.append((path, describe_node(sub, defs), name in required, _resolve(sub, defs).get(
-                "description", sub.get("description", ""))))
-            target = _resolve(sub, defs)
-            options = target.get("anyOf", [target])
-            for option in options:
-                option = _resolve(option, defs)
-                if option.get("type") == "object" and "properties" in option:
-                    walk(option, path)
-                elif option.get("type") == "array" and isinstance(option.get("items"), dict):
-                    item = _resolve(option["items"], defs)
-                    if item.get("type") == "object" and "properties" in item:
-                        walk(item, f"{path}[]")
-                elif option.get("type") == "object" and isinstance(option.get("additionalProperties"), dict):
-                    value = _resolve(option["additionalProperties"], defs)
-                    if value.get("type") == "object" and "properties" in value:
-                        walk(value, f"{path}.<name>")
+            row(f"{prefix}.{name}" if prefix else name, sub, name in required)
 
-    walk(root, "")
+    resolved = _resolve(root, defs)
+    if "properties" not in resolved and isinstance(resolved.get("additionalProperties"), dict):
+        row("<name>", resolved["additionalProperties"], True)
+    else:
+        walk(root, "")
     return rows

@@ -138,22 +138,34 @@ def _set(i, field, value):
 
 
 BAD_CALIBRATIONS = {
-    "missing K": (lambda cams: cams[3].pop("K"), "camera 01_04: field 'K': missing"),
-    "K wrong shape": (_set(2, "K", [[745.0, 0, 320], [0, 745, 240]]), "camera 01_03: field 'K': shape (2, 3)"),
-    "t wrong shape": (_set(2, "t", [[1.0], [2.0]]), "camera 01_03: field 't': shape (2, 1)"),
-    "distCoef four": (_set(1, "distCoef", [0.1, 0.2, 0.0, 0.0]), "camera 01_02: field 'distCoef': shape (4,)"),
-    "NaN in t": (_set(0, "t", [[1.0], [float("nan")], [3.0]]), "camera 01_01: field 't': contains NaN"),
-    "inf in R": (_set(0, "R", [[float("inf"), 0, 0], [0, 1, 0], [0, 0, 1]]), "camera 01_01: field 'R': contains NaN"),
-    "R not orthonormal": (_set(5, "R", [[1.0, 0.01, 0], [0, 1, 0], [0, 0, 1]]), "camera 01_06: field 'R': not a rotation"),
-    "R reflection": (_set(5, "R", [[-1.0, 0, 0], [0, 1, 0], [0, 0, 1]]), "camera 01_06: field 'R': not a rotation"),
+    "missing K": (lambda cams: cams[3].pop("K"), "camera 01_04: cameras[3].K: missing (expected a 3 x 3 camera matrix"),
+    "K wrong shape": (_set(2, "K", [[745.0, 0, 320], [0, 745, 240]]),
+                      "camera 01_03: cameras[2].K: expected a 3 x 3 camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] "
+                      "(px, fx, fy > 0), got [[745.0, 0, 320], [0, 745, 240]]"),
+    "t wrong shape": (_set(2, "t", [[1.0], [2.0]]), "camera 01_03: cameras[2].t: expected 3 numbers (flat, 3 x 1 or 1 x 3), "
+                                                    "got [[1.0], [2.0]]"),
+    "distCoef four": (_set(1, "distCoef", [0.1, 0.2, 0.0, 0.0]),
+                      "camera 01_02: cameras[1].distCoef: expected a list of 5 finite numbers (or 5 x 1, 1 x 5)"),
+    "NaN in t": (_set(0, "t", [[1.0], [float("nan")], [3.0]]), "camera 01_01: cameras[0].t[1]: expected a finite number "
+                                                                ">= -1e+06 and <= 1e+06, got NaN"),
+    "inf in R": (_set(0, "R", [[float("inf"), 0, 0], [0, 1, 0], [0, 0, 1]]),
+                 "camera 01_01: cameras[0].R[0][0]: expected a finite number >= -2 and <= 2, got Infinity"),
+    "R not orthonormal": (_set(5, "R", [[1.0, 0.01, 0], [0, 1, 0], [0, 0, 1]]),
+                          "camera 01_06: cameras[5].R: not a rotation (|R R^T - I| = 0.01"),
+    "R reflection": (_set(5, "R", [[-1.0, 0, 0], [0, 1, 0], [0, 0, 1]]), "camera 01_06: cameras[5].R: not a rotation "
+                                                                         "(|R R^T - I| = 0, det = -1"),
     "negative focal": (_set(4, "K", [[-745.0, 0, 320], [0, 745, 240], [0, 0, 1]]),
-                       "camera 01_05: field 'K': focal length must be positive"),
-    "duplicate name": (_set(7, "name", "01_01"), "camera 01_01: field 'name': duplicate"),
-    "unknown type": (_set(8, "type", "thermal"), "camera 01_09: field 'type': unknown camera type 'thermal'"),
-    "resolution float": (_set(9, "resolution", [640.5, 480]), "camera 01_10: field 'resolution': expected two positive"),
-    "resolution three": (_set(9, "resolution", [640, 480, 3]), "camera 01_10: field 'resolution': expected two positive"),
-    "resolution zero": (_set(9, "resolution", [0, 480]), "camera 01_10: field 'resolution': expected two positive"),
-    "name missing": (lambda cams: cams[10].pop("name"), "camera #10: field 'name': missing"),
+                       "camera 01_05: cameras[4].K: focal length must be positive"),
+    "duplicate name": (_set(7, "name", "01_01"), "camera 01_01: cameras[7].name: duplicate camera name"),
+    "unknown type": (_set(8, "type", "thermal"), "camera 01_09: cameras[8].type: expected \"vga\" or \"hd\" or "
+                                                 "\"kinect-color\", got \"thermal\""),
+    "resolution float": (_set(9, "resolution", [640.5, 480]), "camera 01_10: cameras[9].resolution[0]: expected an "
+                                                              "integer >= 1 and <= 100000, got 640.5"),
+    "resolution three": (_set(9, "resolution", [640, 480, 3]), "camera 01_10: cameras[9].resolution: expected a list of "
+                                                               "2 integers"),
+    "resolution zero": (_set(9, "resolution", [0, 480]), "camera 01_10: cameras[9].resolution[0]: expected an integer "
+                                                         ">= 1"),
+    "name missing": (lambda cams: cams[10].pop("name"), "cameras[10].name: missing (expected a non-empty string)"),
 }
 
 
@@ -180,11 +192,11 @@ def _write_sync(tmp_path: Path, sync: dict) -> Path:
 @pytest.mark.parametrize(
     ("sync", "expected"),
     [
-        ({"vga": {"index": [0, 1, 2], "univ_time": [0.0, 40.0]}}, "field 'vga.univ_time': 2 times for 3 indices"),
-        ({"vga": {"index": [0, 1, 2], "univ_time": [0.0, 40.0, 40.0]}}, "field 'vga.univ_time': time does not increase at frame index 2"),
-        ({"hd": {"index": [0, 1], "univ_time": [0.0, float("nan")]}}, "field 'hd.univ_time': contains NaN"),
-        ({"hd": {"index": [0, 2, 1], "univ_time": [0.0, 1.0, 2.0]}}, "field 'hd.index': frame indices must be increasing"),
-        ({"hd": {"univ_time": [0.0]}}, "field 'index': missing"),
+        ({"vga": {"index": [0, 1, 2], "univ_time": [0.0, 40.0]}}, "vga.univ_time: 2 times for 3 indices"),
+        ({"vga": {"index": [0, 1, 2], "univ_time": [0.0, 40.0, 40.0]}}, "vga.univ_time[2]: time does not increase at frame index 2"),
+        ({"hd": {"index": [0, 1], "univ_time": [0.0, float("nan")]}}, "hd.univ_time[1]: expected a finite number, got NaN"),
+        ({"hd": {"index": [0, 2, 1], "univ_time": [0.0, 1.0, 2.0]}}, "hd.index[2]: frame indices must be increasing"),
+        ({"hd": {"univ_time": [0.0]}}, "hd.index: missing"),
     ],
 )
 def test_bad_sync_tables_name_the_field(tmp_path, sync, expected):
@@ -198,18 +210,18 @@ def test_bad_ksynctables_and_kcalibration_name_the_field(tmp_path):
     folder = _write_sync(tmp_path, {"vga": {"index": [0], "univ_time": [0.0]}})
     (folder / "ksynctables_s.json").write_text(json.dumps(
         {"kinect": {"color": {"KINECTNODE3": {"index": [0, 1], "univ_time": [5.0, 4.0]}}, "depth": {}}}))
-    with pytest.raises(BundleFormatError, match=r"field 'kinect.color.KINECTNODE3.univ_time': time does not"):
+    with pytest.raises(BundleFormatError, match=r"kinect.color.KINECTNODE3.univ_time\[1\]: time does not"):
         load_bundle(folder)
     (folder / "ksynctables_s.json").unlink()
     k = json.loads(REAL_KCALIBRATION.read_text())
     k["sensors"][2]["M_color"][0][0] = float("nan")
     (folder / "kcalibration_s.json").write_text(json.dumps(k))
-    with pytest.raises(BundleFormatError, match=r"sensor KINECTNODE3: field 'M_color': contains NaN"):
+    with pytest.raises(BundleFormatError, match=r"sensors\[2\].M_color\[0\]\[0\]: expected a finite number .*, got NaN"):
         load_bundle(folder)
     k = json.loads(REAL_KCALIBRATION.read_text())
     k["convention"] = "M_color = color_from_sensor"
     (folder / "kcalibration_s.json").write_text(json.dumps(k))
-    with pytest.raises(BundleFormatError, match=r"field 'convention': unknown convention"):
+    with pytest.raises(BundleFormatError, match=r"convention: unknown convention"):
         load_bundle(folder)
 
 

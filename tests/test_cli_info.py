@@ -36,7 +36,7 @@ def test_info_bad_input_is_one_line_and_nonzero(tmp_path, dome_calib_cli):
     assert out.returncode == 1
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1, out.stderr
-    assert "camera 01_05: field 'R': shape (2, 3)" in lines[0]
+    assert "camera 01_05: cameras[4].R: expected a 3 x 3 rotation" in lines[0]
     assert "Traceback" not in out.stderr
     out = dome_calib_cli("info", str(tmp_path / "missing"))
     assert out.returncode == 1 and "not a folder" in out.stderr

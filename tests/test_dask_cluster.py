@@ -1,8 +1,9 @@
 """`calibrate --scheduler` on a real Dask cluster on this machine: a `dask scheduler` and two `dask worker`
 processes on 127.0.0.1, each worker holding half of the cameras of a one-scene tiny capture in its own folder
-(``DOME_CALIB_CAPTURE_ROOT``), the head holding only capture.json with ``"nodes"``. The bundle equals the local
-pool's; a worker killed during feature extraction (its nanny restarts it under the same name) costs a retry,
-not the calibration. About 75 s on 2 cores: marked slow (`pytest -m slow`)."""
+(``DOME_CALIB_CAPTURE_ROOT``), the head holding only capture.json with ``"nodes"`` and ``"images"``. The bundle
+equals the local pool's, every image each node read proven to be the listed one; a node whose copy of an image
+differs stops the run naming it; a worker killed during feature extraction (its nanny restarts it under the same
+name) costs a retry, not the calibration. About 90 s on 2 cores: marked slow (`pytest -m slow`)."""
 from __future__ import annotations
 
 import json
@@ -108,13 +109,38 @@ def test_scheduler_run_equals_the_local_pool_and_features_run_on_their_node(spli
     out = tmp_path / "out"
     res = _cli("calibrate", head, "-o", out, "--scheduler", address)
     assert res.returncode == 0, res.stderr
-    _same(load_bundle(out), local_bundle)
     stats = json.loads((tmp_path / "out.work" / "cluster.json").read_text())
     meta = json.loads((head / "capture.json").read_text())
     features = stats["stages"]["extract_image"]
     # every image was read on the node that holds it: tasks per worker = that node's cameras x scenes
     assert features["workers"] == {n: len(c) * len(meta["scenes"]) for n, c in meta["nodes"].items()}
     assert "features:" in res.stdout and "matching:" in res.stdout
+    n_images = len(meta["cameras"]) * len(meta["scenes"])
+    assert stats["images_verified"] == {"verified": n_images, "unverified": 0}  # each proven to be the listed one
+    assert f"images each worker read: {n_images} verified" in res.stdout
+    _same(load_bundle(out), local_bundle)
+
+
+@pytest.mark.slow
+def test_a_node_whose_image_differs_from_the_listed_one_stops_the_run_naming_it(split_capture, cluster, tmp_path):
+    import shutil
+
+    _, head, folders = split_capture
+    address, _ = cluster
+    meta = json.loads((head / "capture.json").read_text())
+    scene, cam, other = meta["scenes"][0], meta["nodes"][NODES[1]][0], meta["nodes"][NODES[1]][1]
+    image = folders[NODES[1]] / "scenes" / scene / f"{cam}.png"
+    kept = tmp_path / "kept.png"
+    shutil.copy(image, kept)
+    shutil.copy(image.with_name(f"{other}.png"), image)  # the node holds another camera's picture under this name
+    try:
+        res = _cli("calibrate", head, "-o", tmp_path / "out", "--scheduler", address)
+    finally:
+        shutil.copy(kept, image)
+    lines = [ln for ln in res.stderr.splitlines() if "error" in ln]
+    assert res.returncode == 1 and len(lines) == 1, res.stderr
+    assert f"worker {NODES[1]}: " in lines[0] and f"{scene}/{cam}.png: not the image" in lines[0], lines[0]
+    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.slow

@@ -92,15 +92,21 @@ def test_calibrate_cli_unreachable_scheduler(tmp_path, dome_calib_cli, monkeypat
 
 def test_capture_nodes_read_and_checked(tmp_path):
     meta = tmp_path / "capture.json"
-    meta.write_text(json.dumps({"scenes": [], "cameras": [], "nodes": {"node07": ["07_02", "07_01"]}}))
+    cams = ["07_01", "07_02"]
+    meta.write_text(json.dumps({"scenes": ["s1"], "cameras": cams, "nodes": {"node07": ["07_02", "07_01"]}}))
     assert capture_nodes(tmp_path) == {"node07": ["07_01", "07_02"]}
-    meta.write_text(json.dumps({"nodes": {"node07": ["07_01"], "node08": ["07_01"]}}))
-    with pytest.raises(CaptureError, match="camera 07_01 is listed under nodes node07 and node08"):
+    meta.write_text(json.dumps({"scenes": ["s1"], "cameras": cams, "nodes": {"node07": ["07_01"], "node08": ["07_01"]}}))
+    with pytest.raises(CaptureError, match=r"capture.json: nodes.node08\[0\]: camera 07_01 is listed under nodes "
+                                           "node07 and node08"):
         capture_nodes(tmp_path)
-    meta.write_text(json.dumps({"nodes": ["07_01"]}))
-    with pytest.raises(CaptureError, match="capture.json: field 'nodes'"):
+    meta.write_text(json.dumps({"scenes": ["s1"], "cameras": cams, "nodes": ["07_01"]}))
+    with pytest.raises(CaptureError, match=r"capture.json: nodes: expected an object mapping names to lists of camera "
+                                           r"names .*, got \["):
         capture_nodes(tmp_path)
-    meta.write_text(json.dumps({"scenes": []}))
+    meta.write_text(json.dumps({"scenes": ["s1"], "cameras": cams, "nodes": {"node07": ["07_03"]}}))
+    with pytest.raises(CaptureError, match=r"nodes.node07\[0\]: camera 07_03 is not among the file's cameras"):
+        capture_nodes(tmp_path)
+    meta.write_text(json.dumps({"scenes": ["s1"], "cameras": cams}))
     assert capture_nodes(tmp_path) == {}
 
 
@@ -114,10 +120,12 @@ def test_node_image_path_uses_the_nodes_own_folder(monkeypatch):
 
 
 def test_an_image_missing_on_its_node_is_a_per_camera_failure(tmp_path, monkeypatch):
-    from dome_calib.pipeline.cluster import NodeImageTask
+    from dome_calib.pipeline.cluster import ProvenImageTask
     from projector.features import FeatureOptions
 
     monkeypatch.setenv("DOME_CALIB_CAPTURE_ROOT", str(tmp_path / "node07"))
-    res = NodeImageTask(head_capture="/data/capture")(("07_01", "/data/capture/scenes/s1/07_01.png", FeatureOptions()))
-    assert res.camera == "07_01" and res.keypoints is None
-    assert res.failure.startswith("image not found on this node") and "node07/scenes/s1/07_01.png" in res.failure
+    task = ProvenImageTask(head_capture="/data/capture", pinned=frozenset({"07_01"}))
+    proven = task(("07_01", "/data/capture/scenes/s1/07_01.png", FeatureOptions()))
+    res = proven.result
+    assert proven.evidence is None and res.camera == "07_01" and res.keypoints is None
+    assert res.failure.startswith("image not found on this worker") and "node07/scenes/s1/07_01.png" in res.failure

@@ -73,7 +73,7 @@ def test_session_refuses_a_half_copied_ltc_recording_before_the_calibration(smal
     sess = _session_with_ltc(small_product_session[0], flacs / "claims.flac", tmp_path)
     done = dome_calib_cli("session", sess, "-o", tmp_path / "out")
     assert done.returncode == 1
-    assert "ltc.flac: cannot read audio (session.json field 'ltc.file': cut short or damaged" in done.stderr
+    assert "ltc.flac: cut short or damaged" in done.stderr and f"({sess / 'sync' / 'session.json'}: ltc.file)" in done.stderr
     assert "dome-calib session: calibrate" not in done.stderr
     assert not (tmp_path / "out").exists() and not (tmp_path / "out.work").exists()
 

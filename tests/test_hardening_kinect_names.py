@@ -33,7 +33,7 @@ def _untouched(out):
 @pytest.mark.parametrize("new, message", [
     ("KINECTNODE9", "KINECTNODE4: no Kinect KINECTNODE4 in"),  # 50_09 is a camera of the capture: the typo of 4
     ("KINECTNODE7", "KINECTNODE7: its colour camera 50_07 is not a camera of the capture"),
-    ("KINECT4", "field 'kinect.KINECT4': not a Kinect node name"),
+    ("KINECT4", 'session.json: kinect.KINECT4: "KINECT4" is not a Kinect node name'),
 ])
 def test_session_with_a_kinect_named_differently_in_sync_is_refused_before_any_work(small_product_session, tmp_path,
                                                                                      dome_calib_cli, new, message):
@@ -58,7 +58,7 @@ def test_timecode_sync_with_a_key_no_reader_accepts_is_refused_and_the_bundle_ke
     out = write_bundle(truth, tmp_path / "bundle")
     before = _untouched(out)
     done = run_in_process(main, "timecode", ["sync", sess / "sync", "-o", out], monkeypatch, capsys)
-    assert done.returncode == 1 and "field 'kinect.KINECT4': not a Kinect node name" in done.stderr
+    assert done.returncode == 1 and 'session.json: kinect.KINECT4: "KINECT4" is not a Kinect node name' in done.stderr
     assert _untouched(out) == before
 
 
@@ -72,7 +72,7 @@ def test_timecode_sync_names_a_node_the_calibrated_bundle_does_not_have(small_pr
     before = _untouched(out)
     done = run_in_process(main, "timecode", ["sync", sess / "sync", "-o", out], monkeypatch, capsys)
     assert done.returncode == 1
-    assert "field 'kinect.KINECTNODE7': the bundle" in done.stderr and "no colour camera 50_07" in done.stderr
+    assert "session.json: kinect.KINECTNODE7: the bundle" in done.stderr and "no colour camera 50_07" in done.stderr
     assert _untouched(out) == before
 
 

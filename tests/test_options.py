@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from dome_calib.errors import OptionsError
 from dome_calib.options import options_classes
-from dome_calib.schema import json_schema_of
+from dome_calib.schema import json_schema
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -97,7 +97,7 @@ def _tuple_bad_values(node: dict, defs: dict) -> list:
 def _cases() -> list[tuple[str, str, object]]:
     cases = []
     for name, cls in sorted(DECLARED.items()):
-        schema = json_schema_of(cls)
+        schema = json_schema(cls)
         defs = schema.get("$defs", {})
         for field, node in schema["properties"].items():
             cases += [(name, field, value) for value in _bad_values(node, defs) + _tuple_bad_values(node, defs)]

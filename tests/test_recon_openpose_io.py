@@ -29,7 +29,7 @@ def test_frame_numbers_and_camera_maps(tmp_path):
     with pytest.raises(ReconError, match="FOLDER=CAMERA"):
         parse_camera_map("cam01")
     (tmp_path / "bad.json").write_text("[1, 2]")
-    with pytest.raises(ReconError, match=r"bad.json: the file: expected an object of non-empty strings, got \[1, 2\]"):
+    with pytest.raises(ReconError, match=r"bad.json: the file: expected an object mapping names to non-empty strings, got \[1, 2\]"):
         parse_camera_map(str(tmp_path / "bad.json"))
 
 

@@ -89,7 +89,7 @@ def test_a_string_where_a_list_of_reasons_belongs_is_refused_not_split_into_lett
     proc = dome_calib_cli("report", bundle)
     assert proc.returncode == 0, proc.stderr
     _edit(path, lambda d: d["found"]["reasons"].update({"01_03": "moved"}))
-    _refused(dome_calib_cli, bundle, f'{path}: found.reasons.01_03: expected a list of at least 1 objects with '
+    _refused(dome_calib_cli, bundle, f'{path}: found.reasons.01_03: expected a non-empty list of objects with '
                                      'code, text, got "moved"')
 
 

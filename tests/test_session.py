@@ -117,7 +117,8 @@ def test_session_audio_not_audio(small_session, stand_ins, dome_calib_cli, tmp_p
     out = tmp_path / "bundle"
     write_bundle(truth, out)
     before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
-    _one_line_error(dome_calib_cli("session", broken, "-o", out), "ltc.wav", "ltc.file", "cannot read audio")
+    _one_line_error(dome_calib_cli("session", broken, "-o", out), "ltc.wav", "ltc.file",
+                    "not a readable audio file (Format not recognised.)")
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
     assert not (tmp_path / "bundle.work").exists()  # refused before any work
 

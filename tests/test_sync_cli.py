@@ -117,7 +117,7 @@ def test_errors_are_one_line(session, tmp_path, monkeypatch, capsys):
     cases.append((far, "stream vga: .*do not overlap"))
     cases.append((tmp_path / "absent", "not a session folder"))
     wrong = _variant(folder, tmp_path / "d", doc_edit=lambda d: d["ltc"].update(hd_channel=2))
-    cases.append((wrong, r"ltc.wav: session.json field 'ltc.hd_channel' = 2 but the file has 2 channel\(s\)"))
+    cases.append((wrong, r"session.json: ltc.hd_channel: 2, but \S*ltc.wav has 2 channel\(s\) \(numbered from 0\)"))
     for path, message in cases:
         out = tmp_path / "out"
         code, err = _main(monkeypatch, capsys, str(path), "-o", str(out))

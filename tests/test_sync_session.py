@@ -42,13 +42,13 @@ def _broken(session_dir, tmp_path, edit):
 
 
 @pytest.mark.parametrize("edit,message", [
-    (lambda d: d.pop("ltc"), r"session.json: field 'ltc': missing$"),
-    (lambda d: d["ltc"].update(hd_rate="29.9"), r"field 'ltc.hd_rate': frame rate '29.9' is not supported"),
-    (lambda d: d["streams"]["vga"].update(index=[3, 2, 5]), r"field 'streams.vga.index': must increase"),
-    (lambda d: d["streams"]["vga"].update(ref_timecode="10:00:00:25"), r"'streams.vga.ref_timecode': .*frame 25"),
-    (lambda d: d["streams"]["hd"].update(timecode=None), r"'streams.hd': needs 'ref_index' \+ 'ref_timecode'"),
-    (lambda d: d["streams"]["hd"].update(clock="kinect"), r"'streams.hd.clock': must be 'vga' or 'hd'"),
-    (lambda d: d.update(version=7), r"field 'version': this toolkit reads version 1"),
+    (lambda d: d.pop("ltc"), r"session.json: ltc: missing \(expected an object\)$"),
+    (lambda d: d["ltc"].update(hd_rate="29.9"), r"session.json: ltc.hd_rate: frame rate '29.9' is not supported"),
+    (lambda d: d["streams"]["vga"].update(index=[3, 2, 5]), r"session.json: streams.vga.index\[1\]: must increase \(2 after 3\)"),
+    (lambda d: d["streams"]["vga"].update(ref_timecode="10:00:00:25"), r"session.json: streams.vga.ref_timecode: timecode 10:00:00:25: frame 25 outside 0-24"),
+    (lambda d: d["streams"]["hd"].update(timecode=None), r"session.json: streams.hd: needs 'ref_index' \+ 'ref_timecode'"),
+    (lambda d: d["streams"]["hd"].update(clock="kinect"), r"session.json: streams.hd.clock: expected \"vga\" or \"hd\", got \"kinect\""),
+    (lambda d: d.update(version=7), r"session.json: version: expected 1 \(the version this toolkit reads\), got 7"),
     (lambda d: d["kinect"]["KINECTNODE1"].update(timestamps="nope.json"), r"nope.json: file not found"),
 ])
 def test_malformed_session_is_a_one_line_error(session_dir, tmp_path, edit, message):

@@ -33,6 +33,10 @@ def reconstruct(
     smooth: int = typer.Option(0, "--smooth", help="Smooth each person's joints over this many frames either side "
                                "(a local straight-line fit: no lag for steady motion); 0 = off."),
     fps: str = typer.Option("30", "--fps", help="Frame rate of a bundle without sync tables (for univTime)."),
+    depth: Path = typer.Option(None, "--depth", help="Folder of Kinect depth frames (KINECTNODE<n>/depth_<k>.png, "
+                               "16-bit millimetres, k the depth sync table's index): a joint that a Kinect sees "
+                               "through (in front of the surface it measured, beyond its noise) is dropped. Needs "
+                               "the bundle's Kinect calibration and depth sync tables."),
     workers: int = typer.Option(1, "--workers", help="Processes for long sessions (chunks of 600 times)."),
     scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler (tcp://HOST:PORT) to run the chunks "
                                   "on instead of local processes."),
@@ -51,7 +55,7 @@ def reconstruct(
         options = people_options(min_views=min_views, smooth=smooth, fps=fps)
     with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:
         summary = reconstruct_folder(detections, bundle, out, body_model=body_model, camera_map=camera_map,
-                                     reference=reference, options=options, executor=executor,
+                                     reference=reference, options=options, executor=executor, depth_folder=depth,
                                      progress=bars.task("reconstructing times"),
                                      page=people_page_writer(out, bundle, detections, camera_map=camera_map,
                                                              body_model=body_model))

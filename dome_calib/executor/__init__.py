@@ -12,6 +12,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import os
 from collections.abc import Callable, Hashable, Iterable, Iterator, Sequence
+from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar, runtime_checkable
 
 T = TypeVar("T")
@@ -32,6 +33,15 @@ class Executor(Protocol):
     def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
         """Yield ``fn(item)`` for every item, in COMPLETION order is allowed: results must carry their key."""
         ...
+
+
+@dataclass(frozen=True)
+class Proven:
+    """A task's result and the evidence of what the worker read to make it (e.g. a file's size and hash), checked
+    on the head before the result is used (:class:`dome_calib.executor.dask.Route`'s ``verify``)."""
+
+    result: Any
+    evidence: Any
 
 
 def in_order(results: Iterable[R], keys: Sequence[Hashable], key_of: Callable[[R], Hashable]) -> Iterator[R]:

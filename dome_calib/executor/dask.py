@@ -13,12 +13,23 @@ Placement: ``routes`` maps a task function to a :class:`Route`: which worker (by
 item (``workers=[name], allow_other_workers=False``: the data is on that node only) and, optionally, the
 module-level function that runs it there instead (e.g. one that finds the image in the node's local folder).
 The stages only ever call ``executor.map(fn, items)`` and never know where the tasks ran.
+
+Verified, not assumed: before a client is made, :func:`probe_scheduler` checks the address in a bounded handshake
+(an address where nothing listens, that accepts and says nothing, speaks another protocol, or is a Dask worker,
+is one line within ``HANDSHAKE_TIMEOUT_S``; ``distributed.Client`` itself waits for ever on a silent server and
+runs out of memory on an HTTP one). A route may also say how to check what a worker read: its ``task_fn``
+returns :class:`Proven` (the result and the evidence of what the worker read) and ``verify(item, worker,
+evidence)`` runs on this machine before the result is handed on; it raises to stop the run naming the worker.
 """
 from __future__ import annotations
 
+import asyncio
 import dataclasses
 import inspect
 import re
+import socket
+import struct
+import threading
 import time
 from concurrent.futures import CancelledError
 from collections.abc import Callable, Iterable, Iterator, Mapping
@@ -28,22 +39,122 @@ from typing import Any, TypeVar
 import numpy as np
 from dask.sizeof import sizeof
 from distributed import Client, as_completed, get_worker
+from distributed.comm import connect
 
 from dome_calib.errors import DomeCalibError
+from dome_calib.executor import Proven
 
 T = TypeVar("T")
 R = TypeVar("R")
 
 CONNECT_TIMEOUT_S = 5.0
+#: The whole check of a scheduler address (TCP connect, Dask's handshake, the scheduler's identity) ends within this.
+HANDSHAKE_TIMEOUT_S = 10.0
+#: A Dask handshake message is a few hundred bytes: a length beyond this is another protocol's bytes.
+_MAX_HANDSHAKE_BYTES = 1 << 20
 
 
 @dataclass(frozen=True)
 class Route:
     """Where one task function's items run: ``worker_of(item)`` a worker name (None: any worker), and
-    ``task_fn`` the module-level function the worker calls instead of the mapped one (None: the same)."""
+    ``task_fn`` the module-level function the worker calls instead of the mapped one (None: the same). When
+    ``task_fn`` returns :class:`Proven`, ``verify(item, worker_name, evidence)`` checks the evidence on this
+    machine before the result is used (raising stops the run)."""
 
     worker_of: Callable[[Any], Any]  # a worker's name (--name; a LocalCluster's are ints) or None
     task_fn: Callable[[Any], Any] | None = None
+    verify: Callable[[Any, str, Any], None] | None = None
+
+
+def _handshake_prelude(host: str, port: int, deadline: float) -> None:
+    """Connect and read the first 8 bytes a Dask server sends unasked (the length of its handshake message).
+
+    Raises DomeCalibError-ready ``ValueError`` texts: nothing listens, silent, closed, another protocol."""
+    try:
+        sock = socket.create_connection((host, port), timeout=max(0.1, deadline - time.monotonic()))
+    except TimeoutError:
+        raise ValueError("no answer to the connection (a firewall, or no such machine?)") from None
+    except OSError as exc:
+        raise ValueError(f"cannot connect ({exc.strerror or exc}): is `dask scheduler` running there?") from None
+    with sock:
+        head = b""
+        while len(head) < 8:
+            sock.settimeout(max(0.05, deadline - _HTTP_PROBE_S - time.monotonic()))
+            try:
+                chunk = sock.recv(8 - len(head))
+            except TimeoutError:
+                raise ValueError(_silent_server(sock, deadline)) from None
+            except OSError as exc:
+                raise ValueError(f"the connection failed ({exc.strerror or exc})") from None
+            if not chunk:
+                raise ValueError("closed the connection without Dask's greeting: not a Dask scheduler")
+            head += chunk
+    (size,) = struct.unpack("<Q", head)
+    if not 0 < size <= _MAX_HANDSHAKE_BYTES:
+        raise ValueError(f"speaks another protocol (it sent {head!r} where Dask sends a message length)")
+
+
+#: The last seconds of the check: a server that did not greet is asked in HTTP (a dashboard given for the scheduler).
+_HTTP_PROBE_S = 2.0
+
+
+def _silent_server(sock: socket.socket, deadline: float) -> str:
+    """Why a server that accepted and greeted not at all is no scheduler: it answers HTTP (the dashboard?) or
+    nothing."""
+    try:
+        sock.sendall(b"HEAD / HTTP/1.0\r\n\r\n")
+        sock.settimeout(max(0.05, deadline - time.monotonic()))
+        reply = sock.recv(16)
+    except OSError:
+        reply = b""
+    if reply.startswith(b"HTTP/"):
+        return ("speaks HTTP, not Dask's protocol (a web server, or the Dask dashboard: the scheduler listens on "
+                "its own port, 8786 unless told otherwise)")
+    return "accepts connections but sends nothing: not a Dask scheduler (a Dask scheduler greets at once)"
+
+
+async def _identity(address: str, timeout_s: float) -> dict:
+    comm = await connect(address, timeout=timeout_s)
+    try:
+        await comm.write({"op": "identity", "reply": True})
+        return await comm.read()
+    finally:
+        comm.abort()
+
+
+def probe_scheduler(address: str, timeout_s: float | None = None) -> None:
+    """Check that a Dask scheduler answers at ``address`` (``tcp://HOST:PORT``), within ``timeout_s`` in all:
+    DomeCalibError naming the address otherwise (nothing listening, silent, another protocol, a Dask worker)."""
+    timeout_s = HANDSHAKE_TIMEOUT_S if timeout_s is None else timeout_s
+    deadline = time.monotonic() + timeout_s
+    match = re.fullmatch(r"tcp://\[?([^\s/\]]+)\]?:(\d{1,5})", address)
+    try:
+        if match:  # tls:// and inproc:// have no plain-TCP greeting to read: their connect is bounded below
+            _handshake_prelude(match.group(1), int(match.group(2)), deadline)
+        found: dict = {}
+
+        def ask() -> None:
+            try:
+                found["identity"] = asyncio.run(asyncio.wait_for(
+                    _identity(address, max(0.1, deadline - time.monotonic())), max(0.1, deadline - time.monotonic())))
+            except BaseException as exc:  # noqa: BLE001 - reported below as one line
+                found["error"] = exc
+
+        thread = threading.Thread(target=ask, daemon=True)  # its own event loop, whatever the caller runs
+        thread.start()
+        thread.join(max(0.1, deadline - time.monotonic()) + 1.0)
+        if thread.is_alive() or isinstance(found.get("error"), (TimeoutError, asyncio.TimeoutError)):
+            raise ValueError(f"no answer to Dask's identity request within {timeout_s:g} s")
+        if "error" in found:
+            exc = found["error"]
+            raise ValueError(f"does not answer as a Dask scheduler ({type(exc).__name__}"
+                             f"{': ' + str(exc).splitlines()[0] if str(exc) else ''})")
+        kind = found["identity"].get("type") if isinstance(found["identity"], dict) else None
+        if kind != "Scheduler":
+            raise ValueError(f"is a Dask {kind or 'server'}, not a scheduler: give the address `dask scheduler` "
+                             "printed")
+    except ValueError as exc:
+        raise DomeCalibError(f"scheduler {address}: {exc}") from None
 
 
 @dataclass
@@ -102,6 +213,7 @@ class DaskExecutor:
         if client is not None:  # an existing client (a LocalCluster's): not ours to close
             self.client, self._own = client, False
         else:
+            probe_scheduler(address)  # bounded: Client() alone may wait for ever
             try:
                 self.client = Client(address, timeout=f"{connect_timeout_s}s", set_as_default=False)
             except (OSError, TimeoutError, ValueError) as exc:
@@ -147,33 +259,46 @@ class DaskExecutor:
         return self.client.submit(_timed, run, item, retries=self.retries, pure=False, **placement)
 
     def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
-        """Results in completion order; at most ``max_in_flight`` futures at once (default 4 per worker thread)."""
+        """Results in completion order; at most ``max_in_flight`` futures at once (default 4 per worker thread).
+        A route's :class:`Proven` results are verified (its ``verify``) before they are yielded."""
         stats = self.stats.setdefault(getattr(fn, "__name__", str(fn)), MapStats())
         limit = self._max_in_flight or max(4, 4 * sum(self.client.nthreads().values()))
+        route = self.routes.get(fn)
         t0 = time.perf_counter()
         it = iter(items)
         pending = as_completed(loop=self.client.loop)
+        item_of: dict[str, T] = {}
         in_flight = 0
+
+        def submit(item: T) -> None:
+            nonlocal in_flight
+            fut = self._submit_item(fn, item)
+            item_of[fut.key] = item
+            pending.add(fut)
+            stats.bytes_out += payload_bytes(item)
+            in_flight += 1
+
         try:
             for item in it:
-                pending.add(self._submit_item(fn, item))
-                stats.bytes_out += payload_bytes(item)
-                in_flight += 1
+                submit(item)
                 if in_flight >= limit:
                     break
             for fut in pending:
                 worker, seconds, result = self._result(fut)
+                item = item_of.pop(fut.key)
                 fut.release()
                 in_flight -= 1
+                if isinstance(result, Proven):
+                    if route is not None and route.verify is not None:
+                        route.verify(item, worker, result.evidence)
+                    result = result.result
                 stats.tasks += 1
                 stats.workers[worker] = stats.workers.get(worker, 0) + 1
                 stats.task_s += seconds
                 stats.bytes_back += payload_bytes(result)
                 nxt = next(it, _END)
                 if nxt is not _END:
-                    pending.add(self._submit_item(fn, nxt))
-                    stats.bytes_out += payload_bytes(nxt)
-                    in_flight += 1
+                    submit(nxt)
                 stats.wall_s += time.perf_counter() - t0
                 t0 = time.perf_counter()
                 yield result

@@ -29,8 +29,8 @@ from dome_calib.errors import CaptureError
 from dome_calib.layout import check_dome_scale
 from dome_calib.kinect.board import Checkerboard
 from dome_calib.kinect.depth_bias import DepthBiasOptions, DepthBiasResult, fit_depth_bias
-from dome_calib.kinect.detect import (DetectOptions, SensorFrames, detect_board, find_sensor_frames, read_depth_mm,
-                                      read_gray)
+from dome_calib.kinect.detect import (DetectOptions, SensorFrames, check_sensor_frames, detect_board,
+                                      find_sensor_frames, read_depth_mm, read_gray)
 from dome_calib.kinect.stereo import StereoOptions, StereoResult, calibrate_stereo
 from dome_calib.kinect.world import M_WORLD2VGA, sensor_matrices
 from dome_calib.options import AtLeast, Field, Lax, options
@@ -195,10 +195,11 @@ def calibrate_kinect_folder(kinect_folder: str | Path, bundle: Bundle, opts: Kin
     opts = opts or KinectCalibOptions()
     check_dome_scale(bundle.cameras, f"the dome bundle (calibration_{bundle.seq}.json)")  # metres would misplace them
     all_frames = find_sensor_frames(kinect_folder)
-    for name in all_frames:
+    for name, frames in all_frames.items():  # every sensor and image header before the first detection
         if color_camera_name(name) not in bundle.cameras:
             raise CaptureError(f"{Path(kinect_folder) / name}: the bundle has no colour camera "
                                f"{color_camera_name(name)} to place this Kinect")
+        check_sensor_frames(frames, opts.ir_size, bundle.cameras[color_camera_name(name)].resolution)
     results = [calibrate_sensor(frames, bundle.cameras[color_camera_name(name)], opts, on_frame)
                for name, frames in all_frames.items()]
     sensors: dict[str, KinectSensor] = {}

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from PIL import Image, UnidentifiedImageError
 
 from dome_calib.bundle import kinect_node_camera
 from dome_calib.errors import CaptureError
@@ -91,6 +92,38 @@ def find_sensor_frames(kinect_folder: str | Path) -> dict[str, SensorFrames]:
             raise CaptureError(f"{node}: no ir_<k>.png / color_<k>.png frames")
         out[node.name] = frames
     return out
+
+
+#: Pillow's modes of a single-channel 16-bit PNG (the depth maps).
+_DEPTH_MODES = ("I;16", "I;16B", "I;16L", "I")
+
+
+def _header(path: Path, what: str) -> tuple[tuple[int, int], str]:
+    """(width, height) and Pillow's mode of an image, from its header only (microseconds; no decoding)."""
+    try:
+        with Image.open(path) as im:
+            return im.size, im.mode
+    except (UnidentifiedImageError, OSError, ValueError) as exc:
+        raise CaptureError(f"{path}: cannot read the {what} image ({type(exc).__name__}: "
+                           f"{str(exc).splitlines()[0] if str(exc) else 'unreadable'})") from None
+
+
+def check_sensor_frames(frames: SensorFrames, ir_size: tuple[int, int], color_size: tuple[int, int] | None) -> None:
+    """Before any detection: every image of the sensor readable, from its header, at its size (IR and depth
+    ``ir_size``; colour ``color_size``, or when None one size for all of them) and every depth map single-channel
+    16-bit. CaptureError naming the first file that is not."""
+    sizes = {"IR": ir_size, "colour": color_size, "depth": ir_size}
+    for what, files in (("IR", frames.ir), ("colour", frames.color), ("depth", frames.depth)):
+        for k in sorted(files):
+            size, mode = _header(files[k], what)
+            if sizes[what] is None:
+                sizes[what] = size  # the sensor's first colour image sets the size of the others
+            if size != tuple(sizes[what]):
+                raise CaptureError(f"{files[k]}: {what} image is {size[0]}x{size[1]}, expected "
+                                   f"{sizes[what][0]}x{sizes[what][1]}")
+            if what == "depth" and mode not in _DEPTH_MODES:
+                raise CaptureError(f"{files[k]}: not a single-channel 16-bit depth map (uint16 mm; this image is "
+                                   f"{mode})")
 
 
 def read_gray(path: Path, size: tuple[int, int], what: str) -> np.ndarray:

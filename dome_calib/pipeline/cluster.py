@@ -19,10 +19,12 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from dome_calib.executor import Executor
+from dome_calib.capture_checks import file_sha256
+from dome_calib.errors import DomeCalibError
+from dome_calib.executor import Executor, Proven
 from dome_calib.executor.local import make_executor
 from dome_calib.io_utils import atomic_write_text
-from dome_calib.pipeline.capture import capture_nodes
+from dome_calib.pipeline.capture import capture_images, capture_nodes
 from projector.features import ImageResult, extract_image
 
 CAPTURE_ROOT_ENV = "DOME_CALIB_CAPTURE_ROOT"
@@ -38,18 +40,56 @@ def node_image_path(head_capture: str, path: str) -> str:
     return path if rel.startswith("..") else os.path.join(root, rel)
 
 
+def fingerprint(path: str | Path) -> tuple[int, str]:
+    """(bytes, SHA-256) of a file: what a worker proves it read."""
+    return os.path.getsize(path), file_sha256(path)
+
+
 @dataclass(frozen=True)
-class NodeImageTask:
-    """Worker-side task of a pinned image: find it on this node, then run the feature task (picklable)."""
+class ProvenImageTask:
+    """Worker side of a feature task on a cluster (picklable): the image as this worker finds it (on its own disk
+    for a camera pinned to its node), its (bytes, SHA-256) as evidence, then the feature task; an image it cannot
+    find is reported per camera, naming the path."""
 
     head_capture: str
+    pinned: frozenset[str]
 
     def __call__(self, task: tuple) -> object:
         camera, path, options = task
-        local = node_image_path(self.head_capture, path)
-        if not os.path.isfile(local):  # reported per camera like any unusable image, naming the node's path
-            return ImageResult(camera=camera, failure=f"image not found on this node ({local})")
-        return extract_image((camera, local, options))
+        local = node_image_path(self.head_capture, path) if camera in self.pinned else path
+        if not os.path.isfile(local):
+            return Proven(ImageResult(camera=camera, failure=f"image not found on this worker ({local})"), None)
+        return Proven(extract_image((camera, local, options)), fingerprint(local))
+
+
+class ImageCheck:
+    """Head side: each image a worker read must be the one this machine sees at that path (or, pinned to a
+    capture node, the one ``capture.json``'s ``"images"`` lists); DomeCalibError naming the worker otherwise,
+    before its features are used. ``verified`` / ``unverified`` count the images."""
+
+    def __init__(self, capture: Path, pinned: set[str], listed: dict[str, tuple[int, str]]) -> None:
+        self.capture, self.pinned, self.listed = capture, pinned, listed
+        self.verified = self.unverified = 0
+
+    def __call__(self, item: tuple, worker: str, evidence: tuple[int, str] | None) -> None:
+        camera, path, _ = item
+        key = Path(os.path.relpath(path, self.capture / "scenes")).with_suffix("").as_posix()
+        if key in self.listed:
+            expected, against = self.listed[key], f"{self.capture / 'capture.json'} lists for it"
+        elif camera not in self.pinned and os.path.isfile(path):
+            expected, against = fingerprint(path), "this machine reads there"
+        else:
+            self.unverified += 1  # on a capture node, and capture.json lists no fingerprint for it
+            return
+        if evidence is None and camera in self.pinned:
+            return  # not on its node: reported per camera with the path the node looked at
+        if evidence != expected:
+            got = "no such file" if evidence is None else f"{evidence[0]:,} bytes, SHA-256 {evidence[1][:12]}..."
+            raise DomeCalibError(
+                f"worker {worker}: {path}: not the image {against} ({got}; expected {expected[0]:,} bytes, SHA-256 "
+                f"{expected[1][:12]}...): the worker sees another capture; stopped before its features were used "
+                "(give every worker the same capture, or a node its own copy through $DOME_CALIB_CAPTURE_ROOT)")
+        self.verified += 1
 
 
 @dataclass(frozen=True)
@@ -65,13 +105,23 @@ def local_pool_stats(executor: Executor) -> dict:
     return {"executor": "local", "processes": int(getattr(executor, "num_workers", 1))}
 
 
+def check_scheduler(scheduler: str | None) -> None:
+    """Before any work: a ``--scheduler`` address answers as a Dask scheduler (bounded handshake); one line naming
+    the address otherwise."""
+    if scheduler is not None:
+        from dome_calib.executor.dask import probe_scheduler  # noqa: PLC0415 (distributed: --scheduler runs only)
+
+        probe_scheduler(scheduler)
+
+
 @contextlib.contextmanager
 def open_executor(capture: Path | None, scheduler: str | None, stats: dict | None = None, *,
                   workers: int | None = None) -> Iterator[Executor]:
     """The executor of one run: the local pool without ``scheduler`` (``workers`` processes, default one per
     core), else a :class:`DaskExecutor` whose feature tasks are pinned to the capture's nodes (after waiting for
-    those workers; without a capture or its ``"nodes"``, for any worker). ``stats`` receives where the tasks ran:
-    the pool's size, or the cluster's per-stage tallies when the block ends."""
+    those workers; without a capture or its ``"nodes"``, for any worker) and verified (:class:`ImageCheck`).
+    ``stats`` receives where the tasks ran: the pool's size, or the cluster's per-stage tallies when the block
+    ends."""
     if scheduler is None:
         with make_executor(workers) as pool:
             if stats is not None:
@@ -82,9 +132,12 @@ def open_executor(capture: Path | None, scheduler: str | None, stats: dict | Non
 
     nodes = capture_nodes(capture) if capture is not None else {}
     routes = {}
+    check = None
     if capture is not None:
         node_of = {cam: node for node, cams in nodes.items() for cam in cams}
-        routes[extract_image] = Route(worker_of=_CameraNode(node_of), task_fn=NodeImageTask(str(capture.resolve())))
+        check = ImageCheck(capture.resolve(), set(node_of), capture_images(capture))
+        routes[extract_image] = Route(worker_of=_CameraNode(node_of), verify=check,
+                                      task_fn=ProvenImageTask(str(capture.resolve()), frozenset(node_of)))
     with DaskExecutor(scheduler, routes=routes) as executor:
         if nodes:
             executor.wait_for_workers(nodes, WORKER_WAIT_S)
@@ -95,6 +148,8 @@ def open_executor(capture: Path | None, scheduler: str | None, stats: dict | Non
         finally:
             if stats is not None:
                 stats.update({"executor": "dask", **executor.stats_dict()})
+                if check is not None:
+                    stats["images_verified"] = {"verified": check.verified, "unverified": check.unverified}
 
 
 def settle_cluster_stats(path: Path, stats: dict, *, resumed: bool) -> dict:
@@ -136,6 +191,11 @@ def format_cluster(stats: dict, on_this_machine: str = "mapping, bundle adjustme
     if not stats or stats.get("executor") == "local":
         return []
     lines = [f"cluster {stats['scheduler']}:"]
+    if "images_verified" in stats:
+        v = stats["images_verified"]
+        lines.append(f"  images each worker read: {v['verified']} verified (bytes and SHA-256)"
+                     + (f", {v['unverified']} on capture nodes not verified (capture.json lists no \"images\")"
+                        if v["unverified"] else ""))
     for fn_name, s in stats["stages"].items():
         workers = ", ".join(f"{w} {n}" for w, n in s["workers"].items())
         lines.append(f"  {stage_name(fn_name)}: {s['tasks']} tasks on {workers}; {s['wall_s']:.1f} s wall, "

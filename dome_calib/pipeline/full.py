@@ -27,7 +27,8 @@ import numpy as np
 
 from dome_calib.bundle import CameraType, camera_type_from_name
 from dome_calib.pipeline.capture import capture_contents, capture_nodes
-from dome_calib.pipeline.cluster import cluster_section, format_cluster, open_executor, settle_cluster_stats
+from dome_calib.pipeline.cluster import (check_scheduler, cluster_section, format_cluster, open_executor,
+                                         settle_cluster_stats)
 from dome_calib.bundle_io import check_output_folder, load_bundle, recover_folder
 from dome_calib.errors import DomeCalibError
 from dome_calib.io_utils import refuse_output_among_inputs
@@ -78,6 +79,7 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
         load_bundle(options.previous)
     if prior is not None:
         check_dome_scale(prior.cameras, f"--prior {options.prior}")
+    check_scheduler(options.scheduler)  # a bounded handshake, before the work folder is opened (or emptied)
     inputs = CalibrationInputs(capture=capture, out=out, seq=options.seq or capture.resolve().name, scenes=scenes,
                                expected=expected, prior=prior, options=options)
     fingerprint = input_fingerprint(capture, scenes, expected, options.prior, {"only_changed": options.only_changed})

@@ -28,16 +28,15 @@ from dome_calib.capture_checks import cross_check_kinects
 from dome_calib.errors import BundleFormatError, CaptureError, DomeCalibError
 from dome_calib.io_utils import refuse_output_among_inputs
 from dome_calib.kinect.calibrate import KinectCalibOptions, SensorCalibration, calibrate_kinect_folder
-from dome_calib.kinect.detect import find_sensor_frames
+from dome_calib.kinect.detect import check_sensor_frames, find_sensor_frames
 from dome_calib.report.kept import SESSION_FILE, write_kept
 from dome_calib.report.page import write_page
 from dome_calib.pipeline.capture import capture_contents
 from dome_calib.pipeline.full import run_calibration
 from dome_calib.pipeline.types import CalibrateOptions, CalibrationResult
 from dome_calib.progress import ProgressTasks
-from timecode.audio_io import AudioReader
 from timecode.errors import TimecodeError
-from timecode.sync.pipeline import sync_session, write_sync
+from timecode.sync.pipeline import check_session_audio, sync_session, write_sync
 from timecode.sync.session import load_session
 from timecode.sync.tables import SyncOptions, SyncResult
 from dome_calib.options import options
@@ -81,21 +80,6 @@ def session_parts(session: Path) -> dict[str, Path]:
     if not (parts["sync"] / "session.json").is_file():
         raise CaptureError(f"{parts['sync'] / 'session.json'}: missing (the sync part's description)")
     return parts
-
-
-def _check_audio(loaded) -> None:
-    """CaptureError naming the file when a session audio file is missing or not audio (before any work)."""
-    paths = [(loaded.ltc.path, "ltc.file")] + [(n.audio_path, f"kinect.{name}.audio")
-                                               for name, n in loaded.kinects.items() if n.audio_path is not None]
-    for path, field_name in paths:
-        if not path.is_file():
-            raise CaptureError(f"{path}: audio file not found (session.json field '{field_name}')")
-        try:
-            with AudioReader(path):  # header and its last sample: a half-copied file fails here, not after calibrate
-                pass
-        except TimecodeError as exc:
-            raise CaptureError(f"{path}: cannot read audio (session.json field '{field_name}': "
-                               f"{str(exc).removeprefix(f'{path}: ').splitlines()[0]})") from None
 
 
 def _kinect_pillar(results: list[SensorCalibration], bundle: Bundle) -> dict:
@@ -145,12 +129,14 @@ def run_session(session: Path, out: Path, options: SessionOptions | None = None,
     parts = session_parts(session)
     held_seq = check_output_folder(out)  # a bundle there is the report's previous calibration
     refuse_output_among_inputs(out, [session], whole_folder=True)
-    try:  # the sync description and its audio files are read (and refused) before the calibration
+    try:  # the sync description and its audio headers are read (and refused) before the calibration
         loaded = load_session(parts["sync"])
+        check_session_audio(loaded, kinect_required=True)
     except TimecodeError as exc:
         raise DomeCalibError(str(exc)) from None  # the same one line, as a dome-calib error
-    _check_audio(loaded)
-    kinect_nodes = find_sensor_frames(parts["kinect"])  # Kinect folders and pairing, likewise
+    kinect_nodes = find_sensor_frames(parts["kinect"])  # Kinect folders, pairing and image headers, likewise
+    for frames in kinect_nodes.values():
+        check_sensor_frames(frames, options.kinect.ir_size, None)
     cross_check_kinects(kinect_folder=parts["kinect"], nodes=list(kinect_nodes), sync_file=parts["sync"] / "session.json",
                         synced=list(loaded.kinects), capture=parts["capture"], cameras=capture_contents(parts["capture"])[1])
     seq = options.seq or session.resolve().name

@@ -34,6 +34,7 @@ import numpy as np
 from dome_calib.bundle import Bundle, Camera, CameraType
 
 from dome_calib.bundle_io import write_bundle
+from dome_calib.capture_checks import file_sha256
 from dome_calib.errors import DomeCalibError
 from dome_calib.executor import Executor
 from dome_calib.executor.local import make_executor
@@ -246,16 +247,23 @@ def synthesize(out: str | Path, options: SynthOptions, progress: Callable[[int, 
 
 def split_onto_nodes(capture: Path, base: Path, node_names: tuple[str, ...]) -> tuple[Path, dict[str, Path]]:
     """Lay a capture out as if its images sat on capture nodes (for tests and bench/distributed.py): ``base/head``
-    holds capture.json with ``"nodes"`` (cameras dealt round-robin in name order) and no images; ``base/<node>``
-    holds that node's images in the usual ``scenes/<scene>/`` layout. Returns (head folder, {node: its folder});
-    existing node folders are replaced."""
+    holds capture.json with ``"nodes"`` (cameras dealt round-robin in name order) and ``"images"`` (each image's
+    size and SHA-256, which the nodes' workers must read), and no images; ``base/<node>`` holds that node's images
+    in the usual ``scenes/<scene>/`` layout. Returns (head folder, {node: its folder}); existing node folders are
+    replaced."""
     meta = json.loads((capture / "capture.json").read_text(encoding="utf-8"))
     cams = sorted(meta["cameras"])
     nodes = {name: cams[k::len(node_names)] for k, name in enumerate(node_names)}
+    images = {}
+    for scene in meta["scenes"]:
+        for c in cams:
+            path = capture / "scenes" / scene / f"{c}.png"
+            images[f"{scene}/{c}"] = {"bytes": path.stat().st_size, "sha256": file_sha256(path)}
     head = base / "head"
     shutil.rmtree(head, ignore_errors=True)
     head.mkdir(parents=True)
-    (head / "capture.json").write_text(json.dumps({**meta, "nodes": nodes}, indent=1), encoding="utf-8")
+    (head / "capture.json").write_text(json.dumps({**meta, "nodes": nodes, "images": images}, indent=1),
+                                       encoding="utf-8")
     folders = {}
     for node, node_cams in nodes.items():
         shutil.rmtree(base / node, ignore_errors=True)

@@ -22,12 +22,14 @@ import json
 import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
 
 from dome_calib.bundle import Bundle, SyncTable, SyncTables
 from dome_calib.bundle_io import load_bundle, write_bundle
+from dome_calib.errors import DomeCalibError
+from dome_calib.schema import Field, FileSchema, read_json
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.synth.capture import SynthOptions, synthesize as write_capture
 from dome_calib.synth.detector import DetectorModel
@@ -62,6 +64,29 @@ class SessionOptions:
     miss_fraction: UnitInterval = 0.10  # detections missing (occlusion, detector misses)
     group_people: Annotated[int, Field(ge=0, le=10)] = 0  # > 0: also a group of this many people, OpenPose folders in group/ (synth.group_session)
     group_scenario: str = "mixed"
+
+
+class SessionManifest(FileSchema):
+    """``SESSION/dome_session.json``: what :func:`make_product_session` made (its options) and where (its parts)."""
+
+    version: Literal[1]
+    options: SessionOptions
+    parts: dict[str, Annotated[str, Field(min_length=1)]]
+
+
+def _made_here(folder: Path) -> SessionOptions | None:
+    """The options the session in ``folder`` was made with; None for no folder or an empty one. A folder holding
+    anything else (no manifest, or one this toolkit did not write) is refused: it is replaced whole otherwise."""
+    manifest = folder / MANIFEST
+    if not folder.exists() or (folder.is_dir() and not any(folder.iterdir())):
+        return None
+    if not manifest.exists():
+        raise DomeCalibError(f"{folder}: not a synthetic session (no {MANIFEST}): it would be replaced whole; "
+                             "choose a new or empty folder")
+    try:
+        return read_json(manifest, SessionManifest, error=DomeCalibError).options
+    except DomeCalibError as exc:
+        raise DomeCalibError(f"{exc} (not a session this toolkit made: choose a new or empty folder)") from None
 
 
 def truth_sync(truth: SynthTruth) -> SyncTables:
@@ -99,7 +124,7 @@ def make_product_session(folder: str | Path, options: SessionOptions | None = No
     folder = Path(folder)
     manifest = folder / MANIFEST
     wanted = {"version": VERSION, "options": json.loads(json.dumps(asdict(o)))}
-    if manifest.is_file() and json.loads(manifest.read_text(encoding="utf-8")).get("options") == wanted["options"]:
+    if _made_here(folder) == o:
         return folder
     step = progress or (lambda what: None)
     shutil.rmtree(folder, ignore_errors=True)

@@ -8,7 +8,7 @@ from pathlib import Path
 from dome_calib.cli.progress import ProgressBars
 from dome_calib.io_utils import output_file, refuse_output_among_inputs
 from timecode.audio_io import AudioReader, RawFormat, RawSampleFormat
-from timecode.decode.decoder import DecodeOptions, RateMismatchError, decode_file
+from timecode.decode.decoder import MAX_RATE, MIN_RATE, DecodeError, DecodeOptions, RateMismatchError, decode_file
 from timecode.errors import NoLTCError, TimecodeError
 from timecode.decode.formats import OutputFormat, render
 from timecode.rates import FrameRate, parse_rate
@@ -103,7 +103,16 @@ def run_decode(inputs: Sequence[Path], *, channel: str, fps: str, fmt: str, raw:
     done: list[tuple[str, list]] = []
     failed: list[tuple[str, str]] = []
     warnings: list[str] = []
-    for path in files:
+    readable = []
+    for path in files:  # every header before the first decoding: a bad file is known in seconds, not at its turn
+        try:
+            channels_of(path, channel, raw)
+        except TimecodeError as exc:
+            msg = str(exc).splitlines()[0]
+            failed.append((str(path), msg if msg.startswith(str(path)) else f"{path}: {msg}"))
+        else:
+            readable.append(path)
+    for path in readable:
         try:
             result = _decode_one(path, channel=channel, rate=rate, raw=raw)
         except TimecodeError as exc:
@@ -117,11 +126,19 @@ def run_decode(inputs: Sequence[Path], *, channel: str, fps: str, fmt: str, raw:
     return BatchResult(text=text, n_decoded=len(done), failures=[m for _, m in failed], warnings=warnings)
 
 
-def _decode_one(path: Path, *, channel: str, rate: FrameRate | None, raw: RawFormat | None) -> list:
-    """The channels of one file; raises a TimecodeError (no LTC on a requested channel, unreadable, ...)."""
+def channels_of(path: Path, channel: str, raw: RawFormat | None) -> tuple[list[int] | None, int]:
+    """From the file's header (and its last sample): the channels to decode (None: all) and how many it has;
+    TimecodeError when it cannot be read, lacks the channel or has a sample rate the decoder does not read."""
     with AudioReader(path, raw) as reader:
         info = reader.info
-    chans = parse_channels(channel, info.channels)
+    if not MIN_RATE <= info.sample_rate <= MAX_RATE:
+        raise DecodeError(f"{path}: sample rate {info.sample_rate} Hz is outside the supported {MIN_RATE}-{MAX_RATE} Hz")
+    return parse_channels(channel, info.channels), info.channels
+
+
+def _decode_one(path: Path, *, channel: str, rate: FrameRate | None, raw: RawFormat | None) -> list:
+    """The channels of one file; raises a TimecodeError (no LTC on a requested channel, unreadable, ...)."""
+    chans, n_channels = channels_of(path, channel, raw)
     try:
         result = _decode_with_progress(path, DecodeOptions(rate=rate), chans, raw)
     except RateMismatchError as exc:
@@ -130,7 +147,7 @@ def _decode_one(path: Path, *, channel: str, rate: FrameRate | None, raw: RawFor
     if chans is not None and not found:
         raise NoLTCError(f"{path}: no LTC found on channel {chans[0]}")
     if not found:
-        raise NoLTCError(f"{path}: no LTC found on any of its {info.channels} channel(s)")
+        raise NoLTCError(f"{path}: no LTC found on any of its {n_channels} channel(s)")
     return result
 
 

@@ -8,7 +8,7 @@ import typer
 from dome_calib.cli.progress import ProgressBars
 from dome_calib.io_utils import check_writable, refuse_output_among_inputs
 from dome_calib.errors import flags
-from timecode.sync.pipeline import check_nodes_in_bundle, output_seq, sync_session, write_sync
+from timecode.sync.pipeline import check_nodes_in_bundle, check_session_audio, output_seq, sync_session, write_sync
 from timecode.sync.report import summary_lines
 from timecode.sync.session import load_session
 from timecode.sync.tables import SyncOptions
@@ -23,6 +23,7 @@ def run_sync(session: Path, output: Path, *, seq: str | None, strict_kinect: boo
     loaded = load_session(session)
     output_seq(output, seq, loaded.seq)  # a contradicting --seq fails before the decoding work
     check_nodes_in_bundle(output, loaded)  # so does a Kinect the calibrated bundle does not have
+    check_session_audio(loaded, kinect_required=strict_kinect)  # and an audio file that cannot give its channel
     n_steps = 2 + len(loaded.kinects)
     with ProgressBars(transient=True) as bars:
         result = sync_session(loaded, opts, progress=bars.steps(n_steps, "decoding"))

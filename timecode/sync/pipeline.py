@@ -16,27 +16,61 @@ from dome_calib.report.kept import SYNC_FILE, kept_text
 from timecode.errors import TimecodeError
 from timecode.rates import FrameRate
 from timecode.audio_io import AudioReader
-from timecode.decode.decoder import DecodeOptions, decode_file, decode_samples
+from timecode.decode.decoder import MAX_RATE, MIN_RATE, DecodeOptions, decode_file, decode_samples
 from timecode.sync.clock import ClockError, FrameStarts
 from timecode.sync.report import sync_report
-from timecode.sync.session import Session, SessionError, load_session
+from timecode.sync.session import SESSION_FILE, Session, SessionError, load_session
 from timecode.sync.tables import SyncError, SyncOptions, SyncResult, build_sync
 
 logger = logging.getLogger(__name__)
 
 
-def _check_channel(path: Path, channel: int, field: str, file_field: str) -> None:
-    """SessionError naming file and field when the audio file is missing, unreadable or lacks the channel."""
+def audio_problem(path: Path, channel: int) -> tuple[str, str] | None:
+    """What keeps ``channel`` of the audio file ``path`` from being decoded, from its header (and its last sample,
+    so a half-copied file is found too): ("file", why) or ("channel", why); None when nothing does. Milliseconds,
+    whatever the file's length."""
     if not path.is_file():
-        raise SessionError(f"{path}: audio file not found (session.json field '{file_field}')")
+        return "file", f"{path}: audio file not found"
     try:
-        with AudioReader(path) as reader:  # the header and its last sample: a half-copied file fails here
-            n = reader.info.channels
+        with AudioReader(path) as reader:
+            info = reader.info
     except TimecodeError as exc:
-        raise SessionError(f"{exc} (session.json field '{file_field}')") from None
-    if channel >= n:
-        raise SessionError(f"{path}: session.json field '{field}' = {channel} but the file has {n} channel(s) "
-                           "(channels count from 0)")
+        why = str(exc).removeprefix(f"{path}: ").splitlines()[0].split("; for headerless files")[0]
+        return "file", f"{path}: {why}"
+    if channel >= info.channels:
+        return "channel", f"{channel}, but {path} has {info.channels} channel(s) (numbered from 0)"
+    if not MIN_RATE <= info.sample_rate <= MAX_RATE:
+        return "file", (f"{path}: sample rate {info.sample_rate} Hz, outside the {MIN_RATE}-{MAX_RATE} Hz the LTC "
+                        "decoder reads")
+    return None
+
+
+def _where(problem: tuple[str, str], sess_file: Path, field: str, file_field: str) -> str:
+    """A problem of the audio file names that file first; a channel it lacks names session.json's field."""
+    kind, why = problem
+    return f"{sess_file}: {field}: {why}" if kind == "channel" else f"{why} ({sess_file}: {file_field})"
+
+
+def check_session_audio(session: Session, *, kinect_required: bool = False) -> dict[str, str]:
+    """Before any decoding, in seconds: the header of every audio file the session names. The LTC file must hold
+    both channels at a rate the decoder reads, else SessionError naming ``session.json``'s field. A Kinect's audio
+    problem is an error too when ``kinect_required``; else it is returned (node -> reason: the Kinect is reported
+    NOT SYNCED and the other streams go on)."""
+    sess_file = session.folder / SESSION_FILE
+    ltc = session.ltc
+    for key, channel in (("vga", ltc.vga_channel), ("hd", ltc.hd_channel)):
+        if problem := audio_problem(ltc.path, channel):
+            raise SessionError(_where(problem, sess_file, f"ltc.{key}_channel", "ltc.file"))
+    skipped: dict[str, str] = {}
+    for name, node in session.kinects.items():
+        if node.audio_path is None:
+            continue
+        if problem := audio_problem(node.audio_path, node.audio_channel):
+            line = _where(problem, sess_file, f"kinect.{name}.audio_channel", f"kinect.{name}.audio")
+            if kinect_required:
+                raise SessionError(line)
+            skipped[name] = line
+    return skipped
 
 
 def _decode(path: Path, channel: int, rate: FrameRate, source: str, start: int = 0, stop: int | None = None
@@ -95,28 +129,29 @@ def decode_session(session: Session, progress: Callable[[str], None] | None = No
                    ) -> tuple[FrameStarts, FrameStarts, dict[str, FrameStarts | str]]:
     """Decode both LTC channels of ltc.wav and the HD LTC in each Kinect's audio.
 
-    A Kinect without audio or without decodable LTC gets a one-line reason instead of frames.
+    A Kinect without audio or without decodable LTC gets a one-line reason instead of frames. The audio headers
+    are checked first (:func:`check_session_audio`): nothing is decoded when the LTC file cannot be.
     """
     step = progress or (lambda what: None)
     ltc = session.ltc
+    skipped = check_session_audio(session)
     out = []
     for key, ch, rate in (("vga", ltc.vga_channel, ltc.vga_rate), ("hd", ltc.hd_channel, ltc.hd_rate)):
         step(f"decoding {ltc.path.name} {key.upper()} channel")
-        _check_channel(ltc.path, ch, f"ltc.{key}_channel", "ltc.file")
         out.append(decode_frame_starts(ltc.path, ch, rate, f"{ltc.path.name} channel {ch} ({key.upper()} LTC)"))
     kinect: dict[str, FrameStarts | str] = {}
     for name, node in session.kinects.items():
         step(f"decoding {name} audio")
         if node.audio_path is None:
             kinect[name] = "no audio recorded (session.json: audio is null)"
-            continue
-        try:
-            _check_channel(node.audio_path, node.audio_channel, f"kinect.{name}.audio_channel",
-                           f"kinect.{name}.audio")
-            kinect[name] = decode_frame_starts(node.audio_path, node.audio_channel, ltc.hd_rate,
-                                               f"{name} audio (HD LTC)")
-        except (ClockError, SessionError) as exc:
-            kinect[name] = str(exc)
+        elif name in skipped:
+            kinect[name] = skipped[name]
+        else:
+            try:
+                kinect[name] = decode_frame_starts(node.audio_path, node.audio_channel, ltc.hd_rate,
+                                                   f"{name} audio (HD LTC)")
+            except ClockError as exc:
+                kinect[name] = str(exc)
     return out[0], out[1], kinect
 
 
@@ -124,8 +159,9 @@ def sync_session(folder: str | Path | Session, options: SyncOptions | None = Non
                  progress: Callable[[str], None] | None = None) -> SyncResult:
     """Load (unless given a loaded Session), decode and fit a session; returns tables and fits, writes nothing."""
     session = folder if isinstance(folder, Session) else load_session(folder)
-    vga, hd, kinect = decode_session(session, progress)
     opts = options or SyncOptions()
+    check_session_audio(session, kinect_required=opts.strict_kinect)
+    vga, hd, kinect = decode_session(session, progress)
     if opts.strict_kinect:
         for name, got in kinect.items():
             if isinstance(got, str):
@@ -159,10 +195,10 @@ def check_nodes_in_bundle(bundle: str | Path, session: Session) -> None:
     for node in sorted(session.kinects):
         camera = kinect_node_camera(node)
         if camera not in b.cameras:
-            raise SyncError(f"{session.folder / 'session.json'}: field 'kinect.{node}': the bundle {folder} has no "
+            raise SyncError(f"{session.folder / 'session.json'}: kinect.{node}: the bundle {folder} has no "
                             f"colour camera {camera} (its Kinect cameras: {', '.join(cameras) or 'none'})")
         if b.kinect is not None and node not in b.kinect.sensors:
-            raise SyncError(f"{session.folder / 'session.json'}: field 'kinect.{node}': not a sensor of the bundle's "
+            raise SyncError(f"{session.folder / 'session.json'}: kinect.{node}: not a sensor of the bundle's "
                             f"kcalibration (it has {', '.join(b.kinect.sensors) or 'none'})")
 
 

@@ -33,18 +33,21 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Literal
 
 import numpy as np
+from pydantic import AfterValidator, model_validator
 
 from dome_calib.bundle import kinect_node_camera
 from dome_calib.io_utils import atomic_write_text
+from dome_calib.schema import Field, FieldError, FileSchema, NonNegInt, PlainName, read_json, show, words
 from timecode.errors import TimecodeError
 from timecode.labels import LabelError, label_to_frames
-from timecode.rates import FrameRate, RateError, parse_rate
+from timecode.rates import RATES, FrameRate, parse_rate
 
 FORMAT = "dome-sync-session"
 VERSION = 1
+SESSION_FILE = "session.json"
 
 
 class SessionError(TimecodeError, ValueError):
@@ -103,170 +106,192 @@ class Session:
     kinects: dict[str, KinectNode] = field(default_factory=dict)
 
 
-class _Where:
-    def __init__(self, path: Path) -> None:
-        self.path = path
+# ---- the schemas of session.json and timestamps.json --------------------------------------------------------------
 
-    def fail(self, fld: str, problem: str) -> SessionError:
-        return SessionError(f"{self.path}: field '{fld}': {problem}")
-
-    def get(self, obj: Any, fld: str, key: str, default: Any = ...) -> Any:
-        if not isinstance(obj, dict):
-            raise self.fail(fld, "expected an object")
-        if key not in obj:
-            if default is ...:
-                raise self.fail(f"{fld}.{key}" if fld else key, "missing")
-            return default
-        return obj[key]
-
-    def known(self, obj: Any, fld: str, keys: set[str]) -> None:
-        """Unknown keys fail loudly (a typo would otherwise fall back to a default without a word)."""
-        unknown = sorted(set(obj) - keys) if isinstance(obj, dict) else []
-        if unknown:
-            where = f"{fld}.{unknown[0]}" if fld else unknown[0]
-            raise self.fail(where, f"unknown key (known here: {', '.join(sorted(keys))})")
-
-    def ints(self, obj: Any, fld: str, key: str, *, increasing: bool) -> np.ndarray:
-        raw = self.get(obj, fld, key)
-        name = f"{fld}.{key}"
-        try:
-            a = np.asarray(raw, dtype=float)
-        except (TypeError, ValueError):
-            raise self.fail(name, "expected a list of integers") from None
-        if a.ndim != 1 or not np.all(np.isfinite(a)) or np.any(a != np.round(a)):
-            raise self.fail(name, "expected a list of integers")
-        if a.size == 0:
-            raise self.fail(name, "is empty")
-        if increasing and np.any(np.diff(a) <= 0):
-            raise self.fail(name, f"must increase (at position {int(np.argmax(np.diff(a) <= 0)) + 1})")
-        return a.astype(np.int64)
-
-    def rate(self, obj: Any, fld: str, key: str) -> FrameRate:
-        try:
-            return parse_rate(str(self.get(obj, fld, key)))
-        except RateError as exc:
-            raise self.fail(f"{fld}.{key}", str(exc)) from None
-
-    def count(self, label: Any, rate: FrameRate, fld: str) -> int:
-        if not isinstance(label, str):
-            raise self.fail(fld, f"expected a timecode label HH:MM:SS:FF, got {label!r}")
-        try:
-            return label_to_frames(label, rate)
-        except LabelError as exc:
-            raise self.fail(fld, str(exc)) from None
+def _rate(text: str) -> str:
+    parse_rate(text)  # RateError (a ValueError): one line naming the field
+    return text
 
 
-def _load_json(path: Path) -> Any:
-    if not path.is_file():
-        raise SessionError(f"{path}: file not found")
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SessionError(f"{path}: not valid JSON ({exc})") from None
+def _kinect_node(name: str) -> str:
+    if kinect_node_camera(name) is None:  # a typo would sync no sensor, or write tables no reader accepts
+        raise ValueError(f"{show(name)} is not a Kinect node name (KINECTNODE1..KINECTNODE10, as the kinect/ folders "
+                         "and the colour cameras 50_01..50_10 are numbered)")
+    return name
 
 
-def _read_stream(w: _Where, name: str, obj: Any, ltc: LtcRecording) -> FrameStream:
-    fld = f"streams.{name}"
-    w.known(obj, fld, {"clock", "index", "ref_index", "ref_timecode", "timecode"})
-    clock = w.get(obj, fld, "clock")
-    if clock not in ("vga", "hd"):
-        raise w.fail(f"{fld}.clock", f"must be 'vga' or 'hd', got {clock!r}")
-    rate = ltc.vga_rate if clock == "vga" else ltc.hd_rate
-    index = w.ints(obj, fld, "index", increasing=True)
-    ref_i: list[int] = []
-    ref_c: list[int] = []
-    tcs = w.get(obj, fld, "timecode", None)
-    if tcs is not None:
-        if not isinstance(tcs, list) or len(tcs) != index.size:
-            raise w.fail(f"{fld}.timecode", f"expected a list of {index.size} labels or nulls (one per index)")
-        for k, tc in enumerate(tcs):
-            if tc is not None:
-                ref_i.append(int(index[k]))
-                ref_c.append(w.count(tc, rate, f"{fld}.timecode[{k}]"))
-    if "ref_index" in obj or "ref_timecode" in obj:
-        ri = w.get(obj, fld, "ref_index")
-        if not isinstance(ri, int) or isinstance(ri, bool):
-            raise w.fail(f"{fld}.ref_index", f"expected an integer frame index, got {ri!r}")
-        ref_i.append(ri)
-        ref_c.append(w.count(w.get(obj, fld, "ref_timecode"), rate, f"{fld}.ref_timecode"))
-    if not ref_i:
-        raise w.fail(fld, "needs 'ref_index' + 'ref_timecode' or embedded 'timecode' labels to tie frames to LTC")
-    return FrameStream(name=name, clock=clock, index=index, ref_index=np.asarray(ref_i, np.int64),
-                       ref_count=np.asarray(ref_c, np.int64))
+def _increasing(values: list[int]) -> list[int]:
+    for k in range(1, len(values)):
+        if values[k] <= values[k - 1]:
+            raise FieldError((k,), f"must increase ({values[k]} after {values[k - 1]})")
+    return values
 
 
-def _read_kinect(w: _Where, folder: Path, name: str, obj: Any) -> KinectNode:
-    fld = f"kinect.{name}"
-    w.known(obj, fld, {"audio", "audio_channel", "timestamps"})
-    audio = w.get(obj, fld, "audio", None)
-    audio_path = None if audio is None else folder / str(audio)
-    ts_path = folder / str(w.get(obj, fld, "timestamps"))
-    ts = _load_json(ts_path)
-    wt = _Where(ts_path)
-    wt.known(ts, "", {"audio_blocks", "color", "depth"})
-    blocks = wt.get(ts, "", "audio_blocks", {"first_sample": [0], "device_time_100ns": [0]} if audio is None else ...)
-    frames = {}
-    for kind in ("color", "depth"):
-        o = wt.get(ts, "", kind)
-        wt.known(o, kind, {"index", "device_time_100ns"})
-        frames[kind] = DeviceFrames(index=wt.ints(o, kind, "index", increasing=True),
-                                    device_time_100ns=wt.ints(o, kind, "device_time_100ns", increasing=False))
-        if frames[kind].index.size != frames[kind].device_time_100ns.size:
-            raise wt.fail(f"{kind}.device_time_100ns", "must have one entry per index")
-    wt.known(blocks, "audio_blocks", {"first_sample", "device_time_100ns"})
-    first = wt.ints(blocks, "audio_blocks", "first_sample", increasing=True)
-    dev = wt.ints(blocks, "audio_blocks", "device_time_100ns", increasing=False)
-    if first.size != dev.size:
-        raise wt.fail("audio_blocks.device_time_100ns", "must have one entry per first_sample")
-    channel = w.get(obj, fld, "audio_channel", 0)
-    if not isinstance(channel, int) or channel < 0:
-        raise w.fail(f"{fld}.audio_channel", f"expected a channel number >= 0, got {channel!r}")
-    return KinectNode(name=name, audio_path=audio_path, audio_channel=channel, block_first_sample=first,
-                      block_device_time_100ns=dev, color=frames["color"], depth=frames["depth"])
+RateText = Annotated[str, AfterValidator(_rate),
+                     Field(**words(f"a frame rate: {' or '.join(json.dumps(r) for r in RATES)}"))]
+Path_ = Annotated[str, Field(min_length=1, **words("a path, relative to the session folder"))]
+Label = Annotated[str, Field(min_length=1, **words("a timecode label HH:MM:SS:FF (HH:MM:SS;FF drop frame)"))]
+KinectNodeName = Annotated[str, AfterValidator(_kinect_node), Field(**words("KINECTNODE1..KINECTNODE10"))]
+Frames = Annotated[list[NonNegInt], Field(min_length=1), AfterValidator(_increasing),
+                   Field(**words("a non-empty list of increasing frame indices (integers >= 0)"))]
+Int64 = Annotated[int, Field(ge=-2**63, le=2**63 - 1, **words("a 64-bit integer"))]
+
+
+class LtcSection(FileSchema):
+    """The stereo LTC recording: which channel carries which clock, at which rate."""
+
+    file: Path_
+    vga_channel: NonNegInt = Field(0, description="0 = the first (left) channel")
+    hd_channel: NonNegInt = 1
+    vga_rate: RateText
+    hd_rate: RateText
+
+    @model_validator(mode="after")
+    def _two_channels(self) -> LtcSection:
+        if self.vga_channel == self.hd_channel:
+            raise FieldError(("hd_channel",), f"the same channel as vga_channel ({self.vga_channel}): the two clocks "
+                                              "are recorded on two channels")
+        return self
+
+
+class StreamSection(FileSchema):
+    """One camera stream: its frames and how they tie to the LTC (a reference frame, or labels per frame)."""
+
+    clock: Literal["vga", "hd"]
+    index: Frames
+    ref_index: Int64 | None = Field(None, description="a frame index whose LTC label is ref_timecode")
+    ref_timecode: Label | None = None
+    timecode: list[Label | None] | None = Field(None, description="the label embedded in each frame (null: none)")
+
+    @model_validator(mode="after")
+    def _tied_to_ltc(self) -> StreamSection:
+        if (self.ref_index is None) != (self.ref_timecode is None):
+            missing = "ref_timecode" if self.ref_timecode is None else "ref_index"
+            raise FieldError((missing,), "missing (ref_index and ref_timecode come together)")
+        if self.timecode is not None and len(self.timecode) != len(self.index):
+            raise FieldError(("timecode",), f"{len(self.timecode)} labels for {len(self.index)} frames (expected one "
+                                            "label or null per index)")
+        if self.ref_index is None and not any(tc is not None for tc in self.timecode or []):
+            raise ValueError("needs 'ref_index' + 'ref_timecode' or embedded 'timecode' labels to tie frames to LTC")
+        return self
+
+
+class KinectSection(FileSchema):
+    """One Kinect: its microphone recording of the HD LTC and its device timestamps."""
+
+    audio: Path_ | None = Field(None, description="null: no audio recorded (the Kinect is reported, not synced)")
+    audio_channel: NonNegInt = 0
+    timestamps: Path_ = Field(description="its timestamps.json")
+
+
+class SessionFile(FileSchema):
+    """``session.json`` of a sync session (see the module docstring)."""
+
+    format: Literal["dome-sync-session"] = Field(**words('"dome-sync-session"'))
+    version: Literal[1] = Field(**words("1 (the version this toolkit reads)"))
+    seq: PlainName
+    ltc: LtcSection
+    streams: dict[Annotated[str, Field(min_length=1)], StreamSection] = Field(min_length=1)
+    kinect: dict[KinectNodeName, KinectSection] = {}
+
+    @model_validator(mode="after")
+    def _labels_exist_at_their_rate(self) -> SessionFile:
+        for name, stream in self.streams.items():
+            rate = parse_rate(self.ltc.vga_rate if stream.clock == "vga" else self.ltc.hd_rate)
+            labels = [(("ref_timecode",), stream.ref_timecode)] + [
+                (("timecode", k), tc) for k, tc in enumerate(stream.timecode or [])]
+            for where, label in labels:
+                if label is not None:
+                    try:
+                        label_to_frames(label, rate)
+                    except LabelError as exc:
+                        raise FieldError(("streams", name, *where), str(exc)) from None
+        return self
+
+
+class DeviceStamps(FileSchema):
+    """Frames (or audio blocks) timestamped on the Kinect's own clock (``RelativeTime``, 100 ns units)."""
+
+    index: Frames
+    device_time_100ns: list[Int64]
+
+    @model_validator(mode="after")
+    def _one_per_index(self) -> DeviceStamps:
+        if len(self.device_time_100ns) != len(self.index):
+            raise FieldError(("device_time_100ns",), f"{len(self.device_time_100ns)} times for {len(self.index)} "
+                                                     "indices (expected one per index)")
+        return self
+
+
+class AudioBlocks(FileSchema):
+    first_sample: Frames = Field(description="first sample of each audio block")
+    device_time_100ns: list[Int64]
+
+    @model_validator(mode="after")
+    def _one_per_block(self) -> AudioBlocks:
+        if len(self.device_time_100ns) != len(self.first_sample):
+            raise FieldError(("device_time_100ns",), f"{len(self.device_time_100ns)} times for "
+                                                     f"{len(self.first_sample)} blocks (expected one per first_sample)")
+        return self
+
+
+class TimestampsFile(FileSchema):
+    """A Kinect's ``timestamps.json``: device times of its audio blocks, colour and depth frames."""
+
+    audio_blocks: AudioBlocks | None = Field(None, description="required when the Kinect has audio")
+    color: DeviceStamps
+    depth: DeviceStamps
+
+
+# ---- the loader -----------------------------------------------------------------------------------------------------
+
+def _ints(values: list[int]) -> np.ndarray:
+    return np.asarray(values, dtype=np.int64)
+
+
+def _stream(name: str, s: StreamSection, ltc: LtcRecording) -> FrameStream:
+    rate = ltc.vga_rate if s.clock == "vga" else ltc.hd_rate
+    refs = [(i, tc) for i, tc in zip(s.index, s.timecode or []) if tc is not None]
+    if s.ref_index is not None:
+        refs.append((s.ref_index, s.ref_timecode))
+    return FrameStream(name=name, clock=s.clock, index=_ints(s.index), ref_index=_ints([i for i, _ in refs]),
+                       ref_count=_ints([label_to_frames(tc, rate) for _, tc in refs]))
+
+
+def _kinect(folder: Path, path: Path, name: str, k: KinectSection) -> KinectNode:
+    ts_path = folder / k.timestamps
+    if not ts_path.is_file():
+        raise SessionError(f"{path}: kinect.{name}.timestamps: {ts_path}: file not found")
+    ts = read_json(ts_path, TimestampsFile, error=SessionError)
+    if ts.audio_blocks is None and k.audio is not None:
+        raise SessionError(f"{ts_path}: audio_blocks: missing (the Kinect has audio: {path} kinect.{name}.audio)")
+    blocks = ts.audio_blocks or AudioBlocks(first_sample=[0], device_time_100ns=[0])
+    return KinectNode(name=name, audio_path=None if k.audio is None else folder / k.audio,
+                      audio_channel=k.audio_channel, block_first_sample=_ints(blocks.first_sample),
+                      block_device_time_100ns=_ints(blocks.device_time_100ns),
+                      color=_device_frames(ts.color), depth=_device_frames(ts.depth))
+
+
+def _device_frames(stamps: DeviceStamps) -> DeviceFrames:
+    return DeviceFrames(index=_ints(stamps.index), device_time_100ns=_ints(stamps.device_time_100ns))
 
 
 def load_session(folder: str | Path) -> Session:
     """Read and validate ``folder/session.json`` and the Kinect timestamp files it names.
 
-    Raises :class:`SessionError` (one line naming file and field). Audio files are not read here.
+    Raises :class:`SessionError` (one line naming file and field path). Audio files are not read here
+    (:func:`timecode.sync.pipeline.check_session_audio` opens their headers).
     """
     folder = Path(folder)
     if not folder.is_dir():
         raise SessionError(f"{folder}: not a session folder")
-    path = folder / "session.json"
-    data = _load_json(path)
-    w = _Where(path)
-    w.known(data, "", {"format", "version", "seq", "ltc", "streams", "kinect"})
-    if w.get(data, "", "format") != FORMAT:
-        raise w.fail("format", f"expected {FORMAT!r}")
-    if w.get(data, "", "version") != VERSION:
-        raise w.fail("version", f"this toolkit reads version {VERSION}")
-    seq = w.get(data, "", "seq")
-    if not isinstance(seq, str) or not seq or "/" in seq:
-        raise w.fail("seq", "expected a non-empty name without '/'")
-    lo = w.get(data, "", "ltc")
-    w.known(lo, "ltc", {"file", "vga_channel", "hd_channel", "vga_rate", "hd_rate"})
-    channels = {}
-    for key, default in (("vga_channel", 0), ("hd_channel", 1)):
-        ch = w.get(lo, "ltc", key, default)
-        if not isinstance(ch, int) or ch < 0:
-            raise w.fail(f"ltc.{key}", f"expected a channel number >= 0, got {ch!r}")
-        channels[key] = ch
-    ltc = LtcRecording(path=folder / str(w.get(lo, "ltc", "file")), vga_rate=w.rate(lo, "ltc", "vga_rate"),
-                       hd_rate=w.rate(lo, "ltc", "hd_rate"), **channels)
-    streams_obj = w.get(data, "", "streams")
-    if not isinstance(streams_obj, dict) or not streams_obj:
-        raise w.fail("streams", "expected an object with at least one stream")
-    streams = {n: _read_stream(w, n, o, ltc) for n, o in streams_obj.items()}
-    kin_obj = w.get(data, "", "kinect", {})
-    if not isinstance(kin_obj, dict):
-        raise w.fail("kinect", "expected an object keyed by KINECTNODE<n>")
-    for n in kin_obj:
-        if kinect_node_camera(n) is None:  # a typo would sync no sensor, or write tables no reader accepts
-            raise w.fail(f"kinect.{n}", "not a Kinect node name (KINECTNODE1..KINECTNODE10, as the kinect/ folders "
-                                        "and the colour cameras 50_01..50_10 are numbered)")
-    kinects = {n: _read_kinect(w, folder, n, o) for n, o in kin_obj.items()}
-    return Session(folder=folder, seq=seq, ltc=ltc, streams=streams, kinects=kinects)
+    path = folder / SESSION_FILE
+    doc = read_json(path, SessionFile, error=SessionError)
+    lo = doc.ltc
+    ltc = LtcRecording(path=folder / lo.file, vga_channel=lo.vga_channel, hd_channel=lo.hd_channel,
+                       vga_rate=parse_rate(lo.vga_rate), hd_rate=parse_rate(lo.hd_rate))
+    return Session(folder=folder, seq=doc.seq, ltc=ltc, streams={n: _stream(n, s, ltc) for n, s in doc.streams.items()},
+                   kinects={n: _kinect(folder, path, n, k) for n, k in doc.kinect.items()})
 
 
 def write_session_json(folder: Path, doc: dict, kinect_timestamps: dict[str, dict]) -> None:

@@ -16,6 +16,7 @@ import numpy as np
 
 from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.bodies import Bodies
+from dome_calib.recon.people.depth_witness import DepthWitness
 from dome_calib.recon.people.run import PeopleOptions, PeopleSequence, reconstruct_people
 from dome_calib.recon.people.sources import FileSource, InMemorySource, PeopleStream
 from dome_calib.recon.people.tracking import stitch_chunks
@@ -24,20 +25,21 @@ from dome_calib.recon.project import ViewSet
 
 def _chunk_task(args: tuple) -> tuple[int, PeopleSequence]:
     """Executor task: one chunk of times (module level, picklable); reads the chunk's detections from ``source``."""
-    index, views, source, times, options = args
+    index, views, source, times, options, depth = args
     streams = source.chunk(float(times[0]), float(times[-1]), options.max_gap_frames)
-    return index, reconstruct_people(views, streams, times, options)
+    return index, reconstruct_people(views, streams, times, options, depth=depth)
 
 
 def reconstruct_people_chunked(views: ViewSet, source: list[PeopleStream] | InMemorySource | FileSource,
                                times_ms: np.ndarray, options: PeopleOptions | None = None, *, executor=None,
+                               depth: DepthWitness | None = None,
                                progress: Callable[[int, int], None] | None = None) -> PeopleSequence:
     """:func:`reconstruct_people` over chunks of ``chunk_times`` times that overlap by ``overlap_times``, run on
     ``executor`` (``map``; a local pool or Dask; None: in this process); ids stitched over the overlaps
     (:func:`~dome_calib.recon.people.tracking.stitch_chunks`), new ones numbered on, never reused.
 
     source: the streams, or a :class:`~dome_calib.recon.people.sources.FileSource` whose chunks each task reads from
-    disk itself (only the frames that bracket the chunk's times).
+    disk itself (only the frames that bracket the chunk's times); depth: the Kinects' depth witness, or None.
     """
     options = options or PeopleOptions()
     source = InMemorySource(source) if isinstance(source, list) else source
@@ -45,7 +47,7 @@ def reconstruct_people_chunked(views: ViewSet, source: list[PeopleStream] | InMe
     step = options.chunk_times
     if len(t) <= step + options.overlap_times:
         streams = source.chunk(float(t[0]), float(t[-1]), options.max_gap_frames) if len(t) else []
-        return reconstruct_people(views, streams, t, options, progress=progress)
+        return reconstruct_people(views, streams, t, options, depth=depth, progress=progress)
     starts = list(range(0, len(t), step))
     if len(t) - starts[-1] <= options.overlap_times:
         starts.pop()  # the previous chunk's overlap already reaches the end
@@ -54,7 +56,7 @@ def reconstruct_people_chunked(views: ViewSet, source: list[PeopleStream] | InMe
     tasks = []
     for i, s in enumerate(starts):
         times = t[s: min(s + step + options.overlap_times, len(t))]
-        tasks.append((i, views, source, times, chunk_options))
+        tasks.append((i, views, source, times, chunk_options, depth))
     results: dict[int, PeopleSequence] = {}
     runner = map if executor is None else executor.map
     for index, seq in runner(_chunk_task, tasks):
