@@ -326,6 +326,9 @@ def parse_report(source: str | Path, data: bytes) -> tuple[Report, int]:
         raise ReportError(f"{source}: not valid JSON ({exc})") from None
     if not isinstance(raw, dict):
         raise ReportError(f"{source}: expected an object (a report), got a JSON {type(raw).__name__}")
+    if "report_version" not in raw and ("found" in raw or "expected_per_type" in raw):
+        raise ReportError(f"{source}: report_version: missing (expected 2 or 3: only the first layout has none, and "
+                          'it has no "found" or "expected_per_type")')
     version = raw.get("report_version", 1)
     schema = {1: ReportV1, 2: ReportV2, 3: Report}.get(version) if type(version) is int else None
     if schema is None:
