@@ -190,7 +190,7 @@ def test_long_session_chunks_read_their_own_files(group, tmp_path):
     whole = reconstruct_folder(root / "det", root / "bundle", tmp_path / "whole", body_model="BODY_25")
     with LocalProcessExecutor(2) as pool:
         chunked = reconstruct_folder(root / "det", root / "bundle", tmp_path / "chunked", body_model="BODY_25",
-                                     options=PeopleOptions(chunk_times=5, overlap_times=2), executor=pool)
+                                     options=PeopleOptions(chunk_times=5), executor=pool)
     assert (chunked.times, chunked.people, chunked.body_frames) == (whole.times, whole.people, whole.body_frames)
     for a, b in zip(sorted((tmp_path / "whole").glob("body3D*")), sorted((tmp_path / "chunked").glob("body3D*"))):
         _, A = read_scene(a)
