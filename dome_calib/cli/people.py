@@ -1,12 +1,15 @@
 """`dome-calib reconstruct`: a thin shell over dome_calib.recon.people.commands.
 
-The stage is imported inside the command: `dome-calib --help` starts without loading it.
+The stage is imported inside the command: `dome-calib --help` starts without loading it. SIGINT / SIGTERM: one
+line, exit 130 (pycolmap's C handler, loaded with the stage, is put back to ours).
 """
 from __future__ import annotations
 
 from pathlib import Path
 
 import typer
+
+from dome_calib.errors import interrupt_as_one_line
 
 
 def reconstruct(
@@ -37,21 +40,19 @@ def reconstruct(
     """Reconstruct groups of people from per-camera OpenPose detections: find each person across the cameras,
     triangulate their joints in the world frame (cm), keep their id over time, and write one Panoptic
     body3DScene file per time plus cameras.json (how well each camera agrees: a camera that moved shows up)."""
-    from dome_calib.cli.progress import ProgressBars
-    from dome_calib.pipeline.cluster import open_executor
-    from dome_calib.recon.people.commands import people_options, reconstruct_folder
+    with interrupt_as_one_line("dome-calib", "the output folder is as it was; rerun the same command"):
+        from dome_calib.cli.progress import ProgressBars
+        from dome_calib.pipeline.cluster import open_executor
+        from dome_calib.recon.people.commands import (check_workers, format_summary, people_options,
+                                                      plan_reconstruction, run_reconstruction)
 
-    out = out or detections.with_name(f"{detections.name}_people")
-    options = people_options(min_views=min_views, smooth=smooth, fps=fps)
-    with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:
-        summary = reconstruct_folder(detections, bundle, out, body_model=body_model, camera_map=camera_map,
-                                     reference=reference, options=options, executor=executor,
-                                     progress=bars.task("reconstructing times"))
-    err = "n/a" if summary.median_reprojection_px is None else f"{summary.median_reprojection_px:.1f} px"
-    flagged = ", ".join(summary.flagged_cameras) or "none"
-    typer.echo(f"{summary.times} times ({summary.reference}) from {summary.cameras} cameras ({summary.body_model}): "
-               f"{summary.people} people, {summary.body_frames} body-frames, median reprojection {err}; cameras "
-               f"that disagree: {flagged} -> {summary.out}")
+        options = people_options(min_views=min_views, smooth=smooth, fps=fps)
+        check_workers(workers)
+        plan = plan_reconstruction(detections, bundle, out, body_model=body_model, camera_map=camera_map,
+                                   reference=reference, options=options)  # every input checked, in seconds
+        with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:
+            summary = run_reconstruction(plan, executor=executor, progress=bars.task("reconstructing times"))
+        typer.echo(format_summary(summary))
 
 
 def register(app: typer.Typer) -> None:
