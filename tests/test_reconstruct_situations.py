@@ -190,13 +190,14 @@ def test_vga_and_hd_without_sync_tables_are_refused(group, dome_calib_cli, tmp_p
     (["--fps", "1e-400"], "--fps '1e-400': expected a frame rate from 1/86400"),
     (["--workers", "0"], "--workers 0: expected 1 to 1024 processes"),
     (["--workers", "99999999999999999999999"], "--workers 99999999999999999999999: expected 1 to 1024"),
-    (["--reference", "KINECTNODE9"], "--reference KINECTNODE9: that stream has no detections")])
+    (["--reference", "KINECTNODE9"], "--reference KINECTNODE9: that stream has no detections"),
+    (["--body-model", "BODY25X"], "--body-model BODY25X: unknown (known: BODY_25, BODY_25B")])
 def test_a_bad_option_is_named_as_typed(group, dome_calib_cli, tmp_path, args, message):
     """Before: `--min-views 1` answered "min_person_views >= 2, candidate_cm > 0, ..." (internal fields); a huge
     --workers or a tiny --fps was a traceback, --workers 0 ran, --min-views 21 gave 0 people in silence."""
     root, _, _ = group
-    line = _one_line_error(_run(dome_calib_cli, root / "det", root / "bundle", tmp_path / "o", "--body-model",
-                                "BODY_25", *args))
+    model = [] if "--body-model" in args else ["--body-model", "BODY_25"]
+    line = _one_line_error(_run(dome_calib_cli, root / "det", root / "bundle", tmp_path / "o", *model, *args))
     assert message in line, line
     assert not (tmp_path / "o").exists()
 
@@ -301,3 +302,12 @@ def test_a_run_killed_while_writing_leaves_a_staging_folder_the_next_run_removes
     finally:
         alive.kill()
         alive.wait(timeout=60)
+
+
+def test_every_input_is_checked_before_the_executor_opens(shared, dome_calib_cli, tmp_path):
+    """A missing bundle with a scheduler that does not answer. Before: the scheduler was contacted first (5 s, then
+    a line about the scheduler, not about the bundle)."""
+    out = dome_calib_cli("reconstruct", str(shared / "det"), "--bundle", str(tmp_path / "nobundle"), "-o",
+                         str(tmp_path / "out"), "--scheduler", "tcp://127.0.0.1:9")
+    line = _one_line_error(out)
+    assert "nobundle" in line and "scheduler" not in line, line

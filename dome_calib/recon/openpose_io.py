@@ -17,6 +17,7 @@ Every problem is one line naming the file, the camera and the frame (:class:`Rec
 from __future__ import annotations
 
 import logging
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -90,9 +91,13 @@ def parse_camera_map(text: str | None) -> dict[str, str]:
     return out
 
 
-def is_json_file(path: Path) -> bool:
-    """A ``.json`` file, the suffix in any case (``.JSON`` from a case-insensitive file system)."""
-    return path.suffix.lower() == ".json" and path.is_file()
+def _json_files(folder: Path) -> tuple[list[Path], int]:
+    """The ``.json`` files of a folder, the suffix in any case (``.JSON``), sorted, and how many entries it has
+    (one directory scan: no stat per file)."""
+    with os.scandir(folder) as scan:
+        entries = list(scan)
+    found = [Path(e.path) for e in entries if e.name[-5:].lower() == ".json" and e.is_file()]
+    return sorted(found), len(entries)
 
 
 def frame_of_file(path: Path) -> int:
@@ -211,10 +216,9 @@ def index_openpose_folder(folder: str | Path, *, camera_map: dict[str, str] | No
         raise ReconError(f"{folder}: camera map names folder {unknown_map[0]!r}, which is not there")
     for sub in subfolders:
         camera = camera_map.get(sub.name, sub.name)
-        entries = sorted(sub.iterdir())
-        json_files = [p for p in entries if is_json_file(p)]
+        json_files, n_entries = _json_files(sub)
         if not json_files:  # said, not skipped in silence: a camera the user expected may be missing
-            what = "empty" if not entries else f"{len(entries)} entries, none a .json file"
+            what = "empty" if not n_entries else f"{n_entries} entries, none a .json file"
             logger.warning("%s: no OpenPose .json file (%s): camera %s left out", sub, what, camera)
             continue
         if cameras is not None and camera not in cameras:

@@ -17,7 +17,7 @@ import numpy as np
 
 from dome_calib.bundle_io import load_bundle
 from dome_calib.io_utils import refuse_output_among_inputs, refuse_output_inside_inputs, remove_stale_staging
-from dome_calib.recon.body_models import BodyModel
+from dome_calib.recon.body_models import BodyModel, parse_body_model
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.formats import FPS_TYPE
 from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, parse_camera_map
@@ -116,12 +116,18 @@ def reference_times(streams: list[StreamLayout], reference: str | None) -> tuple
 
 
 def plan_reconstruction(detections: str | Path, bundle_folder: str | Path, out: str | Path | None = None, *,
-                        body_model: str | None = None, camera_map: str | dict[str, str] | None = None,
+                        body_model: str | BodyModel | None = None, camera_map: str | dict[str, str] | None = None,
                         reference: str | None = None, options: PeopleOptions | None = None) -> ReconstructPlan:
     """Check every input and the output place, in seconds, before any work (see the module docstring); the paths
     are resolved (``.``, ``..``, links), ``out`` defaults to :func:`default_output` and may lie neither inside the
     detections nor inside the bundle."""
     options = options or PeopleOptions()
+    if isinstance(body_model, str):
+        try:
+            body_model = parse_body_model(body_model)
+        except ReconError:
+            raise ReconError(f"--body-model {body_model}: unknown (known: "
+                             f"{', '.join(m.value for m in BodyModel)})") from None
     detections = Path(detections).resolve()
     out = Path(out) if out is not None else default_output(detections)
     refuse_output_among_inputs(out, [detections, bundle_folder], whole_folder=True)  # OUT is replaced whole
