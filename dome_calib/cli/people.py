@@ -19,21 +19,24 @@ def reconstruct(
                                       "the camera's own frame index).", show_default=False),
     bundle: Path = typer.Option(..., "--bundle", help="Calibration bundle folder (calibration_<seq>.json; its "
                                 "synctables/ksynctables give each camera's frame times; without them all cameras "
-                                "share one frame index).", show_default=False),
+                                "share one frame index: cameras of one stream only).", show_default=False),
     out: Path = typer.Option(None, "-o", "--out", help="Folder for body3DScene_<frame>.json (one per time, every "
-                             "person with an id) and cameras.json (default: <DETECTIONS>_people beside DETECTIONS)."),
+                             "person with an id) and cameras.json (default: <DETECTIONS>_people beside DETECTIONS; never inside "
+                             "DETECTIONS or the bundle)."),
     body_model: str = typer.Option(None, "--body-model", help="The detector's model: BODY_25, BODY_25B, COCO_18 or "
                                    "PANOPTIC19. Needed for 25-joint files (BODY_25 and BODY_25B have the same "
-                                   "length)."),
+                                   "length); checked against the files' joint order."),
     camera_map: str = typer.Option(None, "--camera-map", help="Folder-to-camera names, e.g. "
                                    "'cam01=00_01,cam02=00_02', or a JSON file {\"cam01\": \"00_01\"}."),
     reference: str = typer.Option(None, "--reference", help="Stream whose frames are the output times (vga, hd, "
                                   "KINECTNODE<n>; default vga, else hd)."),
-    min_views: int = typer.Option(3, "--min-views", help="A person must be seen by this many cameras."),
+    min_views: int = typer.Option(3, "--min-views", help="A person must be seen by this many cameras (2 or more)."),
     smooth: int = typer.Option(0, "--smooth", help="Smooth each person's joints over this many frames either side "
                                "(a local straight-line fit: no lag for steady motion); 0 = off."),
-    fps: str = typer.Option("30", "--fps", help="Frame rate of a bundle without sync tables (for univTime)."),
-    workers: int = typer.Option(1, "--workers", help="Processes for long sessions (chunks of 600 times)."),
+    fps: str = typer.Option("30", "--fps", help="Frame rate of a bundle without sync tables (for univTime; e.g. 30, "
+                      "30000/1001, 1 for a time-lapse rig)."),
+    workers: int = typer.Option(1, "--workers", help="Processes for long sessions (chunks of 600 times; 1 to "
+                                  "1024)."),
     scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler (tcp://HOST:PORT) to run the chunks "
                                   "on instead of local processes."),
 ) -> None:
