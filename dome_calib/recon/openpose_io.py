@@ -96,8 +96,8 @@ def _json_files(folder: Path) -> tuple[list[Path], int]:
     (one directory scan: no stat per file)."""
     with os.scandir(folder) as scan:
         entries = list(scan)
-    found = [Path(e.path) for e in entries if e.name[-5:].lower() == ".json" and e.is_file()]
-    return sorted(found), len(entries)
+    names = sorted(e.name for e in entries if e.name[-5:].lower() == ".json" and e.is_file())
+    return [folder / name for name in names], len(entries)  # sorted as strings: Path comparisons are slow
 
 
 def frame_of_file(path: Path) -> int:
