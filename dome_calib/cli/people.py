@@ -59,7 +59,8 @@ def reconstruct(
         plan = plan_reconstruction(detections, bundle, out, body_model=body_model, camera_map=camera_map,
                                    reference=reference, options=options,
                                    depth_folder=depth)  # every input checked, in seconds
-        page = people_page_writer(plan.out, bundle, detections, camera_map=camera_map, body_model=body_model)
+        page = people_page_writer(plan.out, bundle, detections, camera_map=camera_map, body_model=plan.model.value,
+                                  files=plan.source.files)
         with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:
             summary = run_reconstruction(plan, executor=executor, progress=bars.task("reconstructing times"),
                                          page=page)
