@@ -41,7 +41,7 @@ from dome_calib.bundle import Bundle  # noqa: E402
 from dome_calib.panoptic_io import read_calibration, read_kcalibration  # noqa: E402
 from dome_calib.recon.body_models import JOINTS19  # noqa: E402
 from dome_calib.recon.depth import depth_folder_reader  # noqa: E402
-from dome_calib.recon.people.depth_witness import (DepthSensors, DepthWitness, DepthWitnessOptions,  # noqa: E402
+from dome_calib.recon.people.depth_witness import (DepthSensors, DepthWitness,  # noqa: E402
                                                    judge_joints)
 from dome_calib.recon.people.run import PeopleOptions, reconstruct_people  # noqa: E402
 from dome_calib.recon.people.sources import people_streams  # noqa: E402

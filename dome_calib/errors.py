@@ -89,9 +89,9 @@ def restore_interrupt_handler() -> None:
 
 
 @contextlib.contextmanager
-def interrupt_as_one_line(prog: str) -> Iterator[None]:
-    """SIGINT or SIGTERM inside the block: one line on stderr ("interrupted during STAGE; rerun the same command
-    to resume" when a pipeline stage was running), exit code 130, no traceback (``DOME_CALIB_DEBUG=1``: raise)."""
+def interrupt_as_one_line(prog: str, advice: str = "rerun the same command to resume") -> Iterator[None]:
+    """SIGINT or SIGTERM inside the block: one line on stderr ("interrupted during STAGE; ADVICE", the stage when a
+    pipeline stage was running), exit code 130, no traceback (``DOME_CALIB_DEBUG=1``: raise)."""
     global _active
     previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
     _active += 1
@@ -104,7 +104,7 @@ def interrupt_as_one_line(prog: str) -> Iterator[None]:
         if os.environ.get("DOME_CALIB_DEBUG"):
             raise
         where = f" during {exc.stage}" if isinstance(exc, Interrupted) else ""
-        print(f"{prog}: interrupted{where}; rerun the same command to resume", file=sys.stderr)
+        print(f"{prog}: interrupted{where}; {advice}", file=sys.stderr)
         sys.exit(EXIT_INTERRUPTED)
     finally:
         _active -= 1

@@ -4,18 +4,30 @@ Output paths (``-o``) follow these rules: a symlink is followed, so the file it 
 and the link stays (a dangling link gets its target created); a folder, FIFO, device or socket where a file is
 to be written is refused in one line before anything is written; a replaced file keeps its permission bits, a
 new file or folder gets the ones ``open()`` / ``mkdir()`` would give (0666 / 0777 less the umask).
+
+A folder replaced whole (:func:`atomic_folder`) is staged beside it under a name that says whose it is
+(``.<name>.new.<host>.<boot>.<pid>.<start>.<random>``: this machine, its boot, the process and the process's start
+time). A run stopped where no handler runs (SIGKILL, a power cut) leaves it behind; the next run that writes the
+same folder removes the ones it can prove are dead (same machine, and another boot, or no such process now, or
+a process of that id started at another time) and leaves the others (another machine's, a live run's).
 """
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import logging
 import os
+import re
 import shutil
+import socket
 import stat
 import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from dome_calib.errors import DomeCalibError
+
+logger = logging.getLogger(__name__)
 
 
 class OutputPathError(DomeCalibError, ValueError):
@@ -90,19 +102,82 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         raise
 
 
+def _boot_id() -> str:
+    try:
+        return Path("/proc/sys/kernel/random/boot_id").read_text().strip().replace("-", "")[:8]
+    except OSError:
+        return ""
+
+
+def _start_ticks(pid: int) -> int | None:
+    """When process ``pid`` started (clock ticks since boot, /proc/PID/stat field 22); None if there is none."""
+    try:
+        stat_line = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return int(stat_line[stat_line.rindex(")") + 2:].split()[19])
+
+
+def _host() -> str:
+    return hashlib.sha256(socket.gethostname().encode()).hexdigest()[:8]
+
+
+def _owner_tag() -> str | None:
+    """``<host>.<boot>.<pid>.<start>`` of this process; None where the system cannot tell (no /proc)."""
+    boot, start = _boot_id(), _start_ticks(os.getpid())
+    return None if not boot or start is None else f"{_host()}.{boot}.{os.getpid()}.{start}"
+
+
+def _staging_name(target: Path, role: str) -> str:
+    tag = _owner_tag()
+    return f".{target.name}.{role}." + (f"{tag}." if tag else "")
+
+
+def remove_stale_staging(path: str | os.PathLike[str]) -> list[Path]:
+    """Remove the staging (and set-aside) folders that earlier runs writing ``path`` with :func:`atomic_folder` left
+    behind when they were killed, where this process can prove their owner is dead: same machine (host name), and
+    another boot, or no process of that id, or one started at another time. Another machine's, or a live run's,
+    are left alone. A set-aside previous folder is put back where ``path`` is missing (a kill between the two
+    renames). Returns the folders removed."""
+    target = Path(os.path.abspath(path))
+    pattern = re.compile(rf"\.{re.escape(target.name)}\.(new|old)\.([0-9a-f]{{8}})\.([0-9a-f]{{8}})\.(\d+)\.(\d+)\.\w+")
+    boot = _boot_id()
+    if not boot or not target.parent.is_dir():
+        return []
+    removed = []
+    for entry in sorted(target.parent.iterdir()):
+        m = pattern.fullmatch(entry.name)
+        if m is None or not entry.is_dir() or entry.is_symlink() or m.group(2) != _host():
+            continue
+        pid, start = int(m.group(4)), int(m.group(5))
+        if m.group(3) == boot and _start_ticks(pid) == start:
+            continue  # its run is alive (this one, or another writing the same folder now)
+        if m.group(1) == "old" and not target.exists() and (entry / target.name).is_dir():
+            (entry / target.name).replace(target)
+            logger.warning("%s: put back the previous output, set aside by a run (pid %d) stopped mid-replacement",
+                           target, pid)
+        shutil.rmtree(entry, ignore_errors=True)
+        logger.warning("%s: removed %s, left by an earlier run (pid %d) stopped while writing", target, entry.name,
+                       pid)
+        removed.append(entry)
+    return removed
+
+
 @contextlib.contextmanager
 def atomic_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield an empty staging folder beside ``path``; on success it replaces ``path`` as a whole (renames only, the
-    old folder removed after), on error it is deleted and ``path`` is untouched."""
+    old folder removed after), on error it is deleted and ``path`` is untouched. Staging folders that killed runs
+    left beside ``path`` are removed first (:func:`remove_stale_staging`)."""
     target = output_folder(path)
     target.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.new.", dir=target.parent))
+    remove_stale_staging(target)
+    staging = Path(tempfile.mkdtemp(prefix=_staging_name(target, "new"), dir=target.parent))
     old = None
     try:
         os.chmod(staging, new_mode(0o777))  # mkdtemp makes 0700
         yield staging
         if target.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old.", dir=target.parent))
+            old = Path(tempfile.mkdtemp(prefix=_staging_name(target, "old"), dir=target.parent))
             target.replace(old / target.name)
         staging.replace(target)
     except BaseException:
@@ -162,6 +237,18 @@ def refuse_output_among_inputs(output: str | os.PathLike[str], inputs: Iterable[
         if whole_folder and out.is_dir() and Path(os.path.realpath(given)).is_relative_to(out_real):
             raise OutputPathError(f"{option} {out}: holds the input {given}; writing the output would replace it: "
                                   "give another output folder")
+
+
+def refuse_output_inside_inputs(output: str | os.PathLike[str], inputs: Iterable[str | os.PathLike[str]], *,
+                                option: str = "-o") -> None:
+    """OutputPathError when the output (a folder, existing or not) would lie inside an input folder, by any path
+    (compared after resolving links, ``.`` and ``..``): a later run would read it back as input."""
+    out_real = Path(os.path.realpath(output))
+    for given in inputs:
+        real = Path(os.path.realpath(given))
+        if real.is_dir() and out_real != real and out_real.is_relative_to(real):
+            raise OutputPathError(f"{option} {out_real}: inside the input folder {real}; a later run would read it as "
+                                  "input: give an output folder outside it")
 
 
 def check_writable(path: str | os.PathLike[str], *, into: bool = False) -> None:

@@ -28,7 +28,7 @@ import json
 import logging
 import shutil
 import time
-from dataclasses import dataclass
+
 from pathlib import Path
 
 import numpy as np

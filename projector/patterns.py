@@ -15,7 +15,7 @@ Resolution: 1280x800 (WXGA), the native resolution of common short-throw project
 from __future__ import annotations
 
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import field
 from pathlib import Path
 
 import cv2

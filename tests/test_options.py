@@ -148,7 +148,7 @@ def test_defaults_are_taken_and_an_unknown_option_is_refused(name):
 def test_the_situations_of_the_issue():
     """RefineOptions checked nothing (window_sigma = 0 divided by zero in the patch weights); a `<=` check let NaN
     through; a check across fields reads as one line too."""
-    from dome_calib.recon.people.run import PeopleOptions
+    from dome_calib.recon.people.proposals import AssociationOptions
     from projector.refine import RefineOptions
     from timecode.sync.tables import SyncOptions
 
@@ -156,13 +156,12 @@ def test_the_situations_of_the_issue():
         RefineOptions(window_sigma=0.0)
     with pytest.raises(OptionsError, match=r"^SyncOptions: max_extrapolation_s NaN: expected a finite number >= 0$"):
         SyncOptions(max_extrapolation_s=math.nan)
-    with pytest.raises(OptionsError, match=r"^PeopleOptions: overlap_times 600 must be below chunk_times 600$"):
-        PeopleOptions(overlap_times=600)
+    with pytest.raises(OptionsError, match=r"^AssociationOptions: bone_ratio \(1.5, 0.6\): expected \(low, high\) "
+                                           r"with low <= high$"):
+        AssociationOptions(bone_ratio=(1.5, 0.6))
 
 
 @pytest.mark.parametrize("args, line", [
-    (["reconstruct", "DET", "--bundle", "DET", "--min-views", "1"], "--min-views 1: expected an integer >= 2"),
-    (["reconstruct", "DET", "--bundle", "DET", "--smooth", "-1"], "--smooth -1: expected an integer >= 0"),
     (["triangulate", "DET", "--bundle", "DET", "--threshold-px", "nan"], "--threshold-px NaN: expected a finite "
                                                                           "number > 0"),
     (["triangulate", "DET", "--bundle", "DET", "--min-views", "1"], "--min-views 1: expected an integer >= 2"),
@@ -171,7 +170,8 @@ def test_the_situations_of_the_issue():
     (["demo", "-o", "OUT", "--people", "11"], "--people 11: expected an integer >= 0 and <= 10"),
 ])
 def test_a_flag_out_of_bounds_is_named_as_typed(tmp_path, dome_calib_cli, args, line):
-    """The issue's case: `--min-views 1` answered with four internal field names."""
+    """The issue's case: `--min-views 1` answered with four internal field names (reconstruct's own flags are
+    named by recon.people.commands.people_options: tests/test_reconstruct_situations.py)."""
     args = [str(tmp_path / "x") if a in ("DET", "OUT") else a for a in args]
     done = dome_calib_cli(*args)
     assert done.returncode == 1 and done.stderr == f"dome-calib: error: {line}\n"

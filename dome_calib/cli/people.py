@@ -1,6 +1,7 @@
 """`dome-calib reconstruct`: a thin shell over dome_calib.recon.people.commands.
 
-The stage is imported inside the command: `dome-calib --help` starts without loading it.
+The stage is imported inside the command: `dome-calib --help` starts without loading it. SIGINT / SIGTERM: one
+line, exit 130 (pycolmap's C handler, loaded with the stage, is put back to ours).
 """
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from pathlib import Path
 
 import typer
 
-from dome_calib.errors import flags
+from dome_calib.errors import interrupt_as_one_line
 
 
 def reconstruct(
@@ -18,52 +19,52 @@ def reconstruct(
                                       "the camera's own frame index).", show_default=False),
     bundle: Path = typer.Option(..., "--bundle", help="Calibration bundle folder (calibration_<seq>.json; its "
                                 "synctables/ksynctables give each camera's frame times; without them all cameras "
-                                "share one frame index).", show_default=False),
+                                "share one frame index: cameras of one stream only).", show_default=False),
     out: Path = typer.Option(None, "-o", "--out", help="Folder for body3DScene_<frame>.json (one per time, every "
                              "person with an id), cameras.json and index.html (a page to watch the people; default: "
-                             "<DETECTIONS>_people beside DETECTIONS)."),
+                             "<DETECTIONS>_people beside DETECTIONS; never inside DETECTIONS or the bundle)."),
     body_model: str = typer.Option(None, "--body-model", help="The detector's model: BODY_25, BODY_25B, COCO_18 or "
                                    "PANOPTIC19. Needed for 25-joint files (BODY_25 and BODY_25B have the same "
-                                   "length)."),
+                                   "length); checked against the files' joint order."),
     camera_map: str = typer.Option(None, "--camera-map", help="Folder-to-camera names, e.g. "
                                    "'cam01=00_01,cam02=00_02', or a JSON file {\"cam01\": \"00_01\"}."),
     reference: str = typer.Option(None, "--reference", help="Stream whose frames are the output times (vga, hd, "
                                   "KINECTNODE<n>; default vga, else hd)."),
-    min_views: int = typer.Option(3, "--min-views", help="A person must be seen by this many cameras."),
+    min_views: int = typer.Option(3, "--min-views", help="A person must be seen by this many cameras (2 or more)."),
     smooth: int = typer.Option(0, "--smooth", help="Smooth each person's joints over this many frames either side "
                                "(a local straight-line fit: no lag for steady motion); 0 = off."),
-    fps: str = typer.Option("30", "--fps", help="Frame rate of a bundle without sync tables (for univTime)."),
+    fps: str = typer.Option("30", "--fps", help="Frame rate of a bundle without sync tables (for univTime; e.g. 30, "
+                      "30000/1001, 1 for a time-lapse rig)."),
     depth: Path = typer.Option(None, "--depth", help="Folder of Kinect depth frames (KINECTNODE<n>/depth_<k>.png, "
                                "16-bit millimetres, k the depth sync table's index): a joint that a Kinect sees "
                                "through (in front of the surface it measured, beyond its noise) is dropped. Needs "
                                "the bundle's Kinect calibration and depth sync tables."),
-    workers: int = typer.Option(1, "--workers", help="Processes for long sessions (chunks of 600 times)."),
+    workers: int = typer.Option(1, "--workers", help="Processes for long sessions (chunks of 600 times; 1 to "
+                                  "1024)."),
     scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler (tcp://HOST:PORT) to run the chunks "
                                   "on instead of local processes."),
 ) -> None:
     """Reconstruct groups of people from per-camera OpenPose detections: find each person across the cameras,
     triangulate their joints in the world frame (cm), keep their id over time, and write one Panoptic
     body3DScene file per time plus cameras.json (how well each camera agrees: a camera that moved shows up)."""
-    from dome_calib.cli.progress import ProgressBars
-    from dome_calib.pipeline.cluster import open_executor
-    from dome_calib.pipeline.people_page import people_page_writer
-    from dome_calib.recon.people.commands import people_options, reconstruct_folder
+    with interrupt_as_one_line("dome-calib", "the output folder is as it was; rerun the same command"):
+        from dome_calib.cli.progress import ProgressBars
+        from dome_calib.pipeline.cluster import open_executor
+        from dome_calib.pipeline.people_page import people_page_writer
+        from dome_calib.recon.people.commands import (check_workers, format_summary, people_options,
+                                                      plan_reconstruction, run_reconstruction)
 
-    out = out or detections.with_name(f"{detections.name}_people")
-    with flags({"AssociationOptions.min_person_views": "--min-views", "TrackingOptions.smooth_half_window": "--smooth",
-                "PeopleOptions.shared_fps": "--fps"}):
         options = people_options(min_views=min_views, smooth=smooth, fps=fps)
-    with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:
-        summary = reconstruct_folder(detections, bundle, out, body_model=body_model, camera_map=camera_map,
-                                     reference=reference, options=options, executor=executor, depth_folder=depth,
-                                     progress=bars.task("reconstructing times"),
-                                     page=people_page_writer(out, bundle, detections, camera_map=camera_map,
-                                                             body_model=body_model))
-    err = "n/a" if summary.median_reprojection_px is None else f"{summary.median_reprojection_px:.1f} px"
-    flagged = ", ".join(summary.flagged_cameras) or "none"
-    typer.echo(f"{summary.times} times ({summary.reference}) from {summary.cameras} cameras ({summary.body_model}): "
-               f"{summary.people} people, {summary.body_frames} body-frames, median reprojection {err}; cameras "
-               f"that disagree: {flagged} -> {summary.out}")
+        check_workers(workers)
+        plan = plan_reconstruction(detections, bundle, out, body_model=body_model, camera_map=camera_map,
+                                   reference=reference, options=options,
+                                   depth_folder=depth)  # every input checked, in seconds
+        page = people_page_writer(plan.out, bundle, detections, camera_map=camera_map, body_model=plan.model.value,
+                                  files=plan.source.files)
+        with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:
+            summary = run_reconstruction(plan, executor=executor, progress=bars.task("reconstructing times"),
+                                         page=page)
+        typer.echo(format_summary(summary))
 
 
 def register(app: typer.Typer) -> None:

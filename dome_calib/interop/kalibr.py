@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 import yaml
-from pydantic import ConfigDict, Field, model_validator
+from pydantic import ConfigDict, model_validator
 
 from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read
 from dome_calib.interop.fields import Bounded, DistTerm, RigidTransform, SidePx

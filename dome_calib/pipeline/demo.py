@@ -14,7 +14,6 @@ them, index.html). A rerun reuses the session if it was made with the same prese
 """
 from __future__ import annotations
 
-import json
 import logging
 import time
 from dataclasses import dataclass

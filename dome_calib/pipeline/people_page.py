@@ -52,10 +52,13 @@ def camera_times_ms(bundle: Bundle, camera: str, frames: np.ndarray, people: Peo
 
 def read_detections(folder: str | Path, bundle: Bundle, people: People, *, camera_map: str | None = None,
                     body_model: str | None = None, cameras: list[str] | None = None,
-                    max_people: int = MAX_DETECTED_PEOPLE) -> tuple[list[CameraDetections], list[str]]:
+                    max_people: int = MAX_DETECTED_PEOPLE, files: dict[str, dict[int, Path]] | None = None
+                    ) -> tuple[list[CameraDetections], list[str]]:
     """The detections of ``cameras`` (default: in name order while at most ``max_people`` detected people, at least
-    one camera) at frames within the people's span -> (per camera, notes for the page)."""
-    files = index_openpose_folder(folder, camera_map=parse_camera_map(camera_map), cameras=set(bundle.cameras))
+    one camera) at frames within the people's span -> (per camera, notes for the page). ``files``: the folder's
+    index (camera -> frame -> file) when the caller has already made it (reconstruct's plan)."""
+    if files is None:
+        files = index_openpose_folder(folder, camera_map=parse_camera_map(camera_map), cameras=set(bundle.cameras))
     if cameras:
         unknown = [c for c in cameras if c not in files]
         if unknown:
@@ -90,7 +93,8 @@ def build_people_page(people_folder: str | Path, *, out: str | Path | None = Non
                       bundle: str | Path | Bundle | None = None, detections: str | Path | None = None,
                       camera_map: str | None = None, body_model: str | None = None, cameras: list[str] | None = None,
                       progress: Callable[[int, int], None] | None = None,
-                      shown_as: str | Path | None = None) -> PeoplePageSummary:
+                      shown_as: str | Path | None = None,
+                      files: dict[str, dict[int, Path]] | None = None) -> PeoplePageSummary:
     """Write the people page of ``people_folder`` to ``out`` (default ``people_folder/index.html``); ``shown_as``:
     the folder the page names (default ``people_folder``)."""
     if detections is not None and bundle is None:
@@ -102,7 +106,7 @@ def build_people_page(people_folder: str | Path, *, out: str | Path | None = Non
     det, notes = ([], [])
     if detections is not None and cal is not None:
         det, notes = read_detections(detections, cal, people, camera_map=camera_map, body_model=body_model,
-                                     cameras=cameras)
+                                     cameras=cameras, files=files)
     write_people_page(page, people, bundle=cal, detections=det, notes=notes,
                       folder=Path(shown_as) if shown_as is not None else None)
     return PeoplePageSummary(page=page, people=len(people.tracks), frames=len(people.frames),
@@ -112,14 +116,15 @@ def build_people_page(people_folder: str | Path, *, out: str | Path | None = Non
 
 def people_page_writer(out: str | Path, bundle: str | Path, detections: str | Path, *,
                        camera_map: str | dict[str, str] | None = None,
-                       body_model: str | None = None) -> Callable[[Path], None]:
+                       body_model: str | None = None,
+                       files: dict[str, dict[int, Path]] | None = None) -> Callable[[Path], None]:
     """What ``reconstruct`` (writing ``out``) is given to add its page: ``write(staging)`` builds
     ``staging/index.html`` from the body3DScene files just staged there, with the bundle and the detections
-    reconstruct read."""
+    reconstruct read (``files``: its index of the detections folder, so the folder is not scanned twice)."""
     mapping = ",".join(f"{k}={v}" for k, v in camera_map.items()) if isinstance(camera_map, dict) else camera_map
 
     def write(staging: Path) -> None:
         build_people_page(staging, bundle=bundle, detections=detections, camera_map=mapping, body_model=body_model,
-                          shown_as=out)
+                          shown_as=out, files=files)
 
     return write

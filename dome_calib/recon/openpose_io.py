@@ -5,8 +5,10 @@ Layout::
     DETECTIONS/<camera folder>/<anything><frame>[_keypoints].json    e.g. 00_01/00_01_000000000042_keypoints.json
                                                                            cam01_json/cam01.0042.json
 
-The last number of the file name (before ``_keypoints``) is the frame: that camera's own stream frame index. A
-camera folder is the bundle's camera name, or is mapped to one (:func:`parse_camera_map`: ``cam01=00_01,...`` or a
+The last number of the file name (before ``_keypoints``) is the frame: that camera's own stream frame index, at most
+12 digits as OpenPose writes it (:data:`MAX_FRAME`). ``.json`` is matched in any case (``.JSON``); a sub-folder
+without one is said (a camera left out), not skipped in silence. A camera folder is the bundle's camera name, or is
+mapped to one (:func:`parse_camera_map`: ``cam01=00_01,...`` or a
 JSON file ``{"cam01": "00_01"}``). Each file is OpenPose's ``{"people": [{"pose_keypoints_2d": [x, y, c] * J}]}``;
 people carry no identity. Keypoints are mapped to Panoptic joints19 (:mod:`dome_calib.recon.body_models`).
 
@@ -15,6 +17,7 @@ Every problem is one line naming the file, the camera and the frame (:class:`Rec
 from __future__ import annotations
 
 import logging
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,17 +28,30 @@ from pydantic import AfterValidator, ConfigDict, RootModel
 
 from dome_calib.recon.body_models import JOINT_NAMES, BodyModel, models_with_joints, parse_body_model, to_joints19
 from dome_calib.recon.errors import ReconError
+from dome_calib.recon.joint_order import better_order, order_fits
 from dome_calib.schema import Field, FileSchema, Finite, parse_json, read_json
 
 logger = logging.getLogger(__name__)
 
 _LAST_NUMBER = re.compile(r"(\d+)(?!.*\d)")
+#: The largest frame number: OpenPose writes 12 digits (a trillion frames, 1,000 years at 30 fps); larger ones
+#: are no frame index (and would overflow the int64 frame tables and lose the times' precision).
+MAX_FRAME = 10**12 - 1
+#: The largest pixel coordinate or confidence taken: no image is a million pixels across (larger values overflow
+#: the float32 keypoint arrays and the lens model's arithmetic).
+MAX_ABS_VALUE = 1e6
+#: OpenPose files read to tell the body model from the joint order (spread over cameras and frames).
+ORDER_SAMPLE_FILES = 120
 
 
 def _check_keypoints(values: list[float]) -> list[float]:
     """``[x, y, c] * J``: a multiple of 3 numbers, every confidence >= 0 (pixels: any finite number)."""
     if len(values) % 3:
         raise ValueError(f"{len(values)} numbers, not a multiple of 3 ([x, y, c] per joint)")
+    for k, v in enumerate(values):
+        if abs(v) > MAX_ABS_VALUE:
+            raise ValueError(f"joint {k // 3}: {'xyc'[k % 3]} = {v:g} is beyond +-{MAX_ABS_VALUE:g} (pixels of an "
+                             "image, a confidence)")
     for j, c in enumerate(values[2::3]):
         if c < 0:
             raise ValueError(f"joint {j}: confidence {c!r} is negative (expected [x_px, y_px, c] with c >= 0)")
@@ -75,16 +91,29 @@ def parse_camera_map(text: str | None) -> dict[str, str]:
     return out
 
 
+def _json_files(folder: Path) -> tuple[list[Path], int]:
+    """The ``.json`` files of a folder, the suffix in any case (``.JSON``), sorted, and how many entries it has
+    (one directory scan: no stat per file)."""
+    with os.scandir(folder) as scan:
+        entries = list(scan)
+    names = sorted(e.name for e in entries if e.name[-5:].lower() == ".json" and e.is_file())
+    return [folder / name for name in names], len(entries)  # sorted as strings: Path comparisons are slow
+
+
 def frame_of_file(path: Path) -> int:
     """The frame index in a file name: its last number (``cam01.0042.json`` -> 42, ``x_000000000042_keypoints``
-    -> 42)."""
+    -> 42), at most :data:`MAX_FRAME`."""
     stem = path.name[: -len(".json")]
-    stem = stem[: -len("_keypoints")] if stem.endswith("_keypoints") else stem
+    stem = stem[: -len("_keypoints")] if stem.lower().endswith("_keypoints") else stem
     match = _LAST_NUMBER.search(stem)
     if match is None:
         raise ReconError(f"{path}: no frame number in the file name (expected e.g. cam01.0042.json or "
                          "cam01_000000000042_keypoints.json)")
-    return int(match.group(1))
+    digits = match.group(1).lstrip("0") or "0"
+    if len(digits) > len(str(MAX_FRAME)):
+        raise ReconError(f"{path}: frame number {digits[:16]}... ({len(digits)} digits) is beyond {MAX_FRAME} "
+                         "(OpenPose numbers frames with 12 digits)")
+    return int(digits)
 
 
 class CameraMapFile(RootModel[dict[str, Annotated[str, Field(min_length=1)]]]):
@@ -128,9 +157,8 @@ class OpenPoseFile(FileSchema):
     part_candidates: list[dict[str, list[Finite]]] = []
 
 
-def _people_of_file(path: Path, camera: str, frame: int,
-                    model: BodyModel | None) -> tuple[np.ndarray, BodyModel | None]:
-    """One OpenPose file -> ((N, J, 3) keypoints in the file's model order, the model: given or told by J)."""
+def _raw_people(path: Path, camera: str, frame: int) -> np.ndarray:
+    """One OpenPose file -> (N, J, 3) keypoints in the file's own order; J fits a model ((0, 0, 3): nobody)."""
     where = f"{path}: camera {camera}: frame {frame}"
     try:
         data = path.read_bytes()
@@ -140,24 +168,33 @@ def _people_of_file(path: Path, camera: str, frame: int,
     rows = [np.asarray(body, dtype=float).reshape(-1, 3) for body in (p.body() for p in parsed.people) if body]
     # a person with an empty body (OpenPose's body network off for it) carries nothing
     if not rows:
-        return np.zeros((0, len(JOINT_NAMES[model]) if model else 0, 3)), model
+        return np.zeros((0, 0, 3))
     counts = sorted({len(r) for r in rows})
     if len(counts) > 1:
         raise ReconError(f"{where}: people have different joint counts {counts}")
-    J = counts[0]
-    fits = models_with_joints(J)
-    if not fits:
+    if not models_with_joints(counts[0]):
         known = ", ".join(f"{m.value} {len(JOINT_NAMES[m])}" for m in BodyModel)
-        raise ReconError(f"{where}: {J} joints per person fits no body model ({known})")
+        raise ReconError(f"{where}: {counts[0]} joints per person fits no body model ({known})")
+    return np.stack(rows)
+
+
+def _people_of_file(path: Path, camera: str, frame: int,
+                    model: BodyModel | None) -> tuple[np.ndarray, BodyModel | None]:
+    """One OpenPose file -> ((N, J, 3) keypoints in the file's model order, the model: given or told by J)."""
+    kp = _raw_people(path, camera, frame)
+    if not len(kp):
+        return np.zeros((0, len(JOINT_NAMES[model]) if model else 0, 3)), model
+    J = kp.shape[1]
+    fits = models_with_joints(J)
     if model is None:
         if len(fits) > 1:
-            raise ReconError(f"{where}: {J} joints per person fits {' and '.join(m.value for m in fits)}: give "
-                             "--body-model")
+            raise ReconError(f"{path}: camera {camera}: frame {frame}: {J} joints per person fits "
+                             f"{' and '.join(m.value for m in fits)}: give --body-model")
         model = fits[0]
     elif model not in fits:
-        raise ReconError(f"{where}: {J} joints per person but body model {model.value} has "
-                         f"{len(JOINT_NAMES[model])}")
-    return np.stack(rows), model
+        raise ReconError(f"{path}: camera {camera}: frame {frame}: {J} joints per person but body model "
+                         f"{model.value} has {len(JOINT_NAMES[model])}")
+    return kp, model
 
 
 def index_openpose_folder(folder: str | Path, *, camera_map: dict[str, str] | None = None,
@@ -179,8 +216,10 @@ def index_openpose_folder(folder: str | Path, *, camera_map: dict[str, str] | No
         raise ReconError(f"{folder}: camera map names folder {unknown_map[0]!r}, which is not there")
     for sub in subfolders:
         camera = camera_map.get(sub.name, sub.name)
-        json_files = sorted(sub.glob("*.json"))
-        if not json_files:
+        json_files, n_entries = _json_files(sub)
+        if not json_files:  # said, not skipped in silence: a camera the user expected may be missing
+            what = "empty" if not n_entries else f"{n_entries} entries, none a .json file"
+            logger.warning("%s: no OpenPose .json file (%s): camera %s left out", sub, what, camera)
             continue
         if cameras is not None and camera not in cameras:
             hint = "" if sub.name in camera_map else " (map folder names to cameras with --camera-map)"
@@ -199,19 +238,64 @@ def index_openpose_folder(folder: str | Path, *, camera_map: dict[str, str] | No
     return files
 
 
+def _order_sample(files: dict[str, dict[int, Path]], n_joints: int) -> np.ndarray:
+    """(N, n_joints, 3) people of up to :data:`ORDER_SAMPLE_FILES` files spread evenly over the cameras and their
+    frames (raw order: no model applied)."""
+    per_camera = max(1, ORDER_SAMPLE_FILES // max(len(files), 1))
+    rows = [np.zeros((0, n_joints, 3))]
+    for camera in sorted(files):
+        frames = sorted(files[camera])
+        for k in np.unique(np.linspace(0, len(frames) - 1, min(per_camera, len(frames))).round().astype(int)):
+            kp = _raw_people(files[camera][frames[k]], camera, frames[k])
+            if kp.shape[1:] == (n_joints, 3):
+                rows.append(kp)
+    return np.concatenate(rows)
+
+
+def _order_evidence(fits: list) -> str:
+    return ", ".join(f"as {f.model.value} x{f.misfit:.2f}" for f in fits)
+
+
 def body_model_of(files: dict[str, dict[int, Path]], body_model: BodyModel | str | None) -> BodyModel:
     """The given model, or the one told by the first file with a person (in camera, frame order); a joint count
-    that fits two models (25: BODY_25, BODY_25B) is refused naming that file."""
-    if body_model is not None:
-        return parse_body_model(body_model) if isinstance(body_model, str) else body_model
+    that fits two models (25: BODY_25, BODY_25B) is refused naming that file. Where two models have the files'
+    joint count, a sample of the files is read to check the joint order (:mod:`~dome_calib.recon.joint_order`):
+    a model whose order does not make bodies where the other's does is refused naming the one that fits."""
+    folder = next(iter(next(iter(files.values())).values())).parent.parent
+    named = parse_body_model(body_model) if isinstance(body_model, str) else body_model
+    first = None
     for camera in sorted(files):
         for frame, path in sorted(files[camera].items()):
-            kp, model = _people_of_file(path, camera, frame, None)
-            if model is not None:
-                return model
-    first = next(iter(files.values()))
-    raise ReconError(f"{next(iter(first.values())).parent.parent}: no person detected in any file, so the body "
-                     "model is unknown (give --body-model)")
+            kp = _people_of_file(path, camera, frame, named)[0] if named else _raw_people(path, camera, frame)
+            if len(kp):
+                first = (path, kp.shape[1])
+                break
+        if first:
+            break
+    if first is None:
+        if named is not None:
+            return named
+        raise ReconError(f"{folder}: no person detected in any file, so the body model is unknown (give --body-model)")
+    path, n_joints = first
+    candidates = models_with_joints(n_joints)
+    if len(candidates) == 1:
+        return candidates[0]
+    sample = _order_sample(files, n_joints)
+    if named is None:
+        fits = order_fits(sample)
+        told = better_order(sample, fits[-1].model)
+        hint = (f"; the joint order fits {told[1].model.value} (bones off a person's proportions "
+                f"{_order_evidence(fits)}, {told[1].people} people)" if told else "")
+        raise ReconError(f"{path}: {n_joints} joints per person fits {' and '.join(m.value for m in candidates)}: "
+                         f"give --body-model{hint}")
+    wrong = better_order(sample, named)
+    if wrong is not None:
+        mine, best = wrong
+        raise ReconError(f"{folder}: --body-model {named.value} does not fit these detections: read in its joint "
+                         f"order their bones are x{mine.misfit:.2f} off a person's proportions, in "
+                         f"{best.model.value}'s order x{best.misfit:.2f} (median over {best.people} people of "
+                         f"{len(files)} cameras): give --body-model {best.model.value}")
+    return named
 
 
 def read_openpose_files(files: dict[str, dict[int, Path]], model: BodyModel) -> dict[str, dict[int, np.ndarray]]:

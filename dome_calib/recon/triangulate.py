@@ -3,8 +3,11 @@
 Pipeline per point (all points of a batch at once, no Python loop over points):
 
 1. rays: detections -> undistorted normalised coordinates (batched Newton inverse of the lens model);
-2. RANSAC over views: random pairs of views give two-view (midpoint) hypotheses, scored on a random subset of
-   the point's views with a truncated, confidence-weighted squared reprojection error (MSAC);
+2. RANSAC over views: pairs of views give two-view (midpoint) hypotheses, scored on a subset of the point's
+   views with a truncated, confidence-weighted squared reprojection error (MSAC). A point with few views tries
+   every pair; otherwise the pairs and the scoring views are drawn at random, and the draws of a point are a
+   function of its own detections only (a counter-based hash of them, :func:`point_draws`), never of the batch
+   it is in: the same detections give the same point whatever else is triangulated with them;
 3. weighted linear triangulation (DLT on the rays of the inlier views, weights = detection confidence);
 4. Levenberg-Marquardt on the confidence-weighted reprojection error ``sum_v c_v |pi_v(X) - u_v|^2`` (the
    weighted cost of the Panoptic 3D node proposals), with the analytic point Jacobian of the camera model;
@@ -41,12 +44,14 @@ class TriangulationOptions:
 
     inlier_threshold_px: a view supports a point if its reprojection error is below this (pixels of that view).
     ransac_hypotheses: two-view hypotheses per point. With 10 % wrong detections a random pair is clean with
-        probability 0.81, so 16 hypotheses all fail with probability 0.19^16 ~ 3e-12.
+        probability 0.81, so 16 hypotheses all fail with probability 0.19^16 ~ 3e-12. A point with so few views
+        that it has no more pairs than this (6 views: 15 pairs) tries every pair instead.
     ransac_score_views: views (random subset of the point's detections) that score each hypothesis.
     lm_iterations: Levenberg-Marquardt iterations (each one projection; one is enough from the DLT start).
     min_views: fewer inlier views than this -> the point is not reconstructed (NaN, confidence -1).
     min_confidence: detections with confidence <= this are ignored.
-    seed: RANSAC random seed (results are reproducible).
+    seed: mixed into every point's draws (results are reproducible; the draws depend on the point's own
+        detections and this seed, not on the other points of the call).
     """
 
     inlier_threshold_px: PosFinite = 8.0
@@ -179,20 +184,70 @@ def refine_lm(views: ViewSet | CameraKernel, X0: np.ndarray, uv_px: np.ndarray, 
     return X, ev
 
 
-def _ransac(views: ViewSet, xn: np.ndarray, conf: np.ndarray, valid: np.ndarray,
-            options: TriangulationOptions) -> np.ndarray:
-    """Best two-view hypothesis (P, 3) per point by MSAC over a random subset of its views (NaN if none)."""
+#: Quanta of the detections that key a point's random draws: 1/64 px, 2^-16 of confidence.
+_DRAW_PX_STEPS, _DRAW_CONF_STEPS = 64.0, 65536.0
+_U64 = np.uint64
+_GOLDEN = _U64(0x9E3779B97F4A7C15)
+
+
+def _mix64(x: np.ndarray) -> np.ndarray:
+    """splitmix64's finaliser: a bijection of uint64 whose outputs look independent (wrapping arithmetic)."""
+    x = (x ^ (x >> _U64(30))) * _U64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> _U64(27))) * _U64(0x94D049BB133111EB)
+    return x ^ (x >> _U64(31))
+
+
+def point_draws(uv_px: np.ndarray, conf: np.ndarray, valid: np.ndarray, seed: int, n: int) -> np.ndarray:
+    """(P, n) uniform numbers in [0, 1) for each of P points, a function of that point's own detections only.
+
+    The key of a point hashes its valid views (index, pixels quantised to 1/64 px, confidence to 2^-16): a sum of
+    per-view hashes, so it does not depend on the order of the arithmetic; draw k is splitmix64 of key + k. The
+    same detections give the same draws in any batch, chunk or process (results do not depend on how the work is
+    cut), and they are the same on every machine (integer arithmetic only).
+    """
     P, V = valid.shape
-    rng = np.random.default_rng(options.seed)
-    keys = rng.random((P, V))
-    keys[~valid] = 2.0
-    order = np.argsort(keys, axis=1)  # the point's views in random order, valid ones first
-    n_valid = valid.sum(axis=1)
+    with np.errstate(over="ignore"):
+        q = [np.rint(np.clip(np.where(valid, a, 0.0) * step, -2.0**53, 2.0**53)).astype(np.int64).view(_U64)
+             for a, step in ((uv_px[..., 0], _DRAW_PX_STEPS), (uv_px[..., 1], _DRAW_PX_STEPS),
+                             (conf, _DRAW_CONF_STEPS))]
+        view = np.arange(1, V + 1, dtype=_U64)[None, :]
+        h = _mix64(q[0] + _mix64(q[1] + _mix64(q[2] + _mix64(view * _GOLDEN))))
+        key = _mix64(np.where(valid, h, _U64(0)).sum(axis=1, dtype=_U64) + _U64(seed % 2**64) * _GOLDEN)
+        bits = _mix64(key[:, None] + np.arange(1, n + 1, dtype=_U64)[None, :] * _GOLDEN)
+    return (bits >> _U64(11)).astype(float) * 2.0**-53
+
+
+def _all_pairs(n_max: int) -> dict[int, np.ndarray]:
+    """For each view count n in 2..n_max, the (n (n - 1) / 2, 2) pairs (i < j) of positions 0..n-1."""
+    return {n: np.array([(i, j) for i in range(n) for j in range(i + 1, n)]) for n in range(2, n_max + 1)}
+
+
+def _ransac(views: ViewSet, xn: np.ndarray, conf: np.ndarray, valid: np.ndarray,
+            options: TriangulationOptions, uv_px: np.ndarray) -> np.ndarray:
+    """Best two-view hypothesis (P, 3) per point by MSAC over a subset of its views (NaN if none).
+
+    Points with no more view pairs than ``ransac_hypotheses`` try every pair; the others draw them, and their
+    scoring views, with :func:`point_draws` (each point's draws depend on its own detections only).
+    """
+    P, V = valid.shape
     H = options.ransac_hypotheses
-    u = rng.random((P, H, 2))
+    draws = point_draws(uv_px, conf, valid, options.seed, V + 2 * H)
+    keys = draws[:, :V].copy()
+    keys[~valid] = 2.0
+    order = np.argsort(keys, axis=1, kind="stable")  # the point's views in random order, valid ones first
+    n_valid = valid.sum(axis=1)
+    u = draws[:, V:].reshape(P, H, 2)
     nv = np.maximum(n_valid, 2)[:, None]
     i = np.minimum((u[..., 0] * nv).astype(np.int64), nv - 1)
     j = (i + 1 + np.minimum((u[..., 1] * (nv - 1)).astype(np.int64), nv - 2)) % nv
+    n_max = 2
+    while (n_max + 1) * n_max // 2 <= H:
+        n_max += 1
+    for n, pairs in _all_pairs(n_max).items():  # few views: every pair once (the rest repeat the first)
+        few = n_valid == n
+        if few.any():
+            take = np.minimum(np.arange(H), len(pairs) - 1)
+            i[few], j[few] = pairs[take, 0], pairs[take, 1]
     vi, vj = np.take_along_axis(order, i, axis=1), np.take_along_axis(order, j, axis=1)  # (P, H)
     centers = views.center_cm
     rows = np.arange(P)[:, None]
@@ -269,7 +324,7 @@ def triangulate(views: ViewSet, uv_px: np.ndarray, conf: np.ndarray,
     xn = undistort_detections(kernel, uv, valid)
     u_obs, v_obs = uv[..., 0].astype(F32), uv[..., 1].astype(F32)
 
-    X = _ransac(views, xn, w, valid, options)
+    X = _ransac(views, xn, w, valid, options, uv)
     have = np.all(np.isfinite(X), axis=1, keepdims=True)
     err = kernel.reprojection_error_px(np.where(have, X, 0.0), u_obs, v_obs)
     inl = valid & have & (err < 2.0 * thr)  # loose: two-view points are noisy

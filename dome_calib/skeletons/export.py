@@ -14,8 +14,6 @@ from enum import StrEnum
 from fractions import Fraction
 from pathlib import Path
 
-import numpy as np
-
 from dome_calib.io_utils import atomic_folder, output_folder, refuse_output_among_inputs
 from dome_calib.options import AtLeast, PosFraction, options
 from dome_calib.schema import NonNegFinite

@@ -17,7 +17,7 @@ length from ``hfov_deg`` (70 deg: 1371 px), a mild barrel distortion. One stream
 from __future__ import annotations
 
 import math
-from fractions import Fraction
+
 from typing import Annotated
 
 import numpy as np

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -29,7 +29,7 @@ import numpy as np
 from dome_calib.bundle import Bundle, SyncTable, SyncTables
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.errors import DomeCalibError
-from dome_calib.schema import Field, FileSchema, read_json
+from dome_calib.schema import FileSchema, NonNegFinite, PosFinite, read_json
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.synth.capture import SynthOptions, synthesize as write_capture
 from dome_calib.synth.detector import DetectorModel
@@ -40,7 +40,6 @@ from dome_calib.synth.kinect_boards import KinectBoardsOptions, generate_kinect_
 from dome_calib.synth.skeleton import DetectionNoise, synthetic_tracks
 from dome_calib.synth.sync_session import SynthSessionOptions, SynthTruth, make_session
 from dome_calib.options import AtLeast, Field, UnitInterval, options
-from dome_calib.schema import NonNegFinite, PosFinite
 
 MANIFEST = "dome_session.json"
 VERSION = 1

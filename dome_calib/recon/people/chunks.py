@@ -1,15 +1,15 @@
-"""Long sessions: :func:`~dome_calib.recon.people.run.reconstruct_people` over overlapping chunks of time, run on an
-executor (a local process pool or Dask), ids stitched over the overlaps.
+"""Long sessions: the bodies of each chunk of times computed on an executor (a local process pool or Dask), then
+tracked once over the whole session.
 
 Each chunk's task gets its own detections from the source (a :class:`~dome_calib.recon.people.sources.FileSource`
-reads only the files of the frames that bracket the chunk's times, so an hour is never in memory at once). Tracks
-of two chunks that hold the same people in the overlap are one track
-(:func:`~dome_calib.recon.people.tracking.stitch_chunks`); new ids are numbered on, never reused; short tracks are
-dropped after stitching (a track cut by a chunk boundary is short only in its chunk).
+reads only the files of the frames that bracket the chunk's times, so an hour is never in memory at once) and
+returns the bodies of its times without ids (:func:`~dome_calib.recon.people.run.people_at_times`: a time's bodies
+depend on that time's detections only). Tracking, short-track dropping and smoothing then run once over all the
+times (:func:`~dome_calib.recon.people.tracking.apply_tracks`, a few milliseconds per time against tens for the
+bodies): no id, body or joint depends on where the chunks were cut, how many there are or which worker ran them.
 """
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 
 import numpy as np
@@ -17,26 +17,27 @@ import numpy as np
 from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.bodies import Bodies
 from dome_calib.recon.people.depth_witness import DepthWitness
-from dome_calib.recon.people.run import PeopleOptions, PeopleSequence, reconstruct_people
+from dome_calib.recon.people.run import PeopleOptions, PeopleSequence, people_at_times
 from dome_calib.recon.people.sources import FileSource, InMemorySource, PeopleStream
-from dome_calib.recon.people.tracking import stitch_chunks
+from dome_calib.recon.people.tracking import apply_tracks
 from dome_calib.recon.project import ViewSet
 
 
-def _chunk_task(args: tuple) -> tuple[int, PeopleSequence]:
-    """Executor task: one chunk of times (module level, picklable); reads the chunk's detections from ``source``."""
+def _chunk_task(args: tuple, progress: Callable[[int, int], None] | None = None) -> tuple[int, PeopleSequence]:
+    """Executor task: the bodies of one chunk of times (module level, picklable); reads the chunk's detections
+    from ``source``."""
     index, views, source, times, options, depth = args
     streams = source.chunk(float(times[0]), float(times[-1]), options.max_gap_frames)
-    return index, reconstruct_people(views, streams, times, options, depth=depth)
+    return index, people_at_times(views, streams, times, options, depth=depth, progress=progress)
 
 
 def reconstruct_people_chunked(views: ViewSet, source: list[PeopleStream] | InMemorySource | FileSource,
                                times_ms: np.ndarray, options: PeopleOptions | None = None, *, executor=None,
                                depth: DepthWitness | None = None,
                                progress: Callable[[int, int], None] | None = None) -> PeopleSequence:
-    """:func:`reconstruct_people` over chunks of ``chunk_times`` times that overlap by ``overlap_times``, run on
-    ``executor`` (``map``; a local pool or Dask; None: in this process); ids stitched over the overlaps
-    (:func:`~dome_calib.recon.people.tracking.stitch_chunks`), new ones numbered on, never reused.
+    """The bodies of chunks of ``chunk_times`` times, run on ``executor`` (``map``; a local pool or Dask; None or a
+    single chunk: in this process), then tracked over all the times at once: the same result as
+    :func:`~dome_calib.recon.people.run.reconstruct_people` over everything, for any chunk size and executor.
 
     source: the streams, or a :class:`~dome_calib.recon.people.sources.FileSource` whose chunks each task reads from
     disk itself (only the frames that bracket the chunk's times); depth: the Kinects' depth witness, or None.
@@ -45,67 +46,21 @@ def reconstruct_people_chunked(views: ViewSet, source: list[PeopleStream] | InMe
     source = InMemorySource(source) if isinstance(source, list) else source
     t = np.asarray(times_ms, dtype=float)
     step = options.chunk_times
-    if len(t) <= step + options.overlap_times:
-        streams = source.chunk(float(t[0]), float(t[-1]), options.max_gap_frames) if len(t) else []
-        return reconstruct_people(views, streams, t, options, depth=depth, progress=progress)
-    starts = list(range(0, len(t), step))
-    if len(t) - starts[-1] <= options.overlap_times:
-        starts.pop()  # the previous chunk's overlap already reaches the end
-    # Short tracks are dropped after stitching: a track cut by a chunk boundary is short only in its chunk.
-    chunk_options = dataclasses.replace(options, tracking=dataclasses.replace(options.tracking, drop_short=False))
-    tasks = []
-    for i, s in enumerate(starts):
-        times = t[s: min(s + step + options.overlap_times, len(t))]
-        tasks.append((i, views, source, times, chunk_options, depth))
+    tasks = [(i, views, source, t[s: s + step], options, depth) for i, s in enumerate(range(0, len(t), step))]
     results: dict[int, PeopleSequence] = {}
-    runner = map if executor is None else executor.map
-    for index, seq in runner(_chunk_task, tasks):
-        results[index] = seq
-        if progress is not None:
-            progress(min(sum(len(results[k].times_ms) for k in results), len(t)), len(t))
+    if executor is None or len(tasks) <= 1:  # in this process: progress after every batch
+        for task in tasks:
+            base = task[0] * step
+            report = None if progress is None else (lambda d, n, base=base: progress(base + d, len(t)))
+            results[task[0]] = _chunk_task(task, report)[1]
+    else:
+        for index, seq in executor.map(_chunk_task, tasks):
+            results[index] = seq
+            if progress is not None:
+                progress(sum(len(r.times_ms) for r in results.values()), len(t))
     bodies: list[Bodies] = []
-    agreement = CameraAgreement.empty(results[0].cameras.names)
-    next_id = 0
-    prev_map: dict[int, int] = {}
-    for i, s in enumerate(starts):
-        seq = results[i]
-        if i == 0:
-            local = sorted({int(x) for b in seq.bodies for x in b.ids})
-            id_map = {k: next_id + n for n, k in enumerate(local)}
-        else:
-            prev, ov = results[i - 1], options.overlap_times
-            tail = prev.bodies[step: step + ov]
-            head = seq.bodies[: len(tail)]
-            match = stitch_chunks([b.X_cm for b in tail], [b.ids for b in tail], [b.X_cm for b in head],
-                                  [b.ids for b in head], options.tracking.gate_cm)
-            id_map = {}
-            for k in sorted({int(x) for b in seq.bodies for x in b.ids}):
-                if k in match and match[k] in prev_map:
-                    id_map[k] = prev_map[match[k]]
-                else:
-                    id_map[k] = next_id
-                    next_id += 1
-        next_id = max([next_id] + [v + 1 for v in id_map.values()])
-        prev_map = id_map
-        own = seq.bodies[:step] if i < len(starts) - 1 else seq.bodies
-        bodies += [b.take(slice(None), np.array([id_map[int(x)] for x in b.ids], dtype=np.int64)) for b in own]
-        agreement.add(seq.cameras)
-    return PeopleSequence(times_ms=t, bodies=_drop_short(bodies, options.tracking.min_track_frames), cameras=agreement)
-
-
-def _drop_short(bodies: list[Bodies], min_frames: int) -> list[Bodies]:
-    """Bodies of tracks seen at fewer than ``min_frames`` times removed; ids renumbered 0, 1, ... in order of first
-    appearance (ids stay unique: a removed track's id is not given to anyone)."""
-    all_ids = np.concatenate([b.ids for b in bodies] + [np.zeros(0, np.int64)])
-    uniq, counts = np.unique(all_ids, return_counts=True)
-    keep = set(uniq[counts >= min_frames].tolist())
-    first = {}
-    for b in bodies:
-        for i in b.ids:
-            if int(i) in keep and int(i) not in first:
-                first[int(i)] = len(first)
-    out = []
-    for b in bodies:
-        k = np.array([int(i) in keep for i in b.ids], dtype=bool)
-        out.append(b.take(k, np.array([first[int(i)] for i in b.ids[k]], dtype=np.int64)))
-    return out
+    agreement = CameraAgreement.empty(source.cameras)
+    for i in range(len(tasks)):
+        bodies += results[i].bodies
+        agreement.add(results[i].cameras)
+    return PeopleSequence(times_ms=t, bodies=apply_tracks(t, bodies, options.tracking), cameras=agreement)

@@ -1,4 +1,10 @@
-"""The file-level stage behind ``dome-calib reconstruct``: an OpenPose folder + a bundle -> body3DScene files."""
+"""The file-level stage behind ``dome-calib reconstruct``: an OpenPose folder + a bundle -> body3DScene files.
+
+:func:`plan_reconstruction` checks everything the command reads and writes before any work (the options as the
+user typed them, the output place, the bundle, the camera map, the detections folder's names and frames, the body
+model's joint order, the streams' clocks); :func:`run_reconstruction` does the work and writes; the CLI opens its
+executor (a local pool, a Dask cluster) between the two. :func:`reconstruct_folder` is both in one call.
+"""
 from __future__ import annotations
 
 import logging
@@ -10,11 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle_io import load_bundle
-from dome_calib.io_utils import refuse_output_among_inputs
+from dome_calib.io_utils import refuse_output_among_inputs, refuse_output_inside_inputs, remove_stale_staging
+from dome_calib.recon.body_models import BodyModel, parse_body_model
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.formats import FPS_TYPE
 from dome_calib.recon.depth import depth_folder_reader
 from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, parse_camera_map
+from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.chunks import reconstruct_people_chunked
 from dome_calib.recon.people.depth_witness import DepthWitness, DepthWitnessOptions
 from dome_calib.recon.people.proposals import AssociationOptions
@@ -22,13 +30,20 @@ from dome_calib.recon.people.run import PeopleOptions
 from dome_calib.recon.people.scene_io import camera_report, check_people_folder, write_people
 from dome_calib.recon.people.sources import FileSource, StreamLayout, stream_layouts
 from dome_calib.recon.people.tracking import TrackingOptions
-from dome_calib.recon.project import view_set
+from dome_calib.recon.project import ViewSet, view_set
 
 logger = logging.getLogger(__name__)
+
+#: ``--fps`` range: one frame a day to a million a second (universal times are float milliseconds).
+FPS_RANGE = (Fraction(1, 86400), Fraction(10**6))
+#: ``--workers`` range.
+MAX_WORKERS = 1024
 
 
 @dataclass(frozen=True)
 class ReconstructSummary:
+    """What a run gave; ``nobody``: why no person was reconstructed (None when someone was)."""
+
     out: Path
     times: int
     cameras: int
@@ -38,19 +53,56 @@ class ReconstructSummary:
     body_frames: int
     flagged_cameras: list[str]
     median_reprojection_px: float | None
+    nobody: str | None = None
+
+
+@dataclass(frozen=True)
+class ReconstructPlan:
+    """Everything checked, nothing computed: the run :func:`run_reconstruction` will make."""
+
+    out: Path
+    views: ViewSet
+    source: FileSource
+    times_ms: np.ndarray
+    numbers: np.ndarray
+    reference: str
+    model: BodyModel
+    options: PeopleOptions
+    depth: DepthWitness | None = None
 
 
 def people_options(*, min_views: int = 3, smooth: int = 0, fps: str = "30") -> PeopleOptions:
-    """The command's options: people need ``min_views`` cameras, ``smooth`` observations either side (0 = off),
-    ``fps`` (e.g. "30", "30000/1001") for a bundle without sync tables. ReconError names a bad value."""
+    """The command's options from its flags: people need ``min_views`` cameras (``--min-views``), ``smooth``
+    observations either side (``--smooth``, 0 = off), ``fps`` (``--fps``, e.g. "30", "30000/1001") for a bundle
+    without sync tables. A bad value is one ReconError naming the flag as the user typed it."""
+    if min_views < 2:
+        raise ReconError(f"--min-views {min_views}: a person must be seen by at least 2 cameras (a joint is "
+                         "triangulated from two views or more)")
+    if smooth < 0:
+        raise ReconError(f"--smooth {smooth}: expected 0 (off) or a number of frames either side")
     try:
         shared_fps = Fraction(fps)
     except (ValueError, ZeroDivisionError):
         raise ReconError(f"--fps {fps!r}: not a frame rate (e.g. 30, 60 or 30000/1001)") from None
-    if shared_fps <= 0:
-        raise ReconError(f"--fps {fps!r}: a frame rate must be > 0")
+    if not FPS_RANGE[0] <= shared_fps <= FPS_RANGE[1]:
+        raise ReconError(f"--fps {fps!r}: expected a frame rate from 1/86400 (one frame a day) to 1000000")
     return PeopleOptions(association=AssociationOptions(min_person_views=min_views),
                          tracking=TrackingOptions(smooth_half_window=smooth), shared_fps=shared_fps)
+
+
+def check_workers(workers: int) -> None:
+    """``--workers N``: 1 to :data:`MAX_WORKERS` processes."""
+    if not 1 <= workers <= MAX_WORKERS:
+        raise ReconError(f"--workers {workers}: expected 1 to {MAX_WORKERS} processes")
+
+
+def default_output(detections: str | Path) -> Path:
+    """``<DETECTIONS>_people`` beside the detections folder, named from the folder itself (``.`` and ``..``
+    resolved: ``reconstruct ..`` inside a camera folder writes beside the detections, not into the camera)."""
+    folder = Path(detections).resolve()
+    if folder == folder.parent:
+        raise ReconError(f"{detections}: the detections folder is the file system's root; give -o")
+    return folder.parent / f"{folder.name}_people"
 
 
 def reference_times(streams: list[StreamLayout], reference: str | None) -> tuple[np.ndarray, np.ndarray, str]:
@@ -58,32 +110,38 @@ def reference_times(streams: list[StreamLayout], reference: str | None) -> tuple
     numbers, stream). Reference: given, else "vga", else "hd", else the stream with most cameras."""
     by_name = {s.stream: s for s in streams}
     if reference is not None and reference not in by_name:
-        raise ReconError(f"reference stream {reference!r} has no detections (streams: {', '.join(sorted(by_name))})")
+        raise ReconError(f"--reference {reference}: that stream has no detections (streams: "
+                         f"{', '.join(sorted(by_name))})")
     name = reference or next((n for n in ("vga", "hd") if n in by_name),
                              max(streams, key=lambda s: (len(s.cameras), s.stream)).stream)
     s = by_name[name]
     return s.table.times_of(s.frame_index), s.frame_index, name
 
 
-def reconstruct_folder(detections: str | Path, bundle_folder: str | Path, out: str | Path, *,
-                       body_model: str | None = None, camera_map: str | dict[str, str] | None = None,
-                       reference: str | None = None, options: PeopleOptions | None = None, executor=None,
-                       depth_folder: str | Path | None = None, depth_options: DepthWitnessOptions | None = None,
-                       progress: Callable[[int, int], None] | None = None,
-                       page: Callable[[Path], None] | None = None) -> ReconstructSummary:
-    """Detections folder (OpenPose JSON per camera) + bundle -> ``out`` (body3DScene per time, cameras.json; and
-    ``page(staging)``'s files: the caller's people page, dome_calib.pipeline.people_page.people_page_writer).
-
-    The folder's names and frames are checked before any work; each chunk of times reads its own files (a long
-    session is never in memory at once; a bad file stops the run when its chunk is read). ``out`` is written only
-    at the end (staged, then renamed): bad input leaves nothing behind. ``depth_folder``: Kinect depth frames
-    (``KINECTNODE<n>/depth_<k>.png``) whose sensors witness the joints (:mod:`~dome_calib.recon.people.
-    depth_witness`); the bundle must then hold the Kinects' calibration and depth sync tables.
-    """
+def plan_reconstruction(detections: str | Path, bundle_folder: str | Path, out: str | Path | None = None, *,
+                        body_model: str | BodyModel | None = None, camera_map: str | dict[str, str] | None = None,
+                        reference: str | None = None, options: PeopleOptions | None = None,
+                        depth_folder: str | Path | None = None,
+                        depth_options: DepthWitnessOptions | None = None) -> ReconstructPlan:
+    """Check every input and the output place, in seconds, before any work (see the module docstring); the paths
+    are resolved (``.``, ``..``, links), ``out`` defaults to :func:`default_output` and may lie neither inside the
+    detections, the bundle nor the depth frames. ``depth_folder``: Kinect depth frames (``KINECTNODE<n>/depth_<k>.png``)
+    whose sensors witness the joints (:mod:`~dome_calib.recon.people.depth_witness`); the bundle must then hold the
+    Kinects' calibration and depth sync tables."""
     options = options or PeopleOptions()
+    if isinstance(body_model, str):
+        try:
+            body_model = parse_body_model(body_model)
+        except ReconError:
+            raise ReconError(f"--body-model {body_model}: unknown (known: "
+                             f"{', '.join(m.value for m in BodyModel)})") from None
+    detections = Path(detections).resolve()
+    out = Path(out) if out is not None else default_output(detections)
     inputs = [detections, bundle_folder] + ([depth_folder] if depth_folder is not None else [])
     refuse_output_among_inputs(out, inputs, whole_folder=True)  # OUT is replaced whole
+    refuse_output_inside_inputs(out, inputs)
     check_people_folder(out)
+    remove_stale_staging(out)  # of earlier runs killed while writing OUT (SIGKILL, power cut)
     bundle = load_bundle(bundle_folder)
     depth = (DepthWitness.of(bundle, depth_folder_reader(depth_folder), depth_options)
              if depth_folder is not None else None)
@@ -93,14 +151,71 @@ def reconstruct_folder(detections: str | Path, bundle_folder: str | Path, out: s
     layouts = stream_layouts(bundle, files, files, shared_fps=options.shared_fps)
     times, numbers, ref = reference_times(layouts, reference)
     source = FileSource(layouts=layouts, files=files, body_model=model)
-    names = source.cameras
-    views = view_set(bundle, names)
-    seq = reconstruct_people_chunked(views, source, times, options, executor=executor, depth=depth,
-                                     progress=progress)
-    write_people(out, seq, numbers, FPS_TYPE.get(ref, "custom"), also=page)
+    need = options.association.min_person_views
+    if need > len(source.cameras):
+        raise ReconError(f"--min-views {need}: only {len(source.cameras)} cameras have detections, so nobody could "
+                         "be reconstructed")
+    return ReconstructPlan(out=out, views=view_set(bundle, source.cameras), source=source, times_ms=times,
+                           numbers=numbers, reference=ref, model=model, options=options, depth=depth)
+
+
+def why_nobody(agreement: CameraAgreement, options: PeopleOptions, times: int) -> str:
+    """What dropped every person, from the cameras' tallies (taken before tracking)."""
+    a, tr = options.association, options.tracking
+    if agreement.detected.sum() == 0:
+        return (f"no camera detected a person ({a.min_common_joints} joints above confidence {a.min_joint_conf:g}) "
+                f"at the {times} times")
+    if agreement.used.sum() == 0:
+        return (f"the cameras detected {int(agreement.detected.sum())} people but none was seen alike by "
+                f"--min-views {a.min_person_views} cameras: is the bundle the calibration of these cameras, and are "
+                "the camera folders named (or --camera-map'ped) right?")
+    return (f"bodies were found ({int(agreement.used.sum())} detections used) but none was tracked over "
+            f"{tr.min_track_frames} times (a track ends unseen for {tr.max_missed_ms:g} ms or "
+            f"{tr.max_missed_steps:g} time steps)")
+
+
+def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callable[[int, int], None] | None = None,
+                       page: Callable[[Path], None] | None = None) -> ReconstructSummary:
+    """The work of a checked plan: people at every time (chunks on ``executor``), then the files, written only at
+    the end (staged, then renamed); ``page(staging)`` adds the caller's files to the staged folder (the people page:
+    dome_calib.pipeline.people_page.people_page_writer)."""
+    seq = reconstruct_people_chunked(plan.views, plan.source, plan.times_ms, plan.options, executor=executor,
+                                     depth=plan.depth, progress=progress)
+    write_people(plan.out, seq, plan.numbers, FPS_TYPE.get(plan.reference, "custom"), also=page)
     report = camera_report(seq.cameras)
     ids = {int(i) for b in seq.bodies for i in b.ids}
-    return ReconstructSummary(out=Path(out), times=len(times), cameras=len(names), body_model=model.value,
-                              reference=ref, people=len(ids), body_frames=sum(len(b.ids) for b in seq.bodies),
-                              flagged_cameras=report["flagged"],
-                              median_reprojection_px=report["median_reprojection_px"])
+    nobody = None if ids else why_nobody(seq.cameras, plan.options, len(plan.times_ms))
+    return ReconstructSummary(out=plan.out, times=len(plan.times_ms), cameras=len(plan.source.cameras),
+                              body_model=plan.model.value, reference=plan.reference, people=len(ids),
+                              body_frames=sum(len(b.ids) for b in seq.bodies), flagged_cameras=report["flagged"],
+                              median_reprojection_px=report["median_reprojection_px"], nobody=nobody)
+
+
+def reconstruct_folder(detections: str | Path, bundle_folder: str | Path, out: str | Path | None = None, *,
+                       body_model: str | None = None, camera_map: str | dict[str, str] | None = None,
+                       reference: str | None = None, options: PeopleOptions | None = None, executor=None,
+                       depth_folder: str | Path | None = None, depth_options: DepthWitnessOptions | None = None,
+                       progress: Callable[[int, int], None] | None = None,
+                       page: Callable[[Path], None] | None = None) -> ReconstructSummary:
+    """Detections folder (OpenPose JSON per camera) + bundle -> ``out`` (body3DScene per time, cameras.json, and
+    ``page(staging)``'s files).
+
+    Every input is checked before any work (:func:`plan_reconstruction`); each chunk of times reads its own files
+    (a long session is never in memory at once; a bad file stops the run when its chunk is read). ``out`` is
+    written only at the end (staged, then renamed): bad input leaves nothing behind.
+    """
+    plan = plan_reconstruction(detections, bundle_folder, out, body_model=body_model, camera_map=camera_map,
+                               reference=reference, options=options, depth_folder=depth_folder,
+                               depth_options=depth_options)
+    return run_reconstruction(plan, executor=executor, progress=progress, page=page)
+
+
+def format_summary(summary: ReconstructSummary) -> str:
+    """The command's one line: what was reconstructed, or that nobody was and why."""
+    head = (f"{summary.times} times ({summary.reference}) from {summary.cameras} cameras ({summary.body_model}): ")
+    if summary.nobody:
+        return f"{head}no person reconstructed: {summary.nobody} -> {summary.out}"
+    err = "n/a" if summary.median_reprojection_px is None else f"{summary.median_reprojection_px:.1f} px"
+    flagged = ", ".join(summary.flagged_cameras) or "none"
+    return (f"{head}{summary.people} people, {summary.body_frames} body-frames, median reprojection {err}; cameras "
+            f"that disagree: {flagged} -> {summary.out}")

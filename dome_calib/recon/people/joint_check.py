@@ -23,13 +23,10 @@ A dropped joint is missing (``c = -1``): a joint metres away from its body is ne
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from dome_calib.recon.body_models import BONE_LENGTH_CM, BONES19, JOINTS19
 from dome_calib.options import AtLeast, options
-from dome_calib.recon.errors import ReconError
 from dome_calib.schema import NonNegFinite, PosFinite
 
 _A = np.array([JOINTS19.index(a) for a, _ in BONE_LENGTH_CM])

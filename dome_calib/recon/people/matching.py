@@ -1,7 +1,7 @@
 """Matching people to people: the small pieces every stage of the group shares.
 
 :func:`greedy_match` pairs detections across two frames (resampling) and detections with proposals (assignment);
-:func:`skeleton_distance_cm` compares skeletons (de-duplication, tracking, stitching chunks); :func:`dedupe` keeps
+:func:`skeleton_distance_cm` compares skeletons (de-duplication, tracking); :func:`dedupe` keeps
 one of skeletons that are the same person; :func:`nan_median` is a fast median that skips missing joints. No choice
 here rests on the last bits of a float: costs are quantised and ties go by order.
 """

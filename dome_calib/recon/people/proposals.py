@@ -17,13 +17,10 @@ proposes again from the detections no proposal took, over :func:`residual_pairs`
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
 from dome_calib.options import AtLeast, UnitInterval, options, require
-from dome_calib.recon.errors import ReconError
 from dome_calib.schema import NonNegFinite, PosFinite
 from dome_calib.recon.kernel import F32, CameraKernel
 from dome_calib.recon.people.matching import nan_median

@@ -12,10 +12,11 @@ The run, in the order the data flows (each step a function of its own module, te
 5. :func:`~dome_calib.recon.people.bodies.build_bodies`: enough joints, no duplicates;
 6. :func:`~dome_calib.recon.people.agreement.tally_agreement`: how each camera agrees;
 
-then, over the whole chunk of times, :func:`~dome_calib.recon.people.tracking.apply_tracks` gives ids.
-:func:`reconstruct_people` runs one chunk of times in one process;
-:func:`~dome_calib.recon.people.chunks.reconstruct_people_chunked` splits a long session into overlapping chunks on
-an executor and stitches ids.
+then, over the whole session, :func:`~dome_calib.recon.people.tracking.apply_tracks` gives ids.
+:func:`people_at_times` runs steps 1-6 over a span of times (each time on its own: the result at a time does not
+depend on the other times of its batch or chunk); :func:`reconstruct_people` adds the tracking in one process;
+:func:`~dome_calib.recon.people.chunks.reconstruct_people_chunked` runs the spans of a long session on an executor,
+then tracks once over all of them.
 """
 from __future__ import annotations
 
@@ -27,8 +28,7 @@ from typing import Annotated
 
 import numpy as np
 
-from dome_calib.options import AtLeast, Field, PosFraction, options, require
-from dome_calib.recon.errors import ReconError
+from dome_calib.options import AtLeast, Field, PosFraction, options
 from dome_calib.recon.kernel import CameraKernel
 from dome_calib.recon.people.agreement import CameraAgreement, tally_agreement
 from dome_calib.recon.people.assign import associate
@@ -50,7 +50,8 @@ class PeopleOptions:
     """Options of :func:`reconstruct_people`. joint_check: which triangulated joints a body keeps
     (:mod:`~dome_calib.recon.people.joint_check`); min_body_joints: a body needs this many reconstructed joints;
     max_gap_frames: stream brackets wider than this many frame periods are not bridged; batch_times: times
-    triangulated together; chunk_times / overlap_times: the chunks of :func:`reconstruct_people_chunked`."""
+    triangulated together; chunk_times: the times of one task of :func:`reconstruct_people_chunked`. Neither
+    changes the result (only memory and speed)."""
 
     association: AssociationOptions = field(default_factory=AssociationOptions)
     triangulation: TriangulationOptions = field(default_factory=lambda: TriangulationOptions(
@@ -61,11 +62,7 @@ class PeopleOptions:
     max_gap_frames: Annotated[float, Field(ge=1)] = 2.5
     batch_times: AtLeast(1) = 16
     chunk_times: AtLeast(1) = 600
-    overlap_times: AtLeast(0) = 12
     shared_fps: PosFraction = Fraction(30)
-
-    _overlap = require(lambda o: o.overlap_times < o.chunk_times,
-                       "overlap_times {o.overlap_times} must be below chunk_times {o.chunk_times}")
 
 
 @dataclass
@@ -97,19 +94,15 @@ def associate_batch(views: ViewSet, kernel: CameraKernel, pairs: np.ndarray, kp:
     return bodies, agreement
 
 
-def reconstruct_people(views: ViewSet, streams: list[PeopleStream], times_ms: np.ndarray,
-                       options: PeopleOptions | None = None, *, depth: DepthWitness | None = None,
-                       progress: Callable[[int, int], None] | None = None) -> PeopleSequence:
-    """Tracked people at (T,) universal times from the streams' unlabelled detections (one process).
+def people_at_times(views: ViewSet, streams: list[PeopleStream], times_ms: np.ndarray,
+                    options: PeopleOptions | None = None, *, depth: DepthWitness | None = None,
+                    progress: Callable[[int, int], None] | None = None) -> PeopleSequence:
+    """The bodies at (T,) universal times from the streams' unlabelled detections, without ids (-1): steps 1-6 of
+    the module docstring, ``batch_times`` times at a time. Each time's bodies depend on that time's detections only,
+    so any split of the times into batches or chunks gives the same bodies.
 
-    Args:
-        views: holds every camera of ``streams``; streams: from :func:`~dome_calib.recon.people.sources.people_streams`.
-        depth: the Kinects' depth frames as a witness (joints they see through are dropped), or None.
-        progress: ``progress(done_times, total_times)`` after each batch.
-    Returns:
-        :class:`PeopleSequence`; ids from 0 in order of first appearance.
-    Example:
-        >>> seq = reconstruct_people(view_set(bundle, names), people_streams(bundle, det.people), vga_times_ms)
+    depth: the Kinects' depth frames as a witness (joints they see through are dropped), or None.
+    progress: ``progress(done_times, total_times)`` after each batch.
     """
     options = options or PeopleOptions()
     t = np.asarray(times_ms, dtype=float)
@@ -127,5 +120,24 @@ def reconstruct_people(views: ViewSet, streams: list[PeopleStream], times_ms: np
         agreement.add(agree)
         if progress is not None:
             progress(sl.stop, len(t))
-    bodies = apply_tracks(t, bodies, options.tracking)
     return PeopleSequence(times_ms=t, bodies=bodies, cameras=agreement)
+
+
+def reconstruct_people(views: ViewSet, streams: list[PeopleStream], times_ms: np.ndarray,
+                       options: PeopleOptions | None = None, *, depth: DepthWitness | None = None,
+                       progress: Callable[[int, int], None] | None = None) -> PeopleSequence:
+    """Tracked people at (T,) universal times from the streams' unlabelled detections (one process).
+
+    Args:
+        views: holds every camera of ``streams``; streams: from :func:`~dome_calib.recon.people.sources.people_streams`.
+        depth: the Kinects' depth frames as a witness (joints they see through are dropped), or None.
+        progress: ``progress(done_times, total_times)`` after each batch.
+    Returns:
+        :class:`PeopleSequence`; ids from 0 in order of first appearance.
+    Example:
+        >>> seq = reconstruct_people(view_set(bundle, names), people_streams(bundle, det.people), vga_times_ms)
+    """
+    options = options or PeopleOptions()
+    seq = people_at_times(views, streams, times_ms, options, depth=depth, progress=progress)
+    seq.bodies = apply_tracks(seq.times_ms, seq.bodies, options.tracking)
+    return seq

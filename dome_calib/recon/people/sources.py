@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dome_calib.bundle import Bundle, SyncTable
+from dome_calib.bundle import Bundle, CameraType, SyncTable
 from dome_calib.recon.body_models import BodyModel
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.openpose_io import read_openpose_files
@@ -54,12 +54,14 @@ def stream_layouts(bundle: Bundle, frames_of: dict[str, Iterable[int]],
     """camera -> its frame indices -> one :class:`StreamLayout` per stream (VGA, HD, each Kinect; one shared stream
     when the bundle has no sync tables, universal time = frame / ``shared_fps``).
 
-    A frame that the camera's sync table lacks is refused (ReconError naming file, camera and frame).
+    A frame that the camera's sync table lacks is refused (ReconError naming file, camera and frame); so are the
+    cameras of several streams without sync tables (:func:`refuse_mixed_clocks`).
     """
     files = files or {}
     groups: dict[str, list[str]] = {}
     tables: dict[str, SyncTable] = {}
     if bundle.sync is None:
+        refuse_mixed_clocks(bundle, frames_of)
         frames = np.unique(np.array([f for c in frames_of.values() for f in c], dtype=np.int64))
         period = float(1000 / Fraction(shared_fps))
         tables[SHARED_STREAM] = SyncTable(index=frames, univ_time_ms=frames * period)
@@ -79,6 +81,31 @@ def stream_layouts(bundle: Bundle, frames_of: dict[str, Iterable[int]],
                              f"{int(table.index[0])}..{int(table.index[-1])})")
         out.append(StreamLayout(stream=stream, table=table, cameras=names, frame_index=frames))
     return out
+
+
+def _clock_of(bundle: Bundle, name: str) -> str:
+    """The clock a camera's own frame numbers count: its stream (vga, hd), each Kinect colour camera its own."""
+    cam = bundle.cameras[name]
+    return f"Kinect {name}" if cam.type == CameraType.KINECT_COLOR else str(cam.type)
+
+
+def refuse_mixed_clocks(bundle: Bundle, frames_of: dict[str, Iterable[int]]) -> None:
+    """A bundle without sync tables puts every camera on one frame index: right for one stream (a synchronised
+    rig), wrong for cameras of several streams (VGA, HD, Kinects), whose frame numbers each count their own clock
+    (merged, the demo's 7 people came out as 27). Refused in one line saying what to do."""
+    clocks: dict[str, list[str]] = {}
+    for name in sorted(frames_of):
+        clocks.setdefault(_clock_of(bundle, name), []).append(name)
+    if len(clocks) < 2:
+        return
+    spans = []
+    for clock, names in sorted(clocks.items()):
+        frames = [f for n in names for f in frames_of[n]]
+        spans.append(f"{clock}: {len(names)} cameras, frames {min(frames)}..{max(frames)}")
+    raise ReconError(f"bundle {bundle.seq} has no sync tables, so every camera would share one frame index, but the "
+                     f"detections hold cameras of {len(clocks)} streams that each number their own frames "
+                     f"({'; '.join(spans)}): add the sync tables to the bundle (`timecode sync SESSION -o BUNDLE` writes "
+                     f"synctables_{bundle.seq}.json), or give a detections folder holding one stream's cameras only")
 
 
 def fill_stream(layout: StreamLayout, people: dict[str, dict[int, np.ndarray]]) -> PeopleStream:

@@ -4,7 +4,8 @@
 (``scipy.optimize.linear_sum_assignment``) on the median 3D joint distance between each track's predicted skeleton
 (the whole body at constant velocity from its last two observations) and each body, gated: confirmed tracks
 first, then tentative ones (seen fewer than ``min_track_frames`` times) with the bodies left. Confirmed tracks not
-seen for ``max_missed_ms`` end, tentative ones at their first miss; tracks shorter than ``min_track_frames`` are
+seen for ``max_missed_ms`` or ``max_missed_steps`` time steps (the median step of the times: a time-lapse rig's
+frames 1 s apart keep their tracks), whichever is longer, end; tentative ones at their first miss; tracks shorter than ``min_track_frames`` are
 dropped (a false body lasts a frame or two). Ids are given in order of first appearance (then creation order),
 once.
 
@@ -13,18 +14,14 @@ own observation times. A linear fit reproduces any constant-velocity motion exac
 and across uneven time steps), so it does not bias a moving joint; it lags only under acceleration (by
 acceleration x window^2 / 6 at most in the middle of a track).
 
-:func:`stitch_chunks` joins the ids of time chunks that overlap: tracks of two chunks that hold the same people
-in the overlap are the same track.
+Tracking runs once over the whole session (long sessions too: see :mod:`~dome_calib.recon.people.chunks`).
 """
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from dome_calib.options import AtLeast, options
-from dome_calib.recon.errors import ReconError
 from dome_calib.recon.people.bodies import Bodies
 from dome_calib.recon.people.matching import skeleton_distance_cm
 from dome_calib.schema import NonNegFinite, PosFinite
@@ -33,17 +30,25 @@ from dome_calib.schema import NonNegFinite, PosFinite
 @options
 class TrackingOptions:
     """gate_cm: a body continues a track if its median joint distance to the track's prediction is below
-    ``gate_cm + gate_cm_per_s x elapsed``; max_missed_ms: a track unseen longer ends; min_track_frames: shorter
-    tracks are dropped, and a track is tentative until seen this often (matched after the confirmed ones, ended
-    by a single miss); smooth_half_window: half width (in observations) of the smoothing window, 0 = off;
-    drop_short: False keeps short tracks (a chunk of a long session: they are dropped after stitching)."""
+    ``gate_cm + gate_cm_per_s x elapsed``; max_missed_ms, max_missed_steps: a track unseen longer than the
+    larger of max_missed_ms and max_missed_steps median time steps ends (the steps follow the frame rate: at 1
+    frame per second 500 ms would end every track at once); min_track_frames: shorter tracks are dropped, and a
+    track is tentative until seen this often (matched after the confirmed ones, ended by a single miss);
+    smooth_half_window: half width (in observations) of the smoothing window, 0 = off."""
 
     gate_cm: PosFinite = 40.0
     gate_cm_per_s: NonNegFinite = 100.0
     max_missed_ms: NonNegFinite = 500.0
+    max_missed_steps: NonNegFinite = 2.5
     min_track_frames: AtLeast(1) = 3
     smooth_half_window: AtLeast(0) = 0
-    drop_short: bool = True
+
+    def max_missed_for(self, times_ms: np.ndarray) -> float:
+        """The gap (ms) that ends a confirmed track at these times: max(max_missed_ms, max_missed_steps x the
+        median step between them)."""
+        steps = np.diff(np.asarray(times_ms, dtype=float))
+        steps = steps[steps > 0]
+        return max(self.max_missed_ms, self.max_missed_steps * float(np.median(steps)) if len(steps) else 0.0)
 
 
 def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
@@ -54,6 +59,7 @@ def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
     Returns: ids[t] (P_t,) int: 0, 1, ... in order of first appearance; -1 for bodies of dropped short tracks.
     """
     options = options or TrackingOptions()
+    max_missed_ms = options.max_missed_for(times_ms)
     track_of = [np.full(len(b), -1, dtype=np.int64) for b in bodies]
     last_X: list[np.ndarray] = []
     last_t: list[float] = []
@@ -64,7 +70,7 @@ def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
     for k, (t, X) in enumerate(zip(np.asarray(times_ms, dtype=float), bodies)):
         # confirmed tracks survive gaps up to max_missed_ms; a tentative one (seen fewer than min_track_frames
         # times) ends as soon as it misses a time
-        active = [i for i in active if t - last_t[i] <= options.max_missed_ms
+        active = [i for i in active if t - last_t[i] <= max_missed_ms
                   and (seen[i] >= options.min_track_frames or last_t[i] >= prev_t)]
         prev_t = t
         P = len(X)
@@ -106,7 +112,7 @@ def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
     n_tracks = len(last_X)
     length = np.bincount(np.concatenate([tr[tr >= 0] for tr in track_of] + [np.zeros(0, np.int64)]),
                          minlength=n_tracks)
-    keep = length >= (options.min_track_frames if options.drop_short else 1)
+    keep = length >= options.min_track_frames
     new_id = np.full(n_tracks, -1, dtype=np.int64)
     new_id[keep] = np.arange(int(keep.sum()))  # creation order = order of first appearance
     return [np.where(tr >= 0, new_id[np.maximum(tr, 0)], -1) for tr in track_of]
@@ -152,33 +158,3 @@ def smooth_track(times_ms: np.ndarray, X: np.ndarray, half_window: int) -> np.nd
         intercept = (s2 * m0 - s1 * m1) / np.where(ok, det, 1.0)
         out[k] = np.where(ok, intercept, X[k])
     return out
-
-
-def stitch_chunks(prev_X: list[np.ndarray], prev_ids: list[np.ndarray], next_X: list[np.ndarray],
-                  next_ids: list[np.ndarray], gate_cm: float) -> dict[int, int]:
-    """Match the tracks of two chunks over their shared (overlap) times.
-
-    Args: per overlap time, each chunk's bodies (P, 19, 3) and their ids (local to the chunk, -1 = dropped).
-    Returns: {next chunk's id: previous chunk's id} for tracks whose mean distance over the overlap is below
-    ``gate_cm`` (Hungarian over the track pairs).
-    """
-    sums: dict[tuple[int, int], list[float]] = {}
-    for Xa, ia, Xb, ib in zip(prev_X, prev_ids, next_X, next_ids):
-        if len(Xa) == 0 or len(Xb) == 0:
-            continue
-        d = skeleton_distance_cm(Xa, Xb)
-        for p in range(len(Xa)):
-            for q in range(len(Xb)):
-                if ia[p] >= 0 and ib[q] >= 0 and np.isfinite(d[p, q]):
-                    sums.setdefault((int(ib[q]), int(ia[p])), []).append(float(d[p, q]))
-    if not sums:
-        return {}
-    nexts = sorted({k[0] for k in sums})
-    prevs = sorted({k[1] for k in sums})
-    cost = np.full((len(nexts), len(prevs)), 1e6)
-    for (b, a), ds in sums.items():
-        mean = float(np.mean(ds))
-        if mean < gate_cm:
-            cost[nexts.index(b), prevs.index(a)] = round(mean, 3)
-    rows, cols = linear_sum_assignment(cost)
-    return {nexts[r]: prevs[c] for r, c in zip(rows, cols) if cost[r, c] < 1e6}
