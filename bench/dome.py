@@ -47,6 +47,7 @@ if __name__ == "__main__":
     from dome_calib.pipeline.full import run_calibration
     from dome_calib.pipeline.types import CalibrateOptions
     from dome_calib.pipeline.stages import ba_options as _ba_options
+    from dome_calib.reasons import ReasonCode
     from dome_calib.synth.dome import as_built_dome
 
 
@@ -242,7 +243,7 @@ def quick(args, root: Path, truth: Bundle) -> None:
          match_split_s={k: round(v, 1) for k, v in result.stats["quick"]["seconds"].items()}, found=found,
          load_average_1min=round(os.getloadavg()[0], 1), found_exactly_the_changed=found == names,
          missed=sorted(set(names) - set(found)),
-         given_new_intrinsics=sorted(n for n, c in result.changes.items() if any("replaced?" in r for r in c.reasons)),
+         given_new_intrinsics=sorted(n for n, c in result.changes.items() if any(r.code == ReasonCode.INTRINSICS_CHANGED for r in c.reasons)),
          counts={k: v for k, v in result.stats["quick"].items() if k not in ("suspects", "seconds")},
          false_alarms=sorted(set(found) - set(names)), **ours)
     orc = oracle(result.ba.problem, result.ba.problem, moved)["result"]

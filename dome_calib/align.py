@@ -20,6 +20,8 @@ import pycolmap
 
 from dome_calib.bundle import Camera
 from dome_calib.errors import DomeCalibError
+from dome_calib.options import AtLeast, UnitInterval, options
+from dome_calib.schema import PosFinite
 
 logger = logging.getLogger(__name__)
 
@@ -31,14 +33,14 @@ class AlignmentError(DomeCalibError):
     """Two camera sets cannot be aligned (too few shared cameras, degenerate layout, no consensus)."""
 
 
-@dataclass(kw_only=True)
+@options
 class AlignOptions:
     """How to align. ``max_error_cm``: inlier threshold on centre distance in the target frame."""
 
-    max_error_cm: float = 2.0
-    min_inlier_ratio: float = 0.25
+    max_error_cm: PosFinite = 2.0
+    min_inlier_ratio: UnitInterval = 0.25
     estimate_scale: bool = True  # False: rigid (scale held at 1), e.g. two bundles both in cm
-    random_seed: int = 0
+    random_seed: AtLeast(0) = 0
 
 
 @dataclass(kw_only=True)

@@ -19,6 +19,9 @@ from dome_calib.rotation import rotation_angle_deg
 from dome_calib.bundle import Bundle, Camera, CameraType
 from dome_calib.camera import distort, pixels_to_normalized
 from dome_calib.layout import check_dome_scale
+from dome_calib.options import options
+from dome_calib.reasons import Reason, ReasonCode, reason
+from dome_calib.schema import NonNegFinite, PosFinite
 
 logger = logging.getLogger(__name__)
 
@@ -148,34 +151,36 @@ def format_comparison(cmp: Comparison, worst: int = 5) -> str:
     return "\n".join(lines)
 
 
-@dataclass(kw_only=True)
+@options
 class ChangeOptions:
     """Thresholds for calling a camera changed relative to a prior calibration."""
 
-    moved_cm: float = 1.0
-    rotated_deg: float = 0.3
-    focal_pct: float = 1.0
-    distortion_px: float = 2.0
-    align_max_error_cm: float = 1.0  # a camera further than this from the fit is not used to align
+    moved_cm: NonNegFinite = 1.0
+    rotated_deg: NonNegFinite = 0.3
+    focal_pct: NonNegFinite = 1.0
+    distortion_px: NonNegFinite = 2.0
+    align_max_error_cm: PosFinite = 1.0  # a camera further than this from the fit is not used to align
 
 
 @dataclass(kw_only=True)
 class CameraChange:
-    """A camera that differs from the prior, with the reasons (e.g. "moved 3.2 cm", "replaced: focal 4.1 %")."""
+    """A camera that differs from the prior, with the reasons (codes MOVED, ROTATED, INTRINSICS_CHANGED; texts e.g.
+    "moved 3.2 cm")."""
 
     name: str
     moved_cm: float
     rotated_deg: float
     focal_pct: float
     distortion_px: float
-    reasons: list[str]
+    reasons: list[Reason]
 
     def as_dict(self) -> dict:
         def num(v: float) -> float | None:
             return float(v) if np.isfinite(v) else None  # NaN: not comparable (a camera new since the prior)
 
         return {"name": self.name, "moved_cm": num(self.moved_cm), "rotated_deg": num(self.rotated_deg),
-                "focal_pct": num(self.focal_pct), "distortion_px": num(self.distortion_px), "reasons": self.reasons}
+                "focal_pct": num(self.focal_pct), "distortion_px": num(self.distortion_px),
+                "reasons": [r.model_dump(mode="json") for r in self.reasons]}
 
 
 def detect_changes(new: dict[str, Camera], prior: dict[str, Camera],
@@ -190,12 +195,12 @@ def detect_changes(new: dict[str, Camera], prior: dict[str, Camera],
         err = camera_error(aligned[name], prior[name])
         reasons = []
         if err.center_cm > options.moved_cm:
-            reasons.append(f"moved {err.center_cm:.1f} cm")
+            reasons.append(reason(ReasonCode.MOVED, f"moved {err.center_cm:.1f} cm"))
         if err.rotation_deg > options.rotated_deg:
-            reasons.append(f"rotated {err.rotation_deg:.2f} deg")
+            reasons.append(reason(ReasonCode.ROTATED, f"rotated {err.rotation_deg:.2f} deg"))
         if err.focal_pct > options.focal_pct or err.distortion_px > options.distortion_px:
-            reasons.append(f"intrinsics changed (focal {err.focal_pct:.1f} %, distortion {err.distortion_px:.1f} px):"
-                           " replaced?")
+            reasons.append(reason(ReasonCode.INTRINSICS_CHANGED, f"intrinsics changed (focal {err.focal_pct:.1f} %, "
+                                  f"distortion {err.distortion_px:.1f} px): replaced?"))
         if reasons:
             changes[name] = CameraChange(name=name, moved_cm=err.center_cm, rotated_deg=err.rotation_deg,
                                          focal_pct=err.focal_pct, distortion_px=err.distortion_px, reasons=reasons)

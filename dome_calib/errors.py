@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import errno
 import importlib
 import logging
@@ -30,6 +29,34 @@ class CaptureError(DomeCalibError, ValueError):
 
 class ReportError(DomeCalibError):
     """The report cannot be made from what was given (bad residual file, unknown camera)."""
+
+
+class OptionsError(DomeCalibError, ValueError):
+    """An option outside its declared bounds (:mod:`dome_calib.options`). ``owner``: the options class; ``field``:
+    the field path; ``shown``: the value given, as the message shows it; ``expected``: what the declaration
+    accepts, in words."""
+
+    def __init__(self, message: str, *, owner: str = "", field: str = "", shown: str = "", expected: str = ""):
+        super().__init__(message)
+        self.owner, self.field, self.shown, self.expected = owner, field, shown, expected
+
+
+@contextlib.contextmanager
+def flags(names: dict[str, str]) -> Iterator[None]:
+    """Inside the block, an :class:`OptionsError` of a field that a command's flag sets names the flag the user
+    typed. ``names``: ``"Class.field"`` (the field path inside its options class) -> the flag::
+
+        with flags({"AssociationOptions.min_person_views": "--min-views"}):
+            options = people_options(min_views=min_views)    # --min-views 1: expected an integer >= 2
+    """
+    try:
+        yield
+    except OptionsError as exc:
+        flag = names.get(f"{exc.owner}.{exc.field}")
+        if flag is None or not exc.expected:
+            raise
+        raise OptionsError(f"{flag} {exc.shown}: expected {exc.expected}", owner=exc.owner, field=exc.field,
+                           shown=exc.shown, expected=exc.expected) from None
 
 
 class Interrupted(KeyboardInterrupt):
@@ -82,13 +109,6 @@ def interrupt_as_one_line(prog: str, advice: str = "rerun the same command to re
     finally:
         _active -= 1
         signal.signal(signal.SIGTERM, previous)
-
-
-def non_finite_fields(options: object) -> list[str]:
-    """``name=value`` of the float fields of a dataclass ``options`` that are NaN or infinite (a ``<`` or ``<=``
-    bound check lets NaN through: every comparison with it is false)."""
-    return [f"{f.name}={getattr(options, f.name)}" for f in dataclasses.fields(options)
-            if isinstance(getattr(options, f.name), float) and not math.isfinite(getattr(options, f.name))]
 
 
 def require_finite(error: type[Exception], **values: float | None) -> None:

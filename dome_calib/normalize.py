@@ -22,6 +22,8 @@ from enum import StrEnum
 from dome_calib.align import AlignOptions, Alignment, align_cameras, transform_cameras
 from dome_calib.bundle import Camera
 from dome_calib.layout import all_nominal_cameras
+from dome_calib.options import AtLeast, options
+from dome_calib.schema import PosFinite
 
 logger = logging.getLogger(__name__)
 
@@ -31,13 +33,13 @@ class WorldReference(StrEnum):
     NOMINAL = "nominal"
 
 
-@dataclass(kw_only=True)
+@options
 class NormalizeOptions:
     """Inlier thresholds (cm, in the reference frame) for the two kinds of reference."""
 
-    prior_max_error_cm: float = 1.0
-    nominal_max_error_cm: float = 30.0
-    random_seed: int = 0
+    prior_max_error_cm: PosFinite = 1.0
+    nominal_max_error_cm: PosFinite = 30.0
+    random_seed: AtLeast(0) = 0
 
 
 @dataclass(kw_only=True)

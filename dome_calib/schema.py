@@ -34,6 +34,7 @@ from typing_extensions import TypeAliasType
 
 import pydantic
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
+from pydantic.json_schema import GenerateJsonSchema
 
 from dome_calib.errors import DomeCalibError
 
@@ -371,10 +372,20 @@ def _step(node: dict, part: int | str, defs: dict) -> dict | None:
     return None
 
 
+class _AnyObjectSchema(GenerateJsonSchema):
+    """JSON schema of a class whose fields may hold any object (an options dataclass's callback): those are ``{}``."""
+
+    def handle_invalid_for_json_schema(self, schema: Any, error_info: str) -> dict:
+        return {}
+
+
 @functools.cache
-def json_schema(schema: type[BaseModel]) -> dict:
-    """The schema's JSON schema, made once (pydantic builds it anew on every call: ~ms for a file's schema)."""
-    return schema.model_json_schema()
+def json_schema(schema: type) -> dict:
+    """The schema's JSON schema, made once (pydantic builds it anew on every call: ~ms for a file's schema); a
+    pydantic dataclass's too (an options class, :mod:`dome_calib.options`: fields of any class described as ``{}``)."""
+    if isinstance(schema, type) and issubclass(schema, BaseModel):
+        return schema.model_json_schema()
+    return pydantic.TypeAdapter(schema).json_schema(schema_generator=_AnyObjectSchema)
 
 
 def _node_at(schema: type[BaseModel], loc: tuple) -> tuple[dict | None, dict]:

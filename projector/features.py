@@ -24,24 +24,26 @@ from dome_calib.executor import Executor, SerialExecutor, in_order
 from dome_calib.layout import INTRINSICS_STATS
 from dome_calib.progress import Progress, counting
 from projector.database import add_image, camera_of_image, descriptors_to_uint8, image_name, images_with_features, write_features
+from dome_calib.options import AtLeast, UnitInterval, options
+from dome_calib.schema import NonNegFinite, PosFinite
 
 logger = logging.getLogger(__name__)
 
 
-@dataclass(kw_only=True)
+@options
 class FeatureOptions:
     """SIFT and image-check options. ``first_octave = 0`` (no 2x upsampling) is ~4x faster than COLMAP's
     default -1 and gives ~1,000 (VGA) to ~5,000 (HD) features on projector patterns: plenty for matching."""
 
-    max_num_features: int = 4096
-    first_octave: int = 0
-    peak_threshold: float = 0.02 / 3
-    blank_max_std: float = 3.0  # grey-level std below this: blank image
-    overexposed_fraction: float = 0.5  # more than this fraction of pixels >= 250: overexposed
-    min_features: int = 60  # fewer: the camera does not see the tent (or sees too little of it)
+    max_num_features: AtLeast(1) = 4096
+    first_octave: AtLeast(-1) = 0
+    peak_threshold: PosFinite = 0.02 / 3
+    blank_max_std: NonNegFinite = 3.0  # grey-level std below this: blank image
+    overexposed_fraction: UnitInterval = 0.5  # more than this fraction of pixels >= 250: overexposed
+    min_features: AtLeast(0) = 60  # fewer: the camera does not see the tent (or sees too little of it)
     #: 0: full resolution. Else an image whose longer side exceeds this is reduced by the smallest integer factor
     #: that fits (box filter, :func:`reduction_factor`) and its keypoints are put back in full-resolution pixels.
-    max_image_size_px: int = 0
+    max_image_size_px: AtLeast(0) = 0
 
 
 @dataclass(kw_only=True)

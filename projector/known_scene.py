@@ -28,7 +28,7 @@ import json
 import logging
 import shutil
 import time
-from dataclasses import dataclass
+
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +39,8 @@ from dome_calib.io_utils import atomic_folder, atomic_write_text
 from projector.database import camera_of_image, intrinsics_from_colmap
 from projector.known_poses import add_posed_image, register_cameras, triangulate_known, verified_partners
 from projector.mapping import SceneModel, describe_model
+from dome_calib.options import AtLeast, options
+from dome_calib.schema import NonNegFinite, PosFinite
 
 logger = logging.getLogger(__name__)
 
@@ -62,14 +64,14 @@ KNOWN_MIN_REGISTERED_FRACTION = 0.9
 KNOWN_MIN_POINTS = 100
 
 
-@dataclass(kw_only=True)
+@options
 class KnownPoseOptions:
     enabled: bool = True  # False: every scene is mapped with GLOMAP (README, SfM: measured both ways)
     # only when the reference scene has at least this many images with features: known poses save time, and a
     # small capture's GLOMAP runs take about a second each; on the 16-camera demo, known poses gave focal lengths
     # 0.23 % off (median) instead of 0.09 % and a person triangulated 1.12 x the truth bundle's error instead of
     # 1.005 (README, SfM)
-    min_images: int = 40
+    min_images: AtLeast(0) = 40
     # the reference scene's GLOMAP refines focal lengths, and the later scenes are triangulated with them: with the
     # design's (HD up to 23 % off as built) the full dome's later scenes lost HD observations at 4 px and the
     # ground-truth oracle's centres went 1.51 -> 2.18 mm median; refined, the bundle adjustment's ratios to the
@@ -79,13 +81,13 @@ class KnownPoseOptions:
     # max_pairs_per_camera, 25): a point needs two views to be triangulated at known poses. Full dome, per later
     # scene: 3,209 pairs, 19 s of matching (15: 4,577, 28 s; 25: 7,511, 43 s); ratios to the oracle as good with
     # each (README, SfM)
-    pairs_per_camera: int = 10
-    max_reproj_error_px: float = KNOWN_MAX_REPROJ_ERROR_PX
-    filter_max_reproj_error_px: float = KNOWN_FILTER_MAX_REPROJ_ERROR_PX
-    min_tri_angle_deg: float = KNOWN_MIN_TRI_ANGLE_DEG
-    min_registered_fraction: float = KNOWN_MIN_REGISTERED_FRACTION
-    min_points: int = KNOWN_MIN_POINTS
-    min_points_per_image: int = 30  # as the mapper's (MappingOptions.min_points_per_image)
+    pairs_per_camera: AtLeast(1) = 10
+    max_reproj_error_px: PosFinite = KNOWN_MAX_REPROJ_ERROR_PX
+    filter_max_reproj_error_px: PosFinite = KNOWN_FILTER_MAX_REPROJ_ERROR_PX
+    min_tri_angle_deg: NonNegFinite = KNOWN_MIN_TRI_ANGLE_DEG
+    min_registered_fraction: NonNegFinite = KNOWN_MIN_REGISTERED_FRACTION  # above 1: never enough (forces GLOMAP)
+    min_points: AtLeast(0) = KNOWN_MIN_POINTS
+    min_points_per_image: AtLeast(0) = 30  # as the mapper's (MappingOptions.min_points_per_image)
     reuse: bool = True
 
 

@@ -19,11 +19,13 @@ import time
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
+from typing import Annotated
 
 import pycolmap
 
 from dome_calib.io_utils import atomic_folder
 from projector.database import camera_of_image
+from dome_calib.options import AtLeast, Lax, options
 
 logger = logging.getLogger(__name__)
 
@@ -33,9 +35,9 @@ class Mapper(StrEnum):
     INCREMENTAL = "incremental"  # COLMAP (pycolmap.incremental_mapping)
 
 
-@dataclass(kw_only=True)
+@options
 class MappingOptions:
-    mapper: Mapper = Mapper.GLOBAL
+    mapper: Annotated[Mapper, Lax] = Mapper.GLOBAL
     refine_focal_length: bool = False
     refine_principal_point: bool = False
     refine_extra_params: bool = False
@@ -44,14 +46,14 @@ class MappingOptions:
     # defaults (3 bundle-adjustment rounds with a fixed-rotation stage, then retriangulation) took 154 s;
     # one joint round without retriangulation 77 s, with the same camera centres (0.95 against 0.89 cm median
     # after a similarity to the truth, both before our bundle adjustment).
-    ba_rounds: int = 1
+    ba_rounds: AtLeast(0) = 1
     skip_fixed_rotation_stage: bool = True
     skip_retriangulation: bool = True
-    min_num_matches: int = 15
-    min_model_size: int = 3
-    min_points_per_image: int = 30  # a registered image seeing fewer 3D points is reported, not used
-    num_threads: int = -1  # -1: all cores
-    random_seed: int = 0
+    min_num_matches: AtLeast(1) = 15
+    min_model_size: AtLeast(2) = 3
+    min_points_per_image: AtLeast(0) = 30  # a registered image seeing fewer 3D points is reported, not used
+    num_threads: AtLeast(-1) = -1  # -1: all cores
+    random_seed: AtLeast(0) = 0
     reuse: bool = True  # load an existing model instead of mapping again
     fallback: bool = True  # try the other mapper when the first gives no model
 

@@ -22,6 +22,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 import pycolmap
@@ -30,6 +31,8 @@ from dome_calib.executor import Executor, SerialExecutor, in_order
 from dome_calib.progress import Progress, counting
 from projector.database import FeatureReader, image_name
 from projector.pairs import Pair
+from dome_calib.options import AtLeast, Field, Lax, options
+from dome_calib.schema import PosFinite
 
 logger = logging.getLogger(__name__)
 
@@ -39,22 +42,22 @@ class MatchBackend(StrEnum):
     PYCOLMAP = "pycolmap"
 
 
-@dataclass(kw_only=True)
+@options
 class MatchOptions:
     """Matching and verification options (pixel errors in COLMAP/OpenCV px, identical scale)."""
 
-    max_ratio: float = 0.8
-    max_distance: float = 0.7  # angle between unit descriptors, rad
+    max_ratio: Annotated[float, Field(gt=0, le=1)] = 0.8
+    max_distance: PosFinite = 0.7  # angle between unit descriptors, rad
     cross_check: bool = True
-    min_num_matches: int = 15  # fewer raw matches: not verified
-    min_num_inliers: int = 15
-    ransac_max_error_px: float = 4.0
+    min_num_matches: AtLeast(0) = 15  # fewer raw matches: not verified
+    min_num_inliers: AtLeast(0) = 15
+    ransac_max_error_px: PosFinite = 4.0
     # RANSAC's floor on hypotheses per model (COLMAP: 100). The trial count still grows with the outlier ratio
     # (confidence 0.999), so only clean pairs stop earlier: projector-pattern pairs are ~100 % inliers and need a
     # few hypotheses, and 100 of each of E, F and H were two thirds of the verification time (full dome, 150
     # pairs: 9.9 ms per pair with 100, 4.9 with 20, 4.2 with 10; inlier sets identical to 100's but for one match
     # in one pair, no configuration changed)
-    ransac_min_num_trials: int = 10
+    ransac_min_num_trials: AtLeast(1) = 10
     # COLMAP's two extras after RANSAC: a search for a watermark (matches moving together near the border, a
     # burnt-in logo or timestamp; the dome's frames carry none) and a Sampson-error refinement of the model (the
     # inlier sets are the same without it: 160,193 against 160,191 inlier matches on 314 pairs of the full
@@ -63,9 +66,9 @@ class MatchOptions:
     sampson_refinement: bool = False
     # the most distinctive matches of a pair; verification time grows with the count, and a few hundred
     # well-spread matches per pair are plenty for mapping and the bundle adjustment (None: keep all)
-    max_matches_per_pair: int | None = 512
-    backend: MatchBackend = MatchBackend.BLAS
-    pairs_per_task: int = 40
+    max_matches_per_pair: AtLeast(1) | None = 512
+    backend: Annotated[MatchBackend, Lax] = MatchBackend.BLAS
+    pairs_per_task: AtLeast(1) = 40
 
 
 @dataclass(kw_only=True)

@@ -25,6 +25,7 @@ import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
+from typing import Annotated
 
 import numpy as np
 import pycolmap
@@ -38,6 +39,8 @@ from projector.database import camera_of_image, intrinsics_from_colmap
 from projector.mapping import SceneModel
 from projector.observations import Observations
 from projector.pose_graph import optimise_pose_graph
+from dome_calib.options import AtLeast, Lax, options
+from dome_calib.schema import PosFinite
 
 logger = logging.getLogger(__name__)
 
@@ -47,14 +50,14 @@ class PoseAveraging(StrEnum):
     CHORDAL_MEAN = "chordal_mean"  # sequential alignments only; mean centres, chordal mean rotations
 
 
-@dataclass(kw_only=True)
+@options
 class MergeOptions:
-    inlier_threshold_rel: float = 0.02  # RANSAC threshold on centres, fraction of the camera spread
-    max_rotation_error_deg: float = 5.0
-    min_shared_cameras: int = 3
-    pose_averaging: PoseAveraging = PoseAveraging.POSE_GRAPH
-    robust_k: float = 2.0  # Cauchy kernel width of the pose graph, in sigmas (sigma = a third of the thresholds)
-    prior_inlier_threshold_cm: float = 15.0
+    inlier_threshold_rel: PosFinite = 0.02  # RANSAC threshold on centres, fraction of the camera spread
+    max_rotation_error_deg: PosFinite = 5.0
+    min_shared_cameras: AtLeast(3) = 3
+    pose_averaging: Annotated[PoseAveraging, Lax] = PoseAveraging.POSE_GRAPH
+    robust_k: PosFinite = 2.0  # Cauchy kernel width of the pose graph, in sigmas (sigma = a third of the thresholds)
+    prior_inlier_threshold_cm: PosFinite = 15.0
     # True: K from the scenes (median; set by run_sfm when mapping refines focal lengths), else from the prior
     use_colmap_intrinsics: bool = False
 

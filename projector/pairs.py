@@ -17,14 +17,17 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+
 from enum import StrEnum
+from typing import Annotated
 
 import numpy as np
 
 from dome_calib.bundle import Camera
 from dome_calib.camera import project
 from dome_calib.ties import LENGTH_QUANTUM_CM, UNIT_QUANTUM, argmax_first, quantize
+from dome_calib.options import AtLeast, Field, Lax, options
+from dome_calib.schema import Finite, PosFinite
 
 Pair = tuple[str, str]
 
@@ -34,22 +37,22 @@ class UnknownStrategy(StrEnum):
     SUBSET = "subset"  # match against a spread subset, then expand around the matches
 
 
-@dataclass(kw_only=True)
+@options
 class PairOptions:
     """Options of prior-based pair selection (lengths in cm, angles in degrees)."""
 
-    exhaustive_below: int = 30  # scenes with at most this many images are matched exhaustively
-    region_center_cm: tuple[float, float, float] | None = None  # None: where the optical axes meet
-    region_radii_cm: tuple[float, ...] = (40.0, 80.0, 120.0)  # sample spheres around the region centre
-    samples_per_sphere: int = 1500
-    max_incidence_deg: float = 80.0  # a sample is seen only if its normal faces the camera within this angle
-    max_view_angle_deg: float = 60.0  # paired cameras see the region from directions at most this far apart
-    min_shared_samples: int = 20
-    max_pairs_per_camera: int = 25
-    k_nearest: int = 6
-    unknown_strategy: UnknownStrategy = UnknownStrategy.EXHAUSTIVE
-    unknown_subset_size: int = 40
-    expand_top_matches: int = 3  # SUBSET: partners taken from the best verified matches of an unknown camera
+    exhaustive_below: AtLeast(0) = 30  # scenes with at most this many images are matched exhaustively
+    region_center_cm: tuple[Finite, Finite, Finite] | None = None  # None: where the optical axes meet
+    region_radii_cm: Annotated[tuple[PosFinite, ...], Field(min_length=1)] = (40.0, 80.0, 120.0)  # sample spheres around the region centre
+    samples_per_sphere: AtLeast(1) = 1500
+    max_incidence_deg: Annotated[float, Field(gt=0, le=180)] = 80.0  # a sample is seen only if its normal faces the camera within this angle
+    max_view_angle_deg: Annotated[float, Field(gt=0, le=180)] = 60.0  # paired cameras see the region from directions at most this far apart
+    min_shared_samples: AtLeast(0) = 20
+    max_pairs_per_camera: AtLeast(0) = 25
+    k_nearest: AtLeast(0) = 6
+    unknown_strategy: Annotated[UnknownStrategy, Lax] = UnknownStrategy.EXHAUSTIVE
+    unknown_subset_size: AtLeast(1) = 40
+    expand_top_matches: AtLeast(0) = 3  # SUBSET: partners taken from the best verified matches of an unknown camera
 
 
 def _sorted_pair(a: str, b: str) -> Pair:

@@ -15,24 +15,26 @@ Resolution: 1280x800 (WXGA), the native resolution of common short-throw project
 from __future__ import annotations
 
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import field
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from dome_calib.io_utils import atomic_write_bytes
+from dome_calib.options import AtLeast, options
+from dome_calib.schema import NonNegFinite, PosFinite
 
 PROJECTOR_NAMES = ("P1", "P2", "P3", "P4", "P5")
 
 
-@dataclass(kw_only=True)
+@options
 class PatternOptions:
     """Pattern shape. ``wavelengths_px``: centre wavelength of each band-pass octave, projector pixels."""
 
-    resolution: tuple[int, int] = (1280, 800)  # (width_px, height_px)
-    wavelengths_px: tuple[float, ...] = (4.0, 8.0, 16.0, 32.0, 64.0)
-    octave_weights: tuple[float, ...] | None = None  # default: equal energy per octave
+    resolution: tuple[AtLeast(1), AtLeast(1)] = (1280, 800)  # (width_px, height_px)
+    wavelengths_px: tuple[PosFinite, ...] = (4.0, 8.0, 16.0, 32.0, 64.0)
+    octave_weights: tuple[NonNegFinite, ...] | None = None  # default: equal energy per octave
     extra: dict = field(default_factory=dict)
 
 

@@ -35,6 +35,7 @@ from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Annotated
 
 import cv2
 import numba
@@ -44,11 +45,13 @@ from scipy.spatial import cKDTree
 from dome_calib.camera import project_with_jacobians
 from dome_calib.rotation import matrix_to_rotvec
 from projector.observations import Observations
+from dome_calib.options import AtLeast, Field, options
+from dome_calib.schema import PosFinite
 
 logger = logging.getLogger(__name__)
 
 
-@dataclass(kw_only=True)
+@options
 class RefineOptions:
     """``patch_radius_px``: the reference patch is (2 r + 1)^2 pixels; ``window_sigma``: the patch weights'
     Gaussian, in units of r. A keypoint moves only if the fit converged within ``max_shift_px`` and the patches'
@@ -57,13 +60,13 @@ class RefineOptions:
     centres r 8: 0.411 / 1.43 mm (median / max), r 10: 0.338 / 1.16 mm (docs/accuracy.md)."""
 
     enabled: bool = True
-    patch_radius_px: int = 10
-    window_sigma: float = 0.6
-    iterations: int = 8
-    max_shift_px: float = 1.0
-    min_zncc: float = 0.8
-    neighbours: int = 12
-    n_threads: int = 2
+    patch_radius_px: AtLeast(1) = 10
+    window_sigma: PosFinite = 0.6
+    iterations: AtLeast(0) = 8
+    max_shift_px: PosFinite = 1.0
+    min_zncc: Annotated[float, Field(ge=-1, le=1)] = 0.8
+    neighbours: AtLeast(1) = 12
+    n_threads: AtLeast(1) = 2
 
 
 @dataclass(kw_only=True)

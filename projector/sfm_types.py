@@ -14,9 +14,10 @@ from projector.merge import Alignment, MergeOptions
 from projector.observations import Observations
 from projector.pairs import PairOptions
 from projector.refine import RefineOptions, RefineReport
+from dome_calib.options import AtLeast, options
 
 
-@dataclass(kw_only=True)
+@options
 class SfmOptions:
     features: FeatureOptions = field(default_factory=FeatureOptions)
     pairs: PairOptions = field(default_factory=PairOptions)
@@ -26,7 +27,7 @@ class SfmOptions:
     merge: MergeOptions = field(default_factory=MergeOptions)
     refine: RefineOptions = field(default_factory=RefineOptions)  # keypoints aligned across each track's views
     scenes: list[str] | None = None  # default: every folder in CAPTURE/scenes
-    num_workers: int | None = None  # default: all available cores
+    num_workers: AtLeast(1) | None = None  # default: all available cores
     # the likely reference scene is mapped (GLOMAP, in a thread) while the other scenes' features are extracted;
     # False: one after the other (the same result, a few seconds slower)
     map_reference_early: bool = True

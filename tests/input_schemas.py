@@ -34,6 +34,7 @@ class InputFile:
     file_name: str  # as written by read()
     note: str = ""
     open_at: tuple[str, ...] = field(default=())  # field paths where unknown fields are kept or ignored
+    tests: str = "tests/test_input_mutations.py, tests/test_inputs_cli.py"  # the tests that mutate it
 
 
 def _write(path: Path, doc: Any) -> Path:
@@ -148,6 +149,30 @@ def _read_camera_map(folder: Path, doc: Any):
     return path, parse_camera_map(str(path))
 
 
+def _report_example() -> dict:
+    """report.json of layout 3: the layout-2 file of tests/data/report_files read through its migration."""
+    from dome_calib.report.schema import parse_report
+
+    report, _ = parse_report("report.json", (DATA / "report_files" / "report_v2.json").read_bytes())
+    return json.loads(report.model_dump_json(exclude_unset=True))
+
+
+def _read_report(folder: Path, doc: Any):
+    from dome_calib.report.schema import read_report
+
+    path = _write(folder / "report" / "report.json", doc)
+    return path, read_report(path)
+
+
+def _kept_reader(name: str) -> Callable:
+    def read(folder: Path, doc: Any):
+        from dome_calib.report.kept import read_kept_file
+
+        path = _write(folder / "report" / name, doc)
+        return path, read_kept_file(path)
+    return read
+
+
 def _read_manifest(folder: Path, doc: Any):
     from dome_calib.synth.session import _made_here
 
@@ -167,6 +192,7 @@ def _error(module: str, name: str) -> Callable[[], type[Exception]]:
     return _schema(module, name)
 
 
+REPORT_TESTS = "tests/test_input_mutations.py, tests/test_report_files.py, tests/test_report_page.py (Chromium)"
 BUNDLE_READERS = ("calibrate --prior/--previous, session, kinect --bundle, timecode sync (a bundle -o holds), "
                   "info, compare, report, reconstruct, export, triangulate, pointcloud, synth --layout, kinect-synth")
 
@@ -206,6 +232,19 @@ FILES = (
     InputFile("dome_session.json", "SESSION/dome_session.json (a synthetic session)", ("demo",),
               _schema("dome_calib.synth.session", "SessionManifest"), _manifest_example, _read_manifest,
               _error("dome_calib.errors", "DomeCalibError"), "dome_session.json"),
+    InputFile("report/report.json", "BUNDLE/report/report.json", ("report",),
+              _schema("dome_calib.report.schema", "Report"), _report_example, _read_report,
+              _error("dome_calib.errors", "ReportError"), "report.json",
+              note="layout 3; layouts 1 and 2 are read through their declared migration (docs/report.md)",
+              tests=REPORT_TESTS),
+    InputFile("report/session.json", "BUNDLE/report/session.json (written by session)", ("report",),
+              _schema("dome_calib.report.kept", "SessionReport"),
+              lambda: json.loads((DATA / "report_files" / "session.json").read_text()), _kept_reader("session.json"),
+              _error("dome_calib.errors", "ReportError"), "session.json", tests=REPORT_TESTS),
+    InputFile("report/sync.json", "BUNDLE/report/sync.json (written by timecode sync)",
+              ("report", "calibrate (OUT's, carried over)"), _schema("dome_calib.report.kept", "SyncReport"),
+              lambda: json.loads((DATA / "report_files" / "sync.json").read_text()), _kept_reader("sync.json"),
+              _error("dome_calib.errors", "ReportError"), "sync.json", tests=REPORT_TESTS),
 )
 
 #: The other inputs, read before any work but not JSON: (input, commands, what is checked, where, test).
@@ -259,8 +298,7 @@ def render() -> str:
     for f in FILES:
         schema = f.schema()
         lines.append(f"| [`{f.name}`](#{_anchor(f.name)}) | {_cell(', '.join(f.commands))} | "
-                     f"`{schema.__module__}.{schema.__qualname__}` | "
-                     "tests/test_input_mutations.py, tests/test_inputs_cli.py |")
+                     f"`{schema.__module__}.{schema.__qualname__}` | {f.tests} |")
     lines += ["", "Checked before any work too, though no JSON:", "",
               "| input | read by | what is checked | by | tested in |", "|---|---|---|---|---|"]
     lines += [f"| {' | '.join(_cell(c) for c in row)} |" for row in OTHER_INPUTS]

@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 from dome_calib.bundle import Bundle, CameraType
 from dome_calib.bundle_io import write_bundle
 from dome_calib.compare import detect_changes
+from dome_calib.reasons import ReasonCode, reason
 from dome_calib.residuals import Residuals
 
 OBS_RANGE = {CameraType.VGA: (500, 1400), CameraType.HD: (2000, 3500), CameraType.KINECT_COLOR: (1200, 2200)}
@@ -91,8 +92,9 @@ def write_synthetic_report(bundle: Bundle, folder: Path, *, seed: int = 0, missi
     changes = {n: c.reasons for n, c in detect_changes(bundle.cameras, previous.cameras).items()}
     sigma_cm = {n: round(float(rng.uniform(0.02, 0.08)), 4) for n in names}
     sigma_cm[planted.few] = 0.9
-    changes.setdefault(planted.few, []).append("position poorly determined (+-0.9 cm, 1 sigma): few or one-sided "
-                                               "views of the tent; add a tent position it sees")
+    changes.setdefault(planted.few, []).append(reason(ReasonCode.POSITION_UNCERTAIN, "position poorly determined "
+                                                      "(+-0.9 cm, 1 sigma): few or one-sided views of the tent; add "
+                                                      "a tent position it sees"))
     lens = {n: {"free": ["fx", "fy", "k1", "k2"], "held": ["cx", "cy", "p1", "p2", "k3"],
                 "decisions": [{"group": "cx,cy", "terms": ["cx", "cy"], "free": False,
                                "reason": "one sigma moves an image point by 0.9 px (> 0.5 px)"},
@@ -112,6 +114,18 @@ def write_synthetic_report(bundle: Bundle, folder: Path, *, seed: int = 0, missi
              "previous": previous_section(bundle, planted.previous)}
     write_report(folder, bundle, residuals, changes=changes, missing=missing, extra=extra)
     return planted
+
+
+#: report.json of layout 2 (written by the code before the typed report), session.json and sync.json as
+#: `dome-calib session` writes them (tests/data/PROVENANCE.md).
+REPORT_FILES = Path(__file__).resolve().parent / "data" / "report_files"
+
+
+def copy_kept_files(report_dir: Path) -> None:
+    """Put the real session.json and sync.json (REPORT_FILES) into ``report_dir``."""
+    report_dir.mkdir(parents=True, exist_ok=True)
+    for name in ("session.json", "sync.json"):
+        (report_dir / name).write_bytes((REPORT_FILES / name).read_bytes())
 
 
 def old_report_json(bundle: Bundle, seq: str, to_check: list[dict]) -> dict:

@@ -97,9 +97,11 @@ def test_calibrate_writes_bundle_and_report_and_resumes(tmp_path, capture, stand
         assert np.linalg.norm(bundle.cameras[n].center_cm - c.center_cm) < 1e-6
     rep = json.loads((out / "report" / "report.json").read_text())
     assert rep["world_frame"]["reference"] == "nominal"
-    assert {"name": "01_24", "type": None, "reasons": ["not calibrated: saw no tent in any scene"]} in rep["to_check"]
+    assert {"name": "01_24", "type": None, "reasons": [{"code": "not_calibrated", "text": "not calibrated: saw no tent "
+                                                                                  "in any scene"}]} in rep["to_check"]
     flagged = {row["name"]: row["reasons"] for row in rep["to_check"]}
-    assert "position poorly determined (+-2.0 cm" in flagged[UNCERTAIN][0] and CERTAIN not in flagged
+    assert flagged[UNCERTAIN][0]["code"] == "position_uncertain" and CERTAIN not in flagged
+    assert "position poorly determined (+-2.0 cm" in flagged[UNCERTAIN][0]["text"]
     assert rep["center_sigma_cm"][UNCERTAIN] == pytest.approx(2.0)
     text = pipeline.format_result(result)
     assert "calibrated 16 of 17 cameras (vga 8/9, hd 5/5, kinect-color 3/3)" in text
@@ -227,9 +229,10 @@ def test_center_sigma_flags_absolute_and_relative_to_the_dome():
     dome = {f"01_{k:02d}": 0.08 for k in range(1, 20)}  # median 0.08 cm
     flags = center_sigma_flags(dome | {"50_05": 0.465, "00_15": 0.69, "50_08": 0.175}, options)
     assert sorted(flags) == ["00_15", "50_05"]
-    assert "position poorly determined (+-0.7 cm" in flags["00_15"]
+    assert {r.code for r in flags.values()} == {"position_uncertain"}
+    assert "position poorly determined (+-0.7 cm" in flags["00_15"].text
     assert "much less determined than the other cameras' (+-0.47 cm, 1 sigma, 5.8 x the median 0.080 cm)" in \
-        flags["50_05"]
+        flags["50_05"].text
     tight = {n: s / 10 for n, s in dome.items()}  # a sub-mm dome: 5x its median is still below the floor
     assert center_sigma_flags(tight | {"50_05": 0.9 * RELATIVE_SIGMA_FLOOR_CM}, options) == {}
     assert center_sigma_flags({"50_05": 0.465, "01_01": 0.05, "01_02": 0.05}, options) == {}  # too few to compare

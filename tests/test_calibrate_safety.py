@@ -21,6 +21,7 @@ from dome_calib.bundle_io import load_bundle, recover_folder, replace_folder, wr
 from dome_calib.errors import CaptureError, DomeCalibError
 from dome_calib.pipeline.workstate import WorkFolderBusy, WorkState
 
+from .report_data import REPORT_FILES
 from .test_calibrate import capture, stand_in_stages  # noqa: F401  (fixtures)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -153,10 +154,11 @@ def test_a_recalibration_keeps_the_kinect_and_sync_files_of_the_same_seq(tmp_pat
     out = write_bundle(type(truth)(seq="s", cameras=dict(truth.cameras)), tmp_path / "bundle")
     (out / "kcalibration_s.json").write_text("kinect")
     (out / "report").mkdir()
-    (out / "report" / "sync.json").write_text("sync report")
+    sync = (REPORT_FILES / "sync.json").read_bytes()  # a real sync report (it is read back through its schema)
+    (out / "report" / "sync.json").write_bytes(sync)
     pipeline.run_calibration(cap, out, _options(seq="s"))
     assert (out / "kcalibration_s.json").read_text() == "kinect"
-    assert (out / "report" / "sync.json").read_text() == "sync report"
+    assert (out / "report" / "sync.json").read_bytes() == sync
     assert (out / "report" / "report.json").exists()
 
 

@@ -18,6 +18,7 @@ from dome_calib.bundle_io import write_bundle
 from dome_calib.camera import intr_to_K, project
 from dome_calib.rotation import rotation_angle_deg
 from dome_calib.compare import ChangeOptions, compare_cameras, detect_changes, format_comparison
+from dome_calib.reasons import ReasonCode
 
 REAL_CALIBRATION = Path(__file__).parent / "data" / "panoptic" / "calibration_160906_band1.json"
 
@@ -125,8 +126,8 @@ def test_detect_changes_finds_exactly_the_changed_panel(real_cameras):
     new = transform_cameras(noise, pycolmap.Sim3d(1.0, SIM.rotation, [20.0, 5.0, -3.0]))
     changes = detect_changes(new, real_cameras, ChangeOptions())
     assert sorted(changes) == panel
-    assert any("replaced" in r for r in changes["07_05"].reasons)
-    assert all("moved" in changes[n].reasons[0] for n in panel)
+    assert ReasonCode.INTRINSICS_CHANGED in [r.code for r in changes["07_05"].reasons]
+    assert all(changes[n].reasons[0].code == ReasonCode.MOVED for n in panel)
     assert all(2.0 - 0.1 < changes[n].moved_cm < 5.0 + 0.1 for n in panel)
 
 

@@ -155,7 +155,7 @@ def test_demo_refuses_a_session_folder_it_did_not_make(tmp_path, monkeypatch, ca
     (out / "session" / "notes.txt").write_text("mine")
     before = _files(out)
     done = _run("dome-calib", ["demo", "-o", out, "--people", "0"], monkeypatch, capsys)
-    _one_line(done, f"{out / 'session' / 'dome_session.json'}: options.seed: expected an integer, got \"0\"",
+    _one_line(done, f"{out / 'session' / 'dome_session.json'}: options.seed: expected an integer >= 0, got \"0\"",
               "not a session this toolkit made")
     assert _files(out) == before
     (out / "session" / "dome_session.json").unlink()
@@ -185,7 +185,39 @@ def test_reconstruct_refuses_a_malformed_openpose_file_and_camera_map(small_prod
     assert not out.exists()
 
 
+REPORT_CASES = {  # the report's own files; more in tests/test_report_files.py and, in Chromium, test_report_page.py
+    "report.json": (lambda d: d["found"]["reasons"].__setitem__("01_03", "moved"),
+                    'found.reasons.01_03: expected a non-empty list of objects with code, text, got "moved"'),
+    "session.json": (lambda d: d["pillars"]["kinect"]["sensors"][0].__setitem__("frames_used", None),
+                     "pillars.kinect.sensors[0].frames_used: expected an integer >= 0"),
+    "sync.json": (lambda d: d["streams"]["vga"].__setitem__("n_frames", "<img src=x onerror=alert(1)>"),
+                  "streams.vga.n_frames: expected an integer >= 0"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(REPORT_CASES))
+def test_report_refuses_a_malformed_report_file(tmp_path, monkeypatch, capsys, name):
+    from dome_calib.layout import nominal_dome
+    from dome_calib.report import write_report
+
+    from .input_schemas import FILES as REGISTRY
+
+    tiny = nominal_dome("tiny", seed=0)
+    bundle = write_bundle(tiny, tmp_path / "b")
+    write_report(bundle, tiny, None)
+    for f in REGISTRY:
+        if f.name in ("report/session.json", "report/sync.json", "report/report.json"):
+            (bundle / f.name).write_text(json.dumps(f.example()))
+    edit, words = REPORT_CASES[name]
+    _edit(bundle / "report" / name, edit)
+    before = _files(bundle)
+    done = _run("dome-calib", ["report", bundle], monkeypatch, capsys)
+    _one_line(done, f"{bundle / 'report' / name}: {words}")
+    assert _files(bundle) == before
+
+
 def test_every_input_file_of_the_page_has_a_case_here():
     covered = {"capture.json", "session.json", "timestamps.json", "calibration_<seq>.json", "kcalibration_<seq>.json",
-               "synctables_<seq>.json", "ksynctables_<seq>.json", "OpenPose JSON", "camera map", "dome_session.json"}
+               "synctables_<seq>.json", "ksynctables_<seq>.json", "OpenPose JSON", "camera map", "dome_session.json",
+               "report/report.json", "report/session.json", "report/sync.json"}
     assert covered == NAMES

@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from dome_calib.recon.body_models import BONE_LENGTH_CM, BONES19, JOINTS19
-from dome_calib.recon.errors import ReconError
+from dome_calib.errors import OptionsError
 from dome_calib.recon.people.joint_check import JointCheckOptions, check_joints
 from dome_calib.recon.kernel import CameraKernel
 from dome_calib.recon.people.proposals import select_pairs
@@ -100,7 +100,7 @@ def test_two_views_need_the_body():
 
 def test_options_refuse_bad_values():
     for bad in ({"max_bone_ratio": 0.0}, {"min_views_alone": 1}, {"max_reach_cm": float("nan")}):
-        with pytest.raises(ReconError):
+        with pytest.raises(OptionsError, match=next(iter(bad))):
             JointCheckOptions(**bad)
 
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.interpolate import CubicSpline
 
+from dome_calib.errors import OptionsError
 from timecode.encoder import EncoderError, EncoderOptions, encode_ltc, encode_ltc_labels, label_range
 from timecode.frame import unpack_bits
 from timecode.labels import labels_to_frames
@@ -100,7 +101,7 @@ def test_label_lists_encode_jumps_on_one_continuous_clock():
 def test_encoder_rejects_impossible_requests():
     with pytest.raises(EncoderError, match="dropped in drop-frame"):
         encode_ltc_labels(["00:01:00;00"], fps=RATE_29_97_DF, sample_rate=48000)
-    with pytest.raises(EncoderError, match="polarity"):
+    with pytest.raises(OptionsError, match="polarity 0: expected 1 or -1"):
         encode_ltc("00:00:00:00", 2, fps=RATE_25, sample_rate=48000, options=EncoderOptions(polarity=0))
     with pytest.raises(EncoderError, match="n_frames"):
         encode_ltc("00:00:00:00", 0, fps=RATE_25, sample_rate=48000)

@@ -230,11 +230,11 @@ def test_smoothing_unbiased_for_constant_velocity():
 
 
 def test_association_refuses_bad_options():
-    from dome_calib.recon.errors import ReconError
+    from dome_calib.errors import OptionsError
 
-    with pytest.raises(ReconError):
+    with pytest.raises(OptionsError, match="min_person_views 1: expected an integer >= 2"):
         AssociationOptions(min_person_views=1)
-    with pytest.raises(ReconError):
+    with pytest.raises(OptionsError, match="assign_gate_cm 0: expected a finite number > 0"):
         AssociationOptions(assign_gate_cm=0)
 
 

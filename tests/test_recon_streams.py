@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from dome_calib.bundle import FRAME_TIME_TOLERANCE_MS, SyncTable
+from dome_calib.errors import OptionsError
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.project import view_set
 from dome_calib.synth.skeleton import MIRROR19, clock_table, skeleton_cm, synthetic_tracks
@@ -74,7 +75,7 @@ def test_nearest_mode_takes_the_closer_frame():
     uv, conf = interpolate_stream(tracks, times, mode="nearest")
     np.testing.assert_allclose(uv[:, 0, 0, 0], 100 + 0.5 * np.array([t0, t1]), atol=1e-9)
     assert conf[:, 0, 0].tolist() == [1.0, 1.0]
-    with pytest.raises(ReconError, match="max_gap_frames"):
+    with pytest.raises(OptionsError, match="max_gap_frames 0.5: expected a finite number >= 1"):
         InterpolationOptions(max_gap_frames=0.5)
     with pytest.raises(ValueError):
         InterpolationOptions(mode="cubic")

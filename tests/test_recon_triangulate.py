@@ -6,6 +6,7 @@ import pytest
 from scipy.optimize import least_squares
 
 from dome_calib.camera import pixels_to_normalized, project, project_with_jacobians
+from dome_calib.errors import OptionsError
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.kernel import CameraKernel
 from dome_calib.recon.project import project_points, view_set
@@ -130,7 +131,7 @@ def test_unreconstructable_points_and_bad_input(views):
     assert tri.confidence[1:].tolist() == [-1.0, -1.0] and tri.n_inliers[1:].tolist() == [0, 0]
     with pytest.raises(ReconError, match="expected"):
         triangulate(views, uv[:, :10], conf)
-    with pytest.raises(ReconError, match="min_views"):
+    with pytest.raises(OptionsError, match="min_views 1: expected an integer >= 2"):
         TriangulationOptions(min_views=1)
 
 

@@ -11,6 +11,7 @@ from typer.testing import CliRunner
 from dome_calib.bundle_io import write_bundle
 from dome_calib.report import ReportError, ReportOptions, Residuals, build_report, load_residuals, write_report
 from dome_calib.layout import nominal_dome
+from dome_calib.reasons import ReasonCode, reason
 
 
 @pytest.fixture(scope="module")
@@ -32,18 +33,18 @@ def _residuals(bundle, sigma_px=0.5, n_per_cam=300, few="01_01", noisy="00_00", 
 
 def test_build_report_flags_cameras(tiny):
     res = _residuals(tiny)
-    rep = build_report(tiny, res, ReportOptions(min_observations=100), changes={"01_03": ["moved 3.1 cm"]},
-                       missing={"01_24": "saw no tent"})
-    reasons = {row["name"]: " ".join(row["reasons"]) for row in rep["to_check"]}
+    rep = build_report(tiny, res, ReportOptions(min_observations=100),
+                       changes={"01_03": [reason(ReasonCode.MOVED, "moved 3.1 cm")]}, missing={"01_24": "saw no tent"})
+    reasons = {row.name: {r.code: r.text for r in row.reasons} for row in rep.to_check}
     assert set(reasons) == {"01_01", "00_00", "01_03", "01_24"}
-    assert "too few observations (20 < 100)" in reasons["01_01"]
-    assert "high RMS" in reasons["00_00"] and "moved 3.1 cm" in reasons["01_03"]
-    assert "not calibrated: saw no tent" in reasons["01_24"]
+    assert reasons["01_01"] == {ReasonCode.TOO_FEW_OBSERVATIONS: "too few observations (20 < 100)"}
+    assert list(reasons["00_00"]) == [ReasonCode.HIGH_RMS] and reasons["01_03"] == {ReasonCode.MOVED: "moved 3.1 cm"}
+    assert reasons["01_24"] == {ReasonCode.NOT_CALIBRATED: "not calibrated: saw no tent"}
     # per-coordinate RMS of Gaussian noise is sigma
-    vga_rms = rep["per_type"]["vga"]["rms_px"]
+    vga_rms = rep.per_type["vga"].rms_px
     assert vga_rms == pytest.approx(0.5, rel=0.05)
-    assert rep["per_camera"]["01_01"]["observations"] == 20
-    json.dumps(rep, allow_nan=False)  # plain, finite data
+    assert rep.per_camera["01_01"].observations == 20
+    json.loads(rep.model_dump_json())  # plain, finite data
 
 
 def test_residuals_round_trip_and_bad_file(tmp_path, tiny):
@@ -104,3 +105,13 @@ def test_report_cli_bad_input(tmp_path, dome_calib_cli):
     proc = dome_calib_cli("report", tmp_path / "missing")
     assert proc.returncode == 1
     assert proc.stderr.count("\n") == 1 and "missing: not a folder" in proc.stderr
+
+
+def test_text_from_the_bundle_is_drawn_as_text_in_the_plots(tmp_path, tiny):
+    """A seq with matplotlib's math markup (an unbalanced ``$``) failed the whole report (ValueError from the math
+    parser): the plots draw names as they are."""
+    odd = dataclasses.replace(tiny, seq="take$\\frac{1$2", calib_data_source="$\\oops{")
+    folder = write_bundle(odd, tmp_path / "b")
+    target = write_report(folder, odd, _residuals(odd))
+    assert {"dome.png", "observations.png", "residuals.png"} <= {p.name for p in target.iterdir()}
+    assert json.loads((target / "report.json").read_text())["seq"] == "take$\\frac{1$2"

@@ -254,31 +254,158 @@ def test_session_report_page_has_the_sync_and_kinect_sections(browser, small_pro
     assert _console_errors(browser) == []
 
 
-def test_scrambled_report_json_page_shows_what_it_can_without_an_error(browser, tmp_path):
-    """A report.json whose sections have the wrong types (damaged by hand or by another tool): the page lists
-    them as not shown, draws the cameras it can, and the console stays clean."""
-    from dome_calib.report.page import write_page
+PAYLOADS = ('<img src=x onerror="window.__pwned=1">', '"><img src=x onerror=window.__pwned=2>',
+            "'><svg onload=window.__pwned=3>", "</script><script>window.__pwned=4</script>",
+            "<!--<script>window.__pwned=5//", "${window.__pwned=6}")
+
+
+def _hostile(doc, accept, counter=None):
+    """``doc`` with every string value and every key that its schema lets be another string replaced by a script
+    (one replacement at a time, kept where ``accept(doc)`` still holds)."""
+    counter = counter if counter is not None else [0]
+
+    def nodes(node):
+        if isinstance(node, dict):
+            for k in list(node):
+                yield node, k, True
+                yield from nodes(node[k])
+        elif isinstance(node, list):
+            for i in range(len(node)):
+                yield node, i, False
+                yield from nodes(node[i])
+
+    for parent, key, is_dict in list(nodes(doc)):
+        if key not in parent:
+            continue
+        payload = PAYLOADS[counter[0] % len(PAYLOADS)] + f" {counter[0]}"
+        counter[0] += 1
+        if isinstance(parent[key], str):
+            old = parent[key]
+            parent[key] = payload
+            if not accept(doc):
+                parent[key] = old
+        if is_dict and isinstance(key, str):
+            items = list(parent.items())
+            renamed = dict((payload if k == key else k, v) for k, v in items)
+            parent.clear()
+            parent.update(renamed)
+            if not accept(doc):
+                parent.clear()
+                parent.update(items)
+    return doc
+
+
+def _hostile_report_folder(folder):
+    """The tiny dome's report with the real session.json and sync.json, every string of the three files (values,
+    and keys where the schema takes any name: cameras, streams, sensors, stages) replaced by a script."""
+    import dataclasses as dc
+
+    from dome_calib.report.kept import SessionReport, SyncReport
+    from dome_calib.report.schema import parse_report
+    from dome_calib.report import write_report
+    from dome_calib.reasons import ReasonCode, reason
+    from dome_calib.schema import parse_json
+
+    from .report_data import copy_kept_files, synthetic_residuals
 
     tiny = nominal_dome("tiny", seed=0)
-    folder = tmp_path / "report"
-    folder.mkdir()
-    per_camera = {n: {"type": str(c.type), "center_cm": c.center_cm.tolist(), "observations": 300, "rms_px": 0.5,
-                      "resolution": list(c.resolution), "panel": c.panel} for n, c in tiny.cameras.items()}
-    per_camera["01_01"] |= {"rms_px": "high", "center_cm": [1, 2], "observations": None, "resolution": "640x480"}
-    scrambled = {"report_version": 2, "seq": 7, "per_type": {"vga": None, "hd": 3}, "expected_per_type": {"vga": 3},
-                 "rms_px": float("inf"), "stage_seconds": {"sfm": "long"},
-                 "cluster": {"executor": "dask", "stages": {"features": None}, "on_this_machine": "head"},
-                 "to_check": [{"name": "01_02", "reasons": "moved"}, "01_03", {"reasons": ["x"]}],
-                 "previous": {"added": "01_01", "cameras": 5, "seq": ["x"]}, "per_camera": per_camera,
-                 "world_frame": "prior", "lens_model": {"cameras": {"01_02": {"free": "fx", "decisions": [None]}}}}
-    (folder / "report.json").write_text(json.dumps(scrambled))
-    (folder / "sync.json").write_text(json.dumps({"streams": {"vga": None}}))
-    (folder / "session.json").write_text(json.dumps({"pillars": {"kinect": {"sensors": [None, {"sensor": 4}]}}}))
+    tiny = dc.replace(tiny, calib_data_source="dome <b>calibration</b>")
+    from dome_calib.bundle_io import write_bundle
+
+    bundle = write_bundle(tiny, folder)
+    copy_kept_files(bundle / "report")
+    write_report(bundle, tiny, synthetic_residuals(tiny, loose_lens="01_01", skewed="01_02", few="01_03"),
+                 changes={"01_04": [reason(ReasonCode.MOVED, "moved 3.1 cm")]}, missing={"01_24": "saw no tent"},
+                 held={"13_01": "held from the prior (agrees with it)"},
+                 extra={"center_sigma_cm": {n: 0.05 for n in tiny.cameras}, "stage_seconds": {"sfm": 12.5},
+                        "cluster": {"executor": "dask", "scheduler": "tcp://head:8786", "on_this_machine": ["ba"],
+                                    "stages": {"features": {"tasks": 3, "workers": {"w1": 3}, "wall_s": 1.0,
+                                                            "task_s": 2.0, "mb_moved": 0.5}}}})
+    counter = [0]
+    for name, ok in (("report.json", lambda d: parse_report("report.json", json.dumps(d).encode())),
+                     ("session.json", lambda d: parse_json("session.json", json.dumps(d).encode(), SessionReport)),
+                     ("sync.json", lambda d: parse_json("sync.json", json.dumps(d).encode(), SyncReport))):
+        def accept(d, ok=ok):
+            try:
+                ok(d)
+                return True
+            except Exception:  # noqa: BLE001  (any refusal: that string is not free there)
+                return False
+
+        path = bundle / "report" / name
+        path.write_text(json.dumps(_hostile(json.loads(path.read_text()), accept, counter)))
+    return bundle / "report", counter[0]
+
+
+def _no_script_ran(driver) -> None:
+    assert driver.execute_script("return window.__pwned") is None
+    assert driver.execute_script("return document.querySelectorAll('img').length") == 0
+    assert driver.execute_script("return document.scripts.length") == 3  # the template's own
+
+
+def _interact(driver) -> None:
+    """Hover and click every camera in the dome (the tooltip, the selected camera's panel), click every row, sort
+    by every column, filter by text and by "to check"."""
+    driver.execute_script("""
+        for (const c of document.querySelectorAll('svg.dome circle.cam')) {
+            c.dispatchEvent(new MouseEvent('mousemove', {bubbles: true, clientX: 10, clientY: 10}));
+            c.dispatchEvent(new MouseEvent('click', {bubbles: true}));
+        }
+        for (const th of document.querySelectorAll('#head th')) th.dispatchEvent(new MouseEvent('click', {bubbles: true}));
+        for (const tr of document.querySelectorAll('#rows tr')) tr.dispatchEvent(new MouseEvent('click', {bubbles: true}));""")
+    driver.find_element("id", "ftext").send_keys("<img")
+    driver.find_element("id", "fcheck").click()
+
+
+def test_scripts_in_every_string_of_every_report_file_are_shown_as_text(browser, tmp_path):
+    """The page of a bundle received from someone else: every string of report.json, session.json and sync.json
+    (and every name where a file takes any name) holds a script; the page shows them as text and runs none,
+    whatever is clicked."""
+    from dome_calib.report.page import write_page
+
+    folder, n = _hostile_report_folder(tmp_path / "b")
     _open(browser, write_page(folder))
-    missing = browser.find_element("id", "missing").text
-    assert "seq, world_frame of an unexpected type" in missing and "sync.json: unexpected layout" in missing
-    assert len(browser.find_elements("css selector", "#rows tr")) == 16
-    assert len(browser.find_elements("css selector", "#top circle.cam")) == 15  # 01_01 has no usable centre
-    browser.find_element("css selector", '#rows tr[data-cam="01_02"]').click()
-    assert "no residuals saved for this camera" in browser.find_element("id", "selpanel").text
-    assert _console_errors(browser) == []
+    _interact(browser)
+    _no_script_ran(browser)
+    page_text = browser.find_element("tag name", "body").text
+    shown = sum(p in page_text for p in PAYLOADS)
+    assert n > 300 and shown == len(PAYLOADS), (n, shown)  # the scripts reached the page, as text
+    assert "<img src=x" in browser.find_element("id", "sync").text
+    assert "<img src=x" in browser.find_element("id", "kinect").text
+
+
+def test_the_template_shows_any_value_where_a_number_belongs_as_text(browser, tmp_path):
+    """Defence in depth (the schemas already refuse them): the page's data with a script in every number of the
+    sync and Kinect tables, the rules, the summary and the camera rows, put through the template: no script runs
+    (the issue's case was sync.json's frames and outliers, session.json's frames used and rejected)."""
+    from dome_calib.report.page import read_report_folder, render_page
+
+    folder, _ = _hostile_report_folder(tmp_path / "b")
+    data = read_report_folder(folder)
+    counter = [0]
+
+    def poison(node):
+        if isinstance(node, dict):
+            for k, v in node.items():
+                if isinstance(v, (int, float)) and not isinstance(v, bool):
+                    node[k] = PAYLOADS[counter[0] % len(PAYLOADS)]
+                    counter[0] += 1
+                else:
+                    poison(v)
+        elif isinstance(node, list):
+            for v in node:
+                poison(v)
+
+    for key in ("sync", "kinect", "session", "summary", "to_check", "previous"):
+        poison(data[key])
+    for row in data["cameras"]:
+        for k in ("panel", "obs", "rms", "csig_mm", "rsig_deg", "moved_mm", "turned_deg", "focal_pct"):
+            row[k] = PAYLOADS[counter[0] % len(PAYLOADS)]
+            counter[0] += 1
+        row["res"] = [PAYLOADS[0], PAYLOADS[1]]
+    page = tmp_path / "index.html"
+    page.write_text(render_page(data), encoding="utf-8")
+    assert counter[0] > 100
+    _open(browser, page)
+    _interact(browser)
+    _no_script_ran(browser)

@@ -154,5 +154,5 @@ def test_the_joint_layout_is_the_reconstructions_and_the_generators():
 def test_export_refuses_a_nan_confidence_bound(tmp_path, dome_calib_cli):
     folder = _folder(tmp_path, {1: PANOPTIC_EXAMPLE})
     run = dome_calib_cli("export-people", folder, "--to", "trc", "-o", tmp_path / "out", "--min-confidence", "nan")
-    assert run.returncode == 1 and "--min-confidence nan: expected a finite number" in run.stderr
+    assert run.returncode == 1 and "--min-confidence NaN: expected a finite number >= 0" in run.stderr
     assert not (tmp_path / "out").exists()

@@ -2,9 +2,10 @@
 import numpy as np
 import pytest
 
+from dome_calib.errors import OptionsError
 from dome_calib.synth.body_volume import capsules_cm, segment_distance2
 from dome_calib.synth.group import (ANKLE_HEIGHT_CM, CAPTURE_RADIUS_CM, MIN_CENTRE_DISTANCE_CM, NOMINAL_BONE_CM,
-                                    PARENT19, SCENARIOS, GroupError, GroupOptions, make_group, max_people,
+                                    PARENT19, SCENARIOS, GroupOptions, make_group, max_people,
                                     min_centre_distance_cm, roles_of)
 
 TIMES_MS = np.arange(0.0, 4000.0, 7.0)  # not the layout's 20 ms grid
@@ -112,10 +113,13 @@ def test_deterministic_and_seeded():
     np.testing.assert_allclose(a.centres_xz(t), d.centres_xz(t - 1234.5), atol=1e-9)
 
 
-@pytest.mark.parametrize("kwargs, match", [({"scenario": "dance"}, "scenario 'dance' is unknown"),
-                                           ({"n_people": 11}, "n_people=11"), ({"n_people": 0}, "n_people=0"),
-                                           ({"n_people": 7, "scenario": "small_area"}, "expected 1..6"),
-                                           ({"duration_ms": 0.0}, "duration_ms=0.0")])
+@pytest.mark.parametrize("kwargs, match", [
+    ({"scenario": "dance"}, 'scenario "dance": expected "walk_past" or "conversation" or "crouch" or "leave" or '
+                            '"mixed" or "small_area"'),
+    ({"n_people": 11}, "n_people 11: expected an integer >= 1 and <= 10"),
+    ({"n_people": 0}, "n_people 0: expected an integer >= 1 and <= 10"),
+    ({"n_people": 7, "scenario": "small_area"}, "n_people 7: scenario 'small_area' holds at most 6"),
+    ({"duration_ms": 0.0}, "duration_ms 0.0: expected a finite number > 0")])
 def test_bad_options(kwargs, match):
-    with pytest.raises(GroupError, match=match):
+    with pytest.raises(OptionsError, match=f"^GroupOptions: {match}$"):
         GroupOptions(**kwargs)

@@ -22,6 +22,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from fractions import Fraction
+from typing import Annotated, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -31,6 +32,8 @@ from timecode.errors import TimecodeError
 from timecode.frame import N_BITS, pack_bits
 from timecode.labels import Timecode, frames_to_labels, label_problem, label_to_frames, labels_valid
 from timecode.rates import FrameRate, rate_from
+from dome_calib.options import AtLeast, Field, options
+from dome_calib.schema import Finite, NonNegFinite, PosFinite
 
 _RISE_10_90_SIGMAS = 2.0 * 1.2815515655446004  # 10-90 % rise of a Gaussian CDF in standard deviations
 
@@ -39,26 +42,26 @@ class EncoderError(TimecodeError, ValueError):
     """Impossible encoder request (bad label, rate, sample rate or option)."""
 
 
-@dataclass(kw_only=True)
+@options
 class EncoderOptions:
     """How the LTC audio is shaped. Defaults: a clean SMPTE-conforming signal at -6 dBFS peak."""
 
-    rise_time_us: float = 40.0  # 10-90 % rise time of each edge (SMPTE 12M: 40 +- 10 us)
-    nyquist_atten_db: float = 30.0  # edges are widened until attenuated this much at fs/2 (0 = never)
-    level_dbfs: float = -6.0  # peak level of the square wave, dB re full scale (1.0)
-    polarity: int = 1  # +1: every frame starts with a rising edge; -1: falling
-    start_offset_samples: float | None = None  # time of the first edge, float samples (default: half a frame)
-    drift_ppm: float = 0.0  # generator clock error: +100 = runs 100 ppm fast (frames 100 ppm shorter)
+    rise_time_us: PosFinite = 40.0  # 10-90 % rise time of each edge (SMPTE 12M: 40 +- 10 us)
+    nyquist_atten_db: NonNegFinite = 30.0  # edges are widened until attenuated this much at fs/2 (0 = never)
+    level_dbfs: Annotated[float, Field(le=0)] = -6.0  # peak level of the square wave, dB re full scale (1.0)
+    polarity: Literal[1, -1] = 1  # +1: every frame starts with a rising edge; -1: falling
+    start_offset_samples: NonNegFinite | None = None  # time of the first edge, float samples (default: half a frame)
+    drift_ppm: Annotated[float, Field(gt=-1e6, lt=1e6)] = 0.0  # generator clock error: +100 = runs 100 ppm fast (frames 100 ppm shorter)
     time_warp: Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]] | None = None  # nominal s -> actual s
     reverse: bool = False  # tape played backwards: frames last-first, each frame's bits 79..0
-    tail_samples: int | None = None  # samples after the last edge (default: one frame)
+    tail_samples: AtLeast(0) | None = None  # samples after the last edge (default: one frame)
     color_frame: bool = False
     bgf: tuple[bool, bool, bool] = (False, False, False)  # binary group flags BGF0, BGF1, BGF2
     # what a field recorder or wireless receiver does to it (defaults: nothing)
-    highpass_tau_samples: float = 0.0  # one-pole high-pass of this time constant (1-4: every edge an impulse)
+    highpass_tau_samples: NonNegFinite = 0.0  # one-pole high-pass of this time constant (1-4: every edge an impulse)
     rectify: bool = False  # output |signal| (one-sign impulses; polarity carries nothing)
-    noise_snr_db: float | None = None  # white noise this far below the peak^2 of the signal (None: no noise)
-    noise_seed: int = 0
+    noise_snr_db: Finite | None = None  # white noise this far below the peak^2 of the signal (None: no noise)
+    noise_seed: AtLeast(0) = 0
 
 
 @dataclass(kw_only=True)
@@ -138,8 +141,6 @@ def encode_ltc_labels(
     n = len(hmsf)
     if not 1000 <= sample_rate <= 1_000_000:
         raise EncoderError(f"sample_rate must be 1 kHz - 1 MHz, got {sample_rate}")
-    if opts.polarity not in (1, -1):
-        raise EncoderError(f"polarity must be +1 or -1, got {opts.polarity}")
     ub = np.broadcast_to(np.asarray(user_bits, dtype=np.int64), (n,)).astype(np.uint32)
     bits = pack_bits(hmsf, is_25_layout=rate.is_25_layout, user_bits=ub, drop_frame=rate.drop_frame,
                      color_frame=opts.color_frame, bgf=opts.bgf)
@@ -210,8 +211,6 @@ def recorded(edges: npt.NDArray[np.float64], n_samples: int, sigma: float, amp: 
              opts: EncoderOptions) -> npt.NDArray[np.float64]:
     """The square wave of ``synthesize_edges`` as a recorder delivers it: high-passed (then its impulses peak
     at ``|amp|``), rectified, with noise, as ``opts`` asks."""
-    if opts.highpass_tau_samples < 0:
-        raise EncoderError(f"highpass_tau_samples must be >= 0, got {opts.highpass_tau_samples}")
     if opts.highpass_tau_samples > 0:
         x = synthesize_highpassed_edges(edges, n_samples, sigma, 1.0, opts.highpass_tau_samples)
         x *= abs(amp) / float(np.max(np.abs(x)))
@@ -250,8 +249,6 @@ def synthesize_highpassed_edges(edges: npt.NDArray[np.float64], n_samples: int, 
 
 
 def _edge_sigma_samples(opts: EncoderOptions, sample_rate: int) -> float:
-    if opts.rise_time_us <= 0:
-        raise EncoderError(f"rise_time_us must be > 0, got {opts.rise_time_us}")
     sigma_rise = opts.rise_time_us * 1e-6 * sample_rate / _RISE_10_90_SIGMAS
     # Gaussian response at fs/2 is exp(-(pi*sigma)^2/2) with sigma in samples
     sigma_aa = 0.0

@@ -87,6 +87,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Annotated
 
 import numpy as np
 import scipy.stats
@@ -96,6 +97,8 @@ from dome_calib.ba.quadratic import QuadraticModel
 from dome_calib.ba.result import BAResult
 from dome_calib.ba.solver import BAOptions, bundle_adjust
 from dome_calib.camera import distort_with_jacobians, pixels_to_normalized
+from dome_calib.options import AtLeast, Field, UnitInterval, options
+from dome_calib.schema import NonNegFinite, PosFinite
 
 logger = logging.getLogger(__name__)
 
@@ -118,24 +121,24 @@ DISTORTION_COLUMNS = tuple(CAMERA_PARAMS.index(t) for t in ("k1", "k2", "p1", "p
 QUANTUM = 1e-3
 
 
-@dataclass(kw_only=True)
+@options
 class LensModelOptions:
     """Rule of :func:`select_lens_model`. A distortion group is determined when one standard deviation of it
     moves no point of the image by more than ``max_sigma_px``; the principal point when its standard deviation is
     at most ``max_principal_point_sigma_px``. It is needed when its Wald statistic reaches the chi^2 quantile
     (as many degrees of freedom as terms) of ``needed_p_value``. ``grid``: columns x rows of image points."""
 
-    max_sigma_px: float = 0.5
-    max_principal_point_sigma_px: float = 5.0
-    needed_p_value: float = 0.01
-    grid: tuple[int, int] = (17, 13)
+    max_sigma_px: PosFinite = 0.5
+    max_principal_point_sigma_px: PosFinite = 5.0
+    needed_p_value: Annotated[float, Field(gt=0, lt=1)] = 0.01
+    grid: tuple[AtLeast(2), AtLeast(2)] = (17, 13)
     # a pass whose choice differs from the solved one in at most this fraction of the judged lens terms ends the
     # selection with the solved choice (borderline groups flipping at the threshold, each changing the fit by
     # about its chi2 penalty: the full dome's third pass changed 2, then 4 of 3,647 terms, and each time cost a
     # fourth solve of 28-32 s)
-    settled_fraction: float = 5e-3
+    settled_fraction: UnitInterval = 5e-3
     # the pixel sigma the decisions use is at least this (see "The noise floor" in the module docstring)
-    min_noise_px: float = 0.2
+    min_noise_px: NonNegFinite = 0.2
 
     def limit_px(self, level: str) -> float:
         return self.max_principal_point_sigma_px if level == "principal_point" else self.max_sigma_px

@@ -31,6 +31,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 from functools import partial
+from typing import Annotated
 
 import numpy as np
 
@@ -42,6 +43,8 @@ from dome_calib.ba.result import BAResult, CameraUncertainty, IterationLog, came
 from dome_calib.ba.robust import LossKind, robust_cost_and_weight, robust_sigma_px
 from dome_calib.ba.schur import Structure, build_reduced_system, build_structure, linearize, solve_reduced
 from dome_calib.ba.uncertainty import camera_uncertainty
+from dome_calib.options import AtLeast, Lax, UnitInterval, options
+from dome_calib.schema import NonNegFinite, PosFinite
 
 logger = logging.getLogger(__name__)
 _MIN_LAMBDA = 1e-12
@@ -49,45 +52,45 @@ _MIN_LAMBDA = 1e-12
 CHEAP_RETRIES = 3
 
 
-@dataclass(kw_only=True)
+@options
 class BAOptions:
     """Options of :func:`bundle_adjust`. Tolerances are relative; scales and thresholds in pixels."""
 
-    max_iterations: int = 50  # per stage
-    function_tolerance: float = 1e-7  # stop when the relative cost decrease of an accepted step is below
-    first_stage_function_tolerance: float = 1e-3  # looser: the first stage only has to expose the outliers
+    max_iterations: AtLeast(0) = 50  # per stage
+    function_tolerance: NonNegFinite = 1e-7  # stop when the relative cost decrease of an accepted step is below
+    first_stage_function_tolerance: NonNegFinite = 1e-3  # looser: the first stage only has to expose the outliers
     # also stop when an accepted step lowered the cost by less than this (relative) AND by less than
     # superlinear_ratio of the step before: Gauss-Newton is then converging quadratically and the next step would
     # gain about superlinear_ratio times as little again (the full dome's outlier rounds spent a third iteration,
     # ~10 s, lowering 53,162.66 by 0.0001 after 1.94)
-    superlinear_tolerance: float = 1e-5
-    superlinear_ratio: float = 1e-3
-    parameter_tolerance: float = 1e-10  # stop when |step| / (|x| + tol) is below
-    gradient_tolerance: float = 1e-12  # stop when max |gradient| / cost is below
-    initial_lambda: float = 1e-4
-    max_consecutive_rejections: int = 12
-    loss: LossKind = LossKind.HUBER
-    loss_scale_px: float = 2.0
-    outlier_rounds: int = 3  # at most; stops early when re-judging changes (almost) no observation
+    superlinear_tolerance: NonNegFinite = 1e-5
+    superlinear_ratio: NonNegFinite = 1e-3
+    parameter_tolerance: NonNegFinite = 1e-10  # stop when |step| / (|x| + tol) is below
+    gradient_tolerance: NonNegFinite = 1e-12  # stop when max |gradient| / cost is below
+    initial_lambda: PosFinite = 1e-4
+    max_consecutive_rejections: AtLeast(1) = 12
+    loss: Annotated[LossKind, Lax] = LossKind.HUBER
+    loss_scale_px: PosFinite = 2.0
+    outlier_rounds: AtLeast(0) = 3  # at most; stops early when re-judging changes (almost) no observation
     # re-judging has converged when it changes at most this fraction of the observations (for the dome's ~1e5-1e6
     # observations, tens to hundreds moving across the threshold by a hair; 0: none may change)
-    outlier_change_tolerance: float = 1e-3
+    outlier_change_tolerance: UnitInterval = 1e-3
     # LM steps of a round that is not the last: it only hands the next re-judging its residuals, which one
     # Gauss-Newton step from the previous round's solution already gives to within a hair (the full dome's second
     # steps lowered the cost by 1e-5 to 1e-8 of it); a round whose re-judging then settles is converged before the
     # solve ends (0: converge every round)
-    intermediate_round_iterations: int = 1
-    outlier_threshold_px: float | None = None  # None: outlier_sigmas x robust noise estimate (dof-corrected)
+    intermediate_round_iterations: AtLeast(0) = 1
+    outlier_threshold_px: PosFinite | None = None  # None: outlier_sigmas x robust noise estimate (dof-corrected)
     # the first stage (when outlier rounds follow) also ends once the outlier verdicts it would hand over have
     # settled: two accepted iterates in a row reject the same observations within outlier_change_tolerance
     first_stage_stops_when_outliers_settle: bool = True
-    outlier_sigmas: float = 5.0
-    final_loss: LossKind = LossKind.TRIVIAL
-    final_loss_scale_px: float = 2.0
-    gauge: GaugeMode = GaugeMode.AUTO
+    outlier_sigmas: PosFinite = 5.0
+    final_loss: Annotated[LossKind, Lax] = LossKind.TRIVIAL
+    final_loss_scale_px: PosFinite = 2.0
+    gauge: Annotated[GaugeMode, Lax] = GaugeMode.AUTO
     gauge_reference_camera: str | None = None
     gauge_scale_camera: str | None = None
-    n_threads: int = 2
+    n_threads: AtLeast(1) = 2
     compute_uncertainty: bool = True
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import typer
 
-from dome_calib.errors import interrupt_as_one_line, run_cli
+from dome_calib.errors import flags, interrupt_as_one_line, run_cli
 
 app = typer.Typer(
     help="Calibrate and synchronise the capture dome, and inspect calibration bundles.",
@@ -90,7 +90,9 @@ def report(
     the bundle, the residuals its calibration saved and what the calibration found (kept)."""
     from dome_calib.report.command import report_bundle
 
-    typer.echo(report_bundle(bundle, previous=previous, min_observations=min_observations))
+    with flags({"ReportOptions.min_observations": "--min-observations"}):
+        text = report_bundle(bundle, previous=previous, min_observations=min_observations)
+    typer.echo(text)
 
 
 @app.command()
@@ -128,8 +130,10 @@ def demo(
     from dome_calib.pipeline.demo import DemoOptions, format_demo, run_demo
 
     with ProgressBars() as bars:
-        result = run_demo(out, DemoOptions(preset=preset, scenes=scenes, seed=seed, people=people,
-                                           progress=bars.tasks))
+        with flags({"DemoOptions.preset": "--preset", "DemoOptions.scenes": "--scenes", "DemoOptions.seed": "--seed",
+                    "DemoOptions.people": "--people"}):
+            options = DemoOptions(preset=preset, scenes=scenes, seed=seed, people=people, progress=bars.tasks)
+        result = run_demo(out, options)
     typer.echo(format_demo(result))
 
 

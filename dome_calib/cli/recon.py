@@ -8,6 +8,8 @@ from pathlib import Path
 
 import typer
 
+from dome_calib.errors import flags
+
 
 def triangulate(
     detections: Path = typer.Argument(..., help="Detections JSON: 2D joints per camera per frame (see docs/recon.md, "
@@ -27,7 +29,9 @@ def triangulate(
     from dome_calib.recon.triangulate import TriangulationOptions
 
     out = out or detections.with_name(f"{detections.stem}_skeletons")
-    options = TriangulationOptions(inlier_threshold_px=threshold_px, min_views=min_views)
+    with flags({"TriangulationOptions.inlier_threshold_px": "--threshold-px",
+                "TriangulationOptions.min_views": "--min-views"}):
+        options = TriangulationOptions(inlier_threshold_px=threshold_px, min_views=min_views)
     with ProgressBars(transient=True) as bars:
         summary = triangulate_file(bundle, detections, out, options=options, progress=bars.task("triangulating times"))
     typer.echo(f"{summary.times} times x {summary.joints} joints from streams {', '.join(summary.streams)}: "

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import typer
 
+from dome_calib.errors import flags
+
 
 class PeopleFormatChoice(StrEnum):  # the same values as dome_calib.skeletons.export.PeopleFormat (start-up time)
     trc = "trc"
@@ -41,7 +43,9 @@ def export_people(
     from dome_calib.cli.progress import ProgressBars
     from dome_calib.skeletons.export import ExportPeopleOptions, export_people as run, parse_fps, parse_ids
 
-    options = ExportPeopleOptions(min_confidence=min_confidence, fps=parse_fps(fps), ids=parse_ids(ids))
+    with flags({"ExportPeopleOptions.min_confidence": "--min-confidence", "ExportPeopleOptions.fps": "--fps",
+                "ExportPeopleOptions.ids[0]": "--ids"}):
+        options = ExportPeopleOptions(min_confidence=min_confidence, fps=parse_fps(fps), ids=parse_ids(ids))
     with ProgressBars(transient=True) as bars:
         summary = run(people, to.value, out, options, progress=bars.task("reading and writing files"))
     typer.echo(f"{summary.people} people, {summary.frames} frames at {float(summary.fps):g} fps: "

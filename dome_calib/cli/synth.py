@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from dome_calib.errors import DomeCalibError
+from dome_calib.errors import DomeCalibError, flags
 from dome_calib.io_utils import check_writable
 
 
@@ -40,11 +40,10 @@ def synth(
         preset_value = Preset(preset)
     except ValueError:
         raise DomeCalibError(f"--preset {preset}: expected one of {', '.join(p.value for p in Preset)}") from None
-    options = SynthOptions(preset=preset_value, n_scenes=scenes, seed=seed, layout=layout, workers=workers,
-                           cameras=[c.strip() for c in cameras.split(",") if c.strip()] if cameras else None,
-                           overwrite=overwrite)
-    if workers < 1:
-        raise DomeCalibError(f"--workers {workers}: expected at least 1")
+    with flags({"SynthOptions.n_scenes": "--scenes", "SynthOptions.seed": "--seed", "SynthOptions.workers": "--workers"}):
+        options = SynthOptions(preset=preset_value, n_scenes=scenes, seed=seed, layout=layout, workers=workers,
+                               cameras=[c.strip() for c in cameras.split(",") if c.strip()] if cameras else None,
+                               overwrite=overwrite)
     if out.exists() and not overwrite:  # before connecting to a cluster
         raise DomeCalibError(f"{out}: already exists (choose another folder or pass --overwrite)")
     check_writable(out)

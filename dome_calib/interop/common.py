@@ -13,6 +13,7 @@ import logging
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 
@@ -21,6 +22,8 @@ from dome_calib.camera import distort, pixels_to_normalized
 from dome_calib.errors import BundleFormatError
 from dome_calib.interop.fields import ROTATION_EXACT_TOL, rotation_error
 from dome_calib.interop.registry import UNIT_CHOICES
+from dome_calib.options import AtLeast, Field, options
+from dome_calib.schema import PosFinite
 
 logger = logging.getLogger(__name__)
 
@@ -63,7 +66,7 @@ class ForeignCamera:
     t: np.ndarray
 
 
-@dataclass(kw_only=True)
+@options
 class ExportOptions:
     """``unit``: length unit of the written translations (None: the format's default); ``world_up``: the written
     world's up axis (None: the format's default); ``names``: our name -> the name written; ``binary``: COLMAP binary
@@ -75,7 +78,7 @@ class ExportOptions:
     binary: bool = True
 
 
-@dataclass(kw_only=True)
+@options
 class ImportOptions:
     """``unit``: length unit of the file when the format does not state it ("squares" needs ``square_size_mm``);
     ``world_up``: the file world's up axis, turned into ours (None: the format's default); ``names``: name in the
@@ -83,11 +86,11 @@ class ImportOptions:
     record it (EasyMocap's calibration tools)."""
 
     unit: str | None = None
-    square_size_mm: float | None = None
+    square_size_mm: PosFinite | None = None
     world_up: str | None = None
     names: dict[str, str] = field(default_factory=dict)
-    seq: str = "imported"
-    image_size: tuple[int, int] | None = None
+    seq: Annotated[str, Field(min_length=1)] = "imported"
+    image_size: tuple[AtLeast(1), AtLeast(1)] | None = None
 
 
 @dataclass(kw_only=True)

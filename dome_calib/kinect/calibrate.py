@@ -19,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 
@@ -32,6 +33,7 @@ from dome_calib.kinect.detect import (DetectOptions, SensorFrames, check_sensor_
                                       find_sensor_frames, read_depth_mm, read_gray)
 from dome_calib.kinect.stereo import StereoOptions, StereoResult, calibrate_stereo
 from dome_calib.kinect.world import M_WORLD2VGA, sensor_matrices
+from dome_calib.options import AtLeast, Field, Lax, options
 
 logger = logging.getLogger(__name__)
 
@@ -43,16 +45,17 @@ class ColorIntrinsics(StrEnum):
     ESTIMATE = "estimate"  # refined with the stereo calibration, starting from the bundle's
 
 
-@dataclass(kw_only=True)
+@options
 class KinectCalibOptions:
     board: Checkerboard = field(default_factory=Checkerboard)
-    ir_size: tuple[int, int] = IR_SIZE
-    color_intrinsics: ColorIntrinsics = ColorIntrinsics.BUNDLE
-    min_frames: int = 4  # usable board pairs needed per sensor
-    max_frame_rms_factor: float = 4.0  # a frame whose RMS exceeds this x the median frame's is dropped
+    ir_size: tuple[AtLeast(1), AtLeast(1)] = IR_SIZE
+    color_intrinsics: Annotated[ColorIntrinsics, Lax] = ColorIntrinsics.BUNDLE
+    min_frames: AtLeast(1) = 4  # usable board pairs needed per sensor
+    # a frame whose RMS exceeds this x the median frame's is dropped
+    max_frame_rms_factor: Annotated[float, Field(ge=1)] = 4.0
     detect: DetectOptions = field(default_factory=DetectOptions)
     depth_bias: DepthBiasOptions = field(default_factory=DepthBiasOptions)
-    reweight_rounds: int = 2
+    reweight_rounds: AtLeast(0) = 2
 
 
 @dataclass(kw_only=True)

@@ -9,19 +9,22 @@ straight line in (true, measured), robust to flying pixels by iterated median-ab
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import cv2
 import numpy as np
 
 from dome_calib.camera import pixels_to_normalized
 from dome_calib.kinect.board import Checkerboard
+from dome_calib.options import AtLeast, Field, options
+from dome_calib.schema import PosFinite
 
 
-@dataclass(kw_only=True)
+@options
 class DepthBiasOptions:
-    min_pixels: int = 200  # fewer valid board pixels in all frames: no estimate
-    clip_sigma: float = 4.0  # residuals beyond this many robust sigmas are dropped, then the line is refit
-    shrink: float = 0.9  # board region = the corner grid's outline shrunk about its centre by this factor
+    min_pixels: AtLeast(1) = 200  # fewer valid board pixels in all frames: no estimate
+    clip_sigma: PosFinite = 4.0  # residuals beyond this many robust sigmas are dropped, then the line is refit
+    shrink: Annotated[float, Field(gt=0, le=1)] = 0.9  # board region = the corner grid's outline shrunk about its centre by this factor
 
 
 @dataclass(kw_only=True)

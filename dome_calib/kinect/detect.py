@@ -25,6 +25,8 @@ from PIL import Image, UnidentifiedImageError
 from dome_calib.bundle import kinect_node_camera
 from dome_calib.errors import CaptureError
 from dome_calib.kinect.board import Checkerboard
+from dome_calib.options import AtLeast, options
+from dome_calib.schema import NonNegFinite, PosFinite
 
 _NO_SHARPNESS = 1000.0  # estimateChessboardSharpness returns 9999 where no edge profile could be measured
 _FRAME_RE = re.compile(r"^(ir|color|depth)_(\d+)\.png$")
@@ -32,14 +34,14 @@ _CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH
 _SB_FLAGS = cv2.CALIB_CB_EXHAUSTIVE  # NORMALIZE_IMAGE loses dark IR boards; cornerSubPix does the accuracy
 
 
-@dataclass(kw_only=True)
+@options
 class DetectOptions:
     """Corner detection and frame rejection thresholds."""
 
-    max_edge_width_px: float = 3.0  # OpenCV's sharpness (10-90 % rise of black-white edges); sharp boards ~1.7
-    min_contrast_dn: float = 15.0  # mean white minus mean black square brightness (8-bit)
-    border_margin_px: float = 3.0  # corners closer than this to the image edge: board (partly) cut off
-    detect_max_width_px: int = 1000  # larger images are searched at half size, then refined at full size
+    max_edge_width_px: PosFinite = 3.0  # OpenCV's sharpness (10-90 % rise of black-white edges); sharp boards ~1.7
+    min_contrast_dn: NonNegFinite = 15.0  # mean white minus mean black square brightness (8-bit)
+    border_margin_px: NonNegFinite = 3.0  # corners closer than this to the image edge: board (partly) cut off
+    detect_max_width_px: AtLeast(1) = 1000  # larger images are searched at half size, then refined at full size
 
 
 @dataclass(kw_only=True)

@@ -23,18 +23,20 @@ from scipy.spatial.transform import Rotation
 from dome_calib.rotation import rotation_angle_deg
 from dome_calib.camera import K_to_intr, intr_to_K, project_with_jacobians
 from dome_calib.rotation import d_rotate_d_rotvec, rotvec_to_matrix
+from dome_calib.options import AtLeast, options
+from dome_calib.schema import PosFinite
 
 
-@dataclass(kw_only=True)
+@options
 class StereoOptions:
     """``estimate_color_intrinsics``: refine the colour camera's intrinsics too (default False: keep the dome's)."""
 
     estimate_color_intrinsics: bool = False
-    reweight_rounds: int = 2  # solves after the first, each with the noise re-estimated from the residuals
+    reweight_rounds: AtLeast(0) = 2  # solves after the first, each with the noise re-estimated from the residuals
     # per-frame noise weights: the frame's residuals shrunk towards the camera's noise with this many coordinates
     # weight; None = one noise level per camera (default: on rendered boards per-frame weights did not help)
-    frame_prior_obs: float | None = None
-    max_nfev: int = 200
+    frame_prior_obs: PosFinite | None = None
+    max_nfev: AtLeast(1) = 200
 
 
 @dataclass(kw_only=True)

@@ -18,11 +18,11 @@ import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, Literal
 
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import load_bundle
 from dome_calib.compare import Comparison, compare_cameras
-from dome_calib.errors import DomeCalibError
 from dome_calib.io_utils import check_writable
 from dome_calib.pipeline.full import format_result
 from dome_calib.pipeline.people_page import people_page_writer
@@ -35,6 +35,7 @@ from dome_calib.synth.group_session import DETECTIONS, TRUTH_FILE
 from dome_calib.synth.product_eval import evaluate
 from dome_calib.synth.session import SessionOptions as SynthSessionOptions
 from dome_calib.synth.session import make_product_session
+from dome_calib.options import AtLeast, Field, options
 
 logger = logging.getLogger(__name__)
 
@@ -44,12 +45,14 @@ DEFAULT_SCENES = {"tiny": 3, "panel": 3, "full": 3}
 MAX_PEOPLE = 10
 
 
-@dataclass(kw_only=True)
+@options
 class DemoOptions:
-    preset: str = "tiny"  # panel's SfM alone needs ~6.5 CPU-minutes: over the 5-minute budget on 2 cores
-    scenes: int | None = None
-    seed: int = 0
-    people: int = 7  # the group (scenario "mixed": walking past, talking, crouching, leaving, entering); 0: none
+    # tiny by default: panel's SfM alone needs ~6.5 CPU-minutes, over the 5-minute budget on 2 cores
+    preset: Literal[tuple(DEFAULT_SCENES)] = "tiny"
+    scenes: AtLeast(1) | None = None
+    seed: AtLeast(0) = 0
+    # the group (scenario "mixed": walking past, talking, crouching, leaving, entering); 0: none
+    people: Annotated[int, Field(ge=0, le=MAX_PEOPLE)] = 7
     progress: ProgressTasks | None = None  # the calibration's bars (dome_calib.progress); also logs the synthesis
 
 
@@ -84,16 +87,10 @@ def synthesize(session: Path, preset: str, scenes: int, seed: int, progress: boo
 
 
 def run_demo(out: Path, options: DemoOptions | None = None) -> DemoResult:
-    """Synthesise, calibrate, compare, reconstruct the group. Raises DomeCalibError for an unknown preset, a bad
-    number of tent positions or people."""
+    """Synthesise, calibrate, compare, reconstruct the group. The options are checked by their declaration
+    (DemoOptions: preset, tent positions, people)."""
     options = options or DemoOptions()
-    if options.preset not in DEFAULT_SCENES:
-        raise DomeCalibError(f"unknown preset {options.preset!r}; choose one of {', '.join(DEFAULT_SCENES)}")
     scenes = options.scenes or DEFAULT_SCENES[options.preset]
-    if scenes < 1:
-        raise DomeCalibError(f"--scenes {scenes}: need at least one tent position")
-    if not 0 <= options.people <= MAX_PEOPLE:
-        raise DomeCalibError(f"--people {options.people}: the synthetic group holds 1 to {MAX_PEOPLE} people (0: none)")
     out = Path(out)
     check_writable(out)  # before the synthesis and the calibration
     session = out / "session"

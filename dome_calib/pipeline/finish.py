@@ -9,7 +9,6 @@ file of another seq survives.
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import shutil
 from pathlib import Path
@@ -23,7 +22,9 @@ from dome_calib.errors import DomeCalibError
 from dome_calib.panoptic_io import panoptic_order
 from dome_calib.pipeline.types import CalibrateOptions, Calibrated, CalibrationInputs, CalibrationResult
 from dome_calib.pipeline.workstate import WorkState
-from dome_calib.report import REPORT_DIR, previous_section, write_report
+from dome_calib.reasons import Reason, ReasonCode, reason
+from dome_calib.report import REPORT_DIR, previous_section, read_report, write_report
+from dome_calib.report.kept import read_kept_file
 from dome_calib.residuals import Residuals
 
 logger = logging.getLogger(__name__)
@@ -40,7 +41,7 @@ RELATIVE_SIGMA_MIN_CAMERAS = 8
 RELATIVE_SIGMA_FLOOR_CM = 0.1
 
 
-def center_sigma_flags(sigma_cm: dict[str, float], options: CalibrateOptions) -> dict[str, str]:
+def center_sigma_flags(sigma_cm: dict[str, float], options: CalibrateOptions) -> dict[str, Reason]:
     """Camera -> why its position is poorly determined: its centre's 1-sigma uncertainty (cm) is above
     ``max_center_sigma_cm``, or above ``center_sigma_ratio`` times the median of the cameras (at least
     RELATIVE_SIGMA_MIN_CAMERAS of them) and above RELATIVE_SIGMA_FLOOR_CM. Uncertainties are compared after
@@ -51,10 +52,10 @@ def center_sigma_flags(sigma_cm: dict[str, float], options: CalibrateOptions) ->
     out = {}
     for n, s in sorted(q.items()):
         if s > options.max_center_sigma_cm:
-            out[n] = f"position poorly determined (+-{s:.1f} cm, 1 sigma): {hint}"
+            out[n] = reason(ReasonCode.POSITION_UNCERTAIN, f"position poorly determined (+-{s:.1f} cm, 1 sigma): {hint}")
         elif s > RELATIVE_SIGMA_FLOOR_CM and s > options.center_sigma_ratio * median:
-            out[n] = (f"position much less determined than the other cameras' (+-{s:.2f} cm, 1 sigma, "
-                      f"{s / median:.1f} x the median {median:.3f} cm): {hint}")
+            out[n] = reason(ReasonCode.POSITION_UNCERTAIN, f"position much less determined than the other cameras' "
+                            f"(+-{s:.2f} cm, 1 sigma, {s / median:.1f} x the median {median:.3f} cm): {hint}")
     return out
 
 
@@ -86,11 +87,11 @@ def finish(inputs: CalibrationInputs, state: WorkState, calibrated: Calibrated) 
     with state.timing("write"):
         _write_out(inputs, bundle, calibrated.residuals, reasons, missing, extra, calibrated.held)
     report_dir = inputs.out / REPORT_DIR
-    content = json.loads((report_dir / "report.json").read_text(encoding="utf-8"))
+    content, _ = read_report(report_dir / "report.json")
     return CalibrationResult(bundle_dir=inputs.out, report_dir=report_dir, bundle=bundle, expected=inputs.expected,
                              failures=missing, normalized=calibrated.normalized, residuals=calibrated.residuals,
                              stage_seconds=state.seconds, resumed=state.resumed, changes=changes,
-                             to_check=content["to_check"])
+                             to_check=content.to_check)
 
 
 def _write_out(inputs: CalibrationInputs, bundle: Bundle, residuals: Residuals, reasons: dict[str, list[str]],
@@ -111,6 +112,13 @@ def _write_out(inputs: CalibrationInputs, bundle: Bundle, residuals: Residuals, 
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
+
+
+def check_carried_report_files(out: Path) -> None:
+    """Before any work: the report files a recalibration of OUT's seq carries over read through their schemas
+    (ReportError of one line naming the file and the field), not at the end, after the calibration."""
+    for name in CARRIED_REPORT_FILES:
+        read_kept_file(out / REPORT_DIR / name)
 
 
 def _held_bundle(out: Path) -> Path | None:

@@ -34,7 +34,7 @@ from dome_calib.errors import DomeCalibError
 from dome_calib.io_utils import refuse_output_among_inputs
 from dome_calib.layout import check_dome_scale
 from dome_calib.normalize import normalize
-from dome_calib.pipeline.finish import finish
+from dome_calib.pipeline.finish import check_carried_report_files, finish
 from dome_calib.pipeline.quick import run_quick
 from dome_calib.pipeline.stages import run_ba_stage, run_sfm_stage
 from dome_calib.pipeline.types import CalibrateOptions, Calibrated, CalibrationInputs, CalibrationResult
@@ -69,6 +69,7 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
     if options.only_changed and options.prior is None:
         raise DomeCalibError("--only-changed needs --prior (the bundle the unchanged cameras are taken from)")
     check_output_folder(out)
+    check_carried_report_files(out)
     refuse_output_among_inputs(out, [capture], whole_folder=True)  # replaced whole: it must not hold the capture
     work = Path(os.path.abspath(options.work_dir)) if options.work_dir else out.with_name(out.name + ".work")
     refuse_output_among_inputs(work, [capture, out, *([options.prior] if options.prior else [])], option="--work",
@@ -142,10 +143,10 @@ def format_result(result: CalibrationResult, max_rows: int = 12) -> str:
     lines.append(result.normalized.describe())
     if result.changes is not None:
         lines.append(f"changed since the prior: {len(result.changes)} camera(s)")
-        lines += [f"  {c.name}: {'; '.join(c.reasons)}" for c in list(result.changes.values())[:max_rows]]
+        lines += [f"  {c.name}: {'; '.join(r.text for r in c.reasons)}" for c in list(result.changes.values())[:max_rows]]
     lines.append(f"cameras to check: {len(result.to_check)}")
     for row in result.to_check[:max_rows]:
-        lines.append(f"  {row['name']}: {'; '.join(row['reasons'])}")
+        lines.append(f"  {row.name}: {'; '.join(r.text for r in row.reasons)}")
     if len(result.to_check) > max_rows:
         lines.append(f"  ... {len(result.to_check) - max_rows} more in the report")
     worst = sorted(((v[1], n) for n, v in rms.items() if v[1] is not None), reverse=True)[:3]

@@ -50,6 +50,7 @@ from dome_calib.residuals import Residuals
 from dome_calib.pipeline.types import BAOutcome, Calibrated, CalibrationInputs, CalibrationResult
 from dome_calib.pipeline.workstate import WorkState
 from dome_calib.progress import ProgressTasks
+from dome_calib.reasons import ReasonCode, reason
 from projector.consistency import changed_cameras, pair_errors
 from projector.database import camera_of_image, drop_features
 from projector.features import extract_features, nominal_camera, reduction_factor
@@ -340,14 +341,14 @@ def changes_of(est: Reestimated, prior: Bundle) -> dict[str, CameraChange]:
     for n in est.changed:
         err = camera_error(est.ba.cameras[n], prior.cameras[n]) if n in prior.cameras else None
         if err is None:
-            reasons = ["new camera (not in the prior)"]
+            reasons = [reason(ReasonCode.NEW_CAMERA, "new camera (not in the prior)")]
         else:
-            reasons = [f"residual {est.rms_prior_px[n]:.1f} px under the prior calibration "
-                       f"({est.rms_new_px[n]:.2f} px now)",
-                       f"moved {err.center_cm:.1f} cm, rotated {err.rotation_deg:.2f} deg"]
+            reasons = [reason(ReasonCode.RESIDUAL_UNDER_PRIOR, f"residual {est.rms_prior_px[n]:.1f} px under the "
+                              f"prior calibration ({est.rms_new_px[n]:.2f} px now)"),
+                       reason(ReasonCode.MOVED, f"moved {err.center_cm:.1f} cm, rotated {err.rotation_deg:.2f} deg")]
             if n in est.relensed:
-                reasons.append(f"new intrinsics (focal {err.focal_pct:.1f} %, distortion {err.distortion_px:.1f} px):"
-                               " replaced?")
+                reasons.append(reason(ReasonCode.INTRINSICS_CHANGED, f"new intrinsics (focal {err.focal_pct:.1f} %, "
+                                      f"distortion {err.distortion_px:.1f} px): replaced?"))
         changes[n] = CameraChange(name=n, moved_cm=err.center_cm if err else float("nan"),
                                   rotated_deg=err.rotation_deg if err else float("nan"),
                                   focal_pct=err.focal_pct if err else float("nan"),
@@ -380,7 +381,8 @@ def run_quick(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
     held = sorted(n for n in matched.cameras if n in prior.cameras and n not in est.changed and n not in est.failed)
     normalized = Normalized(cameras=cameras, reference=WorldReference.PRIOR, alignment=Alignment.identity(held),
                             reference_source=f"{inputs.options.prior} (unchanged cameras held)")
-    unchecked = {n: f"not checked against the prior: no usable image in {scene} ({why}); prior kept"
+    unchecked = {n: reason(ReasonCode.NOT_CHECKED, f"not checked against the prior: no usable image in {scene} "
+                           f"({why}); prior kept")
                  for n, why in matched.failures.items() if n in cameras and n not in est.changed}
     sigma_cm = est.ba.center_sigma if est.ba is not None else {}  # the prior's frame: already cm
     calibrated = Calibrated(normalized=normalized, failures=failures, changes=changes_of(est, prior), notes=unchecked,

@@ -13,7 +13,7 @@ sync tables are added to it in a staging folder beside BUNDLE with the calibrati
 """
 from __future__ import annotations
 
-import json
+import math
 import shutil
 import time
 from collections.abc import Callable
@@ -26,9 +26,10 @@ from dome_calib.bundle_io import (check_output_folder, load_bundle, recover_fold
                                   write_bundle)
 from dome_calib.capture_checks import cross_check_kinects
 from dome_calib.errors import BundleFormatError, CaptureError, DomeCalibError
-from dome_calib.io_utils import atomic_write_text, refuse_output_among_inputs
+from dome_calib.io_utils import refuse_output_among_inputs
 from dome_calib.kinect.calibrate import KinectCalibOptions, SensorCalibration, calibrate_kinect_folder
 from dome_calib.kinect.detect import check_sensor_frames, find_sensor_frames
+from dome_calib.report.kept import SESSION_FILE, write_kept
 from dome_calib.report.page import write_page
 from dome_calib.pipeline.capture import capture_contents
 from dome_calib.pipeline.full import run_calibration
@@ -38,6 +39,7 @@ from timecode.errors import TimecodeError
 from timecode.sync.pipeline import check_session_audio, sync_session, write_sync
 from timecode.sync.session import load_session
 from timecode.sync.tables import SyncOptions, SyncResult
+from dome_calib.options import options
 
 PARTS = {"capture": "capture", "kinect": "kinect", "sync": "sync"}
 #: A Kinect is flagged when its stereo RMS exceeds this (px) or fewer boards than this were usable.
@@ -46,7 +48,7 @@ KINECT_CHECK_RMS_PX, KINECT_MIN_FRAMES = 0.5, 6
 SYNC_CHECK_RESID_US = 50.0
 
 
-@dataclass(kw_only=True)
+@options
 class SessionOptions:
     seq: str | None = None  # default: the session folder's name
     progress: ProgressTasks | None = None  # the calibration's bars (dome_calib.progress)
@@ -105,9 +107,11 @@ def _sync_pillar(result: SyncResult) -> dict:
 
 def _calibration_pillar(cal: CalibrationResult) -> dict:
     done = len(cal.bundle.cameras)
-    check = [f"{c['name']}: {'; '.join(c['reasons'])}" for c in cal.to_check]  # failures included
-    return {"achieved": f"{done} of {len(cal.expected)} cameras calibrated, reprojection RMS {cal.rms_px:.3f} px",
-            "cameras": done, "expected": len(cal.expected), "rms_px": round(cal.rms_px, 4), "to_check": check}
+    check = [f"{c.name}: {'; '.join(r.text for r in c.reasons)}" for c in cal.to_check]  # failures included
+    rms = f"reprojection RMS {cal.rms_px:.3f} px" if math.isfinite(cal.rms_px) else "every camera held"
+    return {"achieved": f"{done} of {len(cal.expected)} cameras calibrated, {rms}", "cameras": done,
+            "expected": len(cal.expected), "rms_px": round(cal.rms_px, 4) if math.isfinite(cal.rms_px) else None,
+            "to_check": check}
 
 
 def run_session(session: Path, out: Path, options: SessionOptions | None = None,
@@ -171,7 +175,7 @@ def run_session(session: Path, out: Path, options: SessionOptions | None = None,
         shutil.copytree(cal.report_dir, staging / "report")
         write_bundle(bundle, staging)
         write_sync(synced, staging)
-        atomic_write_text(staging / "report" / "session.json", json.dumps(report, indent=1) + "\n")
+        write_kept(staging / "report", SESSION_FILE, report)  # through the schema the page reads it with
         write_page(staging / "report")  # the page again, now with the Kinect and sync sections
         try:
             load_bundle(staging)  # what is swapped in reads back

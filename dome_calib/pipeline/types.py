@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 
@@ -14,8 +15,11 @@ from dome_calib.bundle import Bundle, Camera
 from dome_calib.compare import CameraChange, ChangeOptions
 from dome_calib.normalize import Normalized, NormalizeOptions
 from dome_calib.progress import ProgressTasks
-from dome_calib.report import ReportOptions
+from dome_calib.reasons import Reason
+from dome_calib.report import ReportOptions, ToCheck
 from dome_calib.residuals import Residuals
+from dome_calib.options import Lax, options
+from dome_calib.schema import PosFinite
 
 
 @dataclass(kw_only=True)
@@ -41,25 +45,25 @@ class BAOutcome:
     lens_model: dict | None = None  # per camera the lens terms refined / held and why (LensModel.as_dict)
 
 
-@dataclass(kw_only=True)
+@options
 class CalibrateOptions:
     """What `dome-calib calibrate` does. ``seq`` defaults to the capture folder's name."""
 
-    prior: Path | None = None
-    previous: Path | None = None  # the report's "change since the previous calibration"; None: the prior, else OUT's
+    prior: Annotated[Path | None, Lax] = None
+    previous: Annotated[Path | None, Lax] = None  # the report's "change since the previous calibration"; None: the prior, else OUT's
     previous_from_out: bool = True  # without previous or prior: the bundle OUT held (session: its OUT is elsewhere)
     only_changed: bool = False
     seq: str | None = None
-    work_dir: Path | None = None
+    work_dir: Annotated[Path | None, Lax] = None
     progress: ProgressTasks | None = None  # a bar per stage and per scene's features and matching (the CLI's)
     normalize: NormalizeOptions = field(default_factory=NormalizeOptions)
     changes: ChangeOptions = field(default_factory=ChangeOptions)
     report: ReportOptions = field(default_factory=ReportOptions)
-    max_center_sigma_cm: float = 0.5  # flag cameras whose centre is less certain than this (1 sigma)
+    max_center_sigma_cm: PosFinite = 0.5  # flag cameras whose centre is less certain than this (1 sigma)
     # ... or RELATIVE_SIGMA times less certain than the dome's median camera (and above RELATIVE_SIGMA_FLOOR_CM):
     # the covariance is only as good as the noise model, so a camera far less determined than the others is
     # checked even under the absolute bound (a camera 5x less determined is ~5x as likely to be off)
-    center_sigma_ratio: float = 5.0
+    center_sigma_ratio: PosFinite = 5.0
     scheduler: str | None = None  # a Dask scheduler (tcp://HOST:PORT) for features and matching; None: local pool
 
 
@@ -88,7 +92,7 @@ class Calibrated:
     rotation_sigma_deg: dict[str, float] = field(default_factory=dict)  # 1-sigma rotation uncertainty
     held: dict[str, str] = field(default_factory=dict)  # camera -> why it was taken as it is, not estimated
     changes: dict[str, CameraChange] | None = None  # None: detect against the prior
-    notes: dict[str, str] = field(default_factory=dict)  # camera -> a further reason to check it
+    notes: dict[str, Reason] = field(default_factory=dict)  # camera -> a further reason to check it
     lens_model: dict | None = None  # the BA's per-camera lens terms refined and held, with why (report.json)
     cluster: dict | None = None  # where each stage ran: report.json's "cluster" (pipeline.cluster.cluster_section)
 
@@ -107,7 +111,7 @@ class CalibrationResult:
     stage_seconds: dict[str, float]
     resumed: list[str]  # stages taken from the work folder
     changes: dict[str, CameraChange] | None = None
-    to_check: list[dict] = field(default_factory=list)
+    to_check: list[ToCheck] = field(default_factory=list)  # report.json's cameras to check
     stats: dict = field(default_factory=dict)  # per-stage counts and times
     sfm: SfmOutcome | None = None  # full run
     ba: BAOutcome | None = None  # full run; quick run: the re-estimation (None if no camera changed)

@@ -13,11 +13,13 @@ import logging
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Annotated
 from enum import StrEnum
 
 import numpy as np
 
 from dome_calib.bundle import Bundle, CameraType, SyncTable
+from dome_calib.options import Field, Lax, options
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.project import ViewSet
 from dome_calib.recon.triangulate import TriangulationOptions, triangulate
@@ -30,18 +32,13 @@ class Interpolation(StrEnum):
     NEAREST = "nearest"  # the bracketing frame with the larger weight (ablation: what interpolation buys)
 
 
-@dataclass(kw_only=True)
+@options
 class InterpolationOptions:
     """How streams are brought to a universal time: ``mode``; brackets wider than ``max_gap_frames`` nominal
     frame periods are not bridged."""
 
-    mode: Interpolation = Interpolation.LINEAR
-    max_gap_frames: float = 2.5
-
-    def __post_init__(self) -> None:
-        self.mode = Interpolation(self.mode)
-        if not 1.0 <= self.max_gap_frames < float("inf"):  # NaN and infinity too
-            raise ReconError(f"max_gap_frames={self.max_gap_frames} but expected >= 1 (one frame period)")
+    mode: Annotated[Interpolation, Lax] = Interpolation.LINEAR
+    max_gap_frames: Annotated[float, Field(ge=1)] = 2.5  # one frame period at least
 
 
 @dataclass(kw_only=True)

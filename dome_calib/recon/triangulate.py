@@ -24,7 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from dome_calib.camera import MIN_DEPTH
-from dome_calib.errors import non_finite_fields
+from dome_calib.options import AtLeast, options
+from dome_calib.schema import NonNegFinite, PosFinite
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.kernel import F32, CameraKernel, Evaluation, normal_equations
 from dome_calib.recon.project import ViewSet
@@ -37,7 +38,7 @@ _DLT_SCALE_CM = 100.0
 _MIN_SIN2_PAIR = np.sin(np.radians(3.0)) ** 2
 
 
-@dataclass(kw_only=True)
+@options
 class TriangulationOptions:
     """Options of :func:`triangulate`.
 
@@ -53,23 +54,13 @@ class TriangulationOptions:
         detections and this seed, not on the other points of the call).
     """
 
-    inlier_threshold_px: float = 8.0
-    ransac_hypotheses: int = 16
-    ransac_score_views: int = 32
-    lm_iterations: int = 2
-    min_views: int = 2
-    min_confidence: float = 0.0
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if bad := non_finite_fields(self):
-            raise ReconError(f"{bad[0]} but expected a finite number")
-        if self.inlier_threshold_px <= 0:
-            raise ReconError(f"inlier_threshold_px={self.inlier_threshold_px} but expected > 0")
-        if self.ransac_hypotheses < 1 or self.ransac_score_views < 2 or self.lm_iterations < 0:
-            raise ReconError("ransac_hypotheses >= 1, ransac_score_views >= 2 and lm_iterations >= 0 are required")
-        if self.min_views < 2:
-            raise ReconError(f"min_views={self.min_views} but a point needs at least 2 views")
+    inlier_threshold_px: PosFinite = 8.0
+    ransac_hypotheses: AtLeast(1) = 16
+    ransac_score_views: AtLeast(2) = 32
+    lm_iterations: AtLeast(0) = 2
+    min_views: AtLeast(2) = 2  # a point needs two views
+    min_confidence: NonNegFinite = 0.0
+    seed: AtLeast(0) = 0
 
 
 @dataclass(frozen=True)

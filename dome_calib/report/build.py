@@ -7,13 +7,15 @@ its geometry, and the report says the residuals are missing. A camera the run to
 quick path keeps every camera that agrees with the prior) is reported as held: the observation rule is for
 cameras that were estimated from their observations.
 
-What the calibration found beyond the residuals (its reasons to check a camera, the cameras it could not
-calibrate, the cameras it held) is saved in report.json's ``"found"`` section, so that `dome-calib report` can
-rebuild the report from the folder without losing it (:mod:`dome_calib.report.command`).
+report.json is declared by :class:`dome_calib.report.schema.Report`: the content is built as plain data, read
+through that schema as it will be read back, and written from the typed report; the plots and the page read the
+typed report. Reasons are ``{code, text}`` (:mod:`dome_calib.reasons`). What the calibration found beyond the
+residuals (its reasons to check a camera, the cameras it could not calibrate, the cameras it held) is saved in the
+``"found"`` section, so that `dome-calib report` can rebuild the report from the folder without losing it
+(:mod:`dome_calib.report.command`).
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
 import shutil
@@ -27,29 +29,27 @@ from dome_calib.bundle import Bundle, CameraType, camera_type_from_name
 from dome_calib.bundle_io import replace_folder
 from dome_calib.errors import ReportError
 from dome_calib.io_utils import new_mode
+from dome_calib.options import AtLeast, options
+from dome_calib.reasons import Reason, ReasonCode, reason
+from dome_calib.report.kept import KEPT_FILES
 from dome_calib.report.page import write_page
+from dome_calib.report.schema import REPORT_VERSION, Report, checked
 from dome_calib.residuals import Residuals
+from dome_calib.schema import NonNegFinite, PosFinite
 
 logger = logging.getLogger(__name__)
 
 REPORT_DIR = "report"
 RESIDUALS_FILE = "residuals.npz"
-#: Files other commands write into report/ (dome-calib session, timecode sync): carried into a rewritten report.
-KEPT_FILES = ("session.json", "sync.json")
-#: report.json's keys that build_report computes (a rebuild recomputes them; it keeps every other key).
-REBUILT_KEYS = frozenset({"report_version", "seq", "calib_data_source", "cameras", "expected_per_type",
-                          "has_residuals", "rms_px", "per_type", "rules", "to_check", "per_camera", "found", "plots"})
-#: report.json's layout: 2 adds "found", "expected_per_type" and per camera panel, resolution, view_dir, held.
-REPORT_VERSION = 2
 
 
-@dataclass(kw_only=True)
+@options
 class ReportOptions:
     """Rules for the list of cameras to check."""
 
-    min_observations: int = 100
-    high_rms_factor: float = 2.5  # RMS above this many times the median RMS of the camera's type ...
-    high_rms_floor_px: float = 1.0  # ... and above this absolute level
+    min_observations: AtLeast(0) = 100
+    high_rms_factor: PosFinite = 2.5  # RMS above this many times the median RMS of the camera's type ...
+    high_rms_floor_px: NonNegFinite = 1.0  # ... and above this absolute level
     plots: bool = True
 
 
@@ -61,11 +61,11 @@ class CameraRow:
     observations: int | None
     rms_px: float | None
     held: str | None = None  # why the run took it as it was instead of estimating it
-    reasons: list[str] = field(default_factory=list)
+    reasons: list[Reason] = field(default_factory=list)
 
 
 def camera_rows(bundle: Bundle, residuals: Residuals | None, options: ReportOptions,
-                changes: dict[str, list[str]] | None = None,
+                changes: dict[str, list[Reason]] | None = None,
                 held: dict[str, str] | None = None) -> dict[str, CameraRow]:
     """One row per camera of the bundle with its statistics and the reasons to check it. A held camera is not
     judged by its observation count (it was not estimated from them); its RMS, if it was observed, still is."""
@@ -83,9 +83,11 @@ def camera_rows(bundle: Bundle, residuals: Residuals | None, options: ReportOpti
                 if r.type != cam_type:
                     continue
                 if r.held is None and r.observations < options.min_observations:
-                    r.reasons.append(f"too few observations ({r.observations} < {options.min_observations})")
+                    r.reasons.append(reason(ReasonCode.TOO_FEW_OBSERVATIONS, f"too few observations "
+                                            f"({r.observations} < {options.min_observations})"))
                 if r.rms_px is not None and r.rms_px > limit:
-                    r.reasons.append(f"high RMS {r.rms_px:.2f} px (limit {limit:.2f} px for {cam_type})")
+                    r.reasons.append(reason(ReasonCode.HIGH_RMS, f"high RMS {r.rms_px:.2f} px (limit {limit:.2f} px "
+                                            f"for {cam_type})"))
     for name, reasons in (changes or {}).items():
         if name in rows:
             rows[name].reasons.extend(r for r in reasons if r not in rows[name].reasons)
@@ -93,16 +95,17 @@ def camera_rows(bundle: Bundle, residuals: Residuals | None, options: ReportOpti
 
 
 def build_report(bundle: Bundle, residuals: Residuals | None = None, options: ReportOptions | None = None, *,
-                 changes: dict[str, list[str]] | None = None, missing: dict[str, str] | None = None,
-                 held: dict[str, str] | None = None, extra: dict | None = None) -> dict:
-    """The content of report.json (plain data).
+                 changes: dict[str, list[Reason]] | None = None, missing: dict[str, str] | None = None,
+                 held: dict[str, str] | None = None, extra: dict | None = None) -> Report:
+    """report.json's content (:class:`dome_calib.report.schema.Report`).
 
     Args:
         changes: camera -> reasons to check it that the calibration found (moved since the prior, position poorly
             determined, not checked, ...).
         missing: cameras expected but not calibrated -> why (e.g. "saw no tent").
         held: cameras taken as they were (not estimated) -> why (e.g. "held from the prior (agrees with it)").
-        extra: more sections to include as-is (world frame, timings, comparison with ground truth). A
+        extra: the sections of what the calibration measured (:data:`dome_calib.report.schema.KEPT_SECTIONS`:
+            world frame, stage times, uncertainties, previous calibration, ...), plain data or typed. A
             ``"lens_model"`` section (:meth:`dome_calib.ba.lens_model.LensModel.as_dict`) also gives every camera
             row its ``lens_free`` and ``lens_held`` terms; the reasons stay in the section.
     """
@@ -127,7 +130,8 @@ def build_report(bundle: Bundle, residuals: Residuals | None = None, options: Re
     if residuals is not None and len(residuals.residual_px):
         overall = float(np.sqrt(np.mean(residuals.residual_px ** 2)))  # per coordinate
     to_check = [{"name": r.name, "type": str(r.type), "reasons": r.reasons} for r in rows.values() if r.reasons]
-    to_check += [{"name": n, "type": None, "reasons": [f"not calibrated: {why}"]} for n, why in sorted((missing or {}).items())]
+    to_check += [{"name": n, "type": None, "reasons": [reason(ReasonCode.NOT_CALIBRATED, f"not calibrated: {why}")]}
+                 for n, why in sorted((missing or {}).items())]
     per_camera = {r.name: {"type": str(r.type), "center_cm": r.center_cm, "observations": r.observations,
                            "rms_px": r.rms_px, "panel": int(bundle.cameras[r.name].panel),
                            "resolution": [int(v) for v in bundle.cameras[r.name].resolution],
@@ -139,11 +143,13 @@ def build_report(bundle: Bundle, residuals: Residuals | None = None, options: Re
         entry = expected.setdefault(t, {"calibrated": 0, "expected": 0})
         entry["expected"] += 1
         entry["calibrated"] += name in rows
-    lens = ((extra or {}).get("lens_model") or {}).get("cameras", {})
+    extra = {k: v.model_dump(mode="json", exclude_unset=True) if hasattr(v, "model_dump") else v
+             for k, v in (extra or {}).items()}
+    lens = (extra.get("lens_model") or {}).get("cameras", {})
     for name, model in lens.items():
         if name in per_camera:
             per_camera[name] |= {"lens_free": model["free"], "lens_held": model["held"]}
-    return {
+    return checked({
         "report_version": REPORT_VERSION,
         "seq": bundle.seq, "calib_data_source": bundle.calib_data_source, "cameras": len(bundle.cameras),
         "expected_per_type": expected,
@@ -154,8 +160,8 @@ def build_report(bundle: Bundle, residuals: Residuals | None = None, options: Re
         "per_camera": per_camera,
         "found": {"reasons": {n: list(v) for n, v in sorted((changes or {}).items()) if v},
                   "missing": dict(sorted((missing or {}).items())), "held": dict(sorted((held or {}).items()))},
-        **(extra or {}),
-    }
+        **extra,
+    }, Report, "report.json")
 
 
 def write_report(bundle_folder: str | Path, bundle: Bundle, residuals: Residuals | None = None,
@@ -181,12 +187,13 @@ def write_report(bundle_folder: str | Path, bundle: Bundle, residuals: Residuals
         if residuals is not None:
             residuals.save(staging / RESIDUALS_FILE)
         if options.plots:
-            content["plots"] = [plot_dome(bundle, content, staging / "dome.png").name,
-                                plot_observations(content, staging / "observations.png").name]
+            plots = [plot_dome(bundle, content, staging / "dome.png").name,
+                     plot_observations(content, staging / "observations.png").name]
             if residuals is not None:
-                content["plots"].append(plot_residual_histograms(bundle, residuals, staging / "residuals.png").name)
-        (staging / "report.json").write_text(json.dumps(content, indent=1, allow_nan=False, default=_json_default),
-                                             encoding="utf-8")
+                plots.append(plot_residual_histograms(bundle, residuals, staging / "residuals.png").name)
+            content = content.model_copy(update={"plots": plots})
+        (staging / "report.json").write_text(content.model_dump_json(indent=1, exclude_unset=True) + "\n",
+                                             encoding="utf-8")  # the fields given (the defaults are the reader's)
         target = folder / REPORT_DIR
         for name in KEPT_FILES:  # what other commands added to report/ survives a new report
             if (target / name).is_file():
@@ -196,16 +203,8 @@ def write_report(bundle_folder: str | Path, bundle: Bundle, residuals: Residuals
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
-    logger.info("report written to %s (%d cameras to check)", target, len(content["to_check"]))
+    logger.info("report written to %s (%d cameras to check)", target, len(content.to_check))
     return target
-
-
-def _json_default(obj: object) -> object:
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
 
 
 def load_residuals(bundle_folder: str | Path) -> Residuals | None:

@@ -2,6 +2,10 @@
 by its RMS residual, residual histograms per camera type, and observation counts per camera.
 
 World frame: Panoptic (y down), so the top view plots x against z and the side view plots x against height -y.
+
+The plots read the typed report (:class:`dome_calib.report.schema.Report`). Text from a file (the bundle's seq,
+camera names) is drawn as it is: matplotlib's math parser is off for it (``parse_math=False``), so a ``$`` in a name
+neither renders as a formula nor fails the plot.
 """
 from __future__ import annotations
 
@@ -12,6 +16,7 @@ from matplotlib.figure import Figure
 
 from dome_calib.bundle import Bundle, CameraType
 from dome_calib.report.page import histogram_of  # the page's bins: one definition of the tail
+from dome_calib.report.schema import Report
 
 _MARKER = {CameraType.VGA: ("o", 22), CameraType.HD: ("s", 60), CameraType.KINECT_COLOR: ("^", 70)}
 _COLOR = {CameraType.VGA: "tab:blue", CameraType.HD: "tab:orange", CameraType.KINECT_COLOR: "tab:green"}
@@ -21,11 +26,11 @@ DOME_RADIUS_CM = 274.5  # the Panoptic dome's sphere (5.49 m across), drawn for 
 DOME_CENTRE_HEIGHT_CM = 140.0
 
 
-def plot_dome(bundle: Bundle, report: dict, path: Path) -> Path:
+def plot_dome(bundle: Bundle, report: Report, path: Path) -> Path:
     """Top and side view of the cameras, coloured by RMS residual (px); cameras to check ringed in red."""
-    per_cam = report["per_camera"]
-    flagged = {row["name"] for row in report["to_check"] if row["name"] in per_cam}
-    rms_all = [v["rms_px"] for v in per_cam.values() if v["rms_px"] is not None]
+    per_cam = report.per_camera
+    flagged = {row.name for row in report.to_check if row.name in per_cam}
+    rms_all = [v.rms_px for v in per_cam.values() if v.rms_px is not None]
     vmin, vmax = (float(np.percentile(rms_all, 2)), float(np.percentile(rms_all, 98))) if rms_all else (0.0, 1.0)
     fig = Figure(figsize=(13, 6), layout="constrained")
     axes = fig.subplots(1, 2)
@@ -38,7 +43,7 @@ def plot_dome(bundle: Bundle, report: dict, path: Path) -> Path:
                 continue
             centers = np.array([bundle.cameras[n].center_cm for n in names])
             xs, ys = centers[:, i], (-centers[:, 1] if j == 1 else centers[:, j])
-            rms = np.array([np.nan if per_cam[n]["rms_px"] is None else per_cam[n]["rms_px"] for n in names])
+            rms = np.array([np.nan if per_cam[n].rms_px is None else per_cam[n].rms_px for n in names])
             marker, size = _MARKER[cam_type]
             has = np.isfinite(rms)
             if np.any(~has):
@@ -55,7 +60,7 @@ def plot_dome(bundle: Bundle, report: dict, path: Path) -> Path:
             if len(flagged) <= MAX_LABELS:  # beyond that, names would hide the dome: see report.json
                 for k in ringed:
                     ax.annotate(names[k], (xs[k], ys[k]), xytext=(4, 4), textcoords="offset points", fontsize=7,
-                                color="red")
+                                color="red", parse_math=False)
         ax.scatter([0], [0], marker="+", s=80, c="k")  # world origin: floor centre
         a = np.linspace(0, 2 * np.pi, 361)
         if j == 1:  # the dome sphere's outline above the floor, from the side
@@ -71,10 +76,11 @@ def plot_dome(bundle: Bundle, report: dict, path: Path) -> Path:
     axes[0].legend(loc="upper right", fontsize=8)
     if mappable is not None:
         fig.colorbar(mappable, ax=list(axes), label="RMS reprojection residual (px, per coordinate)", shrink=0.8)
-    n_check = len(report["to_check"])
-    fig.suptitle(f"calibration {report['seq']}: {report['cameras']} cameras, "
-                 f"RMS {report['rms_px']:.3f} px, {n_check} to check (red)" if report["rms_px"] is not None else
-                 f"calibration {report['seq']}: {report['cameras']} cameras (no residuals), {n_check} to check (red)")
+    n_check = len(report.to_check)
+    fig.suptitle(f"calibration {report.seq}: {report.cameras} cameras, "
+                 f"RMS {report.rms_px:.3f} px, {n_check} to check (red)" if report.rms_px is not None else
+                 f"calibration {report.seq}: {report.cameras} cameras (no residuals), {n_check} to check (red)",
+                 parse_math=False)
     fig.savefig(path, dpi=_DPI)
     return path
 
@@ -106,20 +112,20 @@ def plot_residual_histograms(bundle: Bundle, residuals, path: Path) -> Path:
     return path
 
 
-def plot_observations(report: dict, path: Path) -> Path:
+def plot_observations(report: Report, path: Path) -> Path:
     """Observations per camera in name order, coloured by type, with the too-few line."""
-    per_cam = report["per_camera"]
+    per_cam = report.per_camera
     names = sorted(per_cam)
-    counts = np.array([per_cam[n]["observations"] or 0 for n in names])
-    colors = [_COLOR[CameraType(per_cam[n]["type"])] for n in names]
+    counts = np.array([per_cam[n].observations or 0 for n in names])
+    colors = [_COLOR[per_cam[n].type] for n in names]
     fig = Figure(figsize=(max(8.0, 0.02 * len(names) + 6), 3.8), layout="constrained")
     ax = fig.subplots()
     ax.bar(np.arange(len(names)), counts, color=colors, width=1.0)
-    ax.axhline(report["rules"]["min_observations"], color="red", lw=1, ls="--", label="too few below this")
+    ax.axhline(report.rules.min_observations, color="red", lw=1, ls="--", label="too few below this")
     step = max(1, len(names) // 40)
     ax.set_xticks(np.arange(0, len(names), step), [names[k] for k in range(0, len(names), step)], rotation=90,
-                  fontsize=7)
-    ax.set(ylabel="observations", title="observations per camera" + ("" if report["has_residuals"] else
+                  fontsize=7, parse_math=False)
+    ax.set(ylabel="observations", title="observations per camera" + ("" if report.has_residuals else
                                                                       " (no residuals in this bundle)"))
     ax.legend(fontsize=8)
     fig.savefig(path, dpi=_DPI)

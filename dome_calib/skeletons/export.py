@@ -14,8 +14,9 @@ from enum import StrEnum
 from fractions import Fraction
 from pathlib import Path
 
-from dome_calib.errors import require_finite
 from dome_calib.io_utils import atomic_folder, output_folder, refuse_output_among_inputs
+from dome_calib.options import AtLeast, PosFraction, options
+from dome_calib.schema import NonNegFinite
 from dome_calib.skeletons.bvh import write_bvh
 from dome_calib.skeletons.c3d import write_c3d
 from dome_calib.skeletons.errors import PeopleFileError
@@ -34,18 +35,15 @@ class PeopleFormat(StrEnum):
     bvh = "bvh"
 
 
-@dataclass(kw_only=True)
+@options
 class ExportPeopleOptions:
     """``min_confidence``: joints below it are written as missing (default 0: every reconstructed joint);
     ``fps``: the frame rate to write (default: the files' ``fpsType``, else measured from their times);
     ``ids``: only these people (default: everybody)."""
 
-    min_confidence: float = 0.0
-    fps: Fraction | None = None
-    ids: list[int] | None = None
-
-    def __post_init__(self) -> None:
-        require_finite(PeopleFileError, **{"--min-confidence": self.min_confidence})
+    min_confidence: NonNegFinite = 0.0
+    fps: PosFraction | None = None
+    ids: list[AtLeast(0)] | None = None
 
 
 @dataclass(frozen=True)

@@ -18,24 +18,26 @@ from dome_calib.ba.problem import BAProblem
 from dome_calib.bundle import Camera
 from dome_calib.camera import project
 from dome_calib.rotation import matrix_to_rotvec, rotvec_to_matrix
+from dome_calib.options import AtLeast, UnitInterval, options
+from dome_calib.schema import NonNegFinite
 
 TENT_CENTRE_CM = np.array([0.0, -95.0, 0.0])  # ellipsoid centre in the tent frame (y down, floor at y = 0)
 TENT_RADII_CM = np.array([80.0, 105.0, 65.0])
 
 
-@dataclass(kw_only=True)
+@options
 class SyntheticOptions:
-    n_points: int = 100_000  # over all scenes, before dropping points seen fewer than twice
-    n_scenes: int = 3
-    target_observations: int = 1_000_000
-    noise_px: float = 0.5
-    outlier_fraction: float = 0.01
-    center_noise_cm: float = 3.0  # per axis
-    rotation_noise_deg: float = 0.2  # per axis
-    focal_noise: float = 0.02  # relative, same factor for fx and fy
-    principal_point_noise_px: float = 2.0
-    point_noise_cm: float = 1.0
-    seed: int = 0
+    n_points: AtLeast(1) = 100_000  # over all scenes, before dropping points seen fewer than twice
+    n_scenes: AtLeast(1) = 3
+    target_observations: AtLeast(1) = 1_000_000
+    noise_px: NonNegFinite = 0.5
+    outlier_fraction: UnitInterval = 0.01
+    center_noise_cm: NonNegFinite = 3.0  # per axis
+    rotation_noise_deg: NonNegFinite = 0.2  # per axis
+    focal_noise: NonNegFinite = 0.02  # relative, same factor for fx and fy
+    principal_point_noise_px: NonNegFinite = 2.0
+    point_noise_cm: NonNegFinite = 1.0
+    seed: AtLeast(0) = 0
 
 
 @dataclass(kw_only=True)

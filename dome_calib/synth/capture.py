@@ -26,6 +26,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated
 
 import cv2
 import numpy as np
@@ -43,6 +44,7 @@ from dome_calib.synth.dome import Projector, dome_from_calibration, projectors
 from dome_calib.synth.render import RenderOptions, SceneState, camera_rays, prepare_scene, render_image
 from dome_calib.synth.tent import TENT_CONES, TENT_ELLIPSOIDS, TentPose, scene_poses, tent_mesh
 from projector.patterns import make_patterns
+from dome_calib.options import AtLeast, Field, Lax, options
 
 logger = logging.getLogger(__name__)
 
@@ -51,16 +53,16 @@ MAX_SCENES = 99
 PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 6]
 
 
-@dataclass(kw_only=True)
+@options
 class SynthOptions:
     """What to generate. ``layout``: a real Panoptic calibration file for the cameras (default: the nominal dome)."""
 
-    preset: Preset = Preset.TINY
-    n_scenes: int = 3
-    seed: int = 0
-    layout: Path | None = None
+    preset: Annotated[Preset, Lax] = Preset.TINY
+    n_scenes: Annotated[int, Field(ge=1, le=MAX_SCENES)] = 3
+    seed: AtLeast(0) = 0
+    layout: Annotated[Path | None, Lax] = None
     cameras: list[str] | None = None  # render only these cameras of the preset (default: all)
-    workers: int = 2
+    workers: AtLeast(1) = 2
     overwrite: bool = False
     render: RenderOptions = field(default_factory=RenderOptions)
 
@@ -173,10 +175,6 @@ def synthesize(out: str | Path, options: SynthOptions, progress: Callable[[int, 
     """
     t_start = time.perf_counter()
     out = Path(out)
-    if not 1 <= options.n_scenes <= MAX_SCENES:
-        raise DomeCalibError(f"--scenes {options.n_scenes}: expected 1..{MAX_SCENES}")
-    if options.workers < 1:
-        raise DomeCalibError(f"workers {options.workers}: expected at least 1")
     if out.exists() and not options.overwrite:
         raise DomeCalibError(f"{out}: already exists (choose another folder or pass --overwrite)")
     bundle = load_layout(options)

@@ -24,11 +24,14 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
+from typing import Annotated, Literal
 
 import numpy as np
 
 from dome_calib.errors import DomeCalibError
 from dome_calib.synth.skeleton import walking_body_local_cm
+from dome_calib.options import AtLeast, Field, options, require
+from dome_calib.schema import Finite, PosFinite
 
 logger = logging.getLogger(__name__)
 
@@ -61,24 +64,19 @@ class GroupError(DomeCalibError, ValueError):
     """Options that describe no group (unknown scenario, too many people, no layout found)."""
 
 
-@dataclass(kw_only=True)
+@options
 class GroupOptions:
     """What the group does. ``start_ms``: universal time of the start; the layout covers ``duration_ms``."""
 
-    n_people: int = 5  # 1..10 (small_area: 1..6)
-    duration_ms: float = 4000.0
-    start_ms: float = 0.0
-    scenario: str = "mixed"  # "walk_past", "conversation", "crouch", "leave", "mixed" (all of them), "small_area"
-    seed: int = 0
+    n_people: Annotated[int, Field(ge=1, le=10)] = 5  # 1..10 (small_area: 1..6)
+    duration_ms: PosFinite = 4000.0
+    start_ms: Finite = 0.0
+    # "walk_past", "conversation", "crouch", "leave", "mixed" (all of them), "small_area"
+    scenario: Literal[SCENARIOS] = "mixed"
+    seed: AtLeast(0) = 0
 
-    def __post_init__(self) -> None:
-        if self.scenario not in SCENARIOS:
-            raise GroupError(f"scenario {self.scenario!r} is unknown (known: {', '.join(SCENARIOS)})")
-        most = max_people(self.scenario)
-        if not 1 <= self.n_people <= most:
-            raise GroupError(f"n_people={self.n_people} but expected 1..{most} for scenario {self.scenario!r}")
-        if not self.duration_ms > 0:
-            raise GroupError(f"duration_ms={self.duration_ms} but expected > 0")
+    _fits = require(lambda o: o.n_people <= max_people(o.scenario),
+                    lambda o: f"n_people {o.n_people}: scenario {o.scenario!r} holds at most {max_people(o.scenario)}")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, field
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +27,7 @@ from dome_calib.synth.detector import (DetectionCounts, DetectorError, DetectorM
                                        synth_detections, write_openpose_folder)
 from dome_calib.synth.depth_people import write_group_depth
 from dome_calib.synth.group import GroupOptions, GroupTruth, make_group
+from dome_calib.options import options
 
 logger = logging.getLogger(__name__)
 
@@ -35,7 +36,7 @@ DETECTIONS = "detections"
 DEPTH = "depth"
 
 
-@dataclass(kw_only=True)
+@options
 class GroupSessionOptions:
     """The group, the detector, how the files are written, which cameras (default: every colour camera)."""
 

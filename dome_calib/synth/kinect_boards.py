@@ -20,6 +20,7 @@ import logging
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Annotated
 
 import cv2
 import numpy as np
@@ -31,6 +32,8 @@ from dome_calib.jsonfmt import dumps
 from dome_calib.kinect.board import BoardRender, Checkerboard, RayGrid, render_board
 from dome_calib.kinect.world import M_WORLD2VGA, sensor_matrices
 from dome_calib.rotation import rotvec_to_matrix
+from dome_calib.options import AtLeast, Field, options
+from dome_calib.schema import NonNegFinite, PosFinite
 
 logger = logging.getLogger(__name__)
 
@@ -44,25 +47,25 @@ _T_COLOR_FROM_DEPTH_MM, _T_STD_MM = np.array([-52.74, 0.14, 0.10]), np.array([0.
 _ROT_STD_DEG = np.array([0.08, 0.10, 0.35])
 
 
-@dataclass(kw_only=True)
+@options
 class KinectBoardsOptions:
     """What to generate. Distances are from the IR camera to the board centre."""
 
     sensors: list[str] | None = None  # "KINECTNODE<n>"; default: every Kinect colour camera in the bundle
-    good_frames: int = 32
-    blurred_frames: int = 2
-    cut_off_frames: int = 2
+    good_frames: AtLeast(0) = 32
+    blurred_frames: AtLeast(0) = 2
+    cut_off_frames: AtLeast(0) = 2
     board: Checkerboard = field(default_factory=Checkerboard)
-    distance_mm: tuple[float, float] = (800.0, 1800.0)
-    max_tilt_deg: float = 40.0
-    ir_supersample: int = 4
-    color_supersample: int = 2
-    ir_noise_dn: float = 2.0
-    color_noise_dn: float = 2.0
-    depth_noise_mm: tuple[float, float] = (1.0, 0.5)  # sigma_mm = a + b * z_m^2
-    depth_bias_mm_max: float = 12.0
-    depth_scale_max: float = 0.004
-    seed: int = 0
+    distance_mm: tuple[PosFinite, PosFinite] = (800.0, 1800.0)
+    max_tilt_deg: Annotated[float, Field(ge=0, lt=90)] = 40.0
+    ir_supersample: AtLeast(1) = 4
+    color_supersample: AtLeast(1) = 2
+    ir_noise_dn: NonNegFinite = 2.0
+    color_noise_dn: NonNegFinite = 2.0
+    depth_noise_mm: tuple[NonNegFinite, NonNegFinite] = (1.0, 0.5)  # sigma_mm = a + b * z_m^2
+    depth_bias_mm_max: NonNegFinite = 12.0
+    depth_scale_max: NonNegFinite = 0.004
+    seed: AtLeast(0) = 0
 
 
 @dataclass(kw_only=True)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import zlib
 from dataclasses import dataclass, field
+from typing import Annotated
 
 import cv2
 import numpy as np
@@ -21,37 +22,39 @@ from dome_calib.bundle import Camera, CameraType
 from dome_calib.synth.dome import Projector
 from dome_calib.synth.rays import CHUNK_RAYS, CameraRays
 from dome_calib.synth.tent import TentPose, intersect_scene
+from dome_calib.options import AtLeast, Field, options
+from dome_calib.schema import NonNegFinite, PosFinite
 
 REFERENCE_THROW_CM = 275.0
 EDGE_DEPTH_JUMP = 0.03  # relative depth step between neighbour pixels that marks an occlusion edge
 
 
-@dataclass(kw_only=True)
+@options
 class RenderOptions:
     """How images are formed."""
 
-    edge_supersample: int = 3  # ss x ss samples in pixels on geometric edges (1: no supersampling)
+    edge_supersample: AtLeast(1) = 3  # ss x ss samples in pixels on geometric edges (1: no supersampling)
     # HD-size images are traced on a coarser grid and upsampled (bicubic): the projected pattern has no detail
     # finer than a projector pixel (0.68 HD px), so 0.75 x keeps it while tracing 44 % fewer rays.
     internal_scale: dict = field(default_factory=lambda: {CameraType.VGA: 1.0, CameraType.HD: 0.75,
                                                           CameraType.KINECT_COLOR: 0.75})
     lens_blur_px: dict = field(default_factory=lambda: {CameraType.VGA: 0.5, CameraType.HD: 0.7,
                                                         CameraType.KINECT_COLOR: 0.7})
-    projector_power: float = 0.42  # irradiance of a white projector pixel at REFERENCE_THROW_CM, normal incidence
-    ambient: float = 0.04
-    exposure: float = 1.0  # linear radiance -> full scale
-    gamma: float = 1.0 / 1.6  # mild tone curve (machine-vision cameras are near-linear)
-    read_noise_dn: float = 1.0
-    shot_noise_dn2_per_dn: float = 0.02  # variance (DN^2) per DN of signal
+    projector_power: NonNegFinite = 0.42  # irradiance of a white projector pixel at REFERENCE_THROW_CM, normal incidence
+    ambient: NonNegFinite = 0.04
+    exposure: PosFinite = 1.0  # linear radiance -> full scale
+    gamma: PosFinite = 1.0 / 1.6  # mild tone curve (machine-vision cameras are near-linear)
+    read_noise_dn: NonNegFinite = 1.0
+    shot_noise_dn2_per_dn: NonNegFinite = 0.02  # variance (DN^2) per DN of signal
     noise: bool = True
-    background: float = 0.015  # dome interior far behind the tent (radiance)
-    shadow_bias_cm: float = 1.0
-    depth_map_scale: float = 0.5  # projector depth maps at half the projector resolution
+    background: NonNegFinite = 0.015  # dome interior far behind the tent (radiance)
+    shadow_bias_cm: NonNegFinite = 1.0
+    depth_map_scale: Annotated[float, Field(gt=0, le=1)] = 0.5  # projector depth maps at half the projector resolution
     flat_patterns: bool = False  # projectors show full white (for the marker test)
     markers_cm: np.ndarray | None = None  # (M, 3) world points on the tent with emissive Gaussian spots
-    marker_sigma_cm: float = 0.5  # small: the perspective bias of a finite spot grows as sigma^2
-    marker_radiance: float = 0.5
-    projector_blur_px: float = 0.5
+    marker_sigma_cm: PosFinite = 0.5  # small: the perspective bias of a finite spot grows as sigma^2
+    marker_radiance: NonNegFinite = 0.5
+    projector_blur_px: NonNegFinite = 0.5
 
 
 @dataclass(kw_only=True)

@@ -17,16 +17,17 @@ length from ``hfov_deg`` (70 deg: 1371 px), a mild barrel distortion. One stream
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from fractions import Fraction
+
+from typing import Annotated
 
 import numpy as np
 
 from dome_calib.bundle import Bundle, Camera, CameraType, SyncTables
 from dome_calib.layout import look_at
+from dome_calib.options import AtLeast, Field, PosFraction, options
 from dome_calib.rotation import rotvec_to_matrix
+from dome_calib.schema import Finite, NonNegFinite, PosFinite
 from dome_calib.synth.detector_episodes import ANCHOR_LEAD_MS
-from dome_calib.synth.detector_model import DetectorError
 from dome_calib.synth.group import GroupOptions, GroupTruth, make_group
 from dome_calib.synth.skeleton import HD_FPS, clock_table
 
@@ -34,30 +35,23 @@ from dome_calib.synth.skeleton import HD_FPS, clock_table
 GROUP_MARGIN_MS = ANCHOR_LEAD_MS + 100.0
 
 
-@dataclass(kw_only=True)
+@options
 class RigOptions:
     """Where the cameras stand and what they see (defaults: the 5-camera rig of the benches)."""
 
-    n_cameras: int = 5
-    radius_cm: float = 250.0  # the 3 x 3 m area's corners are 212 cm from its centre
-    height_cm: float = 170.0
-    aim_height_cm: float = 90.0
-    resolution: tuple[int, int] = (1920, 1080)
-    hfov_deg: float = 70.0
-    k1: float = -0.05
-    place_jitter_cm: float = 20.0
-    aim_jitter_deg: float = 2.0
-    fps: Fraction = HD_FPS
-    start_ms: float = 0.0
-    duration_ms: float = 12_000.0
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if not 2 <= self.n_cameras <= 31:
-            raise DetectorError(f"rig: n_cameras={self.n_cameras} but expected 2..31 (named 00_00..00_30)")
-        if not (self.radius_cm > 0 and 0 < self.hfov_deg < 170 and self.duration_ms > 2 * GROUP_MARGIN_MS):
-            raise DetectorError("rig: radius_cm > 0, 0 < hfov_deg < 170 and duration_ms > "
-                                f"{2 * GROUP_MARGIN_MS:g} are required")
+    n_cameras: Annotated[int, Field(ge=2, le=31)] = 5  # named 00_00..00_30
+    radius_cm: PosFinite = 250.0  # the 3 x 3 m area's corners are 212 cm from its centre
+    height_cm: Finite = 170.0
+    aim_height_cm: Finite = 90.0
+    resolution: tuple[AtLeast(1), AtLeast(1)] = (1920, 1080)
+    hfov_deg: Annotated[float, Field(gt=0, lt=170)] = 70.0
+    k1: Finite = -0.05
+    place_jitter_cm: NonNegFinite = 20.0
+    aim_jitter_deg: NonNegFinite = 2.0
+    fps: PosFraction = HD_FPS
+    start_ms: Finite = 0.0
+    duration_ms: Annotated[float, Field(gt=2 * GROUP_MARGIN_MS)] = 12_000.0  # the group starts and ends inside
+    seed: AtLeast(0) = 0
 
 
 def few_camera_rig(options: RigOptions | None = None) -> Bundle:

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -29,7 +29,7 @@ import numpy as np
 from dome_calib.bundle import Bundle, SyncTable, SyncTables
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.errors import DomeCalibError
-from dome_calib.schema import Field, FileSchema, read_json
+from dome_calib.schema import FileSchema, NonNegFinite, PosFinite, read_json
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.synth.capture import SynthOptions, synthesize as write_capture
 from dome_calib.synth.detector import DetectorModel
@@ -39,28 +39,29 @@ from dome_calib.synth.group_session import GroupSessionOptions, make_group_sessi
 from dome_calib.synth.kinect_boards import KinectBoardsOptions, generate_kinect_boards, truth_kcalibration
 from dome_calib.synth.skeleton import DetectionNoise, synthetic_tracks
 from dome_calib.synth.sync_session import SynthSessionOptions, SynthTruth, make_session
+from dome_calib.options import AtLeast, Field, UnitInterval, options
 
 MANIFEST = "dome_session.json"
 VERSION = 1
 
 
-@dataclass(kw_only=True)
+@options
 class SessionOptions:
     """What to simulate. Sync and detections: see SynthSessionOptions and DetectionNoise for the models."""
 
     preset: str = "tiny"
-    scenes: int = 3
-    seed: int = 0
+    scenes: AtLeast(1) = 3
+    seed: AtLeast(0) = 0
     seq: str = "session"
-    duration_s: float = 4.0  # audio and streams; the person is detected over all of it
-    kinect_good_frames: int = 14  # board poses per Kinect (+ blurred, + cut off)
-    kinect_blurred_frames: int = 2
-    kinect_cut_off_frames: int = 2
+    duration_s: PosFinite = 4.0  # audio and streams; the person is detected over all of it
+    kinect_good_frames: AtLeast(0) = 14  # board poses per Kinect (+ blurred, + cut off)
+    kinect_blurred_frames: AtLeast(0) = 2
+    kinect_cut_off_frames: AtLeast(0) = 2
     kinect_sensors: tuple[str, ...] | None = None  # default: every Kinect colour camera of the dome
-    noise_px: float = 2.0  # 2D detection noise (std per coordinate)
-    wrong_fraction: float = 0.05  # detections on the mirror joint or anywhere in the image
-    miss_fraction: float = 0.10  # detections missing (occlusion, detector misses)
-    group_people: int = 0  # > 0: also a group of this many people, OpenPose folders in group/ (synth.group_session)
+    noise_px: NonNegFinite = 2.0  # 2D detection noise (std per coordinate)
+    wrong_fraction: UnitInterval = 0.05  # detections on the mirror joint or anywhere in the image
+    miss_fraction: UnitInterval = 0.10  # detections missing (occlusion, detector misses)
+    group_people: Annotated[int, Field(ge=0, le=10)] = 0  # > 0: also a group of this many people, OpenPose folders in group/ (synth.group_session)
     group_scenario: str = "mixed"
 
 

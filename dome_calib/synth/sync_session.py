@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 import soundfile as sf
@@ -19,48 +20,50 @@ from timecode.encoder import EncoderOptions, encode_ltc_labels
 from timecode.labels import format_labels, frames_to_labels, label_to_frames
 from timecode.rates import FrameRate, parse_rate
 from timecode.sync.session import FORMAT, VERSION, write_session_json
+from dome_calib.options import AtLeast, Field, options
+from dome_calib.schema import Finite, NonNegFinite, PosFinite
 
 BLOCK_SAMPLES = 256  # Kinect v2 audio sub-frame: 256 samples = 16 ms at 16 kHz
 
 
-@dataclass(kw_only=True)
+@options
 class SynthSessionOptions:
     """What to simulate. Drifts are ppm against the true clock (+ = the clock runs fast)."""
 
-    seed: int = 0
+    seed: AtLeast(0) = 0
     seq: str = "synth_sync"
-    duration_s: float = 6.0
-    sample_rate: int = 48000
+    duration_s: PosFinite = 6.0
+    sample_rate: AtLeast(1) = 48000
     vga_rate: str = "25"
     hd_rate: str = "29.97df"
     vga_start: str = "10:00:00:00"  # label of the first VGA LTC frame in ltc.wav
     hd_start: str = "10:00:00;00"  # label of the first HD LTC frame in ltc.wav
-    vga_drift_ppm: float = 23.0
-    hd_drift_ppm: float = -17.0
-    vga_offset_s: float = 0.01237  # true time of the first VGA LTC frame start
-    hd_offset_s: float = 0.00711
-    snr_db: float = 30.0  # LTC to noise, per channel of ltc.wav
-    level_dbfs: float = -12.0
-    vga_jump_at_s: float | None = None  # the VGA generator is re-jammed here ...
+    vga_drift_ppm: Finite = 23.0
+    hd_drift_ppm: Finite = -17.0
+    vga_offset_s: Finite = 0.01237  # true time of the first VGA LTC frame start
+    hd_offset_s: Finite = 0.00711
+    snr_db: Finite = 30.0  # LTC to noise, per channel of ltc.wav
+    level_dbfs: Annotated[float, Field(le=0)] = -12.0
+    vga_jump_at_s: NonNegFinite | None = None  # the VGA generator is re-jammed here ...
     vga_jump_frames: int = 1000  # ... and its labels leap by this many frames
-    hd_jump_at_s: float | None = None
+    hd_jump_at_s: NonNegFinite | None = None
     hd_jump_frames: int = -40000
-    restart_at_s: float | None = None  # ltc.wav loses restart_gap_s of audio here (recorder restarted)
-    restart_gap_s: float = 0.4137
-    dropped_frames: int = 2  # frames missing from each camera stream (VGA, HD, Kinect colour and depth)
-    hd_timecode_every: int = 1  # HD frames carry an embedded timecode every this many frames (0: none)
-    n_kinects: int = 2
+    restart_at_s: NonNegFinite | None = None  # ltc.wav loses restart_gap_s of audio here (recorder restarted)
+    restart_gap_s: NonNegFinite = 0.4137
+    dropped_frames: AtLeast(0) = 2  # frames missing from each camera stream (VGA, HD, Kinect colour and depth)
+    hd_timecode_every: AtLeast(0) = 1  # HD frames carry an embedded timecode every this many frames (0: none)
+    n_kinects: AtLeast(0) = 2
     kinect_nodes: tuple[str, ...] | None = None  # node names (default KINECTNODE1..n_kinects), e.g. the dome's
     kinect_missing_audio: tuple[str, ...] = ()  # nodes whose microphone recorded nothing
-    kinect_sample_rate: int = 16000
-    kinect_max_drift_ppm: float = 50.0  # device and audio clocks drift uniformly within +-this
-    kinect_snr_db: float = 25.0
-    kinect_level_dbfs: float = -20.0
-    kinect_frame_jitter_us: float = 200.0  # std of colour/depth frame timestamps
-    kinect_block_jitter_us: float = 500.0  # std of audio block timestamps
-    kinect_depth_phase_ms: float = 6.25  # depth exposure after colour exposure
-    kinect_audio_gap_at_s: float | None = None  # every Kinect loses audio blocks here (USB hiccup) ...
-    kinect_audio_gap_blocks: int = 23  # ... this many blocks: the file just lacks them
+    kinect_sample_rate: AtLeast(1) = 16000
+    kinect_max_drift_ppm: NonNegFinite = 50.0  # device and audio clocks drift uniformly within +-this
+    kinect_snr_db: Finite = 25.0
+    kinect_level_dbfs: Annotated[float, Field(le=0)] = -20.0
+    kinect_frame_jitter_us: NonNegFinite = 200.0  # std of colour/depth frame timestamps
+    kinect_block_jitter_us: NonNegFinite = 500.0  # std of audio block timestamps
+    kinect_depth_phase_ms: Finite = 6.25  # depth exposure after colour exposure
+    kinect_audio_gap_at_s: NonNegFinite | None = None  # every Kinect loses audio blocks here (USB hiccup) ...
+    kinect_audio_gap_blocks: AtLeast(0) = 23  # ... this many blocks: the file just lacks them
 
 
 @dataclass(kw_only=True)

@@ -7,6 +7,7 @@ import typer
 
 from dome_calib.cli.progress import ProgressBars
 from dome_calib.io_utils import check_writable, refuse_output_among_inputs
+from dome_calib.errors import flags
 from timecode.sync.pipeline import check_nodes_in_bundle, check_session_audio, output_seq, sync_session, write_sync
 from timecode.sync.report import summary_lines
 from timecode.sync.session import load_session
@@ -15,7 +16,8 @@ from timecode.sync.tables import SyncOptions
 
 def run_sync(session: Path, output: Path, *, seq: str | None, strict_kinect: bool, max_extrapolation_s: float) -> None:
     """Decode, fit, write; print the per-stream summary. Errors propagate as one-line user errors."""
-    opts = SyncOptions(strict_kinect=strict_kinect, max_extrapolation_s=max_extrapolation_s)
+    with flags({"SyncOptions.max_extrapolation_s": "--max-extrapolation"}):
+        opts = SyncOptions(strict_kinect=strict_kinect, max_extrapolation_s=max_extrapolation_s)
     refuse_output_among_inputs(output, [session], whole_folder=True)
     check_writable(output, into=True)
     loaded = load_session(session)

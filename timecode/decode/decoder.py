@@ -19,7 +19,6 @@ import logging
 import os
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -33,6 +32,8 @@ from timecode.decode.edges import block_droop, edge_params, find_edges
 from timecode.errors import TimecodeError
 from timecode.rates import FrameRate
 from timecode.decode.result import ChannelDecode
+from dome_calib.options import AtLeast, options
+from dome_calib.schema import PosFinite
 
 logger = logging.getLogger(__name__)
 
@@ -43,15 +44,15 @@ class DecodeError(TimecodeError, ValueError):
     """A decode request that cannot be met (bad channel, unsupported sample rate)."""
 
 
-@dataclass(kw_only=True)
+@options
 class DecodeOptions:
     """Decoder settings; the defaults suit every supported sample rate."""
 
     rate: FrameRate | None = None  # None: detect from labels and frame period; else refused if the LTC is not
-    smooth_sigma_samples: float | None = None  # Gaussian smoothing before timing (default ~0.1 half-bit)
-    block_seconds: float = 20.0  # audio processed per step (memory ~ 30 bytes x samples x channels)
+    smooth_sigma_samples: PosFinite | None = None  # Gaussian smoothing before timing (default ~0.1 half-bit)
+    block_seconds: PosFinite = 20.0  # audio processed per step (memory ~ 30 bytes x samples x channels)
     ac_coupling: bool = True  # fit and undo an input high-pass (droop)
-    threads: int | None = None  # channels decoded in parallel (default: one per CPU core)
+    threads: AtLeast(1) | None = None  # channels decoded in parallel (default: one per CPU core)
 
 
 class _ArrayReader:

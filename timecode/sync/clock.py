@@ -26,10 +26,13 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 from fractions import Fraction
+from typing import Annotated
 
 import numpy as np
 
 from timecode.errors import TimecodeError
+from dome_calib.options import AtLeast, Field, options
+from dome_calib.schema import NonNegFinite, PosFinite
 
 logger = logging.getLogger(__name__)
 
@@ -50,17 +53,17 @@ class FrameStarts:
     source: str  # where the frames come from, for messages: "ltc.wav channel 1 (HD)"
 
 
-@dataclass(kw_only=True)
+@options
 class ClockFitOptions:
     """Thresholds of the clock fit (defaults suit 8-192 kHz audio and +-200 ppm clocks)."""
 
-    min_run_frames: int = 4  # shorter runs of consistent labels are rejected as misreads
-    min_lock_frames: int = 12  # a channel needs one consistent run this long, else "never locks"
-    gap_tolerance_frames: float = 0.005  # |gap / period - n| below this + n * max_drift: audio ran on continuously
-    max_drift_ppm: float = 300.0  # clock error the continuity test allows per frame of gap
-    outlier_sigma: float = 6.0  # residuals beyond sigma * robust std (MAD) are rejected ...
-    outlier_floor_us: float = 20.0  # ... but never below this many microseconds
-    label_margin_frames: int = 250  # a label may be extrapolated this far beyond a label segment's decoded span
+    min_run_frames: AtLeast(1) = 4  # shorter runs of consistent labels are rejected as misreads
+    min_lock_frames: AtLeast(1) = 12  # a channel needs one consistent run this long, else "never locks"
+    gap_tolerance_frames: Annotated[float, Field(ge=0, lt=0.5)] = 0.005  # |gap / period - n| below this + n * max_drift: audio ran on continuously
+    max_drift_ppm: NonNegFinite = 300.0  # clock error the continuity test allows per frame of gap
+    outlier_sigma: PosFinite = 6.0  # residuals beyond sigma * robust std (MAD) are rejected ...
+    outlier_floor_us: NonNegFinite = 20.0  # ... but never below this many microseconds
+    label_margin_frames: AtLeast(0) = 250  # a label may be extrapolated this far beyond a label segment's decoded span
 
 
 @dataclass(kw_only=True)

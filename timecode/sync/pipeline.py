@@ -1,7 +1,6 @@
 """Decode a session's audio, fit its clocks and write the sync tables: the I/O edge behind ``timecode sync``."""
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Callable
 from pathlib import Path
@@ -13,6 +12,7 @@ from dome_calib.bundle import kinect_node_camera
 from dome_calib.bundle_io import bundle_seq, load_bundle, write_bundle
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.panoptic_io import format_ksynctables, format_synctables
+from dome_calib.report.kept import SYNC_FILE, kept_text
 from timecode.errors import TimecodeError
 from timecode.rates import FrameRate
 from timecode.audio_io import AudioReader
@@ -211,7 +211,7 @@ def write_sync(result: SyncResult, bundle: str | Path, *, seq: str | None = None
     """
     folder = Path(bundle)
     seq = output_seq(folder, seq, result.seq)
-    report_text = json.dumps(sync_report(result), indent=1) + "\n"
+    report_text = kept_text(SYNC_FILE, sync_report(result))  # through the schema the report's page reads it with
     has_kinect = bool(result.tables.kinect_color or result.tables.kinect_depth)
     if bundle_seq(folder) is not None:
         b = load_bundle(folder)

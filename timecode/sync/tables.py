@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dome_calib.bundle import SyncTable, SyncTables
-from dome_calib.errors import non_finite_fields
+from dome_calib.options import options
+from dome_calib.schema import NonNegFinite, PosFinite
 from timecode.errors import TimecodeError
 from timecode.sync.clock import (ChannelClock, ClockError, ClockFitOptions, FrameStarts, LineFit, fit_channel_clock,
                                   restarts_of, robust_line)
@@ -33,22 +34,16 @@ class SyncError(TimecodeError):
     """Streams cannot be put on universal time (no overlap, no reference, inconsistent references)."""
 
 
-@dataclass(kw_only=True)
+@options
 class SyncOptions:
     """Options of :func:`build_sync`."""
 
     clock: ClockFitOptions = field(default_factory=ClockFitOptions)
-    max_extrapolation_s: float = 2.0  # frames may lie this far outside the LTC their times come from
-    device_outlier_sigma: float = 6.0  # Kinect audio-block timestamp fit: rejection threshold (robust std)
-    device_outlier_floor_ms: float = 1.0  # ... never below this
-    device_break_ms: float = 50.0  # a block whose timestamp step disagrees this much starts a new device segment
+    max_extrapolation_s: NonNegFinite = 2.0  # frames may lie this far outside the LTC their times come from
+    device_outlier_sigma: PosFinite = 6.0  # Kinect audio-block timestamp fit: rejection threshold (robust std)
+    device_outlier_floor_ms: NonNegFinite = 1.0  # ... never below this
+    device_break_ms: PosFinite = 50.0  # a block whose timestamp step disagrees this much starts a new device segment
     strict_kinect: bool = False  # True: a Kinect that cannot be synced is an error; False: flagged and skipped
-
-    def __post_init__(self) -> None:
-        if bad := non_finite_fields(self):
-            raise SyncError(f"{bad[0]}: expected a finite number")
-        if self.max_extrapolation_s < 0:
-            raise SyncError(f"max extrapolation {self.max_extrapolation_s} s: expected >= 0")
 
 
 @dataclass(kw_only=True)

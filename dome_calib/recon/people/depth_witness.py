@@ -31,37 +31,30 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dome_calib.bundle import Bundle
-from dome_calib.errors import non_finite_fields
+from dome_calib.options import AtLeast, options
 from dome_calib.recon.depth import DepthFolder
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.project import ViewSet, kinect_color_name, kinect_sensor, project_points, view_set
+from dome_calib.schema import NonNegFinite
 
 MM_PER_CM = 10.0
 _MAX_RADIUS_PX = 12
 
 
-@dataclass(kw_only=True)
+@options
 class DepthWitnessOptions:
     """sigma_1m_mm, sigma_a, sigma_b: the axial depth noise ``sigma_1m_mm * (sigma_a + sigma_b * z_m^2)`` (Kinect v2
     about 1.4 mm at 1 m and 4-5 mm at 4 m); n_sigma: how many of them a reading may lie beyond a joint; joint_cm: a
     right joint's own error (along the ray and across it); min_sensors: sensors that must see through a joint to
     reject it; max_offset_ms: a depth frame farther in time than this from the body's time is not used."""
 
-    sigma_1m_mm: float = 1.4
-    sigma_a: float = 0.8
-    sigma_b: float = 0.2
-    n_sigma: float = 4.0
-    joint_cm: float = 5.0
-    min_sensors: int = 1
-    max_offset_ms: float = 20.0
-
-    def __post_init__(self) -> None:
-        if bad := non_finite_fields(self):
-            raise ReconError(f"depth witness: {bad[0]} but expected a finite number")
-        if min(self.sigma_1m_mm, self.sigma_a, self.sigma_b, self.n_sigma, self.joint_cm, self.max_offset_ms) < 0 \
-                or self.min_sensors < 1:
-            raise ReconError("depth witness: the noise model, n_sigma, joint_cm and max_offset_ms must be >= 0 and "
-                             "min_sensors >= 1")
+    sigma_1m_mm: NonNegFinite = 1.4
+    sigma_a: NonNegFinite = 0.8
+    sigma_b: NonNegFinite = 0.2
+    n_sigma: NonNegFinite = 4.0
+    joint_cm: NonNegFinite = 5.0
+    min_sensors: AtLeast(1) = 1
+    max_offset_ms: NonNegFinite = 20.0
 
     def sigma_mm(self, z_mm: np.ndarray) -> np.ndarray:
         """Axial noise (mm) of a reading at depth ``z_mm``."""

@@ -23,13 +23,11 @@ A dropped joint is missing (``c = -1``): a joint metres away from its body is ne
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from dome_calib.errors import non_finite_fields
 from dome_calib.recon.body_models import BONE_LENGTH_CM, BONES19, JOINTS19
-from dome_calib.recon.errors import ReconError
+from dome_calib.options import AtLeast, options
+from dome_calib.schema import NonNegFinite, PosFinite
 
 _A = np.array([JOINTS19.index(a) for a, _ in BONE_LENGTH_CM])
 _B = np.array([JOINTS19.index(b) for _, b in BONE_LENGTH_CM])
@@ -68,25 +66,18 @@ def _tree_paths() -> tuple[np.ndarray, np.ndarray]:
 _PATH_CM, _INSIDE = _tree_paths()
 
 
-@dataclass(kw_only=True)
+@options
 class JointCheckOptions:
     """Options of :func:`check_joints` (cm). max_bone_ratio, bone_slack_cm: a bone longer than ratio x nominal +
     slack is implausible (noise on two joints, taller people); max_reach_cm: farthest a joint may be from the
     body's centre; min_views_alone: joints with fewer inlier views must be linked to the body by plausible bones;
     enabled: False keeps every triangulated joint (ablation)."""
 
-    max_bone_ratio: float = 1.6
-    bone_slack_cm: float = 15.0
-    max_reach_cm: float = 180.0
-    min_views_alone: int = 3
+    max_bone_ratio: PosFinite = 1.6
+    bone_slack_cm: NonNegFinite = 15.0
+    max_reach_cm: PosFinite = 180.0
+    min_views_alone: AtLeast(2) = 3
     enabled: bool = True
-
-    def __post_init__(self) -> None:
-        if bad := non_finite_fields(self):
-            raise ReconError(f"{bad[0]} but expected a finite number")
-        if self.max_bone_ratio <= 0 or self.bone_slack_cm < 0 or self.max_reach_cm <= 0 or self.min_views_alone < 2:
-            raise ReconError("max_bone_ratio > 0, bone_slack_cm >= 0, max_reach_cm > 0 and min_views_alone >= 2 "
-                             "are required")
 
 
 def body_centres_cm(X: np.ndarray) -> np.ndarray:

@@ -17,19 +17,17 @@ proposes again from the detections no proposal took, over :func:`residual_pairs`
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
-from dome_calib.errors import non_finite_fields
-from dome_calib.recon.errors import ReconError
+from dome_calib.options import AtLeast, UnitInterval, options, require
+from dome_calib.schema import NonNegFinite, PosFinite
 from dome_calib.recon.kernel import F32, CameraKernel
 from dome_calib.recon.people.matching import nan_median
 from dome_calib.recon.project import ViewSet
 
 
-@dataclass(kw_only=True)
+@options
 class AssociationOptions:
     """Options of the association (lengths in cm of world, confidences in [0, 1]).
 
@@ -51,29 +49,21 @@ class AssociationOptions:
         people's centres are >= ~50 cm apart.
     """
 
-    max_pairs: int = 48
-    min_joint_conf: float = 0.05
-    min_common_joints: int = 4
-    max_ray_gap_cm: float = 10.0
-    cluster_radius_cm: float = 30.0
-    assign_gate_cm: float = 12.0
-    assign_cap_cm: float = 40.0
-    min_person_views: int = 3
-    passes: int = 2
-    min_cluster_weight: float = 15.0
-    relative_cluster_weight: float = 0.1
-    bone_ratio: tuple[float, float] = (0.6, 1.5)
-    duplicate_cm: float = 25.0
+    max_pairs: AtLeast(1) = 48
+    min_joint_conf: UnitInterval = 0.05
+    min_common_joints: AtLeast(2) = 4
+    max_ray_gap_cm: PosFinite = 10.0
+    cluster_radius_cm: PosFinite = 30.0
+    assign_gate_cm: PosFinite = 12.0
+    assign_cap_cm: PosFinite = 40.0
+    min_person_views: AtLeast(2) = 3
+    passes: AtLeast(1) = 2
+    min_cluster_weight: NonNegFinite = 15.0
+    relative_cluster_weight: UnitInterval = 0.1
+    bone_ratio: tuple[PosFinite, PosFinite] = (0.6, 1.5)
+    duplicate_cm: NonNegFinite = 25.0
 
-    def __post_init__(self) -> None:
-        if bad := non_finite_fields(self):  # a `<=` check lets NaN through
-            raise ReconError(f"{bad[0]} but expected a finite number")
-        if self.max_pairs < 1 or self.min_common_joints < 2 or self.passes < 1 or self.min_person_views < 2:
-            raise ReconError("max_pairs >= 1, min_common_joints >= 2, passes >= 1 and min_person_views >= 2 are "
-                             "required")
-        for name in ("max_ray_gap_cm", "cluster_radius_cm", "assign_gate_cm", "assign_cap_cm"):
-            if getattr(self, name) <= 0:
-                raise ReconError(f"{name}={getattr(self, name)} but expected > 0")
+    _ordered = require(lambda o: o.bone_ratio[0] <= o.bone_ratio[1], "bone_ratio {o.bone_ratio}: expected (low, high) with low <= high")
 
 
 #: Joints whose mean is a hypothesis's centre (when at least two are there): the torso, rarely occluded all at once.

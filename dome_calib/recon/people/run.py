@@ -24,11 +24,11 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from fractions import Fraction
+from typing import Annotated
 
 import numpy as np
 
-from dome_calib.errors import non_finite_fields
-from dome_calib.recon.errors import ReconError
+from dome_calib.options import AtLeast, Field, PosFraction, options
 from dome_calib.recon.kernel import CameraKernel
 from dome_calib.recon.people.agreement import CameraAgreement, tally_agreement
 from dome_calib.recon.people.assign import associate
@@ -45,7 +45,7 @@ from dome_calib.recon.triangulate import TriangulationOptions
 logger = logging.getLogger(__name__)
 
 
-@dataclass(kw_only=True)
+@options
 class PeopleOptions:
     """Options of :func:`reconstruct_people`. joint_check: which triangulated joints a body keeps
     (:mod:`~dome_calib.recon.people.joint_check`); min_body_joints: a body needs this many reconstructed joints;
@@ -58,18 +58,11 @@ class PeopleOptions:
         inlier_threshold_px=10.0, min_views=2, min_confidence=0.05))
     tracking: TrackingOptions = field(default_factory=TrackingOptions)
     joint_check: JointCheckOptions = field(default_factory=JointCheckOptions)
-    min_body_joints: int = 6
-    max_gap_frames: float = 2.5
-    batch_times: int = 16
-    chunk_times: int = 600
-    shared_fps: Fraction = Fraction(30)
-
-    def __post_init__(self) -> None:
-        if bad := non_finite_fields(self):  # a `<` check lets NaN through
-            raise ReconError(f"{bad[0]} but expected a finite number")
-        if self.max_gap_frames < 1.0 or self.min_body_joints < 1 or self.batch_times < 1 or self.chunk_times < 1:
-            raise ReconError("max_gap_frames >= 1, min_body_joints >= 1, batch_times >= 1 and chunk_times >= 1 are "
-                             "required")
+    min_body_joints: AtLeast(1) = 6
+    max_gap_frames: Annotated[float, Field(ge=1)] = 2.5
+    batch_times: AtLeast(1) = 16
+    chunk_times: AtLeast(1) = 600
+    shared_fps: PosFraction = Fraction(30)
 
 
 @dataclass

@@ -18,18 +18,16 @@ Tracking runs once over the whole session (long sessions too: see :mod:`~dome_ca
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from dome_calib.errors import non_finite_fields
-from dome_calib.recon.errors import ReconError
+from dome_calib.options import AtLeast, options
 from dome_calib.recon.people.bodies import Bodies
 from dome_calib.recon.people.matching import skeleton_distance_cm
+from dome_calib.schema import NonNegFinite, PosFinite
 
 
-@dataclass(kw_only=True)
+@options
 class TrackingOptions:
     """gate_cm: a body continues a track if its median joint distance to the track's prediction is below
     ``gate_cm + gate_cm_per_s x elapsed``; max_missed_ms, max_missed_steps: a track unseen longer than the
@@ -38,20 +36,12 @@ class TrackingOptions:
     track is tentative until seen this often (matched after the confirmed ones, ended by a single miss);
     smooth_half_window: half width (in observations) of the smoothing window, 0 = off."""
 
-    gate_cm: float = 40.0
-    gate_cm_per_s: float = 100.0
-    max_missed_ms: float = 500.0
-    max_missed_steps: float = 2.5
-    min_track_frames: int = 3
-    smooth_half_window: int = 0
-
-    def __post_init__(self) -> None:
-        if bad := non_finite_fields(self):  # a `<=` check lets NaN through
-            raise ReconError(f"{bad[0]} but expected a finite number")
-        if self.gate_cm <= 0 or self.max_missed_ms < 0 or self.max_missed_steps < 0 or self.min_track_frames < 1 \
-                or self.smooth_half_window < 0:
-            raise ReconError("gate_cm > 0, max_missed_ms >= 0, max_missed_steps >= 0, min_track_frames >= 1, "
-                             "smooth_half_window >= 0")
+    gate_cm: PosFinite = 40.0
+    gate_cm_per_s: NonNegFinite = 100.0
+    max_missed_ms: NonNegFinite = 500.0
+    max_missed_steps: NonNegFinite = 2.5
+    min_track_frames: AtLeast(1) = 3
+    smooth_half_window: AtLeast(0) = 0
 
     def max_missed_for(self, times_ms: np.ndarray) -> float:
         """The gap (ms) that ends a confirmed track at these times: max(max_missed_ms, max_missed_steps x the
