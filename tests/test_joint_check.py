@@ -132,7 +132,7 @@ def test_a_neighbours_wrist_in_two_views_is_not_the_persons(right_views):
     kp = np.concatenate([uv, conf[..., None]], axis=-1)[None]  # (T=1, V, N=2, 19, 3)
 
     def wrist_error(opts):
-        bodies, _ = associate_batch(views, CameraKernel(views), pairs, kp, opts)
+        bodies, _, _ = associate_batch(views, CameraKernel(views), pairs, kp, opts)
         b = bodies[0]
         assert len(b.X_cm) == 2
         who = np.argsort(np.nanmedian(np.linalg.norm(b.X_cm - A, axis=-1), axis=1))  # body 0 = A

@@ -186,11 +186,16 @@ def test_long_session_chunks_read_their_own_files(group, tmp_path):
     from dome_calib.recon.people.commands import reconstruct_folder
     from dome_calib.recon.people.run import PeopleOptions
 
+    from dome_calib.recon.people.temporal import TemporalOptions
+
     root, bundle, _ = group
-    whole = reconstruct_folder(root / "det", root / "bundle", tmp_path / "whole", body_model="BODY_25")
+    per_frame = TemporalOptions(enabled=False)  # chunks of the body over time: tests/test_people_temporal.py
+    whole = reconstruct_folder(root / "det", root / "bundle", tmp_path / "whole", body_model="BODY_25",
+                               options=PeopleOptions(temporal=per_frame))
     with LocalProcessExecutor(2) as pool:
         chunked = reconstruct_folder(root / "det", root / "bundle", tmp_path / "chunked", body_model="BODY_25",
-                                     options=PeopleOptions(chunk_times=5, overlap_times=2), executor=pool)
+                                     options=PeopleOptions(chunk_times=5, overlap_times=2, temporal=per_frame),
+                                     executor=pool)
     assert (chunked.times, chunked.people, chunked.body_frames) == (whole.times, whole.people, whole.body_frames)
     for a, b in zip(sorted((tmp_path / "whole").glob("body3D*")), sorted((tmp_path / "chunked").glob("body3D*"))):
         _, A = read_scene(a)

@@ -100,8 +100,10 @@ def test_pose2sim_balancing(run, dome_calib_cli):
         assert np.nanmedian(errs) < 15.0, cam
     dist = np.linalg.norm(X[:, ji] - P2S[:, mi], axis=-1)
     per_joint = np.nanmedian(dist, axis=0)
-    assert np.all(per_joint < 6.0), dict(zip(COMMON, per_joint.round(1)))
-    assert np.isfinite(dist).mean() > 0.9
+    # Pose2Sim's result is a peer's, not a truth (it keeps camera 03, 40 px off): a few cm apart, the left hip most
+    # (8 cm; 10 cm for both methods once camera 03 is left out: bench/people_real.py)
+    assert np.all(per_joint < 9.0) and per_joint.mean() < 3.0, dict(zip(COMMON, per_joint.round(1)))
+    assert np.isfinite(dist).mean() > 0.99  # the body over time places the joints the per-frame triangulation left
 
 
 def test_the_partial_person_is_a_two_view_onlooker(run, dome_calib_cli):
@@ -112,7 +114,7 @@ def test_the_partial_person_is_a_two_view_onlooker(run, dome_calib_cli):
                          "BODY_25B", "--camera-map", CAMERA_MAP, "--fps", "60", "--min-views", "2", "-o",
                          str(root / "out2"))
     assert out.returncode == 0, out.stderr
-    frames, dist = 0, []
+    frames, dist, conf = 0, [], []
     for f in sorted((root / "out2").glob("body3DScene_*.json")):
         _, bodies = read_scene(f)
         assert set(bodies) <= {0, 1} and 0 in bodies
@@ -120,5 +122,7 @@ def test_the_partial_person_is_a_two_view_onlooker(run, dome_calib_cli):
             frames += 1
             a, b = (np.where(bodies[i][:, 3:] < 0, np.nan, bodies[i][:, :3]) for i in (0, 1))
             dist.append(np.linalg.norm(np.nanmedian(a, 0) - np.nanmedian(b, 0)))
-            assert np.all(bodies[1][:, 3] < 0.6)  # low-confidence detections
+            conf.append((bodies[0][:, 3][bodies[0][:, 3] >= 0].mean(), bodies[1][:, 3][bodies[1][:, 3] >= 0].mean()))
+    # two views of low-confidence detections (0.3-0.4) place the onlooker less surely than four place the participant
+    assert np.mean([c[1] for c in conf]) < np.mean([c[0] for c in conf])
     assert frames > 50 and 250 < np.median(dist) < 400

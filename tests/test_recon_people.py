@@ -16,6 +16,7 @@ from dome_calib.recon.people.proposals import AssociationOptions, select_pairs
 from dome_calib.recon.people.resample import interpolate_people
 from dome_calib.recon.people.run import PeopleOptions, reconstruct_people
 from dome_calib.recon.people.sources import InMemorySource, PeopleStream, people_streams
+from dome_calib.recon.people.temporal import TemporalOptions
 from dome_calib.recon.people.tracking import TrackingOptions, smooth_track, track_bodies
 from dome_calib.recon.project import view_set
 
@@ -138,8 +139,9 @@ def test_chunks_stitch_ids(scene):
     views = view_set(bundle, cams)
     streams = people_streams(bundle, people)
     times = bundle.sync.streams["vga"].univ_time_ms[2:12]
-    whole = reconstruct_people(views, streams, times)
-    opts = PeopleOptions(chunk_times=4, overlap_times=2)
+    per_frame = TemporalOptions(enabled=False)  # the body over time's own chunk test: tests/test_people_temporal.py
+    whole = reconstruct_people(views, streams, times, PeopleOptions(temporal=per_frame))
+    opts = PeopleOptions(chunk_times=4, overlap_times=2, temporal=per_frame)
     calls = []
     with LocalProcessExecutor(2) as pool:  # the chunks go through a process pool (picklable tasks)
         chunked = reconstruct_people_chunked(views, streams, times, opts, executor=pool,

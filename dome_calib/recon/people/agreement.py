@@ -22,22 +22,39 @@ ERROR_BINS = 2001
 @dataclass
 class CameraAgreement:
     """Per camera (``names`` order): detected (V,) people detected (with enough joints), used (V,) of them in a
-    body, hist (V, ERROR_BINS) counts of |reprojection - detection| of the used joints in ERROR_BIN_PX bins."""
+    body, hist (V, ERROR_BINS) counts of |reprojection - detection| of the used joints in ERROR_BIN_PX bins;
+    judged (V,) joint detections the body over time weighed, outvoted (V,) of them it put aside (see
+    :mod:`~dome_calib.recon.people.temporal`)."""
 
     names: list[str]
     detected: np.ndarray
     used: np.ndarray
     hist: np.ndarray
+    judged: np.ndarray
+    outvoted: np.ndarray
 
     @classmethod
     def empty(cls, names: list[str]) -> CameraAgreement:
         V = len(names)
-        return cls(names, np.zeros(V, np.int64), np.zeros(V, np.int64), np.zeros((V, ERROR_BINS), np.int64))
+        return cls(names, np.zeros(V, np.int64), np.zeros(V, np.int64), np.zeros((V, ERROR_BINS), np.int64),
+                   np.zeros(V, np.int64), np.zeros(V, np.int64))
 
     def add(self, other: CameraAgreement) -> None:
         self.detected += other.detected
         self.used += other.used
         self.hist += other.hist
+        self.judged += other.judged
+        self.outvoted += other.outvoted
+
+    def judge(self, view: np.ndarray, residual_px: np.ndarray, judged: np.ndarray, outvoted: np.ndarray) -> None:
+        """The body over time's verdict replaces the per-frame histogram: (M,) records' views and distances to the
+        final bodies (NaN: not judged); judged, outvoted (V,) counts."""
+        self.hist[:] = 0
+        ok = np.isfinite(residual_px)
+        b = np.minimum((residual_px[ok] / ERROR_BIN_PX).astype(np.int64), ERROR_BINS - 1)
+        np.add.at(self.hist, (view[ok], b), 1)
+        self.judged += judged
+        self.outvoted += outvoted
 
     def median_px(self) -> np.ndarray:
         """(V,) median reprojection error of each camera's used joints (NaN if none), to the bin centre."""

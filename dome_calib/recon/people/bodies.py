@@ -21,18 +21,43 @@ from dome_calib.recon.triangulate import TriangulationOptions, triangulate
 @dataclass(frozen=True)
 class Bodies:
     """The people at one time: X_cm (P, 19, 3) (NaN = joint missing), confidence (P, 19) (-1 = missing),
-    n_inliers (P, 19) supporting views, n_views (P,) views assigned, ids (P,) track ids (-1 before tracking)."""
+    n_inliers (P, 19) supporting views, n_views (P,) views assigned, ids (P,) track ids (-1 before tracking);
+    rows (P,) each body's row in the :class:`Observations` of its chunk (None: no detections kept)."""
 
     X_cm: np.ndarray
     confidence: np.ndarray
     n_inliers: np.ndarray
     n_views: np.ndarray
     ids: np.ndarray
+    rows: np.ndarray | None = None
 
     def take(self, keep: np.ndarray, ids: np.ndarray | None = None) -> Bodies:
         """The bodies selected by ``keep`` (a mask or indices), with new ``ids`` if given."""
         return Bodies(X_cm=self.X_cm[keep], confidence=self.confidence[keep], n_inliers=self.n_inliers[keep],
-                      n_views=self.n_views[keep], ids=self.ids[keep] if ids is None else ids)
+                      n_views=self.n_views[keep], ids=self.ids[keep] if ids is None else ids,
+                      rows=None if self.rows is None else self.rows[keep])
+
+
+@dataclass(frozen=True)
+class Observations:
+    """The detections behind the bodies of a chunk, one record per (body row, joint, view) with a detection:
+    row (M,), joint (M,), view (M,) int; uv_px (M, 2) float32 pixels; conf (M,) float32 detection confidence in
+    (0, 1] (OpenPose's values above 1 clipped). Records are sorted by row (rows are given in time order)."""
+
+    row: np.ndarray
+    joint: np.ndarray
+    view: np.ndarray
+    uv_px: np.ndarray
+    conf: np.ndarray
+
+    @staticmethod
+    def concat(parts: list[Observations]) -> Observations:
+        if not parts:
+            z = np.zeros(0, np.int64)
+            return Observations(row=z, joint=z, view=z, uv_px=np.zeros((0, 2), np.float32),
+                                conf=np.zeros(0, np.float32))
+        return Observations(*(np.concatenate([getattr(o, f) for o in parts])
+                              for f in ("row", "joint", "view", "uv_px", "conf")))
 
 
 @dataclass(frozen=True)
@@ -64,11 +89,12 @@ def triangulate_people(views: ViewSet, kp: np.ndarray, assigned: list[np.ndarray
         assigned=np.concatenate([(A >= 0).T for A in assigned]) if assigned else np.zeros((0, V), bool))
 
 
-def build_bodies(tri: PeopleTriangulation, ok: np.ndarray, *, min_body_joints: int, duplicate_cm: float
-                 ) -> tuple[list[Bodies], np.ndarray]:
+def build_bodies(tri: PeopleTriangulation, ok: np.ndarray, *, min_body_joints: int, duplicate_cm: float,
+                 first_row: int = 0) -> tuple[list[Bodies], np.ndarray]:
     """The bodies of each time from the triangulation and the joints it keeps (``ok`` (B, 19), the joint check's).
 
-    Returns the bodies per time (ids -1) and the (B,) mask of the triangulated people that became bodies.
+    Returns the bodies per time (ids -1; rows numbered from ``first_row`` in time order) and the (B,) mask of the
+    triangulated people that became bodies.
     """
     X = np.where(ok[..., None], tri.X_cm, np.nan)
     n_inl = np.where(ok, tri.n_inliers, 0)
@@ -80,6 +106,21 @@ def build_bodies(tri: PeopleTriangulation, ok: np.ndarray, *, min_body_joints: i
         keep = np.isfinite(X[sl]).all(-1).sum(1) >= min_body_joints
         keep &= dedupe(X[sl], n_inl[sl], duplicate_cm)
         keeps.append(keep)
+        n = int(keep.sum())
         bodies.append(Bodies(X_cm=X[sl][keep], confidence=conf[sl][keep], n_inliers=n_inl[sl][keep],
-                             n_views=n_views[sl][keep], ids=np.full(int(keep.sum()), -1, dtype=np.int64)))
+                             n_views=n_views[sl][keep], ids=np.full(n, -1, dtype=np.int64),
+                             rows=np.arange(first_row, first_row + n)))
+        first_row += n
     return bodies, np.concatenate(keeps) if keeps else np.zeros(0, bool)
+
+
+def observations_of(tri: PeopleTriangulation, kept: np.ndarray, first_row: int) -> Observations:
+    """The assigned detections of the people that became bodies (``kept`` (B,)), their rows numbered from
+    ``first_row`` as :func:`build_bodies` numbers them: every detection, inlier of the triangulation or not (the
+    body over time judges them again)."""
+    V = tri.conf.shape[1]
+    conf = tri.conf.reshape(-1, 19, V)[kept]
+    uv = tri.uv_px.reshape(-1, 19, V, 2)[kept]
+    b, j, v = np.nonzero((conf > 0) & np.isfinite(uv).all(-1))
+    return Observations(row=first_row + b, joint=j, view=v, uv_px=uv[b, j, v].astype(np.float32),
+                        conf=conf[b, j, v].astype(np.float32))

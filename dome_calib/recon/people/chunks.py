@@ -32,7 +32,8 @@ def _chunk_task(args: tuple) -> tuple[int, PeopleSequence]:
 def reconstruct_people_chunked(views: ViewSet, source: list[PeopleStream] | InMemorySource | FileSource,
                                times_ms: np.ndarray, options: PeopleOptions | None = None, *, executor=None,
                                progress: Callable[[int, int], None] | None = None) -> PeopleSequence:
-    """:func:`reconstruct_people` over chunks of ``chunk_times`` times that overlap by ``overlap_times``, run on
+    """:func:`reconstruct_people` over chunks of ``chunk_times`` times, each reaching ``overlap_times`` past its
+    own on both sides (the body over time sees across the edges; the ids are matched there), run on
     ``executor`` (``map``; a local pool or Dask; None: in this process); ids stitched over the overlaps
     (:func:`~dome_calib.recon.people.tracking.stitch_chunks`), new ones numbered on, never reused.
 
@@ -51,10 +52,11 @@ def reconstruct_people_chunked(views: ViewSet, source: list[PeopleStream] | InMe
         starts.pop()  # the previous chunk's overlap already reaches the end
     # Short tracks are dropped after stitching: a track cut by a chunk boundary is short only in its chunk.
     chunk_options = dataclasses.replace(options, tracking=dataclasses.replace(options.tracking, drop_short=False))
-    tasks = []
-    for i, s in enumerate(starts):
-        times = t[s: min(s + step + options.overlap_times, len(t))]
-        tasks.append((i, views, source, times, chunk_options))
+    m = options.overlap_times
+    # chunk i reaches m times past its own on both sides: its body over time sees what lies around its edges
+    lo = [max(0, s - m) for s in starts]
+    hi = [min(len(t), s + step + m) for s in starts]
+    tasks = [(i, views, source, t[lo[i]: hi[i]], chunk_options) for i in range(len(starts))]
     results: dict[int, PeopleSequence] = {}
     runner = map if executor is None else executor.map
     for index, seq in runner(_chunk_task, tasks):
@@ -70,9 +72,9 @@ def reconstruct_people_chunked(views: ViewSet, source: list[PeopleStream] | InMe
         if i == 0:
             local = sorted({int(x) for b in seq.bodies for x in b.ids})
             id_map = {k: next_id + n for n, k in enumerate(local)}
-        else:
-            prev, ov = results[i - 1], options.overlap_times
-            tail = prev.bodies[step: step + ov]
+        else:  # the times both chunks hold: [s - m, s + m)
+            prev = results[i - 1]
+            tail = prev.bodies[lo[i] - lo[i - 1]: hi[i - 1] - lo[i - 1]]
             head = seq.bodies[: len(tail)]
             match = stitch_chunks([b.X_cm for b in tail], [b.ids for b in tail], [b.X_cm for b in head],
                                   [b.ids for b in head], options.tracking.gate_cm)
@@ -85,7 +87,8 @@ def reconstruct_people_chunked(views: ViewSet, source: list[PeopleStream] | InMe
                     next_id += 1
         next_id = max([next_id] + [v + 1 for v in id_map.values()])
         prev_map = id_map
-        own = seq.bodies[:step] if i < len(starts) - 1 else seq.bodies
+        end = starts[i + 1] if i < len(starts) - 1 else len(t)
+        own = seq.bodies[s - lo[i]: end - lo[i]]
         bodies += [b.take(slice(None), np.array([id_map[int(x)] for x in b.ids], dtype=np.int64)) for b in own]
         agreement.add(seq.cameras)
     return PeopleSequence(times_ms=t, bodies=_drop_short(bodies, options.tracking.min_track_frames), cameras=agreement)

@@ -11,7 +11,8 @@ The run, in the order the data flows (each step a function of its own module, te
 5. :func:`~dome_calib.recon.people.bodies.build_bodies`: enough joints, no duplicates;
 6. :func:`~dome_calib.recon.people.agreement.tally_agreement`: how each camera agrees;
 
-then, over the whole chunk of times, :func:`~dome_calib.recon.people.tracking.apply_tracks` gives ids.
+then, over the whole chunk of times, :func:`~dome_calib.recon.people.tracking.apply_tracks` gives ids and
+:func:`~dome_calib.recon.people.temporal.refine_tracks` makes each person one body over time.
 :func:`reconstruct_people` runs one chunk of times in one process;
 :func:`~dome_calib.recon.people.chunks.reconstruct_people_chunked` splits a long session into overlapping chunks on
 an executor and stitches ids.
@@ -30,11 +31,12 @@ from dome_calib.recon.errors import ReconError
 from dome_calib.recon.kernel import CameraKernel
 from dome_calib.recon.people.agreement import CameraAgreement, tally_agreement
 from dome_calib.recon.people.assign import associate
-from dome_calib.recon.people.bodies import Bodies, build_bodies, triangulate_people
+from dome_calib.recon.people.bodies import Bodies, Observations, build_bodies, observations_of, triangulate_people
 from dome_calib.recon.people.joint_check import JointCheckOptions, check_joints
 from dome_calib.recon.people.proposals import AssociationOptions, select_pairs
 from dome_calib.recon.people.resample import gather_people
 from dome_calib.recon.people.sources import PeopleStream
+from dome_calib.recon.people.temporal import TemporalOptions, refine_tracks
 from dome_calib.recon.people.tracking import TrackingOptions, apply_tracks
 from dome_calib.recon.project import ViewSet
 from dome_calib.recon.triangulate import TriangulationOptions
@@ -47,13 +49,16 @@ class PeopleOptions:
     """Options of :func:`reconstruct_people`. joint_check: which triangulated joints a body keeps
     (:mod:`~dome_calib.recon.people.joint_check`); min_body_joints: a body needs this many reconstructed joints;
     max_gap_frames: stream brackets wider than this many frame periods are not bridged; batch_times: times
-    triangulated together; chunk_times / overlap_times: the chunks of :func:`reconstruct_people_chunked`."""
+    triangulated together; chunk_times / overlap_times: the chunks of :func:`reconstruct_people_chunked` (each
+    chunk reaches ``overlap_times`` past its own times on both sides); temporal: the body over time
+    (:mod:`~dome_calib.recon.people.temporal`; ``enabled=False`` keeps the per-frame joints)."""
 
     association: AssociationOptions = field(default_factory=AssociationOptions)
     triangulation: TriangulationOptions = field(default_factory=lambda: TriangulationOptions(
         inlier_threshold_px=10.0, min_views=2, min_confidence=0.05))
     tracking: TrackingOptions = field(default_factory=TrackingOptions)
     joint_check: JointCheckOptions = field(default_factory=JointCheckOptions)
+    temporal: TemporalOptions = field(default_factory=TemporalOptions)
     min_body_joints: int = 6
     max_gap_frames: float = 2.5
     batch_times: int = 16
@@ -80,17 +85,18 @@ class PeopleSequence:
 
 
 def associate_batch(views: ViewSet, kernel: CameraKernel, pairs: np.ndarray, kp: np.ndarray,
-                    options: PeopleOptions) -> tuple[list[Bodies], CameraAgreement]:
-    """(T, V, N, 19, 3) people at T times -> the bodies of each time (ids -1) and the cameras' agreement (steps 2-6
-    of the module docstring)."""
+                    options: PeopleOptions, first_row: int = 0) -> tuple[list[Bodies], CameraAgreement, Observations]:
+    """(T, V, N, 19, 3) people at T times -> the bodies of each time (ids -1, rows from ``first_row``), the
+    cameras' agreement and the bodies' detections (steps 2-6 of the module docstring)."""
     a = options.association
     assigned = associate(views, kernel, pairs, kp, a, min_body_joints=options.min_body_joints)
     tri = triangulate_people(views, kp, assigned, options.triangulation)
     ok = check_joints(tri.X_cm, tri.n_inliers, options.joint_check)
-    bodies, kept = build_bodies(tri, ok, min_body_joints=options.min_body_joints, duplicate_cm=a.duplicate_cm)
+    bodies, kept = build_bodies(tri, ok, min_body_joints=options.min_body_joints, duplicate_cm=a.duplicate_cm,
+                                first_row=first_row)
     agreement = tally_agreement(views, kp, tri, ok, kept, min_joint_conf=a.min_joint_conf,
                                 min_common_joints=a.min_common_joints)
-    return bodies, agreement
+    return bodies, agreement, observations_of(tri, kept, first_row)
 
 
 def reconstruct_people(views: ViewSet, streams: list[PeopleStream], times_ms: np.ndarray,
@@ -114,13 +120,19 @@ def reconstruct_people(views: ViewSet, streams: list[PeopleStream], times_ms: np
     pairs = select_pairs(sub, options.association.max_pairs)
     bodies: list[Bodies] = []
     agreement = CameraAgreement.empty(names)
+    observed: list[Observations] = []
     for start in range(0, len(t), options.batch_times):
         sl = slice(start, min(start + options.batch_times, len(t)))
         kp = gather_people(streams, t[sl], options.max_gap_frames)
-        got, agree = associate_batch(sub, kernel, pairs, kp, options)
+        got, agree, obs = associate_batch(sub, kernel, pairs, kp, options, first_row=sum(len(b.ids) for b in bodies))
         bodies += got
+        observed.append(obs)
         agreement.add(agree)
         if progress is not None:
             progress(sl.stop, len(t))
     bodies = apply_tracks(t, bodies, options.tracking)
+    if options.temporal.enabled:
+        fit = refine_tracks(sub, t, bodies, Observations.concat(observed), options.temporal)
+        bodies = fit.bodies
+        agreement.judge(fit.record_view, fit.residual_px, fit.records, fit.outvoted)
     return PeopleSequence(times_ms=t, bodies=bodies, cameras=agreement)

@@ -1,0 +1,416 @@
+"""One body per person over time: each track's joints fitted to its detections, its own bone lengths and smooth
+motion, all times of a chunk at once.
+
+After association and tracking, every track (a person with an id) has per-frame joints (the robust triangulation,
+with joints missing where too few views agreed) and the detections assigned to it in every view
+(:class:`~dome_calib.recon.people.bodies.Observations`). This stage minimises, over all joints of all its times,
+
+    sum_obs  c * rho(|pi_v(X_j(t)) - u|^2 / sigma_v^2)           robust reprojection (Cauchy, scale k sigma_v)
+  + sum_bones (|X_a(t) - X_b(t)| - L_ab)^2 / sigma_L^2          the track's own bone lengths, held
+  + sum_j  integral |X_j''(t)|^2 dt / q_j                        smooth motion (white-noise acceleration)
+
+- ``sigma_v``, the detector's pixel noise, is measured on the input itself: per camera, the median distance between
+  its detections and the per-frame joints (a 2D Gaussian's median radius is 1.177 sigma), so a camera with a worse
+  view or a worse lens weighs less; ``c`` is the detection confidence (clipped to [0, 1]).
+- ``L_ab``, per track: the median over its own frames of the per-frame bone length where both joints had at least
+  ``bone_min_views`` inlier views. ``sigma_L`` (1.5 cm) is the play of a detector's joint centres, not of bones.
+- ``q_j`` (cm^2/s^3): the spectral density of a joint's acceleration, from the body (``2 a_rms^2 tau`` with RMS
+  accelerations of everyday motion: trunk and head 300 cm/s^2, elbows and knees 800, wrists and ankles 1,200, over a
+  correlation time of 0.1 s). The integral penalty is the cubic smoothing spline (the posterior mean of an
+  integrated Wiener process): unbiased for constant velocity, on uneven time steps and across short gaps.
+
+A left/right swap or a neighbour's limb in one view sits tens of pixels from where the body puts the joint: the
+Cauchy weight ``1 / (1 + (r / k sigma_v)^2)`` falls to a few percent and the body is not moved (it is counted as
+outvoted). Joints the per-frame triangulation left out are placed by the body where their views, bones and motion
+constrain them well enough (``max_sigma_cm``).
+
+Solver (no Python per factor: every term is an array operation over all records, joints and times): Gauss-Newton
+with iteratively reweighted least squares (``iterations``). Each step is one sparse system over every joint of
+every track of the chunk, solved by conjugate gradients preconditioned by the exact solution of each joint's own
+time chain (a banded factorisation: the chains hold the stiff time coupling; only the bones are left to the
+iterations). Cost linear in records and in time.
+
+``c`` of an output joint is the model's probability that the joint lies within 5 cm of where it is put (3D
+Gaussian with the joint's variance: the inverse of its information from the data, the bones and its neighbours in
+time, inflated by ``q d^3 / 3`` where the joint was not triangulated for d seconds); measured against the truth in
+bench/fewcam.py.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.linalg import cho_solve_banded, cholesky_banded
+from scipy.special import gammainc
+
+from dome_calib.errors import non_finite_fields
+from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
+from dome_calib.recon.errors import ReconError
+from dome_calib.recon.kernel import F32, CameraKernel
+from dome_calib.recon.people.bodies import Bodies, Observations
+from dome_calib.recon.project import ViewSet
+
+_BONE_A = np.array([JOINTS19.index(a) for a, _ in BONE_LENGTH_CM])
+_BONE_B = np.array([JOINTS19.index(b) for _, b in BONE_LENGTH_CM])
+#: RMS acceleration of each joint in everyday motion (cm/s^2): trunk and head, elbows and knees, wrists and ankles.
+_ACCEL_GROUPS = {300.0: ("neck", "nose", "body_center", "l_shoulder", "r_shoulder", "l_hip", "r_hip", "l_eye",
+                         "r_eye", "l_ear", "r_ear"),
+                 800.0: ("l_elbow", "r_elbow", "l_knee", "r_knee"),
+                 1200.0: ("l_wrist", "r_wrist", "l_ankle", "r_ankle")}
+ACCEL_RMS_CM_S2 = np.array([next(a for a, names in _ACCEL_GROUPS.items() if n in names) for n in JOINTS19])
+#: A 2D Gaussian's median radius in units of its per-axis sigma: sqrt(2 ln 2).
+_RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))
+
+
+@dataclass(kw_only=True)
+class TemporalOptions:
+    """Options of :func:`refine_tracks` (see the module docstring). enabled: False keeps the per-frame joints;
+    robust_k: Cauchy scale in units of the camera's pixel noise; outvoted_k: a detection farther than this many
+    sigma from the body is outvoted; bone_sigma_cm; bone_min_views: frames whose two joints have this many inlier
+    views estimate a bone; accel_scale: multiplies the body's RMS accelerations; correlation_s; prior_sigma_cm: weak
+    pull to the start (only directions nothing else holds); max_sigma_cm: a joint the per-frame triangulation left
+    out is output only if its standard deviation is below this; min_noise_px: floor of a camera's pixel noise."""
+
+    enabled: bool = True
+    iterations: int = 4
+    robust_k: float = 3.0
+    outvoted_k: float = 5.0
+    bone_sigma_cm: float = 1.5
+    bone_min_views: int = 3
+    accel_scale: float = 1.0
+    correlation_s: float = 0.1
+    prior_sigma_cm: float = 30.0
+    max_sigma_cm: float = 6.0
+    min_noise_px: float = 0.5
+    cg_tolerance: float = 1e-6
+    cg_max_iterations: int = 300
+    accel_rms_cm_s2: np.ndarray = field(default_factory=lambda: ACCEL_RMS_CM_S2.copy())
+
+    def __post_init__(self) -> None:
+        if bad := non_finite_fields(self):
+            raise ReconError(f"{bad[0]} but expected a finite number")
+        if self.iterations < 1 or self.robust_k <= 0 or self.outvoted_k <= 0 or self.bone_sigma_cm <= 0 \
+                or self.accel_scale <= 0 or self.correlation_s <= 0 or self.prior_sigma_cm <= 0 \
+                or self.max_sigma_cm <= 0 or self.min_noise_px <= 0:
+            raise ReconError("temporal: iterations >= 1 and every scale > 0 are required")
+
+
+@dataclass(frozen=True)
+class TemporalResult:
+    """The refined bodies (same times, same people, same ids) and per camera (``views`` order): records (V,)
+    detections judged, outvoted (V,) of them farther than ``outvoted_k`` sigma from the body, noise_px (V,) the
+    measured pixel noise (NaN: too few detections, the median of the others used), residual_px (M,) every
+    record's distance to the final body (NaN where its joint is not output)."""
+
+    bodies: list[Bodies]
+    records: np.ndarray
+    outvoted: np.ndarray
+    noise_px: np.ndarray
+    residual_px: np.ndarray
+    record_view: np.ndarray
+
+
+@dataclass
+class _Layout:
+    """The unknowns: body-frames (BF) sorted by (track, time); joint chains (track, joint) contiguous in time."""
+
+    bf_k: np.ndarray  # (BF,) time index
+    bf_p: np.ndarray  # (BF,) body index at that time
+    bf_track: np.ndarray  # (BF,) track
+    bf_pos: np.ndarray  # (BF,) position within its track
+    var: np.ndarray  # (BF, 19) unknown point index (-1: joint not solved)
+    n_var: int
+
+
+def _layout(bodies: list[Bodies]) -> _Layout:
+    k = np.concatenate([np.full(len(b.ids), i) for i, b in enumerate(bodies)] + [np.zeros(0, np.int64)])
+    p = np.concatenate([np.arange(len(b.ids)) for b in bodies] + [np.zeros(0, np.int64)])
+    ids = np.concatenate([b.ids for b in bodies] + [np.zeros(0, np.int64)])
+    order = np.lexsort((k, ids))
+    k, p, ids = k[order], p[order], ids[order]
+    _, track, counts = np.unique(ids, return_inverse=True, return_counts=True)
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    pos = np.arange(len(ids)) - starts[track]
+    X = np.stack([bodies[a].X_cm[b] for a, b in zip(k, p)]) if len(k) else np.zeros((0, 19, 3))
+    have = np.isfinite(X).all(-1)  # (BF, 19)
+    chain_on = np.zeros((len(counts), 19), bool)
+    np.logical_or.at(chain_on, track, have)
+    # chain-major numbering: track by track, joint by joint, time within
+    n_chain = np.where(chain_on, counts[:, None], 0)  # (tracks, 19)
+    chain_start = np.concatenate([[0], np.cumsum(n_chain.ravel())])[:-1].reshape(n_chain.shape)
+    var = np.where(chain_on[track], chain_start[track] + pos[:, None], -1)
+    return _Layout(bf_k=k, bf_p=p, bf_track=track, bf_pos=pos, var=var, n_var=int(n_chain.sum()))
+
+
+def _initial_points(lay: _Layout, X: np.ndarray, times_s: np.ndarray) -> np.ndarray:
+    """(n_var, 3) start: the per-frame joints; joints missing at a time interpolated linearly over the track's time
+    (the nearest frame's beyond its ends)."""
+    out = np.zeros((lay.n_var, 3))
+    t = times_s[lay.bf_k]
+    for tr in np.unique(lay.bf_track):
+        rows = np.flatnonzero(lay.bf_track == tr)
+        for j in np.flatnonzero((lay.var[rows] >= 0).any(0)):
+            have = np.isfinite(X[rows, j]).all(-1)
+            for ax in range(3):
+                out[lay.var[rows, j], ax] = np.interp(t[rows], t[rows][have], X[rows[have], j, ax])
+    return out
+
+
+def measure_noise_px(kernel: CameraKernel, X: np.ndarray, n_inliers: np.ndarray, obs: Observations,
+                     row_bf: np.ndarray, n_views: int, min_noise_px: float, min_records: int = 30) -> np.ndarray:
+    """(V,) the pixel noise of each camera's detections: the median distance to the per-frame joints (X (BF, 19, 3),
+    seen by ``n_inliers`` (BF, 19) >= 2 views) / 1.177, each distance first scaled by sqrt(2n / (2n - 3)) (a point
+    fitted to n views takes 3 of their 2n degrees of freedom: its residuals are smaller than the noise), over the
+    records within 30 px (a swap is not noise); cameras with fewer than ``min_records`` such records get the
+    median of the others."""
+    bf = row_bf[obs.row]
+    P = X[bf, obs.joint]
+    n = n_inliers[bf, obs.joint]
+    ok = np.isfinite(P).all(-1) & (n >= 2)
+    r_u, r_v, _ = kernel.evaluate_pairs(np.where(ok[:, None], P, 0.0), obs.view, obs.uv_px[:, 0], obs.uv_px[:, 1],
+                                        jacobian=False)
+    r = np.hypot(r_u, r_v)
+    ok &= np.isfinite(r) & (r < 30.0)
+    r = r * np.sqrt(2.0 * n / np.maximum(2.0 * n - 3.0, 1.0))
+    noise = np.full(n_views, np.nan)
+    for v in range(n_views):
+        rv = r[ok & (obs.view == v)]
+        if len(rv) >= min_records:
+            noise[v] = max(float(np.median(rv)) / _RAYLEIGH_MEDIAN, min_noise_px)
+    return noise
+
+
+def _smoothness(lay: _Layout, times_s: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Second-difference rows of every chain: (S, 3) point indices, (S, 3) coefficients (acceleration, 1/s^2),
+    (S,) weights tau / q (the integral of |x''|^2 / q over the interval the row stands for)."""
+    track = lay.bf_track
+    mid = np.arange(1, max(len(track) - 1, 1))
+    mid = mid[(track[mid - 1] == track[mid]) & (track[np.minimum(mid + 1, len(track) - 1)] == track[mid])
+              & (mid + 1 < len(track))]
+    a, b, c = mid - 1, mid, mid + 1
+    t = times_s[lay.bf_k]
+    dt0, dt1 = t[b] - t[a], t[c] - t[b]
+    alpha, gamma = 2.0 / (dt0 * (dt0 + dt1)), 2.0 / (dt1 * (dt0 + dt1))
+    coef = np.stack([alpha, -(alpha + gamma), gamma], axis=1)  # (S_bf, 3)
+    tau = 0.5 * (dt0 + dt1)
+    idx = np.stack([lay.var[a], lay.var[b], lay.var[c]], axis=-1)  # (S_bf, 19, 3)
+    on = (idx >= 0).all(-1)
+    s, j = np.nonzero(on)
+    return idx[s, j], coef[s], tau[s] / q[j]
+
+
+def _bone_lengths(lay: _Layout, X: np.ndarray, n_inl: np.ndarray, min_views: int) -> np.ndarray:
+    """(tracks, E) median length of each bone over the track's frames where both joints have ``min_views``
+    inlier views (NaN: no such frame)."""
+    length = np.linalg.norm(X[:, _BONE_A] - X[:, _BONE_B], axis=-1)  # (BF, E)
+    good = (n_inl[:, _BONE_A] >= min_views) & (n_inl[:, _BONE_B] >= min_views) & np.isfinite(length)
+    n_tracks = int(lay.bf_track.max()) + 1 if len(lay.bf_track) else 0
+    out = np.full((n_tracks, len(_BONE_A)), np.nan)
+    for tr in range(n_tracks):
+        rows = lay.bf_track == tr
+        L = np.where(good[rows], length[rows], np.nan)
+        seen = np.isfinite(L).any(0)
+        out[tr, seen] = np.nanmedian(L[:, seen], axis=0)
+    return out
+
+
+def _blocks(n: int, idx_a: np.ndarray, idx_b: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, ...]:
+    """COO entries of (K, 3, 3) blocks M at point rows idx_a, point columns idx_b."""
+    r = (3 * idx_a)[:, None, None] + np.arange(3)[None, :, None]
+    c = (3 * idx_b)[:, None, None] + np.arange(3)[None, None, :]
+    return np.broadcast_to(r, M.shape).ravel(), np.broadcast_to(c, M.shape).ravel(), M.ravel()
+
+
+def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], obs: Observations,
+                  options: TemporalOptions | None = None) -> TemporalResult:
+    """The tracked bodies of a chunk (ids >= 0, rows into ``obs``) -> the same bodies fitted over time (see the
+    module docstring). views: the cameras ``obs.view`` indexes."""
+    options = options or TemporalOptions()
+    V = len(views.names)
+    lay = _layout(bodies)
+    BF = len(lay.bf_k)
+    empty = TemporalResult(bodies=bodies, records=np.zeros(V, np.int64), outvoted=np.zeros(V, np.int64),
+                           noise_px=np.full(V, np.nan), residual_px=np.zeros(0), record_view=np.zeros(0, np.int64))
+    if BF == 0 or lay.n_var == 0 or not options.enabled:
+        return empty
+    X0 = np.stack([bodies[a].X_cm[b] for a, b in zip(lay.bf_k, lay.bf_p)])
+    n_inl0 = np.stack([bodies[a].n_inliers[b] for a, b in zip(lay.bf_k, lay.bf_p)])
+    rows = np.stack([bodies[a].rows[b] for a, b in zip(lay.bf_k, lay.bf_p)])
+    row_bf = np.full(max(int(obs.row.max()) + 1 if len(obs.row) else 0, int(rows.max()) + 1), -1)
+    row_bf[rows] = np.arange(BF)
+    times_s = np.asarray(times_ms, dtype=float) / 1000.0
+    kernel = CameraKernel(views)
+    # the records of the solved joints
+    bf_rec = row_bf[obs.row] if len(obs.row) else np.zeros(0, np.int64)
+    keep = bf_rec >= 0
+    keep[keep] = lay.var[bf_rec[keep], obs.joint[keep]] >= 0
+    rec_var = lay.var[bf_rec[keep], obs.joint[keep]]
+    rec_view, rec_uv, rec_c = obs.view[keep], obs.uv_px[keep], obs.conf[keep].astype(float)
+    noise = measure_noise_px(kernel, X0, n_inl0, obs, row_bf, V, options.min_noise_px)
+    sigma_v = np.where(np.isfinite(noise), noise, np.nanmedian(noise) if np.isfinite(noise).any() else 3.0)
+    sig = sigma_v[rec_view]
+    q = 2.0 * (options.accel_scale * options.accel_rms_cm_s2) ** 2 * options.correlation_s
+    s_idx, s_coef, s_w = _smoothness(lay, times_s, q)
+    L = _bone_lengths(lay, X0, n_inl0, options.bone_min_views)
+    bone_bf, bone_e = np.nonzero((lay.var[:, _BONE_A] >= 0) & (lay.var[:, _BONE_B] >= 0)
+                                 & np.isfinite(L[lay.bf_track]))
+    ba, bb = lay.var[bone_bf, _BONE_A[bone_e]], lay.var[bone_bf, _BONE_B[bone_e]]
+    bone_len = L[lay.bf_track[bone_bf], bone_e]
+    w_bone = 1.0 / options.bone_sigma_cm ** 2
+    P = _initial_points(lay, X0, times_s)
+    P_start = P.copy()
+    w0 = 1.0 / options.prior_sigma_cm ** 2
+    n = 3 * lay.n_var
+    # the time chains' matrix (smoothness, prior) is the same at every iteration
+    sr, sc, sv = [], [], []
+    for i in range(3):
+        for k in range(3):
+            r, c, v = _blocks(n, s_idx[:, i], s_idx[:, k],
+                              (s_w * s_coef[:, i] * s_coef[:, k])[:, None, None] * np.eye(3)[None])
+            sr.append(r), sc.append(c), sv.append(v)
+    chain = sp.coo_matrix((np.concatenate(sv), (np.concatenate(sr), np.concatenate(sc))), shape=(n, n)).tocsr()
+    chain = chain + w0 * sp.identity(n, format="csr")
+    cams = kernel.gather(rec_view)
+    u_obs, v_obs = rec_uv[:, 0], rec_uv[:, 1]
+    every = slice(None)
+    for _ in range(options.iterations):
+        r_u, r_v, J = cams.evaluate_pairs(P[rec_var], every, u_obs, v_obs, jacobian=True)
+        front = np.isfinite(r_u) & np.isfinite(r_v)
+        r_u, r_v = np.where(front, r_u, 0.0), np.where(front, r_v, 0.0)
+        w = np.where(front, rec_c / (1.0 + (r_u * r_u + r_v * r_v) / (options.robust_k * sig) ** 2) / sig ** 2, 0.0)
+        H_d, g = _normal_blocks(rec_var, w, J, r_u, r_v, lay.n_var)
+        # bones, linearised along their current direction
+        d = P[ba] - P[bb]
+        length = np.maximum(np.linalg.norm(d, axis=1), 1e-6)
+        u = d / length[:, None]
+        uu = w_bone * u[:, :, None] * u[:, None, :]
+        rb = (length - bone_len)[:, None] * u * w_bone
+        H_diag = H_d + _sum_by(np.concatenate([ba, bb]), np.concatenate([uu, uu]), lay.n_var)
+        g += _sum_by(np.concatenate([ba, bb]), np.concatenate([rb, -rb]), lay.n_var)
+        g += (chain @ P.ravel() - w0 * P_start.ravel()).reshape(-1, 3)  # smoothness (linear) and the prior
+        diag = sp.coo_matrix((H_diag.ravel(), _blocks(n, np.arange(lay.n_var), np.arange(lay.n_var), H_diag)[:2]),
+                             shape=(n, n)).tocsr()
+        pre = (chain + diag).tocsc()
+        r1, c1, v1 = _blocks(n, ba, bb, -uu)
+        r2, c2, v2 = _blocks(n, bb, ba, -uu)
+        cross = sp.coo_matrix((np.concatenate([v1, v2]), (np.concatenate([r1, r2]), np.concatenate([c1, c2]))),
+                              shape=(n, n)).tocsr()
+        H = (pre + cross).tocsr()
+        P = P + _pcg(H, -g.ravel(), _banded_solver(pre), options.cg_tolerance,
+                     options.cg_max_iterations).reshape(-1, 3)
+    # final judgement of every record, and each joint's standard deviation
+    r_u, r_v, _ = cams.evaluate_pairs(P[rec_var], every, u_obs, v_obs, jacobian=False)
+    res = np.hypot(r_u, r_v)
+    inlier = np.isfinite(res) & (res < options.outvoted_k * sig)
+    records = np.bincount(rec_view, minlength=V)
+    outvoted = np.bincount(rec_view[~inlier], minlength=V)
+    n_inl = np.zeros(lay.n_var, np.int64)
+    np.add.at(n_inl, rec_var, inlier.astype(np.int64))
+    info = np.linalg.eigvalsh(H_diag + np.asarray(chain.diagonal()).reshape(-1, 3)[:, :, None] * np.eye(3))[:, 0]
+    var_cm2 = 1.0 / np.maximum(info, 1e-12)
+    var_cm2 += _gap_variance(lay, X0, times_s, q)
+    sigma = np.sqrt(var_cm2)
+    out = _write_back(bodies, lay, P, sigma, n_inl, X0, options.max_sigma_cm)
+    residual = np.full(len(obs.row), np.nan)
+    residual[np.flatnonzero(keep)] = res
+    return TemporalResult(bodies=out, records=records, outvoted=outvoted, noise_px=noise, residual_px=residual,
+                          record_view=obs.view)
+
+
+def _normal_blocks(var: np.ndarray, w: np.ndarray, J: np.ndarray, r_u: np.ndarray, r_v: np.ndarray, n: int
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Newton blocks of the weighted reprojection terms summed per point: H (n, 3, 3) = sum w J^T J and
+    g (n, 3) = sum w J^T r, from (M,) point indices, weights, (M, 2, 3) Jacobians and residuals."""
+    Ju, Jv = J[:, 0].astype(float), J[:, 1].astype(float)
+    wu, wv = w[:, None] * Ju, w[:, None] * Jv
+    H = np.empty((n, 3, 3))
+    for i in range(3):
+        for k in range(i, 3):
+            H[:, i, k] = H[:, k, i] = np.bincount(var, weights=wu[:, i] * Ju[:, k] + wv[:, i] * Jv[:, k], minlength=n)
+    g = np.stack([np.bincount(var, weights=wu[:, i] * r_u + wv[:, i] * r_v, minlength=n) for i in range(3)], axis=1)
+    return H, g
+
+
+def _sum_by(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """(K, ...) values summed into (n, ...) by (K,) index (bincount per component: no BLAS, no ufunc.at)."""
+    flat = values.reshape(len(values), -1)
+    out = np.stack([np.bincount(index, weights=flat[:, c], minlength=n) for c in range(flat.shape[1])], axis=1)
+    return out.reshape((n,) + values.shape[1:])
+
+
+def _banded_solver(A: sp.spmatrix):
+    """x -> A^-1 x for a symmetric positive definite A whose entries lie near the diagonal (each joint's time
+    chain: the numbering keeps a chain's points consecutive), by a banded Cholesky factorisation (LAPACK)."""
+    C = A.tocoo()
+    upper = C.col >= C.row
+    r, c, v = C.row[upper], C.col[upper], C.data[upper]
+    u = int((c - r).max()) if len(r) else 0
+    ab = np.zeros((u + 1, A.shape[0]))
+    ab[u + r - c, c] = v
+    factor = cholesky_banded(ab, lower=False)
+    return lambda x: cho_solve_banded((factor, False), x)
+
+
+def _pcg(A: sp.csr_matrix, b: np.ndarray, precondition, tolerance: float, max_iterations: int) -> np.ndarray:
+    """Preconditioned conjugate gradients for A x = b (A symmetric positive definite), from x = 0, until the
+    residual is ``tolerance`` x |b|. Dot products by einsum: a multi-threaded BLAS on short vectors only contends."""
+    dot = lambda u, v: float(np.einsum("i,i->", u, v))  # noqa: E731
+    x = np.zeros_like(b)
+    r = b.copy()
+    z = precondition(r)
+    p = z.copy()
+    rz = dot(r, z)
+    stop = tolerance ** 2 * dot(b, b)
+    for _ in range(max_iterations):
+        if dot(r, r) <= stop:
+            break
+        Ap = A @ p
+        alpha = rz / dot(p, Ap)
+        x += alpha * p
+        r -= alpha * Ap
+        z = precondition(r)
+        rz, rz_old = dot(r, z), rz
+        p = z + (rz / rz_old) * p
+    return x
+
+
+def _gap_variance(lay: _Layout, X0: np.ndarray, times_s: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """(n_var,) q d^3 / 3 where d (s) is the time to the nearest frame of the track at which the per-frame
+    triangulation had the joint (0 where it had it)."""
+    out = np.zeros(lay.n_var)
+    t = times_s[lay.bf_k]
+    have = np.isfinite(X0).all(-1)
+    for tr in np.unique(lay.bf_track):
+        rows = np.flatnonzero(lay.bf_track == tr)
+        for j in np.flatnonzero((lay.var[rows] >= 0).any(0)):
+            th, tr_t = t[rows][have[rows, j]], t[rows]
+            idx = np.searchsorted(th, tr_t)
+            left, right = th[np.clip(idx - 1, 0, len(th) - 1)], th[np.clip(idx, 0, len(th) - 1)]
+            d = np.minimum(np.abs(tr_t - left), np.abs(right - tr_t))
+            out[lay.var[rows, j]] = q[j] * d ** 3 / 3.0
+    return out
+
+
+def _write_back(bodies: list[Bodies], lay: _Layout, P: np.ndarray, sigma: np.ndarray, n_inl: np.ndarray,
+                X0: np.ndarray, max_sigma_cm: float) -> list[Bodies]:
+    """New bodies: every solved joint that the per-frame triangulation had, or whose sigma is below
+    ``max_sigma_cm``; c = P(error < 5 cm) under a 3D Gaussian of that sigma."""
+    out = [Bodies(X_cm=b.X_cm.copy(), confidence=b.confidence.copy(), n_inliers=b.n_inliers.copy(),
+                  n_views=b.n_views, ids=b.ids, rows=b.rows) for b in bodies]
+    for f in range(len(lay.bf_k)):
+        b = out[lay.bf_k[f]]
+        p = lay.bf_p[f]
+        v = lay.var[f]
+        on = v >= 0
+        s = np.where(on, sigma[np.maximum(v, 0)], np.inf)
+        show = on & ((np.isfinite(X0[f]).all(-1)) | (s <= max_sigma_cm))
+        b.X_cm[p] = np.where(show[:, None], P[np.maximum(v, 0)], np.nan)
+        b.confidence[p] = np.where(show, within_probability(5.0, s), -1.0)
+        b.n_inliers[p] = np.where(show, n_inl[np.maximum(v, 0)], 0)
+    return out
+
+
+def within_probability(radius_cm: float, sigma_cm: np.ndarray) -> np.ndarray:
+    """P(|e| < radius) for e ~ N(0, sigma^2 I_3): the chi distribution with 3 degrees of freedom."""
+    return gammainc(1.5, 0.5 * (radius_cm / np.maximum(sigma_cm, 1e-9)) ** 2)
