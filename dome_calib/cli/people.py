@@ -27,8 +27,11 @@ def reconstruct(
     reference: str = typer.Option(None, "--reference", help="Stream whose frames are the output times (vga, hd, "
                                   "KINECTNODE<n>; default vga, else hd)."),
     min_views: int = typer.Option(3, "--min-views", help="A person must be seen by this many cameras."),
-    smooth: int = typer.Option(0, "--smooth", help="Smooth each person's joints over this many frames either side "
-                               "(a local straight-line fit: no lag for steady motion); 0 = off."),
+    smooth: int = typer.Option(0, "--smooth", help="Smooth each person's per-frame joints over this many frames "
+                               "either side (a local straight-line fit: no lag for steady motion); 0 = off."),
+    per_frame: bool = typer.Option(False, "--per-frame", help="Each time's own triangulation only, without the body "
+                                   "over time (constant bones, smooth motion, every detection weighed against the "
+                                   "body; the default and the better result)."),
     fps: str = typer.Option("30", "--fps", help="Frame rate of a bundle without sync tables (for univTime)."),
     workers: int = typer.Option(1, "--workers", help="Processes for long sessions (chunks of 600 times)."),
     scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler (tcp://HOST:PORT) to run the chunks "
@@ -42,7 +45,7 @@ def reconstruct(
     from dome_calib.recon.people.commands import people_options, reconstruct_folder
 
     out = out or detections.with_name(f"{detections.name}_people")
-    options = people_options(min_views=min_views, smooth=smooth, fps=fps)
+    options = people_options(min_views=min_views, smooth=smooth, fps=fps, per_frame=per_frame)
     with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:
         summary = reconstruct_folder(detections, bundle, out, body_model=body_model, camera_map=camera_map,
                                      reference=reference, options=options, executor=executor,

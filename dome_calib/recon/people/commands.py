@@ -19,6 +19,7 @@ from dome_calib.recon.people.proposals import AssociationOptions
 from dome_calib.recon.people.run import PeopleOptions
 from dome_calib.recon.people.scene_io import camera_report, check_people_folder, write_people
 from dome_calib.recon.people.sources import FileSource, StreamLayout, stream_layouts
+from dome_calib.recon.people.temporal import TemporalOptions
 from dome_calib.recon.people.tracking import TrackingOptions
 from dome_calib.recon.project import view_set
 
@@ -38,9 +39,11 @@ class ReconstructSummary:
     median_reprojection_px: float | None
 
 
-def people_options(*, min_views: int = 3, smooth: int = 0, fps: str = "30") -> PeopleOptions:
+def people_options(*, min_views: int = 3, smooth: int = 0, fps: str = "30", per_frame: bool = False
+                   ) -> PeopleOptions:
     """The command's options: people need ``min_views`` cameras, ``smooth`` observations either side (0 = off),
-    ``fps`` (e.g. "30", "30000/1001") for a bundle without sync tables. ReconError names a bad value."""
+    ``fps`` (e.g. "30", "30000/1001") for a bundle without sync tables; ``per_frame``: the joints of each time's
+    own triangulation, without the body over time. ReconError names a bad value."""
     try:
         shared_fps = Fraction(fps)
     except (ValueError, ZeroDivisionError):
@@ -48,7 +51,8 @@ def people_options(*, min_views: int = 3, smooth: int = 0, fps: str = "30") -> P
     if shared_fps <= 0:
         raise ReconError(f"--fps {fps!r}: a frame rate must be > 0")
     return PeopleOptions(association=AssociationOptions(min_person_views=min_views),
-                         tracking=TrackingOptions(smooth_half_window=smooth), shared_fps=shared_fps)
+                         tracking=TrackingOptions(smooth_half_window=smooth), shared_fps=shared_fps,
+                         temporal=TemporalOptions(enabled=not per_frame))
 
 
 def reference_times(streams: list[StreamLayout], reference: str | None) -> tuple[np.ndarray, np.ndarray, str]:
