@@ -59,6 +59,8 @@ _ACCEL_GROUPS = {300.0: ("neck", "nose", "body_center", "l_shoulder", "r_shoulde
                  800.0: ("l_elbow", "r_elbow", "l_knee", "r_knee"),
                  1200.0: ("l_wrist", "r_wrist", "l_ankle", "r_ankle")}
 ACCEL_RMS_CM_S2 = np.array([next(a for a, names in _ACCEL_GROUPS.items() if n in names) for n in JOINTS19])
+#: Bins of the camera noise's median (px).
+_NOISE_BIN_PX = 0.05
 #: A 2D Gaussian's median radius in units of its per-axis sigma: sqrt(2 ln 2).
 _RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))
 
@@ -70,7 +72,9 @@ class TemporalOptions:
     sigma from the body is outvoted; bone_sigma_cm; bone_min_views: frames whose two joints have this many inlier
     views estimate a bone; accel_scale: multiplies the body's RMS accelerations; correlation_s; prior_sigma_cm: weak
     pull to the start (only directions nothing else holds); max_sigma_cm: a joint the per-frame triangulation left
-    out is output only if its standard deviation is below this; min_noise_px: floor of a camera's pixel noise."""
+    out is output only if its standard deviation is below this; min_noise_px: floor of a camera's pixel noise;
+    max_views_per_joint: the fit uses a joint's most confident detections up to this many (every detection is
+    judged at the end)."""
 
     enabled: bool = True
     iterations: int = 4
@@ -83,6 +87,7 @@ class TemporalOptions:
     prior_sigma_cm: float = 30.0
     max_sigma_cm: float = 6.0
     min_noise_px: float = 0.5
+    max_views_per_joint: int = 32
     cg_tolerance: float = 1e-6
     cg_max_iterations: int = 300
     accel_rms_cm_s2: np.ndarray = field(default_factory=lambda: ACCEL_RMS_CM_S2.copy())
@@ -90,7 +95,8 @@ class TemporalOptions:
     def __post_init__(self) -> None:
         if bad := non_finite_fields(self):
             raise ReconError(f"{bad[0]} but expected a finite number")
-        if self.iterations < 1 or self.robust_k <= 0 or self.outvoted_k <= 0 or self.bone_sigma_cm <= 0 \
+        if self.iterations < 1 or self.max_views_per_joint < 2 or self.robust_k <= 0 or self.outvoted_k <= 0 \
+                or self.bone_sigma_cm <= 0 \
                 or self.accel_scale <= 0 or self.correlation_s <= 0 or self.prior_sigma_cm <= 0 \
                 or self.max_sigma_cm <= 0 or self.min_noise_px <= 0:
             raise ReconError("temporal: iterations >= 1 and every scale > 0 are required")
@@ -157,28 +163,40 @@ def _initial_points(lay: _Layout, X: np.ndarray, times_s: np.ndarray) -> np.ndar
     return out
 
 
-def measure_noise_px(kernel: CameraKernel, X: np.ndarray, n_inliers: np.ndarray, obs: Observations,
-                     row_bf: np.ndarray, n_views: int, min_noise_px: float, min_records: int = 30) -> np.ndarray:
-    """(V,) the pixel noise of each camera's detections: the median distance to the per-frame joints (X (BF, 19, 3),
-    seen by ``n_inliers`` (BF, 19) >= 2 views) / 1.177, each distance first scaled by sqrt(2n / (2n - 3)) (a point
-    fitted to n views takes 3 of their 2n degrees of freedom: its residuals are smaller than the noise), over the
-    records within 30 px (a swap is not noise); cameras with fewer than ``min_records`` such records get the
-    median of the others."""
-    bf = row_bf[obs.row]
-    P = X[bf, obs.joint]
-    n = n_inliers[bf, obs.joint]
-    ok = np.isfinite(P).all(-1) & (n >= 2)
-    r_u, r_v, _ = kernel.evaluate_pairs(np.where(ok[:, None], P, 0.0), obs.view, obs.uv_px[:, 0], obs.uv_px[:, 1],
+def measure_noise_px(kernel: CameraKernel, X_cm: np.ndarray, n_inliers: np.ndarray, view: np.ndarray,
+                     uv_px: np.ndarray, n_views: int, min_noise_px: float, min_records: int = 30) -> np.ndarray:
+    """(V,) the pixel noise of each camera's detections from M records: detection uv_px (M, 2) in ``view`` (M,) of a
+    per-frame joint X_cm (M, 3) (NaN: none) seen by ``n_inliers`` (M,) views. The median distance / 1.177, each
+    distance first scaled by sqrt(2n / (2n - 3)) (a point fitted to n views takes 3 of their 2n degrees of freedom:
+    its residuals are smaller than the noise), over the records within 30 px (a swap is not noise), in bins of
+    0.05 px (no sort; the same on every machine); cameras with fewer than ``min_records`` get NaN."""
+    ok = np.isfinite(X_cm).all(-1) & (n_inliers >= 2)
+    r_u, r_v, _ = kernel.evaluate_pairs(np.where(ok[:, None], X_cm, 0.0), view, uv_px[:, 0], uv_px[:, 1],
                                         jacobian=False)
     r = np.hypot(r_u, r_v)
     ok &= np.isfinite(r) & (r < 30.0)
-    r = r * np.sqrt(2.0 * n / np.maximum(2.0 * n - 3.0, 1.0))
-    noise = np.full(n_views, np.nan)
-    for v in range(n_views):
-        rv = r[ok & (obs.view == v)]
-        if len(rv) >= min_records:
-            noise[v] = max(float(np.median(rv)) / _RAYLEIGH_MEDIAN, min_noise_px)
-    return noise
+    r = r * np.sqrt(2.0 * n_inliers / np.maximum(2.0 * n_inliers - 3.0, 1.0))
+    bins = int(60.0 / _NOISE_BIN_PX)
+    b = np.minimum((r[ok] / _NOISE_BIN_PX).astype(np.int64), bins - 1)
+    hist = np.bincount(view[ok] * bins + b, minlength=n_views * bins).reshape(n_views, bins)
+    n = hist.sum(1)
+    k = np.argmax(np.cumsum(hist, axis=1) >= (n[:, None] + 1) // 2, axis=1)
+    med = (k + 0.5) * _NOISE_BIN_PX
+    return np.where(n >= min_records, np.maximum(med / _RAYLEIGH_MEDIAN, min_noise_px), np.nan)
+
+
+def strongest_records(point: np.ndarray, conf: np.ndarray, view: np.ndarray, limit: int) -> np.ndarray:
+    """Indices of at most ``limit`` records per point (M,): the most confident (ties by view). A joint that 250
+    views of the full dome see is placed as well by its 32 best: the stage's cost then does not grow with views."""
+    if len(point) == 0 or np.bincount(point).max() <= limit:
+        return np.arange(len(point))
+    key = (point.astype(np.int64) << 24) | ((10_000 - np.round(np.clip(conf, 0, 1) * 10_000).astype(np.int64)) << 10) \
+        | np.minimum(view, 1023)  # point, then confidence (quantised, highest first), then view: one int64 sort
+    order = np.argsort(key, kind="stable")
+    p = point[order]
+    start = np.flatnonzero(np.concatenate([[True], p[1:] != p[:-1]]))
+    rank = np.arange(len(p)) - np.repeat(start, np.diff(np.concatenate([start, [len(p)]])))
+    return np.sort(order[rank < limit])
 
 
 def _smoothness(lay: _Layout, times_s: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -245,9 +263,14 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
     bf_rec = row_bf[obs.row] if len(obs.row) else np.zeros(0, np.int64)
     keep = bf_rec >= 0
     keep[keep] = lay.var[bf_rec[keep], obs.joint[keep]] >= 0
-    rec_var = lay.var[bf_rec[keep], obs.joint[keep]]
-    rec_view, rec_uv, rec_c = obs.view[keep], obs.uv_px[keep], obs.conf[keep].astype(float)
-    noise = measure_noise_px(kernel, X0, n_inl0, obs, row_bf, V, options.min_noise_px)
+    kept = np.flatnonzero(keep)
+    all_var = lay.var[bf_rec[kept], obs.joint[kept]]
+    sel = kept[strongest_records(all_var, obs.conf[kept], obs.view[kept], options.max_views_per_joint)]
+    rec_bf, rec_joint = bf_rec[sel], obs.joint[sel]
+    rec_var = lay.var[rec_bf, rec_joint]
+    rec_view, rec_uv, rec_c = obs.view[sel], obs.uv_px[sel], obs.conf[sel].astype(float)
+    noise = measure_noise_px(kernel, X0[rec_bf, rec_joint], n_inl0[rec_bf, rec_joint], rec_view, rec_uv, V,
+                             options.min_noise_px)
     sigma_v = np.where(np.isfinite(noise), noise, np.nanmedian(noise) if np.isfinite(noise).any() else 3.0)
     sig = sigma_v[rec_view]
     q = 2.0 * (options.accel_scale * options.accel_rms_cm_s2) ** 2 * options.correlation_s
@@ -262,7 +285,8 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
     P_start = P.copy()
     w0 = 1.0 / options.prior_sigma_cm ** 2
     n = 3 * lay.n_var
-    # the time chains' matrix (smoothness, prior) is the same at every iteration
+    # the time chains' matrix (smoothness, prior) is the same at every iteration: CSR for products, banded for the
+    # preconditioner (a chain's points are consecutive: second differences reach 2 points = 6 rows)
     sr, sc, sv = [], [], []
     for i in range(3):
         for k in range(3):
@@ -270,10 +294,12 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
                               (s_w * s_coef[:, i] * s_coef[:, k])[:, None, None] * np.eye(3)[None])
             sr.append(r), sc.append(c), sv.append(v)
     chain = sp.coo_matrix((np.concatenate(sv), (np.concatenate(sr), np.concatenate(sc))), shape=(n, n)).tocsr()
-    chain = chain + w0 * sp.identity(n, format="csr")
+    chain = (chain + w0 * sp.identity(n, format="csr")).tocsr()
+    chain_band = _upper_band(chain, _BAND)
     cams = kernel.gather(rec_view)
     u_obs, v_obs = rec_uv[:, 0], rec_uv[:, 1]
     every = slice(None)
+    both = np.concatenate([ba, bb])
     for _ in range(options.iterations):
         r_u, r_v, J = cams.evaluate_pairs(P[rec_var], every, u_obs, v_obs, jacobian=True)
         front = np.isfinite(r_u) & np.isfinite(r_v)
@@ -286,34 +312,35 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
         u = d / length[:, None]
         uu = w_bone * u[:, :, None] * u[:, None, :]
         rb = (length - bone_len)[:, None] * u * w_bone
-        H_diag = H_d + _sum_by(np.concatenate([ba, bb]), np.concatenate([uu, uu]), lay.n_var)
-        g += _sum_by(np.concatenate([ba, bb]), np.concatenate([rb, -rb]), lay.n_var)
+        H_diag = H_d + _sum_by(both, np.concatenate([uu, uu]), lay.n_var)
+        g += _sum_by(both, np.concatenate([rb, -rb]), lay.n_var)
         g += (chain @ P.ravel() - w0 * P_start.ravel()).reshape(-1, 3)  # smoothness (linear) and the prior
-        diag = sp.coo_matrix((H_diag.ravel(), _blocks(n, np.arange(lay.n_var), np.arange(lay.n_var), H_diag)[:2]),
-                             shape=(n, n)).tocsr()
-        pre = (chain + diag).tocsc()
-        r1, c1, v1 = _blocks(n, ba, bb, -uu)
-        r2, c2, v2 = _blocks(n, bb, ba, -uu)
-        cross = sp.coo_matrix((np.concatenate([v1, v2]), (np.concatenate([r1, r2]), np.concatenate([c1, c2]))),
-                              shape=(n, n)).tocsr()
-        H = (pre + cross).tocsr()
-        P = P + _pcg(H, -g.ravel(), _banded_solver(pre), options.cg_tolerance,
+
+        def product(x: np.ndarray, H_diag=H_diag, uu=uu) -> np.ndarray:
+            """The full system times x: chains, each point's own block, the bones between points."""
+            X = x.reshape(-1, 3)
+            y = chain @ x + np.einsum("nij,nj->ni", H_diag, X).ravel()
+            cross = -np.concatenate([np.einsum("kij,kj->ki", uu, X[bb]), np.einsum("kij,kj->ki", uu, X[ba])])
+            return y + _sum_by(both, cross, lay.n_var).ravel()
+
+        P = P + _pcg(product, -g.ravel(), _banded_solver(chain_band, H_diag), options.cg_tolerance,
                      options.cg_max_iterations).reshape(-1, 3)
-    # final judgement of every record, and each joint's standard deviation
-    r_u, r_v, _ = cams.evaluate_pairs(P[rec_var], every, u_obs, v_obs, jacobian=False)
+    # final judgement of every record of the solved joints (also those the fit left aside: the full dome's
+    # beyond the strongest), and each joint's standard deviation
+    r_u, r_v, _ = kernel.evaluate_pairs(P[all_var], obs.view[kept], obs.uv_px[kept, 0], obs.uv_px[kept, 1],
+                                        jacobian=False)
     res = np.hypot(r_u, r_v)
-    inlier = np.isfinite(res) & (res < options.outvoted_k * sig)
-    records = np.bincount(rec_view, minlength=V)
-    outvoted = np.bincount(rec_view[~inlier], minlength=V)
-    n_inl = np.zeros(lay.n_var, np.int64)
-    np.add.at(n_inl, rec_var, inlier.astype(np.int64))
+    inlier = np.isfinite(res) & (res < options.outvoted_k * sigma_v[obs.view[kept]])
+    records = np.bincount(obs.view[kept], minlength=V)
+    outvoted = np.bincount(obs.view[kept][~inlier], minlength=V)
+    n_inl = np.bincount(all_var[inlier], minlength=lay.n_var)
     info = np.linalg.eigvalsh(H_diag + np.asarray(chain.diagonal()).reshape(-1, 3)[:, :, None] * np.eye(3))[:, 0]
     var_cm2 = 1.0 / np.maximum(info, 1e-12)
     var_cm2 += _gap_variance(lay, X0, times_s, q)
     sigma = np.sqrt(var_cm2)
     out = _write_back(bodies, lay, P, sigma, n_inl, X0, options.max_sigma_cm)
     residual = np.full(len(obs.row), np.nan)
-    residual[np.flatnonzero(keep)] = res
+    residual[kept] = res
     return TemporalResult(bodies=out, records=records, outvoted=outvoted, noise_px=noise, residual_px=residual,
                           record_view=obs.view)
 
@@ -339,22 +366,39 @@ def _sum_by(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     return out.reshape((n,) + values.shape[1:])
 
 
-def _banded_solver(A: sp.spmatrix):
-    """x -> A^-1 x for a symmetric positive definite A whose entries lie near the diagonal (each joint's time
-    chain: the numbering keeps a chain's points consecutive), by a banded Cholesky factorisation (LAPACK)."""
+#: Upper bandwidth of the time chains' matrix: a point's 3 rows reach the rows of the points 2 times away.
+_BAND = 8
+
+
+def _upper_band(A: sp.spmatrix, u: int) -> np.ndarray:
+    """LAPACK's upper banded storage (u + 1, n) of a symmetric matrix whose entries lie within u of the diagonal."""
     C = A.tocoo()
     upper = C.col >= C.row
     r, c, v = C.row[upper], C.col[upper], C.data[upper]
-    u = int((c - r).max()) if len(r) else 0
+    if len(r) and int((c - r).max()) > u:
+        raise ValueError(f"matrix bandwidth {int((c - r).max())} > {u}")
     ab = np.zeros((u + 1, A.shape[0]))
-    ab[u + r - c, c] = v
-    factor = cholesky_banded(ab, lower=False)
-    return lambda x: cho_solve_banded((factor, False), x)
+    np.add.at(ab, (u + r - c, c), v)
+    return ab
 
 
-def _pcg(A: sp.csr_matrix, b: np.ndarray, precondition, tolerance: float, max_iterations: int) -> np.ndarray:
-    """Preconditioned conjugate gradients for A x = b (A symmetric positive definite), from x = 0, until the
-    residual is ``tolerance`` x |b|. Dot products by einsum: a multi-threaded BLAS on short vectors only contends."""
+def _banded_solver(chain_band: np.ndarray, H_diag: np.ndarray):
+    """x -> M^-1 x for M = the time chains + each point's own 3 x 3 block (the system without the bones between
+    points), by a banded Cholesky factorisation (LAPACK; the numbering keeps a chain's points consecutive)."""
+    u = chain_band.shape[0] - 1
+    ab = chain_band.copy()
+    base = 3 * np.arange(len(H_diag))
+    for i in range(3):
+        for k in range(i, 3):
+            ab[u + i - k, base + k] += H_diag[:, i, k]
+    factor = cholesky_banded(ab, lower=False, check_finite=False)
+    return lambda x: cho_solve_banded((factor, False), x, check_finite=False)
+
+
+def _pcg(A, b: np.ndarray, precondition, tolerance: float, max_iterations: int) -> np.ndarray:
+    """Preconditioned conjugate gradients for A(x) = b (A: the product with a symmetric positive definite matrix),
+    from x = 0, until the residual is ``tolerance`` x |b|. Dot products by einsum: a multi-threaded BLAS on short
+    vectors only contends."""
     dot = lambda u, v: float(np.einsum("i,i->", u, v))  # noqa: E731
     x = np.zeros_like(b)
     r = b.copy()
@@ -365,7 +409,7 @@ def _pcg(A: sp.csr_matrix, b: np.ndarray, precondition, tolerance: float, max_it
     for _ in range(max_iterations):
         if dot(r, r) <= stop:
             break
-        Ap = A @ p
+        Ap = A(p)
         alpha = rz / dot(p, Ap)
         x += alpha * p
         r -= alpha * Ap
