@@ -4,8 +4,8 @@ import pytest
 
 from dome_calib.synth.body_volume import capsules_cm, segment_distance2
 from dome_calib.synth.group import (ANKLE_HEIGHT_CM, CAPTURE_RADIUS_CM, MIN_CENTRE_DISTANCE_CM, NOMINAL_BONE_CM,
-                                    PARENT19, SCENARIOS, GroupError, GroupOptions, make_group, min_centre_distance_cm,
-                                    roles_of)
+                                    PARENT19, SCENARIOS, GroupError, GroupOptions, make_group, max_people,
+                                    min_centre_distance_cm, roles_of)
 
 TIMES_MS = np.arange(0.0, 4000.0, 7.0)  # not the layout's 20 ms grid
 
@@ -13,6 +13,7 @@ TIMES_MS = np.arange(0.0, 4000.0, 7.0)  # not the layout's 20 ms grid
 @pytest.mark.parametrize("scenario", SCENARIOS)
 @pytest.mark.parametrize("n", [1, 2, 5, 8, 10])
 def test_bone_lengths_constant_and_ids_unique(scenario, n):
+    n = min(n, max_people(scenario))
     truth = make_group(GroupOptions(n_people=n, scenario=scenario, seed=n))
     assert truth.ids == list(range(n)) and len(set(truth.ids)) == n
     X, present = truth.joints_cm(TIMES_MS + truth.start_ms)
@@ -30,13 +31,14 @@ def test_bone_lengths_constant_and_ids_unique(scenario, n):
 @pytest.mark.parametrize("scenario", SCENARIOS)
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_no_interpenetration(scenario, seed):
-    truth = make_group(GroupOptions(n_people=8, scenario=scenario, seed=seed))
+    n = min(8, max_people(scenario))
+    truth = make_group(GroupOptions(n_people=n, scenario=scenario, seed=seed))
     assert min_centre_distance_cm(truth, TIMES_MS) >= MIN_CENTRE_DISTANCE_CM
     # Torsos (capsules of radius 13 cm) of two people never overlap.
     X, _ = truth.joints_cm(TIMES_MS[::5])
     A, B, r = capsules_cm(X.reshape(-1, 19, 3))
-    A, B, r = (a.reshape(len(X), 8, *a.shape[1:]) for a in (A, B, r))
-    i, j = np.triu_indices(8, 1)
+    A, B, r = (a.reshape(len(X), n, *a.shape[1:]) for a in (A, B, r))
+    i, j = np.triu_indices(n, 1)
     d2 = segment_distance2(A[:, i, 0].reshape(-1, 3), B[:, i, 0].reshape(-1, 3), A[:, j, 0].reshape(-1, 3),
                            B[:, j, 0].reshape(-1, 3))
     assert np.sqrt(d2.min()) > 2 * r[0, 0, 0]
@@ -112,6 +114,7 @@ def test_deterministic_and_seeded():
 
 @pytest.mark.parametrize("kwargs, match", [({"scenario": "dance"}, "scenario 'dance' is unknown"),
                                            ({"n_people": 11}, "n_people=11"), ({"n_people": 0}, "n_people=0"),
+                                           ({"n_people": 7, "scenario": "small_area"}, "expected 1..6"),
                                            ({"duration_ms": 0.0}, "duration_ms=0.0")])
 def test_bad_options(kwargs, match):
     with pytest.raises(GroupError, match=match):

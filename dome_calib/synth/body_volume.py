@@ -101,14 +101,22 @@ def occluded_joints(cam_centres_cm: np.ndarray, X: np.ndarray, present: np.ndarr
     Returns:
         (V, P, 19) bool, True = hidden (always False for absent people).
     """
+    by_self, by_others = occluders(cam_centres_cm, X, present)
+    return by_self | by_others
+
+
+def occluders(cam_centres_cm: np.ndarray, X: np.ndarray, present: np.ndarray | None = None
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`occluded_joints` told apart by who hides the joint: ((V, P, 19) by the person's own body, its face
+    turned away included; (V, P, 19) by another person). A joint may be hidden by both."""
     C = np.asarray(cam_centres_cm, dtype=float).reshape(-1, 3)
     X = np.asarray(X, dtype=float)
     V, P = len(C), len(X)
     present = np.ones(P, dtype=bool) if present is None else np.asarray(present, dtype=bool)
-    out = np.zeros((V, P, 19), dtype=bool)
+    out = np.zeros((2, V, P, 19), dtype=bool)
     idx = np.flatnonzero(present)
     if len(idx) == 0 or V == 0:
-        return out
+        return out[0], out[1]
     Xp = X[idx]  # (Q, 19, 3)
     Q = len(idx)
     A, B, rad = capsules_cm(Xp)
@@ -128,7 +136,7 @@ def occluded_joints(cam_centres_cm: np.ndarray, X: np.ndarray, present: np.ndarr
     a_all = np.maximum(np.sum(d1_all * d1_all, -1), 1e-12)  # (V, M)
     d1c = tuple(np.ascontiguousarray(d1_all[..., i]).ravel() for i in range(3))  # (V * M,) each
     a_flat = a_all.ravel()
-    hidden = np.zeros(V * M, dtype=bool)
+    hidden = np.zeros((2, V * M), dtype=bool)  # by the person's own body, by another's
     for group in _GROUPS:  # upper and lower body: two tighter bounding spheres than one per person
         Ag, Bg, rad2 = A[:, group], B[:, group], rad[:, group] ** 2  # (Q, K, 3), (Q, K)
         K = len(group)
@@ -156,14 +164,18 @@ def occluded_joints(cam_centres_cm: np.ndarray, X: np.ndarray, present: np.ndarr
             hit = _capsule_hit(tuple(x[vm] for x in d1c), a_flat[vm], tuple(x[vq] for x in rc), rr[vq], f[vq],
                                tuple(x[q] for x in d2c), e[q], rad2[q])
             hit &= ~skip[m * Q + q]
-            hidden[vm[np.any(hit, axis=1)]] = True
-    hidden = hidden.reshape(V, Q, 19)
+            any_hit = np.any(hit, axis=1)
+            own = m // 19 == q
+            hidden[0, vm[any_hit & own]] = True
+            hidden[1, vm[any_hit & ~own]] = True
+    hidden = hidden.reshape(2, V, Q, 19)
     # Face joints facing away.
     h = head_centre_cm(Xp)  # (Q, 3)
     normal = Xp[:, _FACE] - h[:, None]  # (Q, 5, 3)
     to_cam = C[:, None, None] - Xp[None, :, _FACE]  # (V, Q, 5, 3)
     cos = np.sum(normal[None] * to_cam, -1) / (np.linalg.norm(normal, axis=-1)[None]
                                                * np.linalg.norm(to_cam, axis=-1) + 1e-12)
-    hidden[:, :, _FACE] |= cos < _FACE_MIN_COS
-    out[:, idx] = hidden
-    return out
+    by_self = hidden[0]  # a view: the face turned away hides its own joints
+    by_self[:, :, _FACE] |= cos < _FACE_MIN_COS
+    out[:, :, idx] = hidden
+    return out[0], out[1]

@@ -38,9 +38,13 @@ MIN_CENTRE_DISTANCE_CM = 45.0
 LAYOUT_CLEARANCE_CM = 50.0
 OUTSIDE_RADIUS_CM = 320.0  # where leavers go and enterers come from
 ANKLE_HEIGHT_CM = 8.0
-SCENARIOS = ("walk_past", "conversation", "crouch", "leave", "mixed")
+SCENARIOS = ("walk_past", "conversation", "crouch", "leave", "mixed", "small_area")
 ROLES = ("walk", "talk", "crouch", "leave", "enter")
 _MIXED_ROLES = ["walk", "walk", "talk", "talk", "crouch", "leave", "enter", "talk", "walk", "talk"]
+#: "small_area" (a 3 x 3 m room, :mod:`dome_calib.synth.rig`): a conversation, one walking round it on a ring of
+#: this radius (cm), one crouching.
+_SMALL_AREA_ROLES = ["talk", "talk", "walk", "crouch", "talk", "talk"]
+SMALL_AREA_RING_CM = (100.0, 120.0)
 
 #: Parent of each joints19 joint in the kinematic tree (-1: the body centre, the root); _FK_ORDER lists parents first.
 PARENT19 = np.array([2, 0, -1, 0, 3, 4, 2, 6, 7, 0, 9, 10, 2, 12, 13, 1, 15, 1, 17])
@@ -61,17 +65,18 @@ class GroupError(DomeCalibError, ValueError):
 class GroupOptions:
     """What the group does. ``start_ms``: universal time of the start; the layout covers ``duration_ms``."""
 
-    n_people: int = 5  # 1..10
+    n_people: int = 5  # 1..10 (small_area: 1..6)
     duration_ms: float = 4000.0
     start_ms: float = 0.0
-    scenario: str = "mixed"  # "walk_past", "conversation", "crouch", "leave", "mixed" (all of them)
+    scenario: str = "mixed"  # "walk_past", "conversation", "crouch", "leave", "mixed" (all of them), "small_area"
     seed: int = 0
 
     def __post_init__(self) -> None:
         if self.scenario not in SCENARIOS:
             raise GroupError(f"scenario {self.scenario!r} is unknown (known: {', '.join(SCENARIOS)})")
-        if not 1 <= self.n_people <= 10:
-            raise GroupError(f"n_people={self.n_people} but expected 1..10")
+        most = max_people(self.scenario)
+        if not 1 <= self.n_people <= most:
+            raise GroupError(f"n_people={self.n_people} but expected 1..{most} for scenario {self.scenario!r}")
         if not self.duration_ms > 0:
             raise GroupError(f"duration_ms={self.duration_ms} but expected > 0")
 
@@ -194,10 +199,17 @@ class GroupTruth:
         return np.stack([plan.root_xz(t)[0] for plan in self.plans], 1)
 
 
+def max_people(scenario: str) -> int:
+    """How many people a scenario holds (10; small_area: 6)."""
+    return len(_SMALL_AREA_ROLES) if scenario == "small_area" else 10
+
+
 def roles_of(scenario: str, n_people: int) -> list[str]:
     """The role of each person (id order) in a scenario."""
     if scenario == "mixed":
         return _MIXED_ROLES[:n_people]
+    if scenario == "small_area":
+        return _SMALL_AREA_ROLES[:n_people]
     if scenario == "walk_past":
         return ["walk"] * n_people
     if scenario == "conversation":
@@ -207,14 +219,15 @@ def roles_of(scenario: str, n_people: int) -> list[str]:
     return (["leave", "enter"] + ["talk"] * (n_people - 2))[:n_people]
 
 
-def _draw_layout(roles: list[str], duration_ms: float, rng: np.random.Generator) -> list[PersonPlan]:
+def _draw_layout(roles: list[str], duration_ms: float, rng: np.random.Generator,
+                 ring_cm: tuple[float, float] = (150.0, 160.0)) -> list[PersonPlan]:
     D = duration_ms
     scale = rng.uniform(0.9, 1.1, len(roles))
     gait = rng.uniform(0.0, 4000.0, len(roles))  # stride (1.1 s) and the slow arm gesture (4 s) out of step
     plans: dict[int, PersonPlan] = {}
     # Walkers: two rings, odd walkers the other way round on the outer ring; the first two meet mid-way.
     walkers = [i for i, r in enumerate(roles) if r == "walk"]
-    r_inner, gap = rng.uniform(150.0, 160.0), rng.uniform(48.0, 58.0)
+    r_inner, gap = rng.uniform(*ring_cm), rng.uniform(48.0, 58.0)
     speed = rng.uniform(75.0, 100.0, 2)
     omega = [speed[0] / r_inner, -speed[1] / (r_inner + gap)]
     a0 = rng.uniform(0, 2 * np.pi)
@@ -291,7 +304,8 @@ def make_group(options: GroupOptions) -> GroupTruth:
     grid_ms = np.arange(0.0, o.duration_ms + 20.0, 20.0)
     for attempt in range(2000):
         rng = np.random.default_rng([o.seed, attempt])
-        plans = _draw_layout(roles, o.duration_ms, rng)
+        plans = _draw_layout(roles, o.duration_ms, rng, SMALL_AREA_RING_CM if o.scenario == "small_area" else
+                             (150.0, 160.0))
         truth = GroupTruth(ids=[p.id for p in plans], plans=tuple(plans), start_ms=o.start_ms,
                            duration_ms=o.duration_ms)
         if len(plans) < 2 or min_centre_distance_cm(truth, grid_ms + o.start_ms) >= LAYOUT_CLEARANCE_CM:

@@ -1,0 +1,68 @@
+"""OpenPose's own files (``--write_json``) of synthetic detections: one sub-folder per camera, one JSON document
+per frame (version 1.3, every array OpenPose writes, missed joints as ``0, 0, 0``), in any body model's joint order."""
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from dome_calib.io_utils import atomic_folder
+from dome_calib.recon.body_models import from_joints19, parse_body_model
+from dome_calib.synth.detector_model import DetectorError
+
+logger = logging.getLogger(__name__)
+
+OPENPOSE_VERSION = 1.3
+NAMINGS = ("openpose", "dotted")
+
+
+def openpose_file_name(camera: str, frame: int, naming: str = "openpose") -> str:
+    """``<camera>_<frame:012d>_keypoints.json`` (OpenPose's ``--write_json``) or ``<camera>.<frame:04d>.json``."""
+    if naming == "openpose":
+        return f"{camera}_{frame:012d}_keypoints.json"
+    if naming == "dotted":
+        return f"{camera}.{frame:04d}.json"
+    raise DetectorError(f"naming {naming!r} is unknown (known: {', '.join(NAMINGS)})")
+
+
+def openpose_document(people: np.ndarray, body_model: str = "BODY_25") -> dict:
+    """(N, 19, 3) joints19 detections of one image -> OpenPose's JSON document (``--write_json``, version 1.3) in
+    the body model's joint order (joints the model has and joints19 lacks, and missed joints: 0, 0, 0)."""
+    model = parse_body_model(body_model)
+    kp = from_joints19(np.asarray(people, dtype=float).reshape(-1, 19, 3), model)
+    empty = {k: [] for k in ("face_keypoints_2d", "hand_left_keypoints_2d", "hand_right_keypoints_2d",
+                             "pose_keypoints_3d", "face_keypoints_3d", "hand_left_keypoints_3d",
+                             "hand_right_keypoints_3d")}
+    return {"version": OPENPOSE_VERSION, "people": [
+        {"person_id": [-1], "pose_keypoints_2d": [0 if v == 0 else float(v) for v in person.reshape(-1)]} | empty
+        for person in kp]}
+
+
+def write_openpose_folder(folder: str | Path, detections: dict[str, dict[int, np.ndarray]], *,
+                          body_model: str = "BODY_25", naming: str = "openpose") -> Path:
+    """Write detections as OpenPose writes them: one sub-folder per camera, one JSON file per frame.
+
+    Args:
+        detections: as :func:`synth_detections` returns (camera -> frame -> (N, 19, 3) joints19).
+        body_model: "BODY_25", "BODY_25B", "COCO_18" or "PANOPTIC19" (:mod:`dome_calib.recon.body_models`).
+        naming: "openpose" (``<camera>_<frame:012d>_keypoints.json``) or "dotted" (``<camera>.<frame:04d>.json``).
+    Returns:
+        ``folder``, written as a whole (staged beside it, then renamed; an old folder is replaced).
+    Example:
+        >>> write_openpose_folder(tmp / "detections", synth_detections(bundle, truth), body_model="COCO_18")
+    """
+    parse_body_model(body_model)
+    openpose_file_name("x", 0, naming)
+    target = Path(folder)
+    with atomic_folder(target) as staging:
+        for camera in sorted(detections):
+            sub = staging / camera
+            sub.mkdir()
+            for frame, people in sorted(detections[camera].items()):
+                doc = openpose_document(people, body_model)
+                (sub / openpose_file_name(camera, int(frame), naming)).write_text(
+                    json.dumps(doc, separators=(",", ":")) + "\n", encoding="utf-8")
+    logger.info("wrote %d cameras of %s detections to %s", len(detections), body_model, target)
+    return target
