@@ -1,10 +1,11 @@
-"""Few-camera bench: the rig most users have (dome_calib.synth.fewcam: 5 cameras around a 3 x 3 m area, 1280 x 720,
-70 deg), groups of 3 and 4 people close together (dome_calib.synth.group "mixed": two walkers on rings 150-210 cm
-from the centre, leaving some views in part, and people talking in a circle), the OpenPose-like detector
-(dome_calib.synth.detector), fixed seeds; reconstructed per frame, with the body over time (the default) and by the
-oracle (the same per-frame triangulation of perfectly associated detections).
+"""Few-camera bench: the rig most users have (dome_calib.synth.rig: 5 HD cameras round a 3 x 3 m area, one sync
+stream at 29.97 fps), groups of 3 and 4 people close together (scenario "small_area": a conversation, one walking
+round it, one crouching; people cut by image borders), the OpenPose-like detector with errors that last
+(dome_calib.synth.detector: episodes, correlated noise and bias fitted to real OpenPose output), fixed seeds;
+reconstructed per frame, with the body over time (the default) and by the oracle (the same per-frame
+triangulation of perfectly associated detections).
 
-Run: .venv/bin/python bench/fewcam.py [--people 3,4] [--seconds 6] [--seeds 1,2]
+Run: .venv/bin/python bench/fewcam.py [--people 3,4] [--seconds 8] [--seeds 1,2]
 Prints one JSON object per line: per (people, seed) and method the MPJPE (cm, over the joints each method put out,
 and over those both per-frame and temporal put out), PCP (Shelf-style limbs, alpha 0.5; a missing body or joint is
 a wrong limb; over the (time, person) seen by >= 2 views), the share of true joints put out, ids, and for the body
@@ -22,7 +23,6 @@ import argparse  # noqa: E402
 import dataclasses  # noqa: E402
 import json  # noqa: E402
 import time  # noqa: E402
-from fractions import Fraction  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -30,12 +30,10 @@ from dome_calib.recon.people.run import PeopleOptions, reconstruct_people  # noq
 from dome_calib.recon.people.sources import people_streams  # noqa: E402
 from dome_calib.recon.people.temporal import TemporalOptions  # noqa: E402
 from dome_calib.recon.project import view_set  # noqa: E402
-from dome_calib.synth.detector import DetectorModel, shared_clock, synth_detections  # noqa: E402
-from dome_calib.synth.fewcam import few_camera_rig  # noqa: E402
-from dome_calib.synth.group import GroupOptions, make_group  # noqa: E402
+from dome_calib.synth.detector import DetectorModel, synth_detections  # noqa: E402
+from dome_calib.synth.rig import GROUP_MARGIN_MS, RigOptions, few_camera_rig, rig_group  # noqa: E402
 from dome_calib.synth.group_eval import match_bodies, oracle, pcp  # noqa: E402
 
-START_MS = 500.0
 C_BINS = (0.0, 0.5, 0.8, 0.95, 0.99, 1.0001)
 
 
@@ -65,16 +63,16 @@ def calibration(ours, conf, X) -> list[dict]:
 
 
 def run(n_people: int, seconds: float, seed: int) -> list[dict]:
-    bundle = few_camera_rig(seed=seed)
-    duration = 1000.0 * seconds
-    truth = make_group(GroupOptions(n_people=n_people, duration_ms=duration, start_ms=START_MS, seed=seed))
-    det = synth_detections(bundle, truth, univ_time_ms=(START_MS - 100, START_MS + duration + 100),
-                           model=DetectorModel(seed=seed))
-    streams = people_streams(bundle, det, shared_fps=Fraction(25))
-    times = shared_clock(START_MS, duration).univ_time_ms
+    bundle = few_camera_rig(RigOptions(seed=seed, duration_ms=1000.0 * seconds + GROUP_MARGIN_MS + 100.0))
+    truth = rig_group(bundle, n_people=n_people, seed=seed)
+    det = synth_detections(bundle, truth, model=DetectorModel(seed=seed))
+    streams = people_streams(bundle, det)
+    table = bundle.sync.streams["hd"]
+    span = (table.univ_time_ms >= truth.start_ms) & (table.univ_time_ms <= truth.start_ms + truth.duration_ms)
+    times = table.univ_time_ms[span]
     views = view_set(bundle, [n for s in streams for n in s.cameras])
     X, present = truth.joints_cm(times)
-    base = PeopleOptions(shared_fps=Fraction(25))
+    base = PeopleOptions()
     results, rows = {}, []
     for mode, temporal in (("per_frame", TemporalOptions(enabled=False)), ("temporal", TemporalOptions())):
         wall, cpu = time.perf_counter(), time.process_time()
@@ -104,7 +102,7 @@ def run(n_people: int, seconds: float, seed: int) -> list[dict]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--people", default="3,4")
-    ap.add_argument("--seconds", type=float, default=6.0)
+    ap.add_argument("--seconds", type=float, default=8.0)
     ap.add_argument("--seeds", default="1,2")
     args = ap.parse_args()
     emit(bench="fewcam", cpus=os.cpu_count(), load_average_1min=round(os.getloadavg()[0], 1))

@@ -1,10 +1,9 @@
-"""One body per person over time (dome_calib.recon.people.temporal) on a few-camera rig: better than per frame
-against the truth, bones held, a swap in one view outvoted, joints placed where the per-frame triangulation left
-them out, chunk edges that do not show."""
+"""One body per person over time (dome_calib.recon.people.temporal) on the few-camera rig (dome_calib.synth.rig, the
+detector whose errors last): better than per frame against the truth, bones held, a swap in one view outvoted,
+joints placed where the per-frame triangulation left them out, chunk edges that do not show."""
 from __future__ import annotations
 
 import dataclasses
-from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -16,27 +15,27 @@ from dome_calib.recon.people.run import PeopleOptions, reconstruct_people
 from dome_calib.recon.people.sources import people_streams
 from dome_calib.recon.people.temporal import TemporalOptions, within_probability
 from dome_calib.recon.project import view_set
-from dome_calib.synth.detector import DetectorModel, shared_clock, synth_detections
-from dome_calib.synth.fewcam import few_camera_rig
-from dome_calib.synth.group import GroupOptions, make_group
+from dome_calib.synth.detector import DetectorModel, synth_detections
 from dome_calib.synth.group_eval import match_bodies
+from dome_calib.synth.rig import GROUP_MARGIN_MS, RigOptions, few_camera_rig, rig_group
 
-OPTIONS = PeopleOptions(shared_fps=Fraction(25))  # the synthetic shared clock: 40 ms frames
+OPTIONS = PeopleOptions()
 PER_FRAME = dataclasses.replace(OPTIONS, temporal=TemporalOptions(enabled=False))
 
 
 @pytest.fixture(scope="module")
 def rig():
-    bundle = few_camera_rig(seed=0)
-    truth = make_group(GroupOptions(n_people=3, duration_ms=4000.0, start_ms=500.0, seed=3))
-    det = synth_detections(bundle, truth, univ_time_ms=(400.0, 4600.0), model=DetectorModel(seed=3))
-    times = shared_clock(500.0, 4000.0).univ_time_ms
-    X, present = truth.joints_cm(times)
-    return bundle, det, times, X, present
+    bundle = few_camera_rig(RigOptions(seed=0, duration_ms=3700.0 + GROUP_MARGIN_MS + 100.0))
+    truth = rig_group(bundle, n_people=3, seed=3)
+    det = synth_detections(bundle, truth, model=DetectorModel(seed=3))  # errors that last, as OpenPose's
+    table = bundle.sync.streams["hd"]
+    span = (table.univ_time_ms >= truth.start_ms) & (table.univ_time_ms <= truth.start_ms + truth.duration_ms)
+    X, present = truth.joints_cm(table.univ_time_ms[span])
+    return bundle, det, table.univ_time_ms[span], X, present
 
 
 def _run(bundle, det, times, options, chunked=False):
-    streams = people_streams(bundle, det, shared_fps=Fraction(25))
+    streams = people_streams(bundle, det)
     views = view_set(bundle, [n for s in streams for n in s.cameras])
     if chunked:
         return reconstruct_people_chunked(views, streams, times, options)
@@ -73,7 +72,8 @@ def test_a_swap_in_one_view_is_outvoted(rig):
         swapped["00_00"][f] = kp
     clean = _run(bundle, det, times, OPTIONS)
     seq = _run(bundle, swapped, times, OPTIONS)
-    k = np.isin(np.round(times / 40.0).astype(int), frames)  # the shared clock: frame f at f x 40 ms
+    table = bundle.sync.streams["hd"]
+    k = np.isin(table.index[np.searchsorted(table.univ_time_ms, times)], frames)
     wrists = [JOINTS19.index("l_wrist"), JOINTS19.index("r_wrist")]
     err = np.linalg.norm(_matched(seq, X, present) - X, axis=-1)[:, :, wrists]
     err_clean = np.linalg.norm(_matched(clean, X, present) - X, axis=-1)[:, :, wrists]
