@@ -126,3 +126,19 @@ def test_the_partial_person_is_a_two_view_onlooker(run, dome_calib_cli):
     # two views of low-confidence detections (0.3-0.4) place the onlooker less surely than four place the participant
     assert np.mean([c[1] for c in conf]) < np.mean([c[0] for c in conf])
     assert frames > 50 and 250 < np.median(dist) < 400
+
+
+def test_per_frame_leaves_out_what_the_body_places(run, dome_calib_cli):
+    """--per-frame: each time's own triangulation, c the detections' mean confidence; it leaves out joints (a
+    hip seen by one good camera) that the body over time places."""
+    root, _ = run
+    args = ("reconstruct", str(root / "pose"), "--bundle", str(root / "bundle"), "--body-model", "BODY_25B",
+            "--camera-map", CAMERA_MAP, "--fps", "60")
+    for flag, out in ((("--per-frame",), "pf"), ((), "tm")):
+        done = dome_calib_cli(*args, *flag, "-o", str(root / out))
+        assert done.returncode == 0, done.stderr
+    _, per_frame = _ours(root / "pf")
+    _, body = _ours(root / "tm")
+    assert np.isfinite(body).all(-1).sum() > np.isfinite(per_frame).all(-1).sum()
+    c = [read_scene(f)[1][0][:, 3] for f in sorted((root / "pf").glob("body3DScene_*.json"))]
+    assert max(float(x.max()) for x in c) <= 1.05  # OpenPose's confidences (heatmap peaks reach 1.04)

@@ -73,8 +73,8 @@ class TemporalOptions:
     views estimate a bone; accel_scale: multiplies the body's RMS accelerations; correlation_s; prior_sigma_cm: weak
     pull to the start (only directions nothing else holds); max_sigma_cm: a joint the per-frame triangulation left
     out is output only if its standard deviation is below this; min_noise_px: floor of a camera's pixel noise;
-    max_views_per_joint: the fit uses a joint's most confident detections up to this many (every detection is
-    judged at the end)."""
+    max_views_per_joint: the fit reweighs a joint's most confident detections up to this many at every round; the
+    others are weighed once at the start and held (every detection is judged at the end)."""
 
     enabled: bool = True
     iterations: int = 4
@@ -186,8 +186,9 @@ def measure_noise_px(kernel: CameraKernel, X_cm: np.ndarray, n_inliers: np.ndarr
 
 
 def strongest_records(point: np.ndarray, conf: np.ndarray, view: np.ndarray, limit: int) -> np.ndarray:
-    """Indices of at most ``limit`` records per point (M,): the most confident (ties by view). A joint that 250
-    views of the full dome see is placed as well by its 32 best: the stage's cost then does not grow with views."""
+    """Indices of at most ``limit`` records per point (M,): the most confident (ties by view). The fit reweighs
+    these at every round and holds the others as they weighed at the start (a joint that 250 views of the full dome
+    see is then not 8 times the work of an HD one)."""
     if len(point) == 0 or np.bincount(point).max() <= limit:
         return np.arange(len(point))
     key = (point.astype(np.int64) << 24) | ((10_000 - np.round(np.clip(conf, 0, 1) * 10_000).astype(np.int64)) << 10) \
@@ -300,12 +301,17 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
     u_obs, v_obs = rec_uv[:, 0], rec_uv[:, 1]
     every = slice(None)
     both = np.concatenate([ba, bb])
+    # the detections beyond each joint's strongest: weighed once at the start, then held as a quadratic term
+    rest = np.setdiff1d(kept, sel, assume_unique=True)
+    rest_var = lay.var[bf_rec[rest], obs.joint[rest]]
+    H_rest, g_rest = _robust_blocks(kernel, P, rest_var, obs.view[rest], obs.uv_px[rest],
+                                    obs.conf[rest].astype(float), sigma_v[obs.view[rest]], options.robust_k,
+                                    lay.n_var)
+    P_lin = P.copy()
     for _ in range(options.iterations):
-        r_u, r_v, J = cams.evaluate_pairs(P[rec_var], every, u_obs, v_obs, jacobian=True)
-        front = np.isfinite(r_u) & np.isfinite(r_v)
-        r_u, r_v = np.where(front, r_u, 0.0), np.where(front, r_v, 0.0)
-        w = np.where(front, rec_c / (1.0 + (r_u * r_u + r_v * r_v) / (options.robust_k * sig) ** 2) / sig ** 2, 0.0)
-        H_d, g = _normal_blocks(rec_var, w, J, r_u, r_v, lay.n_var)
+        H_d, g = _robust_blocks(cams, P, rec_var, every, rec_uv, rec_c, sig, options.robust_k, lay.n_var)
+        H_d += H_rest
+        g += g_rest + np.einsum("nij,nj->ni", H_rest, P - P_lin)
         # bones, linearised along their current direction
         d = P[ba] - P[bb]
         length = np.maximum(np.linalg.norm(d, axis=1), 1e-6)
@@ -343,6 +349,17 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
     residual[kept] = res
     return TemporalResult(bodies=out, records=records, outvoted=outvoted, noise_px=noise, residual_px=residual,
                           record_view=obs.view)
+
+
+def _robust_blocks(kernel: CameraKernel, P: np.ndarray, var: np.ndarray, view, uv_px: np.ndarray, conf: np.ndarray,
+                   sigma_px: np.ndarray, robust_k: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The Gauss-Newton blocks (see :func:`_normal_blocks`) of M detections at the points P (n, 3): Cauchy weights
+    ``c / (1 + (r / k sigma)^2) / sigma^2`` (0 behind the camera)."""
+    r_u, r_v, J = kernel.evaluate_pairs(P[var], view, uv_px[:, 0], uv_px[:, 1], jacobian=True)
+    front = np.isfinite(r_u) & np.isfinite(r_v)
+    r_u, r_v = np.where(front, r_u, 0.0), np.where(front, r_v, 0.0)
+    w = np.where(front, conf / (1.0 + (r_u * r_u + r_v * r_v) / (robust_k * sigma_px) ** 2) / sigma_px ** 2, 0.0)
+    return _normal_blocks(var, w, np.where(front[:, None, None], J, 0), r_u, r_v, n)
 
 
 def _normal_blocks(var: np.ndarray, w: np.ndarray, J: np.ndarray, r_u: np.ndarray, r_v: np.ndarray, n: int
