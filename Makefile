@@ -15,6 +15,10 @@ $(STAMP): $(BIN)/python pyproject.toml
 	# aniposelib, the peer reader of our calibration.toml in the tests, without its opencv-contrib-python: that
 	# wheel ships the same cv2 package as our headless one and would overwrite it (pyproject.toml says more)
 	$(BIN)/python -m pip install --quiet --no-deps 'aniposelib==0.8.0'
+	# Pose2Sim, caliscope and Blender (bpy), whose own code reads our interop files and export-people's TRC files in
+	# the tests, without their dependencies: their opencv-python wheels would overwrite our cv2, Pose2Sim's pull a GUI
+	# and pose estimation (PySide6, openvino, rtmlib), bpy pins numpy 1.26 (pyproject.toml says more)
+	$(BIN)/python -m pip install --quiet --no-deps 'pose2sim==0.10.49' 'caliscope==0.11.8' 'bpy==5.0.1'
 	touch $(STAMP)
 
 venv: $(STAMP)

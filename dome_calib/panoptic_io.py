@@ -247,14 +247,21 @@ def read_calibration(path: Path) -> tuple[dict[str, Camera], str]:
     return cameras, top.string(data, "calibDataSource")
 
 
+def panoptic_order(cameras: dict[str, Camera]) -> dict[str, Camera]:
+    """The cameras in the Panoptic files' order: VGA, HD, Kinect colour, each by name."""
+    return {c.name: c for c in sorted(cameras.values(), key=lambda c: (_TYPE_ORDER.index(c.type), c.name))}
+
+
 def format_calibration(cameras: dict[str, Camera], calib_data_source: str) -> str:
-    """Cameras -> text of ``calibration_<seq>.json`` in the Panoptic layout and order (VGA, HD, Kinect; by name)."""
+    """Cameras -> text of ``calibration_<seq>.json`` in the Panoptic layout, in the order given (a calibration
+    writes :func:`panoptic_order`; an imported bundle keeps its source's order, which some tools pair with their
+    data by position)."""
     entries = [
         {
             "name": c.name, "type": str(c.type), "resolution": list(c.resolution), "panel": c.panel, "node": c.node,
             "K": c.K, "distCoef": c.dist, "R": c.R, "t": c.t_cm.reshape(3, 1),
         }
-        for c in sorted(cameras.values(), key=lambda c: (_TYPE_ORDER.index(c.type), c.name))
+        for c in cameras.values()
     ]
     return dumps({"calibDataSource": calib_data_source, "cameras": entries}) + "\n"
 

@@ -111,7 +111,7 @@ def read_yaml(path: str | Path, schema: type[M], *, error: type[Exception] = Inp
     _read_bytes(path, error)  # a missing or unreadable file named as such, not as OpenCV's message
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
+    except (cv2.error, SystemError) as exc:  # OpenCV 5's binding raises SystemError for some parse errors
         raise error(f"{path}: not a YAML file OpenCV can read ({str(exc).strip().splitlines()[-1]})") from None
     try:
         if not fs.isOpened():

@@ -163,4 +163,8 @@ _register_people(app)
 from dome_calib.cli.interop import register as _register_interop  # noqa: E402  (export, import)
 
 _register_interop(app)
+
+from dome_calib.cli.skeletons import register as _register_skeletons  # noqa: E402  (export-people, people-page)
+
+_register_skeletons(app)
 # ---- end of command registration ------------------------------------------------------------------------------

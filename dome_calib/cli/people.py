@@ -18,7 +18,8 @@ def reconstruct(
                                 "synctables/ksynctables give each camera's frame times; without them all cameras "
                                 "share one frame index).", show_default=False),
     out: Path = typer.Option(None, "-o", "--out", help="Folder for body3DScene_<frame>.json (one per time, every "
-                             "person with an id) and cameras.json (default: <DETECTIONS>_people beside DETECTIONS)."),
+                             "person with an id), cameras.json and index.html (a page to watch the people; default: "
+                             "<DETECTIONS>_people beside DETECTIONS)."),
     body_model: str = typer.Option(None, "--body-model", help="The detector's model: BODY_25, BODY_25B, COCO_18 or "
                                    "PANOPTIC19. Needed for 25-joint files (BODY_25 and BODY_25B have the same "
                                    "length)."),
@@ -33,6 +34,10 @@ def reconstruct(
                                    "over time (constant bones, smooth motion, every detection weighed against the "
                                    "body; the default and the better result)."),
     fps: str = typer.Option("30", "--fps", help="Frame rate of a bundle without sync tables (for univTime)."),
+    depth: Path = typer.Option(None, "--depth", help="Folder of Kinect depth frames (KINECTNODE<n>/depth_<k>.png, "
+                               "16-bit millimetres, k the depth sync table's index): a joint that a Kinect sees "
+                               "through (in front of the surface it measured, beyond its noise) is dropped. Needs "
+                               "the bundle's Kinect calibration and depth sync tables."),
     workers: int = typer.Option(1, "--workers", help="Processes for long sessions (chunks of 600 times)."),
     scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler (tcp://HOST:PORT) to run the chunks "
                                   "on instead of local processes."),
@@ -42,14 +47,17 @@ def reconstruct(
     body3DScene file per time plus cameras.json (how well each camera agrees: a camera that moved shows up)."""
     from dome_calib.cli.progress import ProgressBars
     from dome_calib.pipeline.cluster import open_executor
+    from dome_calib.pipeline.people_page import people_page_writer
     from dome_calib.recon.people.commands import people_options, reconstruct_folder
 
     out = out or detections.with_name(f"{detections.name}_people")
     options = people_options(min_views=min_views, smooth=smooth, fps=fps, per_frame=per_frame)
     with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:
         summary = reconstruct_folder(detections, bundle, out, body_model=body_model, camera_map=camera_map,
-                                     reference=reference, options=options, executor=executor,
-                                     progress=bars.task("reconstructing times"))
+                                     reference=reference, options=options, executor=executor, depth_folder=depth,
+                                     progress=bars.task("reconstructing times"),
+                                     page=people_page_writer(out, bundle, detections, camera_map=camera_map,
+                                                             body_model=body_model))
     err = "n/a" if summary.median_reprojection_px is None else f"{summary.median_reprojection_px:.1f} px"
     flagged = ", ".join(summary.flagged_cameras) or "none"
     typer.echo(f"{summary.times} times ({summary.reference}) from {summary.cameras} cameras ({summary.body_model}): "

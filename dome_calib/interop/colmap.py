@@ -21,12 +21,15 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 import pycolmap
 
+from pydantic import Field, ValidationInfo, field_validator
+
 from dome_calib.camera import COLMAP_PIXEL_OFFSET_PX
-from dome_calib.interop.common import ForeignCamera, InteropError
+from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, label
+from dome_calib.interop.fields import Bounded, SidePx, Translation
+from dome_calib.schema import FileSchema, Vec, validate
 
 logger = logging.getLogger(__name__)
 
-MODEL_FILES = ("cameras", "images", "points3D", "rigs", "frames")
 #: COLMAP model -> function of its params giving (fx, fy, cx, cy, [k1, k2, p1, p2, k3]) in COLMAP pixels.
 _MODELS = {
     "SIMPLE_PINHOLE": lambda p: (p[0], p[0], p[1], p[2], [0, 0, 0, 0, 0]),
@@ -36,6 +39,7 @@ _MODELS = {
     "OPENCV": lambda p: (p[0], p[1], p[2], p[3], [p[4], p[5], p[6], p[7], 0]),
     "FULL_OPENCV": lambda p: (p[0], p[1], p[2], p[3], [p[4], p[5], p[6], p[7], p[8]]),
 }
+_COUNTS = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8, "FULL_OPENCV": 12}
 
 
 def _camera_sensor(camera_id: int) -> pycolmap.sensor_t:
@@ -77,11 +81,11 @@ def build_reconstruction(cams: list[ForeignCamera]) -> pycolmap.Reconstruction:
     return rec
 
 
-def write_colmap(cams: list[ForeignCamera], folder: Path, *, binary: bool) -> list[Path]:
+def write(cams: list[ForeignCamera], folder: Path, unit: str, options: object = None) -> Written:
     """Write the model into ``folder`` (an empty staging folder) with pycolmap's own writer."""
     rec = build_reconstruction(cams)
-    (rec.write_binary if binary else rec.write_text)(str(folder))
-    return sorted(folder.iterdir())
+    (rec.write_text if getattr(options, "binary", True) is False else rec.write_binary)(str(folder))
+    return Written(dropped=["points3D written empty: the bundle keeps its residuals, not the observed points"])
 
 
 def _model_files(folder: Path) -> None:
@@ -93,26 +97,58 @@ def _model_files(folder: Path) -> None:
             raise InteropError(f"{folder}: no {kind}.bin or {kind}.txt: not a COLMAP model")
 
 
+class ColmapImage(FileSchema):
+    """One registered image of a COLMAP model as pycolmap read it: its camera (model, size, parameters in COLMAP
+    pixels) and its pose (world to camera). pycolmap parses the files; this checks what it found."""
+
+    name: str = Field(min_length=1)
+    model: str
+    width: SidePx
+    height: SidePx
+    params: list[Bounded]
+    rotation: Vec(3, Vec(3, Bounded)) = Field(description="world to camera, from the quaternion")
+    translation: Translation
+
+    @field_validator("model")
+    @classmethod
+    def _representable(cls, model: str) -> str:
+        if model not in _MODELS:
+            raise ValueError(f"COLMAP model {model} cannot be represented (this toolkit holds OpenCV's "
+                             f"[k1, k2, p1, p2, k3]; accepted: {', '.join(_MODELS)})")
+        return model
+
+    @field_validator("params")
+    @classmethod
+    def _params(cls, params: list[float], info: ValidationInfo) -> list[float]:
+        model = info.data.get("model")
+        if model == "FULL_OPENCV" and any(params[9:12]):
+            raise ValueError(f"FULL_OPENCV with k4..k6 = {params[9:12]} cannot be represented (rational radial "
+                             "model; ours has k1, k2, k3 only)")
+        if model in _COUNTS and len(params) != _COUNTS[model]:
+            raise ValueError(f"{len(params)} parameters, {model} has {_COUNTS[model]}")
+        focal = params[:1] if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL") else params[:2]
+        if not all(f > 0 for f in focal):
+            raise ValueError(f"focal lengths must be positive, got {focal}")
+        return params
+
+    def camera(self) -> ForeignCamera:
+        fx, fy, cx, cy, dist = _MODELS[self.model](self.params)
+        K = np.array([[fx, 0.0, cx - COLMAP_PIXEL_OFFSET_PX], [0.0, fy, cy - COLMAP_PIXEL_OFFSET_PX], [0, 0, 1.0]])
+        return ForeignCamera(name=self.name, size=(self.width, self.height), K=K, dist=np.asarray(dist, dtype=float),
+                             R=np.array(self.rotation), t=np.array(self.translation))
+
+
 def foreign_from_colmap(camera: pycolmap.Camera, cam_from_world: pycolmap.Rigid3d, name: str,
                         where: str) -> ForeignCamera:
     """One COLMAP image's camera and pose as a foreign camera (OpenCV pixels); refuses models we cannot hold."""
-    model = camera.model.name
-    if model not in _MODELS:
-        raise InteropError(f"{where}: camera {name}: field 'model': COLMAP model {model} cannot be represented "
-                           f"(this toolkit holds OpenCV's [k1, k2, p1, p2, k3]; accepted: {', '.join(_MODELS)})")
-    params = np.asarray(camera.params, dtype=float)
-    if model == "FULL_OPENCV" and np.any(params[9:12] != 0):
-        raise InteropError(f"{where}: camera {name}: field 'params': FULL_OPENCV with k4..k6 = "
-                           f"{params[9:12].tolist()} cannot be represented (rational radial model; ours has "
-                           "k1, k2, k3 only)")
-    fx, fy, cx, cy, dist = _MODELS[model](params)
-    K = np.array([[fx, 0.0, cx - COLMAP_PIXEL_OFFSET_PX], [0.0, fy, cy - COLMAP_PIXEL_OFFSET_PX], [0, 0, 1.0]])
-    return ForeignCamera(name=name, size=(int(camera.width), int(camera.height)), K=K,
-                         dist=np.asarray(dist, dtype=float), R=cam_from_world.rotation.matrix(),
-                         t=np.asarray(cam_from_world.translation, dtype=float))
+    record = {"name": name, "model": camera.model.name, "width": int(camera.width), "height": int(camera.height),
+              "params": [float(p) for p in camera.params],
+              "rotation": cam_from_world.rotation.matrix().tolist(),
+              "translation": [float(v) for v in cam_from_world.translation]}
+    return validate(record, ColmapImage, source=f"{where}: camera {label(name)}", error=InteropError).camera()
 
 
-def read_colmap(folder: Path) -> list[ForeignCamera]:
+def read(folder: Path, options: ImportOptions) -> Read:
     """Every registered image of the model in ``folder`` as a camera, in image-id order."""
     _model_files(folder)
     try:
@@ -133,4 +169,4 @@ def read_colmap(folder: Path) -> list[ForeignCamera]:
                        ", ".join(unposed[:4]), ", ..." if len(unposed) > 4 else "")
     if not cams:
         raise InteropError(f"{folder}: the model has no registered image (nothing to import)")
-    return cams
+    return Read(cameras=cams, unit=None, path=folder)

@@ -1,43 +1,53 @@
-"""What every interop format shares: the neutral camera record, units, name mapping, checks, the dropped-k3 figure.
+"""What every interop format shares: the neutral camera record, options and results, units, axes, names, the
+dropped-term figure.
 
 A :class:`ForeignCamera` is one camera as another tool's file holds it: OpenCV pixel convention (the top-left
-pixel's centre at (0, 0)), ``x_cam = R @ X + t`` with ``t`` in the FILE's length unit, distortion
-``[k1, k2, p1, p2, k3]``. Each format module converts between this record and its own fields (axes, pixel
-offset, rotation encoding); :func:`to_foreign` and :func:`to_bundle` convert between it and our bundle (units,
-names). Errors are :class:`InteropError` of one line: ``<file>: camera <name>: field '<field>': <what>``.
+pixel's centre at (0, 0)), ``x_cam = R @ X + t`` with ``t`` in the FILE's length unit and ``X`` in the file's world,
+distortion ``[k1, k2, p1, p2, k3]``. Each format module converts between this record and its own fields (pixel
+offset, rotation encoding, camera axes); :func:`to_foreign` and :func:`to_bundle` convert between it and our bundle
+(units, world axes, names). Errors are :class:`InteropError` of one line naming the file, the camera and the field.
 """
 from __future__ import annotations
 
+import logging
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from dome_calib import panoptic_io as pio
 from dome_calib.bundle import Bundle, Camera, camera_type_from_name
 from dome_calib.camera import distort, pixels_to_normalized
 from dome_calib.errors import BundleFormatError
+from dome_calib.interop.fields import ROTATION_EXACT_TOL, rotation_error
+from dome_calib.interop.registry import UNIT_CHOICES
+
+logger = logging.getLogger(__name__)
 
 #: Length units a file may use -> centimetres per unit.
 CM_PER_UNIT = {"mm": 0.1, "cm": 1.0, "m": 100.0}
-#: ``--unit`` choices: a length unit, or the calibration board's squares (needs the square size).
-UNIT_CHOICES = (*CM_PER_UNIT, "squares")
+#: Largest plausible camera translation once in cm (10 km): beyond it the file's unit was not the one read.
+LIMIT_T_CM = 1e6
 _PANOPTIC_NAME = re.compile(r"(\d\d)_(\d\d)")
 #: A file world whose up axis is the key -> the rotation M (det +1) with ``X_panoptic = M @ X_file``: the axis
 #: becomes -y (Panoptic up), and x stays x where it can (z up: the usual z-up-to-y-down turn about x).
 PANOPTIC_FROM_UP = {
-    "-y": np.eye(3),
-    "+y": np.diag([1.0, -1.0, -1.0]),
-    "+z": np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]),
-    "-z": np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]),
     "+x": np.array([[0, 1.0, 0], [-1.0, 0, 0], [0, 0, 1.0]]),
     "-x": np.array([[0, -1.0, 0], [1.0, 0, 0], [0, 0, 1.0]]),
+    "+y": np.diag([1.0, -1.0, -1.0]),
+    "-y": np.eye(3),
+    "+z": np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]),
+    "-z": np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]),
 }
 
 
 class InteropError(BundleFormatError):
     """A file of another tool cannot be read or written as asked (names file, camera and field)."""
+
+
+def label(name: str) -> str:
+    """A name from a file as messages show it: as is if short and printable, else quoted and cut."""
+    return name if name.isprintable() and len(name) <= 40 else repr(name[:37] + "...")
 
 
 @dataclass(kw_only=True)
@@ -55,25 +65,48 @@ class ForeignCamera:
 
 @dataclass(kw_only=True)
 class ExportOptions:
-    """``unit``: length unit of the written translations (None: the format's default); ``names``: our name ->
-    the name written; ``binary``: COLMAP binary (else text) files."""
+    """``unit``: length unit of the written translations (None: the format's default); ``world_up``: the written
+    world's up axis (None: the format's default); ``names``: our name -> the name written; ``binary``: COLMAP binary
+    (else text) files."""
 
     unit: str | None = None
-    world_up: str | None = None  # the written world's up axis ("+z", "-y", ...); None: the format's default
+    world_up: str | None = None
     names: dict[str, str] = field(default_factory=dict)
     binary: bool = True
 
 
 @dataclass(kw_only=True)
 class ImportOptions:
-    """``unit``: length unit of the file when the format does not state it ("squares" needs
-    ``square_size_mm``); ``names``: name in the file -> our name; ``seq``: the bundle's sequence name."""
+    """``unit``: length unit of the file when the format does not state it ("squares" needs ``square_size_mm``);
+    ``world_up``: the file world's up axis, turned into ours (None: the format's default); ``names``: name in the
+    file -> our name; ``seq``: the bundle's sequence name; ``image_size``: (width, height) px for files that do not
+    record it (EasyMocap's calibration tools)."""
 
     unit: str | None = None
     square_size_mm: float | None = None
-    world_up: str | None = None  # the file world's up axis, turned into Panoptic -y; None: the format's default
+    world_up: str | None = None
     names: dict[str, str] = field(default_factory=dict)
     seq: str = "imported"
+    image_size: tuple[int, int] | None = None
+
+
+@dataclass(kw_only=True)
+class Read:
+    """What a format module read: cameras in the file's order, the length unit the file states (None: it does
+    not), the file to name in messages."""
+
+    cameras: list[ForeignCamera]
+    unit: str | None
+    path: Path
+
+
+@dataclass(kw_only=True)
+class Written:
+    """What a format module could not write: one line per loss, and per camera the pixels a dropped term moves the
+    point seen at the image corner."""
+
+    dropped: list[str] = field(default_factory=list)
+    corner_shift_px: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass(kw_only=True)
@@ -91,7 +124,7 @@ class ExportResult:
 
 
 def parse_names(text: str | None) -> dict[str, str]:
-    """``"old=new,old2=new2"`` -> {old: new}. ValueError on a malformed pair or a name given twice."""
+    """``"old=new,old2=new2"`` -> {old: new}. InteropError on a malformed pair or a name given twice."""
     mapping: dict[str, str] = {}
     for pair in filter(None, (p.strip() for p in (text or "").split(","))):
         old, sep, new = (s.strip() for s in pair.partition("="))
@@ -101,6 +134,16 @@ def parse_names(text: str | None) -> dict[str, str]:
             raise InteropError(f"--names: '{old}' mapped twice")
         mapping[old] = new
     return mapping
+
+
+def parse_image_size(text: str | None) -> tuple[int, int] | None:
+    """``"1920x1080"`` -> (1920, 1080); InteropError naming the option otherwise."""
+    if not text:
+        return None
+    match = re.fullmatch(r"\s*(\d{1,6})\s*[xX]\s*(\d{1,6})\s*", text)
+    if match is None or not all(0 < int(v) <= 100_000 for v in match.groups()):
+        raise InteropError(f"--image-size {text!r}: expected WIDTHxHEIGHT in pixels, e.g. 1920x1080")
+    return int(match.group(1)), int(match.group(2))
 
 
 def rename(names: list[str], mapping: dict[str, str], where: str) -> list[str]:
@@ -113,7 +156,7 @@ def rename(names: list[str], mapping: dict[str, str], where: str) -> list[str]:
     seen: set[str] = set()
     for old, new in zip(names, out):
         if new in seen:
-            raise InteropError(f"{where}: camera {old}: field 'name': '{new}' would be a duplicate name")
+            raise InteropError(f"{where}: camera {label(old)}: name '{new}' would be a duplicate name")
         seen.add(new)
     return out
 
@@ -142,20 +185,12 @@ def exact_rotation(R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return R_exact, -R_exact @ centre
 
 
-def panoptic_from_up(world_up: str, where: str) -> np.ndarray:
-    """(3, 3) rotation ``X_panoptic = M @ X_file`` for a file world whose up axis is ``world_up``."""
-    key = world_up if world_up[0] in "+-" else f"+{world_up}"
-    if key not in PANOPTIC_FROM_UP:
-        raise InteropError(f"{where}: --world-up {world_up!r}: expected one of x, -x, y, -y, z, -z")
-    return PANOPTIC_FROM_UP[key]
-
-
 def to_foreign(bundle: Bundle, options: ExportOptions, unit: str, world_up: str, where: str) -> list[ForeignCamera]:
     """Our cameras, in the bundle's order, as foreign records in a world whose up axis is ``world_up``, with
     translations in ``unit`` and names mapped (rotations made exact, centres kept: :func:`exact_rotation`)."""
     names = rename(list(bundle.cameras), options.names, where)
     scale = 1.0 / cm_per_unit(unit, None, where)
-    M = panoptic_from_up(world_up, where)
+    M = PANOPTIC_FROM_UP[world_up]
     out = []
     for new, c in zip(names, bundle.cameras.values()):
         R, t_cm = exact_rotation(c.R, c.t_cm)
@@ -164,43 +199,40 @@ def to_foreign(bundle: Bundle, options: ExportOptions, unit: str, world_up: str,
     return out
 
 
-def checked(cam: ForeignCamera, path: Path) -> ForeignCamera:
-    """Validate a camera read from ``path`` with the bundle reader's own checks (the same messages): finite
-    numbers, positive focal lengths, zero skew, a rotation (orthonormal, det +1; re-orthonormalised with a warning
-    when written with ~6 decimals)."""
-    w = pio._Where(path).at(f"camera {pio._label(cam.name)}")
-    K = w.numbers(np.asarray(cam.K).tolist(), "K", ((3, 3),), pio.LIMITS["K_px"])
-    R = w.rotation(w.numbers(np.asarray(cam.R).tolist(), "R", ((3, 3),), 2.0), "R")
-    out = ForeignCamera(
-        name=cam.name,
-        size=w.size(list(cam.size), "size"),
-        K=w.camera_matrix(K, "K"),
-        dist=w.numbers(np.asarray(cam.dist).tolist(), "dist", ((5,),), pio.LIMITS["dist"]),
-        R=R,
-        t=w.numbers(np.asarray(cam.t).tolist(), "t", ((3,),), pio.LIMITS["t_cm"]),
-    )
-    w.warn_repaired()
-    return out
-
-
 def to_bundle(cams: list[ForeignCamera], cm_per_file_unit: float, world_up: str, options: ImportOptions,
               path: Path, source: str) -> Bundle:
-    """Foreign cameras (already :func:`checked`) -> a bundle in their order, translations in cm, the file's up axis
-    ``world_up`` turned to -y (Panoptic), names mapped. Camera type, panel and node come from Panoptic names
-    (``PP_NN``); other names are VGA, panel 0, node 0."""
-    M = panoptic_from_up(world_up, str(path))
+    """Foreign cameras (read through their format's schema) -> a bundle in their order, translations in cm, the
+    file's up axis ``world_up`` turned to -y (Panoptic), names mapped. Camera type, panel and node come from
+    Panoptic names (``PP_NN``); other names are VGA, panel 0, node 0. Rotations written with few decimals are
+    replaced by the nearest rotation (one warning per file)."""
+    M = PANOPTIC_FROM_UP[world_up]
     seen: set[str] = set()
     for cam in cams:
         if cam.name in seen:
-            raise InteropError(f"{path}: camera {pio._label(cam.name)}: field 'name': duplicate camera name")
+            raise InteropError(f"{path}: camera {label(cam.name)}: name: duplicate camera name")
         seen.add(cam.name)
     names = rename([c.name for c in cams], options.names, str(path))
     cameras: dict[str, Camera] = {}
+    repaired = []
     for name, cam in zip(names, cams):
+        R = np.asarray(cam.R, dtype=float)
+        if rotation_error(R) > ROTATION_EXACT_TOL:
+            repaired.append(cam.name)
+            U, _, Vt = np.linalg.svd(R)
+            R = U @ Vt
+        t_cm = np.asarray(cam.t, dtype=float) * cm_per_file_unit
+        if np.abs(t_cm).max() > LIMIT_T_CM:
+            raise InteropError(f"{path}: camera {label(cam.name)}: translation {np.abs(t_cm).max() / 1e5:.3g} km "
+                               "from the origin: not a calibration in the unit read (give the right --unit)")
         m = _PANOPTIC_NAME.fullmatch(name)
-        cameras[name] = Camera(name=name, type=camera_type_from_name(name), resolution=cam.size, K=cam.K,
-                               dist=cam.dist, R=cam.R @ M.T, t_cm=cam.t * cm_per_file_unit,
-                               panel=int(m.group(1)) if m else 0, node=int(m.group(2)) if m else 0)
+        cameras[name] = Camera(name=name, type=camera_type_from_name(name), resolution=cam.size,
+                               K=np.asarray(cam.K, dtype=float), dist=np.asarray(cam.dist, dtype=float),
+                               R=R @ M.T, t_cm=t_cm, panel=int(m.group(1)) if m else 0,
+                               node=int(m.group(2)) if m else 0)
+    if repaired:
+        logger.warning("%s: %d rotation(s) orthonormal only to ~1e-6 (%s%s), as when written with few decimals: "
+                       "replaced by the nearest rotation", path, len(repaired), ", ".join(repaired[:4]),
+                       ", ..." if len(repaired) > 4 else "")
     return Bundle(seq=options.seq, cameras=cameras, calib_data_source=source)
 
 
@@ -217,3 +249,10 @@ def corner_shift_px(cam: ForeignCamera, kept: np.ndarray) -> float:
     xn = np.where(np.isnan(xn), pinhole, xn)
     shift = (distort(xn, cam.dist) - distort(xn, np.asarray(kept, dtype=float))) * f
     return float(np.linalg.norm(shift, axis=1).max())
+
+
+def dropped_terms_line(shifts: dict[str, float], what: str) -> str:
+    """One line saying what dropping ``what`` costs at the image corners (the worst camera named)."""
+    worst = max(shifts, key=shifts.get)
+    return (f"{what} dropped for {len(shifts)} camera(s): the point seen at the image corner moves by up to "
+            f"{shifts[worst]:.3f} px (camera {worst})")

@@ -1,45 +1,37 @@
 """Export a bundle to another tool's calibration files, and import theirs into a bundle (the commands' stages).
 
-Every output is staged and renamed into place (:mod:`dome_calib.io_utils`): on any error nothing is written.
-An imported bundle is written by :func:`dome_calib.bundle_io.write_bundle` and read back with
-:func:`dome_calib.bundle_io.load_bundle` (the loader every stage uses) before it replaces anything.
+The formats are the rows of :mod:`dome_calib.interop.registry`; each row names the module that reads
+(``read(source, options) -> Read``) or writes (``write(cams, out, unit, options) -> Written``) its files. This
+module holds what is the same for every format: units, world axes, names, what a bundle holds that no format
+carries, and where the output goes.
+
+Every input and output place is checked before anything is read; every output is staged and renamed into place
+(:mod:`dome_calib.io_utils`): on any error nothing is written. An imported bundle is written by
+:func:`dome_calib.bundle_io.write_bundle` and read back with :func:`dome_calib.bundle_io.load_bundle` (the loader
+every stage uses) before it replaces anything.
 """
 from __future__ import annotations
 
+import importlib
 import logging
+import re
 from dataclasses import dataclass
-from enum import StrEnum
 from pathlib import Path
+from types import ModuleType
 
 from dome_calib.bundle import Bundle
-from dome_calib.bundle_io import bundle_seq, load_bundle, write_bundle
-from dome_calib.interop import aniposelib, colmap, easymocap, nerfstudio, pose2sim
-from dome_calib.interop.common import (ExportOptions, ExportResult, ForeignCamera, ImportOptions, InteropError,
-                                       checked, cm_per_unit, to_bundle, to_foreign)
-from dome_calib.io_utils import atomic_folder, atomic_path, refuse_output_among_inputs
+from dome_calib.bundle_io import load_bundle, write_bundle
+from dome_calib.interop.common import (ExportOptions, ExportResult, ImportOptions, InteropError, cm_per_unit,
+                                       to_bundle, to_foreign)
+from dome_calib.interop.registry import UP_AXES, FormatInfo, format_info
+from dome_calib.io_utils import atomic_folder, atomic_path, check_writable, refuse_output_among_inputs
 
 logger = logging.getLogger(__name__)
 
-
-class Format(StrEnum):
-    COLMAP = "colmap"
-    ANIPOSELIB = "aniposelib"
-    POSE2SIM = "pose2sim"
-    EASYMOCAP = "easymocap"
-    NERFSTUDIO = "nerfstudio"
-
-
-#: Length unit each format fixes (None: the file does not say it) and the export's default.
-FIXED_UNIT = {Format.POSE2SIM: pose2sim.UNIT, Format.EASYMOCAP: easymocap.UNIT}
-DEFAULT_UNIT = {Format.COLMAP: "m", Format.ANIPOSELIB: aniposelib.DEFAULT_UNIT, Format.POSE2SIM: pose2sim.UNIT,
-                Format.EASYMOCAP: easymocap.UNIT, Format.NERFSTUDIO: nerfstudio.DEFAULT_UNIT}
-#: The world's up axis in each format's files: Pose2Sim's is z (its TRC writer turns z-up into OpenSim's y-up,
-#: ``common.py: zup2yup``); nerfstudio's z up is written as its own ``applied_transform`` (see nerfstudio.py);
-#: the others have no convention: our world is kept (up = -y).
-DEFAULT_UP = {Format.POSE2SIM: "+z"}
-#: Files a folder output may already hold and still be replaced whole (anything else: refused).
-_FOLDER_FILES = {Format.COLMAP: {f"{k}.{e}" for k in colmap.MODEL_FILES for e in ("bin", "txt")},
-                 Format.EASYMOCAP: set(easymocap.FILES)}
+#: What an import writes into its output folder (a folder holding anything else is refused, not replaced).
+_IMPORT_WRITES = re.compile(r"calibration_[^/]+\.json")
+#: A sequence name: it becomes part of a file name (calibration_<seq>.json).
+_SEQ = re.compile(r"[^./\\\x00-\x1f\x7f][^/\\\x00-\x1f\x7f]{0,127}")
 
 
 @dataclass(kw_only=True)
@@ -51,148 +43,145 @@ class ImportResult:
     world_up: str  # the source world's up axis, turned to Panoptic -y
 
 
-def _replaceable_folder(out: Path, allowed: set[str] | None, what: str) -> None:
-    """Refuse to replace a folder that holds anything but ``allowed`` files (None: a bundle or nothing)."""
-    if not out.is_dir():
-        return
-    entries = sorted(p.name for p in out.iterdir())
-    if allowed is None:
-        if entries and bundle_seq(out) is None:
-            raise InteropError(f"{out}: a folder that holds no bundle ({', '.join(entries[:3])}, ...); give a new or "
-                               "empty folder, or a bundle folder to replace")
-        return
-    other = [e for e in entries if e not in allowed]
-    if other:
-        raise InteropError(f"{out}: holds {other[0]}, which is not part of {what}; give a new or empty folder")
+def _info(fmt: str, direction: str) -> FormatInfo:
+    try:
+        return format_info(str(fmt), direction)
+    except ValueError as exc:
+        raise InteropError(str(exc)) from None
 
 
-def _export_unit(fmt: Format, unit: str | None, where: str) -> str:
-    if fmt in FIXED_UNIT and unit not in (None, FIXED_UNIT[fmt]):
-        raise InteropError(f"{where}: {fmt} files are in {FIXED_UNIT[fmt]} by the format's definition; "
+def adapter(info: FormatInfo) -> ModuleType:
+    """The module that reads and writes ``info``'s files (loaded when a command uses it)."""
+    return importlib.import_module(info.module)
+
+
+def _world_up(info: FormatInfo, world_up: str | None, where: str, *, export: bool) -> str:
+    if world_up is not None and world_up not in UP_AXES:
+        raise InteropError(f"{where}: --world-up {world_up!r}: expected one of {', '.join(UP_AXES)}")
+    if info.fixed_up and world_up is not None:
+        raise InteropError(f"{where}: {info.name} worlds are {info.export_up} up by the format (recorded in its "
+                           "files); --world-up does not apply")
+    return world_up or (info.export_up if export else info.import_up)
+
+
+def _export_unit(info: FormatInfo, unit: str | None, where: str) -> str:
+    if info.fixed_unit is not None and unit not in (None, info.fixed_unit):
+        raise InteropError(f"{where}: {info.name} files are in {info.fixed_unit} by the format's definition; "
                            f"--unit {unit} is not possible")
-    unit = unit or DEFAULT_UNIT[fmt]
+    unit = unit or info.fixed_unit or info.default_unit
     if unit == "squares":
         raise InteropError(f"{where}: --unit squares is for import only (the bundle is in cm)")
     cm_per_unit(unit, None, where)
     return unit
 
 
-def _world_up(fmt: Format, world_up: str | None, where: str) -> str:
-    if fmt is Format.NERFSTUDIO and world_up is not None:
-        raise InteropError(f"{where}: nerfstudio worlds are z up, recorded in the file's applied_transform; "
-                           "--world-up does not apply")
-    return world_up or DEFAULT_UP.get(fmt, "-y")
+def _replaceable_folder(out: Path, allowed: set[str], what: str) -> None:
+    """Refuse to replace a folder that holds anything but ``allowed`` files."""
+    if not out.is_dir():
+        return
+    other = sorted(p.name for p in out.iterdir() if p.name not in allowed)
+    if other:
+        raise InteropError(f"{out}: holds {other[0]}, which is not part of {what}; give a new or empty folder")
 
 
-def _not_carried(bundle: Bundle, fmt: Format) -> list[str]:
+def _not_carried(bundle: Bundle, info: FormatInfo) -> list[str]:
     lines = []
     if bundle.kinect is not None:
         lines.append(f"Kinect depth-colour calibration (kcalibration, {len(bundle.kinect.sensors)} sensors): no place "
-                     f"in {fmt}, not written")
+                     f"in {info.name}, not written")
     if bundle.sync is not None:
-        lines.append(f"sync tables: no place in {fmt}, not written")
-    if fmt is Format.COLMAP:
-        lines.append("points3D written empty: the bundle keeps its residuals, not the observed points")
+        lines.append(f"sync tables: no place in {info.name}, not written")
     return lines
 
 
-def export_bundle(bundle_folder: str | Path, fmt: Format | str, out: str | Path,
+def export_bundle(bundle_folder: str | Path, fmt: str, out: str | Path,
                   options: ExportOptions | None = None) -> ExportResult:
-    """Write the bundle in ``bundle_folder`` as ``fmt`` to ``out`` (a folder for colmap / easymocap, else a file).
+    """Write the bundle in ``bundle_folder`` as ``fmt`` to ``out`` (a folder for folder formats, else a file).
 
     Returns what was written, the unit, and what the format could not carry (with the corner shift, px, of a
-    dropped k3 per camera).
+    dropped distortion term per camera).
     """
     options = options or ExportOptions()
-    fmt = Format(fmt)
+    info = _info(fmt, "export")
     out = Path(out)
     refuse_output_among_inputs(out, [bundle_folder, *Path(bundle_folder).glob("*")], whole_folder=True)
+    unit = _export_unit(info, options.unit, str(out))
+    up = _world_up(info, options.world_up, str(out), export=True)
+    if info.folder:
+        _replaceable_folder(out, set(info.folder_files), f"a {info.name} export")
     bundle = load_bundle(bundle_folder)
-    unit = _export_unit(fmt, options.unit, str(out))
-    up = _world_up(fmt, options.world_up, str(out))
-    cams = to_foreign(bundle, options, "cm" if fmt is Format.NERFSTUDIO else unit, up, str(bundle_folder))
-    up = "+z" if fmt is Format.NERFSTUDIO else up
-    result = ExportResult(format=str(fmt), out=out, unit=unit, world_up=up, cameras=len(cams),
-                          dropped=_not_carried(bundle, fmt))
-    if fmt in _FOLDER_FILES:
-        _replaceable_folder(out, _FOLDER_FILES[fmt], f"a {fmt} export")
-        with atomic_folder(out) as staging:
-            if fmt is Format.COLMAP:
-                colmap.write_colmap(cams, staging, binary=options.binary)
-            else:
-                easymocap.write_easymocap(cams, staging)
-        return result
-    with atomic_path(out) as tmp:
-        if fmt is Format.ANIPOSELIB:
-            aniposelib.write_aniposelib(cams, tmp, unit)
-        elif fmt is Format.POSE2SIM:
-            clash = [c.name for c in cams if c.name in aniposelib.NOT_CAMERAS]
-            if clash:
-                raise InteropError(f"camera {clash[0]}: field 'name': Pose2Sim reads a table of that name as "
-                                   "settings, not a camera; rename it with --names")
-            result.corner_shift_px = pose2sim.write_pose2sim(cams, tmp)
-            if result.corner_shift_px:
-                worst = max(result.corner_shift_px, key=result.corner_shift_px.get)
-                result.dropped.append(
-                    f"k3 dropped for {len(result.corner_shift_px)} camera(s) (Pose2Sim holds [k1, k2, p1, p2]): the "
-                    f"point seen at the image corner moves by up to {result.corner_shift_px[worst]:.3f} px "
-                    f"(camera {worst})")
-        else:
-            nerfstudio.write_nerfstudio(cams, tmp, unit=unit, cm_per_unit=cm_per_unit(unit, None, str(out)))
-    return result
+    cams = to_foreign(bundle, options, unit, up, str(bundle_folder))
+    module = adapter(info)
+    with (atomic_folder(out) if info.folder else atomic_path(out)) as staging:
+        written = module.write(cams, staging, unit, options)
+    return ExportResult(format=info.name, out=out, unit=unit, world_up=up, cameras=len(cams),
+                        dropped=_not_carried(bundle, info) + written.dropped,
+                        corner_shift_px=written.corner_shift_px)
 
 
-def _read(fmt: Format, src: Path) -> tuple[list[ForeignCamera], str | None, Path]:
-    """The file's cameras, the unit it states (None: it does not), and the path to name in messages."""
-    if fmt is Format.COLMAP:
-        return colmap.read_colmap(src), None, src
-    if fmt is Format.EASYMOCAP:
-        return easymocap.read_easymocap(src), easymocap.UNIT, src
-    if src.is_dir():
-        default = {Format.ANIPOSELIB: "calibration.toml", Format.NERFSTUDIO: "transforms.json"}.get(fmt)
-        if default is None or not (src / default).is_file():
-            raise InteropError(f"{src}: a folder; give the {fmt} calibration file itself")
-        src = src / default
-    if fmt is Format.ANIPOSELIB:
-        cams, unit = aniposelib.read_aniposelib(src)
-        return cams, unit, src
-    if fmt is Format.POSE2SIM:
-        return pose2sim.read_pose2sim(src), pose2sim.UNIT, src
-    cams, unit = nerfstudio.read_nerfstudio(src)
-    return cams, unit, src
+def _source(info: FormatInfo, src: Path) -> Path:
+    """The file (or folder) to read: a folder given for a file format means its ``default_file``."""
+    if info.folder or not src.is_dir():
+        return src
+    if info.default_file is not None and (src / info.default_file).is_file():
+        return src / info.default_file
+    want = f" (or a folder holding {info.default_file})" if info.default_file else ""
+    raise InteropError(f"{src}: a folder; give the {info.name} file itself: {info.files}{want}")
 
 
-def read_foreign(src: str | Path, fmt: Format | str, options: ImportOptions | None = None) -> tuple[Bundle, str]:
+def read_foreign(src: str | Path, fmt: str, options: ImportOptions | None = None) -> tuple[Bundle, str]:
     """Read another tool's calibration into a bundle (nothing written; translations converted to cm, the file's up
     axis turned to Panoptic -y) and name the source's length unit."""
     options = options or ImportOptions()
-    fmt = Format(fmt)
-    cams, stated, path = _read(fmt, Path(src))
+    info = _info(fmt, "import")
+    src = _source(info, Path(src))
+    up = _world_up(info, options.world_up, str(src), export=False)
+    read = adapter(info).read(src, options)
+    stated = read.unit or info.fixed_unit
     if stated is not None and options.unit is not None and options.unit != stated:
-        raise InteropError(f"{path}: the file states its unit ({stated}); --unit {options.unit} contradicts it")
+        raise InteropError(f"{read.path}: the file states its unit ({stated}); --unit {options.unit} contradicts it")
     unit = stated or options.unit
     if unit is None:
-        raise InteropError(f"{path}: a {fmt} calibration does not record its length unit; give --unit "
+        raise InteropError(f"{read.path}: a {info.name} calibration does not record its length unit; give --unit "
                            "(mm, cm, m, or squares with --square-size-mm)")
-    scale = cm_per_unit(unit, options.square_size_mm, str(path))
-    up = _world_up(fmt, options.world_up, str(path))
-    cams = [checked(c, path) for c in cams]
+    scale = cm_per_unit(unit, options.square_size_mm, str(read.path))
     turned = "" if up == "-y" else f", its up axis {up} turned to -y"
-    source = f"imported from {fmt} ({path.name}, unit {unit}{turned})"
-    return to_bundle(cams, scale, up, options, path, source), unit
+    source = f"imported from {info.name} ({read.path.name}, unit {unit}{turned})"
+    return to_bundle(read.cameras, scale, up, options, read.path, source), unit
 
 
-def import_calibration(src: str | Path, fmt: Format | str, out: str | Path,
+def check_import_output(out: Path, seq: str) -> None:
+    """Before anything is read: the sequence name makes a file name, and the output folder is new, empty, or holds
+    only what an import writes (a calibration file). A folder holding more (a session's bundle with its Kinect
+    calibration, sync tables and report, the user's notes) is refused, not replaced: the import would delete them,
+    and keeping them beside other cameras would mix two calibrations in one bundle."""
+    if not _SEQ.fullmatch(seq):
+        raise InteropError(f"--seq {seq!r}: a sequence name is part of the file name calibration_<seq>.json: no "
+                           "'/', '\\' or control characters, not starting with '.', at most 128 characters (without "
+                           "--seq: the output folder's name)")
+    if out.exists() and not out.is_dir():
+        raise InteropError(f"-o {out}: is a file; give a new or empty folder for the bundle")
+    if out.is_dir():
+        other = sorted(p.name + ("/" if p.is_dir() else "") for p in out.iterdir()
+                       if not (p.is_file() and _IMPORT_WRITES.fullmatch(p.name)))
+        if other:
+            shown = ", ".join(other[:3]) + (", ..." if len(other) > 3 else "")
+            raise InteropError(f"-o {out}: holds {shown}: an import writes a new bundle folder (cameras only) and "
+                               "would replace this one whole; give a new or empty folder")
+    check_writable(out)
+
+
+def import_calibration(src: str | Path, fmt: str, out: str | Path,
                        options: ImportOptions | None = None) -> ImportResult:
-    """Import ``src`` as ``fmt`` into the bundle folder ``out`` (replaced whole; a non-bundle folder refused)."""
+    """Import ``src`` as ``fmt`` into the bundle folder ``out`` (new, empty, or an earlier import's: replaced)."""
     options = options or ImportOptions()
     out = Path(out)
+    info = _info(fmt, "import")
     refuse_output_among_inputs(out, [src], whole_folder=True)
-    bundle, unit = read_foreign(src, fmt, options)
-    up = _world_up(Format(fmt), options.world_up, str(src))
-    _replaceable_folder(out, None, "a bundle")
+    check_import_output(out, options.seq)
+    bundle, unit = read_foreign(src, info.name, options)
+    up = _world_up(info, options.world_up, str(src), export=False)
     with atomic_folder(out) as staging:
         write_bundle(bundle, staging)
         load_bundle(staging)  # the loader every stage uses accepts it, or nothing is replaced
-    return ImportResult(out=out, format=str(Format(fmt)), cameras=len(bundle.cameras), unit=unit,
-                        world_up=up)
+    return ImportResult(out=out, format=info.name, cameras=len(bundle.cameras), unit=unit, world_up=up)

@@ -1,44 +1,130 @@
-"""nerfstudio ``transforms.json`` (``nerfstudio/data/dataparsers/nerfstudio_dataparser.py``; the fields that
-``process_data/colmap_utils.py: colmap_to_json`` writes).
+"""nerfstudio ``transforms.json`` (read by ``nerfstudio/data/dataparsers/nerfstudio_dataparser.py``; the fields
+that ``process_data/colmap_utils.py: colmap_to_json`` writes).
 
 Per frame: ``file_path``, ``transform_matrix`` (4x4 camera to world, OpenGL camera axes: x right, y up, z back,
 i.e. OpenCV's with y and z negated), and the intrinsics ``w``, ``h``, ``fl_x``, ``fl_y``, ``cx``, ``cy``, ``k1``,
-``k2``, ``k3``, ``p1``, ``p2`` (one camera per frame); ``camera_model`` ``OPENCV``. nerfstudio's rays start at
-pixel index + 0.5 (``Cameras.get_image_coords(pixel_offset=0.5)``), COLMAP's pixel convention: principal points
-are ours + 0.5.
+``k2``, ``k3``, ``p1``, ``p2`` (one camera per frame; a key missing in a frame is taken from the top level, as the
+dataparser does); ``camera_model`` ``OPENCV``. nerfstudio's rays start at pixel index + 0.5
+(``Cameras.get_image_coords(pixel_offset=0.5)``), COLMAP's pixel convention: principal points are ours + 0.5.
 
-World: nerfstudio wants z up. The export maps the Panoptic world (y down, cm) by ``X_file = s * A @ X`` with
-``A`` the rotation taking -y (up) to +z (x kept) and ``s`` = 1 / (cm per ``--unit``, default metres), and
-records both as nerfstudio's own ``applied_transform`` (3x4, ``[A | 0]``) and ``applied_scale`` keys, which its
-dataparser composes into ``dataparser_transform`` / ``dataparser_scale`` so that its exports return to our world.
-The original world's unit is written as ``original_unit`` (an extra key nerfstudio ignores); each frame carries
-its camera's ``camera_name``. Import undoes ``applied_transform`` / ``applied_scale`` when present.
+World: nerfstudio wants z up. The export writes ``X_file = A @ X`` (``A`` takes our up, -y, to +z; x kept) in the
+``--unit`` (metres by default) and records ``A`` as nerfstudio's own ``applied_transform`` (3x4, ``[A | 0]``), which
+its dataparser composes into ``dataparser_transform`` so that ``transform_poses_to_original_space`` returns to our
+world, in that unit. No ``applied_scale`` is written: the dataparser multiplies it into ``dataparser_scale`` after
+it has centred the poses, so mapping back divides the centring offset by it too (with 0.01 the real Panoptic
+cameras came back 178 cm from where they are); nerfstudio's own converters never write it. The unit is recorded as
+``unit`` (an extra key nerfstudio ignores), each frame's camera as ``camera_name``.
+
+Import undoes ``applied_transform`` and ``applied_scale`` when present (files of other tools and older ones of
+ours, which record their world's unit as ``original_unit``).
 """
 from __future__ import annotations
 
 import json
 from pathlib import Path, PurePosixPath
+from typing import Annotated, Literal
 
 import numpy as np
+from pydantic import Field, model_validator
 
-from dome_calib import panoptic_io as pio
 from dome_calib.camera import COLMAP_PIXEL_OFFSET_PX
-from dome_calib.interop.common import ForeignCamera
+from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, label
+from dome_calib.interop.fields import Bounded, DistTerm, Length, SidePxNumber, check_rotation
+from dome_calib.interop.registry import UNITS
+from dome_calib.schema import OpenSchema, Vec, read_json
 
-DEFAULT_UNIT = "m"
 #: Panoptic world -> z-up world: x kept, y_new = z, z_new = -y (up = -y becomes +z). det +1.
 Z_UP_FROM_PANOPTIC = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 OPENGL_FROM_OPENCV = np.diag([1.0, -1.0, -1.0])  # camera axes: y and z negated
+_INTRINSICS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
+_DISTORTION = ("k1", "k2", "p1", "p2", "k3")  # our order
 
 
-def write_nerfstudio(cams: list[ForeignCamera], path: Path, *, unit: str, cm_per_unit: float) -> None:
-    """Write ``transforms.json``. ``cams`` translations are in cm (the bundle's); ``unit`` is the file's."""
-    scale = 1.0 / cm_per_unit
+class Intrinsics(OpenSchema):
+    """Intrinsic keys, per frame or once at the top level (the dataparser reads a frame's, else the file's)."""
+
+    fl_x: Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)] | None = None
+    fl_y: Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)] | None = None
+    cx: Bounded | None = None
+    cy: Bounded | None = None
+    w: SidePxNumber | None = None
+    h: SidePxNumber | None = None
+    k1: DistTerm | None = None
+    k2: DistTerm | None = None
+    k3: DistTerm | None = None
+    k4: DistTerm | None = None
+    p1: DistTerm | None = None
+    p2: DistTerm | None = None
+
+
+def _pose(M: list[list[float]]) -> list[list[float]]:
+    """A 3x4 or 4x4 ``[R | t]`` whose R is a rotation."""
+    if len(M) == 4 and M[3] != [0, 0, 0, 1]:
+        raise ValueError(f"last row must be [0, 0, 0, 1], got {M[3]}")
+    check_rotation([row[:3] for row in M[:3]])
+    return M
+
+
+class Frame(Intrinsics):
+    """One frame: one camera."""
+
+    file_path: Annotated[str, Field(min_length=1)] | None = None
+    camera_name: Annotated[str, Field(min_length=1)] | None = None
+    transform_matrix: Annotated[list[Vec(4, Length)], Field(min_length=3, max_length=4)]
+
+    @model_validator(mode="after")
+    def _checked(self) -> Frame:
+        if self.camera_name is None and self.file_path is None:
+            raise ValueError("file_path: missing (needed to name the camera)")
+        try:
+            _pose(self.transform_matrix)
+        except ValueError as exc:
+            raise ValueError(f"camera {label(self.name())}: transform_matrix: {exc}") from None
+        return self
+
+    def name(self) -> str:
+        return self.camera_name or PurePosixPath(self.file_path or "").stem
+
+
+class TransformsFile(Intrinsics):
+    """``transforms.json``."""
+
+    camera_model: Literal["OPENCV", "PINHOLE", "SIMPLE_PINHOLE"] = Field(
+        "OPENCV", description="OpenCV pinhole models only (fisheye and equirectangular cannot be represented)")
+    frames: list[Frame] = Field(min_length=1)
+    applied_transform: Annotated[list[Vec(4, Length)], Field(min_length=3, max_length=4)] | None = None
+    applied_scale: Annotated[float, Field(gt=0, le=1e9, allow_inf_nan=False)] | None = None
+    unit: Literal[UNITS] | None = Field(None, description="the unit of the world once applied_* are undone (ours)")
+    original_unit: Literal[UNITS] | None = Field(None, description="older files of ours: as unit")
+
+    @model_validator(mode="after")
+    def _checked(self) -> TransformsFile:
+        if self.applied_transform is not None:
+            try:
+                _pose(self.applied_transform)
+            except ValueError as exc:
+                raise ValueError(f"applied_transform: {exc}") from None
+        for i, frame in enumerate(self.frames):
+            for key in _INTRINSICS:
+                if getattr(frame, key) is None and getattr(self, key) is None:
+                    raise ValueError(f"frames[{i}].{key}: missing (in the frame and at the top level)")
+            if (frame.k4 if frame.k4 is not None else self.k4 or 0.0) != 0.0:
+                raise ValueError(f"frames[{i}].k4: non-zero k4 cannot be represented (OpenCV [k1, k2, p1, p2, k3] "
+                                 "only)")
+        return self
+
+    def value(self, frame: Frame, key: str, default: float | None = None) -> float:
+        mine = getattr(frame, key)
+        return float(mine if mine is not None else getattr(self, key) if getattr(self, key) is not None else default)
+
+
+def write(cams: list[ForeignCamera], path: Path, unit: str, options: object = None) -> Written:
+    """Write ``transforms.json``: ``cams`` are already in the z-up world (x kept, -y of ours up) and in ``unit``."""
     frames = []
     for cam in cams:
         world_from_cam = np.eye(4)
-        world_from_cam[:3, :3] = Z_UP_FROM_PANOPTIC @ cam.R.T @ OPENGL_FROM_OPENCV
-        world_from_cam[:3, 3] = scale * (Z_UP_FROM_PANOPTIC @ (-cam.R.T @ cam.t))
+        world_from_cam[:3, :3] = cam.R.T @ OPENGL_FROM_OPENCV
+        world_from_cam[:3, 3] = -cam.R.T @ cam.t
         k1, k2, p1, p2, k3 = (float(v) for v in cam.dist)
         frames.append({
             "file_path": f"images/{cam.name}.png", "camera_name": cam.name,
@@ -48,70 +134,30 @@ def write_nerfstudio(cams: list[ForeignCamera], path: Path, *, unit: str, cm_per
             "k1": k1, "k2": k2, "k3": k3, "p1": p1, "p2": p2,
         })
     applied = np.hstack([Z_UP_FROM_PANOPTIC, np.zeros((3, 1))])
-    doc = {"camera_model": "OPENCV", "applied_transform": applied.tolist(), "applied_scale": scale,
-           "original_unit": "cm", "unit": unit, "frames": frames}
+    doc = {"camera_model": "OPENCV", "applied_transform": applied.tolist(), "unit": unit, "frames": frames}
     path.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+    return Written()
 
 
-def _number(w: pio._Where, frame: dict, top: dict, key: str, default: float | None = None) -> float:
-    if key in frame:
-        return float(w.numbers(frame[key], key, ((),), pio.LIMITS["K_px"]))
-    if key in top:
-        return float(w.numbers(top[key], key, ((),), pio.LIMITS["K_px"]))
-    if default is None:
-        raise w.fail(key, "missing (in the frame and at the top level)")
-    return default
-
-
-def _applied(doc: dict, path: Path) -> tuple[np.ndarray, np.ndarray, float]:
-    """(A (3, 3), a (3,), s): the file's world is ``s * (A X + a)`` of the original world."""
-    w = pio._Where(path)
-    A, a = np.eye(3), np.zeros(3)
-    if "applied_transform" in doc:
-        M = w.numbers(doc["applied_transform"], "applied_transform", ((3, 4), (4, 4)), 1e6)
-        A, a = w.rotation(M[:3, :3].copy(), "applied_transform"), M[:3, 3]
-    s = float(w.numbers(doc.get("applied_scale", 1.0), "applied_scale", ((),), 1e9))
-    if not s > 0:
-        raise w.fail("applied_scale", f"must be positive, got {s}")
-    return A, a, s
-
-
-def read_nerfstudio(path: Path) -> tuple[list[ForeignCamera], str | None]:
-    """Cameras in frame order (translations in the original world's unit) and that unit if the file names it
-    (``original_unit``, written by this toolkit)."""
-    if path.is_dir():
-        path = path / "transforms.json"
-    doc = pio._load_json(path)
-    top = pio._Where(path)
-    frames = top.get(doc, "frames")
-    if not isinstance(frames, list) or not frames:
-        raise top.fail("frames", "expected a non-empty list of frames (is this a nerfstudio transforms.json?)")
-    model = doc.get("camera_model", "OPENCV")
-    if model not in ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE"):
-        raise top.fail("camera_model", f"{pio._show(model)} cannot be represented (OpenCV pinhole model only)")
-    A, a, s = _applied(doc, path)
+def read(path: Path, options: ImportOptions) -> Read:
+    """Cameras in frame order, in the world before ``applied_transform`` / ``applied_scale`` (the original world),
+    in its unit if the file names it (``unit``, or ``original_unit`` in older files of ours)."""
+    doc = read_json(path, TransformsFile, error=InteropError)
+    A, a, s = np.eye(3), np.zeros(3), doc.applied_scale or 1.0
+    if doc.applied_transform is not None:
+        M = np.array(doc.applied_transform)
+        A, a = M[:3, :3], M[:3, 3]
+        U, _, Vt = np.linalg.svd(A)
+        A = U @ Vt
     cams = []
-    for i, frame in enumerate(frames):
-        if not isinstance(frame, dict):
-            raise top.at(f"frame #{i}").fail("frames", f"expected an object, got {pio._show(frame)}")
-        fp = frame.get("file_path")
-        name = frame.get("camera_name") or (PurePosixPath(fp).stem if isinstance(fp, str) and fp else None)
-        if not isinstance(name, str) or not name:
-            raise top.at(f"frame #{i}").fail("file_path", "missing (needed to name the camera)")
-        w = top.at(f"camera {pio._label(name)}")
-        if _number(w, frame, doc, "k4", 0.0) != 0.0:
-            raise w.fail("k4", "non-zero k4 cannot be represented (OpenCV [k1, k2, p1, p2, k3] only)")
-        fx, fy, cx, cy = (_number(w, frame, doc, k) for k in ("fl_x", "fl_y", "cx", "cy"))
-        dist = np.array([_number(w, frame, doc, k, 0.0) for k in ("k1", "k2", "p1", "p2", "k3")])
-        M = w.array(frame, "transform_matrix", ((4, 4), (3, 4)), 1e9)
-        R_file = w.rotation(M[:3, :3].copy(), "transform_matrix") @ OPENGL_FROM_OPENCV  # world_from_cam, OpenCV
-        world_from_cam = A.T @ R_file
+    for frame in doc.frames:
+        M = np.array(frame.transform_matrix)
+        R_file = M[:3, :3] @ OPENGL_FROM_OPENCV  # world_from_cam, OpenCV camera axes
+        R = (A.T @ R_file).T
         centre = A.T @ (M[:3, 3] / s - a)
-        R = world_from_cam.T
+        fx, fy, cx, cy = (doc.value(frame, k) for k in ("fl_x", "fl_y", "cx", "cy"))
         K = np.array([[fx, 0.0, cx - COLMAP_PIXEL_OFFSET_PX], [0.0, fy, cy - COLMAP_PIXEL_OFFSET_PX], [0, 0, 1.0]])
-        size = (_number(w, frame, doc, "w"), _number(w, frame, doc, "h"))  # checked as integers by common.checked
-        cams.append(ForeignCamera(name=name, size=size, K=K, dist=dist, R=R, t=-R @ centre))
-    unit = doc.get("original_unit")
-    if unit is not None and not isinstance(unit, str):
-        raise top.fail("original_unit", f"expected a unit name, got {pio._show(unit)}")
-    return cams, unit
+        dist = np.array([doc.value(frame, k, 0.0) for k in _DISTORTION])
+        size = (int(doc.value(frame, "w")), int(doc.value(frame, "h")))
+        cams.append(ForeignCamera(name=frame.name(), size=size, K=K, dist=dist, R=R, t=-R @ centre))
+    return Read(cameras=cams, unit=doc.unit or doc.original_unit, path=path)

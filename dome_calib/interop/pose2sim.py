@@ -1,13 +1,17 @@
-"""Pose2Sim ``Calib.toml`` (``calibration.py: toml_write``; read by ``common.py: retrieve_calib_params``).
+"""Pose2Sim ``Calib.toml`` (``calibration.py: toml_write``; read by ``common.py: retrieve_calib_params`` and
+``computeP``).
 
 One table per camera, in file order (Pose2Sim reads ``calib.keys()`` in order, skipping ``metadata``,
-``capture_volume``, ``charuco``, ``checkerboard``), with ``name``, ``size`` [w, h] (floats), ``matrix`` (K, px,
-OpenCV pixel centres), ``distortions`` [k1, k2, p1, p2] (4 terms: no k3), ``rotation`` (Rodrigues, world to
-camera), ``translation`` (world to camera, metres), ``fisheye`` (false), and ``[metadata]`` ``adjusted`` /
-``error``. The export names each table after its camera, in the bundle's order.
+``capture_volume``, ``charuco``, ``checkerboard`` and anything that is not a table, and pairs calibration table i
+with the i-th pose folder), with ``name``, ``size`` [w, h] (floats), ``matrix`` (K, px, OpenCV pixel centres),
+``distortions``, ``rotation`` (Rodrigues, world to camera), ``translation`` (world to camera, metres), ``fisheye``
+(false), and ``[metadata]`` ``adjusted`` / ``error``. The export names each table after its camera, in the
+bundle's order.
 
-What is lost: k3. The export reports, per camera with k3 != 0, how many pixels dropping it moves the point seen
-at the image corner. Import accepts 4 terms (k3 = 0) or 5 (k3 kept), refuses ``fisheye = true``.
+Distortion: Pose2Sim's reader passes ``distortions`` to OpenCV as it is (``cv2.undistortPoints``,
+``cv2.getOptimalNewCameraMatrix``, ``cv2.projectPoints``), which take 4 or 5 terms; only Pose2Sim's own writer
+prints 4. The export writes all 5 (k3 kept: dropping it moved the real HD cameras' corners by 20-34 px); import
+accepts 4 (k3 = 0) or 5.
 """
 from __future__ import annotations
 
@@ -15,30 +19,75 @@ from pathlib import Path
 from typing import Any
 
 import tomli_w
+from pydantic import ConfigDict, model_validator
 
-from dome_calib.interop.aniposelib import camera_keys, camera_table, load_toml, read_table
-from dome_calib.interop.common import ForeignCamera, corner_shift_px
+from dome_calib.interop.aniposelib import CameraTable, camera_table
+from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, label
+from dome_calib.schema import OpenSchema, read_toml
 
-UNIT = "m"
+#: Top-level tables Pose2Sim reads as settings, not cameras (``common.py: retrieve_calib_params``).
+SETTINGS = ("metadata", "capture_volume", "charuco", "checkerboard")
+WRITTEN_BY = "dome-calib export --to pose2sim"
 
 
-def write_pose2sim(cams: list[ForeignCamera], path: Path) -> dict[str, float]:
-    """Write ``Calib.toml`` (translations must already be in metres). Returns camera -> corner shift (px) caused
-    by the dropped k3, for the cameras whose k3 is not zero."""
+class Pose2SimMetadata(OpenSchema):
+    """``[metadata]``: Pose2Sim's ``adjusted`` / ``error``; a ``unit`` other than metres or a file this toolkit
+    wrote for another tool (``written_by``) is not a Pose2Sim calibration."""
+
+    unit: str | None = None
+    written_by: str | None = None
+
+    @model_validator(mode="after")
+    def _pose2sims(self) -> Pose2SimMetadata:
+        if self.written_by is not None and self.written_by != WRITTEN_BY:
+            raise ValueError(f"this file was written by {self.written_by!r}, not for Pose2Sim (lengths in "
+                             f"{self.unit or 'its unit'}, not metres): import it with --from "
+                             f"{self.written_by.rsplit(' ', 1)[-1]}")
+        if self.unit is not None and self.unit != "m":
+            raise ValueError(f"the file states unit {self.unit!r}; Pose2Sim calibrations are in metres (is this "
+                             "another tool's file? aniposelib's: --from aniposelib)")
+        return self
+
+
+class Pose2SimFile(OpenSchema):
+    """``Calib.toml``: every table but the settings ones is a camera, in file order."""
+
+    model_config = ConfigDict(extra="allow")
+    __pydantic_extra__: dict[str, CameraTable]
+    metadata: Pose2SimMetadata = Pose2SimMetadata()
+    capture_volume: dict[str, Any] | None = None
+    charuco: dict[str, Any] | None = None
+    checkerboard: dict[str, Any] | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _tables_only(cls, data: Any) -> Any:
+        """As Pose2Sim: top-level keys that are not tables are not cameras (skipped)."""
+        if isinstance(data, dict):
+            return {k: v for k, v in data.items() if k in SETTINGS or isinstance(v, dict)}
+        return data
+
+    @model_validator(mode="after")
+    def _has_cameras(self) -> Pose2SimFile:
+        if not self.__pydantic_extra__:
+            raise ValueError("no camera tables (is this a Pose2Sim Calib.toml?)")
+        return self
+
+
+def write(cams: list[ForeignCamera], path: Path, unit: str, options: object = None) -> Written:
+    """Write ``Calib.toml`` (translations already in metres), 5 distortion terms."""
     doc: dict[str, Any] = {}
-    shifts: dict[str, float] = {}
     for cam in cams:
-        doc[cam.name] = camera_table(cam, n_dist=4, size_as_float=True) | {"fisheye": False}
-        if cam.dist[4] != 0.0:
-            shifts[cam.name] = corner_shift_px(cam, [*cam.dist[:4], 0.0])
-    doc["metadata"] = {"adjusted": False, "error": 0.0}
+        if cam.name in SETTINGS:
+            raise InteropError(f"camera {label(cam.name)}: name: Pose2Sim reads a table of that name as settings, "
+                               "not a camera; rename it with --names")
+        doc[cam.name] = camera_table(cam, size_as_float=True) | {"fisheye": False}
+    doc["metadata"] = {"adjusted": False, "error": 0.0, "written_by": WRITTEN_BY}
     path.write_text(tomli_w.dumps(doc), encoding="utf-8")
-    return shifts
+    return Written()
 
 
-def read_pose2sim(path: Path) -> list[ForeignCamera]:
+def read(path: Path, options: ImportOptions) -> Read:
     """Cameras in file order, translations in metres."""
-    what = "a Pose2Sim Calib.toml"
-    doc = load_toml(path, what)
-    keys = [k for k in camera_keys(doc, path, what) if isinstance(doc[k], dict)]  # as Pose2Sim: tables only
-    return [read_table(path, k, doc[k], (4, 5), what) for k in keys or camera_keys({}, path, what)]
+    doc = read_toml(path, Pose2SimFile, error=InteropError)
+    return Read(cameras=[t.camera() for t in doc.__pydantic_extra__.values()], unit="m", path=path)

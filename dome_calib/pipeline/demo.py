@@ -9,8 +9,8 @@ reconstruct` does: people found per frame, MPJPE beside the oracle, false bodies
 
 Everything lands in one folder (default ``demo_out/``): ``session/`` (the synthetic session and its
 ``ground_truth/``), ``bundle/`` (calibration, kcalibration, sync tables and ``report/``), ``bundle.work/``
-(resumable intermediate results), ``people/`` (the group's body3DScene files and cameras.json). A rerun reuses the
-session if it was made with the same preset, scenes, seed and group size.
+(resumable intermediate results), ``people/`` (the group's body3DScene files, cameras.json and the page to watch
+them, index.html). A rerun reuses the session if it was made with the same preset, scenes, seed and group size.
 """
 from __future__ import annotations
 
@@ -26,6 +26,7 @@ from dome_calib.compare import Comparison, compare_cameras
 from dome_calib.errors import DomeCalibError
 from dome_calib.io_utils import check_writable
 from dome_calib.pipeline.full import format_result
+from dome_calib.pipeline.people_page import people_page_writer
 from dome_calib.pipeline.session import SessionOptions, SessionResult, run_session
 from dome_calib.pipeline.types import CalibrationResult
 from dome_calib.progress import ProgressTasks, task_progress
@@ -123,7 +124,9 @@ def reconstruct_group(group: Path, bundle_dir: Path, bundle: Bundle, people: Pat
     options = people_options()
     body_model = load_group_truth(group / TRUTH_FILE).body_model
     summary = reconstruct_folder(group / DETECTIONS, bundle_dir, people, body_model=body_model, options=options,
-                                 progress=task_progress(progress, "reconstructing the group"))
+                                 progress=task_progress(progress, "reconstructing the group"),
+                                 page=people_page_writer(people, bundle_dir, group / DETECTIONS,
+                                                         body_model=body_model))
     reconstruct_s = time.perf_counter() - t0
     figures = judge_group_session(group, bundle, people, options)
     logger.info("group: %d ids from %d cameras in %.1f s", summary.people, summary.cameras, reconstruct_s)

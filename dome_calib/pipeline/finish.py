@@ -8,6 +8,7 @@ file of another seq survives.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import shutil
@@ -19,6 +20,7 @@ from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import bundle_files, check_output_folder, replace_folder, staging_folder, write_bundle
 from dome_calib.compare import detect_changes
 from dome_calib.errors import DomeCalibError
+from dome_calib.panoptic_io import panoptic_order
 from dome_calib.pipeline.types import CalibrateOptions, Calibrated, CalibrationInputs, CalibrationResult
 from dome_calib.pipeline.workstate import WorkState
 from dome_calib.report import REPORT_DIR, previous_section, write_report
@@ -98,7 +100,7 @@ def _write_out(inputs: CalibrationInputs, bundle: Bundle, residuals: Residuals, 
     old_seq = check_output_folder(out)  # again: OUT may have changed while the stages ran
     staging = staging_folder(out)
     try:
-        write_bundle(bundle, staging)
+        write_bundle(dataclasses.replace(bundle, cameras=panoptic_order(bundle.cameras)), staging)  # the files' order
         if old_seq == bundle.seq:  # first: the report page shows the carried sync report
             _carry_over(out, staging, bundle.seq)
         elif old_seq is not None:

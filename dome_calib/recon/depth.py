@@ -86,8 +86,33 @@ def depth_to_world(bundle: Bundle, node: str, depth_mm: np.ndarray, *, correct_b
     return (X_depth_cm - t) @ R  # R^T (x - t) for row vectors
 
 
-def depth_folder_reader(folder: str | Path) -> Callable[[str, int], np.ndarray | None]:
-    """Reader of ``FOLDER/KINECTNODE<n>/depth_<k>.png`` frames: ``read(node, k)`` -> uint16 array or None."""
+@dataclass(frozen=True)
+class DepthFolder:
+    """A folder of Kinect depth frames, ``ROOT/KINECTNODE<n>/depth_<k>.png`` (16-bit PNG, millimetres, 0 = no
+    reading; ``k`` the frame's index in the depth sync table, any zero padding), indexed once. ``folder(node, k)``
+    reads one frame (None if there is none); a file that is not a 16-bit single-channel PNG is a ReconError naming
+    it. Picklable: a long run's chunks read their own frames."""
+
+    root: Path
+    index: dict[str, dict[int, Path]]
+
+    @property
+    def nodes(self) -> list[str]:
+        return sorted(self.index, key=lambda n: (len(n), n))
+
+    def __call__(self, node: str, k: int) -> np.ndarray | None:
+        path = self.index.get(node, {}).get(int(k))
+        if path is None:
+            return None
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if image is None or image.dtype != np.uint16 or image.ndim != 2:
+            raise ReconError(f"{path}: not a 16-bit single-channel depth PNG (millimetres)")
+        return image
+
+
+def depth_folder_reader(folder: str | Path) -> DepthFolder:
+    """The :class:`DepthFolder` of ``FOLDER/KINECTNODE<n>/depth_<k>.png``: ``read(node, k)`` -> uint16 array or
+    None; ReconError if the folder is missing or holds no depth frame."""
     root = Path(folder)
     if not root.is_dir():
         raise ReconError(f"{root}: depth folder not found (expected {root}/KINECTNODE<n>/depth_<k>.png)")
@@ -98,17 +123,7 @@ def depth_folder_reader(folder: str | Path) -> Callable[[str, int], np.ndarray |
             index[sub.name] = files
     if not index:
         raise ReconError(f"{root}: no depth frames (expected {root}/KINECTNODE<n>/depth_<k>.png)")
-
-    def read(node: str, k: int) -> np.ndarray | None:
-        path = index.get(node, {}).get(int(k))
-        if path is None:
-            return None
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if image is None or image.dtype != np.uint16 or image.ndim != 2:
-            raise ReconError(f"{path}: not a 16-bit single-channel depth PNG (millimetres)")
-        return image
-
-    return read
+    return DepthFolder(root=root, index=index)
 
 
 def pointcloud_at(bundle: Bundle, univ_time_ms: float, read_frame: Callable[[str, int], np.ndarray | None], *,

@@ -4,6 +4,8 @@
                                                                       at its own stream's frames (synth.detector)
     FOLDER/group_truth.json                                           the people's true joints19 (world cm) at the
                                                                       reference stream's frame times
+    FOLDER/depth/KINECTNODE<n>/depth_<k>.png                          with ``depth``: every Kinect's depth frames of
+                                                                      the people (synth.depth_people)
 
 ``group_truth.json``: ``{"version": 1, "scenario", "seed", "n_people", "roles": {id: role}, "reference_stream":
 "vga" (or "shared" for a bundle without sync tables), "detector": the observed failure rates, "frames":
@@ -23,12 +25,14 @@ from dome_calib.bundle import Bundle
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.synth.detector import (DetectionCounts, DetectorError, DetectorModel, shared_clock,
                                        synth_detections, write_openpose_folder)
+from dome_calib.synth.depth_people import write_group_depth
 from dome_calib.synth.group import GroupOptions, GroupTruth, make_group
 
 logger = logging.getLogger(__name__)
 
 TRUTH_FILE = "group_truth.json"
 DETECTIONS = "detections"
+DEPTH = "depth"
 
 
 @dataclass(kw_only=True)
@@ -40,6 +44,7 @@ class GroupSessionOptions:
     body_model: str = "BODY_25"
     naming: str = "openpose"
     cameras: list[str] | None = None
+    depth: bool = False  # also the Kinects' depth frames (the bundle's calibrated Kinects with depth sync tables)
 
 
 def session_span_ms(bundle: Bundle, margin_ms: float = 100.0) -> tuple[float, float]:
@@ -95,6 +100,8 @@ def make_group_session(folder: str | Path, bundle: Bundle, options: GroupSession
         table = bundle.sync.streams[stream]
     keep = (table.univ_time_ms >= span[0]) & (table.univ_time_ms <= span[1])
     write_openpose_folder(folder / DETECTIONS, det, body_model=o.body_model, naming=o.naming)
+    if o.depth:
+        write_group_depth(folder / DEPTH, bundle, truth, span, seed=o.group.seed)
     doc = truth_document(truth, table.univ_time_ms[keep], table.index[keep], stream=stream, options=o.group,
                          counts=counts)
     doc["options"] = json.loads(json.dumps(asdict(o)))

@@ -16,6 +16,7 @@ import numpy as np
 
 from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.bodies import Bodies
+from dome_calib.recon.people.depth_witness import DepthWitness
 from dome_calib.recon.people.run import PeopleOptions, PeopleSequence, reconstruct_people
 from dome_calib.recon.people.sources import FileSource, InMemorySource, PeopleStream
 from dome_calib.recon.people.tracking import stitch_chunks
@@ -24,13 +25,14 @@ from dome_calib.recon.project import ViewSet
 
 def _chunk_task(args: tuple) -> tuple[int, PeopleSequence]:
     """Executor task: one chunk of times (module level, picklable); reads the chunk's detections from ``source``."""
-    index, views, source, times, options = args
+    index, views, source, times, options, depth = args
     streams = source.chunk(float(times[0]), float(times[-1]), options.max_gap_frames)
-    return index, reconstruct_people(views, streams, times, options)
+    return index, reconstruct_people(views, streams, times, options, depth=depth)
 
 
 def reconstruct_people_chunked(views: ViewSet, source: list[PeopleStream] | InMemorySource | FileSource,
                                times_ms: np.ndarray, options: PeopleOptions | None = None, *, executor=None,
+                               depth: DepthWitness | None = None,
                                progress: Callable[[int, int], None] | None = None) -> PeopleSequence:
     """:func:`reconstruct_people` over chunks of ``chunk_times`` times, each reaching ``overlap_times`` past its
     own on both sides (the body over time sees across the edges; the ids are matched there), run on
@@ -38,7 +40,7 @@ def reconstruct_people_chunked(views: ViewSet, source: list[PeopleStream] | InMe
     (:func:`~dome_calib.recon.people.tracking.stitch_chunks`), new ones numbered on, never reused.
 
     source: the streams, or a :class:`~dome_calib.recon.people.sources.FileSource` whose chunks each task reads from
-    disk itself (only the frames that bracket the chunk's times).
+    disk itself (only the frames that bracket the chunk's times); depth: the Kinects' depth witness, or None.
     """
     options = options or PeopleOptions()
     source = InMemorySource(source) if isinstance(source, list) else source
@@ -46,7 +48,7 @@ def reconstruct_people_chunked(views: ViewSet, source: list[PeopleStream] | InMe
     step = options.chunk_times
     if len(t) <= step + options.overlap_times:
         streams = source.chunk(float(t[0]), float(t[-1]), options.max_gap_frames) if len(t) else []
-        return reconstruct_people(views, streams, t, options, progress=progress)
+        return reconstruct_people(views, streams, t, options, depth=depth, progress=progress)
     starts = list(range(0, len(t), step))
     if len(t) - starts[-1] <= options.overlap_times:
         starts.pop()  # the previous chunk's overlap already reaches the end
@@ -56,7 +58,7 @@ def reconstruct_people_chunked(views: ViewSet, source: list[PeopleStream] | InMe
     # chunk i reaches m times past its own on both sides: its body over time sees what lies around its edges
     lo = [max(0, s - m) for s in starts]
     hi = [min(len(t), s + step + m) for s in starts]
-    tasks = [(i, views, source, t[lo[i]: hi[i]], chunk_options) for i in range(len(starts))]
+    tasks = [(i, views, source, t[lo[i]: hi[i]], chunk_options, depth) for i in range(len(starts))]
     results: dict[int, PeopleSequence] = {}
     runner = map if executor is None else executor.map
     for index, seq in runner(_chunk_task, tasks):

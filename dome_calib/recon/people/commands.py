@@ -13,8 +13,10 @@ from dome_calib.bundle_io import load_bundle
 from dome_calib.io_utils import refuse_output_among_inputs
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.formats import FPS_TYPE
+from dome_calib.recon.depth import depth_folder_reader
 from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, parse_camera_map
 from dome_calib.recon.people.chunks import reconstruct_people_chunked
+from dome_calib.recon.people.depth_witness import DepthWitness, DepthWitnessOptions
 from dome_calib.recon.people.proposals import AssociationOptions
 from dome_calib.recon.people.run import PeopleOptions
 from dome_calib.recon.people.scene_io import camera_report, check_people_folder, write_people
@@ -70,17 +72,25 @@ def reference_times(streams: list[StreamLayout], reference: str | None) -> tuple
 def reconstruct_folder(detections: str | Path, bundle_folder: str | Path, out: str | Path, *,
                        body_model: str | None = None, camera_map: str | dict[str, str] | None = None,
                        reference: str | None = None, options: PeopleOptions | None = None, executor=None,
-                       progress: Callable[[int, int], None] | None = None) -> ReconstructSummary:
-    """Detections folder (OpenPose JSON per camera) + bundle -> ``out`` (body3DScene per time, cameras.json).
+                       depth_folder: str | Path | None = None, depth_options: DepthWitnessOptions | None = None,
+                       progress: Callable[[int, int], None] | None = None,
+                       page: Callable[[Path], None] | None = None) -> ReconstructSummary:
+    """Detections folder (OpenPose JSON per camera) + bundle -> ``out`` (body3DScene per time, cameras.json; and
+    ``page(staging)``'s files: the caller's people page, dome_calib.pipeline.people_page.people_page_writer).
 
     The folder's names and frames are checked before any work; each chunk of times reads its own files (a long
     session is never in memory at once; a bad file stops the run when its chunk is read). ``out`` is written only
-    at the end (staged, then renamed): bad input leaves nothing behind.
+    at the end (staged, then renamed): bad input leaves nothing behind. ``depth_folder``: Kinect depth frames
+    (``KINECTNODE<n>/depth_<k>.png``) whose sensors witness the joints (:mod:`~dome_calib.recon.people.
+    depth_witness`); the bundle must then hold the Kinects' calibration and depth sync tables.
     """
     options = options or PeopleOptions()
-    refuse_output_among_inputs(out, [detections, bundle_folder], whole_folder=True)  # OUT is replaced whole
+    inputs = [detections, bundle_folder] + ([depth_folder] if depth_folder is not None else [])
+    refuse_output_among_inputs(out, inputs, whole_folder=True)  # OUT is replaced whole
     check_people_folder(out)
     bundle = load_bundle(bundle_folder)
+    depth = (DepthWitness.of(bundle, depth_folder_reader(depth_folder), depth_options)
+             if depth_folder is not None else None)
     mapping = camera_map if isinstance(camera_map, dict) else parse_camera_map(camera_map)
     files = index_openpose_folder(detections, camera_map=mapping, cameras=set(bundle.cameras))
     model = body_model_of(files, body_model)
@@ -89,8 +99,9 @@ def reconstruct_folder(detections: str | Path, bundle_folder: str | Path, out: s
     source = FileSource(layouts=layouts, files=files, body_model=model)
     names = source.cameras
     views = view_set(bundle, names)
-    seq = reconstruct_people_chunked(views, source, times, options, executor=executor, progress=progress)
-    write_people(out, seq, numbers, FPS_TYPE.get(ref, "custom"))
+    seq = reconstruct_people_chunked(views, source, times, options, executor=executor, depth=depth,
+                                     progress=progress)
+    write_people(out, seq, numbers, FPS_TYPE.get(ref, "custom"), also=page)
     report = camera_report(seq.cameras)
     ids = {int(i) for b in seq.bodies for i in b.ids}
     return ReconstructSummary(out=Path(out), times=len(times), cameras=len(names), body_model=model.value,

@@ -7,7 +7,8 @@ The run, in the order the data flows (each step a function of its own module, te
    each view's detections assigned to them, per time;
 3. :func:`~dome_calib.recon.people.bodies.triangulate_people`: all people of the batch triangulated robustly in one
    call;
-4. :func:`~dome_calib.recon.people.joint_check.check_joints`: the joints each body keeps;
+4. :func:`~dome_calib.recon.people.joint_check.check_joints`: the joints each body keeps (and, given Kinect depth
+   frames, those no depth sensor sees through: :mod:`~dome_calib.recon.people.depth_witness`);
 5. :func:`~dome_calib.recon.people.bodies.build_bodies`: enough joints, no duplicates;
 6. :func:`~dome_calib.recon.people.agreement.tally_agreement`: how each camera agrees;
 
@@ -32,6 +33,7 @@ from dome_calib.recon.kernel import CameraKernel
 from dome_calib.recon.people.agreement import CameraAgreement, tally_agreement
 from dome_calib.recon.people.assign import associate
 from dome_calib.recon.people.bodies import Bodies, Observations, build_bodies, observations_of, triangulate_people
+from dome_calib.recon.people.depth_witness import DepthWitness
 from dome_calib.recon.people.joint_check import JointCheckOptions, check_joints
 from dome_calib.recon.people.proposals import AssociationOptions, select_pairs
 from dome_calib.recon.people.resample import gather_people
@@ -85,13 +87,20 @@ class PeopleSequence:
 
 
 def associate_batch(views: ViewSet, kernel: CameraKernel, pairs: np.ndarray, kp: np.ndarray,
-                    options: PeopleOptions, first_row: int = 0) -> tuple[list[Bodies], CameraAgreement, Observations]:
+                    options: PeopleOptions, first_row: int = 0, *, times_ms: np.ndarray | None = None,
+                    depth: DepthWitness | None = None) -> tuple[list[Bodies], CameraAgreement, Observations]:
     """(T, V, N, 19, 3) people at T times -> the bodies of each time (ids -1, rows from ``first_row``), the
-    cameras' agreement and the bodies' detections (steps 2-6 of the module docstring)."""
+    cameras' agreement and the bodies' detections (steps 2-6 of the module docstring; with ``depth`` and the batch's
+    ``times_ms``, step 4 also drops the joints the Kinects see through,
+    :mod:`~dome_calib.recon.people.depth_witness`)."""
     a = options.association
     assigned = associate(views, kernel, pairs, kp, a, min_body_joints=options.min_body_joints)
     tri = triangulate_people(views, kp, assigned, options.triangulation)
     ok = check_joints(tri.X_cm, tri.n_inliers, options.joint_check)
+    if depth is not None:
+        for k in range(len(tri.sizes) - 1):
+            sl = slice(tri.sizes[k], tri.sizes[k + 1])
+            ok[sl] &= depth.keep(np.where(ok[sl, :, None], tri.X_cm[sl], np.nan), float(times_ms[k]))
     bodies, kept = build_bodies(tri, ok, min_body_joints=options.min_body_joints, duplicate_cm=a.duplicate_cm,
                                 first_row=first_row)
     agreement = tally_agreement(views, kp, tri, ok, kept, min_joint_conf=a.min_joint_conf,
@@ -100,12 +109,13 @@ def associate_batch(views: ViewSet, kernel: CameraKernel, pairs: np.ndarray, kp:
 
 
 def reconstruct_people(views: ViewSet, streams: list[PeopleStream], times_ms: np.ndarray,
-                       options: PeopleOptions | None = None, *,
+                       options: PeopleOptions | None = None, *, depth: DepthWitness | None = None,
                        progress: Callable[[int, int], None] | None = None) -> PeopleSequence:
     """Tracked people at (T,) universal times from the streams' unlabelled detections (one process).
 
     Args:
         views: holds every camera of ``streams``; streams: from :func:`~dome_calib.recon.people.sources.people_streams`.
+        depth: the Kinects' depth frames as a witness (joints they see through are dropped), or None.
         progress: ``progress(done_times, total_times)`` after each batch.
     Returns:
         :class:`PeopleSequence`; ids from 0 in order of first appearance.
@@ -124,7 +134,8 @@ def reconstruct_people(views: ViewSet, streams: list[PeopleStream], times_ms: np
     for start in range(0, len(t), options.batch_times):
         sl = slice(start, min(start + options.batch_times, len(t)))
         kp = gather_people(streams, t[sl], options.max_gap_frames)
-        got, agree, obs = associate_batch(sub, kernel, pairs, kp, options, first_row=sum(len(b.ids) for b in bodies))
+        got, agree, obs = associate_batch(sub, kernel, pairs, kp, options, sum(len(b.ids) for b in bodies),
+                                          times_ms=t[sl], depth=depth)
         bodies += got
         observed.append(obs)
         agreement.add(agree)
@@ -135,4 +146,9 @@ def reconstruct_people(views: ViewSet, streams: list[PeopleStream], times_ms: np
         fit = refine_tracks(sub, t, bodies, Observations.concat(observed), options.temporal)
         bodies = fit.bodies
         agreement.judge(fit.record_view, fit.residual_px, fit.records, fit.outvoted)
+        if depth is not None:  # the witness has the last word on the joints the body placed too
+            for b, time_ms in zip(bodies, t):
+                if len(b.ids):
+                    gone = ~depth.keep(b.X_cm, float(time_ms)) & np.isfinite(b.X_cm).all(-1)
+                    b.X_cm[gone], b.confidence[gone], b.n_inliers[gone] = np.nan, -1.0, 0
     return PeopleSequence(times_ms=t, bodies=bodies, cameras=agreement)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,7 @@ from dome_calib.recon.people.bodies import Bodies
 from dome_calib.recon.people.run import PeopleSequence
 
 CAMERAS_FILE = "cameras.json"
+PAGE_FILE = "index.html"  # the people page, written into the staging folder by write_people's ``also``
 _OURS = re.compile(r"body3DScene_-?\d+\.json")
 
 
@@ -40,7 +42,8 @@ def check_people_folder(folder: str | Path) -> Path:
     cameras.json only); anything else is refused before any work."""
     target = output_folder(folder)
     if target.is_dir():
-        other = sorted(p.name for p in target.iterdir() if not (_OURS.fullmatch(p.name) or p.name == CAMERAS_FILE))
+        other = sorted(p.name for p in target.iterdir()
+                       if not (_OURS.fullmatch(p.name) or p.name in (CAMERAS_FILE, PAGE_FILE)))
         if other:
             raise ReconError(f"{folder}: holds {other[0]!r}, which is not an output of reconstruct: the folder is "
                              "replaced as a whole, so give a new folder or one of an earlier run")
@@ -87,9 +90,10 @@ def camera_report(agreement: CameraAgreement) -> dict:
             "flagged": flagged, "cameras": cams}
 
 
-def write_people(folder: str | Path, seq: PeopleSequence, numbers: np.ndarray, fps_type: str) -> list[Path]:
+def write_people(folder: str | Path, seq: PeopleSequence, numbers: np.ndarray, fps_type: str,
+                 also: Callable[[Path], None] | None = None) -> list[Path]:
     """Write the body3DScene files and cameras.json into ``folder``, replacing it as a whole (staged beside it,
-    then renamed)."""
+    then renamed); ``also(staging)`` adds to the staged folder before the rename (the people page)."""
     folder = check_people_folder(folder)
     names = []
     with atomic_folder(folder) as staging:
@@ -99,6 +103,8 @@ def write_people(folder: str | Path, seq: PeopleSequence, numbers: np.ndarray, f
             (staging / names[-1]).write_text(json.dumps(obj, allow_nan=False) + "\n", encoding="utf-8")
         (staging / CAMERAS_FILE).write_text(json.dumps(camera_report(seq.cameras), indent=1, allow_nan=False) + "\n",
                                             encoding="utf-8")
+        if also is not None:
+            also(staging)
     return [folder / n for n in names]
 
 

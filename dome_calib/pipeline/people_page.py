@@ -1,0 +1,125 @@
+"""``dome-calib people-page``: the people page of a body3DScene folder (:mod:`dome_calib.skeletons.page`), with the
+calibration's cameras (the dome, the reprojected bodies) and the cameras' OpenPose detections on universal time
+when a bundle and a detections folder are given. A pipeline: it joins the reconstruction room (the detections
+reader, the cameras' streams) and the people-out room (the folder, the page).
+
+Detections: the folder ``dome-calib reconstruct`` reads (one sub-folder per camera, ``--camera-map``,
+``--body-model``); each camera's frames are put on universal time by the bundle's sync tables (without them, frame /
+the folder's frame rate, as reconstruct does with ``--fps``); only the frames within the people's span are read.
+"""
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dome_calib.bundle import Bundle
+from dome_calib.bundle_io import load_bundle
+from dome_calib.recon.errors import ReconError
+from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, parse_camera_map, read_openpose_files
+from dome_calib.recon.streams import stream_of_camera
+from dome_calib.skeletons.errors import PeopleFileError
+from dome_calib.skeletons.page import MAX_DETECTED_PEOPLE, PAGE_FILE, CameraDetections, write_people_page
+from dome_calib.skeletons.scenes import People, read_people
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class PeoplePageSummary:
+    page: Path
+    people: int
+    frames: int
+    cameras: int
+    detection_cameras: list[str]
+    notes: list[str]
+
+
+def camera_times_ms(bundle: Bundle, camera: str, frames: np.ndarray, people: People) -> np.ndarray:
+    """Universal time (ms) of a camera's frames: its stream's sync table (NaN for a frame the table lacks), or
+    frame / the people's frame rate for a bundle without sync tables."""
+    if bundle.sync is None:
+        return frames * (1000.0 / float(people.fps))
+    _, table = stream_of_camera(bundle, camera)
+    inside = np.isin(frames, table.index)
+    out = np.full(len(frames), np.nan)
+    out[inside] = table.times_of(frames[inside])
+    return out
+
+
+def read_detections(folder: str | Path, bundle: Bundle, people: People, *, camera_map: str | None = None,
+                    body_model: str | None = None, cameras: list[str] | None = None,
+                    max_people: int = MAX_DETECTED_PEOPLE) -> tuple[list[CameraDetections], list[str]]:
+    """The detections of ``cameras`` (default: in name order while at most ``max_people`` detected people, at least
+    one camera) at frames within the people's span -> (per camera, notes for the page)."""
+    files = index_openpose_folder(folder, camera_map=parse_camera_map(camera_map), cameras=set(bundle.cameras))
+    if cameras:
+        unknown = [c for c in cameras if c not in files]
+        if unknown:
+            raise ReconError(f"{folder}: --cameras: no detections of camera {unknown[0]} (cameras: "
+                             f"{', '.join(sorted(files))})")
+    model = body_model_of(files, body_model)
+    t0, t1 = float(people.times_ms[0]), float(people.times_ms[-1])
+    margin = 1000.0 / float(people.fps)
+    out, total, notes = [], 0, []
+    names = cameras or sorted(files)
+    for k, cam in enumerate(names):
+        frames = np.array(sorted(files[cam]), dtype=np.int64)
+        t = camera_times_ms(bundle, cam, frames, people)
+        keep = np.isfinite(t) & (t >= t0 - margin) & (t <= t1 + margin)
+        if not keep.any():
+            continue
+        read = read_openpose_files({cam: {int(f): files[cam][int(f)] for f in frames[keep]}}, model)[cam]
+        det = CameraDetections(camera=cam, times_ms=t[keep], people=[read[int(f)] for f in frames[keep]])
+        n = sum(len(p) for p in det.people)
+        if out and not cameras and total + n > max_people:
+            rest = names[k:]
+            notes.append(f"detections of {len(out)} of {len(names)} cameras are on this page (it holds at most "
+                         f"{max_people:,} detected people); the others ({', '.join(rest[:6])}"
+                         f"{' ...' if len(rest) > 6 else ''}): rebuild with `dome-calib people-page --cameras`")
+            break
+        out.append(det)
+        total += n
+    return out, notes
+
+
+def build_people_page(people_folder: str | Path, *, out: str | Path | None = None,
+                      bundle: str | Path | Bundle | None = None, detections: str | Path | None = None,
+                      camera_map: str | None = None, body_model: str | None = None, cameras: list[str] | None = None,
+                      progress: Callable[[int, int], None] | None = None,
+                      shown_as: str | Path | None = None) -> PeoplePageSummary:
+    """Write the people page of ``people_folder`` to ``out`` (default ``people_folder/index.html``); ``shown_as``:
+    the folder the page names (default ``people_folder``)."""
+    if detections is not None and bundle is None:
+        raise PeopleFileError(f"{detections}: detections need the calibration bundle (--bundle) to be put on "
+                              "universal time and compared with the reprojected bodies")
+    page = Path(out) if out is not None else Path(people_folder) / PAGE_FILE
+    people = read_people(people_folder, progress=progress)
+    cal = load_bundle(bundle) if isinstance(bundle, (str, Path)) else bundle
+    det, notes = ([], [])
+    if detections is not None and cal is not None:
+        det, notes = read_detections(detections, cal, people, camera_map=camera_map, body_model=body_model,
+                                     cameras=cameras)
+    write_people_page(page, people, bundle=cal, detections=det, notes=notes,
+                      folder=Path(shown_as) if shown_as is not None else None)
+    return PeoplePageSummary(page=page, people=len(people.tracks), frames=len(people.frames),
+                             cameras=len(cal.cameras) if cal is not None else 0,
+                             detection_cameras=[d.camera for d in det], notes=notes)
+
+
+def people_page_writer(out: str | Path, bundle: str | Path, detections: str | Path, *,
+                       camera_map: str | dict[str, str] | None = None,
+                       body_model: str | None = None) -> Callable[[Path], None]:
+    """What ``reconstruct`` (writing ``out``) is given to add its page: ``write(staging)`` builds
+    ``staging/index.html`` from the body3DScene files just staged there, with the bundle and the detections
+    reconstruct read."""
+    mapping = ",".join(f"{k}={v}" for k, v in camera_map.items()) if isinstance(camera_map, dict) else camera_map
+
+    def write(staging: Path) -> None:
+        build_people_page(staging, bundle=bundle, detections=detections, camera_map=mapping, body_model=body_model,
+                          shown_as=out)
+
+    return write

@@ -1,0 +1,172 @@
+"""Read a folder of Panoptic ``body3DScene_<frame>.json`` files (as ``dome-calib reconstruct`` writes them and as
+the Panoptic dataset ships them) into one track per person.
+
+A file (the Panoptic toolbox's README, "Skeleton Output Format"; mmpose's
+``body3d_mview_direct_panoptic_dataset.py`` reads the same fields)::
+
+    {"version": 0.7, "univTime": 53541.542, "fpsType": "hd_29_97",
+     "bodies": [{"id": 0, "joints19": [x, y, z, c] * 19}, ...]}
+
+``joints15`` ([x, y, z, c] * 15, the older "mpi15" layout) in place of ``joints19``; ``inlierViews19`` (ours: the
+views behind each joint) is read and not used; other fields are none of our business and are ignored. x, y, z:
+world cm (the Panoptic frame, y down); c: the joint's confidence, ``-1`` where it was not reconstructed (and ``0,
+0, 0`` then). The frame is the number in the file name. Every problem is one line naming the file and the field
+(:class:`~dome_calib.skeletons.errors.PeopleFileError`).
+"""
+from __future__ import annotations
+
+import logging
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from dome_calib.schema import Finite, NonNegInt, OpenSchema, parse_json
+from dome_calib.skeletons.errors import PeopleFileError
+from dome_calib.skeletons.joints import LAYOUTS
+
+logger = logging.getLogger(__name__)
+
+SCENE_FILE = re.compile(r"body3DScene_(-?\d+)\.json")
+#: Exact frame rates of the Panoptic ``fpsType`` values (VGA 25 fps, HD 29.97 fps, Kinect 30 fps).
+FPS_OF_TYPE = {"vga_25": Fraction(25), "hd_29_97": Fraction(30000, 1001), "kinect_30": Fraction(30)}
+
+
+class SceneBody(OpenSchema):
+    """One person at one time: ``id`` (the same person keeps it over time) and 19 (or 15) joints ``[x, y, z, c]``."""
+
+    id: NonNegInt
+    joints19: Annotated[list[Finite], Field(min_length=76, max_length=76)] | None = None
+    joints15: Annotated[list[Finite], Field(min_length=60, max_length=60)] | None = None
+    inlierViews19: Annotated[list[NonNegInt], Field(min_length=19, max_length=19)] | None = Field(
+        None, description="dome-calib's: the views behind each joint (read, not used)")
+
+    @model_validator(mode="after")
+    def _one_layout(self) -> SceneBody:
+        if (self.joints19 is None) == (self.joints15 is None):
+            raise ValueError("expected joints19 or joints15 (one of them)")
+        return self
+
+
+class SceneFile(OpenSchema):
+    """A body3DScene file: the universal time (ms), the frame rate's name and the bodies at that time."""
+
+    version: Finite | str | None = None
+    univTime: Finite = Field(description="universal time of the frame, ms")
+    fpsType: str | None = Field(None, description='"vga_25", "hd_29_97", "kinect_30" or "custom"')
+    bodies: list[SceneBody]
+
+
+@dataclass(frozen=True)
+class Track:
+    """One person over time: ``rows`` (K,) indices into the folder's frames where the person is in a file,
+    ``X_cm`` (K, J, 3) world cm (NaN where a joint was not reconstructed), ``confidence`` (K, J) (-1 there)."""
+
+    id: int
+    rows: np.ndarray
+    X_cm: np.ndarray
+    confidence: np.ndarray
+
+
+@dataclass(frozen=True)
+class People:
+    """A body3DScene folder: ``frames`` (T,) the file numbers in order, ``times_ms`` (T,) their universal times,
+    ``layout`` "joints19" or "joints15" (``joints``: its names), ``fps``: the frame rate (exact; from ``fpsType``
+    or the times), ``tracks``: one per id, in id order."""
+
+    folder: Path
+    frames: np.ndarray
+    times_ms: np.ndarray
+    fps_type: str
+    fps: Fraction
+    layout: str
+    tracks: dict[int, Track]
+
+    @property
+    def joints(self) -> tuple[str, ...]:
+        return LAYOUTS[self.layout]
+
+
+def scene_files(folder: str | Path) -> list[tuple[int, Path]]:
+    """(frame, path) of every ``body3DScene_<frame>.json`` of ``folder``, in frame order."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise PeopleFileError(f"{folder}: not a folder (expected a folder of body3DScene_<frame>.json files)")
+    found = sorted((int(m.group(1)), p) for p in folder.iterdir() if (m := SCENE_FILE.fullmatch(p.name)))
+    if not found:
+        raise PeopleFileError(f"{folder}: no body3DScene_<frame>.json file")
+    return found
+
+
+def _read_scene(path: Path) -> SceneFile:
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise PeopleFileError(f"{path}: cannot be read ({exc.strerror})") from None
+    return parse_json(path, data, SceneFile, error=PeopleFileError)
+
+
+def frame_rate(fps_type: str, frames: np.ndarray, times_ms: np.ndarray) -> Fraction:
+    """The frame rate: the ``fpsType``'s (exact), else frames per second of the times (rounded to 1/1000 fps)."""
+    if fps_type in FPS_OF_TYPE:
+        return FPS_OF_TYPE[fps_type]
+    if len(frames) < 2 or times_ms[-1] <= times_ms[0]:
+        return Fraction(30)
+    return Fraction(round(1000.0 * 1000.0 * (frames[-1] - frames[0]) / (times_ms[-1] - times_ms[0]))) / 1000
+
+
+def read_people(folder: str | Path, *, progress: Callable[[int, int], None] | None = None) -> People:
+    """Every body3DScene file of ``folder`` -> :class:`People`; PeopleFileError naming the file and field of the
+    first problem (a bad field, two bodies with one id, two layouts or two ``fpsType`` in one folder, times that go
+    back)."""
+    files = scene_files(folder)
+    frames = np.array([f for f, _ in files], dtype=np.int64)
+    times = np.empty(len(files))
+    layout = fps_type = None
+    per_id: dict[int, tuple[list[int], list[list[float]]]] = {}
+    for k, (_, path) in enumerate(files):
+        scene = _read_scene(path)
+        times[k] = scene.univTime
+        kind = scene.fpsType or "custom"
+        if fps_type is None:
+            fps_type = kind
+        elif kind != fps_type:
+            raise PeopleFileError(f"{path}: fpsType: {kind!r}, but earlier files have {fps_type!r}")
+        if k and times[k] <= times[k - 1]:
+            raise PeopleFileError(f"{path}: univTime: {times[k]:g} ms is not after the previous file's "
+                                  f"{times[k - 1]:g} ms ({files[k - 1][1].name})")
+        seen: set[int] = set()
+        for b, body in enumerate(scene.bodies):
+            this = "joints19" if body.joints19 is not None else "joints15"
+            if layout is None:
+                layout = this
+            elif this != layout:
+                raise PeopleFileError(f"{path}: bodies[{b}].{this}: earlier files have {layout}; one folder holds "
+                                      "one layout")
+            if body.id in seen:
+                raise PeopleFileError(f"{path}: bodies[{b}].id: {body.id} is given to two bodies")
+            seen.add(body.id)
+            rows, values = per_id.setdefault(body.id, ([], []))
+            rows.append(k)
+            values.append(body.joints19 if body.joints19 is not None else body.joints15)
+        if progress is not None:
+            progress(k + 1, len(files))
+    layout = layout or "joints19"
+    n_joints = len(LAYOUTS[layout])
+    tracks = {}
+    for pid in sorted(per_id):
+        rows, values = per_id[pid]
+        a = np.asarray(values, dtype=float).reshape(len(rows), n_joints, 4)
+        missing = a[..., 3] < 0
+        tracks[pid] = Track(id=pid, rows=np.asarray(rows, dtype=np.int64),
+                            X_cm=np.where(missing[..., None], np.nan, a[..., :3]),
+                            confidence=np.where(missing, -1.0, a[..., 3]))
+    fps_type = fps_type or "custom"
+    logger.info("read %d files, %d people (%s)", len(files), len(tracks), layout)
+    return People(folder=Path(folder), frames=frames, times_ms=times, fps_type=fps_type,
+                  fps=frame_rate(fps_type, frames, times), layout=layout, tracks=tracks)

@@ -1,0 +1,182 @@
+"""`dome-calib export-people`: the demo's synthetic group (its truth, and reconstructed from its synthetic
+detections) and the real Pose2Sim capture written as TRC, C3D and BVH and read back by each format's own tools (OpenSim's TRC reader, Pose2Sim's `read_trc`, ezc3d, the `c3d` package,
+bvhio's forward kinematics): every joint within 1e-3 cm of ours, with the axes and units each file states, missing
+joints missing, ids kept."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from dome_calib.skeletons.bvh import constant_bone_body
+from dome_calib.skeletons.joints import JOINTS15, JOINTS19, MARKER, Y_UP_FROM_PANOPTIC, Z_UP_FROM_PANOPTIC
+from dome_calib.skeletons.scenes import read_people
+
+from .skeletons_helpers import (bvhio_positions, c3d_package_read, chain_present, demo_group_reconstructed,
+                                demo_group_scenes, ezc3d_read, opensim_trc, ours_dense, pose2sim_trc,
+                                real_capture_scenes, write_scenes)
+
+TOL_CM = 1e-3
+
+
+@pytest.fixture(scope="module")
+def group(tmp_path_factory):
+    return demo_group_scenes(tmp_path_factory.mktemp("group") / "people")
+
+
+@pytest.fixture(scope="module")
+def real(tmp_path_factory):
+    return real_capture_scenes(tmp_path_factory.mktemp("real"))
+
+
+@pytest.fixture(scope="module")
+def reconstructed(tmp_path_factory):
+    return demo_group_reconstructed(tmp_path_factory) / "people"
+
+
+@pytest.fixture(params=["group", "reconstructed", "real"])
+def dataset(request):
+    folder = request.getfixturevalue(request.param)
+    return request.param, folder, read_people(folder)
+
+
+def _export(dome_calib_cli, folder, fmt, out, *extra):
+    run = dome_calib_cli("export-people", folder, "--to", fmt, "-o", out, *extra)
+    assert run.returncode == 0, run.stderr
+    return run
+
+
+def test_trc_read_by_opensim_and_pose2sim(dataset, dome_calib_cli, tmp_path):
+    name, folder, people = dataset
+    _export(dome_calib_cli, folder, "trc", tmp_path / "trc")
+    files = sorted(p.name for p in (tmp_path / "trc").iterdir())
+    assert files == sorted(f"person{pid}.trc" for pid in people.tracks)  # one file per person, ids kept
+    markers = [MARKER[j] for j in people.joints]
+    for pid, track in people.tracks.items():
+        path = tmp_path / "trc" / f"person{pid}.trc"
+        osim, p2s = opensim_trc(path), pose2sim_trc(path)
+        assert osim["markers"] == markers == p2s["markers"]
+        assert osim["units"] == "m" and osim["rate"] == pytest.approx(float(people.fps))
+        span = people.frames[track.rows[0]:track.rows[-1] + 1]  # every file of the person's span
+        np.testing.assert_array_equal(p2s["frames"], span + 1)  # TRC counts frames from 1
+        t_s = (people.times_ms[track.rows[0]:track.rows[-1] + 1] - people.times_ms[0]) / 1000.0
+        np.testing.assert_allclose(osim["times_s"], t_s, atol=1e-6)
+        ours_m = ours_dense(people, pid, span, Y_UP_FROM_PANOPTIC, 0.01)
+        for got in (osim["X"], p2s["X"]):
+            np.testing.assert_array_equal(np.isnan(got), np.isnan(ours_m))  # missing is missing, nothing else
+            assert np.nanmax(np.abs(got - ours_m)) * 100.0 < TOL_CM
+    if name == "group":  # joints written as not reconstructed (c = -1) came back missing above
+        assert sum(np.isnan(t.X_cm).any() for t in people.tracks.values()) == len(people.tracks)
+
+
+def test_c3d_read_by_ezc3d_and_the_c3d_package(dataset, dome_calib_cli, tmp_path):
+    _, folder, people = dataset
+    _export(dome_calib_cli, folder, "c3d", tmp_path / "c3d")
+    path = tmp_path / "c3d" / "people.c3d"
+    assert sorted(p.name for p in (tmp_path / "c3d").iterdir()) == ["people.c3d"]  # one file per capture
+    ez, pkg = ezc3d_read(path), c3d_package_read(path)
+    ids = list(people.tracks)
+    labels = [f"P{pid}:{MARKER[j]}" for pid in ids for j in people.joints]
+    assert ez["labels"] == labels == pkg["labels"]
+    assert ez["subjects"] == [f"P{pid}" for pid in ids] and ez["units"] == "mm" and ez["y_screen"] == "+Z"
+    assert ez["rate"] == pytest.approx(float(people.fps))
+    frames = np.arange(people.frames[0], people.frames[-1] + 1)
+    assert ez["first_frame"] == frames[0] and pkg["first_frame"] == frames[0] + 1  # C3D counts from 1
+    ours_mm = np.concatenate([ours_dense(people, pid, frames, Z_UP_FROM_PANOPTIC, 10.0) for pid in ids], axis=1)
+    np.testing.assert_array_equal(np.isnan(ez["X"]), np.isnan(ours_mm))
+    assert np.nanmax(np.abs(ez["X"] - ours_mm)) / 10.0 < TOL_CM
+    missing = np.isnan(ours_mm).any(-1)
+    assert np.all(pkg["residual"][missing] == -1) and np.all(pkg["residual"][~missing] == 0)  # C3D's missing
+    assert np.max(np.abs(pkg["X"][~missing] - ours_mm[~missing])) / 10.0 < TOL_CM
+
+
+def test_bvh_read_by_bvhio(dataset, dome_calib_cli, tmp_path):
+    """bvhio's forward kinematics puts every joint where the person's constant-bone skeleton is (1e-3 cm); where the
+    whole chain is reconstructed that is our joint up to the bone's length difference from its median: nothing on
+    the synthetic group (its bones are constant), the real reconstruction's stated below."""
+    name, folder, people = dataset
+    _export(dome_calib_cli, folder, "bvh", tmp_path / "bvh")
+    assert sorted(p.name for p in (tmp_path / "bvh").iterdir()) == sorted(f"person{i}.bvh" for i in people.tracks)
+    names = [MARKER[j] for j in people.joints]
+    gaps = []
+    for pid, track in people.tracks.items():
+        frame_time, got = bvhio_positions(tmp_path / "bvh" / f"person{pid}.bvh", names)
+        assert frame_time == pytest.approx(1.0 / float(people.fps), rel=1e-8)
+        first, reference = constant_bone_body(people, track, track.confidence >= 0)
+        assert first == people.frames[track.rows[0]] and len(got) == people.frames[track.rows[-1]] - first + 1
+        assert np.max(np.abs(got - reference)) < TOL_CM
+        ours = ours_dense(people, pid, np.arange(first, first + len(got)), Y_UP_FROM_PANOPTIC, 1.0)
+        held = chain_present(people, ours)
+        gaps.append(np.linalg.norm(got - ours, axis=-1)[held])
+    gaps = np.concatenate(gaps)
+    if name == "group":
+        assert np.max(gaps) < TOL_CM
+    else:  # reconstructions: bone lengths vary frame to frame
+        print(json.dumps({f"bvh_vs_ours_{name}_cm": {"median": round(float(np.median(gaps)), 2),
+                                                  "p95": round(float(np.percentile(gaps, 95)), 2)}}))
+        assert np.median(gaps) < 5.0
+
+
+def test_ids_min_confidence_and_fps(group, dome_calib_cli, tmp_path):
+    people = read_people(group)
+    ids = list(people.tracks)[:2]
+    _export(dome_calib_cli, group, "trc", tmp_path / "some", "--ids", ",".join(map(str, ids)), "--min-confidence",
+            "0.95", "--fps", "30000/1001")
+    assert sorted(p.name for p in (tmp_path / "some").iterdir()) == sorted(f"person{i}.trc" for i in ids)
+    got = opensim_trc(tmp_path / "some" / f"person{ids[0]}.trc")
+    assert np.isnan(got["X"]).all() and got["rate"] == pytest.approx(30000 / 1001)  # every c is 0.9 < 0.95
+    run = dome_calib_cli("export-people", group, "--to", "bvh", "-o", tmp_path / "none", "--ids", "99")
+    assert run.returncode == 1 and "no person 99" in run.stderr and not (tmp_path / "none").exists()
+
+
+def test_c3d_frame_numbers_beyond_the_headers_16_bits(dome_calib_cli, tmp_path):
+    """Frame 100,000 (over an hour at 25 fps): C3D's header cannot hold it; TRIAL:ACTUAL_START_FIELD and
+    ACTUAL_END_FIELD do (two 16-bit words, low first: C3D counts from 1, so 100,001 and 100,004). The c3d package
+    reads the end as that; its first frame is one less (c3d 0.6.0's ``first_frame`` weighs the high word 65535, its
+    ``last_frame`` 65536), so it numbers our four records one less and reads a fifth past them."""
+    import ezc3d
+
+    X = np.random.default_rng(3).uniform(-50, 50, (3, 19, 3))
+    folder = write_scenes(tmp_path / "long", [100000, 100001, 100003], [0.0, 40.0, 120.0],
+                          [{2: np.c_[X[k], np.full(19, 0.5)]} for k in range(3)])
+    _export(dome_calib_cli, folder, "c3d", tmp_path / "c3d")
+    trial = ezc3d.c3d(str(tmp_path / "c3d" / "people.c3d"))["parameters"]["TRIAL"]
+    words = {k: [int(w) & 0xFFFF for w in trial[k]["value"]] for k in ("ACTUAL_START_FIELD", "ACTUAL_END_FIELD")}
+    assert {k: w[0] + 65536 * w[1] for k, w in words.items()} == {"ACTUAL_START_FIELD": 100001,
+                                                                  "ACTUAL_END_FIELD": 100004}
+    pkg = c3d_package_read(tmp_path / "c3d" / "people.c3d")
+    assert pkg["frames"][-1] == 100004  # it numbers from 100000: the records are ours, each numbered one less
+    residual, got = pkg["residual"][:4], pkg["X"][:4]
+    assert np.all(residual[2] == -1) and np.all(residual[[0, 1, 3]] == 0)  # frame 100002: no file
+    np.testing.assert_allclose(got[[0, 1, 3]], X @ Z_UP_FROM_PANOPTIC.T * 10.0, atol=1e-2)
+
+
+def test_joints15_files_of_the_older_panoptic_layout(dome_calib_cli, tmp_path):
+    """The "mpi15" layout (head top in place of the nose) exports with Pose2Sim's "Head" marker."""
+    rng = np.random.default_rng(1)
+    X = rng.uniform(-100, 100, (3, 15, 3))
+    bodies = [{4: np.concatenate([X[k], np.full((15, 1), 0.7)], axis=1)} for k in range(3)]
+    folder = write_scenes(tmp_path / "old", [0, 1, 2], [0.0, 40.0, 80.0], bodies, layout="joints15")
+    people = read_people(folder)
+    assert people.joints == JOINTS15 and people.joints[:1] + people.joints[2:] == JOINTS19[:1] + JOINTS19[2:15]
+    _export(dome_calib_cli, folder, "c3d", tmp_path / "c3d")
+    ez = ezc3d_read(tmp_path / "c3d" / "people.c3d")
+    assert ez["labels"][1] == "P4:Head"
+    np.testing.assert_allclose(ez["X"][:, :15], X @ Z_UP_FROM_PANOPTIC.T * 10.0, atol=1e-2)
+    _export(dome_calib_cli, folder, "bvh", tmp_path / "bvh")
+    _, got = bvhio_positions(tmp_path / "bvh" / "person4.bvh", [MARKER[j] for j in JOINTS15])
+    first, ref = constant_bone_body(people, people.tracks[4], people.tracks[4].confidence >= 0)
+    assert np.max(np.abs(got - ref)) < TOL_CM
+
+
+def test_export_refuses_a_folder_it_did_not_write_and_leaves_it(group, dome_calib_cli, tmp_path):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("keep me")
+    run = dome_calib_cli("export-people", group, "--to", "trc", "-o", out)
+    assert run.returncode == 1 and "notes.txt" in run.stderr and len(run.stderr.strip().splitlines()) == 1
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+    _export(dome_calib_cli, group, "trc", tmp_path / "again")
+    _export(dome_calib_cli, group, "bvh", tmp_path / "again")  # an earlier export's folder is replaced whole
+    assert all(p.suffix == ".bvh" for p in (tmp_path / "again").iterdir())
