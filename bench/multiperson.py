@@ -16,8 +16,10 @@ Prints one JSON object per line: one per (setup, people) with
 - id_switches_per_1000: changes of the id matched to a true person between matches at most the tracker's
   ``max_missed_ms`` (0.5 s) apart, per 1,000 matched body-frames; new_id_after_long_gap counts the others (a person
   unseen for longer, e.g. behind others or outside, gets a new id by design: ids are never guessed back);
-- steps_per_s (wall) and cpu_steps_per_s (process time) of association + triangulation + tracking, detections given
-  (one process, BLAS single-threaded);
+- steps_per_s (wall) and cpu_steps_per_s (process time) of association + triangulation + tracking + the body over
+  time (dome_calib.recon.people.temporal, the default), detections given (one process, BLAS single-threaded);
+- per_frame_mpjpe_cm and per_frame_cpu_steps_per_s: the same run without the body over time (``--per-frame``), in
+  the same process (a ratio that the machine's load does not move);
 
 then the aims, and two table lines per setup (wall clock, process time) of the time per step against views and
 people.
@@ -30,6 +32,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small batched solves: thre
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import json  # noqa: E402
 import time  # noqa: E402
 
@@ -37,6 +40,7 @@ from dome_calib.bundle import Bundle  # noqa: E402
 from dome_calib.recon.people.proposals import AssociationOptions  # noqa: E402
 from dome_calib.recon.people.run import PeopleOptions, reconstruct_people  # noqa: E402
 from dome_calib.recon.people.sources import people_streams  # noqa: E402
+from dome_calib.recon.people.temporal import TemporalOptions  # noqa: E402
 from dome_calib.recon.project import view_set  # noqa: E402
 from dome_calib.synth.detector import DetectorModel, synth_detections  # noqa: E402
 from dome_calib.synth.dome import as_built_dome  # noqa: E402
@@ -79,16 +83,23 @@ def run(setup: str, n_people: int, seconds: float, seed: int, passes: int = 2, m
     times = table.univ_time_ms[keep]
     views = view_set(bundle, [n for s in streams for n in s.cameras])
     options = PeopleOptions(association=AssociationOptions(passes=passes, max_pairs=max_pairs))
+    per_frame = dataclasses.replace(options, temporal=TemporalOptions(enabled=False))
+    cpu_pf = time.process_time()
+    seq_pf = reconstruct_people(views, streams, times, per_frame)
+    cpu_pf = time.process_time() - cpu_pf
     wall, cpu = time.perf_counter(), time.process_time()
     seq = reconstruct_people(views, streams, times, options)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     truth_X, present = truth.joints_cm(times)
     oracle_X, seen = oracle(views, streams, times, truth_X, present, options)
     result = evaluate(seq, truth_X, present, oracle_X, seen, options.tracking.max_missed_ms)
+    result_pf = evaluate(seq_pf, truth_X, present, oracle_X, seen, options.tracking.max_missed_ms)
     return {"setup": setup, "views": len(views.names), "people": n_people, "times": len(times), "seed": seed,
             "passes": passes, "max_pairs": max_pairs,
             **result, "steps_per_s": round(len(times) / wall, 2), "cpu_steps_per_s": round(len(times) / cpu, 2),
-            "ms_per_step": round(1000 * wall / len(times), 1)}
+            "ms_per_step": round(1000 * wall / len(times), 1), "per_frame_mpjpe_cm": result_pf["mpjpe_cm"],
+            "per_frame_found_8views": result_pf["found_8views"],
+            "per_frame_cpu_steps_per_s": round(len(times) / cpu_pf, 2)}
 
 
 def main() -> None:

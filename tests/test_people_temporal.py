@@ -1,0 +1,121 @@
+"""One body per person over time (dome_calib.recon.people.temporal) on the few-camera rig (dome_calib.synth.rig, the
+detector whose errors last): better than per frame against the truth, bones held, a swap in one view outvoted,
+joints placed where the per-frame triangulation left them out, window edges that do not show."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
+from dome_calib.recon.errors import ReconError
+from dome_calib.recon.people.chunks import reconstruct_people_chunked
+from dome_calib.recon.people.run import PeopleOptions, reconstruct_people
+from dome_calib.recon.people.sources import people_streams
+from dome_calib.recon.people.temporal import TemporalOptions, within_probability
+from dome_calib.recon.people.windows import time_windows
+from dome_calib.recon.project import view_set
+from dome_calib.synth.detector import DetectorModel, synth_detections
+from dome_calib.synth.group_eval import match_bodies
+from dome_calib.synth.rig import GROUP_MARGIN_MS, RigOptions, few_camera_rig, rig_group
+
+OPTIONS = PeopleOptions()
+PER_FRAME = dataclasses.replace(OPTIONS, temporal=TemporalOptions(enabled=False))
+
+
+@pytest.fixture(scope="module")
+def rig():
+    bundle = few_camera_rig(RigOptions(seed=0, duration_ms=3700.0 + GROUP_MARGIN_MS + 100.0))
+    truth = rig_group(bundle, n_people=3, seed=3)
+    det = synth_detections(bundle, truth, model=DetectorModel(seed=3))  # errors that last, as OpenPose's
+    table = bundle.sync.streams["hd"]
+    span = (table.univ_time_ms >= truth.start_ms) & (table.univ_time_ms <= truth.start_ms + truth.duration_ms)
+    X, present = truth.joints_cm(table.univ_time_ms[span])
+    return bundle, det, table.univ_time_ms[span], X, present
+
+
+def _run(bundle, det, times, options, chunked=False):
+    streams = people_streams(bundle, det)
+    views = view_set(bundle, [n for s in streams for n in s.cameras])
+    if chunked:
+        return reconstruct_people_chunked(views, streams, times, options)
+    return reconstruct_people(views, streams, times, options)
+
+
+def _matched(seq, X, present):
+    return match_bodies([b.ids for b in seq.bodies], [b.X_cm for b in seq.bodies], X, present)[1]
+
+
+def test_better_than_per_frame_and_bones_held(rig):
+    bundle, det, times, X, present = rig
+    body = _matched(_run(bundle, det, times, OPTIONS), X, present)
+    frame = _matched(_run(bundle, det, times, PER_FRAME), X, present)
+    e_body, e_frame = np.linalg.norm(body - X, axis=-1), np.linalg.norm(frame - X, axis=-1)
+    both = np.isfinite(e_body) & np.isfinite(e_frame)
+    assert e_body[both].mean() < 0.75 * e_frame[both].mean()  # the issue's aim: >= 25 % lower MPJPE
+    assert np.isfinite(e_body).sum() >= np.isfinite(e_frame).sum()  # joints left out per frame are placed
+    a, b = (np.array([JOINTS19.index(n) for n in pair]) for pair in zip(*BONE_LENGTH_CM))
+    spread = lambda Y: np.nanmean(np.nanstd(np.linalg.norm(Y[:, :, a] - Y[:, :, b], axis=-1), axis=0))  # noqa
+    assert spread(body) < 0.5 * spread(frame)  # cm over time, per person and bone
+
+
+def test_a_swap_in_one_view_is_outvoted(rig):
+    """Camera 00_00 swaps the left and right arm of everyone for 12 frames in a row (a detector's persistent
+    error): the body keeps its wrists, and the swapped detections are counted as outvoted for that camera."""
+    bundle, det, times, X, present = rig
+    arm = [JOINTS19.index(n) for n in ("l_elbow", "l_wrist", "r_elbow", "r_wrist")]
+    swapped = {c: dict(frames) for c, frames in det.items()}
+    frames = sorted(det["00_00"])[40:52]
+    for f in frames:
+        kp = swapped["00_00"][f].copy()
+        kp[:, arm] = kp[:, [arm[2], arm[3], arm[0], arm[1]]]
+        swapped["00_00"][f] = kp
+    clean = _run(bundle, det, times, OPTIONS)
+    seq = _run(bundle, swapped, times, OPTIONS)
+    table = bundle.sync.streams["hd"]
+    k = np.isin(table.index[np.searchsorted(table.univ_time_ms, times)], frames)
+    wrists = [JOINTS19.index("l_wrist"), JOINTS19.index("r_wrist")]
+    err = np.linalg.norm(_matched(seq, X, present) - X, axis=-1)[:, :, wrists]
+    err_clean = np.linalg.norm(_matched(clean, X, present) - X, axis=-1)[:, :, wrists]
+    # as without the swap (2.5 cm there; its worst wrist, 20 cm, is one the detector itself lost)
+    assert np.nanmean(err[k]) < np.nanmean(err_clean[k]) + 0.3 and np.nanmax(err[k]) <= np.nanmax(err_clean[k]) + 1.0
+    cam = seq.cameras.names.index("00_00")
+    more = seq.cameras.outvoted[cam] - clean.cameras.outvoted[cam]
+    n_swapped = sum(int((det["00_00"][f][:, arm, 2] > 0).sum()) for f in frames)  # arm joints the camera detected
+    # most of them: a left joint seen edge-on projects within a few pixels of its right partner, and stays in
+    assert more >= 0.6 * n_swapped
+
+
+def test_window_edges_do_not_show_and_chunks_change_nothing(rig):
+    """The body over time in windows of one margin (the smoother's reach: 4 windows here) against one window over
+    everything: every joint within 0.01 cm (measured: 4e-5, the solver's tolerance), the same joints put out, and
+    the step across each window edge as in the single window. Chunks of 30 times (per frame) change nothing (1e-3
+    cm: bone lengths and camera noise are measured once over the whole session)."""
+    bundle, det, times, X, present = rig
+    one = _matched(_run(bundle, det, times, dataclasses.replace(OPTIONS, temporal=TemporalOptions(
+        window_margins=10_000))), X, present)
+    small = TemporalOptions(window_margins=1)
+    windows = time_windows(times, small)
+    assert len(windows) >= 3
+    cut = _matched(_run(bundle, det, times, dataclasses.replace(OPTIONS, temporal=small)), X, present)
+    np.testing.assert_array_equal(np.isnan(cut), np.isnan(one))
+    assert np.nanmax(np.abs(cut - one)) < 0.01
+    for _, start, _, _ in windows[1:]:
+        step_cut = np.linalg.norm(cut[start] - cut[start - 1], axis=-1)
+        step_one = np.linalg.norm(one[start] - one[start - 1], axis=-1)
+        assert np.nanmax(np.abs(step_cut - step_one)) < 0.01
+    whole = _run(bundle, det, times, OPTIONS)
+    chunked = _run(bundle, det, times, dataclasses.replace(OPTIONS, chunk_times=30), chunked=True)
+    for a, b in zip(whole.bodies, chunked.bodies):
+        np.testing.assert_array_equal(a.ids, b.ids)
+        np.testing.assert_allclose(a.X_cm, b.X_cm, atol=1e-3)
+
+
+def test_confidence_is_a_probability_and_options_refuse_nonsense():
+    assert within_probability(5.0, np.array([1e-3]))[0] == pytest.approx(1.0)
+    # chi distribution with 3 degrees of freedom: P(|e| < sigma) = 0.1987, P(|e| < 2 sigma) = 0.7385
+    np.testing.assert_allclose(within_probability(5.0, np.array([5.0, 2.5])), [0.198748, 0.738536], atol=1e-5)
+    for bad in (dict(iterations=0), dict(robust_k=0.0), dict(bone_sigma_cm=float("nan")), dict(max_sigma_cm=-1.0)):
+        with pytest.raises(ReconError):
+            TemporalOptions(**bad)
