@@ -48,6 +48,12 @@ class CameraKernel:
         R = self.R
         return tuple(X0 * R[i][0] + X1 * R[i][1] + X2 * R[i][2] + self.t[i] for i in range(3))  # type: ignore
 
+    def depth(self, X_world: np.ndarray) -> np.ndarray:
+        """(P, 3) world cm -> z (P, V) camera-frame cm (the third row of :meth:`camera_points` alone)."""
+        X = np.asarray(X_world, dtype=F32)
+        R = self.R
+        return X[:, 0:1] * R[2][0] + X[:, 1:2] * R[2][1] + X[:, 2:3] * R[2][2] + self.t[2]
+
     def evaluate(self, X_world: np.ndarray, u_obs: np.ndarray, v_obs: np.ndarray, *, jacobian: bool) -> Evaluation:
         """Residuals (projection - observation) of (P, 3) points against (P, V) observed pixels, optional Jacobian."""
         xc, yc, zc = self.camera_points(X_world)
@@ -73,46 +79,18 @@ class CameraKernel:
     def distort(self, x: np.ndarray, y: np.ndarray, *, jacobian: bool = True) -> tuple:
         """Distorted (xd, yd) of (P, V) normalised coordinates, the entries a = dxd/dx, b = dxd/dy = dyd/dx,
         d = dyd/dy of the distortion Jacobian (None unless ``jacobian``), and r2 = x^2 + y^2."""
-        return _distort(x, y, self.k1, self.k2, self.k3, self.p1, self.p2, jacobian=jacobian)
-
-    def gather(self, view: np.ndarray) -> CameraKernel:
-        """A kernel of M views, the given (M,) view indices (repeats allowed): one view per point for
-        :meth:`evaluate_pairs` with ``view=slice(None)``, gathered once for repeated evaluations."""
-        out = object.__new__(CameraKernel)
-        out.V = len(view)
-        out.R = [[c[view] for c in row] for row in self.R]
-        out.t = [c[view] for c in self.t]
-        for name in ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "r2_max"):
-            setattr(out, name, getattr(self, name)[view])
-        return out
-
-    def evaluate_pairs(self, X_world: np.ndarray, view: np.ndarray, u_obs: np.ndarray, v_obs: np.ndarray, *,
-                       jacobian: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """Residuals of M (point, view) pairs: (M, 3) world cm, (M,) view indices, (M,) observed pixels -> r_u, r_v
-        (M,) px (NaN behind the camera / outside the lens) and d(r)/d(X) (M, 2, 3) if ``jacobian`` (the same model
-        as :meth:`evaluate`, one view per point instead of every view)."""
-        X = np.asarray(X_world, dtype=F32)
-        R = [[self.R[i][k][view] for k in range(3)] for i in range(3)]
-        xc, yc, zc = (X[:, 0] * R[i][0] + X[:, 1] * R[i][1] + X[:, 2] * R[i][2] + self.t[i][view] for i in range(3))
-        front = zc > MIN_DEPTH
-        inv_z = F32(1.0) / np.where(front, zc, np.nan).astype(F32)
-        x, y = xc * inv_z, yc * inv_z
-        xd, yd, a, b, d, r2 = _distort(x, y, self.k1[view], self.k2[view], self.k3[view], self.p1[view],
-                                       self.p2[view], jacobian=jacobian)
-        fx, fy = self.fx[view], self.fy[view]
-        lens = r2 <= self.r2_max[view]
-        r_u = np.where(lens, xd * fx + self.cx[view] - u_obs, np.nan)
-        r_v = np.where(lens, yd * fy + self.cy[view] - v_obs, np.nan)
+        xx, yy, xy = x * x, y * y, x * y
+        r2 = xx + yy
+        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        xd = x * radial + 2.0 * self.p1 * xy + self.p2 * (r2 + 2.0 * xx)
+        yd = y * radial + self.p1 * (r2 + 2.0 * yy) + 2.0 * self.p2 * xy
         if not jacobian:
-            return r_u, r_v, None
-        su, sv = fx * inv_z, fy * inv_z
-        a_u, b_u, e_u = su * a, su * b, -(a * x + b * y) * su
-        c_v, d_v, e_v = sv * b, sv * d, -(b * x + d * y) * sv
-        J = np.empty((len(r_u), 2, 3), dtype=F32)
-        for k in range(3):
-            J[:, 0, k] = a_u * R[0][k] + b_u * R[1][k] + e_u * R[2][k]
-            J[:, 1, k] = c_v * R[0][k] + d_v * R[1][k] + e_v * R[2][k]
-        return r_u, r_v, J
+            return xd, yd, None, None, None, r2
+        two_dr = 2.0 * (self.k1 + r2 * (2.0 * self.k2 + 3.0 * self.k3 * r2))
+        b = xy * two_dr + 2.0 * self.p1 * x + 2.0 * self.p2 * y
+        a = radial + xx * two_dr + 2.0 * self.p1 * y + 6.0 * self.p2 * x
+        d = radial + yy * two_dr + 6.0 * self.p1 * y + 2.0 * self.p2 * x
+        return xd, yd, a, b, d, r2
 
     def undistort(self, u_px: np.ndarray, v_px: np.ndarray, *, iterations: int = 2) -> tuple[np.ndarray, np.ndarray]:
         """(P, V) pixels -> undistorted normalised (x, y) by Newton's method with the explicit 2x2 inverse.
@@ -158,20 +136,3 @@ def normal_equations(ev: Evaluation, weight: np.ndarray, penalty_px: float) -> t
     H = M[:, :3, :3] + M[:, 3:, 3:]
     g = (wJ[:, :3] @ r_u[..., None] + wJ[:, 3:] @ r_v[..., None])[..., 0].astype(np.float64)
     return H, g, cost
-
-
-def _distort(x, y, k1, k2, k3, p1, p2, *, jacobian: bool) -> tuple:
-    """OpenCV's 5-parameter distortion of normalised (x, y) with its Jacobian entries (see
-    :meth:`CameraKernel.distort`); the parameters broadcast against x and y."""
-    xx, yy, xy = x * x, y * y, x * y
-    r2 = xx + yy
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * xx)
-    yd = y * radial + p1 * (r2 + 2.0 * yy) + 2.0 * p2 * xy
-    if not jacobian:
-        return xd, yd, None, None, None, r2
-    two_dr = 2.0 * (k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2))
-    b = xy * two_dr + 2.0 * p1 * x + 2.0 * p2 * y
-    a = radial + xx * two_dr + 2.0 * p1 * y + 6.0 * p2 * x
-    d = radial + yy * two_dr + 6.0 * p1 * y + 2.0 * p2 * x
-    return xd, yd, a, b, d, r2

@@ -104,6 +104,7 @@ def tally_verdicts(names: list[str], view: np.ndarray, residual_px: np.ndarray, 
     is not put out, not judged) and whether the body put the detection aside -> hist, judged, outvoted per camera
     (detected, used and noise left 0)."""
     out = CameraAgreement.empty(names)
+    view = view.astype(np.int64)
     ok = np.isfinite(residual_px)
     b = np.minimum((residual_px[ok] / ERROR_BIN_PX).astype(np.int64), ERROR_BINS - 1)
     out.hist += np.bincount(view[ok] * ERROR_BINS + b, minlength=len(names) * ERROR_BINS).reshape(-1, ERROR_BINS)

@@ -42,25 +42,27 @@ class Bodies:
 
 @dataclass(frozen=True)
 class Observations:
-    """The detections behind bodies, one record per (body row, joint, view) with a detection: row (M,), joint (M,),
-    view (M,) int; uv_px (M, 2) float32 pixels; conf (M,) float32 detection confidence in (0, 1] (OpenPose's values
-    above 1 clipped). Rows number the bodies in time order (then in their order at a time); records are sorted by
-    row."""
+    """The detections behind bodies, one record per (body row, view, joint) with a detection: row (M,) int32, view
+    (M,) int16, joint (M,) int8; uv_px (M, 2) float32 pixels; conf (M,) float32 detection confidence in (0, 1]
+    (OpenPose's values above 1 clipped); strong (M,) bool: among its joint's most confident detections (see
+    :func:`observations_of`). Rows number the bodies in time order (then in their order at a time); records are
+    sorted by row, then view, then joint. 19 bytes a record."""
 
     row: np.ndarray
-    joint: np.ndarray
     view: np.ndarray
+    joint: np.ndarray
     uv_px: np.ndarray
     conf: np.ndarray
+    strong: np.ndarray
 
     @staticmethod
     def concat(parts: list[Observations]) -> Observations:
+        fields = ("row", "view", "joint", "uv_px", "conf", "strong")
         if not parts:
-            z = np.zeros(0, np.int64)
-            return Observations(row=z, joint=z, view=z, uv_px=np.zeros((0, 2), np.float32),
-                                conf=np.zeros(0, np.float32))
-        return Observations(*(np.concatenate([getattr(o, f) for o in parts])
-                              for f in ("row", "joint", "view", "uv_px", "conf")))
+            return Observations(row=np.zeros(0, np.int32), view=np.zeros(0, np.int16), joint=np.zeros(0, np.int8),
+                                uv_px=np.zeros((0, 2), np.float32), conf=np.zeros(0, np.float32),
+                                strong=np.zeros(0, bool))
+        return Observations(*(np.concatenate([getattr(o, f) for o in parts]) for f in fields))
 
 
 @dataclass(frozen=True)
@@ -115,15 +117,26 @@ def build_bodies(tri: PeopleTriangulation, ok: np.ndarray, *, min_body_joints: i
     return bodies, np.concatenate(keeps) if keeps else np.zeros(0, bool)
 
 
-def observations_of(kp: np.ndarray, bodies: list[Bodies], first_row: int = 0) -> Observations:
+def observations_of(kp: np.ndarray, bodies: list[Bodies], first_row: int = 0, *, strongest: int) -> Observations:
     """The detections assigned to the bodies of T times, read again from the people there: kp (T, V, N, 19, 3)
     (:func:`~dome_calib.recon.people.resample.gather_people` at the bodies' times), bodies[t] with ``assigned``;
     rows numbered from ``first_row`` in time order. Every detection, inlier of the triangulation or not (the body
-    over time judges them again)."""
-    uv, conf = assigned_detections(kp, [b.assigned.T.astype(np.int64) for b in bodies])
-    V = kp.shape[1]
-    conf = conf.reshape(-1, 19, V)
-    uv = uv.reshape(-1, 19, V, 2)
-    b, j, v = np.nonzero((conf > 0) & np.isfinite(uv).all(-1))
-    return Observations(row=first_row + b, joint=j, view=v, uv_px=uv[b, j, v].astype(np.float32),
-                        conf=conf[b, j, v].astype(np.float32))
+    over time judges them again); ``strong`` marks each joint's ``strongest`` most confident ones (ties: the lower
+    view index; confidences compared in steps of 1e-4)."""
+    A = np.concatenate([b.assigned for b in bodies] + [np.zeros((0, kp.shape[1]), np.int16)])  # (B, V)
+    time_of = np.repeat(np.arange(len(bodies)), [len(b.ids) for b in bodies])
+    b, v = np.nonzero(A >= 0)  # (Q,) assigned (body, view) pairs
+    det = kp[time_of[b], v, A[b, v]]  # (Q, 19, 3)
+    q, j = np.nonzero(det[..., 2] > 0)
+    conf = np.minimum(det[q, j, 2], 1.0)
+    B, V = A.shape
+    strong = np.ones(len(q), bool)
+    if V > strongest:  # per (body, joint): a unique key per view, the confidence first
+        key = np.full((B, 19, V), -1, np.int64)
+        rec_key = np.round(conf * 10_000).astype(np.int64) * V + (V - 1 - v[q])
+        key[b[q], j, v[q]] = rec_key
+        threshold = np.partition(key, V - strongest, axis=2)[:, :, V - strongest]
+        strong = rec_key >= threshold[b[q], j]
+    return Observations(row=(first_row + b[q]).astype(np.int32), view=v[q].astype(np.int16),
+                        joint=j.astype(np.int8), uv_px=det[q, j, :2].astype(np.float32),
+                        conf=conf.astype(np.float32), strong=strong)

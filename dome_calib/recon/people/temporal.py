@@ -49,8 +49,8 @@ from scipy.special import gammainc
 from dome_calib.errors import non_finite_fields
 from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
 from dome_calib.recon.errors import ReconError
-from dome_calib.recon.kernel import CameraKernel
 from dome_calib.recon.people.bodies import Bodies, Observations
+from dome_calib.recon.people.temporal_terms import camera_table, distances_px, robust_blocks
 from dome_calib.recon.project import ViewSet
 
 BONE_A = np.array([JOINTS19.index(a) for a, _ in BONE_LENGTH_CM])
@@ -186,21 +186,6 @@ def _initial_points(lay: _Layout, X: np.ndarray, times_s: np.ndarray) -> np.ndar
     return out
 
 
-def strongest_records(point: np.ndarray, conf: np.ndarray, view: np.ndarray, limit: int) -> np.ndarray:
-    """Indices of at most ``limit`` records per point (M,): the most confident (ties by view). The fit reweighs
-    these at every round and holds the others as they weighed at the start (a joint that 250 views of the full dome
-    see is then not 8 times the work of an HD one)."""
-    if len(point) == 0 or np.bincount(point).max() <= limit:
-        return np.arange(len(point))
-    key = (point.astype(np.int64) << 24) | ((10_000 - np.round(np.clip(conf, 0, 1) * 10_000).astype(np.int64)) << 10) \
-        | np.minimum(view, 1023)  # point, then confidence (quantised, highest first), then view: one int64 sort
-    order = np.argsort(key, kind="stable")
-    p = point[order]
-    start = np.flatnonzero(np.concatenate([[True], p[1:] != p[:-1]]))
-    rank = np.arange(len(p)) - np.repeat(start, np.diff(np.concatenate([start, [len(p)]])))
-    return np.sort(order[rank < limit])
-
-
 def _smoothness(lay: _Layout, times_s: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Second-difference rows of every chain: (S, 3) point indices, (S, 3) coefficients (acceleration, 1/s^2),
     (S,) weights tau / q (the integral of |x''|^2 / q over the interval the row stands for)."""
@@ -246,17 +231,13 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
     row_bf = np.full(int(first[-1]), -1)
     row_bf[first[lay.bf_k] + lay.bf_p] = np.arange(BF)
     times_s = np.asarray(times_ms, dtype=float) / 1000.0
-    kernel = CameraKernel(views)
+    cam = camera_table(views)
     sigma_v = priors.noise_px
-    # the records of the solved joints
+    # each record's point (-1: its joint is not solved); each joint's strongest records, reweighed every round
     bf_rec = row_bf[obs.row]
-    keep = lay.var[bf_rec, obs.joint] >= 0
-    kept = np.flatnonzero(keep)
-    all_var = lay.var[bf_rec[kept], obs.joint[kept]]
-    sel = kept[strongest_records(all_var, obs.conf[kept], obs.view[kept], options.max_views_per_joint)]
-    rec_var = lay.var[bf_rec[sel], obs.joint[sel]]
-    rec_view, rec_uv, rec_c = obs.view[sel], obs.uv_px[sel], obs.conf[sel].astype(float)
-    sig = sigma_v[rec_view]
+    rec_var = lay.var[bf_rec, obs.joint]
+    sel = np.flatnonzero(obs.strong & (rec_var >= 0))
+    sel_var, sel_view, sel_uv, sel_c = rec_var[sel], obs.view[sel], obs.uv_px[sel], obs.conf[sel]
     q = options.spectral_density()
     s_idx, s_coef, s_w = _smoothness(lay, times_s, q)
     L = priors.bones_of(np.unique(np.concatenate([b.ids for b in bodies])))  # (tracks, E), _layout's numbering
@@ -280,21 +261,13 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
     chain = sp.coo_matrix((np.concatenate(sv), (np.concatenate(sr), np.concatenate(sc))), shape=(n, n)).tocsr()
     chain = (chain + w0 * sp.identity(n, format="csr")).tocsr()
     chain_band = _upper_band(chain, _BAND)
-    cams = kernel.gather(rec_view)
-    every = slice(None)
     both = np.concatenate([ba, bb])
     # the detections beyond each joint's strongest: weighed once at the start, then held as a quadratic term
-    rest = np.setdiff1d(kept, sel, assume_unique=True)
-    H_rest, g_rest = np.zeros((lay.n_var, 3, 3)), np.zeros((lay.n_var, 3))
-    for part in _slices(len(rest)):
-        r = rest[part]
-        H, g = _robust_blocks(kernel, P, lay.var[bf_rec[r], obs.joint[r]], obs.view[r], obs.uv_px[r],
-                              obs.conf[r].astype(float), sigma_v[obs.view[r]], options.robust_k, lay.n_var)
-        H_rest += H
-        g_rest += g
+    H_rest, g_rest = robust_blocks(P, rec_var, obs.view, obs.uv_px, obs.conf, sigma_v, cam, options.robust_k,
+                                   use=~obs.strong)
     P_lin = P.copy()
     for _ in range(options.iterations):
-        H_d, g = _robust_blocks(cams, P, rec_var, every, rec_uv, rec_c, sig, options.robust_k, lay.n_var)
+        H_d, g = robust_blocks(P, sel_var, sel_view, sel_uv, sel_c, sigma_v, cam, options.robust_k)
         H_d += H_rest
         g += g_rest + np.einsum("nij,nj->ni", H_rest, P - P_lin)
         # bones, linearised along their current direction
@@ -323,53 +296,13 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
     var_cm2 += _gap_variance(lay, X0, times_s, q)
     sigma = np.sqrt(var_cm2)
     shown = _shown(lay, X0, sigma, options.max_sigma_cm)
-    res = np.full(len(kept), np.nan)
-    for part in _slices(len(kept)):
-        r = kept[part]
-        r_u, r_v, _ = kernel.evaluate_pairs(P[all_var[part]], obs.view[r], obs.uv_px[r, 0], obs.uv_px[r, 1],
-                                            jacobian=False)
-        res[part] = np.where(shown[all_var[part]], np.hypot(r_u, r_v), np.nan)
-    inlier = np.isfinite(res) & (res < options.outvoted_k * sigma_v[obs.view[kept]])
-    n_inl = np.bincount(all_var[inlier], minlength=lay.n_var)
-    residual = np.full(M, np.nan)
-    residual[kept] = res
-    outvoted = np.zeros(M, bool)
-    outvoted[kept] = np.isfinite(res) & ~inlier
+    residual = np.where(shown[rec_var] & (rec_var >= 0), distances_px(P, rec_var, obs.view, obs.uv_px, cam), np.nan)
+    judged = np.isfinite(residual)
+    inlier = judged & (residual < options.outvoted_k * sigma_v[obs.view])
+    n_inl = np.bincount(rec_var[inlier], minlength=lay.n_var)
+    outvoted = judged & ~inlier
     return TemporalResult(bodies=_write_back(bodies, lay, P, sigma, n_inl, shown), record_time=lay.bf_k[bf_rec],
                           residual_px=residual, outvoted=outvoted)
-
-
-#: Records evaluated at once where all of a window's records are (the full dome's: hundreds per joint).
-_SLICE_RECORDS = 1 << 20
-
-
-def _slices(n: int) -> list[slice]:
-    return [slice(s, min(s + _SLICE_RECORDS, n)) for s in range(0, n, _SLICE_RECORDS)]
-
-
-def _robust_blocks(kernel: CameraKernel, P: np.ndarray, var: np.ndarray, view, uv_px: np.ndarray, conf: np.ndarray,
-                   sigma_px: np.ndarray, robust_k: float, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """The Gauss-Newton blocks (see :func:`_normal_blocks`) of M detections at the points P (n, 3): Cauchy weights
-    ``c / (1 + (r / k sigma)^2) / sigma^2`` (0 behind the camera)."""
-    r_u, r_v, J = kernel.evaluate_pairs(P[var], view, uv_px[:, 0], uv_px[:, 1], jacobian=True)
-    front = np.isfinite(r_u) & np.isfinite(r_v)
-    r_u, r_v = np.where(front, r_u, 0.0), np.where(front, r_v, 0.0)
-    w = np.where(front, conf / (1.0 + (r_u * r_u + r_v * r_v) / (robust_k * sigma_px) ** 2) / sigma_px ** 2, 0.0)
-    return _normal_blocks(var, w, np.where(front[:, None, None], J, 0), r_u, r_v, n)
-
-
-def _normal_blocks(var: np.ndarray, w: np.ndarray, J: np.ndarray, r_u: np.ndarray, r_v: np.ndarray, n: int
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Gauss-Newton blocks of the weighted reprojection terms summed per point: H (n, 3, 3) = sum w J^T J and
-    g (n, 3) = sum w J^T r, from (M,) point indices, weights, (M, 2, 3) Jacobians and residuals."""
-    Ju, Jv = J[:, 0].astype(float), J[:, 1].astype(float)
-    wu, wv = w[:, None] * Ju, w[:, None] * Jv
-    H = np.empty((n, 3, 3))
-    for i in range(3):
-        for k in range(i, 3):
-            H[:, i, k] = H[:, k, i] = np.bincount(var, weights=wu[:, i] * Ju[:, k] + wv[:, i] * Jv[:, k], minlength=n)
-    g = np.stack([np.bincount(var, weights=wu[:, i] * r_u + wv[:, i] * r_v, minlength=n) for i in range(3)], axis=1)
-    return H, g
 
 
 def _sum_by(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:

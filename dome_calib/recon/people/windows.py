@@ -146,7 +146,7 @@ def window_observations(task: WindowTask) -> Observations:
     for s in range(0, len(t), task.batch_times):
         sl = slice(s, min(s + task.batch_times, len(t)))
         kp = gather_people(streams, t[sl], task.max_gap_frames)
-        parts.append(observations_of(kp, task.bodies[sl], row))
+        parts.append(observations_of(kp, task.bodies[sl], row, strongest=task.options.max_views_per_joint))
         row += sum(len(b.ids) for b in task.bodies[sl])
     return Observations.concat(parts)
 

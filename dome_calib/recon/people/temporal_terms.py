@@ -1,0 +1,133 @@
+"""The body over time's per-detection terms, compiled (numba): each detection's robust reprojection term summed
+into its joint's Gauss-Newton block, and each detection's distance to the fitted joint.
+
+The full dome's window holds hundreds of detections per joint and time (280 for 8 people in 521 views); numpy did
+these in some sixty passes over them with a temporary per pass (275 ns a detection), these loops do one pass
+(measured in :mod:`~dome_calib.recon.people.temporal`'s docstring). The camera model is :mod:`dome_calib.camera`'s
+(OpenCV pinhole, 5 distortion terms; a point behind the camera or outside the lens's valid radius gives no term),
+in float64. Every sum runs over the detections in the order given, in one thread: the result does not depend on the
+machine's threads.
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from dome_calib.camera import MIN_DEPTH
+from dome_calib.recon.project import ViewSet
+
+#: Columns of :func:`camera_table`: R (row-major, 9), t_cm (3), fx, fy, cx, cy, k1, k2, p1, p2, k3, r2_max.
+CAMERA_COLUMNS = 22
+
+
+def camera_table(views: ViewSet) -> np.ndarray:
+    """(V, CAMERA_COLUMNS) float64: each view's parameters in one row (see CAMERA_COLUMNS)."""
+    V = len(views.names)
+    return np.ascontiguousarray(np.concatenate([views.R.reshape(V, 9), views.t_cm.reshape(V, 3),
+                                                views.intr[:, :4], views.dist[:, :5], views.r2_max.reshape(V, 1)],
+                                               axis=1), dtype=np.float64)
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def _project(cam, v, X0, X1, X2, jacobian, J):  # pragma: no cover - compiled
+    """Pixel (u, v) of a world point in view v, and (if ``jacobian``) d(u, v)/dX into J (2, 3); ok False behind the
+    camera or outside the lens."""
+    c = cam[v]
+    xc = c[0] * X0 + c[1] * X1 + c[2] * X2 + c[9]
+    yc = c[3] * X0 + c[4] * X1 + c[5] * X2 + c[10]
+    zc = c[6] * X0 + c[7] * X1 + c[8] * X2 + c[11]
+    if not zc > MIN_DEPTH:
+        return False, 0.0, 0.0
+    x = xc / zc
+    y = yc / zc
+    fx, fy, cx, cy = c[12], c[13], c[14], c[15]
+    k1, k2, p1, p2, k3 = c[16], c[17], c[18], c[19], c[20]
+    xx, yy, xy = x * x, y * y, x * y
+    r2 = xx + yy
+    if r2 > c[21]:
+        return False, 0.0, 0.0
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * xx)
+    yd = y * radial + p1 * (r2 + 2.0 * yy) + 2.0 * p2 * xy
+    if jacobian:
+        two_dr = 2.0 * (k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2))
+        b = xy * two_dr + 2.0 * p1 * x + 2.0 * p2 * y
+        a = radial + xx * two_dr + 2.0 * p1 * y + 6.0 * p2 * x
+        d = radial + yy * two_dr + 6.0 * p1 * y + 2.0 * p2 * x
+        su = fx / zc
+        sv = fy / zc
+        eu = -(a * x + b * y)
+        ev = -(b * x + d * y)
+        for k in range(3):
+            J[0, k] = su * (a * c[k] + b * c[3 + k] + eu * c[6 + k])
+            J[1, k] = sv * (b * c[k] + d * c[3 + k] + ev * c[6 + k])
+    return True, xd * fx + cx, yd * fy + cy
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def _robust_blocks(P, var, view, uv_px, conf, sigma_v, use, cam, robust_k, H, g):  # pragma: no cover - compiled
+    J = np.empty((2, 3))
+    for m in range(len(var)):
+        i = var[m]
+        if i < 0 or not use[m]:
+            continue
+        ok, u, w = _project(cam, view[m], P[i, 0], P[i, 1], P[i, 2], True, J)
+        if not ok:
+            continue
+        ru = u - uv_px[m, 0]
+        rv = w - uv_px[m, 1]
+        s = sigma_v[view[m]]
+        ks = robust_k * s
+        weight = conf[m] / (1.0 + (ru * ru + rv * rv) / (ks * ks)) / (s * s)
+        for a in range(3):
+            g[i, a] += weight * (J[0, a] * ru + J[1, a] * rv)
+            for b in range(a, 3):
+                H[i, a, b] += weight * (J[0, a] * J[0, b] + J[1, a] * J[1, b])
+    for i in range(len(H)):
+        for a in range(3):
+            for b in range(a + 1, 3):
+                H[i, b, a] = H[i, a, b]
+
+
+def robust_blocks(P: np.ndarray, var: np.ndarray, view: np.ndarray, uv_px: np.ndarray, conf: np.ndarray,
+                  sigma_v: np.ndarray, cam: np.ndarray, robust_k: float, use: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Newton blocks of M detections at the points P (n, 3) world cm: H (n, 3, 3) = sum w J^T J and
+    g (n, 3) = sum w J^T r, with the Cauchy weight ``w = c / (1 + (r / k sigma)^2) / sigma^2`` (none behind the camera
+    or outside the lens); var (M,) point of each detection (-1: none), view (M,) its row of ``cam``
+    (:func:`camera_table`), uv_px (M, 2), conf (M,); sigma_v (V,) each camera's noise; use (M,) the detections
+    taken (default all)."""
+    H = np.zeros((len(P), 3, 3))
+    g = np.zeros((len(P), 3))
+    use = np.ones(len(var), bool) if use is None else use
+    _robust_blocks(np.ascontiguousarray(P, dtype=np.float64), _ints(var), _ints(view), _pixels(uv_px),
+                   np.asarray(conf, dtype=np.float32), np.asarray(sigma_v, dtype=np.float64), use, cam,
+                   float(robust_k), H, g)
+    return H, g
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def _distances(P, var, view, uv_px, cam, out):  # pragma: no cover - compiled
+    J = np.empty((2, 3))
+    for m in range(len(var)):
+        i = var[m]
+        ok = False
+        if i >= 0:
+            ok, u, w = _project(cam, view[m], P[i, 0], P[i, 1], P[i, 2], False, J)
+        out[m] = np.hypot(u - uv_px[m, 0], w - uv_px[m, 1]) if ok else np.nan
+
+
+def distances_px(P: np.ndarray, var: np.ndarray, view: np.ndarray, uv_px: np.ndarray, cam: np.ndarray) -> np.ndarray:
+    """(M,) each detection's distance (px) to its point's projection (NaN: no point (var -1), behind the camera or
+    outside the lens)."""
+    out = np.empty(len(var))
+    _distances(np.ascontiguousarray(P, dtype=np.float64), _ints(var), _ints(view), _pixels(uv_px), cam, out)
+    return out
+
+
+def _ints(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.int64)
+
+
+def _pixels(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float32)
