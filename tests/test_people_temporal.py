@@ -112,6 +112,30 @@ def test_window_edges_do_not_show_and_chunks_change_nothing(rig):
         np.testing.assert_allclose(a.X_cm, b.X_cm, atol=1e-3)
 
 
+class _HalfSpaceWitness:
+    """A depth witness (duck-typed :class:`~dome_calib.recon.people.depth_witness.DepthWitness`) that sees through
+    every joint above a height: the joints the body over time places there must go too."""
+
+    def __init__(self, max_height_cm: float) -> None:
+        self.max_height_cm = max_height_cm
+
+    def keep(self, X_cm: np.ndarray, time_ms: float) -> np.ndarray:
+        return ~(-X_cm[..., 1] > self.max_height_cm)  # y down: height is -y; NaN joints kept (no verdict)
+
+
+def test_the_depth_witness_has_the_last_word_on_placed_joints(rig):
+    bundle, det, times, X, present = rig
+    streams = people_streams(bundle, det)
+    views = view_set(bundle, [n for s in streams for n in s.cameras])
+    seq = reconstruct_people(views, streams, times, OPTIONS, depth=_HalfSpaceWitness(120.0))
+    heights = np.concatenate([-b.X_cm[..., 1].ravel() for b in seq.bodies])
+    heights = heights[np.isfinite(heights)]
+    assert len(heights) > 1000 and heights.max() <= 120.0
+    for b in seq.bodies:  # a dropped joint is missing everywhere: c = -1, no inlier views
+        gone = ~np.isfinite(b.X_cm).all(-1)
+        assert (b.confidence[gone] == -1).all() and (b.n_inliers[gone] == 0).all()
+
+
 def test_confidence_is_a_probability_and_options_refuse_nonsense():
     assert within_probability(5.0, np.array([1e-3]))[0] == pytest.approx(1.0)
     # chi distribution with 3 degrees of freedom: P(|e| < sigma) = 0.1987, P(|e| < 2 sigma) = 0.7385

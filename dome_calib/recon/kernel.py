@@ -17,6 +17,17 @@ from dome_calib.camera import MIN_DEPTH
 from dome_calib.recon.project import ViewSet
 
 F32 = np.float32
+#: Columns of :func:`camera_table`: R (row-major, 9), t_cm (3), fx, fy, cx, cy, k1, k2, p1, p2, k3, r2_max.
+CAMERA_COLUMNS = 22
+
+
+def camera_table(views: ViewSet) -> np.ndarray:
+    """(V, CAMERA_COLUMNS) float64: each view's parameters in one row (see CAMERA_COLUMNS), for compiled loops
+    (:mod:`dome_calib.recon.people.reprojection`)."""
+    V = len(views.names)
+    return np.ascontiguousarray(np.concatenate([views.R.reshape(V, 9), views.t_cm.reshape(V, 3), views.intr[:, :4],
+                                                views.dist[:, :5], views.r2_max.reshape(V, 1)], axis=1),
+                                dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -30,7 +41,8 @@ class Evaluation:
 
 
 class CameraKernel:
-    """Float32 component arrays of a :class:`ViewSet` and the batched projection / Jacobian / normal equations."""
+    """Float32 component arrays of a :class:`ViewSet` and the batched projection / Jacobian / normal equations;
+    ``table``: the views' parameters in float64 rows (:func:`camera_table`)."""
 
     def __init__(self, views: ViewSet) -> None:
         V = len(views.names)
@@ -40,6 +52,7 @@ class CameraKernel:
         self.fx, self.fy, self.cx, self.cy = (views.intr[:, i].astype(F32) for i in range(4))
         self.k1, self.k2, self.p1, self.p2, self.k3 = (views.dist[:, i].astype(F32) for i in range(5))
         self.r2_max = views.r2_max.astype(F32)
+        self.table = camera_table(views)
 
     def camera_points(self, X_world: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(P, 3) world cm -> x, y, z (P, V) camera-frame cm."""
@@ -47,12 +60,6 @@ class CameraKernel:
         X0, X1, X2 = X[:, 0:1], X[:, 1:2], X[:, 2:3]
         R = self.R
         return tuple(X0 * R[i][0] + X1 * R[i][1] + X2 * R[i][2] + self.t[i] for i in range(3))  # type: ignore
-
-    def depth(self, X_world: np.ndarray) -> np.ndarray:
-        """(P, 3) world cm -> z (P, V) camera-frame cm (the third row of :meth:`camera_points` alone)."""
-        X = np.asarray(X_world, dtype=F32)
-        R = self.R
-        return X[:, 0:1] * R[2][0] + X[:, 1:2] * R[2][1] + X[:, 2:3] * R[2][2] + self.t[2]
 
     def evaluate(self, X_world: np.ndarray, u_obs: np.ndarray, v_obs: np.ndarray, *, jacobian: bool) -> Evaluation:
         """Residuals (projection - observation) of (P, 3) points against (P, V) observed pixels, optional Jacobian."""

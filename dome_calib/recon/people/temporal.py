@@ -49,8 +49,9 @@ from scipy.special import gammainc
 from dome_calib.errors import non_finite_fields
 from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
 from dome_calib.recon.errors import ReconError
+from dome_calib.recon.kernel import camera_table
 from dome_calib.recon.people.bodies import Bodies, Observations
-from dome_calib.recon.people.temporal_terms import camera_table, distances_px, robust_blocks
+from dome_calib.recon.people.reprojection import distances_px, robust_blocks
 from dome_calib.recon.project import ViewSet
 
 BONE_A = np.array([JOINTS19.index(a) for a, _ in BONE_LENGTH_CM])

@@ -1,12 +1,13 @@
-"""The body over time's per-detection terms, compiled (numba): each detection's robust reprojection term summed
-into its joint's Gauss-Newton block, and each detection's distance to the fitted joint.
+"""Compiled (numba) projections of world points into views: the association's projection of every proposal into
+every view (:func:`project_into_views`), and the body over time's per-detection terms (each detection's robust
+reprojection term summed into its joint's Gauss-Newton block, :func:`robust_blocks`; each detection's distance to
+the fitted joint, :func:`distances_px`).
 
-The full dome's window holds hundreds of detections per joint and time (280 for 8 people in 521 views); numpy did
-these in some sixty passes over them with a temporary per pass (275 ns a detection), these loops do one pass
-(measured in :mod:`~dome_calib.recon.people.temporal`'s docstring). The camera model is :mod:`dome_calib.camera`'s
-(OpenCV pinhole, 5 distortion terms; a point behind the camera or outside the lens's valid radius gives no term),
-in float64. Every sum runs over the detections in the order given, in one thread: the result does not depend on the
-machine's threads.
+numpy did these in some forty to sixty passes over the points with a temporary per pass; these loops do one pass
+(the body over time: 60 ns a detection against 315 ns; the full dome's association: see docs/reconstruct.md). The
+camera model is :mod:`dome_calib.camera`'s (OpenCV pinhole, 5 distortion terms; a point behind the camera or outside
+the lens's valid radius has no projection), in float64. Every sum runs over the detections in the order given, in
+one thread: the result does not depend on the machine's threads.
 """
 from __future__ import annotations
 
@@ -14,19 +15,6 @@ import numba
 import numpy as np
 
 from dome_calib.camera import MIN_DEPTH
-from dome_calib.recon.project import ViewSet
-
-#: Columns of :func:`camera_table`: R (row-major, 9), t_cm (3), fx, fy, cx, cy, k1, k2, p1, p2, k3, r2_max.
-CAMERA_COLUMNS = 22
-
-
-def camera_table(views: ViewSet) -> np.ndarray:
-    """(V, CAMERA_COLUMNS) float64: each view's parameters in one row (see CAMERA_COLUMNS)."""
-    V = len(views.names)
-    return np.ascontiguousarray(np.concatenate([views.R.reshape(V, 9), views.t_cm.reshape(V, 3),
-                                                views.intr[:, :4], views.dist[:, :5], views.r2_max.reshape(V, 1)],
-                                               axis=1), dtype=np.float64)
-
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
 def _project(cam, v, X0, X1, X2, jacobian, J):  # pragma: no cover - compiled
@@ -95,7 +83,7 @@ def robust_blocks(P: np.ndarray, var: np.ndarray, view: np.ndarray, uv_px: np.nd
     """Gauss-Newton blocks of M detections at the points P (n, 3) world cm: H (n, 3, 3) = sum w J^T J and
     g (n, 3) = sum w J^T r, with the Cauchy weight ``w = c / (1 + (r / k sigma)^2) / sigma^2`` (none behind the camera
     or outside the lens); var (M,) point of each detection (-1: none), view (M,) its row of ``cam``
-    (:func:`camera_table`), uv_px (M, 2), conf (M,); sigma_v (V,) each camera's noise; use (M,) the detections
+    (:func:`~dome_calib.recon.kernel.camera_table`), uv_px (M, 2), conf (M,); sigma_v (V,) each camera's noise; use (M,) the detections
     taken (default all)."""
     H = np.zeros((len(P), 3, 3))
     g = np.zeros((len(P), 3))
@@ -131,3 +119,24 @@ def _ints(a: np.ndarray) -> np.ndarray:
 
 def _pixels(a: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.float32)
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def _project_into_views(X, cam, u, v, z):  # pragma: no cover - compiled
+    J = np.empty((2, 3))
+    for m in range(len(X)):
+        for k in range(len(cam)):
+            c = cam[k]
+            z[m, k] = c[6] * X[m, 0] + c[7] * X[m, 1] + c[8] * X[m, 2] + c[11]
+            ok, uu, vv = _project(cam, k, X[m, 0], X[m, 1], X[m, 2], False, J)
+            u[m, k] = uu if ok else np.nan
+            v[m, k] = vv if ok else np.nan
+
+
+def project_into_views(X_cm: np.ndarray, cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(M, 3) world points into every view of ``cam`` (:func:`~dome_calib.recon.kernel.camera_table`) -> u, v (M, V) px (NaN behind the
+    camera or outside the lens) and z (M, V) camera-frame depth (cm)."""
+    M, V = len(X_cm), len(cam)
+    u, v, z = np.empty((M, V)), np.empty((M, V)), np.empty((M, V))
+    _project_into_views(np.ascontiguousarray(X_cm, dtype=np.float64), cam, u, v, z)
+    return u, v, z
