@@ -12,7 +12,7 @@ from dome_calib.bundle import SyncTable
 from dome_calib.executor.local import LocalProcessExecutor
 from dome_calib.recon.people.chunks import reconstruct_people_chunked
 from dome_calib.recon.people.matching import greedy_match, nan_median
-from dome_calib.recon.people.proposals import AssociationOptions, select_pairs
+from dome_calib.recon.people.proposals import AssociationOptions, residual_pairs, select_pairs
 from dome_calib.recon.people.resample import interpolate_people
 from dome_calib.recon.people.run import PeopleOptions, reconstruct_people
 from dome_calib.recon.people.sources import InMemorySource, PeopleStream, people_streams
@@ -102,6 +102,13 @@ def test_select_pairs_bounded_and_spread():
     cos = np.abs((ax[pairs[:, 0]] * ax[pairs[:, 1]]).sum(1))
     assert np.all(cos < np.cos(np.radians(3)))
     np.testing.assert_array_equal(select_pairs(views, 120), pairs)  # deterministic
+    # the residual proposals' pairs (filtered from one ranking of all pairs) are select_pairs on the leftover views
+    rng = np.random.default_rng(0)
+    for share in (0.01, 0.1, 0.5, 0.9):
+        left = rng.random(len(views.names)) < share
+        idx = np.flatnonzero(left)
+        expected = idx[select_pairs(views.subset([views.names[i] for i in idx]), 2 * 48)] if len(idx) >= 2 else []
+        np.testing.assert_array_equal(residual_pairs(views, left, 48).reshape(-1, 2), np.reshape(expected, (-1, 2)))
 
 
 def test_group_found_with_oracle_accuracy(scene):
