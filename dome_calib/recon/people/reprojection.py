@@ -114,7 +114,9 @@ def distances_px(P: np.ndarray, var: np.ndarray, view: np.ndarray, uv_px: np.nda
 
 
 def _ints(a: np.ndarray) -> np.ndarray:
-    return np.ascontiguousarray(a, dtype=np.int64)
+    """Indices as given when they are 32-bit (or narrower: no copy of a window's millions), else as int64."""
+    a = np.asarray(a)
+    return np.ascontiguousarray(a if a.dtype in (np.int16, np.int32) else a.astype(np.int64))
 
 
 def _pixels(a: np.ndarray) -> np.ndarray:

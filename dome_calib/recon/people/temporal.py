@@ -229,14 +229,14 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
         return none
     X0 = np.stack([bodies[a].X_cm[b] for a, b in zip(lay.bf_k, lay.bf_p)])
     first = np.cumsum([0] + [len(b.ids) for b in bodies])
-    row_bf = np.full(int(first[-1]), -1)
+    row_bf = np.full(int(first[-1]), -1, dtype=np.int32)
     row_bf[first[lay.bf_k] + lay.bf_p] = np.arange(BF)
     times_s = np.asarray(times_ms, dtype=float) / 1000.0
     cam = camera_table(views)
     sigma_v = priors.noise_px
     # each record's point (-1: its joint is not solved); each joint's strongest records, reweighed every round
-    bf_rec = row_bf[obs.row]
-    rec_var = lay.var[bf_rec, obs.joint]
+    bf_rec = row_bf[obs.row]  # int32 (a window holds millions of records)
+    rec_var = lay.var[bf_rec, obs.joint].astype(np.int32)
     sel = np.flatnonzero(obs.strong & (rec_var >= 0))
     sel_var, sel_view, sel_uv, sel_c = rec_var[sel], obs.view[sel], obs.uv_px[sel], obs.conf[sel]
     q = options.spectral_density()
@@ -297,12 +297,13 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
     var_cm2 += _gap_variance(lay, X0, times_s, q)
     sigma = np.sqrt(var_cm2)
     shown = _shown(lay, X0, sigma, options.max_sigma_cm)
-    residual = np.where(shown[rec_var] & (rec_var >= 0), distances_px(P, rec_var, obs.view, obs.uv_px, cam), np.nan)
+    residual = distances_px(P, rec_var, obs.view, obs.uv_px, cam).astype(np.float32)  # float32: millions of them
+    residual[~shown[rec_var] | (rec_var < 0)] = np.nan
     judged = np.isfinite(residual)
-    inlier = judged & (residual < options.outvoted_k * sigma_v[obs.view])
+    inlier = judged & (residual < (options.outvoted_k * sigma_v).astype(np.float32)[obs.view])
     n_inl = np.bincount(rec_var[inlier], minlength=lay.n_var)
     outvoted = judged & ~inlier
-    return TemporalResult(bodies=_write_back(bodies, lay, P, sigma, n_inl, shown), record_time=lay.bf_k[bf_rec],
+    return TemporalResult(bodies=_write_back(bodies, lay, P, sigma, n_inl, shown), record_time=lay.bf_k[bf_rec].astype(np.int32),
                           residual_px=residual, outvoted=outvoted)
 
 
