@@ -138,13 +138,14 @@ class WindowTask:
 
 
 def window_observations(task: WindowTask) -> Observations:
-    """The window's bodies' detections, read again from its source ``batch_times`` times at a time (the frames that
-    bracket those times only: a window of the full dome's detections is never whole in memory)."""
+    """The window's bodies' detections, read again from its source: the frames that bracket its times, once (read
+    again per batch, the full dome's files would cost 44 % more: 3.5 frames of margin on both sides of every 16
+    times); brought to its times and gathered ``batch_times`` at a time."""
     t = task.times_ms
+    streams = task.source.chunk(float(t[0]), float(t[-1]), task.max_gap_frames)
     parts, row = [], 0
     for s in range(0, len(t), task.batch_times):
         sl = slice(s, min(s + task.batch_times, len(t)))
-        streams = task.source.chunk(float(t[sl][0]), float(t[sl][-1]), task.max_gap_frames)
         kp = gather_people(streams, t[sl], task.max_gap_frames)
         parts.append(observations_of(kp, task.bodies[sl], row, strongest=task.options.max_views_per_joint))
         row += sum(len(b.ids) for b in task.bodies[sl])
