@@ -14,7 +14,9 @@ from dome_calib.recon.people.chunks import reconstruct_people_chunked
 from dome_calib.recon.people.run import PeopleOptions, reconstruct_people
 from dome_calib.recon.people.sources import people_streams
 from dome_calib.recon.people.temporal import TemporalOptions, within_probability
-from dome_calib.recon.people.windows import time_windows
+from dome_calib.recon.people.agreement import NOISE_BIN_PX, NOISE_BINS
+from dome_calib.recon.people.bodies import Bodies
+from dome_calib.recon.people.windows import bone_lengths, margin_times, noise_px_of, time_windows
 from dome_calib.recon.project import view_set
 from dome_calib.synth.detector import DetectorModel, synth_detections
 from dome_calib.synth.group_eval import match_bodies
@@ -143,3 +145,54 @@ def test_confidence_is_a_probability_and_options_refuse_nonsense():
     for bad in (dict(iterations=0), dict(robust_k=0.0), dict(bone_sigma_cm=float("nan")), dict(max_sigma_cm=-1.0)):
         with pytest.raises(ReconError):
             TemporalOptions(**bad)
+
+
+def test_windows_tile_the_session_from_the_smoothers_reach():
+    """M is the smoother's reach in time steps (the docs' derivation: 32 at 29.97 fps, 28 at 25 fps with the
+    defaults); the windows' own spans start at multiples of W = 6 M and tile the session; each is fitted with M more
+    times on both sides, within the session."""
+    hd = np.arange(1000) * 1001 / 30  # ms
+    vga = np.arange(1000) * 40.0
+    assert margin_times(hd, TemporalOptions()) == 32 and margin_times(vga, TemporalOptions()) == 28
+    assert margin_times(hd, TemporalOptions(window_edge_influence=0.1)) < 32  # less reach asked, less margin
+    for T in (1, 5, 191, 192, 193, 1000):
+        windows = time_windows(hd[:T], TemporalOptions())
+        own = np.concatenate([np.arange(a, b) for _, a, b, _ in windows])
+        np.testing.assert_array_equal(own, np.arange(T))
+        for lo, a, b, hi in windows:
+            assert a % 192 == 0 and lo == max(0, a - 32) and hi == min(T, b + 32)
+
+
+def _bodies(ids, lengths_cm, n_inliers=3):
+    """One body per time: joints on a line so that the neck-nose bone has the given length."""
+    out = []
+    for i, L in zip(ids, lengths_cm):
+        X = np.zeros((1, 19, 3))
+        X[0, :, 0] = np.arange(19) * 10.0
+        X[0, JOINTS19.index("nose"), 0] = X[0, JOINTS19.index("neck"), 0] + L
+        out.append(Bodies(X_cm=X, confidence=np.ones((1, 19)), n_inliers=np.full((1, 19), n_inliers),
+                          n_views=np.array([4]), ids=np.array([i])))
+    return out
+
+
+def test_bone_lengths_are_medians_in_steps_over_the_whole_track():
+    e = [tuple(b) for b in BONE_LENGTH_CM].index(("neck", "nose"))
+    ids, L = bone_lengths(_bodies([4, 4, 4, 4, 9], [20.004, 20.0149, 19.99, 30.0, 11.0]), 3)
+    np.testing.assert_array_equal(ids, [4, 9])
+    assert L[0, e] == pytest.approx(20.005)  # steps 2000, 2001, 1999, 3000 -> (2000 + 2001) / 2 x 0.01 cm
+    assert L[1, e] == pytest.approx(11.0)
+    assert np.isnan(bone_lengths(_bodies([1], [20.0], n_inliers=2), 3)[1][0, e])  # too few inlier views: no bone
+
+
+def test_camera_noise_from_the_summed_histogram():
+    """The median bin's centre / 1.177 (a 2D Gaussian's median radius in sigmas); a camera with fewer than 30
+    detections takes the others' median."""
+    rng = np.random.default_rng(0)
+    hist = np.zeros((3, NOISE_BINS), np.int64)
+    for v, sigma in enumerate((2.0, 4.0)):
+        r = np.hypot(*rng.normal(scale=sigma, size=(2, 20_000)))
+        hist[v] = np.bincount((r / NOISE_BIN_PX).astype(int), minlength=NOISE_BINS)[:NOISE_BINS]
+    hist[2, 40] = 10  # 10 detections only
+    noise = noise_px_of(hist, 0.5)
+    np.testing.assert_allclose(noise[:2], [2.0, 4.0], rtol=0.02)
+    assert noise[2] == np.median(noise[:2])
