@@ -83,8 +83,8 @@ def robust_blocks(P: np.ndarray, var: np.ndarray, view: np.ndarray, uv_px: np.nd
     """Gauss-Newton blocks of M detections at the points P (n, 3) world cm: H (n, 3, 3) = sum w J^T J and
     g (n, 3) = sum w J^T r, with the Cauchy weight ``w = c / (1 + (r / k sigma)^2) / sigma^2`` (none behind the camera
     or outside the lens); var (M,) point of each detection (-1: none), view (M,) its row of ``cam``
-    (:func:`~dome_calib.recon.kernel.camera_table`), uv_px (M, 2), conf (M,); sigma_v (V,) each camera's noise; use (M,) the detections
-    taken (default all)."""
+    (:func:`~dome_calib.recon.kernel.camera_table`), uv_px (M, 2), conf (M,); sigma_v (V,) each camera's noise;
+    use (M,) the detections taken (default all)."""
     H = np.zeros((len(P), 3, 3))
     g = np.zeros((len(P), 3))
     use = np.ones(len(var), bool) if use is None else use
@@ -136,8 +136,8 @@ def _project_into_views(X, cam, u, v, z):  # pragma: no cover - compiled
 
 
 def project_into_views(X_cm: np.ndarray, cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(M, 3) world points into every view of ``cam`` (:func:`~dome_calib.recon.kernel.camera_table`) -> u, v (M, V) px (NaN behind the
-    camera or outside the lens) and z (M, V) camera-frame depth (cm)."""
+    """(M, 3) world points into every view of ``cam`` (:func:`~dome_calib.recon.kernel.camera_table`) -> u, v (M, V)
+    px (NaN behind the camera or outside the lens) and z (M, V) camera-frame depth (cm)."""
     M, V = len(X_cm), len(cam)
     u, v, z = np.empty((M, V)), np.empty((M, V)), np.empty((M, V))
     _project_into_views(np.ascontiguousarray(X_cm, dtype=np.float64), cam, u, v, z)

@@ -303,8 +303,8 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
     inlier = judged & (residual < (options.outvoted_k * sigma_v).astype(np.float32)[obs.view])
     n_inl = np.bincount(rec_var[inlier], minlength=lay.n_var)
     outvoted = judged & ~inlier
-    return TemporalResult(bodies=_write_back(bodies, lay, P, sigma, n_inl, shown), record_time=lay.bf_k[bf_rec].astype(np.int32),
-                          residual_px=residual, outvoted=outvoted)
+    return TemporalResult(bodies=_write_back(bodies, lay, P, sigma, n_inl, shown),
+                          record_time=lay.bf_k[bf_rec].astype(np.int32), residual_px=residual, outvoted=outvoted)
 
 
 def _sum_by(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:

@@ -92,7 +92,8 @@ def bone_lengths(bodies: list[Bodies], min_views: int) -> tuple[np.ndarray, np.n
 def session_priors(bodies: list[Bodies], cameras: CameraAgreement, options: TemporalOptions) -> SessionPriors:
     """The whole session's tracked bodies and per-frame tallies -> what every window holds (module docstring)."""
     track_ids, bone_cm = bone_lengths(bodies, options.bone_min_views)
-    return SessionPriors(track_ids=track_ids, bone_cm=bone_cm, noise_px=noise_px_of(cameras.noise, options.min_noise_px))
+    return SessionPriors(track_ids=track_ids, bone_cm=bone_cm,
+                         noise_px=noise_px_of(cameras.noise, options.min_noise_px))
 
 
 def margin_times(times_ms: np.ndarray, options: TemporalOptions) -> int:
