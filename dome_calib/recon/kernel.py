@@ -23,7 +23,7 @@ CAMERA_COLUMNS = 22
 
 def camera_table(views: ViewSet) -> np.ndarray:
     """(V, CAMERA_COLUMNS) float64: each view's parameters in one row (see CAMERA_COLUMNS), for compiled loops
-    (:mod:`dome_calib.recon.people.reprojection`)."""
+    (:mod:`dome_calib.recon.people.compiled`)."""
     V = len(views.names)
     return np.ascontiguousarray(np.concatenate([views.R.reshape(V, 9), views.t_cm.reshape(V, 3), views.intr[:, :4],
                                                 views.dist[:, :5], views.r2_max.reshape(V, 1)], axis=1),

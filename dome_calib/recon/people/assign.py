@@ -22,7 +22,7 @@ import numpy as np
 from dome_calib.recon.kernel import CameraKernel
 from dome_calib.recon.people.matching import dedupe, greedy_match
 from dome_calib.recon.people.proposals import AssociationOptions, propose, residual_pairs, world_rays
-from dome_calib.recon.people.reprojection import project_into_views
+from dome_calib.recon.people.compiled import project_into_views
 from dome_calib.recon.project import ViewSet
 from dome_calib.recon.triangulate import triangulate_dlt, undistort_detections
 

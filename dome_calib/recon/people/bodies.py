@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dome_calib.recon.people.assign import assigned_detections
+from dome_calib.recon.people.compiled import assigned_records
 from dome_calib.recon.people.matching import dedupe
 from dome_calib.recon.project import ViewSet
 from dome_calib.recon.triangulate import TriangulationOptions, triangulate
@@ -122,21 +123,9 @@ def observations_of(kp: np.ndarray, bodies: list[Bodies], first_row: int = 0, *,
     (:func:`~dome_calib.recon.people.resample.gather_people` at the bodies' times), bodies[t] with ``assigned``;
     rows numbered from ``first_row`` in time order. Every detection, inlier of the triangulation or not (the body
     over time judges them again); ``strong`` marks each joint's ``strongest`` most confident ones (ties: the lower
-    view index; confidences compared in steps of 1e-4)."""
+    view index; confidences compared in steps of 1e-4). One compiled pass
+    (:func:`~dome_calib.recon.people.compiled.assigned_records`)."""
     A = np.concatenate([b.assigned for b in bodies] + [np.zeros((0, kp.shape[1]), np.int16)])  # (B, V)
     time_of = np.repeat(np.arange(len(bodies)), [len(b.ids) for b in bodies])
-    b, v = np.nonzero(A >= 0)  # (Q,) assigned (body, view) pairs
-    det = kp[time_of[b], v, A[b, v]]  # (Q, 19, 3)
-    q, j = np.nonzero(det[..., 2] > 0)
-    conf = np.minimum(det[q, j, 2], 1.0)
-    B, V = A.shape
-    strong = np.ones(len(q), bool)
-    if V > strongest:  # per (body, joint): a unique key per view, the confidence first
-        key = np.full((B, 19, V), -1, np.int64)
-        rec_key = np.round(conf * 10_000).astype(np.int64) * V + (V - 1 - v[q])
-        key[b[q], j, v[q]] = rec_key
-        threshold = np.partition(key, V - strongest, axis=2)[:, :, V - strongest]
-        strong = rec_key >= threshold[b[q], j]
-    return Observations(row=(first_row + b[q]).astype(np.int32), view=v[q].astype(np.int16),
-                        joint=j.astype(np.int8), uv_px=det[q, j, :2].astype(np.float32),
-                        conf=conf.astype(np.float32), strong=strong)
+    body, view, joint, uv, conf, strong = assigned_records(kp, time_of, A, strongest)
+    return Observations(row=body + np.int32(first_row), view=view, joint=joint, uv_px=uv, conf=conf, strong=strong)

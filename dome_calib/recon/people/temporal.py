@@ -51,7 +51,7 @@ from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.kernel import camera_table
 from dome_calib.recon.people.bodies import Bodies, Observations
-from dome_calib.recon.people.reprojection import distances_px, robust_blocks
+from dome_calib.recon.people.compiled import distances_px, robust_blocks
 from dome_calib.recon.project import ViewSet
 
 BONE_A = np.array([JOINTS19.index(a) for a, _ in BONE_LENGTH_CM])

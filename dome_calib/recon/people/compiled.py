@@ -1,13 +1,13 @@
-"""Compiled (numba) projections of world points into views: the association's projection of every proposal into
-every view (:func:`project_into_views`), and the body over time's per-detection terms (each detection's robust
-reprojection term summed into its joint's Gauss-Newton block, :func:`robust_blocks`; each detection's distance to
-the fitted joint, :func:`distances_px`).
+"""The people stage's compiled (numba) loops: the association's projection of every proposal into every view
+(:func:`project_into_views`); the body over time's reading of its detections (:func:`assigned_records`), each
+detection's robust reprojection term summed into its joint's Gauss-Newton block (:func:`robust_blocks`), and each
+detection's distance to the fitted joint (:func:`distances_px`).
 
-numpy did these in some forty to sixty passes over the points with a temporary per pass; these loops do one pass
-(the body over time: 60 ns a detection against 315 ns; the full dome's association: see docs/reconstruct.md). The
-camera model is :mod:`dome_calib.camera`'s (OpenCV pinhole, 5 distortion terms; a point behind the camera or outside
-the lens's valid radius has no projection), in float64. Every sum runs over the detections in the order given, in
-one thread: the result does not depend on the machine's threads.
+numpy did these in tens of passes over the points with a temporary per pass; these loops do one pass (the body over
+time's terms: 60 ns a detection against 315 ns). The camera model is :mod:`dome_calib.camera`'s (OpenCV pinhole, 5
+distortion terms; a point behind the camera or outside the lens's valid radius has no projection), in float64. Every
+sum runs over the detections in the order given, in one thread: the result does not depend on the machine's
+threads.
 """
 from __future__ import annotations
 
@@ -20,19 +20,18 @@ from dome_calib.camera import MIN_DEPTH
 def _project(cam, v, X0, X1, X2, jacobian, J):  # pragma: no cover - compiled
     """Pixel (u, v) of a world point in view v, and (if ``jacobian``) d(u, v)/dX into J (2, 3); ok False behind the
     camera or outside the lens."""
-    c = cam[v]
-    xc = c[0] * X0 + c[1] * X1 + c[2] * X2 + c[9]
-    yc = c[3] * X0 + c[4] * X1 + c[5] * X2 + c[10]
-    zc = c[6] * X0 + c[7] * X1 + c[8] * X2 + c[11]
+    xc = cam[v, 0] * X0 + cam[v, 1] * X1 + cam[v, 2] * X2 + cam[v, 9]
+    yc = cam[v, 3] * X0 + cam[v, 4] * X1 + cam[v, 5] * X2 + cam[v, 10]
+    zc = cam[v, 6] * X0 + cam[v, 7] * X1 + cam[v, 8] * X2 + cam[v, 11]
     if not zc > MIN_DEPTH:
         return False, 0.0, 0.0
     x = xc / zc
     y = yc / zc
-    fx, fy, cx, cy = c[12], c[13], c[14], c[15]
-    k1, k2, p1, p2, k3 = c[16], c[17], c[18], c[19], c[20]
+    fx, fy, cx, cy = cam[v, 12], cam[v, 13], cam[v, 14], cam[v, 15]
+    k1, k2, p1, p2, k3 = cam[v, 16], cam[v, 17], cam[v, 18], cam[v, 19], cam[v, 20]
     xx, yy, xy = x * x, y * y, x * y
     r2 = xx + yy
-    if r2 > c[21]:
+    if r2 > cam[v, 21]:
         return False, 0.0, 0.0
     radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
     xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * xx)
@@ -47,8 +46,8 @@ def _project(cam, v, X0, X1, X2, jacobian, J):  # pragma: no cover - compiled
         eu = -(a * x + b * y)
         ev = -(b * x + d * y)
         for k in range(3):
-            J[0, k] = su * (a * c[k] + b * c[3 + k] + eu * c[6 + k])
-            J[1, k] = sv * (b * c[k] + d * c[3 + k] + ev * c[6 + k])
+            J[0, k] = su * (a * cam[v, k] + b * cam[v, 3 + k] + eu * cam[v, 6 + k])
+            J[1, k] = sv * (b * cam[v, k] + d * cam[v, 3 + k] + ev * cam[v, 6 + k])
     return True, xd * fx + cx, yd * fy + cy
 
 
@@ -142,3 +141,67 @@ def project_into_views(X_cm: np.ndarray, cam: np.ndarray) -> tuple[np.ndarray, n
     u, v, z = np.empty((M, V)), np.empty((M, V)), np.empty((M, V))
     _project_into_views(np.ascontiguousarray(X_cm, dtype=np.float64), cam, u, v, z)
     return u, v, z
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def _count_records(kp, time_of, A, counts):  # pragma: no cover - compiled
+    for b in range(A.shape[0]):
+        t = time_of[b]
+        for v in range(A.shape[1]):
+            a = A[b, v]
+            if a < 0:
+                continue
+            for j in range(19):
+                if kp[t, v, a, j, 2] > 0:
+                    counts[b] += 1
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def _fill_records(kp, time_of, A, starts, strongest, row, view, joint, uv, conf, strong):  # pragma: no cover
+    V = A.shape[1]
+    keys = np.empty((19, V), np.int64)
+    where = np.empty((19, V), np.int64)
+    n = np.empty(19, np.int64)
+    for b in range(A.shape[0]):
+        t = time_of[b]
+        m = starts[b]
+        n[:] = 0
+        for v in range(V):
+            a = A[b, v]
+            if a < 0:
+                continue
+            for j in range(19):
+                c = kp[t, v, a, j, 2]
+                if c > 0:
+                    c = min(c, 1.0)
+                    row[m], view[m], joint[m] = b, v, j
+                    uv[m, 0], uv[m, 1], conf[m] = kp[t, v, a, j, 0], kp[t, v, a, j, 1], c
+                    keys[j, n[j]] = np.int64(np.round(np.float64(c) * 10_000.0)) * V + (V - 1 - v)
+                    where[j, n[j]] = m
+                    n[j] += 1
+                    m += 1
+        for j in range(19):
+            k = n[j]
+            threshold = np.int64(-1)
+            if k > strongest:
+                threshold = np.partition(keys[j, :k].copy(), k - strongest)[k - strongest]
+            for i in range(k):
+                strong[where[j, i]] = keys[j, i] >= threshold
+
+
+def assigned_records(kp: np.ndarray, time_of: np.ndarray, assigned: np.ndarray, strongest: int) -> tuple:
+    """The detections assigned to B bodies, one record per (body, view, joint) with a detection, in that order:
+    kp (T, V, N, 19, 3), time_of (B,) each body's time, assigned (B, V) its detection per view (-1: none) ->
+    body (M,) int32, view (M,) int16, joint (M,) int8, uv_px (M, 2) float32, conf (M,) float32 clipped to 1,
+    strong (M,) bool: among its (body, joint)'s ``strongest`` most confident (confidence in steps of 1e-4, ties: the
+    lower view)."""
+    kp = np.ascontiguousarray(kp, dtype=np.float32)
+    time_of, A = _ints(time_of), np.ascontiguousarray(assigned)
+    counts = np.zeros(len(A), np.int64)
+    _count_records(kp, time_of, A, counts)
+    starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    M = int(starts[-1])
+    out = (np.empty(M, np.int32), np.empty(M, np.int16), np.empty(M, np.int8), np.empty((M, 2), np.float32),
+           np.empty(M, np.float32), np.empty(M, bool))
+    _fill_records(kp, time_of, A, starts, int(strongest), *out)
+    return out
