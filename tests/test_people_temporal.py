@@ -196,3 +196,33 @@ def test_camera_noise_from_the_summed_histogram():
     noise = noise_px_of(hist, 0.5)
     np.testing.assert_allclose(noise[:2], [2.0, 4.0], rtol=0.02)
     assert noise[2] == np.median(noise[:2])
+
+
+def test_assigned_records_against_plain_numpy():
+    """The compiled reading of a window's detections: every (body, view, joint) with a detection, in that order,
+    confidences clipped to 1, and per (body, joint) the ``strongest`` most confident (1e-4 steps, ties: the lower
+    view) marked, as plain numpy finds them."""
+    from dome_calib.recon.people.compiled import assigned_records
+
+    rng = np.random.default_rng(4)
+    T, V, N, B, K = 3, 40, 4, 7, 5
+    kp = rng.uniform(0, 500, (T, V, N, 19, 3)).astype(np.float32)
+    kp[..., 2] = np.where(rng.random((T, V, N, 19)) < 0.3, 0.0, rng.choice([0.5, 0.7, 1.02], (T, V, N, 19)))
+    time_of = rng.integers(0, T, B)
+    A = np.where(rng.random((B, V)) < 0.2, -1, rng.integers(0, N, (B, V))).astype(np.int16)
+    body, view, joint, uv, conf, strong = assigned_records(kp, time_of, A, K)
+    b, v = np.nonzero(A >= 0)
+    det = kp[time_of[b], v, A[b, v]]
+    q, j = np.nonzero(det[..., 2] > 0)
+    np.testing.assert_array_equal(body, b[q])
+    np.testing.assert_array_equal(view, v[q])
+    np.testing.assert_array_equal(joint, j)
+    np.testing.assert_array_equal(uv, det[q, j, :2])
+    np.testing.assert_array_equal(conf, np.minimum(det[q, j, 2], 1.0))
+    for bb in range(B):
+        for jj in range(19):
+            mine = np.flatnonzero((body == bb) & (joint == jj))
+            order = np.lexsort((view[mine], -np.round(conf[mine].astype(float) * 1e4)))  # confidence, then view
+            expected = np.zeros(len(mine), bool)
+            expected[order[:K]] = True
+            np.testing.assert_array_equal(strong[mine], expected)
