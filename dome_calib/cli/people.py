@@ -42,10 +42,10 @@ def reconstruct(
                                "16-bit millimetres, k the depth sync table's index): a joint that a Kinect sees "
                                "through (in front of the surface it measured, beyond its noise) is dropped. Needs "
                                "the bundle's Kinect calibration and depth sync tables."),
-    workers: int = typer.Option(1, "--workers", help="Processes for long sessions (chunks of 600 times; 1 to "
-                                  "1024)."),
+    workers: int = typer.Option(1, "--workers", help="Processes for long sessions (chunks of 600 times, then the "
+                                "body over time's windows; 1 to 1024)."),
     scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler (tcp://HOST:PORT) to run the chunks "
-                                  "on instead of local processes."),
+                                  "and windows on instead of local processes."),
 ) -> None:
     """Reconstruct groups of people from per-camera OpenPose detections: find each person across the cameras,
     triangulate their joints in the world frame (cm), keep their id over time, and write one Panoptic
