@@ -2,7 +2,8 @@
 walking past, talking, crouching, leaving, entering; dome_calib.synth.detector's failures) seen by the panel setup
 (panels 1-2: 48 VGA, 8 HD, 4 Kinect colour), reconstructed once over everything and again cut other ways: the
 default chunks of 600 times (issue 42's case: 637 times, two chunks), chunks of 100 on a 2-process pool, batches
-of 5 times. Each cut is compared with the whole run, body by body and joint by joint.
+of 5 times; the body over time on (the default: windows of the session's own time index, 4 of them here). Each cut
+is compared with the whole run, body by body and joint by joint.
 
 Run: .venv/bin/python bench/people_cuts.py [--times 637] [--people 7] [--seed 0]
 Prints one JSON object per line: the machine, then per run its speed (ms per time, wall and process time of this
@@ -10,8 +11,9 @@ process), then per cut against the whole run:
 
 - ids_equal: every time holds the same ids; bodies_only_in_one: (time, id) present in one run only;
 - max_joint_diff_cm, joints_over_1cm, joints_over_1e-3cm: over the joints both runs reconstructed, bodies paired by
-  id; joints_in_one_only: joints one run reconstructed and the other did not;
-- camera_tallies_equal: cameras.json's counts (detections, used, error histogram) equal.
+  id; joints_in_one_only: joints one run reconstructed and the other did not; max_c_diff: of the joints' c;
+- camera_tallies_equal: cameras.json's counts (detections, used, error histogram, the body over time's judged and
+  outvoted detections, the noise histogram) equal.
 """
 from __future__ import annotations
 
@@ -46,7 +48,7 @@ def emit(**fields) -> None:
 
 def compare(whole, other) -> dict:
     """The cut ``other`` against ``whole`` (see the module docstring)."""
-    ids_equal, only_one, diffs, one_sided = True, 0, [], 0
+    ids_equal, only_one, diffs, one_sided, dc = True, 0, [], 0, 0.0
     for a, b in zip(whole.bodies, other.bodies):
         ia, ib = set(a.ids.tolist()), set(b.ids.tolist())
         ids_equal &= ia == ib
@@ -56,13 +58,14 @@ def compare(whole, other) -> dict:
             both = np.isfinite(Xa).all(1) & np.isfinite(Xb).all(1)
             one_sided += int((np.isfinite(Xa).all(1) != np.isfinite(Xb).all(1)).sum())
             diffs.append(np.linalg.norm(Xa[both] - Xb[both], axis=1))
+            dc = max(dc, float(np.abs(a.confidence[a.ids == i][0] - b.confidence[b.ids == i][0]).max()))
     d = np.concatenate(diffs) if diffs else np.zeros(0)
     tallies = all(np.array_equal(getattr(whole.cameras, f), getattr(other.cameras, f))
-                  for f in ("detected", "used", "hist"))
+                  for f in ("detected", "used", "hist", "judged", "outvoted", "noise"))
     return {"ids_equal": bool(ids_equal), "bodies_only_in_one": only_one,
             "max_joint_diff_cm": round(float(d.max(initial=0.0)), 6), "joints_over_1cm": int((d > 1.0).sum()),
             "joints_over_1e-3cm": int((d > 1e-3).sum()), "joints_in_one_only": one_sided,
-            "joints_compared": int(len(d)), "camera_tallies_equal": bool(tallies)}
+            "joints_compared": int(len(d)), "max_c_diff": round(dc, 8), "camera_tallies_equal": bool(tallies)}
 
 
 def main() -> None:

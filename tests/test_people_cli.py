@@ -180,8 +180,8 @@ def test_bad_options_one_line(group, dome_calib_cli, tmp_path, args, message):
 
 
 def test_long_session_chunks_read_their_own_files(group, tmp_path):
-    """Chunks of 5 times (overlap 2) on a 2-process pool, each task reading only its chunk's OpenPose files: the
-    same people with the same ids as one run over everything."""
+    """Chunks of 5 times on a 2-process pool, each task reading only its chunk's OpenPose files (and each window of
+    the body over time its own): the same people with the same ids as one run over everything."""
     from dome_calib.executor.local import LocalProcessExecutor
     from dome_calib.recon.people.commands import reconstruct_folder
     from dome_calib.recon.people.run import PeopleOptions

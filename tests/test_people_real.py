@@ -85,6 +85,9 @@ def test_pose2sim_balancing(run, dome_calib_cli):
     # cameras 01, 02, 04 agree within a few pixels; camera 03 is ~40 px off all the time: flagged.
     assert max(med["00_01"], med["00_02"], med["00_04"]) < 8.0 and med["00_03"] > 25.0
     assert report["flagged"] == ["00_03"]
+    # the body over time outvotes camera 03's detections far more often than the others' (69 % against 2-16 %)
+    share = {n: c["outvoted_share"] for n, c in report["cameras"].items()}
+    assert share["00_03"] > 2 * max(share["00_01"], share["00_02"], share["00_04"])
     # Pose2Sim's result, axes mapped: reprojected onto the detections of the agreeing cameras it lands within
     # ~12 px (this is the check of WORLD_FROM_TRC), and our joints are within a few cm of it.
     markers, P2S = read_trc_cm(root / "pose2sim_result" / "S00_P00_T01_BalancingTrial_0-100.trc")
@@ -100,8 +103,10 @@ def test_pose2sim_balancing(run, dome_calib_cli):
         assert np.nanmedian(errs) < 15.0, cam
     dist = np.linalg.norm(X[:, ji] - P2S[:, mi], axis=-1)
     per_joint = np.nanmedian(dist, axis=0)
-    assert np.all(per_joint < 6.0), dict(zip(COMMON, per_joint.round(1)))
-    assert np.isfinite(dist).mean() > 0.9
+    # Pose2Sim's result is a peer's, not a truth (it keeps camera 03, 40 px off): a few cm apart, the left hip most
+    # (8 cm; 10 cm for both methods once camera 03 is left out: bench/people_real.py)
+    assert np.all(per_joint < 9.0) and per_joint.mean() < 3.0, dict(zip(COMMON, per_joint.round(1)))
+    assert np.isfinite(dist).mean() > 0.99  # the body over time places the joints the per-frame triangulation left
 
 
 def test_the_partial_person_is_a_two_view_onlooker(run, dome_calib_cli):
@@ -112,7 +117,7 @@ def test_the_partial_person_is_a_two_view_onlooker(run, dome_calib_cli):
                          "BODY_25B", "--camera-map", CAMERA_MAP, "--fps", "60", "--min-views", "2", "-o",
                          str(root / "out2"))
     assert out.returncode == 0, out.stderr
-    frames, dist = 0, []
+    frames, dist, conf = 0, [], []
     for f in sorted((root / "out2").glob("body3DScene_*.json")):
         _, bodies = read_scene(f)
         assert set(bodies) <= {0, 1} and 0 in bodies
@@ -120,5 +125,23 @@ def test_the_partial_person_is_a_two_view_onlooker(run, dome_calib_cli):
             frames += 1
             a, b = (np.where(bodies[i][:, 3:] < 0, np.nan, bodies[i][:, :3]) for i in (0, 1))
             dist.append(np.linalg.norm(np.nanmedian(a, 0) - np.nanmedian(b, 0)))
-            assert np.all(bodies[1][:, 3] < 0.6)  # low-confidence detections
+            conf.append((bodies[0][:, 3][bodies[0][:, 3] >= 0].mean(), bodies[1][:, 3][bodies[1][:, 3] >= 0].mean()))
+    # two views of low-confidence detections (0.3-0.4) place the onlooker less surely than four place the participant
+    assert np.mean([c[1] for c in conf]) < np.mean([c[0] for c in conf])
     assert frames > 50 and 250 < np.median(dist) < 400
+
+
+def test_per_frame_leaves_out_what_the_body_places(run, dome_calib_cli):
+    """--per-frame: each time's own triangulation, c the detections' mean confidence; it leaves out joints (a
+    hip seen by one good camera) that the body over time places."""
+    root, _ = run
+    args = ("reconstruct", str(root / "pose"), "--bundle", str(root / "bundle"), "--body-model", "BODY_25B",
+            "--camera-map", CAMERA_MAP, "--fps", "60")
+    for flag, out in ((("--per-frame",), "pf"), ((), "tm")):
+        done = dome_calib_cli(*args, *flag, "-o", str(root / out))
+        assert done.returncode == 0, done.stderr
+    _, per_frame = _ours(root / "pf")
+    _, body = _ours(root / "tm")
+    assert np.isfinite(body).all(-1).sum() > np.isfinite(per_frame).all(-1).sum()
+    c = [read_scene(f)[1][0][:, 3] for f in sorted((root / "pf").glob("body3DScene_*.json"))]
+    assert max(float(x.max()) for x in c) <= 1.05  # OpenPose's confidences (heatmap peaks reach 1.04)

@@ -12,11 +12,13 @@ from dome_calib.bundle import SyncTable
 from dome_calib.executor.local import LocalProcessExecutor
 from dome_calib.recon.people.chunks import reconstruct_people_chunked
 from dome_calib.recon.people.matching import greedy_match, nan_median
-from dome_calib.recon.people.proposals import AssociationOptions, select_pairs
+from dome_calib.recon.people.proposals import AssociationOptions, residual_pairs, select_pairs
 from dome_calib.recon.people.resample import interpolate_people
 from dome_calib.recon.people.run import PeopleOptions, reconstruct_people
 from dome_calib.recon.people.sources import InMemorySource, PeopleStream, people_streams
+from dome_calib.recon.people.temporal import TemporalOptions
 from dome_calib.recon.people.tracking import TrackingOptions, smooth_track, track_bodies
+from dome_calib.recon.people.windows import time_windows
 from dome_calib.recon.project import view_set
 
 from .people_helpers import group_detections, group_joints_cm
@@ -100,6 +102,13 @@ def test_select_pairs_bounded_and_spread():
     cos = np.abs((ax[pairs[:, 0]] * ax[pairs[:, 1]]).sum(1))
     assert np.all(cos < np.cos(np.radians(3)))
     np.testing.assert_array_equal(select_pairs(views, 120), pairs)  # deterministic
+    # the residual proposals' pairs (filtered from one ranking of all pairs) are select_pairs on the leftover views
+    rng = np.random.default_rng(0)
+    for share in (0.01, 0.1, 0.5, 0.9):
+        left = rng.random(len(views.names)) < share
+        idx = np.flatnonzero(left)
+        expected = idx[select_pairs(views.subset([views.names[i] for i in idx]), 2 * 48)] if len(idx) >= 2 else []
+        np.testing.assert_array_equal(residual_pairs(views, left, 48).reshape(-1, 2), np.reshape(expected, (-1, 2)))
 
 
 def test_group_found_with_oracle_accuracy(scene):
@@ -163,8 +172,9 @@ def _same_people(a, b, tol_cm):
 def test_no_result_depends_on_how_the_work_is_cut(mixed_group):
     """Issue 42: chunked and unchunked runs differed by up to 42 cm on single joints (the RANSAC draws depended on
     the batch a time fell in; ids were stitched over chunk overlaps). Over 50 times of a group that enters, leaves
-    and crosses: one run, chunks of 13 (4 chunks) in this process and on a 2-process pool, batches of 5: the same
-    ids and every joint within 1e-3 cm."""
+    and crosses, with the body over time in windows of one margin (2 windows): one run, chunks of 13 (4 chunks) in
+    this process and on a 2-process pool, batches of 5: the same ids, every joint within 1e-3 cm, the same c and
+    the same tallies (each time counted once)."""
     bundle, people = mixed_group
     cams = sorted(people)
     views = view_set(bundle, cams)
@@ -172,18 +182,25 @@ def test_no_result_depends_on_how_the_work_is_cut(mixed_group):
     vga = bundle.sync.streams["vga"]
     times = vga.univ_time_ms[(vga.univ_time_ms >= 1250.0) & (vga.univ_time_ms <= 3250.0)]
     assert len(times) > 3 * 13
-    whole = reconstruct_people(views, streams, times)
+    temporal = TemporalOptions(window_margins=1)
+    assert len(time_windows(times, temporal)) == 2
+    whole = reconstruct_people(views, streams, times, PeopleOptions(temporal=temporal))
     assert len({int(i) for b in whole.bodies for i in b.ids}) >= 6
     calls = []
-    serial = reconstruct_people_chunked(views, streams, times, PeopleOptions(chunk_times=13, batch_times=5),
+    serial = reconstruct_people_chunked(views, streams, times, PeopleOptions(chunk_times=13, batch_times=5,
+                                                                             temporal=temporal),
                                         progress=lambda d, t: calls.append((d, t)))
-    with LocalProcessExecutor(2) as pool:  # the chunks go through a process pool (picklable tasks)
-        pooled = reconstruct_people_chunked(views, streams, times, PeopleOptions(chunk_times=13), executor=pool)
+    with LocalProcessExecutor(2) as pool:  # the chunks and the windows go through a process pool (picklable tasks)
+        pooled = reconstruct_people_chunked(views, streams, times, PeopleOptions(chunk_times=13, temporal=temporal),
+                                            executor=pool)
     for other in (serial, pooled):
         _same_people(whole, other, 1e-3)
-        np.testing.assert_array_equal(other.cameras.used, whole.cameras.used)  # cameras.json: each time once
-        np.testing.assert_array_equal(other.cameras.hist, whole.cameras.hist)
-    assert calls[-1] == (len(times), len(times)) and len(calls) > 4
+        for x, y in zip(whole.bodies, other.bodies):
+            np.testing.assert_allclose(x.confidence[np.argsort(x.ids)], y.confidence[np.argsort(y.ids)], atol=1e-6)
+        for tally in ("detected", "used", "hist", "judged", "outvoted", "noise"):  # cameras.json: each time once
+            np.testing.assert_array_equal(getattr(other.cameras, tally), getattr(whole.cameras, tally))
+    assert whole.cameras.judged.sum() > 0
+    assert calls[-1] == (2 * len(times), 2 * len(times)) and len(calls) > 5  # per frame, then over time
 
 
 def _walkers(times, n, offsets):

@@ -59,6 +59,18 @@ def test_kernel_undistort_matches_pixels_to_normalized(views):
         x, y = CameraKernel(views).undistort(uv[..., 0], uv[..., 1], iterations=iterations)
         err_px = np.hypot(x - ref[..., 0], y - ref[..., 1]) * views.intr[:, 0]
         assert np.nanmax(err_px) < tol_px
+    # the compiled pass is the numpy expression of the Newton steps (CameraKernel.distort), to the last bit
+    k = CameraKernel(views)
+    xd0 = (uv[..., 0].astype(np.float32) - k.cx) / k.fx
+    yd0 = (uv[..., 1].astype(np.float32) - k.cy) / k.fy
+    xs, ys = xd0, yd0
+    for _ in range(2):
+        xd, yd, a, b, d, _ = k.distort(xs, ys)
+        inv_det = np.float32(1.0) / (a * d - b * b)
+        xs, ys = xs - (d * (xd - xd0) - b * (yd - yd0)) * inv_det, ys - (a * (yd - yd0) - b * (xd - xd0)) * inv_det
+    x, y = k.undistort(uv[..., 0], uv[..., 1])
+    np.testing.assert_array_equal(x, xs)
+    np.testing.assert_array_equal(y, ys)
 
 
 def test_dlt_is_exact_on_noise_free_rays(views):

@@ -31,18 +31,21 @@ def reconstruct(
     reference: str = typer.Option(None, "--reference", help="Stream whose frames are the output times (vga, hd, "
                                   "KINECTNODE<n>; default vga, else hd)."),
     min_views: int = typer.Option(3, "--min-views", help="A person must be seen by this many cameras (2 or more)."),
-    smooth: int = typer.Option(0, "--smooth", help="Smooth each person's joints over this many frames either side "
-                               "(a local straight-line fit: no lag for steady motion); 0 = off."),
+    smooth: int = typer.Option(0, "--smooth", help="Smooth each person's per-frame joints over this many frames "
+                               "either side (a local straight-line fit: no lag for steady motion); 0 = off."),
+    per_frame: bool = typer.Option(False, "--per-frame", help="Each time's own triangulation only, without the body "
+                                   "over time (constant bones, smooth motion, every detection weighed against the "
+                                   "body; the default and the better result)."),
     fps: str = typer.Option("30", "--fps", help="Frame rate of a bundle without sync tables (for univTime; e.g. 30, "
                       "30000/1001, 1 for a time-lapse rig)."),
     depth: Path = typer.Option(None, "--depth", help="Folder of Kinect depth frames (KINECTNODE<n>/depth_<k>.png, "
                                "16-bit millimetres, k the depth sync table's index): a joint that a Kinect sees "
                                "through (in front of the surface it measured, beyond its noise) is dropped. Needs "
                                "the bundle's Kinect calibration and depth sync tables."),
-    workers: int = typer.Option(1, "--workers", help="Processes for long sessions (chunks of 600 times; 1 to "
-                                  "1024)."),
+    workers: int = typer.Option(1, "--workers", help="Processes for long sessions (chunks of 600 times, then the "
+                                "body over time's windows; 1 to 1024)."),
     scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler (tcp://HOST:PORT) to run the chunks "
-                                  "on instead of local processes."),
+                                  "and windows on instead of local processes."),
 ) -> None:
     """Reconstruct groups of people from per-camera OpenPose detections: find each person across the cameras,
     triangulate their joints in the world frame (cm), keep their id over time, and write one Panoptic
@@ -54,7 +57,7 @@ def reconstruct(
         from dome_calib.recon.people.commands import (check_workers, format_summary, people_options,
                                                       plan_reconstruction, run_reconstruction)
 
-        options = people_options(min_views=min_views, smooth=smooth, fps=fps)
+        options = people_options(min_views=min_views, smooth=smooth, fps=fps, per_frame=per_frame)
         check_workers(workers)
         plan = plan_reconstruction(detections, bundle, out, body_model=body_model, camera_map=camera_map,
                                    reference=reference, options=options,

@@ -11,12 +11,24 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from dome_calib.camera import MIN_DEPTH
 from dome_calib.recon.project import ViewSet
 
 F32 = np.float32
+#: Columns of :func:`camera_table`: R (row-major, 9), t_cm (3), fx, fy, cx, cy, k1, k2, p1, p2, k3, r2_max.
+CAMERA_COLUMNS = 22
+
+
+def camera_table(views: ViewSet) -> np.ndarray:
+    """(V, CAMERA_COLUMNS) float64: each view's parameters in one row (see CAMERA_COLUMNS), for compiled loops
+    (:mod:`dome_calib.recon.people.compiled`)."""
+    V = len(views.names)
+    return np.ascontiguousarray(np.concatenate([views.R.reshape(V, 9), views.t_cm.reshape(V, 3), views.intr[:, :4],
+                                                views.dist[:, :5], views.r2_max.reshape(V, 1)], axis=1),
+                                dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -30,7 +42,8 @@ class Evaluation:
 
 
 class CameraKernel:
-    """Float32 component arrays of a :class:`ViewSet` and the batched projection / Jacobian / normal equations."""
+    """Float32 component arrays of a :class:`ViewSet` and the batched projection / Jacobian / normal equations;
+    ``table``: the views' parameters in float64 rows (:func:`camera_table`)."""
 
     def __init__(self, views: ViewSet) -> None:
         V = len(views.names)
@@ -40,6 +53,7 @@ class CameraKernel:
         self.fx, self.fy, self.cx, self.cy = (views.intr[:, i].astype(F32) for i in range(4))
         self.k1, self.k2, self.p1, self.p2, self.k3 = (views.dist[:, i].astype(F32) for i in range(5))
         self.r2_max = views.r2_max.astype(F32)
+        self.table = camera_table(views)
 
     def camera_points(self, X_world: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(P, 3) world cm -> x, y, z (P, V) camera-frame cm."""
@@ -91,18 +105,17 @@ class CameraKernel:
 
         Float32, used to initialise the solvers only. On the real Panoptic lenses (tested against
         :func:`dome_calib.camera.pixels_to_normalized`) two iterations are within 0.02 px everywhere in the image,
-        three reach the float32 floor (~3e-4 px).
+        three reach the float32 floor (~3e-4 px). One compiled pass (:func:`_undistort`: the numpy expression of
+        :meth:`distort`, operation for operation in float32, so the same numbers to the last bit).
         """
-        xd0 = (np.asarray(u_px, dtype=F32) - self.cx) / self.fx
-        yd0 = (np.asarray(v_px, dtype=F32) - self.cy) / self.fy
-        x, y = xd0.copy(), yd0.copy()
-        for _ in range(iterations):
-            xd, yd, a, b, d, _ = self.distort(x, y)
-            ex, ey = xd - xd0, yd - yd0
-            inv_det = F32(1.0) / (a * d - b * b)
-            x = x - (d * ex - b * ey) * inv_det
-            y = y - (a * ey - b * ex) * inv_det
-        return x, y
+        u = np.ascontiguousarray(np.broadcast_to(np.asarray(u_px, dtype=F32), np.shape(u_px)))
+        v = np.ascontiguousarray(np.broadcast_to(np.asarray(v_px, dtype=F32), np.shape(u_px)))
+        shape = u.shape
+        u, v = u.reshape(-1, self.V), v.reshape(-1, self.V)
+        x, y = np.empty_like(u), np.empty_like(u)
+        _undistort(u, v, self.fx, self.fy, self.cx, self.cy, self.k1, self.k2, self.p1, self.p2, self.k3,
+                   int(iterations), x, y)
+        return x.reshape(shape), y.reshape(shape)
 
     def reprojection_error_px(self, X_world: np.ndarray, u_obs: np.ndarray, v_obs: np.ndarray) -> np.ndarray:
         """(P, V) pixel distance between projections and observations (NaN behind the camera / outside the lens)."""
@@ -130,3 +143,31 @@ def normal_equations(ev: Evaluation, weight: np.ndarray, penalty_px: float) -> t
     H = M[:, :3, :3] + M[:, 3:, 3:]
     g = (wJ[:, :3] @ r_u[..., None] + wJ[:, 3:] @ r_v[..., None])[..., 0].astype(np.float64)
     return H, g, cost
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def _undistort(u, v, fx, fy, cx, cy, k1, k2, p1, p2, k3, iterations, x_out, y_out):  # pragma: no cover - compiled
+    """:meth:`CameraKernel.undistort` of (M, V) float32 pixels: every operation of the numpy code in the same
+    order, in float32 (no fused multiply-add: numba contracts nothing without fastmath)."""
+    one, two, three, six = np.float32(1.0), np.float32(2.0), np.float32(3.0), np.float32(6.0)
+    for m in range(u.shape[0]):
+        for k in range(u.shape[1]):
+            xd0 = (u[m, k] - cx[k]) / fx[k]
+            yd0 = (v[m, k] - cy[k]) / fy[k]
+            x, y = xd0, yd0
+            for _ in range(iterations):
+                xx, yy, xy = x * x, y * y, x * y
+                r2 = xx + yy
+                radial = one + r2 * (k1[k] + r2 * (k2[k] + r2 * k3[k]))
+                xd = x * radial + two * p1[k] * xy + p2[k] * (r2 + two * xx)
+                yd = y * radial + p1[k] * (r2 + two * yy) + two * p2[k] * xy
+                two_dr = two * (k1[k] + r2 * (two * k2[k] + three * k3[k] * r2))
+                b = xy * two_dr + two * p1[k] * x + two * p2[k] * y
+                a = radial + xx * two_dr + two * p1[k] * y + six * p2[k] * x
+                d = radial + yy * two_dr + six * p1[k] * y + two * p2[k] * x
+                ex, ey = xd - xd0, yd - yd0
+                inv_det = one / (a * d - b * b)
+                x = x - (d * ex - b * ey) * inv_det
+                y = y - (a * ey - b * ex) * inv_det
+            x_out[m, k] = x
+            y_out[m, k] = y

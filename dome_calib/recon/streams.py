@@ -176,8 +176,9 @@ class Brackets:
         (also when it holds no frame at all: a chunk of time its detections do not reach)."""
         if len(values) == 0:
             return np.zeros((len(pos),) + values.shape[1:], dtype=values.dtype)
-        mask = has.reshape((-1,) + (1,) * (values.ndim - 1))
-        return np.where(mask, values[pos], values.dtype.type(0))
+        out = values[pos]  # a copy: zeroed in place (one pass over the frames, not two)
+        out[~np.asarray(has, dtype=bool)] = 0
+        return out
 
 
 def frame_brackets(table: SyncTable, frame_index: np.ndarray, univ_time_ms: np.ndarray, *,

@@ -28,6 +28,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from dome_calib.bundle import Bundle
+from dome_calib.recon.body_models import JOINTS19
 from dome_calib.recon.openpose_io import read_openpose_folder
 from dome_calib.recon.people.resample import interpolate_people
 from dome_calib.recon.people.run import PeopleOptions
@@ -245,3 +246,27 @@ def judge_group_session(group_folder: str | Path, bundle: Bundle, people_folder:
             "people": int(present.any(0).sum()), "ids": len({int(i) for ids in body_ids for i in ids}),
             "views": len(views.names), "truth_times": int(len(truth.frames)), "scenario": truth.scenario,
             "max_missed_ms": float(options.tracking.max_missed_ms)}
+
+
+#: The limbs of the PCP score (Shelf / Campus style, joints19): torso, head, upper and lower arms and legs.
+PCP_LIMBS = {"torso": ("neck", "body_center"), "head": ("neck", "nose"),
+             "l_upper_arm": ("l_shoulder", "l_elbow"), "r_upper_arm": ("r_shoulder", "r_elbow"),
+             "l_lower_arm": ("l_elbow", "l_wrist"), "r_lower_arm": ("r_elbow", "r_wrist"),
+             "l_upper_leg": ("l_hip", "l_knee"), "r_upper_leg": ("r_hip", "r_knee"),
+             "l_lower_leg": ("l_knee", "l_ankle"), "r_lower_leg": ("r_knee", "r_ankle")}
+
+
+def pcp(ours: np.ndarray, truth: np.ndarray, mask: np.ndarray, alpha: float = 0.5) -> dict:
+    """Percentage of correct parts: a limb is correct where the mean distance of its two joints to the truth is at
+    most ``alpha`` x its true length; ours (T, P, 19, 3) matched to truth (T, P, 19, 3) (NaN: missing, so wrong);
+    over the (time, person) of ``mask`` (T, P). Returns per limb and their mean, in percent."""
+    out = {}
+    for name, (a, b) in PCP_LIMBS.items():
+        ia, ib = JOINTS19.index(a), JOINTS19.index(b)
+        err = 0.5 * (np.linalg.norm(ours[..., ia, :] - truth[..., ia, :], axis=-1)
+                     + np.linalg.norm(ours[..., ib, :] - truth[..., ib, :], axis=-1))
+        length = np.linalg.norm(truth[..., ia, :] - truth[..., ib, :], axis=-1)
+        ok = np.nan_to_num(err, nan=np.inf) <= alpha * length
+        out[name] = round(100.0 * float(ok[mask].mean()), 2) if mask.any() else None
+    out["mean"] = round(float(np.mean([v for v in out.values() if v is not None])), 2) if mask.any() else None
+    return out

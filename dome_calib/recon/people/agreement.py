@@ -2,7 +2,12 @@
 
 Per camera: the people it detected (with enough joints), the ones used by a reconstructed body, and a histogram of
 the pixel distance between its used joints and the reconstructed joints. A camera that moved since calibration has
-a large median and a small share used.
+a large median and a small share used. Every tally is a count or a histogram of integer bins: summed over chunks of
+times in any order, it is the same as over the whole session (each time counted once).
+
+The per-frame tallies also hold each camera's pixel-noise histogram, from which the body over time measures the
+detector's noise once over the whole session (:func:`~dome_calib.recon.people.temporal.noise_px_of`); the body over
+time then gives its own verdict (:func:`tally_verdicts`), which replaces the per-frame histogram.
 """
 from __future__ import annotations
 
@@ -17,27 +22,48 @@ from dome_calib.recon.triangulate import reprojection_error_px
 #: Histogram of reprojection errors per camera: bins of 0.1 px up to 200 px (the last bin holds everything above).
 ERROR_BIN_PX = 0.1
 ERROR_BINS = 2001
+#: Histogram of each camera's pixel noise: bins of 0.05 px up to 30 px (farther is a swap or a neighbour, not noise).
+NOISE_BIN_PX = 0.05
+NOISE_MAX_PX = 30.0
+NOISE_BINS = int(round(NOISE_MAX_PX / NOISE_BIN_PX))
 
 
 @dataclass
 class CameraAgreement:
     """Per camera (``names`` order): detected (V,) people detected (with enough joints), used (V,) of them in a
-    body, hist (V, ERROR_BINS) counts of |reprojection - detection| of the used joints in ERROR_BIN_PX bins."""
+    body, hist (V, ERROR_BINS) counts of |reprojection - detection| of the used joints in ERROR_BIN_PX bins;
+    judged (V,) joint detections the body over time weighed, outvoted (V,) of them it put aside (see
+    :mod:`~dome_calib.recon.people.temporal`); noise (V, NOISE_BINS) counts of the used joints' distances within
+    NOISE_MAX_PX, each scaled by ``sqrt(2n / (2n - 3))`` for a joint fitted to n views (its 3 degrees of freedom
+    taken from their 2n: the residuals are smaller than the noise), in NOISE_BIN_PX bins."""
 
     names: list[str]
     detected: np.ndarray
     used: np.ndarray
     hist: np.ndarray
+    judged: np.ndarray
+    outvoted: np.ndarray
+    noise: np.ndarray
 
     @classmethod
     def empty(cls, names: list[str]) -> CameraAgreement:
         V = len(names)
-        return cls(names, np.zeros(V, np.int64), np.zeros(V, np.int64), np.zeros((V, ERROR_BINS), np.int64))
+        return cls(names, np.zeros(V, np.int64), np.zeros(V, np.int64), np.zeros((V, ERROR_BINS), np.int64),
+                   np.zeros(V, np.int64), np.zeros(V, np.int64), np.zeros((V, NOISE_BINS), np.int64))
 
     def add(self, other: CameraAgreement) -> None:
         self.detected += other.detected
         self.used += other.used
         self.hist += other.hist
+        self.judged += other.judged
+        self.outvoted += other.outvoted
+        self.noise += other.noise
+
+    def with_verdicts(self, verdicts: CameraAgreement) -> CameraAgreement:
+        """These tallies with the body over time's verdicts (:func:`tally_verdicts`): their histogram replaces the
+        per-frame one, judged and outvoted are theirs."""
+        return CameraAgreement(self.names, self.detected, self.used, verdicts.hist, verdicts.judged,
+                               verdicts.outvoted, self.noise)
 
     def median_px(self) -> np.ndarray:
         """(V,) median reprojection error of each camera's used joints (NaN if none), to the bin centre."""
@@ -60,8 +86,28 @@ def tally_agreement(views: ViewSet, kp: np.ndarray, tri: PeopleTriangulation, ok
     err = reprojection_error_px(views, np.nan_to_num(X_flat), np.nan_to_num(uv))  # (B * 19, V)
     used_joint = np.isfinite(uv[..., 0]) & np.isfinite(X_flat).all(1)[:, None] & np.isfinite(err)
     used_joint &= np.repeat(kept, 19)[:, None]
+    n = tri.n_inliers.reshape(-1).astype(float)[:, None]
+    scaled = err * np.sqrt(2.0 * n / np.maximum(2.0 * n - 3.0, 1.0))
+    noisy = used_joint & (n >= 2) & (scaled < NOISE_MAX_PX)
     for v in np.flatnonzero(used_joint.any(0)):
         b = np.minimum((err[used_joint[:, v], v] / ERROR_BIN_PX).astype(np.int64), ERROR_BINS - 1)
         agreement.hist[v] += np.bincount(b, minlength=ERROR_BINS)
-    agreement.used += tri.assigned[kept].sum(0) if len(tri.assigned) else 0
+        agreement.noise[v] += np.bincount((scaled[noisy[:, v], v] / NOISE_BIN_PX).astype(np.int64),
+                                          minlength=NOISE_BINS)
+    agreement.used += (tri.assigned[kept] >= 0).sum(0) if len(tri.assigned) else 0
     return agreement
+
+
+def tally_verdicts(names: list[str], view: np.ndarray, residual_px: np.ndarray, outvoted: np.ndarray
+                   ) -> CameraAgreement:
+    """The body over time's verdicts on M detections: (M,) views, distances to the final body (px; NaN: the joint
+    is not put out, not judged) and whether the body put the detection aside -> hist, judged, outvoted per camera
+    (detected, used and noise left 0)."""
+    out = CameraAgreement.empty(names)
+    view = view.astype(np.int64)
+    ok = np.isfinite(residual_px)
+    b = np.minimum((residual_px[ok] / ERROR_BIN_PX).astype(np.int64), ERROR_BINS - 1)
+    out.hist += np.bincount(view[ok] * ERROR_BINS + b, minlength=len(names) * ERROR_BINS).reshape(-1, ERROR_BINS)
+    out.judged += np.bincount(view[ok], minlength=len(names))
+    out.outvoted += np.bincount(view[ok & outvoted], minlength=len(names))
+    return out

@@ -22,6 +22,7 @@ import numpy as np
 from dome_calib.recon.kernel import CameraKernel
 from dome_calib.recon.people.matching import dedupe, greedy_match
 from dome_calib.recon.people.proposals import AssociationOptions, propose, residual_pairs, world_rays
+from dome_calib.recon.people.compiled import project_into_views
 from dome_calib.recon.project import ViewSet
 from dome_calib.recon.triangulate import triangulate_dlt, undistort_detections
 
@@ -37,10 +38,9 @@ def assign(kernel: CameraKernel, skeletons: np.ndarray, kp: np.ndarray, options:
         return np.full((V, P), -1, dtype=np.int64)
     X = skeletons.reshape(-1, 3)
     have = np.all(np.isfinite(X), axis=1)
-    xc, yc, zc = kernel.camera_points(np.where(have[:, None], X, 0.0))  # (P*19, V)
-    ev = kernel.evaluate(np.where(have[:, None], X, 0.0), np.zeros_like(zc), np.zeros_like(zc), jacobian=False)
-    proj = np.stack([ev.r_u, ev.r_v], axis=-1).reshape(P, 19, V, 2).transpose(2, 0, 1, 3)  # (V, P, 19, 2)
-    cm_per_px = (zc / kernel.fx).reshape(P, 19, V).transpose(2, 0, 1)  # (V, P, 19)
+    u, v, zc = project_into_views(np.where(have[:, None], X, 0.0), kernel.table)  # (P*19, V)
+    proj = np.stack([u, v], axis=-1).reshape(P, 19, V, 2).transpose(2, 0, 1, 3)  # (V, P, 19, 2)
+    cm_per_px = (zc / kernel.table[:, 12]).reshape(P, 19, V).transpose(2, 0, 1)  # (V, P, 19): z / fx
     pvalid = (have.reshape(P, 19)[None] & np.isfinite(proj[..., 0]) & (cm_per_px > 0))
     det = kp[..., 2] > options.min_joint_conf  # (V, N, 19)
     # Candidates first: detection and proposal whose 2D centres (mean of their joints) are within

@@ -29,6 +29,7 @@ from dome_calib.recon.people.proposals import AssociationOptions
 from dome_calib.recon.people.run import PeopleOptions
 from dome_calib.recon.people.scene_io import camera_report, check_people_folder, write_people
 from dome_calib.recon.people.sources import FileSource, StreamLayout, stream_layouts
+from dome_calib.recon.people.temporal import TemporalOptions
 from dome_calib.recon.people.tracking import TrackingOptions
 from dome_calib.recon.project import ViewSet, view_set
 
@@ -71,10 +72,12 @@ class ReconstructPlan:
     depth: DepthWitness | None = None
 
 
-def people_options(*, min_views: int = 3, smooth: int = 0, fps: str = "30") -> PeopleOptions:
+def people_options(*, min_views: int = 3, smooth: int = 0, fps: str = "30", per_frame: bool = False
+                   ) -> PeopleOptions:
     """The command's options from its flags: people need ``min_views`` cameras (``--min-views``), ``smooth``
     observations either side (``--smooth``, 0 = off), ``fps`` (``--fps``, e.g. "30", "30000/1001") for a bundle
-    without sync tables. A bad value is one ReconError naming the flag as the user typed it."""
+    without sync tables; ``per_frame`` (``--per-frame``): each time's own triangulation, without the body over
+    time. A bad value is one ReconError naming the flag as the user typed it."""
     if min_views < 2:
         raise ReconError(f"--min-views {min_views}: a person must be seen by at least 2 cameras (a joint is "
                          "triangulated from two views or more)")
@@ -87,7 +90,8 @@ def people_options(*, min_views: int = 3, smooth: int = 0, fps: str = "30") -> P
     if not FPS_RANGE[0] <= shared_fps <= FPS_RANGE[1]:
         raise ReconError(f"--fps {fps!r}: expected a frame rate from 1/86400 (one frame a day) to 1000000")
     return PeopleOptions(association=AssociationOptions(min_person_views=min_views),
-                         tracking=TrackingOptions(smooth_half_window=smooth), shared_fps=shared_fps)
+                         tracking=TrackingOptions(smooth_half_window=smooth), shared_fps=shared_fps,
+                         temporal=TemporalOptions(enabled=not per_frame))
 
 
 def check_workers(workers: int) -> None:

@@ -17,6 +17,8 @@ proposes again from the detections no proposal took, over :func:`residual_pairs`
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
@@ -93,39 +95,55 @@ def select_pairs(views: ViewSet, max_pairs: int) -> np.ndarray:
     """(Q, 2) view index pairs, Q <= max_pairs: axes closest to perpendicular first, each view in at most
     ceil(2 max_pairs / V) + 1 pairs, ties by view names. Pairs with axes within 3 deg of (anti)parallel are never
     taken (a panel's own cameras, 5-15 deg apart, still pair up when nothing better is there)."""
-    V = len(views.names)
-    if V < 2:
-        return np.zeros((0, 2), dtype=np.int64)
-    axis = views.R[:, 2, :]  # optical axis in the world
+    return _take_pairs(_ranked_pairs(tuple(views.names), views.R[:, 2, :].tobytes()), len(views.names), max_pairs)
+
+
+@lru_cache(maxsize=4)
+def _ranked_pairs(names: tuple[str, ...], axes: bytes) -> np.ndarray:
+    """(K, 2) every pair of views whose optical axes (V x 3 float64, as bytes: a cache key) are not within 3 deg of
+    (anti)parallel, best first: |angle - 90 deg| (0.1 deg steps), then the names. Made once per camera set: the
+    residual proposals of every time take their pairs from it."""
+    V = len(names)
+    axis = np.frombuffer(axes, dtype=np.float64).reshape(V, 3)
     a, b = np.triu_indices(V, 1)
     cos = np.clip((axis[a] * axis[b]).sum(-1), -1, 1)
     score = np.round(np.abs(np.degrees(np.arccos(cos)) - 90.0), 1)
-    name_rank = np.argsort(np.argsort(np.array(views.names)))
+    name_rank = np.argsort(np.argsort(np.array(names)))
     order = np.lexsort((name_rank[b], name_rank[a], score))
     order = order[score[order] <= 87.0]  # not within 3 deg of (anti)parallel: no depth from those
-    if len(order) <= max_pairs:
-        return np.stack([a[order], b[order]], axis=1)
-    limit = int(np.ceil(2 * max_pairs / V)) + 1
-    used = np.zeros(V, dtype=np.int64)
+    out = np.stack([a[order], b[order]], axis=1)
+    out.flags.writeable = False
+    return out
+
+
+def _take_pairs(ranked: np.ndarray, n_views: int, max_pairs: int) -> np.ndarray:
+    """The first ``max_pairs`` of ranked pairs, each of the ``n_views`` views in at most ceil(2 max_pairs /
+    n_views) + 1 of them."""
+    if n_views < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    if len(ranked) <= max_pairs:
+        return ranked.copy()
+    limit = int(np.ceil(2 * max_pairs / n_views)) + 1
+    used = np.zeros(int(ranked.max()) + 1, dtype=np.int64)
     keep = []
-    for k in order:
-        if used[a[k]] < limit and used[b[k]] < limit:
+    for k, (a, b) in enumerate(ranked):
+        if used[a] < limit and used[b] < limit:
             keep.append(k)
-            used[a[k]] += 1
-            used[b[k]] += 1
+            used[a] += 1
+            used[b] += 1
             if len(keep) == max_pairs:
                 break
-    keep = np.array(keep, dtype=np.int64)
-    return np.stack([a[keep], b[keep]], axis=1)
+    return ranked[np.array(keep, dtype=np.int64)]
 
 
 def residual_pairs(views: ViewSet, has_left: np.ndarray, max_pairs: int) -> np.ndarray:
     """View pairs (indices into ``views``) among the views whose ``has_left`` (V,) is set: the views that kept
-    detections no proposal took (:func:`select_pairs` on them, twice ``max_pairs``: they hold few detections)."""
-    idx = np.flatnonzero(has_left)
-    if len(idx) < 2:
+    detections no proposal took (:func:`select_pairs` on them, twice ``max_pairs``: they hold few detections; the
+    ranking of all the views' pairs is made once and filtered)."""
+    if has_left.sum() < 2:
         return np.zeros((0, 2), dtype=np.int64)
-    return idx[select_pairs(views.subset([views.names[i] for i in idx]), 2 * max_pairs)]
+    ranked = _ranked_pairs(tuple(views.names), views.R[:, 2, :].tobytes())
+    return _take_pairs(ranked[has_left[ranked[:, 0]] & has_left[ranked[:, 1]]], int(has_left.sum()), 2 * max_pairs)
 
 
 def world_rays(views: ViewSet, kernel: CameraKernel, kp: np.ndarray) -> np.ndarray:

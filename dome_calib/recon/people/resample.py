@@ -39,15 +39,16 @@ def interpolate_people(stream: PeopleStream, univ_time_ms: np.ndarray, *, max_ga
     """
     t = np.asarray(univ_time_ms, dtype=float)
     br = frame_brackets(stream.table, stream.frame_index, t, max_gap_frames=max_gap_frames)
-    A, B = Brackets.take(stream.kp, br.pos0, br.has0), Brackets.take(stream.kp, br.pos1, br.has1)
     w1 = br.w1
     near_a = w1 <= 0.5
-    out = np.where(near_a[:, None, None, None, None], A, B)
+    # the nearer frame of each time (one gather: the full dome's VGA times sit on their frames), both only where mixed
+    out = Brackets.take(stream.kp, np.where(near_a, br.pos0, br.pos1), np.where(near_a, br.has0, br.has1))
     out[~br.usable] = 0.0
     mix = br.usable & (w1 > 0) & (w1 < 1)
     if not mix.any():
         return out
-    a, b = A[mix], B[mix]  # (M, V, N, 19, 3)
+    a = Brackets.take(stream.kp, br.pos0[mix], br.has0[mix])  # (M, V, N, 19, 3)
+    b = Brackets.take(stream.kp, br.pos1[mix], br.has1[mix])
     wb = w1[mix].astype(np.float32)  # (M,)
     near = wb <= 0.5
     both = (a[:, :, :, None, :, 2] > 0) & (b[:, :, None, :, :, 2] > 0)  # (M, V, N, N, 19)
@@ -87,4 +88,9 @@ def gather_people(streams: list[PeopleStream], times_ms: np.ndarray, max_gap_fra
     """All streams' people at the times -> (T, V, N, 19, 3) (views in stream order, empty slots c = 0)."""
     parts = [interpolate_people(s, times_ms, max_gap_frames=max_gap_frames) for s in streams]
     N = max(p.shape[2] for p in parts)
-    return np.concatenate([np.pad(p, ((0, 0), (0, 0), (0, N - p.shape[2]), (0, 0), (0, 0))) for p in parts], axis=1)
+    out = np.zeros((len(times_ms), sum(p.shape[1] for p in parts), N, 19, 3), dtype=np.float32)
+    v = 0
+    for p in parts:  # each stream's views in place (no padded copy, then a concatenated one)
+        out[:, v: v + p.shape[1], : p.shape[2]] = p
+        v += p.shape[1]
+    return out

@@ -12,11 +12,15 @@ The run, in the order the data flows (each step a function of its own module, te
 5. :func:`~dome_calib.recon.people.bodies.build_bodies`: enough joints, no duplicates;
 6. :func:`~dome_calib.recon.people.agreement.tally_agreement`: how each camera agrees;
 
-then, over the whole session, :func:`~dome_calib.recon.people.tracking.apply_tracks` gives ids.
+then, over the whole session, :func:`~dome_calib.recon.people.tracking.apply_tracks` gives ids, and
+:func:`~dome_calib.recon.people.windows.refine_session` makes each person one body over time (constant bones,
+smooth motion, every detection weighed against the body: :mod:`~dome_calib.recon.people.temporal`), in windows
+fixed by the session's time index, with bone lengths and camera noise measured once over the whole session.
 :func:`people_at_times` runs steps 1-6 over a span of times (each time on its own: the result at a time does not
-depend on the other times of its batch or chunk); :func:`reconstruct_people` adds the tracking in one process;
-:func:`~dome_calib.recon.people.chunks.reconstruct_people_chunked` runs the spans of a long session on an executor,
-then tracks once over all of them.
+depend on the other times of its batch or chunk); :func:`reconstruct_people` adds the tracking and the body over
+time in one process; :func:`~dome_calib.recon.people.chunks.reconstruct_people_chunked` runs the spans and the
+windows of a long session on an executor, and tracks once over all of them in between. No result depends on the
+batches, the chunks or the workers.
 """
 from __future__ import annotations
 
@@ -37,8 +41,10 @@ from dome_calib.recon.people.depth_witness import DepthWitness
 from dome_calib.recon.people.joint_check import JointCheckOptions, check_joints
 from dome_calib.recon.people.proposals import AssociationOptions, select_pairs
 from dome_calib.recon.people.resample import gather_people
-from dome_calib.recon.people.sources import PeopleStream
+from dome_calib.recon.people.sources import FileSource, InMemorySource, PeopleStream
+from dome_calib.recon.people.temporal import TemporalOptions
 from dome_calib.recon.people.tracking import TrackingOptions, apply_tracks
+from dome_calib.recon.people.windows import refine_session
 from dome_calib.recon.project import ViewSet
 from dome_calib.recon.triangulate import TriangulationOptions
 
@@ -51,13 +57,15 @@ class PeopleOptions:
     (:mod:`~dome_calib.recon.people.joint_check`); min_body_joints: a body needs this many reconstructed joints;
     max_gap_frames: stream brackets wider than this many frame periods are not bridged; batch_times: times
     triangulated together; chunk_times: the times of one task of :func:`reconstruct_people_chunked`. Neither
-    changes the result (only memory and speed)."""
+    changes the result (only memory and speed). temporal: the body over time (:mod:`~dome_calib.recon.people.temporal`;
+    ``enabled=False`` keeps the per-frame joints)."""
 
     association: AssociationOptions = field(default_factory=AssociationOptions)
     triangulation: TriangulationOptions = field(default_factory=lambda: TriangulationOptions(
         inlier_threshold_px=10.0, min_views=2, min_confidence=0.05))
     tracking: TrackingOptions = field(default_factory=TrackingOptions)
     joint_check: JointCheckOptions = field(default_factory=JointCheckOptions)
+    temporal: TemporalOptions = field(default_factory=TemporalOptions)
     min_body_joints: AtLeast(1) = 6
     max_gap_frames: Annotated[float, Field(ge=1)] = 2.5
     batch_times: AtLeast(1) = 16
@@ -77,9 +85,9 @@ class PeopleSequence:
 def associate_batch(views: ViewSet, kernel: CameraKernel, pairs: np.ndarray, kp: np.ndarray,
                     options: PeopleOptions, *, times_ms: np.ndarray | None = None, depth: DepthWitness | None = None
                     ) -> tuple[list[Bodies], CameraAgreement]:
-    """(T, V, N, 19, 3) people at T times -> the bodies of each time (ids -1) and the cameras' agreement (steps 2-6
-    of the module docstring; with ``depth`` and the batch's ``times_ms``, step 4 also drops the joints the Kinects
-    see through, :mod:`~dome_calib.recon.people.depth_witness`)."""
+    """(T, V, N, 19, 3) people at T times -> the bodies of each time (ids -1, each with its assigned detections) and
+    the cameras' agreement (steps 2-6 of the module docstring; with ``depth`` and the batch's ``times_ms``, step 4
+    also drops the joints the Kinects see through, :mod:`~dome_calib.recon.people.depth_witness`)."""
     a = options.association
     assigned = associate(views, kernel, pairs, kp, a, min_body_joints=options.min_body_joints)
     tri = triangulate_people(views, kp, assigned, options.triangulation)
@@ -126,18 +134,35 @@ def people_at_times(views: ViewSet, streams: list[PeopleStream], times_ms: np.nd
 def reconstruct_people(views: ViewSet, streams: list[PeopleStream], times_ms: np.ndarray,
                        options: PeopleOptions | None = None, *, depth: DepthWitness | None = None,
                        progress: Callable[[int, int], None] | None = None) -> PeopleSequence:
-    """Tracked people at (T,) universal times from the streams' unlabelled detections (one process).
+    """Tracked people at (T,) universal times from the streams' unlabelled detections (one process): the bodies of
+    each time, the tracks, then the body over time (unless ``options.temporal.enabled`` is False).
 
     Args:
         views: holds every camera of ``streams``; streams: from :func:`~dome_calib.recon.people.sources.people_streams`.
         depth: the Kinects' depth frames as a witness (joints they see through are dropped), or None.
-        progress: ``progress(done_times, total_times)`` after each batch.
+        progress: ``progress(done, total)`` after each batch and each window: total is the times, twice with the
+            body over time (each time is worked on per frame, then in its window).
     Returns:
         :class:`PeopleSequence`; ids from 0 in order of first appearance.
     Example:
         >>> seq = reconstruct_people(view_set(bundle, names), people_streams(bundle, det.people), vga_times_ms)
     """
     options = options or PeopleOptions()
-    seq = people_at_times(views, streams, times_ms, options, depth=depth, progress=progress)
-    seq.bodies = apply_tracks(seq.times_ms, seq.bodies, options.tracking)
-    return seq
+    t = np.asarray(times_ms, dtype=float)
+    total = len(t) * (2 if options.temporal.enabled else 1)
+    seq = people_at_times(views, streams, t, options, depth=depth,
+                          progress=None if progress is None else (lambda d, n: progress(d, total)))
+    return over_time(views, InMemorySource(streams), seq, options, depth=depth,
+                     progress=None if progress is None else (lambda d: progress(len(t) + d, total)))
+
+
+def over_time(views: ViewSet, source: InMemorySource | FileSource, seq: PeopleSequence, options: PeopleOptions, *,
+              depth: DepthWitness | None = None, executor=None,
+              progress: Callable[[int], None] | None = None) -> PeopleSequence:
+    """The session's bodies of every time (ids -1) -> tracked once over all of them, then one body per person over
+    time (windows on ``executor``; ``progress(times_done)`` after each)."""
+    bodies = apply_tracks(seq.times_ms, seq.bodies, options.tracking)
+    bodies, cameras = refine_session(views, source, seq.times_ms, bodies, seq.cameras, options.temporal,
+                                     max_gap_frames=options.max_gap_frames, batch_times=options.batch_times,
+                                     depth=depth, executor=executor, progress=progress)
+    return PeopleSequence(times_ms=seq.times_ms, bodies=bodies, cameras=cameras)

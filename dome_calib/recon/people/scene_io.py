@@ -5,13 +5,17 @@ body3DScene (as the Panoptic toolbox reads it, several bodies)::
     {"version": 0.7, "univTime": t_ms, "fpsType": "vga_25", "bodies": [{"id": 3, "joints19": [x, y, z, c] * 19,
      "inlierViews19": [n] * 19}, ...]}
 
-x, y, z world cm (Panoptic frame), c = mean detection confidence of the supporting views, -1 (x = y = z = 0) for a
-joint not reconstructed; inlierViews19 = the number of views supporting each joint.
+x, y, z world cm (Panoptic frame); c = the probability, under the fitted body over time, that the joint lies within
+5 cm of where it is put (:mod:`~dome_calib.recon.people.temporal`; with the body over time off, the mean detection
+confidence of the supporting views); -1 (x = y = z = 0) for a joint not reconstructed; inlierViews19 = the number
+of views supporting each joint.
 
 cameras.json: per camera the people it detected, the share of them used by a reconstructed body and the median
 pixel distance between its used joints and the reconstructed joints; ``flagged`` lists the cameras that disagree
 (median error above ``max(3 x the cameras' median, 5 px)`` or a share used below half the cameras' median): a
-camera that moved since calibration, a bad lens, or a camera that sees nobody well.
+camera that moved since calibration, a bad lens, or a camera that sees nobody well. With the body over time, per
+camera also the share of its joint detections that the body outvoted (farther than 5 sigma of that camera's
+measured pixel noise from where the body puts the joint: swaps, a neighbour's limb, a moved camera).
 """
 from __future__ import annotations
 
@@ -75,9 +79,12 @@ def camera_report(agreement: CameraAgreement) -> dict:
         bad_share = np.isfinite(share[v]) and share[v] < 0.5 * all_share
         if bad_err or bad_share:
             flagged.append(name)
+        judged = int(agreement.judged[v])
         cams[name] = {"detected": int(agreement.detected[v]), "used": int(agreement.used[v]),
                       "share_used": None if not np.isfinite(share[v]) else round(float(share[v]), 4),
-                      "median_reprojection_px": None if not np.isfinite(med[v]) else round(float(med[v]), 2)}
+                      "median_reprojection_px": None if not np.isfinite(med[v]) else round(float(med[v]), 2),
+                      "joints_judged": judged,
+                      "outvoted_share": round(int(agreement.outvoted[v]) / judged, 4) if judged else None}
     return {"median_reprojection_px": None if not np.isfinite(all_med) else round(all_med, 2),
             "median_share_used": None if not np.isfinite(all_share) else round(all_share, 4),
             "flagged": flagged, "cameras": cams}
