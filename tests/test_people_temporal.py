@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
-from dome_calib.recon.errors import ReconError
+from dome_calib.errors import OptionsError
 from dome_calib.recon.people.chunks import reconstruct_people_chunked
 from dome_calib.recon.people.run import PeopleOptions, reconstruct_people
 from dome_calib.recon.people.sources import people_streams
@@ -143,7 +143,7 @@ def test_confidence_is_a_probability_and_options_refuse_nonsense():
     # chi distribution with 3 degrees of freedom: P(|e| < sigma) = 0.1987, P(|e| < 2 sigma) = 0.7385
     np.testing.assert_allclose(within_probability(5.0, np.array([5.0, 2.5])), [0.198748, 0.738536], atol=1e-5)
     for bad in (dict(iterations=0), dict(robust_k=0.0), dict(bone_sigma_cm=float("nan")), dict(max_sigma_cm=-1.0)):
-        with pytest.raises(ReconError):
+        with pytest.raises(OptionsError):
             TemporalOptions(**bad)
 
 

@@ -47,9 +47,9 @@ import scipy.sparse as sp
 from scipy.linalg import cho_solve_banded, cholesky_banded
 from scipy.special import gammainc
 
-from dome_calib.options import AtLeast, Field, options, require
+from dome_calib.options import AtLeast, Field, options
 from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
-from dome_calib.schema import PosFinite
+from dome_calib.schema import PosFinite, Vec
 from dome_calib.recon.kernel import camera_table
 from dome_calib.recon.people.bodies import Bodies, Observations
 from dome_calib.recon.people.compiled import distances_px, robust_blocks
@@ -93,17 +93,13 @@ class TemporalOptions:
     max_views_per_joint: AtLeast(2) = 32
     cg_tolerance: PosFinite = 1e-6
     cg_max_iterations: AtLeast(1) = 300
-    accel_rms_cm_s2: np.ndarray = field(default_factory=lambda: ACCEL_RMS_CM_S2.copy())
+    accel_rms_cm_s2: Vec(19, PosFinite) = field(default_factory=lambda: ACCEL_RMS_CM_S2.tolist())
     window_edge_influence: Annotated[float, Field(gt=0, lt=1)] = 1e-3
     window_margins: AtLeast(1) = 6
 
-    _accelerations = require(lambda o: o.accel_rms_cm_s2.shape == (19,) and bool(np.all(np.isfinite(
-        o.accel_rms_cm_s2))) and bool(np.all(o.accel_rms_cm_s2 > 0)),
-        "accel_rms_cm_s2: expected 19 finite numbers > 0 (one per joints19 joint)")
-
     def spectral_density(self) -> np.ndarray:
         """(19,) q of each joint's white-noise acceleration (cm^2/s^3): 2 (accel_scale a_rms)^2 correlation_s."""
-        return 2.0 * (self.accel_scale * self.accel_rms_cm_s2) ** 2 * self.correlation_s
+        return 2.0 * (self.accel_scale * np.asarray(self.accel_rms_cm_s2)) ** 2 * self.correlation_s
 
 
 @dataclass(frozen=True)
