@@ -36,6 +36,7 @@ from dome_calib.options import AtLeast, Field, PosFraction, options
 from dome_calib.recon.kernel import CameraKernel
 from dome_calib.recon.people.agreement import CameraAgreement, tally_agreement
 from dome_calib.recon.people.assign import associate
+from dome_calib.recon.people.bridging import bridge_gaps
 from dome_calib.recon.people.bodies import Bodies, build_bodies, triangulate_people
 from dome_calib.recon.people.depth_witness import DepthWitness
 from dome_calib.recon.people.joint_check import JointCheckOptions, check_joints
@@ -43,7 +44,7 @@ from dome_calib.recon.people.proposals import AssociationOptions, select_pairs
 from dome_calib.recon.people.resample import gather_people
 from dome_calib.recon.people.sources import FileSource, InMemorySource, PeopleStream
 from dome_calib.recon.people.temporal import TemporalOptions
-from dome_calib.recon.people.tracking import TrackingOptions, apply_tracks
+from dome_calib.recon.people.tracking import TrackingOptions, apply_tracks, smooth_tracks
 from dome_calib.recon.people.windows import refine_session
 from dome_calib.recon.project import ViewSet
 from dome_calib.recon.triangulate import TriangulationOptions
@@ -159,10 +160,19 @@ def reconstruct_people(views: ViewSet, streams: list[PeopleStream], times_ms: np
 def over_time(views: ViewSet, source: InMemorySource | FileSource, seq: PeopleSequence, options: PeopleOptions, *,
               depth: DepthWitness | None = None, executor=None,
               progress: Callable[[int], None] | None = None) -> PeopleSequence:
-    """The session's bodies of every time (ids -1) -> tracked once over all of them, then one body per person over
-    time (windows on ``executor``; ``progress(times_done)`` after each)."""
+    """The session's bodies of every time (ids -1) -> tracked once over all of them, the tracks' gaps searched again
+    with their predictions (:mod:`~dome_calib.recon.people.bridging`), optional smoothing, then one body per person
+    over time (windows on ``executor``; ``progress(times_done)`` after each)."""
     bodies = apply_tracks(seq.times_ms, seq.bodies, options.tracking)
-    bodies, cameras = refine_session(views, source, seq.times_ms, bodies, seq.cameras, options.temporal,
+    cameras = seq.cameras
+    if options.tracking.bridge_gaps:
+        bodies, cameras = bridge_gaps(views, source, seq.times_ms, bodies, cameras, association=options.association,
+                                      triangulation=options.triangulation, joint_check=options.joint_check,
+                                      tracking=options.tracking, min_body_joints=options.min_body_joints,
+                                      max_gap_frames=options.max_gap_frames, batch_times=options.batch_times,
+                                      depth=depth)
+    bodies = smooth_tracks(seq.times_ms, bodies, options.tracking.smooth_half_window)
+    bodies, cameras = refine_session(views, source, seq.times_ms, bodies, cameras, options.temporal,
                                      max_gap_frames=options.max_gap_frames, batch_times=options.batch_times,
                                      depth=depth, executor=executor, progress=progress)
     return PeopleSequence(times_ms=seq.times_ms, bodies=bodies, cameras=cameras)

@@ -34,7 +34,8 @@ class TrackingOptions:
     larger of max_missed_ms and max_missed_steps median time steps ends (the steps follow the frame rate: at 1
     frame per second 500 ms would end every track at once); min_track_frames: shorter tracks are dropped, and a
     track is tentative until seen this often (matched after the confirmed ones, ended by a single miss);
-    smooth_half_window: half width (in observations) of the smoothing window, 0 = off."""
+    smooth_half_window: half width (in observations) of the smoothing window, 0 = off; bridge_gaps: the times inside
+    a track's gaps are searched again with its prediction (:mod:`~dome_calib.recon.people.bridging`)."""
 
     gate_cm: PosFinite = 40.0
     gate_cm_per_s: NonNegFinite = 100.0
@@ -42,6 +43,7 @@ class TrackingOptions:
     max_missed_steps: NonNegFinite = 2.5
     min_track_frames: AtLeast(1) = 3
     smooth_half_window: AtLeast(0) = 0
+    bridge_gaps: bool = True
 
     def max_missed_for(self, times_ms: np.ndarray) -> float:
         """The gap (ms) that ends a confirmed track at these times: max(max_missed_ms, max_missed_steps x the
@@ -119,18 +121,23 @@ def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
 
 
 def apply_tracks(times_ms: np.ndarray, bodies: list[Bodies], options: TrackingOptions) -> list[Bodies]:
-    """Ids by :func:`track_bodies`; bodies of dropped tracks removed; optional smoothing per track
-    (:func:`smooth_track`)."""
+    """Ids by :func:`track_bodies`; bodies of dropped tracks removed."""
+    ids = track_bodies(np.asarray(times_ms, dtype=float), [b.X_cm for b in bodies], options)
+    return [b.take(i >= 0, i[i >= 0]) for b, i in zip(bodies, ids)]
+
+
+def smooth_tracks(times_ms: np.ndarray, bodies: list[Bodies], half_window: int) -> list[Bodies]:
+    """Optional smoothing of every track of tracked bodies (:func:`smooth_track`; ``half_window`` 0: unchanged)."""
+    if half_window <= 0:
+        return bodies
     times = np.asarray(times_ms, dtype=float)
-    ids = track_bodies(times, [b.X_cm for b in bodies], options)
-    out = [b.take(i >= 0, i[i >= 0]) for b, i in zip(bodies, ids)]
-    if options.smooth_half_window > 0:
-        for tid in sorted({int(x) for b in out for x in b.ids}):
-            where = [(k, int(np.flatnonzero(b.ids == tid)[0])) for k, b in enumerate(out) if np.any(b.ids == tid)]
-            X = np.stack([out[k].X_cm[p] for k, p in where])
-            Xs = smooth_track(times[[k for k, _ in where]], X, options.smooth_half_window)
-            for (k, p), x in zip(where, Xs):
-                out[k].X_cm[p] = x
+    out = [b.take(np.arange(len(b.ids))) for b in bodies]
+    for tid in sorted({int(x) for b in out for x in b.ids}):
+        where = [(k, int(np.flatnonzero(b.ids == tid)[0])) for k, b in enumerate(out) if np.any(b.ids == tid)]
+        X = np.stack([out[k].X_cm[p] for k, p in where])
+        Xs = smooth_track(times[[k for k, _ in where]], X, half_window)
+        for (k, p), x in zip(where, Xs):
+            out[k].X_cm[p] = x
     return out
 
 
