@@ -10,7 +10,8 @@ The modules, in the order the data flows (each a stage with typed inputs and res
 - :mod:`.bodies`: robust triangulation of the assigned detections, then the bodies of each time;
 - :mod:`.joint_check`: which triangulated joints a body keeps (called between the two steps of ``bodies``);
 - :mod:`.agreement`: how well each camera agrees with the bodies;
-- :mod:`.tracking`: ids over time, once over the whole session;
+- :mod:`.tracking`: ids over time, once over the whole session; :mod:`.bridging`: the times inside a track's gaps
+  searched again with its prediction (a person whose evidence is thin there kept under his id);
 - :mod:`.temporal`: one body per person over time (constant bones, smooth motion, every detection weighed against
   the body) over a span of times; :mod:`.windows`: the session's bone lengths and camera noise measured once, and
   the fit in windows fixed by the session's time index;

@@ -6,8 +6,10 @@ once over the whole session, then the body over time in windows fixed by the ses
    returns the bodies of its times without ids, each with the index of its detection in every view
    (:func:`~dome_calib.recon.people.run.people_at_times`: a time's bodies depend on that time's detections only),
    and its tallies (counts and histograms of integer bins: their sum is the same for any cut).
-2. Tracking, short-track dropping and smoothing run once over all the times
-   (:func:`~dome_calib.recon.people.tracking.apply_tracks`, a few milliseconds per time against tens for the bodies).
+2. Tracking, short-track dropping, the bridging of the tracks' gaps and smoothing run once over all the times
+   (:func:`~dome_calib.recon.people.tracking.apply_tracks`, a few milliseconds per time against tens for the bodies;
+   :func:`~dome_calib.recon.people.bridging.bridge_gaps` reads the detections of the gaps' times only, in this
+   process).
 3. The body over time (:func:`~dome_calib.recon.people.windows.refine_session`): bone lengths and camera noise
    measured once over all of it, then windows of the session's own time index, each reading its detections again,
    on the executor.

@@ -12,7 +12,8 @@ The run, in the order the data flows (each step a function of its own module, te
 5. :func:`~dome_calib.recon.people.bodies.build_bodies`: enough joints, no duplicates;
 6. :func:`~dome_calib.recon.people.agreement.tally_agreement`: how each camera agrees;
 
-then, over the whole session, :func:`~dome_calib.recon.people.tracking.apply_tracks` gives ids, and
+then, over the whole session, :func:`~dome_calib.recon.people.tracking.apply_tracks` gives ids,
+:func:`~dome_calib.recon.people.bridging.bridge_gaps` searches the times inside the tracks' gaps again, and
 :func:`~dome_calib.recon.people.windows.refine_session` makes each person one body over time (constant bones,
 smooth motion, every detection weighed against the body: :mod:`~dome_calib.recon.people.temporal`), in windows
 fixed by the session's time index, with bone lengths and camera noise measured once over the whole session.
