@@ -9,7 +9,7 @@ import pytest
 
 from dome_calib.recon.body_models import JOINTS19
 from dome_calib.recon.people.bodies import Bodies
-from dome_calib.recon.people.bridging import gap_predictions
+from dome_calib.recon.people.bridging import GapPredictions, gap_batches, gap_predictions
 from dome_calib.recon.people.run import PeopleOptions, reconstruct_people
 from dome_calib.recon.people.sources import people_streams
 from dome_calib.recon.people.temporal import TemporalOptions
@@ -93,10 +93,19 @@ def test_a_tracked_person_is_kept_where_his_evidence_is_thin(thin_person, tempor
     off = dataclasses.replace(options, tracking=TrackingOptions(bridge_gaps=False))
     err, _, counts = _found(reconstruct_people(views, streams, times, off), truth)
     assert np.all(np.isinf(err[GAP, 0])) and np.all(np.isfinite(np.delete(err[:, 0], np.arange(len(times))[GAP])))
-    err, ids, counts = _found(reconstruct_people(views, streams, times, options), truth)
+    seq = reconstruct_people(views, streams, times, options)
+    err, ids, counts = _found(seq, truth)
     assert err.max() < 5.0, err.max(axis=0)
     assert counts == [3] * len(times)
     assert [len(set(ids[:, p])) for p in range(3)] == [1] * 3
+    if not temporal:  # the gaps' times read and searched 2 at a time: the same bodies to the last bit
+        again = reconstruct_people(views, streams, times, dataclasses.replace(options, batch_times=2))
+        for a, b in zip(seq.bodies, again.bodies):
+            np.testing.assert_array_equal(a.ids, b.ids)
+            np.testing.assert_array_equal(a.X_cm, b.X_cm)
+            np.testing.assert_array_equal(a.assigned, b.assigned)
+        for tally in ("detected", "used", "hist", "noise"):
+            np.testing.assert_array_equal(getattr(seq.cameras, tally), getattr(again.cameras, tally))
 
 
 def test_gap_predictions_follow_the_tracker_motion():
@@ -116,3 +125,11 @@ def test_gap_predictions_follow_the_tracker_motion():
     np.testing.assert_allclose(gaps[0].X_cm[0, :, 0], np.arange(19) + 10.0)
     np.testing.assert_allclose(gaps[1].X_cm[0, :, 0], np.arange(19) + 20.0)
     np.testing.assert_allclose([g.gate_cm[0] for g in gaps], [50.0, 50.0])
+
+
+def test_gaps_far_apart_are_read_apart():
+    """The gaps' times go in batches within batch_times consecutive times (a file source reads what brackets a batch's
+    span: gaps an hour apart are never read together)."""
+    gaps = [GapPredictions(k=k, ids=np.zeros(1, np.int64), X_cm=np.zeros((1, 19, 3)), gate_cm=np.ones(1))
+            for k in (3, 4, 18, 19, 40, 900)]
+    assert [[g.k for g in b] for b in gap_batches(gaps, 16)] == [[3, 4, 18], [19], [40], [900]]

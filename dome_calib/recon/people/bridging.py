@@ -114,6 +114,18 @@ def _assign_left(views: ViewSet, kernel: CameraKernel, kp_left: np.ndarray, S: n
     return A
 
 
+def gap_batches(gaps: list[GapPredictions], batch_times: int) -> list[list[GapPredictions]]:
+    """The gaps' times in batches within ``batch_times`` consecutive times of the session (a batch reads the frames
+    that bracket its span only: gaps an hour apart are never read together)."""
+    out: list[list[GapPredictions]] = []
+    for gap in gaps:
+        if out and gap.k - out[-1][0].k < batch_times:
+            out[-1].append(gap)
+        else:
+            out.append([gap])
+    return out
+
+
 def _concat(a: Bodies, b: Bodies) -> Bodies:
     return Bodies(X_cm=np.concatenate([a.X_cm, b.X_cm]), confidence=np.concatenate([a.confidence, b.confidence]),
                   n_inliers=np.concatenate([a.n_inliers, b.n_inliers]),
@@ -127,8 +139,8 @@ def bridge_gaps(views: ViewSet, source: InMemorySource | FileSource, times_ms: n
                 max_gap_frames: float, batch_times: int, depth: DepthWitness | None = None
                 ) -> tuple[list[Bodies], CameraAgreement]:
     """The tracked bodies of a whole session -> the same with the bodies found inside the tracks' gaps (module
-    docstring), and the per-frame tallies with theirs. Reads the detections of the gaps' times only, ``batch_times``
-    times at a time."""
+    docstring), and the per-frame tallies with theirs. Reads the detections of the gaps' times only, in batches
+    within ``batch_times`` consecutive times."""
     gaps = gap_predictions(times_ms, bodies, tracking)
     if not gaps:
         return bodies, cameras
@@ -138,8 +150,7 @@ def bridge_gaps(views: ViewSet, source: InMemorySource | FileSource, times_ms: n
     a = association
     out = list(bodies)
     tallies = CameraAgreement.empty(list(views.names))
-    for start in range(0, len(gaps), batch_times):
-        batch = gaps[start: start + batch_times]
+    for batch in gap_batches(gaps, batch_times):
         ks = np.array([g.k for g in batch])
         streams = source.chunk(float(t[ks[0]]), float(t[ks[-1]]), max_gap_frames)
         kp = gather_people(streams, t[ks], max_gap_frames)  # (B, V, N, 19, 3)
