@@ -179,7 +179,7 @@ def bridge_gaps(views: ViewSet, source: InMemorySource | FileSource, times_ms: n
         taken_rows = np.zeros(len(kept), bool)
         rows_of = np.flatnonzero(kept)
         row = 0
-        for j, (gap, new) in enumerate(zip(batch, found)):
+        for gap, new in zip(batch, found):
             rows, row = rows_of[row: row + len(new.ids)], row + len(new.ids)
             if not len(new.ids):
                 continue
