@@ -26,13 +26,16 @@ import json
 import os
 import resource
 import shutil
+import subprocess
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
 if __name__ == "__main__":
     # The toolkit is imported here only, not when calibrate's SfM worker processes (started with spawn) run this
@@ -54,6 +57,40 @@ if __name__ == "__main__":
 def ba_options():
     """Our calibrate's solver settings, without the covariance (not compared here)."""
     return dataclasses.replace(_ba_options(), compute_uncertainty=False)
+
+
+def profiled(fn, label: str, top: int):
+    """``fn()`` under cProfile on every thread of this process (the threads the SfM maps in each get a profiler of
+    their own, merged at the end; the pool's worker processes are not followed: their tasks show as the wait for
+    them); emits the ``top`` functions by cumulative and by own time."""
+    import cProfile
+    import pstats
+    import threading
+
+    threads: list[cProfile.Profile] = []
+
+    def start_thread(*_) -> None:  # the first event of a new thread: a profiler of its own from here on
+        prof = cProfile.Profile()
+        threads.append(prof)
+        prof.enable()
+
+    main = cProfile.Profile()
+    threading.setprofile(start_thread)
+    try:
+        result = main.runcall(fn)
+    finally:
+        threading.setprofile(None)
+    stats = pstats.Stats(main)
+    for prof in threads:
+        stats.add(prof)
+
+    def rows(key: int) -> list[dict]:
+        items = sorted(stats.stats.items(), key=lambda kv: -kv[1][key])[:top]
+        return [{"function": f"{Path(f).name}:{line}({name})", "calls": nc, "own_s": round(tt, 2),
+                 "cumulative_s": round(ct, 2)} for (f, line, name), (cc, nc, tt, ct, _) in items]
+
+    emit(bench="dome", stage="profile", run=label, threads=len(threads), by_cumulative=rows(3), by_own=rows(2))
+    return result
 
 
 def emit(**obj) -> None:
@@ -143,7 +180,8 @@ def run(args) -> None:
     if not args.resume:
         shutil.rmtree(root / "bundle.work", ignore_errors=True)
     t0 = time.perf_counter()
-    result = run_calibration(capture, out, CalibrateOptions(seq=f"bench_{args.preset}"))
+    calibrate = partial(run_calibration, capture, out, CalibrateOptions(seq=f"bench_{args.preset}"))
+    result = profiled(calibrate, args.preset, args.profile) if args.profile else calibrate()
     total = time.perf_counter() - t0
     emit(bench="dome", stage="calibrate", preset=args.preset, seconds_total=round(total, 1),
          resumed_stages=result.resumed,  # their seconds are those measured when they ran
@@ -218,8 +256,8 @@ def perturb_panel(truth: Bundle, panel: int, seed: int, rigid: bool = False) -> 
     return dataclasses.replace(truth, cameras=cams), names, replaced
 
 
-def quick(args, root: Path, truth: Bundle) -> None:
-    """Issue 8's quick recalibration: one panel disturbed, `calibrate --prior --only-changed`."""
+def quick_capture(args, root: Path, truth: Bundle) -> tuple[Bundle, list[str], Path, str]:
+    """The quick scenario's capture (synthesised once): the moved truth, the moved cameras, the capture, its kind."""
     moved, names, replaced = perturb_panel(truth, args.panel, args.seed + 100, rigid=args.rigid)
     kind = "quick_rigid" if args.rigid else "quick"
     layout = root / f"{kind}_truth"
@@ -227,6 +265,12 @@ def quick(args, root: Path, truth: Bundle) -> None:
     capture = root / f"{kind}_capture"
     t = synth(capture, args.preset, 1, args.seed, layout=layout / "calibration_quick.json")  # --only-changed uses 1
     emit(bench="dome", stage="quick_synth", seconds=round(t, 1), perturbed=names, replaced=replaced, rigid=args.rigid)
+    return moved, names, capture, kind
+
+
+def quick(args, root: Path, truth: Bundle) -> None:
+    """Issue 8's quick recalibration: one panel disturbed, `calibrate --prior --only-changed`."""
+    moved, names, capture, kind = quick_capture(args, root, truth)
     out = root / f"{kind}_bundle"
     shutil.rmtree(out, ignore_errors=True)
     if not args.resume:
@@ -253,6 +297,147 @@ def quick(args, root: Path, truth: Bundle) -> None:
          center_max_ours_over_oracle=ours["center_mm_max"] / theirs["center_mm_max"])
 
 
+#: Accuracy figures compared by --compare: every error against the truth, median and max.
+ERRORS = ("center_mm", "rotation_deg", "focal_pct", "principal_px", "distortion_px")
+
+
+def errors(cameras: dict, truth: Bundle, names: list[str] | None = None) -> dict:
+    """Every error of ``cameras`` against the truth after a similarity (``compare_cameras``): median and max."""
+    cams = cameras if names is None else {n: cameras[n] for n in names if n in cameras}
+    s = compare_cameras(cams, truth.cameras).summary()["all"]
+    out = {"cameras": s["count"]}
+    for e in ERRORS:
+        key, scale = (("center_cm", 10.0) if e == "center_mm" else (e, 1.0))
+        out[f"{e}_median"], out[f"{e}_max"] = s[f"{key}_median"] * scale, s[f"{key}_max"] * scale
+    return out
+
+
+def calibrate_in(tree: Path, capture: Path, out: Path, *extra: str) -> dict:
+    """`calibrate` with the toolkit of checkout ``tree``, in a child process (bench/calibrate_in.py): its figures."""
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    cmd = [sys.executable, str(Path(__file__).with_name("calibrate_in.py")), str(tree), str(capture), str(out), *extra]
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"calibrate with {tree} failed ({proc.returncode}): {proc.stderr.strip()[-3000:]}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _ratio(new: float | None, old: float | None) -> float | None:
+    if new is None or old is None or not np.isfinite(old) or old == 0:
+        return None
+    return round(float(new) / float(old), 4)
+
+
+def _medians(records: list[dict], key: str) -> dict:
+    """Per field the median over the runs of ``records[i][key]`` (a dict of numbers)."""
+    fields = sorted({f for r in records for f, v in (r.get(key) or {}).items() if isinstance(v, (int, float))})
+    return {f: float(np.median([r[key][f] for r in records if isinstance((r.get(key) or {}).get(f), (int, float))]))
+            for f in fields}
+
+
+@dataclasses.dataclass(kw_only=True)
+class Case:
+    """One capture both checkouts calibrate: its seed, folder, truth and (quick scenario) the moved cameras."""
+
+    seed: int
+    root: Path
+    capture: Path
+    truth: Bundle
+    names: list[str] | None = None
+    extra: list[str] = dataclasses.field(default_factory=list)  # calibrate's options for this capture
+
+
+def compare_runs(args, label: str, cases: list[Case]) -> None:
+    """Old (``--compare REF``) and new (this checkout) on the same captures (one per seed), one after the other,
+    ``--repeat`` times (alternating which goes first); each run's figures, then the ratios new / old: of the median
+    times over every run, of each error's mean over the seeds (its median over the repeats of a seed)."""
+    trees = {"old": Path(args.compare).resolve(), "new": ROOT}
+    records: dict[str, dict[int, list[dict]]] = {"old": {}, "new": {}}
+    for case in cases:
+        for k in range(args.repeat):
+            for which in (("old", "new") if k % 2 == 0 else ("new", "old")):
+                out = case.root / f"compare_{label}_{which}"
+                rec = calibrate_in(trees[which], case.capture, out, *case.extra)
+                rec["errors"] = errors(load_bundle(out).cameras, case.truth, case.names)
+                if case.names is not None:  # the quick scenario: which cameras it re-estimated
+                    rec["found_exactly_the_changed"] = rec.get("changes") == sorted(case.names)
+                records[which].setdefault(case.seed, []).append(rec)
+                emit(bench="dome", stage="compare", scenario=label, preset=args.preset, seed=case.seed, run=which,
+                     repeat=k, tree=str(trees[which]), **rec)
+    every = {w: [r for rs in records[w].values() for r in rs] for w in records}
+    summary = {}
+    for w in records:
+        per_seed = {seed: _medians(rs, "errors") for seed, rs in records[w].items()}
+        keys = sorted({k for e in per_seed.values() for k in e})
+        summary[w] = {"seconds_total": float(np.median([r["seconds_total"] for r in every[w]])),
+                      "seconds": _medians(every[w], "seconds"), "sfm_seconds": _medians(every[w], "sfm_seconds"),
+                      "errors": {k: float(np.mean([e[k] for e in per_seed.values() if k in e])) for k in keys},
+                      "per_seed": per_seed}
+    new, old = summary["new"], summary["old"]
+    ratios = {k: _ratio(new["errors"].get(k), v) for k, v in old["errors"].items() if k != "cameras"}
+    emit(bench="dome", stage="compare_ratios", scenario=label, preset=args.preset, seeds=[c.seed for c in cases],
+         runs_each=args.repeat, old=str(trees["old"]), new=str(trees["new"]),
+         seconds_total={"old": round(old["seconds_total"], 1), "new": round(new["seconds_total"], 1),
+                        "new_over_old": _ratio(new["seconds_total"], old["seconds_total"])},
+         stage_new_over_old={k: _ratio(new["seconds"].get(k), v) for k, v in old["seconds"].items()},
+         sfm_new_over_old={k: _ratio(new["sfm_seconds"].get(k), v) for k, v in old["sfm_seconds"].items()},
+         errors_new_over_old=ratios,
+         errors_new_over_old_per_seed={seed: {k: _ratio(new["per_seed"].get(seed, {}).get(k), v)
+                                              for k, v in e.items() if k != "cameras"}
+                                       for seed, e in old["per_seed"].items()},
+         errors_old={k: round(v, 5) for k, v in old["errors"].items()},
+         errors_new={k: round(v, 5) for k, v in new["errors"].items()},
+         every_camera_calibrated={w: all(not r["not_calibrated"] and r["calibrated"] == r["expected"]
+                                         for r in every[w]) for w in every},
+         worst_error_ratio=max((v for v in ratios.values() if v is not None), default=None),
+         load_average_1min=[r["load_average_1min"] for w in every for r in every[w]])
+
+
+def replay_ba(args) -> None:
+    """``--replay-ba``: the bundle adjustment stage again on an earlier run's SfM result (``bundle.work/sfm.pkl``
+    under ``--work``), timed (wall and CPU), with the accuracy against the truth; ``--lens-passes`` sets the lens
+    model's decide-and-solve passes. A stage-level benchmark: the SfM is not run again."""
+    import pickle
+
+    from dome_calib.ba.lens_model import LensModelOptions
+    from dome_calib.pipeline.stages import run_ba_stage
+
+    root = Path(args.work) / args.preset
+    truth = load_bundle(root / "capture" / "ground_truth")
+    with open(root / "bundle.work" / "sfm.pkl", "rb") as f:
+        sfm = pickle.load(f)
+    lens = LensModelOptions(**({"max_passes": args.lens_passes} if args.lens_passes else {}))
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    ba = run_ba_stage(sfm.problem, lens=lens)
+    emit(bench="dome", stage="replay_ba", preset=args.preset, seconds=round(time.perf_counter() - t0, 1),
+         cpu_seconds=round(time.process_time() - cpu0, 1), load_average_1min=round(os.getloadavg()[0], 1),
+         lens_max_passes=lens.max_passes, observations=sfm.problem.n_observations,
+         ba={k: v for k, v in ba.stats.items() if k != "termination"}, **errors(ba.cameras, truth))
+
+
+def compare(args) -> None:
+    """``--compare REF``: today's main (REF, a checkout) and this checkout on the same captures, in one run."""
+    cases, quick_cases = [], []
+    for seed in args.seeds or [args.seed]:
+        root = Path(args.work) / (args.preset if seed == args.seed else f"{args.preset}_seed{seed}")
+        capture = root / "capture"
+        layout = None
+        if not args.design_truth:
+            layout = write_bundle(as_built_dome(args.preset, seed), root / "as_built") / "calibration_as_built.json"
+        t = synth(capture, args.preset, args.scenes, seed, layout=layout)
+        truth = load_bundle(capture / "ground_truth")
+        emit(bench="dome", stage="synth", preset=args.preset, seed=seed, scenes=args.scenes,
+             cameras=len(truth.cameras), seconds=round(t, 1), reused=t == 0.0)
+        cases.append(Case(seed=seed, root=root, capture=capture, truth=truth, extra=["--seq", f"bench_{args.preset}"]))
+        if args.quick or args.quick_only:
+            moved, names, quick_cap, _ = quick_capture(argparse.Namespace(**{**vars(args), "seed": seed}), root, truth)
+            quick_cases.append(Case(seed=seed, root=root, capture=quick_cap, truth=moved, names=names,
+                                    extra=["--prior", str(capture / "ground_truth"), "--only-changed"]))
+    if not args.quick_only:
+        compare_runs(args, "full", cases)
+    if quick_cases:
+        compare_runs(args, "quick_rigid" if args.rigid else "quick", quick_cases)
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", choices=["tiny", "panel", "full"], default="panel")
@@ -269,7 +454,26 @@ def main() -> None:
     parser.add_argument("--panel", type=int, default=1, help="panel disturbed in the quick scenario")
     parser.add_argument("--rigid", action="store_true", help="quick scenario: the panel moved as one rigid body "
                         "(its cameras keep their relative poses) instead of each camera on its own")
-    run(parser.parse_args())
+    parser.add_argument("--profile", type=int, default=0, metavar="N", help="profile the calibration (every thread "
+                        "of the main process) and print its N costliest functions by cumulative and by own time")
+    parser.add_argument("--compare", metavar="REF", help="a checkout of the toolkit to compare with (e.g. `git "
+                        "worktree add /tmp/base main`): REF and this checkout calibrate the same captures one after "
+                        "the other, each in a child process; prints each run and the ratios new / old of the time, "
+                        "every stage and every error against the truth (with --quick / --quick-only: that scenario too)")
+    parser.add_argument("--seeds", type=int, nargs="+", help="--compare: one capture per seed (the errors' ratios "
+                        "are of their means over the seeds; the panel's medians move by 10-20 %% from one set of "
+                        "observations to another); default --seed")
+    parser.add_argument("--repeat", type=int, default=1, help="--compare: runs of each checkout (alternating which "
+                        "goes first); the ratios are of the medians")
+    parser.add_argument("--replay-ba", action="store_true", help="only the bundle adjustment stage, again, on the "
+                        "SfM result an earlier run left in the work folder (timed, with the accuracy)")
+    parser.add_argument("--lens-passes", type=int, default=0, help="--replay-ba: the lens model's decide-and-solve "
+                        "passes (default: calibrate's)")
+    args = parser.parse_args()
+    if args.replay_ba:
+        replay_ba(args)
+    else:
+        compare(args) if args.compare else run(args)
 
 
 if __name__ == "__main__":

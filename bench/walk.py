@@ -1,6 +1,6 @@
 """A walk of the calibration (capture -> SfM -> BA -> world frame -> write): which modules it passes through.
 
-    .venv/bin/python bench/walk.py CAPTURE [--work /tmp/dome_walk]
+    .venv/bin/python bench/walk.py CAPTURE [--work /tmp/dome_walk] [--tree CHECKOUT]
 
 Runs `calibrate` on CAPTURE (from the design layout, no prior, no progress display) in this process with a
 profile hook on every thread (the worker processes are not followed: they run one task function each) and
@@ -13,10 +13,13 @@ read (consecutive frames of one module count once). One JSON object per line:
 - ``reentries``: crossings into a module that is already on the stack below another module (A -> B -> A: the
   data goes out of A and comes back into it): how many distinct (stack) patterns and the first few;
 - ``run_sfm``: the crossings out of ``run_sfm``'s own frame into other modules' functions (each a hand-over of the
-  calibration's data and its return), and how many distinct functions they are.
+  calibration's data and its return), and how many distinct functions they are;
+- ``work_folder``: the way of the SfM's work folder: every call (from ``run_sfm_stage`` down) that is handed the
+  work folder or a path inside it, by module in the order of the calls (a module's consecutive calls once): the
+  rooms it passes through, and the returns (a room entered again after the way had left it for another).
 
 Works on any checkout (module names are read from the frames), so the same capture walks the old and the new
-house. Timings are meaningless under the hook and not printed.
+house: ``--tree`` imports the toolkit of another checkout (``git worktree add``). Timings are meaningless under the hook and not printed.
 """
 from __future__ import annotations
 
@@ -66,6 +69,17 @@ class Walk:
         self.way_down: list[str] | None = None
         self.sfm_crossings: Counter[str] = Counter()
         self.lock = threading.Lock()
+        self.work: str | None = None  # the SfM's work folder, once run_sfm_stage is called
+        self.work_way: list[str] = []  # modules handed the work folder, in call order (consecutive ones once)
+
+    def _hands_work(self, frame) -> bool:
+        """Whether a call's arguments hold the work folder or a path inside it."""
+        code = frame.f_code
+        for name in code.co_varnames[:code.co_argcount + code.co_kwonlyargcount]:
+            value = frame.f_locals.get(name)
+            if isinstance(value, (str, Path)) and (str(value) + "/").startswith(self.work + "/"):
+                return True
+        return False
 
     def hook(self, frame, event, arg) -> None:
         if event != "call":
@@ -83,6 +97,12 @@ class Walk:
                 self.sfm_crossings[f"{callee}.{name}"] += 1
         if name == "run_sfm" and self.way_down is None:
             self.way_down = _stack(frame)
+        if name == "run_sfm_stage" and self.work is None:
+            self.work = str(frame.f_locals.get("work_dir"))
+        if self.work is not None and self._hands_work(frame):
+            with self.lock:
+                if not self.work_way or self.work_way[-1] != callee:
+                    self.work_way.append(callee)
         # find the nearest caller of ours (stdlib frames, functools.partial, threads in between are skipped)
         f = caller
         while f is not None and not _ours(_module(f)):
@@ -101,7 +121,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("capture", type=Path)
     parser.add_argument("--work", type=Path, default=Path("/tmp/dome_walk"))
+    parser.add_argument("--tree", type=Path, help="walk the toolkit of this checkout instead of this one's")
     args = parser.parse_args()
+    if args.tree is not None:
+        sys.path.insert(0, str(args.tree.resolve()))
     try:  # the new house
         from dome_calib.pipeline.full import run_calibration
         from dome_calib.pipeline.types import CalibrateOptions
@@ -128,6 +151,12 @@ def main() -> None:
          first=[" -> ".join(p) for p in patterns[:8]])
     emit(bench="walk", stage="run_sfm", crossings=sum(walk.sfm_crossings.values()),
          distinct=len(walk.sfm_crossings), functions=sorted(walk.sfm_crossings))
+    way = walk.work_way
+    rooms = Counter(way)
+    emit(bench="walk", stage="work_folder", rooms=len(rooms),
+         rooms_projector=sum(1 for m in rooms if m.startswith("projector.")),
+         returns=sum(v - 1 for v in rooms.values()),
+         visits={m: v for m, v in sorted(rooms.items(), key=lambda kv: (-kv[1], kv[0]))}, way=way)
 
 
 if __name__ == "__main__":

@@ -43,7 +43,7 @@ can be off by percents, and the depth of the scene pins it).
 
 4. A bundle adjustment of the chosen model from the smallest model's solution (held terms at the prior). The
    decisions are then taken again at that solution (the linearisation is now close to the chosen fit); if they
-   change (in more than ``settled_fraction`` of the judged terms, 0.5 %), solve again (at most :data:`MAX_PASSES`
+   change (in more than ``settled_fraction`` of the judged terms, 0.5 %), solve again (at most ``max_passes``
    passes). Usually two or three solves in all; the linear
    algebra is one factorisation of the reduced camera system per level and pass. Every solve after the first
    is warm-started (``solve(problem, previous)``): from the previous solution and its inliers, so it skips the
@@ -139,6 +139,8 @@ class LensModelOptions:
     settled_fraction: UnitInterval = 5e-3
     # the pixel sigma the decisions use is at least this (see "The noise floor" in the module docstring)
     min_noise_px: NonNegFinite = 0.2
+    # decide-and-solve passes at most (each one after the first judges again at the last solution)
+    max_passes: AtLeast(1) = 3
 
     def limit_px(self, level: str) -> float:
         return self.max_principal_point_sigma_px if level == "principal_point" else self.max_sigma_px
@@ -281,10 +283,6 @@ def _decide(level: str, terms: tuple[str, ...], sigma_px: float, wald: float, pe
                          wald_chi2=wald, penalty_chi2=penalty)
 
 
-#: At most this many decide-and-solve passes (each one after the first judges again at the last solution).
-MAX_PASSES = 3
-
-
 def _walk(model: QuadraticModel, point: BAResult, initial: BAProblem, candidate: np.ndarray, judged: list[int],
           options: LensModelOptions) -> tuple[np.ndarray, dict[str, list[GroupDecision]]]:
     """The groups judged top-down in the quadratic model at ``point``: the free mask and the decisions."""
@@ -360,9 +358,8 @@ def select_lens_model(initial: BAProblem, solve: Callable[[BAProblem, BAResult |
     free = smallest.free
     n_judged_terms = int(candidate[judged][:, lens_cols].sum())
     solved_with: tuple[dict[str, list[GroupDecision]], float] | None = None
-    for _ in range(MAX_PASSES):
-        model = QuadraticModel.at(point, candidate, n_threads=n_threads)
-        model.noise_px = max(model.noise_px, options.min_noise_px)
+    for _ in range(options.max_passes):
+        model = QuadraticModel.at(point, candidate, n_threads=n_threads, noise_floor_px=options.min_noise_px)
         chosen, decisions = _walk(model, point, initial, candidate, judged, options)
         if len(iterations) > 1:
             flipped = int(np.sum(chosen[judged][:, lens_cols] != free[judged][:, lens_cols]))

@@ -21,6 +21,8 @@ not among them: it is body_center) get confidence 0 and pixel 0.
 """
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -114,8 +116,12 @@ def parse_body_model(name: str) -> BodyModel:
 
 
 def joint_map(model: BodyModel | str) -> JointMap:
-    """The :class:`JointMap` of a model."""
-    model = parse_body_model(model) if not isinstance(model, BodyModel) else model
+    """The :class:`JointMap` of a model (made once per model: it is asked for every file read)."""
+    return _joint_map(parse_body_model(model) if not isinstance(model, BodyModel) else model)
+
+
+@functools.cache
+def _joint_map(model: BodyModel) -> JointMap:
     names = JOINT_NAMES[model]
     derived = DERIVED[model]
     direct = np.full(19, -1)
@@ -127,6 +133,8 @@ def joint_map(model: BodyModel | str) -> JointMap:
         else:
             direct[k] = names.index(joint)
     to_model = np.array([JOINTS19.index(n) if n in JOINTS19 and n not in derived else -1 for n in names])
+    for a in (direct, da, db, to_model):
+        a.flags.writeable = False  # shared by every caller
     return JointMap(model=model, n_joints=len(names), direct=direct, derived_a=da, derived_b=db, to_model=to_model)
 
 

@@ -48,13 +48,17 @@ def _check_keypoints(values: list[float]) -> list[float]:
     """``[x, y, c] * J``: a multiple of 3 numbers, every confidence >= 0 (pixels: any finite number)."""
     if len(values) % 3:
         raise ValueError(f"{len(values)} numbers, not a multiple of 3 ([x, y, c] per joint)")
-    for k, v in enumerate(values):
-        if abs(v) > MAX_ABS_VALUE:
-            raise ValueError(f"joint {k // 3}: {'xyc'[k % 3]} = {v:g} is beyond +-{MAX_ABS_VALUE:g} (pixels of an "
-                             "image, a confidence)")
-    for j, c in enumerate(values[2::3]):
-        if c < 0:
-            raise ValueError(f"joint {j}: confidence {c!r} is negative (expected [x_px, y_px, c] with c >= 0)")
+    a = np.asarray(values, dtype=float)  # one pass in numpy: this runs for every person of every file
+    big = np.flatnonzero(np.abs(a) > MAX_ABS_VALUE)
+    if big.size:
+        k = int(big[0])
+        raise ValueError(f"joint {k // 3}: {'xyc'[k % 3]} = {values[k]:g} is beyond +-{MAX_ABS_VALUE:g} (pixels of "
+                         "an image, a confidence)")
+    negative = np.flatnonzero(a[2::3] < 0)
+    if negative.size:
+        j = int(negative[0])
+        raise ValueError(f"joint {j}: confidence {values[3 * j + 2]!r} is negative (expected [x_px, y_px, c] with "
+                         "c >= 0)")
     return values
 
 
