@@ -1,9 +1,17 @@
 """Shared fixtures: the real Panoptic calibration (copied into tests/data, see PROVENANCE.md)."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# Every property test draws the same examples on every run and machine (fixed seeds: a red CI is a real defect,
+# not a draw); HYPOTHESIS_PROFILE=explore draws afresh and keeps failures in .hypothesis/ when hunting.
+settings.register_profile("fixed", derandomize=True, database=None, print_blob=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "fixed"))
 
 DATA = Path(__file__).parent / "data"
 REAL_CALIBRATION = DATA / "panoptic" / "calibration_160906_band1.json"

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pycolmap
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
@@ -28,6 +28,10 @@ from .conftest import REAL_CALIBRATION
 from .interop_helpers import gaps_px, pixels, world_points_cm
 
 ROUND_TRIP_TOL_PX = 1e-6
+#: Drawn cameras reach what no real one does (15 m away, a 180 deg turn, f = 200 px, the principal point at a
+#: sixth of the image): float64 through metres, the format's up axis and a rotation vector at pi leave up to
+#: 1.06e-6 px there (Pose2Sim, found by a draw); a real dome's 520 cameras stay within ROUND_TRIP_TOL_PX.
+MUTATED_TOL_PX = 1e-5
 OUT = {"colmap": "model", "aniposelib": "calibration.toml", "pose2sim": "Calib.toml", "easymocap": "easymocap",
        "nerfstudio": "transforms.json"}
 #: The formats that go both ways.
@@ -140,6 +144,9 @@ def _lens_is_monotonic(d: dict) -> bool:
 
 @settings(max_examples=15, deadline=None)
 @given(cams=st.lists(camera_strategy, min_size=1, max_size=12), fmt=st.sampled_from(BOTH_WAYS))
+@example(cams=[{"quat": (0.0, 0.18336263487508497, 0.96875, 0.0), "t_cm": (0.0, 1512.25, 0.0), "f_px": 200.0,
+                "aspect": 1.0, "c_frac": (0.6875, 0.3125), "k": (0.0, 0.0, 0.0, 0.0, 0.03), "size": (1920, 1080)}],
+         fmt="pose2sim")  # the draw that left 1.06e-6 px (MUTATED_TOL_PX)
 def test_round_trip_of_mutated_cameras(cams, fmt):
     """Any rotation, position, focal, principal point and distortion whose lens is physical (monotonic out to
     the image corners), 1-12 cameras (order and > 10 names)."""
@@ -149,7 +156,7 @@ def test_round_trip_of_mutated_cameras(cams, fmt):
     with tempfile.TemporaryDirectory() as tmp:
         write_bundle(bundle, Path(tmp) / "b")
         original, again, _ = round_trip(Path(tmp) / "b", fmt, Path(tmp))
-        assert worst_gaps(original, again)[0] < ROUND_TRIP_TOL_PX
+        assert worst_gaps(original, again)[0] < MUTATED_TOL_PX
         assert list(again.cameras) == list(original.cameras)  # the bundle file's order (type, then name)
 
 
