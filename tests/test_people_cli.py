@@ -198,3 +198,55 @@ def test_long_session_chunks_read_their_own_files(group, tmp_path):
         assert sorted(A) == sorted(B)
         for i in A:
             np.testing.assert_allclose(A[i], B[i], atol=1e-2)
+
+
+def test_later_passes_take_the_detections_the_first_one_kept(group, tmp_path):
+    """The per-frame chunks keep what they read (recon.people.detection_cache); the bridging and the body over time
+    then take it instead of parsing the JSON again: the same bodies to the last bit, in chunks of 5 and at once;
+    the kept folder is gone after the run; an executor of other machines keeps nothing."""
+    from dome_calib.recon.people.chunks import reconstruct_people_chunked
+    from dome_calib.recon.people.commands import kept_detections, plan_reconstruction
+    from dome_calib.recon.people.run import PeopleOptions
+
+    root, _, _ = group
+    for chunk_times in (5, 600):
+        plan = plan_reconstruction(root / "det", root / "bundle", tmp_path / "out", body_model="BODY_25",
+                                   options=PeopleOptions(chunk_times=chunk_times))
+        plain = reconstruct_people_chunked(plan.views, plan.source, plan.times_ms, plan.options)
+        with kept_detections(plan.source) as source:
+            kept = reconstruct_people_chunked(plan.views, source, plan.times_ms, plan.options)
+            folder = source.cache_dir
+            assert sorted(folder.glob("*.npz")), "the first pass kept nothing"
+        assert not folder.exists()
+        assert len(plain.bodies) == len(kept.bodies)
+        for a, b in zip(plain.bodies, kept.bodies):
+            np.testing.assert_array_equal(a.ids, b.ids)
+            np.testing.assert_array_equal(a.X_cm, b.X_cm)
+            np.testing.assert_array_equal(a.confidence, b.confidence)
+        np.testing.assert_array_equal(plain.cameras.used, kept.cameras.used)
+
+    class Remote:
+        remote = True
+
+    with kept_detections(plan.source, Remote()) as source:
+        assert source is plan.source
+
+
+def test_kept_detections_come_back_as_read(tmp_path):
+    """store / load: every (camera, frame) as it was read (float32), across files of 64 frames, and only the frames
+    asked for."""
+    from dome_calib.recon.people.detection_cache import FRAMES_PER_FILE, load, store
+
+    rng = np.random.default_rng(0)
+    cameras = ["00_01", "00_02", "00_03"]
+    people = {c: {f: rng.normal(size=(int(rng.integers(0, 4)), 19, 3)) for f in range(0, 150, 1 + v)}
+              for v, c in enumerate(cameras)}
+    store(tmp_path, 0, cameras, people)
+    assert len(list(tmp_path.glob("s0.*.npz"))) == -(-150 // FRAMES_PER_FILE)
+    frames = np.arange(40, 131)
+    got = load(tmp_path, 0, cameras, frames)
+    want = {(c, f): p for c in cameras for f, p in people[c].items() if 40 <= f <= 130}
+    assert sorted(got) == sorted(want)
+    for key, p in want.items():
+        np.testing.assert_array_equal(got[key], p.astype(np.float32))
+    assert load(tmp_path, 1, cameras, frames) == {}

@@ -7,9 +7,11 @@ executor (a local pool, a Dask cluster) between the two. :func:`reconstruct_fold
 """
 from __future__ import annotations
 
+import contextlib
 import logging
-from collections.abc import Callable
-from dataclasses import dataclass
+import tempfile
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, replace
 from fractions import Fraction
 from pathlib import Path
 
@@ -178,13 +180,25 @@ def why_nobody(agreement: CameraAgreement, options: PeopleOptions, times: int) -
             f"{tr.max_missed_steps:g} time steps)")
 
 
+@contextlib.contextmanager
+def kept_detections(source, executor=None) -> Iterator:
+    """``source`` with a folder to keep what it reads (a :class:`~dome_calib.recon.people.sources.FileSource`, on
+    this machine's executors), removed at the end; any other source as it is."""
+    if not isinstance(source, FileSource) or getattr(executor, "remote", False):
+        yield source
+        return
+    with tempfile.TemporaryDirectory(prefix="dome-calib-detections-") as folder:
+        yield replace(source, cache_dir=Path(folder))
+
+
 def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callable[[int, int], None] | None = None,
                        page: Callable[[Path], None] | None = None) -> ReconstructSummary:
     """The work of a checked plan: people at every time (chunks on ``executor``), then the files, written only at
     the end (staged, then renamed); ``page(staging)`` adds the caller's files to the staged folder (the people page:
     dome_calib.pipeline.people_page.people_page_writer)."""
-    seq = reconstruct_people_chunked(plan.views, plan.source, plan.times_ms, plan.options, executor=executor,
-                                     depth=plan.depth, progress=progress)
+    with kept_detections(plan.source, executor) as source:  # later passes take what the first one read
+        seq = reconstruct_people_chunked(plan.views, source, plan.times_ms, plan.options, executor=executor,
+                                         depth=plan.depth, progress=progress)
     write_people(plan.out, seq, plan.numbers, FPS_TYPE.get(plan.reference, "custom"), also=page)
     report = camera_report(seq.cameras)
     ids = {int(i) for b in seq.bodies for i in b.ids}

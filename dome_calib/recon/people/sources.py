@@ -20,6 +20,7 @@ from dome_calib.bundle import Bundle, CameraType, SyncTable
 from dome_calib.recon.body_models import BodyModel
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.openpose_io import read_openpose_files
+from dome_calib.recon.people.detection_cache import load, store
 from dome_calib.recon.streams import cameras_by_stream, frame_period_ms
 
 SHARED_STREAM = "shared"
@@ -160,11 +161,14 @@ class InMemorySource:
 class FileSource:
     """Detections still on disk (camera -> {frame -> OpenPose file}): :meth:`chunk` reads only the files of the
     frames that bracket a span of times, so a long session is never in memory at once (each executor task reads its
-    own chunk's files: workers need the detections folder at the same path)."""
+    own chunk's files: workers need the detections folder at the same path). With ``cache_dir`` (a run's own folder,
+    :mod:`~dome_calib.recon.people.detection_cache`) what one pass read is kept there and later passes read only the
+    frames it lacks: the same streams either way."""
 
     layouts: list[StreamLayout]
     files: dict[str, dict[int, Path]]
     body_model: BodyModel
+    cache_dir: Path | None = None
 
     @property
     def cameras(self) -> list[str]:
@@ -172,10 +176,17 @@ class FileSource:
 
     def chunk(self, t0_ms: float, t1_ms: float, max_gap_frames: float) -> list[PeopleStream]:
         out = []
-        for layout in self.layouts:
+        for i, layout in enumerate(self.layouts):
             frames = layout.frame_index[frames_near(layout, t0_ms, t1_ms, max_gap_frames)]
+            kept = load(self.cache_dir, i, layout.cameras, frames) if self.cache_dir is not None else {}
             wanted = set(frames.tolist())
-            files = {n: {f: p for f, p in self.files.get(n, {}).items() if f in wanted} for n in layout.cameras}
+            files = {n: {f: p for f, p in self.files.get(n, {}).items() if f in wanted and (n, f) not in kept}
+                     for n in layout.cameras}
+            people = read_openpose_files(files, self.body_model)
+            if self.cache_dir is not None:
+                store(self.cache_dir, i, layout.cameras, people)
+            for (n, f), p in kept.items():
+                people.setdefault(n, {})[f] = p
             sub = StreamLayout(stream=layout.stream, table=layout.table, cameras=layout.cameras, frame_index=frames)
-            out.append(fill_stream(sub, read_openpose_files(files, self.body_model)))
+            out.append(fill_stream(sub, people))
         return out
