@@ -18,6 +18,8 @@ import pytest
 from dome_calib.executor import SerialExecutor
 from dome_calib.executor.local import LocalProcessExecutor
 from dome_calib.pipeline.cluster import open_executor
+from dome_calib.pipeline.stages import refine_notes
+from dome_calib.reasons import ReasonCode
 from dome_calib.synth.capture import split_onto_nodes
 from projector.observations import Observations
 from projector.refine import RefineOptions, refine_observations
@@ -99,6 +101,9 @@ def test_an_image_a_node_lacks_is_named_and_its_keypoints_stay(two_scenes, local
     finally:
         kept.rename(gone)
     assert report.unreadable_images == {f"scene_02/{camera}": f"image not found ({gone})"}
+    note = refine_notes(report.unreadable_images)  # what calibrate's report lists among the cameras to check
+    assert list(note) == [camera] and note[camera].code == ReasonCode.KEYPOINTS_NOT_REFINED
+    assert f"scene_02: image not found ({gone})" in note[camera].text
     ci = obs.camera_names.index(camera)
     lost = (obs.camera_index == ci) & (obs.point_index >= len(obs.scene_points_cm["scene_01"]))
     assert np.array_equal(placed.uv_px[lost], obs.uv_px[lost])
