@@ -9,6 +9,8 @@
     mapping    the reference with GLOMAP, the others at its poses   :func:`projector.scene.model_of_matched`
                (:mod:`projector.mapping`, :mod:`projector.known_scene`)
     merge      every scene into the prior's frame   :func:`projector.merge.merge_scenes`
+    refine     every track's keypoints across its views   :func:`projector.refine.refine_observations` (each
+               image's work a task on the executor: :mod:`projector.refine_images`)
 
 Order: the reference scene (the most images with features, ties by name) is matched and mapped with GLOMAP,
 refining focal lengths; every other scene is matched on fewer pairs chosen by the reference's geometry and
