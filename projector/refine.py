@@ -22,8 +22,10 @@ The reference keypoint itself is not moved: its error moves all the refined keyp
 (``A`` times it), i.e. the 3D point along the surface, which the bundle adjustment absorbs.
 
 The image work runs as tasks, one per image and phase (:mod:`projector.refine_images`: the reference patches,
-then the alignment), one scene at a time, through the executor that extracted the features (on a cluster, on the
-capture node holding the image) or, without one, in ``n_threads`` threads here. The head gathers the patches
+then the alignment), one scene at a time: on a cluster through the executor that extracted the features (each
+task on the capture node holding its image), on this machine in ``n_threads`` threads (a process pool would only
+pickle every aligned observation's reference patch to its workers: 0.5 GB on the panel dome, ~10 % of the time;
+``bench/refine_dispatch.py``). Any executor gives the same result. The head gathers the patches
 between the phases and writes every result into its observations' slots in image order: the refined keypoints are
 the same bits locally, in a pool of any size or on a cluster. An image no task could read leaves its keypoints
 where SIFT put them; the report lists it (``unreadable_images``) and the log says so. The verdicts (correlation,
@@ -138,8 +140,8 @@ def refine_observations(obs: Observations, image_dir: Callable[[str], Path] | Ma
     Args:
         obs: the merged observations (cameras, points per scene in cm, uv_px OpenCV px).
         image_dir: scene -> the folder holding ``<camera>.png`` of that scene (as the features' tasks were given it).
-        executor: where the per-image tasks run (:mod:`projector.refine_images`); default ``options.n_threads``
-            threads in this process. The result does not depend on it.
+        executor: where the per-image tasks run (:mod:`projector.refine_images`; a cluster's: each where its
+            image is); default ``options.n_threads`` threads in this process. The result does not depend on it.
     Returns:
         new observations (the same cameras, points and indices; ``uv_px`` refined) and the report.
     """

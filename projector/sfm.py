@@ -43,7 +43,7 @@ from pathlib import Path
 from dome_calib.bundle import Bundle, Camera
 from dome_calib.bundle_io import load_bundle
 from dome_calib.errors import CaptureError
-from dome_calib.executor import Executor
+from dome_calib.executor import Executor, is_remote
 from dome_calib.executor.local import make_executor
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.layout import nominal_dome
@@ -131,12 +131,12 @@ def run_sfm(
                                 or ref_options.mapping.refine_focal_length or options.mapping.refine_principal_point)
         merged, merge_failures = _merge(stats, prior_cams, merge_options)
         t_merge = time.perf_counter() - t1
-        # refine: every track's keypoints aligned across its views, each image's work where the image is (the
-        # executor that extracted its features: on a cluster, its capture node)
+        # refine: every track's keypoints aligned across its views, each image's work where the image is: on a
+        # cluster, the node that extracted its features; here, in threads (no patches moved between processes)
         observations, refined = merged.observations if merged else None, None
         if observations is not None and options.refine.enabled:
             observations, refined = refine_observations(observations, lambda s: capture_dir / "scenes" / s,
-                                                        options.refine, executor=pool)
+                                                        options.refine, executor=pool if is_remote(pool) else None)
     failures = _scene_failures(stats) + merge_failures + _refine_failures(refined)
     cameras = merged.observations.cameras if merged else {}
     seconds = {"features": sum(s.features.seconds for s in stats.values()),

@@ -15,7 +15,7 @@ import shutil
 import numpy as np
 import pytest
 
-from dome_calib.executor import SerialExecutor
+from dome_calib.executor import SerialExecutor, is_remote
 from dome_calib.executor.local import LocalProcessExecutor
 from dome_calib.pipeline.cluster import open_executor
 from dome_calib.pipeline.stages import refine_notes
@@ -76,6 +76,7 @@ def test_on_the_nodes_holding_the_images_equals_the_local_refinement_to_the_bit(
     head, _, address = nodes
     stats: dict = {}
     with open_executor(head, address, stats) as executor:
+        assert is_remote(executor)  # calibrate hands the refinement the cluster's executor
         placed, report = refine_observations(obs, lambda s: head / "scenes" / s, OPTIONS, executor=executor)
     assert report.unreadable_images == {}
     assert report.moved > 0.9 * (obs.n_observations - report.references)
@@ -115,5 +116,6 @@ def test_an_image_a_node_lacks_is_named_and_its_keypoints_stay(two_scenes, local
 def test_the_same_bits_in_series_and_in_a_process_pool(two_scenes, local, make):
     obs, capture = two_scenes
     with make() as executor:
+        assert not is_remote(executor)  # calibrate refines in threads here (the same bits, no patches pickled)
         refined, report = refine_observations(obs, lambda s: capture / "scenes" / s, OPTIONS, executor=executor)
     assert np.array_equal(refined.uv_px, local[0].uv_px) and report.moved == local[1].moved

@@ -69,6 +69,14 @@ def in_order(results: Iterable[R], keys: Sequence[Hashable], key_of: Callable[[R
         raise RuntimeError(f"in_order: no result for {keys[nxt]!r} ({len(keys) - nxt} missing)")
 
 
+def is_remote(executor: object) -> bool:
+    """Whether the executor's tasks may run on other machines, reading their own files (a Dask cluster: its
+    ``remote`` attribute). The local pool and the serial executor read this machine's files: work that releases
+    the GIL (numba ``nogil``) then runs as well in this process's threads (:class:`ThreadExecutor`), without moving
+    its data between processes."""
+    return bool(getattr(executor, "remote", False))
+
+
 def default_num_workers() -> int:
     """Cores this process may use (affinity-aware), at least 1."""
     try:

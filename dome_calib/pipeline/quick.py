@@ -40,7 +40,7 @@ from dome_calib.compare import CameraChange, camera_error
 from dome_calib.errors import DomeCalibError
 from dome_calib.pipeline.capture import capture_nodes
 from dome_calib.pipeline.cluster import cluster_section, open_executor, settle_cluster_stats
-from dome_calib.executor import Executor
+from dome_calib.executor import Executor, is_remote
 from dome_calib.executor.local import make_executor
 from dome_calib.normalize import Normalized, WorldReference
 from dome_calib.pipeline.finish import finish
@@ -301,7 +301,8 @@ def reestimate(matched: MatchedScene, det: Suspects, prior: Bundle, work: Path, 
     observations = observations_from_known(rec, cameras, regs, matched.scene)
     # issue 36: every track's keypoints aligned across its views (projector.refine), as in the full calibration
     image_dir = capture / "scenes" / matched.scene if capture is not None else matched.image_dir
-    observations, refined = refine_observations(observations, {matched.scene: image_dir}, executor=executor)
+    observations, refined = refine_observations(observations, {matched.scene: image_dir},
+                                                executor=executor if is_remote(executor) else None)
     problem = problem_from_observations(observations)
     free = sorted(regs)
     # the suspects' observations under the prior, against points the unchanged cameras triangulated
