@@ -5,8 +5,8 @@
 
 The capture is synthesised once and its SfM run once with the refinement off (both kept in ``--work``); the merged
 observations are then refined ``--repeat`` times per way, the ways interleaved (load drifts alike over all): in
-this process's threads (``executor=None``, what the quick path does), in series, and in a 2-process pool (what
-``calibrate`` does). ``--against DIR`` times DIR's ``projector.refine.refine_observations`` (threads: the
+this process's threads (``executor=None``: what ``calibrate`` does without ``--scheduler``), in series, and in a
+2-process pool (the executor ``calibrate`` runs features and matching on; the patches then cross processes). ``--against DIR`` times DIR's ``projector.refine.refine_observations`` (threads: the
 refinement before its work became per-image tasks) in a subprocess on the same observations, within the same
 rounds. Prints one JSON object per line: per way the seconds of each round, their median, whether the refined
 keypoints are the same bits as the first way's, and the load average.
@@ -117,7 +117,8 @@ def main() -> None:
              same_bits_as_threads=same[way], **({"against": str(args.against)} if way == "against" else {}))
     emit(bench="refine_dispatch", stage="summary", moved=moved, unreadable_images=unreadable,
          pool_over_threads=round(float(np.median(seconds["pool_2"]) / np.median(seconds["threads"])), 3),
-         **({"pool_over_against": round(float(np.median(seconds["pool_2"]) / np.median(seconds["against"])), 3)}
+         **({"threads_over_against": round(float(np.median(seconds["threads"]) / np.median(seconds["against"])), 3),
+             "pool_over_against": round(float(np.median(seconds["pool_2"]) / np.median(seconds["against"])), 3)}
             if args.against else {}), loadavg=os.getloadavg())
 
 
