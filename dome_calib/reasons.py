@@ -26,6 +26,7 @@ class ReasonCode(StrEnum):
     NOT_CHECKED = "not_checked"  # the quick path: no usable image to check it against the prior; prior kept
     POSITION_UNCERTAIN = "position_uncertain"  # its centre's uncertainty is large (absolutely or against the dome's)
     NOT_CALIBRATED = "not_calibrated"  # expected but not in the bundle
+    KEYPOINTS_NOT_REFINED = "keypoints_not_refined"  # an image of it no task could read: SIFT's keypoints kept
     NOTE = "note"  # a reason of an older report that none of the codes above names (kept as it was)
 
 

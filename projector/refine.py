@@ -19,32 +19,39 @@ ICCV 2021, here on raw intensity, with the surface giving the warp):
    ``max_shift_px`` and the patches' weighted correlation reaches ``min_zncc``; else it stays where SIFT put it.
 
 The reference keypoint itself is not moved: its error moves all the refined keypoints of its track consistently
-(``A`` times it), i.e. the 3D point along the surface, which the bundle adjustment absorbs. Each scene's images
-are read once (8-bit grey, kept while the scene is refined), in two threads; the fit is compiled (numba, no GIL),
-its result per observation independent of the threads' order. The verdicts (correlation, shift) compare values
-quantised to 1e-6, so the same keypoints move on every machine.
+(``A`` times it), i.e. the 3D point along the surface, which the bundle adjustment absorbs.
+
+The image work runs as tasks, one per image and phase (:mod:`projector.refine_images`: the reference patches,
+then the alignment), one scene at a time: on a cluster through the executor that extracted the features (each
+task on the capture node holding its image), on this machine in ``n_threads`` threads (a process pool would only
+pickle every aligned observation's reference patch to its workers: 0.5 GB on the panel dome, ~10 % of the time;
+``bench/refine_dispatch.py``). Any executor gives the same result. The head gathers the patches
+between the phases and writes every result into its observations' slots in image order: the refined keypoints are
+the same bits locally, in a pool of any size or on a cluster. An image no task could read leaves its keypoints
+where SIFT put them; the report lists it (``unreadable_images``) and the log says so. The verdicts (correlation,
+shift) compare values quantised to 1e-6, so the same keypoints move on every machine.
 
 Measured (docs/accuracy.md): feature noise against the rendered truth 0.195 -> 0.046 px (panel dome), 0.226 ->
 0.058 px (full dome: 1.25 M observations in 22 s on two shared cores).
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
-from collections.abc import Callable, Mapping
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Annotated
 
-import cv2
-import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
 from dome_calib.camera import project_with_jacobians
+from dome_calib.executor import Executor, ThreadExecutor, in_order
 from dome_calib.rotation import matrix_to_rotvec
 from projector.observations import Observations
+from projector.refine_images import ImageJob, ImageOutput, PatchGrid, align_image, reference_patches
 from dome_calib.options import AtLeast, Field, options
 from dome_calib.schema import PosFinite
 
@@ -72,14 +79,14 @@ class RefineOptions:
 @dataclass(kw_only=True)
 class RefineReport:
     """What the refinement did: observations seen, moved (converged and kept), the median and 95th percentile of
-    the shift (px), the observations whose image could not be read, the wall time (s)."""
+    the shift (px), the images no task could read (why, naming the path; their keypoints stay), the wall time (s)."""
 
     observations: int = 0
     references: int = 0
     moved: int = 0
     shift_px_median: float = 0.0
     shift_px_p95: float = 0.0
-    unreadable_images: list[str] = field(default_factory=list)
+    unreadable_images: dict[str, str] = field(default_factory=dict)  # "scene/camera" -> why
     seconds: float = 0.0
 
     def as_dict(self) -> dict:
@@ -125,159 +132,16 @@ def reference_views(point_index: np.ndarray, camera_index: np.ndarray, JT: np.nd
     return ref
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
-def _bilinear(img, x, y):
-    """Value and exact derivatives of the bilinear interpolant of img at (x, y); nan outside."""
-    h, w = img.shape
-    if not (x >= 0.0 and y >= 0.0 and x <= w - 1.0 and y <= h - 1.0):
-        return np.nan, 0.0, 0.0
-    x0 = min(int(x), w - 2)
-    y0 = min(int(y), h - 2)
-    fx, fy = x - x0, y - y0
-    a, b = np.float64(img[y0, x0]), np.float64(img[y0, x0 + 1])
-    c, d = np.float64(img[y0 + 1, x0]), np.float64(img[y0 + 1, x0 + 1])
-    top, bottom = a + fx * (b - a), c + fx * (d - c)
-    return top + fy * (bottom - top), (1.0 - fy) * (b - a) + fy * (d - c), bottom - top
-
-
-@numba.njit(nogil=True, cache=True, boundscheck=False)
-def sample_patches(img, uv, offsets):
-    """(N, K) the image bilinearly sampled at uv (N, 2) + offsets (K, 2) (nan outside)."""
-    out = np.empty((uv.shape[0], offsets.shape[0]), dtype=np.float64)
-    for n in range(uv.shape[0]):
-        for k in range(offsets.shape[0]):
-            out[n, k] = _bilinear(img, uv[n, 0] + offsets[k, 0], uv[n, 1] + offsets[k, 1])[0]
-    return out
-
-
-@numba.njit(nogil=True, cache=True, boundscheck=False)
-def _solve4(H, g, x):
-    """x = H^-1 g for a symmetric positive definite 4 x 4 H (Cholesky, in place in H); False if not."""
-    for j in range(4):
-        d = H[j, j]
-        for k in range(j):
-            d -= H[j, k] * H[j, k]
-        if not d > 1e-12 * (1.0 + abs(H[j, j])):
-            return False
-        H[j, j] = np.sqrt(d)
-        for i in range(j + 1, 4):
-            v = H[i, j]
-            for k in range(j):
-                v -= H[i, k] * H[j, k]
-            H[i, j] = v / H[j, j]
-    for i in range(4):
-        v = g[i]
-        for k in range(i):
-            v -= H[i, k] * x[k]
-        x[i] = v / H[i, i]
-    for i in range(3, -1, -1):
-        v = x[i]
-        for k in range(i + 1, 4):
-            v -= H[k, i] * x[k]
-        x[i] = v / H[i, i]
-    return True
-
-
-@numba.njit(nogil=True, cache=True, boundscheck=False)
-def align_patches(img, uv, A, ref, offsets, weights, iterations, max_shift):
-    """Gauss-Newton per observation: shift d (N, 2) of uv (N, 2) such that img at ``uv + d + A offsets`` best
-    matches ``gain * ref + bias`` (ref (N, K), weights (K,)). Returns d and the weighted correlation (nan: the
-    patch left the image or the fit failed). Stops when a step moves the keypoint by less than 1e-3 px."""
-    n_obs, K = ref.shape
-    shift = np.zeros((n_obs, 2))
-    zncc = np.full(n_obs, np.nan)
-    H = np.zeros((4, 4))
-    g = np.zeros(4)
-    step = np.zeros(4)
-    vals = np.empty(K)
-    ox = np.empty(K)
-    oy = np.empty(K)
-    for n in range(n_obs):
-        for k in range(K):
-            ox[k] = uv[n, 0] + A[n, 0, 0] * offsets[k, 0] + A[n, 0, 1] * offsets[k, 1]
-            oy[k] = uv[n, 1] + A[n, 1, 0] * offsets[k, 0] + A[n, 1, 1] * offsets[k, 1]
-        dx, dy, gain, bias = 0.0, 0.0, 1.0, 0.0
-        ok = True
-        for _ in range(iterations):
-            H[:] = 0.0
-            g[:] = 0.0
-            for k in range(K):
-                v, gx, gy = _bilinear(img, ox[k] + dx, oy[k] + dy)
-                if v != v:
-                    ok = False
-                    break
-                r = ref[n, k]
-                w = weights[k]
-                e = w * (v - gain * r - bias)
-                g[0] -= gx * e
-                g[1] -= gy * e
-                g[2] += r * e
-                g[3] += e
-                wgx, wgy = w * gx, w * gy
-                H[0, 0] += wgx * gx
-                H[1, 0] += wgy * gx
-                H[1, 1] += wgy * gy
-                H[2, 0] -= wgx * r
-                H[2, 1] -= wgy * r
-                H[2, 2] += w * r * r
-                H[3, 0] -= wgx
-                H[3, 1] -= wgy
-                H[3, 2] += w * r
-                H[3, 3] += w
-            if not ok or not _solve4(H, g, step):
-                ok = False
-                break
-            dx += step[0]
-            dy += step[1]
-            gain += step[2]
-            bias += step[3]
-            if dx * dx + dy * dy > 4.0 * max_shift * max_shift:
-                ok = False
-                break
-            if step[0] * step[0] + step[1] * step[1] < 1e-6:
-                break
-        if not ok:
-            continue
-        # weighted correlation of the final patches
-        sw = swv = swr = 0.0
-        for k in range(K):
-            vals[k] = _bilinear(img, ox[k] + dx, oy[k] + dy)[0]
-            sw += weights[k]
-            swv += weights[k] * vals[k]
-            swr += weights[k] * ref[n, k]
-        mv, mr = swv / sw, swr / sw
-        cvv = crr = cvr = 0.0
-        for k in range(K):
-            a, b = vals[k] - mv, ref[n, k] - mr
-            cvv += weights[k] * a * a
-            crr += weights[k] * b * b
-            cvr += weights[k] * a * b
-        if cvv > 0.0 and crr > 0.0:
-            shift[n, 0], shift[n, 1] = dx, dy
-            zncc[n] = cvr / np.sqrt(cvv * crr)
-    return shift, zncc
-
-
-def _patch_grid(options: RefineOptions) -> tuple[np.ndarray, np.ndarray]:
-    r = options.patch_radius_px
-    gy, gx = np.mgrid[-r:r + 1, -r:r + 1]
-    offsets = np.stack([gx.ravel(), gy.ravel()], axis=1).astype(np.float64)
-    weights = np.exp(-0.5 * np.sum(offsets ** 2, axis=1) / (options.window_sigma * max(r, 1)) ** 2)
-    return offsets, weights
-
-
-def _read(path: Path) -> np.ndarray | None:
-    """The image as 8-bit grey (H, W), None if unreadable."""
-    return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)  # the sensor's pixels
-
-
 def refine_observations(obs: Observations, image_dir: Callable[[str], Path] | Mapping[str, Path],
-                        options: RefineOptions | None = None) -> tuple[Observations, RefineReport]:
+                        options: RefineOptions | None = None, executor: Executor | None = None,
+                        ) -> tuple[Observations, RefineReport]:
     """The observations with every track's keypoints aligned to its reference view (module docstring).
 
     Args:
         obs: the merged observations (cameras, points per scene in cm, uv_px OpenCV px).
-        image_dir: scene -> the folder holding ``<camera>.png`` of that scene.
+        image_dir: scene -> the folder holding ``<camera>.png`` of that scene (as the features' tasks were given it).
+        executor: where the per-image tasks run (:mod:`projector.refine_images`; a cluster's: each where its
+            image is); default ``options.n_threads`` threads in this process. The result does not depend on it.
     Returns:
         new observations (the same cameras, points and indices; ``uv_px`` refined) and the report.
     """
@@ -305,46 +169,50 @@ def refine_observations(obs: Observations, image_dir: Callable[[str], Path] | Ma
                                            np.stack([-M[:, 1, 0], M[:, 0, 0]], -1)], 1) / det[:, None, None]
     A = JT @ inv_of_point[obs.point_index]
     ok_warp = np.all(np.isfinite(A), axis=(1, 2)) & np.isfinite(obs.uv_px).all(axis=1)
-    offsets, weights = _patch_grid(options)
+    grid = PatchGrid(radius_px=options.patch_radius_px, window_sigma=options.window_sigma,
+                     iterations=options.iterations, max_shift_px=options.max_shift_px)
+    n_patch = (2 * options.patch_radius_px + 1) ** 2
     image_key = scene_of_point[obs.point_index] * len(obs.camera_names) + obs.camera_index
     keys = np.unique(image_key)
-    members = np.split(np.argsort(image_key, kind="stable"), np.cumsum(np.bincount(
-        np.searchsorted(keys, image_key), minlength=len(keys)))[:-1])
-
+    members = dict(zip(keys.tolist(), np.split(np.argsort(image_key, kind="stable"), np.cumsum(np.bincount(
+        np.searchsorted(keys, image_key), minlength=len(keys)))[:-1])))
     n_cams = len(obs.camera_names)
 
-    def path_of(key: int) -> Path:
-        return Path(dir_of(scenes[key // n_cams])) / f"{obs.camera_names[key % n_cams]}.png"
+    def task(key: int, m: np.ndarray, **more: np.ndarray) -> tuple[str, str, ImageJob]:
+        camera = obs.camera_names[key % n_cams]
+        path = str(Path(dir_of(scenes[key // n_cams])) / f"{camera}.png")
+        return camera, path, ImageJob(key=key, uv_px=obs.uv_px[m].astype(np.float64), grid=grid, **more)
 
-    ref_patch = np.full((len(points), len(offsets)), np.nan)
+    ref_patch = np.full((len(points), n_patch), np.nan)
     shift = np.zeros((obs.n_observations, 2))
     zncc = np.full(obs.n_observations, np.nan)
-    unreadable: list[str] = []
-    images: dict[int, np.ndarray | None] = {}
+    unreadable: dict[int, str] = {}
 
-    def reference_patches(item: tuple[int, np.ndarray]) -> None:
-        key, m = item
-        m = m[is_ref[m]]
-        if len(m) and images[key] is not None:
-            ref_patch[obs.point_index[m]] = sample_patches(images[key], obs.uv_px[m].astype(np.float64), offsets)
+    def results(pool: Executor, fn: Callable, jobs: dict[int, np.ndarray], **more: Callable) -> Iterator[ImageOutput]:
+        """Each image's result in key order (whoever ran it, whenever it finished); failures noted, not yielded."""
+        items = (task(k, m, **{name: f(m) for name, f in more.items()}) for k, m in jobs.items())
+        for out in in_order(pool.map(fn, items), list(jobs), lambda r: r.key):
+            if out.failure is None:
+                yield out
+            else:
+                unreadable.setdefault(out.key, out.failure)
 
-    def align(item: tuple[int, np.ndarray]) -> None:
-        key, m = item
-        m = m[~is_ref[m] & ok_warp[m]]
-        m = m[np.isfinite(ref_patch[obs.point_index[m]]).all(axis=1)]
-        if len(m) and images[key] is not None:
-            shift[m], zncc[m] = align_patches(images[key], obs.uv_px[m].astype(np.float64), A[m],
-                                              ref_patch[obs.point_index[m]], offsets, weights, options.iterations,
-                                              options.max_shift_px)
-
-    with ThreadPoolExecutor(max(1, options.n_threads)) as pool:
-        for si in range(len(scenes)):  # one scene's images in memory at a time (8-bit), each read once
-            items = [(k, m) for k, m in zip(keys.tolist(), members) if k // n_cams == si]
-            images = dict(zip([k for k, _ in items], pool.map(lambda km: _read(path_of(km[0])), items)))
-            unreadable += [str(path_of(k)) for k, img in images.items() if img is None]
-            list(pool.map(reference_patches, items))
-            list(pool.map(align, items))
-            images = {}
+    own = ThreadExecutor(options.n_threads) if executor is None else contextlib.nullcontext(executor)
+    with own as pool:
+        for si in range(len(scenes)):  # one scene's patches on the head at a time
+            scene_keys = [k for k in keys.tolist() if k // n_cams == si]
+            refs = {k: members[k][is_ref[members[k]]] for k in scene_keys}  # every image: an unreadable one is told
+            for out in results(pool, reference_patches, refs):
+                ref_patch[obs.point_index[refs[out.key]]] = out.values
+            aligned = {}
+            for k in scene_keys:
+                m = members[k][~is_ref[members[k]] & ok_warp[members[k]]]
+                m = m[np.isfinite(ref_patch[obs.point_index[m]]).all(axis=1)]
+                if len(m) and k not in unreadable:
+                    aligned[k] = m
+            for out in results(pool, align_image, aligned, warps=lambda m: A[m],
+                               ref_patches=lambda m: ref_patch[obs.point_index[m]]):
+                shift[aligned[out.key]], zncc[aligned[out.key]] = out.values, out.zncc
     norm = np.linalg.norm(shift, axis=1)
     q = 1e-6  # verdicts on quantised values: the same keypoints move on every machine
     moved = (np.isfinite(zncc) & (np.round(np.nan_to_num(zncc, nan=-1.0) / q) >= round(options.min_zncc / q))
@@ -356,8 +224,13 @@ def refine_observations(obs: Observations, image_dir: Callable[[str], Path] | Ma
     if moved.any():
         report.shift_px_median = float(np.median(norm[moved]))
         report.shift_px_p95 = float(np.percentile(norm[moved], 95))
-    report.unreadable_images = sorted(unreadable)
+    report.unreadable_images = {f"{scenes[k // n_cams]}/{obs.camera_names[k % n_cams]}": unreadable[k]
+                                for k in sorted(unreadable)}
     report.seconds = time.perf_counter() - t0
+    if unreadable:
+        logger.warning("keypoint refinement: %d image(s) could not be read, their keypoints not refined: %s",
+                       len(unreadable), "; ".join(list(report.unreadable_images.values())[:3])
+                       + ("; ..." if len(unreadable) > 3 else ""))
     logger.info("keypoint refinement: %d of %d observations moved (median %.3f px), %d reference views, %.1f s",
                 report.moved, report.observations, report.shift_px_median, report.references, report.seconds)
     return replace(obs, uv_px=uv), report

@@ -9,6 +9,8 @@
     mapping    the reference with GLOMAP, the others at its poses   :func:`projector.scene.model_of_matched`
                (:mod:`projector.mapping`, :mod:`projector.known_scene`)
     merge      every scene into the prior's frame   :func:`projector.merge.merge_scenes`
+    refine     every track's keypoints across its views   :func:`projector.refine.refine_observations` (each
+               image's work a task on the executor: :mod:`projector.refine_images`)
 
 Order: the reference scene (the most images with features, ties by name) is matched and mapped with GLOMAP,
 refining focal lengths; every other scene is matched on fewer pairs chosen by the reference's geometry and
@@ -41,7 +43,7 @@ from pathlib import Path
 from dome_calib.bundle import Bundle, Camera
 from dome_calib.bundle_io import load_bundle
 from dome_calib.errors import CaptureError
-from dome_calib.executor import Executor
+from dome_calib.executor import Executor, is_remote
 from dome_calib.executor.local import make_executor
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.layout import nominal_dome
@@ -50,7 +52,7 @@ from projector.features import nominal_camera
 from projector.mapping import SceneModel
 from projector.merge import MergeOptions, MergeResult, merge_scenes
 from projector.overlap import features_of_scenes, later_scene_models, reference_model
-from projector.refine import refine_observations
+from projector.refine import RefineReport, refine_observations
 from projector.scene import (known_scene_pairs, reference_options, reference_scene, select_pairs,
                              with_known_poses_decided)
 from projector.sfm_types import CameraFailure, SceneStats, SfmOptions, SfmResult
@@ -97,7 +99,7 @@ def run_sfm(
         work_dir: where databases and models go (reruns reuse them).
         prior: a previous calibration (Bundle, cameras by name, or a bundle folder); default the nominal dome
             layout. It seeds intrinsics, pair selection and the output frame (cm, Panoptic world).
-        executor: task executor for features and matching (default: local process pool).
+        executor: task executor for features, matching and the refinement's image work (default: local process pool).
     Returns:
         :class:`SfmResult`; ``observations`` is None only if no scene reconstructed (``failures`` says why).
     Example:
@@ -121,21 +123,22 @@ def run_sfm(
         # every other scene: pairs by the reference's geometry, matching, triangulation at its poses
         stats.update(later_scene_models(capture_dir, work_dir, [s for s in scenes if s != ref], prior_cams, options,
                                         pool, feats, stats[ref].model))
-    stats = {scene: stats[scene] for scene in scenes}
-    t_scenes = time.perf_counter() - t0
-    # merge: every scene into the prior's frame
-    t1 = time.perf_counter()
-    merge_options = replace(options.merge, use_colmap_intrinsics=options.merge.use_colmap_intrinsics
-                            or ref_options.mapping.refine_focal_length or options.mapping.refine_principal_point)
-    merged, merge_failures = _merge(stats, prior_cams, merge_options)
-    t_merge = time.perf_counter() - t1
-    failures = _scene_failures(stats) + merge_failures
+        stats = {scene: stats[scene] for scene in scenes}
+        t_scenes = time.perf_counter() - t0
+        # merge: every scene into the prior's frame
+        t1 = time.perf_counter()
+        merge_options = replace(options.merge, use_colmap_intrinsics=options.merge.use_colmap_intrinsics
+                                or ref_options.mapping.refine_focal_length or options.mapping.refine_principal_point)
+        merged, merge_failures = _merge(stats, prior_cams, merge_options)
+        t_merge = time.perf_counter() - t1
+        # refine: every track's keypoints aligned across its views, each image's work where the image is: on a
+        # cluster, the node that extracted its features; here, in threads (no patches moved between processes)
+        observations, refined = merged.observations if merged else None, None
+        if observations is not None and options.refine.enabled:
+            observations, refined = refine_observations(observations, lambda s: capture_dir / "scenes" / s,
+                                                        options.refine, executor=pool if is_remote(pool) else None)
+    failures = _scene_failures(stats) + merge_failures + _refine_failures(refined)
     cameras = merged.observations.cameras if merged else {}
-    # refine: every track's keypoints aligned across its views (the images are read here: local captures only)
-    observations, refined = merged.observations if merged else None, None
-    if observations is not None and options.refine.enabled and options.cameras is None:
-        observations, refined = refine_observations(observations, lambda s: capture_dir / "scenes" / s,
-                                                    options.refine)
     seconds = {"features": sum(s.features.seconds for s in stats.values()),
                "matching": sum(s.matches.seconds for s in stats.values()),
                "mapping": sum(s.model.seconds for s in stats.values()),
@@ -160,6 +163,12 @@ def _scene_failures(stats: Mapping[str, SceneStats]) -> list[CameraFailure]:
         if s.model.failure:
             failures.append(CameraFailure(camera="", scene=s.scene, stage="mapping", reason=s.model.failure))
     return failures
+
+
+def _refine_failures(refined: RefineReport | None) -> list[CameraFailure]:
+    """The images the refinement could not read (their keypoints stay as SIFT put them), per camera and scene."""
+    return [CameraFailure(camera=key.rsplit("/", 1)[1], scene=key.rsplit("/", 1)[0], stage="refine", reason=why)
+            for key, why in (refined.unreadable_images.items() if refined else ())]
 
 
 def _merge(stats: Mapping[str, SceneStats], prior_cams: Mapping[str, Camera], options: MergeOptions

@@ -41,7 +41,7 @@ class SfmOptions:
 class CameraFailure:
     camera: str
     scene: str  # "" for the whole capture
-    stage: str  # features | mapping | merge
+    stage: str  # features | mapping | merge | refine
     reason: str
 
 

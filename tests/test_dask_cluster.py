@@ -1,7 +1,8 @@
 """`calibrate --scheduler` on a real Dask cluster on this machine: a `dask scheduler` and two `dask worker`
 processes on 127.0.0.1, each worker holding half of the cameras of a one-scene tiny capture in its own folder
 (``DOME_CALIB_CAPTURE_ROOT``), the head holding only capture.json with ``"nodes"`` and ``"images"``. The bundle
-equals the local pool's, every image each node read proven to be the listed one; a node whose copy of an image
+equals the local pool's (features and the keypoint refinement's image work ran on the nodes), every image each
+node read proven to be the listed one; a node whose copy of an image
 differs stops the run naming it; a worker killed during feature extraction (its nanny restarts it under the same
 name) costs a retry, not the calibration. About 90 s on 2 cores: marked slow (`pytest -m slow`)."""
 from __future__ import annotations
@@ -115,6 +116,9 @@ def test_scheduler_run_equals_the_local_pool_and_features_run_on_their_node(spli
     # every image was read on the node that holds it: tasks per worker = that node's cameras x scenes
     assert features["workers"] == {n: len(c) * len(meta["scenes"]) for n, c in meta["nodes"].items()}
     assert "features:" in res.stdout and "matching:" in res.stdout
+    for fn in ("reference_patches", "align_image"):  # the keypoint refinement read the images on their nodes too
+        assert stats["stages"][fn]["tasks"] > 0 and set(stats["stages"][fn]["workers"]) <= set(meta["nodes"])
+    assert "refine (alignment):" in res.stdout
     n_images = len(meta["cameras"]) * len(meta["scenes"])
     assert stats["images_verified"] == {"verified": n_images, "unverified": 0}  # each proven to be the listed one
     assert f"images each worker read: {n_images} verified" in res.stdout

@@ -117,7 +117,8 @@ def test_a_missing_image_leaves_its_observations_as_they_were(scene, tmp_path):
     for name in obs.camera_names[1:]:
         (tmp_path / "scene_01" / f"{name}.png").write_bytes((root / "scene_01" / f"{name}.png").read_bytes())
     refined, report = refine_observations(obs, {"scene_01": tmp_path / "scene_01"})
-    assert report.unreadable_images == [str(tmp_path / "scene_01" / f"{obs.camera_names[0]}.png")]
+    missing = tmp_path / "scene_01" / f"{obs.camera_names[0]}.png"
+    assert report.unreadable_images == {f"scene_01/{obs.camera_names[0]}": f"image not found ({missing})"}
     first = obs.camera_index == 0
     assert np.array_equal(refined.uv_px[first], obs.uv_px[first])
     assert report.moved > 0  # the other two views still refine where their reference is readable

@@ -54,9 +54,10 @@ def calibrate(
                             "folder's name)."),
     work: Path = typer.Option(None, "--work", help="Work folder for intermediate results; a rerun resumes from "
                               "it (default: OUT.work beside the bundle)."),
-    scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler (tcp://HOST:PORT): features and "
-                                  "matching run on its workers; images listed under capture.json's \"nodes\" are "
-                                  "read on the worker of that --name (default: the local process pool)."),
+    scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler (tcp://HOST:PORT): features, "
+                                  "matching and the keypoint refinement run on its workers; images listed under "
+                                  "capture.json's \"nodes\" are read on the worker of that --name (default: the local "
+                                  "process pool)."),
     verbose: bool = typer.Option(False, "--verbose", "-v", help="Log every bundle-adjustment iteration."),
 ) -> None:
     """Calibrate every camera of the dome from one capture session: features, matching, reconstruction, bundle

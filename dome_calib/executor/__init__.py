@@ -69,12 +69,37 @@ def in_order(results: Iterable[R], keys: Sequence[Hashable], key_of: Callable[[R
         raise RuntimeError(f"in_order: no result for {keys[nxt]!r} ({len(keys) - nxt} missing)")
 
 
+def is_remote(executor: object) -> bool:
+    """Whether the executor's tasks may run on other machines, reading their own files (a Dask cluster: its
+    ``remote`` attribute). The local pool and the serial executor read this machine's files: work that releases
+    the GIL (numba ``nogil``) then runs as well in this process's threads (:class:`ThreadExecutor`), without moving
+    its data between processes."""
+    return bool(getattr(executor, "remote", False))
+
+
 def default_num_workers() -> int:
     """Cores this process may use (affinity-aware), at least 1."""
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - non-Linux
         return max(1, os.cpu_count() or 1)
+
+
+def bounded_map(submit: Callable[..., cf.Future], fn: Callable[[T], R], items: Iterable[T],
+                max_in_flight: int) -> Iterator[R]:
+    """``fn(item)`` for every item through ``submit``, in completion order, with at most ``max_in_flight`` tasks
+    submitted and not yet yielded (items are drawn as room frees: memory stays flat)."""
+    pending: set[cf.Future] = set()
+    for item in items:
+        pending.add(submit(fn, item))
+        if len(pending) >= max_in_flight:
+            done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+            for fut in done:
+                yield fut.result()
+    while pending:
+        done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+        for fut in done:
+            yield fut.result()
 
 
 class SerialExecutor:
@@ -96,6 +121,30 @@ class SerialExecutor:
         """Nothing to release (same lifecycle as the pool, so callers can always use ``with``)."""
 
     def __enter__(self) -> SerialExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.shutdown()
+
+
+class ThreadExecutor:
+    """Tasks in threads of this process: for compiled work that releases the GIL (numba ``nogil``) on data this
+    process can read; no pickling. Results in completion order, at most 4 tasks per thread in flight."""
+
+    def __init__(self, num_threads: int) -> None:
+        self.num_workers = max(1, num_threads)
+        self._pool = cf.ThreadPoolExecutor(self.num_workers)
+
+    def submit(self, fn: Callable[..., R], /, *args: Any, **kwargs: Any) -> Future[R]:
+        return self._pool.submit(fn, *args, **kwargs)
+
+    def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
+        return bounded_map(self._pool.submit, fn, items, 4 * self.num_workers)
+
+    def shutdown(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+    def __enter__(self) -> ThreadExecutor:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -200,6 +200,8 @@ def _timed(fn: Callable[[T], R], item: T) -> tuple[str, float, R]:
 class DaskExecutor:
     """Tasks on a Dask cluster (see the module docstring). Use as a context manager, or call :meth:`shutdown`."""
 
+    remote = True  # its workers may be other machines, reading their own files (executor.is_remote)
+
     def __init__(self, address: str, *, routes: Mapping[Callable, Route] | None = None, retries: int = 2,
                  max_in_flight: int | None = None, connect_timeout_s: float | None = None,
                  client: Any = None) -> None:

@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
-from dome_calib.executor import Future, SerialExecutor, default_num_workers
+from dome_calib.executor import Future, SerialExecutor, bounded_map, default_num_workers
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -92,17 +92,7 @@ class LocalProcessExecutor:
 
     def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
         """Results in completion order, with a bounded number of tasks in flight (memory stays flat)."""
-        pending: set[cf.Future[R]] = set()
-        for item in items:
-            pending.add(self.submit(fn, item))
-            if len(pending) >= self._max_in_flight:
-                done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
-                for fut in done:
-                    yield fut.result()
-        while pending:
-            done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
-            for fut in done:
-                yield fut.result()
+        return bounded_map(self.submit, fn, items, self._max_in_flight)
 
     def shutdown(self) -> None:
         self._pool.shutdown(wait=True, cancel_futures=True)

@@ -5,7 +5,9 @@ A capture may say which capture node holds which cameras' images (``capture.json
 extraction of those images is then pinned to that node's worker and reads the image from the node's own disk:
 ``$DOME_CALIB_CAPTURE_ROOT`` in the worker's environment, a folder with the capture's layout
 (``scenes/<scene>/<camera>.png``), or else the head's CAPTURE path. Only the features (keypoints and
-descriptors, ~0.5 MB a VGA image) come back. Matching, mapping and the bundle adjustment read the scene
+descriptors, ~0.5 MB a VGA image) come back. The keypoint refinement's two tasks per image (reference patches,
+then alignment against them: :mod:`projector.refine_images`) go to the same node the same way; patches and
+shifts move, never an image. Matching, mapping and the bundle adjustment read the scene
 database the head writes: matching tasks go to any worker, which therefore reads the head's work folder by the
 same path (a shared mount, or one machine). A capture without ``"nodes"`` is read from its shared path by any
 worker.
@@ -15,7 +17,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +28,7 @@ from dome_calib.executor.local import make_executor
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.pipeline.capture import capture_images, capture_nodes
 from projector.features import ImageResult, extract_image
+from projector.refine_images import align_image, reference_patches
 
 CAPTURE_ROOT_ENV = "DOME_CALIB_CAPTURE_ROOT"
 WORKER_WAIT_S = 20.0  # how long a run waits for the capture's node workers to connect
@@ -47,29 +50,43 @@ def fingerprint(path: str | Path) -> tuple[int, str]:
 
 @dataclass(frozen=True)
 class ProvenImageTask:
-    """Worker side of a feature task on a cluster (picklable): the image as this worker finds it (on its own disk
-    for a camera pinned to its node), its (bytes, SHA-256) as evidence, then the feature task; an image it cannot
-    find is reported per camera, naming the path."""
+    """Worker side of a per-image task on a cluster (picklable; ``fn``: the feature task, or one of the keypoint
+    refinement's): the image as this worker finds it (on its own disk for a camera pinned to its node), its
+    (bytes, SHA-256) as evidence, then the task on that path; an image it cannot find is reported per camera,
+    naming the path."""
 
     head_capture: str
     pinned: frozenset[str]
+    fn: Callable[[tuple], object] = extract_image
 
     def __call__(self, task: tuple) -> object:
-        camera, path, options = task
+        camera, path, job = task
         local = node_image_path(self.head_capture, path) if camera in self.pinned else path
         if not os.path.isfile(local):
-            return Proven(ImageResult(camera=camera, failure=f"image not found on this worker ({local})"), None)
-        return Proven(extract_image((camera, local, options)), fingerprint(local))
+            if self.fn is extract_image:
+                return Proven(ImageResult(camera=camera, failure=f"image not found on this worker ({local})"), None)
+            return Proven(self.fn((camera, local, job)), None)  # the task says it found no image there
+        return Proven(self.fn((camera, local, job)), fingerprint(local))
 
 
 class ImageCheck:
     """Head side: each image a worker read must be the one this machine sees at that path (or, pinned to a
     capture node, the one ``capture.json``'s ``"images"`` lists); DomeCalibError naming the worker otherwise,
-    before its features are used. ``verified`` / ``unverified`` count the images."""
+    before its result is used. ``verified`` / ``unverified`` count the images (each once, however many tasks read
+    it: features, then the refinement's two phases)."""
 
     def __init__(self, capture: Path, pinned: set[str], listed: dict[str, tuple[int, str]]) -> None:
         self.capture, self.pinned, self.listed = capture, pinned, listed
-        self.verified = self.unverified = 0
+        self._verified: set[str] = set()
+        self._unverified: set[str] = set()
+
+    @property
+    def verified(self) -> int:
+        return len(self._verified)
+
+    @property
+    def unverified(self) -> int:
+        return len(self._unverified)
 
     def __call__(self, item: tuple, worker: str, evidence: tuple[int, str] | None) -> None:
         camera, path, _ = item
@@ -79,7 +96,7 @@ class ImageCheck:
         elif camera not in self.pinned and os.path.isfile(path):
             expected, against = fingerprint(path), "this machine reads there"
         else:
-            self.unverified += 1  # on a capture node, and capture.json lists no fingerprint for it
+            self._unverified.add(key)  # on a capture node, and capture.json lists no fingerprint for it
             return
         if evidence is None and camera in self.pinned:
             return  # not on its node: reported per camera with the path the node looked at
@@ -89,7 +106,7 @@ class ImageCheck:
                 f"worker {worker}: {path}: not the image {against} ({got}; expected {expected[0]:,} bytes, SHA-256 "
                 f"{expected[1][:12]}...): the worker sees another capture; stopped before its features were used "
                 "(give every worker the same capture, or a node its own copy through $DOME_CALIB_CAPTURE_ROOT)")
-        self.verified += 1
+        self._verified.add(key)
 
 
 @dataclass(frozen=True)
@@ -136,8 +153,9 @@ def open_executor(capture: Path | None, scheduler: str | None, stats: dict | Non
     if capture is not None:
         node_of = {cam: node for node, cams in nodes.items() for cam in cams}
         check = ImageCheck(capture.resolve(), set(node_of), capture_images(capture))
-        routes[extract_image] = Route(worker_of=_CameraNode(node_of), verify=check,
-                                      task_fn=ProvenImageTask(str(capture.resolve()), frozenset(node_of)))
+        for fn in (extract_image, reference_patches, align_image):  # each image's tasks where the image is
+            routes[fn] = Route(worker_of=_CameraNode(node_of), verify=check,
+                               task_fn=ProvenImageTask(str(capture.resolve()), frozenset(node_of), fn))
     with DaskExecutor(scheduler, routes=routes) as executor:
         if nodes:
             executor.wait_for_workers(nodes, WORKER_WAIT_S)
@@ -166,7 +184,8 @@ def settle_cluster_stats(path: Path, stats: dict, *, resumed: bool) -> dict:
 
 
 def stage_name(fn_name: str) -> str:
-    return {"extract_image": "features", "match_batch": "matching", "render_camera": "rendering"}.get(fn_name, fn_name)
+    return {"extract_image": "features", "match_batch": "matching", "render_camera": "rendering",
+            "reference_patches": "refine (reference patches)", "align_image": "refine (alignment)"}.get(fn_name, fn_name)
 
 
 def cluster_section(stats: dict, on_this_machine: list[str]) -> dict | None:

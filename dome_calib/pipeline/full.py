@@ -36,7 +36,7 @@ from dome_calib.layout import check_dome_scale
 from dome_calib.normalize import normalize
 from dome_calib.pipeline.finish import check_carried_report_files, finish
 from dome_calib.pipeline.quick import run_quick
-from dome_calib.pipeline.stages import run_ba_stage, run_sfm_stage
+from dome_calib.pipeline.stages import refine_notes, run_ba_stage, run_sfm_stage
 from dome_calib.pipeline.types import CalibrateOptions, Calibrated, CalibrationInputs, CalibrationResult
 from dome_calib.pipeline.workstate import WorkState, input_fingerprint
 
@@ -112,6 +112,8 @@ def run_full(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
                             center_sigma_cm={n: s * to_cm for n, s in ba.center_sigma.items()},
                             rotation_sigma_deg=getattr(ba, "rotation_sigma_deg", {}),  # {}: a work folder from before
                             lens_model=ba.lens_model,
+                            notes={n: r for n, r in refine_notes((sfm.stats.get("refine") or {}).get("unreadable_images") or {})
+                                   .items() if n in normalized.cameras},
                             cluster=cluster_section(cluster, ["mapping", "merge", "bundle adjustment", "normalize"]),
                             source=f"dome-calib calibrate {inputs.capture.name} ({len(inputs.scenes)} scenes)")
     result = finish(inputs, state, calibrated)

@@ -40,12 +40,12 @@ from dome_calib.compare import CameraChange, camera_error
 from dome_calib.errors import DomeCalibError
 from dome_calib.pipeline.capture import capture_nodes
 from dome_calib.pipeline.cluster import cluster_section, open_executor, settle_cluster_stats
-from dome_calib.executor import Executor
+from dome_calib.executor import Executor, is_remote
 from dome_calib.executor.local import make_executor
 from dome_calib.normalize import Normalized, WorldReference
 from dome_calib.pipeline.finish import finish
 from dome_calib.pipeline.stages import (ba_options, observation_residuals, problem_from_observations,
-                                        quiet_colmap, run_ba_stage)
+                                        quiet_colmap, refine_notes, run_ba_stage)
 from dome_calib.residuals import Residuals
 from dome_calib.pipeline.types import BAOutcome, Calibrated, CalibrationInputs, CalibrationResult
 from dome_calib.pipeline.workstate import WorkState
@@ -137,6 +137,7 @@ class Reestimated:
     points: int = 0
     observations: int = 0
     held_cameras: int = 0  # unchanged partners the points were triangulated from
+    unreadable: dict[str, str] = field(default_factory=dict)  # "scene/camera" -> why the refinement could not read it
 
 
 def _robust_camera_rms(problem, used: np.ndarray) -> np.ndarray:
@@ -270,8 +271,11 @@ def match_suspects(matched: MatchedScene, det: Suspects, prior: Bundle, capture:
     return SuspectMatches(full_resolution=full, extra_pairs=len(extra), seconds=seconds)
 
 
-def reestimate(matched: MatchedScene, det: Suspects, prior: Bundle, work: Path) -> Reestimated:
-    """Stage ``quick_ba``: triangulate with the unchanged cameras, register and refine the suspects."""
+def reestimate(matched: MatchedScene, det: Suspects, prior: Bundle, work: Path, *, capture: Path | None = None,
+               executor: Executor | None = None) -> Reestimated:
+    """Stage ``quick_ba``: triangulate with the unchanged cameras, register and refine the suspects. The keypoint
+    refinement's image work runs on ``executor`` with the scene's images as the capture has them (``capture``;
+    default the mapper's image folder): on a cluster, where the images are."""
     suspects = det.suspects
     if not suspects:
         return Reestimated(ba=None)
@@ -296,7 +300,9 @@ def reestimate(matched: MatchedScene, det: Suspects, prior: Bundle, work: Path) 
         return Reestimated(ba=None, failed=failed)
     observations = observations_from_known(rec, cameras, regs, matched.scene)
     # issue 36: every track's keypoints aligned across its views (projector.refine), as in the full calibration
-    observations, _ = refine_observations(observations, {matched.scene: matched.image_dir})
+    image_dir = capture / "scenes" / matched.scene if capture is not None else matched.image_dir
+    observations, refined = refine_observations(observations, {matched.scene: image_dir},
+                                                executor=executor if is_remote(executor) else None)
     problem = problem_from_observations(observations)
     free = sorted(regs)
     # the suspects' observations under the prior, against points the unchanged cameras triangulated
@@ -332,7 +338,8 @@ def reestimate(matched: MatchedScene, det: Suspects, prior: Bundle, work: Path) 
     return Reestimated(ba=ba, changed=changed, relensed=[n for n in relensed if n in changed], failed=failed,
                        rms_prior_px={n: float(rms_prior[pos[n]]) for n in free},
                        rms_new_px={n: float(rms_new[pos[n]]) for n in free},
-                       points=problem.n_points, observations=problem.n_observations, held_cameras=len(partners))
+                       points=problem.n_points, observations=problem.n_observations, held_cameras=len(partners),
+                       unreadable=refined.unreadable_images)
 
 
 def changes_of(est: Reestimated, prior: Bundle) -> dict[str, CameraChange]:
@@ -371,9 +378,10 @@ def run_quick(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
         check_prior_holds(det, inputs.options.prior, len(matched.cameras))
         extra = state.run("suspect_match", partial(match_suspects, matched, det, prior, inputs.capture, progress,
                                                    executor=executor))
-    cluster = settle_cluster_stats(state.folder / "cluster.json", cluster,
-                                   resumed=all(s in state.resumed for s in ("match", "detect", "suspect_match")))
-    est = state.run("quick_ba", partial(reestimate, matched, det, prior, work))
+        est = state.run("quick_ba", partial(reestimate, matched, det, prior, work, capture=inputs.capture,
+                                            executor=executor))
+    cluster = settle_cluster_stats(state.folder / "cluster.json", cluster, resumed=all(
+        s in state.resumed for s in ("match", "detect", "suspect_match", "quick_ba")))
     failures = {n: f"no usable image in {scene}: {why}" for n, why in matched.failures.items()}
     failures.update({n: f"changed since the prior but not re-estimated: {why}" for n, why in est.failed.items()})
     cameras = {n: c for n, c in prior.cameras.items() if n not in est.failed}
@@ -385,7 +393,9 @@ def run_quick(inputs: CalibrationInputs, state: WorkState) -> CalibrationResult:
                            f"({why}); prior kept")
                  for n, why in matched.failures.items() if n in cameras and n not in est.changed}
     sigma_cm = est.ba.center_sigma if est.ba is not None else {}  # the prior's frame: already cm
-    calibrated = Calibrated(normalized=normalized, failures=failures, changes=changes_of(est, prior), notes=unchecked,
+    notes = {n: r for n, r in refine_notes(getattr(est, "unreadable", {})).items() if n in cameras}  # {}: before
+    calibrated = Calibrated(normalized=normalized, failures=failures, changes=changes_of(est, prior),
+                            notes={**notes, **unchecked},
                             residuals=est.ba.residuals if est.ba is not None else Residuals.empty(),
                             center_sigma_cm=sigma_cm,
                             rotation_sigma_deg=getattr(est.ba, "rotation_sigma_deg", {}) if est.ba is not None else {},

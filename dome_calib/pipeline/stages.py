@@ -27,6 +27,7 @@ from dome_calib.residuals import Residuals, observed_minus_projected
 from dome_calib.executor import Executor
 from dome_calib.pipeline.types import BAOutcome, SfmOutcome
 from dome_calib.progress import ProgressTasks
+from dome_calib.reasons import Reason, ReasonCode, reason
 from projector.observations import Observations
 from projector.sfm import SfmOptions, report_dict, run_sfm
 
@@ -85,6 +86,19 @@ def run_sfm_stage(capture: Path, work_dir: Path, *, prior: Bundle | None, progre
     problem, dropped = prune_problem(problem_from_observations(result.observations),
                                      prior=prior.cameras if prior is not None else None)
     return SfmOutcome(problem=problem, failures={**result.unregistered, **dropped}, stats=report_dict(result))
+
+
+def refine_notes(unreadable: Mapping[str, str] | list[str]) -> dict[str, Reason]:
+    """Per camera, the images of it the keypoint refinement could not read (its keypoints there stay as SIFT put
+    them; :attr:`projector.refine.RefineReport.unreadable_images`, ``"scene/camera" -> why``): a reason to check it."""
+    if not isinstance(unreadable, Mapping):  # a work folder of before: paths only
+        unreadable = {f"{Path(p).parent.name}/{Path(p).stem}": f"unreadable ({p})" for p in unreadable}
+    why: dict[str, list[str]] = {}
+    for key, text in sorted(unreadable.items()):
+        scene, camera = key.rsplit("/", 1)
+        why.setdefault(camera, []).append(f"{scene}: {text}")
+    return {c: reason(ReasonCode.KEYPOINTS_NOT_REFINED, f"keypoints not refined, image not read ({'; '.join(w)})")
+            for c, w in why.items()}
 
 
 #: Gate between SfM and BA: a camera needs this many observations, and a centre inside the gate, to enter the

@@ -64,7 +64,7 @@ class CalibrateOptions:
     # the covariance is only as good as the noise model, so a camera far less determined than the others is
     # checked even under the absolute bound (a camera 5x less determined is ~5x as likely to be off)
     center_sigma_ratio: PosFinite = 5.0
-    scheduler: str | None = None  # a Dask scheduler (tcp://HOST:PORT) for features and matching; None: local pool
+    scheduler: str | None = None  # Dask scheduler (tcp://HOST:PORT) for features, matching, refining; None: local
 
 
 @dataclass(kw_only=True)
