@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle_io import load_bundle
+from dome_calib.executor import is_remote
 from dome_calib.io_utils import refuse_output_among_inputs, refuse_output_inside_inputs, remove_stale_staging
 from dome_calib.recon.body_models import BodyModel, parse_body_model
 from dome_calib.recon.errors import ReconError
@@ -184,7 +185,7 @@ def why_nobody(agreement: CameraAgreement, options: PeopleOptions, times: int) -
 def kept_detections(source, executor=None) -> Iterator:
     """``source`` with a folder to keep what it reads (a :class:`~dome_calib.recon.people.sources.FileSource`, on
     this machine's executors), removed at the end; any other source as it is."""
-    if not isinstance(source, FileSource) or getattr(executor, "remote", False):
+    if not isinstance(source, FileSource) or is_remote(executor):
         yield source
         return
     with tempfile.TemporaryDirectory(prefix="dome-calib-detections-") as folder:

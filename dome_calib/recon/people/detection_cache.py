@@ -9,7 +9,7 @@ them); a later pass takes the frames it finds there and reads only the others, s
 numbers (and the same people per frame) it would have got from the files: the result does not depend on the cache.
 
 The folder belongs to one run (a temporary folder, removed when the run ends, also on an interrupt) and to one
-machine: on a cluster whose workers may be other machines (``executor.remote``) nothing is kept and every pass
+machine: on a cluster whose workers may be other machines (``executor.is_remote``) nothing is kept and every pass
 reads its files.
 """
 from __future__ import annotations
