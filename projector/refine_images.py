@@ -20,7 +20,9 @@ depends on that observation's inputs only.
 """
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -204,15 +206,41 @@ class ImageOutput:
     failure: str | None = None
 
 
+#: A scene's images as its first phase decoded them, for its second phase in this process's threads
+#: (:func:`images_kept_between_phases`); None: every task reads its image itself.
+_KEPT: dict[str, np.ndarray] | None = None
+
+
+@contextlib.contextmanager
+def images_kept_between_phases() -> Iterator[None]:
+    """Within: an image decoded by a task of this process is kept, and the next task of this process that asks for
+    the same path takes it (the alignment after the reference patches) instead of decoding the PNG again. For the
+    head's own threads, one scene at a time (the images of one scene, 8-bit: ~220 MB on the full dome); tasks that
+    run in other processes or machines read their images as ever. Dropped on leaving."""
+    global _KEPT
+    _KEPT = {}
+    try:
+        yield
+    finally:
+        _KEPT = None
+
+
 def read_grey(path: str) -> tuple[np.ndarray | None, str | None]:
     """The image as 8-bit grey (H, W) with the sensor's pixels (no EXIF turn), or None and why not."""
+    kept = _KEPT
+    if kept is not None and path in kept:
+        return kept[path], None
     if not os.path.isfile(path):
         return None, f"image not found ({path})"
     try:
         image = cv2.imread(path, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
     except cv2.error:
         image = None
-    return (image, None) if image is not None else (None, f"unreadable image, not a valid PNG ({path})")
+    if image is None:
+        return None, f"unreadable image, not a valid PNG ({path})"
+    if kept is not None:
+        kept[path] = image
+    return image, None
 
 
 def reference_patches(task: tuple[str, str, ImageJob]) -> ImageOutput:
