@@ -22,7 +22,7 @@ import shutil
 import socket
 import stat
 import tempfile
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from dome_calib.errors import DomeCalibError
@@ -74,6 +74,14 @@ def output_folder(path: str | os.PathLike[str]) -> Path:
         raise OutputPathError(f"{given}: is {_kind(mode) if not stat.S_ISREG(mode) else 'a file'}, not a folder")
     check_writable(target)
     return target
+
+
+def foreign_names(folder: Path, ours: Callable[[str], bool]) -> list[str]:
+    """The names in ``folder`` that ``ours`` does not claim, sorted (none if it is no folder): what replacing the
+    folder as a whole would delete though its writer did not write it."""
+    if not folder.is_dir():
+        return []
+    return sorted(p.name for p in folder.iterdir() if not ours(p.name))
 
 
 @contextlib.contextmanager

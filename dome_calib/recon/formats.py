@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle import Bundle
-from dome_calib.io_utils import atomic_folder, output_folder
+from dome_calib.io_utils import atomic_folder, foreign_names, output_folder
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.streams import SkeletonSequence, StreamTracks, group_by_stream
 
@@ -182,11 +182,10 @@ def check_output_folder(folder: str | Path) -> Path:
     """The skeleton folder ``-o`` may replace: absent, empty or holding only body3DScene files (an earlier run's);
     anything else is refused before any work."""
     target = output_folder(folder)
-    if target.is_dir():
-        other = sorted(p.name for p in target.iterdir() if not SKELETON_FILE.fullmatch(p.name))
-        if other:
-            raise ReconError(f"{folder}: holds {other[0]!r}, which is not a body3DScene file: the skeleton folder is "
-                             "replaced as a whole, so give a new folder or one of an earlier run")
+    other = foreign_names(target, SKELETON_FILE.fullmatch)
+    if other:
+        raise ReconError(f"{folder}: holds {other[0]!r}, which is not a body3DScene file: the skeleton folder is "
+                         "replaced as a whole, so give a new folder or one of an earlier run")
     return target
 
 

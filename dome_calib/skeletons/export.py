@@ -14,7 +14,7 @@ from enum import StrEnum
 from fractions import Fraction
 from pathlib import Path
 
-from dome_calib.io_utils import atomic_folder, output_folder, refuse_output_among_inputs
+from dome_calib.io_utils import atomic_folder, foreign_names, output_folder, refuse_output_among_inputs
 from dome_calib.options import AtLeast, PosFraction, options
 from dome_calib.schema import NonNegFinite
 from dome_calib.skeletons.bvh import write_bvh
@@ -60,11 +60,10 @@ class ExportSummary:
 def check_export_folder(folder: str | Path) -> Path:
     """The output folder may be absent, empty or hold only an earlier export's files: it is replaced whole."""
     target = output_folder(folder)
-    if target.is_dir():
-        other = sorted(p.name for p in target.iterdir() if not _OURS.fullmatch(p.name))
-        if other:
-            raise PeopleFileError(f"{folder}: holds {other[0]!r}, which export-people did not write; the folder is "
-                                  "replaced as a whole, so give a new folder or an earlier export's")
+    other = foreign_names(target, _OURS.fullmatch)
+    if other:
+        raise PeopleFileError(f"{folder}: holds {other[0]!r}, which export-people did not write; the folder is "
+                              "replaced as a whole, so give a new folder or an earlier export's")
     return target
 
 

@@ -111,6 +111,15 @@ def _read_scene(path: Path) -> SceneFile:
     return parse_json(path, data, SceneFile, error=PeopleFileError)
 
 
+def read_scene(path: str | Path) -> tuple[float, dict[int, np.ndarray]]:
+    """One body3DScene file in the joints19 layout (as ``reconstruct`` writes) -> (univTime ms, {id: (19, 4)
+    [x, y, z, c]})."""
+    scene = _read_scene(Path(path))
+    if any(b.joints19 is None for b in scene.bodies):
+        raise PeopleFileError(f"{path}: bodies: expected joints19, got joints15")
+    return float(scene.univTime), {b.id: np.asarray(b.joints19, dtype=float).reshape(19, 4) for b in scene.bodies}
+
+
 def frame_rate(fps_type: str, frames: np.ndarray, times_ms: np.ndarray) -> Fraction:
     """The frame rate: the ``fpsType``'s (exact), else frames per second of the times (rounded to 1/1000 fps)."""
     if fps_type in FPS_OF_TYPE:

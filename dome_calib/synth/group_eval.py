@@ -32,7 +32,7 @@ from dome_calib.recon.body_models import JOINTS19
 from dome_calib.recon.openpose_io import read_openpose_folder
 from dome_calib.recon.people.resample import interpolate_people
 from dome_calib.recon.people.run import PeopleOptions
-from dome_calib.recon.people.scene_io import read_scene
+from dome_calib.skeletons.scenes import read_scene
 from dome_calib.recon.people.sources import PeopleStream, people_streams
 from dome_calib.recon.project import ViewSet, project_points, view_set
 from dome_calib.recon.triangulate import triangulate

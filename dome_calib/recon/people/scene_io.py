@@ -20,13 +20,13 @@ measured pixel noise from where the body puts the joint: swaps, a neighbour's li
 from __future__ import annotations
 
 import json
-import re
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from dome_calib.io_utils import atomic_folder, output_folder
+from dome_calib.io_utils import atomic_folder, foreign_names, output_folder
+from dome_calib.recon.formats import SKELETON_FILE
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.bodies import Bodies
@@ -34,19 +34,16 @@ from dome_calib.recon.people.run import PeopleSequence
 
 CAMERAS_FILE = "cameras.json"
 PAGE_FILE = "index.html"  # the people page, written into the staging folder by write_people's ``also``
-_OURS = re.compile(r"body3DScene_-?\d+\.json")
 
 
 def check_people_folder(folder: str | Path) -> Path:
     """The output folder ``-o`` may replace: absent, empty or an earlier run's (body3DScene files and
     cameras.json only); anything else is refused before any work."""
     target = output_folder(folder)
-    if target.is_dir():
-        other = sorted(p.name for p in target.iterdir()
-                       if not (_OURS.fullmatch(p.name) or p.name in (CAMERAS_FILE, PAGE_FILE)))
-        if other:
-            raise ReconError(f"{folder}: holds {other[0]!r}, which is not an output of reconstruct: the folder is "
-                             "replaced as a whole, so give a new folder or one of an earlier run")
+    other = foreign_names(target, lambda name: bool(SKELETON_FILE.fullmatch(name)) or name in (CAMERAS_FILE, PAGE_FILE))
+    if other:
+        raise ReconError(f"{folder}: holds {other[0]!r}, which is not an output of reconstruct: the folder is "
+                         "replaced as a whole, so give a new folder or one of an earlier run")
     return target
 
 
@@ -106,10 +103,3 @@ def write_people(folder: str | Path, seq: PeopleSequence, numbers: np.ndarray, f
         if also is not None:
             also(staging)
     return [folder / n for n in names]
-
-
-def read_scene(path: str | Path) -> tuple[float, dict[int, np.ndarray]]:
-    """A body3DScene file -> (univTime ms, {id: (19, 4) [x, y, z, c]})."""
-    data = json.loads(Path(path).read_text(encoding="utf-8"))
-    return float(data["univTime"]), {int(b["id"]): np.asarray(b["joints19"], dtype=float).reshape(19, 4)
-                                     for b in data["bodies"]}
