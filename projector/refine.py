@@ -41,6 +41,7 @@ import logging
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Annotated
 
@@ -51,8 +52,7 @@ from dome_calib.camera import project_with_jacobians
 from dome_calib.executor import Executor, ThreadExecutor, in_order
 from dome_calib.rotation import matrix_to_rotvec
 from projector.observations import Observations
-from projector.refine_images import (ImageJob, ImageOutput, PatchGrid, align_image, images_kept_between_phases,
-                                     reference_patches)
+from projector.refine_images import ImageJob, ImageOutput, PatchGrid, align_image, reference_patches
 from dome_calib.options import AtLeast, Field, options
 from dome_calib.schema import PosFinite
 
@@ -201,21 +201,24 @@ def refine_observations(obs: Observations, image_dir: Callable[[str], Path] | Ma
     own = ThreadExecutor(options.n_threads) if executor is None else contextlib.nullcontext(executor)
     with own as pool:
         for si in range(len(scenes)):  # one scene's patches on the head at a time
-            # in this process's threads a scene's images are decoded once for both phases
-            with images_kept_between_phases() if executor is None else contextlib.nullcontext():
-                scene_keys = [k for k in keys.tolist() if k // n_cams == si]
-                refs = {k: members[k][is_ref[members[k]]] for k in scene_keys}  # every image: an unreadable one is told
-                for out in results(pool, reference_patches, refs):
-                    ref_patch[obs.point_index[refs[out.key]]] = out.values
-                aligned = {}
-                for k in scene_keys:
-                    m = members[k][~is_ref[members[k]] & ok_warp[members[k]]]
-                    m = m[np.isfinite(ref_patch[obs.point_index[m]]).all(axis=1)]
-                    if len(m) and k not in unreadable:
-                        aligned[k] = m
-                for out in results(pool, align_image, aligned, warps=lambda m: A[m],
-                                   ref_patches=lambda m: ref_patch[obs.point_index[m]]):
-                    shift[aligned[out.key]], zncc[aligned[out.key]] = out.values, out.zncc
+            # in this process's threads a scene's images are decoded once for both phases (other processes and
+            # machines read their own)
+            kept: dict[str, np.ndarray] = {}
+            phase1, phase2 = ((partial(reference_patches, kept=kept), partial(align_image, kept=kept))
+                              if executor is None else (reference_patches, align_image))  # the cluster routes these
+            scene_keys = [k for k in keys.tolist() if k // n_cams == si]
+            refs = {k: members[k][is_ref[members[k]]] for k in scene_keys}  # every image: an unreadable one is told
+            for out in results(pool, phase1, refs):
+                ref_patch[obs.point_index[refs[out.key]]] = out.values
+            aligned = {}
+            for k in scene_keys:
+                m = members[k][~is_ref[members[k]] & ok_warp[members[k]]]
+                m = m[np.isfinite(ref_patch[obs.point_index[m]]).all(axis=1)]
+                if len(m) and k not in unreadable:
+                    aligned[k] = m
+            for out in results(pool, phase2, aligned, warps=lambda m: A[m],
+                               ref_patches=lambda m: ref_patch[obs.point_index[m]]):
+                shift[aligned[out.key]], zncc[aligned[out.key]] = out.values, out.zncc
     norm = np.linalg.norm(shift, axis=1)
     q = 1e-6  # verdicts on quantised values: the same keypoints move on every machine
     moved = (np.isfinite(zncc) & (np.round(np.nan_to_num(zncc, nan=-1.0) / q) >= round(options.min_zncc / q))

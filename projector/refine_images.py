@@ -20,9 +20,7 @@ depends on that observation's inputs only.
 """
 from __future__ import annotations
 
-import contextlib
 import os
-from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -206,28 +204,9 @@ class ImageOutput:
     failure: str | None = None
 
 
-#: A scene's images as its first phase decoded them, for its second phase in this process's threads
-#: (:func:`images_kept_between_phases`); None: every task reads its image itself.
-_KEPT: dict[str, np.ndarray] | None = None
-
-
-@contextlib.contextmanager
-def images_kept_between_phases() -> Iterator[None]:
-    """Within: an image decoded by a task of this process is kept, and the next task of this process that asks for
-    the same path takes it (the alignment after the reference patches) instead of decoding the PNG again. For the
-    head's own threads, one scene at a time (the images of one scene, 8-bit: ~220 MB on the full dome); tasks that
-    run in other processes or machines read their images as ever. Dropped on leaving."""
-    global _KEPT
-    _KEPT = {}
-    try:
-        yield
-    finally:
-        _KEPT = None
-
-
-def read_grey(path: str) -> tuple[np.ndarray | None, str | None]:
-    """The image as 8-bit grey (H, W) with the sensor's pixels (no EXIF turn), or None and why not."""
-    kept = _KEPT
+def read_grey(path: str, kept: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray | None, str | None]:
+    """The image as 8-bit grey (H, W) with the sensor's pixels (no EXIF turn), or None and why not. ``kept``: images
+    already decoded in this process (path -> image), taken from and added to (see :func:`reference_patches`)."""
     if kept is not None and path in kept:
         return kept[path], None
     if not os.path.isfile(path):
@@ -243,20 +222,23 @@ def read_grey(path: str) -> tuple[np.ndarray | None, str | None]:
     return image, None
 
 
-def reference_patches(task: tuple[str, str, ImageJob]) -> ImageOutput:
-    """Task, phase 1: the patches around ``job.uv_px`` in the image at the path (``(camera, path, job)``)."""
+def reference_patches(task: tuple[str, str, ImageJob], kept: dict[str, np.ndarray] | None = None) -> ImageOutput:
+    """Task, phase 1: the patches around ``job.uv_px`` in the image at the path (``(camera, path, job)``). ``kept``
+    (the head's own threads only: a dict shared by the tasks of one scene): the decoded image is kept there for the
+    alignment, which then does not decode the PNG again."""
     _, path, job = task
-    image, why = read_grey(path)
+    image, why = read_grey(path, kept)
     if image is None:
         return ImageOutput(key=job.key, failure=why)
     offsets, _ = job.grid.offsets_and_weights()
     return ImageOutput(key=job.key, values=sample_patches(image, job.uv_px, offsets))
 
 
-def align_image(task: tuple[str, str, ImageJob]) -> ImageOutput:
-    """Task, phase 2: the shifts and correlations of ``job.uv_px`` aligned against ``job.ref_patches``."""
+def align_image(task: tuple[str, str, ImageJob], kept: dict[str, np.ndarray] | None = None) -> ImageOutput:
+    """Task, phase 2: the shifts and correlations of ``job.uv_px`` aligned against ``job.ref_patches`` (``kept``: as
+    for :func:`reference_patches`)."""
     _, path, job = task
-    image, why = read_grey(path)
+    image, why = read_grey(path, kept)
     if image is None:
         return ImageOutput(key=job.key, failure=why)
     offsets, weights = job.grid.offsets_and_weights()
