@@ -91,6 +91,30 @@ def test_quadratic_model_at_an_optimum_matches_the_bundle_adjustment():
         assert sigma[4:] == pytest.approx(u.sigma_dist[i], rel=1e-6)
 
 
+def test_quadratic_model_reuses_a_factor_only_for_the_same_parameters_and_damping():
+    """A step over the same parameters with the same damping as the step before reuses its factorisation and
+    gives what a fresh model gives, bit for bit; other parameters or another damping factorise again."""
+    problem, _ = _ring_problem(prior_off=True, inner_fraction=1.0, n_points=400)
+    result = bundle_adjust(problem, BAOptions(compute_uncertainty=False))
+    lens = {i: [8, 9] for i in range(problem.n_cameras)}
+    fresh = QuadraticModel.at(result, problem.free)
+    model = QuadraticModel.at(result, problem.free)
+    model.step(problem.free, lens)  # the principal points judged
+    kept = model._factor
+    step, blocks = model.step(problem.free, {i: [10, 11, 14] for i in range(problem.n_cameras)})  # then k1, k2, k3
+    assert model._factor is kept
+    ref_step, ref_blocks = fresh.step(problem.free, {i: [10, 11, 14] for i in range(problem.n_cameras)})
+    assert np.array_equal(step, ref_step)
+    assert all(np.array_equal(blocks[i], ref_blocks[i]) for i in ref_blocks)
+    held = problem.free.copy()
+    held[0, 8:10] = False  # the first camera's principal point held: another matrix
+    other, _ = model.step(held)
+    assert model._factor is not kept and other[0, 8:10].tolist() == [0.0, 0.0]
+    kept = model._factor
+    model.step(held, damping=1e-4)  # the same parameters, damped: another matrix
+    assert model._factor is not kept
+
+
 def test_decisions_compare_quantised_values():
     """A term within half a quantum of the limit counts as at the limit: the same verdict on every machine."""
     o = LensModelOptions()
