@@ -41,11 +41,13 @@ class QuadraticModel:
         """Linearise the problem of ``result`` at its solution over the ``candidate_free`` parameters (C, 15).
 
         The noise sigma is the one the fit with every candidate free would leave: the residual cost after a
-        Levenberg-Marquardt step of that model (the lowest of three dampings; evaluated, not predicted, so never
-        below that model's optimum; the undamped step can overshoot along weak directions), over its degrees of
-        freedom, and at least ``noise_floor_px``. If no step lowers the cost, the predicted decrease is used. The
-        dampings are tried from the smallest and the others skipped once a step's noise is at most the floor (the
-        lowest is then below it too: the same sigma, one factorisation instead of three).
+        Gauss-Newton or Levenberg-Marquardt step of that model (the lowest of four dampings, none first; evaluated,
+        not predicted, so never below that model's optimum: an undamped step that overshoots along weak directions
+        only loses to a damped one), over its degrees of freedom, and at least ``noise_floor_px``. If no step lowers
+        the cost, the predicted decrease is used. The dampings are tried from the smallest and the others skipped once
+        a step's noise is at most the floor (the lowest is then below it too: the same sigma). The undamped step
+        first: its factor is the one :func:`dome_calib.ba.lens_model.select_lens_model`'s steps over the same parameters reuse (full dome: one
+        factorisation of 7,808 unknowns a lens pass instead of two).
         """
         p = result.problem
         st = build_structure(p.camera_index, p.point_index, result.inlier, candidate_free & ~result.gauge.held,
@@ -66,7 +68,7 @@ class QuadraticModel:
         everything = index >= 0
         dof = max(2 * len(st.obs) - len(f) - 3 * int(st.live_points.sum()), 1)
         evaluated = []
-        for damping in (1e-6, 1e-4, 1e-2):  # Levenberg-Marquardt steps: the undamped one can overshoot
+        for damping in (0.0, 1e-6, 1e-4, 1e-2):  # undamped, then Levenberg-Marquardt: the undamped can overshoot
             step = model.step(everything, damping=damping)[0]
             dp = point_step(st, lin, Li, ypt, step[st.active_cameras])
             r = residuals(p.camera_params + step, p.points_cm + dp, st.cam, st.pt, p.uv_px[st.obs], n_threads=n_threads)
