@@ -17,6 +17,7 @@ from dome_calib.ba.blas import blas_threads
 from dome_calib.ba.evaluate import residuals, residuals_and_jacobians
 from dome_calib.ba.result import BAResult
 from dome_calib.ba.schur import build_structure, linearize, point_step, reduced_system
+from dome_calib.ba.submatrix import submatrix
 
 
 @dataclass(kw_only=True)
@@ -59,7 +60,7 @@ class QuadraticModel:
         del res, Jc, Jp
         S, b, Li, ypt = reduced_system(st, lin, 0.0, n_threads=n_threads)
         f = st.free_flat
-        S, b = S[np.ix_(f, f)], b[f]
+        S, b = submatrix(S, f, n_threads=n_threads), b[f]
         index = np.full((p.n_cameras, 15), -1, dtype=np.int64)
         local = np.full(len(st.active_cameras) * 15, -1, dtype=np.int64)
         local[f] = np.arange(len(f))
@@ -124,7 +125,7 @@ class QuadraticModel:
         """Cholesky factor of the Jacobi-scaled, damped block of S over ``idx``, and the scale d."""
         d = np.sqrt(np.maximum(np.diag(self.S)[idx], 1e-300))
         for ridge in (0.0, 1e-12, 1e-9, 1e-6):  # a tiny ridge if some direction is not observable at all
-            Ss = self.S[np.ix_(idx, idx)]
+            Ss = submatrix(self.S, idx, n_threads=self.n_threads)
             Ss /= d[:, None]
             Ss /= d[None, :]  # Jacobi scaling: lens and pose columns differ by many decades
             Ss[np.diag_indices_from(Ss)] += damping + ridge

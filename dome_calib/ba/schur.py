@@ -27,6 +27,7 @@ import scipy.linalg
 
 from dome_calib.ba.blas import blas_threads
 from dome_calib.ba.blocks import linearize_blocks, point_step_blocks, y_blocks
+from dome_calib.ba.submatrix import submatrix
 from dome_calib.ba.yyt import LANES, subtract_yyt
 
 logger = logging.getLogger(__name__)
@@ -279,7 +280,7 @@ def solve_free(S: np.ndarray, rhs: np.ndarray, free_flat: np.ndarray, *, n_threa
         b[fixed] = 0.0
         Sf = S
     else:
-        Sf = S[np.ix_(free_flat, free_flat)]
+        Sf = submatrix(S, free_flat, n_threads=n_threads)
         b = rhs[free_flat]
     try:
         sol = _cholesky_solve(Sf, b, n_threads, overwrite=overwrite or not full)

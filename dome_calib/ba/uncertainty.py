@@ -21,6 +21,7 @@ from dome_calib.ba.evaluate import residuals_and_jacobians
 from dome_calib.ba.gauge import Gauge, GaugeMode
 from dome_calib.ba.problem import ROT, TRANS, BAProblem
 from dome_calib.ba.result import CameraUncertainty
+from dome_calib.ba.submatrix import submatrix
 from dome_calib.ba.schur import Structure, linearize, reduced_system
 from dome_calib.rotation import d_rotate_d_rotvec, rotvec_to_matrix, skew
 
@@ -59,7 +60,7 @@ def camera_uncertainty(problem: BAProblem, st: Structure, sigma_px: float, *, ga
     S, _, _, _ = reduced_system(st, lin, 0.0, n_threads=n_threads)
     del lin
     f = st.free_flat
-    Sf = S[np.ix_(f, f)] if len(f) < A * 15 else S
+    Sf = submatrix(S, f, n_threads=n_threads) if len(f) < A * 15 else S
     del S
     diag = np.diag(Sf).copy()
     with blas_threads(n_threads):
