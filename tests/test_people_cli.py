@@ -250,3 +250,27 @@ def test_kept_detections_come_back_as_read(tmp_path):
     for key, p in want.items():
         np.testing.assert_array_equal(got[key], p.astype(np.float32))
     assert load(tmp_path, 1, cameras, frames) == {}
+
+
+def test_a_kept_detection_folder_left_by_a_killed_run_is_removed_by_the_next(tmp_path):
+    """A run killed with SIGKILL cannot remove its kept detections: the next run on the machine removes the folder
+    once that process is gone, and leaves a live run's folder (and anything not named like one) alone."""
+    import os
+    import subprocess
+    import sys
+
+    from dome_calib.recon.people.detection_cache import PREFIX, run_folder
+
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                          check=True)
+    dead = tmp_path / f"{PREFIX}{int(gone.stdout)}-abc"
+    (dead / "sub").mkdir(parents=True)
+    (dead / "s0.0-63.npz").write_bytes(b"x")
+    live = tmp_path / f"{PREFIX}{os.getpid()}-def"
+    live.mkdir()
+    other = tmp_path / f"{PREFIX}notapid"
+    other.mkdir()
+    with run_folder(tmp_path) as folder:
+        assert folder.is_dir() and folder.name.startswith(f"{PREFIX}{os.getpid()}-")
+        assert not dead.exists() and live.exists() and other.exists()
+    assert not folder.exists()

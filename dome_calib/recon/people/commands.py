@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from fractions import Fraction
@@ -28,6 +27,7 @@ from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, p
 from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.chunks import reconstruct_people_chunked
 from dome_calib.recon.people.depth_witness import DepthWitness, DepthWitnessOptions
+from dome_calib.recon.people.detection_cache import run_folder
 from dome_calib.recon.people.proposals import AssociationOptions
 from dome_calib.recon.people.run import PeopleOptions
 from dome_calib.recon.people.scene_io import camera_report, check_people_folder, write_people
@@ -188,8 +188,8 @@ def kept_detections(source, executor=None) -> Iterator:
     if not isinstance(source, FileSource) or is_remote(executor):
         yield source
         return
-    with tempfile.TemporaryDirectory(prefix="dome-calib-detections-") as folder:
-        yield replace(source, cache_dir=Path(folder))
+    with run_folder() as folder:
+        yield replace(source, cache_dir=folder)
 
 
 def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callable[[int, int], None] | None = None,
