@@ -53,8 +53,11 @@ def test_a_stage_restores_the_handler_a_library_replaced(tmp_path):
 
 
 _POOL = """
-import os, sys, time
+import os, signal, sys, time
 from pathlib import Path
+# SIGHUP's default action, whatever the test runner passed on (a runner started under nohup ignores it, and a process
+# that ignores SIGHUP is not killed by it: there would be nothing to test)
+signal.signal(signal.SIGHUP, signal.SIG_DFL)
 from dome_calib.executor.local import LocalProcessExecutor
 pool = LocalProcessExecutor(2)
 futures = [pool.submit(time.sleep, 120) for _ in range(2)]  # both workers busy
