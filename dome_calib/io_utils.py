@@ -14,6 +14,7 @@ a process of that id started at another time) and leaves the others (another mac
 from __future__ import annotations
 
 import contextlib
+import glob
 import hashlib
 import logging
 import os
@@ -136,6 +137,16 @@ def _owner_tag() -> str | None:
     return None if not boot or start is None else f"{_host()}.{boot}.{os.getpid()}.{start}"
 
 
+#: An owner tag in a name: host, boot, pid, start (:func:`_owner_tag`).
+_TAG = r"([0-9a-f]{8})\.([0-9a-f]{8})\.(\d+)\.(\d+)"
+
+
+def _owner_gone(host: str, boot: str, pid: int, start: int) -> bool:
+    """Whether the run an owner tag names is provably over: this machine's (host name), and another boot, or no
+    process of that id, or one started at another time. Another machine's run, or a live one, is not."""
+    return host == _host() and not (boot == _boot_id() and _start_ticks(pid) == start)
+
+
 def _staging_name(target: Path, role: str) -> str:
     tag = _owner_tag()
     return f".{target.name}.{role}." + (f"{tag}." if tag else "")
@@ -148,18 +159,17 @@ def remove_stale_staging(path: str | os.PathLike[str]) -> list[Path]:
     are left alone. A set-aside previous folder is put back where ``path`` is missing (a kill between the two
     renames). Returns the folders removed."""
     target = Path(os.path.abspath(path))
-    pattern = re.compile(rf"\.{re.escape(target.name)}\.(new|old)\.([0-9a-f]{{8}})\.([0-9a-f]{{8}})\.(\d+)\.(\d+)\.\w+")
-    boot = _boot_id()
-    if not boot or not target.parent.is_dir():
+    pattern = re.compile(rf"\.{re.escape(target.name)}\.(new|old)\.{_TAG}\.\w+")
+    if not _boot_id() or not target.parent.is_dir():
         return []
     removed = []
     for entry in sorted(target.parent.iterdir()):
         m = pattern.fullmatch(entry.name)
-        if m is None or not entry.is_dir() or entry.is_symlink() or m.group(2) != _host():
+        if m is None or not entry.is_dir() or entry.is_symlink():
             continue
         pid, start = int(m.group(4)), int(m.group(5))
-        if m.group(3) == boot and _start_ticks(pid) == start:
-            continue  # its run is alive (this one, or another writing the same folder now)
+        if not _owner_gone(m.group(2), m.group(3), pid, start):
+            continue  # another machine's, or its run is alive (this one, or another writing the same folder now)
         if m.group(1) == "old" and not target.exists() and (entry / target.name).is_dir():
             (entry / target.name).replace(target)
             logger.warning("%s: put back the previous output, set aside by a run (pid %d) stopped mid-replacement",
@@ -196,6 +206,28 @@ def atomic_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
     finally:
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def run_temp_folder(prefix: str, parent: str | os.PathLike[str] | None = None) -> Iterator[Path]:
+    """A folder of this run's own in ``parent`` (default: the system's temporary folder), named ``prefix`` and
+    this process's owner tag, removed when the run ends (also on an interrupt). Folders of the same ``prefix`` whose
+    run is provably over (:func:`_owner_gone`: killed before it could remove its own) are removed first."""
+    parent = Path(parent if parent is not None else tempfile.gettempdir())
+    if _boot_id():
+        pattern = re.compile(rf"{re.escape(prefix)}{_TAG}\.\w+")
+        for entry in sorted(parent.glob(glob.escape(prefix) + "*")):
+            m = pattern.fullmatch(entry.name)
+            if m and entry.is_dir() and not entry.is_symlink() and _owner_gone(m.group(1), m.group(2),
+                                                                                int(m.group(3)), int(m.group(4))):
+                shutil.rmtree(entry, ignore_errors=True)
+                logger.info("removed %s, left by an earlier run (pid %s) that was stopped", entry, m.group(3))
+    tag = _owner_tag()
+    folder = Path(tempfile.mkdtemp(prefix=prefix + (f"{tag}." if tag else ""), dir=parent))
+    try:
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def new_mode(mode: int) -> int:

@@ -254,23 +254,30 @@ def test_kept_detections_come_back_as_read(tmp_path):
 
 def test_a_kept_detection_folder_left_by_a_killed_run_is_removed_by_the_next(tmp_path):
     """A run killed with SIGKILL cannot remove its kept detections: the next run on the machine removes the folder
-    once that process is gone, and leaves a live run's folder (and anything not named like one) alone."""
-    import os
+    once that run is provably over (io_utils.run_temp_folder: the owner tag of its name), and leaves a live run's
+    folder, another machine's, and anything not named like one alone."""
     import subprocess
     import sys
 
-    from dome_calib.recon.people.detection_cache import PREFIX, run_folder
+    from dome_calib import io_utils
+    from dome_calib.recon.people.detection_cache import PREFIX
 
+    tag = io_utils._owner_tag()
+    if tag is None:
+        pytest.skip("no /proc: a run's owner cannot be told")
+    host, boot, _, _ = tag.split(".")
     gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
                           check=True)
-    dead = tmp_path / f"{PREFIX}{int(gone.stdout)}-abc"
+    dead = tmp_path / f"{PREFIX}{host}.{boot}.{int(gone.stdout)}.1.abc"
     (dead / "sub").mkdir(parents=True)
     (dead / "s0.0-63.npz").write_bytes(b"x")
-    live = tmp_path / f"{PREFIX}{os.getpid()}-def"
+    live = tmp_path / f"{PREFIX}{tag}.def"
     live.mkdir()
-    other = tmp_path / f"{PREFIX}notapid"
+    elsewhere = tmp_path / f"{PREFIX}{'0' * 8 if host != '0' * 8 else '1' * 8}.{boot}.{int(gone.stdout)}.1.ghi"
+    elsewhere.mkdir()
+    other = tmp_path / f"{PREFIX}notatag"
     other.mkdir()
-    with run_folder(tmp_path) as folder:
-        assert folder.is_dir() and folder.name.startswith(f"{PREFIX}{os.getpid()}-")
-        assert not dead.exists() and live.exists() and other.exists()
+    with io_utils.run_temp_folder(PREFIX, tmp_path) as folder:
+        assert folder.is_dir() and folder.name.startswith(f"{PREFIX}{tag}.")
+        assert not dead.exists() and live.exists() and elsewhere.exists() and other.exists()
     assert not folder.exists()

@@ -21,8 +21,8 @@ from dome_calib.ba.evaluate import residuals_and_jacobians
 from dome_calib.ba.gauge import Gauge, GaugeMode
 from dome_calib.ba.problem import ROT, TRANS, BAProblem
 from dome_calib.ba.result import CameraUncertainty
-from dome_calib.ba.submatrix import submatrix
 from dome_calib.ba.schur import Structure, linearize, reduced_system
+from dome_calib.ba.submatrix import submatrix
 from dome_calib.rotation import d_rotate_d_rotvec, rotvec_to_matrix, skew
 
 logger = logging.getLogger(__name__)

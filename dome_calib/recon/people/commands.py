@@ -18,7 +18,8 @@ import numpy as np
 
 from dome_calib.bundle_io import load_bundle
 from dome_calib.executor import is_remote
-from dome_calib.io_utils import refuse_output_among_inputs, refuse_output_inside_inputs, remove_stale_staging
+from dome_calib.io_utils import (refuse_output_among_inputs, refuse_output_inside_inputs, remove_stale_staging,
+                                run_temp_folder)
 from dome_calib.recon.body_models import BodyModel, parse_body_model
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.formats import FPS_TYPE
@@ -27,7 +28,7 @@ from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, p
 from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.chunks import reconstruct_people_chunked
 from dome_calib.recon.people.depth_witness import DepthWitness, DepthWitnessOptions
-from dome_calib.recon.people.detection_cache import run_folder
+from dome_calib.recon.people.detection_cache import PREFIX as KEPT_PREFIX
 from dome_calib.recon.people.proposals import AssociationOptions
 from dome_calib.recon.people.run import PeopleOptions
 from dome_calib.recon.people.scene_io import camera_report, check_people_folder, write_people
@@ -188,7 +189,7 @@ def kept_detections(source, executor=None) -> Iterator:
     if not isinstance(source, FileSource) or is_remote(executor):
         yield source
         return
-    with run_folder() as folder:
+    with run_temp_folder(KEPT_PREFIX) as folder:
         yield replace(source, cache_dir=folder)
 
 

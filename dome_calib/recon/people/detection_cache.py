@@ -8,67 +8,21 @@ session is never in memory; parsed and checked again, the same files cost the bo
 them); a later pass takes the frames it finds there and reads only the others, so a stream is filled with the very
 numbers (and the same people per frame) it would have got from the files: the result does not depend on the cache.
 
-The folder belongs to one run and to one machine (:func:`run_folder`: a temporary folder named with the run's
-process id, removed when the run ends, also on an interrupt; one a killed run left behind is removed by the next run
-on the machine, once its process is gone). On a cluster whose workers may be other machines (``executor.is_remote``)
+The folder belongs to one run and to one machine (``dome_calib.io_utils.run_temp_folder(PREFIX)``: a temporary
+folder named with the run's owner tag, removed when the run ends, also on an interrupt; one a killed run left behind
+is removed by the next run on the machine, once that run is provably over). On a cluster whose workers may be other machines (``executor.is_remote``)
 nothing is kept and every pass reads its files.
 """
 from __future__ import annotations
 
-import contextlib
-import logging
 import os
-import re
-import shutil
 import tempfile
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-
-logger = logging.getLogger(__name__)
-
-#: The run folders' names: PREFIX, the process id, "-", tempfile's random part.
+#: The run folders' name: this prefix, then the run's owner tag (:func:`dome_calib.io_utils.run_temp_folder`).
 PREFIX = "dome-calib-detections-"
-_OWNED = re.compile(re.escape(PREFIX) + r"(\d+)-")
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's process: alive, and not ours to judge
-        return True
-    return True
-
-
-def remove_left_behind(parent: Path) -> list[Path]:
-    """Remove the run folders in ``parent`` whose process is gone (a run killed before it could remove its own);
-    the folders removed."""
-    removed = []
-    for folder in sorted(parent.glob(PREFIX + "*")):
-        match = _OWNED.match(folder.name)
-        if match and folder.is_dir() and not _alive(int(match.group(1))):
-            shutil.rmtree(folder, ignore_errors=True)
-            removed.append(folder)
-    if removed:
-        logger.info("removed %d kept-detection folder(s) of runs that ended without removing them", len(removed))
-    return removed
-
-
-@contextlib.contextmanager
-def run_folder(parent: Path | None = None) -> Iterator[Path]:
-    """A new folder for one run's kept detections in ``parent`` (default: the system's temporary folder), removed
-    when the run ends; first, the folders of runs that are gone are removed."""
-    parent = Path(parent or tempfile.gettempdir())
-    remove_left_behind(parent)
-    folder = Path(tempfile.mkdtemp(prefix=f"{PREFIX}{os.getpid()}-", dir=parent))
-    try:
-        yield folder
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
 
 
 def _name(stream: int, frames: np.ndarray) -> str:
