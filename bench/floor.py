@@ -1,9 +1,14 @@
 """The floor under the calibration's time: the CPU that SIFT and matching alone need, against an end-to-end time.
 
-    .venv/bin/python bench/floor.py --capture WORK/capture --work-folder WORK/bundle.work --sample 150 \\
-        --end-to-end-s 567.7 --bundle-adjustment-s 132.7
+    .venv/bin/python bench/floor.py --capture WORK/capture --reference-tree /tmp/base --target 0.5
+    .venv/bin/python bench/floor.py --capture WORK/capture --work-folder WORK/bundle.work --end-to-end-s 567.7
 
-``--capture`` and ``--work-folder`` are what ``bench/dome.py`` leaves behind (the synthetic capture and the
+With ``--reference-tree`` (a checkout, e.g. ``git worktree add /tmp/base 2a6a476``) that checkout's ``calibrate``
+runs on the capture before and after the sampling (child processes, ``bench/calibrate_in.py``, as
+``bench/dome.py --compare`` runs them): the end-to-end time the floor is judged against comes from the same run on
+the same machine (a shared machine's speed moved 25 % within a day), and its work folder is the one sampled.
+
+Otherwise ``--capture`` and ``--work-folder`` are what ``bench/dome.py`` leaves behind (the synthetic capture and the
 ``calibrate`` work folder, whose ``sfm/<scene>/`` holds the database with every image's features and the pairs
 matched). Per scene, a seeded sample of images is run through the SIFT task of ``calibrate``
 (``projector.features.extract_image``) and a seeded sample of the matched pairs through its matching and
@@ -34,6 +39,9 @@ import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(1, str(ROOT / "bench"))
+
+from dome import calibrate_in  # noqa: E402  (bench/dome.py: imports the toolkit only when run itself)
 
 from dome_calib.bundle import camera_type_from_name  # noqa: E402
 from projector.database import image_name  # noqa: E402
@@ -129,10 +137,20 @@ def matching_scene(database: Path, pairs: list[tuple[str, str]], sample: int, rn
     return totals
 
 
+def _reference_figures(fig: dict) -> dict:
+    return dict(seconds_total=fig["seconds_total"], seconds=fig.get("seconds"), sfm_seconds=fig.get("sfm_seconds"),
+                load_average_1min=fig.get("load_average_1min"))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--capture", required=True, type=Path, help="the synthetic capture (scenes/<scene>/*.png)")
-    parser.add_argument("--work-folder", required=True, type=Path, help="calibrate's work folder of that capture")
+    parser.add_argument("--work-folder", type=Path, help="calibrate's work folder of that capture (not with "
+                        "--reference-tree)")
+    parser.add_argument("--reference-tree", type=Path, help="a checkout whose calibrate runs on the capture before "
+                        "and after the sampling: the end-to-end time (their mean) and the work folder sampled")
+    parser.add_argument("--reference-out", type=Path, default=Path("/tmp/floor_reference"), help="--reference-tree: "
+                        "where its bundle goes (its work folder: this path + .work)")
     parser.add_argument("--sample", type=int, default=150, help="images per camera type and pairs per pair kind, "
                         "per scene")
     parser.add_argument("--seed", type=int, default=0)
@@ -142,6 +160,13 @@ def main() -> None:
     parser.add_argument("--bundle-adjustment-s", type=float, help="the bundle adjustment's wall time on this capture "
                         "(s; it runs after the SfM, so it adds to the floor)")
     args = parser.parse_args()
+    if (args.work_folder is None) == (args.reference_tree is None):
+        parser.error("give exactly one of --work-folder and --reference-tree")
+    references = []
+    if args.reference_tree is not None:
+        references.append(calibrate_in(args.reference_tree, args.capture, args.reference_out))
+        emit(bench="floor", part="reference", run=0, tree=str(args.reference_tree), **_reference_figures(references[-1]))
+        args.work_folder = Path(f"{args.reference_out}.work")
     rng = np.random.default_rng(args.seed)
     sift, matching = {}, {}
     scenes = sorted(p.name for p in (args.work_folder / "sfm").iterdir() if (p / "database.db").exists())
@@ -154,6 +179,10 @@ def main() -> None:
         sift[scene] = sift_scene(images, args.sample, rng, scene)
         matching[scene] = matching_scene(args.work_folder / "sfm" / scene / "database.db", pairs, args.sample, rng,
                                          scene)
+    if args.reference_tree is not None:
+        references.append(calibrate_in(args.reference_tree, args.capture, args.reference_out))
+        emit(bench="floor", part="reference", run=1, tree=str(args.reference_tree), **_reference_figures(references[-1]))
+        args.end_to_end_s = float(np.mean([r["seconds_total"] for r in references]))
     sift_cpu = sum(sum(v.values()) for v in sift.values())
     matching_cpu = sum(sum(v.values()) for v in matching.values())
     floor_s = (sift_cpu + matching_cpu) / args.cores
