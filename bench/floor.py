@@ -182,7 +182,7 @@ def main() -> None:
     if args.reference_tree is not None:
         references.append(calibrate_in(args.reference_tree, args.capture, args.reference_out))
         emit(bench="floor", part="reference", run=1, tree=str(args.reference_tree), **_reference_figures(references[-1]))
-        args.end_to_end_s = float(np.mean([r["seconds_total"] for r in references]))
+        args.end_to_end_s = round(float(np.mean([r["seconds_total"] for r in references])), 2)
     sift_cpu = sum(sum(v.values()) for v in sift.values())
     matching_cpu = sum(sum(v.values()) for v in matching.values())
     floor_s = (sift_cpu + matching_cpu) / args.cores
