@@ -5,7 +5,6 @@ reading back our settings."""
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 
 import numpy as np
 import pytest

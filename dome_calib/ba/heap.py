@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import ctypes.util
 import logging
 import os
 import threading
@@ -46,9 +45,8 @@ def _glibc():
     global _libc
     if _libc is False:
         _libc = None
-        name = ctypes.util.find_library("c")
         try:
-            lib = ctypes.CDLL(name) if name else None
+            lib = ctypes.CDLL(None)  # the symbols already loaded: the C library's among them, no search needed
         except OSError:
             lib = None
         if lib is not None and hasattr(lib, "mallopt") and hasattr(lib, "malloc_trim"):
