@@ -4,11 +4,12 @@ Why: every Levenberg-Marquardt iteration on the full dome allocates and frees ar
 camera system (7,815 x 7,815 doubles, 489 MB), its single-precision copy, the free parameters' block, the
 Jacobians and the y blocks. glibc serves each allocation above 32 MB with a fresh ``mmap`` and gives it back to the
 kernel when it is freed, so each iteration pays again for the page faults and the zeroing of gigabytes of new
-pages. Replaying the full dome's bundle adjustment: 49.5 s of system time in 147 s. With ``mmap`` off for the
-allocations (``M_MMAP_MAX`` 0) and the heap's free top kept (``M_TRIM_THRESHOLD`` -1), freed blocks are
-reused: 11.6 s of system time, 113 s, the same cameras to the bit (``bench/dome.py --replay-ba``). Leaving the
-outermost block sets glibc's defaults back and returns the kept memory to the kernel (``malloc_trim``); the peak
-resident memory is about 10 % higher (4.3 -> 4.8 GB on the full dome).
+pages. The full dome's bundle adjustment stage, replayed on one SfM result under ``/usr/bin/time``: 149.4 s wall,
+49.5 s of it system time. With ``mmap`` off for the allocations (``M_MMAP_MAX`` 0) and the heap's free top kept
+(``M_TRIM_THRESHOLD`` -1), freed blocks are reused: 112.7 s wall, 12.6 s system, the same cameras and lens model
+to the bit (``bench/dome.py --compare``: the stage 0.60x of 2a6a476's). Leaving the outermost block sets glibc's
+defaults back and returns the kept memory to the kernel (``malloc_trim``); the peak resident memory is about 12 %
+higher (4.33 -> 4.84 GB on the full dome).
 
 Threads' own arenas still ``mmap`` what does not fit their 64 MB heaps (glibc falls back to it), so nothing can
 fail for want of ``mmap``. Nothing is changed where the C library has no ``mallopt`` (not glibc), or where the user
