@@ -65,7 +65,7 @@ def _set(lib, mmap_max: int, trim_threshold: int) -> bool:
 
 def active() -> bool:
     """Whether a :func:`kept_heap` block is running and changed the allocator (for tests and logs)."""
-    return _depth > 0 and _glibc() is not None and not any(v in os.environ for v in USER_VARIABLES)
+    return _depth > 0  # counted only by blocks that change it
 
 
 @contextlib.contextmanager
@@ -73,7 +73,7 @@ def kept_heap() -> Iterator[None]:
     """Run the block with freed memory kept for reuse (module docstring); blocks nest, the outermost one restores."""
     global _depth
     lib = _glibc()
-    if lib is None or any(v in os.environ for v in USER_VARIABLES):
+    if lib is None or any(v in os.environ for v in USER_VARIABLES):  # not glibc, or the user's setting rules
         yield
         return
     with _lock:

@@ -10,8 +10,8 @@ numbers (and the same people per frame) it would have got from the files: the re
 
 The folder belongs to one run and to one machine (``dome_calib.io_utils.run_temp_folder(PREFIX)``: a temporary
 folder named with the run's owner tag, removed when the run ends, also on an interrupt; one a killed run left behind
-is removed by the next run on the machine, once that run is provably over). On a cluster whose workers may be other machines (``executor.is_remote``)
-nothing is kept and every pass reads its files.
+is removed by the next run on the machine, once that run is provably over). On a cluster whose workers may be other
+machines (``executor.is_remote``) nothing is kept and every pass reads its files.
 """
 from __future__ import annotations
 
