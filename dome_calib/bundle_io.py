@@ -11,14 +11,13 @@ import errno
 import logging
 import os
 import shutil
-import stat
 import tempfile
 from pathlib import Path
 
 from dome_calib import panoptic_io as pio
 from dome_calib.bundle import Bundle, SyncTables
-from dome_calib.errors import BundleFormatError, DomeCalibError
-from dome_calib.io_utils import check_writable
+from dome_calib.errors import BundleFormatError
+from dome_calib.ownership import claim_file, claim_folder, claim_into, seal, write_bytes
 
 logger = logging.getLogger(__name__)
 
@@ -78,19 +77,39 @@ def bundle_texts(bundle: Bundle) -> dict[str, str]:
 
 
 def write_bundle(bundle: Bundle, folder: str | Path) -> Path:
-    """Write the bundle's files into ``folder``. Each file appears whole or not at all (temp file, then rename)."""
+    """Write the bundle's files into ``folder`` (:func:`update_bundle` with every kind): each appears whole or not
+    at all, and replaces only a file dome-calib wrote."""
+    update_bundle(bundle, folder)
+    return Path(folder)
+
+
+def check_bundle_update(folder: str | Path, seq: str, kinds: tuple[str, ...] = FILE_KINDS, *,
+                        option: str = "-o") -> None:
+    """Before any work: the files of ``kinds`` that :func:`update_bundle` would write into ``folder`` may be
+    written (nothing there, or a file dome-calib wrote, unchanged: :func:`dome_calib.ownership.claim_file`)."""
+    claim_into(folder, option=option)
+    for path in (Path(folder) / f"{kind}_{seq}.json" for kind in kinds):
+        claim_file(path, option=option)
+
+
+def update_bundle(bundle: Bundle, folder: str | Path, kinds: tuple[str, ...] = FILE_KINDS, *,
+                  option: str = "-o") -> list[Path]:
+    """Write the bundle's files of ``kinds`` into the existing (or new) bundle folder ``folder``, each replacing
+    only a file of ours (:mod:`dome_calib.ownership`); a file whose bytes would not change is left as it is.
+    Everything is formatted before anything is written. Returns the files written."""
     folder = Path(folder)
+    texts = {name: text for name, text in bundle_texts(bundle).items() if name.split("_", 1)[0] in kinds}
+    changed = {}
+    for name, text in texts.items():
+        data = text.encode("utf-8")
+        path = folder / name
+        if not (path.is_file() and not path.is_symlink() and path.read_bytes() == data):
+            claim_file(path, option=option)
+            changed[path] = data
     folder.mkdir(parents=True, exist_ok=True)
-    texts = bundle_texts(bundle)
-    staging = Path(tempfile.mkdtemp(prefix=".bundle.", dir=folder))
-    try:
-        for name, text in texts.items():  # everything formatted and staged before anything is replaced
-            (staging / name).write_text(text, encoding="utf-8")
-        for name in texts:
-            (staging / name).replace(folder / name)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-    return folder
+    for path, data in changed.items():
+        write_bytes(path, data, option=option)
+    return list(changed)
 
 
 # ------------------------------------------------------------------------------ replacing a bundle folder whole
@@ -135,11 +154,14 @@ def _exchange(a: Path, b: Path) -> bool:
     raise OSError(err, os.strerror(err), str(b))
 
 
-def replace_folder(staging: Path, target: Path) -> None:
+def replace_folder(staging: Path, target: Path, *, option: str = "-o") -> None:
     """Put the folder ``staging`` in place of ``target`` so that a reader sees the old folder or the new one,
     never a mix: an atomic exchange where the system has it, else set the old aside, rename the new in and
-    remove the old (a stop between the two renames is undone by :func:`recover_folder`)."""
+    remove the old (a stop between the two renames is undone by :func:`recover_folder`). ``staging`` is sealed
+    (its record of what dome-calib wrote) and ``target`` claimed again just before (:mod:`dome_calib.ownership`)."""
     staging, target = Path(staging), Path(target)
+    seal(staging)
+    claim_folder(target, option=option)
     if not target.exists():
         staging.rename(target)
         return
@@ -153,30 +175,12 @@ def replace_folder(staging: Path, target: Path) -> None:
     shutil.rmtree(aside)
 
 
-def _kind(path: Path) -> str:
-    mode = path.lstat().st_mode
-    return ("a symbolic link" if stat.S_ISLNK(mode) else "a named pipe (FIFO)" if stat.S_ISFIFO(mode)
-            else "a regular file" if stat.S_ISREG(mode) else "a socket" if stat.S_ISSOCK(mode)
-            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "not a folder")
+def check_output_folder(out: Path, inputs: list[Path] = ()) -> str | None:
+    """Before any work: ``out`` may be replaced whole (:func:`dome_calib.ownership.claim_folder`: new, empty, or
+    what dome-calib wrote, unchanged; a symlink or a file is refused; not one of ``inputs`` nor holding one).
 
-
-def check_output_folder(out: Path) -> str | None:
-    """Before any work: ``out`` must be new, an empty folder or a bundle folder (which will be replaced whole).
-
-    Returns the seq of the bundle it holds (None when new or empty). Raises :class:`DomeCalibError` for a path
-    that is not a folder (file, FIFO, a symbolic link: resolve it first, ...) or a folder of other things.
+    Returns the seq of the bundle it holds (None when it holds none).
     """
-    out = Path(out)
-    if out.is_symlink() or (out.exists() and not out.is_dir()):
-        raise DomeCalibError(f"{out}: the output is {_kind(out)}, not a folder; give a new or bundle folder")
-    check_writable(out)  # it is replaced whole, beside itself: before the work, not after it
-    if not out.exists():
-        return None
-    found = sorted(out.glob("calibration_*.json"))
-    if not found:
-        others = sorted(p.name for p in out.iterdir())
-        if others:
-            raise DomeCalibError(f"{out}: not a calibration bundle (holds {', '.join(others[:3])}"
-                                 f"{', ...' if len(others) > 3 else ''}); give a new, empty or bundle folder")
-        return None
-    return found[0].stem.removeprefix("calibration_")  # several (a broken folder): it is replaced whole anyway
+    out = claim_folder(out, inputs=inputs)
+    found = sorted(out.glob("calibration_*.json")) if out.is_dir() else []
+    return found[0].stem.removeprefix("calibration_") if found else None  # several: replaced whole anyway

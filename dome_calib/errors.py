@@ -137,15 +137,41 @@ def storage_failure(exc: BaseException) -> str | None:
     return next((why for key, why in _STORAGE_TEXTS.items() if key in text), None)
 
 
+class Terminated(BaseException):
+    """SIGTERM arrived outside an :func:`interrupt_as_one_line` block: unwinds like an interrupt (every staged output
+    is removed on the way out), past the CLI framework (which would swallow a KeyboardInterrupt)."""
+
+
+def _terminated(signum: int, frame: object) -> None:
+    if os.getpid() != _cli_pid:  # a forked worker inherited the handler: die as SIGTERM says
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        os.kill(os.getpid(), signal.SIGTERM)
+        return
+    raise Terminated
+
+
+_cli_pid = 0
+
+
 def run_cli(app: Callable[..., object], *, prog: str, user_errors: tuple[type[BaseException], ...] = ()) -> None:
-    """Run a typer app; turn user errors into one line on stderr and exit code 1, no traceback.
+    """Run a typer app; turn user errors into one line on stderr and exit code 1, no traceback. SIGTERM during any
+    command (not only the long ones, :func:`interrupt_as_one_line`): staged outputs removed, one line, exit 130.
 
     Set ``DOME_CALIB_DEBUG=1`` to see the full traceback instead.
     """
+    global _cli_pid
     handled = (DomeCalibError, OSError, *user_errors)
     logging.basicConfig(level=logging.INFO, format=f"{prog}: %(message)s")
+    _cli_pid = os.getpid()
+    previous = signal.signal(signal.SIGTERM, _terminated)
     try:
         app(standalone_mode=True)
+    except Terminated:
+        if os.environ.get("DOME_CALIB_DEBUG"):
+            raise
+        print(f"{prog}: interrupted (SIGTERM); nothing was replaced (outputs are written whole or not at all)",
+              file=sys.stderr)
+        sys.exit(EXIT_INTERRUPTED)
     except handled as exc:  # one line, non-zero exit
         if os.environ.get("DOME_CALIB_DEBUG"):
             raise
@@ -160,3 +186,5 @@ def run_cli(app: Callable[..., object], *, prog: str, user_errors: tuple[type[Ba
             raise
         print(f"{prog}: error: {why} ({str(exc).splitlines()[0]}); free space or write elsewhere", file=sys.stderr)
         sys.exit(1)
+    finally:
+        signal.signal(signal.SIGTERM, previous)

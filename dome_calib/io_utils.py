@@ -77,19 +77,13 @@ def output_folder(path: str | os.PathLike[str]) -> Path:
     return target
 
 
-def foreign_names(folder: Path, ours: Callable[[str], bool]) -> list[str]:
-    """The names in ``folder`` that ``ours`` does not claim, sorted (none if it is no folder): what replacing the
-    folder as a whole would delete though its writer did not write it."""
-    if not folder.is_dir():
-        return []
-    return sorted(p.name for p in folder.iterdir() if not ours(p.name))
-
-
 @contextlib.contextmanager
-def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+def atomic_path(path: str | os.PathLike[str], *, before_rename: Callable[[], object] | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success rename it onto ``path``, on error delete it.
 
     ``path`` may be a symlink (the file it points to is replaced); a folder, FIFO or device is refused first.
+    ``before_rename``: called just before the rename (a last check; an error there leaves ``path`` as it was).
+    Whether a command may replace what is at ``path`` is :mod:`dome_calib.ownership`'s to decide.
 
     Example:
         with atomic_path("out/cal.json") as tmp:
@@ -105,6 +99,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         yield tmp
         os.chmod(tmp, mode)  # mkstemp makes 0600; give the file the permissions open() would (or it had)
         output_file(target)  # still a file (or absent) at the moment of the rename
+        if before_rename is not None:
+            before_rename()
         os.replace(tmp, target)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -182,10 +178,13 @@ def remove_stale_staging(path: str | os.PathLike[str]) -> list[Path]:
 
 
 @contextlib.contextmanager
-def atomic_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
+def atomic_folder(path: str | os.PathLike[str], *,
+                  before_swap: Callable[[], object] | None = None) -> Iterator[Path]:
     """Yield an empty staging folder beside ``path``; on success it replaces ``path`` as a whole (renames only, the
     old folder removed after), on error it is deleted and ``path`` is untouched. Staging folders that killed runs
-    left beside ``path`` are removed first (:func:`remove_stale_staging`)."""
+    left beside ``path`` are removed first (:func:`remove_stale_staging`). ``before_swap``: called just before the
+    swap (a last check; an error there leaves ``path`` as it was). Whether a command may replace ``path`` is
+    :mod:`dome_calib.ownership`'s to decide."""
     target = output_folder(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_staging(target)
@@ -194,6 +193,8 @@ def atomic_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
     try:
         os.chmod(staging, new_mode(0o777))  # mkdtemp makes 0700
         yield staging
+        if before_swap is not None:
+            before_swap()
         if target.exists():
             old = Path(tempfile.mkdtemp(prefix=_staging_name(target, "old"), dir=target.parent))
             target.replace(old / target.name)

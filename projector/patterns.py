@@ -21,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from dome_calib.io_utils import atomic_write_bytes
+from dome_calib.ownership import claim_file, claim_into, write_bytes
 from dome_calib.options import AtLeast, options
 from dome_calib.schema import NonNegFinite, PosFinite
 
@@ -87,14 +87,18 @@ def pattern_to_uint8(pattern: np.ndarray) -> np.ndarray:
 
 def write_patterns(out_dir: str | Path, seed: int, names: tuple[str, ...] = PROJECTOR_NAMES,
                    options: PatternOptions | None = None) -> list[Path]:
-    """Write ``<out_dir>/pattern_<name>.png`` (8-bit grayscale) for each projector, atomically; return the paths."""
+    """Write ``<out_dir>/pattern_<name>.png`` (8-bit grayscale) for each projector, atomically; return the paths.
+    Each replaces only a file dome-calib wrote (:mod:`dome_calib.ownership`), all checked before the first."""
     out = Path(out_dir)
+    claim_into(out)
+    for name in names:
+        claim_file(out / f"pattern_{name}.png")
     paths = []
     for name, pattern in make_patterns(seed, names, options).items():
         ok, buf = cv2.imencode(".png", pattern_to_uint8(pattern))
         if not ok:
             raise OSError(f"{out}: could not encode pattern {name} as PNG")
         path = out / f"pattern_{name}.png"
-        atomic_write_bytes(path, buf.tobytes())
+        write_bytes(path, buf.tobytes())
         paths.append(path)
     return paths

@@ -9,7 +9,7 @@ from pathlib import Path
 import typer
 
 from dome_calib.errors import DomeCalibError
-from dome_calib.io_utils import check_writable, refuse_output_among_inputs
+from dome_calib.ownership import claim_folder, claim_into, replace_folder
 
 
 def _board(spec: str, square_mm: float):
@@ -37,11 +37,14 @@ def format_sensor_line(summary: dict) -> list[str]:
     return lines
 
 
-def check_output_bundle(out: Path, inputs: list[Path]) -> None:
-    """Before the detection work: the bundle folder written into must not be an input's folder (or hold one) and
-    must be writable."""
-    refuse_output_among_inputs(out, inputs, whole_folder=True)
-    check_writable(out, into=True)
+def written_kinds(out: Path | None, bundle: Path, estimate_color_intrinsics: bool) -> tuple[str, ...]:
+    """The bundle files `dome-calib kinect` writes: into --bundle itself the Kinect calibration (and the cameras'
+    calibration when it re-estimates the colour intrinsics); into another folder the whole bundle."""
+    from dome_calib.bundle_io import FILE_KINDS
+
+    if out is None or (out.exists() and out.resolve() == bundle.resolve()):
+        return ("kcalibration",) + (("calibration",) if estimate_color_intrinsics else ())
+    return FILE_KINDS
 
 
 def kinect(
@@ -59,22 +62,24 @@ def kinect(
     depth-to-colour transform, depth bias. Writes kcalibration_<seq>.json with the depth cameras placed in the
     dome's world. Frames with a blurred, cut-off or missing board are skipped and listed with the reason."""
     from dome_calib.cli.progress import ProgressBars
-    from dome_calib.bundle_io import load_bundle, write_bundle
+    from dome_calib.bundle_io import check_bundle_update, load_bundle, update_bundle
     from dome_calib.kinect.calibrate import ColorIntrinsics, KinectCalibOptions, calibrate_kinect_folder
     from dome_calib.kinect.detect import find_sensor_frames
 
     options = KinectCalibOptions(board=_board(board, square_mm), color_intrinsics=ColorIntrinsics.ESTIMATE
                                  if estimate_color_intrinsics else ColorIntrinsics.BUNDLE)
-    check_output_bundle(out or bundle, [kinect_folder])
+    claim_into(out or bundle, inputs=[kinect_folder])  # not the Kinect capture's folder, nor holding it
     dome = load_bundle(bundle)
+    kinds = written_kinds(out, bundle, estimate_color_intrinsics)
+    check_bundle_update(out or bundle, dome.seq, kinds)  # each file written: new, or ours and unchanged
     total = sum(len(f.indices) for f in find_sensor_frames(kinect_folder).values())
     with ProgressBars(transient=True) as bars:
         results, updated = calibrate_kinect_folder(kinect_folder, dome, options,
                                                    on_frame=bars.counter("detecting boards: frame pairs", total))
-    target = write_bundle(updated, out or bundle)
+    update_bundle(updated, out or bundle, kinds)
     for r in results:
         typer.echo("\n".join(format_sensor_line(r.summary())))
-    typer.echo(f"wrote {target / f'kcalibration_{updated.seq}.json'} ({len(updated.kinect.sensors)} sensors)")
+    typer.echo(f"wrote {(out or bundle) / f'kcalibration_{updated.seq}.json'} ({len(updated.kinect.sensors)} sensors)")
 
 
 def kinect_synth(
@@ -96,9 +101,12 @@ def kinect_synth(
         raise DomeCalibError(f"--sensors {sensors}: expected sensor numbers like 1,2") from None
     if frames < 1:
         raise DomeCalibError(f"--frames {frames}: need at least one frame")
+    claim_folder(out)  # created, or replaced whole when dome-calib wrote it
+    dome = load_bundle(bundle)
     try:
-        truth = generate_kinect_boards(load_bundle(bundle), out, KinectBoardsOptions(sensors=names, good_frames=frames,
-                                                                                      seed=seed))
+        with replace_folder(out) as staging:
+            truth = generate_kinect_boards(dome, staging, KinectBoardsOptions(sensors=names, good_frames=frames,
+                                                                              seed=seed))
     except ValueError as exc:
         raise DomeCalibError(f"{bundle}: {exc}") from None
     typer.echo(f"{out}: {len(truth['sensors'])} sensors x {frames + 4} frame pairs (ground truth in "

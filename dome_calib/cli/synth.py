@@ -4,12 +4,13 @@ The stages are imported inside the commands: `dome-calib --help` starts without 
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import typer
 
 from dome_calib.errors import DomeCalibError, flags
-from dome_calib.io_utils import check_writable
+from dome_calib.ownership import claim_folder
 
 
 def synth(
@@ -44,9 +45,9 @@ def synth(
         options = SynthOptions(preset=preset_value, n_scenes=scenes, seed=seed, layout=layout, workers=workers,
                                cameras=[c.strip() for c in cameras.split(",") if c.strip()] if cameras else None,
                                overwrite=overwrite)
-    if out.exists() and not overwrite:  # before connecting to a cluster
+    if os.path.lexists(out) and not overwrite:  # before connecting to a cluster
         raise DomeCalibError(f"{out}: already exists (choose another folder or pass --overwrite)")
-    check_writable(out)
+    claim_folder(out)  # --overwrite replaces only what dome-calib wrote
     cluster: dict = {}
     with open_executor(None, scheduler, cluster, workers=workers) as executor, ProgressBars() as bars:
         summary = synthesize(out, options, bars.task("rendering images"), executor=executor)

@@ -5,8 +5,8 @@ The formats are the rows of :mod:`dome_calib.interop.registry`; each row names t
 module holds what is the same for every format: units, world axes, names, what a bundle holds that no format
 carries, and where the output goes.
 
-Every input and output place is checked before anything is read; every output is staged and renamed into place
-(:mod:`dome_calib.io_utils`): on any error nothing is written. An imported bundle is written by
+Every input and output place is checked before anything is read; every output is staged and renamed into place,
+replacing only what dome-calib wrote (:mod:`dome_calib.ownership`): on any error nothing is written. An imported bundle is written by
 :func:`dome_calib.bundle_io.write_bundle` and read back with :func:`dome_calib.bundle_io.load_bundle` (the loader
 every stage uses) before it replaces anything.
 """
@@ -24,12 +24,10 @@ from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.interop.common import (ExportOptions, ExportResult, ImportOptions, InteropError, cm_per_unit,
                                        to_bundle, to_foreign)
 from dome_calib.interop.registry import UP_AXES, FormatInfo, format_info
-from dome_calib.io_utils import atomic_folder, atomic_path, check_writable, refuse_output_among_inputs
+from dome_calib.ownership import claim_file, claim_folder, replace_file, replace_folder
 
 logger = logging.getLogger(__name__)
 
-#: What an import writes into its output folder (a folder holding anything else is refused, not replaced).
-_IMPORT_WRITES = re.compile(r"calibration_[^/]+\.json")
 #: A sequence name: it becomes part of a file name (calibration_<seq>.json).
 _SEQ = re.compile(r"[^./\\\x00-\x1f\x7f][^/\\\x00-\x1f\x7f]{0,127}")
 
@@ -75,15 +73,6 @@ def _export_unit(info: FormatInfo, unit: str | None, where: str) -> str:
     return unit
 
 
-def _replaceable_folder(out: Path, allowed: set[str], what: str) -> None:
-    """Refuse to replace a folder that holds anything but ``allowed`` files."""
-    if not out.is_dir():
-        return
-    other = sorted(p.name for p in out.iterdir() if p.name not in allowed)
-    if other:
-        raise InteropError(f"{out}: holds {other[0]}, which is not part of {what}; give a new or empty folder")
-
-
 def _not_carried(bundle: Bundle, info: FormatInfo) -> list[str]:
     lines = []
     if bundle.kinect is not None:
@@ -104,15 +93,14 @@ def export_bundle(bundle_folder: str | Path, fmt: str, out: str | Path,
     options = options or ExportOptions()
     info = _info(fmt, "export")
     out = Path(out)
-    refuse_output_among_inputs(out, [bundle_folder, *Path(bundle_folder).glob("*")], whole_folder=True)
+    claim = claim_folder if info.folder else claim_file
+    claim(out, inputs=[bundle_folder, *Path(bundle_folder).glob("*")])  # ours only, and no input
     unit = _export_unit(info, options.unit, str(out))
     up = _world_up(info, options.world_up, str(out), export=True)
-    if info.folder:
-        _replaceable_folder(out, set(info.folder_files), f"a {info.name} export")
     bundle = load_bundle(bundle_folder)
     cams = to_foreign(bundle, options, unit, up, str(bundle_folder))
     module = adapter(info)
-    with (atomic_folder(out) if info.folder else atomic_path(out)) as staging:
+    with (replace_folder(out) if info.folder else replace_file(out)) as staging:
         written = module.write(cams, staging, unit, options)
     return ExportResult(format=info.name, out=out, unit=unit, world_up=up, cameras=len(cams),
                         dropped=_not_carried(bundle, info) + written.dropped,
@@ -150,25 +138,14 @@ def read_foreign(src: str | Path, fmt: str, options: ImportOptions | None = None
     return to_bundle(read.cameras, scale, up, options, read.path, source), unit
 
 
-def check_import_output(out: Path, seq: str) -> None:
-    """Before anything is read: the sequence name makes a file name, and the output folder is new, empty, or holds
-    only what an import writes (a calibration file). A folder holding more (a session's bundle with its Kinect
-    calibration, sync tables and report, the user's notes) is refused, not replaced: the import would delete them,
-    and keeping them beside other cameras would mix two calibrations in one bundle."""
+def check_import_output(out: Path, seq: str, src: str | Path) -> None:
+    """Before anything is read: the sequence name makes a file name, and the output folder is new, empty, or what
+    dome-calib wrote (:func:`dome_calib.ownership.claim_folder`), holding no input: it is replaced whole."""
     if not _SEQ.fullmatch(seq):
         raise InteropError(f"--seq {seq!r}: a sequence name is part of the file name calibration_<seq>.json: no "
                            "'/', '\\' or control characters, not starting with '.', at most 128 characters (without "
                            "--seq: the output folder's name)")
-    if out.exists() and not out.is_dir():
-        raise InteropError(f"-o {out}: is a file; give a new or empty folder for the bundle")
-    if out.is_dir():
-        other = sorted(p.name + ("/" if p.is_dir() else "") for p in out.iterdir()
-                       if not (p.is_file() and _IMPORT_WRITES.fullmatch(p.name)))
-        if other:
-            shown = ", ".join(other[:3]) + (", ..." if len(other) > 3 else "")
-            raise InteropError(f"-o {out}: holds {shown}: an import writes a new bundle folder (cameras only) and "
-                               "would replace this one whole; give a new or empty folder")
-    check_writable(out)
+    claim_folder(out, inputs=[src])
 
 
 def import_calibration(src: str | Path, fmt: str, out: str | Path,
@@ -177,11 +154,10 @@ def import_calibration(src: str | Path, fmt: str, out: str | Path,
     options = options or ImportOptions()
     out = Path(out)
     info = _info(fmt, "import")
-    refuse_output_among_inputs(out, [src], whole_folder=True)
-    check_import_output(out, options.seq)
+    check_import_output(out, options.seq, src)
     bundle, unit = read_foreign(src, info.name, options)
     up = _world_up(info, options.world_up, str(src), export=False)
-    with atomic_folder(out) as staging:
+    with replace_folder(out) as staging:
         write_bundle(bundle, staging)
         load_bundle(staging)  # the loader every stage uses accepts it, or nothing is replaced
     return ImportResult(out=out, format=info.name, cameras=len(bundle.cameras), unit=unit, world_up=up)

@@ -23,7 +23,7 @@ from typing import Annotated, Literal
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import load_bundle
 from dome_calib.compare import Comparison, compare_cameras
-from dome_calib.io_utils import check_writable
+from dome_calib.ownership import claim_folder, claim_into
 from dome_calib.pipeline.full import format_result
 from dome_calib.pipeline.people_page import people_page_writer
 from dome_calib.pipeline.session import SessionOptions, SessionResult, run_session
@@ -92,7 +92,9 @@ def run_demo(out: Path, options: DemoOptions | None = None) -> DemoResult:
     options = options or DemoOptions()
     scenes = options.scenes or DEFAULT_SCENES[options.preset]
     out = Path(out)
-    check_writable(out)  # before the synthesis and the calibration
+    claim_into(out)  # before the synthesis and the calibration: OUT itself, and the folders it replaces whole
+    for part in ("bundle", "people"):
+        claim_folder(out / part)
     session = out / "session"
     synth_s = synthesize(session, options.preset, scenes, options.seed, options.progress is not None,
                          people=options.people)

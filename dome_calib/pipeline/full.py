@@ -63,14 +63,11 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
     options = options or CalibrateOptions()
     # absolute: the paths in the tasks are read by pool or cluster workers whose working folder is not ours
     capture, out = Path(os.path.abspath(capture)), Path(os.path.abspath(out))
-    if out.is_symlink():  # as every -o: a symlink is followed, the folder it points to is replaced, the link stays
-        out = out.resolve()
     scenes, expected = capture_contents(capture)
     if options.only_changed and options.prior is None:
         raise DomeCalibError("--only-changed needs --prior (the bundle the unchanged cameras are taken from)")
-    check_output_folder(out)
+    check_output_folder(out, [capture])  # replaced whole: ours only, and it must not hold the capture
     check_carried_report_files(out)
-    refuse_output_among_inputs(out, [capture], whole_folder=True)  # replaced whole: it must not hold the capture
     work = Path(os.path.abspath(options.work_dir)) if options.work_dir else out.with_name(out.name + ".work")
     refuse_output_among_inputs(work, [capture, out, *([options.prior] if options.prior else [])], option="--work",
                                whole_folder=True)  # a work folder of other inputs is emptied

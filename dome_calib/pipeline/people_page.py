@@ -18,6 +18,7 @@ import numpy as np
 
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import load_bundle
+from dome_calib.ownership import claim_file
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, parse_camera_map, read_openpose_files
 from dome_calib.recon.streams import stream_of_camera
@@ -101,6 +102,7 @@ def build_people_page(people_folder: str | Path, *, out: str | Path | None = Non
         raise PeopleFileError(f"{detections}: detections need the calibration bundle (--bundle) to be put on "
                               "universal time and compared with the reprojected bodies")
     page = Path(out) if out is not None else Path(people_folder) / PAGE_FILE
+    claim_file(page, inputs=_inputs(people_folder, bundle, detections))  # before any reading
     people = read_people(people_folder, progress=progress)
     cal = load_bundle(bundle) if isinstance(bundle, (str, Path)) else bundle
     det, notes = ([], [])
@@ -112,6 +114,18 @@ def build_people_page(people_folder: str | Path, *, out: str | Path | None = Non
     return PeoplePageSummary(page=page, people=len(people.tracks), frames=len(people.frames),
                              cameras=len(cal.cameras) if cal is not None else 0,
                              detection_cameras=[d.camera for d in det], notes=notes)
+
+
+def _inputs(people_folder: str | Path, bundle: str | Path | Bundle | None,
+            detections: str | Path | None) -> list[Path]:
+    """Every file the page is made from (the page may be none of them): the body3DScene folder's JSON files, the
+    bundle's files, the detection files."""
+    files = [p for p in Path(people_folder).glob("*.json")]
+    if isinstance(bundle, (str, Path)) and Path(bundle).is_dir():
+        files += [p for p in Path(bundle).iterdir()]
+    if detections is not None and Path(detections).is_dir():
+        files += [p for p in Path(detections).rglob("*")]
+    return files
 
 
 def people_page_writer(out: str | Path, bundle: str | Path, detections: str | Path, *,

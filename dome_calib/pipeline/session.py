@@ -26,7 +26,6 @@ from dome_calib.bundle_io import (check_output_folder, load_bundle, recover_fold
                                   write_bundle)
 from dome_calib.capture_checks import cross_check_kinects
 from dome_calib.errors import BundleFormatError, CaptureError, DomeCalibError
-from dome_calib.io_utils import refuse_output_among_inputs
 from dome_calib.kinect.calibrate import KinectCalibOptions, SensorCalibration, calibrate_kinect_folder
 from dome_calib.kinect.detect import check_sensor_frames, find_sensor_frames
 from dome_calib.report.kept import SESSION_FILE, write_kept
@@ -123,12 +122,9 @@ def run_session(session: Path, out: Path, options: SessionOptions | None = None,
     """
     options = options or SessionOptions()
     session, out = Path(session), Path(out)
-    if out.is_symlink():
-        out = out.resolve()
     stage = on_stage or (lambda name: None)
     parts = session_parts(session)
-    held_seq = check_output_folder(out)  # a bundle there is the report's previous calibration
-    refuse_output_among_inputs(out, [session], whole_folder=True)
+    held_seq = check_output_folder(out, [session])  # a bundle there is the report's previous calibration
     try:  # the sync description and its audio headers are read (and refused) before the calibration
         loaded = load_session(parts["sync"])
         check_session_audio(loaded, kinect_required=True)

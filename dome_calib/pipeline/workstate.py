@@ -35,6 +35,7 @@ from typing import TypeVar
 
 from dome_calib.errors import DomeCalibError, Interrupted, restore_interrupt_handler, storage_failure
 from dome_calib.io_utils import atomic_path, atomic_write_text
+from dome_calib.ownership import RECORD, claim_scratch, mark_scratch
 from dome_calib.progress import ProgressTasks, task_progress
 
 logger = logging.getLogger(__name__)
@@ -146,17 +147,6 @@ def _in_folder(exc: OSError, folder: Path) -> bool:
     return os.path.abspath(str(exc.filename)).startswith(os.path.abspath(folder) + os.sep)
 
 
-def _refuse_foreign_folder(folder: Path) -> None:
-    """A work folder of other inputs is emptied: refuse a folder with content that no run made (no state.json and
-    no lock file), before anything in it is deleted."""
-    if not folder.is_dir() or (folder / STATE_FILE).exists() or (folder / LOCK_FILE).exists():
-        return
-    content = sorted(p.name for p in folder.iterdir())
-    if content:
-        raise DomeCalibError(f"--work {folder}: holds {', '.join(content[:3])}{', ...' if len(content) > 3 else ''}, "
-                             "not a work folder of an earlier run (it would be emptied); give a new or empty folder")
-
-
 class WorkState:
     """Finished stages and their timings for one run; use :meth:`open` (locks the folder)."""
 
@@ -176,8 +166,9 @@ class WorkState:
     def open(cls, folder: Path, fingerprint: dict, **kwargs) -> Iterator[WorkState]:
         """Lock the work folder, load or reset its state, and release the lock at the end."""
         state = cls(folder, fingerprint, **kwargs)
-        _refuse_foreign_folder(state.folder)
+        claim_scratch(state.folder)  # emptied when made for other inputs: only a work folder of ours
         state.folder.mkdir(parents=True, exist_ok=True)
+        mark_scratch(state.folder)
         state._lock.acquire()
         try:
             state._load()
@@ -202,7 +193,7 @@ class WorkState:
 
     def _empty(self) -> None:
         for p in self.folder.iterdir():
-            if p.name == LOCK_FILE:
+            if p.name in (LOCK_FILE, RECORD):
                 continue
             if p.is_dir() and not p.is_symlink():
                 shutil.rmtree(p)

@@ -12,9 +12,9 @@ from dome_calib.bundle_io import load_bundle
 from dome_calib.errors import require_finite
 from dome_calib.layout import check_dome_scale
 from dome_calib.recon.errors import ReconError
-from dome_calib.io_utils import output_file, refuse_output_among_inputs
+from dome_calib.ownership import claim_file, claim_folder
 from dome_calib.recon.depth import depth_folder_reader, pointcloud_at, write_ply
-from dome_calib.recon.formats import (check_output_folder, check_times, default_times, fps_type_of,
+from dome_calib.recon.formats import (check_times, default_times, fps_type_of,
                                       load_detection_streams, write_skeletons)
 from dome_calib.recon.project import view_set
 from dome_calib.recon.streams import triangulate_streams
@@ -41,8 +41,7 @@ def triangulate_file(bundle_folder: str | Path, detections: str | Path, out: str
     ``out`` is replaced as a whole; it is checked before any work. Explicit times outside every stream's detected
     frames: all of them -> ReconError (nothing written), some -> a warning with the count (no joints there).
     """
-    refuse_output_among_inputs(out, [detections, bundle_folder], whole_folder=True)  # OUT is replaced whole
-    check_output_folder(out)
+    claim_folder(out, inputs=[detections, bundle_folder])  # OUT is replaced whole: ours only, no input in it
     bundle = load_bundle(bundle_folder)
     check_dome_scale(bundle.cameras, f"--bundle {bundle_folder}")
     streams, parsed = load_detection_streams(bundle, detections)
@@ -79,8 +78,7 @@ def pointcloud_file(bundle_folder: str | Path, time_ms: float, depth_folder: str
                     progress: Callable[[int, int], None] | None = None) -> PointCloudSummary:
     """Depth frames nearest to ``time_ms`` of every Kinect -> one world point cloud PLY at ``out`` (checked first)."""
     require_finite(ReconError, **{"--time-ms": time_ms, "--max-offset-ms": max_offset_ms})
-    output_file(out)
-    refuse_output_among_inputs(out, [*Path(bundle_folder).glob("*"), *Path(depth_folder).glob("*/*")])
+    claim_file(out, inputs=[*Path(bundle_folder).glob("*"), *Path(depth_folder).glob("*/*")])
     bundle = load_bundle(bundle_folder)
     check_dome_scale(bundle.cameras, f"--bundle {bundle_folder}")
     cloud = pointcloud_at(bundle, time_ms, depth_folder_reader(depth_folder), max_offset_ms=max_offset_ms,

@@ -24,7 +24,7 @@ import numpy as np
 
 from dome_calib.bundle import Bundle, KinectSensor
 from dome_calib.camera import pixels_to_normalized
-from dome_calib.io_utils import atomic_path
+from dome_calib.ownership import replace_file
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.project import depth_from_world, kinect_sensor
 
@@ -184,7 +184,8 @@ def pointcloud_at(bundle: Bundle, univ_time_ms: float, read_frame: Callable[[str
 
 
 def write_ply(path: str | Path, cloud: PointCloud) -> Path:
-    """Write a binary little-endian PLY (x, y, z float cm; sensor uchar; time_offset_ms float), atomically."""
+    """Write a binary little-endian PLY (x, y, z float cm; sensor uchar; time_offset_ms float), atomically, where
+    :mod:`dome_calib.ownership` allows (nothing there, or a file dome-calib wrote, unchanged)."""
     data = np.empty(len(cloud.xyz_cm), dtype=PLY_DTYPE)
     data["x"], data["y"], data["z"] = cloud.xyz_cm[:, 0], cloud.xyz_cm[:, 1], cloud.xyz_cm[:, 2]
     data["sensor"], data["time_offset_ms"] = cloud.sensor, cloud.time_offset_ms
@@ -196,7 +197,7 @@ def write_ply(path: str | Path, cloud: PointCloud) -> Path:
                                                           ("sensor", "uchar"), ("time_offset_ms", "float")))
     header += "end_header\n"
     path = Path(path)
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+    with replace_file(path) as tmp, open(tmp, "wb") as f:
         f.write(header.encode("ascii"))
         f.write(data.tobytes())
     return path

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle import Bundle
-from dome_calib.io_utils import atomic_folder, foreign_names, output_folder
+from dome_calib.ownership import replace_folder
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.streams import SkeletonSequence, StreamTracks, group_by_stream
 
@@ -178,17 +178,6 @@ def check_times(path: str | Path, streams: list[StreamTracks], times_ms: np.ndar
     return covered
 
 
-def check_output_folder(folder: str | Path) -> Path:
-    """The skeleton folder ``-o`` may replace: absent, empty or holding only body3DScene files (an earlier run's);
-    anything else is refused before any work."""
-    target = output_folder(folder)
-    other = foreign_names(target, SKELETON_FILE.fullmatch)
-    if other:
-        raise ReconError(f"{folder}: holds {other[0]!r}, which is not a body3DScene file: the skeleton folder is "
-                         "replaced as a whole, so give a new folder or one of an earlier run")
-    return target
-
-
 def skeleton_json(seq: SkeletonSequence, k: int, *, body_id: int = 0, fps_type: str = "custom") -> dict:
     """One Panoptic body3DScene object for time ``k`` of the sequence."""
     J = seq.X_cm.shape[1]
@@ -207,9 +196,9 @@ def write_skeletons(folder: str | Path, seq: SkeletonSequence, numbers: np.ndarr
                     fps_type: str = "custom") -> list[Path]:
     """Write ``body3DScene_<number:08d>.json`` per time into ``folder``, replacing it as a whole (staged beside it,
     then renamed): a reader sees the earlier run's files or this run's, never a mix."""
-    folder = check_output_folder(folder)
+    folder = Path(folder)
     names = []
-    with atomic_folder(folder) as staging:
+    with replace_folder(folder) as staging:
         for k, number in enumerate(numbers):
             obj = skeleton_json(seq, k, body_id=body_id, fps_type=fps_type)
             names.append(f"body3DScene_{int(number):08d}.json")

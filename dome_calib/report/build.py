@@ -27,6 +27,7 @@ import numpy as np
 
 from dome_calib.bundle import Bundle, CameraType, camera_type_from_name
 from dome_calib.bundle_io import replace_folder
+from dome_calib.ownership import claim_folder
 from dome_calib.errors import ReportError
 from dome_calib.io_utils import new_mode
 from dome_calib.options import AtLeast, options
@@ -180,6 +181,7 @@ def write_report(bundle_folder: str | Path, bundle: Bundle, residuals: Residuals
     folder = Path(bundle_folder)
     if not folder.is_dir():
         raise ReportError(f"{folder}: not a folder")
+    claim_folder(folder / REPORT_DIR, option="report folder")  # replaced whole: only what dome-calib wrote
     content = build_report(bundle, residuals, options, **kwargs)
     staging = Path(tempfile.mkdtemp(prefix=f".{REPORT_DIR}.new.", dir=folder))
     try:
@@ -199,7 +201,7 @@ def write_report(bundle_folder: str | Path, bundle: Bundle, residuals: Residuals
             if (target / name).is_file():
                 shutil.copy2(target / name, staging / name)
         write_page(staging, residuals=residuals)
-        replace_folder(staging, target)
+        replace_folder(staging, target, option="report folder")
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise

@@ -7,14 +7,13 @@ Each format's layout, units and axes: :mod:`~dome_calib.skeletons.trc`, :mod:`~d
 from __future__ import annotations
 
 import logging
-import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 from fractions import Fraction
 from pathlib import Path
 
-from dome_calib.io_utils import atomic_folder, foreign_names, output_folder, refuse_output_among_inputs
+from dome_calib.ownership import claim_folder, replace_folder
 from dome_calib.options import AtLeast, PosFraction, options
 from dome_calib.schema import NonNegFinite
 from dome_calib.skeletons.bvh import write_bvh
@@ -26,7 +25,6 @@ from dome_calib.skeletons.trc import write_trc
 logger = logging.getLogger(__name__)
 
 C3D_FILE = "people.c3d"
-_OURS = re.compile(r"person\d+\.(trc|bvh)|people\.c3d")
 
 
 class PeopleFormat(StrEnum):
@@ -57,14 +55,10 @@ class ExportSummary:
     joints_missing: int
 
 
-def check_export_folder(folder: str | Path) -> Path:
-    """The output folder may be absent, empty or hold only an earlier export's files: it is replaced whole."""
-    target = output_folder(folder)
-    other = foreign_names(target, _OURS.fullmatch)
-    if other:
-        raise PeopleFileError(f"{folder}: holds {other[0]!r}, which export-people did not write; the folder is "
-                              "replaced as a whole, so give a new folder or an earlier export's")
-    return target
+def check_export_folder(folder: str | Path, inputs: list[str | Path] = ()) -> Path:
+    """The output folder is replaced whole: absent, empty or what dome-calib wrote, unchanged, and holding no
+    input (:func:`dome_calib.ownership.claim_folder`)."""
+    return claim_folder(folder, inputs=inputs)
 
 
 def parse_ids(text: str | None) -> list[int] | None:
@@ -112,14 +106,13 @@ def export_people(folder: str | Path, to: PeopleFormat | str, out: str | Path,
     """
     options = options or ExportPeopleOptions()
     to = PeopleFormat(to)
-    refuse_output_among_inputs(out, [folder], whole_folder=True)
-    check_export_folder(out)
+    check_export_folder(out, [folder])
     people = selected(read_people(folder, progress=progress), options)  # progress: files read
     ok = {pid: t.confidence >= max(options.min_confidence, 0.0) for pid, t in people.tracks.items()}
     n_files = len(people.frames)
     total = n_files + (1 if to is PeopleFormat.c3d else len(people.tracks))  # then the files written
     files: list[Path] = []
-    with atomic_folder(out) as staging:
+    with replace_folder(out) as staging:
         if to is PeopleFormat.c3d:
             files.append(write_c3d(staging / C3D_FILE, people, ok))
         else:

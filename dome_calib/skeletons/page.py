@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle import Bundle
-from dome_calib.io_utils import atomic_write_text
+from dome_calib.ownership import write_text
 from dome_calib.skeletons.joints import JOINTS19, MARKER, bones
 from dome_calib.skeletons.scenes import People
 
@@ -112,9 +112,10 @@ def render_page(data: dict) -> str:
 def write_people_page(path: str | Path, people: People, *, bundle: Bundle | None = None,
                       detections: list[CameraDetections] | None = None, notes: list[str] | None = None,
                       folder: Path | None = None) -> Path:
-    """Write the page of ``people`` to ``path`` (atomic); returns the path (``folder``: see :func:`page_data`)."""
+    """Write the page of ``people`` to ``path`` (atomic, where :mod:`dome_calib.ownership` allows); returns the path
+    (``folder``: see :func:`page_data`)."""
     path = Path(path)
-    atomic_write_text(path, render_page(page_data(people, bundle=bundle, detections=detections, notes=notes,
-                                                  folder=folder)))
+    write_text(path, render_page(page_data(people, bundle=bundle, detections=detections, notes=notes,
+                                           folder=folder)))
     logger.info("people page written to %s (%.0f kB)", path, path.stat().st_size / 1e3)
     return path

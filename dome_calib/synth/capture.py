@@ -39,6 +39,7 @@ from dome_calib.errors import DomeCalibError
 from dome_calib.executor import Executor
 from dome_calib.executor.local import make_executor
 from dome_calib.io_utils import atomic_write_text
+from dome_calib.ownership import claim_folder, replace_folder
 from dome_calib.layout import Preset, nominal_dome
 from dome_calib.synth.dome import Projector, dome_from_calibration, projectors
 from dome_calib.synth.render import RenderOptions, SceneState, camera_rays, prepare_scene, render_image
@@ -175,8 +176,9 @@ def synthesize(out: str | Path, options: SynthOptions, progress: Callable[[int, 
     """
     t_start = time.perf_counter()
     out = Path(out)
-    if out.exists() and not options.overwrite:
+    if os.path.lexists(out) and not options.overwrite:
         raise DomeCalibError(f"{out}: already exists (choose another folder or pass --overwrite)")
+    claim_folder(out)  # --overwrite replaces only a folder dome-calib wrote (dome_calib.ownership)
     bundle = load_layout(options)
     projs = projectors(options.seed)
     poses = scene_poses(options.n_scenes, options.seed)
@@ -186,9 +188,7 @@ def synthesize(out: str | Path, options: SynthOptions, progress: Callable[[int, 
     if progress:
         progress(0, total)
 
-    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    try:
+    with replace_folder(out) as tmp:
         for s in names:
             (tmp / "scenes" / s).mkdir(parents=True)
         gt = tmp / "ground_truth"
@@ -231,16 +231,6 @@ def synthesize(out: str | Path, options: SynthOptions, progress: Callable[[int, 
             "seconds": {"total": round(seconds, 2), "prepare_scenes": round(prepare_s, 2)},
         }
         atomic_write_text(tmp / "capture.json", json.dumps(meta, indent=1))
-        if out.exists():
-            trash = out.parent / f".{out.name}.old-{os.getpid()}"
-            out.rename(trash)
-            tmp.rename(out)
-            shutil.rmtree(trash, ignore_errors=True)
-        else:
-            tmp.rename(out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     logger.debug("capture %s: %d images in %.1f s", out, total, seconds)
     return CaptureSummary(folder=out, scenes=names, cameras=cameras, n_images=total, seconds=seconds)
 

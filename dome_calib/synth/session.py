@@ -31,6 +31,7 @@ from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.errors import DomeCalibError
 from dome_calib.schema import FileSchema, NonNegFinite, PosFinite, read_json
 from dome_calib.io_utils import atomic_write_text
+from dome_calib.ownership import claim_folder, seal
 from dome_calib.synth.capture import SynthOptions, synthesize as write_capture
 from dome_calib.synth.detector import DetectorModel
 from dome_calib.synth.dome import as_built_dome
@@ -74,14 +75,13 @@ class SessionManifest(FileSchema):
 
 
 def _made_here(folder: Path) -> SessionOptions | None:
-    """The options the session in ``folder`` was made with; None for no folder or an empty one. A folder holding
-    anything else (no manifest, or one this toolkit did not write) is refused: it is replaced whole otherwise."""
+    """The options the session in ``folder`` was made with; None for no folder, an empty one, or one of ours
+    without a manifest. Anything that is not ours (:func:`dome_calib.ownership.claim_folder`) is refused: it is
+    replaced whole otherwise."""
     manifest = folder / MANIFEST
-    if not folder.exists() or (folder.is_dir() and not any(folder.iterdir())):
+    claim_folder(folder)
+    if not manifest.is_file():
         return None
-    if not manifest.exists():
-        raise DomeCalibError(f"{folder}: not a synthetic session (no {MANIFEST}): it would be replaced whole; "
-                             "choose a new or empty folder")
     try:
         return read_json(manifest, SessionManifest, error=DomeCalibError).options
     except DomeCalibError as exc:
@@ -126,8 +126,26 @@ def make_product_session(folder: str | Path, options: SessionOptions | None = No
     if _made_here(folder) == o:
         return folder
     step = progress or (lambda what: None)
-    shutil.rmtree(folder, ignore_errors=True)
+    shutil.rmtree(folder, ignore_errors=True)  # ours (claimed above), or nothing
     folder.mkdir(parents=True)
+    try:
+        _write_session(folder, o, step)
+        atomic_write_text(manifest, json.dumps(wanted | {"parts": _parts(o)}, indent=1) + "\n")
+        seal(folder)  # what dome-calib wrote: a later run may replace it
+    except BaseException:
+        shutil.rmtree(folder, ignore_errors=True)  # nothing half-written
+        raise
+    return folder
+
+
+def _parts(o: SessionOptions) -> dict[str, str]:
+    parts = {"capture": "capture", "kinect": "kinect", "sync": "sync", "detections": "detections.json",
+             "ground_truth": "ground_truth"}
+    return parts | ({"group": "group"} if o.group_people else {})
+
+
+def _write_session(folder: Path, o: SessionOptions, step) -> None:
+    """Every part of the session, into the new folder ``folder``."""
     dome = as_built_dome(o.preset, o.seed)
     layout = folder / "as_built"
     write_bundle(dome, layout)
@@ -152,8 +170,6 @@ def make_product_session(folder: str | Path, options: SessionOptions | None = No
                               noise=DetectionNoise(noise_px=o.noise_px, wrong_fraction=o.wrong_fraction))
     doc = _detections_doc(tracks, np.random.default_rng(o.seed + 7), o.miss_fraction)
     atomic_write_text(folder / "detections.json", json.dumps(doc, separators=(",", ":")) + "\n")
-    parts = {"capture": "capture", "kinect": "kinect", "sync": "sync", "detections": "detections.json",
-             "ground_truth": "ground_truth"}
     if o.group_people:
         step("a group of people and its OpenPose detections")
         start_ms, duration_ms = session_span_ms(truth)
@@ -161,9 +177,6 @@ def make_product_session(folder: str | Path, options: SessionOptions | None = No
             group=GroupOptions(n_people=o.group_people, scenario=o.group_scenario, start_ms=start_ms,
                                duration_ms=duration_ms, seed=o.seed), detector=DetectorModel(seed=o.seed),
             cameras=seen_by))
-        parts["group"] = "group"
-    atomic_write_text(manifest, json.dumps(wanted | {"parts": parts}, indent=1) + "\n")
-    return folder
 
 
 def load_truth_bundle(folder: str | Path) -> Bundle:

@@ -59,9 +59,9 @@ def decode(
         print(f"timecode: error: {line}", file=sys.stderr)
     if result.n_decoded:
         if output:
-            from dome_calib.io_utils import atomic_write_text
+            from dome_calib.ownership import write_text
 
-            atomic_write_text(output, result.text)
+            write_text(output, result.text)
         else:
             typer.echo(result.text, nl=False)
     if result.failures:

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from dome_calib.cli.progress import ProgressBars
-from dome_calib.io_utils import output_file, refuse_output_among_inputs
+from dome_calib.ownership import claim_file
 from timecode.audio_io import AudioReader, RawFormat, RawSampleFormat
 from timecode.decode.decoder import MAX_RATE, MIN_RATE, DecodeError, DecodeOptions, RateMismatchError, decode_file
 from timecode.errors import NoLTCError, TimecodeError
@@ -86,9 +86,8 @@ def input_files(inputs: Sequence[Path], raw: RawFormat | None) -> tuple[list[Pat
 def check_output(output: str, inputs: Sequence[Path], raw: RawFormat | None) -> None:
     """Before anything is read: ``-o`` must be a file that can be written and none of the inputs (the same file by
     another path or a link; a folder's audio files count), else one line (OutputPathError)."""
-    output_file(output)
     files, _ = input_files(inputs, raw)
-    refuse_output_among_inputs(output, [*inputs, *files])
+    claim_file(output, inputs=[*inputs, *files])  # new, or a file of ours, unchanged (dome_calib.ownership)
 
 
 def run_decode(inputs: Sequence[Path], *, channel: str, fps: str, fmt: str, raw: RawFormat | None) -> BatchResult:

@@ -6,9 +6,10 @@ from pathlib import Path
 import typer
 
 from dome_calib.cli.progress import ProgressBars
-from dome_calib.io_utils import check_writable, refuse_output_among_inputs
 from dome_calib.errors import flags
-from timecode.sync.pipeline import check_nodes_in_bundle, check_session_audio, output_seq, sync_session, write_sync
+from dome_calib.ownership import claim_into
+from timecode.sync.pipeline import (check_nodes_in_bundle, check_session_audio, check_sync_output, output_seq,
+                                     sync_session, write_sync)
 from timecode.sync.report import summary_lines
 from timecode.sync.session import load_session
 from timecode.sync.tables import SyncOptions
@@ -18,10 +19,10 @@ def run_sync(session: Path, output: Path, *, seq: str | None, strict_kinect: boo
     """Decode, fit, write; print the per-stream summary. Errors propagate as one-line user errors."""
     with flags({"SyncOptions.max_extrapolation_s": "--max-extrapolation"}):
         opts = SyncOptions(strict_kinect=strict_kinect, max_extrapolation_s=max_extrapolation_s)
-    refuse_output_among_inputs(output, [session], whole_folder=True)
-    check_writable(output, into=True)
+    claim_into(output, inputs=[session])  # a real folder, not an input nor holding one, writable: before reading
     loaded = load_session(session)
-    output_seq(output, seq, loaded.seq)  # a contradicting --seq fails before the decoding work
+    # a contradicting --seq, and every file it writes (new, or ours and unchanged), before the decoding work
+    check_sync_output(output, output_seq(output, seq, loaded.seq), [session])
     check_nodes_in_bundle(output, loaded)  # so does a Kinect the calibrated bundle does not have
     check_session_audio(loaded, kinect_required=strict_kinect)  # and an audio file that cannot give its channel
     n_steps = 2 + len(loaded.kinects)

@@ -9,8 +9,8 @@ import numpy as np
 import soundfile as sf
 
 from dome_calib.bundle import kinect_node_camera
-from dome_calib.bundle_io import bundle_seq, load_bundle, write_bundle
-from dome_calib.io_utils import atomic_write_text
+from dome_calib.bundle_io import bundle_seq, load_bundle, update_bundle
+from dome_calib.ownership import claim_file, claim_into, write_text
 from dome_calib.panoptic_io import format_ksynctables, format_synctables
 from dome_calib.report.kept import SYNC_FILE, kept_text
 from timecode.errors import TimecodeError
@@ -202,6 +202,20 @@ def check_nodes_in_bundle(bundle: str | Path, session: Session) -> None:
                             f"kcalibration (it has {', '.join(b.kinect.sensors) or 'none'})")
 
 
+def sync_outputs(bundle: str | Path, seq: str) -> list[Path]:
+    """The files :func:`write_sync` may write into ``bundle`` for ``seq``."""
+    folder = Path(bundle)
+    return [folder / f"synctables_{seq}.json", folder / f"ksynctables_{seq}.json", folder / "report" / SYNC_FILE]
+
+
+def check_sync_output(bundle: str | Path, seq: str, inputs: list[Path]) -> None:
+    """Before any work: the bundle folder is a real folder (not an input, nor holding one) and every file the sync
+    writes there is new, or dome-calib's and unchanged (:mod:`dome_calib.ownership`)."""
+    claim_into(bundle, inputs=inputs)
+    for path in sync_outputs(bundle, seq):
+        claim_file(path)
+
+
 def write_sync(result: SyncResult, bundle: str | Path, *, seq: str | None = None) -> list[Path]:
     """Write the sync tables and ``report/sync.json`` into a bundle folder; returns the files written.
 
@@ -216,7 +230,7 @@ def write_sync(result: SyncResult, bundle: str | Path, *, seq: str | None = None
     if bundle_seq(folder) is not None:
         b = load_bundle(folder)
         b.sync = result.tables
-        write_bundle(b, folder)
+        update_bundle(b, folder, ("synctables", "ksynctables"))
         names = [f"synctables_{b.seq}.json"] + ([f"ksynctables_{b.seq}.json"] if has_kinect else [])
     else:
         texts = {f"synctables_{seq}.json": format_synctables(result.tables.streams)}
@@ -224,11 +238,11 @@ def write_sync(result: SyncResult, bundle: str | Path, *, seq: str | None = None
             texts[f"ksynctables_{seq}.json"] = format_ksynctables(result.tables.kinect_color,
                                                                   result.tables.kinect_depth)
         for name, text in texts.items():
-            atomic_write_text(folder / name, text)
+            write_text(folder / name, text)
         names = list(texts)
     stale = folder / f"ksynctables_{seq}.json"
     if not has_kinect and stale.exists():  # an older run's Kinect tables would not match the new VGA/HD tables
-        atomic_write_text(stale, format_ksynctables({}, {}))
+        write_text(stale, format_ksynctables({}, {}))
         names.append(stale.name)
-    atomic_write_text(folder / "report" / "sync.json", report_text)
+    write_text(folder / "report" / SYNC_FILE, report_text)
     return [folder / n for n in names] + [folder / "report" / "sync.json"]

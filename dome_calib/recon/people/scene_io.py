@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dome_calib.io_utils import atomic_folder, foreign_names, output_folder
+from dome_calib.ownership import claim_folder, replace_folder
 from dome_calib.recon.formats import SKELETON_FILE
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.people.agreement import CameraAgreement
@@ -37,14 +37,9 @@ PAGE_FILE = "index.html"  # the people page, written into the staging folder by 
 
 
 def check_people_folder(folder: str | Path) -> Path:
-    """The output folder ``-o`` may replace: absent, empty or an earlier run's (body3DScene files and
-    cameras.json only); anything else is refused before any work."""
-    target = output_folder(folder)
-    other = foreign_names(target, lambda name: bool(SKELETON_FILE.fullmatch(name)) or name in (CAMERAS_FILE, PAGE_FILE))
-    if other:
-        raise ReconError(f"{folder}: holds {other[0]!r}, which is not an output of reconstruct: the folder is "
-                         "replaced as a whole, so give a new folder or one of an earlier run")
-    return target
+    """The output folder ``-o`` may replace (:func:`dome_calib.ownership.claim_folder`: absent, empty or what
+    dome-calib wrote, unchanged); anything else is refused before any work."""
+    return claim_folder(folder)
 
 
 def scene_json(time_ms: float, bodies: Bodies, fps_type: str) -> dict:
@@ -91,9 +86,9 @@ def write_people(folder: str | Path, seq: PeopleSequence, numbers: np.ndarray, f
                  also: Callable[[Path], None] | None = None) -> list[Path]:
     """Write the body3DScene files and cameras.json into ``folder``, replacing it as a whole (staged beside it,
     then renamed); ``also(staging)`` adds to the staged folder before the rename (the people page)."""
-    folder = check_people_folder(folder)
+    folder = Path(folder)
     names = []
-    with atomic_folder(folder) as staging:
+    with replace_folder(folder) as staging:
         for k, number in enumerate(numbers):
             names.append(f"body3DScene_{int(number):08d}.json")
             obj = scene_json(seq.times_ms[k], seq.bodies[k], fps_type)
