@@ -176,7 +176,7 @@ def test_outputs_that_hold_other_things_are_not_replaced(dome_calib_cli, tiny, t
     (busy / "notes.txt").write_text("mine")
     _check_refused(dome_calib_cli, tmp_path, ("export", tiny, "--to", "colmap", "-o", busy), "notes.txt")
     _check_refused(dome_calib_cli, tmp_path, ("import", CALIB_QUALISYS, "--from", "pose2sim", "-o", busy),
-                   "holds notes.txt", "give a new or empty folder")
+                   "holds notes.txt", "choose another path")
     _check_refused(dome_calib_cli, tmp_path, ("export", tiny, "--to", "pose2sim", "--unit", "mm", "-o",
                                               tmp_path / "c.toml"), "in m by the format")
     assert (busy / "notes.txt").read_text() == "mine"

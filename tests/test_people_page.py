@@ -17,6 +17,7 @@ from dome_calib.interop.common import ImportOptions
 from dome_calib.interop.convert import import_calibration
 from dome_calib.recon.project import project_points, view_set
 from dome_calib.skeletons.scenes import read_people
+from dome_calib.ownership import RECORD
 
 from .skeletons_helpers import CAMERA_MAP, DATA, demo_group_reconstructed, write_scenes
 from .test_report_page import _console_errors, browser  # noqa: F401 (the report page's browser fixture)
@@ -139,7 +140,7 @@ def test_reconstruct_writes_the_page_into_its_output(browser, tmp_path, dome_cal
         run = dome_calib_cli(*args)
         assert run.returncode == 0, run.stderr
     assert sorted(p.name for p in (tmp_path / "out").iterdir() if not p.name.startswith("body3DScene_")) == [
-        "cameras.json", "index.html"]
+        RECORD, "cameras.json", "index.html"]
     _open(browser, tmp_path / "out" / "index.html")
     assert browser.find_element("id", "title").text == "People: out"
     options = [o.get_attribute("value") for o in browser.find_elements("css selector", "#camera option")]

@@ -75,7 +75,7 @@ def test_triangulate_at_explicit_times(session, tmp_path, dome_calib_cli):
     (tmp_path / "d.json").write_text(json.dumps(det))
     out = dome_calib_cli("triangulate", str(tmp_path / "d.json"), "--bundle", str(root / "bundle"))
     assert out.returncode == 0, out.stderr
-    files = sorted((tmp_path / "d_skeletons").glob("*.json"))
+    files = sorted((tmp_path / "d_skeletons").glob("body3DScene_*.json"))
     assert [f.name for f in files] == ["body3DScene_00000000.json", "body3DScene_00000001.json"]
     t_ms, X, c = read_skeleton(files[1])
     assert t_ms == 1234.5 and json.loads(files[1].read_text())["fpsType"] == "custom"

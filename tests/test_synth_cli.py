@@ -4,10 +4,12 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from dome_calib.bundle_io import load_bundle
 from dome_calib.cli import app
+from dome_calib.ownership import NotOursError
 from dome_calib.synth.capture import SynthOptions, synthesize
 from dome_calib.layout import nominal_dome
 
@@ -73,9 +75,13 @@ def test_synth_cli_errors_are_one_line(tmp_path, dome_calib_cli):
     assert r.returncode == 1 and "already exists" in r.stderr
 
 
-def test_synth_overwrite_replaces(tmp_path):
+def test_synth_overwrite_replaces_its_own_capture_only(tmp_path):
     out = tmp_path / "cap"
-    out.mkdir()
-    (out / "old.txt").write_text("old")
-    synthesize(out, SynthOptions(preset="tiny", n_scenes=1, cameras=["01_01"], workers=1, overwrite=True))
-    assert not (out / "old.txt").exists() and (out / "capture.json").exists()
+    options = SynthOptions(preset="tiny", n_scenes=1, cameras=["01_01"], workers=1, overwrite=True)
+    synthesize(out, options)
+    synthesize(out, options)  # a capture synth wrote is replaced
+    assert (out / "capture.json").exists()
+    (out / "old.txt").write_text("old")  # someone else's file in it: refused, nothing lost
+    with pytest.raises(NotOursError, match="old.txt"):
+        synthesize(out, options)
+    assert (out / "old.txt").read_text() == "old" and (out / "capture.json").exists()
