@@ -154,14 +154,15 @@ def _exchange(a: Path, b: Path) -> bool:
     raise OSError(err, os.strerror(err), str(b))
 
 
-def replace_folder(staging: Path, target: Path, *, option: str = "-o") -> None:
+def replace_folder(staging: Path, target: Path, *, option: str = "-o", keep: tuple[str, ...] = ()) -> None:
     """Put the folder ``staging`` in place of ``target`` so that a reader sees the old folder or the new one,
     never a mix: an atomic exchange where the system has it, else set the old aside, rename the new in and
     remove the old (a stop between the two renames is undone by :func:`recover_folder`). ``staging`` is sealed
-    (its record of what dome-calib wrote) and ``target`` claimed again just before (:mod:`dome_calib.ownership`)."""
+    (its record of what dome-calib wrote) and ``target`` claimed again just before (:mod:`dome_calib.ownership`;
+    ``keep``: files of ``target`` carried into ``staging``)."""
     staging, target = Path(staging), Path(target)
     seal(staging)
-    claim_folder(target, option=option)
+    claim_folder(target, option=option, keep=keep)
     if not target.exists():
         staging.rename(target)
         return

@@ -126,14 +126,18 @@ def _why_not_ours(path: Path, records: _Records) -> str | None:
     return f"{_lkind(mode)}, which dome-calib never writes"
 
 
-def foreign_entry(folder: str | os.PathLike[str]) -> tuple[Path, str] | None:
-    """The first entry under ``folder`` (sorted, depth first; links not followed) that is not ours, with why."""
+def foreign_entry(folder: str | os.PathLike[str], keep: Iterable[str] = ()) -> tuple[Path, str] | None:
+    """The first entry under ``folder`` (sorted, depth first; links not followed) that is not ours, with why;
+    ``keep``: names of regular files at its top that the writer carries into the new folder (nothing lost)."""
     records = _Records()
     root = Path(folder)
+    kept = {root / name for name in keep}
     for here, dirs, files in os.walk(root):
         here_path = Path(here)
         dirs.sort()
         for name in sorted(files) + list(dirs):
+            if here_path / name in kept and stat.S_ISREG(os.lstat(here_path / name).st_mode):
+                continue
             if name == RECORD:
                 records.entries(here_path)  # readable and ours, or NotOursError
                 continue
@@ -150,9 +154,11 @@ def _refuse_link(given: Path, option: str, what: str) -> None:
 
 
 def claim_folder(path: str | os.PathLike[str], *, option: str = "-o",
-                 inputs: Iterable[str | os.PathLike[str]] = ()) -> Path:
+                 inputs: Iterable[str | os.PathLike[str]] = (), keep: Iterable[str] = ()) -> Path:
     """Before any work: ``path`` may be replaced whole by a folder we write (module docstring), and is not, and
-    does not hold, one of ``inputs``. Returns it; NotOursError / OutputPathError in one line otherwise."""
+    does not hold, one of ``inputs``. ``keep``: the files at its top that the command reads and carries into the
+    new folder (the report's report.json, residuals and kept files): nothing of them is lost, so they need not be
+    ours. Returns it; NotOursError / OutputPathError in one line otherwise."""
     given = Path(path)
     refuse_output_among_inputs(given, inputs, option=option, whole_folder=True)
     _refuse_link(given, option, "an output folder")
@@ -164,7 +170,7 @@ def claim_folder(path: str | os.PathLike[str], *, option: str = "-o",
     if not stat.S_ISDIR(mode):
         raise NotOursError(f"{option} {given}: is {_lkind(mode)}, not a folder; the output is a folder: "
                            f"{REMEDY}")
-    found = foreign_entry(given)
+    found = foreign_entry(given, keep)
     if found is not None:
         entry, why = found
         raise NotOursError(f"{option} {given}: holds {entry.relative_to(given)} ({why}); the folder would be "

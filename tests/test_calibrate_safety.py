@@ -17,6 +17,7 @@ from typer.testing import CliRunner
 
 import dome_calib.pipeline.full as pipeline
 from dome_calib import bundle_io
+from dome_calib.ownership import RECORD, mark_scratch, write_bytes, write_text
 from dome_calib.bundle_io import load_bundle, recover_folder, replace_folder, write_bundle
 from dome_calib.errors import CaptureError, DomeCalibError
 from dome_calib.pipeline.workstate import WorkFolderBusy, WorkState
@@ -102,6 +103,7 @@ def test_a_stale_lock_of_a_dead_run_is_taken_over_with_a_warning(tmp_path, captu
     cap, _ = capture
     work = tmp_path / "bundle.work"
     work.mkdir()
+    mark_scratch(work)  # a work folder of ours (as WorkState.open makes it)
     (work / "lock").write_text(json.dumps({"pid": 999_999_999, "host": "node7", "started": "2026-01-01T00:00:00"}))
     pipeline.run_calibration(cap, tmp_path / "bundle", _options())
     assert "taking over from a run that stopped without releasing it (pid 999999999 on node7" in caplog.text
@@ -123,7 +125,7 @@ def test_an_output_that_is_not_a_bundle_folder_is_refused_before_any_work(tmp_pa
     else:
         out.mkdir()
         (out / "thesis.tex").write_text("precious")
-    with pytest.raises(DomeCalibError, match="(out|elsewhere): (the output is|not a calibration bundle)"):
+    with pytest.raises(DomeCalibError, match="out: (is a (file|FIFO|symbolic link)|holds thesis.tex)"):
         pipeline.run_calibration(cap, out, _options())
     assert stand_in_stages == {"sfm": 0, "ba": 0}
     assert not (tmp_path / "out.work").exists()
@@ -131,31 +133,32 @@ def test_an_output_that_is_not_a_bundle_folder_is_refused_before_any_work(tmp_pa
         assert out.read_text() == "precious"
 
 
-def test_a_symlink_to_a_bundle_folder_is_followed_and_stays(tmp_path, capture, stand_in_stages):
+def test_a_symlink_where_the_bundle_folder_belongs_is_refused_before_any_work(tmp_path, capture, stand_in_stages):
     cap, truth = capture
     real = write_bundle(type(truth)(seq="old", cameras=dict(truth.cameras)), tmp_path / "real")
     link = tmp_path / "link"
     link.symlink_to(real)
-    pipeline.run_calibration(cap, link, _options(seq="new"))
-    assert link.is_symlink() and load_bundle(link).seq == "new" and load_bundle(real).seq == "new"
+    with pytest.raises(DomeCalibError, match="link: is a symbolic link"):
+        pipeline.run_calibration(cap, link, _options(seq="new"))
+    assert link.is_symlink() and load_bundle(real).seq == "old" and stand_in_stages == {"sfm": 0, "ba": 0}
 
 
 def test_a_bundle_folder_of_another_seq_is_replaced_whole(tmp_path, capture, stand_in_stages):
     cap, truth = capture
     out = write_bundle(type(truth)(seq="other", cameras=dict(truth.cameras)), tmp_path / "bundle")
-    (out / "synctables_other.json").write_text("{}")
+    write_text(out / "synctables_other.json", "{}")  # as `timecode sync` writes it: ours
     pipeline.run_calibration(cap, out, _options(seq="new"))
-    assert sorted(p.name for p in out.iterdir()) == ["calibration_new.json", "report"]
+    assert sorted(p.name for p in out.iterdir()) == [RECORD, "calibration_new.json", "report"]
     assert load_bundle(out).seq == "new"
 
 
 def test_a_recalibration_keeps_the_kinect_and_sync_files_of_the_same_seq(tmp_path, capture, stand_in_stages):
     cap, truth = capture
     out = write_bundle(type(truth)(seq="s", cameras=dict(truth.cameras)), tmp_path / "bundle")
-    (out / "kcalibration_s.json").write_text("kinect")
+    write_text(out / "kcalibration_s.json", "kinect")  # as `dome-calib kinect` and `timecode sync` write them
     (out / "report").mkdir()
     sync = (REPORT_FILES / "sync.json").read_bytes()  # a real sync report (it is read back through its schema)
-    (out / "report" / "sync.json").write_bytes(sync)
+    write_bytes(out / "report" / "sync.json", sync)
     pipeline.run_calibration(cap, out, _options(seq="s"))
     assert (out / "kcalibration_s.json").read_text() == "kinect"
     assert (out / "report" / "sync.json").read_bytes() == sync
@@ -168,11 +171,11 @@ def test_replace_folder_swaps_whole_folders(tmp_path, truth_bundle, monkeypatch,
     if not exchange:
         monkeypatch.setattr(bundle_io, "_exchange", lambda a, b: False)
     out = write_bundle(truth_bundle, tmp_path / "b")
-    (out / "old_only.txt").write_text("x")
+    write_text(out / "old_only.txt", "x")  # ours (recorded): the swap may remove it
     staging = bundle_io.staging_folder(out)
     write_bundle(type(truth_bundle)(seq="new", cameras=truth_bundle.cameras), staging)
     replace_folder(staging, out)
-    assert sorted(p.name for p in out.iterdir()) == ["calibration_new.json"]
+    assert sorted(p.name for p in out.iterdir()) == [RECORD, "calibration_new.json"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b"]  # no staging or set-aside folder left
 
 

@@ -9,6 +9,7 @@ import logging
 import numpy as np
 import pytest
 
+from dome_calib.ownership import RECORD
 from dome_calib.bundle_io import write_bundle
 from dome_calib.errors import DomeCalibError
 from dome_calib.recon.commands import triangulate_file
@@ -118,11 +119,11 @@ def test_rerun_replaces_the_skeleton_folder_whole(session, tmp_path):
     assert len(list((tmp_path / "sk").iterdir())) > 3
     few = {**_copy(det), "times_ms": [1200.0, 1250.0]}
     triangulate_file(root / "bundle", _write(tmp_path, few), tmp_path / "sk")
-    assert sorted(p.name for p in (tmp_path / "sk").iterdir()) == ["body3DScene_00000000.json",
+    assert sorted(p.name for p in (tmp_path / "sk").iterdir()) == [RECORD, "body3DScene_00000000.json",
                                                                    "body3DScene_00000001.json"]  # nothing stale
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".sk.")]  # no staging left behind
     (tmp_path / "sk" / "notes.txt").write_text("mine")
-    with pytest.raises(DomeCalibError, match=r"holds 'notes.txt', which is not a body3DScene file"):
+    with pytest.raises(DomeCalibError, match=r"sk: holds notes.txt \(the record .* does not list it\)"):
         triangulate_file(root / "bundle", _write(tmp_path, few), tmp_path / "sk")
     assert (tmp_path / "sk" / "notes.txt").read_text() == "mine"
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from dome_calib.ownership import RECORD
 from dome_calib.bundle_io import write_bundle
 from dome_calib.report import ReportError, ReportOptions, Residuals, build_report, load_residuals, write_report
 from dome_calib.layout import nominal_dome
@@ -70,7 +71,7 @@ def test_write_report_whole_or_nothing(tmp_path, tiny, monkeypatch):
     folder = write_bundle(tiny, tmp_path / "b")
     target = write_report(folder, tiny, _residuals(tiny))
     assert {p.name for p in target.iterdir()} == {"report.json", "residuals.npz", "dome.png", "residuals.png",
-                                                   "observations.png", "index.html"}
+                                                   "observations.png", "index.html", RECORD}
     assert load_residuals(folder) is not None
     before = (target / "report.json").read_text()
 
@@ -83,7 +84,7 @@ def test_write_report_whole_or_nothing(tmp_path, tiny, monkeypatch):
     with pytest.raises(RuntimeError):
         write_report(folder, tiny, None)
     assert (target / "report.json").read_text() == before  # the old report is untouched
-    assert sorted(p.name for p in folder.iterdir() if p.name.startswith(".")) == []  # no staging left behind
+    assert sorted(p.name for p in folder.iterdir() if p.name.startswith(".")) == [RECORD]  # no staging left
 
 
 def test_report_cli(tmp_path, tiny):

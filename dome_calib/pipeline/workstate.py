@@ -182,7 +182,7 @@ class WorkState:
         except ValueError:
             state = {"unreadable": True}
         if state.get("version") != STATE_VERSION or state.get("fingerprint") != self.fingerprint:
-            if any(p.name != LOCK_FILE for p in self.folder.iterdir()):
+            if any(p.name not in (LOCK_FILE, RECORD) for p in self.folder.iterdir()):
                 logger.info("work folder %s was made for other inputs: starting over", self.folder)
                 self._empty()
             state = {"version": STATE_VERSION, "fingerprint": self.fingerprint, "stages": {}}

@@ -42,6 +42,10 @@ logger = logging.getLogger(__name__)
 
 REPORT_DIR = "report"
 RESIDUALS_FILE = "residuals.npz"
+#: What a new report carries over from the one it replaces (read, checked, and written again or copied): these need
+#: not be dome-calib's own to be replaced (:func:`dome_calib.ownership.claim_folder`'s ``keep``); every other file
+#: of report/ must be.
+CARRIED_FILES = ("report.json", RESIDUALS_FILE, *KEPT_FILES)
 
 
 @options
@@ -181,7 +185,7 @@ def write_report(bundle_folder: str | Path, bundle: Bundle, residuals: Residuals
     folder = Path(bundle_folder)
     if not folder.is_dir():
         raise ReportError(f"{folder}: not a folder")
-    claim_folder(folder / REPORT_DIR, option="report folder")  # replaced whole: only what dome-calib wrote
+    claim_folder(folder / REPORT_DIR, option="report folder", keep=CARRIED_FILES)  # replaced whole: ours only
     content = build_report(bundle, residuals, options, **kwargs)
     staging = Path(tempfile.mkdtemp(prefix=f".{REPORT_DIR}.new.", dir=folder))
     try:
@@ -201,7 +205,7 @@ def write_report(bundle_folder: str | Path, bundle: Bundle, residuals: Residuals
             if (target / name).is_file():
                 shutil.copy2(target / name, staging / name)
         write_page(staging, residuals=residuals)
-        replace_folder(staging, target, option="report folder")
+        replace_folder(staging, target, option="report folder", keep=CARRIED_FILES)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise

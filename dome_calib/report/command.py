@@ -22,7 +22,7 @@ from dome_calib.bundle_io import load_bundle
 from dome_calib.compare import detect_changes
 from dome_calib.ownership import claim_folder
 from dome_calib.reasons import RULE_CODES
-from dome_calib.report.build import REPORT_DIR, ReportOptions, load_residuals, write_report
+from dome_calib.report.build import CARRIED_FILES, REPORT_DIR, ReportOptions, load_residuals, write_report
 from dome_calib.report.kept import read_kept
 from dome_calib.report.previous import previous_section
 from dome_calib.report.schema import KEPT_SECTIONS, Findings, read_report
@@ -35,7 +35,7 @@ def report_bundle(bundle_folder: Path, *, previous: Path | None = None, min_obse
     with (default: the comparison the calibration made, kept). Returns a short text for the terminal."""
     bundle_folder = Path(bundle_folder)
     bundle = load_bundle(bundle_folder)
-    claim_folder(bundle_folder / REPORT_DIR, option="report folder")  # before anything is built (ownership)
+    claim_folder(bundle_folder / REPORT_DIR, option="report folder", keep=CARRIED_FILES)  # before anything is built
     report_path = bundle_folder / REPORT_DIR / "report.json"
     old, version = read_report(report_path) if report_path.exists() else (None, None)
     read_kept(bundle_folder / REPORT_DIR)  # checked now: the page reads them after the report is built
