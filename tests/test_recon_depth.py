@@ -5,6 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
+from dome_calib.ownership import RECORD
 from dome_calib.recon.depth import (
     PLY_DTYPE,
     PointCloud,
@@ -80,7 +81,7 @@ def test_ply_round_trip_and_layout(tmp_path):
     np.testing.assert_array_equal(back.sensor, cloud.sensor)
     np.testing.assert_array_equal(back.time_offset_ms, cloud.time_offset_ms)
     assert back.sensors == cloud.sensors
-    assert [p.name for p in tmp_path.iterdir()] == ["c.ply"]  # no temp file left
+    assert sorted(p.name for p in tmp_path.iterdir()) == [RECORD, "c.ply"]  # no temp file left
 
 
 def test_depth_folder_and_errors(tmp_path, scene):
