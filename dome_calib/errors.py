@@ -4,6 +4,8 @@ from __future__ import annotations
 import contextlib
 import errno
 import importlib
+import importlib.abc
+import importlib.util
 import logging
 import math
 import os
@@ -153,6 +155,32 @@ def _terminated(signum: int, frame: object) -> None:
 _cli_pid = 0
 
 
+class _HandlerGuard(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """While a command runs: after a module of HANDLER_REPLACING_IMPORTS is loaded (wherever it is imported), the
+    SIGTERM handler that was in place before is put back over the one it installed at the C level."""
+
+    def find_spec(self, fullname, path, target=None):
+        if fullname not in HANDLER_REPLACING_IMPORTS:
+            return None
+        sys.meta_path.remove(self)
+        try:
+            spec = importlib.util.find_spec(fullname)
+        finally:
+            sys.meta_path.insert(0, self)
+        if spec is not None and spec.loader is not None:
+            self.inner, spec.loader = spec.loader, self
+        return spec
+
+    def create_module(self, spec):
+        return self.inner.create_module(spec)
+
+    def exec_module(self, module) -> None:
+        handler = signal.getsignal(signal.SIGTERM)
+        self.inner.exec_module(module)
+        if callable(handler) and threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, handler)
+
+
 def run_cli(app: Callable[..., object], *, prog: str, user_errors: tuple[type[BaseException], ...] = ()) -> None:
     """Run a typer app; turn user errors into one line on stderr and exit code 1, no traceback. SIGTERM during any
     command (not only the long ones, :func:`interrupt_as_one_line`): staged outputs removed, one line, exit 130.
@@ -164,6 +192,8 @@ def run_cli(app: Callable[..., object], *, prog: str, user_errors: tuple[type[Ba
     logging.basicConfig(level=logging.INFO, format=f"{prog}: %(message)s")
     _cli_pid = os.getpid()
     previous = signal.signal(signal.SIGTERM, _terminated)
+    guard = _HandlerGuard()
+    sys.meta_path.insert(0, guard)
     try:
         app(standalone_mode=True)
     except Terminated:
@@ -187,4 +217,5 @@ def run_cli(app: Callable[..., object], *, prog: str, user_errors: tuple[type[Ba
         print(f"{prog}: error: {why} ({str(exc).splitlines()[0]}); free space or write elsewhere", file=sys.stderr)
         sys.exit(1)
     finally:
+        sys.meta_path.remove(guard)
         signal.signal(signal.SIGTERM, previous)

@@ -127,15 +127,16 @@ def demo(
     """Demonstration: synthesise a small dome capture, calibrate it, compare with the ground truth, reconstruct a
     group of people with the result, and print what a technician would look at."""
     logging.getLogger("dome_calib.ba").setLevel(logging.WARNING)
-    from dome_calib.cli.progress import ProgressBars
-    from dome_calib.pipeline.demo import DemoOptions, format_demo, run_demo
+    with interrupt_as_one_line("dome-calib", "rerun the same command to resume"):  # SIGTERM: one line, exit 130
+        from dome_calib.cli.progress import ProgressBars
+        from dome_calib.pipeline.demo import DemoOptions, format_demo, run_demo
 
-    with ProgressBars() as bars:
-        with flags({"DemoOptions.preset": "--preset", "DemoOptions.scenes": "--scenes", "DemoOptions.seed": "--seed",
-                    "DemoOptions.people": "--people"}):
-            options = DemoOptions(preset=preset, scenes=scenes, seed=seed, people=people, progress=bars.tasks)
-        result = run_demo(out, options)
-    typer.echo(format_demo(result))
+        with ProgressBars() as bars:
+            with flags({"DemoOptions.preset": "--preset", "DemoOptions.scenes": "--scenes",
+                        "DemoOptions.seed": "--seed", "DemoOptions.people": "--people"}):
+                options = DemoOptions(preset=preset, scenes=scenes, seed=seed, people=people, progress=bars.tasks)
+            result = run_demo(out, options)
+        typer.echo(format_demo(result))
 
 
 def main() -> None:

@@ -101,7 +101,7 @@ def kinect_synth(
         raise DomeCalibError(f"--sensors {sensors}: expected sensor numbers like 1,2") from None
     if frames < 1:
         raise DomeCalibError(f"--frames {frames}: need at least one frame")
-    claim_folder(out)  # created, or replaced whole when dome-calib wrote it
+    claim_folder(out, inputs=[bundle])  # created, or replaced whole when dome-calib wrote it; not the bundle
     dome = load_bundle(bundle)
     try:
         with replace_folder(out) as staging:
