@@ -22,7 +22,7 @@ import typer.main
 
 from ..cli_runner import run_in_process
 from .catalogue import ENTRIES, KINDS, NAME_VALUES, REFUSE, Entry
-from .inputs import Inputs, build_inputs
+from .inputs import Inputs
 from .oracle import judge, snapshot
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -84,11 +84,6 @@ def _cases() -> list[tuple[str, int, str, str]]:
 
 
 CASES = _cases()
-
-
-@pytest.fixture(scope="session")
-def hostile_inputs(tmp_path_factory) -> Inputs:
-    return build_inputs(tmp_path_factory.mktemp("hostile") / "in")
 
 
 def _rooted(inputs: Inputs, root: Path) -> Inputs:
