@@ -271,9 +271,9 @@ OTHER_INPUTS = (
      "their bytes and SHA-256, as the worker read them, equal this machine's file or capture.json's `images`; "
      "else the run stops naming the worker", "`dome_calib.pipeline.cluster.ImageCheck`",
      "tests/test_scheduler_check.py, tests/test_dask_cluster.py"),
-    ("output places (`-o`, `--work`)", "every command that writes",
-     "a new, empty or bundle folder; not an input nor inside one; writable", "`dome_calib.bundle_io."
-     "check_output_folder`, `dome_calib.io_utils`", "tests/test_output_paths.py, tests/test_hardening_outputs.py"),
+    ("output places (`-o`, `--work`, `report/`)", "every command that writes",
+     "new, empty, or what dome-calib wrote (its record: sha256 per file), unchanged; no link; not an input nor "
+     "holding one; writable", "`dome_calib.ownership`", "tests/test_ownership.py, tests/hostile/"),
 )
 
 

@@ -24,8 +24,8 @@ def export(
     bundle: Path = typer.Argument(..., help="Bundle folder (holds calibration_<seq>.json).", show_default=False),
     to: ExportFormat = typer.Option(..., "--to", help=f"Format to write: {help_list('export')}.",
                                     show_default=False),
-    out: Path = typer.Option(..., "-o", "--out", help="File to write (a folder for colmap and easymocap; an "
-                             "existing folder is replaced only if it holds nothing but such files).",
+    out: Path = typer.Option(..., "-o", "--out", help="File to write (a folder for colmap and easymocap); what is "
+                             "there is replaced only if dome-calib wrote it (its record says so), else refused.",
                              show_default=False),
     unit: UnitChoice = typer.Option(None, "--unit", help="Length unit of the written translations (default: m; "
                                     "aniposelib mm, the usual board unit; pose2sim, easymocap and blender are "
@@ -57,10 +57,9 @@ def import_(
                                   "easymocap).", show_default=False),
     from_: ImportFormat = typer.Option(..., "--from", help=f"Format of SOURCE: {help_list('import')}.",
                                        show_default=False),
-    out: Path = typer.Option(..., "-o", "--out", help="Bundle folder to write: new, empty, or an earlier import's "
-                             "(replaced). A folder holding anything else (a calibration session's bundle with its "
-                             "Kinect, sync and report files, your notes) is refused, never emptied.",
-                             show_default=False),
+    out: Path = typer.Option(..., "-o", "--out", help="Bundle folder to write: new, empty, or one dome-calib wrote "
+                             "(replaced whole). A folder holding anything else (your notes, a file changed since) is "
+                             "refused, never emptied.", show_default=False),
     unit: UnitChoice = typer.Option(None, "--unit", help="Length unit of SOURCE when the format does not say it "
                                     "(colmap, aniposelib, nerfstudio from other tools): mm, cm, m, or squares "
                                     "(the calibration board's squares: give --square-size-mm)."),

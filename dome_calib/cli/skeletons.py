@@ -29,7 +29,7 @@ def export_people(
                                           "(metres, y up); c3d: one file for the whole capture (millimetres, z up, "
                                           "markers P<id>:<joint>); bvh: one skeleton per person for animation tools "
                                           "(cm, y up).", show_default=False),
-    out: Path = typer.Option(..., "-o", "--out", help="Folder to write (created; a folder of an earlier export is "
+    out: Path = typer.Option(..., "-o", "--out", help="Folder to write (created; a folder dome-calib wrote is "
                              "replaced whole, any other folder is refused).", show_default=False),
     ids: str = typer.Option(None, "--ids", help="Only these people, e.g. 0,3,7 (default: everybody)."),
     min_confidence: float = typer.Option(0.0, "--min-confidence", help="Write joints whose confidence is below this "

@@ -28,7 +28,7 @@ def synth(
     scheduler: str = typer.Option(None, "--scheduler", help="Render on a Dask cluster: the address of its "
                                   "`dask scheduler` (tcp://HOST:PORT). The images come back to this machine; the "
                                   "same bytes as rendered locally."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace OUT if it exists."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace OUT if it exists and dome-calib wrote it."),
 ) -> None:
     """Make a synthetic capture with ground truth: the projectors' random patterns on a white tent at several
     positions, seen by every camera of the preset, plus the true calibration in OUT/ground_truth/."""
