@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dome_calib.ownership import RECORD
 from dome_calib.bundle_io import write_bundle
 from dome_calib.recon.formats import read_skeleton
 from dome_calib.synth.skeleton import synthetic_tracks
@@ -267,7 +268,7 @@ def test_bad_triangulate_output_or_bundle(world, tmp_path, monkeypatch, capsys, 
     elif target == "folder of other files":
         out.mkdir()
         (out / "thesis.tex").write_text("mine")
-        expected = "holds 'thesis.tex', which is not a body3DScene file"
+        expected = "holds thesis.tex (no record of dome-calib lists it)"
     else:
         bundle = tmp_path / "bundle"
         shutil.copytree(root / "bundle", bundle)
@@ -320,7 +321,7 @@ def test_some_times_outside_warn_in_one_line(world, tmp_path):
     lines = err.strip().splitlines()
     assert code == 0 and "Traceback" not in err and len(lines) == 1, err
     assert "1 of 3 times lie outside the detected frames' universal times" in lines[0]
-    assert _files(tmp_path / "sk") == [f"body3DScene_{k:08d}.json" for k in range(3)]
+    assert _files(tmp_path / "sk") == [RECORD] + [f"body3DScene_{k:08d}.json" for k in range(3)]
 
 
 def test_bad_input_through_the_real_shell(world, tmp_path):

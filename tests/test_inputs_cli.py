@@ -160,7 +160,7 @@ def test_demo_refuses_a_session_folder_it_did_not_make(tmp_path, monkeypatch, ca
     assert _files(out) == before
     (out / "session" / "dome_session.json").unlink()
     done = _run("dome-calib", ["demo", "-o", out, "--people", "0"], monkeypatch, capsys)
-    _one_line(done, f"{out / 'session'}: not a synthetic session (no dome_session.json)")
+    _one_line(done, f"{out / 'session'}: holds notes.txt (no record of dome-calib lists it)")
     assert (out / "session" / "notes.txt").read_text() == "mine"
 
 

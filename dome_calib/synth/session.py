@@ -75,11 +75,9 @@ class SessionManifest(FileSchema):
 
 
 def _made_here(folder: Path) -> SessionOptions | None:
-    """The options the session in ``folder`` was made with; None for no folder, an empty one, or one of ours
-    without a manifest. Anything that is not ours (:func:`dome_calib.ownership.claim_folder`) is refused: it is
-    replaced whole otherwise."""
+    """The options the session in ``folder`` was made with (its manifest, read through its schema); None without
+    one. Whether a folder that is not reused may be replaced is :func:`make_product_session`'s claim."""
     manifest = folder / MANIFEST
-    claim_folder(folder)
     if not manifest.is_file():
         return None
     try:
@@ -125,8 +123,9 @@ def make_product_session(folder: str | Path, options: SessionOptions | None = No
     wanted = {"version": VERSION, "options": json.loads(json.dumps(asdict(o)))}
     if _made_here(folder) == o:
         return folder
+    claim_folder(folder)  # replaced whole: only what dome-calib wrote (dome_calib.ownership)
     step = progress or (lambda what: None)
-    shutil.rmtree(folder, ignore_errors=True)  # ours (claimed above), or nothing
+    shutil.rmtree(folder, ignore_errors=True)  # ours, or nothing
     folder.mkdir(parents=True)
     try:
         _write_session(folder, o, step)
