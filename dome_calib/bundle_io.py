@@ -176,12 +176,13 @@ def replace_folder(staging: Path, target: Path, *, option: str = "-o", keep: tup
     shutil.rmtree(aside)
 
 
-def check_output_folder(out: Path, inputs: list[Path] = ()) -> str | None:
+def check_output_folder(out: Path, inputs: list[Path] = (), keep: tuple[str, ...] = ()) -> str | None:
     """Before any work: ``out`` may be replaced whole (:func:`dome_calib.ownership.claim_folder`: new, empty, or
-    what dome-calib wrote, unchanged; a symlink or a file is refused; not one of ``inputs`` nor holding one).
+    what dome-calib wrote, unchanged; a symlink or a file is refused; not one of ``inputs`` nor holding one;
+    ``keep``: its files the new bundle carries over, which need not be ours).
 
     Returns the seq of the bundle it holds (None when it holds none).
     """
-    out = claim_folder(out, inputs=inputs)
+    out = claim_folder(out, inputs=inputs, keep=keep)
     found = sorted(out.glob("calibration_*.json")) if out.is_dir() else []
     return found[0].stem.removeprefix("calibration_") if found else None  # several: replaced whole anyway

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from dome_calib.ownership import RECORD
 from dome_calib.bundle import FRAME_TIME_TOLERANCE_MS, Bundle, KinectSensor, SyncTable, SyncTables
 
 from dome_calib.bundle_io import load_bundle, write_bundle
@@ -107,7 +108,7 @@ def test_atomic_write_leaves_old_file_when_formatting_fails(tmp_path):
         write_bundle(broken, tmp_path)
     assert (tmp_path / "calibration_160906_band1.json").read_text() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
-        ["calibration_160906_band1.json", "kcalibration_160906_band1.json", "synctables_160906_band1.json",
+        [RECORD, "calibration_160906_band1.json", "kcalibration_160906_band1.json", "synctables_160906_band1.json",
          "ksynctables_160906_band1.json"])
 
 

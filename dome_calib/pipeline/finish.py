@@ -35,6 +35,16 @@ CARRIED_KINDS = ("kcalibration", "synctables", "ksynctables")
 CARRIED_REPORT_FILES = ("sync.json",)
 
 
+def carried_names(out: Path, seq: str) -> tuple[str, ...]:
+    """The files of OUT that a recalibration of ``seq`` copies into the new bundle (relative paths; none unless OUT
+    holds a bundle of ``seq``): they are not lost, so they need not be dome-calib's own
+    (:func:`dome_calib.ownership.claim_folder`'s ``keep``)."""
+    if out.is_symlink() or not (out / f"calibration_{seq}.json").is_file():
+        return ()
+    return tuple(f"{kind}_{seq}.json" for kind in CARRIED_KINDS) + tuple(f"{REPORT_DIR}/{name}"
+                                                                        for name in CARRIED_REPORT_FILES)
+
+
 #: The relative rule needs a dome's worth of cameras to know the typical one (a quick recalibration frees a few).
 RELATIVE_SIGMA_MIN_CAMERAS = 8
 #: Below this (1 sigma, cm) a centre is never flagged by the relative rule: a millimetre does not matter.
@@ -98,7 +108,8 @@ def _write_out(inputs: CalibrationInputs, bundle: Bundle, residuals: Residuals, 
                missing: dict[str, str], extra: dict, held: dict[str, str]) -> None:
     """Stage the bundle, its report and the carried files beside OUT, then swap them in."""
     out = inputs.out
-    old_seq = check_output_folder(out)  # again: OUT may have changed while the stages ran
+    keep = carried_names(out, bundle.seq)
+    old_seq = check_output_folder(out, keep=keep)  # again: OUT may have changed while the stages ran
     staging = staging_folder(out)
     try:
         write_bundle(dataclasses.replace(bundle, cameras=panoptic_order(bundle.cameras)), staging)  # the files' order
@@ -108,7 +119,7 @@ def _write_out(inputs: CalibrationInputs, bundle: Bundle, residuals: Residuals, 
             logger.warning("%s: held the bundle of seq %r; replaced by seq %r", out, old_seq, bundle.seq)
         write_report(staging, bundle, residuals, inputs.options.report, changes=reasons, missing=missing, extra=extra,
                      held=held)
-        replace_folder(staging, out)
+        replace_folder(staging, out, keep=keep)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise

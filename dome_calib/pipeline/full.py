@@ -34,7 +34,7 @@ from dome_calib.errors import DomeCalibError
 from dome_calib.io_utils import refuse_output_among_inputs
 from dome_calib.layout import check_dome_scale
 from dome_calib.normalize import normalize
-from dome_calib.pipeline.finish import check_carried_report_files, finish
+from dome_calib.pipeline.finish import carried_names, check_carried_report_files, finish
 from dome_calib.pipeline.quick import run_quick
 from dome_calib.pipeline.stages import refine_notes, run_ba_stage, run_sfm_stage
 from dome_calib.pipeline.types import CalibrateOptions, Calibrated, CalibrationInputs, CalibrationResult
@@ -66,8 +66,10 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
     scenes, expected = capture_contents(capture)
     if options.only_changed and options.prior is None:
         raise DomeCalibError("--only-changed needs --prior (the bundle the unchanged cameras are taken from)")
-    check_output_folder(out, [capture])  # replaced whole: ours only, and it must not hold the capture
-    check_carried_report_files(out)
+    seq = options.seq or capture.resolve().name
+    check_carried_report_files(out)  # read through their schemas first (inputs, when carried)
+    check_output_folder(out, [capture], keep=carried_names(out, seq))  # replaced whole: ours only (but what it
+    # carries), and it must not hold the capture
     work = Path(os.path.abspath(options.work_dir)) if options.work_dir else out.with_name(out.name + ".work")
     refuse_output_among_inputs(work, [capture, out, *([options.prior] if options.prior else [])], option="--work",
                                whole_folder=True)  # a work folder of other inputs is emptied
@@ -77,7 +79,7 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
     if prior is not None:
         check_dome_scale(prior.cameras, f"--prior {options.prior}")
     check_scheduler(options.scheduler)  # a bounded handshake, before the work folder is opened (or emptied)
-    inputs = CalibrationInputs(capture=capture, out=out, seq=options.seq or capture.resolve().name, scenes=scenes,
+    inputs = CalibrationInputs(capture=capture, out=out, seq=seq, scenes=scenes,
                                expected=expected, prior=prior, options=options)
     fingerprint = input_fingerprint(capture, scenes, expected, options.prior, {"only_changed": options.only_changed})
     with WorkState.open(work, fingerprint, progress=options.progress, labels=STAGE_LABELS) as state:
