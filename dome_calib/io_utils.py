@@ -1,9 +1,11 @@
 """Atomic file and folder writing: a reader never sees a half-written output.
 
-Output paths (``-o``) follow these rules: a symlink is followed, so the file it points to is replaced atomically
-and the link stays (a dangling link gets its target created); a folder, FIFO, device or socket where a file is
-to be written is refused in one line before anything is written; a replaced file keeps its permission bits, a
-new file or folder gets the ones ``open()`` / ``mkdir()`` would give (0666 / 0777 less the umask).
+This is the mechanism; whether a command may replace what is at an output path (only what dome-calib wrote; no
+link; no input) is decided by :mod:`dome_calib.ownership`, which every command's outputs go through. The
+mechanism itself: a symlink is followed, so the file it points to is replaced atomically and the link stays (a
+dangling link gets its target created); a folder, FIFO, device or socket where a file is to be written is refused
+in one line before anything is written; a replaced file keeps its permission bits, a new file or folder gets the
+ones ``open()`` / ``mkdir()`` would give (0666 / 0777 less the umask).
 
 A folder replaced whole (:func:`atomic_folder`) is staged beside it under a name that says whose it is
 (``.<name>.new.<host>.<boot>.<pid>.<start>.<random>``: this machine, its boot, the process and the process's start
