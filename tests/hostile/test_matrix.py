@@ -27,7 +27,7 @@ from .oracle import judge, snapshot
 
 ROOT = Path(__file__).resolve().parents[2]
 SEED = 50  # the number: the sample is the same on every run and machine
-NAMES_PER_COMMAND = 2
+NAMES_PER_COMMAND = 3
 INSIDE_INPUT_CASES = 6
 
 
