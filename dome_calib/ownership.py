@@ -128,7 +128,8 @@ def _why_not_ours(path: Path, records: _Records) -> str | None:
 
 def foreign_entry(folder: str | os.PathLike[str], keep: Iterable[str] = ()) -> tuple[Path, str] | None:
     """The first entry under ``folder`` (sorted, depth first; links not followed) that is not ours, with why;
-    ``keep``: names of regular files at its top that the writer carries into the new folder (nothing lost)."""
+    ``keep``: regular files (paths relative to ``folder``) that the writer carries into the new folder (nothing
+    of them is lost)."""
     records = _Records()
     root = Path(folder)
     kept = {root / name for name in keep}
@@ -156,8 +157,8 @@ def _refuse_link(given: Path, option: str, what: str) -> None:
 def claim_folder(path: str | os.PathLike[str], *, option: str = "-o",
                  inputs: Iterable[str | os.PathLike[str]] = (), keep: Iterable[str] = ()) -> Path:
     """Before any work: ``path`` may be replaced whole by a folder we write (module docstring), and is not, and
-    does not hold, one of ``inputs``. ``keep``: the files at its top that the command reads and carries into the
-    new folder (the report's report.json, residuals and kept files): nothing of them is lost, so they need not be
+    does not hold, one of ``inputs``. ``keep``: its files (relative paths) that the command reads and carries into
+    the new folder (the report's report.json, residuals and kept files): nothing of them is lost, so they need not be
     ours. Returns it; NotOursError / OutputPathError in one line otherwise."""
     given = Path(path)
     refuse_output_among_inputs(given, inputs, option=option, whole_folder=True)
@@ -190,6 +191,8 @@ def claim_file(path: str | os.PathLike[str], *, option: str = "-o",
         mode = os.lstat(given).st_mode
     except FileNotFoundError:
         check_writable(given)
+        if given.parent.is_dir():
+            _read_record(given.parent)  # the record the file will be added to is ours (NotOursError if not)
         return given
     if not stat.S_ISREG(mode):
         raise NotOursError(f"{option} {given}: is {_lkind(mode)}, not a file; the output is one file: {REMEDY}")

@@ -132,3 +132,10 @@ def test_a_work_folder_is_a_scratch_folder_of_ours_or_refused(tmp_path):
 
 def test_no_rule_by_name_is_left():
     assert not hasattr(io_utils, "foreign_names")
+
+
+def test_a_new_file_beside_a_record_that_is_not_ours_is_refused_before_it_is_written(tmp_path):
+    (tmp_path / RECORD).write_text('{"written_by": "someone else"}')
+    with pytest.raises(NotOursError, match="not a record of dome-calib"):
+        write_text(tmp_path / "page.html", "x")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [RECORD]
