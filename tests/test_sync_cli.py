@@ -71,7 +71,8 @@ def test_sync_into_new_folder_and_seq_mismatch(session, tmp_path):
     streams = read_synctables(tmp_path / "out" / "synctables_take7.json")
     color, depth = read_ksynctables(tmp_path / "out" / "ksynctables_take7.json")
     np.testing.assert_array_equal(streams["vga"].index, truth.index["vga"])
-    assert list(depth) == ["KINECTNODE1"] and [p.name for p in (tmp_path / "out").glob(".*")] == [RECORD]  # no temp file left
+    assert list(depth) == ["KINECTNODE1"]
+    assert [p.name for p in (tmp_path / "out").glob(".*")] == [RECORD]  # no temp file left
     shutil.copy(CALIBRATION, tmp_path / "out" / CALIBRATION.name)
     proc = _cli(str(folder), "-o", str(tmp_path / "out"), "--seq", "take8")
     assert proc.returncode == 1 and proc.stderr.count("\n") == 1

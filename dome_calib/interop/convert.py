@@ -6,9 +6,9 @@ module holds what is the same for every format: units, world axes, names, what a
 carries, and where the output goes.
 
 Every input and output place is checked before anything is read; every output is staged and renamed into place,
-replacing only what dome-calib wrote (:mod:`dome_calib.ownership`): on any error nothing is written. An imported bundle is written by
-:func:`dome_calib.bundle_io.write_bundle` and read back with :func:`dome_calib.bundle_io.load_bundle` (the loader
-every stage uses) before it replaces anything.
+replacing only what dome-calib wrote (:mod:`dome_calib.ownership`): on any error nothing is written. An imported
+bundle is written by :func:`dome_calib.bundle_io.write_bundle` and read back with
+:func:`dome_calib.bundle_io.load_bundle` (the loader every stage uses) before it replaces anything.
 """
 from __future__ import annotations
 
