@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dome_calib.arrays import per_row
 from dome_calib.bundle import Bundle
 from dome_calib.io_utils import atomic_folder, foreign_names, output_folder
 from dome_calib.recon.errors import ReconError
@@ -134,7 +135,7 @@ def default_times(streams: list[StreamTracks], reference: str | None) -> tuple[n
     name = reference or next((n for n in ("vga", "hd") if n in by_name),
                              max(streams, key=lambda s: len(s.cameras)).stream)
     s = by_name[name]
-    frames = s.frame_index[np.any(s.conf.reshape(len(s.frame_index), -1) > 0, axis=1)]  # NaN: not detected
+    frames = s.frame_index[np.any(per_row(s.conf) > 0, axis=1)]  # NaN: not detected
     try:
         return s.table.times_of(frames), frames, name
     except KeyError as exc:
@@ -157,7 +158,7 @@ def check_times(path: str | Path, streams: list[StreamTracks], times_ms: np.ndar
     covered = np.zeros(len(times_ms), bool)
     spans = []
     for s in streams:
-        detected = s.frame_index[np.any(s.conf.reshape(len(s.frame_index), -1) > 0, axis=1)]
+        detected = s.frame_index[np.any(per_row(s.conf) > 0, axis=1)]
         timed = np.isin(detected, s.table.index)
         if not np.all(timed):
             logger.warning("%s: stream %s: %d of %d frames with detections are not in the sync table (first: frame "

@@ -178,7 +178,7 @@ def why_nobody(agreement: CameraAgreement, options: PeopleOptions, times: int) -
                 f"--min-views {a.min_person_views} cameras: is the bundle the calibration of these cameras, and are "
                 "the camera folders named (or --camera-map'ped) right?")
     return (f"bodies were found ({int(agreement.used.sum())} detections used) but none was tracked over "
-            f"{tr.min_track_frames} times (a track ends unseen for {tr.max_missed_ms:g} ms or "
+            f"{tr.min_frames_for(times)} times (a track ends unseen for {tr.max_missed_ms:g} ms or "
             f"{tr.max_missed_steps:g} time steps)")
 
 
