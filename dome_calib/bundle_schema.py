@@ -19,7 +19,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import AfterValidator, BeforeValidator, ConfigDict, RootModel, model_validator
 
-from dome_calib.schema import INT64_MAX, Field, FieldError, FileSchema, JsonData, OpenSchema, Vec, show, words
+from dome_calib.schema import INT64_MAX, CameraName, Field, FieldError, FileSchema, JsonData, OpenSchema, Vec, show, words
 
 #: |R R^T - I| up to this is kept as written (the real files store 10 significant digits: ~1e-10).
 ROTATION_EXACT_TOL = 1e-8
@@ -142,7 +142,7 @@ def _no_duplicate_names(items: list, field: str, what: str) -> None:
 class CalibrationCamera(FileSchema):
     """One camera: OpenCV pinhole, ``x_cam = R @ X_world + t`` (t in cm, the Panoptic world)."""
 
-    name: str = Field(min_length=1, description="Panoptic name: VGA 01_01..20_24, HD 00_00..00_30, Kinect 50_01..")
+    name: CameraName = Field(description="Panoptic name: VGA 01_01..20_24, HD 00_00..00_30, Kinect 50_01..")
     type: Literal["vga", "hd", "kinect-color"]
     resolution: Vec(2, SizePx) = Field(description="[width, height] px")
     K: CameraMatrix

@@ -39,9 +39,9 @@ from pydantic.json_schema import GenerateJsonSchema
 from dome_calib.errors import DomeCalibError
 
 __all__ = ["FileSchema", "OpenSchema", "InputFileError", "FieldError", "Finite", "NonNegInt", "PosInt", "PosFinite",
-           "NonNegFinite", "JsonData", "Vec", "Vec3", "Matrix3", "Matrix4", "PlainName", "Unique", "read_json",
+           "NonNegFinite", "JsonData", "Vec", "Vec3", "Matrix3", "Matrix4", "PlainName", "CameraName", "Unique", "read_json",
            "read_toml", "read_yaml", "validate", "parse_json", "field_path", "describe_schema", "json_schema", "show",
-           "words", "Field"]
+           "words", "Field", "name_problem", "path_of_name", "NAME_MAX_CHARS"]
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -103,14 +103,49 @@ Matrix3 = Vec(3, Vec3)
 Matrix4 = Vec(4, Vec(4))
 
 
+#: The longest name that becomes a file name: ``<camera>_000000000001_keypoints.json`` stays within the 255 bytes
+#: of a file name (4 bytes per character of UTF-8 at most).
+NAME_MAX_CHARS = 50
+PLAIN_NAME_HELP = f"no '/', not '.' or '..', printable, at most {NAME_MAX_CHARS} characters"
+
+
+def name_problem(name: str) -> str | None:
+    """Why ``name`` cannot be one component of a path (None: it can). The one rule for every name from a file that
+    becomes a file or folder name: camera names of every file kind, scenes, capture nodes, plots."""
+    if not isinstance(name, str) or not name:
+        return "empty"
+    if "/" in name or "\\" in name:
+        return "holds a path separator"
+    if name in (".", ".."):
+        return "is a folder reference"
+    if not name.isprintable():
+        return "holds a control character"
+    if len(name) > NAME_MAX_CHARS:
+        return f"is longer than {NAME_MAX_CHARS} characters"
+    return None
+
+
 def _plain_name(name: str) -> str:
-    if not name or "/" in name or "\\" in name or name in (".", "..") or not name.isprintable():
-        raise ValueError(f"expected a plain name (no '/', not '.' or '..', printable), got {show(name)}")
+    problem = name_problem(name)
+    if problem is not None:
+        raise ValueError(f"expected a plain name ({PLAIN_NAME_HELP}), got {show(name)}: it {problem}")
     return name
 
 
-#: A name that becomes part of a path (a scene folder, a sequence, a capture node): no separator, not . or ..
+#: A name that becomes part of a path (a scene folder, a sequence, a capture node, a camera): :func:`name_problem`.
 PlainName = Annotated[str, AfterValidator(_plain_name), Field(min_length=1, **words("a plain name (no '/')"))]
+#: A camera's name in every file kind that carries one (calibration, report, peers' files): it becomes a file name
+#: (``<camera>.png``, an OpenPose folder, a plot), so it is a :data:`PlainName`.
+CameraName = PlainName
+
+
+def path_of_name(folder: str | Path, name: str, suffix: str = "") -> Path:
+    """``folder / (name + suffix)`` for a name from a file: the last guard of every place a name becomes a path
+    (the schemas refuse such names first). DomeCalibError naming the name otherwise."""
+    problem = name_problem(name)
+    if problem is not None:
+        raise DomeCalibError(f"name {show(name)}: not a file name: it {problem}")
+    return Path(folder) / f"{name}{suffix}"
 
 
 def _unique(values: list) -> list:

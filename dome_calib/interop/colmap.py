@@ -10,8 +10,10 @@ quaternion ``QW QX QY QZ``), the world's unit is whatever the reconstruction had
 of the top-left pixel at (0.5, 0.5): principal points are ours + 0.5.
 
 Import: any model pycolmap reads (``Reconstruction(folder)``); every registered image becomes one camera named
-after its image file (without extension). Camera models ``SIMPLE_PINHOLE``, ``PINHOLE``, ``SIMPLE_RADIAL``,
-``RADIAL``, ``OPENCV`` and ``FULL_OPENCV`` with k4 = k5 = k6 = 0 map exactly onto ours; any other is refused.
+after its image file (without extension; the folders of its path joined by "_": ``frames/img1.jpg`` is
+``frames_img1``, since a camera name is a file name). Camera models ``SIMPLE_PINHOLE``, ``PINHOLE``,
+``SIMPLE_RADIAL``, ``RADIAL``, ``OPENCV`` and ``FULL_OPENCV`` with k4 = k5 = k6 = 0 map exactly onto ours; any
+other is refused.
 """
 from __future__ import annotations
 
@@ -26,7 +28,7 @@ from pydantic import Field, ValidationInfo, field_validator
 from dome_calib.camera import COLMAP_PIXEL_OFFSET_PX
 from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, label
 from dome_calib.interop.fields import Bounded, SidePx, Translation
-from dome_calib.schema import FileSchema, Vec, validate
+from dome_calib.schema import CameraName, FileSchema, Vec, validate
 
 logger = logging.getLogger(__name__)
 
@@ -101,7 +103,7 @@ class ColmapImage(FileSchema):
     """One registered image of a COLMAP model as pycolmap read it: its camera (model, size, parameters in COLMAP
     pixels) and its pose (world to camera). pycolmap parses the files; this checks what it found."""
 
-    name: str = Field(min_length=1)
+    name: CameraName
     model: str
     width: SidePx
     height: SidePx
@@ -159,7 +161,7 @@ def read(folder: Path, options: ImportOptions) -> Read:
     cams, unposed = [], []
     for image_id in sorted(rec.images):
         image = rec.images[image_id]
-        name = str(PurePosixPath(image.name).with_suffix(""))
+        name = str(PurePosixPath(image.name).with_suffix("")).replace("/", "_")  # images/cam1/0.jpg: a plain name
         if not image.has_pose:
             unposed.append(name)
             continue
