@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import importlib
 import logging
 import math
@@ -11,6 +12,7 @@ import signal
 import sys
 import threading
 from collections.abc import Callable, Iterator
+from typing import Any
 
 logger = logging.getLogger("dome_calib")
 
@@ -89,14 +91,16 @@ def restore_interrupt_handler() -> None:
 
 
 @contextlib.contextmanager
-def interrupt_as_one_line(prog: str, advice: str = "rerun the same command to resume") -> Iterator[None]:
+def interrupt_as_one_line(prog: str, advice: str = "rerun the same command to resume",
+                          imports: tuple[str, ...] = HANDLER_REPLACING_IMPORTS) -> Iterator[None]:
     """SIGINT or SIGTERM inside the block: one line on stderr ("interrupted during STAGE; ADVICE", the stage when a
-    pipeline stage was running), exit code 130, no traceback (``DOME_CALIB_DEBUG=1``: raise)."""
+    pipeline stage was running), exit code 130, no traceback (``DOME_CALIB_DEBUG=1``: raise). ``imports``: libraries
+    whose handlers ours must go over, imported first."""
     global _active
     previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
     _active += 1
     try:
-        for name in HANDLER_REPLACING_IMPORTS:  # their handlers first, ours over them
+        for name in imports:  # their handlers first, ours over them
             importlib.import_module(name)
         restore_interrupt_handler()
         yield
@@ -137,6 +141,33 @@ def storage_failure(exc: BaseException) -> str | None:
     return next((why for key, why in _STORAGE_TEXTS.items() if key in text), None)
 
 
+#: What a command stopped by SIGINT or SIGTERM says when it names nothing itself: outputs are staged and renamed into
+#: place at the end (dome_calib.io_utils.atomic_folder), so an interrupted command leaves them as they were.
+INTERRUPTED_ADVICE = "its outputs are as they were (nothing is written before the end); rerun the same command"
+
+
+def _interrupt_as_one_line_in_every_command(app: Any, prog: str) -> None:
+    """Every command of ``app`` (a typer app) runs inside :func:`interrupt_as_one_line`: SIGTERM unwinds the command
+    like Ctrl-C (its staging folders removed on the way out), then one line and exit 130, whether the command says
+    more (its own block, inside) or not. Without it SIGTERM killed the process where it stood (exit 143, staging
+    folders left, no word). Commands added later are covered by construction."""
+    for info in getattr(app, "registered_commands", []):
+        callback = info.callback
+        if callback is None or getattr(callback, "_one_line_on_interrupt", False):
+            continue
+
+        @functools.wraps(callback)
+        def wrapped(*args: Any, _callback: Callable[..., Any] = callback, **kwargs: Any) -> Any:
+            with interrupt_as_one_line(prog, INTERRUPTED_ADVICE, imports=()):  # no pycolmap for `info`
+                return _callback(*args, **kwargs)
+
+        wrapped._one_line_on_interrupt = True  # type: ignore[attr-defined]
+        info.callback = wrapped
+    for group in getattr(app, "registered_groups", []):
+        if group.typer_instance is not None:
+            _interrupt_as_one_line_in_every_command(group.typer_instance, prog)
+
+
 def run_cli(app: Callable[..., object], *, prog: str, user_errors: tuple[type[BaseException], ...] = ()) -> None:
     """Run a typer app; turn user errors into one line on stderr and exit code 1, no traceback.
 
@@ -144,6 +175,7 @@ def run_cli(app: Callable[..., object], *, prog: str, user_errors: tuple[type[Ba
     """
     handled = (DomeCalibError, OSError, *user_errors)
     logging.basicConfig(level=logging.INFO, format=f"{prog}: %(message)s")
+    _interrupt_as_one_line_in_every_command(app, prog)
     try:
         app(standalone_mode=True)
     except handled as exc:  # one line, non-zero exit

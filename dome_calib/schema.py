@@ -39,9 +39,9 @@ from pydantic.json_schema import GenerateJsonSchema
 from dome_calib.errors import DomeCalibError
 
 __all__ = ["FileSchema", "OpenSchema", "InputFileError", "FieldError", "Finite", "NonNegInt", "PosInt", "PosFinite",
-           "NonNegFinite", "JsonData", "Vec", "Vec3", "Matrix3", "Matrix4", "PlainName", "CameraName", "Unique", "read_json",
-           "read_toml", "read_yaml", "validate", "parse_json", "field_path", "describe_schema", "json_schema", "show",
-           "words", "Field", "name_problem", "path_of_name", "NAME_MAX_CHARS"]
+           "NonNegFinite", "JsonData", "Vec", "Vec3", "Matrix3", "Matrix4", "PlainName", "CameraName", "Unique",
+           "read_json", "read_toml", "read_yaml", "validate", "parse_json", "field_path", "describe_schema",
+           "json_schema", "show", "words", "Field", "name_problem", "path_of_name", "NAME_MAX_CHARS"]
 
 M = TypeVar("M", bound=BaseModel)
 

@@ -87,7 +87,29 @@ def write(cams: list[ForeignCamera], folder: Path, unit: str, options: object = 
     """Write the model into ``folder`` (an empty staging folder) with pycolmap's own writer."""
     rec = build_reconstruction(cams)
     (rec.write_text if getattr(options, "binary", True) is False else rec.write_binary)(str(folder))
+    check_written(rec, folder)
     return Written(dropped=["points3D written empty: the bundle keeps its residuals, not the observed points"])
+
+
+def check_written(rec: pycolmap.Reconstruction, folder: Path) -> None:
+    """pycolmap's writer does not report a failed write (a full disk left cut files, exit 0, and pycolmap read them
+    back with garbage distortion): the files are read back and must hold the model written, camera by camera and
+    image by image, or InteropError naming the folder (the staging folder is then removed)."""
+    try:
+        back = pycolmap.Reconstruction(str(folder))
+        same = (sorted(back.cameras) == sorted(rec.cameras) and sorted(back.images) == sorted(rec.images)
+                and all(back.cameras[i].model == c.model and back.cameras[i].width == c.width
+                        and back.cameras[i].height == c.height
+                        and np.allclose(back.cameras[i].params, c.params, rtol=1e-9, atol=0)
+                        for i, c in rec.cameras.items())
+                and all(back.images[i].name == im.name for i, im in rec.images.items()))
+    except Exception as exc:  # pycolmap raises plain RuntimeError / ValueError for unreadable files
+        same, why = False, str(exc).strip().splitlines()[-1][:100] if str(exc).strip() else type(exc).__name__
+    else:
+        why = "what was read differs from what was written"
+    if not same:
+        raise InteropError(f"{folder}: the COLMAP model written does not read back ({why}): is the disk full? Free "
+                           "space or write elsewhere")
 
 
 def _model_files(folder: Path) -> None:
