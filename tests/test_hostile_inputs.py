@@ -125,7 +125,7 @@ BAD_BUNDLES = {
     "R a reflection": (_cam(4, "R", [[-1, 0, 0], [0, 1, 0], [0, 0, 1]]), "camera 01_05: cameras[4].R: not a rotation"),
     "R off by 1e-3": (_cam(4, "R", [[1, 1e-3, 0], [0, 1, 0], [0, 0, 1]]), "camera 01_05: cameras[4].R: not a rotation (|R R^T - I| = 0.001"),
     "resolution a string": (_cam(5, "resolution", "640x480"), "camera 01_06: cameras[5].resolution: expected a list of 2 integers"),
-    "name a list": (_cam(6, "name", ["01_07"]), "cameras[6].name: expected a non-empty string, got [\"01_07\"]"),
+    "name a list": (_cam(6, "name", ["01_07"]), "cameras[6].name: expected a plain name (no '/'), got [\"01_07\"]"),
     "empty cameras": (lambda cal, kcal: cal.update(cameras=[]), "cameras: expected a non-empty list of objects, got []"),
     "strings in distCoeffs_depth": (_sensor(0, "distCoeffs_depth", ["a"] * 5),
                                     "kcalibration_h.json: sensors[0].distCoeffs_depth[0]: expected a finite number"),
