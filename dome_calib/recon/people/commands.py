@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dome_calib.bundle import FRAME_TIME_TOLERANCE_MS
 from dome_calib.bundle_io import load_bundle
 from dome_calib.executor import is_remote
 from dome_calib.io_utils import (refuse_output_among_inputs, refuse_output_inside_inputs, remove_stale_staging,
@@ -126,6 +127,25 @@ def reference_times(streams: list[StreamLayout], reference: str | None) -> tuple
     return s.table.times_of(s.frame_index), s.frame_index, name
 
 
+def streams_at(layouts: list[StreamLayout], times_ms: np.ndarray) -> list[StreamLayout]:
+    """The streams whose detected frames reach any of the reference times (a stream is interpolated between its
+    frames, never beyond): one warning naming each other stream and its cameras, which are then not used, nor
+    counted in the summary (before, they were counted and contributed nothing)."""
+    kept = []
+    for s in layouts:
+        t = s.table.times_of(s.frame_index)
+        tol = FRAME_TIME_TOLERANCE_MS
+        if len(t) and np.any((times_ms >= t[0] - tol) & (times_ms <= t[-1] + tol)):
+            kept.append(s)
+            continue
+        shown = ", ".join(s.cameras[:4]) + (", ..." if len(s.cameras) > 4 else "")
+        logger.warning("stream %s (%d cameras: %s): its detected frames lie at %.6g..%.6g ms on its sync table, none "
+                       "of the %d reference times (%.6g..%.6g ms): its cameras are not used (is its sync table the "
+                       "one of this session?)", s.stream, len(s.cameras), shown, t[0] if len(t) else np.nan,
+                       t[-1] if len(t) else np.nan, len(times_ms), times_ms[0], times_ms[-1])
+    return kept
+
+
 def plan_reconstruction(detections: str | Path, bundle_folder: str | Path, out: str | Path | None = None, *,
                         body_model: str | BodyModel | None = None, camera_map: str | dict[str, str] | None = None,
                         reference: str | None = None, options: PeopleOptions | None = None,
@@ -158,6 +178,7 @@ def plan_reconstruction(detections: str | Path, bundle_folder: str | Path, out: 
     model = body_model_of(files, body_model)
     layouts = stream_layouts(bundle, files, files, shared_fps=options.shared_fps)
     times, numbers, ref = reference_times(layouts, reference)
+    layouts = streams_at(layouts, times)
     source = FileSource(layouts=layouts, files=files, body_model=model)
     need = options.association.min_person_views
     if need > len(source.cameras):
