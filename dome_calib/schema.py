@@ -26,7 +26,7 @@ import json
 import math
 import re
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Annotated, Any, TypeVar, Union
 
@@ -41,7 +41,7 @@ from dome_calib.errors import DomeCalibError
 __all__ = ["FileSchema", "OpenSchema", "InputFileError", "FieldError", "Finite", "NonNegInt", "PosInt", "PosFinite",
            "NonNegFinite", "JsonData", "Vec", "Vec3", "Matrix3", "Matrix4", "PlainName", "CameraName", "Unique",
            "read_json", "read_toml", "read_yaml", "validate", "parse_json", "field_path", "describe_schema",
-           "json_schema", "show", "words", "Field", "name_problem", "path_of_name", "NAME_MAX_CHARS"]
+           "json_schema", "show", "refuse_alias_bombs", "words", "Field", "name_problem", "path_of_name", "NAME_MAX_CHARS"]
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -267,15 +267,66 @@ def field_path(loc: tuple[int | str, ...]) -> str:
 
 
 def show(value: Any, limit: int = 40) -> str:
-    """A value from a file as the message shows it: JSON spelling (``false``, ``null``, ``"text"``), cut."""
-    if isinstance(value, float) and not math.isfinite(value):
-        text = "NaN" if math.isnan(value) else "Infinity" if value > 0 else "-Infinity"
-    else:
-        try:
-            text = json.dumps(value, ensure_ascii=True, default=str)
-        except (TypeError, ValueError):
-            text = repr(value)
+    """A value from a file as the message shows it: JSON spelling (``false``, ``null``, ``"text"``), cut. Spelt
+    token by token and cut while it is spelt (:func:`_spelling`): a value of a billion items (a YAML alias bomb, a
+    huge list) costs the first ``limit`` characters, never its whole serialisation."""
+    text = ""
+    for token in _spelling(value, limit):
+        text += token
+        if len(text) > limit:
+            break
     return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _spelling(value: Any, limit: int) -> Iterator[str]:
+    """The JSON spelling of ``value`` in pieces, each at most about ``limit`` characters (strings and numbers are
+    cut before they are spelt)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        yield "NaN" if math.isnan(value) else "Infinity" if value > 0 else "-Infinity"
+    elif isinstance(value, bool) or value is None or isinstance(value, float):
+        yield json.dumps(value)
+    elif isinstance(value, int):
+        yield str(value) if value.bit_length() <= 4 * limit else f"<an integer of {value.bit_length()} bits>"
+    elif isinstance(value, str):
+        yield json.dumps(value[: limit + 1], ensure_ascii=True)
+    elif isinstance(value, (list, tuple)):
+        yield "["
+        for i, item in enumerate(value):
+            yield ", " if i else ""
+            yield from _spelling(item, limit)
+        yield "]"
+    elif isinstance(value, Mapping):
+        yield "{"
+        for i, (key, item) in enumerate(value.items()):
+            yield ", " if i else ""
+            yield json.dumps(str(key)[: limit + 1], ensure_ascii=True) + ": "
+            yield from _spelling(item, limit)
+        yield "}"
+    else:
+        yield repr(value)[: limit + 1]
+
+
+#: The most values (containers and scalars, each alias counted where it is used) a file of another tool may expand
+#: to: real ones hold thousands. A YAML alias bomb (836 bytes) expands to 10^9.
+MAX_EXPANDED_VALUES = 1_000_000
+
+
+def refuse_alias_bombs(value: Any, source: str | Path, error: type[Exception] = InputFileError) -> Any:
+    """``value`` (a loaded YAML document) if it expands to at most :data:`MAX_EXPANDED_VALUES` values, else
+    ``error`` naming ``source``: YAML aliases share one object, so a small file can stand for a billion values,
+    which every later walk (the schema, a message) would visit. Cost: at most that many steps."""
+    stack, seen = [value], 0
+    while stack:
+        item = stack.pop()
+        seen += 1
+        if seen > MAX_EXPANDED_VALUES:
+            raise error(f"{source}: its aliases expand to more than {MAX_EXPANDED_VALUES:,} values (a YAML alias "
+                        "bomb, not a calibration)")
+        if isinstance(item, Mapping):
+            stack.extend(item.values())
+        elif isinstance(item, (list, tuple)):
+            stack.extend(item)
+    return value
 
 
 _NO_DATA = object()

@@ -29,7 +29,7 @@ from pydantic import AfterValidator, ConfigDict, RootModel
 from dome_calib.recon.body_models import JOINT_NAMES, BodyModel, models_with_joints, parse_body_model, to_joints19
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.joint_order import better_order, order_fits
-from dome_calib.schema import Field, FileSchema, Finite, parse_json, read_json
+from dome_calib.schema import Field, FileSchema, Finite, parse_json, read_json, show
 
 logger = logging.getLogger(__name__)
 
@@ -57,7 +57,7 @@ def _check_keypoints(values: list[float]) -> list[float]:
     negative = np.flatnonzero(a[2::3] < 0)
     if negative.size:
         j = int(negative[0])
-        raise ValueError(f"joint {j}: confidence {values[3 * j + 2]!r} is negative (expected [x_px, y_px, c] with "
+        raise ValueError(f"joint {j}: confidence {show(values[3 * j + 2])} is negative (expected [x_px, y_px, c] with "
                          "c >= 0)")
     return values
 

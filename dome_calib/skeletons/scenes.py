@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import re
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from fractions import Fraction
 from pathlib import Path
 from typing import Annotated
@@ -26,7 +26,7 @@ from typing import Annotated
 import numpy as np
 from pydantic import Field, model_validator
 
-from dome_calib.schema import Finite, NonNegInt, OpenSchema, parse_json
+from dome_calib.schema import Finite, NonNegInt, OpenSchema, parse_json, show
 from dome_calib.skeletons.errors import PeopleFileError
 from dome_calib.skeletons.joints import LAYOUTS
 
@@ -143,6 +143,21 @@ def read_scene(path: str | Path) -> tuple[float, dict[int, np.ndarray]]:
     return float(scene.univTime), {b.id: np.asarray(b.joints19, dtype=float).reshape(19, 4) for b in scene.bodies}
 
 
+def with_rate(people: People, fps: Fraction | None = None, remedy: str = "give --fps") -> People:
+    """``people`` at the rate ``fps`` (default: the folder's), checked (:func:`rate_problem`); PeopleFileError of
+    one line ending in ``remedy`` when the folder's times give none and none is given."""
+    fps = fps or people.fps
+    if fps is None:
+        span_s = (people.times_ms[-1] - people.times_ms[0]) / 1000.0
+        raise PeopleFileError(f"{people.folder}: univTime: frames {people.frames[0]}..{people.frames[-1]} over "
+                              f"{span_s:.6g} s give no frame rate a capture has ({rate_problem(Fraction(0))}): "
+                              f"{remedy}")
+    problem = rate_problem(fps)
+    if problem is not None:
+        raise PeopleFileError(f"fps {float(fps):.6g}: {problem}")
+    return replace(people, fps=fps)
+
+
 def frame_rate(fps_type: str, frames: np.ndarray, times_ms: np.ndarray) -> Fraction | None:
     """The frame rate: the ``fpsType``'s (exact), else frames per second of the times (rounded to 1/1000 fps); None
     when the times give none a capture can have (:func:`rate_problem`: frames hours apart, a rate rounded to 0)."""
@@ -170,7 +185,7 @@ def read_people(folder: str | Path, *, progress: Callable[[int, int], None] | No
         if fps_type is None:
             fps_type = kind
         elif kind != fps_type:
-            raise PeopleFileError(f"{path}: fpsType: {kind!r}, but earlier files have {fps_type!r}")
+            raise PeopleFileError(f"{path}: fpsType: {show(kind)}, but earlier files have {show(fps_type)}")
         if k and times[k] <= times[k - 1]:
             raise PeopleFileError(f"{path}: univTime: {times[k]:g} ms is not after the previous file's "
                                   f"{times[k - 1]:g} ms ({files[k - 1][1].name})")
