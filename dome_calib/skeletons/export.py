@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import re
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import StrEnum
 from fractions import Fraction
 from pathlib import Path
@@ -20,7 +20,7 @@ from dome_calib.schema import NonNegFinite
 from dome_calib.skeletons.bvh import write_bvh
 from dome_calib.skeletons.c3d import write_c3d
 from dome_calib.skeletons.errors import PeopleFileError
-from dome_calib.skeletons.scenes import MAX_DENSE_VALUES, People, rate_problem, read_people
+from dome_calib.skeletons.scenes import MAX_DENSE_VALUES, People, rate_problem, read_people, with_rate
 from dome_calib.skeletons.trc import write_trc
 
 logger = logging.getLogger(__name__)
@@ -100,17 +100,7 @@ def selected(people: People, options: ExportPeopleOptions) -> People:
             known = ", ".join(map(str, list(tracks)[:20])) + (" ..." if len(tracks) > 20 else "")
             raise PeopleFileError(f"{people.folder}: --ids: no person {unknown[0]} (ids: {known})")
         tracks = {i: tracks[i] for i in options.ids}
-    fps = options.fps or people.fps
-    if fps is None:
-        span_s = (people.times_ms[-1] - people.times_ms[0]) / 1000.0
-        raise PeopleFileError(f"{people.folder}: univTime: frames {people.frames[0]}..{people.frames[-1]} over "
-                              f"{span_s:.6g} s give no frame rate a capture has ({rate_problem(Fraction(0))}): "
-                              "give --fps")
-    problem = rate_problem(fps)
-    if problem is not None:
-        raise PeopleFileError(f"fps {float(fps):.6g}: {problem}")
-    return People(folder=people.folder, frames=people.frames, times_ms=people.times_ms, fps_type=people.fps_type,
-                  fps=fps, layout=people.layout, tracks=tracks)
+    return with_rate(replace(people, tracks=tracks), options.fps)
 
 
 def check_dense(people: People, to: PeopleFormat) -> None:
