@@ -25,7 +25,7 @@ from dome_calib.recon.body_models import BodyModel, parse_body_model
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.formats import FPS_TYPE
 from dome_calib.recon.depth import depth_folder_reader
-from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, parse_camera_map
+from dome_calib.recon.openpose_io import body_model_of, file_digests, index_openpose_folder, parse_camera_map
 from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.chunks import reconstruct_people_chunked
 from dome_calib.recon.people.depth_witness import DepthWitness, DepthWitnessOptions
@@ -221,9 +221,14 @@ def why_nobody(agreement: CameraAgreement, options: PeopleOptions, times: int) -
 @contextlib.contextmanager
 def kept_detections(source, executor=None) -> Iterator:
     """``source`` with a folder to keep what it reads (a :class:`~dome_calib.recon.people.sources.FileSource`, on
-    this machine's executors), removed at the end; any other source as it is."""
-    if not isinstance(source, FileSource) or is_remote(executor):
+    this machine's executors), removed at the end; on a cluster, with the digest of every file as this machine
+    reads it, which each worker checks what it reads against (a worker reading another copy turned 9 people into
+    none, exit 0); any other source as it is."""
+    if not isinstance(source, FileSource):
         yield source
+        return
+    if is_remote(executor):
+        yield replace(source, digests=file_digests(source.files))
         return
     with run_temp_folder(KEPT_PREFIX) as folder:
         yield replace(source, cache_dir=folder)
