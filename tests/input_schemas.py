@@ -247,7 +247,7 @@ FILES = (
     InputFile("detections JSON", "the file `triangulate DETECTIONS` names", ("triangulate",),
               _schema("dome_calib.recon.formats", "DetectionsFile"), _detections_example, _read_detections,
               _error("dome_calib.recon.errors", "ReconError"), "detections.json",
-              tests="tests/test_input_mutations.py, tests/test_recon_formats.py, tests/test_hostile_inputs.py"),
+              tests="tests/test_input_mutations.py, tests/test_inputs_cli.py, tests/test_hostile_inputs.py"),
     InputFile("dome_session.json", "SESSION/dome_session.json (a synthetic session)", ("demo",),
               _schema("dome_calib.synth.session", "SessionManifest"), _manifest_example, _read_manifest,
               _error("dome_calib.errors", "DomeCalibError"), "dome_session.json"),
