@@ -149,3 +149,27 @@ def test_a_kalibr_file_in_millimetres_warns(tmp_path, caplog):
         read_foreign(tmp_path / "camchain.yaml", "kalibr")
     said = _warned(caplog)
     assert len(said) == 1 and "larger" in said[0] and "--unit" in said[0], said
+
+
+def test_triangulate_names_a_stream_that_misses_every_time(dome_calib_cli, tmp_path, caplog):
+    """The same rule for `triangulate`: a stream whose detected frames reach none of the times is named once and
+    left out of the summary's streams (before: listed as if it contributed)."""
+    from dome_calib.synth.skeleton import synthetic_tracks  # noqa: PLC0415
+
+    bundle = real_bundle(n_vga=20, start_ms=1000.0, duration_ms=400.0, seed=7)
+    write_bundle(bundle, tmp_path / "b")
+    cams = {}
+    for s in synthetic_tracks(bundle, sorted(bundle.of_type("vga"))[:6] + ["00_03", "00_10"], seed=8):
+        for v, name in enumerate(s.cameras):
+            joints = np.concatenate([np.nan_to_num(s.uv_px[:, v], nan=0.0), s.conf[:, v, :, None]], axis=-1)
+            cams[name] = {"frames": s.frame_index.tolist(), "joints": np.round(joints, 3).tolist()}
+    (tmp_path / "det.json").write_text(json.dumps({"joints": 19, "cameras": cams}))
+    _edit(next((tmp_path / "b").glob("synctables_*.json")),
+          lambda d: d["hd"].update(univ_time=[t + 1e6 for t in d["hd"]["univ_time"]]))
+    with caplog.at_level(logging.WARNING):
+        out = dome_calib_cli("triangulate", str(tmp_path / "det.json"), "--bundle", str(tmp_path / "b"), "-o",
+                             str(tmp_path / "sk"))
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "from streams vga:" in out.stdout, out.stdout
+    said = [r.getMessage() for r in caplog.records if "stream hd" in r.getMessage()]
+    assert len(said) == 1 and "contribute nothing" in said[0], said

@@ -138,12 +138,13 @@ def load_detection_streams(bundle: Bundle, path: str | Path) -> tuple[list[Strea
     return group_by_stream(bundle, parsed["cameras"]), parsed
 
 
-def check_times(path: str | Path, streams: list[StreamTracks], times_ms: np.ndarray) -> np.ndarray:
-    """Times against the detections on the sync tables -> (T,) bool, True where some stream has detected frames
-    on both sides (or at) the time. None covered: ReconError; some not: one warning with the counts (their
-    skeletons have no joints). Detected frames missing from their stream's sync table: one warning per stream."""
+def check_times(path: str | Path, streams: list[StreamTracks], times_ms: np.ndarray) -> list[str]:
+    """Times against the detections on the sync tables -> the streams whose detected frames reach some of the
+    times. None covered: ReconError; some not: one warning with the counts (their skeletons have no joints); a
+    stream that reaches none: one warning naming it (its cameras contribute nothing: another session's table?).
+    Detected frames missing from their stream's sync table: one warning per stream."""
     covered = np.zeros(len(times_ms), bool)
-    spans = []
+    spans, used = [], []
     for s in streams:
         detected = s.frame_index[np.any(per_row(s.conf) > 0, axis=1)]
         timed = np.isin(detected, s.table.index)
@@ -154,8 +155,16 @@ def check_times(path: str | Path, streams: list[StreamTracks], times_ms: np.ndar
         if not np.any(timed):
             continue
         t0, t1 = s.table.times_of(detected[timed][[0, -1]])
-        covered |= (times_ms >= t0) & (times_ms <= t1)
+        reach = (times_ms >= t0) & (times_ms <= t1)
+        covered |= reach
         spans.append(f"{s.stream} {t0:.1f}..{t1:.1f} ms")
+        if reach.any():
+            used.append(s.stream)
+        else:
+            logger.warning("%s: stream %s (cameras %s): its detected frames lie at %.1f..%.1f ms, none of the %d "
+                           "times: its cameras contribute nothing (is its sync table the one of this session?)",
+                           path, s.stream, ", ".join(s.cameras[:4]) + (", ..." if len(s.cameras) > 4 else ""),
+                           t0, t1, len(times_ms))
     span_text = "; ".join(spans) or "no detected frame is in a sync table"
     if not covered.any():
         raise ReconError(f"{path}: times_ms: none of the {len(times_ms)} times lies within the detected "
@@ -163,7 +172,7 @@ def check_times(path: str | Path, streams: list[StreamTracks], times_ms: np.ndar
     if not covered.all():
         logger.warning("%s: %d of %d times lie outside the detected frames' universal times (%s): their skeletons "
                        "have no joints (c = -1)", path, int((~covered).sum()), len(times_ms), span_text)
-    return covered
+    return used
 
 
 def check_output_folder(folder: str | Path) -> Path:
