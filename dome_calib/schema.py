@@ -41,7 +41,8 @@ from dome_calib.errors import DomeCalibError
 __all__ = ["FileSchema", "OpenSchema", "InputFileError", "FieldError", "Finite", "NonNegInt", "PosInt", "PosFinite",
            "NonNegFinite", "JsonData", "Vec", "Vec3", "Matrix3", "Matrix4", "PlainName", "CameraName", "Unique",
            "read_json", "read_toml", "read_yaml", "validate", "parse_json", "field_path", "describe_schema",
-           "json_schema", "show", "refuse_alias_bombs", "words", "Field", "name_problem", "path_of_name", "NAME_MAX_CHARS"]
+           "json_schema", "show", "refuse_alias_bombs", "words", "Field", "name_problem", "path_of_name",
+           "NAME_MAX_CHARS"]
 
 M = TypeVar("M", bound=BaseModel)
 

@@ -7,7 +7,6 @@ Before (main at aaf6910): `synth OUT --layout CAL.json --preset full` wrote `<na
 from __future__ import annotations
 
 import json
-import sys
 import tomllib
 from pathlib import Path
 

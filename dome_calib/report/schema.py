@@ -32,8 +32,8 @@ from pydantic import BaseModel
 from dome_calib.bundle import CameraType, camera_type_from_name
 from dome_calib.errors import ReportError
 from dome_calib.reasons import RULE_CODES, Reason, ReasonCode
-from dome_calib.schema import (CameraName, Field, FileSchema, PlainName, Finite, NonNegFinite, NonNegInt, PosFinite, PosInt, Vec, Vec3,
-                               parse_json)
+from dome_calib.schema import (CameraName, Field, FileSchema, Finite, NonNegFinite, NonNegInt, PlainName, PosFinite,
+                               PosInt, Vec, Vec3, parse_json)
 
 REPORT_VERSION = 3
 M = TypeVar("M", bound=BaseModel)
