@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +32,18 @@ MIN_SHARED_CAMERAS = 3
 
 class AlignmentError(DomeCalibError):
     """Two camera sets cannot be aligned (too few shared cameras, degenerate layout, no consensus)."""
+
+
+def require_shared(ours: Iterable[str], theirs: Iterable[str], *, given: str, against: str) -> None:
+    """Before work: AlignmentError when the cameras ``theirs`` (of ``given``: the option and folder that gave them,
+    ``--previous OLD``) share fewer than :data:`MIN_SHARED_CAMERAS` names with ``ours`` (of ``against``), whose
+    frames must be aligned to be compared. The message names both, and how many and which cameras they share."""
+    shared = sorted(set(ours) & set(theirs))
+    if len(shared) < MIN_SHARED_CAMERAS:
+        shown = f" ({', '.join(shared)})" if shared else ""
+        raise AlignmentError(f"{given}: {len(shared)} camera(s) in common with {against}{shown}; comparing them "
+                             f"needs at least {MIN_SHARED_CAMERAS} to align the two frames: give a calibration of the "
+                             "same cameras")
 
 
 @options

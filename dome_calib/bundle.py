@@ -179,7 +179,8 @@ class SyncTable:
         hi = np.clip(np.searchsorted(self.univ_time_ms, t, side="right"), 1, len(self.index) - 1)
         lo = hi - 1
         t0, t1 = self.univ_time_ms[lo], self.univ_time_ms[hi]
-        w1 = np.where(t - t0 <= tol, 0.0, np.where(t1 - t <= tol, 1.0, (t - t0) / (t1 - t0)))
+        span = np.where(t1 > t0, t1 - t0, 1.0)  # a one-frame table brackets its frame by itself
+        w1 = np.where(t - t0 <= tol, 0.0, np.where(t1 - t <= tol, 1.0, (t - t0) / span))
         outside = (t < self.univ_time_ms[0] - tol) | (t > self.univ_time_ms[-1] + tol)
         w1 = np.where(outside, np.nan, w1)
         return self.index[lo], self.index[hi], 1.0 - w1, w1

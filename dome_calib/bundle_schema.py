@@ -14,12 +14,14 @@ not know (no real sync file was found to say what else CMU's carry).
 from __future__ import annotations
 
 import re
+from fractions import Fraction
 from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import AfterValidator, BeforeValidator, ConfigDict, RootModel, model_validator
 
-from dome_calib.schema import INT64_MAX, Field, FieldError, FileSchema, JsonData, OpenSchema, Vec, show, words
+from dome_calib.schema import (INT64_MAX, CameraName, Field, FieldError, FileSchema, JsonData, OpenSchema, Vec, show,
+                               words)
 
 #: |R R^T - I| up to this is kept as written (the real files store 10 significant digits: ~1e-10).
 ROTATION_EXACT_TOL = 1e-8
@@ -142,7 +144,7 @@ def _no_duplicate_names(items: list, field: str, what: str) -> None:
 class CalibrationCamera(FileSchema):
     """One camera: OpenCV pinhole, ``x_cam = R @ X_world + t`` (t in cm, the Panoptic world)."""
 
-    name: str = Field(min_length=1, description="Panoptic name: VGA 01_01..20_24, HD 00_00..00_30, Kinect 50_01..")
+    name: CameraName = Field(description="Panoptic name: VGA 01_01..20_24, HD 00_00..00_30, Kinect 50_01..")
     type: Literal["vga", "hd", "kinect-color"]
     resolution: Vec(2, SizePx) = Field(description="[width, height] px")
     K: CameraMatrix
@@ -252,8 +254,36 @@ class SyncTableEntry(OpenSchema):
         return self
 
 
+#: The frame rates of the dome's streams (the Kinects' colour and depth: 30 fps).
+STREAM_FPS = {"vga": Fraction(25), "hd": Fraction(30000, 1001), "kinect": Fraction(30)}
+#: A stream's frames may be this many times closer or farther apart than its rate says (an HD camera at 59.94 fps,
+#: a dropped frame): a table in seconds (1000x closer) or in microseconds (1000x farther) is not.
+SPACING_FACTOR = 10
+#: The closest frames of a stream of another name (2,000 fps): a table in seconds is closer for any rate above 2 fps.
+MIN_SPACING_MS = 0.5
+
+
+def spacing_problem(stream: str, entry: SyncTableEntry) -> str | None:
+    """Why the times of ``stream`` cannot be milliseconds (None: they can): the median time per frame index step
+    against the stream's rate (:data:`STREAM_FPS`), or under :data:`MIN_SPACING_MS` for a stream of another name."""
+    if len(entry.index) < 2:
+        return None
+    step = np.median(np.diff(entry.univ_time) / np.diff(entry.index))
+    fps = STREAM_FPS.get(stream)
+    if fps is None:
+        return (f"frames {step:.3g} ms apart (faster than {1000 / MIN_SPACING_MS:g} fps): univ_time is in "
+                "milliseconds (are these seconds?)") if step < MIN_SPACING_MS else None
+    period = 1000.0 / float(fps)
+    if not period / SPACING_FACTOR <= step <= period * SPACING_FACTOR:
+        unit = "seconds" if step < period else "microseconds"
+        return (f"frames {step:.3g} ms apart, but the {stream} stream runs at {float(fps):.4g} fps ({period:.3g} ms): "
+                f"univ_time is in milliseconds (are these {unit}?)")
+    return None
+
+
 class SyncTablesFile(RootModel[dict[str, SyncTableEntry]]):
-    """``synctables_<seq>.json``: ``{"vga": table, "hd": table}`` (any stream name)."""
+    """``synctables_<seq>.json``: ``{"vga": table, "hd": table}`` (any stream name); each stream's frames as far
+    apart as its rate says (:func:`spacing_problem`: a table in seconds is refused)."""
 
     model_config = ConfigDict(strict=True, allow_inf_nan=False, frozen=True)
 
@@ -261,12 +291,25 @@ class SyncTablesFile(RootModel[dict[str, SyncTableEntry]]):
     def _not_empty(self) -> SyncTablesFile:
         if not self.root:
             raise ValueError("expected an object with sync streams (vga, hd)")
+        for stream, entry in self.root.items():
+            problem = spacing_problem(stream, entry)
+            if problem is not None:
+                raise FieldError((stream, "univ_time"), problem)
         return self
 
 
 class KinectSyncStreams(OpenSchema):
     color: dict[KinectNodeName, SyncTableEntry]
     depth: dict[KinectNodeName, SyncTableEntry]
+
+    @model_validator(mode="after")
+    def _milliseconds(self) -> KinectSyncStreams:
+        for kind in ("color", "depth"):
+            for node, entry in getattr(self, kind).items():
+                problem = spacing_problem("kinect", entry)
+                if problem is not None:
+                    raise FieldError((kind, node, "univ_time"), problem)
+        return self
 
 
 class KSyncTablesFile(OpenSchema):

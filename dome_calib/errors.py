@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import importlib
 import importlib.abc
 import importlib.util
@@ -13,6 +14,7 @@ import signal
 import sys
 import threading
 from collections.abc import Callable, Iterator
+from typing import Any
 
 logger = logging.getLogger("dome_calib")
 
@@ -91,14 +93,16 @@ def restore_interrupt_handler() -> None:
 
 
 @contextlib.contextmanager
-def interrupt_as_one_line(prog: str, advice: str = "rerun the same command to resume") -> Iterator[None]:
+def interrupt_as_one_line(prog: str, advice: str = "rerun the same command to resume",
+                          imports: tuple[str, ...] = HANDLER_REPLACING_IMPORTS) -> Iterator[None]:
     """SIGINT or SIGTERM inside the block: one line on stderr ("interrupted during STAGE; ADVICE", the stage when a
-    pipeline stage was running), exit code 130, no traceback (``DOME_CALIB_DEBUG=1``: raise)."""
+    pipeline stage was running), exit code 130, no traceback (``DOME_CALIB_DEBUG=1``: raise). ``imports``: libraries
+    whose handlers ours must go over, imported first."""
     global _active
     previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
     _active += 1
     try:
-        for name in HANDLER_REPLACING_IMPORTS:  # their handlers first, ours over them
+        for name in imports:  # their handlers first, ours over them
             importlib.import_module(name)
         restore_interrupt_handler()
         yield
@@ -139,25 +143,36 @@ def storage_failure(exc: BaseException) -> str | None:
     return next((why for key, why in _STORAGE_TEXTS.items() if key in text), None)
 
 
-class Terminated(BaseException):
-    """SIGTERM arrived outside an :func:`interrupt_as_one_line` block: unwinds like an interrupt (every staged output
-    is removed on the way out), past the CLI framework (which would swallow a KeyboardInterrupt)."""
+#: What a command stopped by SIGINT or SIGTERM says when it names nothing itself: outputs are staged and renamed into
+#: place at the end (dome_calib.io_utils.atomic_folder), so an interrupted command leaves them as they were.
+INTERRUPTED_ADVICE = "its outputs are as they were (nothing is written before the end); rerun the same command"
 
 
-def _terminated(signum: int, frame: object) -> None:
-    if os.getpid() != _cli_pid:  # a forked worker inherited the handler: die as SIGTERM says
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
-        os.kill(os.getpid(), signal.SIGTERM)
-        return
-    raise Terminated
+def _interrupt_as_one_line_in_every_command(app: Any, prog: str) -> None:
+    """Every command of ``app`` (a typer app) runs inside :func:`interrupt_as_one_line`: SIGTERM unwinds the command
+    like Ctrl-C (its staging folders removed on the way out), then one line and exit 130, whether the command says
+    more (its own block, inside) or not. Without it SIGTERM killed the process where it stood (exit 143, staging
+    folders left, no word). Commands added later are covered by construction."""
+    for info in getattr(app, "registered_commands", []):
+        callback = info.callback
+        if callback is None or getattr(callback, "_one_line_on_interrupt", False):
+            continue
 
+        @functools.wraps(callback)
+        def wrapped(*args: Any, _callback: Callable[..., Any] = callback, **kwargs: Any) -> Any:
+            with interrupt_as_one_line(prog, INTERRUPTED_ADVICE, imports=()):  # no pycolmap for `info`
+                return _callback(*args, **kwargs)
 
-_cli_pid = 0
+        wrapped._one_line_on_interrupt = True  # type: ignore[attr-defined]
+        info.callback = wrapped
+    for group in getattr(app, "registered_groups", []):
+        if group.typer_instance is not None:
+            _interrupt_as_one_line_in_every_command(group.typer_instance, prog)
 
 
 class _HandlerGuard(importlib.abc.MetaPathFinder, importlib.abc.Loader):
-    """While a command runs: after a module of HANDLER_REPLACING_IMPORTS is loaded (wherever it is imported), the
-    SIGTERM handler that was in place before is put back over the one it installed at the C level."""
+    """While a command runs: after a module of HANDLER_REPLACING_IMPORTS is loaded (wherever it is imported, however
+    late), the SIGTERM handler that was in place before is put back over the one it installed at the C level."""
 
     def find_spec(self, fullname, path, target=None):
         if fullname not in HANDLER_REPLACING_IMPORTS:
@@ -183,25 +198,18 @@ class _HandlerGuard(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
 def run_cli(app: Callable[..., object], *, prog: str, user_errors: tuple[type[BaseException], ...] = ()) -> None:
     """Run a typer app; turn user errors into one line on stderr and exit code 1, no traceback. SIGTERM during any
-    command (not only the long ones, :func:`interrupt_as_one_line`): staged outputs removed, one line, exit 130.
+    command: staged outputs removed on the way out, one line, exit 130 (also after a late import of pycolmap, whose
+    C-level handler would kill the process: :class:`_HandlerGuard`).
 
     Set ``DOME_CALIB_DEBUG=1`` to see the full traceback instead.
     """
-    global _cli_pid
     handled = (DomeCalibError, OSError, *user_errors)
     logging.basicConfig(level=logging.INFO, format=f"{prog}: %(message)s")
-    _cli_pid = os.getpid()
-    previous = signal.signal(signal.SIGTERM, _terminated)
+    _interrupt_as_one_line_in_every_command(app, prog)
     guard = _HandlerGuard()
     sys.meta_path.insert(0, guard)
     try:
         app(standalone_mode=True)
-    except Terminated:
-        if os.environ.get("DOME_CALIB_DEBUG"):
-            raise
-        print(f"{prog}: interrupted (SIGTERM); nothing was replaced (outputs are written whole or not at all)",
-              file=sys.stderr)
-        sys.exit(EXIT_INTERRUPTED)
     except handled as exc:  # one line, non-zero exit
         if os.environ.get("DOME_CALIB_DEBUG"):
             raise
@@ -218,4 +226,3 @@ def run_cli(app: Callable[..., object], *, prog: str, user_errors: tuple[type[Ba
         sys.exit(1)
     finally:
         sys.meta_path.remove(guard)
-        signal.signal(signal.SIGTERM, previous)

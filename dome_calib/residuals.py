@@ -7,13 +7,14 @@ function, before anything is reported or saved (``report/residuals.npz``).
 """
 from __future__ import annotations
 
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from dome_calib.arrays import ArraySpec, read_arrays
 from dome_calib.errors import ReportError
+from dome_calib.schema import name_problem, show
 
 
 def observed_minus_projected(uv_observed_px: np.ndarray, uv_projected_px: np.ndarray) -> np.ndarray:
@@ -65,15 +66,26 @@ class Residuals:
 
     @classmethod
     def load(cls, path: Path) -> Residuals:
-        try:
-            with np.load(path) as data:
-                names, idx, res = [str(n) for n in data["camera_names"]], data["camera_index"], data["residual_px"]
-                uv = data["uv_px"] if "uv_px" in data.files else None
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:  # a cut copy: BadZipFile
-            raise ReportError(f"{path}: not a residual file ({exc})") from exc
-        if res.ndim != 2 or res.shape[1] != 2 or idx.shape != (len(res),) or (len(idx) and idx.max() >= len(names)):
-            raise ReportError(f"{path}: residual_px {res.shape} / camera_index {idx.shape} do not match")
-        if uv is not None and uv.shape != res.shape:
-            raise ReportError(f"{path}: uv_px {uv.shape} does not match residual_px {res.shape}")
-        return cls(camera_names=names, camera_index=idx.astype(np.int64), residual_px=res.astype(float),
-                   uv_px=None if uv is None else uv.astype(float))
+        """The residuals saved at ``path`` (:data:`RESIDUAL_ARRAYS`); ReportError of one line naming the array and
+        the element that does not match (a NaN, an index out of range, a camera name that is not one)."""
+        a = read_arrays(path, RESIDUAL_ARRAYS, ReportError, what="residual file")
+        names = [str(n) for n in a["camera_names"]]
+        for i, name in enumerate(names):
+            problem = name_problem(name)
+            if problem is not None:
+                raise ReportError(f"{path}: camera_names[{i}]: {show(name)} {problem}, expected a camera name")
+        if len(set(names)) != len(names):
+            twice = next(n for i, n in enumerate(names) if n in names[:i])
+            raise ReportError(f"{path}: camera_names: {show(twice)} is listed twice")
+        uv = a.get("uv_px")
+        return cls(camera_names=names, camera_index=a["camera_index"].astype(np.int64),
+                   residual_px=a["residual_px"].astype(float), uv_px=None if uv is None else uv.astype(float))
+
+
+#: The arrays of ``report/residuals.npz`` (M observations of C cameras).
+RESIDUAL_ARRAYS = {
+    "camera_names": ArraySpec("str", ("C",), description="the cameras, by name"),
+    "camera_index": ArraySpec("int", ("M",), index_of="camera_names", description="each observation's camera"),
+    "residual_px": ArraySpec("float", ("M", 2), description="observed - projected, px"),
+    "uv_px": ArraySpec("float", ("M", 2), required=False, description="where each observation was seen, px"),
+}

@@ -26,7 +26,7 @@ import json
 import math
 import re
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Annotated, Any, TypeVar, Union
 
@@ -39,9 +39,10 @@ from pydantic.json_schema import GenerateJsonSchema
 from dome_calib.errors import DomeCalibError
 
 __all__ = ["FileSchema", "OpenSchema", "InputFileError", "FieldError", "Finite", "NonNegInt", "PosInt", "PosFinite",
-           "NonNegFinite", "JsonData", "Vec", "Vec3", "Matrix3", "Matrix4", "PlainName", "Unique", "read_json",
-           "read_toml", "read_yaml", "validate", "parse_json", "field_path", "describe_schema", "json_schema", "show",
-           "words", "Field"]
+           "NonNegFinite", "JsonData", "Vec", "Vec3", "Matrix3", "Matrix4", "PlainName", "CameraName", "Unique",
+           "read_json", "read_toml", "read_yaml", "validate", "parse_json", "field_path", "describe_schema",
+           "json_schema", "show", "refuse_alias_bombs", "words", "Field", "name_problem", "path_of_name",
+           "NAME_MAX_CHARS"]
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -103,14 +104,49 @@ Matrix3 = Vec(3, Vec3)
 Matrix4 = Vec(4, Vec(4))
 
 
+#: The longest name that becomes a file name: ``<camera>_000000000001_keypoints.json`` stays within the 255 bytes
+#: of a file name (4 bytes per character of UTF-8 at most).
+NAME_MAX_CHARS = 50
+PLAIN_NAME_HELP = f"no '/', not '.' or '..', printable, at most {NAME_MAX_CHARS} characters"
+
+
+def name_problem(name: str) -> str | None:
+    """Why ``name`` cannot be one component of a path (None: it can). The one rule for every name from a file that
+    becomes a file or folder name: camera names of every file kind, scenes, capture nodes, plots."""
+    if not isinstance(name, str) or not name:
+        return "empty"
+    if "/" in name or "\\" in name:
+        return "holds a path separator"
+    if name in (".", ".."):
+        return "is a folder reference"
+    if not name.isprintable():
+        return "holds a control character"
+    if len(name) > NAME_MAX_CHARS:
+        return f"is longer than {NAME_MAX_CHARS} characters"
+    return None
+
+
 def _plain_name(name: str) -> str:
-    if not name or "/" in name or "\\" in name or name in (".", "..") or not name.isprintable():
-        raise ValueError(f"expected a plain name (no '/', not '.' or '..', printable), got {show(name)}")
+    problem = name_problem(name)
+    if problem is not None:
+        raise ValueError(f"expected a plain name ({PLAIN_NAME_HELP}), got {show(name)}: it {problem}")
     return name
 
 
-#: A name that becomes part of a path (a scene folder, a sequence, a capture node): no separator, not . or ..
+#: A name that becomes part of a path (a scene folder, a sequence, a capture node, a camera): :func:`name_problem`.
 PlainName = Annotated[str, AfterValidator(_plain_name), Field(min_length=1, **words("a plain name (no '/')"))]
+#: A camera's name in every file kind that carries one (calibration, report, peers' files): it becomes a file name
+#: (``<camera>.png``, an OpenPose folder, a plot), so it is a :data:`PlainName`.
+CameraName = PlainName
+
+
+def path_of_name(folder: str | Path, name: str, suffix: str = "") -> Path:
+    """``folder / (name + suffix)`` for a name from a file: the last guard of every place a name becomes a path
+    (the schemas refuse such names first). DomeCalibError naming the name otherwise."""
+    problem = name_problem(name)
+    if problem is not None:
+        raise DomeCalibError(f"name {show(name)}: not a file name: it {problem}")
+    return Path(folder) / f"{name}{suffix}"
 
 
 def _unique(values: list) -> list:
@@ -232,15 +268,66 @@ def field_path(loc: tuple[int | str, ...]) -> str:
 
 
 def show(value: Any, limit: int = 40) -> str:
-    """A value from a file as the message shows it: JSON spelling (``false``, ``null``, ``"text"``), cut."""
-    if isinstance(value, float) and not math.isfinite(value):
-        text = "NaN" if math.isnan(value) else "Infinity" if value > 0 else "-Infinity"
-    else:
-        try:
-            text = json.dumps(value, ensure_ascii=True, default=str)
-        except (TypeError, ValueError):
-            text = repr(value)
+    """A value from a file as the message shows it: JSON spelling (``false``, ``null``, ``"text"``), cut. Spelt
+    token by token and cut while it is spelt (:func:`_spelling`): a value of a billion items (a YAML alias bomb, a
+    huge list) costs the first ``limit`` characters, never its whole serialisation."""
+    text = ""
+    for token in _spelling(value, limit):
+        text += token
+        if len(text) > limit:
+            break
     return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _spelling(value: Any, limit: int) -> Iterator[str]:
+    """The JSON spelling of ``value`` in pieces, each at most about ``limit`` characters (strings and numbers are
+    cut before they are spelt)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        yield "NaN" if math.isnan(value) else "Infinity" if value > 0 else "-Infinity"
+    elif isinstance(value, bool) or value is None or isinstance(value, float):
+        yield json.dumps(value)
+    elif isinstance(value, int):
+        yield str(value) if value.bit_length() <= 4 * limit else f"<an integer of {value.bit_length()} bits>"
+    elif isinstance(value, str):
+        yield json.dumps(value[: limit + 1], ensure_ascii=True)
+    elif isinstance(value, (list, tuple)):
+        yield "["
+        for i, item in enumerate(value):
+            yield ", " if i else ""
+            yield from _spelling(item, limit)
+        yield "]"
+    elif isinstance(value, Mapping):
+        yield "{"
+        for i, (key, item) in enumerate(value.items()):
+            yield ", " if i else ""
+            yield json.dumps(str(key)[: limit + 1], ensure_ascii=True) + ": "
+            yield from _spelling(item, limit)
+        yield "}"
+    else:
+        yield repr(value)[: limit + 1]
+
+
+#: The most values (containers and scalars, each alias counted where it is used) a file of another tool may expand
+#: to: real ones hold thousands. A YAML alias bomb (836 bytes) expands to 10^9.
+MAX_EXPANDED_VALUES = 1_000_000
+
+
+def refuse_alias_bombs(value: Any, source: str | Path, error: type[Exception] = InputFileError) -> Any:
+    """``value`` (a loaded YAML document) if it expands to at most :data:`MAX_EXPANDED_VALUES` values, else
+    ``error`` naming ``source``: YAML aliases share one object, so a small file can stand for a billion values,
+    which every later walk (the schema, a message) would visit. Cost: at most that many steps."""
+    stack, seen = [value], 0
+    while stack:
+        item = stack.pop()
+        seen += 1
+        if seen > MAX_EXPANDED_VALUES:
+            raise error(f"{source}: its aliases expand to more than {MAX_EXPANDED_VALUES:,} values (a YAML alias "
+                        "bomb, not a calibration)")
+        if isinstance(item, Mapping):
+            stack.extend(item.values())
+        elif isinstance(item, (list, tuple)):
+            stack.extend(item)
+    return value
 
 
 _NO_DATA = object()

@@ -24,11 +24,12 @@ import os
 from dataclasses import dataclass
 
 import cv2
-import numba
 import numpy as np
 
+from dome_calib.jit import njit
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+
+@njit(nogil=True, boundscheck=False)
 def _bilinear(img, x, y):
     """Value and exact derivatives of the bilinear interpolant of img at (x, y); nan outside."""
     h, w = img.shape
@@ -43,7 +44,7 @@ def _bilinear(img, x, y):
     return top + fy * (bottom - top), (1.0 - fy) * (b - a) + fy * (d - c), bottom - top
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+@njit(nogil=True, boundscheck=False)
 def sample_patches(img, uv, offsets):
     """(N, K) the image bilinearly sampled at uv (N, 2) + offsets (K, 2) (nan outside)."""
     out = np.empty((uv.shape[0], offsets.shape[0]), dtype=np.float64)
@@ -53,7 +54,7 @@ def sample_patches(img, uv, offsets):
     return out
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+@njit(nogil=True, boundscheck=False)
 def _solve4(H, g, x):
     """x = H^-1 g for a symmetric positive definite 4 x 4 H (Cholesky, in place in H); False if not."""
     for j in range(4):
@@ -81,7 +82,7 @@ def _solve4(H, g, x):
     return True
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+@njit(nogil=True, boundscheck=False)
 def align_patches(img, uv, A, ref, offsets, weights, iterations, max_shift):
     """Gauss-Newton per observation: shift d (N, 2) of uv (N, 2) such that img at ``uv + d + A offsets`` best
     matches ``gain * ref + bias`` (ref (N, K), weights (K,)). Returns d and the weighted correlation (nan: the

@@ -92,6 +92,14 @@ def _openpose_example() -> dict:
                                         "hand_left_keypoints_2d": [], "hand_right_keypoints_2d": []}]}
 
 
+def _detections_example() -> dict:
+    def joints(k: int) -> list:  # a list of its own per frame (no shared object: each place mutated alone)
+        return [[100.0 + j + k, 200.0, 0.9] for j in range(19)]
+    return {"joints": 19, "body_id": 0, "reference": "vga", "times_ms": [1000.0, 1040.0],
+            "cameras": {"01_01": {"frames": [100, 101], "joints": [joints(0), joints(1)]},
+                        "00_03": {"frames": [5], "joints": [[[300.0, 400.0, None] for _ in range(19)]]}}}
+
+
 def _manifest_example() -> dict:
     from dome_calib.synth.session import SessionOptions
 
@@ -147,6 +155,13 @@ def _read_camera_map(folder: Path, doc: Any):
 
     path = _write(folder / "cameras.json", doc)
     return path, parse_camera_map(str(path))
+
+
+def _read_detections(folder: Path, doc: Any):
+    from dome_calib.recon.formats import read_detections
+
+    path = _write(folder / "detections.json", doc)
+    return path, read_detections(path)
 
 
 def _report_example() -> dict:
@@ -229,6 +244,10 @@ FILES = (
     InputFile("camera map", "the JSON file --camera-map names", ("reconstruct",),
               _schema("dome_calib.recon.openpose_io", "CameraMapFile"), lambda: {"cam01": "00_01", "cam02": "00_02"},
               _read_camera_map, _error("dome_calib.recon.errors", "ReconError"), "cameras.json"),
+    InputFile("detections JSON", "the file `triangulate DETECTIONS` names", ("triangulate",),
+              _schema("dome_calib.recon.formats", "DetectionsFile"), _detections_example, _read_detections,
+              _error("dome_calib.recon.errors", "ReconError"), "detections.json",
+              tests="tests/test_input_mutations.py, tests/test_inputs_cli.py, tests/test_hostile_inputs.py"),
     InputFile("dome_session.json", "SESSION/dome_session.json (a synthetic session)", ("demo",),
               _schema("dome_calib.synth.session", "SessionManifest"), _manifest_example, _read_manifest,
               _error("dome_calib.errors", "DomeCalibError"), "dome_session.json"),

@@ -166,7 +166,7 @@ BAD_CALIBRATIONS = {
                                                                "2 integers"),
     "resolution zero": (_set(9, "resolution", [0, 480]), "camera 01_10: cameras[9].resolution[0]: expected an integer "
                                                          ">= 1"),
-    "name missing": (lambda cams: cams[10].pop("name"), "cameras[10].name: missing (expected a non-empty string)"),
+    "name missing": (lambda cams: cams[10].pop("name"), "cameras[10].name: missing (expected a plain name (no '/'))"),
 }
 
 

@@ -126,7 +126,7 @@ BAD_BUNDLES = {
     "R a reflection": (_cam(4, "R", [[-1, 0, 0], [0, 1, 0], [0, 0, 1]]), "camera 01_05: cameras[4].R: not a rotation"),
     "R off by 1e-3": (_cam(4, "R", [[1, 1e-3, 0], [0, 1, 0], [0, 0, 1]]), "camera 01_05: cameras[4].R: not a rotation (|R R^T - I| = 0.001"),
     "resolution a string": (_cam(5, "resolution", "640x480"), "camera 01_06: cameras[5].resolution: expected a list of 2 integers"),
-    "name a list": (_cam(6, "name", ["01_07"]), "cameras[6].name: expected a non-empty string, got [\"01_07\"]"),
+    "name a list": (_cam(6, "name", ["01_07"]), "cameras[6].name: expected a plain name (no '/'), got [\"01_07\"]"),
     "empty cameras": (lambda cal, kcal: cal.update(cameras=[]), "cameras: expected a non-empty list of objects, got []"),
     "strings in distCoeffs_depth": (_sensor(0, "distCoeffs_depth", ["a"] * 5),
                                     "kcalibration_h.json: sensors[0].distCoeffs_depth[0]: expected a finite number"),
@@ -218,26 +218,31 @@ def _camera(cam, field, value):
     return edit
 
 
-BAD_DETECTIONS = {
-    "confidence 10.72": (_joint("01_01", 3, 5, [300.0, 200.0, 10.72]), "camera 01_01: frame"),
+BAD_DETECTIONS = {  # the field path of the schema's one line (recon.formats.DetectionsFile)
+    "confidence 10.72": (_joint("01_01", 3, 5, [300.0, 200.0, 10.72]), "cameras.01_01.joints[3][5][2]: confidence"),
     "confidence -0.5": (_joint("02_16", 0, 0, [300.0, 200.0, -0.5]), "confidence -0.5 outside [0, 1]"),
-    "confidence a string": (_joint("01_01", 3, 5, [300.0, 200.0, "high"]), "camera 01_01: frames and joints"),
-    "pixel infinite": (_joint("01_01", 3, 5, [float("inf"), 200.0, 0.9]), "pixel (inf, 200) is not finite"),
-    "joint of two numbers": (_joint("01_01", 3, 5, [300.0, 200.0]), "camera 01_01"),
-    "joints of booleans": (_camera("01_01", "joints", [[[True, True, True]] * 19]), "camera 01_01"),
-    "frames as floats": (_camera("01_01", "frames", [0.5]), "field 'frames'"),
-    "frames NaN": (_camera("01_01", "frames", [float("nan")]), "field 'frames'"),
-    "cameras a list": (_key("cameras", [1, 2]), "field 'cameras'"),
+    "confidence a string": (_joint("01_01", 3, 5, [300.0, 200.0, "high"]), "cameras.01_01.joints[3][5][2]"),
+    "pixel infinite": (_joint("01_01", 3, 5, [float("inf"), 200.0, 0.9]), "cameras.01_01.joints[3][5][0]: expected a "
+                       "finite number or null, got Infinity"),
+    "pixel NaN": (_joint("01_01", 3, 5, [float("nan"), 200.0, 0.9]), "cameras.01_01.joints[3][5][0]: expected a "
+                  "finite number or null, got NaN"),
+    "joint of two numbers": (_joint("01_01", 3, 5, [300.0, 200.0]), "cameras.01_01.joints[3][5]"),
+    "joints of booleans": (_camera("01_01", "joints", [[[True, True, True]] * 19]), "cameras.01_01.joints"),
+    "frames as floats": (_camera("01_01", "frames", [0.5]), "cameras.01_01.frames[0]"),
+    "frames NaN": (_camera("01_01", "frames", [float("nan")]), "cameras.01_01.frames[0]"),
+    "cameras a list": (_key("cameras", [1, 2]), "cameras: expected"),
     "unknown camera": (lambda det: det["cameras"].update({"99_99": det["cameras"]["01_01"]}),
                        "camera 99_99 is not in the bundle"),
-    "times_ms strings": (_key("times_ms", ["noon"]), "field 'times_ms'"),
+    "times_ms strings": (_key("times_ms", ["noon"]), "times_ms[0]"),
     "times_ms all outside": (_key("times_ms", [1e7, 2e7]), "none of the 2 times lies within"),
-    "times_ms empty": (_key("times_ms", []), "field 'times_ms'"),
-    "reference a list": (_key("reference", ["vga"]), "field 'reference'"),
+    "times_ms empty": (_key("times_ms", []), "times_ms: expected"),
+    "reference a list": (_key("reference", ["vga"]), "reference: expected"),
     "reference unknown": (_key("reference", "thermal"), "reference stream 'thermal' has no detections"),
-    "joints a string": (_key("joints", "19"), "field 'joints'"),
-    "typo key": (_key("time_ms", [1200.0]), "unknown key 'time_ms'"),
-    "top level a list": (lambda det: det.clear() or det.update({"cameras": None}), "field 'cameras'"),
+    "joints a string": (_key("joints", "19"), "joints: expected"),
+    "typo key": (_key("time_ms", [1200.0]), "time_ms: unknown field"),
+    "top level a list": (lambda det: det.clear() or det.update({"cameras": None}), "cameras: expected"),
+    "camera name a path": (lambda det: det["cameras"].update({"../../x": det["cameras"]["01_01"]}),
+                           'cameras["../../x"]: expected a plain name'),
 }
 
 
@@ -298,10 +303,12 @@ def test_pointcloud_onto_a_fifo_is_refused(world, tmp_path, monkeypatch, capsys)
 # --- inputs that must work: the right result --------------------------------------------------------------------
 
 
-def test_nan_and_null_confidences_are_not_detected(world, tmp_path, monkeypatch, capsys):
+def test_null_confidences_are_not_detected(world, tmp_path, monkeypatch, capsys):
+    """null in u, v or c: not detected. (NaN, which JSON does not have, is refused naming its place, as in every
+    input file read through its schema: BAD_DETECTIONS "pixel NaN".)"""
     root, det = world
     det = copy.deepcopy(det)
-    det["cameras"]["01_01"]["joints"][0][4][2] = float("nan")
+    det["cameras"]["01_01"]["joints"][0][4][2] = None
     det["cameras"]["02_16"]["joints"][0][4] = [None, None, None]
     first = det["cameras"]["01_01"]["frames"][0]
     (tmp_path / "det.json").write_text(json.dumps(det))
@@ -333,4 +340,4 @@ def test_bad_input_through_the_real_shell(world, tmp_path):
     code, _, err = _subprocess(["triangulate", str(tmp_path / "det.json"), "--bundle", str(root / "bundle"),
                                 "-o", str(tmp_path / "sk")])
     assert code == 1 and err.strip().count("\n") == 0 and "Traceback" not in err, err
-    assert "joint 3: confidence 10.72 outside [0, 1]" in err and _files(tmp_path) == ["det.json"]
+    assert "joints[2][3][2]: confidence 10.72 outside [0, 1]" in err and _files(tmp_path) == ["det.json"]

@@ -185,6 +185,36 @@ def test_reconstruct_refuses_a_malformed_openpose_file_and_camera_map(small_prod
     assert not out.exists()
 
 
+DETECTIONS_CASES = {  # triangulate's detections file (recon.formats.DetectionsFile)
+    "a frame as text": (lambda d: d["cameras"]["01_01"]["frames"].__setitem__(0, "100"),
+                        "cameras.01_01.frames[0]: expected an integer >= 0"),
+    "joints null": (lambda d: d["cameras"]["01_01"].__setitem__("joints", None), "cameras.01_01.joints: expected"),
+    "a pixel NaN": (lambda d: d["cameras"]["01_01"]["joints"][0][3].__setitem__(0, math.nan),
+                    "cameras.01_01.joints[0][3][0]: expected a finite number or null, got NaN"),
+    "a confidence of 2": (lambda d: d["cameras"]["01_01"]["joints"][1][0].__setitem__(2, 2.0),
+                          "cameras.01_01.joints[1][0][2]: confidence 2 outside [0, 1]"),
+    "cameras removed": (lambda d: d.pop("cameras"), "cameras: missing"),
+    "an unknown field": (lambda d: d.__setitem__("time_ms", [1.0]), "time_ms: unknown field"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(DETECTIONS_CASES))
+def test_triangulate_refuses_a_malformed_detections_file(tmp_path, monkeypatch, capsys, case):
+    from .input_schemas import FILES as REGISTRY
+    from .recon_helpers import real_bundle
+
+    example = next(f for f in REGISTRY if f.name == "detections JSON").example()
+    write_bundle(real_bundle(kinect=False, n_vga=40), tmp_path / "b")
+    edit, words = DETECTIONS_CASES[case]
+    edit(example)
+    path = tmp_path / "det.json"
+    path.write_text(json.dumps(example))
+    out = tmp_path / "sk"
+    done = _run("dome-calib", ["triangulate", path, "--bundle", tmp_path / "b", "-o", out], monkeypatch, capsys)
+    _one_line(done, f"{path}: {words}")
+    assert not out.exists()
+
+
 REPORT_CASES = {  # the report's own files; more in tests/test_report_files.py and, in Chromium, test_report_page.py
     "report.json": (lambda d: d["found"]["reasons"].__setitem__("01_03", "moved"),
                     'found.reasons.01_03: expected a non-empty list of objects with code, text, got "moved"'),
@@ -219,5 +249,5 @@ def test_report_refuses_a_malformed_report_file(tmp_path, monkeypatch, capsys, n
 def test_every_input_file_of_the_page_has_a_case_here():
     covered = {"capture.json", "session.json", "timestamps.json", "calibration_<seq>.json", "kcalibration_<seq>.json",
                "synctables_<seq>.json", "ksynctables_<seq>.json", "OpenPose JSON", "camera map", "dome_session.json",
-               "report/report.json", "report/session.json", "report/sync.json"}
+               "report/report.json", "report/session.json", "report/sync.json", "detections JSON"}
     assert covered == NAMES

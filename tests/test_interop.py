@@ -272,7 +272,7 @@ def test_colmap_models_written_by_pycolmap_import_as_pycolmap_projects(tmp_path,
     rec.write_text(str(tmp_path / "model"))
     import_calibration(tmp_path / "model", "colmap", tmp_path / "b", ImportOptions(unit="m"))
     bundle = load_bundle(tmp_path / "b")
-    assert list(bundle.cameras) == ["frames/img1", "frames/img2", "frames/img3"]
+    assert list(bundle.cameras) == ["frames_img1", "frames_img2", "frames_img3"]  # a camera name is a file name
     for image_id, (name, cam) in zip(sorted(rec.images), bundle.cameras.items()):
         X_cm = world_points_cm(cam)
         image = rec.images[image_id]

@@ -228,8 +228,9 @@ def test_later_passes_take_the_detections_the_first_one_kept(group, tmp_path):
     class Remote:
         remote = True
 
-    with kept_detections(plan.source, Remote()) as source:
-        assert source is plan.source
+    with kept_detections(plan.source, Remote()) as source:  # no folder kept; each file's digest for the workers
+        assert source.cache_dir is None and source.files is plan.source.files
+        assert sorted(source.digests) == sorted(plan.source.files)
 
 
 def test_kept_detections_come_back_as_read(tmp_path):

@@ -49,12 +49,13 @@ def _copy(det):
     return json.loads(json.dumps(det))
 
 
-def test_one_nan_confidence_drops_only_that_detection(session, tmp_path):
+def test_one_null_confidence_drops_only_that_detection(session, tmp_path):
+    """null: not detected (NaN, which JSON lacks, is refused naming its place: the detections file's schema)."""
     root, bundle, det = session
     det = _copy(det)
     vga = bundle.sync.streams["vga"]
     first = det["cameras"]["01_01"]["frames"][0]
-    det["cameras"]["01_01"]["joints"][0][4][2] = float("nan")  # camera 01_01, its first frame, joint 4
+    det["cameras"]["01_01"]["joints"][0][4][2] = None  # camera 01_01, its first frame, joint 4
     summary = triangulate_file(root / "bundle", _write(tmp_path, det), tmp_path / "sk")
     files = sorted((tmp_path / "sk").glob("body3DScene_*.json"))
     numbers = [int(f.stem.split("_")[1]) for f in files]
@@ -65,7 +66,9 @@ def test_one_nan_confidence_drops_only_that_detection(session, tmp_path):
     assert np.linalg.norm(X[ok] - skeleton_cm(np.array([t_ms]))[0][ok], axis=-1).mean() < MEAN_TOL_CM
 
 
-@pytest.mark.parametrize(("value", "shown"), [(10.72, "10.72"), (-0.3, "-0.3"), (float("inf"), "inf")])
+@pytest.mark.parametrize(("value", "shown"), [(10.72, "confidence 10.72 outside [0, 1]"),
+                                              (-0.3, "confidence -0.3 outside [0, 1]"),
+                                              (float("inf"), "expected a finite number or null, got Infinity")])
 def test_confidence_outside_0_1_is_one_line_naming_camera_frame_joint(session, tmp_path, value, shown):
     root, _, det = session
     det = _copy(det)
@@ -76,7 +79,7 @@ def test_confidence_outside_0_1_is_one_line_naming_camera_frame_joint(session, t
         triangulate_file(root / "bundle", path, tmp_path / "sk")
     message = str(err.value)
     assert "\n" not in message and message.startswith(path)
-    assert f"camera 09_04: frame {frame}: joint 7: confidence {shown} outside [0, 1]" in message
+    assert f"cameras.09_04.joints[2][7][2]: {shown}" in message and frame == det["cameras"]["09_04"]["frames"][2]
     assert not (tmp_path / "sk").exists()
 
 
@@ -94,7 +97,7 @@ def test_all_times_outside_the_sync_span_is_an_error(session, tmp_path):
     root, _, det = session
     det = {**_copy(det), "times_ms": [5000.0, 5040.0, 9000.0]}
     path = _write(tmp_path, det)
-    with pytest.raises(ReconError, match=r"field 'times_ms': none of the 3 times lies within") as err:
+    with pytest.raises(ReconError, match=r"times_ms: none of the 3 times lies within") as err:
         triangulate_file(root / "bundle", path, tmp_path / "sk")
     assert "(vga " in str(err.value) and "\n" not in str(err.value)
     assert not (tmp_path / "sk").exists()

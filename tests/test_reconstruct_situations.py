@@ -102,10 +102,13 @@ def test_an_empty_result_says_what_dropped_it(shared, dome_calib_cli, tmp_path, 
         names = sorted(p.name for p in det.iterdir())
         args = ["--camera-map", ",".join(f"{a}={b}" for a, b in zip(names, names[1:] + names[:1]))]
         expect = "but none was seen alike by --min-views 3 cameras"
-    else:
+    else:  # people at one time of three (a session of 1 or 2 times keeps the people seen in it: issue 50)
         for f in det.rglob("*.json"):
-            if int(f.stem.split("_")[-2]) > 41:
+            if int(f.stem.split("_")[-2]) > 42:
                 f.unlink()
+            elif int(f.stem.split("_")[-2]) > 40:
+                f.write_text('{"version": 1.3, "people": []}')
+        args = ["--body-model", "COCO_18"]
         expect = "none was tracked over 3 times"
     out = _run(dome_calib_cli, det, shared / "bundle", tmp_path / "out", *args)
     assert out.returncode == 0, out.stderr

@@ -86,7 +86,8 @@ def _line(doc) -> str:
     (("streams", "a b\n"), {"file": 3}, 'streams["a b\\n"].file: expected a string, got 3'),
     (("version",), [1], "version: expected a finite number or a string or null, got [1]"),
     (("tags",), ["x", "y", "x"], 'tags[2]: "x" is listed twice'),
-    (("seq",), "../up", 'seq: expected a plain name (no \'/\', not \'.\' or \'..\', printable), got "../up"'),
+    (("seq",), "../up", 'seq: expected a plain name (no \'/\', not \'.\' or \'..\', printable, at most 50 characters), '
+                        'got "../up": it holds a path separator'),
     (("count",), "many", 'count: expected a count of things, got "many"'),
 ])
 def test_one_line_names_the_field_path_what_was_expected_and_what_was_found(path, value, expected):

@@ -14,10 +14,10 @@ Every output element is written by one thread, and every sum runs over the obser
 """
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from dome_calib.ba.threads import run_in_threads
+from dome_calib.jit import njit
 
 
 def camera_ranges(act_starts: np.ndarray, n_jobs: int) -> list[tuple[int, int]]:
@@ -30,7 +30,7 @@ def camera_ranges(act_starts: np.ndarray, n_jobs: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+@njit(nogil=True, boundscheck=False)
 def _camera_blocks(Jc, wr, w, act_index, free, act_starts, a_lo, a_hi, U, g_c):  # pragma: no cover - compiled
     """Cameras a_lo..a_hi-1: zero the fixed columns of their Jacobians (in place), U_a = sum w Jc^T Jc,
     g_a = sum Jc^T w r."""
@@ -59,7 +59,7 @@ def _camera_blocks(Jc, wr, w, act_index, free, act_starts, a_lo, a_hi, U, g_c): 
                 U[a, d, c] = U[a, c, d]
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+@njit(nogil=True, boundscheck=False)
 def _point_blocks(Jp, wr, w, pt, V, g_p):  # pragma: no cover - compiled
     """Every point: V_p = sum w Jp^T Jp, g_p = sum Jp^T w r (all observations, fixed cameras' too)."""
     for i in range(len(pt)):
@@ -99,7 +99,7 @@ def linearize_blocks(Jc: np.ndarray, Jp: np.ndarray, res: np.ndarray, w: np.ndar
     return U, g_c, V, g_p
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+@njit(nogil=True, boundscheck=False)
 def _y_rows(Jc, Jp, w, act_index, pt_act, pt_pos, Li, h, cols, act_starts, a_lo, a_hi, ypt, rc
             ):  # pragma: no cover - compiled
     """Cameras a_lo..a_hi-1: for each of their observations i of point p, y_i = Jc_i^T w Jp_i L_p^-T (k x 3,
@@ -154,7 +154,7 @@ def y_blocks(Jc: np.ndarray, Jp: np.ndarray, w: np.ndarray, Li: np.ndarray, h: n
     return ypt, rc
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+@njit(nogil=True, boundscheck=False)
 def _point_step(Li, h, ypt, cam_pt, pt_ptr, cols, dc, live, dp):  # pragma: no cover - compiled
     """dp_p = -L_p^-T (L_p^-1 g_p + sum_i y_i^T dc_a) for every point (zero if not refined)."""
     k = len(cols)

@@ -8,16 +8,16 @@ at a time from the rows ``idx`` names is a plain memory stream: the same values,
 """
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from dome_calib.ba.threads import run_in_threads
+from dome_calib.jit import njit
 
 #: Below this many entries numpy's fancy indexing is as fast and needs no compiled kernel.
 _COMPILED_MIN = 256 * 256
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+@njit(nogil=True, boundscheck=False)
 def _gather_rows(S, idx, out, lo, hi):  # pragma: no cover - compiled
     k = idx.shape[0]
     for r in range(lo, hi):

@@ -15,15 +15,15 @@ because the tent points' camera sets differ too much).
 """
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from dome_calib.ba.threads import run_in_threads
+from dome_calib.jit import njit
 
 LANES = 4  # block width padded to a multiple of this (15 -> 16: aligned SIMD rows)
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+@njit(nogil=True, boundscheck=False)
 def _rows_kernel(S4, ypt, cam_pt, pt_ptr, pos, pt, act_starts, rows, nk):  # pragma: no cover - compiled
     A = S4.shape[0]
     W = ypt.shape[2]

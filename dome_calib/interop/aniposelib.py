@@ -22,7 +22,7 @@ from pydantic import AfterValidator, ConfigDict, Field, model_validator
 from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written
 from dome_calib.interop.fields import CameraMatrix, Distortion, RotationVector, SidePxNumber, Translation
 from dome_calib.rotation import matrix_to_rotvec, rotvec_to_matrix
-from dome_calib.schema import OpenSchema, Vec, read_toml
+from dome_calib.schema import CameraName, OpenSchema, Vec, read_toml
 
 
 def section_names(count: int) -> list[str]:
@@ -40,7 +40,7 @@ def _pinhole(fisheye: bool) -> bool:
 class CameraTable(OpenSchema):
     """One camera of an aniposelib or Pose2Sim calibration (other keys are the peer's and ignored)."""
 
-    name: Annotated[str, Field(min_length=1)]
+    name: CameraName
     size: Vec(2, SidePxNumber) = Field(description="[width, height] px (Pose2Sim writes them as floats)")
     matrix: CameraMatrix
     distortions: Distortion

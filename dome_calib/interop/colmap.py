@@ -10,8 +10,10 @@ quaternion ``QW QX QY QZ``), the world's unit is whatever the reconstruction had
 of the top-left pixel at (0.5, 0.5): principal points are ours + 0.5.
 
 Import: any model pycolmap reads (``Reconstruction(folder)``); every registered image becomes one camera named
-after its image file (without extension). Camera models ``SIMPLE_PINHOLE``, ``PINHOLE``, ``SIMPLE_RADIAL``,
-``RADIAL``, ``OPENCV`` and ``FULL_OPENCV`` with k4 = k5 = k6 = 0 map exactly onto ours; any other is refused.
+after its image file (without extension; the folders of its path joined by "_": ``frames/img1.jpg`` is
+``frames_img1``, since a camera name is a file name). Camera models ``SIMPLE_PINHOLE``, ``PINHOLE``,
+``SIMPLE_RADIAL``, ``RADIAL``, ``OPENCV`` and ``FULL_OPENCV`` with k4 = k5 = k6 = 0 map exactly onto ours; any
+other is refused.
 """
 from __future__ import annotations
 
@@ -26,7 +28,7 @@ from pydantic import Field, ValidationInfo, field_validator
 from dome_calib.camera import COLMAP_PIXEL_OFFSET_PX
 from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, label
 from dome_calib.interop.fields import Bounded, SidePx, Translation
-from dome_calib.schema import FileSchema, Vec, validate
+from dome_calib.schema import CameraName, FileSchema, Vec, validate
 
 logger = logging.getLogger(__name__)
 
@@ -85,7 +87,29 @@ def write(cams: list[ForeignCamera], folder: Path, unit: str, options: object = 
     """Write the model into ``folder`` (an empty staging folder) with pycolmap's own writer."""
     rec = build_reconstruction(cams)
     (rec.write_text if getattr(options, "binary", True) is False else rec.write_binary)(str(folder))
+    check_written(rec, folder)
     return Written(dropped=["points3D written empty: the bundle keeps its residuals, not the observed points"])
+
+
+def check_written(rec: pycolmap.Reconstruction, folder: Path) -> None:
+    """pycolmap's writer does not report a failed write (a full disk left cut files, exit 0, and pycolmap read them
+    back with garbage distortion): the files are read back and must hold the model written, camera by camera and
+    image by image, or InteropError naming the folder (the staging folder is then removed)."""
+    try:
+        back = pycolmap.Reconstruction(str(folder))
+        same = (sorted(back.cameras) == sorted(rec.cameras) and sorted(back.images) == sorted(rec.images)
+                and all(back.cameras[i].model == c.model and back.cameras[i].width == c.width
+                        and back.cameras[i].height == c.height
+                        and np.allclose(back.cameras[i].params, c.params, rtol=1e-9, atol=0)
+                        for i, c in rec.cameras.items())
+                and all(back.images[i].name == im.name for i, im in rec.images.items()))
+    except Exception as exc:  # pycolmap raises plain RuntimeError / ValueError for unreadable files
+        same, why = False, str(exc).strip().splitlines()[-1][:100] if str(exc).strip() else type(exc).__name__
+    else:
+        why = "what was read differs from what was written"
+    if not same:
+        raise InteropError(f"{folder}: the COLMAP model written does not read back ({why}): is the disk full? Free "
+                           "space or write elsewhere")
 
 
 def _model_files(folder: Path) -> None:
@@ -101,7 +125,7 @@ class ColmapImage(FileSchema):
     """One registered image of a COLMAP model as pycolmap read it: its camera (model, size, parameters in COLMAP
     pixels) and its pose (world to camera). pycolmap parses the files; this checks what it found."""
 
-    name: str = Field(min_length=1)
+    name: CameraName
     model: str
     width: SidePx
     height: SidePx
@@ -159,7 +183,7 @@ def read(folder: Path, options: ImportOptions) -> Read:
     cams, unposed = [], []
     for image_id in sorted(rec.images):
         image = rec.images[image_id]
-        name = str(PurePosixPath(image.name).with_suffix(""))
+        name = str(PurePosixPath(image.name).with_suffix("")).replace("/", "_")  # images/cam1/0.jpg: a plain name
         if not image.has_pose:
             unposed.append(name)
             continue

@@ -23,7 +23,7 @@ from dome_calib.errors import BundleFormatError
 from dome_calib.interop.fields import ROTATION_EXACT_TOL, rotation_error
 from dome_calib.interop.registry import UNIT_CHOICES
 from dome_calib.options import AtLeast, Field, options
-from dome_calib.schema import PosFinite
+from dome_calib.schema import PLAIN_NAME_HELP, PosFinite, name_problem
 
 logger = logging.getLogger(__name__)
 
@@ -215,6 +215,11 @@ def to_bundle(cams: list[ForeignCamera], cm_per_file_unit: float, world_up: str,
             raise InteropError(f"{path}: camera {label(cam.name)}: name: duplicate camera name")
         seen.add(cam.name)
     names = rename([c.name for c in cams], options.names, str(path))
+    for old, name in zip([c.name for c in cams], names):  # a camera's name becomes file names: one rule for all
+        problem = name_problem(name)
+        if problem is not None:
+            raise InteropError(f"{path}: camera {label(old)}: name {label(name)} {problem}: a camera name is a plain "
+                               f"name ({PLAIN_NAME_HELP}); give --names {label(old)}=NEW")
     cameras: dict[str, Camera] = {}
     repaired = []
     for name, cam in zip(names, cams):

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
+import numpy as np
+
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.interop.common import (ExportOptions, ExportResult, ImportOptions, InteropError, cm_per_unit,
@@ -135,7 +137,30 @@ def read_foreign(src: str | Path, fmt: str, options: ImportOptions | None = None
     scale = cm_per_unit(unit, options.square_size_mm, str(read.path))
     turned = "" if up == "-y" else f", its up axis {up} turned to -y"
     source = f"imported from {info.name} ({read.path.name}, unit {unit}{turned})"
-    return to_bundle(read.cameras, scale, up, options, read.path, source), unit
+    bundle = to_bundle(read.cameras, scale, up, options, read.path, source)
+    warn_implausible_size(bundle, read.path, unit, fixed=stated is not None)
+    return bundle, unit
+
+
+#: The sizes a rig has: its cameras span more than 1 cm (a stereo pair's baseline) and less than 100 m (a stadium).
+RIG_SPAN_CM = (1.0, 1e4)
+
+
+def warn_implausible_size(bundle: Bundle, path: Path, unit: str, *, fixed: bool) -> None:
+    """One warning naming ``--unit`` when the cameras span a size no rig has (:data:`RIG_SPAN_CM`): a file in m
+    read as mm is 1000x too small, in mm read as m 1000x too large (a 5 km dome), and both still load."""
+    centres = np.array([c.center_cm for c in bundle.cameras.values()])
+    if len(centres) < 2:
+        return
+    span = float(np.linalg.norm(centres.max(0) - centres.min(0)))
+    low, high = RIG_SPAN_CM
+    if low <= span <= high:
+        return
+    said = f"{span / 1e5:.3g} km" if span >= 1e5 else f"{span / 100:.3g} m" if span >= 100 else f"{span * 10:.3g} mm"
+    fix = ("the file or its format states it, so --unit cannot change it: is the file in that unit?" if fixed else
+           "if the file is in another unit, give --unit (mm, cm, m)")
+    logger.warning("%s: the %d cameras span %s, %s than any rig (%g cm to %g m), read in %s: %s", path, len(centres),
+                   said, "larger" if span > high else "smaller", low, high / 100, unit, fix)
 
 
 def check_import_output(out: Path, seq: str, src: str | Path) -> None:

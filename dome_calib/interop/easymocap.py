@@ -30,7 +30,7 @@ from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError
 from dome_calib.interop.fields import (CameraMatrix, Distortion, RotationMatrix, RotationVector, SidePx,
                                        Translation)
 from dome_calib.rotation import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
-from dome_calib.schema import FileSchema, OpenSchema, read_yaml, validate
+from dome_calib.schema import CameraName, FileSchema, OpenSchema, path_of_name, read_yaml, validate
 
 FILES = ("intri.yml", "extri.yml")
 #: ``R_`` and ``Rot_`` of one camera may differ by this much (EasyMocap writes both with 6 decimals).
@@ -53,7 +53,7 @@ class CalibrationFile(OpenSchema):
     entries, checked camera by camera (:class:`Intrinsics`, :class:`Extrinsics`)."""
 
     model_config = ConfigDict(extra="allow")
-    names: list[Annotated[str, Field(min_length=1)] | int] = Field(min_length=1)
+    names: list[CameraName | int] = Field(min_length=1)
 
     def strings(self) -> list[str]:
         return [str(n) for n in self.names]
@@ -126,7 +126,7 @@ def _write_names(fs: cv2.FileStorage, names: list[str]) -> None:
 
 def _image_size(folder: Path, name: str) -> tuple[int, int] | None:
     """(width, height) of the first image in ``folder/images/<name>/`` (EasyMocap's data layout), if any."""
-    images = folder / "images" / name
+    images = path_of_name(folder / "images", name)
     if not images.is_dir():
         return None
     for path in sorted(p for p in images.iterdir() if p.suffix.lower() in _IMAGE_SUFFIXES):

@@ -12,7 +12,7 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import AfterValidator, BeforeValidator, Field
 
-from dome_calib.schema import Finite, Vec
+from dome_calib.schema import Finite, Vec, show
 
 #: Largest plausible magnitude of a pixel value (focal length, principal point) and of a distortion term.
 LIMIT_PX = 1e6
@@ -35,7 +35,7 @@ SidePx = Annotated[int, Field(ge=1, le=LIMIT_SIZE_PX)]
 
 def _integral(value: float) -> float:
     if not float(value).is_integer():
-        raise ValueError(f"expected a whole number of pixels, got {value!r}")
+        raise ValueError(f"expected a whole number of pixels, got {show(value)}")
     return value
 
 

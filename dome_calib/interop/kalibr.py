@@ -25,7 +25,7 @@ from pydantic import ConfigDict, model_validator
 
 from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read
 from dome_calib.interop.fields import Bounded, DistTerm, RigidTransform, SidePx
-from dome_calib.schema import OpenSchema, Vec, validate
+from dome_calib.schema import OpenSchema, Vec, refuse_alias_bombs, show, validate
 
 _CAM = re.compile(r"cam(0|[1-9][0-9]*)")
 
@@ -43,11 +43,11 @@ class KalibrCamera(OpenSchema):
     @model_validator(mode="after")
     def _pinhole(self) -> KalibrCamera:
         if self.camera_model != "pinhole":
-            raise ValueError(f"camera_model {self.camera_model!r} cannot be represented (pinhole only)")
+            raise ValueError(f"camera_model {show(self.camera_model)} cannot be represented (pinhole only)")
         if len(self.intrinsics) != 4 or not (self.intrinsics[0] > 0 and self.intrinsics[1] > 0):
             raise ValueError(f"intrinsics: expected [fu, fv, pu, pv] with fu, fv > 0, got {self.intrinsics}")
         if self.distortion_model not in ("radtan", "none"):
-            raise ValueError(f"distortion_model {self.distortion_model!r} cannot be represented (radtan or none: "
+            raise ValueError(f"distortion_model {show(self.distortion_model)} cannot be represented (radtan or none: "
                              "OpenCV's [k1, k2, p1, p2])")
         if self.distortion_model == "radtan" and len(self.distortion_coeffs) != 4:
             raise ValueError(f"distortion_coeffs: {len(self.distortion_coeffs)} terms, radtan has 4 [k1, k2, r1, r2]")
@@ -96,10 +96,11 @@ def _load(path: Path) -> Any:
     except UnicodeDecodeError:
         raise InteropError(f"{path}: not a UTF-8 text file (expected Kalibr's camchain.yaml)") from None
     try:
-        return yaml.safe_load(text)
+        data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise InteropError(f"{path}: not YAML ({str(exc).splitlines()[0]}); expected Kalibr's camchain.yaml") \
             from None
+    return refuse_alias_bombs(data, path, InteropError)
 
 
 def read(path: Path, options: ImportOptions) -> Read:

@@ -31,7 +31,7 @@ from dome_calib.camera import COLMAP_PIXEL_OFFSET_PX
 from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, label
 from dome_calib.interop.fields import Bounded, DistTerm, Length, SidePxNumber, check_rotation
 from dome_calib.interop.registry import UNITS
-from dome_calib.schema import OpenSchema, Vec, read_json
+from dome_calib.schema import CameraName, OpenSchema, Vec, read_json
 
 #: Panoptic world -> z-up world: x kept, y_new = z, z_new = -y (up = -y becomes +z). det +1.
 Z_UP_FROM_PANOPTIC = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
@@ -69,7 +69,7 @@ class Frame(Intrinsics):
     """One frame: one camera."""
 
     file_path: Annotated[str, Field(min_length=1)] | None = None
-    camera_name: Annotated[str, Field(min_length=1)] | None = None
+    camera_name: CameraName | None = None
     transform_matrix: Annotated[list[Vec(4, Length)], Field(min_length=3, max_length=4)]
 
     @model_validator(mode="after")

@@ -23,7 +23,7 @@ from pydantic import ConfigDict, model_validator
 
 from dome_calib.interop.aniposelib import CameraTable, camera_table
 from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, label
-from dome_calib.schema import OpenSchema, read_toml
+from dome_calib.schema import OpenSchema, read_toml, show
 
 #: Top-level tables Pose2Sim reads as settings, not cameras (``common.py: retrieve_calib_params``).
 SETTINGS = ("metadata", "capture_volume", "charuco", "checkerboard")
@@ -40,11 +40,11 @@ class Pose2SimMetadata(OpenSchema):
     @model_validator(mode="after")
     def _pose2sims(self) -> Pose2SimMetadata:
         if self.written_by is not None and self.written_by != WRITTEN_BY:
-            raise ValueError(f"this file was written by {self.written_by!r}, not for Pose2Sim (lengths in "
+            raise ValueError(f"this file was written by {show(self.written_by)}, not for Pose2Sim (lengths in "
                              f"{self.unit or 'its unit'}, not metres): import it with --from "
                              f"{self.written_by.rsplit(' ', 1)[-1]}")
         if self.unit is not None and self.unit != "m":
-            raise ValueError(f"the file states unit {self.unit!r}; Pose2Sim calibrations are in metres (is this "
+            raise ValueError(f"the file states unit {show(self.unit)}; Pose2Sim calibrations are in metres (is this "
                              "another tool's file? aniposelib's: --from aniposelib)")
         return self
 

@@ -26,7 +26,7 @@ from pydantic import BeforeValidator, Field, model_validator
 
 from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read
 from dome_calib.interop.fields import ROTATION_REPAIR_TOL, rotation_error
-from dome_calib.schema import OpenSchema, validate
+from dome_calib.schema import OpenSchema, show, validate
 
 logger = logging.getLogger(__name__)
 
@@ -61,7 +61,7 @@ class FovVideo(OpenSchema):
     def _range(self) -> FovVideo:
         for v in (self.left, self.top, self.right, self.bottom):
             if not float(v).is_integer():
-                raise ValueError(f"expected whole pixel numbers, got {v!r}")
+                raise ValueError(f"expected whole pixel numbers, got {show(v)}")
         if not (self.right > self.left and self.bottom > self.top):
             raise ValueError(f"empty image (left {self.left:g}, right {self.right:g}, top {self.top:g}, bottom "
                              f"{self.bottom:g})")

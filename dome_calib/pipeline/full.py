@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dome_calib.align import require_shared
 from dome_calib.bundle import CameraType, camera_type_from_name
 from dome_calib.pipeline.capture import capture_contents, capture_nodes
 from dome_calib.pipeline.cluster import (check_scheduler, cluster_section, format_cluster, open_executor,
@@ -78,6 +79,7 @@ def run_calibration(capture: Path, out: Path, options: CalibrateOptions | None =
         load_bundle(options.previous)
     if prior is not None:
         check_dome_scale(prior.cameras, f"--prior {options.prior}")
+        require_shared(expected, prior.cameras, given=f"--prior {options.prior}", against=f"the capture {capture}")
     check_scheduler(options.scheduler)  # a bounded handshake, before the work folder is opened (or emptied)
     inputs = CalibrationInputs(capture=capture, out=out, seq=seq, scenes=scenes,
                                expected=expected, prior=prior, options=options)

@@ -24,7 +24,7 @@ from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, p
 from dome_calib.recon.streams import stream_of_camera
 from dome_calib.skeletons.errors import PeopleFileError
 from dome_calib.skeletons.page import MAX_DETECTED_PEOPLE, PAGE_FILE, CameraDetections, write_people_page
-from dome_calib.skeletons.scenes import People, read_people
+from dome_calib.skeletons.scenes import People, read_people, with_rate
 
 logger = logging.getLogger(__name__)
 
@@ -103,7 +103,8 @@ def build_people_page(people_folder: str | Path, *, out: str | Path | None = Non
                               "universal time and compared with the reprojected bodies")
     page = Path(out) if out is not None else Path(people_folder) / PAGE_FILE
     claim_file(page, inputs=_inputs(people_folder, bundle, detections))  # before any reading
-    people = read_people(people_folder, progress=progress)
+    people = with_rate(read_people(people_folder, progress=progress),  # the page plays at the folder's rate
+                       remedy="the page plays the files at their fpsType's rate or their times' (give an fpsType)")
     cal = load_bundle(bundle) if isinstance(bundle, (str, Path)) else bundle
     det, notes = ([], [])
     if detections is not None and cal is not None:

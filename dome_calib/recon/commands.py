@@ -52,7 +52,7 @@ def triangulate_file(bundle_folder: str | Path, detections: str | Path, out: str
     else:
         times, numbers, ref = default_times(streams, parsed["reference"])
         fps_type = fps_type_of(ref, explicit_times=False)
-    check_times(detections, streams, times)
+    used = check_times(detections, streams, times)  # the streams that reach the times (the others said once)
     views = view_set(bundle, [n for s in streams for n in s.cameras])
     total = len(times)
     seq = triangulate_streams(views, streams, times, options,
@@ -62,7 +62,7 @@ def triangulate_file(bundle_folder: str | Path, detections: str | Path, out: str
     inl = seq.n_inliers[ok]
     return TriangulateSummary(out=Path(out), times=total, joints=seq.X_cm.shape[1], reconstructed=int(ok.sum()),
                               median_inlier_views=float(np.median(inl)) if inl.size else 0.0,
-                              streams=[s.stream for s in streams])
+                              streams=used)
 
 
 @dataclass(frozen=True)

@@ -19,110 +19,98 @@ import json
 import logging
 import re
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
+from pydantic import model_validator
 
+from dome_calib.arrays import per_row
 from dome_calib.bundle import Bundle
+from dome_calib.bundle_schema import FrameIndex
 from dome_calib.ownership import replace_folder
 from dome_calib.recon.errors import ReconError
+from dome_calib.schema import INT64_MAX, CameraName, Field, FieldError, FileSchema, Finite, Vec, read_json
 from dome_calib.recon.streams import SkeletonSequence, StreamTracks, group_by_stream
 
 FPS_TYPE = {"vga": "vga_25", "hd": "hd_29_97"}
-KNOWN_KEYS = {"joints", "body_id", "reference", "times_ms", "cameras"}
 SKELETON_FILE = re.compile(r"body3DScene_-?\d+\.json")
 
 logger = logging.getLogger(__name__)
 
-
-def _fail(path: Path, where: str, problem: str) -> ReconError:
-    return ReconError(f"{path}: {where}: {problem}")
-
-
-def _numbers(value: object) -> np.ndarray | None:
-    """A JSON list of numbers -> float array, null read as NaN; None if it holds strings, booleans or objects, or
-    is ragged."""
-    try:
-        arr = np.asarray(value)
-    except (TypeError, ValueError, OverflowError):
-        return None
-    if arr.dtype.kind == "O" and all(v is None or type(v) in (int, float) for v in arr.flat):
-        try:
-            return np.array([np.nan if v is None else v for v in arr.flat], dtype=float).reshape(arr.shape)
-        except OverflowError:
-            return None
-    return arr.astype(float) if arr.dtype.kind in "iuf" else None
+#: u, v or c of one joint: a finite number, or null (not detected). NaN is refused as in every file (JSON has no
+#: NaN; Python's json writes it for a float NaN: write None).
+Value = Finite | None
 
 
-def _confidence(path: Path, where: str, frames: np.ndarray, joints: np.ndarray) -> np.ndarray:
-    """Confidences (F, J) of ``[u, v, c]`` joints: NaN in u, v or c means not detected (c = 0); c outside [0, 1]
-    or an infinite pixel is refused, naming the frame and joint."""
-    uv, conf = joints[..., :2], joints[..., 2]
-    bad = (conf < 0) | (conf > 1) | np.any(np.isinf(uv), axis=-1)
-    if np.any(bad):
-        f, j = np.argwhere(bad)[0]
-        u, v, c = joints[f, j]
-        problem = f"confidence {c:g} outside [0, 1]" if not 0 <= c <= 1 else f"pixel ({u:g}, {v:g}) is not finite"
-        raise _fail(path, f"{where}: frame {int(frames[f])}: joint {int(j)}",
-                    f"{problem} (NaN means not detected){f'; {int(bad.sum())} such values' if bad.sum() > 1 else ''}")
-    return np.where(np.isnan(conf) | np.any(np.isnan(uv), axis=-1), 0.0, conf)
+class CameraDetections(FileSchema):
+    """One camera's detections: ``frames`` its own stream's frame indices, increasing; ``joints`` per frame the
+    body's joints ``[u, v, c]`` (px, OpenCV pixel centres; c in [0, 1]; null in any of them: not detected)."""
+
+    frames: Annotated[list[FrameIndex], Field(min_length=1)] = Field(description="frame indices, increasing")
+    joints: list[list[Vec(3, Value)]] = Field(description="frames x joints x [u, v, c]")
+
+    @model_validator(mode="after")
+    def _shaped(self) -> CameraDetections:
+        for k in range(1, len(self.frames)):
+            if self.frames[k] <= self.frames[k - 1]:
+                raise FieldError(("frames", k), f"frame {self.frames[k]} after {self.frames[k - 1]}: frame indices "
+                                                "must increase")
+        if len(self.joints) != len(self.frames):
+            raise FieldError(("joints",), f"{len(self.joints)} frames of joints for {len(self.frames)} frames "
+                                          "(expected one per frame)")
+        for f, row in enumerate(self.joints):
+            if len(row) != len(self.joints[0]):
+                raise FieldError(("joints", f), f"{len(row)} joints, frame {self.frames[0]} has "
+                                                f"{len(self.joints[0])} (one body model per file)")
+            for j, (_, _, c) in enumerate(row):
+                if c is not None and not 0.0 <= c <= 1.0:
+                    raise FieldError(("joints", f, j, 2), f"confidence {c:g} outside [0, 1] (null means not "
+                                                          "detected)")
+        return self
+
+
+class DetectionsFile(FileSchema):
+    """``triangulate``'s detections file: one body's 2D joints per camera per frame of that camera's own stream;
+    ``joints`` (default: the files'), ``body_id`` (the id written), ``reference`` (the stream whose frames are the
+    output times: vga, hd, KINECTNODE<n>; default vga, else hd), ``times_ms`` (universal times to reconstruct
+    instead, ms)."""
+
+    joints: Annotated[int, Field(ge=1)] | None = Field(None, description="joints per body (all cameras alike)")
+    body_id: Annotated[int, Field(ge=0, le=INT64_MAX)] = 0
+    reference: Annotated[str, Field(min_length=1)] | None = None
+    times_ms: Annotated[list[Finite], Field(min_length=1)] | None = Field(None, description="universal times, ms")
+    cameras: Annotated[dict[CameraName, CameraDetections], Field(min_length=1)]
+
+    @model_validator(mode="after")
+    def _one_body_model(self) -> DetectionsFile:
+        want = self.joints
+        for name, cam in self.cameras.items():
+            have = len(cam.joints[0]) if cam.joints else want
+            if want is None:
+                want = have
+            if have != want:
+                raise FieldError(("cameras", name, "joints", 0), f"{have} joints but expected {want}"
+                                 + (" (field joints)" if self.joints is not None else " (as the cameras before)"))
+        return self
 
 
 def read_detections(path: str | Path) -> dict:
-    """Parse and validate a detections file -> {"cameras": {name: (frames (F,), uv (F, J, 2), conf (F, J))},
-    "joints", "body_id", "reference", "times_ms"}. Confidences are in [0, 1]; NaN or null (in u, v or c) = not
-    detected, returned as c = 0."""
+    """A detections file (:class:`DetectionsFile`) -> {"cameras": {name: (frames (F,), uv (F, J, 2), conf (F, J))},
+    "joints", "body_id", "reference", "times_ms"}; null (in u, v or c) = not detected, returned as c = 0."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise ReconError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-    if not isinstance(data, dict):
-        raise _fail(path, "top level", "expected an object with 'cameras'")
-    unknown = set(data) - KNOWN_KEYS
-    if unknown:
-        raise _fail(path, "top level", f"unknown key {sorted(unknown)[0]!r} (known: {', '.join(sorted(KNOWN_KEYS))})")
-    cams = data.get("cameras")
-    if not isinstance(cams, dict) or not cams:
-        raise _fail(path, "field 'cameras'", "missing or empty (expected {camera name: {frames, joints}})")
+    data = read_json(path, DetectionsFile, error=ReconError)
     out: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-    n_joints = data.get("joints")
-    if n_joints is not None and (type(n_joints) is not int or n_joints < 1):
-        raise _fail(path, "field 'joints'", f"expected a positive integer (joints per body), got "
-                    f"{json.dumps(n_joints)[:40]}")
-    if data.get("reference") is not None and not isinstance(data["reference"], str):
-        raise _fail(path, "field 'reference'", f"expected a stream name (vga, hd, KINECTNODE<n>), got "
-                    f"{json.dumps(data['reference'])[:40]}")
-    body_id = data.get("body_id", 0)
-    if not isinstance(body_id, int) or isinstance(body_id, bool):
-        raise _fail(path, "field 'body_id'", f"expected an integer, got {json.dumps(body_id)[:40]}")
-    for name, entry in cams.items():
-        where = f"camera {name}"
-        if not isinstance(entry, dict) or "frames" not in entry or "joints" not in entry:
-            raise _fail(path, where, "expected {\"frames\": [...], \"joints\": [[[u, v, c], ...], ...]}")
-        frames, joints = _numbers(entry["frames"]), _numbers(entry["joints"])
-        if frames is None or joints is None:
-            raise _fail(path, where, "frames and joints must be numbers")
-        if (frames.ndim != 1 or not np.all(np.abs(frames) < 2**53) or np.any(frames != np.round(frames))
-                or np.any(np.diff(frames) <= 0)):
-            raise _fail(path, f"{where}: field 'frames'", "expected increasing integer frame indices")
-        if joints.ndim != 3 or joints.shape[0] != len(frames) or joints.shape[2] != 3:
-            raise _fail(path, f"{where}: field 'joints'",
-                        f"shape {joints.shape} but expected ({len(frames)}, J, 3) = frames x joints x [u, v, c]")
-        if n_joints is None:
-            n_joints = joints.shape[1]
-        if joints.shape[1] != n_joints:
-            raise _fail(path, f"{where}: field 'joints'", f"{joints.shape[1]} joints but expected {n_joints}")
-        conf = _confidence(path, where, frames, joints)
-        out[name] = (frames.astype(np.int64), joints[..., :2], conf)
-    times = data.get("times_ms")
-    if times is not None:
-        times = _numbers(times)
-        if times is None or times.ndim != 1 or not times.size:
-            raise _fail(path, "field 'times_ms'", "expected a list of numbers (ms), not empty")
-        if not np.all(np.isfinite(times)):
-            raise _fail(path, "field 'times_ms'", "contains NaN or infinity")
-    return {"cameras": out, "joints": int(n_joints), "body_id": body_id,
-            "reference": data.get("reference"), "times_ms": times}
+    n_joints = data.joints
+    for name, cam in data.cameras.items():
+        joints = np.array([[[np.nan if x is None else x for x in j] for j in row] for row in cam.joints],
+                          dtype=float).reshape(len(cam.frames), -1, 3) if cam.joints else np.zeros((0, 0, 3))
+        uv, conf = joints[..., :2], joints[..., 2]
+        conf = np.where(np.isnan(conf) | np.any(np.isnan(uv), axis=-1), 0.0, conf)
+        out[name] = (np.asarray(cam.frames, dtype=np.int64), uv, conf)
+        n_joints = n_joints or joints.shape[1]
+    times = None if data.times_ms is None else np.asarray(data.times_ms, dtype=float)
+    return {"cameras": out, "joints": int(n_joints), "body_id": data.body_id, "reference": data.reference,
+            "times_ms": times}
 
 
 def default_times(streams: list[StreamTracks], reference: str | None) -> tuple[np.ndarray, np.ndarray, str]:
@@ -134,7 +122,7 @@ def default_times(streams: list[StreamTracks], reference: str | None) -> tuple[n
     name = reference or next((n for n in ("vga", "hd") if n in by_name),
                              max(streams, key=lambda s: len(s.cameras)).stream)
     s = by_name[name]
-    frames = s.frame_index[np.any(s.conf.reshape(len(s.frame_index), -1) > 0, axis=1)]  # NaN: not detected
+    frames = s.frame_index[np.any(per_row(s.conf) > 0, axis=1)]  # NaN: not detected
     try:
         return s.table.times_of(frames), frames, name
     except KeyError as exc:
@@ -150,14 +138,15 @@ def load_detection_streams(bundle: Bundle, path: str | Path) -> tuple[list[Strea
     return group_by_stream(bundle, parsed["cameras"]), parsed
 
 
-def check_times(path: str | Path, streams: list[StreamTracks], times_ms: np.ndarray) -> np.ndarray:
-    """Times against the detections on the sync tables -> (T,) bool, True where some stream has detected frames
-    on both sides (or at) the time. None covered: ReconError; some not: one warning with the counts (their
-    skeletons have no joints). Detected frames missing from their stream's sync table: one warning per stream."""
+def check_times(path: str | Path, streams: list[StreamTracks], times_ms: np.ndarray) -> list[str]:
+    """Times against the detections on the sync tables -> the streams whose detected frames reach some of the
+    times. None covered: ReconError; some not: one warning with the counts (their skeletons have no joints); a
+    stream that reaches none: one warning naming it (its cameras contribute nothing: another session's table?).
+    Detected frames missing from their stream's sync table: one warning per stream."""
     covered = np.zeros(len(times_ms), bool)
-    spans = []
+    spans, used = [], []
     for s in streams:
-        detected = s.frame_index[np.any(s.conf.reshape(len(s.frame_index), -1) > 0, axis=1)]
+        detected = s.frame_index[np.any(per_row(s.conf) > 0, axis=1)]
         timed = np.isin(detected, s.table.index)
         if not np.all(timed):
             logger.warning("%s: stream %s: %d of %d frames with detections are not in the sync table (first: frame "
@@ -166,16 +155,24 @@ def check_times(path: str | Path, streams: list[StreamTracks], times_ms: np.ndar
         if not np.any(timed):
             continue
         t0, t1 = s.table.times_of(detected[timed][[0, -1]])
-        covered |= (times_ms >= t0) & (times_ms <= t1)
+        reach = (times_ms >= t0) & (times_ms <= t1)
+        covered |= reach
         spans.append(f"{s.stream} {t0:.1f}..{t1:.1f} ms")
+        if reach.any():
+            used.append(s.stream)
+        else:
+            logger.warning("%s: stream %s (cameras %s): its detected frames lie at %.1f..%.1f ms, none of the %d "
+                           "times: its cameras contribute nothing (is its sync table the one of this session?)",
+                           path, s.stream, ", ".join(s.cameras[:4]) + (", ..." if len(s.cameras) > 4 else ""),
+                           t0, t1, len(times_ms))
     span_text = "; ".join(spans) or "no detected frame is in a sync table"
     if not covered.any():
-        raise _fail(Path(path), "field 'times_ms'", f"none of the {len(times_ms)} times lies within the detected "
-                    f"frames' universal times ({span_text})")
+        raise ReconError(f"{path}: times_ms: none of the {len(times_ms)} times lies within the detected "
+                         f"frames' universal times ({span_text})")
     if not covered.all():
         logger.warning("%s: %d of %d times lie outside the detected frames' universal times (%s): their skeletons "
                        "have no joints (c = -1)", path, int((~covered).sum()), len(times_ms), span_text)
-    return covered
+    return used
 
 
 def skeleton_json(seq: SkeletonSequence, k: int, *, body_id: int = 0, fps_type: str = "custom") -> dict:

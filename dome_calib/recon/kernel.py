@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from dome_calib.camera import MIN_DEPTH
+from dome_calib.jit import njit
 from dome_calib.recon.project import ViewSet
 
 F32 = np.float32
@@ -145,7 +145,7 @@ def normal_equations(ev: Evaluation, weight: np.ndarray, penalty_px: float) -> t
     return H, g, cost
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+@njit(nogil=True, boundscheck=False)
 def _undistort(u, v, fx, fy, cx, cy, k1, k2, p1, p2, k3, iterations, x_out, y_out):  # pragma: no cover - compiled
     """:meth:`CameraKernel.undistort` of (M, V) float32 pixels: every operation of the numpy code in the same
     order, in float32 (no fused multiply-add: numba contracts nothing without fastmath)."""

@@ -16,9 +16,11 @@ Every problem is one line naming the file, the camera and the frame (:class:`Rec
 """
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 import re
+import socket
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
@@ -29,7 +31,7 @@ from pydantic import AfterValidator, ConfigDict, RootModel
 from dome_calib.recon.body_models import JOINT_NAMES, BodyModel, models_with_joints, parse_body_model, to_joints19
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.joint_order import better_order, order_fits
-from dome_calib.schema import Field, FileSchema, Finite, parse_json, read_json
+from dome_calib.schema import Field, FileSchema, Finite, parse_json, read_json, show
 
 logger = logging.getLogger(__name__)
 
@@ -57,7 +59,7 @@ def _check_keypoints(values: list[float]) -> list[float]:
     negative = np.flatnonzero(a[2::3] < 0)
     if negative.size:
         j = int(negative[0])
-        raise ValueError(f"joint {j}: confidence {values[3 * j + 2]!r} is negative (expected [x_px, y_px, c] with "
+        raise ValueError(f"joint {j}: confidence {show(values[3 * j + 2])} is negative (expected [x_px, y_px, c] with "
                          "c >= 0)")
     return values
 
@@ -161,13 +163,38 @@ class OpenPoseFile(FileSchema):
     part_candidates: list[dict[str, list[Finite]]] = []
 
 
-def _raw_people(path: Path, camera: str, frame: int) -> np.ndarray:
-    """One OpenPose file -> (N, J, 3) keypoints in the file's own order; J fits a model ((0, 0, 3): nobody)."""
+def file_digest(data: bytes) -> bytes:
+    """What a file's bytes are, in 16 bytes (BLAKE2b): the head and each worker of a cluster compare them."""
+    return hashlib.blake2b(data, digest_size=16).digest()
+
+
+def file_digests(files: dict[str, dict[int, Path]]) -> dict[str, dict[int, bytes]]:
+    """camera -> {frame -> :func:`file_digest`} of the files as this machine reads them (the head of a run on a
+    cluster, before its workers read theirs)."""
+    out: dict[str, dict[int, bytes]] = {}
+    for camera, frames in files.items():
+        out[camera] = {}
+        for frame, path in frames.items():
+            try:
+                out[camera][frame] = file_digest(path.read_bytes())
+            except OSError as exc:
+                raise ReconError(f"{path}: camera {camera}: frame {frame}: cannot be read ({exc.strerror})") from None
+    return out
+
+
+def _raw_people(path: Path, camera: str, frame: int, digest: bytes | None = None) -> np.ndarray:
+    """One OpenPose file -> (N, J, 3) keypoints in the file's own order; J fits a model ((0, 0, 3): nobody).
+    ``digest``: what the file's bytes must be (:func:`file_digest` on the head): a worker reading another copy
+    fails naming the file and the machine."""
     where = f"{path}: camera {camera}: frame {frame}"
     try:
         data = path.read_bytes()
     except OSError as exc:
         raise ReconError(f"{where}: cannot be read ({exc.strerror})") from None
+    if digest is not None and file_digest(data) != digest:
+        raise ReconError(f"{where}: its bytes on {socket.gethostname()} (a worker) differ from the file the run "
+                         "indexed on its head: every worker must read the same detections at the same path (another "
+                         "copy, or changed since?)")
     parsed = parse_json(where, data, OpenPoseFile, error=ReconError)
     rows = [np.asarray(body, dtype=float).reshape(-1, 3) for body in (p.body() for p in parsed.people) if body]
     # a person with an empty body (OpenPose's body network off for it) carries nothing
@@ -182,10 +209,10 @@ def _raw_people(path: Path, camera: str, frame: int) -> np.ndarray:
     return np.stack(rows)
 
 
-def _people_of_file(path: Path, camera: str, frame: int,
-                    model: BodyModel | None) -> tuple[np.ndarray, BodyModel | None]:
+def _people_of_file(path: Path, camera: str, frame: int, model: BodyModel | None,
+                    digest: bytes | None = None) -> tuple[np.ndarray, BodyModel | None]:
     """One OpenPose file -> ((N, J, 3) keypoints in the file's model order, the model: given or told by J)."""
-    kp = _raw_people(path, camera, frame)
+    kp = _raw_people(path, camera, frame, digest)
     if not len(kp):
         return np.zeros((0, len(JOINT_NAMES[model]) if model else 0, 3)), model
     J = kp.shape[1]
@@ -302,14 +329,17 @@ def body_model_of(files: dict[str, dict[int, Path]], body_model: BodyModel | str
     return named
 
 
-def read_openpose_files(files: dict[str, dict[int, Path]], model: BodyModel) -> dict[str, dict[int, np.ndarray]]:
-    """Read the files (camera -> {frame -> path}) -> camera -> {frame -> (N, 19, 3) joints19}."""
+def read_openpose_files(files: dict[str, dict[int, Path]], model: BodyModel,
+                        digests: dict[str, dict[int, bytes]] | None = None) -> dict[str, dict[int, np.ndarray]]:
+    """Read the files (camera -> {frame -> path}) -> camera -> {frame -> (N, 19, 3) joints19}; ``digests``: what
+    each file's bytes must be (:func:`file_digests` on the head of a cluster run)."""
     n_joints = len(JOINT_NAMES[model])
     out: dict[str, dict[int, np.ndarray]] = {}
     for camera, frames in files.items():
         out[camera] = {}
         for frame, path in frames.items():
-            kp, _ = _people_of_file(path, camera, frame, model)
+            digest = digests[camera][frame] if digests is not None else None
+            kp, _ = _people_of_file(path, camera, frame, model, digest)
             out[camera][frame] = to_joints19(kp.reshape(-1, n_joints, 3), model)
     return out
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+from dome_calib.align import require_shared
 from dome_calib.bundle_io import load_bundle
 from dome_calib.compare import detect_changes
 from dome_calib.ownership import claim_folder
@@ -41,6 +42,9 @@ def report_bundle(bundle_folder: Path, *, previous: Path | None = None, min_obse
     read_kept(bundle_folder / REPORT_DIR)  # checked now: the page reads them after the report is built
     residuals = load_residuals(bundle_folder)
     prev_bundle = load_bundle(previous) if previous is not None else None  # one line naming a folder that is not one
+    if prev_bundle is not None:  # detect_changes aligns the two frames on the shared cameras
+        require_shared(bundle.cameras, prev_bundle.cameras, given=f"--previous {previous}",
+                       against=f"the bundle {bundle_folder}")
     options = ReportOptions(min_observations=min_observations if min_observations is not None else
                             old.rules.min_observations if old is not None and old.rules is not None else
                             ReportOptions().min_observations)

@@ -24,16 +24,15 @@ and maximum.
 from __future__ import annotations
 
 import base64
-import json
 import logging
 import math
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from dome_calib.errors import BundleFormatError, ReportError
 from dome_calib.io_utils import atomic_write_text
+from dome_calib.pages import render
 from dome_calib.panoptic_io import read_ksynctables, read_synctables
 from dome_calib.report.kept import SessionReport, SyncReport, read_kept
 from dome_calib.report.schema import CameraLens, Report, read_report
@@ -270,18 +269,10 @@ def read_report_folder(folder: Path, residuals: Residuals | None = None) -> dict
                      missing=missing)
 
 
-#: Characters escaped in the inline JSON: none of them can then end the script element, open a comment or a tag
-#: (JSON.parse reads the escapes back).
-_INLINE_ESCAPES = {"<": "\\u003c", ">": "\\u003e", "&": "\\u0026", "\u2028": "\\u2028", "\u2029": "\\u2029"}
-
-
 def render_page(data: dict) -> str:
-    """The page's HTML: the template with ``data`` inline as JSON (:data:`_INLINE_ESCAPES`)."""
-    template = resources.files("dome_calib.report").joinpath("page.html").read_text(encoding="utf-8")
-    text = json.dumps(data, separators=(",", ":"), allow_nan=False)
-    for char, escape in _INLINE_ESCAPES.items():
-        text = text.replace(char, escape)
-    return template.replace("/*__DATA__*/null", text, 1)
+    """The page's HTML: the template through the pages' one module (:func:`dome_calib.pages.render`: shared styles,
+    error handler, escaping helpers, ``data`` inline)."""
+    return render("dome_calib.report", "page.html", data)
 
 
 def write_page(folder: str | Path, residuals: Residuals | None = None) -> Path:

@@ -32,8 +32,8 @@ from pydantic import BaseModel
 from dome_calib.bundle import CameraType, camera_type_from_name
 from dome_calib.errors import ReportError
 from dome_calib.reasons import RULE_CODES, Reason, ReasonCode
-from dome_calib.schema import (Field, FileSchema, Finite, NonNegFinite, NonNegInt, PosFinite, PosInt, Vec, Vec3,
-                               parse_json)
+from dome_calib.schema import (CameraName, Field, FileSchema, Finite, NonNegFinite, NonNegInt, PlainName, PosFinite,
+                               PosInt, Vec, Vec3, parse_json)
 
 REPORT_VERSION = 3
 M = TypeVar("M", bound=BaseModel)
@@ -69,7 +69,7 @@ class Rules(FileSchema):
 class ToCheck(FileSchema):
     """A camera to check (``type`` null: expected but not calibrated) and why."""
 
-    name: Name
+    name: CameraName
     type: CameraType | None
     reasons: Annotated[list[Reason], Field(min_length=1)]
 
@@ -94,9 +94,9 @@ class Findings(FileSchema):
     """What the calibration found beyond the report's rules: reasons per camera, cameras not calibrated (why),
     cameras held (why). A rebuild keeps it."""
 
-    reasons: dict[Name, Annotated[list[Reason], Field(min_length=1)]] = {}
-    missing: dict[Name, Text] = {}
-    held: dict[Name, Text] = {}
+    reasons: dict[CameraName, Annotated[list[Reason], Field(min_length=1)]] = {}
+    missing: dict[CameraName, Text] = {}
+    held: dict[CameraName, Text] = {}
 
 
 class WorldFrame(FileSchema):
@@ -106,10 +106,10 @@ class WorldFrame(FileSchema):
     reference_source: Text
     shared_cameras: NonNegInt
     inliers: NonNegInt
-    outliers: list[Name]
+    outliers: list[CameraName]
     scale: PosFinite
     residual_rms_cm: NonNegFinite
-    not_aligned: list[Name]
+    not_aligned: list[CameraName]
     description: Text
 
 
@@ -140,7 +140,7 @@ class LensModelSection(FileSchema):
     solves: NonNegInt | None = None
     iterations_per_solve: list[NonNegInt] = []
     note: Text = ""
-    cameras: dict[Name, CameraLens] = {}
+    cameras: dict[CameraName, CameraLens] = {}
 
 
 class ClusterStage(FileSchema):
@@ -175,16 +175,16 @@ class Previous(FileSchema):
     source: Text
     seq: Text | None = None
     compared: Text | None = None
-    added: list[Name] = []
-    gone: list[Name] = []
-    cameras: dict[Name, PreviousCamera] = {}
+    added: list[CameraName] = []
+    gone: list[CameraName] = []
+    cameras: dict[CameraName, PreviousCamera] = {}
     error: Text | None = None
 
 
 class CameraChangeRow(FileSchema):
     """A camera changed against the prior (:meth:`dome_calib.compare.CameraChange.as_dict`; null: not comparable)."""
 
-    name: Name
+    name: CameraName
     moved_cm: Finite | None
     rotated_deg: Finite | None
     focal_pct: Finite | None
@@ -205,14 +205,14 @@ class Report(FileSchema):
     per_type: dict[CameraType, TypeStats]
     rules: Rules | None  # null only in a report of layout 1 that did not record them
     to_check: list[ToCheck]
-    per_camera: dict[Name, CameraRow]
+    per_camera: dict[CameraName, CameraRow]
     found: Findings
-    plots: list[Name] = []
+    plots: list[PlainName] = []
     # sections of what the calibration measured beyond the residuals (a rebuild keeps them)
     world_frame: WorldFrame | None = None
     stage_seconds: dict[Name, NonNegFinite] = {}
-    center_sigma_cm: dict[Name, NonNegFinite] = {}
-    rotation_sigma_deg: dict[Name, NonNegFinite] = {}
+    center_sigma_cm: dict[CameraName, NonNegFinite] = {}
+    rotation_sigma_deg: dict[CameraName, NonNegFinite] = {}
     previous: Previous | None = None
     lens_model: LensModelSection | None = None
     cluster: Cluster | None = None
@@ -227,7 +227,7 @@ KEPT_SECTIONS = ("world_frame", "stage_seconds", "center_sigma_cm", "rotation_si
 # ---- the older layouts, as they were -----------------------------------------------------------------------------
 
 class ToCheckV2(FileSchema):
-    name: Name
+    name: CameraName
     type: CameraType | None
     reasons: list[Annotated[str, Field(min_length=1)]]
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import StrEnum
 from fractions import Fraction
 from pathlib import Path
@@ -19,7 +19,7 @@ from dome_calib.schema import NonNegFinite
 from dome_calib.skeletons.bvh import write_bvh
 from dome_calib.skeletons.c3d import write_c3d
 from dome_calib.skeletons.errors import PeopleFileError
-from dome_calib.skeletons.scenes import People, read_people
+from dome_calib.skeletons.scenes import MAX_DENSE_VALUES, People, rate_problem, read_people, with_rate
 from dome_calib.skeletons.trc import write_trc
 
 logger = logging.getLogger(__name__)
@@ -79,8 +79,9 @@ def parse_fps(text: str | None) -> Fraction | None:
         fps = Fraction(text)
     except (ValueError, ZeroDivisionError):
         raise PeopleFileError(f"--fps {text!r}: not a frame rate (e.g. 25, 30 or 30000/1001)") from None
-    if fps <= 0:
-        raise PeopleFileError(f"--fps {text!r}: a frame rate must be > 0")
+    problem = rate_problem(fps)
+    if problem is not None:
+        raise PeopleFileError(f"--fps {text[:40]!r}: {problem}")
     return fps
 
 
@@ -93,8 +94,28 @@ def selected(people: People, options: ExportPeopleOptions) -> People:
             known = ", ".join(map(str, list(tracks)[:20])) + (" ..." if len(tracks) > 20 else "")
             raise PeopleFileError(f"{people.folder}: --ids: no person {unknown[0]} (ids: {known})")
         tracks = {i: tracks[i] for i in options.ids}
-    return People(folder=people.folder, frames=people.frames, times_ms=people.times_ms, fps_type=people.fps_type,
-                  fps=options.fps or people.fps, layout=people.layout, tracks=tracks)
+    return with_rate(replace(people, tracks=tracks), options.fps)
+
+
+def check_dense(people: People, to: PeopleFormat) -> None:
+    """C3D holds every point at every frame number from the first file's to the last's, BVH every joint of a
+    person from its first frame to its last: refuse before work a span that no memory holds (frame numbers 0 and
+    999999999999 in one folder), naming the frames and the limit (:data:`MAX_DENSE_VALUES`)."""
+    J = len(people.joints)
+    if to is PeopleFormat.c3d:
+        spans = [(int(people.frames[-1] - people.frames[0]) + 1, J * len(people.tracks), "the capture")]
+    elif to is PeopleFormat.bvh:
+        spans = [(int(people.frames[t.rows[-1]] - people.frames[t.rows[0]]) + 1, J, f"person {pid}")
+                 for pid, t in people.tracks.items()]
+    else:
+        return  # TRC: one row per file
+    for frames, points, who in spans:
+        if frames * points > MAX_DENSE_VALUES:
+            hours = frames / float(people.fps) / 3600
+            raise PeopleFileError(f"{people.folder}: {who} spans {frames} frame numbers ({hours:.3g} h "
+                                  f"at {float(people.fps):g} fps) x {points} points: a {to.value} file holds every "
+                                  f"frame between, more than {MAX_DENSE_VALUES} values; export fewer people (--ids), "
+                                  "a folder of one take, or --to trc")
 
 
 def export_people(folder: str | Path, to: PeopleFormat | str, out: str | Path,
@@ -108,6 +129,7 @@ def export_people(folder: str | Path, to: PeopleFormat | str, out: str | Path,
     to = PeopleFormat(to)
     check_export_folder(out, [folder])
     people = selected(read_people(folder, progress=progress), options)  # progress: files read
+    check_dense(people, to)
     ok = {pid: t.confidence >= max(options.min_confidence, 0.0) for pid, t in people.tracks.items()}
     n_files = len(people.frames)
     total = n_files + (1 if to is PeopleFormat.c3d else len(people.tracks))  # then the files written

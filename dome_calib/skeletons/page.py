@@ -14,16 +14,15 @@ while the page holds at most :data:`MAX_DETECTED_PEOPLE` detected people; the pa
 from __future__ import annotations
 
 import base64
-import json
 import logging
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from dome_calib.bundle import Bundle
 from dome_calib.ownership import write_text
+from dome_calib.pages import render
 from dome_calib.skeletons.joints import JOINTS19, MARKER, bones
 from dome_calib.skeletons.scenes import People
 
@@ -103,10 +102,9 @@ def page_data(people: People, *, bundle: Bundle | None = None, detections: list[
 
 
 def render_page(data: dict) -> str:
-    """The page's HTML: the template with ``data`` inline (every ``<`` escaped: no string can end the script)."""
-    template = resources.files("dome_calib.skeletons").joinpath("page.html").read_text(encoding="utf-8")
-    text = json.dumps(data, separators=(",", ":"), allow_nan=False).replace("<", "\\u003c")
-    return template.replace("/*__DATA__*/null", text, 1)
+    """The page's HTML: the template through the pages' one module (:func:`dome_calib.pages.render`: shared styles,
+    error handler, escaping helpers, ``data`` inline)."""
+    return render("dome_calib.skeletons", "page.html", data)
 
 
 def write_people_page(path: str | Path, people: People, *, bundle: Bundle | None = None,

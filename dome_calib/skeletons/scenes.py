@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import re
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from fractions import Fraction
 from pathlib import Path
 from typing import Annotated
@@ -26,13 +26,21 @@ from typing import Annotated
 import numpy as np
 from pydantic import Field, model_validator
 
-from dome_calib.schema import Finite, NonNegInt, OpenSchema, parse_json
+from dome_calib.schema import Finite, NonNegInt, OpenSchema, parse_json, show
 from dome_calib.skeletons.errors import PeopleFileError
 from dome_calib.skeletons.joints import LAYOUTS
 
 logger = logging.getLogger(__name__)
 
 SCENE_FILE = re.compile(r"body3DScene_(-?\d+)\.json")
+#: The largest frame number of a file name (12 digits, as OpenPose numbers its files).
+MAX_SCENE_FRAME = 10**12 - 1
+#: The frame rates a capture can have (the rate every writer puts in its file): 1 frame in 1000 s .. 100,000 fps.
+FPS_RANGE = (Fraction(1, 1000), Fraction(100_000))
+#: The most values a dense file (C3D: every point at every frame number of the span; BVH: every joint of a person)
+#: may hold: 2^25 (a 512 MB C3D; 36 people over 33 min at 25 fps). Frame numbers far apart in one folder would
+#: otherwise ask for an array of every frame between them.
+MAX_DENSE_VALUES = 2**25
 #: Exact frame rates of the Panoptic ``fpsType`` values (VGA 25 fps, HD 29.97 fps, Kinect 30 fps).
 FPS_OF_TYPE = {"vga_25": Fraction(25), "hd_29_97": Fraction(30000, 1001), "kinect_30": Fraction(30)}
 
@@ -77,13 +85,13 @@ class Track:
 class People:
     """A body3DScene folder: ``frames`` (T,) the file numbers in order, ``times_ms`` (T,) their universal times,
     ``layout`` "joints19" or "joints15" (``joints``: its names), ``fps``: the frame rate (exact; from ``fpsType``
-    or the times), ``tracks``: one per id, in id order."""
+    or the times; None: the times give none a capture can have), ``tracks``: one per id, in id order."""
 
     folder: Path
     frames: np.ndarray
     times_ms: np.ndarray
     fps_type: str
-    fps: Fraction
+    fps: Fraction | None
     layout: str
     tracks: dict[int, Track]
 
@@ -100,7 +108,22 @@ def scene_files(folder: str | Path) -> list[tuple[int, Path]]:
     found = sorted((int(m.group(1)), p) for p in folder.iterdir() if (m := SCENE_FILE.fullmatch(p.name)))
     if not found:
         raise PeopleFileError(f"{folder}: no body3DScene_<frame>.json file")
+    for frame, path in (found[0], found[-1]):
+        if abs(frame) > MAX_SCENE_FRAME:
+            raise PeopleFileError(f"{path}: frame number {frame}: more than the {len(str(MAX_SCENE_FRAME))} digits a "
+                                  "frame number has (OpenPose's 12)")
+    for (a, pa), (b, pb) in zip(found, found[1:]):
+        if a == b:
+            raise PeopleFileError(f"{pb}: frame {b} is also {pa.name}: one file per frame (move one away)")
     return found
+
+
+def rate_problem(fps: Fraction) -> str | None:
+    """Why ``fps`` cannot be written as a capture's frame rate (None: it can): :data:`FPS_RANGE`."""
+    low, high = FPS_RANGE
+    if not low <= fps <= high:
+        return f"a frame rate is between {float(low):g} and {float(high):g} fps"
+    return None
 
 
 def _read_scene(path: Path) -> SceneFile:
@@ -120,13 +143,30 @@ def read_scene(path: str | Path) -> tuple[float, dict[int, np.ndarray]]:
     return float(scene.univTime), {b.id: np.asarray(b.joints19, dtype=float).reshape(19, 4) for b in scene.bodies}
 
 
-def frame_rate(fps_type: str, frames: np.ndarray, times_ms: np.ndarray) -> Fraction:
-    """The frame rate: the ``fpsType``'s (exact), else frames per second of the times (rounded to 1/1000 fps)."""
+def with_rate(people: People, fps: Fraction | None = None, remedy: str = "give --fps") -> People:
+    """``people`` at the rate ``fps`` (default: the folder's), checked (:func:`rate_problem`); PeopleFileError of
+    one line ending in ``remedy`` when the folder's times give none and none is given."""
+    fps = fps or people.fps
+    if fps is None:
+        span_s = (people.times_ms[-1] - people.times_ms[0]) / 1000.0
+        raise PeopleFileError(f"{people.folder}: univTime: frames {people.frames[0]}..{people.frames[-1]} over "
+                              f"{span_s:.6g} s give no frame rate a capture has ({rate_problem(Fraction(0))}): "
+                              f"{remedy}")
+    problem = rate_problem(fps)
+    if problem is not None:
+        raise PeopleFileError(f"fps {float(fps):.6g}: {problem}")
+    return replace(people, fps=fps)
+
+
+def frame_rate(fps_type: str, frames: np.ndarray, times_ms: np.ndarray) -> Fraction | None:
+    """The frame rate: the ``fpsType``'s (exact), else frames per second of the times (rounded to 1/1000 fps); None
+    when the times give none a capture can have (:func:`rate_problem`: frames hours apart, a rate rounded to 0)."""
     if fps_type in FPS_OF_TYPE:
         return FPS_OF_TYPE[fps_type]
     if len(frames) < 2 or times_ms[-1] <= times_ms[0]:
         return Fraction(30)
-    return Fraction(round(1000.0 * 1000.0 * (frames[-1] - frames[0]) / (times_ms[-1] - times_ms[0]))) / 1000
+    fps = Fraction(round(1000.0 * 1000.0 * float(frames[-1] - frames[0]) / (times_ms[-1] - times_ms[0]))) / 1000
+    return fps if rate_problem(fps) is None else None
 
 
 def read_people(folder: str | Path, *, progress: Callable[[int, int], None] | None = None) -> People:
@@ -145,7 +185,7 @@ def read_people(folder: str | Path, *, progress: Callable[[int, int], None] | No
         if fps_type is None:
             fps_type = kind
         elif kind != fps_type:
-            raise PeopleFileError(f"{path}: fpsType: {kind!r}, but earlier files have {fps_type!r}")
+            raise PeopleFileError(f"{path}: fpsType: {show(kind)}, but earlier files have {show(fps_type)}")
         if k and times[k] <= times[k - 1]:
             raise PeopleFileError(f"{path}: univTime: {times[k]:g} ms is not after the previous file's "
                                   f"{times[k - 1]:g} ms ({files[k - 1][1].name})")

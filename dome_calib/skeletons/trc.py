@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dome_calib.arrays import per_row
 from dome_calib.skeletons.joints import MARKER, Y_UP_FROM_PANOPTIC
 from dome_calib.skeletons.scenes import People, Track
 
@@ -48,8 +49,8 @@ def trc_text(people: People, track: Track, name: str, joint_ok: np.ndarray) -> s
              "Frame#\tTime\t" + "".join(f"{m}\t\t\t" for m in markers).rstrip("\t"),
              "\t\t" + "".join(f"X{k}\tY{k}\tZ{k}\t" for k in range(1, len(markers) + 1))]
     times_s = (people.times_ms[rows] - people.times_ms[0]) / 1000.0
-    text = np.char.mod("%.6f", X.reshape(len(rows), -1))
-    text[np.isnan(X.reshape(len(rows), -1))] = ""
+    text = np.char.mod("%.6f", per_row(X))
+    text[np.isnan(per_row(X))] = ""
     for r, frame in enumerate(people.frames[rows]):
         lines.append(f"{int(frame) + 1}\t{times_s[r]:.6f}\t" + "".join(v + "\t" for v in text[r]))
     return "\n".join(lines) + "\n"

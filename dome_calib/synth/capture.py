@@ -31,7 +31,7 @@ from typing import Annotated
 import cv2
 import numpy as np
 
-from dome_calib.bundle import Bundle, Camera, CameraType
+from dome_calib.bundle import CAMERA_NAMES_HELP, Bundle, Camera, CameraType, is_camera_name
 
 from dome_calib.bundle_io import write_bundle
 from dome_calib.capture_checks import file_sha256
@@ -46,6 +46,7 @@ from dome_calib.synth.render import RenderOptions, SceneState, camera_rays, prep
 from dome_calib.synth.tent import TENT_CONES, TENT_ELLIPSOIDS, TentPose, scene_poses, tent_mesh
 from projector.patterns import make_patterns
 from dome_calib.options import AtLeast, Field, Lax, options
+from dome_calib.schema import path_of_name, show
 
 logger = logging.getLogger(__name__)
 
@@ -154,6 +155,10 @@ def load_layout(options: SynthOptions) -> Bundle:
         if not Path(options.layout).is_file():
             raise DomeCalibError(f"{options.layout}: layout file not found (expected a calibration_<seq>.json)")
         bundle = dome_from_calibration(options.layout, options.preset, options.seed)
+        other = sorted(n for n in bundle.cameras if not is_camera_name(n))
+        if other:  # the capture's cameras are Panoptic names (capture.json): its images are <camera>.png
+            raise DomeCalibError(f"{options.layout}: camera {show(other[0])}: not a Panoptic camera name "
+                                 f"({CAMERA_NAMES_HELP}): a synthetic capture names its cameras as the dome does")
     else:
         bundle = nominal_dome(options.preset, options.seed)
     if options.cameras:
@@ -206,7 +211,7 @@ def synthesize(out: str | Path, options: SynthOptions, progress: Callable[[int, 
             try:
                 for res in pool.map(render_camera, [(job, bundle.cameras[n]) for n in order]):
                     for scene, data in res.png.items():  # files by name: the completion order does not matter
-                        (tmp / "scenes" / scene / f"{res.camera}.png").write_bytes(data)
+                        path_of_name(tmp / "scenes" / scene, res.camera, ".png").write_bytes(data)
                     done += len(res.png)
                     prepare_s = max(prepare_s, res.prepare_s)  # each worker prepares once, in parallel
                     if progress:

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from dome_calib.arrays import per_row
 from dome_calib.recon.body_models import JOINTS19
 from dome_calib.synth.detector_model import CONF_PERCENTILES, Lognormal
 
@@ -67,7 +68,7 @@ class Track:
 def run_lengths(on: np.ndarray) -> np.ndarray:
     """Lengths of the runs of True along axis 0 of a (F, ...) bool array, every column apart (order: column-major
     over the trailing axes, then time)."""
-    b = np.asarray(on, dtype=bool).reshape(len(on), -1).T  # (columns, F)
+    b = per_row(np.asarray(on, dtype=bool)).T  # (columns, F)
     pad = np.zeros((len(b), 1), dtype=bool)
     d = np.diff(np.concatenate([pad, b, pad], axis=1).astype(np.int8), axis=1)
     starts, ends = np.nonzero(d == 1), np.nonzero(d == -1)

@@ -10,6 +10,7 @@ import numpy as np
 
 from dome_calib.io_utils import atomic_folder
 from dome_calib.recon.body_models import from_joints19, parse_body_model
+from dome_calib.schema import path_of_name
 from dome_calib.synth.detector_model import DetectorError
 
 logger = logging.getLogger(__name__)
@@ -58,7 +59,7 @@ def write_openpose_folder(folder: str | Path, detections: dict[str, dict[int, np
     target = Path(folder)
     with atomic_folder(target) as staging:
         for camera in sorted(detections):
-            sub = staging / camera
+            sub = path_of_name(staging, camera)
             sub.mkdir()
             for frame, people in sorted(detections[camera].items()):
                 doc = openpose_document(people, body_model)

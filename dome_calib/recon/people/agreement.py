@@ -35,7 +35,9 @@ class CameraAgreement:
     judged (V,) joint detections the body over time weighed, outvoted (V,) of them it put aside (see
     :mod:`~dome_calib.recon.people.temporal`); noise (V, NOISE_BINS) counts of the used joints' distances within
     NOISE_MAX_PX, each scaled by ``sqrt(2n / (2n - 3))`` for a joint fitted to n views (its 3 degrees of freedom
-    taken from their 2n: the residuals are smaller than the noise), in NOISE_BIN_PX bins."""
+    taken from their 2n: the residuals are smaller than the noise), in NOISE_BIN_PX bins. depth_joints: joints the
+    views agreed on that the Kinects' depth judged, depth_rejected: of them those it saw through (removed; see
+    :mod:`~dome_calib.recon.people.depth_witness`): what removed people is told as what it is."""
 
     names: list[str]
     detected: np.ndarray
@@ -44,6 +46,8 @@ class CameraAgreement:
     judged: np.ndarray
     outvoted: np.ndarray
     noise: np.ndarray
+    depth_joints: int = 0
+    depth_rejected: int = 0
 
     @classmethod
     def empty(cls, names: list[str]) -> CameraAgreement:
@@ -58,12 +62,14 @@ class CameraAgreement:
         self.judged += other.judged
         self.outvoted += other.outvoted
         self.noise += other.noise
+        self.depth_joints += other.depth_joints
+        self.depth_rejected += other.depth_rejected
 
     def with_verdicts(self, verdicts: CameraAgreement) -> CameraAgreement:
         """These tallies with the body over time's verdicts (:func:`tally_verdicts`): their histogram replaces the
         per-frame one, judged and outvoted are theirs."""
         return CameraAgreement(self.names, self.detected, self.used, verdicts.hist, verdicts.judged,
-                               verdicts.outvoted, self.noise)
+                               verdicts.outvoted, self.noise, self.depth_joints, self.depth_rejected)
 
     def median_px(self) -> np.ndarray:
         """(V,) median reprojection error of each camera's used joints (NaN if none), to the bin centre."""

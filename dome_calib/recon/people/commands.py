@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dome_calib.bundle import FRAME_TIME_TOLERANCE_MS
 from dome_calib.bundle_io import load_bundle
 from dome_calib.executor import is_remote
 from dome_calib.io_utils import (refuse_output_among_inputs, refuse_output_inside_inputs, remove_stale_staging,
@@ -24,7 +25,7 @@ from dome_calib.recon.body_models import BodyModel, parse_body_model
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.formats import FPS_TYPE
 from dome_calib.recon.depth import depth_folder_reader
-from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, parse_camera_map
+from dome_calib.recon.openpose_io import body_model_of, file_digests, index_openpose_folder, parse_camera_map
 from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.chunks import reconstruct_people_chunked
 from dome_calib.recon.people.depth_witness import DepthWitness, DepthWitnessOptions
@@ -126,6 +127,25 @@ def reference_times(streams: list[StreamLayout], reference: str | None) -> tuple
     return s.table.times_of(s.frame_index), s.frame_index, name
 
 
+def streams_at(layouts: list[StreamLayout], times_ms: np.ndarray) -> list[StreamLayout]:
+    """The streams whose detected frames reach any of the reference times (a stream is interpolated between its
+    frames, never beyond): one warning naming each other stream and its cameras, which are then not used, nor
+    counted in the summary (before, they were counted and contributed nothing)."""
+    kept = []
+    for s in layouts:
+        t = s.table.times_of(s.frame_index)
+        tol = FRAME_TIME_TOLERANCE_MS
+        if len(t) and np.any((times_ms >= t[0] - tol) & (times_ms <= t[-1] + tol)):
+            kept.append(s)
+            continue
+        shown = ", ".join(s.cameras[:4]) + (", ..." if len(s.cameras) > 4 else "")
+        logger.warning("stream %s (%d cameras: %s): its detected frames lie at %.6g..%.6g ms on its sync table, none "
+                       "of the %d reference times (%.6g..%.6g ms): its cameras are not used (is its sync table the "
+                       "one of this session?)", s.stream, len(s.cameras), shown, t[0] if len(t) else np.nan,
+                       t[-1] if len(t) else np.nan, len(times_ms), times_ms[0], times_ms[-1])
+    return kept
+
+
 def plan_reconstruction(detections: str | Path, bundle_folder: str | Path, out: str | Path | None = None, *,
                         body_model: str | BodyModel | None = None, camera_map: str | dict[str, str] | None = None,
                         reference: str | None = None, options: PeopleOptions | None = None,
@@ -158,6 +178,7 @@ def plan_reconstruction(detections: str | Path, bundle_folder: str | Path, out: 
     model = body_model_of(files, body_model)
     layouts = stream_layouts(bundle, files, files, shared_fps=options.shared_fps)
     times, numbers, ref = reference_times(layouts, reference)
+    layouts = streams_at(layouts, times)
     source = FileSource(layouts=layouts, files=files, body_model=model)
     need = options.association.min_person_views
     if need > len(source.cameras):
@@ -167,27 +188,47 @@ def plan_reconstruction(detections: str | Path, bundle_folder: str | Path, out: 
                            numbers=numbers, reference=ref, model=model, options=options, depth=depth)
 
 
+#: The share of the joints the cameras agreed on that the Kinects' depth may see through before the run says so:
+#: measured on a rendered group (4 people, 5 Kinects, 3 times): 1 of 228 with this session's depth frames, 70 of
+#: 228 (and a person gone) with another session's.
+DEPTH_SUSPECT_SHARE = 0.1
+
+
+def depth_removed(agreement: CameraAgreement) -> str:
+    """What the Kinects' depth removed, as it is: the joints the cameras agreed on that it saw through."""
+    return (f"the Kinect depth frames (--depth) saw through {agreement.depth_rejected} of the "
+            f"{agreement.depth_joints} joints the cameras agreed on and removed them as free space: are they the "
+            "depth frames of this session (and its depth sync tables)? Without --depth they are kept")
+
+
 def why_nobody(agreement: CameraAgreement, options: PeopleOptions, times: int) -> str:
     """What dropped every person, from the cameras' tallies (taken before tracking)."""
     a, tr = options.association, options.tracking
     if agreement.detected.sum() == 0:
         return (f"no camera detected a person ({a.min_common_joints} joints above confidence {a.min_joint_conf:g}) "
                 f"at the {times} times")
+    if agreement.depth_rejected and agreement.depth_rejected > DEPTH_SUSPECT_SHARE * agreement.depth_joints:
+        return depth_removed(agreement)
     if agreement.used.sum() == 0:
         return (f"the cameras detected {int(agreement.detected.sum())} people but none was seen alike by "
                 f"--min-views {a.min_person_views} cameras: is the bundle the calibration of these cameras, and are "
                 "the camera folders named (or --camera-map'ped) right?")
     return (f"bodies were found ({int(agreement.used.sum())} detections used) but none was tracked over "
-            f"{tr.min_track_frames} times (a track ends unseen for {tr.max_missed_ms:g} ms or "
+            f"{tr.min_frames_for(times)} times (a track ends unseen for {tr.max_missed_ms:g} ms or "
             f"{tr.max_missed_steps:g} time steps)")
 
 
 @contextlib.contextmanager
 def kept_detections(source, executor=None) -> Iterator:
     """``source`` with a folder to keep what it reads (a :class:`~dome_calib.recon.people.sources.FileSource`, on
-    this machine's executors), removed at the end; any other source as it is."""
-    if not isinstance(source, FileSource) or is_remote(executor):
+    this machine's executors), removed at the end; on a cluster, with the digest of every file as this machine
+    reads it, which each worker checks what it reads against (a worker reading another copy turned 9 people into
+    none, exit 0); any other source as it is."""
+    if not isinstance(source, FileSource):
         yield source
+        return
+    if is_remote(executor):
+        yield replace(source, digests=file_digests(source.files))
         return
     with run_temp_folder(KEPT_PREFIX) as folder:
         yield replace(source, cache_dir=folder)
@@ -205,6 +246,8 @@ def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callab
     report = camera_report(seq.cameras)
     ids = {int(i) for b in seq.bodies for i in b.ids}
     nobody = None if ids else why_nobody(seq.cameras, plan.options, len(plan.times_ms))
+    if ids and seq.cameras.depth_rejected > DEPTH_SUSPECT_SHARE * seq.cameras.depth_joints:
+        logger.warning("%s", depth_removed(seq.cameras))  # people are left, but most of their joints are gone
     return ReconstructSummary(out=plan.out, times=len(plan.times_ms), cameras=len(plan.source.cameras),
                               body_model=plan.model.value, reference=plan.reference, people=len(ids),
                               body_frames=sum(len(b.ids) for b in seq.bodies), flagged_cameras=report["flagged"],

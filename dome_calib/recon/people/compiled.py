@@ -11,12 +11,13 @@ threads.
 """
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from dome_calib.camera import MIN_DEPTH
+from dome_calib.jit import njit
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+
+@njit(nogil=True, boundscheck=False)
 def _project(cam, v, X0, X1, X2, jacobian, J):  # pragma: no cover - compiled
     """Pixel (u, v) of a world point in view v, and (if ``jacobian``) d(u, v)/dX into J (2, 3); ok False behind the
     camera or outside the lens."""
@@ -51,7 +52,7 @@ def _project(cam, v, X0, X1, X2, jacobian, J):  # pragma: no cover - compiled
     return True, xd * fx + cx, yd * fy + cy
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+@njit(nogil=True, boundscheck=False)
 def _robust_blocks(P, var, view, uv_px, conf, sigma_v, use, cam, robust_k, H, g):  # pragma: no cover - compiled
     J = np.empty((2, 3))
     for m in range(len(var)):
@@ -93,7 +94,7 @@ def robust_blocks(P: np.ndarray, var: np.ndarray, view: np.ndarray, uv_px: np.nd
     return H, g
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+@njit(nogil=True, boundscheck=False)
 def _distances(P, var, view, uv_px, cam, out):  # pragma: no cover - compiled
     J = np.empty((2, 3))
     for m in range(len(var)):
@@ -122,7 +123,7 @@ def _pixels(a: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.float32)
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+@njit(nogil=True, boundscheck=False)
 def _project_into_views(X, cam, u, v, z):  # pragma: no cover - compiled
     J = np.empty((2, 3))
     for m in range(len(X)):
@@ -143,7 +144,7 @@ def project_into_views(X_cm: np.ndarray, cam: np.ndarray) -> tuple[np.ndarray, n
     return u, v, z
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+@njit(nogil=True, boundscheck=False)
 def _count_records(kp, time_of, A, counts):  # pragma: no cover - compiled
     for b in range(A.shape[0]):
         t = time_of[b]
@@ -156,7 +157,7 @@ def _count_records(kp, time_of, A, counts):  # pragma: no cover - compiled
                     counts[b] += 1
 
 
-@numba.njit(nogil=True, cache=True, boundscheck=False)
+@njit(nogil=True, boundscheck=False)
 def _fill_records(kp, time_of, A, starts, strongest, row, view, joint, uv, conf, strong):  # pragma: no cover
     V = A.shape[1]
     keys = np.empty((19, V), np.int64)

@@ -94,6 +94,7 @@ def associate_batch(views: ViewSet, kernel: CameraKernel, pairs: np.ndarray, kp:
     assigned = associate(views, kernel, pairs, kp, a, min_body_joints=options.min_body_joints)
     tri = triangulate_people(views, kp, assigned, options.triangulation)
     ok = check_joints(tri.X_cm, tri.n_inliers, options.joint_check)
+    before = int(ok.sum())
     if depth is not None:
         for k in range(len(tri.sizes) - 1):
             sl = slice(tri.sizes[k], tri.sizes[k + 1])
@@ -101,6 +102,8 @@ def associate_batch(views: ViewSet, kernel: CameraKernel, pairs: np.ndarray, kp:
     bodies, kept = build_bodies(tri, ok, min_body_joints=options.min_body_joints, duplicate_cm=a.duplicate_cm)
     agreement = tally_agreement(views, kp, tri, ok, kept, min_joint_conf=a.min_joint_conf,
                                 min_common_joints=a.min_common_joints)
+    if depth is not None:
+        agreement.depth_joints, agreement.depth_rejected = before, before - int(ok.sum())
     return bodies, agreement
 
 

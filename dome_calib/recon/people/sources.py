@@ -169,6 +169,7 @@ class FileSource:
     files: dict[str, dict[int, Path]]
     body_model: BodyModel
     cache_dir: Path | None = None
+    digests: dict[str, dict[int, bytes]] | None = None  # what each file's bytes are on the head (a cluster run)
 
     @property
     def cameras(self) -> list[str]:
@@ -182,7 +183,7 @@ class FileSource:
             wanted = set(frames.tolist())
             files = {n: {f: p for f, p in self.files.get(n, {}).items() if f in wanted and (n, f) not in kept}
                      for n in layout.cameras}
-            people = read_openpose_files(files, self.body_model)
+            people = read_openpose_files(files, self.body_model, self.digests)
             if self.cache_dir is not None:
                 store(self.cache_dir, i, layout.cameras, people)
             for (n, f), p in kept.items():

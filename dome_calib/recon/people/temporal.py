@@ -47,6 +47,7 @@ import scipy.sparse as sp
 from scipy.linalg import cho_solve_banded, cholesky_banded
 from scipy.special import gammainc
 
+from dome_calib.arrays import per_row
 from dome_calib.options import AtLeast, Field, options
 from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
 from dome_calib.schema import PosFinite, Vec
@@ -299,7 +300,7 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
 
 def _sum_by(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     """(K, ...) values summed into (n, ...) by (K,) index (bincount per component: no BLAS, no ufunc.at)."""
-    flat = values.reshape(len(values), -1)
+    flat = per_row(values)
     out = np.stack([np.bincount(index, weights=flat[:, c], minlength=n) for c in range(flat.shape[1])], axis=1)
     return out.reshape((n,) + values.shape[1:])
 

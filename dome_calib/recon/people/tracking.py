@@ -33,7 +33,8 @@ class TrackingOptions:
     ``gate_cm + gate_cm_per_s x elapsed``; max_missed_ms, max_missed_steps: a track unseen longer than the
     larger of max_missed_ms and max_missed_steps median time steps ends (the steps follow the frame rate: at 1
     frame per second 500 ms would end every track at once); min_track_frames: shorter tracks are dropped, and a
-    track is tentative until seen this often (matched after the confirmed ones, ended by a single miss);
+    track is tentative until seen this often (matched after the confirmed ones, ended by a single miss); a session
+    of fewer times asks for all of them (:meth:`min_frames_for`: one snapshot keeps the people seen in it);
     smooth_half_window: half width (in observations) of the smoothing window, 0 = off; bridge_gaps: the times inside
     a track's gaps are searched again with its prediction (:mod:`~dome_calib.recon.people.bridging`)."""
 
@@ -52,6 +53,11 @@ class TrackingOptions:
         steps = steps[steps > 0]
         return max(self.max_missed_ms, self.max_missed_steps * float(np.median(steps)) if len(steps) else 0.0)
 
+    def min_frames_for(self, n_times: int) -> int:
+        """The times a track needs to be kept in a session of ``n_times`` times: min_track_frames, or every time of
+        a shorter session (a snapshot of 1 or 2 times has no longer track to ask for)."""
+        return max(1, min(self.min_track_frames, int(n_times)))
+
 
 def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
                  options: TrackingOptions | None = None) -> list[np.ndarray]:
@@ -62,6 +68,7 @@ def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
     """
     options = options or TrackingOptions()
     max_missed_ms = options.max_missed_for(times_ms)
+    min_frames = options.min_frames_for(len(times_ms))
     track_of = [np.full(len(b), -1, dtype=np.int64) for b in bodies]
     last_X: list[np.ndarray] = []
     last_t: list[float] = []
@@ -73,13 +80,13 @@ def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
         # confirmed tracks survive gaps up to max_missed_ms; a tentative one (seen fewer than min_track_frames
         # times) ends as soon as it misses a time
         active = [i for i in active if t - last_t[i] <= max_missed_ms
-                  and (seen[i] >= options.min_track_frames or last_t[i] >= prev_t)]
+                  and (seen[i] >= min_frames or last_t[i] >= prev_t)]
         prev_t = t
         P = len(X)
         # confirmed tracks first, then tentative ones with the bodies left (a one-frame false body next to a
         # person cannot take the person's track)
-        for group in ([i for i in active if seen[i] >= options.min_track_frames],
-                      [i for i in active if seen[i] < options.min_track_frames]):
+        for group in ([i for i in active if seen[i] >= min_frames],
+                      [i for i in active if seen[i] < min_frames]):
             free = np.flatnonzero(track_of[k] < 0)
             if not group or not len(free):
                 continue
@@ -114,7 +121,7 @@ def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
     n_tracks = len(last_X)
     length = np.bincount(np.concatenate([tr[tr >= 0] for tr in track_of] + [np.zeros(0, np.int64)]),
                          minlength=n_tracks)
-    keep = length >= options.min_track_frames
+    keep = length >= min_frames
     new_id = np.full(n_tracks, -1, dtype=np.int64)
     new_id[keep] = np.arange(int(keep.sum()))  # creation order = order of first appearance
     return [np.where(tr >= 0, new_id[np.maximum(tr, 0)], -1) for tr in track_of]
