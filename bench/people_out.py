@@ -77,7 +77,8 @@ def bench_formats(name: str, folder: Path, work: Path) -> None:
             for pid, track in people.tracks.items():
                 span = people.frames[track.rows[0]:track.rows[-1] + 1]
                 ours = ours_dense(people, pid, span, Y_UP_FROM_PANOPTIC, 0.01)
-                osim, p2s = opensim_trc(out / f"person{pid}.trc"), pose2sim_trc(out / f"person{pid}.trc")
+                (path,) = out.glob(f"*_P{pid}_*.trc")
+                osim, p2s = opensim_trc(path), pose2sim_trc(path)
                 worst_osim = max(worst_osim, worst(osim["X"], ours, 100.0))
                 worst_p2s = max(worst_p2s, worst(p2s["X"], ours, 100.0))
                 kept &= bool(np.array_equal(np.isnan(osim["X"]), np.isnan(ours)))
@@ -114,7 +115,7 @@ def bench_formats(name: str, folder: Path, work: Path) -> None:
 def pose2sim_agreement(folder: Path, work: Path) -> None:
     """Our TRC of the real capture against Pose2Sim's own TRC of the same detections."""
     export_people(folder, "trc", work / "real_vs_p2s")
-    ours = opensim_trc(work / "real_vs_p2s" / "person0.trc")
+    ours = opensim_trc(next((work / "real_vs_p2s").glob("*_P0_*.trc")))
     theirs = pose2sim_trc(DATA / "pose2sim_result" / "S00_P00_T01_BalancingTrial_0-100.trc")
     turn = Y_UP_FROM_PANOPTIC @ PANOPTIC_FROM_UP["+z"] @ LAB_FROM_P2S_TRC  # their TRC axes -> ours
     assert np.allclose(turn[1], [0, 1, 0]) and np.allclose(turn[:, 1], [0, 1, 0])  # a turn about the vertical

@@ -5,13 +5,16 @@ joints missing, ids kept."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from dome_calib.skeletons.bvh import constant_bone_body
-from dome_calib.skeletons.joints import JOINTS15, JOINTS19, MARKER, Y_UP_FROM_PANOPTIC, Z_UP_FROM_PANOPTIC
+from dome_calib.skeletons.joints import (JOINTS15, JOINTS19, MARKER, Y_UP_FROM_PANOPTIC, Z_UP_FROM_PANOPTIC,
+                                         marker_names)
 from dome_calib.skeletons.scenes import read_people
+from dome_calib.skeletons.trc import trc_name
 
 from .skeletons_helpers import (bvhio_positions, c3d_package_read, chain_present, demo_group_reconstructed,
                                 demo_group_scenes, ezc3d_read, opensim_trc, ours_dense, pose2sim_trc,
@@ -51,16 +54,19 @@ def test_trc_read_by_opensim_and_pose2sim(dataset, dome_calib_cli, tmp_path):
     name, folder, people = dataset
     _export(dome_calib_cli, folder, "trc", tmp_path / "trc")
     files = sorted(p.name for p in (tmp_path / "trc").iterdir())
-    assert files == sorted(f"person{pid}.trc" for pid in people.tracks)  # one file per person, ids kept
-    markers = [MARKER[j] for j in people.joints]
+    trial = Path(folder).resolve().name  # one file per person, ids kept, in Pose2Sim's multi-person names
+    names = {pid: trc_name(trial, pid, int(people.frames[t.rows[0]]), int(people.frames[t.rows[-1]]))
+             for pid, t in people.tracks.items()}
+    assert files == sorted(names.values())
+    markers = marker_names(people)
     for pid, track in people.tracks.items():
-        path = tmp_path / "trc" / f"person{pid}.trc"
+        path = tmp_path / "trc" / names[pid]
         osim, p2s = opensim_trc(path), pose2sim_trc(path)
         assert osim["markers"] == markers == p2s["markers"]
         assert osim["units"] == "m" and osim["rate"] == pytest.approx(float(people.fps))
         span = people.frames[track.rows[0]:track.rows[-1] + 1]  # every file of the person's span
-        np.testing.assert_array_equal(p2s["frames"], span + 1)  # TRC counts frames from 1
-        t_s = (people.times_ms[track.rows[0]:track.rows[-1] + 1] - people.times_ms[0]) / 1000.0
+        np.testing.assert_array_equal(p2s["frames"], span)  # frame numbers as Pose2Sim 0.10 writes them
+        t_s = (span - people.frames[0]) / float(people.fps)  # steps of 1 / DataRate
         np.testing.assert_allclose(osim["times_s"], t_s, atol=1e-6)
         ours_m = ours_dense(people, pid, span, Y_UP_FROM_PANOPTIC, 0.01)
         for got in (osim["X"], p2s["X"]):
@@ -123,9 +129,11 @@ def test_ids_min_confidence_and_fps(group, dome_calib_cli, tmp_path):
     ids = list(people.tracks)[:2]
     _export(dome_calib_cli, group, "trc", tmp_path / "some", "--ids", ",".join(map(str, ids)), "--min-confidence",
             "0.95", "--fps", "30000/1001")
-    assert sorted(p.name for p in (tmp_path / "some").iterdir()) == sorted(f"person{i}.trc" for i in ids)
-    got = opensim_trc(tmp_path / "some" / f"person{ids[0]}.trc")
+    files = sorted((tmp_path / "some").iterdir())
+    assert [p.name.split("_")[-2] for p in files] == [f"P{i}" for i in sorted(ids)]
+    got = opensim_trc(files[0])
     assert np.isnan(got["X"]).all() and got["rate"] == pytest.approx(30000 / 1001)  # every c is 0.9 < 0.95
+    np.testing.assert_allclose(np.diff(got["times_s"]), 1001 / 30000, atol=1e-6)  # the steps are the rate's
     run = dome_calib_cli("export-people", group, "--to", "bvh", "-o", tmp_path / "none", "--ids", "99")
     assert run.returncode == 1 and "no person 99" in run.stderr and not (tmp_path / "none").exists()
 
@@ -180,3 +188,24 @@ def test_export_refuses_a_folder_it_did_not_write_and_leaves_it(group, dome_cali
     _export(dome_calib_cli, group, "trc", tmp_path / "again")
     _export(dome_calib_cli, group, "bvh", tmp_path / "again")  # an earlier export's folder is replaced whole
     assert all(p.suffix == ".bvh" for p in (tmp_path / "again").iterdir())
+
+
+def test_trc_header_is_laid_out_as_pose2sims_writer(group, dome_calib_cli, tmp_path):
+    """Lines 4 and 5 as Pose2Sim 0.10.49's make_trc (Pose2Sim/triangulation.py) writes them: its marker
+    augmentation inserts ``Hip`` by replacing line 4's closing ``\\t\\t\\t``, which a line without them fails in
+    silence (the augmentation then died on 60 columns for 57 names); and Pose2Sim's own add_neck_hip_data does it."""
+    import pandas as pd
+    from Pose2Sim.common import add_neck_hip_data, read_trc
+
+    _export(dome_calib_cli, group, "trc", tmp_path / "trc")
+    path = sorted((tmp_path / "trc").iterdir())[0]
+    header = path.read_text().splitlines(keepends=True)[:5]
+    people = read_people(group)
+    names = marker_names(people)
+    assert header[3] == "Frame#\tTime\t" + "\t\t\t".join(names) + "\t\t\t\n"  # make_trc's line 4
+    assert header[4] == "\t\t" + "\t".join(f"X{i + 1}\tY{i + 1}\tZ{i + 1}" for i in range(len(names))) + "\t\n"
+    data, _, _, markers, head = read_trc(str(path))
+    data, markers, head = add_neck_hip_data(data, [m for m in markers if m != "Hip"], list(head))
+    assert [m.strip() for m in head[3].split("\t")[2::3] if m.strip()] == markers  # the header names Hip too
+    assert markers[-1] == "Hip" and len(markers) == len(names) + 1
+    assert isinstance(data, pd.DataFrame) and data.shape[1] == 3 * len(markers)

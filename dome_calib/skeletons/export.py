@@ -26,7 +26,7 @@ from dome_calib.skeletons.trc import write_trc
 logger = logging.getLogger(__name__)
 
 C3D_FILE = "people.c3d"
-_OURS = re.compile(r"person\d+\.(trc|bvh)|people\.c3d")
+_OURS = re.compile(r".+_P\d+_-?\d+--?\d+\.trc|person\d+\.bvh|people\.c3d")
 
 
 class PeopleFormat(StrEnum):
@@ -39,11 +39,13 @@ class PeopleFormat(StrEnum):
 class ExportPeopleOptions:
     """``min_confidence``: joints below it are written as missing (default 0: every reconstructed joint);
     ``fps``: the frame rate to write (default: the files' ``fpsType``, else measured from their times);
-    ``ids``: only these people (default: everybody)."""
+    ``ids``: only these people (default: everybody); ``trial``: the TRC files' name before ``_P<id>_<first>-<last>``
+    (default: the folder's name)."""
 
     min_confidence: NonNegFinite = 0.0
     fps: PosFraction | None = None
     ids: list[AtLeast(0)] | None = None
+    trial: str | None = None
 
 
 @dataclass(frozen=True)
@@ -65,6 +67,14 @@ def check_export_folder(folder: str | Path) -> Path:
         raise PeopleFileError(f"{folder}: holds {other[0]!r}, which export-people did not write; the folder is "
                               "replaced as a whole, so give a new folder or an earlier export's")
     return target
+
+
+def trial_name(trial: str | None, folder: Path) -> str:
+    """The TRC files' trial name: given (a file name's part: no path separator, not empty), else the folder's name."""
+    name = Path(folder).resolve().name if trial is None else trial
+    if not name or name in (".", "..") or "/" in name or "\\" in name or "\0" in name:
+        raise PeopleFileError(f"--trial {trial!r}: expected a name for the files (no path separator)")
+    return name
 
 
 def parse_ids(text: str | None) -> list[int] | None:
@@ -112,6 +122,7 @@ def export_people(folder: str | Path, to: PeopleFormat | str, out: str | Path,
     """
     options = options or ExportPeopleOptions()
     to = PeopleFormat(to)
+    trial = trial_name(options.trial, Path(folder))
     refuse_output_among_inputs(out, [folder], whole_folder=True)
     check_export_folder(out)
     people = selected(read_people(folder, progress=progress), options)  # progress: files read
@@ -123,9 +134,11 @@ def export_people(folder: str | Path, to: PeopleFormat | str, out: str | Path,
         if to is PeopleFormat.c3d:
             files.append(write_c3d(staging / C3D_FILE, people, ok))
         else:
-            writer = write_trc if to is PeopleFormat.trc else write_bvh
             for k, (pid, track) in enumerate(people.tracks.items()):
-                files.append(writer(staging, people, track, ok[pid]))
+                if to is PeopleFormat.trc:
+                    files.append(write_trc(staging, people, track, ok[pid], trial=trial))
+                else:
+                    files.append(write_bvh(staging, people, track, ok[pid]))
                 if progress is not None:
                     progress(n_files + k + 1, total)
     if progress is not None:

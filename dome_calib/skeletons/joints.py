@@ -49,6 +49,16 @@ Y_UP_FROM_PANOPTIC = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.
 Z_UP_FROM_PANOPTIC = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 
 
+def marker_names(people) -> list[str]:
+    """The marker name of each joint of ``people`` (a :class:`~dome_calib.skeletons.scenes.People`), in its order."""
+    return [MARKER[j] for j in people.joints]
+
+
+def y_up_axes(people) -> np.ndarray:
+    """(3, 3): our world -> the y-up axes of the TRC and BVH files (OpenSim's)."""
+    return Y_UP_FROM_PANOPTIC
+
+
 def bones(joints: tuple[str, ...]) -> list[tuple[int, int]]:
     """(parent index, child index) of every bone of a layout, parents before children (the drawing and the BVH
     tree)."""
