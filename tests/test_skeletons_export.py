@@ -12,9 +12,9 @@ import pytest
 
 from dome_calib.skeletons.bvh import constant_bone_body
 from dome_calib.skeletons.joints import (JOINTS15, JOINTS19, MARKER, Y_UP_FROM_PANOPTIC, Z_UP_FROM_PANOPTIC,
-                                         marker_names)
+                                         marker_names, y_up_axes, z_up_axes)
 from dome_calib.skeletons.scenes import read_people
-from dome_calib.skeletons.trc import trc_name
+from dome_calib.skeletons.trc import fill_gaps, trc_name
 
 from .skeletons_helpers import (bvhio_positions, c3d_package_read, chain_present, demo_group_reconstructed,
                                 demo_group_scenes, ezc3d_read, opensim_trc, ours_dense, pose2sim_trc,
@@ -52,7 +52,7 @@ def _export(dome_calib_cli, folder, fmt, out, *extra):
 
 def test_trc_read_by_opensim_and_pose2sim(dataset, dome_calib_cli, tmp_path):
     name, folder, people = dataset
-    _export(dome_calib_cli, folder, "trc", tmp_path / "trc")
+    _export(dome_calib_cli, folder, "trc", tmp_path / "trc", "--fill-gaps", "0")  # every missing joint missing
     files = sorted(p.name for p in (tmp_path / "trc").iterdir())
     trial = Path(folder).resolve().name  # one file per person, ids kept, in Pose2Sim's multi-person names
     names = {pid: trc_name(trial, pid, int(people.frames[t.rows[0]]), int(people.frames[t.rows[-1]]))
@@ -68,7 +68,7 @@ def test_trc_read_by_opensim_and_pose2sim(dataset, dome_calib_cli, tmp_path):
         np.testing.assert_array_equal(p2s["frames"], span)  # frame numbers as Pose2Sim 0.10 writes them
         t_s = (span - people.frames[0]) / float(people.fps)  # steps of 1 / DataRate
         np.testing.assert_allclose(osim["times_s"], t_s, atol=1e-6)
-        ours_m = ours_dense(people, pid, span, Y_UP_FROM_PANOPTIC, 0.01)
+        ours_m = ours_dense(people, pid, span, y_up_axes(people), 0.01)  # an imported lab's own axes (real)
         for got in (osim["X"], p2s["X"]):
             np.testing.assert_array_equal(np.isnan(got), np.isnan(ours_m))  # missing is missing, nothing else
             assert np.nanmax(np.abs(got - ours_m)) * 100.0 < TOL_CM
@@ -83,13 +83,13 @@ def test_c3d_read_by_ezc3d_and_the_c3d_package(dataset, dome_calib_cli, tmp_path
     assert sorted(p.name for p in (tmp_path / "c3d").iterdir()) == ["people.c3d"]  # one file per capture
     ez, pkg = ezc3d_read(path), c3d_package_read(path)
     ids = list(people.tracks)
-    labels = [f"P{pid}:{MARKER[j]}" for pid in ids for j in people.joints]
+    labels = [f"P{pid}:{m}" for pid in ids for m in marker_names(people)]
     assert ez["labels"] == labels == pkg["labels"]
     assert ez["subjects"] == [f"P{pid}" for pid in ids] and ez["units"] == "mm" and ez["y_screen"] == "+Z"
     assert ez["rate"] == pytest.approx(float(people.fps))
     frames = np.arange(people.frames[0], people.frames[-1] + 1)
     assert ez["first_frame"] == frames[0] and pkg["first_frame"] == frames[0] + 1  # C3D counts from 1
-    ours_mm = np.concatenate([ours_dense(people, pid, frames, Z_UP_FROM_PANOPTIC, 10.0) for pid in ids], axis=1)
+    ours_mm = np.concatenate([ours_dense(people, pid, frames, z_up_axes(people), 10.0) for pid in ids], axis=1)
     np.testing.assert_array_equal(np.isnan(ez["X"]), np.isnan(ours_mm))
     assert np.nanmax(np.abs(ez["X"] - ours_mm)) / 10.0 < TOL_CM
     missing = np.isnan(ours_mm).any(-1)
@@ -104,7 +104,7 @@ def test_bvh_read_by_bvhio(dataset, dome_calib_cli, tmp_path):
     name, folder, people = dataset
     _export(dome_calib_cli, folder, "bvh", tmp_path / "bvh")
     assert sorted(p.name for p in (tmp_path / "bvh").iterdir()) == sorted(f"person{i}.bvh" for i in people.tracks)
-    names = [MARKER[j] for j in people.joints]
+    names = marker_names(people)
     gaps = []
     for pid, track in people.tracks.items():
         frame_time, got = bvhio_positions(tmp_path / "bvh" / f"person{pid}.bvh", names)
@@ -112,7 +112,7 @@ def test_bvh_read_by_bvhio(dataset, dome_calib_cli, tmp_path):
         first, reference = constant_bone_body(people, track, track.confidence >= 0)
         assert first == people.frames[track.rows[0]] and len(got) == people.frames[track.rows[-1]] - first + 1
         assert np.max(np.abs(got - reference)) < TOL_CM
-        ours = ours_dense(people, pid, np.arange(first, first + len(got)), Y_UP_FROM_PANOPTIC, 1.0)
+        ours = ours_dense(people, pid, np.arange(first, first + len(got)), y_up_axes(people), 1.0)
         held = chain_present(people, ours)
         gaps.append(np.linalg.norm(got - ours, axis=-1)[held])
     gaps = np.concatenate(gaps)
@@ -209,3 +209,17 @@ def test_trc_header_is_laid_out_as_pose2sims_writer(group, dome_calib_cli, tmp_p
     assert [m.strip() for m in head[3].split("\t")[2::3] if m.strip()] == markers  # the header names Hip too
     assert markers[-1] == "Hip" and len(markers) == len(names) + 1
     assert isinstance(data, pd.DataFrame) and data.shape[1] == 3 * len(markers)
+
+
+def test_fill_gaps_fills_as_pose2sims_triangulation_and_no_more():
+    """Inside a marker's track a gap of at most N frames is linear between its ends, at the start or end the
+    nearest value is held, a longer gap and a marker never seen stay missing."""
+    X = np.full((12, 3, 3), np.nan)
+    X[2:5, 0] = [[0, 0, 0], [1, 1, 1], [2, 2, 2]]
+    X[7:10, 0] = [[7, 7, 7], [8, 8, 8], [9, 9, 9]]  # rows 5, 6 missing (2), 0, 1 and 10, 11 at the ends
+    X[:, 1] = np.arange(12)[:, None]
+    X[1:9, 1] = np.nan  # 8 rows missing
+    got = fill_gaps(X, 2)
+    np.testing.assert_allclose(got[:, 0, 0], [0, 0, 0, 1, 2, 2 + 5 / 3, 2 + 10 / 3, 7, 8, 9, 9, 9])
+    assert np.isnan(got[1:9, 1]).all() and np.isnan(got[:, 2]).all()  # 8 > 2 rows; never seen
+    assert not np.isnan(fill_gaps(X, 8)[:, 1]).any() and np.isnan(fill_gaps(X, 0)).sum() == np.isnan(X).sum()

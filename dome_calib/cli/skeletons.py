@@ -39,6 +39,9 @@ def export_people(
                             "steps by 1/RATE per frame number."),
     trial: str = typer.Option(None, "--trial", help="Name of the TRC files before _P<id>_<first>-<last>.trc "
                               "(Pose2Sim's multi-person names; default: the PEOPLE folder's name)."),
+    fill_gaps: int = typer.Option(20, "--fill-gaps", help="TRC: fill a marker missing for at most this many "
+                                  "frames as Pose2Sim fills its own TRC (linear inside, held at the ends; Pose2Sim's "
+                                  "marker augmentation fails on empty fields); 0: missing stays missing."),
 ) -> None:
     """Write the people of a body3DScene folder for other tools: TRC (OpenSim, Pose2Sim), C3D or BVH. Person ids
     are kept (<trial>_P<id>_<first>-<last>.trc, person<id>.bvh, C3D markers P<id>:Neck ...); joints that were not reconstructed are
@@ -47,9 +50,9 @@ def export_people(
     from dome_calib.skeletons.export import ExportPeopleOptions, export_people as run, parse_fps, parse_ids
 
     with flags({"ExportPeopleOptions.min_confidence": "--min-confidence", "ExportPeopleOptions.fps": "--fps",
-                "ExportPeopleOptions.ids[0]": "--ids"}):
+                "ExportPeopleOptions.ids[0]": "--ids", "ExportPeopleOptions.fill_gaps": "--fill-gaps"}):
         options = ExportPeopleOptions(min_confidence=min_confidence, fps=parse_fps(fps), ids=parse_ids(ids),
-                                       trial=trial)
+                                       trial=trial, fill_gaps=fill_gaps)
     with ProgressBars(transient=True) as bars:
         summary = run(people, to.value, out, options, progress=bars.task("reading and writing files"))
     typer.echo(f"{summary.people} people, {summary.frames} frames at {float(summary.fps):g} fps: "

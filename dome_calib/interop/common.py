@@ -22,6 +22,7 @@ from dome_calib.camera import distort, pixels_to_normalized
 from dome_calib.errors import BundleFormatError
 from dome_calib.interop.fields import ROTATION_EXACT_TOL, rotation_error
 from dome_calib.interop.registry import UNIT_CHOICES
+from dome_calib.lab_world import PANOPTIC_FROM_UP, import_record  # noqa: F401  (import_record: convert's, via here)
 from dome_calib.options import AtLeast, Field, options
 from dome_calib.schema import PosFinite
 
@@ -32,18 +33,6 @@ CM_PER_UNIT = {"mm": 0.1, "cm": 1.0, "m": 100.0}
 #: Largest plausible camera translation once in cm (10 km): beyond it the file's unit was not the one read.
 LIMIT_T_CM = 1e6
 _PANOPTIC_NAME = re.compile(r"(\d\d)_(\d\d)")
-#: A file world whose up axis is the key -> the rotation M (det +1) with ``X_panoptic = M @ X_file``: the axis
-#: becomes -y (Panoptic up), and x stays x where it can (z up: the usual z-up-to-y-down turn about x).
-PANOPTIC_FROM_UP = {
-    "+x": np.array([[0, 1.0, 0], [-1.0, 0, 0], [0, 0, 1.0]]),
-    "-x": np.array([[0, -1.0, 0], [1.0, 0, 0], [0, 0, 1.0]]),
-    "+y": np.diag([1.0, -1.0, -1.0]),
-    "-y": np.eye(3),
-    "+z": np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]),
-    "-z": np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]),
-}
-
-
 class InteropError(BundleFormatError):
     """A file of another tool cannot be read or written as asked (names file, camera and field)."""
 

@@ -22,7 +22,7 @@ from types import ModuleType
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.interop.common import (ExportOptions, ExportResult, ImportOptions, InteropError, cm_per_unit,
-                                       to_bundle, to_foreign)
+                                       import_record, to_bundle, to_foreign)
 from dome_calib.interop.registry import UP_AXES, FormatInfo, format_info
 from dome_calib.io_utils import atomic_folder, atomic_path, check_writable, refuse_output_among_inputs
 
@@ -145,8 +145,7 @@ def read_foreign(src: str | Path, fmt: str, options: ImportOptions | None = None
         raise InteropError(f"{read.path}: a {info.name} calibration does not record its length unit; give --unit "
                            "(mm, cm, m, or squares with --square-size-mm)")
     scale = cm_per_unit(unit, options.square_size_mm, str(read.path))
-    turned = "" if up == "-y" else f", its up axis {up} turned to -y"
-    source = f"imported from {info.name} ({read.path.name}, unit {unit}{turned})"
+    source = import_record(info.name, read.path.name, unit, up)
     return to_bundle(read.cameras, scale, up, options, read.path, source), unit
 
 

@@ -26,7 +26,8 @@ from typing import Annotated
 import numpy as np
 from pydantic import AfterValidator, ConfigDict, RootModel
 
-from dome_calib.recon.body_models import JOINT_NAMES, BodyModel, models_with_joints, parse_body_model, to_joints19
+from dome_calib.recon.body_models import (JOINT_NAMES, BodyModel, models_with_joints, parse_body_model, to_joints19,
+                                          with_extras)
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.joint_order import better_order, order_fits
 from dome_calib.schema import Field, FileSchema, Finite, parse_json, read_json
@@ -302,15 +303,18 @@ def body_model_of(files: dict[str, dict[int, Path]], body_model: BodyModel | str
     return named
 
 
-def read_openpose_files(files: dict[str, dict[int, Path]], model: BodyModel) -> dict[str, dict[int, np.ndarray]]:
-    """Read the files (camera -> {frame -> path}) -> camera -> {frame -> (N, 19, 3) joints19}."""
+def read_openpose_files(files: dict[str, dict[int, Path]], model: BodyModel, *, extras: bool = False
+                        ) -> dict[str, dict[int, np.ndarray]]:
+    """Read the files (camera -> {frame -> path}) -> camera -> {frame -> (N, 19, 3) joints19}; with ``extras``
+    (N, 19 + E, 3): the model's joints that joints19 lacks after them (:func:`~dome_calib.recon.body_models.with_extras`)."""
     n_joints = len(JOINT_NAMES[model])
+    convert = with_extras if extras else to_joints19
     out: dict[str, dict[int, np.ndarray]] = {}
     for camera, frames in files.items():
         out[camera] = {}
         for frame, path in frames.items():
             kp, _ = _people_of_file(path, camera, frame, model)
-            out[camera][frame] = to_joints19(kp.reshape(-1, n_joints, 3), model)
+            out[camera][frame] = convert(kp.reshape(-1, n_joints, 3), model)
     return out
 
 

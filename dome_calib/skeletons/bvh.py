@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from dome_calib.skeletons.joints import MARKER, PARENT, Y_UP_FROM_PANOPTIC, bones
+from dome_calib.skeletons.joints import PARENT, bones, marker_names, y_up_axes
 from dome_calib.skeletons.scenes import People, Track
 
 #: Rest direction (y up, facing +z, the person's left at +x) of the bone from each joint's parent to it.
@@ -35,7 +35,9 @@ REST_DIRECTION = {"neck": (0, 1, 0), "nose": (0, 0.6, 0.8), "head_top": (0, 1, 0
                   "l_elbow": (1, 0, 0), "l_wrist": (1, 0, 0), "r_shoulder": (-1, 0, 0), "r_elbow": (-1, 0, 0),
                   "r_wrist": (-1, 0, 0), "l_hip": (1, 0, 0), "l_knee": (0, -1, 0), "l_ankle": (0, -1, 0),
                   "r_hip": (-1, 0, 0), "r_knee": (0, -1, 0), "r_ankle": (0, -1, 0), "l_eye": (0.6, 0.8, 0),
-                  "l_ear": (0.8, 0, -0.6), "r_eye": (-0.6, 0.8, 0), "r_ear": (-0.8, 0, -0.6)}
+                  "l_ear": (0.8, 0, -0.6), "r_eye": (-0.6, 0.8, 0), "r_ear": (-0.8, 0, -0.6), "upper_neck": (0, 1, 0),
+                  "l_big_toe": (0, -0.3, 0.95), "l_small_toe": (1, 0, 0), "l_heel": (0, -0.6, -0.8),
+                  "r_big_toe": (0, -0.3, 0.95), "r_small_toe": (-1, 0, 0), "r_heel": (0, -0.6, -0.8)}
 MIN_BONE_CM = 1.0  # a bone never seen gets its mirror's length, else this
 END_SITE_CM = 5.0
 
@@ -70,7 +72,7 @@ def bvh_body(people: People, track: Track, joint_ok: np.ndarray) -> BvhBody:
     frames = people.frames[track.rows]
     F = int(frames[-1] - frames[0]) + 1
     X = np.full((F, len(joints), 3), np.nan)
-    X[frames - frames[0]] = np.where(joint_ok[..., None], track.X_cm @ Y_UP_FROM_PANOPTIC.T, np.nan)
+    X[frames - frames[0]] = np.where(joint_ok[..., None], track.X_cm @ y_up_axes(people).T, np.nan)
     ok = np.isfinite(X).all(-1)
     length = np.zeros(len(joints))
     direction = np.zeros((F, len(joints), 3))
@@ -132,9 +134,11 @@ class BvhJoint:
     rotation: Rotation  # global, per frame
 
 
-def skeleton(body: BvhBody, joints: tuple[str, ...]) -> BvhJoint:
-    """The BVH hierarchy of one person with every joint's global rotation per frame."""
+def skeleton(body: BvhBody, joints: tuple[str, ...], markers: list[str]) -> BvhJoint:
+    """The BVH hierarchy of one person with every joint's global rotation per frame (``markers``: the joints'
+    names, :func:`~dome_calib.skeletons.joints.marker_names`)."""
     index = {n: k for k, n in enumerate(joints)}
+    marker = dict(zip(joints, markers))
 
     def bone_rotation(c: str, parent_rot: Rotation) -> Rotation:
         rest = np.asarray(REST_DIRECTION[c], float) / np.linalg.norm(REST_DIRECTION[c])
@@ -156,9 +160,9 @@ def skeleton(body: BvhBody, joints: tuple[str, ...]) -> BvhJoint:
                 kids.append(node(c, child_offset, rot))
             else:  # a branch joint per child: its own rotation for the bone
                 branch = bone_rotation(c, rot)
-                kids.append(BvhJoint(name=f"{MARKER[name]}_{MARKER[c]}", offset=np.zeros(3),
+                kids.append(BvhJoint(name=f"{marker[name]}_{marker[c]}", offset=np.zeros(3),
                                      children=[node(c, child_offset, branch)], rotation=branch))
-        return BvhJoint(name=MARKER[name], offset=offset, children=kids, rotation=rot)
+        return BvhJoint(name=marker[name], offset=offset, children=kids, rotation=rot)
 
     return node("body_center", np.zeros(3), Rotation.identity(len(body.root)))
 
@@ -184,7 +188,7 @@ def _hierarchy(joint: BvhJoint, depth: int, lines: list[str], order: list[tuple[
 def bvh_text(people: People, track: Track, joint_ok: np.ndarray) -> str:
     """The BVH file of one person (see the module docstring)."""
     body = bvh_body(people, track, joint_ok)
-    top = skeleton(body, people.joints)
+    top = skeleton(body, people.joints, marker_names(people))
     lines = ["HIERARCHY"]
     order: list[tuple[BvhJoint, BvhJoint | None]] = []
     _hierarchy(top, 0, lines, order, None)

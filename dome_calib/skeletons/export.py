@@ -40,12 +40,14 @@ class ExportPeopleOptions:
     """``min_confidence``: joints below it are written as missing (default 0: every reconstructed joint);
     ``fps``: the frame rate to write (default: the files' ``fpsType``, else measured from their times);
     ``ids``: only these people (default: everybody); ``trial``: the TRC files' name before ``_P<id>_<first>-<last>``
-    (default: the folder's name)."""
+    (default: the folder's name); ``fill_gaps``: TRC markers missing for at most this many frames are filled as
+    Pose2Sim fills its own (:func:`~dome_calib.skeletons.trc.fill_gaps`; 0: every missing joint stays missing)."""
 
     min_confidence: NonNegFinite = 0.0
     fps: PosFraction | None = None
     ids: list[AtLeast(0)] | None = None
     trial: str | None = None
+    fill_gaps: AtLeast(0) = 20
 
 
 @dataclass(frozen=True)
@@ -110,7 +112,8 @@ def selected(people: People, options: ExportPeopleOptions) -> People:
             raise PeopleFileError(f"{people.folder}: --ids: no person {unknown[0]} (ids: {known})")
         tracks = {i: tracks[i] for i in options.ids}
     return People(folder=people.folder, frames=people.frames, times_ms=people.times_ms, fps_type=people.fps_type,
-                  fps=options.fps or people.fps, layout=people.layout, tracks=tracks)
+                  fps=options.fps or people.fps, layout=people.layout, tracks=tracks, extra=people.extra,
+                  body_model=people.body_model, lab_up=people.lab_up)
 
 
 def export_people(folder: str | Path, to: PeopleFormat | str, out: str | Path,
@@ -136,7 +139,8 @@ def export_people(folder: str | Path, to: PeopleFormat | str, out: str | Path,
         else:
             for k, (pid, track) in enumerate(people.tracks.items()):
                 if to is PeopleFormat.trc:
-                    files.append(write_trc(staging, people, track, ok[pid], trial=trial))
+                    files.append(write_trc(staging, people, track, ok[pid], trial=trial,
+                                           fill_frames=options.fill_gaps))
                 else:
                     files.append(write_bvh(staging, people, track, ok[pid]))
                 if progress is not None:

@@ -24,7 +24,7 @@ import numpy as np
 
 from dome_calib.bundle import Bundle
 from dome_calib.io_utils import atomic_write_text
-from dome_calib.skeletons.joints import JOINTS19, MARKER, bones
+from dome_calib.skeletons.joints import JOINTS19, bones, marker_names
 from dome_calib.skeletons.scenes import People
 
 logger = logging.getLogger(__name__)
@@ -93,7 +93,7 @@ def page_data(people: People, *, bundle: Bundle | None = None, detections: list[
     if beyond:
         notes.append(f"{beyond} joints beyond 32.7 m of the origin are not drawn")
     return {"title": folder.name, "source": str(folder), "layout": people.layout,
-            "joints": list(people.joints), "markers": [MARKER[j] for j in people.joints],
+            "joints": list(people.joints), "markers": marker_names(people),
             "bones": bones(people.joints), "root": people.joints.index("body_center"),
             "fps": float(people.fps), "fps_type": people.fps_type, "frames": people.frames.tolist(),
             "times_ms": np.round(people.times_ms, 3).tolist(), "people": tracks, "trail_s": TRAIL_S,

@@ -23,6 +23,10 @@ five header lines, then one row per frame)::
 - Rows: every body3DScene file from the person's first to last appearance; ``Frame#`` = the file's frame number
   (as Pose2Sim 0.10 writes frames 0-99 as 0-99); ``Time`` = (frame - the folder's first frame) / rate, so the
   steps are 1 / ``DataRate`` and every person's file shares one clock; ``OrigDataStartFrame`` = the first frame.
+- Gaps: a marker missing for at most ``--fill-gaps`` frames (default 20, Pose2Sim's
+  ``interp_if_gap_smaller_than``) is filled as Pose2Sim's triangulation fills its own TRC (:func:`fill_gaps`):
+  Pose2Sim's marker augmentation is a sequence model, and one empty toe field gave empty augmented lower-body markers
+  for 62 of 99 frames, so its inverse kinematics froze the knees (77 deg, exit 0).
 - Missing: a joint not reconstructed, or a frame where the person is absent, is three empty fields (OpenSim reads
   them as NaN, pandas in Pose2Sim's ``read_trc`` too). Every field ends with a tab, as OpenSim's own writer
   (``TRCFileAdapter::extendWrite``) does: its reader drops the last empty field of a line, so a row whose last
@@ -51,14 +55,37 @@ def trc_name(trial: str, pid: int, first_frame: int, last_frame: int) -> str:
     return f"{trial}_P{pid}_{first_frame}-{last_frame}.trc"
 
 
-def trc_text(people: People, track: Track, name: str, joint_ok: np.ndarray) -> str:
-    """The TRC file of one person (``joint_ok`` (K, J): joints to write; the others are written as missing)."""
+def fill_gaps(X: np.ndarray, max_frames: int) -> np.ndarray:
+    """(F, M, 3) rows with NaN where missing -> the gaps of at most ``max_frames`` rows filled: inside, linearly
+    between the values on either side; at the start or end, the nearest value held (Pose2Sim's triangulation fills its
+    TRC the same way: ``interp_if_gap_smaller_than``, ``fill_large_gaps_with = 'last_value'``). Longer gaps and
+    markers never seen stay missing."""
+    out = X.copy()
+    rows = np.arange(len(X))
+    for m in range(X.shape[1]):
+        ok = np.isfinite(X[:, m]).all(-1)
+        if ok.all() or not ok.any() or max_frames <= 0:
+            continue
+        # each missing row's run of missing rows: its length decides
+        edges = np.flatnonzero(np.diff(np.concatenate([[1], ok.astype(np.int8), [1]])))
+        for start, stop in zip(edges[::2], edges[1::2]):
+            if stop - start > max_frames:
+                continue
+            for c in range(3):
+                out[start:stop, m, c] = np.interp(rows[start:stop], rows[ok], X[ok, m, c])  # holds at the ends
+    return out
+
+
+def trc_text(people: People, track: Track, name: str, joint_ok: np.ndarray, *, fill_frames: int = 0) -> str:
+    """The TRC file of one person (``joint_ok`` (K, J): joints to write; the others are written as missing; gaps of
+    at most ``fill_frames`` frames filled, :func:`fill_gaps`)."""
     markers = marker_names(people)
     first, last = int(track.rows[0]), int(track.rows[-1])
     rows = np.arange(first, last + 1)
     X = np.full((len(rows), len(markers), 3), np.nan)
     keep = track.rows - first
     X[keep] = np.where(joint_ok[..., None], track.X_cm @ y_up_axes(people).T * M_PER_CM, np.nan)
+    X = fill_gaps(X, fill_frames)
     rate = rate_text(people.fps)
     start = int(people.frames[first])
     lines = [f"PathFileType\t4\t(X/Y/Z)\t{name}",
@@ -75,9 +102,10 @@ def trc_text(people: People, track: Track, name: str, joint_ok: np.ndarray) -> s
     return "\n".join(lines) + "\n"
 
 
-def write_trc(folder: Path, people: People, track: Track, joint_ok: np.ndarray, *, trial: str) -> Path:
+def write_trc(folder: Path, people: People, track: Track, joint_ok: np.ndarray, *, trial: str,
+              fill_frames: int = 0) -> Path:
     """Write ``<trial>_P<id>_<first>-<last>.trc`` into ``folder`` (a staging folder); returns its path."""
     frames = people.frames[track.rows]
     path = folder / trc_name(trial, track.id, int(frames[0]), int(frames[-1]))
-    path.write_text(trc_text(people, track, path.name, joint_ok), encoding="utf-8")
+    path.write_text(trc_text(people, track, path.name, joint_ok, fill_frames=fill_frames), encoding="utf-8")
     return path

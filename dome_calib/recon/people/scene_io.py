@@ -10,6 +10,15 @@ x, y, z world cm (Panoptic frame); c = the probability, under the fitted body ov
 confidence of the supporting views); -1 (x = y = z = 0) for a joint not reconstructed; inlierViews19 = the number
 of views supporting each joint.
 
+Beside joints19 (which the Panoptic toolbox reads as it always has), the joints the detector gives and joints19
+lacks (:data:`~dome_calib.recon.body_models.EXTRA_JOINTS`: the feet, BODY_25B's UpperNeck, the head top) ride in
+fields of their own: ``"bodyModel"`` (the detector's model, e.g. ``"BODY_25B"``), ``"extraJointNames"``
+(``["upper_neck", "head_top", "l_big_toe", ...]``) per file, and per body ``"extraJoints"`` (``[x, y, z, c] * E`` in
+that order, the same conventions as joints19; triangulated per frame, :mod:`~dome_calib.recon.people.extras`) and
+``"inlierViewsExtra"`` (``[n] * E``). ``"labUp"``: where the bundle was imported from a lab's tool, the up axis of
+that lab's world (``"+z"``; our world is that world turned by ``PANOPTIC_FROM_UP[labUp]``, in cm), so the people
+export can write the lab's own axes.
+
 cameras.json: per camera the people it detected, the share of them used by a reconstructed body and the median
 pixel distance between its used joints and the reconstructed joints; ``flagged`` lists the cameras that disagree
 (median error above ``max(3 x the cameras' median, 5 px)`` or a share used below half the cameras' median): a
@@ -30,6 +39,7 @@ from dome_calib.recon.formats import SKELETON_FILE
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.bodies import Bodies
+from dome_calib.recon.people.extras import ExtraJoints
 from dome_calib.recon.people.run import PeopleSequence
 
 CAMERAS_FILE = "cameras.json"
@@ -47,20 +57,38 @@ def check_people_folder(folder: str | Path) -> Path:
     return target
 
 
-def scene_json(time_ms: float, bodies: Bodies, fps_type: str) -> dict:
-    """One body3DScene object (bodies sorted by id)."""
+def _joints_json(X_cm: np.ndarray, confidence: np.ndarray) -> list[float]:
+    """(J, 3), (J,) -> ``[x, y, z, c] * J`` (``0, 0, 0, -1`` where not reconstructed)."""
+    flat: list[float] = []
+    for X, c in zip(X_cm, confidence):
+        if np.all(np.isfinite(X)) and c >= 0:
+            flat += [round(float(v), 4) for v in X] + [round(float(c), 4)]
+        else:
+            flat += [0.0, 0.0, 0.0, -1.0]
+    return flat
+
+
+def scene_json(time_ms: float, bodies: Bodies, fps_type: str, *, body_model: str | None = None,
+               extra: tuple[list[str], np.ndarray, np.ndarray, np.ndarray] | None = None,
+               lab_up: str | None = None) -> dict:
+    """One body3DScene object (bodies sorted by id); ``extra``: (names, X_cm (P, E, 3), confidence (P, E),
+    n_inliers (P, E)) of the bodies in their order here (:mod:`~dome_calib.recon.people.extras`)."""
     out = []
     for p in np.argsort(bodies.ids, kind="stable"):
-        flat: list[float] = []
-        for j in range(19):
-            X, c = bodies.X_cm[p, j], float(bodies.confidence[p, j])
-            if np.all(np.isfinite(X)) and c >= 0:
-                flat += [round(float(v), 4) for v in X] + [round(c, 4)]
-            else:
-                flat += [0.0, 0.0, 0.0, -1.0]
-        out.append({"id": int(bodies.ids[p]), "joints19": flat,
-                    "inlierViews19": [int(n) for n in bodies.n_inliers[p]]})
-    return {"version": 0.7, "univTime": round(float(time_ms), 4), "fpsType": fps_type, "bodies": out}
+        body = {"id": int(bodies.ids[p]), "joints19": _joints_json(bodies.X_cm[p], bodies.confidence[p]),
+                "inlierViews19": [int(n) for n in bodies.n_inliers[p]]}
+        if extra is not None:
+            body["extraJoints"] = _joints_json(extra[1][p], extra[2][p])
+            body["inlierViewsExtra"] = [int(n) for n in extra[3][p]]
+        out.append(body)
+    scene = {"version": 0.7, "univTime": round(float(time_ms), 4), "fpsType": fps_type}
+    if body_model is not None:
+        scene["bodyModel"] = body_model
+    if lab_up is not None:
+        scene["labUp"] = lab_up
+    if extra is not None:
+        scene["extraJointNames"] = list(extra[0])
+    return scene | {"bodies": out}
 
 
 def camera_report(agreement: CameraAgreement) -> dict:
@@ -88,15 +116,20 @@ def camera_report(agreement: CameraAgreement) -> dict:
 
 
 def write_people(folder: str | Path, seq: PeopleSequence, numbers: np.ndarray, fps_type: str,
-                 also: Callable[[Path], None] | None = None) -> list[Path]:
+                 also: Callable[[Path], None] | None = None, *, body_model: str | None = None,
+                 extras: ExtraJoints | None = None, lab_up: str | None = None) -> list[Path]:
     """Write the body3DScene files and cameras.json into ``folder``, replacing it as a whole (staged beside it,
-    then renamed); ``also(staging)`` adds to the staged folder before the rename (the people page)."""
+    then renamed); ``also(staging)`` adds to the staged folder before the rename (the people page); ``body_model``
+    and ``extras`` (the detector's joints beside joints19) go into every file (see the module docstring)."""
     folder = check_people_folder(folder)
     names = []
     with atomic_folder(folder) as staging:
         for k, number in enumerate(numbers):
             names.append(f"body3DScene_{int(number):08d}.json")
-            obj = scene_json(seq.times_ms[k], seq.bodies[k], fps_type)
+            extra = (None if extras is None else
+                     (extras.names, extras.X_cm[k], extras.confidence[k], extras.n_inliers[k]))
+            obj = scene_json(seq.times_ms[k], seq.bodies[k], fps_type, body_model=body_model, extra=extra,
+                             lab_up=lab_up)
             (staging / names[-1]).write_text(json.dumps(obj, allow_nan=False) + "\n", encoding="utf-8")
         (staging / CAMERAS_FILE).write_text(json.dumps(camera_report(seq.cameras), indent=1, allow_nan=False) + "\n",
                                             encoding="utf-8")
