@@ -38,6 +38,24 @@ def pose2sim_config(project: Path, *, model: str, fps: int, multi_person: bool =
 
 
 @contextlib.contextmanager
+def _stdout_to(path: Path):
+    """The process's standard output (file descriptor 1: OpenSim's C++ logger writes every IK frame there) into
+    ``path`` for the block, so a bench's JSON lines stay its own."""
+    import sys
+
+    sys.stdout.flush()
+    saved = os.dup(1)
+    with open(path, "ab") as log:
+        os.dup2(log.fileno(), 1)
+        try:
+            yield
+        finally:
+            sys.stdout.flush()
+            os.dup2(saved, 1)
+            os.close(saved)
+
+
+@contextlib.contextmanager
 def _agg_backend():
     """Pose2Sim's modules pick a matplotlib backend on import; no window is ever opened here."""
     import matplotlib
@@ -53,7 +71,7 @@ def _agg_backend():
 def run_pose2sim_steps(project: Path, config: dict) -> list[Path]:
     """Pose2Sim's filtering, marker augmentation and kinematics on ``project/pose-3d/*.trc`` -> the ``.mot`` files
     of joint angles it wrote (one per person)."""
-    with _agg_backend():
+    with _agg_backend(), _stdout_to(project / "pose2sim_stdout.log"):
         from Pose2Sim.filtering import filter_all
         from Pose2Sim.kinematics import kinematics_all
         from Pose2Sim.markerAugmentation import augment_markers_all
@@ -73,7 +91,7 @@ def pose2sim_reference(project: Path, pose: Path, calibration: Path, *, model: s
     import rtoml
 
     (project / "Config.toml").write_text(rtoml.dumps(config))  # its association looks for a Config.toml beside it
-    with _agg_backend():
+    with _agg_backend(), _stdout_to(project / "pose2sim_stdout.log"):
         from Pose2Sim.personAssociation import associate_all
         from Pose2Sim.triangulation import triangulate_all
 

@@ -107,7 +107,8 @@ def test_bvh_read_by_bvhio(dataset, dome_calib_cli, tmp_path):
     names = marker_names(people)
     gaps = []
     for pid, track in people.tracks.items():
-        frame_time, got = bvhio_positions(tmp_path / "bvh" / f"person{pid}.bvh", names)
+        frame_time, got_m = bvhio_positions(tmp_path / "bvh" / f"person{pid}.bvh", names)
+        got = got_m * 100.0  # metres by default
         assert frame_time == pytest.approx(1.0 / float(people.fps), rel=1e-8)
         first, reference = constant_bone_body(people, track, track.confidence >= 0)
         assert first == people.frames[track.rows[0]] and len(got) == people.frames[track.rows[-1]] - first + 1
@@ -223,3 +224,48 @@ def test_fill_gaps_fills_as_pose2sims_triangulation_and_no_more():
     np.testing.assert_allclose(got[:, 0, 0], [0, 0, 0, 1, 2, 2 + 5 / 3, 2 + 10 / 3, 7, 8, 9, 9, 9])
     assert np.isnan(got[1:9, 1]).all() and np.isnan(got[:, 2]).all()  # 8 > 2 rows; never seen
     assert not np.isnan(fill_gaps(X, 8)[:, 1]).any() and np.isnan(fill_gaps(X, 0)).sum() == np.isnan(X).sum()
+
+
+_BLENDER_BVH = """
+import json, sys
+import bpy
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.import_anim.bvh(filepath=sys.argv[1])
+(arm,) = [o for o in bpy.data.objects if o.type == "ARMATURE"]
+scene = bpy.context.scene
+out = {}
+for k in json.loads(sys.argv[3]):
+    scene.frame_set(scene.frame_start + k)
+    out[k] = [tuple(arm.matrix_world @ arm.pose.bones[n].head) for n in json.loads(sys.argv[2])]
+print(json.dumps(out))
+"""
+
+
+def test_bvh_is_at_true_size_in_blenders_importer(real, dome_calib_cli, tmp_path):
+    """Blender's own BVH importer (bpy 5.0, ``import_anim.bvh`` at its default scale, one unit a metre; in a process
+    of its own) puts the real participant's joints where ours are, in metres (Blender's z up is the file's y): a
+    person ~1.7 m tall, not the 163 m a file in cm made; ``--unit cm`` writes 100 x the lengths."""
+    import subprocess
+    import sys
+
+    people = read_people(real)
+    (pid, track), = people.tracks.items()
+    _export(dome_calib_cli, real, "bvh", tmp_path / "m")
+    _export(dome_calib_cli, real, "bvh", tmp_path / "cm", "--unit", "cm")
+    first, reference_cm = constant_bone_body(people, track, track.confidence >= 0)
+    names = marker_names(people)
+    frames = [0, len(reference_cm) // 2]
+    run = subprocess.run([sys.executable, "-c", _BLENDER_BVH, str(tmp_path / "m" / f"person{pid}.bvh"),
+                          json.dumps(names), json.dumps(frames)], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    heads = json.loads(run.stdout.strip().splitlines()[-1])
+    for k in frames:
+        blender = np.array(heads[str(k)])
+        file_axes = blender[:, [0, 2, 1]] * [1, 1, -1]  # Blender (x, y, z) = the file's (x, -z, y)
+        np.testing.assert_allclose(file_axes, reference_cm[k] / 100.0, atol=1e-4)
+        assert 1.2 < np.ptp(blender[:, 2]) < 2.2  # the participant's height in Blender, metres
+    m_text = (tmp_path / "m" / f"person{pid}.bvh").read_text().split()
+    cm_text = (tmp_path / "cm" / f"person{pid}.bvh").read_text().split()
+    at = m_text.index("OFFSET", m_text.index("OFFSET") + 1)  # the first joint's offset below the root
+    np.testing.assert_allclose(np.array(cm_text[at + 1:at + 4], float), 100 * np.array(m_text[at + 1:at + 4], float),
+                               atol=1e-4)

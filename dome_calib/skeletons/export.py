@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from fractions import Fraction
 from pathlib import Path
+from typing import Literal
 
 from dome_calib.io_utils import atomic_folder, foreign_names, output_folder, refuse_output_among_inputs
 from dome_calib.options import AtLeast, PosFraction, options
@@ -41,13 +42,15 @@ class ExportPeopleOptions:
     ``fps``: the frame rate to write (default: the files' ``fpsType``, else measured from their times);
     ``ids``: only these people (default: everybody); ``trial``: the TRC files' name before ``_P<id>_<first>-<last>``
     (default: the folder's name); ``fill_gaps``: TRC markers missing for at most this many frames are filled as
-    Pose2Sim fills its own (:func:`~dome_calib.skeletons.trc.fill_gaps`; 0: every missing joint stays missing)."""
+    Pose2Sim fills its own (:func:`~dome_calib.skeletons.trc.fill_gaps`; 0: every missing joint stays missing);
+    ``unit``: the BVH files' length unit (metres: one Blender unit)."""
 
     min_confidence: NonNegFinite = 0.0
     fps: PosFraction | None = None
     ids: list[AtLeast(0)] | None = None
     trial: str | None = None
     fill_gaps: AtLeast(0) = 20
+    unit: Literal["m", "cm", "mm"] = "m"
 
 
 @dataclass(frozen=True)
@@ -142,7 +145,7 @@ def export_people(folder: str | Path, to: PeopleFormat | str, out: str | Path,
                     files.append(write_trc(staging, people, track, ok[pid], trial=trial,
                                            fill_frames=options.fill_gaps))
                 else:
-                    files.append(write_bvh(staging, people, track, ok[pid]))
+                    files.append(write_bvh(staging, people, track, ok[pid], unit=options.unit))
                 if progress is not None:
                     progress(n_files + k + 1, total)
     if progress is not None:
