@@ -9,6 +9,7 @@ constant against 38 deg), the times were doubled (30 fps assumed) and the pelvis
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -96,7 +97,7 @@ def _video(path: Path, fps: float) -> None:
     writer.release()
 
 
-def test_no_rate_is_assumed_without_sync_tables(bundle, dome_calib_cli, tmp_path):
+def test_no_rate_is_assumed_without_sync_tables(bundle, dome_calib_cli, tmp_path, caplog):
     """Without sync tables the rate is --fps, or the videos', or the run is refused (it used to assume 30 fps: this
     60 fps trial came out with every time doubled); the rate is said in the summary line."""
     det = _detections(tmp_path)
@@ -107,9 +108,11 @@ def test_no_rate_is_assumed_without_sync_tables(bundle, dome_calib_cli, tmp_path
     (tmp_path / "videos").mkdir()
     for cam in range(1, 5):
         _video(tmp_path / "videos" / f"cam{cam:02d}.avi", 60.0)
+    caplog.set_level(logging.INFO, logger="dome_calib.skeletons.page")
     run = dome_calib_cli(*args, "--videos", str(tmp_path / "videos"), "-o", str(tmp_path / "people"))
     assert run.returncode == 0, run.stderr
     assert "(shared, 60 fps from the videos)" in run.stdout
+    assert f"people page written to {tmp_path / 'people' / 'index.html'} (" in caplog.text  # not the staging folder
     times = [json.loads((tmp_path / "people" / f"body3DScene_{f:08d}.json").read_text())["univTime"] for f in (0, 6)]
     assert times[1] - times[0] == pytest.approx(100.0)  # 6 frames at 60 fps
     _video(tmp_path / "videos" / "cam04.avi", 30.0)

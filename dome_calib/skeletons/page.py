@@ -112,9 +112,12 @@ def render_page(data: dict) -> str:
 def write_people_page(path: str | Path, people: People, *, bundle: Bundle | None = None,
                       detections: list[CameraDetections] | None = None, notes: list[str] | None = None,
                       folder: Path | None = None) -> Path:
-    """Write the page of ``people`` to ``path`` (atomic); returns the path (``folder``: see :func:`page_data`)."""
+    """Write the page of ``people`` to ``path`` (atomic); returns the path (``folder``: see :func:`page_data`; a page
+    staged with its folder is said at the folder's final place, ``folder / path.name``: the staging folder is gone
+    after the rename)."""
     path = Path(path)
     atomic_write_text(path, render_page(page_data(people, bundle=bundle, detections=detections, notes=notes,
                                                   folder=folder)))
-    logger.info("people page written to %s (%.0f kB)", path, path.stat().st_size / 1e3)
+    said = path if folder is None or path.parent == Path(folder) else Path(folder) / path.name
+    logger.info("people page written to %s (%.0f kB)", said, path.stat().st_size / 1e3)
     return path
