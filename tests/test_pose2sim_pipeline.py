@@ -175,3 +175,34 @@ def test_every_detector_joint_comes_out_under_pose2sims_names(model, bundle, dom
                     set(their_markers) & set(markers)):  # Pose2Sim's Neck is BODY_25B's UpperNeck
         gap_cm = np.linalg.norm(data[m].to_numpy(float)[:n] - theirs[m].to_numpy(float)[:n], axis=-1) * 100
         assert np.nanmedian(gap_cm) < 8.0, (m, np.nanmedian(gap_cm))  # axes turned: a metre off
+
+
+def test_pose2sims_filtering_keeps_one_file_per_person(dome_calib_cli, tmp_path):
+    """Two people of the demo's synthetic group exported to TRC, then Pose2Sim 0.10.49's own filtering: one filtered
+    file per person, each the filter of its own person (``person0.trc`` and ``person1.trc`` both became
+    ``1-100_filt_butterworth.trc``: one person overwritten, exit 0)."""
+    from Pose2Sim.common import read_trc
+
+    from dome_calib.skeletons.scenes import read_people
+
+    from .pose2sim_pipeline_helpers import _agg_backend, pose2sim_config
+    from .skeletons_helpers import demo_group_scenes
+
+    folder = demo_group_scenes(tmp_path / "group", seconds=2.0)
+    ids = sorted(read_people(folder).tracks)[:2]
+    run = dome_calib_cli("export-people", str(folder), "--to", "trc", "-o", str(tmp_path / "project" / "pose-3d"),
+                         "--ids", ",".join(map(str, ids)))
+    assert run.returncode == 0, run.stderr
+    trcs = sorted((tmp_path / "project" / "pose-3d").glob("*.trc"))
+    assert len(trcs) == 2
+    with _agg_backend():
+        from Pose2Sim.filtering import filter_all
+
+        filter_all(pose2sim_config(tmp_path / "project", model="BODY_25", fps=25, multi_person=True))
+    filtered = sorted((tmp_path / "project" / "pose-3d").glob("*_filt_butterworth.trc"))
+    assert len(filtered) == 2  # one per person
+    for trc, out in zip(trcs, filtered):
+        assert out.name.startswith(trc.name.rsplit("_", 1)[0] + "_")  # <trial>_P<id>_<range>_filt_butterworth.trc
+        raw, filt = read_trc(str(trc))[0].to_numpy(float), read_trc(str(out))[0].to_numpy(float)
+        n = min(len(raw), len(filt))
+        assert np.nanmedian(np.abs(raw[:n] - filt[:n])) < 0.02  # metres: its own person, smoothed
