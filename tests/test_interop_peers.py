@@ -106,22 +106,26 @@ def test_easymocap_export_is_z_up_as_easymocaps_world(real, tmp_path):
 
 
 # --------------------------------------------------------------------------------------------------- Qualisys
-def test_qualisys_reads_as_pose2sims_calib_qca_fun():
-    """The Qualisys file of Pose2Sim's demo, read by Pose2Sim's own calib_qca_fun (pose2sim 0.10.49) and by our
-    import: same cameras in the same order and sizes, projecting alike within 1e-6 px over the image (Pose2Sim's
-    result is in metres in the lab's z-up world; ours in cm, turned to y down)."""
+@pytest.mark.parametrize("binning", [1, 2])
+def test_qualisys_reads_as_pose2sims_calib_qca_fun(binning):
+    """The Qualisys file of Pose2Sim's demo, read by Pose2Sim's own calib_qca_fun (pose2sim 0.10.49, its
+    binning_factor) and by our import: same cameras in the same order and sizes, projecting alike within 1e-6 px over
+    the image (Pose2Sim's result is in metres in the lab's z-up world; ours in cm, turned to y down) once its
+    distortion terms are ours: Pose2Sim divides them by 64 and by the binning, we read them as written, on the
+    evidence of the cameras' own checkerboard images (tests/test_interop_qualisys_evidence.py)."""
     from Pose2Sim.calibration import calib_qca_fun
 
-    _, C, S, D, K, R, T = calib_qca_fun(str(QCA))
+    _, C, S, D, K, R, T = calib_qca_fun(str(QCA), binning_factor=binning)
     from dome_calib.interop.convert import read_foreign
 
-    bundle, unit = read_foreign(QCA, "qualisys", ImportOptions())
+    bundle, unit = read_foreign(QCA, "qualisys", ImportOptions(binning=binning))
     assert unit == "mm" and list(bundle.cameras) == C
     worst = 0.0
     for i, cam in enumerate(bundle.cameras.values()):
         assert list(cam.resolution) == [int(v) for v in S[i]]
+        np.testing.assert_allclose(cam.dist[:4], np.asarray(D[i], dtype=float) * 64 * binning, rtol=1e-12)
         X_cm = world_points_cm(cam)
-        uv, _ = cv2.projectPoints(X_cm @ ZUP_M, R[i], T[i], K[i], np.asarray(D[i], dtype=float))
+        uv, _ = cv2.projectPoints(X_cm @ ZUP_M, R[i], T[i], K[i], cam.dist[:4])
         worst = max(worst, float(np.abs(uv.reshape(-1, 2) - pixels(cam, X_cm)).max()))
     print(f"Qualisys .qca.txt: ours vs Pose2Sim's calib_qca_fun: {worst:.2e} px")
     assert worst < 1e-6
@@ -129,12 +133,17 @@ def test_qualisys_reads_as_pose2sims_calib_qca_fun():
 
 def test_qualisys_import_matches_the_calibration_pose2sim_made_from_it(tmp_path):
     """The demo's Calib_qualisys.toml is Pose2Sim's conversion of this .qca.txt: both imports give the same
-    cameras (names cam01 / cam_01 aside)."""
+    cameras (names cam01 / cam_01 aside; the toml's distortion terms are Pose2Sim's, 1/64 of the file's)."""
+    from dataclasses import replace
+
     from dome_calib.interop.convert import read_foreign
 
     toml = Path(__file__).parent / "data" / "pose2sim_balancing" / "calibration" / "Calib_qualisys.toml"
     a, _ = read_foreign(QCA, "qualisys", ImportOptions())
     b, _ = read_foreign(toml, "pose2sim", ImportOptions())
+    for ca, cb in zip(a.cameras.values(), b.cameras.values()):
+        np.testing.assert_allclose(ca.dist[:4], cb.dist[:4] * 64, rtol=1e-6)
+    b.cameras.update({n: replace(c, dist=ca.dist) for (n, c), ca in zip(b.cameras.items(), a.cameras.values())})
     proj, rays = gaps_px(list(a.cameras.values()), list(b.cameras.values()))
     print(f"Qualisys vs Pose2Sim's toml of it: {proj.max():.2e} px")
     assert proj.max() < 1e-3  # the toml keeps 16 digits of Pose2Sim's float arithmetic

@@ -76,6 +76,9 @@ def import_(
     image_size: str = typer.Option(None, "--image-size", help="WIDTHxHEIGHT px of every camera, for files that do "
                                    "not record it (EasyMocap's calib_intri output, when its images/ are not beside "
                                    "it)."),
+    binning: int = typer.Option(None, "--binning", help="qualisys: sensor pixels binned per image pixel (2 for "
+                                "video filmed in 540p on a 1080p sensor; Pose2Sim's binning_factor). Default: what "
+                                "the file's video_resolution says, else 1."),
 ) -> None:
     """Turn another tool's camera calibration into a calibration bundle the reconstruction and sync stages read
     (cameras in the file's order, lengths converted to cm, the world turned to ours, names kept or renamed)."""
@@ -84,7 +87,7 @@ def import_(
 
     options = ImportOptions(unit=unit and str(unit), square_size_mm=square_size_mm, names=parse_names(names),
                             world_up=world_up and str(world_up), seq=seq if seq is not None else out.resolve().name,
-                            image_size=parse_image_size(image_size))
+                            image_size=parse_image_size(image_size), binning=binning)
     result = import_calibration(source, str(from_), out, options)
     typer.echo(f"{result.cameras} cameras from {source} ({result.format}, lengths in {result.unit}, "
                f"up {result.world_up}) -> {result.out}")

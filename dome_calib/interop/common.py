@@ -72,7 +72,9 @@ class ImportOptions:
     """``unit``: length unit of the file when the format does not state it ("squares" needs ``square_size_mm``);
     ``world_up``: the file world's up axis, turned into ours (None: the format's default); ``names``: name in the
     file -> our name; ``seq``: the bundle's sequence name; ``image_size``: (width, height) px for files that do not
-    record it (EasyMocap's calibration tools)."""
+    record it (EasyMocap's calibration tools); ``binning``: pixels binned per image pixel along each axis (Qualisys
+    video cameras filming in 540p on a 1080p sensor bin 2: Pose2Sim's ``binning_factor``; None: the file's own
+    ``video_resolution`` where it has one, else 1)."""
 
     unit: str | None = None
     square_size_mm: PosFinite | None = None
@@ -80,6 +82,7 @@ class ImportOptions:
     names: dict[str, str] = field(default_factory=dict)
     seq: Annotated[str, Field(min_length=1)] = "imported"
     image_size: tuple[AtLeast(1), AtLeast(1)] | None = None
+    binning: AtLeast(1) | None = None
 
 
 @dataclass(kw_only=True)
