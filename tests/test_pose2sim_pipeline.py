@@ -206,3 +206,22 @@ def test_pose2sims_filtering_keeps_one_file_per_person(dome_calib_cli, tmp_path)
         raw, filt = read_trc(str(trc))[0].to_numpy(float), read_trc(str(out))[0].to_numpy(float)
         n = min(len(raw), len(filt))
         assert np.nanmedian(np.abs(raw[:n] - filt[:n])) < 0.02  # metres: its own person, smoothed
+
+
+def test_cameras_are_flagged_when_half_of_them_are_off():
+    """Two of four cameras off (their joints mostly outvoted, 22 and 33 px): the relative criteria see nothing (the
+    cameras' median is off too), the absolute one (a share outvoted far above the detector's own outlier rate)
+    flags both and nobody else."""
+    from dome_calib.recon.people.agreement import ERROR_BIN_PX, CameraAgreement
+    from dome_calib.recon.people.scene_io import camera_report
+
+    a = CameraAgreement.empty(["c1", "c2", "c3", "c4"])
+    a.detected[:] = a.used[:] = 100
+    a.judged[:] = 1800
+    for v, (px, outvoted) in enumerate([(6.0, 0.03), (7.0, 0.05), (33.0, 0.86), (22.0, 0.52)]):
+        a.hist[v, int(px / ERROR_BIN_PX)] = 1000
+        a.outvoted[v] = int(outvoted * 1800)
+    report = camera_report(a)
+    assert report["flagged"] == ["c3", "c4"]
+    a.outvoted[:] = 0  # the relative criteria alone
+    assert camera_report(a)["flagged"] == []
