@@ -285,3 +285,25 @@ def test_a_camera_table_without_name_is_named_by_its_key(tmp_path):
     assert len(theirs["K"]) == len(loaded.cameras) and bundle is not None
     for K, cam in zip(theirs["K"], loaded.cameras.values()):
         np.testing.assert_allclose(cam.K, K)
+
+
+def test_export_a_camera_subset(tmp_path, dome_calib_cli):
+    """``export --cameras``: only those cameras, in the bundle's order, read back by Pose2Sim's own reader; a camera
+    the bundle lacks is one line, nothing written."""
+    import tomllib
+
+    from Pose2Sim.common import retrieve_calib_params
+
+    import_calibration(CALIB, "pose2sim", tmp_path / "b", ImportOptions())
+    run = dome_calib_cli("export", str(tmp_path / "b"), "--to", "pose2sim", "-o", str(tmp_path / "Calib.toml"),
+                         "--cameras", "cam_04,cam_02")
+    assert run.returncode == 0, run.stderr
+    doc = tomllib.loads((tmp_path / "Calib.toml").read_text())
+    assert [k for k, v in doc.items() if isinstance(v, dict) and k != "metadata"] == ["cam_02", "cam_04"]
+    theirs = retrieve_calib_params(tmp_path / "Calib.toml")
+    full = load_bundle(tmp_path / "b")
+    for K, name in zip(theirs["K"], ("cam_02", "cam_04")):
+        np.testing.assert_allclose(K, full.cameras[name].K)
+    run = dome_calib_cli("export", str(tmp_path / "b"), "--to", "pose2sim", "-o", str(tmp_path / "none.toml"),
+                         "--cameras", "cam_09")
+    assert run.returncode == 1 and "no camera 'cam_09'" in run.stderr and not (tmp_path / "none.toml").exists()

@@ -35,14 +35,17 @@ def export(
                                       "kept for colmap and aniposelib; nerfstudio and blender are always +z."),
     names: str = typer.Option(None, "--names", help=_NAMES_HELP),
     text: bool = typer.Option(False, "--text", help="colmap: write .txt files instead of .bin."),
+    cameras: str = typer.Option(None, "--cameras", help="Only these cameras, e.g. 00_03,00_07 (in the bundle's "
+                                "order; default: every camera)."),
 ) -> None:
     """Write a calibration bundle for another tool (cameras in the bundle's order). Says what the format cannot
     hold, per camera where it moves pixels."""
     from dome_calib.interop.common import ExportOptions, parse_names
     from dome_calib.interop.convert import export_bundle
 
+    chosen = [c.strip() for c in cameras.split(",") if c.strip()] if cameras else None
     options = ExportOptions(unit=unit and str(unit), world_up=world_up and str(world_up), names=parse_names(names),
-                            binary=not text)
+                            binary=not text, cameras=chosen)
     result = export_bundle(bundle, str(to), out, options)
     typer.echo(f"{result.cameras} cameras -> {result.out} ({result.format}, lengths in {result.unit}, "
                f"up {result.world_up})")

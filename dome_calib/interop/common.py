@@ -59,12 +59,13 @@ class ForeignCamera:
 class ExportOptions:
     """``unit``: length unit of the written translations (None: the format's default); ``world_up``: the written
     world's up axis (None: the format's default); ``names``: our name -> the name written; ``binary``: COLMAP binary
-    (else text) files."""
+    (else text) files; ``cameras``: only these cameras, in the bundle's order (None: every camera)."""
 
     unit: str | None = None
     world_up: str | None = None
     names: dict[str, str] = field(default_factory=dict)
     binary: bool = True
+    cameras: list[Annotated[str, Field(min_length=1)]] | None = None
 
 
 @options

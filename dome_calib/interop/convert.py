@@ -15,7 +15,7 @@ from __future__ import annotations
 import importlib
 import logging
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import ModuleType
 
@@ -94,6 +94,18 @@ def _not_carried(bundle: Bundle, info: FormatInfo) -> list[str]:
     return lines
 
 
+def camera_subset(bundle: Bundle, cameras: list[str] | None, where: str) -> Bundle:
+    """``bundle`` with only ``cameras`` (its own order kept; None: all); InteropError naming a camera it lacks."""
+    if cameras is None:
+        return bundle
+    unknown = [c for c in cameras if c not in bundle.cameras]
+    if unknown:
+        raise InteropError(f"{where}: --cameras: no camera {unknown[0]!r} in the bundle (cameras: "
+                           f"{', '.join(list(bundle.cameras)[:12])}{' ...' if len(bundle.cameras) > 12 else ''})")
+    keep = set(cameras)
+    return replace(bundle, cameras={n: c for n, c in bundle.cameras.items() if n in keep})
+
+
 def export_bundle(bundle_folder: str | Path, fmt: str, out: str | Path,
                   options: ExportOptions | None = None) -> ExportResult:
     """Write the bundle in ``bundle_folder`` as ``fmt`` to ``out`` (a folder for folder formats, else a file).
@@ -109,7 +121,7 @@ def export_bundle(bundle_folder: str | Path, fmt: str, out: str | Path,
     up = _world_up(info, options.world_up, str(out), export=True)
     if info.folder:
         _replaceable_folder(out, set(info.folder_files), f"a {info.name} export")
-    bundle = load_bundle(bundle_folder)
+    bundle = camera_subset(load_bundle(bundle_folder), options.cameras, str(bundle_folder))
     cams = to_foreign(bundle, options, unit, up, str(bundle_folder))
     module = adapter(info)
     with (atomic_folder(out) if info.folder else atomic_path(out)) as staging:
