@@ -11,7 +11,10 @@ Prints one JSON object per line:
   the two runs' joint angles over the frames both hold; ``mean_deg``: each run's mean (ours, Pose2Sim's);
 - ``reprojection_px``: per marker, the median pixel distance between each run's TRC markers reprojected through the
   imported bundle and the participant's detections (confidence > 0.3), over the 4 cameras and 100 frames: which run
-  lands on the images.
+  lands on the images;
+- ``two_people`` (``--two-people``): two people of the demo's synthetic group with BODY_25 feet (4 s at 25 fps)
+  exported to TRC and through Pose2Sim's three steps in its multi-person mode: the ``.mot`` files (one per person)
+  and the seconds.
 """
 from __future__ import annotations
 
@@ -104,6 +107,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--per-frame", action="store_true", help="reconstruct --per-frame (no body over time)")
+    ap.add_argument("--two-people", action="store_true", help="also two synthetic people through Pose2Sim")
     args = ap.parse_args()
     DATA_USED = data = args.data
     emit(machine={"loadavg": os.getloadavg()[0]})
@@ -138,6 +142,23 @@ def main() -> None:
         ref_trc = next((tmp / "pose2sim" / "pose-3d").glob("*_0-99.trc"))
         emit(reprojection_px={"ours": reprojection_px(bundle, trcs[0], det),
                               "pose2sim": reprojection_px(bundle, ref_trc, det)})
+        if args.two_people:
+            two_people(tmp)
+
+
+def two_people(tmp: Path) -> None:
+    from dome_calib.skeletons.export import ExportPeopleOptions, export_people
+    from dome_calib.skeletons.scenes import read_people
+    from tests.skeletons_helpers import demo_group_scenes
+
+    t0 = time.perf_counter()
+    folder = demo_group_scenes(tmp / "two" / "people", feet=True, seconds=4.0, drop=0.0)
+    ids = sorted(read_people(folder).tracks)[:2]
+    export_people(folder, "trc", tmp / "two" / "trc", ExportPeopleOptions(ids=ids))
+    mots = pose2sim_on_trcs(tmp / "two" / "project", sorted((tmp / "two" / "trc").glob("*.trc")), model="BODY_25",
+                            fps=25)
+    emit(two_people={"trc": sorted(p.name for p in (tmp / "two" / "trc").glob("*.trc")),
+                     "mot": [p.name for p in mots], "seconds": round(time.perf_counter() - t0, 1)})
 
 
 if __name__ == "__main__":
