@@ -179,7 +179,8 @@ def test_joints15_files_of_the_older_panoptic_layout(dome_calib_cli, tmp_path):
     assert ez["labels"][1] == "P4:Head"
     np.testing.assert_allclose(ez["X"][:, :15], X @ Z_UP_FROM_PANOPTIC.T * 10.0, atol=1e-2)
     _export(dome_calib_cli, folder, "bvh", tmp_path / "bvh")
-    _, got = bvhio_positions(tmp_path / "bvh" / "person4.bvh", [MARKER[j] for j in JOINTS15])
+    _, got_m = bvhio_positions(tmp_path / "bvh" / "person4.bvh", [MARKER[j] for j in JOINTS15])
+    got = got_m * 100.0  # metres
     first, ref = constant_bone_body(people, people.tracks[4], people.tracks[4].confidence >= 0)
     assert np.max(np.abs(got - ref)) < TOL_CM
 
