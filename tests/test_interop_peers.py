@@ -296,3 +296,36 @@ def test_vicon_reads_as_pose2sims_calib_vicon_fun(tmp_path):
         np.testing.assert_allclose(cam.K, written[cam.name].K, rtol=1e-12)
     print(f"Vicon .xcp: ours vs Pose2Sim's calib_vicon_fun: {worst:.2e} px")
     assert worst < 1e-6
+
+
+# ------------------------------------------------------------------------------------------------------ bioCV
+def test_biocv_reads_as_pose2sims_calib_biocv_fun(tmp_path):
+    """A bioCV calibration folder (one .calib text file per camera) written from the real Pose2Sim trial's cameras,
+    read by Pose2Sim's own calib_biocv_fun (pose2sim 0.10.49) and by our import: the same cameras in the same order
+    (cam_00 ..), sizes, projecting alike within 0.01 px over the image (measured 2e-3 px: Pose2Sim reads K and [R | t]
+    as float32)."""
+    from Pose2Sim.calibration import calib_biocv_fun
+
+    from dome_calib.interop.convert import read_foreign
+
+    toml = Path(__file__).parent / "data" / "pose2sim_balancing" / "calibration" / "Calib_qualisys.toml"
+    source, _ = read_foreign(toml, "pose2sim", ImportOptions(world_up="-y"))  # the lab's world kept
+    folder = tmp_path / "biocv"
+    folder.mkdir()
+    for k, cam in enumerate(source.cameras.values()):
+        rows = [f"{cam.resolution[0]}", f"{cam.resolution[1]}"] + [" ".join(repr(float(v)) for v in r) for r in cam.K]
+        rows += [""] + [" ".join(repr(float(v)) for v in (*cam.R[i], cam.t_cm[i] * 10.0)) for i in range(3)]
+        rows += ["0 0 0 1", "", " ".join(repr(float(v)) for v in (-0.01 * (k + 1), 0.002, 0.0001, -0.0002))]
+        (folder / f"{k:02d}.calib").write_text("\n".join(rows) + "\n")
+    _, C, S, D, K, R, T = calib_biocv_fun(sorted(folder.glob("*.calib")))
+    bundle, unit = read_foreign(folder, "biocv", ImportOptions())
+    assert unit == "mm" and list(bundle.cameras) == C == [f"cam_{k:02d}" for k in range(4)]
+    worst = 0.0
+    for i, cam in enumerate(bundle.cameras.values()):
+        assert list(cam.resolution) == [int(v) for v in S[i]]
+        X_cm = world_points_cm(cam)
+        uv, _ = cv2.projectPoints(X_cm @ ZUP_M, np.asarray(R[i], float), np.asarray(T[i], float),
+                                  np.asarray(K[i], float), np.asarray(D[i], dtype=float))
+        worst = max(worst, float(np.abs(uv.reshape(-1, 2) - pixels(cam, X_cm)).max()))
+    print(f"bioCV .calib: ours vs Pose2Sim's calib_biocv_fun: {worst:.2e} px")
+    assert worst < 1e-2
