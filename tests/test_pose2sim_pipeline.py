@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -120,6 +121,9 @@ def test_no_rate_is_assumed_without_sync_tables(bundle, dome_calib_cli, tmp_path
     assert run.returncode == 1 and "cam04.avi runs at 30 fps but cam01.avi at 60 fps" in run.stderr
     run = dome_calib_cli(*args, "--fps", "30000/1001", "-o", str(tmp_path / "people"))
     assert run.returncode == 0 and "29.97 fps from --fps" in run.stdout
+    from dome_calib.skeletons.scenes import read_people
+
+    assert read_people(tmp_path / "people").fps == Fraction(30000, 1001)  # exact, not measured from the times
 
 
 @pytest.mark.parametrize("model", ["BODY_25B", "HALPE_26", "COCO_17"])

@@ -65,6 +65,8 @@ class SceneFile(OpenSchema):
     version: Finite | str | None = None
     univTime: Finite = Field(description="universal time of the frame, ms")
     fpsType: str | None = Field(None, description='"vga_25", "hd_29_97", "kinect_30" or "custom"')
+    fps: Annotated[str, Field(pattern=r"^[1-9]\d{0,9}(/[1-9]\d{0,9})?$")] | None = Field(
+        None, description="dome-calib's: the exact frame rate of a custom fpsType, e.g. \"60\", \"30000/1001\"")
     bodyModel: str | None = Field(None, description="dome-calib's: the detector's model (BODY_25B, HALPE_26, ...)")
     labUp: Literal["+x", "-x", "+y", "-y", "+z", "-z"] | None = Field(
         None, description="dome-calib's: the up axis of the lab world the bundle was imported from")
@@ -146,10 +148,13 @@ def read_scene(path: str | Path) -> tuple[float, dict[int, np.ndarray]]:
     return float(scene.univTime), {b.id: np.asarray(b.joints19, dtype=float).reshape(19, 4) for b in scene.bodies}
 
 
-def frame_rate(fps_type: str, frames: np.ndarray, times_ms: np.ndarray) -> Fraction:
-    """The frame rate: the ``fpsType``'s (exact), else frames per second of the times (rounded to 1/1000 fps)."""
+def frame_rate(fps_type: str, frames: np.ndarray, times_ms: np.ndarray, stated: Fraction | None = None) -> Fraction:
+    """The frame rate: the ``fpsType``'s (exact), else the files' own ``fps`` (exact), else frames per second of the
+    times (rounded to 1/1000 fps)."""
     if fps_type in FPS_OF_TYPE:
         return FPS_OF_TYPE[fps_type]
+    if stated is not None:
+        return stated
     if len(frames) < 2 or times_ms[-1] <= times_ms[0]:
         return Fraction(30)
     return Fraction(round(1000.0 * 1000.0 * (frames[-1] - frames[0]) / (times_ms[-1] - times_ms[0]))) / 1000
@@ -163,6 +168,7 @@ def read_people(folder: str | Path, *, progress: Callable[[int, int], None] | No
     frames = np.array([f for f, _ in files], dtype=np.int64)
     times = np.empty(len(files))
     layout = fps_type = None
+    stated: str | None = None
     extra: tuple[str, ...] | None = None
     body_model: str | None = None
     lab_up: str | None = None
@@ -175,6 +181,10 @@ def read_people(folder: str | Path, *, progress: Callable[[int, int], None] | No
             fps_type = kind
         elif kind != fps_type:
             raise PeopleFileError(f"{path}: fpsType: {kind!r}, but earlier files have {fps_type!r}")
+        if k == 0:
+            stated = scene.fps
+        elif scene.fps != stated:
+            raise PeopleFileError(f"{path}: fps: {scene.fps!r}, but earlier files have {stated!r}")
         names = tuple(scene.extraJointNames or ())
         if extra is None:
             extra, body_model, lab_up = names, scene.bodyModel, scene.labUp
@@ -213,5 +223,5 @@ def read_people(folder: str | Path, *, progress: Callable[[int, int], None] | No
     fps_type = fps_type or "custom"
     logger.info("read %d files, %d people (%s)", len(files), len(tracks), layout)
     return People(folder=Path(folder), frames=frames, times_ms=times, fps_type=fps_type,
-                  fps=frame_rate(fps_type, frames, times), layout=layout, tracks=tracks, extra=extra,
+                  fps=frame_rate(fps_type, frames, times, Fraction(stated) if stated else None), layout=layout, tracks=tracks, extra=extra,
                   body_model=body_model, lab_up=lab_up)

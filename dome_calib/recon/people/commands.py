@@ -247,7 +247,7 @@ def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callab
         extras = (extra_joints(plan.views, plan.source, seq, plan.options)
                   if isinstance(plan.source, FileSource) else None)  # the detector's joints beside joints19
     write_people(plan.out, seq, plan.numbers, FPS_TYPE.get(plan.reference, "custom"), also=page,
-                 body_model=plan.model.value, extras=extras, lab_up=plan.lab_up)
+                 body_model=plan.model.value, extras=extras, lab_up=plan.lab_up, fps=plan.fps)
     report = camera_report(seq.cameras)
     ids = {int(i) for b in seq.bodies for i in b.ids}
     nobody = None if ids else why_nobody(seq.cameras, plan.options, len(plan.times_ms))

@@ -17,7 +17,8 @@ fields of their own: ``"bodyModel"`` (the detector's model, e.g. ``"BODY_25B"``)
 that order, the same conventions as joints19; triangulated per frame, :mod:`~dome_calib.recon.people.extras`) and
 ``"inlierViewsExtra"`` (``[n] * E``). ``"labUp"``: where the bundle was imported from a lab's tool, the up axis of
 that lab's world (``"+z"``; our world is that world turned by ``PANOPTIC_FROM_UP[labUp]``, in cm), so the people
-export can write the lab's own axes.
+export can write the lab's own axes. ``"fps"`` (``"60"``, ``"30000/1001"``): with ``fpsType`` ``"custom"`` (a bundle
+without sync tables), the exact rate the times were made with.
 
 cameras.json: per camera the people it detected, the share of them used by a reconstructed body and the median
 pixel distance between its used joints and the reconstructed joints; ``flagged`` lists the cameras that disagree
@@ -31,6 +32,7 @@ measured pixel noise from where the body puts the joint: swaps, a neighbour's li
 from __future__ import annotations
 
 import json
+from fractions import Fraction
 from collections.abc import Callable
 from pathlib import Path
 
@@ -80,7 +82,7 @@ def _joints_json(X_cm: np.ndarray, confidence: np.ndarray) -> list[float]:
 
 def scene_json(time_ms: float, bodies: Bodies, fps_type: str, *, body_model: str | None = None,
                extra: tuple[list[str], np.ndarray, np.ndarray, np.ndarray] | None = None,
-               lab_up: str | None = None) -> dict:
+               lab_up: str | None = None, fps: Fraction | None = None) -> dict:
     """One body3DScene object (bodies sorted by id); ``extra``: (names, X_cm (P, E, 3), confidence (P, E),
     n_inliers (P, E)) of the bodies in their order here (:mod:`~dome_calib.recon.people.extras`)."""
     out = []
@@ -92,6 +94,8 @@ def scene_json(time_ms: float, bodies: Bodies, fps_type: str, *, body_model: str
             body["inlierViewsExtra"] = [int(n) for n in extra[3][p]]
         out.append(body)
     scene = {"version": 0.7, "univTime": round(float(time_ms), 4), "fpsType": fps_type}
+    if fps is not None and fps_type == "custom":
+        scene["fps"] = str(fps)
     if body_model is not None:
         scene["bodyModel"] = body_model
     if lab_up is not None:
@@ -128,7 +132,8 @@ def camera_report(agreement: CameraAgreement) -> dict:
 
 def write_people(folder: str | Path, seq: PeopleSequence, numbers: np.ndarray, fps_type: str,
                  also: Callable[[Path], None] | None = None, *, body_model: str | None = None,
-                 extras: ExtraJoints | None = None, lab_up: str | None = None) -> list[Path]:
+                 extras: ExtraJoints | None = None, lab_up: str | None = None,
+                 fps: Fraction | None = None) -> list[Path]:
     """Write the body3DScene files and cameras.json into ``folder``, replacing it as a whole (staged beside it,
     then renamed); ``also(staging)`` adds to the staged folder before the rename (the people page); ``body_model``
     and ``extras`` (the detector's joints beside joints19) go into every file (see the module docstring)."""
@@ -140,7 +145,7 @@ def write_people(folder: str | Path, seq: PeopleSequence, numbers: np.ndarray, f
             extra = (None if extras is None else
                      (extras.names, extras.X_cm[k], extras.confidence[k], extras.n_inliers[k]))
             obj = scene_json(seq.times_ms[k], seq.bodies[k], fps_type, body_model=body_model, extra=extra,
-                             lab_up=lab_up)
+                             lab_up=lab_up, fps=fps)
             (staging / names[-1]).write_text(json.dumps(obj, allow_nan=False) + "\n", encoding="utf-8")
         (staging / CAMERAS_FILE).write_text(json.dumps(camera_report(seq.cameras), indent=1, allow_nan=False) + "\n",
                                             encoding="utf-8")
