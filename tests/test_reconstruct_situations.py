@@ -242,7 +242,8 @@ def test_sigterm_is_one_line_and_exit_130(group, tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen([sys.executable, "-c", "from dome_calib.cli import main; main()", "reconstruct",
                              str(root / "det"), "--bundle", str(root / "bundle"), "-o", str(tmp_path / "out"),
-                             "--body-model", "BODY_25", "--camera-map", str(fifo), "--fps", "30"], cwd=tmp_path, env=env,
+                             "--body-model", "BODY_25", "--camera-map", str(fifo), "--fps", "30"], cwd=tmp_path,
+                            env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert _wait_for(lambda: "pycolmap" in Path(f"/proc/{proc.pid}/maps").read_text() or proc.poll() is not None)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from dome_calib.skeletons.bvh import constant_bone_body
-from dome_calib.skeletons.joints import (JOINTS15, JOINTS19, MARKER, Y_UP_FROM_PANOPTIC, Z_UP_FROM_PANOPTIC,
+from dome_calib.skeletons.joints import (JOINTS15, JOINTS19, MARKER, Z_UP_FROM_PANOPTIC,
                                          marker_names, y_up_axes, z_up_axes)
 from dome_calib.skeletons.scenes import read_people
 from dome_calib.skeletons.trc import fill_gaps, trc_name

@@ -71,7 +71,8 @@ def import_(
                                          "side in mm."),
     world_up: UpChoice = typer.Option(None, "--world-up", help="Axis that points up in SOURCE's world; it is "
                                       "turned to our -y (x kept where possible). Default: +z for pose2sim, "
-                                      "easymocap, qualisys, vicon, biocv, caliscope; the world kept for colmap, aniposelib, "
+                                      "easymocap, qualisys, vicon, biocv, caliscope; the world kept for colmap, "
+                                      "aniposelib, "
                                       "kalibr (cam0's frame); nerfstudio: undone from its applied_transform."),
     names: str = typer.Option(None, "--names", help=_NAMES_HELP),
     seq: str = typer.Option(None, "--seq", help="Sequence name for calibration_<seq>.json (default: the output "

@@ -46,7 +46,8 @@ def export_people(
                              "in Blender's importer), cm or mm."),
 ) -> None:
     """Write the people of a body3DScene folder for other tools: TRC (OpenSim, Pose2Sim), C3D or BVH. Person ids
-    are kept (<trial>_P<id>_<first>-<last>.trc, person<id>.bvh, C3D markers P<id>:Neck ...); joints that were not reconstructed are
+    are kept (<trial>_P<id>_<first>-<last>.trc, person<id>.bvh, C3D markers P<id>:Neck ...); joints that were not
+    reconstructed are
     written as the format's missing value (BVH, which has none, holds the last pose)."""
     from dome_calib.cli.progress import ProgressBars
     from dome_calib.skeletons.export import ExportPeopleOptions, export_people as run, parse_fps, parse_ids

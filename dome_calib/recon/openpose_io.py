@@ -306,7 +306,8 @@ def body_model_of(files: dict[str, dict[int, Path]], body_model: BodyModel | str
 def read_openpose_files(files: dict[str, dict[int, Path]], model: BodyModel, *, extras: bool = False
                         ) -> dict[str, dict[int, np.ndarray]]:
     """Read the files (camera -> {frame -> path}) -> camera -> {frame -> (N, 19, 3) joints19}; with ``extras``
-    (N, 19 + E, 3): the model's joints that joints19 lacks after them (:func:`~dome_calib.recon.body_models.with_extras`)."""
+    (N, 19 + E, 3): the model's joints that joints19 lacks after them
+    (:func:`~dome_calib.recon.body_models.with_extras`)."""
     n_joints = len(JOINT_NAMES[model])
     convert = with_extras if extras else to_joints19
     out: dict[str, dict[int, np.ndarray]] = {}

@@ -12,8 +12,8 @@ Layouts (the Panoptic toolbox's README and its Matlab ``PoseLoaderJson.m``/``Vis
 Marker names are Pose2Sim's (``Pose2Sim/skeletons.py``, its OpenSim marker sets ``Markers_Body25.xml``,
 ``Markers_Body25b.xml``, ``Markers_Halpe26.xml``, ``Markers_Coco17.xml``): ``Neck``, ``Nose``, ``CHip`` (the hip
 centre, as in its BODY_25 tree; ``Hip`` for HALPE_26 and COCO_17), ``LShoulder`` ..., ``LEye``, ``LEar``, ``Head``
-for the head top, ``LBigToe``, ``LSmallToe``, ``LHeel`` ... for the feet (:func:`marker_names`). OpenSim's inverse kinematics uses the markers its
-marker set names and ignores the others.
+for the head top, ``LBigToe``, ``LSmallToe``, ``LHeel`` ... for the feet (:func:`marker_names`). OpenSim's inverse
+kinematics uses the markers its marker set names and ignores the others.
 
 Axes (ours: the Panoptic world, y down, cm):
 

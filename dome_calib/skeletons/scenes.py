@@ -7,10 +7,11 @@ A file (the Panoptic toolbox's README, "Skeleton Output Format"; mmpose's
     {"version": 0.7, "univTime": 53541.542, "fpsType": "hd_29_97",
      "bodies": [{"id": 0, "joints19": [x, y, z, c] * 19}, ...]}
 
-``joints15`` ([x, y, z, c] * 15, the older "mpi15" layout) in place of ``joints19``; dome-calib's
-``bodyModel``, ``extraJointNames`` and per body ``extraJoints`` (the detector's joints beside joints19, the same
-conventions; :mod:`dome_calib.recon.people.scene_io`) and ``labUp`` (the imported lab world's up axis) are read too and carried after the layout's joints; ``inlierViews19`` (ours: the
-views behind each joint) is read and not used; other fields are none of our business and are ignored. x, y, z:
+``joints15`` ([x, y, z, c] * 15, the older "mpi15" layout) in place of ``joints19``; dome-calib's ``bodyModel``,
+``extraJointNames`` and per body ``extraJoints`` (the detector's joints beside joints19, the same conventions:
+:mod:`dome_calib.recon.people.scene_io`; carried after the layout's joints), ``labUp`` (the imported lab world's up
+axis) and ``fps`` (the exact rate of a custom ``fpsType``) are read too; ``inlierViews19`` (ours: the views behind
+each joint) is read and not used; other fields are none of our business and are ignored. x, y, z:
 world cm (the Panoptic frame, y down); c: the joint's confidence, ``-1`` where it was not reconstructed (and ``0,
 0, 0`` then). The frame is the number in the file name. Every problem is one line naming the file and the field
 (:class:`~dome_calib.skeletons.errors.PeopleFileError`).
@@ -223,5 +224,5 @@ def read_people(folder: str | Path, *, progress: Callable[[int, int], None] | No
     fps_type = fps_type or "custom"
     logger.info("read %d files, %d people (%s)", len(files), len(tracks), layout)
     return People(folder=Path(folder), frames=frames, times_ms=times, fps_type=fps_type,
-                  fps=frame_rate(fps_type, frames, times, Fraction(stated) if stated else None), layout=layout, tracks=tracks, extra=extra,
-                  body_model=body_model, lab_up=lab_up)
+                  fps=frame_rate(fps_type, frames, times, Fraction(stated) if stated else None), layout=layout,
+                  tracks=tracks, extra=extra, body_model=body_model, lab_up=lab_up)
