@@ -211,6 +211,15 @@ def test_trc_header_is_laid_out_as_pose2sims_writer(group, dome_calib_cli, tmp_p
     names = marker_names(people)
     assert header[3] == "Frame#\tTime\t" + "\t\t\t".join(names) + "\t\t\t\n"  # make_trc's line 4
     assert header[4] == "\t\t" + "\t".join(f"X{i + 1}\tY{i + 1}\tZ{i + 1}" for i in range(len(names))) + "\t\n"
+    import opensim
+
+    table = opensim.TimeSeriesTableVec3()  # OpenSim 4.6's own writer ends lines 4 and 5 the same way
+    table.setColumnLabels(names)
+    table.appendRow(0.0, opensim.RowVectorVec3(len(names), opensim.Vec3(1, 2, 3)))
+    table.addTableMetaDataString("DataRate", "25")
+    table.addTableMetaDataString("Units", "m")
+    opensim.TRCFileAdapter.write(table, str(tmp_path / "opensim.trc"))
+    assert (tmp_path / "opensim.trc").read_text().splitlines(keepends=True)[3:5] == header[3:5]
     data, _, _, markers, head = read_trc(str(path))
     data, markers, head = add_neck_hip_data(data, [m for m in markers if m != "Hip"], list(head))
     assert [m.strip() for m in head[3].split("\t")[2::3] if m.strip()] == markers  # the header names Hip too

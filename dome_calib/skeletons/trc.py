@@ -10,7 +10,8 @@ five header lines, then one row per frame)::
             X1  Y1  Z1  X2  Y2  Z2 ...  Z19  <tab>
     0  0.000000  0.123456  1.543210  -0.200000 ...
 
-- Line 4 (marker names) ends with three tabs after the last name, as Pose2Sim's and OpenSim's writers end it:
+- Line 4 (marker names) ends with three tabs after the last name, as Pose2Sim's and OpenSim's writers end it
+  (OpenSim 4.6's ``TRCFileAdapter.write`` writes lines 4 and 5 byte for byte as here):
   Pose2Sim's marker augmentation (``common.add_neck_hip_data``) inserts its ``Hip`` marker by replacing that
   ``"\\t\\t\\t\\n"``; without it the insertion fails in silence and the augmentation dies on a column count.
 - Name: ``<trial>_P<id>_<first>-<last>.trc`` (:func:`trc_name`), Pose2Sim's multi-person name: its filtering
