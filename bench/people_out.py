@@ -12,9 +12,9 @@ Prints one JSON object per line:
   median, 95th percentile, max: the frame's bone lengths against their medians); joints compared; missing joints
   read back as missing (``missing_kept``);
 - ``pose2sim_agreement``: the real capture's TRC against Pose2Sim's own TRC of the same detections (its own
-  triangulation, a peer's result, not a truth), both y up in metres: the median height difference per marker and
-  the median 3D distance once the fixed turn about the vertical between the two worlds is applied (the import turned
-  the lab's z-up world into ours);
+  triangulation, a peer's result, not a truth), both y up in metres and in the same axes (our TRC of a bundle
+  imported from a z-up lab is in the lab's world as Pose2Sim turns it): the median height difference per marker and
+  the median 3D distance;
 - ``page``: 10 people x 3,000 frames (the issue's size; synthetic walkers, 25 fps): the page's size, the seconds to
   build it, and per fresh load in headless Chromium the time until the page is ready (``ready_ms``, the aim is
   under 2 s) and the load event, then the frames advanced while playing ~2 s at 4 x (beside the number the clock
@@ -36,18 +36,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from dome_calib.interop.common import PANOPTIC_FROM_UP  # noqa: E402
 from dome_calib.skeletons.bvh import constant_bone_body  # noqa: E402
 from dome_calib.skeletons.export import export_people  # noqa: E402
-from dome_calib.skeletons.joints import MARKER, Y_UP_FROM_PANOPTIC, Z_UP_FROM_PANOPTIC  # noqa: E402
+from dome_calib.skeletons.joints import marker_names, y_up_axes, z_up_axes  # noqa: E402
 from dome_calib.skeletons.scenes import read_people  # noqa: E402
 from tests.people_helpers import group_joints_cm  # noqa: E402
 from tests.skeletons_helpers import (DATA, bvhio_positions, c3d_package_read, chain_present,  # noqa: E402
                                      demo_group_reconstructed, demo_group_scenes, ezc3d_read, opensim_trc,
                                      ours_dense, pose2sim_trc, real_capture_scenes, write_scenes)
-
-#: Pose2Sim's TRC (y up) -> the lab's z-up world of its calibration (tests/test_people_real.py found and checked it).
-LAB_FROM_P2S_TRC = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 
 def emit(**fields) -> None:
@@ -76,15 +72,16 @@ def bench_formats(name: str, folder: Path, work: Path) -> None:
             kept = True
             for pid, track in people.tracks.items():
                 span = people.frames[track.rows[0]:track.rows[-1] + 1]
-                ours = ours_dense(people, pid, span, Y_UP_FROM_PANOPTIC, 0.01)
-                osim, p2s = opensim_trc(out / f"person{pid}.trc"), pose2sim_trc(out / f"person{pid}.trc")
+                ours = ours_dense(people, pid, span, y_up_axes(people), 0.01)
+                (path,) = out.glob(f"*_P{pid}_*.trc")
+                osim, p2s = opensim_trc(path), pose2sim_trc(path)
                 worst_osim = max(worst_osim, worst(osim["X"], ours, 100.0))
                 worst_p2s = max(worst_p2s, worst(p2s["X"], ours, 100.0))
                 kept &= bool(np.array_equal(np.isnan(osim["X"]), np.isnan(ours)))
             fields |= {"opensim_max_cm": worst_osim, "pose2sim_max_cm": worst_p2s, "missing_kept": kept}
         elif fmt == "c3d":
             frames = np.arange(people.frames[0], people.frames[-1] + 1)
-            ours = np.concatenate([ours_dense(people, pid, frames, Z_UP_FROM_PANOPTIC, 10.0) for pid in people.tracks],
+            ours = np.concatenate([ours_dense(people, pid, frames, z_up_axes(people), 10.0) for pid in people.tracks],
                                   axis=1)
             ez, pkg = ezc3d_read(out / "people.c3d"), c3d_package_read(out / "people.c3d")
             missing = np.isnan(ours).any(-1)
@@ -95,10 +92,11 @@ def bench_formats(name: str, folder: Path, work: Path) -> None:
         else:
             vs_const, gaps, n = 0.0, [], 0
             for pid, track in people.tracks.items():
-                _, got = bvhio_positions(out / f"person{pid}.bvh", [MARKER[j] for j in people.joints])
+                _, got_m = bvhio_positions(out / f"person{pid}.bvh", marker_names(people))
+                got = got_m * 100.0  # the BVH is in metres
                 first, ref = constant_bone_body(people, track, track.confidence >= 0)
                 vs_const = max(vs_const, float(np.max(np.abs(got - ref))))
-                ours = ours_dense(people, pid, np.arange(first, first + len(got)), Y_UP_FROM_PANOPTIC, 1.0)
+                ours = ours_dense(people, pid, np.arange(first, first + len(got)), y_up_axes(people), 1.0)
                 held = chain_present(people, ours)
                 gaps.append(np.linalg.norm(got - ours, axis=-1)[held])
                 n += int(np.isfinite(ours).all(-1).sum())
@@ -114,20 +112,18 @@ def bench_formats(name: str, folder: Path, work: Path) -> None:
 def pose2sim_agreement(folder: Path, work: Path) -> None:
     """Our TRC of the real capture against Pose2Sim's own TRC of the same detections."""
     export_people(folder, "trc", work / "real_vs_p2s")
-    ours = opensim_trc(work / "real_vs_p2s" / "person0.trc")
+    ours = opensim_trc(next((work / "real_vs_p2s").glob("*_P0_*.trc")))
     theirs = pose2sim_trc(DATA / "pose2sim_result" / "S00_P00_T01_BalancingTrial_0-100.trc")
-    turn = Y_UP_FROM_PANOPTIC @ PANOPTIC_FROM_UP["+z"] @ LAB_FROM_P2S_TRC  # their TRC axes -> ours
-    assert np.allclose(turn[1], [0, 1, 0]) and np.allclose(turn[:, 1], [0, 1, 0])  # a turn about the vertical
     out = {}
     for m in ours["markers"]:
         if m not in theirs["markers"]:
             continue
         a = ours["X"][:, ours["markers"].index(m)]
-        b = theirs["X"][:, theirs["markers"].index(m)] @ turn.T
+        b = theirs["X"][:, theirs["markers"].index(m)]  # the same axes: ours of an imported z-up lab are Pose2Sim's
         out[m] = {"height_cm": round(float(np.nanmedian(a[:, 1] - b[:, 1])) * 100, 2),
                   "distance_cm": round(float(np.nanmedian(np.linalg.norm(a - b, axis=-1))) * 100, 2)}
-    emit(pose2sim_agreement=out, note="Pose2Sim's own TRC of the same detections (a peer's triangulation); "
-         "Pose2Sim's Neck/Head are BODY_25B's upper neck / head top, not joints19's neck")
+    emit(pose2sim_agreement=out, note="Pose2Sim's own TRC of the same detections (a peer's triangulation), in the "
+         "same axes; Neck and Head are BODY_25B's upper neck and head top in both")
 
 
 def page_bench(n_people: int, n_frames: int, loads: int, work: Path) -> None:

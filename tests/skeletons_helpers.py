@@ -16,26 +16,58 @@ DATA = Path(__file__).parent / "data" / "pose2sim_balancing"
 CAMERA_MAP = ",".join(f"cam{k:02d}_json=00_{k:02d}" for k in range(1, 5))
 
 
-def write_scenes(folder: Path, frames, times_ms, bodies, *, fps_type: str = "vga_25", layout: str = "joints19"
-                 ) -> Path:
+def write_scenes(folder: Path, frames, times_ms, bodies, *, fps_type: str = "vga_25", layout: str = "joints19",
+                 extra: tuple[str, ...] = (), body_model: str | None = None) -> Path:
     """body3DScene files: ``bodies[k]`` = {id: (J, 4) [x, y, z, c]} at frame ``frames[k]`` (c < 0: missing, written
-    as Panoptic writes it: 0, 0, 0, -1)."""
+    as Panoptic writes it: 0, 0, 0, -1); with ``extra`` joint names, the last ``len(extra)`` rows go to
+    ``extraJoints`` as ``reconstruct`` writes them."""
     folder.mkdir(parents=True, exist_ok=True)
     for frame, t, people in zip(frames, times_ms, bodies):
         out = []
         for pid, j in sorted(people.items()):
             j = np.where(j[:, 3:] < 0, [0.0, 0.0, 0.0, -1.0], j)
-            out.append({"id": int(pid), layout: [round(float(v), 4) for v in j.ravel()]})
-        doc = {"version": 0.7, "univTime": round(float(t), 4), "fpsType": fps_type, "bodies": out}
+            n = len(j) - len(extra)
+            body = {"id": int(pid), layout: [round(float(v), 4) for v in j[:n].ravel()]}
+            if extra:
+                body["extraJoints"] = [round(float(v), 4) for v in j[n:].ravel()]
+            out.append(body)
+        doc = {"version": 0.7, "univTime": round(float(t), 4), "fpsType": fps_type}
+        if extra:
+            doc |= {"bodyModel": body_model, "extraJointNames": list(extra)}
+        doc["bodies"] = out
         (folder / f"body3DScene_{int(frame):08d}.json").write_text(json.dumps(doc), encoding="utf-8")
     return folder
 
 
+FEET = ("l_big_toe", "l_small_toe", "l_heel", "r_big_toe", "r_small_toe", "r_heel")
+
+
+def feet_cm(X: np.ndarray) -> np.ndarray:
+    """(..., 19, 3) joints19 (Panoptic, y down) -> (..., 6, 3) feet in BODY_25's order, rigid with each ankle and
+    the hips' frame (forward = down x across): big toe 15 cm forward and 6 cm down, small toe 3.5 cm outward of it,
+    heel 5 cm back and 6 cm down; constant bones by construction."""
+    from dome_calib.recon.body_models import JOINTS19 as J
+
+    across = X[..., J.index("l_hip"), :] - X[..., J.index("r_hip"), :]
+    across /= np.linalg.norm(across, axis=-1, keepdims=True)
+    down = np.zeros_like(across)
+    down[..., 1] = 1.0
+    forward = np.cross(down, across)
+    forward /= np.linalg.norm(forward, axis=-1, keepdims=True)
+    out = []
+    for side, ankle in ((1.0, J.index("l_ankle")), (-1.0, J.index("r_ankle"))):
+        a = X[..., ankle, :]
+        big = a + 15.0 * forward + 6.0 * down
+        out += [big, big + side * 3.5 * across, a - 5.0 * forward + 6.0 * down]
+    return np.stack(out, axis=-2)
+
+
 def demo_group_scenes(folder: Path, *, n_people: int = 7, seconds: float = 4.0, seed: int = 0,
-                      drop: float = 0.03) -> Path:
+                      drop: float = 0.03, feet: bool = False) -> Path:
     """The demo's synthetic group (7 people, "mixed": walking past, talking, crouching, leaving, entering; seed 0)
     at VGA frames (25 fps) from frame 250, as body3DScene files with confidence 0.9, and a share ``drop`` of the
-    joints written as not reconstructed (c = -1). Its bones are constant by construction."""
+    joints written as not reconstructed (c = -1). Its bones are constant by construction. ``feet``: BODY_25's six
+    foot joints beside joints19 (:func:`feet_cm`), as ``reconstruct`` writes a BODY_25 detector's."""
     truth = make_group(GroupOptions(n_people=n_people, duration_ms=seconds * 1000.0, start_ms=10_000.0, seed=seed))
     frames = np.arange(250, 250 + int(seconds * 25))
     times = 10_000.0 + (frames - 250) * 40.0
@@ -45,10 +77,11 @@ def demo_group_scenes(folder: Path, *, n_people: int = 7, seconds: float = 4.0, 
     for k in range(len(frames)):
         people = {}
         for p in np.flatnonzero(present[k]):
-            c = np.where(rng.random(19) < drop, -1.0, 0.9)
-            people[int(truth.ids[p])] = np.concatenate([X[k, p], c[:, None]], axis=1)
+            joints = np.concatenate([X[k, p], feet_cm(X[k, p])]) if feet else X[k, p]
+            c = np.where(rng.random(len(joints)) < drop, -1.0, 0.9)
+            people[int(truth.ids[p])] = np.concatenate([joints, c[:, None]], axis=1)
         bodies.append(people)
-    return write_scenes(folder, frames, times, bodies)
+    return write_scenes(folder, frames, times, bodies, extra=FEET if feet else (), body_model="BODY_25")
 
 
 def real_capture_scenes(root: Path) -> Path:

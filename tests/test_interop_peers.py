@@ -106,22 +106,26 @@ def test_easymocap_export_is_z_up_as_easymocaps_world(real, tmp_path):
 
 
 # --------------------------------------------------------------------------------------------------- Qualisys
-def test_qualisys_reads_as_pose2sims_calib_qca_fun():
-    """The Qualisys file of Pose2Sim's demo, read by Pose2Sim's own calib_qca_fun (pose2sim 0.10.49) and by our
-    import: same cameras in the same order and sizes, projecting alike within 1e-6 px over the image (Pose2Sim's
-    result is in metres in the lab's z-up world; ours in cm, turned to y down)."""
+@pytest.mark.parametrize("binning", [1, 2])
+def test_qualisys_reads_as_pose2sims_calib_qca_fun(binning):
+    """The Qualisys file of Pose2Sim's demo, read by Pose2Sim's own calib_qca_fun (pose2sim 0.10.49, its
+    binning_factor) and by our import: same cameras in the same order and sizes, projecting alike within 1e-6 px over
+    the image (Pose2Sim's result is in metres in the lab's z-up world; ours in cm, turned to y down) once its
+    distortion terms are ours: Pose2Sim divides them by 64 and by the binning, we read them as written, on the
+    evidence of the cameras' own checkerboard images (tests/test_interop_qualisys_evidence.py)."""
     from Pose2Sim.calibration import calib_qca_fun
 
-    _, C, S, D, K, R, T = calib_qca_fun(str(QCA))
+    _, C, S, D, K, R, T = calib_qca_fun(str(QCA), binning_factor=binning)
     from dome_calib.interop.convert import read_foreign
 
-    bundle, unit = read_foreign(QCA, "qualisys", ImportOptions())
+    bundle, unit = read_foreign(QCA, "qualisys", ImportOptions(binning=binning))
     assert unit == "mm" and list(bundle.cameras) == C
     worst = 0.0
     for i, cam in enumerate(bundle.cameras.values()):
         assert list(cam.resolution) == [int(v) for v in S[i]]
+        np.testing.assert_allclose(cam.dist[:4], np.asarray(D[i], dtype=float) * 64 * binning, rtol=1e-12)
         X_cm = world_points_cm(cam)
-        uv, _ = cv2.projectPoints(X_cm @ ZUP_M, R[i], T[i], K[i], np.asarray(D[i], dtype=float))
+        uv, _ = cv2.projectPoints(X_cm @ ZUP_M, R[i], T[i], K[i], cam.dist[:4])
         worst = max(worst, float(np.abs(uv.reshape(-1, 2) - pixels(cam, X_cm)).max()))
     print(f"Qualisys .qca.txt: ours vs Pose2Sim's calib_qca_fun: {worst:.2e} px")
     assert worst < 1e-6
@@ -129,12 +133,17 @@ def test_qualisys_reads_as_pose2sims_calib_qca_fun():
 
 def test_qualisys_import_matches_the_calibration_pose2sim_made_from_it(tmp_path):
     """The demo's Calib_qualisys.toml is Pose2Sim's conversion of this .qca.txt: both imports give the same
-    cameras (names cam01 / cam_01 aside)."""
+    cameras (names cam01 / cam_01 aside; the toml's distortion terms are Pose2Sim's, 1/64 of the file's)."""
+    from dataclasses import replace
+
     from dome_calib.interop.convert import read_foreign
 
     toml = Path(__file__).parent / "data" / "pose2sim_balancing" / "calibration" / "Calib_qualisys.toml"
     a, _ = read_foreign(QCA, "qualisys", ImportOptions())
     b, _ = read_foreign(toml, "pose2sim", ImportOptions())
+    for ca, cb in zip(a.cameras.values(), b.cameras.values()):
+        np.testing.assert_allclose(ca.dist[:4], cb.dist[:4] * 64, rtol=1e-6)
+    b.cameras.update({n: replace(c, dist=ca.dist) for (n, c), ca in zip(b.cameras.items(), a.cameras.values())})
     proj, rays = gaps_px(list(a.cameras.values()), list(b.cameras.values()))
     print(f"Qualisys vs Pose2Sim's toml of it: {proj.max():.2e} px")
     assert proj.max() < 1e-3  # the toml keeps 16 digits of Pose2Sim's float arithmetic
@@ -235,3 +244,88 @@ def test_blender_renders_each_camera_as_our_pinhole(real, tmp_path):
         worst = max(worst, float(np.abs(np.array(uv[n]) - pixels(pinhole, world_points_cm(c))).max()))
     print(f"Blender (bpy) vs our pinhole, {len(names)} real cameras: {worst:.2e} px")
     assert worst < 5e-3  # 32-bit floats: 3e-7 m at 5 m from the origin is 1e-3 px at a point 30 cm away
+
+
+# ------------------------------------------------------------------------------------------------------ Vicon
+def _xcp(tmp_path: Path) -> tuple[Path, dict]:
+    """A Vicon .xcp holding the real Pose2Sim trial's four cameras (lab z up, mm; the quaternion scalar last, a
+    small radial term in VICON_RADIAL2's 4th and 5th numbers) and one marker camera, written from its calibration."""
+    from scipy.spatial.transform import Rotation
+
+    from dome_calib.interop.convert import read_foreign
+
+    toml = Path(__file__).parent / "data" / "pose2sim_balancing" / "calibration" / "Calib_qualisys.toml"
+    bundle, _ = read_foreign(toml, "pose2sim", ImportOptions(world_up="-y"))  # the lab's z-up world, kept
+    rows = []
+    for k, (name, cam) in enumerate(bundle.cameras.items()):
+        q = Rotation.from_matrix(cam.R).as_quat()  # x, y, z, w
+        centre_mm = -cam.R.T @ cam.t_cm * 10.0
+        radial = f"0 0 0 {-0.02 * (k + 1):.4f} {0.01 * (k + 1):.4f}"
+        rows.append(f'<Camera DEVICEID="{name}" TYPE="Vue video" SENSOR_SIZE="{cam.resolution[0]} '
+                    f'{cam.resolution[1]}" PIXEL_ASPECT_RATIO="{cam.K[0, 0] / cam.K[1, 1]!r}"><KeyFrames><KeyFrame '
+                    f'FOCAL_LENGTH="{cam.K[0, 0]!r}" PRINCIPAL_POINT="{cam.K[0, 2]!r} {cam.K[1, 2]!r}" '
+                    f'ORIENTATION="{" ".join(repr(float(v)) for v in q)}" '
+                    f'POSITION="{" ".join(repr(float(v)) for v in centre_mm)}" VICON_RADIAL2="{radial}" '
+                    f'WORLD_ERROR="0.2"/></KeyFrames></Camera>')
+    rows.append('<Camera DEVICEID="9" TYPE="Vantage" SENSOR_SIZE="2048 1088" PIXEL_ASPECT_RATIO="1"><KeyFrames>'
+                '<KeyFrame FOCAL_LENGTH="1000" PRINCIPAL_POINT="1024 544" ORIENTATION="0 0 0 1" POSITION="0 0 3000" '
+                'VICON_RADIAL="0 0" WORLD_ERROR="0.1"/></KeyFrames></Camera>')
+    path = tmp_path / "calib.xcp"
+    path.write_text('<?xml version="1.0"?>\n<Calibration>' + "".join(rows) + "</Calibration>\n")
+    return path, bundle.cameras
+
+
+def test_vicon_reads_as_pose2sims_calib_vicon_fun(tmp_path):
+    """A Vicon .xcp read by Pose2Sim's own calib_vicon_fun (pose2sim 0.10.49) and by our import: the same video
+    cameras in the same order and sizes (the marker camera left out by both), projecting alike within 1e-6 px over
+    the image; and the cameras it was written from come back (their own distortion aside)."""
+    from Pose2Sim.calibration import calib_vicon_fun
+
+    from dome_calib.interop.convert import read_foreign
+
+    path, written = _xcp(tmp_path)
+    _, C, S, D, K, R, T = calib_vicon_fun(str(path))
+    bundle, unit = read_foreign(path, "vicon", ImportOptions())
+    assert unit == "mm" and list(bundle.cameras) == C == list(written)
+    worst = 0.0
+    for i, cam in enumerate(bundle.cameras.values()):
+        assert list(cam.resolution) == [int(v) for v in S[i]]
+        X_cm = world_points_cm(cam)
+        uv, _ = cv2.projectPoints(X_cm @ ZUP_M, R[i], T[i], K[i], np.asarray(D[i], dtype=float))
+        worst = max(worst, float(np.abs(uv.reshape(-1, 2) - pixels(cam, X_cm)).max()))
+        np.testing.assert_allclose(cam.K, written[cam.name].K, rtol=1e-12)
+    print(f"Vicon .xcp: ours vs Pose2Sim's calib_vicon_fun: {worst:.2e} px")
+    assert worst < 1e-6
+
+
+# ------------------------------------------------------------------------------------------------------ bioCV
+def test_biocv_reads_as_pose2sims_calib_biocv_fun(tmp_path):
+    """A bioCV calibration folder (one .calib text file per camera) written from the real Pose2Sim trial's cameras,
+    read by Pose2Sim's own calib_biocv_fun (pose2sim 0.10.49) and by our import: the same cameras in the same order
+    (cam_00 ..), sizes, projecting alike within 0.01 px over the image (measured 2e-3 px: Pose2Sim reads K and [R | t]
+    as float32)."""
+    from Pose2Sim.calibration import calib_biocv_fun
+
+    from dome_calib.interop.convert import read_foreign
+
+    toml = Path(__file__).parent / "data" / "pose2sim_balancing" / "calibration" / "Calib_qualisys.toml"
+    source, _ = read_foreign(toml, "pose2sim", ImportOptions(world_up="-y"))  # the lab's world kept
+    folder = tmp_path / "biocv"
+    folder.mkdir()
+    for k, cam in enumerate(source.cameras.values()):
+        rows = [f"{cam.resolution[0]}", f"{cam.resolution[1]}"] + [" ".join(repr(float(v)) for v in r) for r in cam.K]
+        rows += [""] + [" ".join(repr(float(v)) for v in (*cam.R[i], cam.t_cm[i] * 10.0)) for i in range(3)]
+        rows += ["0 0 0 1", "", " ".join(repr(float(v)) for v in (-0.01 * (k + 1), 0.002, 0.0001, -0.0002))]
+        (folder / f"{k:02d}.calib").write_text("\n".join(rows) + "\n")
+    _, C, S, D, K, R, T = calib_biocv_fun(sorted(folder.glob("*.calib")))
+    bundle, unit = read_foreign(folder, "biocv", ImportOptions())
+    assert unit == "mm" and list(bundle.cameras) == C == [f"cam_{k:02d}" for k in range(4)]
+    worst = 0.0
+    for i, cam in enumerate(bundle.cameras.values()):
+        assert list(cam.resolution) == [int(v) for v in S[i]]
+        X_cm = world_points_cm(cam)
+        uv, _ = cv2.projectPoints(X_cm @ ZUP_M, np.asarray(R[i], float), np.asarray(T[i], float),
+                                  np.asarray(K[i], float), np.asarray(D[i], dtype=float))
+        worst = max(worst, float(np.abs(uv.reshape(-1, 2) - pixels(cam, X_cm)).max()))
+    print(f"bioCV .calib: ours vs Pose2Sim's calib_biocv_fun: {worst:.2e} px")
+    assert worst < 1e-2

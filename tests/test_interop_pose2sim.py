@@ -262,3 +262,48 @@ def test_pose2sims_own_reader_takes_all_five_distortion_terms(tmp_path):
         worst = max(worst, float(np.abs(uv.reshape(-1, 2) - pixels(cam, X_cm)).max()))
     print(f"Pose2Sim's retrieve_calib_params + OpenCV vs our model, 520 real cameras: {worst:.2e} px")
     assert worst < 1e-6
+
+
+def test_a_camera_table_without_name_is_named_by_its_key(tmp_path):
+    """Pose2Sim's retrieve_calib_params never reads ``name`` (it takes the tables in order): a Calib.toml whose
+    tables have none is Pose2Sim's all the same; each camera is named by its table's key."""
+    import tomllib
+
+    import tomli_w
+    from Pose2Sim.common import retrieve_calib_params
+
+    doc = tomllib.loads(CALIB.read_text())
+    for key, table in doc.items():
+        if isinstance(table, dict) and key != "metadata":
+            table.pop("name", None)
+    path = tmp_path / "Calib_noname.toml"
+    path.write_text(tomli_w.dumps(doc))
+    theirs = retrieve_calib_params(path)  # Pose2Sim reads it (rtoml: a Path, not its text)
+    bundle = import_calibration(path, "pose2sim", tmp_path / "b", ImportOptions())
+    loaded = load_bundle(tmp_path / "b")
+    assert list(loaded.cameras) == [k for k, v in doc.items() if isinstance(v, dict) and k != "metadata"]
+    assert len(theirs["K"]) == len(loaded.cameras) and bundle is not None
+    for K, cam in zip(theirs["K"], loaded.cameras.values()):
+        np.testing.assert_allclose(cam.K, K)
+
+
+def test_export_a_camera_subset(tmp_path, dome_calib_cli):
+    """``export --cameras``: only those cameras, in the bundle's order, read back by Pose2Sim's own reader; a camera
+    the bundle lacks is one line, nothing written."""
+    import tomllib
+
+    from Pose2Sim.common import retrieve_calib_params
+
+    import_calibration(CALIB, "pose2sim", tmp_path / "b", ImportOptions())
+    run = dome_calib_cli("export", str(tmp_path / "b"), "--to", "pose2sim", "-o", str(tmp_path / "Calib.toml"),
+                         "--cameras", "cam_04,cam_02")
+    assert run.returncode == 0, run.stderr
+    doc = tomllib.loads((tmp_path / "Calib.toml").read_text())
+    assert [k for k, v in doc.items() if isinstance(v, dict) and k != "metadata"] == ["cam_02", "cam_04"]
+    theirs = retrieve_calib_params(tmp_path / "Calib.toml")
+    full = load_bundle(tmp_path / "b")
+    for K, name in zip(theirs["K"], ("cam_02", "cam_04")):
+        np.testing.assert_allclose(K, full.cameras[name].K)
+    run = dome_calib_cli("export", str(tmp_path / "b"), "--to", "pose2sim", "-o", str(tmp_path / "none.toml"),
+                         "--cameras", "cam_09")
+    assert run.returncode == 1 and "no camera 'cam_09'" in run.stderr and not (tmp_path / "none.toml").exists()

@@ -16,7 +16,7 @@ def test_joints19_is_the_synth_order():
 
 def test_lengths_and_known_indices():
     assert {m: len(n) for m, n in JOINT_NAMES.items()} == {"BODY_25": 25, "BODY_25B": 25, "COCO_18": 18,
-                                                          "PANOPTIC19": 19}
+                                                          "COCO_17": 17, "HALPE_26": 26, "PANOPTIC19": 19}
     b25, b25b, coco = (JOINT_NAMES[m] for m in ("BODY_25", "BODY_25B", "COCO_18"))
     # OpenPose BODY_25: Neck 1, MidHip 8, LHip 12, REye 15, LBigToe 19; BODY_25B: COCO-17 order, LHip 11,
     # RHip 12, UpperNeck 17, HeadTop 18, RHeel 24; COCO-18: RHip 8, LHip 11, LEar 17.
@@ -27,6 +27,8 @@ def test_lengths_and_known_indices():
     assert models_with_joints(25) == [BodyModel.BODY_25, BodyModel.BODY_25B]
     assert models_with_joints(21) == []
     assert parse_body_model("body-25b") == BodyModel.BODY_25B and parse_body_model("coco") == BodyModel.COCO_18
+    assert parse_body_model("halpe26") == BodyModel.HALPE_26 and parse_body_model("COCO-17") == BodyModel.COCO_17
+    assert models_with_joints(26) == [BodyModel.HALPE_26] and models_with_joints(17) == [BodyModel.COCO_17]
     with pytest.raises(ReconError, match="unknown"):
         parse_body_model("MPI_15")
 
@@ -63,3 +65,26 @@ def test_derived_joint_missing_when_a_source_is_missing():
     np.testing.assert_allclose(j19[JOINTS19.index("neck")], [120, 50, 0.6])
     with pytest.raises(ReconError, match="expects"):
         to_joints19(np.zeros((18, 3)), "BODY_25")
+
+
+@pytest.mark.parametrize("model", ["BODY_25", "BODY_25B", "HALPE_26", "COCO_17"])
+def test_every_joint_of_pose2sims_tree_is_read_and_named_as_pose2sim_names_it(model):
+    """Pose2Sim 0.10.49's own skeletons (``Pose2Sim/skeletons.py``): each node with a detector index is, in our
+    joint order, the joint (joints19's or an extra one) whose marker name is the node's name; so every joint
+    Pose2Sim's tree reads comes out of ``reconstruct`` and into the TRC under Pose2Sim's name."""
+    from types import SimpleNamespace
+
+    import Pose2Sim.skeletons as p2s
+    from anytree import PreOrderIter
+
+    from dome_calib.recon.body_models import EXTRA_JOINTS
+    from dome_calib.skeletons.joints import marker_names
+
+    names = JOINT_NAMES[model]
+    carried = tuple(JOINTS19) + tuple(EXTRA_JOINTS[model])  # what reconstruct writes: joints19, then the extras
+    markers = dict(zip(carried, marker_names(SimpleNamespace(joints=carried, body_model=model))))
+    nodes = [(n.name, n.id) for n in PreOrderIter(getattr(p2s, model)) if n.id is not None]
+    assert nodes
+    for name, index in nodes:
+        assert markers[names[index]] == name, (model, name, index, names[index])
+    assert len(set(markers.values())) == len(markers)  # one name per joint

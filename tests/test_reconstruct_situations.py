@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _run(cli, det, bundle, out, *args):
-    return cli("reconstruct", str(det), "--bundle", str(bundle), "-o", str(out), *args)
+    return cli("reconstruct", str(det), "--bundle", str(bundle), "-o", str(out), "--fps", "30", *args)
 
 
 def _nothing_written(tmp_path, keep=("det",)):
@@ -148,11 +148,11 @@ def test_dot_and_dot_dot_name_the_output_from_the_folder(shared, dome_calib_cli,
     shutil.copytree(shared / "det", tmp_path / "det")
     camera = sorted((tmp_path / "det").iterdir())[0]
     monkeypatch.chdir(tmp_path / "det")
-    out = dome_calib_cli("reconstruct", ".", "--bundle", str(shared / "bundle"))
+    out = dome_calib_cli("reconstruct", ".", "--bundle", str(shared / "bundle"), "--fps", "30")
     assert out.returncode == 0 and out.stdout.rstrip().endswith(f"-> {tmp_path / 'det_people'}"), out.stderr
     shutil.rmtree(tmp_path / "det_people")
     monkeypatch.chdir(camera)
-    out = dome_calib_cli("reconstruct", "..", "--bundle", str(shared / "bundle"))
+    out = dome_calib_cli("reconstruct", "..", "--bundle", str(shared / "bundle"), "--fps", "30")
     assert out.returncode == 0, out.stderr
     assert _ids(tmp_path / "det_people") == [[0, 1]] * 12
     assert sorted(tmp_path.iterdir()) == [tmp_path / "det", tmp_path / "det_people"]
@@ -245,7 +245,8 @@ def test_sigterm_is_one_line_and_exit_130(group, tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen([sys.executable, "-c", "from dome_calib.cli import main; main()", "reconstruct",
                              str(root / "det"), "--bundle", str(root / "bundle"), "-o", str(tmp_path / "out"),
-                             "--body-model", "BODY_25", "--camera-map", str(fifo)], cwd=tmp_path, env=env,
+                             "--body-model", "BODY_25", "--camera-map", str(fifo), "--fps", "30"], cwd=tmp_path,
+                            env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert _wait_for(lambda: "pycolmap" in Path(f"/proc/{proc.pid}/maps").read_text() or proc.poll() is not None)

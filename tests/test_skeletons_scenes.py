@@ -148,7 +148,8 @@ def test_the_joint_layout_is_the_reconstructions_and_the_generators():
     from dome_calib.synth.skeleton import JOINTS19 as SYNTH
 
     assert list(JOINTS19) == RECON == SYNTH
-    assert set(MARKER) == set(PARENT) and len(set(MARKER.values())) == len(MARKER)
+    assert set(MARKER) == set(PARENT)  # names unique per detector: marker_names (tests/test_recon_body_models.py)
+    assert len(set(MARKER.values())) == len(MARKER) - 1  # BODY_25B's upper_neck is Neck, joints19's neck renamed
 
 
 def test_export_refuses_a_nan_confidence_bound(tmp_path, dome_calib_cli):

@@ -35,14 +35,17 @@ def export(
                                       "kept for colmap and aniposelib; nerfstudio and blender are always +z."),
     names: str = typer.Option(None, "--names", help=_NAMES_HELP),
     text: bool = typer.Option(False, "--text", help="colmap: write .txt files instead of .bin."),
+    cameras: str = typer.Option(None, "--cameras", help="Only these cameras, e.g. 00_03,00_07 (in the bundle's "
+                                "order; default: every camera)."),
 ) -> None:
     """Write a calibration bundle for another tool (cameras in the bundle's order). Says what the format cannot
     hold, per camera where it moves pixels."""
     from dome_calib.interop.common import ExportOptions, parse_names
     from dome_calib.interop.convert import export_bundle
 
+    chosen = [c.strip() for c in cameras.split(",") if c.strip()] if cameras else None
     options = ExportOptions(unit=unit and str(unit), world_up=world_up and str(world_up), names=parse_names(names),
-                            binary=not text)
+                            binary=not text, cameras=chosen)
     result = export_bundle(bundle, str(to), out, options)
     typer.echo(f"{result.cameras} cameras -> {result.out} ({result.format}, lengths in {result.unit}, "
                f"up {result.world_up})")
@@ -67,7 +70,8 @@ def import_(
                                          "side in mm."),
     world_up: UpChoice = typer.Option(None, "--world-up", help="Axis that points up in SOURCE's world; it is "
                                       "turned to our -y (x kept where possible). Default: +z for pose2sim, "
-                                      "easymocap, qualisys, caliscope; the world kept for colmap, aniposelib, "
+                                      "easymocap, qualisys, vicon, biocv, caliscope; the world kept for colmap, "
+                                      "aniposelib, "
                                       "kalibr (cam0's frame); nerfstudio: undone from its applied_transform."),
     names: str = typer.Option(None, "--names", help=_NAMES_HELP),
     seq: str = typer.Option(None, "--seq", help="Sequence name for calibration_<seq>.json (default: the output "
@@ -75,6 +79,9 @@ def import_(
     image_size: str = typer.Option(None, "--image-size", help="WIDTHxHEIGHT px of every camera, for files that do "
                                    "not record it (EasyMocap's calib_intri output, when its images/ are not beside "
                                    "it)."),
+    binning: int = typer.Option(None, "--binning", help="qualisys: sensor pixels binned per image pixel (2 for "
+                                "video filmed in 540p on a 1080p sensor; Pose2Sim's binning_factor). Default: what "
+                                "the file's video_resolution says, else 1."),
 ) -> None:
     """Turn another tool's camera calibration into a calibration bundle the reconstruction and sync stages read
     (cameras in the file's order, lengths converted to cm, the world turned to ours, names kept or renamed)."""
@@ -83,7 +90,7 @@ def import_(
 
     options = ImportOptions(unit=unit and str(unit), square_size_mm=square_size_mm, names=parse_names(names),
                             world_up=world_up and str(world_up), seq=seq if seq is not None else out.resolve().name,
-                            image_size=parse_image_size(image_size))
+                            image_size=parse_image_size(image_size), binning=binning)
     result = import_calibration(source, str(from_), out, options)
     typer.echo(f"{result.cameras} cameras from {source} ({result.format}, lengths in {result.unit}, "
                f"up {result.world_up}) -> {result.out}")

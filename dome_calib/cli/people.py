@@ -36,8 +36,12 @@ def reconstruct(
     per_frame: bool = typer.Option(False, "--per-frame", help="Each time's own triangulation only, without the body "
                                    "over time (constant bones, smooth motion, every detection weighed against the "
                                    "body; the default and the better result)."),
-    fps: str = typer.Option("30", "--fps", help="Frame rate of a bundle without sync tables (for univTime; e.g. 30, "
-                      "30000/1001, 1 for a time-lapse rig)."),
+    fps: str = typer.Option(None, "--fps", help="Frame rate of the detections when the bundle has no sync tables "
+                            "(for univTime; e.g. 60, 30000/1001, 1 for a time-lapse rig). Without sync tables the rate "
+                            "comes from --fps or --videos; neither is refused (no rate is assumed)."),
+    videos: Path = typer.Option(None, "--videos", help="Folder of the cameras' videos (.mp4, .avi, .mov, .mkv; one "
+                                "level of sub-folders): their frame rate is the detections' when the bundle has no "
+                                "sync tables (they must agree, and with --fps if given)."),
     depth: Path = typer.Option(None, "--depth", help="Folder of Kinect depth frames (KINECTNODE<n>/depth_<k>.png, "
                                "16-bit millimetres, k the depth sync table's index): a joint that a Kinect sees "
                                "through (in front of the surface it measured, beyond its noise) is dropped. Needs "
@@ -61,7 +65,7 @@ def reconstruct(
         check_workers(workers)
         plan = plan_reconstruction(detections, bundle, out, body_model=body_model, camera_map=camera_map,
                                    reference=reference, options=options,
-                                   depth_folder=depth)  # every input checked, in seconds
+                                   depth_folder=depth, videos=videos)  # every input checked, in seconds
         page = people_page_writer(plan.out, bundle, detections, camera_map=camera_map, body_model=plan.model.value,
                                   files=plan.source.files)
         with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:

@@ -28,24 +28,35 @@ def export_people(
     to: PeopleFormatChoice = typer.Option(..., "--to", help="trc: one file per person for OpenSim and Pose2Sim "
                                           "(metres, y up); c3d: one file for the whole capture (millimetres, z up, "
                                           "markers P<id>:<joint>); bvh: one skeleton per person for animation tools "
-                                          "(cm, y up).", show_default=False),
+                                          "(m by default, see --unit; y up).", show_default=False),
     out: Path = typer.Option(..., "-o", "--out", help="Folder to write (created; a folder dome-calib wrote is "
                              "replaced whole, any other folder is refused).", show_default=False),
     ids: str = typer.Option(None, "--ids", help="Only these people, e.g. 0,3,7 (default: everybody)."),
     min_confidence: float = typer.Option(0.0, "--min-confidence", help="Write joints whose confidence is below this "
                                          "as missing (default 0: every reconstructed joint)."),
     fps: str = typer.Option(None, "--fps", help="Frame rate to write, e.g. 25 or 30000/1001 (default: the files' "
-                            "fpsType: vga_25, hd_29_97; else measured from their univTime)."),
+                            "fpsType: vga_25, hd_29_97; else measured from their univTime); the TRC's Time column "
+                            "steps by 1/RATE per frame number."),
+    trial: str = typer.Option(None, "--trial", help="Name of the TRC files before _P<id>_<first>-<last>.trc "
+                              "(Pose2Sim's multi-person names; default: the PEOPLE folder's name)."),
+    fill_gaps: int = typer.Option(20, "--fill-gaps", help="TRC: fill a marker missing for at most this many "
+                                  "frames as Pose2Sim fills its own TRC (linear inside, held at the ends; Pose2Sim's "
+                                  "marker augmentation fails on empty fields); 0: missing stays missing."),
+    unit: str = typer.Option("m", "--unit", help="BVH: length unit, m (one Blender unit: the person at true size "
+                             "in Blender's importer), cm or mm."),
 ) -> None:
     """Write the people of a body3DScene folder for other tools: TRC (OpenSim, Pose2Sim), C3D or BVH. Person ids
-    are kept (person<id>.trc, person<id>.bvh, C3D markers P<id>:Neck ...); joints that were not reconstructed are
+    are kept (<trial>_P<id>_<first>-<last>.trc, person<id>.bvh, C3D markers P<id>:Neck ...); joints that were not
+    reconstructed are
     written as the format's missing value (BVH, which has none, holds the last pose)."""
     from dome_calib.cli.progress import ProgressBars
     from dome_calib.skeletons.export import ExportPeopleOptions, export_people as run, parse_fps, parse_ids
 
     with flags({"ExportPeopleOptions.min_confidence": "--min-confidence", "ExportPeopleOptions.fps": "--fps",
-                "ExportPeopleOptions.ids[0]": "--ids"}):
-        options = ExportPeopleOptions(min_confidence=min_confidence, fps=parse_fps(fps), ids=parse_ids(ids))
+                "ExportPeopleOptions.ids[0]": "--ids", "ExportPeopleOptions.fill_gaps": "--fill-gaps",
+                "ExportPeopleOptions.unit": "--unit"}):
+        options = ExportPeopleOptions(min_confidence=min_confidence, fps=parse_fps(fps), ids=parse_ids(ids),
+                                       trial=trial, fill_gaps=fill_gaps, unit=unit)
     with ProgressBars(transient=True) as bars:
         summary = run(people, to.value, out, options, progress=bars.task("reading and writing files"))
     typer.echo(f"{summary.people} people, {summary.frames} frames at {float(summary.fps):g} fps: "

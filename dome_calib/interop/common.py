@@ -22,6 +22,7 @@ from dome_calib.camera import distort, pixels_to_normalized
 from dome_calib.errors import BundleFormatError
 from dome_calib.interop.fields import ROTATION_EXACT_TOL, rotation_error
 from dome_calib.interop.registry import UNIT_CHOICES
+from dome_calib.lab_world import PANOPTIC_FROM_UP, import_record  # noqa: F401  (import_record: convert's, via here)
 from dome_calib.options import AtLeast, Field, options
 from dome_calib.schema import PLAIN_NAME_HELP, PosFinite, name_problem
 
@@ -32,18 +33,6 @@ CM_PER_UNIT = {"mm": 0.1, "cm": 1.0, "m": 100.0}
 #: Largest plausible camera translation once in cm (10 km): beyond it the file's unit was not the one read.
 LIMIT_T_CM = 1e6
 _PANOPTIC_NAME = re.compile(r"(\d\d)_(\d\d)")
-#: A file world whose up axis is the key -> the rotation M (det +1) with ``X_panoptic = M @ X_file``: the axis
-#: becomes -y (Panoptic up), and x stays x where it can (z up: the usual z-up-to-y-down turn about x).
-PANOPTIC_FROM_UP = {
-    "+x": np.array([[0, 1.0, 0], [-1.0, 0, 0], [0, 0, 1.0]]),
-    "-x": np.array([[0, -1.0, 0], [1.0, 0, 0], [0, 0, 1.0]]),
-    "+y": np.diag([1.0, -1.0, -1.0]),
-    "-y": np.eye(3),
-    "+z": np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]),
-    "-z": np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]),
-}
-
-
 class InteropError(BundleFormatError):
     """A file of another tool cannot be read or written as asked (names file, camera and field)."""
 
@@ -70,12 +59,13 @@ class ForeignCamera:
 class ExportOptions:
     """``unit``: length unit of the written translations (None: the format's default); ``world_up``: the written
     world's up axis (None: the format's default); ``names``: our name -> the name written; ``binary``: COLMAP binary
-    (else text) files."""
+    (else text) files; ``cameras``: only these cameras, in the bundle's order (None: every camera)."""
 
     unit: str | None = None
     world_up: str | None = None
     names: dict[str, str] = field(default_factory=dict)
     binary: bool = True
+    cameras: list[Annotated[str, Field(min_length=1)]] | None = None
 
 
 @options
@@ -83,7 +73,9 @@ class ImportOptions:
     """``unit``: length unit of the file when the format does not state it ("squares" needs ``square_size_mm``);
     ``world_up``: the file world's up axis, turned into ours (None: the format's default); ``names``: name in the
     file -> our name; ``seq``: the bundle's sequence name; ``image_size``: (width, height) px for files that do not
-    record it (EasyMocap's calibration tools)."""
+    record it (EasyMocap's calibration tools); ``binning``: pixels binned per image pixel along each axis (Qualisys
+    video cameras filming in 540p on a 1080p sensor bin 2: Pose2Sim's ``binning_factor``; None: the file's own
+    ``video_resolution`` where it has one, else 1)."""
 
     unit: str | None = None
     square_size_mm: PosFinite | None = None
@@ -91,6 +83,7 @@ class ImportOptions:
     names: dict[str, str] = field(default_factory=dict)
     seq: Annotated[str, Field(min_length=1)] = "imported"
     image_size: tuple[AtLeast(1), AtLeast(1)] | None = None
+    binning: AtLeast(1) | None = None
 
 
 @dataclass(kw_only=True)

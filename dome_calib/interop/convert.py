@@ -15,7 +15,7 @@ from __future__ import annotations
 import importlib
 import logging
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import ModuleType
 
@@ -24,7 +24,7 @@ import numpy as np
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.interop.common import (ExportOptions, ExportResult, ImportOptions, InteropError, cm_per_unit,
-                                       to_bundle, to_foreign)
+                                       import_record, to_bundle, to_foreign)
 from dome_calib.interop.registry import UP_AXES, FormatInfo, format_info
 from dome_calib.ownership import claim_file, claim_folder, replace_file, replace_folder
 
@@ -85,6 +85,18 @@ def _not_carried(bundle: Bundle, info: FormatInfo) -> list[str]:
     return lines
 
 
+def camera_subset(bundle: Bundle, cameras: list[str] | None, where: str) -> Bundle:
+    """``bundle`` with only ``cameras`` (its own order kept; None: all); InteropError naming a camera it lacks."""
+    if cameras is None:
+        return bundle
+    unknown = [c for c in cameras if c not in bundle.cameras]
+    if unknown:
+        raise InteropError(f"{where}: --cameras: no camera {unknown[0]!r} in the bundle (cameras: "
+                           f"{', '.join(list(bundle.cameras)[:12])}{' ...' if len(bundle.cameras) > 12 else ''})")
+    keep = set(cameras)
+    return replace(bundle, cameras={n: c for n, c in bundle.cameras.items() if n in keep})
+
+
 def export_bundle(bundle_folder: str | Path, fmt: str, out: str | Path,
                   options: ExportOptions | None = None) -> ExportResult:
     """Write the bundle in ``bundle_folder`` as ``fmt`` to ``out`` (a folder for folder formats, else a file).
@@ -99,7 +111,7 @@ def export_bundle(bundle_folder: str | Path, fmt: str, out: str | Path,
     claim(out, inputs=[bundle_folder, *Path(bundle_folder).glob("*")])  # ours only, and no input
     unit = _export_unit(info, options.unit, str(out))
     up = _world_up(info, options.world_up, str(out), export=True)
-    bundle = load_bundle(bundle_folder)
+    bundle = camera_subset(load_bundle(bundle_folder), options.cameras, str(bundle_folder))
     cams = to_foreign(bundle, options, unit, up, str(bundle_folder))
     module = adapter(info)
     with (replace_folder(out) if info.folder else replace_file(out)) as staging:
@@ -135,8 +147,7 @@ def read_foreign(src: str | Path, fmt: str, options: ImportOptions | None = None
         raise InteropError(f"{read.path}: a {info.name} calibration does not record its length unit; give --unit "
                            "(mm, cm, m, or squares with --square-size-mm)")
     scale = cm_per_unit(unit, options.square_size_mm, str(read.path))
-    turned = "" if up == "-y" else f", its up axis {up} turned to -y"
-    source = f"imported from {info.name} ({read.path.name}, unit {unit}{turned})"
+    source = import_record(info.name, read.path.name, unit, up)
     bundle = to_bundle(read.cameras, scale, up, options, read.path, source)
     warn_implausible_size(bundle, read.path, unit, fixed=stated is not None)
     return bundle, unit

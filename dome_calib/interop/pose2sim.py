@@ -62,9 +62,11 @@ class Pose2SimFile(OpenSchema):
     @model_validator(mode="before")
     @classmethod
     def _tables_only(cls, data: Any) -> Any:
-        """As Pose2Sim: top-level keys that are not tables are not cameras (skipped)."""
+        """As Pose2Sim: top-level keys that are not tables are not cameras (skipped); a camera table without
+        ``name`` is named by its key (Pose2Sim's ``retrieve_calib_params`` never reads ``name``)."""
         if isinstance(data, dict):
-            return {k: v for k, v in data.items() if k in SETTINGS or isinstance(v, dict)}
+            return {k: (v if k in SETTINGS or "name" in v else {"name": k} | v) for k, v in data.items()
+                    if k in SETTINGS or isinstance(v, dict)}
         return data
 
     @model_validator(mode="after")

@@ -7,13 +7,24 @@ Models (joint order = the detector's output order):
   order, then UpperNeck, HeadTop and the six foot joints. Same length as BODY_25 with another order, so a
   detections folder cannot tell them apart by length: the caller names the model.
 - ``COCO_18``: OpenPose's COCO output (18 joints, Neck at 1, no MidHip).
+- ``COCO_17``: the 17 COCO joints (RTMPose, MMPose, what Pose2Sim 0.9 and later write with ``pose_model =
+  'COCO_17'``): no neck, no hip centre.
+- ``HALPE_26``: Halpe's 26 joints (RTMPose / AlphaPose, Pose2Sim's default model since 0.9): the 17 COCO joints,
+  then Head (the head top), Neck, Hip (the hip centre) and the six foot joints (big toe, small toe, heel; left
+  before right, as Pose2Sim's ``skeletons.py`` numbers them: LBigToe 20, RBigToe 21, LSmallToe 22, RSmallToe 23,
+  LHeel 24, RHeel 25).
 - ``PANOPTIC19``: the Panoptic Studio's ``joints19`` itself (order of :data:`dome_calib.synth.skeleton.JOINTS19`).
 
 Derived joints (joints19 needs them, the model lacks them):
 
-- ``body_center`` (Panoptic's hip centre) = midpoint of the two hips for BODY_25B and COCO_18 (BODY_25 has MidHip);
-- ``neck`` = midpoint of the two shoulders for BODY_25B (its UpperNeck sits at the top of the neck, about 10 cm
-  above Panoptic's neck, so it is not used for it).
+- ``body_center`` (Panoptic's hip centre) = midpoint of the two hips for BODY_25B, COCO_18 and COCO_17 (BODY_25 has
+  MidHip, HALPE_26 Hip);
+- ``neck`` = midpoint of the two shoulders for BODY_25B and COCO_17 (BODY_25B's UpperNeck sits at the top of the
+  neck, about 10 cm above Panoptic's neck, so it is not used for it).
+
+Extra joints (:data:`EXTRA_JOINTS`): the model's joints that joints19 lacks (the feet, BODY_25B's UpperNeck, the
+head top), carried beside joints19 by :func:`with_extras` (``reconstruct`` triangulates them for the people it
+found: :mod:`dome_calib.recon.people.extras`).
 
 A derived joint's confidence is the smaller of its sources' (0 if either is missing). Going the other way
 (:func:`from_joints19`), joints the model has and joints19 lacks (feet, HeadTop, UpperNeck, BODY_25's MidHip is
@@ -63,6 +74,8 @@ class BodyModel(StrEnum):
     BODY_25 = "BODY_25"
     BODY_25B = "BODY_25B"
     COCO_18 = "COCO_18"
+    COCO_17 = "COCO_17"
+    HALPE_26 = "HALPE_26"
     PANOPTIC19 = "PANOPTIC19"
 
 
@@ -75,6 +88,9 @@ JOINT_NAMES: dict[BodyModel, list[str]] = {
     BodyModel.COCO_18: ["nose", "neck", "r_shoulder", "r_elbow", "r_wrist", "l_shoulder", "l_elbow", "l_wrist",
                         "r_hip", "r_knee", "r_ankle", "l_hip", "l_knee", "l_ankle", "r_eye", "l_eye", "r_ear",
                         "l_ear"],
+    BodyModel.COCO_17: list(_COCO17),
+    BodyModel.HALPE_26: _COCO17 + ["head_top", "neck", "body_center", "l_big_toe", "r_big_toe", "l_small_toe",
+                                   "r_small_toe", "l_heel", "r_heel"],
     BodyModel.PANOPTIC19: list(JOINTS19),
 }
 
@@ -83,8 +99,14 @@ DERIVED: dict[BodyModel, dict[str, tuple[str, str]]] = {
     BodyModel.BODY_25: {},
     BodyModel.BODY_25B: {"body_center": ("l_hip", "r_hip"), "neck": ("l_shoulder", "r_shoulder")},
     BodyModel.COCO_18: {"body_center": ("l_hip", "r_hip")},
+    BodyModel.COCO_17: {"body_center": ("l_hip", "r_hip"), "neck": ("l_shoulder", "r_shoulder")},
+    BodyModel.HALPE_26: {},
     BodyModel.PANOPTIC19: {},
 }
+
+#: The joints of each model that joints19 lacks, in the model's order: carried beside joints19 (:func:`with_extras`).
+EXTRA_JOINTS: dict[BodyModel, list[str]] = {m: [n for n in names if n not in JOINTS19]
+                                            for m, names in JOINT_NAMES.items()}
 
 
 @dataclass(frozen=True)
@@ -107,8 +129,8 @@ class JointMap:
 def parse_body_model(name: str) -> BodyModel:
     """``"body_25b"`` / ``"BODY-25B"`` / ``"coco"`` -> :class:`BodyModel`; ReconError naming the known ones."""
     key = name.strip().upper().replace("-", "_")
-    key = {"COCO": "COCO_18", "COCO18": "COCO_18", "BODY25": "BODY_25", "BODY25B": "BODY_25B",
-           "PANOPTIC": "PANOPTIC19", "JOINTS19": "PANOPTIC19"}.get(key, key)
+    key = {"COCO": "COCO_18", "COCO18": "COCO_18", "COCO17": "COCO_17", "HALPE26": "HALPE_26", "HALPE": "HALPE_26",
+           "BODY25": "BODY_25", "BODY25B": "BODY_25B", "PANOPTIC": "PANOPTIC19", "JOINTS19": "PANOPTIC19"}.get(key, key)
     try:
         return BodyModel(key)
     except ValueError:
@@ -179,3 +201,15 @@ def from_joints19(joints19: np.ndarray, model: BodyModel | str) -> np.ndarray:
     have = jm.to_model >= 0
     out[..., have, :] = j19[..., jm.to_model[have], :]
     return out
+
+
+def with_extras(keypoints: np.ndarray, model: BodyModel | str) -> np.ndarray:
+    """(..., J, 3) in the model's order -> (..., 19 + E, 3): joints19 (:func:`to_joints19`), then the model's
+    :data:`EXTRA_JOINTS` as detected (c <= 0 -> [0, 0, 0])."""
+    model = parse_body_model(model) if not isinstance(model, BodyModel) else model
+    kp = np.asarray(keypoints, dtype=float)
+    j19 = to_joints19(kp, model)
+    names = JOINT_NAMES[model]
+    extra = kp[..., [names.index(n) for n in EXTRA_JOINTS[model]], :]
+    extra = np.where(extra[..., 2:3] > 0, extra, 0.0)
+    return np.concatenate([j19, extra], axis=-2)

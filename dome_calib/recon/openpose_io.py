@@ -28,7 +28,8 @@ from typing import Annotated
 import numpy as np
 from pydantic import AfterValidator, ConfigDict, RootModel
 
-from dome_calib.recon.body_models import JOINT_NAMES, BodyModel, models_with_joints, parse_body_model, to_joints19
+from dome_calib.recon.body_models import (JOINT_NAMES, BodyModel, models_with_joints, parse_body_model, to_joints19,
+                                          with_extras)
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.joint_order import better_order, order_fits
 from dome_calib.schema import Field, FileSchema, Finite, parse_json, read_json, show
@@ -330,17 +331,20 @@ def body_model_of(files: dict[str, dict[int, Path]], body_model: BodyModel | str
 
 
 def read_openpose_files(files: dict[str, dict[int, Path]], model: BodyModel,
-                        digests: dict[str, dict[int, bytes]] | None = None) -> dict[str, dict[int, np.ndarray]]:
+                        digests: dict[str, dict[int, bytes]] | None = None, *, extras: bool = False
+                        ) -> dict[str, dict[int, np.ndarray]]:
     """Read the files (camera -> {frame -> path}) -> camera -> {frame -> (N, 19, 3) joints19}; ``digests``: what
-    each file's bytes must be (:func:`file_digests` on the head of a cluster run)."""
+    each file's bytes must be (:func:`file_digests` on the head of a cluster run); with ``extras`` (N, 19 + E, 3):
+    the model's joints that joints19 lacks after them (:func:`~dome_calib.recon.body_models.with_extras`)."""
     n_joints = len(JOINT_NAMES[model])
+    convert = with_extras if extras else to_joints19
     out: dict[str, dict[int, np.ndarray]] = {}
     for camera, frames in files.items():
         out[camera] = {}
         for frame, path in frames.items():
             digest = digests[camera][frame] if digests is not None else None
             kp, _ = _people_of_file(path, camera, frame, model, digest)
-            out[camera][frame] = to_joints19(kp.reshape(-1, n_joints, 3), model)
+            out[camera][frame] = convert(kp.reshape(-1, n_joints, 3), model)
     return out
 
 

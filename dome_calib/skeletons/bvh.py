@@ -11,7 +11,11 @@ bone lengths are the person's and joint rotations that put its joints where ours
 - Rotations: the root's is the pelvis frame (hips across, body centre to neck up); each bone's is the smallest
   turn, in its parent's frame, from its rest direction to the person's (its twist about itself is not observed
   and is not made up).
-- Units and axes: cm, y up: ``(x, -y, -z)`` of our Panoptic cm.
+- Units: metres by default (:data:`UNIT_PER_CM`; ``--unit cm`` or ``mm`` for tools that read BVH in those): BVH
+  files carry no unit and Blender's importer (``import_anim.bvh``, scale 1) takes one unit as one metre, so a file
+  in cm made a person 163 m tall there.
+- Axes: y up: ``(x, -y, -z)`` of our Panoptic world; where the bundle was imported from a lab's tool, the lab's
+  own world turned to y up as Pose2Sim turns it (:func:`~dome_calib.skeletons.joints.y_up_axes`).
 - Frames: every frame number from the person's first appearance to the last at ``Frame Time`` = 1 / the capture's
   rate. BVH has no missing value: a bone whose joints are not both there keeps its last direction (the first
   known one before that; the rest pose if never seen), the root its last position. Joints whose whole chain to the
@@ -27,7 +31,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from dome_calib.skeletons.joints import MARKER, PARENT, Y_UP_FROM_PANOPTIC, bones
+from dome_calib.skeletons.joints import PARENT, bones, marker_names, y_up_axes
 from dome_calib.skeletons.scenes import People, Track
 
 #: Rest direction (y up, facing +z, the person's left at +x) of the bone from each joint's parent to it.
@@ -35,8 +39,12 @@ REST_DIRECTION = {"neck": (0, 1, 0), "nose": (0, 0.6, 0.8), "head_top": (0, 1, 0
                   "l_elbow": (1, 0, 0), "l_wrist": (1, 0, 0), "r_shoulder": (-1, 0, 0), "r_elbow": (-1, 0, 0),
                   "r_wrist": (-1, 0, 0), "l_hip": (1, 0, 0), "l_knee": (0, -1, 0), "l_ankle": (0, -1, 0),
                   "r_hip": (-1, 0, 0), "r_knee": (0, -1, 0), "r_ankle": (0, -1, 0), "l_eye": (0.6, 0.8, 0),
-                  "l_ear": (0.8, 0, -0.6), "r_eye": (-0.6, 0.8, 0), "r_ear": (-0.8, 0, -0.6)}
+                  "l_ear": (0.8, 0, -0.6), "r_eye": (-0.6, 0.8, 0), "r_ear": (-0.8, 0, -0.6), "upper_neck": (0, 1, 0),
+                  "l_big_toe": (0, -0.3, 0.95), "l_small_toe": (1, 0, 0), "l_heel": (0, -0.6, -0.8),
+                  "r_big_toe": (0, -0.3, 0.95), "r_small_toe": (-1, 0, 0), "r_heel": (0, -0.6, -0.8)}
 MIN_BONE_CM = 1.0  # a bone never seen gets its mirror's length, else this
+#: BVH length units and their size per cm.
+UNIT_PER_CM = {"m": 0.01, "cm": 1.0, "mm": 10.0}
 END_SITE_CM = 5.0
 
 
@@ -70,7 +78,7 @@ def bvh_body(people: People, track: Track, joint_ok: np.ndarray) -> BvhBody:
     frames = people.frames[track.rows]
     F = int(frames[-1] - frames[0]) + 1
     X = np.full((F, len(joints), 3), np.nan)
-    X[frames - frames[0]] = np.where(joint_ok[..., None], track.X_cm @ Y_UP_FROM_PANOPTIC.T, np.nan)
+    X[frames - frames[0]] = np.where(joint_ok[..., None], track.X_cm @ y_up_axes(people).T, np.nan)
     ok = np.isfinite(X).all(-1)
     length = np.zeros(len(joints))
     direction = np.zeros((F, len(joints), 3))
@@ -132,9 +140,11 @@ class BvhJoint:
     rotation: Rotation  # global, per frame
 
 
-def skeleton(body: BvhBody, joints: tuple[str, ...]) -> BvhJoint:
-    """The BVH hierarchy of one person with every joint's global rotation per frame."""
+def skeleton(body: BvhBody, joints: tuple[str, ...], markers: list[str]) -> BvhJoint:
+    """The BVH hierarchy of one person with every joint's global rotation per frame (``markers``: the joints'
+    names, :func:`~dome_calib.skeletons.joints.marker_names`)."""
     index = {n: k for k, n in enumerate(joints)}
+    marker = dict(zip(joints, markers))
 
     def bone_rotation(c: str, parent_rot: Rotation) -> Rotation:
         rest = np.asarray(REST_DIRECTION[c], float) / np.linalg.norm(REST_DIRECTION[c])
@@ -156,39 +166,40 @@ def skeleton(body: BvhBody, joints: tuple[str, ...]) -> BvhJoint:
                 kids.append(node(c, child_offset, rot))
             else:  # a branch joint per child: its own rotation for the bone
                 branch = bone_rotation(c, rot)
-                kids.append(BvhJoint(name=f"{MARKER[name]}_{MARKER[c]}", offset=np.zeros(3),
+                kids.append(BvhJoint(name=f"{marker[name]}_{marker[c]}", offset=np.zeros(3),
                                      children=[node(c, child_offset, branch)], rotation=branch))
-        return BvhJoint(name=MARKER[name], offset=offset, children=kids, rotation=rot)
+        return BvhJoint(name=marker[name], offset=offset, children=kids, rotation=rot)
 
     return node("body_center", np.zeros(3), Rotation.identity(len(body.root)))
 
 
 def _hierarchy(joint: BvhJoint, depth: int, lines: list[str], order: list[tuple[BvhJoint, BvhJoint | None]],
-               parent: BvhJoint | None) -> None:
+               parent: BvhJoint | None, scale: float) -> None:
     pad = "  " * depth
     root = parent is None
     lines.append(f"{pad}{'ROOT' if root else 'JOINT'} {joint.name}")
     lines.append(f"{pad}{{")
-    lines.append(f"{pad}  OFFSET {' '.join(f'{v:.6f}' for v in joint.offset)}")
+    lines.append(f"{pad}  OFFSET {' '.join(f'{v * scale:.6f}' for v in joint.offset)}")
     lines.append(f"{pad}  CHANNELS " + ("6 Xposition Yposition Zposition " if root else "3 ")
                  + "Zrotation Xrotation Yrotation")
     order.append((joint, parent))
     for child in joint.children:
-        _hierarchy(child, depth + 1, lines, order, joint)
+        _hierarchy(child, depth + 1, lines, order, joint, scale)
     if not joint.children:
-        lines += [f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET 0.000000 {END_SITE_CM:.6f} 0.000000",
+        lines += [f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET 0.000000 {END_SITE_CM * scale:.6f} 0.000000",
                   f"{pad}  }}"]
     lines.append(f"{pad}}}")
 
 
-def bvh_text(people: People, track: Track, joint_ok: np.ndarray) -> str:
-    """The BVH file of one person (see the module docstring)."""
+def bvh_text(people: People, track: Track, joint_ok: np.ndarray, unit: str = "m") -> str:
+    """The BVH file of one person, lengths in ``unit`` (see the module docstring)."""
+    scale = UNIT_PER_CM[unit]
     body = bvh_body(people, track, joint_ok)
-    top = skeleton(body, people.joints)
+    top = skeleton(body, people.joints, marker_names(people))
     lines = ["HIERARCHY"]
     order: list[tuple[BvhJoint, BvhJoint | None]] = []
-    _hierarchy(top, 0, lines, order, None)
-    columns = [body.root]
+    _hierarchy(top, 0, lines, order, None, scale)
+    columns = [body.root * scale]
     with warnings.catch_warnings():  # at +-90 deg about x the ZXY angles are not unique: scipy says so; any is right
         warnings.simplefilter("ignore", UserWarning)
         for joint, parent in order:
@@ -211,8 +222,8 @@ def constant_bone_body(people: People, track: Track, joint_ok: np.ndarray) -> tu
     return body.first_frame, out
 
 
-def write_bvh(folder: Path, people: People, track: Track, joint_ok: np.ndarray) -> Path:
-    """Write ``person<id>.bvh`` into ``folder`` (a staging folder); returns its path."""
+def write_bvh(folder: Path, people: People, track: Track, joint_ok: np.ndarray, *, unit: str = "m") -> Path:
+    """Write ``person<id>.bvh`` into ``folder`` (a staging folder), lengths in ``unit``; returns its path."""
     path = folder / f"person{track.id}.bvh"
-    path.write_text(bvh_text(people, track, joint_ok), encoding="utf-8")
+    path.write_text(bvh_text(people, track, joint_ok, unit), encoding="utf-8")
     return path

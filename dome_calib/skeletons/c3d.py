@@ -31,7 +31,7 @@ import numpy as np
 from ezc3d import ezc3d as ezc3d_core
 
 from dome_calib.skeletons.errors import PeopleFileError
-from dome_calib.skeletons.joints import MARKER, Z_UP_FROM_PANOPTIC
+from dome_calib.skeletons.joints import marker_names, z_up_axes
 from dome_calib.skeletons.scenes import People
 
 MM_PER_CM = 10.0
@@ -54,10 +54,11 @@ def c3d_points(people: People, joint_ok: dict[int, np.ndarray]) -> tuple[list[st
     labels, descriptions = [], []
     points = np.full((4, J * len(people.tracks), n_frames), np.nan)
     points[3] = 1.0
+    markers = marker_names(people)
     for p, (pid, track) in enumerate(people.tracks.items()):
-        labels += [f"P{pid}:{MARKER[j]}" for j in people.joints]
+        labels += [f"P{pid}:{m}" for m in markers]
         descriptions += [f"person {pid} {j}" for j in people.joints]
-        X = np.where(joint_ok[pid][..., None], track.X_cm @ Z_UP_FROM_PANOPTIC.T * MM_PER_CM, np.nan)
+        X = np.where(joint_ok[pid][..., None], track.X_cm @ z_up_axes(people).T * MM_PER_CM, np.nan)
         columns = people.frames[track.rows] - first
         points[:3, p * J:(p + 1) * J, columns] = X.transpose(2, 1, 0)
     return labels, descriptions, points
@@ -104,7 +105,8 @@ def check_c3d_size(people: People) -> None:
     """Refuse before work what C3D readers do not take, naming the limit (:data:`MAX_POINTS`: 215 people of 19
     joints; :data:`MAX_ITEMS` people; a parameter section past :data:`MAX_PARAMETER_BLOCKS` blocks)."""
     J, P = len(people.joints), len(people.tracks)
-    labels = [f"P{pid}:{MARKER[j]}" for pid in people.tracks for j in people.joints]
+    markers = marker_names(people)
+    labels = [f"P{pid}:{m}" for pid in people.tracks for m in markers]
     descriptions = _descriptions([f"person {pid} {j}" for pid in people.tracks for j in people.joints])
     blocks = parameter_blocks(labels, descriptions, [f"P{pid}" for pid in people.tracks])
     limit = (f"{J * P} points, more than the {MAX_POINTS} C3D readers take" if J * P > MAX_POINTS else

@@ -12,6 +12,7 @@ from dataclasses import dataclass, replace
 from enum import StrEnum
 from fractions import Fraction
 from pathlib import Path
+from typing import Literal
 
 from dome_calib.ownership import claim_folder, replace_folder
 from dome_calib.options import AtLeast, PosFraction, options
@@ -37,11 +38,17 @@ class PeopleFormat(StrEnum):
 class ExportPeopleOptions:
     """``min_confidence``: joints below it are written as missing (default 0: every reconstructed joint);
     ``fps``: the frame rate to write (default: the files' ``fpsType``, else measured from their times);
-    ``ids``: only these people (default: everybody)."""
+    ``ids``: only these people (default: everybody); ``trial``: the TRC files' name before ``_P<id>_<first>-<last>``
+    (default: the folder's name); ``fill_gaps``: TRC markers missing for at most this many frames are filled as
+    Pose2Sim fills its own (:func:`~dome_calib.skeletons.trc.fill_gaps`; 0: every missing joint stays missing);
+    ``unit``: the BVH files' length unit (metres: one Blender unit)."""
 
     min_confidence: NonNegFinite = 0.0
     fps: PosFraction | None = None
     ids: list[AtLeast(0)] | None = None
+    trial: str | None = None
+    fill_gaps: AtLeast(0) = 20
+    unit: Literal["m", "cm", "mm"] = "m"
 
 
 @dataclass(frozen=True)
@@ -59,6 +66,14 @@ def check_export_folder(folder: str | Path, inputs: list[str | Path] = ()) -> Pa
     """The output folder is replaced whole: absent, empty or what dome-calib wrote, unchanged, and holding no
     input (:func:`dome_calib.ownership.claim_folder`)."""
     return claim_folder(folder, inputs=inputs)
+
+
+def trial_name(trial: str | None, folder: Path) -> str:
+    """The TRC files' trial name: given (a file name's part: no path separator, not empty), else the folder's name."""
+    name = Path(folder).resolve().name if trial is None else trial
+    if not name or name in (".", "..") or "/" in name or "\\" in name or "\0" in name:
+        raise PeopleFileError(f"--trial {trial!r}: expected a name for the files (no path separator)")
+    return name
 
 
 def parse_ids(text: str | None) -> list[int] | None:
@@ -127,6 +142,7 @@ def export_people(folder: str | Path, to: PeopleFormat | str, out: str | Path,
     """
     options = options or ExportPeopleOptions()
     to = PeopleFormat(to)
+    trial = trial_name(options.trial, Path(folder))
     check_export_folder(out, [folder])
     people = selected(read_people(folder, progress=progress), options)  # progress: files read
     check_dense(people, to)
@@ -138,9 +154,12 @@ def export_people(folder: str | Path, to: PeopleFormat | str, out: str | Path,
         if to is PeopleFormat.c3d:
             files.append(write_c3d(staging / C3D_FILE, people, ok))
         else:
-            writer = write_trc if to is PeopleFormat.trc else write_bvh
             for k, (pid, track) in enumerate(people.tracks.items()):
-                files.append(writer(staging, people, track, ok[pid]))
+                if to is PeopleFormat.trc:
+                    files.append(write_trc(staging, people, track, ok[pid], trial=trial,
+                                           fill_frames=options.fill_gaps))
+                else:
+                    files.append(write_bvh(staging, people, track, ok[pid], unit=options.unit))
                 if progress is not None:
                     progress(n_files + k + 1, total)
     if progress is not None:

@@ -23,7 +23,7 @@ import numpy as np
 from dome_calib.bundle import Bundle
 from dome_calib.ownership import write_text
 from dome_calib.pages import render
-from dome_calib.skeletons.joints import JOINTS19, MARKER, bones
+from dome_calib.skeletons.joints import JOINTS19, bones, marker_names
 from dome_calib.skeletons.scenes import People
 
 logger = logging.getLogger(__name__)
@@ -92,7 +92,7 @@ def page_data(people: People, *, bundle: Bundle | None = None, detections: list[
     if beyond:
         notes.append(f"{beyond} joints beyond 32.7 m of the origin are not drawn")
     return {"title": folder.name, "source": str(folder), "layout": people.layout,
-            "joints": list(people.joints), "markers": [MARKER[j] for j in people.joints],
+            "joints": list(people.joints), "markers": marker_names(people),
             "bones": bones(people.joints), "root": people.joints.index("body_center"),
             "fps": float(people.fps), "fps_type": people.fps_type, "frames": people.frames.tolist(),
             "times_ms": np.round(people.times_ms, 3).tolist(), "people": tracks, "trail_s": TRAIL_S,
@@ -111,9 +111,11 @@ def write_people_page(path: str | Path, people: People, *, bundle: Bundle | None
                       detections: list[CameraDetections] | None = None, notes: list[str] | None = None,
                       folder: Path | None = None) -> Path:
     """Write the page of ``people`` to ``path`` (atomic, where :mod:`dome_calib.ownership` allows); returns the path
-    (``folder``: see :func:`page_data`)."""
+    (``folder``: see :func:`page_data`; a page staged with its folder is said at the folder's final place,
+    ``folder / path.name``: the staging folder is gone after the rename)."""
     path = Path(path)
     write_text(path, render_page(page_data(people, bundle=bundle, detections=detections, notes=notes,
                                            folder=folder)))
-    logger.info("people page written to %s (%.0f kB)", path, path.stat().st_size / 1e3)
+    said = path if folder is None or path.parent == Path(folder) else Path(folder) / path.name
+    logger.info("people page written to %s (%.0f kB)", said, path.stat().st_size / 1e3)
     return path

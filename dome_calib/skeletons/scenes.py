@@ -7,8 +7,11 @@ A file (the Panoptic toolbox's README, "Skeleton Output Format"; mmpose's
     {"version": 0.7, "univTime": 53541.542, "fpsType": "hd_29_97",
      "bodies": [{"id": 0, "joints19": [x, y, z, c] * 19}, ...]}
 
-``joints15`` ([x, y, z, c] * 15, the older "mpi15" layout) in place of ``joints19``; ``inlierViews19`` (ours: the
-views behind each joint) is read and not used; other fields are none of our business and are ignored. x, y, z:
+``joints15`` ([x, y, z, c] * 15, the older "mpi15" layout) in place of ``joints19``; dome-calib's ``bodyModel``,
+``extraJointNames`` and per body ``extraJoints`` (the detector's joints beside joints19, the same conventions:
+:mod:`dome_calib.recon.people.scene_io`; carried after the layout's joints), ``labUp`` (the imported lab world's up
+axis) and ``fps`` (the exact rate of a custom ``fpsType``) are read too; ``inlierViews19`` (ours: the views behind
+each joint) is read and not used; other fields are none of our business and are ignored. x, y, z:
 world cm (the Panoptic frame, y down); c: the joint's confidence, ``-1`` where it was not reconstructed (and ``0,
 0, 0`` then). The frame is the number in the file name. Every problem is one line naming the file and the field
 (:class:`~dome_calib.skeletons.errors.PeopleFileError`).
@@ -21,14 +24,14 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from fractions import Fraction
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import Field, model_validator
 
 from dome_calib.schema import Finite, NonNegInt, OpenSchema, parse_json, show
 from dome_calib.skeletons.errors import PeopleFileError
-from dome_calib.skeletons.joints import LAYOUTS
+from dome_calib.skeletons.joints import EXTRA_NAMES, LAYOUTS
 
 logger = logging.getLogger(__name__)
 
@@ -53,6 +56,10 @@ class SceneBody(OpenSchema):
     joints15: Annotated[list[Finite], Field(min_length=60, max_length=60)] | None = None
     inlierViews19: Annotated[list[NonNegInt], Field(min_length=19, max_length=19)] | None = Field(
         None, description="dome-calib's: the views behind each joint (read, not used)")
+    extraJoints: Annotated[list[Finite], Field(max_length=4 * len(EXTRA_NAMES))] | None = Field(
+        None, description="dome-calib's: [x, y, z, c] of each of the file's extraJointNames")
+    inlierViewsExtra: Annotated[list[NonNegInt], Field(max_length=len(EXTRA_NAMES))] | None = Field(
+        None, description="dome-calib's: the views behind each extra joint (read, not used)")
 
     @model_validator(mode="after")
     def _one_layout(self) -> SceneBody:
@@ -67,7 +74,25 @@ class SceneFile(OpenSchema):
     version: Finite | str | None = None
     univTime: Finite = Field(description="universal time of the frame, ms")
     fpsType: str | None = Field(None, description='"vga_25", "hd_29_97", "kinect_30" or "custom"')
+    fps: Annotated[str, Field(pattern=r"^[1-9]\d{0,9}(/[1-9]\d{0,9})?$")] | None = Field(
+        None, description="dome-calib's: the exact frame rate of a custom fpsType, e.g. \"60\", \"30000/1001\"")
+    bodyModel: str | None = Field(None, description="dome-calib's: the detector's model (BODY_25B, HALPE_26, ...)")
+    labUp: Literal["+x", "-x", "+y", "-y", "+z", "-z"] | None = Field(
+        None, description="dome-calib's: the up axis of the lab world the bundle was imported from")
+    extraJointNames: Annotated[list[Literal[EXTRA_NAMES]], Field(max_length=len(EXTRA_NAMES))] | None = Field(
+        None, description="dome-calib's: the detector's joints beside joints19, in the bodies' extraJoints order")
     bodies: list[SceneBody]
+
+    @model_validator(mode="after")
+    def _extra_lengths(self) -> SceneFile:
+        names = self.extraJointNames or []
+        if len(set(names)) != len(names):
+            raise ValueError("extraJointNames: a name is given twice")
+        for b, body in enumerate(self.bodies):
+            if len(body.extraJoints or []) != 4 * len(names) and (body.extraJoints is not None or names):
+                raise ValueError(f"bodies[{b}].extraJoints: {len(body.extraJoints or [])} numbers but extraJointNames "
+                                 f"has {len(names)} joints ([x, y, z, c] each)")
+        return self
 
 
 @dataclass(frozen=True)
@@ -94,10 +119,14 @@ class People:
     fps: Fraction | None
     layout: str
     tracks: dict[int, Track]
+    extra: tuple[str, ...] = ()
+    body_model: str | None = None
+    lab_up: str | None = None
 
     @property
     def joints(self) -> tuple[str, ...]:
-        return LAYOUTS[self.layout]
+        """The layout's joints, then the detector's extra joints (``extraJointNames``): the tracks' columns."""
+        return LAYOUTS[self.layout] + self.extra
 
 
 def scene_files(folder: str | Path) -> list[tuple[int, Path]]:
@@ -158,11 +187,15 @@ def with_rate(people: People, fps: Fraction | None = None, remedy: str = "give -
     return replace(people, fps=fps)
 
 
-def frame_rate(fps_type: str, frames: np.ndarray, times_ms: np.ndarray) -> Fraction | None:
-    """The frame rate: the ``fpsType``'s (exact), else frames per second of the times (rounded to 1/1000 fps); None
-    when the times give none a capture can have (:func:`rate_problem`: frames hours apart, a rate rounded to 0)."""
+def frame_rate(fps_type: str, frames: np.ndarray, times_ms: np.ndarray,
+               stated: Fraction | None = None) -> Fraction | None:
+    """The frame rate: the ``fpsType``'s (exact), else the files' own ``fps`` (exact), else frames per second of the
+    times (rounded to 1/1000 fps); None when the times give none a capture can have (:func:`rate_problem`: frames
+    hours apart, a rate rounded to 0)."""
     if fps_type in FPS_OF_TYPE:
         return FPS_OF_TYPE[fps_type]
+    if stated is not None:
+        return stated if rate_problem(stated) is None else None
     if len(frames) < 2 or times_ms[-1] <= times_ms[0]:
         return Fraction(30)
     fps = Fraction(round(1000.0 * 1000.0 * float(frames[-1] - frames[0]) / (times_ms[-1] - times_ms[0]))) / 1000
@@ -177,6 +210,10 @@ def read_people(folder: str | Path, *, progress: Callable[[int, int], None] | No
     frames = np.array([f for f, _ in files], dtype=np.int64)
     times = np.empty(len(files))
     layout = fps_type = None
+    stated: str | None = None
+    extra: tuple[str, ...] | None = None
+    body_model: str | None = None
+    lab_up: str | None = None
     per_id: dict[int, tuple[list[int], list[list[float]]]] = {}
     for k, (_, path) in enumerate(files):
         scene = _read_scene(path)
@@ -186,6 +223,16 @@ def read_people(folder: str | Path, *, progress: Callable[[int, int], None] | No
             fps_type = kind
         elif kind != fps_type:
             raise PeopleFileError(f"{path}: fpsType: {show(kind)}, but earlier files have {show(fps_type)}")
+        if k == 0:
+            stated = scene.fps
+        elif scene.fps != stated:
+            raise PeopleFileError(f"{path}: fps: {show(scene.fps)}, but earlier files have {show(stated)}")
+        names = tuple(scene.extraJointNames or ())
+        if extra is None:
+            extra, body_model, lab_up = names, scene.bodyModel, scene.labUp
+        elif names != extra:
+            raise PeopleFileError(f"{path}: extraJointNames: {show(list(names))}, but earlier files have "
+                                  f"{show(list(extra))}")
         if k and times[k] <= times[k - 1]:
             raise PeopleFileError(f"{path}: univTime: {times[k]:g} ms is not after the previous file's "
                                   f"{times[k - 1]:g} ms ({files[k - 1][1].name})")
@@ -202,11 +249,12 @@ def read_people(folder: str | Path, *, progress: Callable[[int, int], None] | No
             seen.add(body.id)
             rows, values = per_id.setdefault(body.id, ([], []))
             rows.append(k)
-            values.append(body.joints19 if body.joints19 is not None else body.joints15)
+            values.append((body.joints19 if body.joints19 is not None else body.joints15) + (body.extraJoints or []))
         if progress is not None:
             progress(k + 1, len(files))
     layout = layout or "joints19"
-    n_joints = len(LAYOUTS[layout])
+    extra = extra or ()
+    n_joints = len(LAYOUTS[layout]) + len(extra)
     tracks = {}
     for pid in sorted(per_id):
         rows, values = per_id[pid]
@@ -218,4 +266,5 @@ def read_people(folder: str | Path, *, progress: Callable[[int, int], None] | No
     fps_type = fps_type or "custom"
     logger.info("read %d files, %d people (%s)", len(files), len(tracks), layout)
     return People(folder=Path(folder), frames=frames, times_ms=times, fps_type=fps_type,
-                  fps=frame_rate(fps_type, frames, times), layout=layout, tracks=tracks)
+                  fps=frame_rate(fps_type, frames, times, Fraction(stated) if stated else None), layout=layout,
+                  tracks=tracks, extra=extra, body_model=body_model, lab_up=lab_up)

@@ -19,6 +19,7 @@ import numpy as np
 from dome_calib.bundle import FRAME_TIME_TOLERANCE_MS
 from dome_calib.bundle_io import load_bundle
 from dome_calib.executor import is_remote
+from dome_calib.lab_world import imported_up
 from dome_calib.io_utils import (refuse_output_among_inputs, refuse_output_inside_inputs, remove_stale_staging,
                                 run_temp_folder)
 from dome_calib.recon.body_models import BodyModel, parse_body_model
@@ -30,6 +31,7 @@ from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.chunks import reconstruct_people_chunked
 from dome_calib.recon.people.depth_witness import DepthWitness, DepthWitnessOptions
 from dome_calib.recon.people.detection_cache import PREFIX as KEPT_PREFIX
+from dome_calib.recon.people.extras import extra_joints
 from dome_calib.recon.people.proposals import AssociationOptions
 from dome_calib.recon.people.run import PeopleOptions
 from dome_calib.recon.people.scene_io import camera_report, check_people_folder, write_people
@@ -37,11 +39,14 @@ from dome_calib.recon.people.sources import FileSource, StreamLayout, stream_lay
 from dome_calib.recon.people.temporal import TemporalOptions
 from dome_calib.recon.people.tracking import TrackingOptions
 from dome_calib.recon.project import ViewSet, view_set
+from dome_calib.recon.video_rate import videos_rate
 
 logger = logging.getLogger(__name__)
 
 #: ``--fps`` range: one frame a day to a million a second (universal times are float milliseconds).
 FPS_RANGE = (Fraction(1, 86400), Fraction(10**6))
+#: The exact rate of the streams that have one (Panoptic VGA 25 fps, HD 29.97 fps).
+FPS_OF_STREAM = {"vga": Fraction(25), "hd": Fraction(30000, 1001)}
 #: ``--workers`` range.
 MAX_WORKERS = 1024
 
@@ -60,6 +65,8 @@ class ReconstructSummary:
     flagged_cameras: list[str]
     median_reprojection_px: float | None
     nobody: str | None = None
+    fps: Fraction | None = None
+    fps_from: str = ""
 
 
 @dataclass(frozen=True)
@@ -75,28 +82,55 @@ class ReconstructPlan:
     model: BodyModel
     options: PeopleOptions
     depth: DepthWitness | None = None
+    fps: Fraction | None = None
+    fps_from: str = ""
+    lab_up: str | None = None
 
 
-def people_options(*, min_views: int = 3, smooth: int = 0, fps: str = "30", per_frame: bool = False
+def people_options(*, min_views: int = 3, smooth: int = 0, fps: str | None = None, per_frame: bool = False
                    ) -> PeopleOptions:
     """The command's options from its flags: people need ``min_views`` cameras (``--min-views``), ``smooth``
-    observations either side (``--smooth``, 0 = off), ``fps`` (``--fps``, e.g. "30", "30000/1001") for a bundle
-    without sync tables; ``per_frame`` (``--per-frame``): each time's own triangulation, without the body over
-    time. A bad value is one ReconError naming the flag as the user typed it."""
+    observations either side (``--smooth``, 0 = off), ``fps`` (``--fps``, e.g. "30", "30000/1001"; None: not
+    given) for a bundle without sync tables; ``per_frame`` (``--per-frame``): each time's own triangulation, without
+    the body over time. A bad value is one ReconError naming the flag as the user typed it."""
     if min_views < 2:
         raise ReconError(f"--min-views {min_views}: a person must be seen by at least 2 cameras (a joint is "
                          "triangulated from two views or more)")
     if smooth < 0:
         raise ReconError(f"--smooth {smooth}: expected 0 (off) or a number of frames either side")
-    try:
-        shared_fps = Fraction(fps)
-    except (ValueError, ZeroDivisionError):
-        raise ReconError(f"--fps {fps!r}: not a frame rate (e.g. 30, 60 or 30000/1001)") from None
-    if not FPS_RANGE[0] <= shared_fps <= FPS_RANGE[1]:
-        raise ReconError(f"--fps {fps!r}: expected a frame rate from 1/86400 (one frame a day) to 1000000")
+    shared_fps = None if fps is None else check_fps(fps)
     return PeopleOptions(association=AssociationOptions(min_person_views=min_views),
                          tracking=TrackingOptions(smooth_half_window=smooth), shared_fps=shared_fps,
                          temporal=TemporalOptions(enabled=not per_frame))
+
+
+def check_fps(fps: str | Fraction, flag: str = "--fps") -> Fraction:
+    """A frame rate as the user gave it -> Fraction in :data:`FPS_RANGE`; ReconError naming ``flag``."""
+    try:
+        rate = Fraction(fps)
+    except (ValueError, ZeroDivisionError):
+        raise ReconError(f"{flag} {fps!r}: not a frame rate (e.g. 30, 60 or 30000/1001)") from None
+    if not FPS_RANGE[0] <= rate <= FPS_RANGE[1]:
+        raise ReconError(f"{flag} {str(fps)!r}: expected a frame rate from 1/86400 (one frame a day) to 1000000")
+    return rate
+
+
+def shared_rate(bundle, options: PeopleOptions, videos: str | Path | None) -> tuple[Fraction | None, str]:
+    """The frame rate of the detections of a bundle without sync tables, and where it came from: ``--fps``, else
+    the videos (:func:`~dome_calib.recon.video_rate.videos_rate`; both given: they must agree); (None, "") with sync
+    tables (each stream's own clock). Neither: None, and the streams refuse it
+    (:func:`~dome_calib.recon.people.sources.stream_layouts`), as no rate is ever assumed."""
+    if bundle.sync is not None:
+        return None, ""
+    from_videos = check_fps(videos_rate(videos), "--videos") if videos is not None else None
+    given = options.shared_fps
+    if given is not None and from_videos is not None and given != from_videos:
+        raise ReconError(f"--fps {given} but the videos of --videos {videos} run at {from_videos} fps: give one")
+    if given is not None:
+        return given, "--fps"
+    if from_videos is not None:
+        return from_videos, "the videos"
+    return None, ""
 
 
 def check_workers(workers: int) -> None:
@@ -150,12 +184,15 @@ def plan_reconstruction(detections: str | Path, bundle_folder: str | Path, out: 
                         body_model: str | BodyModel | None = None, camera_map: str | dict[str, str] | None = None,
                         reference: str | None = None, options: PeopleOptions | None = None,
                         depth_folder: str | Path | None = None,
-                        depth_options: DepthWitnessOptions | None = None) -> ReconstructPlan:
+                        depth_options: DepthWitnessOptions | None = None,
+                        videos: str | Path | None = None) -> ReconstructPlan:
     """Check every input and the output place, in seconds, before any work (see the module docstring); the paths
     are resolved (``.``, ``..``, links), ``out`` defaults to :func:`default_output` and may lie neither inside the
     detections, the bundle nor the depth frames. ``depth_folder``: Kinect depth frames (``KINECTNODE<n>/depth_<k>.png``)
     whose sensors witness the joints (:mod:`~dome_calib.recon.people.depth_witness`); the bundle must then hold the
-    Kinects' calibration and depth sync tables."""
+    Kinects' calibration and depth sync tables. ``videos``: the folder of the cameras' videos, whose frame rate is
+    the detections' when the bundle has no sync tables and ``options.shared_fps`` is not given
+    (:func:`shared_rate`)."""
     options = options or PeopleOptions()
     if isinstance(body_model, str):
         try:
@@ -176,6 +213,8 @@ def plan_reconstruction(detections: str | Path, bundle_folder: str | Path, out: 
     mapping = camera_map if isinstance(camera_map, dict) else parse_camera_map(camera_map)
     files = index_openpose_folder(detections, camera_map=mapping, cameras=set(bundle.cameras))
     model = body_model_of(files, body_model)
+    fps, fps_from = shared_rate(bundle, options, videos)
+    options = replace(options, shared_fps=fps)
     layouts = stream_layouts(bundle, files, files, shared_fps=options.shared_fps)
     times, numbers, ref = reference_times(layouts, reference)
     layouts = streams_at(layouts, times)
@@ -184,8 +223,12 @@ def plan_reconstruction(detections: str | Path, bundle_folder: str | Path, out: 
     if need > len(source.cameras):
         raise ReconError(f"--min-views {need}: only {len(source.cameras)} cameras have detections, so nobody could "
                          "be reconstructed")
+    if fps is None:  # the reference stream's own rate, where it has a name
+        fps, fps_from = FPS_OF_STREAM.get(ref), "the sync tables"
     return ReconstructPlan(out=out, views=view_set(bundle, source.cameras), source=source, times_ms=times,
-                           numbers=numbers, reference=ref, model=model, options=options, depth=depth)
+                           numbers=numbers, reference=ref, model=model, options=options, depth=depth, fps=fps,
+                           fps_from=fps_from if fps is not None else "",
+                           lab_up=imported_up(bundle.calib_data_source))
 
 
 #: The share of the joints the cameras agreed on that the Kinects' depth may see through before the run says so:
@@ -242,7 +285,10 @@ def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callab
     with kept_detections(plan.source, executor) as source:  # later passes take what the first one read
         seq = reconstruct_people_chunked(plan.views, source, plan.times_ms, plan.options, executor=executor,
                                          depth=plan.depth, progress=progress)
-    write_people(plan.out, seq, plan.numbers, FPS_TYPE.get(plan.reference, "custom"), also=page)
+        extras = (extra_joints(plan.views, plan.source, seq, plan.options)
+                  if isinstance(plan.source, FileSource) else None)  # the detector's joints beside joints19
+    write_people(plan.out, seq, plan.numbers, FPS_TYPE.get(plan.reference, "custom"), also=page,
+                 body_model=plan.model.value, extras=extras, lab_up=plan.lab_up, fps=plan.fps)
     report = camera_report(seq.cameras)
     ids = {int(i) for b in seq.bodies for i in b.ids}
     nobody = None if ids else why_nobody(seq.cameras, plan.options, len(plan.times_ms))
@@ -251,7 +297,8 @@ def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callab
     return ReconstructSummary(out=plan.out, times=len(plan.times_ms), cameras=len(plan.source.cameras),
                               body_model=plan.model.value, reference=plan.reference, people=len(ids),
                               body_frames=sum(len(b.ids) for b in seq.bodies), flagged_cameras=report["flagged"],
-                              median_reprojection_px=report["median_reprojection_px"], nobody=nobody)
+                              median_reprojection_px=report["median_reprojection_px"], nobody=nobody,
+                              fps=plan.fps, fps_from=plan.fps_from)
 
 
 def reconstruct_folder(detections: str | Path, bundle_folder: str | Path, out: str | Path | None = None, *,
@@ -259,7 +306,8 @@ def reconstruct_folder(detections: str | Path, bundle_folder: str | Path, out: s
                        reference: str | None = None, options: PeopleOptions | None = None, executor=None,
                        depth_folder: str | Path | None = None, depth_options: DepthWitnessOptions | None = None,
                        progress: Callable[[int, int], None] | None = None,
-                       page: Callable[[Path], None] | None = None) -> ReconstructSummary:
+                       page: Callable[[Path], None] | None = None,
+                       videos: str | Path | None = None) -> ReconstructSummary:
     """Detections folder (OpenPose JSON per camera) + bundle -> ``out`` (body3DScene per time, cameras.json, and
     ``page(staging)``'s files).
 
@@ -269,13 +317,15 @@ def reconstruct_folder(detections: str | Path, bundle_folder: str | Path, out: s
     """
     plan = plan_reconstruction(detections, bundle_folder, out, body_model=body_model, camera_map=camera_map,
                                reference=reference, options=options, depth_folder=depth_folder,
-                               depth_options=depth_options)
+                               depth_options=depth_options, videos=videos)
     return run_reconstruction(plan, executor=executor, progress=progress, page=page)
 
 
 def format_summary(summary: ReconstructSummary) -> str:
     """The command's one line: what was reconstructed, or that nobody was and why."""
-    head = (f"{summary.times} times ({summary.reference}) from {summary.cameras} cameras ({summary.body_model}): ")
+    rate = (f", {float(summary.fps):g} fps from {summary.fps_from}" if summary.fps is not None else
+            ", each stream's rate from the sync tables")
+    head = f"{summary.times} times ({summary.reference}{rate}) from {summary.cameras} cameras ({summary.body_model}): "
     if summary.nobody:
         return f"{head}no person reconstructed: {summary.nobody} -> {summary.out}"
     err = "n/a" if summary.median_reprojection_px is None else f"{summary.median_reprojection_px:.1f} px"

@@ -31,7 +31,9 @@ def _person_size_px(kp: np.ndarray) -> np.ndarray:
 
 def interpolate_people(stream: PeopleStream, univ_time_ms: np.ndarray, *, max_gap_frames: float = 2.5,
                        match_gate: float = 0.25, min_gate_px: float = 15.0) -> np.ndarray:
-    """People of one stream at (T,) universal times -> (T, V_s, N_out, 19, 3) (empty slots have c = 0).
+    """People of one stream at (T,) universal times -> (T, V_s, N_out, J, 3) (empty slots have c = 0; J = 19, or
+    19 + extra joints after them: the matching, the slots' order and their count read the first 19 only, so the
+    joints19 of a stream with extras come out as those of the stream without).
 
     match_gate: two frames' people match if their mean joint distance is below ``match_gate`` x the person's
     bounding-box diagonal (at least ``min_gate_px``). Outside the table's span, across gaps wider than
@@ -51,11 +53,12 @@ def interpolate_people(stream: PeopleStream, univ_time_ms: np.ndarray, *, max_ga
     b = Brackets.take(stream.kp, br.pos1[mix], br.has1[mix])
     wb = w1[mix].astype(np.float32)  # (M,)
     near = wb <= 0.5
-    both = (a[:, :, :, None, :, 2] > 0) & (b[:, :, None, :, :, 2] > 0)  # (M, V, N, N, 19)
-    dist = np.linalg.norm(a[:, :, :, None, :, :2] - b[:, :, None, :, :, :2], axis=-1)
+    a19, b19 = a[..., :19, :], b[..., :19, :]
+    both = (a19[:, :, :, None, :, 2] > 0) & (b19[:, :, None, :, :, 2] > 0)  # (M, V, N, N, 19)
+    dist = np.linalg.norm(a19[:, :, :, None, :, :2] - b19[:, :, None, :, :, :2], axis=-1)
     n_common = both.sum(-1)
     cost = np.where(n_common >= 3, np.where(both, dist, 0).sum(-1) / np.maximum(n_common, 1), np.inf)
-    gate = np.maximum(match_gate * _person_size_px(a), min_gate_px)[..., None]
+    gate = np.maximum(match_gate * _person_size_px(a19), min_gate_px)[..., None]
     match = greedy_match(cost, gate)  # (M, V, N)
     M, V, N = match.shape
     bm = np.take_along_axis(b, np.maximum(match, 0)[..., None, None], axis=2)
@@ -74,10 +77,10 @@ def interpolate_people(stream: PeopleStream, univ_time_ms: np.ndarray, *, max_ga
     used_b[mi, vi, match[mi, vi, ni]] = True
     slots_b = np.where((~used_b & ~near[:, None, None])[..., None, None], b, 0)
     merged = np.concatenate([slots_a, slots_b], axis=2)  # (M, V, 2N, 19, 3)
-    full = np.zeros((len(t), V, 2 * N, 19, 3), dtype=np.float32)
+    full = np.zeros((len(t), V, 2 * N) + stream.kp.shape[-2:], dtype=np.float32)
     full[:, :, :N] = out
     full[mix] = merged
-    filled = (full[..., 2] > 0).any(-1)
+    filled = (full[..., :19, 2] > 0).any(-1)
     order = np.argsort(~filled, axis=2, kind="stable")
     full = np.take_along_axis(full, order[..., None, None], axis=2)
     keep = max(int(filled.sum(axis=2).max()), 1)
@@ -85,10 +88,11 @@ def interpolate_people(stream: PeopleStream, univ_time_ms: np.ndarray, *, max_ga
 
 
 def gather_people(streams: list[PeopleStream], times_ms: np.ndarray, max_gap_frames: float) -> np.ndarray:
-    """All streams' people at the times -> (T, V, N, 19, 3) (views in stream order, empty slots c = 0)."""
+    """All streams' people at the times -> (T, V, N, J, 3) (views in stream order, empty slots c = 0; J: the
+    streams', 19 or 19 + extra joints)."""
     parts = [interpolate_people(s, times_ms, max_gap_frames=max_gap_frames) for s in streams]
     N = max(p.shape[2] for p in parts)
-    out = np.zeros((len(times_ms), sum(p.shape[1] for p in parts), N, 19, 3), dtype=np.float32)
+    out = np.zeros((len(times_ms), sum(p.shape[1] for p in parts), N) + parts[0].shape[-2:], dtype=np.float32)
     v = 0
     for p in parts:  # each stream's views in place (no padded copy, then a concatenated one)
         out[:, v: v + p.shape[1], : p.shape[2]] = p

@@ -21,7 +21,8 @@ fixed by the session's time index, with bone lengths and camera noise measured o
 depend on the other times of its batch or chunk); :func:`reconstruct_people` adds the tracking and the body over
 time in one process; :func:`~dome_calib.recon.people.chunks.reconstruct_people_chunked` runs the spans and the
 windows of a long session on an executor, and tracks once over all of them in between. No result depends on the
-batches, the chunks or the workers.
+batches, the chunks or the workers. ``shared_fps``: the frame rate of a bundle without sync tables (its frames'
+universal times); no default: a rate nobody gave is refused (:func:`~dome_calib.recon.people.sources.stream_layouts`).
 """
 from __future__ import annotations
 
@@ -72,7 +73,7 @@ class PeopleOptions:
     max_gap_frames: Annotated[float, Field(ge=1)] = 2.5
     batch_times: AtLeast(1) = 16
     chunk_times: AtLeast(1) = 600
-    shared_fps: PosFraction = Fraction(30)
+    shared_fps: PosFraction | None = None
 
 
 @dataclass

@@ -10,16 +10,29 @@ x, y, z world cm (Panoptic frame); c = the probability, under the fitted body ov
 confidence of the supporting views); -1 (x = y = z = 0) for a joint not reconstructed; inlierViews19 = the number
 of views supporting each joint.
 
+Beside joints19 (which the Panoptic toolbox reads as it always has), the joints the detector gives and joints19
+lacks (:data:`~dome_calib.recon.body_models.EXTRA_JOINTS`: the feet, BODY_25B's UpperNeck, the head top) ride in
+fields of their own: ``"bodyModel"`` (the detector's model, e.g. ``"BODY_25B"``), ``"extraJointNames"``
+(``["upper_neck", "head_top", "l_big_toe", ...]``) per file, and per body ``"extraJoints"`` (``[x, y, z, c] * E`` in
+that order, the same conventions as joints19; triangulated per frame, :mod:`~dome_calib.recon.people.extras`) and
+``"inlierViewsExtra"`` (``[n] * E``). ``"labUp"``: where the bundle was imported from a lab's tool, the up axis of
+that lab's world (``"+z"``; our world is that world turned by ``PANOPTIC_FROM_UP[labUp]``, in cm), so the people
+export can write the lab's own axes. ``"fps"`` (``"60"``, ``"30000/1001"``): with ``fpsType`` ``"custom"`` (a bundle
+without sync tables), the exact rate the times were made with.
+
 cameras.json: per camera the people it detected, the share of them used by a reconstructed body and the median
 pixel distance between its used joints and the reconstructed joints; ``flagged`` lists the cameras that disagree
-(median error above ``max(3 x the cameras' median, 5 px)`` or a share used below half the cameras' median): a
-camera that moved since calibration, a bad lens, or a camera that sees nobody well. With the body over time, per
+(median error above ``max(3 x the cameras' median, 5 px)`` or a share used below half the cameras' median, or, an
+absolute criterion that holds when half the cameras are off, more than :data:`OUTVOTED_LIMIT` of its joint
+detections outvoted by the body over time): a camera that moved since calibration, a bad lens, or a camera that sees
+nobody well. With the body over time, per
 camera also the share of its joint detections that the body outvoted (farther than 5 sigma of that camera's
 measured pixel noise from where the body puts the joint: swaps, a neighbour's limb, a moved camera).
 """
 from __future__ import annotations
 
 import json
+from fractions import Fraction
 from collections.abc import Callable
 from pathlib import Path
 
@@ -30,10 +43,19 @@ from dome_calib.recon.formats import SKELETON_FILE
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.bodies import Bodies
+from dome_calib.recon.people.extras import ExtraJoints
 from dome_calib.recon.people.run import PeopleSequence
 
 CAMERAS_FILE = "cameras.json"
-PAGE_FILE = "index.html"  # the people page, written into the staging folder by write_people's ``also``
+PAGE_FILE = "index.html"
+#: A camera is flagged, whatever the others do, when the body over time puts aside more than this share of its joint
+#: detections (farther than 5 sigma of its pixel noise): the detector's own rate of such outliers, measured on real
+#: OpenPose output (:class:`dome_calib.synth.detector_model.DetectorModel`: 4.8 % for wrists, 0.1-0.2 % for the
+#: other joints), is a fifth of it at most. The relative criteria alone miss cameras when half of them are off (their
+#: median is off too): two cameras 33 px and 22 px off with 86 % and 52 % of their joints outvoted were not flagged.
+OUTVOTED_LIMIT = 0.25
+#: ... once at least this many of its joint detections were judged.
+MIN_JUDGED = 100  # the people page, written into the staging folder by write_people's ``also``
 
 
 def check_people_folder(folder: str | Path) -> Path:
@@ -42,20 +64,40 @@ def check_people_folder(folder: str | Path) -> Path:
     return claim_folder(folder)
 
 
-def scene_json(time_ms: float, bodies: Bodies, fps_type: str) -> dict:
-    """One body3DScene object (bodies sorted by id)."""
+def _joints_json(X_cm: np.ndarray, confidence: np.ndarray) -> list[float]:
+    """(J, 3), (J,) -> ``[x, y, z, c] * J`` (``0, 0, 0, -1`` where not reconstructed)."""
+    flat: list[float] = []
+    for X, c in zip(X_cm, confidence):
+        if np.all(np.isfinite(X)) and c >= 0:
+            flat += [round(float(v), 4) for v in X] + [round(float(c), 4)]
+        else:
+            flat += [0.0, 0.0, 0.0, -1.0]
+    return flat
+
+
+def scene_json(time_ms: float, bodies: Bodies, fps_type: str, *, body_model: str | None = None,
+               extra: tuple[list[str], np.ndarray, np.ndarray, np.ndarray] | None = None,
+               lab_up: str | None = None, fps: Fraction | None = None) -> dict:
+    """One body3DScene object (bodies sorted by id); ``extra``: (names, X_cm (P, E, 3), confidence (P, E),
+    n_inliers (P, E)) of the bodies in their order here (:mod:`~dome_calib.recon.people.extras`)."""
     out = []
     for p in np.argsort(bodies.ids, kind="stable"):
-        flat: list[float] = []
-        for j in range(19):
-            X, c = bodies.X_cm[p, j], float(bodies.confidence[p, j])
-            if np.all(np.isfinite(X)) and c >= 0:
-                flat += [round(float(v), 4) for v in X] + [round(c, 4)]
-            else:
-                flat += [0.0, 0.0, 0.0, -1.0]
-        out.append({"id": int(bodies.ids[p]), "joints19": flat,
-                    "inlierViews19": [int(n) for n in bodies.n_inliers[p]]})
-    return {"version": 0.7, "univTime": round(float(time_ms), 4), "fpsType": fps_type, "bodies": out}
+        body = {"id": int(bodies.ids[p]), "joints19": _joints_json(bodies.X_cm[p], bodies.confidence[p]),
+                "inlierViews19": [int(n) for n in bodies.n_inliers[p]]}
+        if extra is not None:
+            body["extraJoints"] = _joints_json(extra[1][p], extra[2][p])
+            body["inlierViewsExtra"] = [int(n) for n in extra[3][p]]
+        out.append(body)
+    scene = {"version": 0.7, "univTime": round(float(time_ms), 4), "fpsType": fps_type}
+    if fps is not None and fps_type == "custom":
+        scene["fps"] = str(fps)
+    if body_model is not None:
+        scene["bodyModel"] = body_model
+    if lab_up is not None:
+        scene["labUp"] = lab_up
+    if extra is not None:
+        scene["extraJointNames"] = list(extra[0])
+    return scene | {"bodies": out}
 
 
 def camera_report(agreement: CameraAgreement) -> dict:
@@ -69,9 +111,10 @@ def camera_report(agreement: CameraAgreement) -> dict:
     for v, name in enumerate(agreement.names):
         bad_err = np.isfinite(med[v]) and med[v] > max(3.0 * all_med, 5.0)
         bad_share = np.isfinite(share[v]) and share[v] < 0.5 * all_share
-        if bad_err or bad_share:
-            flagged.append(name)
         judged = int(agreement.judged[v])
+        bad_outvoted = judged >= MIN_JUDGED and agreement.outvoted[v] > OUTVOTED_LIMIT * judged  # absolute
+        if bad_err or bad_share or bad_outvoted:
+            flagged.append(name)
         cams[name] = {"detected": int(agreement.detected[v]), "used": int(agreement.used[v]),
                       "share_used": None if not np.isfinite(share[v]) else round(float(share[v]), 4),
                       "median_reprojection_px": None if not np.isfinite(med[v]) else round(float(med[v]), 2),
@@ -83,15 +126,21 @@ def camera_report(agreement: CameraAgreement) -> dict:
 
 
 def write_people(folder: str | Path, seq: PeopleSequence, numbers: np.ndarray, fps_type: str,
-                 also: Callable[[Path], None] | None = None) -> list[Path]:
+                 also: Callable[[Path], None] | None = None, *, body_model: str | None = None,
+                 extras: ExtraJoints | None = None, lab_up: str | None = None,
+                 fps: Fraction | None = None) -> list[Path]:
     """Write the body3DScene files and cameras.json into ``folder``, replacing it as a whole (staged beside it,
-    then renamed); ``also(staging)`` adds to the staged folder before the rename (the people page)."""
+    then renamed); ``also(staging)`` adds to the staged folder before the rename (the people page); ``body_model``
+    and ``extras`` (the detector's joints beside joints19) go into every file (see the module docstring)."""
     folder = Path(folder)
     names = []
     with replace_folder(folder) as staging:
         for k, number in enumerate(numbers):
             names.append(f"body3DScene_{int(number):08d}.json")
-            obj = scene_json(seq.times_ms[k], seq.bodies[k], fps_type)
+            extra = (None if extras is None else
+                     (extras.names, extras.X_cm[k], extras.confidence[k], extras.n_inliers[k]))
+            obj = scene_json(seq.times_ms[k], seq.bodies[k], fps_type, body_model=body_model, extra=extra,
+                             lab_up=lab_up, fps=fps)
             (staging / names[-1]).write_text(json.dumps(obj, allow_nan=False) + "\n", encoding="utf-8")
         (staging / CAMERAS_FILE).write_text(json.dumps(camera_report(seq.cameras), indent=1, allow_nan=False) + "\n",
                                             encoding="utf-8")

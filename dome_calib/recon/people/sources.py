@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle import Bundle, CameraType, SyncTable
-from dome_calib.recon.body_models import BodyModel
+from dome_calib.recon.body_models import EXTRA_JOINTS, BodyModel
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.openpose_io import read_openpose_files
 from dome_calib.recon.people.detection_cache import load, store
@@ -50,7 +50,7 @@ class StreamLayout:
 
 
 def stream_layouts(bundle: Bundle, frames_of: dict[str, Iterable[int]],
-                   files: dict[str, dict[int, Path]] | None = None, *, shared_fps: Fraction = Fraction(30)
+                   files: dict[str, dict[int, Path]] | None = None, *, shared_fps: Fraction | None = None
                    ) -> list[StreamLayout]:
     """camera -> its frame indices -> one :class:`StreamLayout` per stream (VGA, HD, each Kinect; one shared stream
     when the bundle has no sync tables, universal time = frame / ``shared_fps``).
@@ -63,6 +63,9 @@ def stream_layouts(bundle: Bundle, frames_of: dict[str, Iterable[int]],
     tables: dict[str, SyncTable] = {}
     if bundle.sync is None:
         refuse_mixed_clocks(bundle, frames_of)
+        if shared_fps is None:  # no rate is assumed: 60 fps detections read at 30 came out with every time doubled
+            raise ReconError(f"bundle {bundle.seq} has no sync tables, so the detections' frame rate is unknown: "
+                             "give it (--fps 60, --fps 30000/1001) or the videos the detections came from (--videos)")
         frames = np.unique(np.array([f for c in frames_of.values() for f in c], dtype=np.int64))
         period = float(1000 / Fraction(shared_fps))
         tables[SHARED_STREAM] = SyncTable(index=frames, univ_time_ms=frames * period)
@@ -109,12 +112,12 @@ def refuse_mixed_clocks(bundle: Bundle, frames_of: dict[str, Iterable[int]]) -> 
                      f"synctables_{bundle.seq}.json), or give a detections folder holding one stream's cameras only")
 
 
-def fill_stream(layout: StreamLayout, people: dict[str, dict[int, np.ndarray]]) -> PeopleStream:
-    """A layout's cameras' people (camera -> {frame -> (N, 19, 3)}; frames outside the layout ignored) ->
-    :class:`PeopleStream`."""
+def fill_stream(layout: StreamLayout, people: dict[str, dict[int, np.ndarray]], n_joints: int = 19) -> PeopleStream:
+    """A layout's cameras' people (camera -> {frame -> (N, n_joints, 3)}; frames outside the layout ignored) ->
+    :class:`PeopleStream` (``n_joints``: 19, or 19 + the model's extra joints)."""
     names, frames = layout.cameras, layout.frame_index
     N = max([len(p) for n in names for f, p in people.get(n, {}).items()] + [1])
-    kp = np.zeros((len(frames), len(names), N, 19, 3), dtype=np.float32)
+    kp = np.zeros((len(frames), len(names), N, n_joints, 3), dtype=np.float32)
     for v, n in enumerate(names):
         for f, p in people.get(n, {}).items():
             k = np.searchsorted(frames, f)
@@ -124,7 +127,7 @@ def fill_stream(layout: StreamLayout, people: dict[str, dict[int, np.ndarray]]) 
 
 
 def people_streams(bundle: Bundle, people: dict[str, dict[int, np.ndarray]],
-                   files: dict[str, dict[int, Path]] | None = None, *, shared_fps: Fraction = Fraction(30)
+                   files: dict[str, dict[int, Path]] | None = None, *, shared_fps: Fraction | None = None
                    ) -> list[PeopleStream]:
     """camera -> {frame -> (N, 19, 3)} -> one :class:`PeopleStream` per stream (see :func:`stream_layouts`)."""
     return [fill_stream(layout, people) for layout in stream_layouts(bundle, people, files, shared_fps=shared_fps)]
@@ -163,13 +166,16 @@ class FileSource:
     frames that bracket a span of times, so a long session is never in memory at once (each executor task reads its
     own chunk's files: workers need the detections folder at the same path). With ``cache_dir`` (a run's own folder,
     :mod:`~dome_calib.recon.people.detection_cache`) what one pass read is kept there and later passes read only the
-    frames it lacks: the same streams either way."""
+    frames it lacks: the same streams either way. With ``extras`` the streams hold 19 + E joints (the model's
+    joints that joints19 lacks after joints19; no cache then): the extra joints' pass,
+    :mod:`~dome_calib.recon.people.extras`."""
 
     layouts: list[StreamLayout]
     files: dict[str, dict[int, Path]]
     body_model: BodyModel
     cache_dir: Path | None = None
     digests: dict[str, dict[int, bytes]] | None = None  # what each file's bytes are on the head (a cluster run)
+    extras: bool = False
 
     @property
     def cameras(self) -> list[str]:
@@ -179,15 +185,16 @@ class FileSource:
         out = []
         for i, layout in enumerate(self.layouts):
             frames = layout.frame_index[frames_near(layout, t0_ms, t1_ms, max_gap_frames)]
-            kept = load(self.cache_dir, i, layout.cameras, frames) if self.cache_dir is not None else {}
+            cache = None if self.extras else self.cache_dir
+            kept = load(cache, i, layout.cameras, frames) if cache is not None else {}
             wanted = set(frames.tolist())
             files = {n: {f: p for f, p in self.files.get(n, {}).items() if f in wanted and (n, f) not in kept}
                      for n in layout.cameras}
-            people = read_openpose_files(files, self.body_model, self.digests)
-            if self.cache_dir is not None:
-                store(self.cache_dir, i, layout.cameras, people)
+            people = read_openpose_files(files, self.body_model, self.digests, extras=self.extras)
+            if cache is not None:
+                store(cache, i, layout.cameras, people)
             for (n, f), p in kept.items():
                 people.setdefault(n, {})[f] = p
             sub = StreamLayout(stream=layout.stream, table=layout.table, cameras=layout.cameras, frame_index=frames)
-            out.append(fill_stream(sub, people))
+            out.append(fill_stream(sub, people, 19 + len(EXTRA_JOINTS[self.body_model]) if self.extras else 19))
         return out

@@ -1,0 +1,165 @@
+"""Pose2Sim's own pipeline on our export (issue 51): the real Pose2Sim trial imported, reconstructed and exported as
+a user would (`dome-calib import --from pose2sim`, `reconstruct --videos`, `export-people --to trc`), then Pose2Sim
+0.10.49's filtering, marker augmentation (its LSTM, onnxruntime) and kinematics (OpenSim 4.6's scaling and inverse
+kinematics) on our TRC, against the same steps on Pose2Sim's own triangulation of the same detections.
+
+Run: .venv/bin/python bench/pose2sim_pipeline.py [--data ../shared/data/multiview/pose2sim_balancing] [--per-frame]
+Prints one JSON object per line:
+- ``machine``: load average at the start;
+- ``ours``: the reconstruct summary line, the TRC files, the seconds of each stage;
+- ``angle_rms_deg``: per OpenSim coordinate (pelvis, hips, knees, ankles), the RMS difference in degrees between
+  the two runs' joint angles over the frames both hold; ``mean_deg``: each run's mean (ours, Pose2Sim's);
+- ``reprojection_px``: per marker, the median pixel distance between each run's TRC markers reprojected through the
+  imported bundle and the participant's detections (confidence > 0.3), over the 4 cameras and 100 frames: which run
+  lands on the images;
+- ``two_people`` (``--two-people``): two people of the demo's synthetic group with BODY_25 feet (4 s at 25 fps)
+  exported to TRC and through Pose2Sim's three steps in its multi-person mode: the ``.mot`` files (one per person)
+  and the seconds.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from dome_calib.bundle_io import load_bundle  # noqa: E402
+from dome_calib.lab_world import PANOPTIC_FROM_UP  # noqa: E402
+from dome_calib.recon.openpose_io import read_openpose_folder  # noqa: E402
+from dome_calib.recon.project import project_points, view_set  # noqa: E402
+from dome_calib.skeletons.joints import Y_UP_FROM_Z_UP_LAB  # noqa: E402
+from tests.pose2sim_pipeline_helpers import (ANGLES, angle_rms_deg, pose2sim_on_trcs, pose2sim_reference,  # noqa: E402
+                                             read_mot)
+
+DATA = ROOT.parent / "shared" / "data" / "multiview" / "pose2sim_balancing"
+CAMERA_MAP = ",".join(f"cam{k:02d}_json=cam_{k:02d}" for k in range(1, 5))
+#: BODY_25B index of each TRC marker compared by reprojection (Pose2Sim's skeletons.py ids).
+BODY_25B_ID = {"LHip": 11, "RHip": 12, "LKnee": 13, "RKnee": 14, "LAnkle": 15, "RAnkle": 16, "LShoulder": 5,
+               "RShoulder": 6, "Neck": 17, "LBigToe": 19, "LHeel": 21, "RBigToe": 22, "RHeel": 24}
+
+
+def emit(**fields) -> None:
+    print(json.dumps(fields), flush=True)
+
+
+def dome_calib(*args: str) -> str:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    done = subprocess.run([sys.executable, "-c", "from dome_calib.cli import main; main()", *args], env=env,
+                          capture_output=True, text=True, check=False)
+    if done.returncode:
+        raise SystemExit(f"dome-calib {args[0]}: {done.stderr.strip()}")
+    return done.stdout.strip().splitlines()[-1]
+
+
+def trc_world_cm(path: Path) -> tuple[list[str], np.ndarray]:
+    """A TRC of a z-up lab's trial (Pose2Sim's axes) -> (markers, (F, M, 3) in the imported bundle's world, cm)."""
+    from Pose2Sim.common import read_trc
+
+    data, _, _, markers, _ = read_trc(str(path))
+    X = data.to_numpy(dtype=float).reshape(len(data), len(markers), 3)
+    return markers, (X @ Y_UP_FROM_Z_UP_LAB) @ PANOPTIC_FROM_UP["+z"].T * 100.0
+
+
+def reprojection_px(bundle, trc: Path, det) -> dict[str, float]:
+    markers, X = trc_world_cm(trc)
+    out = {}
+    for m, j in BODY_25B_ID.items():
+        errs = []
+        for cam in bundle.cameras:
+            frames = sorted(det.people[cam])[: len(X)]
+            uv = project_points(view_set(bundle, [cam]), X[: len(frames), markers.index(m)]).uv_px[0]
+            for k, f in enumerate(frames):
+                kp = raw_keypoints(cam, f)
+                seen = kp[kp[:, j, 2] > 0.3, j, :2] if len(kp) else np.zeros((0, 2))
+                if len(seen) and np.isfinite(uv[k]).all():
+                    errs.append(float(np.min(np.linalg.norm(seen - uv[k], axis=-1))))
+        out[m] = round(float(np.median(errs)), 1)
+    return out
+
+
+_RAW: dict = {}
+
+
+def raw_keypoints(cam: str, frame: int) -> np.ndarray:
+    """The BODY_25B keypoints of camera ``cam`` (``cam_01``) at ``frame``: (N, 25, 3)."""
+    key = (cam, frame)
+    if key not in _RAW:
+        n = cam[-2:]
+        doc = json.loads((DATA_USED / "pose" / f"cam{n}_json" / f"cam{n}.{frame:04d}.json").read_text())
+        _RAW[key] = np.array([p["pose_keypoints_2d"] for p in doc["people"]], dtype=float).reshape(-1, 25, 3)
+    return _RAW[key]
+
+
+DATA_USED = DATA
+
+
+def main() -> None:
+    global DATA_USED
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--per-frame", action="store_true", help="reconstruct --per-frame (no body over time)")
+    ap.add_argument("--two-people", action="store_true", help="also two synthetic people through Pose2Sim")
+    args = ap.parse_args()
+    DATA_USED = data = args.data
+    emit(machine={"loadavg": os.getloadavg()[0]})
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        t0 = time.perf_counter()
+        dome_calib("import", str(data / "calibration" / "Calib_qualisys.toml"), "--from", "pose2sim", "-o",
+                   str(tmp / "bundle"))
+        extra = ["--per-frame"] if args.per_frame else []
+        line = dome_calib("reconstruct", str(data / "pose"), "--bundle", str(tmp / "bundle"), "--body-model",
+                          "BODY_25B", "--camera-map", CAMERA_MAP, "--videos", str(data / "videos"), "-o",
+                          str(tmp / "people"), *extra)
+        t1 = time.perf_counter()
+        dome_calib("export-people", str(tmp / "people"), "--to", "trc", "-o", str(tmp / "trc"), "--trial",
+                   "balancing")
+        trcs = sorted((tmp / "trc").glob("*.trc"))
+        ours = pose2sim_on_trcs(tmp / "ours", trcs, model="BODY_25B", fps=60)
+        t2 = time.perf_counter()
+        theirs = pose2sim_reference(tmp / "pose2sim", data / "pose", data / "calibration" / "Calib_qualisys.toml",
+                                    model="BODY_25B", fps=60)
+        t3 = time.perf_counter()
+        emit(ours={"reconstruct": line, "trc": [p.name for p in trcs], "mot": [p.name for p in ours],
+                   "seconds": {"import_reconstruct": round(t1 - t0, 1), "export_and_pose2sim": round(t2 - t1, 1),
+                               "pose2sim_reference": round(t3 - t2, 1)}})
+        rms = angle_rms_deg(ours[0], theirs[0])
+        a, b = read_mot(ours[0]), read_mot(theirs[0])
+        emit(angle_rms_deg={k: round(v, 2) for k, v in rms.items()},
+             mean_deg={k: [round(float(a[k].mean()), 1), round(float(b[k].mean()), 1)] for k in ANGLES})
+        bundle = load_bundle(tmp / "bundle")
+        det = read_openpose_folder(data / "pose", body_model="BODY_25B",
+                                   camera_map={f"cam{k:02d}_json": f"cam_{k:02d}" for k in range(1, 5)})
+        ref_trc = next((tmp / "pose2sim" / "pose-3d").glob("*_0-99.trc"))
+        emit(reprojection_px={"ours": reprojection_px(bundle, trcs[0], det),
+                              "pose2sim": reprojection_px(bundle, ref_trc, det)})
+        if args.two_people:
+            two_people(tmp)
+
+
+def two_people(tmp: Path) -> None:
+    from dome_calib.skeletons.export import ExportPeopleOptions, export_people
+    from dome_calib.skeletons.scenes import read_people
+    from tests.skeletons_helpers import demo_group_scenes
+
+    t0 = time.perf_counter()
+    folder = demo_group_scenes(tmp / "two" / "people", feet=True, seconds=4.0, drop=0.0)
+    ids = sorted(read_people(folder).tracks)[:2]
+    export_people(folder, "trc", tmp / "two" / "trc", ExportPeopleOptions(ids=ids))
+    mots = pose2sim_on_trcs(tmp / "two" / "project", sorted((tmp / "two" / "trc").glob("*.trc")), model="BODY_25",
+                            fps=25)
+    emit(two_people={"trc": sorted(p.name for p in (tmp / "two" / "trc").glob("*.trc")),
+                     "mot": [p.name for p in mots], "seconds": round(time.perf_counter() - t0, 1)})
+
+
+if __name__ == "__main__":
+    main()

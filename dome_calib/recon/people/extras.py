@@ -1,0 +1,77 @@
+"""The detector's joints that joints19 lacks (the feet, BODY_25B's UpperNeck, the head top:
+:data:`~dome_calib.recon.body_models.EXTRA_JOINTS`), triangulated for the people the run found.
+
+The people, their ids and their joints19 come from the run: at each time every body keeps its detection in each view
+(:attr:`~dome_calib.recon.people.bodies.Bodies.assigned`, an index among that view's people as
+:func:`~dome_calib.recon.people.resample.gather_people` orders them). This pass reads the detection files again with
+the extra joints (:class:`~dome_calib.recon.people.sources.FileSource` with ``extras``), brings them to the same
+times the same way (the matching between frames, the slots' order and their count read joints19 only, so a body's
+assigned detection is the same person's), and triangulates each extra joint of each body from its assigned
+detections with the run's robust triangulation (per-joint RANSAC, the same inlier threshold and minimum views).
+
+Each time on its own: the extra joints are not part of the body over time (:mod:`~dome_calib.recon.people.temporal`
+fits joints19), so they carry the per-frame triangulation's noise; Pose2Sim's filtering smooths a TRC before its
+kinematics. Confidence: the mean detection confidence of the inlier views (-1: not reconstructed).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from dome_calib.recon.body_models import EXTRA_JOINTS
+from dome_calib.recon.people.assign import assigned_detections
+from dome_calib.recon.people.resample import gather_people
+from dome_calib.recon.people.run import PeopleOptions, PeopleSequence
+from dome_calib.recon.people.sources import FileSource
+from dome_calib.recon.project import ViewSet
+from dome_calib.recon.triangulate import triangulate
+
+
+@dataclass(frozen=True)
+class ExtraJoints:
+    """The extra joints of every body of every time: ``names`` (E,) joint names (the model's order);
+    X_cm[t] (P_t, E, 3) world cm (NaN: not reconstructed), confidence[t] (P_t, E) (-1 there), n_inliers[t] (P_t, E);
+    bodies in the order of ``PeopleSequence.bodies[t]``."""
+
+    names: list[str]
+    X_cm: list[np.ndarray]
+    confidence: list[np.ndarray]
+    n_inliers: list[np.ndarray]
+
+
+def extra_joints(views: ViewSet, source: FileSource, seq: PeopleSequence, options: PeopleOptions, *,
+                 progress: Callable[[int, int], None] | None = None) -> ExtraJoints | None:
+    """The extra joints of the bodies of ``seq`` (see the module docstring); None when the model has none.
+
+    views: the run's view set (the source's cameras, in its order); progress: ``progress(done, total)`` times.
+    """
+    names = EXTRA_JOINTS[source.body_model]
+    if not names:
+        return None
+    src = replace(source, extras=True, cache_dir=None)
+    E, t = len(names), np.asarray(seq.times_ms, dtype=float)
+    X, conf, inl = [], [], []
+    for c0 in range(0, len(t), options.chunk_times):
+        c1 = min(c0 + options.chunk_times, len(t))
+        streams = src.chunk(float(t[c0]), float(t[c1 - 1]), options.max_gap_frames)
+        for b0 in range(c0, c1, options.batch_times):
+            b1 = min(b0 + options.batch_times, c1)
+            bodies = seq.bodies[b0:b1]
+            kp = gather_people(streams, t[b0:b1], options.max_gap_frames)[..., 19:, :]  # (T, V, N, E, 3)
+            V = kp.shape[1]
+            assigned = [b.assigned.T if b.assigned is not None else np.full((V, len(b.ids)), -1) for b in bodies]
+            uv, c = assigned_detections(kp, assigned)  # (B * E, V, 2), (B * E, V)
+            tri = triangulate(views, uv, c, options.triangulation)
+            sizes = np.cumsum([0] + [len(b.ids) for b in bodies])
+            Xb = tri.X_cm.reshape(-1, E, 3)
+            cb, nb = tri.confidence.reshape(-1, E), tri.n_inliers.reshape(-1, E)
+            for k in range(len(bodies)):
+                sl = slice(sizes[k], sizes[k + 1])
+                X.append(Xb[sl])
+                conf.append(cb[sl])
+                inl.append(nb[sl])
+            if progress is not None:
+                progress(b1, len(t))
+    return ExtraJoints(names=list(names), X_cm=X, confidence=conf, n_inliers=inl)
