@@ -26,12 +26,20 @@ camera after a similarity fitted to the centres and a point one lever along each
 (``rotation_axes_sim``), and per camera after the centres' similarity (``rotation_centres_sim``). The last is
 mostly alignment noise here: the 8 centres lie near one curve, so the centres' similarity leaves the rotation
 about it loose (2.5 mm of centre error across the 1.3 m width of the path tilts every camera by 0.1 deg).
-Prints one JSON object per line; the last one holds the ratios ours / COLMAP of the medians.
+Signed focal errors (``focal_signed_pct``: ``100 (f_est / f_ref - 1)`` per camera, the mean of fx and fy, and
+each of them; their mean, spread and whether all cameras share a sign) beside the unsigned median: issue 52's
+question, whether one sign on every camera is a bias. ``--lens-variants A,B`` (or ``all``) then re-runs calibrate's
+bundle-adjustment stage on ours' stored SfM problem once per hypothesis of :data:`LENS_VARIANTS` (principal point
+forced free, lens terms held, the rule's noise floor, ...), ``--variants-only`` on the SfM of an earlier run in the
+same ``--work``, and prints one ``ours_lens_variant`` object per hypothesis.
+Prints one JSON object per line; the last one (without variants) holds the ratios ours / COLMAP of the medians.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
+import pickle
 import json
 import os
 import shutil
@@ -49,9 +57,11 @@ sys.path.insert(0, str(ROOT))
 
 from dome_calib.align import AlignOptions, transform_cameras  # noqa: E402
 from dome_calib.bundle import Bundle, Camera, CameraType  # noqa: E402
+from dome_calib.ba.lens_model import LensModelOptions  # noqa: E402
 from dome_calib.bundle_io import load_bundle, write_bundle  # noqa: E402
 from dome_calib.camera import colmap_to_opencv_px, opencv_to_colmap_px  # noqa: E402
 from dome_calib.compare import compare_cameras  # noqa: E402
+from dome_calib.pipeline.stages import ba_options, run_ba_stage  # noqa: E402
 from dome_calib.rotation import rotation_angle_deg, rotvec_to_matrix  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "real" / "herzjesu_p8"
@@ -212,6 +222,38 @@ def run_colmap(capture: Path, prior: dict[str, Camera], work: Path, seed: int) -
     return cams, info, seconds
 
 
+#: Hypotheses of issue 52 (a focal bias of one sign on a shallow scene), each the bundle-adjustment stage re-run on
+#: ours' stored SfM problem (``ours.work/sfm.pkl``) with one change: (candidate lens terms the rule may free or
+#: None for all, lens-rule options, lens rule on). ``rule``: calibrate's own stage (the reference of the others).
+LENS_VARIANTS: dict[str, tuple[tuple[str, ...] | None, dict, bool]] = {
+    "rule": (None, {}, True),
+    "focal_only": ((), {}, True),  # every lens term but fx, fy held at the prior
+    "k1_only": (("k1",), {}, True),  # the rule judges k1 alone; principal point and the rest held
+    "pp_free": (None, {"max_principal_point_sigma_px": 1e9}, True),  # principal point always freed
+    "pp_free_dist_held": (("cx", "cy"), {"max_principal_point_sigma_px": 1e9}, True),
+    "all_free": (None, {}, False),  # no rule: every lens term free in one solve
+    "floor_0.1": (None, {"min_noise_px": 0.1}, True),
+    "floor_0.4": (None, {"min_noise_px": 0.4}, True),
+}
+
+
+def run_lens_variant(sfm_pickle: Path, name: str) -> tuple[dict[str, Camera], dict]:
+    """The BA stage of calibrate on the stored SfM outcome with one :data:`LENS_VARIANTS` change; cameras, lens
+    terms freed per camera."""
+    terms, lens_options, rule = LENS_VARIANTS[name]
+    problem = pickle.loads(sfm_pickle.read_bytes()).problem.copy()  # our own work folder, written by calibrate
+    if terms is not None:
+        for j, term in enumerate(("cx", "cy", "k1", "k2", "p1", "p2", "k3")):
+            if term not in terms:
+                problem.free[:, 8 + j] = False
+    options = ba_options() if rule else dataclasses.replace(ba_options(), compute_uncertainty=False)
+    out = run_ba_stage(problem, options=options, lens=LensModelOptions(**lens_options))
+    free = ({n: c["free"] for n, c in out.lens_model["cameras"].items()} if out.lens_model else
+            {n: [t for t, f in zip(("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"), problem.free[i, 6:]) if f]
+             for i, n in enumerate(problem.camera_names)})
+    return out.cameras, free
+
+
 # ----------------------------------------------------------------------------------------------- scoring
 def axis_aligned_rotation_deg(cameras: dict[str, Camera], reference: dict[str, Camera]) -> np.ndarray:
     """Per camera rotation error (deg) after a similarity fitted to every camera's centre and a point one lever
@@ -255,7 +297,31 @@ def score(cameras: dict[str, Camera], reference: dict[str, Camera]) -> dict:
     out["rotation_centres_sim_deg_max"] = s["rotation_deg_max"]
     out["per_camera"] = {n: {k: round(v, 4) for k, v in e.as_dict().items() if isinstance(v, float)}
                          for n, e in sorted(cmp.cameras.items())}
-    return out
+    return out | signed_focal(cameras, reference)
+
+
+def signed_focal(cameras: dict[str, Camera], reference: dict[str, Camera]) -> dict:
+    """Signed focal errors (%, ``100 (f_est / f_ref - 1)``; no alignment involved) per camera: fx, fy and their mean,
+    with the mean over cameras, the spread (sample SD) and whether every camera has the same sign (issue 52)."""
+    names = sorted(set(cameras) & set(reference))
+    fx, fy = ([100.0 * (cameras[n].K[a, a] / reference[n].K[a, a] - 1.0) for n in names] for a in (0, 1))
+    f = (np.array(fx) + np.array(fy)) / 2
+    return {"focal_signed_pct": {n: round(float(v), 4) for n, v in zip(names, f)},
+            "fx_signed_pct": {n: round(float(v), 4) for n, v in zip(names, fx)},
+            "fy_signed_pct": {n: round(float(v), 4) for n, v in zip(names, fy)},
+            "focal_signed_mean_pct": float(f.mean()),
+            "focal_signed_sd_pct": float(f.std(ddof=1)) if len(f) > 1 else None,
+            "focal_one_sign": bool(np.all(f > 0) or np.all(f < 0))}
+
+
+def run_variants(sfm_pickle: Path, variants: list[str], reference: dict[str, Camera]) -> None:
+    if variants and not sfm_pickle.is_file():
+        raise SystemExit(f"{sfm_pickle}: no SfM of ours to re-run (run without --variants-only first)")
+    for name in variants:
+        t0 = time.perf_counter()
+        cams, free = run_lens_variant(sfm_pickle, name)
+        emit(what="ours_lens_variant", variant=name, seconds=round(time.perf_counter() - t0, 1),
+             **score(cams, reference), free=free)
 
 
 def main() -> int:
@@ -265,7 +331,15 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0, help="seed of the prior's perturbation and of COLMAP")
     ap.add_argument("--cm-per-m", type=float, default=25.0, help="dome cm per survey metre")
     ap.add_argument("--skip-colmap", action="store_true")
+    ap.add_argument("--lens-variants", default="", metavar="A,B",
+                    help=f"also re-run the bundle adjustment on ours' SfM with each of: {', '.join(LENS_VARIANTS)} "
+                         "(issue 52's hypotheses; 'all' for every one)")
+    ap.add_argument("--variants-only", action="store_true",
+                    help="only the --lens-variants, on the SfM of an earlier run in the same --work")
     args = ap.parse_args()
+    variants = list(LENS_VARIANTS) if args.lens_variants == "all" else [v for v in args.lens_variants.split(",") if v]
+    if unknown := sorted(set(variants) - set(LENS_VARIANTS)):
+        ap.error(f"--lens-variants: unknown {', '.join(unknown)} (choose from {', '.join(LENS_VARIANTS)})")
 
     reference, images = reference_cameras(args.data, args.cm_per_m)
     capture, prior_dir = args.work / "capture", args.work / "prior"
@@ -279,6 +353,9 @@ def main() -> int:
          prior={"center_cm": CENTER_PERTURB_CM, "rotation_deg": ROTATION_PERTURB_DEG, "focal": FOCAL_PERTURB},
          prior_error=score(prior, reference) | {"per_camera": None})
 
+    if args.variants_only:
+        run_variants(args.work / "ours.work" / "sfm.pkl", variants, reference)
+        return 0
     load0 = load_avg()
     ours, report, t_ours = run_ours(capture, prior_dir, args.work / "ours")
     s_ours = score(ours, reference)
@@ -289,6 +366,7 @@ def main() -> int:
         emit(what="ours_lens_model", per_camera={n: {"free": v["free"], "held": v["held"]}
                                                  for n, v in sorted(lens.get("cameras", {}).items())},
              rule=lens.get("rule"))
+    run_variants(args.work / "ours.work" / "sfm.pkl", variants, reference)
     if args.skip_colmap:
         return 0
     load0 = load_avg()
