@@ -85,7 +85,7 @@ def test_nan_text_layouts_rates_and_times_are_refused(tmp_path):
         "NaN": ({1: json.dumps(PANOPTIC_EXAMPLE).replace("-19.4528", "NaN")}, "body3DScene_00000001.json: "),
         "not JSON": ({1: "{\"version\": 0.7,"}, "body3DScene_00000001.json: not valid JSON"),
         "two rates": ({1: PANOPTIC_EXAMPLE, 2: _second({**PANOPTIC_EXAMPLE, "fpsType": "vga_25"})},
-                      "body3DScene_00000002.json: fpsType: 'vga_25', but earlier files have 'hd_29_97'"),
+                      'body3DScene_00000002.json: fpsType: "vga_25", but earlier files have "hd_29_97"'),
         "time back": ({1: PANOPTIC_EXAMPLE, 2: _second(PANOPTIC_EXAMPLE, -5.0)},
                       "body3DScene_00000002.json: univTime: 53536.5 ms is not after"),
         "two layouts": ({1: PANOPTIC_EXAMPLE, 2: _second({**PANOPTIC_EXAMPLE, "bodies": [
