@@ -73,7 +73,8 @@ def test_a_stereo_rig_gives_its_people(tiny, per_frame, dome_calib_cli, tmp_path
     root, bundle, people = tiny
     where = _folder(root, bundle, people, ["00_02", "00_10"], range(40, 52))
     out = dome_calib_cli("reconstruct", str(where / "det"), "--bundle", str(where / "bundle"), "-o",
-                         str(tmp_path / "out"), "--min-views", "2", *(["--per-frame"] if per_frame else []))
+                         str(tmp_path / "out"), "--min-views", "2", "--fps", "30",
+                         *(["--per-frame"] if per_frame else []))
     assert out.returncode == 0, out.stderr[-2000:]
     assert "2 people" in out.stdout
     assert sum(_people(tmp_path / "out")) >= 20
@@ -86,7 +87,7 @@ def test_one_and_two_times_give_the_people_seen(tiny, n_times, per_frame, dome_c
     root, bundle, people = tiny
     where = _folder(root, bundle, people, ["00_02", "00_06", "00_10", "00_22"], range(40, 40 + n_times))
     out = dome_calib_cli("reconstruct", str(where / "det"), "--bundle", str(where / "bundle"), "-o",
-                         str(tmp_path / "out"), *(["--per-frame"] if per_frame else []))
+                         str(tmp_path / "out"), "--fps", "30", *(["--per-frame"] if per_frame else []))
     assert out.returncode == 0, out.stderr[-2000:]
     assert "2 people" in out.stdout, out.stdout
     assert _people(tmp_path / "out") == [2] * n_times

@@ -110,7 +110,7 @@ def _warned(caplog) -> list[str]:
 def test_a_file_read_in_the_wrong_unit_warns_naming_unit(tiny, fmt, dome_calib_cli, tmp_path, caplog):
     """Written in mm, read as m: a 4 km dome (and the other way, 4 mm); read right: no warning."""
     for written, read, size in (("mm", "m", "larger"), ("m", "mm", "smaller"), ("m", "m", None)):
-        src = tmp_path / f"{written}.{'toml' if fmt == 'aniposelib' else 'model'}"
+        src = tmp_path / f"{written}-as-{read}.{'toml' if fmt == 'aniposelib' else 'model'}"
         assert dome_calib_cli("export", str(tiny), "--to", fmt, "-o", str(src), "--unit", written).returncode == 0
         if fmt == "aniposelib":  # a file of aniposelib's own (ours records the unit in [metadata])
             src.write_text(re.sub(r"\[metadata\][^\[]*", "", src.read_text()))

@@ -7,6 +7,7 @@ indexed it before): what a machine with another copy reads."""
 from __future__ import annotations
 
 import dataclasses
+from fractions import Fraction
 import json
 import shutil
 
@@ -21,7 +22,7 @@ from .test_reconstruct_situations import shared  # noqa: F401  (a fixture)
 
 
 #: Chunks of 4 of the 12 times: three tasks, run on the executor.
-CHUNKED = dataclasses.replace(PeopleOptions(), chunk_times=4)
+CHUNKED = dataclasses.replace(PeopleOptions(), chunk_times=4, shared_fps=Fraction(30))  # the bundle has no sync tables
 
 
 class OtherCopyWorkers(SerialExecutor):
