@@ -55,6 +55,14 @@ def _first_file(folder: Path) -> Path:
     return sorted(p for p in folder.rglob("*") if p.is_file() and not p.name.startswith("."))[0]
 
 
+def _scenes(i: Inputs) -> list[Path]:  # what is read of a reconstruction (not its cameras.json, nor its page)
+    return sorted(i.people.glob("body3DScene_*.json"))
+
+
+def _sync_reads(i: Inputs) -> list[Path]:  # a sync session but its synthetic ground truth (truth.json)
+    return [i.sync / "session.json", i.sync / "ltc.wav", i.sync / "kinect"]
+
+
 CAL = "calibration_test.json"
 ALL = ("number", "empty", "truncated", "one frame")  # the reads hold sequences of frames
 
@@ -68,7 +76,7 @@ ENTRIES: dict[str, list[Entry]] = {
         names=lambda i, o, n: ["calibrate", i.capture, "-o", o, "--seq", n])],
     "session": [Entry(
         "dome-calib", "folder", lambda i, o: ["session", i.session, "-o", o], ours=(CAL, "synctables_test.json"),
-        inputs=lambda i: [i.session], also=_work, reads=lambda i: [i.sync], stops="no KINECTNODE<n> folders",
+        inputs=lambda i: [i.session], also=_work, reads=_sync_reads, stops="no KINECTNODE<n> folders",
         names=lambda i, o, n: ["session", i.session, "-o", o, "--seq", n])],
     "demo": [Entry(
         "dome-calib", "into", lambda i, o: ["demo", "-o", o, "--people", "0"],
@@ -89,14 +97,14 @@ ENTRIES: dict[str, list[Entry]] = {
         names=lambda i, o, n: ["import", i.toml, "--from", "aniposelib", "--unit", "mm", "-o", o, "--seq", n])],
     "export-people": [Entry(
         "dome-calib", "folder", lambda i, o: ["export-people", i.people, "--to", "trc", "-o", o],
-        ours=("person0.trc", "people.c3d"), inputs=lambda i: [i.people], contents=ALL)],
+        ours=("person0.trc", "people.c3d"), inputs=lambda i: [i.people], reads=_scenes, contents=ALL)],
     "people-page": [Entry(
         "dome-calib", "file", lambda i, o: ["people-page", i.people, "-o", o, "--bundle", i.bundle, "--detections",
                                             i.det, "--body-model", "BODY_25"], out_name="page.html",
         inputs=lambda i: [_first_file(i.people), i.bundle / CAL, _first_file(i.det)],
         names=lambda i, o, n: ["people-page", i.people, "-o", o, "--bundle", i.bundle, "--detections", i.det,
                                "--body-model", "BODY_25", "--cameras", n],
-        reads=lambda i: [i.people, i.bundle, i.det], contents=ALL)],
+        reads=lambda i: [*_scenes(i), i.bundle, i.det], contents=ALL)],
     "reconstruct": [Entry(
         "dome-calib", "folder",
         lambda i, o: ["reconstruct", i.det, "--bundle", i.bundle, "--body-model", "BODY_25", "-o", o],
@@ -136,7 +144,7 @@ ENTRIES: dict[str, list[Entry]] = {
         contents=("empty", "truncated"))],
     "sync": [Entry(
         "timecode", "into", lambda i, o: ["sync", i.sync, "-o", o], ours=("synctables_test.json",),
-        inputs=lambda i: [i.sync], names=lambda i, o, n: ["sync", i.sync, "-o", o, "--seq", n])],
+        inputs=lambda i: [i.sync], reads=_sync_reads, names=lambda i, o, n: ["sync", i.sync, "-o", o, "--seq", n])],
 }
 
 #: The situation kinds. A "refuse" kind must end in a refusal; the others in a success or a clean refusal.
