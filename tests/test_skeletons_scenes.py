@@ -56,7 +56,9 @@ def test_a_custom_rate_is_measured_from_the_times(tmp_path):
 
 BAD = [
     ("joints19 of 75 numbers", lambda d: d["bodies"][0].update(joints19=d["bodies"][0]["joints19"][:75]),
-     "bodies[0].joints19: expected a list of 76 finite numbers or null, got"),
+     "bodies[0].joints19: expected a list of 76 finite numbers >= -1e+06 and <= 1e+06 or null, got"),
+    ("a 20-digit joint", lambda d: d["bodies"][0]["joints19"].__setitem__(11, 12345678901234567890),
+     "bodies[0].joints19[11]: expected a finite number >= -1e+06 and <= 1e+06, got 12345678901234567890"),
     ("no univTime", lambda d: d.pop("univTime"), "univTime: missing"),
     ("a string id", lambda d: d["bodies"][0].update(id="0"), "bodies[0].id: expected an integer"),
     ("a negative id", lambda d: d["bodies"][0].update(id=-2), "bodies[0].id: expected an integer >= 0"),

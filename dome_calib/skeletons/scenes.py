@@ -48,15 +48,21 @@ MAX_DENSE_VALUES = 2**25
 FPS_OF_TYPE = {"vga_25": Fraction(25), "hd_29_97": Fraction(30000, 1001), "kinect_30": Fraction(30)}
 
 
+#: The largest joint coordinate (cm) or confidence taken: 10 km, far beyond any dome (larger values are no position:
+#: a 20-digit integer would pass as finite and be exported as it is).
+MAX_JOINT_VALUE = 1e6
+JointValue = Annotated[float, Field(ge=-MAX_JOINT_VALUE, le=MAX_JOINT_VALUE, allow_inf_nan=False)]
+
+
 class SceneBody(OpenSchema):
     """One person at one time: ``id`` (the same person keeps it over time) and 19 (or 15) joints ``[x, y, z, c]``."""
 
     id: NonNegInt
-    joints19: Annotated[list[Finite], Field(min_length=76, max_length=76)] | None = None
-    joints15: Annotated[list[Finite], Field(min_length=60, max_length=60)] | None = None
+    joints19: Annotated[list[JointValue], Field(min_length=76, max_length=76)] | None = None
+    joints15: Annotated[list[JointValue], Field(min_length=60, max_length=60)] | None = None
     inlierViews19: Annotated[list[NonNegInt], Field(min_length=19, max_length=19)] | None = Field(
         None, description="dome-calib's: the views behind each joint (read, not used)")
-    extraJoints: Annotated[list[Finite], Field(max_length=4 * len(EXTRA_NAMES))] | None = Field(
+    extraJoints: Annotated[list[JointValue], Field(max_length=4 * len(EXTRA_NAMES))] | None = Field(
         None, description="dome-calib's: [x, y, z, c] of each of the file's extraJointNames")
     inlierViewsExtra: Annotated[list[NonNegInt], Field(max_length=len(EXTRA_NAMES))] | None = Field(
         None, description="dome-calib's: the views behind each extra joint (read, not used)")

@@ -13,6 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .contents import CONTENT_KINDS
 from .inputs import Inputs
 
 Argv = Callable[[Inputs, Path], list]
@@ -33,6 +34,9 @@ class Entry:
     setup: Callable[[Inputs, Path], None] | None = None  # prepares the sandbox (before the situation)
     also: Callable[[Path], list[Path]] = lambda out: []  # other places it may write (a work folder)
     variant: str = ""
+    reads: Callable[[Inputs], list[Path]] | None = None  # the files (folders: all in them) it reads; else inputs
+    contents: tuple[str, ...] = ("number", "empty", "truncated")  # the input-content kinds its reads admit
+    stops: str = ""  # the refusal its small inputs end in (no images): a valid changed file may reach it
 
 
 def _work(out: Path) -> list[Path]:
@@ -51,18 +55,28 @@ def _first_file(folder: Path) -> Path:
     return sorted(p for p in folder.rglob("*") if p.is_file() and not p.name.startswith("."))[0]
 
 
+def _scenes(i: Inputs) -> list[Path]:  # what is read of a reconstruction (not its cameras.json, nor its page)
+    return sorted(i.people.glob("body3DScene_*.json"))
+
+
+def _sync_reads(i: Inputs) -> list[Path]:  # a sync session but its synthetic ground truth (truth.json)
+    return [i.sync / "session.json", i.sync / "ltc.wav", i.sync / "kinect"]
+
+
 CAL = "calibration_test.json"
+ALL = ("number", "empty", "truncated", "one frame")  # the reads hold sequences of frames
 
 ENTRIES: dict[str, list[Entry]] = {
-    "info": [Entry("dome-calib", "none", lambda i, o: ["info", i.bundle])],
-    "compare": [Entry("dome-calib", "none", lambda i, o: ["compare", i.bundle, i.bundle])],
+    "info": [Entry("dome-calib", "none", lambda i, o: ["info", i.bundle], reads=lambda i: [i.bundle])],
+    "compare": [Entry("dome-calib", "none", lambda i, o: ["compare", i.bundle, i.bundle], reads=lambda i: [i.bundle])],
     "calibrate": [Entry(
         "dome-calib", "folder", lambda i, o: ["calibrate", i.capture, "-o", o], ours=(CAL, "report/report.json"),
-        inputs=lambda i: [i.capture], also=_work,
+        inputs=lambda i: [i.capture], also=_work, reads=lambda i: [i.capture / "capture.json"],
+        stops="no scene folder with PNG images",
         names=lambda i, o, n: ["calibrate", i.capture, "-o", o, "--seq", n])],
     "session": [Entry(
         "dome-calib", "folder", lambda i, o: ["session", i.session, "-o", o], ours=(CAL, "synctables_test.json"),
-        inputs=lambda i: [i.session], also=_work,
+        inputs=lambda i: [i.session], also=_work, reads=_sync_reads, stops="no KINECTNODE<n> folders",
         names=lambda i, o, n: ["session", i.session, "-o", o, "--seq", n])],
     "demo": [Entry(
         "dome-calib", "into", lambda i, o: ["demo", "-o", o, "--people", "0"],
@@ -83,26 +97,27 @@ ENTRIES: dict[str, list[Entry]] = {
         names=lambda i, o, n: ["import", i.toml, "--from", "aniposelib", "--unit", "mm", "-o", o, "--seq", n])],
     "export-people": [Entry(
         "dome-calib", "folder", lambda i, o: ["export-people", i.people, "--to", "trc", "-o", o],
-        ours=("person0.trc", "people.c3d"), inputs=lambda i: [i.people])],
+        ours=("person0.trc", "people.c3d"), inputs=lambda i: [i.people], reads=_scenes, contents=ALL)],
     "people-page": [Entry(
         "dome-calib", "file", lambda i, o: ["people-page", i.people, "-o", o, "--bundle", i.bundle, "--detections",
                                             i.det, "--body-model", "BODY_25"], out_name="page.html",
         inputs=lambda i: [_first_file(i.people), i.bundle / CAL, _first_file(i.det)],
         names=lambda i, o, n: ["people-page", i.people, "-o", o, "--bundle", i.bundle, "--detections", i.det,
-                               "--body-model", "BODY_25", "--cameras", n])],
+                               "--body-model", "BODY_25", "--cameras", n],
+        reads=lambda i: [*_scenes(i), i.bundle, i.det], contents=ALL)],
     "reconstruct": [Entry(
         "dome-calib", "folder",
         lambda i, o: ["reconstruct", i.det, "--bundle", i.bundle, "--body-model", "BODY_25", "-o", o],
         ours=("body3DScene_00000001.json", "cameras.json"), inputs=lambda i: [i.det, i.bundle],
         names=lambda i, o, n: ["reconstruct", i.det, "--bundle", i.bundle, "--body-model", "BODY_25", "-o", o,
-                               "--reference", n])],
+                               "--reference", n], contents=ALL)],
     "triangulate": [Entry(
         "dome-calib", "folder", lambda i, o: ["triangulate", i.det_json, "--bundle", i.bundle, "-o", o],
-        ours=("body3DScene_00000000.json",), inputs=lambda i: [i.bundle, i.det_json])],
+        ours=("body3DScene_00000000.json",), inputs=lambda i: [i.bundle, i.det_json], contents=ALL)],
     "pointcloud": [Entry(
         "dome-calib", "file",
         lambda i, o: ["pointcloud", "--bundle", i.bundle, "--time-ms", "1100", "--depth", i.kinect, "-o", o],
-        out_name="c.ply", inputs=lambda i: [i.bundle / CAL])],
+        out_name="c.ply", inputs=lambda i: [i.bundle / CAL], reads=lambda i: [i.bundle])],
     "synth": [Entry(
         "dome-calib", "folder",
         lambda i, o: ["synth", o, "--overwrite", "--scenes", "1", "--cameras", "01_01", "--workers", "1"],
@@ -119,15 +134,17 @@ ENTRIES: dict[str, list[Entry]] = {
         ours=("pattern_P1.png",))],
     "kinect": [Entry(
         "dome-calib", "into", lambda i, o: ["kinect", i.kinect, "--bundle", i.bundle, "-o", o],
-        ours=("kcalibration_test.json",), inputs=lambda i: [i.kinect])],
+        ours=("kcalibration_test.json",), inputs=lambda i: [i.kinect], reads=lambda i: [i.bundle])],
     "report": [Entry(
         "dome-calib", "folder", lambda i, o: ["report", o.parent], ours=("index.html", "dome.png"),
-        out_at=lambda sandbox: sandbox / "bundle" / "report", setup=_copy_bundle)],
+        out_at=lambda sandbox: sandbox / "bundle" / "report", setup=_copy_bundle,
+        reads=lambda i: [i.root.parent / "bundle"])],
     "decode": [Entry(
-        "timecode", "file", lambda i, o: ["decode", i.ltc, "-o", o], out_name="table.txt", inputs=lambda i: [i.ltc])],
+        "timecode", "file", lambda i, o: ["decode", i.ltc, "-o", o], out_name="table.txt", inputs=lambda i: [i.ltc],
+        contents=("empty", "truncated"))],
     "sync": [Entry(
         "timecode", "into", lambda i, o: ["sync", i.sync, "-o", o], ours=("synctables_test.json",),
-        inputs=lambda i: [i.sync], names=lambda i, o, n: ["sync", i.sync, "-o", o, "--seq", n])],
+        inputs=lambda i: [i.sync], reads=_sync_reads, names=lambda i, o, n: ["sync", i.sync, "-o", o, "--seq", n])],
 }
 
 #: The situation kinds. A "refuse" kind must end in a refusal; the others in a success or a clean refusal.
@@ -141,6 +158,7 @@ KINDS = {
     "names": "a name the command takes is a path or hostile text: ../x, absolute, empty, 300 characters, newline, HTML",
     "sigterm": "SIGTERM arrives midway through a long run",
     "reads only": "a command that writes nothing: it writes nothing",
+    **CONTENT_KINDS,
 }
 REFUSE = {"foreign", "symlink", "wrong type", "read-only", "equals input"}
 

@@ -38,9 +38,11 @@ def _inside(rel: str, places: list[str]) -> bool:
 
 
 def judge(done: subprocess.CompletedProcess, before: dict[str, str], after: dict[str, str], *, sandbox: Path,
-          out: Path, also: list[Path], must_refuse: bool, names: tuple[str, ...] = ()) -> None:
+          out: Path, also: list[Path], must_refuse: bool, names: tuple[str, ...] = (),
+          named: tuple[str, ...] = ()) -> None:
     """Assert the oracle for one case (``before``/``after``: snapshots of ``sandbox``; ``out`` and ``also``: where
-    the command may write; ``names``: what a refusal's line may name instead of the output path)."""
+    the command may write; ``names``: what a refusal's line may name instead of the output path; ``named``: the
+    inputs changed, one of which a refusal's line must name)."""
     prog = done.args[0]
     text = done.stdout + done.stderr
     assert "Traceback" not in text, text
@@ -51,6 +53,8 @@ def judge(done: subprocess.CompletedProcess, before: dict[str, str], after: dict
         lines = [ln for ln in done.stderr.splitlines() if ln.startswith((f"{prog}: error:", f"{prog}: interrupted"))]
         assert len(lines) == 1, done.stderr
         said = [str(out), out.name, *names]
+        if named:  # an input's content was changed: the refusal names it
+            assert any(s in lines[0] for s in named), (named, lines[0])
         if must_refuse:  # it names the output (or what in it is not ours), and nothing changed
             assert "interrupted" in lines[0] or any(s and s in lines[0] for s in said), (said, lines[0])
             assert changed == [], f"refused, yet changed {changed[:5]}"

@@ -3,6 +3,9 @@ applications themselves, crossed with the situation kinds of :mod:`.catalogue`, 
 
 The refusal kinds run for every command; the kinds whose run may go through (names as paths, an output inside an
 input) are sampled with a fixed seed, and SIGTERM is sent to the long runs, so the matrix stays within CI's time.
+Each command that reads files is crossed with a sample of the input-content kinds (:mod:`.contents`: a non-finite or
+huge number, an empty file, a file cut in half, sequences of one frame), one file of its inputs changed in the case's
+sandbox copy; a refusal must then name that file.
 A command without a catalogue entry fails :func:`test_every_command_has_a_catalogue_entry`.
 """
 from __future__ import annotations
@@ -22,6 +25,7 @@ import typer.main
 
 from ..cli_runner import run_in_process
 from .catalogue import ENTRIES, KINDS, NAME_VALUES, REFUSE, Entry
+from .contents import CONTENT_KINDS, NUMBER_VALUES, files_of, mutate
 from .inputs import Inputs
 from .oracle import judge, snapshot
 
@@ -29,6 +33,7 @@ ROOT = Path(__file__).resolve().parents[2]
 SEED = 50  # the issue's number: the sample is the same on every run and machine
 NAMES_PER_COMMAND = 3
 INSIDE_INPUT_CASES = 6
+CONTENTS_PER_COMMAND = 3  # input-content kinds of each entry that reads files (a number's value drawn too)
 
 
 def _commands() -> dict[str, str]:
@@ -67,9 +72,14 @@ def _has_inputs(entry: Entry) -> bool:
     return entry.inputs is not None and entry.out_at is None
 
 
+def _reads(entry: Entry):
+    return entry.reads or entry.inputs
+
+
 def _cases() -> list[tuple[str, int, str, str]]:
     """(command, entry index, kind, value): every refusal kind, and the sample of the others."""
     rng = random.Random(SEED)
+    content_rng = random.Random(f"{SEED}:contents")  # its own: the other kinds' sample is unchanged by it
     cases, optional = [], []
     for name, entries in sorted(ENTRIES.items()):
         for k, entry in enumerate(entries):
@@ -80,6 +90,9 @@ def _cases() -> list[tuple[str, int, str, str]]:
                 cases.append((name, k, "sigterm", ""))
             if entry.output != "none" and _has_inputs(entry):
                 optional.append((name, k, "inside input", ""))
+            if _reads(entry) is not None:
+                for kind in content_rng.sample(entry.contents, min(CONTENTS_PER_COMMAND, len(entry.contents))):
+                    cases.append((name, k, kind, content_rng.choice(NUMBER_VALUES) if kind == "number" else ""))
     return cases + rng.sample(optional, min(INSIDE_INPUT_CASES, len(optional)))
 
 
@@ -167,7 +180,8 @@ def _run_and_stop(entry: Entry, args: list, sandbox: Path) -> subprocess.Complet
 
 @pytest.mark.parametrize("command,index,kind,value", CASES,
                          ids=[f"{c}{'[' + ENTRIES[c][k].variant + ']' if ENTRIES[c][k].variant else ''}-{kind}"
-                              + (f"-{NAME_VALUES.index(v)}" if kind == "names" else "") for c, k, kind, v in CASES])
+                              + (f"-{NAME_VALUES.index(v)}" if kind == "names" else f"-{v}" if v else "")
+                              for c, k, kind, v in CASES])
 def test_hostile_matrix(command, index, kind, value, hostile_inputs, tmp_path, monkeypatch, capsys):
     entry = ENTRIES[command][index]
     sandbox = tmp_path / "sandbox"
@@ -178,6 +192,10 @@ def test_hostile_matrix(command, index, kind, value, hostile_inputs, tmp_path, m
         entry.setup(i, sandbox)
     rng = random.Random(f"{SEED}:{command}:{index}:{kind}")
     out, names = _situation(entry, kind, i, sandbox, rng)
+    named = ()
+    if kind in CONTENT_KINDS:  # a refusal names the file changed (or its folder)
+        named = tuple(p.name for p in mutate(kind, value, files_of(_reads(entry)(i)), rng))
+        named += (entry.stops,) if entry.stops else ()
     monkeypatch.chdir(sandbox)  # a default output lands in the sandbox
     before = snapshot(sandbox)
     try:
@@ -203,7 +221,7 @@ def test_hostile_matrix(command, index, kind, value, hostile_inputs, tmp_path, m
     if kind == "read-only" and not out.is_relative_to(sandbox):
         assert not os.path.lexists(out)
     judge(done, before, after, sandbox=sandbox, out=out, also=entry.also(out), must_refuse=kind in REFUSE | {"sigterm"},
-          names=names)
+          names=names, named=named)
 
 
 def test_the_catalogue_names_its_kinds():
