@@ -76,7 +76,8 @@ class Walk:
         self.lock = threading.Lock()
         self.work: str | None = None  # the SfM's work folder, once run_sfm_stage is called
         self.work_way: list[str] = []  # modules handed the work folder, in call order (consecutive ones once)
-        self.thread_ways: dict[int, list[str]] = {}  # the same, per thread
+        self.thread_ways: dict[int, list[str]] = {}  # the same, per thread (a thread's ident may be reused: own keys)
+        self._thread = threading.local()
         self.held_way: list[str] = []  # modules handed the work folder or an object holding it
 
     def _is_work(self, value) -> bool:
@@ -120,7 +121,9 @@ class Walk:
         if self.work is not None and self._hands_work(frame):
             with self.lock:
                 self._append(self.work_way, callee)
-                self._append(self.thread_ways.setdefault(threading.get_ident(), []), callee)
+                if not hasattr(self._thread, "key"):
+                    self._thread.key = len(self.thread_ways)
+                self._append(self.thread_ways.setdefault(self._thread.key, []), callee)
         if self.work is not None and self._hands_work(frame, held=True):
             with self.lock:
                 self._append(self.held_way, callee)
