@@ -16,7 +16,12 @@ read (consecutive frames of one module count once). One JSON object per line:
   calibration's data and its return), and how many distinct functions they are;
 - ``work_folder``: the way of the SfM's work folder: every call (from ``run_sfm_stage`` down) that is handed the
   work folder or a path inside it, by module in the order of the calls (a module's consecutive calls once): the
-  rooms it passes through, and the returns (a room entered again after the way had left it for another).
+  rooms it passes through, and the returns (a room entered again after the way had left it for another); and the
+  same per thread (``per_thread``: the mappers run in threads while the pool works on, so the way above is two
+  ways interleaved as the threads happen to run: the per-thread returns are the structure's alone);
+- ``work_folder_held``: the same way, counting also a call handed an object that holds the work folder (an
+  attribute that is the folder or a path inside it, one level deep: an object of the places, ``self`` of its
+  methods), so that a folder kept in an object is followed too.
 
 Works on any checkout (module names are read from the frames), so the same capture walks the old and the new
 house: ``--tree`` imports the toolkit of another checkout (``git worktree add``). Timings are meaningless under the hook and not printed.
@@ -71,15 +76,29 @@ class Walk:
         self.lock = threading.Lock()
         self.work: str | None = None  # the SfM's work folder, once run_sfm_stage is called
         self.work_way: list[str] = []  # modules handed the work folder, in call order (consecutive ones once)
+        self.thread_ways: dict[int, list[str]] = {}  # the same, per thread (a thread's ident may be reused: own keys)
+        self._thread = threading.local()
+        self.held_way: list[str] = []  # modules handed the work folder or an object holding it
 
-    def _hands_work(self, frame) -> bool:
-        """Whether a call's arguments hold the work folder or a path inside it."""
+    def _is_work(self, value) -> bool:
+        return isinstance(value, (str, Path)) and (str(value) + "/").startswith(self.work + "/")
+
+    def _hands_work(self, frame, held: bool = False) -> bool:
+        """Whether a call's arguments are the work folder or a path inside it (``held``: or an object with such an
+        attribute)."""
         code = frame.f_code
         for name in code.co_varnames[:code.co_argcount + code.co_kwonlyargcount]:
             value = frame.f_locals.get(name)
-            if isinstance(value, (str, Path)) and (str(value) + "/").startswith(self.work + "/"):
+            if self._is_work(value):
+                return True
+            if held and any(self._is_work(v) for v in getattr(value, "__dict__", {}).values()):
                 return True
         return False
+
+    @staticmethod
+    def _append(way: list[str], module: str) -> None:
+        if not way or way[-1] != module:
+            way.append(module)
 
     def hook(self, frame, event, arg) -> None:
         if event != "call":
@@ -101,8 +120,13 @@ class Walk:
             self.work = str(frame.f_locals.get("work_dir"))
         if self.work is not None and self._hands_work(frame):
             with self.lock:
-                if not self.work_way or self.work_way[-1] != callee:
-                    self.work_way.append(callee)
+                self._append(self.work_way, callee)
+                if not hasattr(self._thread, "key"):
+                    self._thread.key = len(self.thread_ways)
+                self._append(self.thread_ways.setdefault(self._thread.key, []), callee)
+        if self.work is not None and self._hands_work(frame, held=True):
+            with self.lock:
+                self._append(self.held_way, callee)
         # find the nearest caller of ours (stdlib frames, functools.partial, threads in between are skipped)
         f = caller
         while f is not None and not _ours(_module(f)):
@@ -151,12 +175,15 @@ def main() -> None:
          first=[" -> ".join(p) for p in patterns[:8]])
     emit(bench="walk", stage="run_sfm", crossings=sum(walk.sfm_crossings.values()),
          distinct=len(walk.sfm_crossings), functions=sorted(walk.sfm_crossings))
-    way = walk.work_way
-    rooms = Counter(way)
-    emit(bench="walk", stage="work_folder", rooms=len(rooms),
-         rooms_projector=sum(1 for m in rooms if m.startswith("projector.")),
-         returns=sum(v - 1 for v in rooms.values()),
-         visits={m: v for m, v in sorted(rooms.items(), key=lambda kv: (-kv[1], kv[0]))}, way=way)
+    for stage, way in (("work_folder", walk.work_way), ("work_folder_held", walk.held_way)):
+        rooms = Counter(way)
+        per_thread = [sum(v - 1 for v in Counter(w).values()) for w in walk.thread_ways.values()]
+        emit(bench="walk", stage=stage, stays=len(way), rooms=len(rooms),
+             rooms_projector=sum(1 for m in rooms if m.startswith("projector.")),
+             returns=sum(v - 1 for v in rooms.values()),
+             returns_without_io=sum(v - 1 for m, v in rooms.items() if m != "dome_calib.io_utils"),
+             **({"per_thread": {"threads": len(per_thread), "returns": per_thread}} if stage == "work_folder" else {}),
+             visits={m: v for m, v in sorted(rooms.items(), key=lambda kv: (-kv[1], kv[0]))}, way=way)
 
 
 if __name__ == "__main__":

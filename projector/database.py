@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import sqlite3
 from collections import OrderedDict
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -178,3 +179,31 @@ class FeatureReader:
 
     def close(self) -> None:
         self._conn.close()
+
+
+def verified_partner_ids(db: pycolmap.Database) -> dict[int, set[int]]:
+    """Image id -> the image ids it has a verified pair with (at least one inlier match)."""
+    partners: dict[int, set[int]] = {}
+    pair_ids, counts = db.read_two_view_geometry_num_inliers()
+    for pid, n in zip(pair_ids, counts):
+        if n > 0:
+            a, b = pycolmap.pair_id_to_image_pair(pid)
+            partners.setdefault(a, set()).add(b)
+            partners.setdefault(b, set()).add(a)
+    return partners
+
+
+@dataclass(frozen=True, kw_only=True)
+class DatabaseSummary:
+    """What a scene database says of its images, read once (:func:`read_summary`): the camera of each image id,
+    and the images with a verified pair (:func:`verified_partner_ids`). The mappers only read the database, so a
+    summary read before mapping describes the model made from it (:func:`projector.mapping.describe_model`)."""
+
+    cameras: dict[int, str]
+    verified: frozenset[int]
+
+
+def read_summary(database_path: str | Path) -> DatabaseSummary:
+    with pycolmap.Database.open(str(database_path)) as db:
+        return DatabaseSummary(cameras={im.image_id: camera_of_image(im.name) for im in db.read_all_images()},
+                               verified=frozenset(verified_partner_ids(db)))

@@ -20,7 +20,7 @@ import pycolmap
 
 from dome_calib.bundle import Camera
 from dome_calib.camera import colmap_to_opencv_px
-from projector.database import camera_of_image, to_colmap_camera
+from projector.database import camera_of_image, to_colmap_camera, verified_partner_ids
 from projector.observations import Observations
 
 logger = logging.getLogger(__name__)
@@ -72,23 +72,11 @@ def triangulate_known(database_path: str | Path, image_dir: str | Path, output_d
     return pycolmap.triangulate_points(rec, str(database_path), str(image_dir), str(output_dir), options=options)
 
 
-def _verified_partner_ids(db: pycolmap.Database) -> dict[int, set[int]]:
-    """Image id -> the image ids it has a verified pair with (at least one inlier match)."""
-    partners: dict[int, set[int]] = {}
-    pair_ids, counts = db.read_two_view_geometry_num_inliers()
-    for pid, n in zip(pair_ids, counts):
-        if n > 0:
-            a, b = pycolmap.pair_id_to_image_pair(pid)
-            partners.setdefault(a, set()).add(b)
-            partners.setdefault(b, set()).add(a)
-    return partners
-
-
 def verified_partners(database_path: str | Path) -> dict[str, set[str]]:
     """Camera -> the cameras it has a verified pair with in a scene database."""
     with pycolmap.Database.open(str(database_path)) as db:
         names = {im.image_id: camera_of_image(im.name) for im in db.read_all_images()}
-        return {names[a]: {names[b] for b in bs} for a, bs in _verified_partner_ids(db).items()}
+        return {names[a]: {names[b] for b in bs} for a, bs in verified_partner_ids(db).items()}
 
 
 def _correspondences(db: pycolmap.Database, image_id: int, rec: pycolmap.Reconstruction,
@@ -133,7 +121,7 @@ def register_cameras(database_path: str | Path, rec: pycolmap.Reconstruction, ca
     refinement = pycolmap.AbsolutePoseRefinementOptions()
     with pycolmap.Database.open(str(database_path)) as db:
         ids = {camera_of_image(im.name): im.image_id for im in db.read_all_images()}
-        partners = _verified_partner_ids(db)
+        partners = verified_partner_ids(db)
         for name in sorted(names):
             if name not in ids:
                 failed[name] = "no features in this scene"

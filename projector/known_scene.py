@@ -36,8 +36,8 @@ import pycolmap
 
 from dome_calib.bundle import Camera, camera_type_from_name
 from dome_calib.io_utils import atomic_folder, atomic_write_text
-from projector.database import camera_of_image, intrinsics_from_colmap
-from projector.known_poses import add_posed_image, register_cameras, triangulate_known, verified_partners
+from projector.database import camera_of_image, intrinsics_from_colmap, read_summary
+from projector.known_poses import add_posed_image, register_cameras, triangulate_known
 from projector.mapping import SceneModel, describe_model
 from dome_calib.options import AtLeast, options
 from dome_calib.schema import NonNegFinite, PosFinite
@@ -143,13 +143,12 @@ def _database_cameras(database_path: Path) -> tuple[dict[str, Camera], dict[str,
     return cams, ids
 
 
-def _add_registered(rec: pycolmap.Reconstruction, database_path: Path, regs: dict, ids: dict[str, int]) -> None:
+def _add_registered(rec: pycolmap.Reconstruction, db: pycolmap.Database, regs: dict, ids: dict[str, int]) -> None:
     """Put the cameras registered by absolute pose into ``rec``: image, pose, and their inlier observations."""
-    with pycolmap.Database.open(str(database_path)) as db:
-        for name, reg in sorted(regs.items()):
-            add_posed_image(rec, db, db.read_image(ids[name]), reg.camera)
-            for kp, pid in zip(reg.keypoint_idx, reg.point3D_ids):
-                rec.add_observation(int(pid), pycolmap.TrackElement(ids[name], int(kp)))
+    for name, reg in sorted(regs.items()):
+        add_posed_image(rec, db, db.read_image(ids[name]), reg.camera)
+        for kp, pid in zip(reg.keypoint_idx, reg.point3D_ids):
+            rec.add_observation(int(pid), pycolmap.TrackElement(ids[name], int(kp)))
 
 
 def _load(folder: Path, digest: str) -> tuple[pycolmap.Reconstruction, dict[str, str]] | None:
@@ -180,22 +179,26 @@ def map_known_scene(database_path: str | Path, image_dir: str | Path, output_dir
     else:
         held = reference_cameras(reference)
         db_cams, ids = _database_cameras(database_path)
+    # the database is only read below: its summary, read once, describes the model made from it
+    database = read_summary(database_path)
+    if saved is None:
         in_scene = sorted(n for n in held if n in ids)
         rec = triangulate_known(database_path, image_dir, output_dir / "triangulated", held, in_scene,
                                 triangulator_options(options))
         regs, pnp_failed = register_cameras(database_path, rec, db_cams, sorted(set(ids) - set(held)))
-        _add_registered(rec, database_path, regs, ids)
+        with pycolmap.Database.open(str(database_path)) as db:
+            _add_registered(rec, db, regs, ids)
         shutil.rmtree(output_dir / "triangulated", ignore_errors=True)
         with atomic_folder(output_dir / "model") as staging:
             rec.write(str(staging))
         atomic_write_text(output_dir / "reference.json", json.dumps({"reference": reference.scene, "digest": digest,
                                                                       "absolute_pose_failures": pnp_failed}, indent=1))
-    model = describe_model(rec, database_path, scene, options.min_points_per_image,
+    model = describe_model(rec, database, scene, options.min_points_per_image,
                            reasons={n: f"absolute pose against the points of {reference.scene}'s cameras: {why}"
                                     for n, why in pnp_failed.items()})
     model.num_models = 1
     model.seconds = time.perf_counter() - t0
-    n_verified = len(verified_partners(database_path))
+    n_verified = len(database.verified)  # cameras with a verified pair
     need = options.min_registered_fraction * n_verified
     why = None
     if len(model.registered) < need:

@@ -24,7 +24,7 @@ from typing import Annotated
 import pycolmap
 
 from dome_calib.io_utils import atomic_folder
-from projector.database import camera_of_image
+from projector.database import DatabaseSummary, camera_of_image, read_summary
 from dome_calib.options import AtLeast, Lax, options
 
 logger = logging.getLogger(__name__)
@@ -146,20 +146,14 @@ def best_model(models: dict[int, pycolmap.Reconstruction]) -> pycolmap.Reconstru
     return max(sorted(models.items()), key=lambda kv: kv[1].num_reg_images(), default=(None, None))[1]
 
 
-def describe_model(best: pycolmap.Reconstruction | None, database_path: str | Path, scene: str,
+def describe_model(best: pycolmap.Reconstruction | None, database: DatabaseSummary, scene: str,
                    min_points_per_image: int, failure: str | None = None,
                    reasons: dict[str, str] | None = None) -> SceneModel:
     """The :class:`SceneModel` of a scene's reconstruction ``best``: its registered cameras (those seeing at least
-    ``min_points_per_image`` of its points) and, for every other camera of the database, why not (``reasons``
-    first, given per camera by the caller)."""
+    ``min_points_per_image`` of its points) and, for every other camera of the database (``database``: its
+    summary, :func:`projector.database.read_summary`), why not (``reasons`` first, given per camera by the caller)."""
     reasons = reasons or {}
-    with pycolmap.Database.open(str(database_path)) as db:
-        all_images = {im.image_id: camera_of_image(im.name) for im in db.read_all_images()}
-        verified_ids = set()
-        pair_ids, counts = db.read_two_view_geometry_num_inliers()
-        for pid, n in zip(pair_ids, counts):
-            if n > 0:
-                verified_ids.update(pycolmap.pair_id_to_image_pair(pid))
+    all_images, verified_ids = database.cameras, database.verified
     result = SceneModel(scene=scene, reconstruction=best, failure=failure)
     if best is None and failure is None:
         result.failure = "no model: too few verified pairs to reconstruct"
@@ -191,17 +185,19 @@ def describe_model(best: pycolmap.Reconstruction | None, database_path: str | Pa
 
 def map_scene(
     database_path: str | Path, image_dir: str | Path, output_dir: str | Path, *,
-    options: MappingOptions | None = None, scene: str = "",
+    options: MappingOptions | None = None, scene: str = "", database: DatabaseSummary | None = None,
 ) -> SceneModel:
     """Reconstruct one scene from its database; never raises for a scene that does not reconstruct.
 
     Returns a :class:`SceneModel`: the largest model, the registered cameras, and for every camera in the
-    database that is not registered, the reason (no verified pair, or not in the largest model).
+    database that is not registered, the reason (no verified pair, or not in the largest model). ``database``: the
+    database's summary when the caller has read it (:func:`projector.database.read_summary`), else read here.
     """
     options = options or MappingOptions()
     database_path, output_dir = Path(database_path), Path(output_dir)
     scene = scene or database_path.parent.name
     t0 = time.perf_counter()
+    database = database or read_summary(database_path)
     models = _load_models(output_dir) if options.reuse else {}
     if not models:
         mappers = [options.mapper] + ([m for m in Mapper if m != options.mapper] if options.fallback else [])
@@ -215,7 +211,7 @@ def map_scene(
     else:
         failure = None
         logger.info("%s: reusing %d model(s) in %s", scene, len(models), output_dir)
-    result = describe_model(best_model(models), database_path, scene, options.min_points_per_image, failure)
+    result = describe_model(best_model(models), database, scene, options.min_points_per_image, failure)
     result.num_models = len(models)
     result.seconds = time.perf_counter() - t0
     logger.info("%s: %d models, %d/%d cameras registered, %.1f s", scene, len(models), len(result.registered),

@@ -1,20 +1,21 @@
-"""The SfM front end's per-scene steps, each callable on its own (hloc style): features, pairs, matching and the
-scene's model, in ``WORK/<scene>/`` (resumable). :func:`projector.sfm.run_sfm` runs them for every scene;
-the quick recalibration (:mod:`dome_calib.pipeline.quick`) calls :func:`match_scene` on one scene.
+"""The SfM front end's per-scene steps over every scene of a capture, in ``WORK/<scene>/`` (resumable).
+:func:`projector.sfm.run_sfm` calls :func:`scene_models` once; the quick recalibration
+(:mod:`dome_calib.pipeline.quick`) calls :func:`match_scene` on one scene.
 
-    scene_features      features of the scene's images into its database
+    scene_models        every scene's model: features, the reference (GLOMAP), the later scenes at its poses,
+                        the mappers in threads while the pool works on the next step
+    ScenesRun           the places, prior, options and executor held once; one method per step, each handing the
+                        scene's places to one stage module (features, matching, mapping, known_scene)
+    scene_features      features of one scene into its database
     select_pairs        prior-based pairs (plus first-round pairs for cameras the prior does not know)
     known_scene_pairs   pairs chosen by the reference model's geometry (a scene mapped at known poses)
-    match_scene         features (unless given), pairs, verified matches
-    match_for_model     pairs and matching for the scene's model (reference's pairs, or the prior's)
-    known_model         the scene triangulated at the reference's poses (or why not)
-    model_of_matched    the scene's model: at known poses when that works, else GLOMAP
-    run_scene           all of the above for one scene
+    match_scene         features (unless given), pairs, verified matches of one scene
 """
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+import threading
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -23,10 +24,10 @@ from dome_calib.bundle import Camera
 from dome_calib.executor import Executor
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.progress import task_progress
-from projector.database import camera_of_image
+from projector.database import camera_of_image, drop_matches, read_summary
 from projector.features import FeatureReport, extract_features
 from projector.known_scene import map_known_scene, reference_cameras
-from projector.mapping import SceneModel, map_scene
+from projector.mapping import SceneModel, map_scene, remove_model_folder
 from projector.matching import MatchReport, match_pairs
 from projector.pairs import (Pair, PairOptions, UnknownStrategy, expand_pairs_from_matches, pairs_for_unknown,
                              pairs_from_prior)
@@ -40,8 +41,13 @@ def select_pairs(names: list[str], prior: Mapping[str, Camera], options: PairOpt
     return sorted(set(pairs_from_prior(prior, names, options)) | set(pairs_for_unknown(prior, names, options)))
 
 
+def pairs_text(pairs: list[Pair]) -> str:
+    """The pairs file's text: one "a.png b.png" line per pair."""
+    return "".join(f"{a}.png {b}.png\n" for a, b in pairs)
+
+
 def write_pairs(path: Path, pairs: list[Pair]) -> None:
-    atomic_write_text(path, "".join(f"{a}.png {b}.png\n" for a, b in pairs))
+    atomic_write_text(path, pairs_text(pairs))
 
 
 def read_pairs(path: Path) -> list[Pair]:
@@ -55,9 +61,7 @@ def read_pairs(path: Path) -> list[Pair]:
 def scene_features(capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera], options: SfmOptions,
                    executor: Executor) -> FeatureReport:
     """Features of one scene into ``work_dir/<scene>/database.db`` (resumable)."""
-    return extract_features(capture_dir / "scenes" / scene, work_dir / scene / "database.db", prior=prior,
-                            options=options.features, executor=executor, scene=scene, cameras=options.cameras,
-                            progress=task_progress(options.progress, f"features {scene}"))
+    return ScenesRun(capture_dir, work_dir, prior, options, executor).features(scene)
 
 
 def match_scene(
@@ -65,24 +69,8 @@ def match_scene(
     executor: Executor, feats: FeatureReport | None = None, pairs: list[Pair] | None = None,
 ) -> tuple[FeatureReport, list[Pair], MatchReport]:
     """Features (unless given), pairs (unless given: :func:`select_pairs` from the prior) and matching of one scene
-    into ``work_dir/<scene>/database.db`` (resumable)."""
-    db_path = work_dir / scene / "database.db"
-    if feats is None:
-        feats = scene_features(capture_dir, work_dir, scene, prior, options, executor)
-    names = sorted(feats.num_features)
-    if pairs is None:
-        pairs = select_pairs(names, prior, options.pairs)
-    write_pairs(work_dir / scene / "pairs.txt", pairs)
-    matches = match_pairs(db_path, pairs, options=options.matching, executor=executor, scene=scene,
-                          progress=task_progress(options.progress, f"matching {scene}"))
-    if options.pairs.unknown_strategy == UnknownStrategy.SUBSET and any(n not in prior for n in names):
-        extra = expand_pairs_from_matches(prior, names, matches.inliers, pairs, options.pairs)
-        if extra:
-            pairs = sorted(set(pairs) | set(extra))
-            write_pairs(work_dir / scene / "pairs.txt", pairs)
-            matches = match_pairs(db_path, pairs, options=options.matching, executor=executor, scene=scene,
-                                  progress=task_progress(options.progress, f"matching {scene}"))
-    return feats, pairs, matches
+    into ``work_dir/<scene>/database.db`` (resumable); the matched pairs in ``pairs.txt``."""
+    return ScenesRun(capture_dir, work_dir, prior, options, executor).match_pairs(scene, options, feats, pairs)
 
 
 def known_scene_pairs(names: list[str], prior: Mapping[str, Camera], reference: SceneModel,
@@ -111,11 +99,7 @@ def known_scene_pairs(names: list[str], prior: Mapping[str, Camera], reference: 
 def mapper_image_dir(capture_dir: Path, work_dir: Path, scene: str, options: SfmOptions) -> Path:
     """The image folder the mappers are given: the scene's, or an empty one when the images are on the capture
     nodes (``options.cameras``): the mappers read only the database, but COLMAP wants the folder to exist."""
-    if options.cameras is None:
-        return capture_dir / "scenes" / scene
-    empty = work_dir / scene / "images_on_nodes"
-    empty.mkdir(parents=True, exist_ok=True)
-    return empty
+    return ScenesRun(capture_dir, work_dir, {}, options, None).mapper_images(scene, options)
 
 
 def reference_scene(feats: Mapping[str, FeatureReport]) -> str:
@@ -154,71 +138,235 @@ def reference_options(options: SfmOptions) -> SfmOptions:
     return options
 
 
+class InThread:
+    """``fn(*args, **kwargs)`` run in a daemon thread; :meth:`result` waits and re-raises its error. A daemon: an
+    interrupted run exits at once instead of waiting for the mapper (whose output is staged,
+    :mod:`projector.mapping`)."""
+
+    def __init__(self, fn: Callable[..., object], /, *args: object, **kwargs: object) -> None:
+        self._out: object = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, args=(fn, args, kwargs), daemon=True)
+        self._thread.start()
+
+    def _run(self, fn: Callable[..., object], args: tuple, kwargs: dict) -> None:
+        try:
+            self._out = fn(*args, **kwargs)
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller by result()
+            self._error = exc
+
+    def wait(self) -> BaseException | None:
+        """Wait for the call to end; its error, if it raised (not raised here)."""
+        self._thread.join()
+        return self._error
+
+    def result(self) -> object:
+        error = self.wait()
+        if error is not None:
+            raise error
+        return self._out
+
+
+def _log_thread_error(what: str, error: BaseException | None) -> None:
+    if error is not None:
+        logger.warning("%s: %s: %s", what, type(error).__name__, error)
+
+
 @dataclass(kw_only=True)
-class MatchedForModel:
-    """A scene matched for its model (:func:`match_for_model`): what :func:`model_of_matched` maps."""
+class Matched:
+    """A scene matched for its model: its features, pairs and matches, and the reference model its cameras are to
+    be held at (None: GLOMAP)."""
 
     scene: str
     features: FeatureReport
     pairs: list[Pair]
     matches: MatchReport
-    reference: SceneModel | None  # the model its cameras are held at, or None: GLOMAP
+    reference: SceneModel | None
 
 
-def match_for_model(capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera], options: SfmOptions,
-                    executor: Executor, feats: FeatureReport, reference: SceneModel | None = None) -> MatchedForModel:
-    """Pairs and matching of a scene for :func:`model_of_matched`: the reference's geometry's pairs when the scene
-    is to be triangulated at ``reference``'s poses, else the prior's."""
-    if not (reference is not None and reference.reconstruction is not None and options.known_poses.enabled):
-        reference = None
-    pairs = known_scene_pairs(sorted(feats.num_features), prior, reference, options) if reference else None
-    feats, pairs, matches = match_scene(capture_dir, work_dir, scene, prior, options, executor, feats, pairs)
-    return MatchedForModel(scene=scene, features=feats, pairs=pairs, matches=matches, reference=reference)
+@dataclass(kw_only=True)
+class SceneModels:
+    """Every scene's model (:func:`scene_models`), and what the run decided on the way."""
+
+    scenes: dict[str, SceneStats]  # in the capture's order
+    reference: str
+    options: SfmOptions  # the known-pose path decided (:func:`with_known_poses_decided`)
+    reference_options: SfmOptions  # the reference scene's (:func:`reference_options`)
 
 
-def known_model(capture_dir: Path, work_dir: Path, options: SfmOptions, matched: MatchedForModel
-                ) -> tuple[SceneModel, str | None]:
-    """The scene triangulated with its cameras held at ``matched.reference``'s poses (:func:`map_known_scene`):
-    the model and None, or the model and why to map the scene with GLOMAP instead. Uses no executor: it runs in a
-    thread while the next scene is matched (:mod:`projector.overlap`)."""
-    scene = matched.scene
-    return map_known_scene(work_dir / scene / "database.db", mapper_image_dir(capture_dir, work_dir, scene, options),
-                           work_dir / scene / "known", matched.reference, options.known_poses, scene=scene)
+class ScenesRun:
+    """One run of the per-scene steps over a capture: the places (``capture_dir``, ``work_dir``), the prior, the
+    options and the executor held once; each step takes a scene's name and hands its places to one stage module
+    (features, matching, mapping, known poses), so the work folder goes from here into each stage and its result
+    comes back as a typed value. :func:`scene_models` is the straight run of the steps."""
+
+    def __init__(self, capture_dir: Path, work_dir: Path, prior: Mapping[str, Camera], options: SfmOptions,
+                 executor: Executor | None) -> None:
+        self._capture_dir, self._work_dir = capture_dir, work_dir
+        self._prior, self._options, self._executor = prior, options, executor
+
+    def features(self, scene: str) -> FeatureReport:
+        """Features of the scene's images into its database (:func:`projector.features.extract_features`)."""
+        o = self._options
+        return extract_features(self._capture_dir / "scenes" / scene, self._work_dir / scene / "database.db",
+                                prior=self._prior, options=o.features, executor=self._executor, scene=scene,
+                                cameras=o.cameras, progress=task_progress(o.progress, f"features {scene}"))
+
+    def has_database(self, scene: str) -> bool:
+        return (self._work_dir / scene / "database.db").exists()
+
+    def mapper_images(self, scene: str, options: SfmOptions) -> Path:
+        """The image folder the mappers are given (:func:`mapper_image_dir`)."""
+        if options.cameras is None:
+            return self._capture_dir / "scenes" / scene
+        empty = self._work_dir / scene / "images_on_nodes"
+        empty.mkdir(parents=True, exist_ok=True)
+        return empty
+
+    def match_pairs(self, scene: str, options: SfmOptions, feats: FeatureReport | None = None,
+                    pairs: list[Pair] | None = None) -> tuple[FeatureReport, list[Pair], MatchReport]:
+        """Features (unless given), pairs (unless given: :func:`select_pairs` from the prior) and matching of the
+        scene into its database (:func:`projector.matching.match_pairs`); the matched pairs in ``pairs.txt``."""
+        executor = self._executor
+        db_path, pairs_file = self._work_dir / scene / "database.db", self._work_dir / scene / "pairs.txt"
+        if feats is None:
+            feats = self.features(scene)
+        names = sorted(feats.num_features)
+        if pairs is None:
+            pairs = select_pairs(names, self._prior, options.pairs)
+        matches = match_pairs(db_path, pairs, options=options.matching, executor=executor, scene=scene,
+                              progress=task_progress(options.progress, f"matching {scene}"))
+        if options.pairs.unknown_strategy == UnknownStrategy.SUBSET and any(n not in self._prior for n in names):
+            extra = expand_pairs_from_matches(self._prior, names, matches.inliers, pairs, options.pairs)
+            if extra:
+                pairs = sorted(set(pairs) | set(extra))
+                matches = match_pairs(db_path, pairs, options=options.matching, executor=executor, scene=scene,
+                                      progress=task_progress(options.progress, f"matching {scene}"))
+        atomic_write_text(pairs_file, pairs_text(pairs))  # the pairs matched (a record: reruns select them again)
+        return feats, pairs, matches
+
+    def match(self, scene: str, options: SfmOptions, feats: FeatureReport,
+              reference: SceneModel | None = None) -> Matched:
+        """Pairs and matching of a scene for its model: the reference's geometry's pairs when the scene is to be
+        triangulated at ``reference``'s poses, else the prior's."""
+        if not (reference is not None and reference.reconstruction is not None and options.known_poses.enabled):
+            reference = None
+        pairs = known_scene_pairs(sorted(feats.num_features), self._prior, reference, options) if reference else None
+        feats, pairs, matches = self.match_pairs(scene, options, feats, pairs)
+        return Matched(scene=scene, features=feats, pairs=pairs, matches=matches, reference=reference)
+
+    def glomap(self, scene: str, options: SfmOptions) -> SceneModel:
+        """The scene mapped with GLOMAP (:func:`projector.mapping.map_scene`). Uses no executor."""
+        work = self._work_dir / scene
+        database = read_summary(work / "database.db")  # read before the mapper (which only reads the database)
+        return map_scene(work / "database.db", self.mapper_images(scene, options), work / "sparse",
+                         options=options.mapping, scene=scene, database=database)
+
+    def known(self, matched: Matched, options: SfmOptions) -> tuple[SceneModel, str | None]:
+        """The scene triangulated with its cameras held at ``matched.reference``'s poses
+        (:func:`projector.known_scene.map_known_scene`): the model and None, or the model and why to map the scene
+        with GLOMAP instead. Uses no executor: it runs in a thread while the next scene is matched."""
+        scene, work = matched.scene, self._work_dir / matched.scene
+        return map_known_scene(work / "database.db", self.mapper_images(scene, options), work / "known",
+                               matched.reference, options.known_poses, scene=scene)
+
+    def drop(self, scene: str) -> None:
+        """A scene's matches and GLOMAP model dropped, as if they were never made (its features kept)."""
+        drop_matches(self._work_dir / scene / "database.db")
+        remove_model_folder(self._work_dir / scene / "sparse")
+
+    def model(self, matched: Matched, options: SfmOptions, known: tuple[SceneModel, str | None] | None = None,
+              glomap: SceneModel | None = None) -> SceneStats:
+        """The scene's stats: triangulated at the reference's poses when it has one and that works (``known``:
+        :meth:`known`'s result), else mapped with GLOMAP (``glomap`` when already mapped; after matching the
+        prior's full pair set, when it fell back)."""
+        scene, feats, pairs, matches, reference = (matched.scene, matched.features, matched.pairs, matched.matches,
+                                                   matched.reference)
+        fallback = None
+        if reference is not None:
+            model, fallback = known if known is not None else self.known(matched, options)
+            if fallback is None:
+                return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model,
+                                  mapping=f"known poses (from {reference.scene})")
+            logger.warning("%s: mapping with GLOMAP instead: %s", scene, fallback)
+            known_seconds, known_matching = model.seconds, matches.seconds
+            # GLOMAP registers the cameras too: the prior's full pair set (matched ones reused)
+            feats, pairs, matches = self.match_pairs(scene, options, feats)
+            matches.seconds += known_matching
+        model = glomap if glomap is not None else self.glomap(scene, options)
+        if fallback is not None:
+            model.seconds += known_seconds
+        return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model,
+                          fallback=fallback)
 
 
-def model_of_matched(capture_dir: Path, work_dir: Path, prior: Mapping[str, Camera], options: SfmOptions,
-                     executor: Executor | None, matched: MatchedForModel,
-                     known: tuple[SceneModel, str | None] | None = None) -> SceneStats:
-    """The scene's model: triangulated with the cameras held at the reference's poses when it has one and that
-    works (``known``: :func:`known_model`'s result when already computed), else mapped with GLOMAP (after matching
-    the prior's full pair set, when it fell back)."""
-    scene, feats, pairs, matches, reference = (matched.scene, matched.features, matched.pairs, matched.matches,
-                                               matched.reference)
-    db_path, image_dir = work_dir / scene / "database.db", mapper_image_dir(capture_dir, work_dir, scene, options)
-    fallback = None
-    if reference is not None:
-        model, fallback = known if known is not None else known_model(capture_dir, work_dir, options, matched)
-        if fallback is None:
-            return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model,
-                              mapping=f"known poses (from {reference.scene})")
-        logger.warning("%s: mapping with GLOMAP instead: %s", scene, fallback)
-        known_seconds, known_matching = model.seconds, matches.seconds
-        # GLOMAP registers the cameras too: the prior's full pair set (matched ones reused)
-        feats, pairs, matches = match_scene(capture_dir, work_dir, scene, prior, options, executor, feats)
-        matches.seconds += known_matching
-    model = map_scene(db_path, image_dir, work_dir / scene / "sparse", options=options.mapping, scene=scene)
-    if fallback is not None:
-        model.seconds += known_seconds
-    return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model, fallback=fallback)
+def scene_models(capture_dir: Path, work_dir: Path, scenes: list[str], prior: Mapping[str, Camera],
+                 options: SfmOptions, executor: Executor) -> SceneModels:
+    """Every scene's model, the two cores kept busy (the same result as one step after the other): the mappers run
+    in threads (they use no executor; pycolmap's mappers release the GIL) while the pool extracts features or
+    matches the next scene. Measured on the panel bench: 2-3 s of its minute.
 
-
-def run_scene(
-    capture_dir: Path, work_dir: Path, scene: str, prior: Mapping[str, Camera], options: SfmOptions,
-    executor: Executor, feats: FeatureReport | None = None, reference: SceneModel | None = None,
-) -> SceneStats:
-    """Features (unless given), pairs, matching and the scene's model: triangulated with the cameras held at
-    ``reference``'s poses when given and that works, else mapped with GLOMAP."""
-    if feats is None:
-        feats = scene_features(capture_dir, work_dir, scene, prior, options, executor)
-    matched = match_for_model(capture_dir, work_dir, scene, prior, options, executor, feats, reference)
-    return model_of_matched(capture_dir, work_dir, prior, options, executor, matched)
+    1. Features of every scene. The likely reference (the most images, ties by name: :func:`likely_reference`)
+       first; it is then matched and mapped with GLOMAP in a thread while the pool extracts the other scenes'
+       features (``SfmOptions.map_reference_early``; not on a rerun that finds the other scenes' databases: their
+       features are finished first, and the reference is then known).
+    2. The reference (:func:`reference_scene`): the early mapping's model when it mapped this scene; else the
+       likely one's matches and model are dropped (:func:`projector.database.drop_matches`), as if they never
+       were, and the reference is matched and mapped now.
+    3. Each later scene matched, then triangulated at the reference's poses in a thread while the next one is
+       matched (one at a time); a fallback to GLOMAP runs after all are matched.
+    """
+    run = ScenesRun(capture_dir, work_dir, prior, options, executor)
+    # 1. features: the likely reference first; a rerun first finishes the features it had begun (once every scene
+    # has them, the reference is known)
+    likely = likely_reference(capture_dir, scenes, options)
+    feats = {likely: run.features(likely)}
+    feats.update({scene: run.features(scene) for scene in scenes if scene != likely and run.has_database(scene)})
+    early: InThread | None = None
+    early_matched: Matched | None = None
+    if (options.map_reference_early and len(feats) < len(scenes)
+            and known_poses_apply(options, len(scenes), len(feats[likely].num_features))):
+        # matched here, then mapped with GLOMAP in a thread (GLOMAP leaves a core idle for a good part of its run)
+        likely_options = reference_options(options)
+        early_matched = run.match(likely, likely_options, feats[likely])
+        early = InThread(run.glomap, likely, likely_options)
+    try:
+        feats.update({scene: run.features(scene) for scene in scenes if scene not in feats})
+    except Exception:
+        if early is not None:  # no mapper left writing in the background of a process that goes on
+            _log_thread_error(f"{likely}: early mapping", early.wait())
+        raise
+    feats = {scene: feats[scene] for scene in scenes}
+    # 2. the reference scene: the most images with features; pairs, matching and mapping (GLOMAP)
+    ref = reference_scene(feats)
+    options = with_known_poses_decided(options, ref, len(feats[ref].num_features), len(scenes))
+    ref_options = reference_options(options) if len(scenes) > 1 else options
+    if early is not None and early_matched.scene == ref:
+        stats = {ref: run.model(early_matched, ref_options, glomap=early.result())}
+    else:
+        if early is not None:
+            _log_thread_error(f"{early_matched.scene}: early mapping (dropped)", early.wait())
+            logger.info("reference %s, not %s: %s's matches and model dropped", ref, early_matched.scene,
+                        early_matched.scene)
+            run.drop(early_matched.scene)
+        stats = {ref: run.model(run.match(ref, ref_options, feats[ref]), ref_options)}
+    reference = stats[ref].model
+    # 3. every other scene: pairs by the reference's geometry, matching, triangulation at its poses
+    later: list[tuple[Matched, InThread | None]] = []
+    try:
+        for scene in (s for s in scenes if s != ref):
+            matched = run.match(scene, options, feats[scene], reference)
+            if later and later[-1][1] is not None:
+                later[-1][1].wait()
+            later.append((matched, InThread(run.known, matched, options) if matched.reference is not None else None))
+    except Exception:  # no mapper left running in a process that goes on (an interrupt does not wait)
+        for matched, job in later:
+            if job is not None:
+                _log_thread_error(f"{matched.scene}: triangulation at known poses", job.wait())
+        raise
+    if later and later[-1][1] is not None:  # none still running when an error is raised below
+        later[-1][1].wait()
+    stats.update({matched.scene: run.model(matched, options, known=job.result() if job is not None else None)
+                  for matched, job in later})
+    return SceneModels(scenes={scene: stats[scene] for scene in scenes}, reference=ref, options=options,
+                       reference_options=ref_options)

@@ -6,7 +6,7 @@
     pairs      prior-based, or by the reference's geometry   :func:`projector.scene.select_pairs`,
                                                              :func:`projector.scene.known_scene_pairs`
     matching   verified matches per pair    :func:`projector.scene.match_scene` (:mod:`projector.matching`)
-    mapping    the reference with GLOMAP, the others at its poses   :func:`projector.scene.model_of_matched`
+    mapping    the reference with GLOMAP, the others at its poses   :func:`projector.scene.scene_models`
                (:mod:`projector.mapping`, :mod:`projector.known_scene`)
     merge      every scene into the prior's frame   :func:`projector.merge.merge_scenes`
     refine     every track's keypoints across its views   :func:`projector.refine.refine_observations` (each
@@ -19,7 +19,7 @@ falling back on the full pair set and GLOMAP when that gives too little (logged,
 ``SfmOptions.known_poses.enabled = False``, or a reference with fewer than ``known_poses.min_images`` images (40: a
 small capture's GLOMAP runs take seconds), maps every scene with GLOMAP on the prior's pairs, holding the prior's
 intrinsics (slower on the dome; measured in the README). The mappers run in threads while the process pool
-works on the next step (:mod:`projector.overlap`: the same result, the two cores kept busy).
+works on the next step (:func:`projector.scene.scene_models`: the same result, the two cores kept busy).
 
 Work folder layout (everything resumable)::
 
@@ -51,10 +51,8 @@ from projector.database import camera_of_image
 from projector.features import nominal_camera
 from projector.mapping import SceneModel
 from projector.merge import MergeOptions, MergeResult, merge_scenes
-from projector.overlap import features_of_scenes, later_scene_models, reference_model
 from projector.refine import RefineReport, refine_observations
-from projector.scene import (known_scene_pairs, reference_options, reference_scene, select_pairs,
-                             with_known_poses_decided)
+from projector.scene import known_scene_pairs, scene_models, select_pairs
 from projector.sfm_types import CameraFailure, SceneStats, SfmOptions, SfmResult
 
 __all__ = ["CameraFailure", "SfmOptions", "SfmResult", "known_scene_pairs", "report_dict", "run_sfm", "select_pairs"]
@@ -113,17 +111,9 @@ def run_sfm(
     t0 = time.perf_counter()
     # our own pool is stopped at once (workers quiet) if a scene fails or the run is interrupted
     with make_executor(options.num_workers) if executor is None else contextlib.nullcontext(executor) as pool:
-        # features of every scene (the likely reference matched and mapped meanwhile, in a thread)
-        feats, early = features_of_scenes(capture_dir, work_dir, scenes, prior_cams, options, pool)
-        # the reference scene: the most images with features; pairs, matching and mapping (GLOMAP) first
-        ref = reference_scene(feats)
-        options = with_known_poses_decided(options, ref, len(feats[ref].num_features), len(scenes))
-        ref_options = reference_options(options) if len(scenes) > 1 else options
-        stats = {ref: reference_model(capture_dir, work_dir, ref, prior_cams, ref_options, pool, feats[ref], early)}
-        # every other scene: pairs by the reference's geometry, matching, triangulation at its poses
-        stats.update(later_scene_models(capture_dir, work_dir, [s for s in scenes if s != ref], prior_cams, options,
-                                        pool, feats, stats[ref].model))
-        stats = {scene: stats[scene] for scene in scenes}
+        # every scene: features, the reference (pairs, matching, GLOMAP), the others at its poses
+        models = scene_models(capture_dir, work_dir, scenes, prior_cams, options, pool)
+        stats, options, ref_options = models.scenes, models.options, models.reference_options
         t_scenes = time.perf_counter() - t0
         # merge: every scene into the prior's frame
         t1 = time.perf_counter()
