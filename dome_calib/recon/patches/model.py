@@ -21,6 +21,7 @@ class PatchOptions:
     """How patches are seeded, tracked and judged visible (defaults: the CVPR 2014 method's sizes)."""
 
     size_cm: PosFinite = 6.0  # side of the patch's square
+    ncc_size_cm: PosFinite = 6.0  # side of the square its appearance is compared on
     axis_cm: PosFinite = 3.0  # distance of the two plane points from the centre
     seed_every_frames: AtLeast(1) = 20  # a new cloud every 20th frame of the reference stream
     track_frames: AtLeast(0) = 30  # each cloud tracked this many reference frames backward and forward

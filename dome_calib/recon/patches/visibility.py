@@ -90,7 +90,7 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
         if f < 0 or N == 0:
             continue
         Xv = X + velocity * frames.offset_ms[v]
-        grid = patch_grid_cm(Xv[:, 0], Xv[:, 1], Xv[:, 2], o.size_cm)  # (N, G, 3)
+        grid = patch_grid_cm(Xv[:, 0], Xv[:, 1], Xv[:, 2], o.ncc_size_cm)  # (N, G, 3)
         if G is None:
             G = grid.shape[1]
             samples = np.zeros((N, V, G), np.float32)
