@@ -59,7 +59,7 @@ def test_a_camera_on_its_own_clock_is_brought_to_the_reference_times(forward):
 
 @pytest.fixture(scope="module")
 def small():
-    """8 VGA (4 on each of two panels) of the tiny dome, 1 HD at half size; one person; a cloud tracked 2 frames."""
+    """8 VGA (4 on each of two panels) of the tiny dome, 1 HD at half size; one person; a cloud tracked 1 frame."""
     bundle = nominal_dome("tiny", seed=0)
     bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=1500.0, seed=0)
     truth = make_group(GroupOptions(n_people=1, scenario="conversation", start_ms=100.0, duration_ms=1300.0, seed=2))
@@ -69,15 +69,15 @@ def small():
     cams = vga + hd
     table = bundle.sync.streams["vga"]
     f = 120
-    o = PatchOptions(track_frames=2, seed_features=150, seed_neighbours=3, seed_views=4)
-    traj = patch_stream(bundle, scene, cams, (table.time_of(f - 2), table.time_of(f + 2)), o, seed_frames=[f])
+    o = PatchOptions(track_frames=1, seed_features=100, seed_neighbours=3, seed_views=4)
+    traj = patch_stream(bundle, scene, cams, (table.time_of(f - 1), table.time_of(f + 1)), o, seed_frames=[f])
     return bundle, truth, scene, cams, traj, table.time_of(f), o
 
 
 def test_small_group_is_tracked_within_millimetres_and_seen_by_the_right_cameras(small):
     bundle, truth, _, cams, traj, t_seed, _ = small
     s = int(np.argmin(np.abs(traj.times_ms - t_seed)))
-    assert traj.alive[:, s].sum() > 100
+    assert traj.alive[:, s].sum() > 80
     sp = nearest_surface_points(truth, t_seed, traj.X_cm[:, s, 0])
     P, normal = surface_points_cm(truth, traj.times_ms, sp.person, sp.part, sp.local_cm)
     err_mm = 10 * np.linalg.norm(traj.X_cm[:, :, 0] - P.transpose(1, 0, 2), axis=-1)
@@ -104,7 +104,7 @@ def test_any_part_of_a_cloud_is_tracked_bit_for_bit_as_in_the_whole(small):
     ref = [n for n in cams if str(bundle.cameras[n].type) == "vga"]
     seeds = seed_patches(scene, views.subset(ref), {n: 120 for n in ref}, o)
     live = traj.alive[:, s]
-    assert np.array_equal(quantise_cm(seeds.X_cm)[live], traj.X_cm[live, s])  # the seed cloud is the stream's
+    assert np.array_equal(quantise_cm(seeds.X_cm)[live, 0], traj.X_cm[live, s, 0])  # the stream's seed centres
     seen = np.zeros((len(seeds.X_cm), len(cams)), bool)
     seen[:, :len(ref)] = seeds.seen
     part = np.arange(len(seeds.X_cm))[1::3]  # every third patch, as one task would get them

@@ -45,7 +45,7 @@ from dome_calib.options import Field, options
 from dome_calib.recon.project import project_points, view_set
 from dome_calib.recon.streams import stream_of_camera
 from dome_calib.schema import NonNegFinite
-from dome_calib.synth.body_volume import CAPSULE_NAMES, capsules_cm
+from dome_calib.synth.body_volume import CAPSULE_NAMES, _point_segment_distance2, capsules_cm
 from dome_calib.synth.depth_people import nearest_capsule_hits
 from dome_calib.synth.group import GroupTruth
 from dome_calib.synth.rays import CameraRays
@@ -56,6 +56,8 @@ N_PARTS = len(PART_NAMES)
 N_WAVES = 8
 WAVELENGTH_CM = (2.0, 7.0)
 VISIBILITY_TOLERANCE_CM = 0.5
+#: A capsule's surface point this far inside another capsule is buried (not on the body's outer surface).
+BURIED_MARGIN_CM = 0.05
 _UP = np.array([0.0, -1.0, 0.0])
 _SHIRT_PARTS = (0, 2, 4, 5, 6, 7)
 _HEAD = 1
@@ -142,8 +144,10 @@ class SurfacePoints:
 
 
 def nearest_surface_points(truth: GroupTruth, univ_time_ms: float, X_world: np.ndarray) -> SurfacePoints:
-    """The surface point nearest each of (N, 3) world points at one time (over the present people's capsules; a
-    point inside a capsule goes to its nearest surface too)."""
+    """The point of the bodies' outer surface nearest each of (N, 3) world points at one time: on a present
+    person's capsule and not inside another capsule (where two parts overlap, a capsule's own surface is buried in
+    the other's: it is nobody's skin). Each capsule offers the point's radial projection onto it, if that is not
+    buried; the nearest offer wins (exact for points on or near the outer surface, the patches' case)."""
     Xj, present = truth.joints_cm(np.array([univ_time_ms]))
     fr = part_frames(Xj[0])
     Q = np.asarray(X_world, dtype=float)
@@ -151,7 +155,11 @@ def nearest_surface_points(truth: GroupTruth, univ_time_ms: float, X_world: np.n
     best = np.full(N, np.inf)
     person, part = np.full(N, -1), np.full(N, -1)
     local = np.zeros((N, 3))
-    for p in np.flatnonzero(present[0]):
+    live = np.flatnonzero(present[0])
+    A = fr.A[live].reshape(-1, 3)
+    B = A + fr.R[live][..., 2].reshape(-1, 3) * fr.length[live].reshape(-1, 1)
+    rad = fr.radius[live].reshape(-1)
+    for i, p in enumerate(live):
         for k in range(N_PARTS):
             q = (Q - fr.A[p, k]) @ fr.R[p, k]  # part-frame coordinates
             axis = np.zeros_like(q)
@@ -160,7 +168,11 @@ def nearest_surface_points(truth: GroupTruth, univ_time_ms: float, X_world: np.n
             r = np.linalg.norm(off, axis=1)
             d = np.abs(r - fr.radius[p, k])
             on = axis + _unit(off) * fr.radius[p, k]
-            take = d < best
+            W = fr.A[p, k] + on @ fr.R[p, k].T
+            others = np.arange(len(rad)) != i * N_PARTS + k
+            d2 = _point_segment_distance2(W[:, None], A[others][None], B[others][None])
+            buried = np.any(d2 < (rad[others] - BURIED_MARGIN_CM) ** 2, axis=1)
+            take = (d < best) & ~buried
             best = np.where(take, d, best)
             person, part = np.where(take, p, person), np.where(take, k, part)
             local = np.where(take[:, None], on, local)

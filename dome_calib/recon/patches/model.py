@@ -37,6 +37,7 @@ class PatchOptions:
     seed_spacing_cm: PosFinite = 1.5  # one seed per cell of this size
     normal_radius_cm: PosFinite = 4.0  # seeds within this distance give the normal (least principal axis)
     normal_min_points: AtLeast(3) = 5
+    refine_normals: bool = True  # then refined photometrically in the cameras that see the seed (refine.py)
     volume_radius_cm: PosFinite = 250.0  # the capture volume: a vertical cylinder on the floor
     volume_height_cm: PosFinite = 220.0
     # optical flow
@@ -53,7 +54,7 @@ class PatchOptions:
     geometric_weight: PosFinite = 1.0
     prior_weight: Annotated[float, Field(ge=0)] = 0.3  # Potts weight between neighbouring cameras
     prior_neighbours: AtLeast(1) = 4
-    min_visible: AtLeast(2) = 3  # a patch seen by fewer cameras ends
+    min_visible: AtLeast(2) = 2  # a patch seen by fewer cameras ends
     max_stretch: Annotated[float, Field(gt=0, lt=1)] = 0.3  # a patch whose plane points move this much ends
 
 

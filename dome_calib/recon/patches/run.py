@@ -20,8 +20,9 @@ from dome_calib.recon.errors import ReconError
 from dome_calib.recon.patches.frames import FrameSource, patch_axes
 from dome_calib.recon.patches.model import PatchOptions, PatchTrajectories
 from dome_calib.recon.patches.seed import Seeds, seed_patches
-from dome_calib.recon.patches.track import Clock, CloudTrack, track_cloud
-from dome_calib.recon.patches.visibility import camera_neighbours
+from dome_calib.recon.patches.refine import refine_normals
+from dome_calib.recon.patches.track import Clock, CloudTrack, judged_frames, quantise_cm, track_cloud
+from dome_calib.recon.patches.visibility import camera_neighbours, estimate_visibility
 from dome_calib.recon.project import ViewSet, view_set
 from dome_calib.recon.streams import cameras_by_stream
 
@@ -70,8 +71,13 @@ def run_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], seed_tim
     neighbours = camera_neighbours(views, o.prior_neighbours) if neighbours is None else neighbours
     t = np.asarray(times_ms, dtype=float)
     s = int(np.argmin(np.abs(t - seed_time_ms)))
-    back = track_cloud(source, views, clocks, t[:s + 1][::-1], seeds.X_cm, seeds.seen, neighbours, o)
-    fwd = track_cloud(source, views, clocks, t[s:], seeds.X_cm, seeds.seen, neighbours, o)
+    X = quantise_cm(seeds.X_cm)
+    if o.refine_normals and len(X):
+        frames = judged_frames(clocks, float(t[s]))
+        vis = estimate_visibility(source, views, frames, X, np.zeros_like(X), seeds.seen, None, neighbours, o)
+        X = quantise_cm(refine_normals(source, views, frames, X, vis.visible, o))
+    back = track_cloud(source, views, clocks, t[:s + 1][::-1], X, seeds.seen, neighbours, o)
+    fwd = track_cloud(source, views, clocks, t[s:], X, seeds.seen, neighbours, o)
     return back, fwd
 
 

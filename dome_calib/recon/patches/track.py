@@ -14,8 +14,10 @@ One step, from reference time ``t`` to ``t'``, for every camera that sees a patc
    ``triangulation_px``), then the MAP visibility at ``t'`` (:mod:`.visibility`), then the points triangulated
    again from the visible tracked cameras alone (if at least two).
 
-A patch ends when a point cannot be triangulated, fewer than ``min_visible`` cameras see it, or a plane point's
-distance to the centre changes by more than ``max_stretch``. Every operation is per patch (optical flow per point,
+A plane point that cannot be triangulated moves with the centre. A patch ends when its centre cannot be
+triangulated, fewer than ``min_visible`` cameras see it, or a plane point's distance to the centre changed by more
+than ``max_stretch`` in the step; then its plane points are put back at ``axis_cm`` from the centre, orthogonal
+(:func:`square_up`: the patch is a rigid square whose plane the points give). Every operation is per patch (optical flow per point,
 triangulation per point with draws keyed by its own pixels, one cut whose labels do not depend on the other
 graphs), and positions are quantised to 2^-10 cm after each step: tracking any subset of a cloud gives its patches
 bit for bit what tracking the whole cloud gives them.
@@ -28,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dome_calib.bundle import SyncTable
-from dome_calib.recon.patches.frames import FrameSource
+from dome_calib.recon.patches.frames import FrameSource, patch_axes
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.seed import optical_flow
 from dome_calib.recon.patches.visibility import Frames, Visibility, estimate_visibility
@@ -153,6 +155,12 @@ def _triangulate_points(views: ViewSet, uv: np.ndarray, conf: np.ndarray, o: Pat
     return tri.X_cm.reshape(N, 3, 3)
 
 
+def square_up(X: np.ndarray, axis_cm: float) -> np.ndarray:
+    """Patches (N, 3, 3) -> the same centre and plane with the plane points back at ``axis_cm``, orthogonal."""
+    u, v, _ = patch_axes(X[:, 0], X[:, 1], X[:, 2])
+    return np.stack([X[:, 0], X[:, 0] + axis_cm * u, X[:, 0] + axis_cm * v], 1)
+
+
 def _stretched(X: np.ndarray, o: PatchOptions) -> np.ndarray:
     d = np.linalg.norm(X[:, 1:] - X[:, :1], axis=-1)  # (N, 2)
     return np.any(np.abs(d / o.axis_cm - 1.0) > o.max_stretch, axis=1)
@@ -185,7 +193,12 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                 uv[idx, :, v] = q.reshape(-1, 3, 2)
                 tracked[idx, :, v] = ok.reshape(-1, 3)
             X_new = _triangulate_points(views, uv, tracked.astype(float), o)
-            live &= np.all(np.isfinite(X_new), axis=(1, 2))
+            centre = np.all(np.isfinite(X_new[:, 0]), axis=1)
+            lost = live & ~centre
+            live &= centre
+            # a plane point that cannot be triangulated moves with the centre
+            moved = X_new[:, :1] - X[:, :1]
+            X_new = np.where(np.isfinite(X_new), X_new, X + moved)
             X_new = quantise_cm(np.where(live[:, None, None], X_new, 0.0))
             velocity = (X_new - X) / (t1 - t0)
             proj = project_points(views, X_new.reshape(-1, 3)).uv_px.reshape(V, N, 3, 2).transpose(1, 2, 0, 3)
@@ -197,9 +210,13 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             use = vis.visible[:, None, :] & tracked
             again = _triangulate_points(views, uv, use.astype(float), o)
             redo = live & (use.sum(axis=2) >= 2).all(axis=1) & np.all(np.isfinite(again), axis=(1, 2))
-            X = np.where(redo[:, None, None], quantise_cm(np.where(redo[:, None, None], again, 0.0)),
-                                    X_new)
-            live &= (vis.visible.sum(1) >= o.min_visible) & ~_stretched(X, o)
+            X = np.where(redo[:, None, None], quantise_cm(np.where(redo[:, None, None], again, 0.0)), X_new)
+            unseen = live & (vis.visible.sum(1) < o.min_visible)
+            stretched = live & ~unseen & _stretched(X, o)
+            live &= ~unseen & ~stretched
+            X = quantise_cm(square_up(X, o.axis_cm))
+            logger.debug("step %d: %d live; ended: %d centre not triangulated, %d seen by too few, %d stretched",
+                         k, live.sum(), lost.sum(), unseen.sum(), stretched.sum())
         vis_v: Visibility = vis
         X_out[live, k] = X[live]
         vis_out[live, k] = vis_v.visible[live]
