@@ -33,6 +33,7 @@ from dome_calib.synth.skeleton import synthetic_sync  # noqa: E402
 from dome_calib.synth.textured import (TexturedScene, TextureOptions, nearest_surface_points,  # noqa: E402
                                        surface_points_cm, surface_visibility)
 from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
+from dome_calib.recon.patches.parts import PartOptions, label_parts  # noqa: E402
 from dome_calib.recon.patches.run import patch_stream  # noqa: E402
 
 
@@ -98,6 +99,21 @@ def run(args: argparse.Namespace) -> None:
     est, base, true = np.concatenate(est), np.concatenate(base), np.concatenate(true)
     pvf = int(traj.visible.sum())
     stage_cpu = cpu - render_cpu
+    labels = {}
+    Xj, present = truth.joints_cm(traj.times_ms)
+    Xj[~present] = np.nan
+    rng = np.random.default_rng(args.seed)
+    for kind, joints in (("true_skeleton", Xj), ("skeleton_noise_1.5cm", Xj + rng.normal(0.0, 1.5, Xj.shape))):
+        lab = label_parts(traj.X_cm[:, :, 0], traj.normal, traj.alive, joints)
+        judged = traj.alive.sum(1) >= PartOptions().min_frames
+        given = judged & (lab.bone >= 0)
+        right = given & (lab.person == sp.person) & (lab.bone == sp.part)
+        labels[kind] = {"accuracy": round(float(right.sum() / max(given.sum(), 1)), 4),
+                        "labelled_share": round(float(given.sum() / max(judged.sum(), 1)), 4), "n": int(judged.sum())}
+    if args.save:
+        np.savez_compressed(args.save, X_cm=traj.X_cm, normal=traj.normal, alive=traj.alive, visible=traj.visible,
+                            photometric=traj.photometric, times_ms=traj.times_ms, person=sp.person, part=sp.part,
+                            local_cm=sp.local_cm, joints_cm=Xj)
     emit(what="patches", scenario=args.scenario, people=args.people, cameras=len(cams),
          vga=args.vga, hd=args.hd, kinect=args.kinect, frames_each_way=nf, seed=args.seed,
          seeds=int(traj.alive[:, s].sum()), errors=errors,
@@ -108,7 +124,7 @@ def run(args: argparse.Namespace) -> None:
                                  "recall": precision_recall(base, true)[1]},
          true_views_per_patch=round(float(true.sum(1).mean()), 2), map_views_per_patch=round(float(est.sum(1).mean()),
                                                                                               2),
-         patch_views_frames=pvf, stage_cpu_s=round(stage_cpu, 1), render_cpu_s=round(render_cpu, 1),
+         parts=labels, patch_views_frames=pvf, stage_cpu_s=round(stage_cpu, 1), render_cpu_s=round(render_cpu, 1),
          wall_s=round(wall, 1), patch_views_frames_per_cpu_s=round(pvf / max(stage_cpu, 1e-9), 1),
          load=[round(x, 2) for x in os.getloadavg()])
 
@@ -122,6 +138,7 @@ def main() -> None:
     ap.add_argument("--kinect", type=int, default=2)
     ap.add_argument("--frames", type=int, default=30)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--save", type=str, default="", help="also write the trajectories and truth to this .npz")
     run(ap.parse_args())
 
 

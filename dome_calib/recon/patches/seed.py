@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from dome_calib.recon.patches.frames import FrameSource, ncc, sample
 from dome_calib.recon.patches.model import PatchOptions
@@ -167,8 +168,6 @@ def _refine(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int,
 def _normals(X: np.ndarray, seen: np.ndarray, centres: np.ndarray, o: PatchOptions
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(N, 3) seeds -> (normal (N, 3), first axis (N, 3), ok (N,)) by SVD of the seeds within ``normal_radius_cm``."""
-    from scipy.spatial import cKDTree  # noqa: PLC0415 (scipy.spatial loads slowly; only the seeding needs it)
-
     tree = cKDTree(X)
     near = tree.query_ball_point(X, o.normal_radius_cm)
     normal, axis = np.full(X.shape, np.nan), np.full(X.shape, np.nan)
