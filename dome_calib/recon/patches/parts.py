@@ -9,8 +9,10 @@ Per patch and candidate bone, over the times the patch is alive (at least ``min_
 - **away**: the share of times with ``(X - closest point on the bone) . normal > 0`` must reach ``min_away``;
 - **rigid**: a point moving with a bone keeps its distance to the bone's axis ``r`` and its position along it
   ``z`` (both free of the bone's unknown twist); the cost is the RMS of ``r(t) - median r`` and ``z(t) - median z``
-  (cm), plus ``distance_weight`` x the median distance to the bone (cm: of two bones that move alike, the one the
-  patch sits on).
+  (cm), plus ``distance_weight`` x the median distance to the bone (cm) and ``alignment_weight`` x (1 - the median
+  cosine between the normal and the way out of the bone): of two bones that move alike (people standing still),
+  the one the patch sits on, whose surface it is (a torso patch next to the shoulders points out of the torso's
+  axis, not out of the shoulder line).
 
 The label is the bone of least cost among those that pass (costs quantised to 1e-4 cm, ties by person then bone
 order); -1 where none passes. Bones are segments between joints19 joints (:data:`BONES`), one per body part of
@@ -18,6 +20,7 @@ the synthetic body volume (the head: neck to the ears' midpoint).
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,6 +43,7 @@ class PartOptions:
     min_frames: AtLeast(2) = 5
     min_away: UnitInterval = 0.8
     distance_weight: NonNegFinite = 0.1
+    alignment_weight: NonNegFinite = 10.0
 
 
 @dataclass(frozen=True)
@@ -94,17 +98,22 @@ def _label_chunk(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, A: np.
     r = np.linalg.norm(radial, axis=-1)
     s = np.clip(z / np.maximum(L[None], 1e-9), 0.0, 1.0)
     closest = A[None] + s[..., None] * d[None]
-    away = np.sum((X - closest) * np.where(alive[..., None], normal, 0.0)[:, :, None, None], -1) > 0
-    dist = np.linalg.norm(X - closest, axis=-1)
+    out = X - closest
+    dist = np.linalg.norm(out, axis=-1)
+    along = np.sum(out * np.where(alive[..., None], normal, 0.0)[:, :, None, None], -1)
+    away = along > 0
+    align = along / np.maximum(dist, 1e-9)  # cosine between the normal and the way out of the bone
     ok_t = alive[:, :, None, None] & np.isfinite(z) & np.isfinite(r)
     n_t = ok_t.sum(1)  # (N, P, K)
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a bone of an absent person: all-NaN medians, refused below
         zm = np.nanmedian(np.where(ok_t, z, np.nan), axis=1)
         rm = np.nanmedian(np.where(ok_t, r, np.nan), axis=1)
         dm = np.nanmedian(np.where(ok_t, dist, np.nan), axis=1)
+        am = np.nanmedian(np.where(ok_t, align, np.nan), axis=1)
         dev = np.where(ok_t, (z - zm[:, None]) ** 2 + (r - rm[:, None]) ** 2, 0.0).sum(1) / np.maximum(n_t, 1)
         share_away = np.where(ok_t, away, False).sum(1) / np.maximum(n_t, 1)
-    cost = np.sqrt(dev) + o.distance_weight * dm
+    cost = np.sqrt(dev) + o.distance_weight * dm + o.alignment_weight * (1.0 - am)
     passes = (n_t >= o.min_frames) & (share_away >= o.min_away) & np.isfinite(cost)
     key = np.where(passes, np.rint(cost / _QUANTUM), np.inf).reshape(N, P * K)
     best = np.argmin(key, axis=1)  # first of equal keys: person, then bone order
