@@ -13,7 +13,9 @@ rendered at half size (960 x 540); the group seeded by ``--seed``; one cloud see
   on its part) after 0, 1, 10 and ``--frames`` frames (median and 90th percentile, mm; both directions pooled),
   trajectory length (frames each way, median and share reaching 25), visibility against the renderer's truth
   (precision and recall of the MAP labels and of photometric consistency alone, the CVPR 2014 baseline, over all
-  live patch-times and cameras), patch-views-frames per CPU-second of the stage (rendering excluded), load average.
+  live patch-times and cameras; split: patches within 1 cm of their true point, views within 78 deg of the true
+  normal), patches given to the right body part (true skeleton, and the truth plus 1.5 cm noise per joint),
+  patch-views-frames per CPU-second of the stage (rendering excluded), load average.
 """
 from __future__ import annotations
 
@@ -35,6 +37,7 @@ from dome_calib.synth.textured import (TexturedScene, TextureOptions, nearest_su
 from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
 from dome_calib.recon.patches.parts import PartOptions, label_parts  # noqa: E402
 from dome_calib.recon.patches.run import patch_stream  # noqa: E402
+from dome_calib.recon.project import view_set  # noqa: E402
 
 
 def emit(**fields) -> None:
@@ -88,7 +91,8 @@ def run(args: argparse.Namespace) -> None:
     back = traj.alive[:, :s + 1][:, ::-1].cumprod(axis=1).sum(axis=1) - 1
     fwd = traj.alive[:, s:].cumprod(axis=1).sum(axis=1) - 1
     lengths = np.concatenate([back, fwd])[np.concatenate([traj.alive[:, s]] * 2)]
-    est, base, true = [], [], []
+    est, base, true, near, facing = [], [], [], [], []
+    centres = view_set(bundle, cams).center_cm
     for k in range(len(traj.times_ms)):
         a = traj.alive[:, k]
         if not a.any():
@@ -96,7 +100,15 @@ def run(args: argparse.Namespace) -> None:
         true.append(surface_visibility(bundle, cams, truth, float(traj.times_ms[k]), P[k][a], normal[k][a]))
         est.append(traj.visible[a, k])
         base.append(traj.photometric[a, k])
+        near.append(np.broadcast_to((err_mm[a, k] < 10.0)[:, None], true[-1].shape))
+        to_cam = centres[None] - P[k][a][:, None]
+        facing.append(np.sum(to_cam * normal[k][a][:, None], -1) / np.linalg.norm(to_cam, axis=-1) >= 0.2)
     est, base, true = np.concatenate(est), np.concatenate(base), np.concatenate(true)
+    near, facing = np.concatenate(near), np.concatenate(facing)
+    split = {}
+    for name, m in (("patch_within_1cm", near), ("view_cos_at_least_0.2", facing)):
+        split[name] = {"share": round(float(m.mean()), 3),
+                       "map": precision_recall(est & m, true & m), "photometric": precision_recall(base & m, true & m)}
     pvf = int(traj.visible.sum())
     stage_cpu = cpu - render_cpu
     labels = {}
@@ -122,7 +134,7 @@ def run(args: argparse.Namespace) -> None:
          visibility_map={"precision": precision_recall(est, true)[0], "recall": precision_recall(est, true)[1]},
          visibility_photometric={"precision": precision_recall(base, true)[0],
                                  "recall": precision_recall(base, true)[1]},
-         true_views_per_patch=round(float(true.sum(1).mean()), 2), map_views_per_patch=round(float(est.sum(1).mean()),
+         visibility_split=split, true_views_per_patch=round(float(true.sum(1).mean()), 2), map_views_per_patch=round(float(est.sum(1).mean()),
                                                                                               2),
          parts=labels, patch_views_frames=pvf, stage_cpu_s=round(stage_cpu, 1), render_cpu_s=round(render_cpu, 1),
          wall_s=round(wall, 1), patch_views_frames_per_cpu_s=round(pvf / max(stage_cpu, 1e-9), 1),
