@@ -40,17 +40,29 @@ def ray_capsules(origin: np.ndarray, dirs: np.ndarray, A: np.ndarray, B: np.ndar
                  ) -> np.ndarray:
     """Nearest hit distance (N,) of rays ``origin + s * dirs`` (unit dirs (N, 3)) with capsules (K, 3), (K, 3),
     (K,); inf where none is hit (or only behind the origin)."""
+    return nearest_capsule_hits(origin, dirs, A, B, radius)[0]
+
+
+def nearest_capsule_hits(origin: np.ndarray, dirs: np.ndarray, A: np.ndarray, B: np.ndarray, radius: np.ndarray,
+                         candidates: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`ray_capsules` and which capsule each ray hits first: ((N,) distance, inf = none; (N,) capsule
+    index, -1 = none). ``candidates``: per capsule, the rays that may meet it (indices; default all)."""
     best = np.full(len(dirs), np.inf)
-    for a, b, r in zip(A, B, radius):
+    which = np.full(len(dirs), -1, dtype=np.int64)
+    for k, (a, b, r) in enumerate(zip(A, B, radius)):
         centre = 0.5 * (a + b)  # the capsule's bounding sphere culls the rays first
         bound = 0.5 * np.linalg.norm(b - a) + r
         oc = centre - origin
-        near = dirs @ oc
+        rays = None if candidates is None else candidates[k]
+        near = dirs @ oc if rays is None else dirs[rays] @ oc
         sel = np.flatnonzero((near > -bound) & (oc @ oc - near * near < bound * bound))
+        sel = sel if rays is None else rays[sel]
         if len(sel) == 0:
             continue
-        best[sel] = np.minimum(best[sel], _ray_capsule(origin, dirs[sel], a, b, r))
-    return best
+        s = _ray_capsule(origin, dirs[sel], a, b, r)
+        nearer = s < best[sel]
+        best[sel[nearer]], which[sel[nearer]] = s[nearer], k
+    return best, which
 
 
 def _ray_capsule(origin: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarray, r: float) -> np.ndarray:

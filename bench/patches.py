@@ -1,0 +1,158 @@
+"""Patch trajectory bench: the dense 3D patch stream (:mod:`dome_calib.recon.patches`) on a synthetic textured group
+(:mod:`dome_calib.synth.textured`), judged against the renderer's truth.
+
+Run: .venv/bin/python bench/patches.py [--people 2] [--scenario conversation] [--vga 24] [--hd 4] [--kinect 2]
+         [--frames 30] [--seed 0]
+Setup: the as-built dome's panel preset (VGA of panels 1-2, the HD and Kinect colour cameras nearest them), the
+first ``--vga`` VGA by name and the first ``--hd`` / ``--kinect`` others; VGA at 640 x 480, HD and Kinect colour
+rendered at half size (960 x 540); the group seeded by ``--seed``; one cloud seeded at a VGA frame (a multiple of
+20) and tracked ``--frames`` frames each way. Prints one JSON object per line:
+
+- ``render``: CPU ms per view per frame of the textured renderer, by camera type;
+- ``patches``: seeds, centre error against the true surface point (the one nearest the patch at the seed, followed
+  on its part) after 0, 1, 10 and ``--frames`` frames (median and 90th percentile, mm; both directions pooled),
+  trajectory length (frames each way, median and share reaching 25), visibility against the renderer's truth
+  (precision and recall of the MAP labels and of photometric consistency alone, the CVPR 2014 baseline, over all
+  live patch-times and cameras; split: patches within 1 cm of their true point, views within 78 deg of the true
+  normal), patches given to the right body part (true skeleton, and the truth plus 1.5 cm noise per joint),
+  patch-views-frames per CPU-second of the stage (rendering excluded), load average.
+"""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from dome_calib.synth.dome import as_built_dome  # noqa: E402
+from dome_calib.synth.group import GroupOptions, make_group  # noqa: E402
+from dome_calib.synth.skeleton import synthetic_sync  # noqa: E402
+from dome_calib.synth.textured import (TexturedScene, TextureOptions, nearest_surface_points,  # noqa: E402
+                                       surface_points_cm, surface_visibility)
+from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
+from dome_calib.recon.patches.parts import PartOptions, label_parts  # noqa: E402
+from dome_calib.recon.patches.run import patch_stream  # noqa: E402
+from dome_calib.recon.project import view_set  # noqa: E402
+
+
+def emit(**fields) -> None:
+    print(json.dumps(fields), flush=True)
+
+
+def _pct(x: np.ndarray, q: float) -> float | None:
+    return round(float(np.percentile(x, q)), 2) if len(x) else None
+
+
+def precision_recall(est: np.ndarray, true: np.ndarray) -> tuple[float, float]:
+    tp = np.sum(est & true)
+    return round(float(tp / max(est.sum(), 1)), 4), round(float(tp / max(true.sum(), 1)), 4)
+
+
+def run(args: argparse.Namespace) -> None:
+    bundle = as_built_dome("panel", seed=args.seed)
+    bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=6000.0, seed=args.seed)
+    truth = make_group(GroupOptions(n_people=args.people, scenario=args.scenario, start_ms=500.0,
+                                    duration_ms=5000.0, seed=args.seed))
+    scene = TexturedScene(bundle, truth, TextureOptions(seed=args.seed, scale={"vga": 1.0, "hd": 0.5,
+                                                                              "kinect-color": 0.5}))
+    by_type = {t: sorted(n for n, c in bundle.cameras.items() if str(c.type) == t) for t in ("vga", "hd",
+                                                                                             "kinect-color")}
+    cams = by_type["vga"][:args.vga] + by_type["hd"][:args.hd] + by_type["kinect-color"][:args.kinect]
+    table = bundle.sync.streams["vga"]
+    pos = int(np.searchsorted(table.univ_time_ms, 2500.0))
+    f = int(table.index[pos])
+    f -= f % 20
+    nf = args.frames
+    span = (table.time_of(f - nf), table.time_of(f + nf))
+    o = PatchOptions(track_frames=nf)
+    load = os.getloadavg()
+    cpu0, wall0 = time.process_time(), time.perf_counter()
+    traj = patch_stream(bundle, scene, cams, span, o, seed_frames=[f])
+    cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
+    render_cpu = sum(scene.render_s.values())
+    emit(what="render", **{f"{k}_cpu_ms_per_view": round(1000.0 * scene.render_s[k] / scene.renders[k], 1)
+                           for k in sorted(scene.renders)}, renders=scene.renders, people=args.people,
+         load=[round(x, 2) for x in load])
+    t_seed = table.time_of(f)
+    s = int(np.argmin(np.abs(traj.times_ms - t_seed)))
+    sp = nearest_surface_points(truth, t_seed, traj.X_cm[:, s, 0])
+    P, normal = surface_points_cm(truth, traj.times_ms, sp.person, sp.part, sp.local_cm)  # (T, N, 3)
+    err_mm = 10.0 * np.linalg.norm(traj.X_cm[:, :, 0] - P.transpose(1, 0, 2), axis=-1)  # (N, T)
+    errors = {}
+    for lag in sorted({0, 1, 10, nf}):
+        cols = [c for c in (s - lag, s + lag) if 0 <= c < len(traj.times_ms)]
+        e = np.concatenate([err_mm[traj.alive[:, c], c] for c in cols] + [np.zeros(0)])
+        errors[f"after_{lag}"] = {"median_mm": _pct(e, 50), "p90_mm": _pct(e, 90), "n": int(len(e))}
+    back = traj.alive[:, :s + 1][:, ::-1].cumprod(axis=1).sum(axis=1) - 1
+    fwd = traj.alive[:, s:].cumprod(axis=1).sum(axis=1) - 1
+    lengths = np.concatenate([back, fwd])[np.concatenate([traj.alive[:, s]] * 2)]
+    est, base, true, near, facing = [], [], [], [], []
+    centres = view_set(bundle, cams).center_cm
+    for k in range(len(traj.times_ms)):
+        a = traj.alive[:, k]
+        if not a.any():
+            continue
+        true.append(surface_visibility(bundle, cams, truth, float(traj.times_ms[k]), P[k][a], normal[k][a]))
+        est.append(traj.visible[a, k])
+        base.append(traj.photometric[a, k])
+        near.append(np.broadcast_to((err_mm[a, k] < 10.0)[:, None], true[-1].shape))
+        to_cam = centres[None] - P[k][a][:, None]
+        facing.append(np.sum(to_cam * normal[k][a][:, None], -1) / np.linalg.norm(to_cam, axis=-1) >= 0.2)
+    est, base, true = np.concatenate(est), np.concatenate(base), np.concatenate(true)
+    near, facing = np.concatenate(near), np.concatenate(facing)
+    split = {}
+    for name, m in (("patch_within_1cm", near), ("view_cos_at_least_0.2", facing)):
+        split[name] = {"share": round(float(m.mean()), 3),
+                       "map": precision_recall(est & m, true & m), "photometric": precision_recall(base & m, true & m)}
+    pvf = int(traj.visible.sum())
+    stage_cpu = cpu - render_cpu
+    labels = {}
+    Xj, present = truth.joints_cm(traj.times_ms)
+    Xj[~present] = np.nan
+    rng = np.random.default_rng(args.seed)
+    for kind, joints in (("true_skeleton", Xj), ("skeleton_noise_1.5cm", Xj + rng.normal(0.0, 1.5, Xj.shape))):
+        lab = label_parts(traj.X_cm[:, :, 0], traj.normal, traj.alive, joints)
+        judged = traj.alive.sum(1) >= PartOptions().min_frames
+        given = judged & (lab.bone >= 0)
+        right = given & (lab.person == sp.person) & (lab.bone == sp.part)
+        labels[kind] = {"accuracy": round(float(right.sum() / max(given.sum(), 1)), 4),
+                        "labelled_share": round(float(given.sum() / max(judged.sum(), 1)), 4), "n": int(judged.sum())}
+    if args.save:
+        np.savez_compressed(args.save, X_cm=traj.X_cm, normal=traj.normal, alive=traj.alive, visible=traj.visible,
+                            photometric=traj.photometric, times_ms=traj.times_ms, person=sp.person, part=sp.part,
+                            local_cm=sp.local_cm, joints_cm=Xj)
+    emit(what="patches", scenario=args.scenario, people=args.people, cameras=len(cams),
+         vga=args.vga, hd=args.hd, kinect=args.kinect, frames_each_way=nf, seed=args.seed,
+         seeds=int(traj.alive[:, s].sum()), errors=errors,
+         length_median_frames=float(np.median(lengths)) if len(lengths) else None,
+         length_share_25=round(float(np.mean(lengths >= min(25, nf))), 3) if len(lengths) else None,
+         visibility_map={"precision": precision_recall(est, true)[0], "recall": precision_recall(est, true)[1]},
+         visibility_photometric={"precision": precision_recall(base, true)[0],
+                                 "recall": precision_recall(base, true)[1]},
+         visibility_split=split, true_views_per_patch=round(float(true.sum(1).mean()), 2), map_views_per_patch=round(float(est.sum(1).mean()),
+                                                                                              2),
+         parts=labels, patch_views_frames=pvf, stage_cpu_s=round(stage_cpu, 1), render_cpu_s=round(render_cpu, 1),
+         wall_s=round(wall, 1), patch_views_frames_per_cpu_s=round(pvf / max(stage_cpu, 1e-9), 1),
+         load=[round(x, 2) for x in os.getloadavg()])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--people", type=int, default=2)
+    ap.add_argument("--scenario", type=str, default="conversation")
+    ap.add_argument("--vga", type=int, default=24)
+    ap.add_argument("--hd", type=int, default=4)
+    ap.add_argument("--kinect", type=int, default=2)
+    ap.add_argument("--frames", type=int, default=30)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--save", type=str, default="", help="also write the trajectories and truth to this .npz")
+    run(ap.parse_args())
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,79 @@
+"""Options and results of the patch trajectory stage.
+
+Units: world cm (Panoptic frame), pixels of the camera as imaged, universal time ms. A patch is a triplet of world
+points: its centre ``X0`` and two points ``X1 = X0 + axis_cm * u``, ``X2 = X0 + axis_cm * v`` on its plane (u, v
+orthonormal); its normal ``u x v`` points to the cameras that see it; its appearance is a square of side
+``size_cm`` round the centre.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Annotated
+
+import numpy as np
+
+from dome_calib.options import AtLeast, Field, UnitInterval, options
+from dome_calib.schema import PosFinite
+
+
+@options
+class PatchOptions:
+    """How patches are seeded, tracked and judged visible (defaults: the CVPR 2014 method's sizes)."""
+
+    size_cm: PosFinite = 6.0  # side of the patch's square
+    ncc_size_cm: PosFinite = 6.0  # side of the square its appearance is compared on
+    axis_cm: PosFinite = 3.0  # distance of the two plane points from the centre
+    seed_every_frames: AtLeast(1) = 20  # a new cloud every 20th frame of the reference stream
+    track_frames: AtLeast(0) = 30  # each cloud tracked this many reference frames backward and forward
+    # seeding from image features (reference stream's cameras at the seed frame)
+    seed_features: AtLeast(1) = 400  # corners per camera (cv2.goodFeaturesToTrack)
+    seed_min_distance_px: PosFinite = 5.0
+    seed_neighbours: AtLeast(2) = 4  # cameras the depth sweep is scored in
+    seed_step_cm: PosFinite = 1.5  # depth sweep step along the ray
+    seed_window_px: AtLeast(3) = 7  # NCC window of the sweep (odd)
+    seed_min_ncc: UnitInterval = 0.8
+    seed_views: AtLeast(2) = 12  # cameras nearest the reference in which a seed is refined by optical flow
+    seed_min_views: AtLeast(2) = 3
+    seed_spacing_cm: PosFinite = 1.5  # one seed per cell of this size
+    normal_radius_cm: PosFinite = 4.0  # seeds within this distance give the normal (least principal axis)
+    normal_min_points: AtLeast(3) = 5
+    refine_normals: bool = True  # then refined photometrically in the cameras that see the seed (refine.py)
+    volume_radius_cm: PosFinite = 250.0  # the capture volume: a vertical cylinder on the floor
+    volume_height_cm: PosFinite = 220.0
+    # optical flow
+    lk_window_px: AtLeast(5) = 15
+    lk_levels: AtLeast(0) = 3
+    lk_fb_px: PosFinite = 0.5  # forward-backward check
+    triangulation_px: PosFinite = 2.5  # inlier threshold of the patches' points
+    # visibility (MAP): unary costs of "visible" against "not visible" (the latter 0), Potts prior
+    ncc_threshold: Annotated[float, Field(ge=-1, le=1)] = 0.6  # photometric: NCC above this favours "visible"
+    photometric_weight: PosFinite = 2.0
+    motion_sigma_px: PosFinite = 1.5  # motion: flow against the reprojected 3D motion
+    motion_weight: PosFinite = 1.0
+    min_cos_view: Annotated[float, Field(ge=0, lt=1)] = 0.2  # geometric: the normal faces the camera
+    geometric_weight: PosFinite = 1.0
+    prior_weight: Annotated[float, Field(ge=0)] = 0.3  # Potts weight between neighbouring cameras
+    prior_neighbours: AtLeast(1) = 4
+    min_visible: AtLeast(2) = 2  # a patch seen by fewer cameras ends
+    max_stretch: Annotated[float, Field(gt=0, lt=1)] = 0.3  # a patch whose plane points move this much ends
+
+
+@dataclass(frozen=True)
+class PatchTrajectories:
+    """Patches over reference times: N patches, T times, V cameras (``cameras`` order).
+
+    ids (N,) int64 ``cloud * 100000 + k``; seed_time_ms (N,); times_ms (T,) reference stream times;
+    X_cm (N, T, 3, 3) the three points (centre, two plane points), NaN where the patch is not alive;
+    normal (N, T, 3); visible (N, T, V) bool (the MAP labels); photometric (N, T, V) bool (NCC above the
+    threshold alone: the CVPR 2014 baseline, same patches and times); alive (N, T) bool.
+    """
+
+    ids: np.ndarray
+    seed_time_ms: np.ndarray
+    times_ms: np.ndarray
+    cameras: list[str]
+    X_cm: np.ndarray
+    normal: np.ndarray
+    visible: np.ndarray
+    photometric: np.ndarray
+    alive: np.ndarray

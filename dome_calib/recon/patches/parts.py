@@ -1,0 +1,122 @@
+"""Body parts that move with the patches: each patch trajectory labelled with the bone it moves rigidly with.
+
+The CVPR 2014 / Panoptic rule: a part trajectory (a bone of a person over time) takes the patch trajectories that
+move rigidly with it and whose normal points away from it (the vector from the closest point on the bone to the
+patch centre has a positive inner product with the patch normal).
+
+Per patch and candidate bone, over the times the patch is alive (at least ``min_frames``):
+
+- **away**: the share of times with ``(X - closest point on the bone) . normal > 0`` must reach ``min_away``;
+- **rigid**: a point moving with a bone keeps its distance to the bone's axis ``r`` and its position along it
+  ``z`` (both free of the bone's unknown twist); the cost is the RMS of ``r(t) - median r`` and ``z(t) - median z``
+  (cm), plus ``distance_weight`` x the median distance to the bone (cm) and ``alignment_weight`` x (1 - the median
+  cosine between the normal and the way out of the bone): of two bones that move alike (people standing still),
+  the one the patch sits on, whose surface it is (a torso patch next to the shoulders points out of the torso's
+  axis, not out of the shoulder line).
+
+The label is the bone of least cost among those that pass (costs quantised to 1e-4 cm, ties by person then bone
+order); -1 where none passes. Bones are segments between joints19 joints (:data:`BONES`), one per body part of
+the synthetic body volume (the head: neck to the ears' midpoint).
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from dome_calib.options import AtLeast, UnitInterval, options
+from dome_calib.schema import NonNegFinite
+
+#: Body parts as (name, joint a, joint b) of joints19; -1 as joint b: the midpoint of the ears (16, 18).
+BONES = [("torso", 2, 0), ("head", 0, -1), ("shoulders", 3, 9), ("hips", 6, 12), ("l_upper_arm", 3, 4),
+         ("r_upper_arm", 9, 10), ("l_forearm", 4, 5), ("r_forearm", 10, 11), ("l_thigh", 6, 7), ("r_thigh", 12, 13),
+         ("l_shin", 7, 8), ("r_shin", 13, 14)]
+_QUANTUM = 1e-4
+_CHUNK = 128
+
+
+@options
+class PartOptions:
+    """How patches are given to parts."""
+
+    min_frames: AtLeast(2) = 5
+    min_away: UnitInterval = 0.8
+    distance_weight: NonNegFinite = 0.1
+    alignment_weight: NonNegFinite = 10.0
+
+
+@dataclass(frozen=True)
+class PartLabels:
+    """person (N,) position of the person in the skeleton array (-1: none); bone (N,) index in :data:`BONES`
+    (-1: none); cost (N,) cm."""
+
+    person: np.ndarray
+    bone: np.ndarray
+    cost: np.ndarray
+
+
+def bone_segments(joints_cm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(T, P, 19, 3) joints -> (A, B) (T, P, 12, 3) bone end points, world cm."""
+    J = np.asarray(joints_cm, dtype=float)
+    a = np.array([b[1] for b in BONES])
+    A = J[..., a, :]
+    B = np.stack([0.5 * (J[..., 16, :] + J[..., 18, :]) if j < 0 else J[..., j, :] for _, _, j in BONES], -2)
+    return A, B
+
+
+def label_parts(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, joints_cm: np.ndarray,
+                options: PartOptions | None = None) -> PartLabels:
+    """Label N patch trajectories with a bone.
+
+    Args:
+        X_cm: (N, T, 3) patch centres at the reference times (NaN where not alive).
+        normal: (N, T, 3) unit normals.
+        alive: (N, T) bool.
+        joints_cm: (T, P, 19, 3) the people's joints at the same times (NaN where a person is absent).
+    """
+    o = options or PartOptions()
+    A, B = bone_segments(joints_cm)  # (T, P, K, 3)
+    parts = [_label_chunk(X_cm[i:i + _CHUNK], normal[i:i + _CHUNK], alive[i:i + _CHUNK], A, B, o)
+             for i in range(0, len(X_cm), _CHUNK)]
+    if not parts:
+        return PartLabels(person=np.zeros(0, np.int64), bone=np.zeros(0, np.int64), cost=np.zeros(0))
+    return PartLabels(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("person", "bone", "cost")))
+
+
+def _label_chunk(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, A: np.ndarray, B: np.ndarray,
+                 o: PartOptions) -> PartLabels:
+    N = len(X_cm)
+    T, P, K = A.shape[:3]
+    d = B - A
+    L = np.linalg.norm(d, axis=-1)
+    axis = d / np.maximum(L, 1e-9)[..., None]
+    X = np.where(alive[..., None], X_cm, 0.0)[:, :, None, None]  # (N, T, 1, 1, 3)
+    rel = X - A[None]  # (N, T, P, K, 3)
+    z = np.sum(rel * axis[None], -1)  # (N, T, P, K)
+    radial = rel - z[..., None] * axis[None]
+    r = np.linalg.norm(radial, axis=-1)
+    s = np.clip(z / np.maximum(L[None], 1e-9), 0.0, 1.0)
+    closest = A[None] + s[..., None] * d[None]
+    out = X - closest
+    dist = np.linalg.norm(out, axis=-1)
+    along = np.sum(out * np.where(alive[..., None], normal, 0.0)[:, :, None, None], -1)
+    away = along > 0
+    align = along / np.maximum(dist, 1e-9)  # cosine between the normal and the way out of the bone
+    ok_t = alive[:, :, None, None] & np.isfinite(z) & np.isfinite(r)
+    n_t = ok_t.sum(1)  # (N, P, K)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a bone of an absent person: all-NaN medians, refused below
+        zm = np.nanmedian(np.where(ok_t, z, np.nan), axis=1)
+        rm = np.nanmedian(np.where(ok_t, r, np.nan), axis=1)
+        dm = np.nanmedian(np.where(ok_t, dist, np.nan), axis=1)
+        am = np.nanmedian(np.where(ok_t, align, np.nan), axis=1)
+        dev = np.where(ok_t, (z - zm[:, None]) ** 2 + (r - rm[:, None]) ** 2, 0.0).sum(1) / np.maximum(n_t, 1)
+        share_away = np.where(ok_t, away, False).sum(1) / np.maximum(n_t, 1)
+    cost = np.sqrt(dev) + o.distance_weight * dm + o.alignment_weight * (1.0 - am)
+    passes = (n_t >= o.min_frames) & (share_away >= o.min_away) & np.isfinite(cost)
+    key = np.where(passes, np.rint(cost / _QUANTUM), np.inf).reshape(N, P * K)
+    best = np.argmin(key, axis=1)  # first of equal keys: person, then bone order
+    found = np.isfinite(key[np.arange(N), best])
+    return PartLabels(person=np.where(found, best // K, -1), bone=np.where(found, best % K, -1),
+                      cost=np.where(found, key[np.arange(N), best] * _QUANTUM, np.nan))

@@ -1,0 +1,233 @@
+"""Seed patches from image features (no depth): corners of every camera of the reference stream at the seed frame,
+each put in 3D by a depth sweep along its ray, refined by optical flow in the nearby cameras and triangulated.
+
+Per reference camera (in name order): corners (``cv2.goodFeaturesToTrack``); along each corner's ray, the depths
+inside the capture volume (a vertical cylinder on the floor) every ``seed_step_cm``; at each depth the mean NCC of
+a ``seed_window_px`` window round the corner against the same window round its projection in the
+``seed_neighbours`` nearest cameras; the best depth if its score reaches ``seed_min_ncc``. The 3D point is then
+projected into the ``seed_views`` nearest cameras, refined there by pyramidal Lucas-Kanade from the reference
+image (forward-backward checked) and triangulated robustly (:func:`dome_calib.recon.triangulate.triangulate`).
+
+The seeds of all cameras are thinned to one per ``seed_spacing_cm`` cell (the cell's seed with most inlier views,
+then the first reference camera by name: no order of work decides it). Each seed's normal is the least
+principal axis (SVD) of the seeds within ``normal_radius_cm``, its sign towards the cameras that triangulated it;
+the patch's plane points lie on the two other axes.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from dome_calib.recon.patches.frames import FrameSource, ncc, sample
+from dome_calib.recon.patches.model import PatchOptions
+from dome_calib.recon.project import ViewSet, project_points
+from dome_calib.recon.triangulate import TriangulationOptions, triangulate
+from dome_calib.camera import pixels_to_normalized
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Seeds:
+    """A seed cloud: X_cm (N, 3, 3) centre and two plane points; normal (N, 3); seen (N, V) the views that
+    triangulated each seed (``views`` order)."""
+
+    X_cm: np.ndarray
+    normal: np.ndarray
+    seen: np.ndarray
+
+
+def _nearest_views(views: ViewSet, r: int, n: int) -> np.ndarray:
+    """The ``n`` views nearest view ``r`` (centre distance, quantised to 0.1 mm; ties by name), r excluded."""
+    d = np.linalg.norm(views.center_cm - views.center_cm[r], axis=1)
+    key = np.rint(d * 100.0)
+    order = sorted((k, views.names[i], i) for i, k in enumerate(key) if i != r)
+    return np.array([i for _, _, i in order[:n]], dtype=np.int64)
+
+
+def _volume_span(origin: np.ndarray, dirs: np.ndarray, radius: float, height: float) -> tuple[np.ndarray, np.ndarray]:
+    """Ray parameters (N,) where rays enter and leave the cylinder x^2 + z^2 <= radius^2, -height <= y <= 0."""
+    ox, oz, dx, dz = origin[0], origin[2], dirs[:, 0], dirs[:, 2]
+    a = dx * dx + dz * dz
+    b = 2 * (ox * dx + oz * dz)
+    c = ox * ox + oz * oz - radius * radius
+    disc = b * b - 4 * a * c
+    root = np.sqrt(np.maximum(disc, 0.0))
+    a_safe = np.where(a > 1e-12, a, 1.0)
+    s0, s1 = (-b - root) / (2 * a_safe), (-b + root) / (2 * a_safe)
+    s0, s1 = np.where(disc > 0, s0, np.inf), np.where(disc > 0, s1, -np.inf)
+    dy = np.where(np.abs(dirs[:, 1]) > 1e-12, dirs[:, 1], 1e-12)
+    y0, y1 = (-height - origin[1]) / dy, (0.0 - origin[1]) / dy
+    lo, hi = np.maximum(np.maximum(s0, np.minimum(y0, y1)), 1.0), np.minimum(s1, np.maximum(y0, y1))
+    return lo, hi
+
+
+def _sweep(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int, corners: np.ndarray,
+           o: PatchOptions, chunk: int = 48) -> tuple[np.ndarray, np.ndarray]:
+    """Depth sweep of corners (N, 2) of view r -> ((N, 3) world points, NaN where none; (N,) best score)."""
+    name = views.names[r]
+    gray_r = source.gray(name, frames[name])
+    nb = _nearest_views(views, r, o.seed_neighbours)
+    grays = [source.gray(views.names[v], frames[views.names[v]]) for v in nb]
+    half = o.seed_window_px // 2
+    off = np.stack(np.meshgrid(np.arange(-half, half + 1), np.arange(-half, half + 1)), -1).reshape(-1, 2)
+    xn = pixels_to_normalized(corners, views.intr[r], views.dist[r])
+    dirs = np.concatenate([xn, np.ones((len(xn), 1))], 1) @ views.R[r]
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    origin = views.center_cm[r]
+    lo, hi = _volume_span(origin, dirs, o.volume_radius_cm, o.volume_height_cm)
+    X = np.full((len(corners), 3), np.nan)
+    best = np.full(len(corners), -1.0)
+    ref = sample(gray_r, corners[:, None, :] + off[None])  # (N, W2)
+    nb_views = views.subset([views.names[v] for v in nb])
+    for c0 in range(0, len(corners), chunk):
+        sl = slice(c0, c0 + chunk)
+        n_steps = int(np.ceil(np.nanmax(np.where(hi[sl] > lo[sl], hi[sl] - lo[sl], 0.0), initial=0.0)
+                              / o.seed_step_cm)) + 1
+        s = lo[sl, None] + o.seed_step_cm * np.arange(n_steps)[None]  # (n, D)
+        ok = s <= hi[sl, None]
+        P = origin + s[..., None] * dirs[sl, None]  # (n, D, 3)
+        proj = project_points(nb_views, P.reshape(-1, 3))
+        scores = np.zeros(s.shape)
+        counts = np.zeros(s.shape)
+        for k, g in enumerate(grays):
+            uv = proj.uv_px[k].reshape(*s.shape, 2)
+            vis = proj.visible[k].reshape(s.shape) & ok
+            win = sample(g, np.where(vis[..., None], uv, -100.0)[..., None, :] + off)  # (n, D, W2)
+            score = ncc(ref[sl, None], win)
+            scores += np.where(vis, score, 0.0)
+            counts += vis
+        mean = np.where(counts >= 2, scores / np.maximum(counts, 1), -1.0)
+        k = np.argmax(mean, axis=1)
+        rows = np.arange(len(k))
+        best[sl] = mean[rows, k]
+        good = best[sl] >= o.seed_min_ncc
+        X[sl][good] = P[rows, k][good]
+    return X, best
+
+
+def _lk(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, guess: np.ndarray | None, o: PatchOptions,
+        levels: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Pyramidal LK of (N, 2) points from image src to dst with a forward-backward check -> ((N, 2), (N,) ok)."""
+    if len(p0) == 0:
+        return np.zeros((0, 2)), np.zeros(0, bool)
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+    win = (o.lk_window_px, o.lk_window_px)
+    lv = o.lk_levels if levels is None else levels
+    a = np.ascontiguousarray(p0, dtype=np.float32).reshape(-1, 1, 2)
+    flags = 0
+    g = None
+    if guess is not None:
+        g = np.ascontiguousarray(guess, dtype=np.float32).reshape(-1, 1, 2)
+        flags = cv2.OPTFLOW_USE_INITIAL_FLOW
+    b, st, _ = cv2.calcOpticalFlowPyrLK(src, dst, a, g, winSize=win, maxLevel=lv, criteria=crit, flags=flags)
+    back, st2, _ = cv2.calcOpticalFlowPyrLK(dst, src, b, a.copy(), winSize=win, maxLevel=lv, criteria=crit,
+                                            flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+    fb = np.linalg.norm((back - a).reshape(-1, 2), axis=1)
+    ok = (st.ravel() == 1) & (st2.ravel() == 1) & (fb < o.lk_fb_px)
+    return b.reshape(-1, 2).astype(float), ok
+
+
+def optical_flow(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, o: PatchOptions, guess: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Points (N, 2) of image ``src`` followed into ``dst`` by pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``,
+    window ``lk_window_px``, ``lk_levels``) -> ((N, 2) pixels, (N,) tracked: found both ways, back within
+    ``lk_fb_px``). Each point's result depends on the two images and that point only."""
+    return _lk(src, dst, p0, guess, o)
+
+
+def _refine(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int, corners: np.ndarray,
+            X: np.ndarray, o: PatchOptions) -> tuple[np.ndarray, np.ndarray]:
+    """Corners of view r with sweep points X (N, 3) -> ((N, V, 2) pixels, (N, V) conf) in view r and its
+    ``seed_views`` nearest views (by LK from the reference image, started at the projection)."""
+    N, V = len(X), len(views.names)
+    uv = np.full((N, V, 2), np.nan)
+    conf = np.zeros((N, V))
+    uv[:, r], conf[:, r] = corners, 1.0
+    have = np.all(np.isfinite(X), axis=1)
+    if not have.any():
+        return uv, conf
+    gray_r = source.gray(views.names[r], frames[views.names[r]])
+    proj = project_points(views, np.where(have[:, None], X, 0.0))
+    for v in _nearest_views(views, r, o.seed_views):
+        vis = proj.visible[v] & have
+        if not vis.any():
+            continue
+        g = source.gray(views.names[v], frames[views.names[v]])
+        p, ok = _lk(gray_r, g, corners[vis], proj.uv_px[v][vis], o, levels=1)
+        ok &= np.linalg.norm(p - proj.uv_px[v][vis], axis=1) < 4.0
+        idx = np.flatnonzero(vis)[ok]
+        uv[idx, v], conf[idx, v] = p[ok], 1.0
+    return uv, conf
+
+
+def _normals(X: np.ndarray, seen: np.ndarray, centres: np.ndarray, o: PatchOptions
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(N, 3) seeds -> (normal (N, 3), first axis (N, 3), ok (N,)) by SVD of the seeds within ``normal_radius_cm``."""
+    tree = cKDTree(X)
+    near = tree.query_ball_point(X, o.normal_radius_cm)
+    normal, axis = np.full(X.shape, np.nan), np.full(X.shape, np.nan)
+    ok = np.zeros(len(X), bool)
+    for i, nb in enumerate(near):
+        if len(nb) < o.normal_min_points:
+            continue
+        Q = X[sorted(nb)]
+        _, _, Vt = np.linalg.svd(Q - Q.mean(0), full_matrices=False)
+        n = Vt[2]
+        towards = (centres[seen[i]] - X[i]).sum(0)
+        normal[i] = n if n @ towards > 0 else -n
+        axis[i] = Vt[0]
+        ok[i] = True
+    return normal, axis, ok
+
+
+def seed_patches(source: FrameSource, views: ViewSet, frames: dict[str, int], o: PatchOptions) -> Seeds:
+    """A seed cloud from the cameras ``views`` (one stream: their ``frames`` share a time).
+
+    Example:
+        >>> seeds = seed_patches(scene, view_set(imaged, vga_names), {n: 130 for n in vga_names}, PatchOptions())
+    """
+    tri_o = TriangulationOptions(inlier_threshold_px=o.triangulation_px, min_views=o.seed_min_views)
+    V = len(views.names)
+    pts, seen, n_inl, ref_rank = [], [], [], []
+    for r in range(V):
+        name = views.names[r]
+        corners = cv2.goodFeaturesToTrack(source.gray(name, frames[name]), o.seed_features, 0.02,
+                                          o.seed_min_distance_px, blockSize=5)
+        if corners is None:
+            continue
+        corners = corners.reshape(-1, 2).astype(float)
+        X, _ = _sweep(source, views, frames, r, corners, o)
+        keep = np.all(np.isfinite(X), axis=1)
+        if not keep.any():
+            continue
+        uv, conf = _refine(source, views, frames, r, corners[keep], X[keep], o)
+        tri = triangulate(views, uv, conf, tri_o)
+        good = np.all(np.isfinite(tri.X_cm), axis=1) & tri.inliers[:, r]
+        pts.append(tri.X_cm[good])
+        seen.append(tri.inliers[good])
+        n_inl.append(tri.n_inliers[good])
+        ref_rank.append(np.full(good.sum(), r))
+        logger.debug("seed %s: %d corners, %d swept, %d triangulated", name, len(corners), keep.sum(), good.sum())
+    if not pts:
+        return Seeds(X_cm=np.zeros((0, 3, 3)), normal=np.zeros((0, 3)), seen=np.zeros((0, V), bool))
+    X, seen_a = np.concatenate(pts), np.concatenate(seen)
+    n_a, r_a = np.concatenate(n_inl), np.concatenate(ref_rank)
+    cell = np.floor(X / o.seed_spacing_cm).astype(np.int64)
+    order = np.lexsort((r_a, -n_a, cell[:, 2], cell[:, 1], cell[:, 0]))
+    first = np.ones(len(order), bool)
+    first[1:] = np.any(cell[order][1:] != cell[order][:-1], axis=1)
+    pick = np.sort(order[first])
+    X, seen_a = X[pick], seen_a[pick]
+    normal, axis, ok = _normals(X, seen_a, views.center_cm, o)
+    X, seen_a, normal, axis = X[ok], seen_a[ok], normal[ok], axis[ok]
+    u = axis - np.sum(axis * normal, 1, keepdims=True) * normal
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(normal, u)
+    trip = np.stack([X, X + o.axis_cm * u, X + o.axis_cm * v], 1)
+    logger.info("seed cloud: %d patches from %d cameras", len(X), V)
+    return Seeds(X_cm=trip, normal=normal, seen=seen_a)

@@ -1,0 +1,228 @@
+"""Track a patch cloud from its seed time, one reference-stream frame at a time, backward or forward.
+
+One step, from reference time ``t`` to ``t'``, for every camera that sees a patch at ``t``:
+
+1. **the camera's own frames** (its stream's sync table, :func:`dome_calib.recon.streams.frame_brackets`: the one
+   place where a stream is brought to universal time): ``t`` lies between frames ``a`` and ``a+`` (weight ``w``
+   of ``a+``; in travel order). The patch's three points are projected at ``t`` (``p``); if ``w > 0`` the flow
+   ``d`` from ``a`` to ``a+`` at ``p`` places them at ``p - w d`` in frame ``a`` and ``p + (1 - w) d`` in ``a+``, so
+   that the camera's track, interpolated linearly to ``t`` as every stream is, passes through the projection;
+2. **optical flow** (pyramidal Lucas-Kanade, forward-backward checked) carries the points through the camera's
+   frames up to the two frames around ``t'``, and the track is interpolated linearly to ``t'`` the same way
+   (for a reference-stream camera both weights are 0 or 1: one flow step, the CVPR 2014 method itself);
+3. **triangulation** of each point from the cameras it was tracked in (robust, inliers within
+   ``triangulation_px``), then the MAP visibility at ``t'`` (:mod:`.visibility`), then the points triangulated
+   again from the visible tracked cameras alone (if at least two).
+
+A plane point that cannot be triangulated moves with the centre. A patch ends when its centre cannot be
+triangulated, fewer than ``min_visible`` cameras see it, or a plane point's distance to the centre changed by more
+than ``max_stretch`` in the step; then its plane points are put back at ``axis_cm`` from the centre, orthogonal
+(:func:`square_up`: the patch is a rigid square whose plane the points give). Every operation is per patch (optical flow per point,
+triangulation per point with draws keyed by its own pixels, one cut whose labels do not depend on the other
+graphs), and positions are quantised to 2^-10 cm after each step: tracking any subset of a cloud gives its patches
+bit for bit what tracking the whole cloud gives them.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from dome_calib.bundle import SyncTable
+from dome_calib.recon.patches.frames import FrameSource, patch_axes
+from dome_calib.recon.patches.model import PatchOptions
+from dome_calib.recon.patches.seed import optical_flow
+from dome_calib.recon.patches.visibility import Frames, Visibility, estimate_visibility
+from dome_calib.recon.project import ViewSet, project_points
+from dome_calib.recon.streams import frame_brackets, frame_period_ms
+from dome_calib.recon.triangulate import TriangulationOptions, triangulate
+
+logger = logging.getLogger(__name__)
+
+#: Patch positions are rounded to multiples of this after every step (cm): no later choice rests on last bits.
+POSITION_QUANTUM_CM = 2.0 ** -10
+#: Streams' brackets wider than this many nominal periods are not bridged (as the skeleton stages).
+MAX_GAP_FRAMES = 2.5
+
+
+@dataclass(frozen=True)
+class Clock:
+    """One camera's frames: its stream's table and the frame indices the source holds (increasing)."""
+
+    table: SyncTable
+    frames: np.ndarray
+
+    def times(self) -> np.ndarray:
+        return self.table.times_of(self.frames)
+
+
+@dataclass(frozen=True)
+class CloudTrack:
+    """One cloud over its reference times (T, travel order from the seed): X_cm (N, T, 3, 3) (NaN: ended);
+    visible, photometric (N, T, V) bool; alive (N, T)."""
+
+    times_ms: np.ndarray
+    X_cm: np.ndarray
+    visible: np.ndarray
+    photometric: np.ndarray
+    alive: np.ndarray
+
+
+def quantise_cm(X: np.ndarray) -> np.ndarray:
+    return np.rint(X / POSITION_QUANTUM_CM) * POSITION_QUANTUM_CM
+
+
+def judged_frames(clocks: list[Clock], t_ms: float) -> Frames:
+    """Each camera's frame nearest ``t_ms`` among those it holds, and its time offset (-1 / 0 if none within half
+    a nominal period)."""
+    frame, offset = np.full(len(clocks), -1, np.int64), np.zeros(len(clocks))
+    for v, c in enumerate(clocks):
+        if len(c.frames) == 0:
+            continue
+        times = c.times()
+        i = int(np.argmin(np.abs(times - t_ms)))
+        if abs(times[i] - t_ms) <= 0.5 * frame_period_ms(c.table) + 1e-6:
+            frame[v], offset[v] = c.frames[i], times[i] - t_ms
+    return Frames(frame=frame, offset_ms=offset)
+
+
+def _bracket(clock: Clock, t_ms: float, forward: bool) -> tuple[int, int, float] | None:
+    """(behind, ahead, weight of ahead) positions into ``clock.frames`` around ``t_ms`` in travel order."""
+    b = frame_brackets(clock.table, clock.frames, np.array([t_ms]), max_gap_frames=MAX_GAP_FRAMES)
+    if not (b.usable[0] and b.has0[0] and b.has1[0]):
+        return None
+    if forward:
+        return int(b.pos0[0]), int(b.pos1[0]), float(b.w1[0])
+    return int(b.pos1[0]), int(b.pos0[0]), float(b.w0[0])
+
+
+def _flow_step(source: FrameSource, name: str, clock: Clock, i: int, j: int, p: np.ndarray, o: PatchOptions
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Points (M, 2) from frame position i to j of one camera -> ((M, 2), (M,) ok)."""
+    if i == j:
+        return p.copy(), np.ones(len(p), bool)
+    a = source.gray(name, int(clock.frames[i]))
+    b = source.gray(name, int(clock.frames[j]))
+    return optical_flow(a, b, p, o)
+
+
+def flow_camera(source: FrameSource, name: str, clock: Clock, t0: float, t1: float, p: np.ndarray,
+                o: PatchOptions) -> tuple[np.ndarray, np.ndarray]:
+    """Points (M, 2) where the camera's track meets reference time t0 -> ((M, 2) where it meets t1, (M,) ok)."""
+    forward = t1 > t0
+    b0, b1 = _bracket(clock, t0, forward), _bracket(clock, t1, forward)
+    M = len(p)
+    if b0 is None or b1 is None:
+        return np.full((M, 2), np.nan), np.zeros(M, bool)
+    step = 1 if forward else -1
+    a, a_next, w = b0
+    known: dict[int, np.ndarray] = {}
+    ok = np.ones(M, bool)
+    if w >= 1.0:  # t0 is the ahead frame's own time
+        known[a_next] = p
+        last = a_next
+    elif w > 0:
+        q, good = _flow_step(source, name, clock, a, a_next, p, o)
+        d = q - p
+        known[a], known[a_next] = p - w * d, p + (1 - w) * d
+        ok &= good
+        last = a_next
+    else:
+        known[a] = p
+        last = a
+    b, b_next, w1 = b1
+    need = b_next if w1 > 0 else b
+    while (need - last) * step > 0:
+        q, good = _flow_step(source, name, clock, last, last + step, known[last], o)
+        known[last + step] = q
+        ok &= good
+        last += step
+    if w1 >= 1.0:
+        out = known[b_next]
+    elif w1 == 0:
+        out = known[b]
+    else:
+        out = (1 - w1) * known[b] + w1 * known[b_next]
+    return out, ok
+
+
+def _triangulate_points(views: ViewSet, uv: np.ndarray, conf: np.ndarray, o: PatchOptions) -> np.ndarray:
+    """(N, 3, V, 2) pixels, (N, 3, V) conf -> (N, 3, 3) points (NaN where a point has fewer than 2 inliers)."""
+    N, _, V = conf.shape
+    tri = triangulate(views, uv.reshape(N * 3, V, 2), conf.reshape(N * 3, V),
+                      TriangulationOptions(inlier_threshold_px=o.triangulation_px, min_views=2))
+    return tri.X_cm.reshape(N, 3, 3)
+
+
+def square_up(X: np.ndarray, axis_cm: float) -> np.ndarray:
+    """Patches (N, 3, 3) -> the same centre and plane with the plane points back at ``axis_cm``, orthogonal."""
+    u, v, _ = patch_axes(X[:, 0], X[:, 1], X[:, 2])
+    return np.stack([X[:, 0], X[:, 0] + axis_cm * u, X[:, 0] + axis_cm * v], 1)
+
+
+def _stretched(X: np.ndarray, o: PatchOptions) -> np.ndarray:
+    d = np.linalg.norm(X[:, 1:] - X[:, :1], axis=-1)  # (N, 2)
+    return np.any(np.abs(d / o.axis_cm - 1.0) > o.max_stretch, axis=1)
+
+
+def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_ms: np.ndarray, X0: np.ndarray,
+                seen: np.ndarray, neighbours: np.ndarray, o: PatchOptions) -> CloudTrack:
+    """Track N patches (X0 (N, 3, 3) at ``times_ms[0]``, the seed time; ``seen`` (N, V) the seed's cameras) over
+    ``times_ms`` (T,), monotonic in either direction (see the module)."""
+    N, V, T = len(X0), len(views.names), len(times_ms)
+    X_out = np.full((N, T, 3, 3), np.nan)
+    vis_out = np.zeros((N, T, V), bool)
+    photo_out = np.zeros((N, T, V), bool)
+    alive = np.zeros((N, T), bool)
+    X = quantise_cm(np.asarray(X0, dtype=float))
+    zero = np.zeros_like(X)
+    vis = estimate_visibility(source, views, judged_frames(clocks, times_ms[0]), X, zero, seen, None, neighbours, o)
+    live = vis.visible.sum(1) >= o.min_visible
+    for k in range(T):
+        if k > 0:
+            t0, t1 = float(times_ms[k - 1]), float(times_ms[k])
+            uv = np.full((N, 3, V, 2), np.nan)
+            tracked = np.zeros((N, 3, V), bool)
+            for v, name in enumerate(views.names):
+                idx = np.flatnonzero(live & vis_out[:, k - 1, v])
+                if len(idx) == 0:
+                    continue
+                p = project_points(views.subset([name]), X[idx].reshape(-1, 3)).uv_px[0]
+                q, ok = flow_camera(source, name, clocks[v], t0, t1, p, o)
+                uv[idx, :, v] = q.reshape(-1, 3, 2)
+                tracked[idx, :, v] = ok.reshape(-1, 3)
+            X_new = _triangulate_points(views, uv, tracked.astype(float), o)
+            centre = np.all(np.isfinite(X_new[:, 0]), axis=1)
+            lost = live & ~centre
+            live &= centre
+            # a plane point that cannot be triangulated moves with the centre
+            moved = X_new[:, :1] - X[:, :1]
+            X_new = np.where(np.isfinite(X_new), X_new, X + moved)
+            X_new = quantise_cm(np.where(live[:, None, None], X_new, 0.0))
+            velocity = (X_new - X) / (t1 - t0)
+            proj = project_points(views, X_new.reshape(-1, 3)).uv_px.reshape(V, N, 3, 2).transpose(1, 2, 0, 3)
+            resid = np.linalg.norm(uv - proj, axis=-1).max(axis=1)  # (N, V)
+            was = vis_out[:, k - 1]
+            motion = np.where(tracked.all(axis=1), resid, np.where(was, np.inf, np.nan))
+            vis = estimate_visibility(source, views, judged_frames(clocks, t1), X_new, velocity, was, motion,
+                                      neighbours, o)
+            use = vis.visible[:, None, :] & tracked
+            again = _triangulate_points(views, uv, use.astype(float), o)
+            redo = live & (use.sum(axis=2) >= 2).all(axis=1) & np.all(np.isfinite(again), axis=(1, 2))
+            X = np.where(redo[:, None, None], quantise_cm(np.where(redo[:, None, None], again, 0.0)), X_new)
+            unseen = live & (vis.visible.sum(1) < o.min_visible)
+            stretched = live & ~unseen & _stretched(X, o)
+            live &= ~unseen & ~stretched
+            X = quantise_cm(square_up(X, o.axis_cm))
+            logger.debug("step %d: %d live; ended: %d centre not triangulated, %d seen by too few, %d stretched",
+                         k, live.sum(), lost.sum(), unseen.sum(), stretched.sum())
+        vis_v: Visibility = vis
+        X_out[live, k] = X[live]
+        vis_out[live, k] = vis_v.visible[live]
+        photo_out[live, k] = vis_v.photometric[live]
+        alive[:, k] = live
+        if not live.any():
+            break
+    return CloudTrack(times_ms=np.asarray(times_ms, dtype=float), X_cm=X_out, visible=vis_out,
+                      photometric=photo_out, alive=alive)

@@ -1,0 +1,130 @@
+"""Which cameras see a patch at a time: a binary MAP labelling of the cameras, solved exactly by a minimum cut.
+
+Per patch and camera, the cost of "visible" (the cost of "not visible" is 0):
+
+- **photometric**: ``photometric_weight * (ncc_threshold - NCC) / (1 - ncc_threshold)``, NCC of the patch's square
+  (a 7 x 7 grid on its plane, bilinear samples) in the camera against the reference camera (the camera that saw the
+  patch at the previous time, or at the seed, most face-on; the most face-on candidate if none did);
+- **motion**: for cameras the patch was tracked in, ``motion_weight * (min(r / motion_sigma_px, 3) - 1)``, ``r`` the
+  largest distance between a point's optical flow and the reprojection of its triangulated motion (a failed flow
+  counts as 3 sigmas); 0 for the others;
+- **geometric**: a camera is a candidate only if the whole square projects into its image and the normal faces it
+  (cosine above ``min_cos_view``); then ``geometric_weight * max(0, 0.5 - cos) / 0.5`` (grazing views cost).
+
+Prior: ``prior_weight`` for each pair of neighbouring candidate cameras (each camera's ``prior_neighbours``
+nearest centres) labelled differently. All patches' graphs go through one cut (:mod:`.mincut`); each gets its own
+labels whatever else is solved with it.
+
+Cameras of other streams than the reference are judged at their own nearest frame, the patch moved there with
+its last step's velocity (``X(tau) = X(t) + (tau - t) / dt * (X(t) - X(t - dt))``; at the seed, no motion).
+The CVPR 2014 paper's baseline, photometric consistency alone, is returned beside it: in the image and NCC at
+least ``ncc_threshold``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dome_calib.recon.patches.frames import FrameSource, ncc, patch_axes, patch_grid_cm, sample
+from dome_calib.recon.patches.mincut import min_cut_labels
+from dome_calib.recon.patches.model import PatchOptions
+from dome_calib.recon.project import ViewSet, project_points
+
+
+def camera_neighbours(views: ViewSet, k: int) -> np.ndarray:
+    """(E, 2) pairs i < j: each camera with its ``k`` nearest centres (quantised to 0.1 mm, ties by name)."""
+    C = views.center_cm
+    pairs = set()
+    for i in range(len(C)):
+        key = np.rint(np.linalg.norm(C - C[i], axis=1) * 100.0)
+        order = sorted((key[j], views.names[j], j) for j in range(len(C)) if j != i)
+        for _, _, j in order[:k]:
+            pairs.add((min(i, j), max(i, j)))
+    return np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
+
+
+@dataclass(frozen=True)
+class Frames:
+    """The image each camera is judged on at one reference time: frame (V,) index (-1: none near), offset_ms (V,)
+    its time minus the reference time."""
+
+    frame: np.ndarray
+    offset_ms: np.ndarray
+
+
+@dataclass(frozen=True)
+class Visibility:
+    """visible (N, V) MAP labels; photometric (N, V) NCC-alone baseline; ncc (N, V); candidate (N, V); reference
+    (N,) camera position."""
+
+    visible: np.ndarray
+    photometric: np.ndarray
+    ncc: np.ndarray
+    candidate: np.ndarray
+    reference: np.ndarray
+
+
+def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: np.ndarray, velocity: np.ndarray,
+                        previous: np.ndarray, motion_px: np.ndarray | None, neighbours: np.ndarray,
+                        o: PatchOptions) -> Visibility:
+    """The MAP visibility of N patches at one reference time.
+
+    Args:
+        X: (N, 3, 3) patches (centre, two plane points), world cm.
+        velocity: (N, 3, 3) cm per ms (0 at the seed) to move a patch to a camera's own frame time.
+        previous: (N, V) bool, the cameras that saw each patch before (choose the reference camera).
+        motion_px: (N, V) flow-against-motion residual, NaN where not tracked, inf where the flow failed; None at
+            the seed.
+        neighbours: (E, 2) camera pairs of the prior (:func:`camera_neighbours`).
+    """
+    N, V = len(X), len(views.names)
+    G = None
+    samples = None
+    in_image = np.zeros((N, V), bool)
+    cos = np.full((N, V), -1.0)
+    _, _, normal = patch_axes(X[:, 0], X[:, 1], X[:, 2])
+    C = views.center_cm
+    for v, name in enumerate(views.names):
+        f = int(frames.frame[v])
+        if f < 0 or N == 0:
+            continue
+        Xv = X + velocity * frames.offset_ms[v]
+        grid = patch_grid_cm(Xv[:, 0], Xv[:, 1], Xv[:, 2], o.ncc_size_cm)  # (N, G, 3)
+        if G is None:
+            G = grid.shape[1]
+            samples = np.zeros((N, V, G), np.float32)
+        p = project_points(views.subset([name]), grid.reshape(-1, 3))
+        inside = p.visible[0].reshape(N, G).all(axis=1)
+        in_image[:, v] = inside
+        if inside.any():
+            samples[inside, v] = sample(source.gray(name, f), p.uv_px[0].reshape(N, G, 2)[inside])
+        to_cam = C[v] - Xv[:, 0]
+        cos[:, v] = np.sum(to_cam * normal, 1) / np.linalg.norm(to_cam, axis=1)
+    candidate = in_image & (cos > o.min_cos_view)
+    prev = previous & candidate
+    score = np.where(prev, cos, np.where(candidate, cos - 2.0, -np.inf))
+    ref = np.argmax(np.where(np.isfinite(score), np.rint(score * 1e6), -1e9), axis=1)  # quantised: ties by position
+    has_ref = np.isfinite(score[np.arange(N), ref])
+    if samples is None:
+        samples = np.zeros((N, V, 1), np.float32)
+    corr = ncc(samples, samples[np.arange(N), ref][:, None])
+    corr = np.where(in_image & has_ref[:, None], corr, -1.0)
+    tau = o.ncc_threshold
+    cost1 = o.photometric_weight * (tau - corr) / (1.0 - tau)
+    if motion_px is not None:
+        r = np.where(np.isnan(motion_px), np.nan, np.minimum(motion_px / o.motion_sigma_px, 3.0))
+        cost1 += np.where(np.isnan(r), 0.0, o.motion_weight * (r - 1.0))
+    cost1 += o.geometric_weight * np.maximum(0.0, 0.5 - cos) / 0.5
+    node = np.full((N, V), -1, np.int64)
+    pi, vi = np.nonzero(candidate)
+    node[pi, vi] = np.arange(len(pi))
+    a, b = node[:, neighbours[:, 0]], node[:, neighbours[:, 1]]  # (N, E)
+    both = (a >= 0) & (b >= 0)
+    edges = np.stack([a[both], b[both]], 1)
+    cost = np.stack([np.zeros(len(pi)), cost1[pi, vi]], 1)
+    labels = min_cut_labels(cost, edges, np.full(len(edges), o.prior_weight))
+    visible = np.zeros((N, V), bool)
+    visible[pi, vi] = labels == 1
+    return Visibility(visible=visible, photometric=in_image & has_ref[:, None] & (corr >= tau), ncc=corr,
+                      candidate=candidate, reference=ref)

@@ -1,0 +1,43 @@
+"""Patches given to body parts (dome_calib.recon.patches.parts) on true surface trajectories of a moving group."""
+from __future__ import annotations
+
+import numpy as np
+
+from dome_calib.recon.patches.parts import BONES, label_parts
+from dome_calib.synth.body_volume import CAPSULE_NAMES
+from dome_calib.synth.group import GroupOptions, make_group
+from dome_calib.synth.textured import N_PARTS, nearest_surface_points, part_frames, surface_points_cm
+
+
+def _trajectories(seed=0, n=600):
+    truth = make_group(GroupOptions(n_people=2, scenario="mixed", start_ms=0.0, duration_ms=3000.0, seed=seed))
+    times = np.arange(1000.0, 2200.0, 40.0)
+    X, present = truth.joints_cm(times)
+    rng = np.random.default_rng(seed)
+    fr = part_frames(X[0])
+    person, part = rng.integers(0, 2, n), rng.integers(0, N_PARTS, n)
+    theta, u = rng.uniform(0, 2 * np.pi, n), rng.uniform(0, 1, n)
+    r = fr.radius[person, part]
+    local = np.stack([r * np.cos(theta), r * np.sin(theta), u * fr.length[person, part]], 1)
+    P0, _ = surface_points_cm(truth, times[:1], person, part, local)
+    on = nearest_surface_points(truth, float(times[0]), P0[0])  # the outer surface only (not buried points)
+    keep = on.distance_cm < 1e-6
+    P, normal = surface_points_cm(truth, times, on.person[keep], on.part[keep], on.local_cm[keep])
+    X[~present] = np.nan
+    return P.transpose(1, 0, 2), normal.transpose(1, 0, 2), on.person[keep], on.part[keep], X
+
+
+def test_bones_are_the_body_parts():
+    assert [b[0] for b in BONES] == CAPSULE_NAMES
+
+
+def test_true_surface_trajectories_go_to_their_parts():
+    P, normal, person, part, joints = _trajectories()
+    alive = np.ones(P.shape[:2], bool)
+    lab = label_parts(P, normal, alive, joints)
+    right = (lab.person == person) & (lab.bone == part)
+    assert (lab.bone >= 0).mean() > 0.95
+    assert right.mean() > 0.97
+    # a normal turned inwards points at the bone: that part is refused
+    inward = label_parts(P, -normal, alive, joints)
+    assert np.mean((inward.person == person) & (inward.bone == part)) < 0.2
