@@ -38,7 +38,6 @@ import numpy as np
 from dome_calib.ba.blas import blas_threads
 from dome_calib.ba.evaluate import residuals, residuals_and_jacobians
 from dome_calib.ba.gauge import Gauge, GaugeMode, choose_gauge, inner_constraint_basis
-from dome_calib.ba.heap import kept_heap
 from dome_calib.ba.problem import BAProblem
 from dome_calib.ba.result import BAResult, CameraUncertainty, IterationLog, camera_statistics
 from dome_calib.ba.robust import LossKind, robust_cost_and_weight, robust_sigma_px
@@ -254,9 +253,8 @@ def bundle_adjust(problem: BAProblem, options: BAOptions | None = None, *,
     if start_inlier is not None and np.shape(start_inlier) != (problem.n_observations,):
         raise ValueError(f"start_inlier has shape {np.shape(start_inlier)}, the problem has "
                          f"{problem.n_observations} observations")
-    # small BLAS calls: one thread (see dome_calib.ba.blas); the big Cholesky takes more. Freed arrays are reused
-    # (dome_calib.ba.heap)
-    with blas_threads(1), kept_heap():
+    # small BLAS calls: one thread (see dome_calib.ba.blas); the big Cholesky takes more
+    with blas_threads(1):
         return _bundle_adjust(problem, options, start_inlier)
 
 
@@ -265,7 +263,7 @@ def solution_uncertainty(result: BAResult, *, n_threads: int = 2) -> CameraUncer
     a result computed without them: the same reduced system at ``result.problem`` over its used observations."""
     p = result.problem
     st = build_structure(p.camera_index, p.point_index, result.inlier, p.free & ~result.gauge.held, p.n_points)
-    with blas_threads(1), kept_heap():
+    with blas_threads(1):
         return camera_uncertainty(p, st, result.sigma_px, n_threads=n_threads, gauge=result.gauge)
 
 
