@@ -41,7 +41,7 @@ from dome_calib.ba.gauge import Gauge, GaugeMode, choose_gauge, inner_constraint
 from dome_calib.ba.problem import BAProblem
 from dome_calib.ba.result import BAResult, CameraUncertainty, IterationLog, camera_statistics
 from dome_calib.ba.robust import LossKind, robust_cost_and_weight, robust_sigma_px
-from dome_calib.ba.schur import Structure, build_reduced_system, build_structure, linearize, solve_reduced
+from dome_calib.ba.schur import Structure, buffer, build_reduced_system, build_structure, linearize, solve_reduced
 from dome_calib.ba.uncertainty import camera_uncertainty
 from dome_calib.options import AtLeast, Lax, UnitInterval, options
 from dome_calib.schema import NonNegFinite, PosFinite
@@ -164,8 +164,11 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
     if cap < options.max_iterations:
         reason = "capped"
     for it in range(1, cap + 1):
+        M = len(st.obs)  # the Jacobians in the structure's kept buffers (dome_calib.ba.schur.buffer)
         res, Jc, Jp = residuals_and_jacobians(state.camera_params, state.points_cm, st.cam, st.pt,
-                                              problem.uv_px[st.obs], n_threads=options.n_threads)
+                                              problem.uv_px[st.obs], n_threads=options.n_threads,
+                                              out=(buffer(st, "res", (2, M)), buffer(st, "Jc", (2, 15, M)),
+                                                   buffer(st, "Jp", (2, 3, M))))
         _, w = robust_cost_and_weight(res[0] ** 2 + res[1] ** 2, loss, scale)
         lin = linearize(st, res, Jc, Jp, w, n_threads=options.n_threads)
         del res, Jc, Jp
