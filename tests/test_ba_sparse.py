@@ -105,3 +105,34 @@ def test_block_fill_counts_the_factors_blocks():
     cols = np.array([0, 1, 2, 3, 4, 5, 1, 2, 3, 4, 5])
     assert sparse.block_factor_fill(row_ptr, cols, np.arange(A)) == A * (A + 1) // 2  # the hub first: full fill
     assert sparse.block_factor_fill(row_ptr, cols, np.array([1, 2, 3, 4, 5, 0])) == 2 * A - 1  # the hub last: none
+
+
+def test_the_lens_models_quadratic_model_is_the_same_on_the_sparse_path(ring, monkeypatch):
+    from dome_calib.ba.quadratic import QuadraticModel
+
+    result = bundle_adjust(ring, BAOptions(n_threads=2, compute_uncertainty=False))
+    result.problem.camera_params[:, 6:8] *= 1.002  # off the solution: steps well above rounding
+    result.problem.camera_params[:, 10] += 0.01
+    lens = {i: [10, 11, 14] for i in range(ring.n_cameras)}
+    held = ring.free.copy()
+    held[:, 14] = False
+    models = {}
+    for name, minimum in (("dense", 10**9), ("sparse", 0)):
+        monkeypatch.setattr(sparse, "SPARSE_MIN_UNKNOWNS", minimum)
+        models[name] = QuadraticModel.at(result, ring.free)
+    assert models["sparse"].sparse and not models["dense"].sparse
+    assert models["sparse"].noise_px == pytest.approx(models["dense"].noise_px, rel=1e-5)
+    dense = models["dense"]
+    for free, damping in ((ring.free, 0.0), (held, 1e-4)):
+        (sd, bd), (ss, bs) = (models[k].step(free, lens, damping=damping) for k in ("dense", "sparse"))
+        # the undamped model with every lens term free is ill-conditioned (the two steps differ by ~1e-5
+        # relative): judged by the backward error in the dense system, which must be as small as the dense solve's
+        idx = dense.index[free & (dense.index >= 0)]
+        S = dense.S[np.ix_(idx, idx)]
+        S[np.diag_indices_from(S)] *= 1.0 + damping
+        x_of = lambda step: step[free & (dense.index >= 0)]  # noqa: E731
+        backward = [np.linalg.norm(S @ x_of(x) - dense.b[idx]) / np.linalg.norm(dense.b[idx]) for x in (sd, ss)]
+        assert backward[1] <= max(10 * backward[0], 1e-10), backward
+        assert np.abs(ss - sd).max() <= 1e-4 * np.abs(sd).max()
+        for c in bd:
+            assert np.abs(bs[c] - bd[c]).max() <= 1e-5 * np.abs(bd[c]).max()

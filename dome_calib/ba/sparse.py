@@ -150,6 +150,22 @@ def _layout(st, free_cols: np.ndarray) -> SparseLayout:
     return layout
 
 
+def factorise_lower(lower: sp.csc_matrix, shift: float, *, ridges: tuple[float, ...] = (0.0,)):
+    """CHOLMOD's factor of the symmetric matrix whose lower triangle is ``lower`` (CSC, its diagonal present) plus
+    ``shift + ridge`` on the diagonal, for the first of ``ridges`` that gives a positive definite matrix (analysed
+    here with :data:`ORDERING`). Raises numpy.linalg.LinAlgError if none does."""
+    cholmod = _cholmod()
+    n = lower.shape[0]
+    factor = cholmod.analyze(lower, mode="supernodal", ordering_method=ORDERING)
+    for ridge in ridges:  # a tiny ridge if some direction is not observable at all
+        m = lower + sp.identity(n, format="csc") * (shift + ridge) if shift + ridge else lower
+        try:
+            return factor.cholesky(m.tocsc())
+        except cholmod.CholmodNotPositiveDefiniteError:
+            continue
+    raise np.linalg.LinAlgError("reduced camera system not positive definite")
+
+
 def solve_sparse(layout: SparseLayout, blocks: np.ndarray, rhs_free: np.ndarray,
                  gauge_basis_free: np.ndarray | None = None) -> np.ndarray:
     """Solve the free system held in ``blocks`` (the upper blocks of ``layout``) for ``rhs_free`` (F,); with
