@@ -13,9 +13,10 @@ V_p = L_p L_p^T (3 x 3 Cholesky, batched over all points). With y_i = W_i L_p^{-
 
 Y Y^T is the crux (about half the sum over points of track_length^2 block products, 3.4e7 on the full dome),
 done by the compiled kernel of :mod:`dome_calib.ba.yyt` (upper triangle of blocks, in threads); the per-observation
-blocks (U, V, g, y, and the back-substitution) by those of :mod:`dome_calib.ba.blocks`. The reduced
-system is dense for the dome (most cameras share points with most cameras on their side), so it is solved
-by a dense LAPACK Cholesky.
+blocks (U, V, g, y, and the back-substitution) by those of :mod:`dome_calib.ba.blocks`. Where the cameras share
+few points (the full dome) only the blocks of camera pairs that share one are formed and the system is factorised
+sparsely (:mod:`dome_calib.ba.sparse`); otherwise (every camera pair sharing points: the panel) it is formed dense
+and solved by a dense LAPACK Cholesky.
 """
 from __future__ import annotations
 
