@@ -359,7 +359,7 @@ def factorisers(sfm_pickle: str, repeat: int) -> None:
     with blas_threads(2 if F >= 1500 else 1):  # the solver's rule (dome_calib.ba.schur._PARALLEL_CHOLESKY_MIN)
         timed("dense_lapack", lambda: scipy.linalg.cho_solve(
             scipy.linalg.cho_factor(dense, check_finite=False), b, check_finite=False))
-        cholmod = sparse._cholmod()
+        cholmod = sparse.cholmod
         fills = {}
         for ordering in ("metis", "amd"):
             symbolic = cholmod.analyze(lower, mode="supernodal", ordering_method=ordering)

@@ -16,11 +16,7 @@ from collections.abc import Iterator
 import numpy  # noqa: F401  (loads its OpenBLAS: _openblas_libraries finds it in /proc/self/maps)
 import scipy.linalg  # noqa: F401  (and scipy's)
 
-try:  # and the system's OpenBLAS, when CHOLMOD (dome_calib.ba.sparse) is linked against it
-    from dome_calib.ba.sparse import _cholmod
-    _cholmod()
-except ImportError:
-    pass
+import sksparse.cholmod  # noqa: F401  (and CHOLMOD's, the system's: dome_calib.ba.sparse)
 
 logger = logging.getLogger(__name__)
 

@@ -23,11 +23,11 @@ up to the damping along the 7 gauge directions), to the same relative residual a
 from __future__ import annotations
 
 import logging
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+import sksparse.cholmod as cholmod
 
 from dome_calib.ba.yyt import block_pattern
 
@@ -44,14 +44,6 @@ _CG_RTOL = 1e-13
 _CG_MAX_ITERATIONS = 60
 
 
-def _cholmod():
-    # imported here: the dense path (every small problem) needs no SuiteSparse at all
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # scikit-sparse 0.4's import-time DeprecationWarning
-        import sksparse.cholmod as cholmod
-    return cholmod
-
-
 @dataclass(kw_only=True)
 class SparseLayout:
     """The block pattern of one observation set and its map to a CSC matrix over the free parameters.
@@ -59,7 +51,7 @@ class SparseLayout:
     row_ptr (A + 1,), cols (B,): upper block pattern (:func:`dome_calib.ba.yyt.block_pattern`), diag (A,): each
     camera's diagonal block among them; blocks hold the ``k`` free columns ``free_cols`` of 15. The lower triangle
     of the free system, CSC: ``data = blocks.ravel()[perm]``, ``indices``, ``indptr``; ``col`` (nnz,) the column
-    of each entry; ``factor``: CHOLMOD's symbolic analysis (None on the dense path)."""
+    of each entry; ``factor``: CHOLMOD's symbolic analysis."""
 
     row_ptr: np.ndarray
     cols: np.ndarray
@@ -70,7 +62,7 @@ class SparseLayout:
     indices: np.ndarray
     indptr: np.ndarray
     col: np.ndarray
-    factor: object | None
+    factor: cholmod.Factor
 
     def matrix(self, blocks: np.ndarray) -> sp.csc_matrix:
         """The lower triangle of the free system (F, F) from the upper blocks (B, k, k) (a new CSC matrix)."""
@@ -90,15 +82,14 @@ def sparse_layout(st, free_cols: np.ndarray) -> SparseLayout | None:
         layout = _layout(st, free_cols)
         A = len(st.active_cameras)
         dense = A * (A + 1) // 2
-        fill = None
-        if layout.factor is not None:  # integers only: the same decision on every machine
-            pos = np.empty(F, dtype=np.int64)
-            pos[layout.factor.P()] = np.arange(F)
-            first = np.full(A, F, dtype=np.int64)  # each camera's first place in CHOLMOD's order
-            np.minimum.at(first, st.free_flat // 15, pos)
-            fill = block_factor_fill(layout.row_ptr, layout.cols, np.argsort(first, kind="stable"))
-        logger.debug("reduced system: %d of %d camera blocks, factor %s", len(layout.cols), dense, fill)
-        if fill is None or fill > SPARSE_MAX_FILL * dense:
+        # integers only: the same decision on every machine
+        pos = np.empty(F, dtype=np.int64)
+        pos[layout.factor.P()] = np.arange(F)
+        first = np.full(A, F, dtype=np.int64)  # each camera's first place in CHOLMOD's order
+        np.minimum.at(first, st.free_flat // 15, pos)
+        fill = block_factor_fill(layout.row_ptr, layout.cols, np.argsort(first, kind="stable"))
+        logger.debug("reduced system: %d of %d camera blocks, factor %d", len(layout.cols), dense, fill)
+        if fill > SPARSE_MAX_FILL * dense:
             layout = None
     st.cache[key] = layout
     return layout
@@ -141,12 +132,10 @@ def _layout(st, free_cols: np.ndarray) -> SparseLayout:
     indptr = np.concatenate([[0], np.cumsum(np.bincount(col, minlength=F))])
     diag = row_ptr[:-1].copy()  # the first block of each row is its own
     layout = SparseLayout(row_ptr=row_ptr, cols=cols, diag=diag, free_cols=free_cols, n_free=F, perm=perm,
-                          indices=indices.astype(np.int32), indptr=indptr.astype(np.int32), col=col, factor=None)
-    try:
-        layout.factor = _cholmod().analyze(layout.matrix(np.ones(len(cols) * k * k)), mode="supernodal",
-                                           ordering_method=ORDERING)
-    except ImportError:
-        logger.warning("scikit-sparse is not installed: the reduced camera system is factorised densely")
+                          indices=indices.astype(np.int32), indptr=indptr.astype(np.int32), col=col,
+                          factor=None)
+    layout.factor = cholmod.analyze(layout.matrix(np.ones(len(cols) * k * k)), mode="supernodal",
+                                    ordering_method=ORDERING)
     return layout
 
 
@@ -154,7 +143,6 @@ def factorise_lower(lower: sp.csc_matrix, shift: float, *, ridges: tuple[float, 
     """CHOLMOD's factor of the symmetric matrix whose lower triangle is ``lower`` (CSC, its diagonal present) plus
     ``shift + ridge`` on the diagonal, for the first of ``ridges`` that gives a positive definite matrix (analysed
     here with :data:`ORDERING`). Raises numpy.linalg.LinAlgError if none does."""
-    cholmod = _cholmod()
     n = lower.shape[0]
     factor = cholmod.analyze(lower, mode="supernodal", ordering_method=ORDERING)
     for ridge in ridges:  # a tiny ridge if some direction is not observable at all
@@ -171,7 +159,6 @@ def solve_sparse(layout: SparseLayout, blocks: np.ndarray, rhs_free: np.ndarray,
     """Solve the free system held in ``blocks`` (the upper blocks of ``layout``) for ``rhs_free`` (F,); with
     ``gauge_basis_free`` (F, 7) the system is ``S + B B^T`` (module docstring). Raises numpy.linalg.LinAlgError
     if S is not positive definite (with no gauge term) or conjugate gradients do not converge."""
-    cholmod = _cholmod()
     S = layout.matrix(blocks)  # lower triangle
     diag = S.diagonal()
     if np.any(diag <= 0):
