@@ -74,14 +74,17 @@ class Structure:
     cache: dict = field(default_factory=dict, repr=False, compare=False)
 
 
-def buffer(st: Structure, name: str, shape: tuple[int, ...], *, zero: bool = False) -> np.ndarray:
-    """A float64 array of ``shape`` kept on ``st`` under ``name`` and handed out again on the next call (zeroed if
+def buffer(st: Structure | None, name: str, shape: tuple[int, ...], *, zero: bool = False,
+           dtype: type = np.float64) -> np.ndarray:
+    """An array of ``shape`` kept on ``st`` (a new one if None) under ``name`` and handed out again on the next call (zeroed if
     ``zero``): the solver's large arrays are allocated once per observation set, not once per iteration. The
     caller must be done with the previous one (one reduced system of a structure lives at a time)."""
+    if st is None:
+        return np.zeros(shape, dtype=dtype) if zero else np.empty(shape, dtype=dtype)
     buf = st.cache.get(name)
-    if buf is None or buf.shape != shape:
+    if buf is None or buf.shape != shape or buf.dtype != dtype:
         st.cache[name] = None  # the old one goes before the new one is made
-        buf = st.cache[name] = np.zeros(shape) if zero else np.empty(shape)
+        buf = st.cache[name] = np.zeros(shape, dtype=dtype) if zero else np.empty(shape, dtype=dtype)
     elif zero:
         buf.fill(0.0)
     return buf
@@ -235,33 +238,35 @@ def sparse_reduced_system(st: Structure, lin: Linearization, lam: float, layout:
     return blocks, rhs.ravel(), Li, ypt
 
 
-def _cholesky_solve(S: np.ndarray, b: np.ndarray, n_threads: int, overwrite: bool = True) -> np.ndarray:
+def _cholesky_solve(S: np.ndarray, b: np.ndarray, n_threads: int, overwrite: bool = True,
+                    st: Structure | None = None) -> np.ndarray:
     """Solve S x = b (S SPD; overwritten if ``overwrite``) by dense LAPACK Cholesky.
 
     Large systems first try a single-precision factor (half the work of double precision) used as the
     preconditioner of a double-precision conjugate-gradient solve on the Jacobi-scaled system, which reaches
     double-precision accuracy in a few iterations when the scaled system is not too ill-conditioned; otherwise
-    (factor fails or CG stalls) the double-precision Cholesky is used.
+    (factor fails or CG stalls) the double-precision Cholesky is used. ``st``: the single-precision copy in its
+    kept buffer.
     """
     n = len(b)
     threads = n_threads if n >= _PARALLEL_CHOLESKY_MIN else 1
     with blas_threads(threads):
         if n >= _MIXED_PRECISION_MIN:
-            x = _mixed_precision_solve(S, b)
+            x = _mixed_precision_solve(S, b, buffer(st, "S32", S.shape, dtype=np.float32))
             if x is not None:
                 return x
         factor = scipy.linalg.cho_factor(S.T, lower=False, overwrite_a=overwrite, check_finite=False)
         return scipy.linalg.cho_solve(factor, b, check_finite=False)
 
 
-def _mixed_precision_solve(S: np.ndarray, b: np.ndarray, *, rtol: float = 1e-13, max_iterations: int = 30
-                           ) -> np.ndarray | None:
+def _mixed_precision_solve(S: np.ndarray, b: np.ndarray, S32: np.ndarray, *, rtol: float = 1e-13,
+                           max_iterations: int = 30) -> np.ndarray | None:
     diag = np.diag(S).copy()
     if np.any(diag <= 0):
         return None
     d = 1.0 / np.sqrt(diag)
     d32 = d.astype(np.float32)
-    S32 = S.astype(np.float32)
+    np.copyto(S32, S, casting="same_kind")
     S32 *= d32[:, None]
     S32 *= d32[None, :]
     try:
@@ -302,11 +307,12 @@ def _mixed_precision_solve(S: np.ndarray, b: np.ndarray, *, rtol: float = 1e-13,
 
 
 def solve_free(S: np.ndarray, rhs: np.ndarray, free_flat: np.ndarray, *, n_threads: int = 2,
-               overwrite: bool = True) -> np.ndarray:
+               overwrite: bool = True, st: Structure | None = None) -> np.ndarray:
     """Solve the reduced system for the free parameters by dense Cholesky; zeros elsewhere.
 
     Raises numpy.linalg.LinAlgError if the system is not positive definite. ``S`` is overwritten, or with
-    ``overwrite`` False only the rows and columns of fixed parameters are (set to the identity's).
+    ``overwrite`` False only the rows and columns of fixed parameters are (set to the identity's). ``st``: the
+    free block and the single-precision copy in its kept buffers.
     """
     n = len(rhs)
     x = np.zeros(n)
@@ -322,10 +328,11 @@ def solve_free(S: np.ndarray, rhs: np.ndarray, free_flat: np.ndarray, *, n_threa
         b[fixed] = 0.0
         Sf = S
     else:
-        Sf = submatrix(S, free_flat, n_threads=n_threads)
+        Sf = submatrix(S, free_flat, n_threads=n_threads,
+                       out=buffer(st, "Sf", (len(free_flat), len(free_flat))) if st is not None else None)
         b = rhs[free_flat]
     try:
-        sol = _cholesky_solve(Sf, b, n_threads, overwrite=overwrite or not full)
+        sol = _cholesky_solve(Sf, b, n_threads, overwrite=overwrite or not full, st=st)
     except scipy.linalg.LinAlgError as exc:
         raise np.linalg.LinAlgError(str(exc)) from None
     x[free_flat] = sol[free_flat] if full else sol
@@ -402,7 +409,8 @@ def solve_reduced(st: Structure, lin: Linearization, system: ReducedSystem, lam_
             d = np.arange(A * 15)
             S[d, d] += (lam_cameras - system.lam_cameras) * lin.D_c.ravel()
             system.lam_cameras = lam_cameras
-        dc = solve_free(S, system.rhs, st.free_flat, n_threads=n_threads, overwrite=not keep).reshape(A, 15)
+        dc = solve_free(S, system.rhs, st.free_flat, n_threads=n_threads, overwrite=not keep,
+                        st=st).reshape(A, 15)
         del S
     dp = point_step(st, lin, system.Li, system.ypt, dc)
     g_dot = float(np.sum(lin.g_c * dc) + np.sum(lin.g_p * dp))
