@@ -20,6 +20,7 @@ from dome_calib.ba.schur import build_reduced_system, build_structure, free_colu
 from dome_calib.panoptic_io import read_calibration
 from dome_calib.synth.ba_problem import SyntheticOptions, make_problem
 
+pytest.importorskip("sksparse", reason="the optional extra `sparse` (scikit-sparse) is not installed")
 CALIBRATION = Path(__file__).parent / "data/panoptic/calibration_160906_band1.json"
 
 

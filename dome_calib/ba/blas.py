@@ -16,7 +16,7 @@ from collections.abc import Iterator
 import numpy  # noqa: F401  (loads its OpenBLAS: _openblas_libraries finds it in /proc/self/maps)
 import scipy.linalg  # noqa: F401  (and scipy's)
 
-import sksparse.cholmod  # noqa: F401  (and CHOLMOD's, the system's: dome_calib.ba.sparse)
+import dome_calib.ba.sparse  # noqa: F401  (and CHOLMOD's, the system's, when the optional scikit-sparse is there)
 
 logger = logging.getLogger(__name__)
 

@@ -8,7 +8,9 @@ parameters by a fixed map (computed once per observation set), and factorised by
 (scikit-sparse) with a METIS nested-dissection ordering, analysed once per observation set and reused by every
 numeric factorisation of it: the same ordering, so the same bits on every rerun.
 
-Which path a system takes is decided once per observation set, from integers only: the sparse one when the
+scikit-sparse is an optional extra (``pip install dome-calib[sparse]``; it builds against the system's SuiteSparse):
+without it every system takes the dense path. Which path a system takes is decided once per observation set, from
+integers only: the sparse one when the
 factor, counted in camera blocks under CHOLMOD's ordering, holds at most :data:`SPARSE_MAX_FILL` of the dense
 triangle's blocks and the system has at
 least :data:`SPARSE_MIN_UNKNOWNS` unknowns (below that LAPACK's dense Cholesky is as fast and needs no
@@ -27,7 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-import sksparse.cholmod as cholmod
+
+try:  # the optional extra `sparse` (pyproject.toml): without it every system takes the dense path
+    import sksparse.cholmod as cholmod
+except ImportError:  # pragma: no cover - depends on the installation
+    cholmod = None
 
 from dome_calib.ba.yyt import block_pattern
 
@@ -62,7 +68,7 @@ class SparseLayout:
     indices: np.ndarray
     indptr: np.ndarray
     col: np.ndarray
-    factor: cholmod.Factor
+    factor: object  # sksparse.cholmod.Factor
 
     def matrix(self, blocks: np.ndarray) -> sp.csc_matrix:
         """The lower triangle of the free system (F, F) from the upper blocks (B, k, k) (a new CSC matrix)."""
@@ -78,7 +84,7 @@ def sparse_layout(st, free_cols: np.ndarray) -> SparseLayout | None:
         return st.cache[key]
     layout = None
     F = len(st.free_flat)
-    if F >= SPARSE_MIN_UNKNOWNS:
+    if F >= SPARSE_MIN_UNKNOWNS and cholmod is not None:
         layout = _layout(st, free_cols)
         A = len(st.active_cameras)
         dense = A * (A + 1) // 2
