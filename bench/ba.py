@@ -328,6 +328,7 @@ def factorisers(sfm_pickle: str, repeat: int) -> None:
     from dome_calib.ba.blas import blas_threads
     from dome_calib.ba.evaluate import residuals_and_jacobians
     from dome_calib.ba.schur import build_structure, free_columns, linearize, sparse_reduced_system
+    from dome_calib.ba.yyt import block_pattern
 
     with open(sfm_pickle, "rb") as fh:
         p = pickle.load(fh).problem
@@ -336,7 +337,7 @@ def factorisers(sfm_pickle: str, repeat: int) -> None:
     lin = linearize(st, res, Jc, Jp, np.ones(len(st.obs)), n_threads=2)
     del res, Jc, Jp
     t0 = time.perf_counter()
-    layout = sparse._layout(st, free_columns(st))
+    layout = sparse._layout(st, free_columns(st), *block_pattern(st))
     t_layout = time.perf_counter() - t0
     blocks, rhs, _, _ = sparse_reduced_system(st, lin, 1e-4, layout, n_threads=2)
     lower = layout.matrix(blocks)
