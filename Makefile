@@ -4,13 +4,13 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test venv system-deps bench clean
+.PHONY: demo test venv system-deps suitesparse bench clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-$(STAMP): $(BIN)/python pyproject.toml
+$(STAMP): $(BIN)/python pyproject.toml | suitesparse
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	# aniposelib, the peer reader of our calibration.toml in the tests, without its opencv-contrib-python: that
 	# wheel ships the same cv2 package as our headless one and would overwrite it (pyproject.toml says more)
@@ -23,9 +23,19 @@ $(STAMP): $(BIN)/python pyproject.toml
 
 venv: $(STAMP)
 
+# SuiteSparse's headers and libraries, which scikit-sparse (the bundle adjustment's sparse Cholesky, CHOLMOD) is built
+# against, and an optimised BLAS for CHOLMOD's dense fronts (Debian's default is the reference BLAS, ~10x slower)
+suitesparse:
+	@if [ ! -f /usr/include/suitesparse/cholmod.h ] || ! ldconfig -p | grep -q 'openblas'; then \
+	  if command -v apt-get >/dev/null 2>&1; then \
+	    SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	    $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libsuitesparse-dev libopenblas0-pthread >/dev/null; \
+	  else echo "make: cannot install libsuitesparse-dev and libopenblas0-pthread (no apt-get); install them by hand" >&2; exit 1; fi; \
+	fi
+
 # System packages the tests need: libltc (the reference LTC codec, cross-checked through ctypes), and Debian's
 # chromium with its chromedriver (the report page's browser tests, tests/test_report_page.py).
-system-deps:
+system-deps: suitesparse
 	@if ! ldconfig -p | grep -q 'libltc\.so'; then \
 	  if command -v apt-get >/dev/null 2>&1; then \
 	    SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \

@@ -315,6 +315,81 @@ def run_worker(kind: str, data_file: Path, out_file: Path, extra: list[str], reu
     return sol
 
 
+def factorisers(sfm_pickle: str, repeat: int) -> None:
+    """``--factorisers SFM_PKL``: the reduced camera system of an SfM result's problem (every parameter the problem
+    frees, at its start, damping 1e-4) factorised and solved by each candidate, each ``repeat`` times (median):
+    LAPACK's dense Cholesky (the dense path: float64; 2 BLAS threads from 1,500 unknowns, as the solver), CHOLMOD supernodal (scikit-sparse) under
+    METIS and AMD orderings (the analysis once, the numeric factorisation timed, as the solver reuses it), cholespy
+    (CHOLMOD behind a build-and-solve interface: analysis every time) and qdldl (a simplicial LDL^T, AMD)."""
+    import scipy.linalg
+    import scipy.sparse as sp
+
+    from dome_calib.ba import sparse
+    from dome_calib.ba.blas import blas_threads
+    from dome_calib.ba.evaluate import residuals_and_jacobians
+    from dome_calib.ba.schur import build_structure, free_columns, linearize, sparse_reduced_system
+    from dome_calib.ba.yyt import block_pattern
+
+    with open(sfm_pickle, "rb") as fh:
+        p = pickle.load(fh).problem
+    st = build_structure(p.camera_index, p.point_index, np.ones(p.n_observations, dtype=bool), p.free, p.n_points)
+    res, Jc, Jp = residuals_and_jacobians(p.camera_params, p.points_cm, st.cam, st.pt, p.uv_px[st.obs], n_threads=2)
+    lin = linearize(st, res, Jc, Jp, np.ones(len(st.obs)), n_threads=2)
+    del res, Jc, Jp
+    t0 = time.perf_counter()
+    layout = sparse._layout(st, free_columns(st), *block_pattern(st))
+    t_layout = time.perf_counter() - t0
+    blocks, rhs, _, _ = sparse_reduced_system(st, lin, 1e-4, layout, n_threads=2)
+    lower = layout.matrix(blocks)
+    d = 1.0 / np.sqrt(lower.diagonal())
+    lower.data *= d[lower.indices] * d[layout.col]
+    b = d * rhs[st.free_flat]
+    F, A = layout.n_free, len(st.active_cameras)
+    full = (lower + sp.tril(lower, -1).T).tocsc()
+    timings: dict[str, list[float]] = {}
+    solutions: dict[str, np.ndarray] = {}
+
+    def timed(name, fn):
+        for _ in range(repeat):
+            t = time.perf_counter()
+            x = fn()
+            timings.setdefault(name, []).append(time.perf_counter() - t)
+        solutions[name] = x
+
+    dense = full.toarray()
+    with blas_threads(2 if F >= 1500 else 1):  # the solver's rule (dome_calib.ba.schur._PARALLEL_CHOLESKY_MIN)
+        timed("dense_lapack", lambda: scipy.linalg.cho_solve(
+            scipy.linalg.cho_factor(dense, check_finite=False), b, check_finite=False))
+        cholmod = sparse.cholmod
+        fills = {}
+        for ordering in ("metis", "amd"):
+            symbolic = cholmod.analyze(lower, mode="supernodal", ordering_method=ordering)
+            timed(f"cholmod_{ordering}", lambda: symbolic.cholesky(lower)(b))
+            fills[ordering] = int(symbolic.cholesky(lower).L().nnz)
+    import cholespy
+    import qdldl
+
+    coo = full.tocoo()
+    rows, cols = coo.row.astype(np.int32), coo.col.astype(np.int32)
+
+    def cholespy_solve():
+        solver = cholespy.CholeskySolverD(F, rows, cols, coo.data, cholespy.MatrixType.COO)
+        x = np.zeros_like(b)
+        solver.solve(b.copy(), x)
+        return x
+
+    timed("cholespy", cholespy_solve)
+    upper = sp.triu(full).tocsc()
+    timed("qdldl", lambda: qdldl.Solver(upper).solve(b))
+    ref = solutions["dense_lapack"]
+    emit({"bench": "ba_factorisers", "problem": sfm_pickle, "cameras": A, "unknowns": F,
+          "camera_blocks": len(layout.cols), "camera_blocks_dense": A * (A + 1) // 2,
+          "lower_nonzeros": int(lower.nnz), "factor_nonzeros": fills, "layout_s": round(t_layout, 3),
+          "seconds_median": {k: round(float(np.median(v)), 4) for k, v in timings.items()},
+          "max_rel_diff_from_dense": {k: float(np.abs(x - ref).max() / np.abs(ref).max()) for k, x in solutions.items()},
+          "load_average_1min": round(os.getloadavg()[0], 1)})
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--small", action="store_true", help="quick run: 130 cameras, 10k points, ~100k observations")
@@ -330,8 +405,14 @@ def main() -> None:
                     help="run two CPU-bound processes beside every solver (a busy 2-core machine)")
     ap.add_argument("--peer-time-limit-s", type=float, default=PEER_TIME_LIMIT_S,
                     help="cap on each of the two Ceres stages (s); default: none")
+    ap.add_argument("--factorisers", metavar="SFM_PKL", help="only the candidate factorisations of the reduced camera "
+                    "system of an SfM result's problem (a calibrate work folder's sfm.pkl)")
+    ap.add_argument("--repeat", type=int, default=3, help="--factorisers: runs of each (median)")
     args = ap.parse_args()
     globals()["PEER_TIME_LIMIT_S"] = args.peer_time_limit_s
+    if args.factorisers:
+        factorisers(args.factorisers, args.repeat)
+        return
     if args.worker:
         import logging
         logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)

@@ -415,6 +415,71 @@ def replay_ba(args) -> None:
          ba={k: v for k, v in ba.stats.items() if k != "termination"}, **errors(ba.cameras, truth))
 
 
+#: a child of ``--compare-ba``: the bundle adjustment stage of one checkout (its tree first on the path) on an
+#: SfM result, timed, its cameras saved
+_REPLAY_CHILD = r"""
+import json, os, pickle, resource, sys, time
+import numpy as np
+from dome_calib.pipeline.stages import run_ba_stage
+with open(sys.argv[1], "rb") as f:
+    sfm = pickle.load(f)
+r0, t0, cpu0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter(), time.process_time()
+ba = run_ba_stage(sfm.problem)
+r1 = resource.getrusage(resource.RUSAGE_SELF)
+np.savez(sys.argv[2], names=np.array(ba.problem.camera_names), params=ba.problem.camera_params,
+         lens=json.dumps(ba.lens_model, sort_keys=True, default=str))
+print(json.dumps({"seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - cpu0,
+                  "system_seconds": r1.ru_stime - r0.ru_stime, "minor_faults": r1.ru_minflt - r0.ru_minflt,
+                  "peak_rss_gb": r1.ru_maxrss / 1e6, "load_average_1min": os.getloadavg()[0],
+                  "ba": {k: v for k, v in ba.stats.items() if k != "termination"}}))
+"""
+
+
+def _centres_cm(params: np.ndarray) -> np.ndarray:
+    from dome_calib.rotation import rotvec_to_matrix
+
+    return -np.einsum("cji,cj->ci", rotvec_to_matrix(params[:, 0:3]), params[:, 3:6])
+
+
+def compare_ba(args) -> None:
+    """``--compare-ba REF``: the bundle adjustment stage of REF (a checkout) and of this checkout on the same SfM
+    result (``bundle.work/sfm.pkl`` under ``--work``), each in a child process with its own tree first on the path,
+    ``--repeat`` times each, alternating which goes first; then the ratio of the median times and how far this
+    checkout's cameras are from REF's (centres in mm and focal lengths relative, in the solve's own frame: both
+    start from the same problem, so no alignment), and whether the lens model chose the same terms."""
+    sfm = Path(args.work) / args.preset / "bundle.work" / "sfm.pkl"
+    trees = {"old": Path(args.compare_ba).resolve(), "new": ROOT}
+    runs: dict[str, list[dict]] = {"old": [], "new": []}
+    saved: dict[str, list[Path]] = {"old": [], "new": []}
+    for rep in range(args.repeat):
+        for which in (("old", "new") if rep % 2 == 0 else ("new", "old")):
+            out = Path(args.work) / args.preset / f"replay_{which}_{rep}.npz"
+            env = {**os.environ, "PYTHONPATH": str(trees[which])}
+            proc = subprocess.run([sys.executable, "-c", _REPLAY_CHILD, str(sfm), str(out)], env=env,
+                                  cwd=trees[which], capture_output=True, text=True, check=True)
+            run = json.loads(proc.stdout.strip().splitlines()[-1])
+            runs[which].append(run)
+            saved[which].append(out)
+            emit(bench="dome", stage="compare_ba_run", preset=args.preset, checkout=which, repeat=rep,
+                 **{k: (round(v, 2) if isinstance(v, float) else v) for k, v in run.items()})
+    cams = {w: [np.load(p) for p in saved[w]] for w in saved}
+    old, new = cams["old"][0], cams["new"][0]
+    if list(old["names"]) != list(new["names"]):
+        raise SystemExit("the two checkouts refined different cameras")
+    centre_mm = 10.0 * np.linalg.norm(_centres_cm(new["params"]) - _centres_cm(old["params"]), axis=1)
+    focal_rel = np.abs(new["params"][:, 6:8] / old["params"][:, 6:8] - 1.0)
+    median = {w: float(np.median([r["seconds"] for r in runs[w]])) for w in runs}
+    cpu = {w: float(np.median([r["cpu_seconds"] for r in runs[w]])) for w in runs}
+    emit(bench="dome", stage="compare_ba", preset=args.preset, reference=str(trees["old"]), repeat=args.repeat,
+         seconds_old=round(median["old"], 1), seconds_new=round(median["new"], 1),
+         new_over_old=round(median["new"] / median["old"], 3), cpu_seconds_old=round(cpu["old"], 1),
+         cpu_seconds_new=round(cpu["new"], 1), cpu_new_over_old=round(cpu["new"] / cpu["old"], 3),
+         centre_diff_mm_max=float(centre_mm.max()), focal_diff_rel_max=float(focal_rel.max()),
+         same_lens_model=str(old["lens"]) == str(new["lens"]),
+         same_bits_on_rerun={w: all(np.array_equal(c["params"], cams[w][0]["params"]) for c in cams[w]) for w in cams},
+         load_average_1min=[r["load_average_1min"] for w in runs for r in runs[w]])
+
+
 def compare(args) -> None:
     """``--compare REF``: today's main (REF, a checkout) and this checkout on the same captures, in one run."""
     cases, quick_cases = [], []
@@ -469,8 +534,13 @@ def main() -> None:
                         "SfM result an earlier run left in the work folder (timed, with the accuracy)")
     parser.add_argument("--lens-passes", type=int, default=0, help="--replay-ba: the lens model's decide-and-solve "
                         "passes (default: calibrate's)")
+    parser.add_argument("--compare-ba", metavar="REF", help="only the bundle adjustment stage, of REF (a checkout) and "
+                        "of this checkout, on the SfM result an earlier run left in the work folder, --repeat times "
+                        "each, alternating: the time ratio and how far this checkout's cameras are from REF's")
     args = parser.parse_args()
-    if args.replay_ba:
+    if args.compare_ba:
+        compare_ba(args)
+    elif args.replay_ba:
         replay_ba(args)
     else:
         compare(args) if args.compare else run(args)

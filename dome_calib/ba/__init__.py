@@ -1,5 +1,5 @@
 """Bundle adjustment of the dome: OpenCV 5-parameter cameras, points of several scenes, robust LM with the
-Schur complement on the points and a dense Cholesky of the reduced camera system.
+Schur complement on the points and a sparse (CHOLMOD) or dense Cholesky of the reduced camera system.
 
 Public API::
 

@@ -16,6 +16,8 @@ from collections.abc import Iterator
 import numpy  # noqa: F401  (loads its OpenBLAS: _openblas_libraries finds it in /proc/self/maps)
 import scipy.linalg  # noqa: F401  (and scipy's)
 
+import dome_calib.ba.sparse  # noqa: F401  (and CHOLMOD's, the system's, when the optional scikit-sparse is there)
+
 logger = logging.getLogger(__name__)
 
 _SETTERS = ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads", "openblas_set_num_threads64_",
@@ -35,7 +37,8 @@ def _openblas_libraries() -> list[tuple[object, object]]:
         with open("/proc/self/maps") as fh:
             for line in fh:
                 path = line.split()[-1]
-                if "openblas" in os.path.basename(path).lower() and ".so" in path:
+                # numpy's and scipy's wheels name it libscipy_openblas...; Debian's is .../openblas-pthread/libblas.so.3
+                if "openblas" in path.lower() and ".so" in os.path.basename(path):
                     paths.add(path)
     except OSError:
         pass

@@ -141,12 +141,13 @@ def _y_rows(Jc, Jp, w, act_index, pt_act, pt_pos, Li, h, cols, act_starts, a_lo,
 
 
 def y_blocks(Jc: np.ndarray, Jp: np.ndarray, w: np.ndarray, Li: np.ndarray, h: np.ndarray, cols: np.ndarray,
-             width: int, st, n_threads: int) -> tuple[np.ndarray, np.ndarray]:
+             width: int, st, n_threads: int, out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(ypt (Ma_active, 3, width): the y blocks transposed in point-major order, rc (A, k): each camera's sum of
-    y_i L^-1 g_p over its observations), for the free columns ``cols`` (k <= width)."""
+    y_i L^-1 g_p over its observations), for the free columns ``cols`` (k <= width). ``out``: an array of ypt's
+    shape to write into (every element is written)."""
     A = len(st.active_cameras)
     n = int(st.act_starts[-1]) if A else 0
-    ypt = np.empty((n, 3, width))
+    ypt = np.empty((n, 3, width)) if out is None else out
     rc = np.zeros((A, len(cols)))
     cols = np.ascontiguousarray(cols, dtype=np.int64)
     run_in_threads(lambda rng: _y_rows(Jc, Jp, w, st.act_index, st.pt_act, st.pt_pos, Li, h, cols, st.act_starts,

@@ -53,8 +53,11 @@ def residuals(camera_params: np.ndarray, points_cm: np.ndarray, cam: np.ndarray,
 
 
 def residuals_and_jacobians(camera_params: np.ndarray, points_cm: np.ndarray, cam: np.ndarray, pt: np.ndarray,
-                            uv_px: np.ndarray, *, n_threads: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Residuals, camera and point Jacobians of M observations, component-major for speed.
+                            uv_px: np.ndarray, *, n_threads: int = 1,
+                            out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Residuals, camera and point Jacobians of M observations, component-major for speed (into ``out``, arrays
+    of the three shapes below, when given: every element is written).
 
     Returns:
         res (2, M) px (predicted - observed); Jc (2, 15, M) d res / d camera parameters (columns as
@@ -68,7 +71,7 @@ def residuals_and_jacobians(camera_params: np.ndarray, points_cm: np.ndarray, ca
     R = rotvec_to_matrix(rv)
     B = R @ right_jacobian(rv)  # (C, 3, 3) per camera
     M = len(cam)
-    res, Jc, Jp = np.empty((2, M)), np.empty((2, 15, M)), np.empty((2, 3, M))
+    res, Jc, Jp = out if out is not None else (np.empty((2, M)), np.empty((2, 15, M)), np.empty((2, 3, M)))
 
     def job(sl: slice) -> None:
         _residuals_and_jacobians_into(camera_params, points_cm, cam[sl], pt[sl], uv_px[sl], R, B, res[:, sl],

@@ -12,21 +12,25 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
+import scipy.sparse as sp
 
 from dome_calib.ba.blas import blas_threads
 from dome_calib.ba.evaluate import residuals, residuals_and_jacobians
 from dome_calib.ba.result import BAResult
-from dome_calib.ba.schur import build_structure, linearize, point_step, reduced_system
+from dome_calib.ba.schur import build_structure, free_columns, linearize, point_step, reduced_system, \
+    sparse_reduced_system
+from dome_calib.ba.sparse import factorise_lower, sparse_layout
 from dome_calib.ba.submatrix import submatrix
 
 
 @dataclass(kw_only=True)
 class QuadraticModel:
     """The bundle adjustment linearised at a solution, over the candidate free parameters (points eliminated):
-    S (F, F) reduced normal matrix, b (F,) right-hand side (S step = b), ``index`` (C, 15) position of each
+    S (F, F) reduced normal matrix (dense, or its lower triangle as a CSC matrix where the structure takes the
+    sparse path of :mod:`dome_calib.ba.sparse`), b (F,) right-hand side (S step = b), ``index`` (C, 15) position of each
     camera parameter in S or -1, ``noise_px``: pixel sigma predicted for the model with every candidate free."""
 
-    S: np.ndarray
+    S: np.ndarray | sp.csc_matrix
     b: np.ndarray
     index: np.ndarray
     noise_px: float
@@ -58,9 +62,15 @@ class QuadraticModel:
         cost = 0.5 * float(np.sum(res * res))
         lin = linearize(st, res, Jc, Jp, np.ones(len(st.obs)), n_threads=n_threads)
         del res, Jc, Jp
-        S, b, Li, ypt = reduced_system(st, lin, 0.0, n_threads=n_threads)
         f = st.free_flat
-        S, b = submatrix(S, f, n_threads=n_threads), b[f]
+        layout = sparse_layout(st, free_columns(st))
+        if layout is not None:
+            blocks, b, Li, ypt = sparse_reduced_system(st, lin, 0.0, layout, n_threads=n_threads)
+            S, b = layout.matrix(blocks), b[f]
+            del blocks
+        else:
+            S, b, Li, ypt = reduced_system(st, lin, 0.0, n_threads=n_threads)
+            S, b = submatrix(S, f, n_threads=n_threads), b[f]
         index = np.full((p.n_cameras, 15), -1, dtype=np.int64)
         local = np.full(len(st.active_cameras) * 15, -1, dtype=np.int64)
         local[f] = np.arange(len(f))
@@ -99,7 +109,8 @@ class QuadraticModel:
                 self._factor = None  # the old factor's memory goes before the new one is made
                 factor, d = self._factorise(idx, damping)
                 self._factor = (key, factor, d)
-            x = scipy.linalg.cho_solve(factor, self.b[idx] / d, check_finite=False) / d
+            x = (factor(self.b[idx] / d) if self.sparse
+                 else scipy.linalg.cho_solve(factor, self.b[idx] / d, check_finite=False)) / d
             blocks = {}
             if columns_of:
                 cols = [(c, [int(pos[c * 15 + j]) for j in js]) for c, js in columns_of.items()]
@@ -109,9 +120,12 @@ class QuadraticModel:
                 # (half of cho_solve's two; the full dome's 2,600 distortion columns: 4.6 -> 2.3 s per lens pass)
                 E = np.zeros((len(d), len(flat)))
                 E[flat, np.arange(len(flat))] = 1.0 / d[flat]
-                R, lower = factor
-                Z = scipy.linalg.solve_triangular(R, E, trans="N" if lower else "T", lower=lower,
-                                                  overwrite_b=True, check_finite=False)
+                if self.sparse:  # CHOLMOD: S[p, p] = L L^T, so Z = L^-1 P E
+                    Z = factor.solve_L(factor.apply_P(E), use_LDLt_decomposition=False)
+                else:
+                    R, lower = factor
+                    Z = scipy.linalg.solve_triangular(R, E, trans="N" if lower else "T", lower=lower,
+                                                      overwrite_b=True, check_finite=False)
                 start = 0
                 for c, ks in cols:
                     Zc = Z[:, start:start + len(ks)]
@@ -121,9 +135,18 @@ class QuadraticModel:
         full[sel] = x
         return full.reshape(self.index.shape), blocks
 
-    def _factorise(self, idx: np.ndarray, damping: float) -> tuple[tuple[np.ndarray, bool], np.ndarray]:
+    @property
+    def sparse(self) -> bool:
+        """Whether S is held sparse (its lower triangle) and factorised by CHOLMOD."""
+        return sp.issparse(self.S)
+
+    def _factorise(self, idx: np.ndarray, damping: float) -> tuple[object, np.ndarray]:
         """Cholesky factor of the Jacobi-scaled, damped block of S over ``idx``, and the scale d."""
-        d = np.sqrt(np.maximum(np.diag(self.S)[idx], 1e-300))
+        d = np.sqrt(np.maximum(self.S.diagonal()[idx], 1e-300))
+        if self.sparse:
+            sub = self.S[idx][:, idx].tocsc()  # idx ascending: the lower triangle of the block
+            sub.data *= (1.0 / d)[sub.indices] * np.repeat(1.0 / d, np.diff(sub.indptr))
+            return factorise_lower(sub, damping, ridges=(0.0, 1e-12, 1e-9, 1e-6)), d
         for ridge in (0.0, 1e-12, 1e-9, 1e-6):  # a tiny ridge if some direction is not observable at all
             Ss = submatrix(self.S, idx, n_threads=self.n_threads)
             Ss /= d[:, None]

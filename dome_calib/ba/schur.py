@@ -13,22 +13,24 @@ V_p = L_p L_p^T (3 x 3 Cholesky, batched over all points). With y_i = W_i L_p^{-
 
 Y Y^T is the crux (about half the sum over points of track_length^2 block products, 3.4e7 on the full dome),
 done by the compiled kernel of :mod:`dome_calib.ba.yyt` (upper triangle of blocks, in threads); the per-observation
-blocks (U, V, g, y, and the back-substitution) by those of :mod:`dome_calib.ba.blocks`. The reduced
-system is dense for the dome (most cameras share points with most cameras on their side), so it is solved
-by a dense LAPACK Cholesky.
+blocks (U, V, g, y, and the back-substitution) by those of :mod:`dome_calib.ba.blocks`. Where the cameras share
+few points (the full dome) only the blocks of camera pairs that share one are formed and the system is factorised
+sparsely (:mod:`dome_calib.ba.sparse`); otherwise (every camera pair sharing points: the panel) it is formed dense
+and solved by a dense LAPACK Cholesky.
 """
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
 
 from dome_calib.ba.blas import blas_threads
 from dome_calib.ba.blocks import linearize_blocks, point_step_blocks, y_blocks
+from dome_calib.ba.sparse import SparseLayout, solve_sparse, sparse_layout
 from dome_calib.ba.submatrix import submatrix
-from dome_calib.ba.yyt import LANES, subtract_yyt
+from dome_calib.ba.yyt import LANES, subtract_yyt, subtract_yyt_blocks
 
 logger = logging.getLogger(__name__)
 
@@ -67,6 +69,25 @@ class Structure:
     pt_pos: np.ndarray
     cam_pt: np.ndarray
     live_points: np.ndarray  # (P,) bool: points with >= 2 observations (the others are not refined)
+    #: what is computed once per observation set (the sparse layout) and the solver's large arrays, allocated
+    #: once and reused by every reduced system of this set (:func:`buffer`)
+    cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+
+def buffer(st: Structure | None, name: str, shape: tuple[int, ...], *, zero: bool = False,
+           dtype: type = np.float64) -> np.ndarray:
+    """An array of ``shape`` kept on ``st`` (a new one if None) under ``name`` and handed out again on the next call (zeroed if
+    ``zero``): the solver's large arrays are allocated once per observation set, not once per iteration. The
+    caller must be done with the previous one (one reduced system of a structure lives at a time)."""
+    if st is None:
+        return np.zeros(shape, dtype=dtype) if zero else np.empty(shape, dtype=dtype)
+    buf = st.cache.get(name)
+    if buf is None or buf.shape != shape or buf.dtype != dtype:
+        st.cache[name] = None  # the old one goes before the new one is made
+        buf = st.cache[name] = np.zeros(shape, dtype=dtype) if zero else np.empty(shape, dtype=dtype)
+    elif zero:
+        buf.fill(0.0)
+    return buf
 
 
 def build_structure(camera_index: np.ndarray, point_index: np.ndarray, obs_mask: np.ndarray, free: np.ndarray,
@@ -167,19 +188,31 @@ class Step:
     predicted_decrease: float
 
 
-def reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: int = 2
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Damped reduced camera system over ALL active-camera parameters: (S (A*15, A*15), rhs (A*15,), L^{-1}
-    (P, 3, 3), y blocks transposed in point-major order (Ma_active, 3, W) over the :func:`free_columns` k, zero
-    past k up to W, a multiple of :data:`dome_calib.ba.yyt.LANES`). Fixed parameters have zero rows and columns."""
+def _eliminate(st: Structure, lin: Linearization, lam: float, n_threads: int, reuse: bool
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The points eliminated: (L^{-1} (P, 3, 3), rhs (A, 15), y blocks transposed point-major (Ma_active, 3, W),
+    free columns, rc (A, k)); ``reuse``: the y blocks in the structure's kept buffer."""
     A = len(st.active_cameras)
     Li = chol3_inverse(lin.V + lam * lin.D_p[:, :, None] * np.eye(3))
     h = np.einsum("pjl,pl->pj", Li, lin.g_p)
     cols = free_columns(st)
-    ypt, rc = y_blocks(lin.Jc, lin.Jp, lin.w, Li, h, cols, -(-len(cols) // LANES) * LANES, st, n_threads)
+    width = -(-len(cols) // LANES) * LANES
+    out = buffer(st, "ypt", (int(st.act_starts[-1]) if A else 0, 3, width)) if reuse else None
+    ypt, rc = y_blocks(lin.Jc, lin.Jp, lin.w, Li, h, cols, width, st, n_threads, out=out)
     rhs = -lin.g_c
     rhs[:, cols] += rc
-    S = np.zeros((A * 15, A * 15))
+    return Li, rhs, ypt, cols, rc
+
+
+def reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: int = 2, reuse: bool = False
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Damped reduced camera system over ALL active-camera parameters: (S (A*15, A*15), rhs (A*15,), L^{-1}
+    (P, 3, 3), y blocks transposed in point-major order (Ma_active, 3, W) over the :func:`free_columns` k, zero
+    past k up to W, a multiple of :data:`dome_calib.ba.yyt.LANES`). Fixed parameters have zero rows and columns.
+    ``reuse``: S and the y blocks are the structure's kept buffers (:func:`buffer`), valid until the next call."""
+    A = len(st.active_cameras)
+    Li, rhs, ypt, cols, _ = _eliminate(st, lin, lam, n_threads, reuse)
+    S = buffer(st, "S", (A * 15, A * 15), zero=True) if reuse else np.zeros((A * 15, A * 15))
     S4 = S.reshape(A, 15, A, 15)
     if len(cols) == 15:
         subtract_yyt(S4, ypt, st, n_threads)
@@ -193,33 +226,47 @@ def reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: 
     return S, rhs.ravel(), Li, ypt
 
 
-def _cholesky_solve(S: np.ndarray, b: np.ndarray, n_threads: int, overwrite: bool = True) -> np.ndarray:
+def sparse_reduced_system(st: Structure, lin: Linearization, lam: float, layout: SparseLayout, *,
+                          n_threads: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """As :func:`reduced_system`, but S as the upper blocks (B, k, k) of ``layout``'s pattern over its free columns
+    (:mod:`dome_calib.ba.sparse`), in the structure's kept buffers (valid until the next call)."""
+    Li, rhs, ypt, cols, _ = _eliminate(st, lin, lam, n_threads, True)
+    k = len(cols)
+    blocks = buffer(st, "blocks", (len(layout.cols), k, k), zero=True)
+    subtract_yyt_blocks(blocks, layout.row_ptr, layout.cols, ypt, st, n_threads)
+    blocks[layout.diag] += (lin.U + lam * lin.D_c[:, :, None] * np.eye(15))[:, cols][:, :, cols]
+    return blocks, rhs.ravel(), Li, ypt
+
+
+def _cholesky_solve(S: np.ndarray, b: np.ndarray, n_threads: int, overwrite: bool = True,
+                    st: Structure | None = None) -> np.ndarray:
     """Solve S x = b (S SPD; overwritten if ``overwrite``) by dense LAPACK Cholesky.
 
     Large systems first try a single-precision factor (half the work of double precision) used as the
     preconditioner of a double-precision conjugate-gradient solve on the Jacobi-scaled system, which reaches
     double-precision accuracy in a few iterations when the scaled system is not too ill-conditioned; otherwise
-    (factor fails or CG stalls) the double-precision Cholesky is used.
+    (factor fails or CG stalls) the double-precision Cholesky is used. ``st``: the single-precision copy in its
+    kept buffer.
     """
     n = len(b)
     threads = n_threads if n >= _PARALLEL_CHOLESKY_MIN else 1
     with blas_threads(threads):
         if n >= _MIXED_PRECISION_MIN:
-            x = _mixed_precision_solve(S, b)
+            x = _mixed_precision_solve(S, b, buffer(st, "S32", S.shape, dtype=np.float32))
             if x is not None:
                 return x
         factor = scipy.linalg.cho_factor(S.T, lower=False, overwrite_a=overwrite, check_finite=False)
         return scipy.linalg.cho_solve(factor, b, check_finite=False)
 
 
-def _mixed_precision_solve(S: np.ndarray, b: np.ndarray, *, rtol: float = 1e-13, max_iterations: int = 30
-                           ) -> np.ndarray | None:
+def _mixed_precision_solve(S: np.ndarray, b: np.ndarray, S32: np.ndarray, *, rtol: float = 1e-13,
+                           max_iterations: int = 30) -> np.ndarray | None:
     diag = np.diag(S).copy()
     if np.any(diag <= 0):
         return None
     d = 1.0 / np.sqrt(diag)
     d32 = d.astype(np.float32)
-    S32 = S.astype(np.float32)
+    np.copyto(S32, S, casting="same_kind")
     S32 *= d32[:, None]
     S32 *= d32[None, :]
     try:
@@ -260,11 +307,12 @@ def _mixed_precision_solve(S: np.ndarray, b: np.ndarray, *, rtol: float = 1e-13,
 
 
 def solve_free(S: np.ndarray, rhs: np.ndarray, free_flat: np.ndarray, *, n_threads: int = 2,
-               overwrite: bool = True) -> np.ndarray:
+               overwrite: bool = True, st: Structure | None = None) -> np.ndarray:
     """Solve the reduced system for the free parameters by dense Cholesky; zeros elsewhere.
 
     Raises numpy.linalg.LinAlgError if the system is not positive definite. ``S`` is overwritten, or with
-    ``overwrite`` False only the rows and columns of fixed parameters are (set to the identity's).
+    ``overwrite`` False only the rows and columns of fixed parameters are (set to the identity's). ``st``: the
+    free block and the single-precision copy in its kept buffers.
     """
     n = len(rhs)
     x = np.zeros(n)
@@ -280,10 +328,11 @@ def solve_free(S: np.ndarray, rhs: np.ndarray, free_flat: np.ndarray, *, n_threa
         b[fixed] = 0.0
         Sf = S
     else:
-        Sf = submatrix(S, free_flat, n_threads=n_threads)
+        Sf = submatrix(S, free_flat, n_threads=n_threads,
+                       out=buffer(st, "Sf", (len(free_flat), len(free_flat))) if st is not None else None)
         b = rhs[free_flat]
     try:
-        sol = _cholesky_solve(Sf, b, n_threads, overwrite=overwrite or not full)
+        sol = _cholesky_solve(Sf, b, n_threads, overwrite=overwrite or not full, st=st)
     except scipy.linalg.LinAlgError as exc:
         raise np.linalg.LinAlgError(str(exc)) from None
     x[free_flat] = sol[free_flat] if full else sol
@@ -301,21 +350,32 @@ def point_step(st: Structure, lin: Linearization, Li: np.ndarray, ypt: np.ndarra
 class ReducedSystem:
     """The damped reduced camera system of one linearisation, kept so that a rejected step can be retried with
     more camera damping without eliminating the points again: S (A*15, A*15) and rhs as :func:`reduced_system`,
-    built with damping ``lam`` on cameras and points; Li, ypt (the y blocks, point-major) for the back-substitution."""
+    built with damping ``lam`` on cameras and points; Li, ypt (the y blocks, point-major) for the back-substitution.
+    On the sparse path (``layout`` set) S is None and ``blocks`` holds it (:func:`sparse_reduced_system`), and the
+    inner constraints' basis is kept apart (``gauge_basis``, never added to the blocks)."""
 
-    S: np.ndarray
+    S: np.ndarray | None
     rhs: np.ndarray
     Li: np.ndarray
     ypt: np.ndarray
     lam: float  # the points' damping (and the cameras' as built)
     lam_cameras: float  # the cameras' damping S holds now
+    blocks: np.ndarray | None = None
+    layout: SparseLayout | None = None
+    gauge_basis: np.ndarray | None = None
 
 
 def build_reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: int = 2,
                          gauge_basis: np.ndarray | None = None) -> ReducedSystem:
     """The damped reduced system; ``gauge_basis`` (A*15, k): S += B B^T (inner constraints, see
-    :func:`dome_calib.ba.gauge.inner_constraint_basis`)."""
-    S, rhs, Li, ypt = reduced_system(st, lin, lam, n_threads=n_threads)
+    :func:`dome_calib.ba.gauge.inner_constraint_basis`). Sparse or dense as :func:`dome_calib.ba.sparse.sparse_layout`
+    decides for the structure; its arrays are the structure's kept buffers (one system of a structure at a time)."""
+    layout = sparse_layout(st, free_columns(st))
+    if layout is not None:
+        blocks, rhs, Li, ypt = sparse_reduced_system(st, lin, lam, layout, n_threads=n_threads)
+        return ReducedSystem(S=None, rhs=rhs, Li=Li, ypt=ypt, lam=lam, lam_cameras=lam, blocks=blocks,
+                             layout=layout, gauge_basis=gauge_basis)
+    S, rhs, Li, ypt = reduced_system(st, lin, lam, n_threads=n_threads, reuse=True)
     if gauge_basis is not None:
         for i in range(0, len(S), 1024):  # in row blocks: no second (A*15)^2 temporary
             S[i:i + 1024] += gauge_basis[i:i + 1024] @ gauge_basis.T
@@ -330,13 +390,28 @@ def solve_reduced(st: Structure, lin: Linearization, system: ReducedSystem, lam_
     another retry (its diagonal is moved to ``lam_cameras`` in place, the factorisation works on a copy only
     where the solver needs one: no copy of the 7,800-unknown system on the mixed-precision path)."""
     A = len(st.active_cameras)
-    S = system.S
-    if lam_cameras != system.lam_cameras:
-        d = np.arange(A * 15)
-        S[d, d] += (lam_cameras - system.lam_cameras) * lin.D_c.ravel()
-        system.lam_cameras = lam_cameras
-    dc = solve_free(S, system.rhs, st.free_flat, n_threads=n_threads, overwrite=not keep).reshape(A, 15)
-    del S
+    if system.layout is not None:
+        dc = np.zeros(A * 15)
+        if lam_cameras != system.lam_cameras:
+            cols = system.layout.free_cols
+            k = np.arange(len(cols))
+            system.blocks[system.layout.diag[:, None], k, k] += (lam_cameras - system.lam_cameras) * lin.D_c[:, cols]
+            system.lam_cameras = lam_cameras
+        f = st.free_flat
+        if len(f):
+            basis = system.gauge_basis[f] if system.gauge_basis is not None else None
+            with blas_threads(n_threads):
+                dc[f] = solve_sparse(system.layout, system.blocks, system.rhs[f], basis)
+        dc = dc.reshape(A, 15)
+    else:
+        S = system.S
+        if lam_cameras != system.lam_cameras:
+            d = np.arange(A * 15)
+            S[d, d] += (lam_cameras - system.lam_cameras) * lin.D_c.ravel()
+            system.lam_cameras = lam_cameras
+        dc = solve_free(S, system.rhs, st.free_flat, n_threads=n_threads, overwrite=not keep,
+                        st=st).reshape(A, 15)
+        del S
     dp = point_step(st, lin, system.Li, system.ypt, dc)
     g_dot = float(np.sum(lin.g_c * dc) + np.sum(lin.g_p * dp))
     d_dot = float(lam_cameras * np.sum(lin.D_c * dc * dc) + system.lam * np.sum(lin.D_p * dp * dp))

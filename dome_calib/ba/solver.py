@@ -38,11 +38,10 @@ import numpy as np
 from dome_calib.ba.blas import blas_threads
 from dome_calib.ba.evaluate import residuals, residuals_and_jacobians
 from dome_calib.ba.gauge import Gauge, GaugeMode, choose_gauge, inner_constraint_basis
-from dome_calib.ba.heap import kept_heap
 from dome_calib.ba.problem import BAProblem
 from dome_calib.ba.result import BAResult, CameraUncertainty, IterationLog, camera_statistics
 from dome_calib.ba.robust import LossKind, robust_cost_and_weight, robust_sigma_px
-from dome_calib.ba.schur import Structure, build_reduced_system, build_structure, linearize, solve_reduced
+from dome_calib.ba.schur import Structure, buffer, build_reduced_system, build_structure, linearize, solve_reduced
 from dome_calib.ba.uncertainty import camera_uncertainty
 from dome_calib.options import AtLeast, Lax, UnitInterval, options
 from dome_calib.schema import NonNegFinite, PosFinite
@@ -165,8 +164,11 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
     if cap < options.max_iterations:
         reason = "capped"
     for it in range(1, cap + 1):
+        M = len(st.obs)  # the Jacobians in the structure's kept buffers (dome_calib.ba.schur.buffer)
         res, Jc, Jp = residuals_and_jacobians(state.camera_params, state.points_cm, st.cam, st.pt,
-                                              problem.uv_px[st.obs], n_threads=options.n_threads)
+                                              problem.uv_px[st.obs], n_threads=options.n_threads,
+                                              out=(buffer(st, "res", (2, M)), buffer(st, "Jc", (2, 15, M)),
+                                                   buffer(st, "Jp", (2, 3, M))))
         _, w = robust_cost_and_weight(res[0] ** 2 + res[1] ** 2, loss, scale)
         lin = linearize(st, res, Jc, Jp, w, n_threads=options.n_threads)
         del res, Jc, Jp
@@ -254,9 +256,8 @@ def bundle_adjust(problem: BAProblem, options: BAOptions | None = None, *,
     if start_inlier is not None and np.shape(start_inlier) != (problem.n_observations,):
         raise ValueError(f"start_inlier has shape {np.shape(start_inlier)}, the problem has "
                          f"{problem.n_observations} observations")
-    # small BLAS calls: one thread (see dome_calib.ba.blas); the big Cholesky takes more. Freed arrays are reused
-    # (dome_calib.ba.heap)
-    with blas_threads(1), kept_heap():
+    # small BLAS calls: one thread (see dome_calib.ba.blas); the big Cholesky takes more
+    with blas_threads(1):
         return _bundle_adjust(problem, options, start_inlier)
 
 
@@ -265,7 +266,7 @@ def solution_uncertainty(result: BAResult, *, n_threads: int = 2) -> CameraUncer
     a result computed without them: the same reduced system at ``result.problem`` over its used observations."""
     p = result.problem
     st = build_structure(p.camera_index, p.point_index, result.inlier, p.free & ~result.gauge.held, p.n_points)
-    with blas_threads(1), kept_heap():
+    with blas_threads(1):
         return camera_uncertainty(p, st, result.sigma_px, n_threads=n_threads, gauge=result.gauge)
 
 

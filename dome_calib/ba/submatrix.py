@@ -27,16 +27,19 @@ def _gather_rows(S, idx, out, lo, hi):  # pragma: no cover - compiled
             dst[c] = src[idx[c]]
 
 
-def submatrix(S: np.ndarray, idx: np.ndarray, *, n_threads: int = 2) -> np.ndarray:
-    """A new C-ordered float64 array equal to ``S[np.ix_(idx, idx)]`` (``S`` 2-D float64, ``idx`` integer indices
-    within its rows and columns; not checked when compiled, as numpy would)."""
+def submatrix(S: np.ndarray, idx: np.ndarray, *, n_threads: int = 2, out: np.ndarray | None = None) -> np.ndarray:
+    """A C-ordered float64 array equal to ``S[np.ix_(idx, idx)]`` (``S`` 2-D float64, ``idx`` integer indices
+    within its rows and columns; not checked when compiled, as numpy would): new, or ``out`` (k, k) filled."""
     idx = np.ascontiguousarray(idx, dtype=np.int64)
     k = len(idx)
     if k * k < _COMPILED_MIN or S.dtype != np.float64 or not S.flags.c_contiguous:
-        return S[np.ix_(idx, idx)]
+        if out is None:
+            return S[np.ix_(idx, idx)]
+        out[...] = S[np.ix_(idx, idx)]
+        return out
     if k and (idx.min() < 0 or idx.max() >= min(S.shape)):
         raise IndexError(f"index out of range for a {S.shape[0]} x {S.shape[1]} matrix")
-    out = np.empty((k, k))
+    out = np.empty((k, k)) if out is None else out
     step = -(-k // max(1, 4 * n_threads))
     run_in_threads(lambda lo: _gather_rows(S, idx, out, lo, min(lo + step, k)), range(0, k, step), n_threads)
     return out

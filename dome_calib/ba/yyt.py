@@ -78,3 +78,93 @@ def subtract_yyt(S4: np.ndarray, ypt: np.ndarray, st, n_threads: int) -> None:
     jobs = [np.arange(t, A, n_jobs) for t in range(n_jobs)]
     run_in_threads(lambda rows: _rows_kernel(S4, ypt, st.cam_pt, st.pt_ptr, st.pt_pos, st.pt_act, st.act_starts, rows,
                                              nk), jobs, n_threads)
+
+
+@njit(nogil=True, boundscheck=False)
+def _pattern_pass(cam_pt, pt_ptr, pt, act_starts, A, row_ptr, cols, fill):  # pragma: no cover - compiled
+    """Count (``fill`` False: into ``row_ptr[1:]``) or list (``fill`` True: into ``cols``, ascending per row) the
+    cameras b >= a that share a point with each active camera a."""
+    mark = np.full(A, -1, dtype=np.int64)
+    for a in range(A):
+        n = 0
+        for i in range(act_starts[a], act_starts[a + 1]):
+            p = pt[i]
+            for jj in range(pt_ptr[p], pt_ptr[p + 1]):
+                b = cam_pt[jj]
+                if b >= a and mark[b] != a:
+                    mark[b] = a
+                    if fill:
+                        cols[row_ptr[a] + n] = b
+                    n += 1
+        if fill:
+            cols[row_ptr[a]:row_ptr[a + 1]].sort()
+        else:
+            row_ptr[a + 1] = n
+
+
+def block_pattern(st) -> tuple[np.ndarray, np.ndarray]:
+    """The upper block pattern of the reduced camera system: (row_ptr (A + 1,), cols (B,)), row a's blocks are the
+    cameras ``cols[row_ptr[a]:row_ptr[a + 1]]`` (ascending, the first is a itself) that share a point with a.
+    ``st`` is the :class:`dome_calib.ba.schur.Structure`."""
+    A = len(st.active_cameras)
+    row_ptr = np.zeros(A + 1, dtype=np.int64)
+    if A == 0:
+        return row_ptr, np.zeros(0, dtype=np.int64)
+    _pattern_pass(st.cam_pt, st.pt_ptr, st.pt_act, st.act_starts, A, row_ptr, np.zeros(0, dtype=np.int64), False)
+    row_ptr = np.cumsum(row_ptr)
+    cols = np.empty(row_ptr[-1], dtype=np.int64)
+    _pattern_pass(st.cam_pt, st.pt_ptr, st.pt_act, st.act_starts, A, row_ptr, cols, True)
+    return row_ptr, cols
+
+
+@njit(nogil=True, boundscheck=False)
+def _block_rows_kernel(blocks, row_ptr, cols, ypt, cam_pt, pt_ptr, pos, pt, act_starts, rows, nk, A
+                       ):  # pragma: no cover - compiled
+    """As :func:`_rows_kernel`, into the upper blocks of the pattern (``blocks[k]`` is block (a, cols[k]))."""
+    W = ypt.shape[2]
+    buf = np.zeros((A, W, W))
+    for a in rows:
+        for i in range(act_starts[a], act_starts[a + 1]):
+            p = pt[i]
+            first = pos[i]
+            while first > pt_ptr[p] and cam_pt[first - 1] == a:
+                first -= 1
+            yi = ypt[pos[i]]
+            for jj in range(first, pt_ptr[p + 1]):
+                b = cam_pt[jj]
+                yj = ypt[jj]
+                blk = buf[b]
+                for r in range(W):
+                    y0 = yi[0, r]
+                    y1 = yi[1, r]
+                    y2 = yi[2, r]
+                    for c in range(W):
+                        blk[r, c] += y0 * yj[0, c] + y1 * yj[1, c] + y2 * yj[2, c]
+        for k in range(row_ptr[a], row_ptr[a + 1]):
+            b = cols[k]
+            blk = buf[b]
+            out = blocks[k]
+            if b == a:  # the upper triangle, mirrored, as the dense kernel
+                for r in range(nk):
+                    for c in range(r, nk):
+                        out[r, c] -= blk[r, c]
+                        if c != r:
+                            out[c, r] -= blk[r, c]
+            else:
+                for r in range(nk):
+                    for c in range(nk):
+                        out[r, c] -= blk[r, c]
+            blk[:, :] = 0.0
+
+
+def subtract_yyt_blocks(blocks: np.ndarray, row_ptr: np.ndarray, cols: np.ndarray, ypt: np.ndarray, st,
+                        n_threads: int) -> None:
+    """blocks (B, k, k) -= the blocks of Y Y^T on the upper block pattern (:func:`block_pattern`); the same sums in
+    the same order as :func:`subtract_yyt`, so the same values as the dense matrix's blocks, bit for bit."""
+    A, nk = len(row_ptr) - 1, blocks.shape[1]
+    if A == 0 or nk == 0 or len(ypt) == 0:
+        return
+    n_jobs = max(1, min(A, 8 * n_threads))
+    jobs = [np.arange(t, A, n_jobs) for t in range(n_jobs)]
+    run_in_threads(lambda rows: _block_rows_kernel(blocks, row_ptr, cols, ypt, st.cam_pt, st.pt_ptr, st.pt_pos,
+                                                   st.pt_act, st.act_starts, rows, nk, A), jobs, n_threads)

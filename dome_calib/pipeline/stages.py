@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
-from dome_calib.ba.heap import kept_heap
 from dome_calib.ba.lens_model import LensModelOptions, select_lens_model, warm_solver
 from dome_calib.ba.problem import BAProblem
 from dome_calib.ba.result import BAResult
@@ -204,14 +203,13 @@ def run_ba_stage(problem: BAProblem, *, options: BAOptions | None = None,
     options = options or ba_options()
     lens_model = None
     t0, cpu0 = time.perf_counter(), time.process_time()
-    with kept_heap():  # the solves and the lens model's steps between them reuse freed arrays (dome_calib.ba.heap)
-        if options.compute_uncertainty:
-            solve_only = dataclasses.replace(options, compute_uncertainty=False)  # uncertainties once, at the end
-            result, chosen = select_lens_model(problem, warm_solver(solve_only), lens, n_threads=options.n_threads)
-            result = _with_uncertainty(result, options)
-            lens_model = chosen.as_dict()
-        else:
-            result = bundle_adjust(problem, options)
+    if options.compute_uncertainty:
+        solve_only = dataclasses.replace(options, compute_uncertainty=False)  # uncertainties once, at the end
+        result, chosen = select_lens_model(problem, warm_solver(solve_only), lens, n_threads=options.n_threads)
+        result = _with_uncertainty(result, options)
+        lens_model = chosen.as_dict()
+    else:
+        result = bundle_adjust(problem, options)
     refined = result.problem
     used = np.asarray(result.used, dtype=bool)
     sigma, rot_sigma = {}, {}
