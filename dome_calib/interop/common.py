@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import re
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated
@@ -257,3 +258,16 @@ def dropped_terms_line(shifts: dict[str, float], what: str) -> str:
     worst = max(shifts, key=shifts.get)
     return (f"{what} dropped for {len(shifts)} camera(s): the point seen at the image corner moves by up to "
             f"{shifts[worst]:.3f} px (camera {worst})")
+
+
+def xml_root(path: Path, kind: str) -> ET.Element:
+    """The root element of an XML calibration file (``kind``: what it should be, e.g. "a Vicon .xcp"); InteropError
+    of one line naming the file when it is missing, a folder or not XML."""
+    try:
+        return ET.fromstring(path.read_bytes())
+    except FileNotFoundError:
+        raise InteropError(f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise InteropError(f"{path}: is a folder, expected {kind} file") from None
+    except ET.ParseError as exc:
+        raise InteropError(f"{path}: not an XML file ({exc}); expected {kind} calibration") from None

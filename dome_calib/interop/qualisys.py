@@ -33,14 +33,13 @@ from __future__ import annotations
 
 import logging
 import re
-import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
 from pydantic import BeforeValidator, Field, model_validator
 
-from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read
+from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, xml_root
 from dome_calib.interop.fields import ROTATION_REPAIR_TOL, rotation_error
 from dome_calib.schema import OpenSchema, show, validate
 
@@ -153,14 +152,7 @@ def _natural(name: str) -> list[Any]:
 
 
 def _document(path: Path) -> dict[str, Any]:
-    try:
-        root = ET.fromstring(path.read_bytes())
-    except FileNotFoundError:
-        raise InteropError(f"{path}: file not found") from None
-    except IsADirectoryError:
-        raise InteropError(f"{path}: is a folder, expected a Qualisys .qca.txt file") from None
-    except ET.ParseError as exc:
-        raise InteropError(f"{path}: not an XML file ({exc}); expected a Qualisys .qca.txt calibration") from None
+    root = xml_root(path, "a Qualisys .qca.txt")
     cameras = []
     for tag in root.findall("cameras/camera"):
         entry: dict[str, Any] = dict(tag.attrib)

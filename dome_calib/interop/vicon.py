@@ -19,14 +19,13 @@ from __future__ import annotations
 
 import logging
 import re
-import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
 from pydantic import BeforeValidator, Field
 
-from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read
+from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, xml_root
 from dome_calib.interop.fields import ROTATION_REPAIR_TOL
 from dome_calib.schema import OpenSchema, validate
 
@@ -96,14 +95,7 @@ class XcpFile(OpenSchema):
 
 
 def _document(path: Path) -> dict[str, Any]:
-    try:
-        root = ET.fromstring(path.read_bytes())
-    except FileNotFoundError:
-        raise InteropError(f"{path}: file not found") from None
-    except IsADirectoryError:
-        raise InteropError(f"{path}: is a folder, expected a Vicon .xcp file") from None
-    except ET.ParseError as exc:
-        raise InteropError(f"{path}: not an XML file ({exc}); expected a Vicon .xcp calibration") from None
+    root = xml_root(path, "a Vicon .xcp")
     cameras = []
     for tag in root.findall("Camera"):
         entry: dict[str, Any] = dict(tag.attrib)
