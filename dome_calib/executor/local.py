@@ -59,6 +59,30 @@ def _worker_ignores_sigint() -> None:
     threading.Thread(target=_exit_when_orphaned, args=(os.getppid(),), name="parent-watchdog", daemon=True).start()
 
 
+@contextmanager
+def _interrupts_after_launch() -> Iterator[None]:
+    """SIGINT / SIGTERM that arrive while a worker process is being launched take effect right after the launch, not
+    inside it: an interrupt between spawning a worker and handing it its start-up data left the worker reading an
+    empty pipe, and it printed ``EOFError: Ran out of input`` with a traceback on the user's terminal. Python runs
+    signal handlers in the main thread only, so outside it (or with a non-Python handler) nothing is changed; the
+    handlers in place before are put back on leaving, and the first signal that came is then handed to its own."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    kept = {sig: handler for sig in (signal.SIGINT, signal.SIGTERM)
+            if callable(handler := signal.getsignal(sig))}  # a default or ignored disposition: no Python handler
+    came: list[tuple[int, Any]] = []
+    for sig in kept:
+        signal.signal(sig, lambda signum, frame: came.append((signum, frame)))
+    try:
+        yield
+    finally:
+        for sig, handler in kept.items():
+            signal.signal(sig, handler)
+        for signum, frame in came[:1]:
+            kept[signum](signum, frame)
+
+
 class LocalProcessExecutor:
     """A process pool on this machine (default: one worker per available core).
 
@@ -82,7 +106,7 @@ class LocalProcessExecutor:
         with self._lock:
             if len(self._processes()) >= self.num_workers:
                 return self._pool.submit(fn, *args, **kwargs)
-            with single_threaded_children():
+            with single_threaded_children(), _interrupts_after_launch():
                 return self._pool.submit(fn, *args, **kwargs)
 
     def _processes(self) -> list[multiprocessing.Process]:
