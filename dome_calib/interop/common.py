@@ -12,9 +12,10 @@ from __future__ import annotations
 import logging
 import re
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
 
@@ -271,3 +272,21 @@ def xml_root(path: Path, kind: str) -> ET.Element:
         raise InteropError(f"{path}: is a folder, expected {kind} file") from None
     except ET.ParseError as exc:
         raise InteropError(f"{path}: not an XML file ({exc}); expected {kind} calibration") from None
+
+
+def video_cameras(path: Path, cameras: list[Any], is_video: Callable[[Any], bool], name: Callable[[Any], str],
+                  what: str) -> list[Any]:
+    """The video cameras of a motion-capture calibration in Pose2Sim's order: natural order of their names (``cam2``
+    before ``cam10``: digits compared as numbers, the rest without case). None is one line (``what``: how a video
+    camera is told apart); marker-only cameras are left out in one warning, as Pose2Sim leaves them out."""
+    def natural(text: str) -> list[Any]:
+        return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", text)]
+
+    video = sorted((c for c in cameras if is_video(c)), key=lambda c: natural(name(c)))
+    if not video:
+        raise InteropError(f"{path}: no video camera ({what}): nothing to import")
+    left_out = [name(c) for c in cameras if not is_video(c)]
+    if left_out:
+        logger.warning("%s: %d marker-only camera(s) left out, as Pose2Sim does (%s)", path, len(left_out),
+                       ", ".join(left_out[:4]))
+    return video

@@ -39,7 +39,8 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import BeforeValidator, Field, model_validator
 
-from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, xml_root
+from dome_calib.interop.common import (ForeignCamera, ImportOptions, InteropError, Read, video_cameras,
+                                       xml_root)
 from dome_calib.interop.fields import ROTATION_REPAIR_TOL, rotation_error
 from dome_calib.schema import OpenSchema, show, validate
 
@@ -146,11 +147,6 @@ class QcaFile(OpenSchema):
     cameras: list[QcaCamera] = Field(min_length=1)
 
 
-def _natural(name: str) -> list[Any]:
-    """``cam2`` before ``cam10``: digits compared as numbers, the rest without case."""
-    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
-
-
 def _document(path: Path) -> dict[str, Any]:
     root = xml_root(path, "a Qualisys .qca.txt")
     cameras = []
@@ -189,13 +185,8 @@ def binning(camera: QcaCamera, given: int | None, path: Path) -> int:
 def read(path: Path, options: ImportOptions) -> Read:
     """The video cameras in Pose2Sim's order (natural order of their serials), lengths in mm."""
     doc = validate(_document(path), QcaFile, source=path, error=InteropError)
-    video = sorted((c for c in doc.cameras if c.is_video()), key=lambda c: _natural(c.serial))
-    if not video:
-        raise InteropError(f"{path}: no video camera (model containing 'video' or 'none'): nothing to import")
-    left_out = [c.serial for c in doc.cameras if not c.is_video()]
-    if left_out:
-        logger.warning("%s: %d marker-only camera(s) left out, as Pose2Sim does (%s)", path, len(left_out),
-                       ", ".join(left_out[:4]))
+    video = video_cameras(path, doc.cameras, lambda c: c.is_video(), lambda c: c.serial,
+                          "model containing 'video' or 'none'")
     unused = [c.serial for c in video if c.intrinsic.radialDistortion3 != 0 or c.intrinsic.skew != 0]
     if unused:
         logger.warning("%s: radialDistortion3 or skew not zero for %s: not read (as Pose2Sim; the model holds "

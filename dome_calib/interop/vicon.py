@@ -17,19 +17,16 @@ said), in natural order of their ``DEVICEID``, named by it.
 """
 from __future__ import annotations
 
-import logging
-import re
 from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
 from pydantic import BeforeValidator, Field
 
-from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, xml_root
+from dome_calib.interop.common import (ForeignCamera, ImportOptions, InteropError, Read, video_cameras,
+                                       xml_root)
 from dome_calib.interop.fields import ROTATION_REPAIR_TOL
 from dome_calib.schema import OpenSchema, validate
-
-logger = logging.getLogger(__name__)
 
 
 def _numbers(value: Any) -> Any:
@@ -106,10 +103,6 @@ def _document(path: Path) -> dict[str, Any]:
     return {"cameras": cameras}
 
 
-def _natural(name: str) -> list[Any]:
-    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
-
-
 def quaternion_matrix(q: list[float]) -> np.ndarray:
     """(qx, qy, qz, w) -> the rotation matrix (Pose2Sim's ``quat2mat(q, scalar_idx=3)`` transposed back)."""
     x, y, z, w = q
@@ -124,13 +117,8 @@ def quaternion_matrix(q: list[float]) -> np.ndarray:
 def read(path: Path, options: ImportOptions) -> Read:
     """The video cameras in Pose2Sim's order (natural order of their ids), lengths in mm."""
     doc = validate(_document(path), XcpFile, source=path, error=InteropError)
-    video = sorted((c for c in doc.cameras if c.is_video()), key=lambda c: _natural(c.DEVICEID))
-    if not video:
-        raise InteropError(f"{path}: no video camera (TYPE containing 'video'): nothing to import")
-    left_out = [c.DEVICEID for c in doc.cameras if not c.is_video()]
-    if left_out:
-        logger.warning("%s: %d marker-only camera(s) left out, as Pose2Sim does (%s)", path, len(left_out),
-                       ", ".join(left_out[:4]))
+    video = video_cameras(path, doc.cameras, lambda c: c.is_video(), lambda c: c.DEVICEID,
+                          "TYPE containing 'video'")
     cams = []
     for c in video:
         k = c.keyframe
