@@ -12,8 +12,10 @@
    again against those more complete skeletons (outliers are not removed there: the assignment caps each joint's
    cost).
 
-:func:`associate` runs the three for every time of a batch; :func:`assigned_detections` lays out what it found for
-the triangulation (:func:`dome_calib.recon.people.bodies.triangulate_people`).
+:func:`associate` runs the three for every time of a batch; the bridging of the tracks' gaps
+(:mod:`~dome_calib.recon.people.bridging`) takes the same rules from here: :func:`leftover` (the detections no
+person took), :func:`enough_views` (``min_person_views``) and :func:`assign_passes`. :func:`assigned_detections`
+lays out what was found for the triangulation (:func:`dome_calib.recon.people.bodies.triangulate_people`).
 """
 from __future__ import annotations
 
@@ -65,15 +67,27 @@ def assign(kernel: CameraKernel, skeletons: np.ndarray, kp: np.ndarray, options:
 
 
 
-def residual_proposals(views: ViewSet, kernel: CameraKernel, kp: np.ndarray, skeletons: np.ndarray, A: np.ndarray,
-                       options: AssociationOptions, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Proposals from the detections that no proposal took (step 2): (V, P) assignment -> (V, P + P_new) and the
-    (P + P_new, 19, 3) skeletons."""
+def leftover(kp: np.ndarray, A: np.ndarray, options: AssociationOptions) -> np.ndarray:
+    """The leftover rule: (V, N, 19, 3) detections at one time and the (V, P) assignment of its people -> (V, N)
+    bool: the detections no person took that hold ``min_common_joints`` joints above ``min_joint_conf`` (the
+    residual proposals' and the bridging's evidence)."""
     V, N = kp.shape[:2]
     taken = np.zeros((V, N), bool)
     v, p = np.nonzero(A >= 0)
     taken[v, A[v, p]] = True
-    left = ~taken & ((kp[..., 2] > options.min_joint_conf).sum(-1) >= options.min_common_joints)
+    return ~taken & ((kp[..., 2] > options.min_joint_conf).sum(-1) >= options.min_common_joints)
+
+
+def enough_views(A: np.ndarray, options: AssociationOptions) -> np.ndarray:
+    """(P,) bool: the people of a (V, P) assignment with at least ``min_person_views`` views."""
+    return (A >= 0).sum(0) >= options.min_person_views
+
+
+def residual_proposals(views: ViewSet, kernel: CameraKernel, kp: np.ndarray, skeletons: np.ndarray, A: np.ndarray,
+                       options: AssociationOptions, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Proposals from the detections that no proposal took (step 2): (V, P) assignment -> (V, P + P_new) and the
+    (P + P_new, 19, 3) skeletons."""
+    left = leftover(kp, A, options)
     has_left = left.any(1)
     if has_left.sum() < options.min_person_views:
         return A, skeletons
@@ -82,7 +96,7 @@ def residual_proposals(views: ViewSet, kernel: CameraKernel, kp: np.ndarray, ske
     if len(new) == 0:
         return A, skeletons
     B = assign(kernel, new, kp_left, options)
-    keep = (B >= 0).sum(0) >= options.min_person_views
+    keep = enough_views(B, options)
     return np.concatenate([A, B[:, keep]], axis=1), np.concatenate([skeletons, new[keep]])
 
 
@@ -126,14 +140,24 @@ def associate(views: ViewSet, kernel: CameraKernel, pairs: np.ndarray, kp: np.nd
     for t in range(T):
         A = assign(kernel, skeletons[t], kp[t], a)
         A, skeletons[t] = residual_proposals(views, kernel, kp[t], skeletons[t], A, a, rays[t])
-        assigned.append(A[:, (A >= 0).sum(0) >= a.min_person_views])
+        assigned.append(A[:, enough_views(A, a)])
+    return assign_passes(views, kernel, kp, assigned, a, min_body_joints=min_body_joints)
+
+
+def assign_passes(views: ViewSet, kernel: CameraKernel, kp: np.ndarray, assigned: list[np.ndarray],
+                  options: AssociationOptions, *, min_body_joints: int) -> list[np.ndarray]:
+    """The passes after the first (step 3): ``passes - 1`` rounds, each assigning the detections kp (T, V, N, 19, 3)
+    again against the linear triangulations of each time's assigned ones (skeletons of ``min_body_joints`` joints
+    or more, de-duplicated) -> per time the (V, P_t) assignment, ``min_person_views`` views each. One linear
+    triangulation call for the T times of a round."""
+    a = options
     for _ in range(a.passes - 1):  # assign again against linear triangulations of the assigned detections
         X = linear_skeletons(views, kernel, kp, assigned)
         sizes = np.cumsum([0] + [A.shape[1] for A in assigned])
-        for t in range(T):
+        for t in range(len(assigned)):
             S = X[sizes[t]: sizes[t + 1]]
             S = S[np.isfinite(S).all(-1).sum(1) >= min_body_joints]
             S = S[dedupe(S, np.isfinite(S).all(-1), a.duplicate_cm)]
             A = assign(kernel, S, kp[t], a)
-            assigned[t] = A[:, (A >= 0).sum(0) >= a.min_person_views]
+            assigned[t] = A[:, enough_views(A, a)]
     return assigned

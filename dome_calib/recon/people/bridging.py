@@ -13,9 +13,11 @@ row, while he is tracked before and after. There the track is the evidence the f
 2. **Hypotheses from the detections no body took** (:func:`~dome_calib.recon.people.proposals.pair_hypotheses` over
    :func:`~dome_calib.recon.people.proposals.residual_pairs`: the same ray-gap gate, common joints and bones as the
    per-frame pass, all from the detector's measured noise). Those within the gate of a prediction are clustered with
-   no floor; every other rule is the per-frame pass's: assignment (``passes`` rounds), ``min_person_views`` views,
-   robust triangulation, the joint check, the depth witness, ``min_body_joints`` joints, not within
-   ``duplicate_cm`` of a body already there.
+   no floor; every other rule is the per-frame pass's, taken from where it lives: the leftover rule, the assignment
+   and its ``passes`` rounds, ``min_person_views`` views (:mod:`~dome_calib.recon.people.assign`), then the per-time
+   association's bodies stage (:func:`~dome_calib.recon.people.per_time.bodies_of`: robust triangulation, the joint
+   check, the depth witness, ``min_body_joints`` joints); a body found is not within ``duplicate_cm`` of a body
+   already there.
 3. **One body per track** by the tracker's matching (Hungarian on the median joint distance to the predictions,
    quantised to 0.001 cm, gated): it takes the track's id. No track starts here, so no false body can.
 
@@ -30,19 +32,19 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from dome_calib.recon.kernel import CameraKernel
-from dome_calib.recon.people.agreement import CameraAgreement, tally_agreement
-from dome_calib.recon.people.assign import assign, linear_skeletons
-from dome_calib.recon.people.bodies import Bodies, build_bodies, triangulate_people
+from dome_calib.recon.people.agreement import CameraAgreement
+from dome_calib.recon.people.assign import assign, assign_passes, enough_views, leftover
+from dome_calib.recon.people.bodies import Bodies
 from dome_calib.recon.people.depth_witness import DepthWitness
-from dome_calib.recon.people.joint_check import JointCheckOptions, check_joints
-from dome_calib.recon.people.matching import dedupe, skeleton_distance_cm
+from dome_calib.recon.people.matching import skeleton_distance_cm
+from dome_calib.recon.people.options import PeopleOptions
+from dome_calib.recon.people.per_time import bodies_of
 from dome_calib.recon.people.proposals import (AssociationOptions, cluster_hypotheses, pair_hypotheses,
                                                residual_pairs, world_rays)
 from dome_calib.recon.people.resample import gather_people
 from dome_calib.recon.people.sources import FileSource, InMemorySource
 from dome_calib.recon.people.tracking import TrackingOptions
 from dome_calib.recon.project import ViewSet
-from dome_calib.recon.triangulate import TriangulationOptions
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,19 +101,25 @@ def _proposals_near(views: ViewSet, kernel: CameraKernel, kp_left: np.ndarray, h
     return cluster_hypotheses(centres[near], joints[near], weights[near], no_floor)
 
 
-def _assign_left(views: ViewSet, kernel: CameraKernel, kp_left: np.ndarray, S: np.ndarray,
-                 options: AssociationOptions, min_body_joints: int) -> np.ndarray:
-    """The leftover detections assigned to the proposals, ``passes`` rounds as the per-frame pass
-    (:func:`~dome_calib.recon.people.assign.associate`) -> (V, P) with ``min_person_views`` views each."""
-    A = assign(kernel, S, kp_left, options)
-    A = A[:, (A >= 0).sum(0) >= options.min_person_views]
-    for _ in range(options.passes - 1):
-        X = linear_skeletons(views, kernel, kp_left[None], [A])
-        X = X[np.isfinite(X).all(-1).sum(1) >= min_body_joints]
-        X = X[dedupe(X, np.isfinite(X).all(-1), options.duplicate_cm)]
-        A = assign(kernel, X, kp_left, options)
-        A = A[:, (A >= 0).sum(0) >= options.min_person_views]
-    return A
+def gap_assignment(views: ViewSet, kernel: CameraKernel, kp: np.ndarray, A0: np.ndarray, gap: GapPredictions,
+                   options: PeopleOptions) -> np.ndarray:
+    """One gap's time: its detections kp (V, N, 19, 3) and the (V, P) assignment of the bodies already there ->
+    the (V, P') assignment of the people found in the detections they left (:func:`~.assign.leftover`) near the
+    tracks' predictions: assigned, then ``passes`` rounds (:func:`~.assign.assign_passes`), with the per-frame
+    pass's own rules (module docstring, step 2)."""
+    a = options.association
+    none = np.zeros((len(views.names), 0), np.int64)
+    left = leftover(kp, A0, a)
+    has_left = left.any(1)
+    if has_left.sum() < a.min_person_views:
+        return none
+    kp_left = np.where(left[..., None, None], kp, 0.0)
+    S = _proposals_near(views, kernel, kp_left, has_left, gap, a)
+    if not len(S):
+        return none
+    A = assign(kernel, S, kp_left, a)
+    return assign_passes(views, kernel, kp_left[None], [A[:, enough_views(A, a)]], a,
+                         min_body_joints=options.min_body_joints)[0]
 
 
 def gap_batches(gaps: list[GapPredictions], batch_times: int) -> list[list[GapPredictions]]:
@@ -134,52 +142,32 @@ def _concat(a: Bodies, b: Bodies) -> Bodies:
 
 
 def bridge_gaps(views: ViewSet, source: InMemorySource | FileSource, times_ms: np.ndarray, bodies: list[Bodies],
-                cameras: CameraAgreement, *, association: AssociationOptions, triangulation: TriangulationOptions,
-                joint_check: JointCheckOptions, tracking: TrackingOptions, min_body_joints: int,
-                max_gap_frames: float, batch_times: int, depth: DepthWitness | None = None
+                cameras: CameraAgreement, options: PeopleOptions, *, depth: DepthWitness | None = None
                 ) -> tuple[list[Bodies], CameraAgreement]:
     """The tracked bodies of a whole session -> the same with the bodies found inside the tracks' gaps (module
     docstring), and the per-frame tallies with theirs. Reads the detections of the gaps' times only, in batches
-    within ``batch_times`` consecutive times."""
-    gaps = gap_predictions(times_ms, bodies, tracking)
+    within ``batch_times`` consecutive times. The bodies come from the per-time association's own stage
+    (:func:`~dome_calib.recon.people.per_time.bodies_of`: triangulation, joint check, depth witness, build)."""
+    gaps = gap_predictions(times_ms, bodies, options.tracking)
     if not gaps:
         return bodies, cameras
     t = np.asarray(times_ms, dtype=float)
     views = views.subset(source.cameras)  # the order of the bodies' detection indices and of the tallies
     kernel = CameraKernel(views)
-    a = association
+    a = options.association
     out = list(bodies)
     tallies = CameraAgreement.empty(list(views.names))
-    for batch in gap_batches(gaps, batch_times):
+    for batch in gap_batches(gaps, options.batch_times):
         ks = np.array([g.k for g in batch])
-        streams = source.chunk(float(t[ks[0]]), float(t[ks[-1]]), max_gap_frames)
-        kp = gather_people(streams, t[ks], max_gap_frames)  # (B, V, N, 19, 3)
-        assigned = []
-        for gap, kp_k in zip(batch, kp):
-            taken = np.zeros(kp_k.shape[:2], bool)
-            A0 = bodies[gap.k].assigned.T  # (V, P)
-            v, p = np.nonzero(A0 >= 0)
-            taken[v, A0[v, p]] = True
-            left = ~taken & ((kp_k[..., 2] > a.min_joint_conf).sum(-1) >= a.min_common_joints)
-            has_left = left.any(1)
-            if has_left.sum() < a.min_person_views:
-                assigned.append(np.zeros((len(views.names), 0), np.int64))
-                continue
-            kp_left = np.where(left[..., None, None], kp_k, 0.0)
-            S = _proposals_near(views, kernel, kp_left, has_left, gap, a)
-            assigned.append(_assign_left(views, kernel, kp_left, S, a, min_body_joints) if len(S)
-                            else np.zeros((len(views.names), 0), np.int64))
-        tri = triangulate_people(views, kp, assigned, triangulation)
-        ok = check_joints(tri.X_cm, tri.n_inliers, joint_check)
-        if depth is not None:
-            for j, k in enumerate(ks):
-                sl = slice(tri.sizes[j], tri.sizes[j + 1])
-                ok[sl] &= depth.keep(np.where(ok[sl, :, None], tri.X_cm[sl], np.nan), float(t[k]))
-        found, kept = build_bodies(tri, ok, min_body_joints=min_body_joints, duplicate_cm=a.duplicate_cm)
-        taken_rows = np.zeros(len(kept), bool)
-        rows_of = np.flatnonzero(kept)
+        streams = source.chunk(float(t[ks[0]]), float(t[ks[-1]]), options.max_gap_frames)
+        kp = gather_people(streams, t[ks], options.max_gap_frames)  # (B, V, N, 19, 3)
+        assigned = [gap_assignment(views, kernel, kp_k, bodies[gap.k].assigned.T, gap, options)
+                    for gap, kp_k in zip(batch, kp)]
+        found = bodies_of(views, kp, assigned, options, times_ms=t[ks], depth=depth)
+        taken_rows = np.zeros(len(found.kept), bool)
+        rows_of = np.flatnonzero(found.kept)
         row = 0
-        for gap, new in zip(batch, found):
+        for gap, new in zip(batch, found.bodies):
             rows, row = rows_of[row: row + len(new.ids)], row + len(new.ids)
             if not len(new.ids):
                 continue
@@ -197,9 +185,10 @@ def bridge_gaps(views: ViewSet, source: InMemorySource | FileSource, times_ms: n
             r, c = r[order], c[order]
             out[gap.k] = _concat(here, new.take(c, gap.ids[r]))
             taken_rows[rows[c]] = True
-        tallies.add(tally_agreement(views, kp, tri, ok, taken_rows, min_joint_conf=a.min_joint_conf,
-                                    min_common_joints=a.min_common_joints))
+        tallies.add(found.agreement(views, kp, taken_rows, a))
     # the gaps' times were counted by the per-frame pass already: only what the bodies found here used is added
+    # (their depth verdicts are not counted: as before this stage was shared, cameras.json's depth figures are the
+    # per-frame pass's)
     tallies.detected[:] = 0
     total = CameraAgreement.empty(list(cameras.names))
     total.add(cameras)

@@ -1,6 +1,8 @@
 """Many people, no labels: OpenPose-style detections of every camera -> tracked 3D skeletons (joints19, world cm).
 
-The run, in the order the data flows (each step a function of its own module, testable alone):
+The run, in the order the data flows (each step a function of its own module, testable alone; steps 2-6 are the
+per-time association, :func:`~dome_calib.recon.people.per_time.associate_batch`, whose rules the bridging of the
+tracks' gaps shares):
 
 1. :func:`~dome_calib.recon.people.resample.gather_people`: every stream's people at a batch of universal times;
 2. :func:`~dome_calib.recon.people.assign.associate`: proposals (:mod:`~dome_calib.recon.people.proposals`) and
@@ -28,52 +30,27 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from fractions import Fraction
-from typing import Annotated
+from dataclasses import dataclass
 
 import numpy as np
 
-from dome_calib.options import AtLeast, Field, PosFraction, options
 from dome_calib.recon.kernel import CameraKernel
-from dome_calib.recon.people.agreement import CameraAgreement, tally_agreement
-from dome_calib.recon.people.assign import associate
+from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.bridging import bridge_gaps
-from dome_calib.recon.people.bodies import Bodies, build_bodies, triangulate_people
+from dome_calib.recon.people.bodies import Bodies
 from dome_calib.recon.people.depth_witness import DepthWitness
-from dome_calib.recon.people.joint_check import JointCheckOptions, check_joints
-from dome_calib.recon.people.proposals import AssociationOptions, select_pairs
+from dome_calib.recon.people.options import PeopleOptions
+from dome_calib.recon.people.per_time import associate_batch
+from dome_calib.recon.people.proposals import select_pairs
 from dome_calib.recon.people.resample import gather_people
 from dome_calib.recon.people.sources import FileSource, InMemorySource, PeopleStream
-from dome_calib.recon.people.temporal import TemporalOptions
-from dome_calib.recon.people.tracking import TrackingOptions, apply_tracks, smooth_tracks
+from dome_calib.recon.people.tracking import apply_tracks, smooth_tracks
 from dome_calib.recon.people.windows import refine_session
 from dome_calib.recon.project import ViewSet
-from dome_calib.recon.triangulate import TriangulationOptions
+
+__all__ = ["PeopleOptions", "PeopleSequence", "associate_batch", "people_at_times", "reconstruct_people", "over_time"]
 
 logger = logging.getLogger(__name__)
-
-
-@options
-class PeopleOptions:
-    """Options of :func:`reconstruct_people`. joint_check: which triangulated joints a body keeps
-    (:mod:`~dome_calib.recon.people.joint_check`); min_body_joints: a body needs this many reconstructed joints;
-    max_gap_frames: stream brackets wider than this many frame periods are not bridged; batch_times: times
-    triangulated together; chunk_times: the times of one task of :func:`reconstruct_people_chunked`. Neither
-    changes the result (only memory and speed). temporal: the body over time (:mod:`~dome_calib.recon.people.temporal`;
-    ``enabled=False`` keeps the per-frame joints)."""
-
-    association: AssociationOptions = field(default_factory=AssociationOptions)
-    triangulation: TriangulationOptions = field(default_factory=lambda: TriangulationOptions(
-        inlier_threshold_px=10.0, min_views=2, min_confidence=0.05))
-    tracking: TrackingOptions = field(default_factory=TrackingOptions)
-    joint_check: JointCheckOptions = field(default_factory=JointCheckOptions)
-    temporal: TemporalOptions = field(default_factory=TemporalOptions)
-    min_body_joints: AtLeast(1) = 6
-    max_gap_frames: Annotated[float, Field(ge=1)] = 2.5
-    batch_times: AtLeast(1) = 16
-    chunk_times: AtLeast(1) = 600
-    shared_fps: PosFraction | None = None
 
 
 @dataclass
@@ -83,29 +60,6 @@ class PeopleSequence:
     times_ms: np.ndarray
     bodies: list[Bodies]
     cameras: CameraAgreement
-
-
-def associate_batch(views: ViewSet, kernel: CameraKernel, pairs: np.ndarray, kp: np.ndarray,
-                    options: PeopleOptions, *, times_ms: np.ndarray | None = None, depth: DepthWitness | None = None
-                    ) -> tuple[list[Bodies], CameraAgreement]:
-    """(T, V, N, 19, 3) people at T times -> the bodies of each time (ids -1, each with its assigned detections) and
-    the cameras' agreement (steps 2-6 of the module docstring; with ``depth`` and the batch's ``times_ms``, step 4
-    also drops the joints the Kinects see through, :mod:`~dome_calib.recon.people.depth_witness`)."""
-    a = options.association
-    assigned = associate(views, kernel, pairs, kp, a, min_body_joints=options.min_body_joints)
-    tri = triangulate_people(views, kp, assigned, options.triangulation)
-    ok = check_joints(tri.X_cm, tri.n_inliers, options.joint_check)
-    before = int(ok.sum())
-    if depth is not None:
-        for k in range(len(tri.sizes) - 1):
-            sl = slice(tri.sizes[k], tri.sizes[k + 1])
-            ok[sl] &= depth.keep(np.where(ok[sl, :, None], tri.X_cm[sl], np.nan), float(times_ms[k]))
-    bodies, kept = build_bodies(tri, ok, min_body_joints=options.min_body_joints, duplicate_cm=a.duplicate_cm)
-    agreement = tally_agreement(views, kp, tri, ok, kept, min_joint_conf=a.min_joint_conf,
-                                min_common_joints=a.min_common_joints)
-    if depth is not None:
-        agreement.depth_joints, agreement.depth_rejected = before, before - int(ok.sum())
-    return bodies, agreement
 
 
 def people_at_times(views: ViewSet, streams: list[PeopleStream], times_ms: np.ndarray,
@@ -171,11 +125,7 @@ def over_time(views: ViewSet, source: InMemorySource | FileSource, seq: PeopleSe
     bodies = apply_tracks(seq.times_ms, seq.bodies, options.tracking)
     cameras = seq.cameras
     if options.tracking.bridge_gaps:
-        bodies, cameras = bridge_gaps(views, source, seq.times_ms, bodies, cameras, association=options.association,
-                                      triangulation=options.triangulation, joint_check=options.joint_check,
-                                      tracking=options.tracking, min_body_joints=options.min_body_joints,
-                                      max_gap_frames=options.max_gap_frames, batch_times=options.batch_times,
-                                      depth=depth)
+        bodies, cameras = bridge_gaps(views, source, seq.times_ms, bodies, cameras, options, depth=depth)
     bodies = smooth_tracks(seq.times_ms, bodies, options.tracking.smooth_half_window)
     bodies, cameras = refine_session(views, source, seq.times_ms, bodies, cameras, options.temporal,
                                      max_gap_frames=options.max_gap_frames, batch_times=options.batch_times,
