@@ -31,6 +31,11 @@ class CaptureError(DomeCalibError, ValueError):
     """A capture folder (images, Kinect frames, audio) is missing something or malformed."""
 
 
+class PeopleFileError(DomeCalibError, ValueError):
+    """A body3DScene folder or file is unusable (:mod:`dome_calib.body3d_scene`), or a people output cannot be
+    written; the message names the file, the field and what is wrong."""
+
+
 class ReportError(DomeCalibError):
     """The report cannot be made from what was given (bad residual file, unknown camera)."""
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from dome_calib.body3d_scene import read_scene
 from dome_calib.bundle import Bundle
 from dome_calib.panoptic_io import read_calibration, read_kcalibration
 from dome_calib.synth.skeleton import synthetic_sync
@@ -31,3 +32,11 @@ def dome_points(n: int, seed: int = 0) -> np.ndarray:
     """(n, 3) world points (cm) in the capture volume above the floor centre (y down)."""
     rng = np.random.default_rng(seed)
     return rng.uniform([-80, -180, -80], [80, -10, 80], size=(n, 3))
+
+
+def read_skeleton(path) -> tuple[float, np.ndarray, np.ndarray]:
+    """A one-body body3DScene file (``dome-calib triangulate``'s), through the one reader
+    (:func:`dome_calib.body3d_scene.read_scene`) -> (univTime ms, X_cm (19, 3) NaN where c < 0, confidence (19,))."""
+    t_ms, bodies = read_scene(path)
+    (body,) = bodies.values()
+    return t_ms, np.where(body[:, 3:4] < 0, np.nan, body[:, :3]), body[:, 3]

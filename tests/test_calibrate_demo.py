@@ -74,7 +74,7 @@ def _check_group(out: str, demo_dir):
     conversation, one crouching: none leaves), reconstructed with the produced bundle from 14 cameras' OpenPose
     files (8 VGA, 5 HD, the one synced Kinect)."""
     from dome_calib.recon.people.matching import skeleton_distance_cm
-    from dome_calib.skeletons.scenes import read_scene
+    from dome_calib.body3d_scene import read_scene
 
     head = re.search(r"group \(5 people, scenario mixed; OpenPose BODY_25 detections of 14 cameras, no ids; "
                      r"dome-calib reconstruct with the produced bundle, (\d+) VGA frames", out)

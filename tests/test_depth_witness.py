@@ -15,7 +15,7 @@ from dome_calib.bundle_io import write_bundle
 from dome_calib.recon.depth import depth_folder_reader, depth_rays
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.people.depth_witness import DepthSensors, DepthWitness, DepthWitnessOptions, judge_joints
-from dome_calib.skeletons.scenes import read_scene
+from dome_calib.body3d_scene import read_scene
 from dome_calib.recon.project import depth_from_world, kinect_sensor
 from dome_calib.synth.depth_people import ray_capsules, render_people_depth_mm, write_group_depth
 from dome_calib.synth.detector import DetectorModel, synth_detections, write_openpose_folder

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
+from dome_calib.body3d_scene import scene_json
 from dome_calib.recon.people.bodies import Bodies
-from dome_calib.recon.people.scene_io import scene_json
 from dome_calib.synth.group import GroupOptions, make_group
 from dome_calib.synth.group_eval import MATCH_CM, judge_group, load_group_truth, match_bodies, read_bodies
 from dome_calib.synth.group_session import truth_document
@@ -112,7 +112,8 @@ def test_group_truth_and_bodies_read_back(tmp_path):
         conf[1, 4] = -1.0
         b = Bodies(X_cm=Xb, confidence=conf, n_inliers=np.full((2, 19), 3), n_views=np.array([3, 3]),
                    ids=np.array([frame, 1]))
-        (out / f"body3DScene_{frame:08d}.json").write_text(json.dumps(scene_json(frame * 40.0, b, "vga_25")))
+        scene = scene_json(frame * 40.0, b.ids, b.X_cm, b.confidence, b.n_inliers, "vga_25")
+        (out / f"body3DScene_{frame:08d}.json").write_text(json.dumps(scene))
         written[frame] = Xb
     frames, t_ms, ids, bodies = read_bodies(out)
     assert frames.tolist() == [9, 10, 100] and t_ms.tolist() == [360.0, 400.0, 4000.0]

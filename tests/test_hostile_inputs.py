@@ -20,11 +20,10 @@ import pytest
 
 from dome_calib.ownership import RECORD
 from dome_calib.bundle_io import write_bundle
-from dome_calib.recon.formats import read_skeleton
 from dome_calib.synth.skeleton import synthetic_tracks
 
 from .conftest import REAL_CALIBRATION, REAL_KCALIBRATION
-from .recon_helpers import real_bundle
+from .recon_helpers import read_skeleton, real_bundle
 
 CAL = json.loads(REAL_CALIBRATION.read_text())
 KCAL = json.loads(REAL_KCALIBRATION.read_text())

@@ -10,7 +10,7 @@ import pytest
 
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import write_bundle
-from dome_calib.skeletons.scenes import read_scene
+from dome_calib.body3d_scene import read_scene
 from dome_calib.rotation import rotvec_to_matrix
 from dome_calib.synth.detector import write_openpose_folder
 

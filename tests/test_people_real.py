@@ -15,7 +15,7 @@ from dome_calib.interop.common import ImportOptions
 from dome_calib.interop.convert import read_foreign
 from dome_calib.recon.body_models import JOINTS19
 from dome_calib.recon.openpose_io import read_openpose_folder
-from dome_calib.skeletons.scenes import read_scene
+from dome_calib.body3d_scene import read_scene
 from dome_calib.recon.project import project_points, view_set
 
 DATA = Path(__file__).parent / "data" / "pose2sim_balancing"

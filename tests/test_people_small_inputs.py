@@ -16,7 +16,7 @@ from dome_calib.bundle_io import write_bundle
 from dome_calib.recon.people.run import PeopleOptions
 from dome_calib.recon.people.temporal import TemporalOptions
 from dome_calib.recon.people.tracking import TrackingOptions, track_bodies
-from dome_calib.skeletons.scenes import read_scene
+from dome_calib.body3d_scene import read_scene
 from dome_calib.synth.detector import write_openpose_folder
 
 from .people_helpers import group_detections

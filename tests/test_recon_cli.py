@@ -10,11 +10,10 @@ import pytest
 
 from dome_calib.bundle_io import write_bundle
 from dome_calib.recon.depth import read_ply
-from dome_calib.recon.formats import read_skeleton
 from dome_calib.synth.skeleton import skeleton_cm, synthetic_tracks
 from dome_calib.synth.depth import distance_to_triangles, render_depth_mm, tent_triangles
 
-from .recon_helpers import real_bundle
+from .recon_helpers import read_skeleton, real_bundle
 
 
 

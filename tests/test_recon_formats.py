@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from dome_calib.recon.errors import ReconError
-from dome_calib.recon.formats import default_times, read_detections, read_skeleton, write_skeletons
+from dome_calib.recon.formats import default_times, read_detections, write_skeletons
 from dome_calib.recon.streams import SkeletonSequence, group_by_stream
 
-from .recon_helpers import real_bundle
+from .recon_helpers import read_skeleton, real_bundle
 
 
 def _write(tmp_path, obj) -> str:

@@ -14,12 +14,11 @@ from dome_calib.bundle_io import write_bundle
 from dome_calib.errors import DomeCalibError
 from dome_calib.recon.commands import triangulate_file
 from dome_calib.recon.errors import ReconError
-from dome_calib.recon.formats import read_skeleton
 from dome_calib.recon.project import view_set
 from dome_calib.synth.skeleton import skeleton_cm, synthetic_tracks
 from dome_calib.recon.triangulate import triangulate
 
-from .recon_helpers import real_bundle
+from .recon_helpers import read_skeleton, real_bundle
 
 MEAN_TOL_CM = 1.0  # mean joint error: 2 px detection noise, 10 % wrong detections, 12 VGA cameras
 

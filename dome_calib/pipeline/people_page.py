@@ -21,10 +21,11 @@ from dome_calib.bundle_io import load_bundle
 from dome_calib.ownership import claim_file
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, parse_camera_map, read_openpose_files
+from dome_calib.recon.people.scene_io import StagedPeople
 from dome_calib.recon.streams import stream_of_camera
 from dome_calib.skeletons.errors import PeopleFileError
 from dome_calib.skeletons.page import MAX_DETECTED_PEOPLE, PAGE_FILE, CameraDetections, write_people_page
-from dome_calib.skeletons.scenes import People, read_people, with_rate
+from dome_calib.skeletons.scenes import People, people_of_scenes, read_people, with_rate
 
 logger = logging.getLogger(__name__)
 
@@ -95,16 +96,23 @@ def build_people_page(people_folder: str | Path, *, out: str | Path | None = Non
                       camera_map: str | None = None, body_model: str | None = None, cameras: list[str] | None = None,
                       progress: Callable[[int, int], None] | None = None,
                       shown_as: str | Path | None = None,
-                      files: dict[str, dict[int, Path]] | None = None) -> PeoplePageSummary:
+                      files: dict[str, dict[int, Path]] | None = None,
+                      staged: StagedPeople | None = None) -> PeoplePageSummary:
     """Write the people page of ``people_folder`` to ``out`` (default ``people_folder/index.html``); ``shown_as``:
-    the folder the page names (default ``people_folder``)."""
+    the folder the page names (default ``people_folder``); ``staged``: the files ``reconstruct`` has just staged in
+    ``people_folder``, in memory (their scenes are not read back; its bundle, when it has one, is not loaded
+    again)."""
     if detections is not None and bundle is None:
         raise PeopleFileError(f"{detections}: detections need the calibration bundle (--bundle) to be put on "
                               "universal time and compared with the reprojected bodies")
     page = Path(out) if out is not None else Path(people_folder) / PAGE_FILE
     claim_file(page, inputs=_inputs(people_folder, bundle, detections))  # before any reading
-    people = with_rate(read_people(people_folder, progress=progress),  # the page plays at the folder's rate
+    people = (people_of_scenes(people_folder, staged.files, staged.scenes) if staged is not None
+              else read_people(people_folder, progress=progress))
+    people = with_rate(people,  # the page plays at the folder's rate
                        remedy="the page plays the files at their fpsType's rate or their times' (give an fpsType)")
+    if staged is not None and staged.bundle is not None:
+        bundle = staged.bundle
     cal = load_bundle(bundle) if isinstance(bundle, (str, Path)) else bundle
     det, notes = ([], [])
     if detections is not None and cal is not None:
@@ -133,13 +141,15 @@ def people_page_writer(out: str | Path, bundle: str | Path, detections: str | Pa
                        camera_map: str | dict[str, str] | None = None,
                        body_model: str | None = None,
                        files: dict[str, dict[int, Path]] | None = None) -> Callable[[Path], None]:
-    """What ``reconstruct`` (writing ``out``) is given to add its page: ``write(staging)`` builds
-    ``staging/index.html`` from the body3DScene files just staged there, with the bundle and the detections
-    reconstruct read (``files``: its index of the detections folder, so the folder is not scanned twice)."""
+    """What ``reconstruct`` (writing ``out``) is given to add its page: ``write(staging, staged)`` builds
+    ``staging/index.html`` from the body3DScene files just staged there as the run holds them
+    (:class:`~dome_calib.recon.people.scene_io.StagedPeople`: not read back; the run's bundle, else ``bundle``),
+    with the detections reconstruct read (``files``: its index of the detections folder, so the folder is not
+    scanned twice)."""
     mapping = ",".join(f"{k}={v}" for k, v in camera_map.items()) if isinstance(camera_map, dict) else camera_map
 
-    def write(staging: Path) -> None:
+    def write(staging: Path, staged: StagedPeople | None = None) -> None:
         build_people_page(staging, bundle=bundle, detections=detections, camera_map=mapping, body_model=body_model,
-                          shown_as=out, files=files)
+                          shown_as=out, files=files, staged=staged)
 
     return write

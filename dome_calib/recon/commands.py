@@ -8,14 +8,14 @@ from pathlib import Path
 
 import numpy as np
 
+from dome_calib.body3d_scene import fps_type_of
 from dome_calib.bundle_io import load_bundle
 from dome_calib.errors import require_finite
 from dome_calib.layout import check_dome_scale
 from dome_calib.recon.errors import ReconError
 from dome_calib.ownership import claim_file, claim_folder
 from dome_calib.recon.depth import depth_folder_reader, pointcloud_at, write_ply
-from dome_calib.recon.formats import (check_times, default_times, fps_type_of,
-                                      load_detection_streams, write_skeletons)
+from dome_calib.recon.formats import check_times, default_times, load_detection_streams, write_skeletons
 from dome_calib.recon.project import view_set
 from dome_calib.recon.streams import triangulate_streams
 from dome_calib.recon.triangulate import TriangulationOptions

@@ -5,19 +5,14 @@ In: a detections file (2D joints per camera per frame of that camera's own strea
     {"joints": 19, "body_id": 0, "reference": "vga", "times_ms": [...],      (all optional)
      "cameras": {"01_01": {"frames": [100, 101], "joints": [[[u, v, c], ... J], ...]}, ...}}
 
-Out: one Panoptic ``body3DScene`` file per time, ``body3DScene_<k:08d>.json``::
-
-    {"version": 0.7, "univTime": t_ms, "fpsType": "vga_25", "bodies": [{"id": 0, "joints19": [x, y, z, c, ...],
-     "inlierViews19": [n, ...]}]}
-
-x, y, z in cm (Panoptic world), c = mean detection confidence of the supporting views, -1 (and x = y = z = 0)
-where the joint could not be reconstructed.
+Out: one Panoptic ``body3DScene`` file per time, ``body3DScene_<k:08d>.json``, one body (``joints<J>``,
+``inlierViews<J>``), written by the one body3DScene module (:mod:`dome_calib.body3d_scene`): x, y, z in cm (Panoptic
+world), c = mean detection confidence of the supporting views, -1 (and x = y = z = 0) where the joint could not be
+reconstructed.
 """
 from __future__ import annotations
 
-import json
 import logging
-import re
 from pathlib import Path
 from typing import Annotated
 
@@ -26,14 +21,11 @@ from pydantic import model_validator
 
 from dome_calib.arrays import per_row
 from dome_calib.bundle import Bundle
+from dome_calib.body3d_scene import scene_json, write_scene_folder
 from dome_calib.bundle_schema import FrameIndex
-from dome_calib.ownership import replace_folder
 from dome_calib.recon.errors import ReconError
 from dome_calib.schema import INT64_MAX, CameraName, Field, FieldError, FileSchema, Finite, Vec, read_json
 from dome_calib.recon.streams import SkeletonSequence, StreamTracks, group_by_stream
-
-FPS_TYPE = {"vga": "vga_25", "hd": "hd_29_97"}
-SKELETON_FILE = re.compile(r"body3DScene_-?\d+\.json")
 
 logger = logging.getLogger(__name__)
 
@@ -175,46 +167,11 @@ def check_times(path: str | Path, streams: list[StreamTracks], times_ms: np.ndar
     return used
 
 
-def skeleton_json(seq: SkeletonSequence, k: int, *, body_id: int = 0, fps_type: str = "custom") -> dict:
-    """One Panoptic body3DScene object for time ``k`` of the sequence."""
-    J = seq.X_cm.shape[1]
-    flat: list[float] = []
-    for j in range(J):
-        X, c = seq.X_cm[k, j], float(seq.confidence[k, j])
-        if not (np.all(np.isfinite(X)) and c >= 0):
-            flat += [0.0, 0.0, 0.0, -1.0]
-        else:
-            flat += [round(float(v), 4) for v in X] + [round(c, 4)]
-    return {"version": 0.7, "univTime": round(float(seq.times_ms[k]), 4), "fpsType": fps_type,
-            "bodies": [{"id": body_id, f"joints{J}": flat, f"inlierViews{J}": [int(n) for n in seq.n_inliers[k]]}]}
-
-
 def write_skeletons(folder: str | Path, seq: SkeletonSequence, numbers: np.ndarray, *, body_id: int = 0,
                     fps_type: str = "custom") -> list[Path]:
-    """Write ``body3DScene_<number:08d>.json`` per time into ``folder``, replacing it as a whole (staged beside it,
-    then renamed): a reader sees the earlier run's files or this run's, never a mix."""
-    folder = Path(folder)
-    names = []
-    with replace_folder(folder) as staging:
-        for k, number in enumerate(numbers):
-            obj = skeleton_json(seq, k, body_id=body_id, fps_type=fps_type)
-            names.append(f"body3DScene_{int(number):08d}.json")
-            (staging / names[-1]).write_text(json.dumps(obj, allow_nan=False) + "\n", encoding="utf-8")
-    return [folder / n for n in names]
-
-
-def read_skeleton(path: str | Path) -> tuple[float, np.ndarray, np.ndarray]:
-    """A body3DScene file -> (univTime ms, X_cm (J, 3) NaN where c < 0, confidence (J,)) of its first body."""
-    data = json.loads(Path(path).read_text(encoding="utf-8"))
-    body = data["bodies"][0]
-    key = next(k for k in body if k.startswith("joints"))
-    arr = np.asarray(body[key], dtype=float).reshape(-1, 4)
-    X = np.where(arr[:, 3:4] < 0, np.nan, arr[:, :3])
-    return float(data["univTime"]), X, arr[:, 3]
-
-
-def fps_type_of(stream: str, explicit_times: bool) -> str:
-    """Panoptic ``fpsType`` label for output times taken from ``stream`` (``custom`` for explicit times)."""
-    return "custom" if explicit_times else FPS_TYPE.get(stream, "custom")
-
-
+    """Write ``body3DScene_<number:08d>.json`` per time into ``folder`` (one body, ``body_id``), replacing it as a
+    whole (:func:`dome_calib.body3d_scene.write_scene_folder`)."""
+    ids = np.array([body_id])
+    return write_scene_folder(folder, numbers, (
+        scene_json(seq.times_ms[k], ids, seq.X_cm[k][None], seq.confidence[k][None], seq.n_inliers[k][None], fps_type)
+        for k in range(len(numbers))))

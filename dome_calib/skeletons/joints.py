@@ -27,14 +27,9 @@ from __future__ import annotations
 
 import numpy as np
 
+# the file's layouts and extra joints are declared with the file (dome_calib.body3d_scene) and named here too
+from dome_calib.body3d_scene import EXTRA_NAMES, JOINTS15, JOINTS19, LAYOUTS  # noqa: F401
 from dome_calib.lab_world import PANOPTIC_FROM_UP
-
-#: joints19 names, in file order.
-JOINTS19 = ("neck", "nose", "body_center", "l_shoulder", "l_elbow", "l_wrist", "l_hip", "l_knee", "l_ankle",
-            "r_shoulder", "r_elbow", "r_wrist", "r_hip", "r_knee", "r_ankle", "l_eye", "l_ear", "r_eye", "r_ear")
-#: joints15 ("mpi15") names, in file order.
-JOINTS15 = ("neck", "head_top") + JOINTS19[2:15]
-LAYOUTS = {"joints19": JOINTS19, "joints15": JOINTS15}
 
 #: Marker name of each joint (Pose2Sim's names).
 MARKER = {"neck": "Neck", "nose": "Nose", "head_top": "Head", "body_center": "CHip", "l_shoulder": "LShoulder",
@@ -43,8 +38,6 @@ MARKER = {"neck": "Neck", "nose": "Nose", "head_top": "Head", "body_center": "CH
           "r_ankle": "RAnkle", "l_eye": "LEye", "l_ear": "LEar", "r_eye": "REye", "r_ear": "REar",
           "upper_neck": "Neck", "l_big_toe": "LBigToe", "l_small_toe": "LSmallToe", "l_heel": "LHeel",
           "r_big_toe": "RBigToe", "r_small_toe": "RSmallToe", "r_heel": "RHeel"}
-#: The detector's extra joints a body3DScene file may carry beside its layout (``extraJointNames``).
-EXTRA_NAMES = ("upper_neck", "head_top", "l_big_toe", "l_small_toe", "l_heel", "r_big_toe", "r_small_toe", "r_heel")
 #: The hip centre's marker name per detector model where Pose2Sim's tree names it ``Hip`` (else ``CHip``).
 HIP_CENTRE_MARKER = {"HALPE_26": "Hip", "COCO_17": "Hip"}
 #: Marker name of joints19's neck where the detector's own neck joint (BODY_25B's UpperNeck) is ``Neck``: ours is

@@ -27,12 +27,12 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from dome_calib.body3d_scene import read_scene, scene_files
 from dome_calib.bundle import Bundle
 from dome_calib.recon.body_models import JOINTS19
 from dome_calib.recon.openpose_io import read_openpose_folder
 from dome_calib.recon.people.resample import interpolate_people
 from dome_calib.recon.people.run import PeopleOptions
-from dome_calib.skeletons.scenes import read_scene
 from dome_calib.recon.people.sources import PeopleStream, people_streams
 from dome_calib.recon.project import ViewSet, project_points, view_set
 from dome_calib.recon.triangulate import triangulate
@@ -78,12 +78,11 @@ def load_group_truth(path: str | Path) -> GroupTruthFrames:
 def read_bodies(folder: str | Path) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], list[np.ndarray]]:
     """A reconstruct output folder -> (frames (T,), univ times_ms (T,), ids[t] (N_t,), X_cm[t] (N_t, 19, 3) with
     NaN for joints not reconstructed), in frame order."""
-    paths = sorted(Path(folder).glob("body3DScene_*.json"), key=lambda p: int(p.stem.rpartition("_")[2]))
     frames, times, ids, X = [], [], [], []
-    for path in paths:
+    for frame, path in scene_files(folder):
         t_ms, bodies = read_scene(path)
         order = sorted(bodies)
-        frames.append(int(path.stem.rpartition("_")[2]))
+        frames.append(frame)
         times.append(t_ms)
         ids.append(np.array(order, dtype=np.int64))
         X.append(np.array([np.where(bodies[i][:, 3:4] >= 0, bodies[i][:, :3], np.nan) for i in order]

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dome_calib.bundle import FRAME_TIME_TOLERANCE_MS
+from dome_calib.body3d_scene import fps_type_of
+from dome_calib.bundle import FRAME_TIME_TOLERANCE_MS, Bundle
 from dome_calib.bundle_io import load_bundle
 from dome_calib.executor import is_remote
 from dome_calib.lab_world import imported_up
@@ -24,7 +25,6 @@ from dome_calib.io_utils import (refuse_output_among_inputs, refuse_output_insid
                                 run_temp_folder)
 from dome_calib.recon.body_models import BodyModel, parse_body_model
 from dome_calib.recon.errors import ReconError
-from dome_calib.recon.formats import FPS_TYPE
 from dome_calib.recon.depth import depth_folder_reader
 from dome_calib.recon.openpose_io import body_model_of, file_digests, index_openpose_folder, parse_camera_map
 from dome_calib.recon.people.agreement import CameraAgreement
@@ -34,7 +34,7 @@ from dome_calib.recon.people.detection_cache import PREFIX as KEPT_PREFIX
 from dome_calib.recon.people.extras import extra_joints
 from dome_calib.recon.people.proposals import AssociationOptions
 from dome_calib.recon.people.run import PeopleOptions
-from dome_calib.recon.people.scene_io import camera_report, check_people_folder, write_people
+from dome_calib.recon.people.scene_io import StagedPeople, camera_report, check_people_folder, write_people
 from dome_calib.recon.people.sources import FileSource, StreamLayout, stream_layouts
 from dome_calib.recon.people.temporal import TemporalOptions
 from dome_calib.recon.people.tracking import TrackingOptions
@@ -85,6 +85,7 @@ class ReconstructPlan:
     fps: Fraction | None = None
     fps_from: str = ""
     lab_up: str | None = None
+    bundle: Bundle | None = None  # the calibration read once, handed to the files written beside the people
 
 
 def people_options(*, min_views: int = 3, smooth: int = 0, fps: str | None = None, per_frame: bool = False
@@ -228,7 +229,7 @@ def plan_reconstruction(detections: str | Path, bundle_folder: str | Path, out: 
     return ReconstructPlan(out=out, views=view_set(bundle, source.cameras), source=source, times_ms=times,
                            numbers=numbers, reference=ref, model=model, options=options, depth=depth, fps=fps,
                            fps_from=fps_from if fps is not None else "",
-                           lab_up=imported_up(bundle.calib_data_source))
+                           lab_up=imported_up(bundle.calib_data_source), bundle=bundle)
 
 
 #: The share of the joints the cameras agreed on that the Kinects' depth may see through before the run says so:
@@ -278,18 +279,20 @@ def kept_detections(source, executor=None) -> Iterator:
 
 
 def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callable[[int, int], None] | None = None,
-                       page: Callable[[Path], None] | None = None) -> ReconstructSummary:
+                       page: Callable[[Path, StagedPeople], None] | None = None) -> ReconstructSummary:
     """The work of a checked plan: people at every time (chunks on ``executor``), then the files, written only at
-    the end (staged, then renamed); ``page(staging)`` adds the caller's files to the staged folder (the people page:
-    dome_calib.pipeline.people_page.people_page_writer)."""
+    the end (staged, then renamed); ``page(staging, staged)`` adds the caller's files to the staged folder from the
+    run's own results (:class:`~dome_calib.recon.people.scene_io.StagedPeople`: the scenes written, cameras.json's
+    report, the plan's bundle; the people page: dome_calib.pipeline.people_page.people_page_writer). The camera
+    report is computed once, for cameras.json and the summary."""
     with kept_detections(plan.source, executor) as source:  # later passes take what the first one read
         seq = reconstruct_people_chunked(plan.views, source, plan.times_ms, plan.options, executor=executor,
                                          depth=plan.depth, progress=progress)
         extras = (extra_joints(plan.views, plan.source, seq, plan.options)
                   if isinstance(plan.source, FileSource) else None)  # the detector's joints beside joints19
-    write_people(plan.out, seq, plan.numbers, FPS_TYPE.get(plan.reference, "custom"), also=page,
-                 body_model=plan.model.value, extras=extras, lab_up=plan.lab_up, fps=plan.fps)
     report = camera_report(seq.cameras)
+    write_people(plan.out, seq, plan.numbers, fps_type_of(plan.reference), also=page, body_model=plan.model.value,
+                 extras=extras, lab_up=plan.lab_up, fps=plan.fps, report=report, bundle=plan.bundle)
     ids = {int(i) for b in seq.bodies for i in b.ids}
     nobody = None if ids else why_nobody(seq.cameras, plan.options, len(plan.times_ms))
     if ids and seq.cameras.depth_rejected > DEPTH_SUSPECT_SHARE * seq.cameras.depth_joints:
@@ -306,7 +309,7 @@ def reconstruct_folder(detections: str | Path, bundle_folder: str | Path, out: s
                        reference: str | None = None, options: PeopleOptions | None = None, executor=None,
                        depth_folder: str | Path | None = None, depth_options: DepthWitnessOptions | None = None,
                        progress: Callable[[int, int], None] | None = None,
-                       page: Callable[[Path], None] | None = None,
+                       page: Callable[[Path, StagedPeople], None] | None = None,
                        videos: str | Path | None = None) -> ReconstructSummary:
     """Detections folder (OpenPose JSON per camera) + bundle -> ``out`` (body3DScene per time, cameras.json, and
     ``page(staging)``'s files).

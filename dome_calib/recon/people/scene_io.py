@@ -32,17 +32,17 @@ measured pixel noise from where the body puts the joint: swaps, a neighbour's li
 from __future__ import annotations
 
 import json
-from fractions import Fraction
 from collections.abc import Callable
+from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 
-from dome_calib.ownership import claim_folder, replace_folder
-from dome_calib.recon.formats import SKELETON_FILE
-from dome_calib.recon.errors import ReconError
+from dome_calib.body3d_scene import scene_json, scene_name, write_scene_folder
+from dome_calib.bundle import Bundle
+from dome_calib.ownership import claim_folder
 from dome_calib.recon.people.agreement import CameraAgreement
-from dome_calib.recon.people.bodies import Bodies
 from dome_calib.recon.people.extras import ExtraJoints
 from dome_calib.recon.people.run import PeopleSequence
 
@@ -62,42 +62,6 @@ def check_people_folder(folder: str | Path) -> Path:
     """The output folder ``-o`` may replace (:func:`dome_calib.ownership.claim_folder`: absent, empty or what
     dome-calib wrote, unchanged); anything else is refused before any work."""
     return claim_folder(folder)
-
-
-def _joints_json(X_cm: np.ndarray, confidence: np.ndarray) -> list[float]:
-    """(J, 3), (J,) -> ``[x, y, z, c] * J`` (``0, 0, 0, -1`` where not reconstructed)."""
-    flat: list[float] = []
-    for X, c in zip(X_cm, confidence):
-        if np.all(np.isfinite(X)) and c >= 0:
-            flat += [round(float(v), 4) for v in X] + [round(float(c), 4)]
-        else:
-            flat += [0.0, 0.0, 0.0, -1.0]
-    return flat
-
-
-def scene_json(time_ms: float, bodies: Bodies, fps_type: str, *, body_model: str | None = None,
-               extra: tuple[list[str], np.ndarray, np.ndarray, np.ndarray] | None = None,
-               lab_up: str | None = None, fps: Fraction | None = None) -> dict:
-    """One body3DScene object (bodies sorted by id); ``extra``: (names, X_cm (P, E, 3), confidence (P, E),
-    n_inliers (P, E)) of the bodies in their order here (:mod:`~dome_calib.recon.people.extras`)."""
-    out = []
-    for p in np.argsort(bodies.ids, kind="stable"):
-        body = {"id": int(bodies.ids[p]), "joints19": _joints_json(bodies.X_cm[p], bodies.confidence[p]),
-                "inlierViews19": [int(n) for n in bodies.n_inliers[p]]}
-        if extra is not None:
-            body["extraJoints"] = _joints_json(extra[1][p], extra[2][p])
-            body["inlierViewsExtra"] = [int(n) for n in extra[3][p]]
-        out.append(body)
-    scene = {"version": 0.7, "univTime": round(float(time_ms), 4), "fpsType": fps_type}
-    if fps is not None and fps_type == "custom":
-        scene["fps"] = str(fps)
-    if body_model is not None:
-        scene["bodyModel"] = body_model
-    if lab_up is not None:
-        scene["labUp"] = lab_up
-    if extra is not None:
-        scene["extraJointNames"] = list(extra[0])
-    return scene | {"bodies": out}
 
 
 def camera_report(agreement: CameraAgreement) -> dict:
@@ -125,25 +89,47 @@ def camera_report(agreement: CameraAgreement) -> dict:
             "flagged": flagged, "cameras": cams}
 
 
+@dataclass(frozen=True)
+class StagedPeople:
+    """What :func:`write_people` has staged, handed to the files written beside it (the people page) so that they
+    are made from the run's own results, not read back: ``files`` ((frame, path) of each body3DScene file in the
+    staging folder, in frame order), ``scenes`` (the objects written, in that order), ``report`` (cameras.json's),
+    ``bundle`` (the run's calibration, loaded once by the plan; None: the caller's)."""
+
+    files: list[tuple[int, Path]]
+    scenes: list[dict]
+    report: dict
+    bundle: Bundle | None = None
+
+
+def people_scenes(seq: PeopleSequence, fps_type: str, *, body_model: str | None = None,
+                  extras: ExtraJoints | None = None, lab_up: str | None = None,
+                  fps: Fraction | None = None) -> list[dict]:
+    """The body3DScene object of every time of ``seq`` (:func:`dome_calib.body3d_scene.scene_json`; see the module
+    docstring)."""
+    out = []
+    for k, b in enumerate(seq.bodies):
+        extra = None if extras is None else (extras.names, extras.X_cm[k], extras.confidence[k], extras.n_inliers[k])
+        out.append(scene_json(seq.times_ms[k], b.ids, b.X_cm, b.confidence, b.n_inliers, fps_type,
+                              body_model=body_model, extra=extra, lab_up=lab_up, fps=fps))
+    return out
+
+
 def write_people(folder: str | Path, seq: PeopleSequence, numbers: np.ndarray, fps_type: str,
-                 also: Callable[[Path], None] | None = None, *, body_model: str | None = None,
-                 extras: ExtraJoints | None = None, lab_up: str | None = None,
-                 fps: Fraction | None = None) -> list[Path]:
-    """Write the body3DScene files and cameras.json into ``folder``, replacing it as a whole (staged beside it,
-    then renamed); ``also(staging)`` adds to the staged folder before the rename (the people page); ``body_model``
-    and ``extras`` (the detector's joints beside joints19) go into every file (see the module docstring)."""
-    folder = Path(folder)
-    names = []
-    with replace_folder(folder) as staging:
-        for k, number in enumerate(numbers):
-            names.append(f"body3DScene_{int(number):08d}.json")
-            extra = (None if extras is None else
-                     (extras.names, extras.X_cm[k], extras.confidence[k], extras.n_inliers[k]))
-            obj = scene_json(seq.times_ms[k], seq.bodies[k], fps_type, body_model=body_model, extra=extra,
-                             lab_up=lab_up, fps=fps)
-            (staging / names[-1]).write_text(json.dumps(obj, allow_nan=False) + "\n", encoding="utf-8")
-        (staging / CAMERAS_FILE).write_text(json.dumps(camera_report(seq.cameras), indent=1, allow_nan=False) + "\n",
-                                            encoding="utf-8")
+                 also: Callable[[Path, StagedPeople], None] | None = None, *, body_model: str | None = None,
+                 extras: ExtraJoints | None = None, lab_up: str | None = None, fps: Fraction | None = None,
+                 report: dict | None = None, bundle: Bundle | None = None) -> list[Path]:
+    """Write the body3DScene files and cameras.json (``report``, :func:`camera_report` of ``seq.cameras`` when not
+    given) into ``folder``, replacing it as a whole (staged beside it, then renamed); ``also(staging, staged)``
+    adds to the staged folder before the rename (the people page, from :class:`StagedPeople`); ``body_model`` and
+    ``extras`` (the detector's joints beside joints19) go into every file (see the module docstring)."""
+    scenes = people_scenes(seq, fps_type, body_model=body_model, extras=extras, lab_up=lab_up, fps=fps)
+    report = camera_report(seq.cameras) if report is None else report
+
+    def beside(staging: Path) -> None:
+        (staging / CAMERAS_FILE).write_text(json.dumps(report, indent=1, allow_nan=False) + "\n", encoding="utf-8")
         if also is not None:
-            also(staging)
-    return [folder / n for n in names]
+            staged = [(int(n), staging / scene_name(n)) for n in numbers]
+            also(staging, StagedPeople(files=staged, scenes=scenes, report=report, bundle=bundle))
+
+    return write_scene_folder(folder, numbers, scenes, also=beside)
