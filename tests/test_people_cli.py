@@ -233,6 +233,36 @@ def test_later_passes_take_the_detections_the_first_one_kept(group, tmp_path):
         assert sorted(source.digests) == sorted(plan.source.files)
 
 
+def test_the_extra_joints_pass_reads_no_file_the_first_pass_kept(group, tmp_path, monkeypatch):
+    """The first pass keeps every joint the run uses (joints19 and the model's extra joints): the extra joints' pass
+    (recon.people.extras) then reads no OpenPose file again, and gives the extra joints to the last bit as from the
+    files."""
+    import dome_calib.recon.people.sources as sources
+    from dome_calib.recon.people.chunks import reconstruct_people_chunked
+    from dome_calib.recon.people.commands import kept_detections, plan_reconstruction
+    from dome_calib.recon.people.extras import extra_joints
+    from dome_calib.recon.people.run import PeopleOptions
+
+    root, _, _ = group
+    options = PeopleOptions(temporal=dataclasses.replace(PeopleOptions().temporal, enabled=False))
+    plan = plan_reconstruction(root / "det", root / "bundle", tmp_path / "out", body_model="BODY_25", options=options)
+    seq = reconstruct_people_chunked(plan.views, plan.source, plan.times_ms, plan.options)
+    plain = extra_joints(plan.views, plan.source, seq, plan.options)
+    read = sources.read_openpose_files
+    files_read = []
+    monkeypatch.setattr(sources, "read_openpose_files",
+                        lambda files, *a, **k: files_read.append(sum(map(len, files.values()))) or read(files, *a, **k))
+    with kept_detections(plan.source) as source:
+        again = reconstruct_people_chunked(plan.views, source, plan.times_ms, plan.options)
+        first = sum(files_read)
+        kept = extra_joints(plan.views, source, again, plan.options)
+    assert first > 0 and sum(files_read) == first  # the extra joints' pass read nothing
+    for a, b in zip(plain.X_cm, kept.X_cm):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(plain.confidence, kept.confidence):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_kept_detections_come_back_as_read(tmp_path):
     """store / load: every (camera, frame) as it was read (float32), across files of 64 frames, and only the frames
     asked for."""

@@ -288,8 +288,8 @@ def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callab
     with kept_detections(plan.source, executor) as source:  # later passes take what the first one read
         seq = reconstruct_people_chunked(plan.views, source, plan.times_ms, plan.options, executor=executor,
                                          depth=plan.depth, progress=progress)
-        extras = (extra_joints(plan.views, plan.source, seq, plan.options)
-                  if isinstance(plan.source, FileSource) else None)  # the detector's joints beside joints19
+        extras = (extra_joints(plan.views, source, seq, plan.options)
+                  if isinstance(source, FileSource) else None)  # the detector's joints beside joints19
     report = camera_report(seq.cameras)
     write_people(plan.out, seq, plan.numbers, fps_type_of(plan.reference), also=page, body_model=plan.model.value,
                  extras=extras, lab_up=plan.lab_up, fps=plan.fps, report=report, bundle=plan.bundle)

@@ -1,12 +1,14 @@
 """The detections a run has read, kept beside it so that its later passes do not parse the JSON again.
 
-``reconstruct`` reads a session's OpenPose files in three passes: the per-frame bodies (chunks), the bridging of the
-tracks' gaps, and the body over time (windows). Each reads only the frames that bracket its own times, so a long
-session is never in memory; parsed and checked again, the same files cost the body over time two thirds of its time
-(10,230 files: 1.8 of the windows' 2.2 s). The first pass to read a frame keeps what it read in a folder of the run
-(``.npz`` files of a stream's 64 frames: for every camera and frame its (N, 19, 3) joints19, float32 as the streams hold
-them); a later pass takes the frames it finds there and reads only the others, so a stream is filled with the very
-numbers (and the same people per frame) it would have got from the files: the result does not depend on the cache.
+``reconstruct`` reads a session's OpenPose files in four passes: the per-frame bodies (chunks), the bridging of the
+tracks' gaps, the body over time (windows) and the detector's extra joints (:mod:`~dome_calib.recon.people.extras`).
+Each reads only the frames that bracket its own times, so a long session is never in memory; parsed and checked
+again, the same files cost the body over time two thirds of its time (10,230 files: 1.8 of the windows' 2.2 s). The
+first pass to read a frame keeps what it read in a folder of the run (``.npz`` files of a stream's 64 frames: for
+every camera and frame its (N, 19 + E, 3) joints19 and the model's E extra joints, float32 as the streams hold them);
+a later pass takes the frames it finds there and reads only the others, so a stream is filled with the very numbers
+(and the same people per frame) it would have got from the files: the result does not depend on the cache, and each
+file is read once.
 
 The folder belongs to one run and to one machine (``dome_calib.io_utils.run_temp_folder(PREFIX)``: a temporary
 folder named with the run's owner tag, removed when the run ends, also on an interrupt; one a killed run left behind
@@ -36,12 +38,13 @@ FRAMES_PER_FILE = 64
 
 def store(folder: Path, stream: int, cameras: list[str], people: dict[str, dict[int, np.ndarray]]) -> None:
     """Keep one pass's reading of stream ``stream`` (its index among the source's layouts): camera -> {frame -> (N,
-    19, 3)}, ``FRAMES_PER_FILE`` frames a file. Each written to a temporary name, then renamed: a reader sees a whole
+    J, 3)} (J: 19, or 19 + the model's extra joints), ``FRAMES_PER_FILE`` frames a file. Each written to a temporary name, then renamed: a reader sees a whole
     file or none."""
     rows = [(f, v, p) for v, n in enumerate(cameras) for f, p in people.get(n, {}).items()]
     if not rows:
         return
     rows.sort(key=lambda r: (r[0], r[1]))
+    J = np.shape(rows[0][2])[1]  # 19, or 19 + the model's extra joints (one reading of the run: all alike)
     frames = np.array([f for f, _, _ in rows], dtype=np.int64)
     distinct = np.unique(frames)
     for start in range(0, len(distinct), FRAMES_PER_FILE):
@@ -52,12 +55,12 @@ def store(folder: Path, stream: int, cameras: list[str], people: dict[str, dict[
             np.savez(fh, camera=np.array([v for _, v, _ in part], dtype=np.int32),
                      frame=np.array([f for f, _, _ in part], dtype=np.int64),
                      count=np.array([len(p) for _, _, p in part], dtype=np.int64),
-                     kp=np.concatenate([np.asarray(p, dtype=np.float32).reshape(-1, 19, 3) for _, _, p in part]))
+                     kp=np.concatenate([np.asarray(p, dtype=np.float32).reshape(-1, J, 3) for _, _, p in part]))
         os.replace(tmp, tmp[: -len(".tmp")] + ".npz")
 
 
 def load(folder: Path, stream: int, cameras: list[str], frames: np.ndarray) -> dict[tuple[str, int], np.ndarray]:
-    """What earlier passes kept of stream ``stream`` at ``frames``: (camera, frame) -> (N, 19, 3) float32."""
+    """What earlier passes kept of stream ``stream`` at ``frames``: (camera, frame) -> (N, J, 3) float32."""
     if not len(frames):
         return {}
     lo, hi, wanted = int(frames.min()), int(frames.max()), set(frames.tolist())

@@ -50,7 +50,7 @@ def extra_joints(views: ViewSet, source: FileSource, seq: PeopleSequence, option
     names = EXTRA_JOINTS[source.body_model]
     if not names:
         return None
-    src = replace(source, extras=True, cache_dir=None)
+    src = replace(source, extras=True)  # what the run's first pass kept (its cache), else the files
     E, t = len(names), np.asarray(seq.times_ms, dtype=float)
     X, conf, inl = [], [], []
     for c0 in range(0, len(t), options.chunk_times):

@@ -114,7 +114,8 @@ def refuse_mixed_clocks(bundle: Bundle, frames_of: dict[str, Iterable[int]]) -> 
 
 def fill_stream(layout: StreamLayout, people: dict[str, dict[int, np.ndarray]], n_joints: int = 19) -> PeopleStream:
     """A layout's cameras' people (camera -> {frame -> (N, n_joints, 3)}; frames outside the layout ignored) ->
-    :class:`PeopleStream` (``n_joints``: 19, or 19 + the model's extra joints)."""
+    :class:`PeopleStream` (``n_joints``: 19, or 19 + the model's extra joints; a reading of more joints gives its
+    first ``n_joints``)."""
     names, frames = layout.cameras, layout.frame_index
     N = max([len(p) for n in names for f, p in people.get(n, {}).items()] + [1])
     kp = np.zeros((len(frames), len(names), N, n_joints, 3), dtype=np.float32)
@@ -122,7 +123,7 @@ def fill_stream(layout: StreamLayout, people: dict[str, dict[int, np.ndarray]], 
         for f, p in people.get(n, {}).items():
             k = np.searchsorted(frames, f)
             if k < len(frames) and frames[k] == f:
-                kp[k, v, : len(p)] = p
+                kp[k, v, : len(p)] = p[:, :n_joints]  # a reading with the extra joints serves joints19 too
     return PeopleStream(stream=layout.stream, table=layout.table, cameras=names, frame_index=frames, kp=kp)
 
 
@@ -165,10 +166,10 @@ class FileSource:
     """Detections still on disk (camera -> {frame -> OpenPose file}): :meth:`chunk` reads only the files of the
     frames that bracket a span of times, so a long session is never in memory at once (each executor task reads its
     own chunk's files: workers need the detections folder at the same path). With ``cache_dir`` (a run's own folder,
-    :mod:`~dome_calib.recon.people.detection_cache`) what one pass read is kept there and later passes read only the
-    frames it lacks: the same streams either way. With ``extras`` the streams hold 19 + E joints (the model's
-    joints that joints19 lacks after joints19; no cache then): the extra joints' pass,
-    :mod:`~dome_calib.recon.people.extras`."""
+    :mod:`~dome_calib.recon.people.detection_cache`) what one pass read is kept there, every joint the run uses
+    (joints19 and the model's extra joints), and later passes read only the frames it lacks: the same streams either
+    way, so each file is read once. With ``extras`` the streams hold 19 + E joints (the model's joints that joints19
+    lacks after joints19): the extra joints' pass, :mod:`~dome_calib.recon.people.extras`."""
 
     layouts: list[StreamLayout]
     files: dict[str, dict[int, Path]]
@@ -185,12 +186,14 @@ class FileSource:
         out = []
         for i, layout in enumerate(self.layouts):
             frames = layout.frame_index[frames_near(layout, t0_ms, t1_ms, max_gap_frames)]
-            cache = None if self.extras else self.cache_dir
+            cache = self.cache_dir
             kept = load(cache, i, layout.cameras, frames) if cache is not None else {}
             wanted = set(frames.tolist())
             files = {n: {f: p for f, p in self.files.get(n, {}).items() if f in wanted and (n, f) not in kept}
                      for n in layout.cameras}
-            people = read_openpose_files(files, self.body_model, self.digests, extras=self.extras)
+            # kept: with the extra joints, so that the extra joints' pass reads no file again
+            people = read_openpose_files(files, self.body_model, self.digests,
+                                         extras=self.extras or cache is not None)
             if cache is not None:
                 store(cache, i, layout.cameras, people)
             for (n, f), p in kept.items():
