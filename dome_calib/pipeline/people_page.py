@@ -107,7 +107,7 @@ def build_people_page(people_folder: str | Path, *, out: str | Path | None = Non
                               "universal time and compared with the reprojected bodies")
     page = Path(out) if out is not None else Path(people_folder) / PAGE_FILE
     claim_file(page, inputs=_inputs(people_folder, bundle, detections))  # before any reading
-    people = (people_of_scenes(people_folder, staged.files, staged.scenes) if staged is not None
+    people = (people_of_scenes(people_folder, staged.files, staged.scenes()) if staged is not None
               else read_people(people_folder, progress=progress))
     people = with_rate(people,  # the page plays at the folder's rate
                        remedy="the page plays the files at their fpsType's rate or their times' (give an fpsType)")

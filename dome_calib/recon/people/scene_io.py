@@ -32,7 +32,7 @@ measured pixel noise from where the body puts the joint: swaps, a neighbour's li
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -93,26 +93,25 @@ def camera_report(agreement: CameraAgreement) -> dict:
 class StagedPeople:
     """What :func:`write_people` has staged, handed to the files written beside it (the people page) so that they
     are made from the run's own results, not read back: ``files`` ((frame, path) of each body3DScene file in the
-    staging folder, in frame order), ``scenes`` (the objects written, in that order), ``report`` (cameras.json's),
-    ``bundle`` (the run's calibration, loaded once by the plan; None: the caller's)."""
+    staging folder, in frame order), ``scenes()`` (the objects written, in that order, made again one at a time from
+    the run's arrays: a long session's scenes are never all in memory), ``report`` (cameras.json's), ``bundle`` (the
+    run's calibration, loaded once by the plan; None: the caller's)."""
 
     files: list[tuple[int, Path]]
-    scenes: list[dict]
+    scenes: Callable[[], Iterator[dict]]
     report: dict
     bundle: Bundle | None = None
 
 
 def people_scenes(seq: PeopleSequence, fps_type: str, *, body_model: str | None = None,
                   extras: ExtraJoints | None = None, lab_up: str | None = None,
-                  fps: Fraction | None = None) -> list[dict]:
-    """The body3DScene object of every time of ``seq`` (:func:`dome_calib.body3d_scene.scene_json`; see the module
-    docstring)."""
-    out = []
+                  fps: Fraction | None = None) -> Iterator[dict]:
+    """The body3DScene object of every time of ``seq``, one at a time (:func:`dome_calib.body3d_scene.scene_json`;
+    see the module docstring)."""
     for k, b in enumerate(seq.bodies):
         extra = None if extras is None else (extras.names, extras.X_cm[k], extras.confidence[k], extras.n_inliers[k])
-        out.append(scene_json(seq.times_ms[k], b.ids, b.X_cm, b.confidence, b.n_inliers, fps_type,
-                              body_model=body_model, extra=extra, lab_up=lab_up, fps=fps))
-    return out
+        yield scene_json(seq.times_ms[k], b.ids, b.X_cm, b.confidence, b.n_inliers, fps_type, body_model=body_model,
+                         extra=extra, lab_up=lab_up, fps=fps)
 
 
 def write_people(folder: str | Path, seq: PeopleSequence, numbers: np.ndarray, fps_type: str,
@@ -123,7 +122,9 @@ def write_people(folder: str | Path, seq: PeopleSequence, numbers: np.ndarray, f
     given) into ``folder``, replacing it as a whole (staged beside it, then renamed); ``also(staging, staged)``
     adds to the staged folder before the rename (the people page, from :class:`StagedPeople`); ``body_model`` and
     ``extras`` (the detector's joints beside joints19) go into every file (see the module docstring)."""
-    scenes = people_scenes(seq, fps_type, body_model=body_model, extras=extras, lab_up=lab_up, fps=fps)
+    def scenes() -> Iterator[dict]:
+        return people_scenes(seq, fps_type, body_model=body_model, extras=extras, lab_up=lab_up, fps=fps)
+
     report = camera_report(seq.cameras) if report is None else report
 
     def beside(staging: Path) -> None:
@@ -132,4 +133,4 @@ def write_people(folder: str | Path, seq: PeopleSequence, numbers: np.ndarray, f
             staged = [(int(n), staging / scene_name(n)) for n in numbers]
             also(staging, StagedPeople(files=staged, scenes=scenes, report=report, bundle=bundle))
 
-    return write_scene_folder(folder, numbers, scenes, also=beside)
+    return write_scene_folder(folder, numbers, scenes(), also=beside)
