@@ -13,8 +13,9 @@ index at the rate ``reconstruct`` takes from ``--fps`` or ``--videos`` (:func:`w
 
 **Sizes.** An image must be the size the calibration states. A camera whose images are a crop of the calibrated
 image says where the crop starts (``crop_origin_px`` ``[x, y]``: the calibrated pixel at the image's top-left
-pixel); the camera as imaged is then the calibrated one with its principal point moved by that much (a crop is
-exact; nothing is rescaled). Any other size is refused in one line naming the camera and the file: a scaled image
+pixel); its images are put back in the calibrated frame at that place, the pixels the crop lacks filled by
+repeating its edge (a crop is exact; nothing is rescaled), so every camera is imaged as calibrated (optical flow
+between cameras of one stream needs images of one size). Any other size is refused in one line naming the camera and the file: a scaled image
 would need a scale nobody stated, and a guessed crop moves every pixel (measured on Pose2Sim's balancing trial,
 whose cam01 and cam02 videos are 1080 wide against a 1088 calibration: docs/patches.md).
 
@@ -36,7 +37,6 @@ import numpy as np
 from PIL import Image
 
 from dome_calib.bundle import Bundle, Camera, SyncTable, SyncTables
-from dome_calib.camera import K_to_intr, intr_to_K
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.openpose_io import frame_of_file
 from dome_calib.recon.video_rate import VIDEO_SUFFIXES
@@ -69,6 +69,7 @@ class _Reader:
     size: tuple[int, int]  # (width, height) of the images
     frames: np.ndarray  # the camera's frame indices held
     first_frame: int = 0
+    pad: tuple[int, int, int, int] | None = None  # (top, bottom, left, right) back to the calibrated size
     files: dict[int, Path] = field(default_factory=dict)
     _capture: cv2.VideoCapture | None = None
     _next: int = 0  # the video frame the capture reads next
@@ -99,6 +100,8 @@ class _Reader:
         if (gray.shape[1], gray.shape[0]) != self.size:
             raise ReconError(f"{path}: camera {self.camera}: an image of {gray.shape[1]} x {gray.shape[0]} px among "
                              f"images of {self.size[0]} x {self.size[1]}")
+        if self.pad is not None:
+            gray = cv2.copyMakeBorder(gray, *self.pad, cv2.BORDER_REPLICATE)
         return gray
 
     def close(self) -> None:
@@ -148,15 +151,6 @@ class ImageSource:
     def close(self) -> None:
         for r in self._readers.values():
             r.close()
-
-
-def cropped_camera(cam: Camera, origin_px: tuple[int, int], size: tuple[int, int]) -> Camera:
-    """The camera imaging the calibrated image cropped at ``origin_px`` (x, y) to ``size`` (w, h): the principal
-    point moved by the origin, nothing else changed."""
-    fx, fy, cx, cy = K_to_intr(cam.K)
-    K = intr_to_K(np.array([fx, fy, cx - origin_px[0], cy - origin_px[1]]))
-    return replace(cam, K=K, resolution=(int(size[0]), int(size[1])), dist=cam.dist.copy(), R=cam.R.copy(),
-                   t_cm=cam.t_cm.copy())
 
 
 def images_entries(folder: Path, bundle: Bundle) -> ImagesFile:
@@ -253,6 +247,7 @@ def open_images(folder: str | Path, bundle: Bundle, *, cache_mb: float = CACHE_M
         else:
             raise ReconError(f"{path}: camera {name}: no such video or folder")
         cam = bundle.cameras[name]
+        path = reader.files[int(reader.frames[0])] if reader.files else path  # a folder: its first image
         origin = entries.crop_origin_px.get(name)
         if origin is None and reader.size != tuple(cam.resolution):
             raise ReconError(f"{path}: camera {name}: images of {reader.size[0]} x {reader.size[1]} px but the "
@@ -263,7 +258,8 @@ def open_images(folder: str | Path, bundle: Bundle, *, cache_mb: float = CACHE_M
                 raise ReconError(f"{path}: camera {name}: images of {reader.size[0]} x {reader.size[1]} px cropped at "
                                  f"{origin} reach beyond the calibration's {cam.resolution[0]} x "
                                  f"{cam.resolution[1]}")
-            cam = cropped_camera(cam, (origin[0], origin[1]), reader.size)
+            reader.pad = (origin[1], cam.resolution[1] - origin[1] - reader.size[1], origin[0],
+                          cam.resolution[0] - origin[0] - reader.size[0])
         cameras[name], readers[name] = cam, reader
     return ImageSource(folder, cameras, readers, cache_mb)
 

@@ -33,7 +33,7 @@ from dome_calib.recon.people.depth_witness import DepthWitness, DepthWitnessOpti
 from dome_calib.recon.people.detection_cache import PREFIX as KEPT_PREFIX
 from dome_calib.recon.people.extras import extra_joints
 from dome_calib.recon.people.proposals import AssociationOptions
-from dome_calib.recon.people.run import PeopleOptions
+from dome_calib.recon.people.run import PeopleOptions, PeopleSequence
 from dome_calib.recon.people.scene_io import camera_report, check_people_folder, write_people
 from dome_calib.recon.people.sources import FileSource, StreamLayout, stream_layouts
 from dome_calib.recon.people.temporal import TemporalOptions
@@ -278,16 +278,21 @@ def kept_detections(source, executor=None) -> Iterator:
 
 
 def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callable[[int, int], None] | None = None,
-                       page: Callable[[Path], None] | None = None) -> ReconstructSummary:
+                       page: Callable[[Path], None] | None = None,
+                       after_people: Callable[[PeopleSequence], Callable[[Path], None]] | None = None
+                       ) -> ReconstructSummary:
     """The work of a checked plan: people at every time (chunks on ``executor``), then the files, written only at
     the end (staged, then renamed); ``page(staging)`` adds the caller's files to the staged folder (the people page:
-    dome_calib.pipeline.people_page.people_page_writer)."""
+    dome_calib.pipeline.people_page.people_page_writer); ``after_people(people)``, a further stage on the people
+    (the patches of ``--images``), returns what adds its files there."""
     with kept_detections(plan.source, executor) as source:  # later passes take what the first one read
         seq = reconstruct_people_chunked(plan.views, source, plan.times_ms, plan.options, executor=executor,
                                          depth=plan.depth, progress=progress)
         extras = (extra_joints(plan.views, plan.source, seq, plan.options)
                   if isinstance(plan.source, FileSource) else None)  # the detector's joints beside joints19
-    write_people(plan.out, seq, plan.numbers, FPS_TYPE.get(plan.reference, "custom"), also=page,
+    more = [w for w in (after_people(seq) if after_people is not None else None, page) if w is not None]
+    write_people(plan.out, seq, plan.numbers, FPS_TYPE.get(plan.reference, "custom"),
+                 also=(lambda staging: [w(staging) for w in more]) if more else None,
                  body_model=plan.model.value, extras=extras, lab_up=plan.lab_up, fps=plan.fps)
     report = camera_report(seq.cameras)
     ids = {int(i) for b in seq.bodies for i in b.ids}
