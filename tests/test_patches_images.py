@@ -15,9 +15,8 @@ import pytest
 from dome_calib.bundle_io import write_bundle
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.patches.images import open_images
-from dome_calib.recon.patches.model import PatchOptions
-from dome_calib.recon.patches.parts import BONES
-from dome_calib.recon.patches.run import patch_stream
+from dome_calib.recon.patches.model import PatchTrajectories
+from dome_calib.recon.patches.parts import BONES, PartLabels
 from dome_calib.recon.patches.stage import people_at
 from dome_calib.recon.patches.stream_file import METADATA_KEY, patch_table, write_patch_table
 from dome_calib.recon.project import project_points, view_set
@@ -32,14 +31,12 @@ VIDEO_CAMERA = "01_01"
 
 
 @pytest.fixture(scope="module")
-def capture(tmp_path_factory):
-    """8 VGA cameras of the tiny dome, one person, 3 frames: detections (PANOPTIC19), images (7 cameras as PNG
-    folders, one as a lossless video starting at the first frame), the bundle."""
+def inputs(tmp_path_factory):
+    """8 VGA cameras of the tiny dome, one person, 7 frames: the bundle and the detections (PANOPTIC19)."""
     root = tmp_path_factory.mktemp("images")
     bundle = nominal_dome("tiny", seed=0)
     bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=1500.0, seed=0)
     truth = make_group(GroupOptions(n_people=1, scenario="conversation", start_ms=100.0, duration_ms=1300.0, seed=2))
-    scene = TexturedScene(bundle, truth, TextureOptions())
     cams = [n for n in sorted(bundle.cameras) if str(bundle.cameras[n].type) == "vga"][:8]
     table = bundle.sync.streams["vga"]
     X, _ = truth.joints_cm(table.times_of(FRAMES))
@@ -51,38 +48,59 @@ def capture(tmp_path_factory):
         det[cam] = {int(f): np.concatenate([uv[k], conf[k][..., None]], -1) for k, f in enumerate(FRAMES)}
     write_openpose_folder(root / "det", det, body_model="PANOPTIC19")
     write_bundle(bundle, root / "bundle")
-    images = root / "images"
-    images.mkdir()
+    return root, bundle, truth, cams
+
+
+def write_images(folder: Path, cams: list[str], image) -> None:
+    """``image(cam, frame)`` (grey or RGB) for FRAMES: VIDEO_CAMERA as a lossless video (FFV1) starting at the
+    first frame, the others as PNG folders, listed in images.json."""
+    folder.mkdir()
     files = {}
     for cam in cams:
         if cam == VIDEO_CAMERA:
-            w, h = bundle.cameras[cam].resolution
-            video = cv2.VideoWriter(str(images / f"{cam}.avi"), cv2.VideoWriter_fourcc(*"FFV1"), 25, (w, h))
+            first = np.atleast_3d(image(cam, int(FRAMES[0])))
+            video = cv2.VideoWriter(str(folder / f"{cam}.avi"), cv2.VideoWriter_fourcc(*"FFV1"), 25,
+                                    (first.shape[1], first.shape[0]))
             for f in FRAMES:
-                video.write(cv2.cvtColor(scene.view(cam, int(f)).rgb, cv2.COLOR_RGB2BGR))
+                im = np.atleast_3d(image(cam, int(f)))
+                video.write(cv2.cvtColor(im, cv2.COLOR_GRAY2BGR if im.shape[2] == 1 else cv2.COLOR_RGB2BGR))
             video.release()
             files[cam] = f"{cam}.avi"
         else:
-            (images / f"frames_{cam}").mkdir(parents=True)
+            (folder / f"frames_{cam}").mkdir()
             for f in FRAMES:
-                cv2.imwrite(str(images / f"frames_{cam}" / f"img_{f:05d}.png"), scene.gray(cam, int(f)))
+                cv2.imwrite(str(folder / f"frames_{cam}" / f"img_{f:05d}.png"), image(cam, int(f)))
             files[cam] = f"frames_{cam}"
-    (images / "images.json").write_text(json.dumps({"cameras": files, "first_frame": {VIDEO_CAMERA: int(FRAMES[0])}}))
+    (folder / "images.json").write_text(json.dumps({"cameras": files, "first_frame": {VIDEO_CAMERA: int(FRAMES[0])}}))
+
+
+@pytest.fixture(scope="module")
+def capture(inputs):
+    """The inputs with the textured person rendered into every camera (slow tests)."""
+    root, bundle, truth, cams = inputs
+    scene = TexturedScene(bundle, truth, TextureOptions())
+    write_images(root / "images", cams, scene.gray)
     return root, bundle, scene, cams
 
 
-def test_images_are_read_as_the_frames_they_are(capture):
-    root, bundle, scene, cams = capture
-    source = open_images(root / "images", bundle)
-    assert source.names == cams
+def noise(cam: str, frame: int) -> np.ndarray:
+    rng = np.random.default_rng([int(cam.replace("_", "")), frame])
+    return rng.integers(0, 256, (480, 640), dtype=np.uint8)
+
+
+def test_images_are_read_as_the_frames_they_are(inputs, tmp_path):
+    _, bundle, _, cams = inputs
+    write_images(tmp_path / "images", cams[:3], noise)
+    source = open_images(tmp_path / "images", bundle)
+    assert source.names == cams[:3]
     assert np.array_equal(source.frame_indices(VIDEO_CAMERA), FRAMES)
     for cam in (VIDEO_CAMERA, cams[1]):
-        for f in (121, 117, 120):  # backwards too: the video is reopened and sought
-            assert np.array_equal(source.gray(cam, f), scene.gray(cam, f)), (cam, f)  # lossless video, PNG
+        for f in (121, 117, 120, 116):  # backwards too: the video is reopened and sought
+            assert np.array_equal(source.gray(cam, f), noise(cam, f)), (cam, f)  # lossless video, PNG
 
 
-def test_an_image_of_another_size_is_refused_naming_the_camera(capture, tmp_path):
-    root, bundle, _, cams = capture
+def test_an_image_of_another_size_is_refused_naming_the_camera(inputs, tmp_path):
+    _, bundle, _, cams = inputs
     folder = tmp_path / "imgs"
     (folder / "a").mkdir(parents=True)
     w, h = bundle.cameras[cams[0]].resolution
@@ -103,31 +121,33 @@ def test_an_image_of_another_size_is_refused_naming_the_camera(capture, tmp_path
         open_images(folder, bundle)
 
 
-def test_the_parquet_file_holds_the_trajectories_for_pandas(capture, tmp_path):
-    root, bundle, _, cams = capture
-    source = open_images(root / "images", bundle)
-    table = bundle.sync.streams["vga"]
-    o = PatchOptions(track_frames=1, seed_features=100, seed_neighbours=3, seed_views=4)
-    traj = patch_stream(bundle, source, cams, (table.time_of(119), table.time_of(121)), o, seed_frames=[120])
-    assert traj.alive.sum() > 100
-    from dome_calib.recon.patches.parts import PartLabels
-    n = len(traj.ids)
-    labels = PartLabels(person=np.where(np.arange(n) % 2, 0, -1), bone=np.where(np.arange(n) % 2, 3, -1),
-                        cost=np.zeros(n))
-    write_patch_table(tmp_path / "p.parquet", patch_table(traj, labels, np.array([7]), reference_stream="vga"))
-    df = pd.read_parquet(tmp_path / "p.parquet")  # pandas alone: no code of ours
+def test_the_parquet_file_holds_the_trajectories_for_pandas(tmp_path):
+    rng = np.random.default_rng(0)
+    N, T, cams = 6, 5, ["00_01", "01_02", "50_01"]
+    alive = rng.random((N, T)) < 0.7
+    X = np.where(alive[..., None, None], rng.normal(size=(N, T, 3, 3)) * 50, np.nan)
+    traj = PatchTrajectories(ids=np.arange(N) + 100000 * (np.arange(N) % 2), seed_time_ms=np.full(N, 40.0),
+                             times_ms=np.arange(T) * 33.3667, cameras=cams, X_cm=X, normal=rng.normal(size=(N, T, 3)),
+                             visible=rng.random((N, T, 3)) < 0.5, photometric=np.zeros((N, T, 3), bool), alive=alive)
+    labels = PartLabels(person=np.where(np.arange(N) % 3, 1, -1), bone=np.where(np.arange(N) % 3, 3, -1),
+                        cost=np.zeros(N))
+    write_patch_table(tmp_path / "p.parquet", patch_table(traj, labels, np.array([4, 7]), reference_stream="hd"))
+    df = pd.read_parquet(tmp_path / "p.parquet")  # pandas and pyarrow alone: no code of ours
     meta = json.loads(pq.read_schema(tmp_path / "p.parquet").metadata[METADATA_KEY])
     assert meta["cameras"] == cams and meta["units"] == {"position": "cm", "time": "ms"}
-    assert len(df) == traj.alive.sum()
-    for row in df.sample(50, random_state=0).itertuples():
+    assert meta["reference_stream"] == "hd" and meta["parts"][3] == BONES[3][0]
+    assert len(df) == alive.sum()
+    assert list(zip(df.patch_id, df.time_ms)) == sorted(zip(df.patch_id, df.time_ms))
+    for row in df.itertuples():
         i = int(np.flatnonzero(traj.ids == row.patch_id)[0])
         k = int(np.flatnonzero(traj.times_ms == row.time_ms)[0])
-        assert traj.alive[i, k]
-        assert np.array_equal([row.centre_x_cm, row.centre_y_cm, row.centre_z_cm], traj.X_cm[i, k, 0])
-        assert np.array_equal([row.plane2_x_cm, row.plane2_y_cm, row.plane2_z_cm], traj.X_cm[i, k, 2])
+        assert alive[i, k] and row.seed_time_ms == 40.0
+        assert np.array_equal([row.centre_x_cm, row.centre_y_cm, row.centre_z_cm], X[i, k, 0])
+        assert np.array_equal([row.plane1_x_cm, row.plane1_y_cm, row.plane1_z_cm], X[i, k, 1])
+        assert np.array_equal([row.plane2_x_cm, row.plane2_y_cm, row.plane2_z_cm], X[i, k, 2])
         assert np.array_equal([row.normal_x, row.normal_y, row.normal_z], traj.normal[i, k])
         assert list(row.visible_cameras) == [c for c, v in zip(cams, traj.visible[i, k]) if v]
-        assert (row.person_id, None if pd.isna(row.part) else row.part) == ((7, BONES[3][0]) if i % 2 else (-1, None))
+        assert (row.person_id, None if pd.isna(row.part) else row.part) == ((7, BONES[3][0]) if i % 3 else (-1, None))
 
 
 def test_people_are_brought_to_the_patch_times():
@@ -159,8 +179,8 @@ def test_reconstruct_with_images_adds_the_patch_stream_and_nothing_else(capture,
             assert (root / "with" / name).read_bytes() == (root / "plain" / name).read_bytes(), name
 
 
-def test_reconstruct_refuses_bad_images_in_one_line(capture, dome_calib_cli, tmp_path):
-    root, _, _, _ = capture
+def test_reconstruct_refuses_bad_images_in_one_line(inputs, dome_calib_cli, tmp_path):
+    root, _, _, _ = inputs
     (tmp_path / "imgs").mkdir()
     (tmp_path / "imgs" / "images.json").write_text(json.dumps({"cameras": {"01_01": 3}}))
     out = dome_calib_cli("reconstruct", str(root / "det"), "--bundle", str(root / "bundle"), "--body-model",
