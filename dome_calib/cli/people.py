@@ -72,9 +72,8 @@ def reconstruct(
                                    depth_folder=depth, videos=videos)  # every input checked, in seconds
         patches = None
         if images is not None:
-            from dome_calib.bundle_io import load_bundle
             from dome_calib.recon.patches.stage import plan_patches
-            patches = plan_patches(images, load_bundle(bundle), plan.out, plan.fps)  # checked before any work
+            patches = plan_patches(images, bundle, plan.out, plan.fps)  # checked before any work
         page = people_page_writer(plan.out, bundle, detections, camera_map=camera_map, body_model=plan.model.value,
                                   files=plan.source.files)
         with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:

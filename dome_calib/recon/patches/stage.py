@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.bundle import Bundle, SyncTable
+from dome_calib.bundle_io import load_bundle
 from dome_calib.io_utils import refuse_output_among_inputs, refuse_output_inside_inputs
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.patches.images import ImageSource, open_images, with_shared_clock
@@ -51,10 +52,12 @@ class PatchStage:
         return lambda staging: write_patch_table(Path(staging) / FILE_NAME, table)
 
 
-def plan_patches(images: str | Path, bundle: Bundle, out: Path, fps: Fraction | None,
+def plan_patches(images: str | Path, bundle: Bundle | str | Path, out: Path, fps: Fraction | None,
                  options: PatchOptions | None = None) -> PatchStage:
     """Check ``--images`` (every camera's file, its frames and size: :func:`~.images.open_images`) and that the
-    output lies neither among nor inside it; a bundle without sync tables takes the detections' rate ``fps``."""
+    output lies neither among nor inside it; ``bundle`` (or its folder); a bundle without sync tables takes the
+    detections' rate ``fps``."""
+    bundle = bundle if isinstance(bundle, Bundle) else load_bundle(bundle)
     images = Path(images).resolve()
     refuse_output_among_inputs(out, [images], whole_folder=True)
     refuse_output_inside_inputs(out, [images])
