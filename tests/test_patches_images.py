@@ -169,6 +169,7 @@ def test_reconstruct_with_images_adds_the_patch_stream_and_nothing_else(capture,
     assert plain.returncode == 0, plain.stderr
     out = dome_calib_cli(*args, "--images", str(root / "images"), "-o", str(root / "with"))
     assert out.returncode == 0, out.stderr
+    assert "patches: " in out.stdout and "given a body part -> patches.parquet" in out.stdout
     df = pd.read_parquet(root / "with" / "patches.parquet")
     assert len(df) > 100 and set(df["person_id"]) <= {-1, 0}
     assert df["part"].notna().mean() > 0.5
@@ -177,6 +178,9 @@ def test_reconstruct_with_images_adds_the_patch_stream_and_nothing_else(capture,
     for name in sorted(mine):
         if name.startswith("body3DScene") or name == "cameras.json":
             assert (root / "with" / name).read_bytes() == (root / "plain" / name).read_bytes(), name
+    again = dome_calib_cli(*args, "-o", str(root / "with"))  # ours, patches.parquet included: replaced whole
+    assert again.returncode == 0, again.stderr
+    assert not (root / "with" / "patches.parquet").exists()
 
 
 def test_reconstruct_refuses_bad_images_in_one_line(inputs, dome_calib_cli, tmp_path):

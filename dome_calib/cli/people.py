@@ -82,6 +82,8 @@ def reconstruct(
                                              lambda seq: patches.run(seq.times_ms, seq.bodies,
                                                                      bars.task("tracking patch clouds"))))
         typer.echo(format_summary(summary))
+        if patches is not None:
+            typer.echo(patches.summary)
 
 
 def register(app: typer.Typer) -> None:

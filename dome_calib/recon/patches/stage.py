@@ -24,7 +24,7 @@ from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.parts import label_parts
 from dome_calib.recon.patches.run import patch_stream, reference_stream
 from dome_calib.recon.patches.stream_file import FILE_NAME, patch_table, write_patch_table
-from dome_calib.recon.streams import frame_period_ms
+from dome_calib.recon.streams import cameras_by_stream, frame_period_ms
 
 
 @dataclass
@@ -35,6 +35,7 @@ class PatchStage:
     bundle: Bundle
     cameras: list[str]
     options: PatchOptions
+    summary: str = ""  # what the run gave, one line (set by run)
 
     def run(self, times_ms: np.ndarray, bodies: list, progress: Callable[[int, int], None] | None = None
             ) -> Callable[[Path], None]:
@@ -49,6 +50,10 @@ class PatchStage:
         table = patch_table(traj, labels, ids, reference_stream=stream, size_cm=self.options.size_cm,
                             axis_cm=self.options.axis_cm)
         self.source.close()
+        labelled = int(np.sum(labels.bone >= 0))
+        self.summary = (f"patches: {len(traj.ids)} trajectories ({table.num_rows} patch-times) at {len(traj.times_ms)} "
+                        f"times of stream {stream} from {len(self.cameras)} cameras, {labelled} given a body part -> "
+                        f"{FILE_NAME}")
         return lambda staging: write_patch_table(Path(staging) / FILE_NAME, table)
 
 
@@ -66,6 +71,7 @@ def plan_patches(images: str | Path, bundle: Bundle | str | Path, out: Path, fps
     if len(source.names) < 2:
         raise ReconError(f"--images {images}: images of {len(source.names)} camera; patches are triangulated from "
                          "two cameras or more")
+    cameras_by_stream(clocked, source.names)  # every camera's sync table, before any work
     return PatchStage(source=source, bundle=clocked, cameras=source.names, options=options or PatchOptions())
 
 
