@@ -15,9 +15,10 @@ index at the rate ``reconstruct`` takes from ``--fps`` or ``--videos`` (:func:`w
 image says where the crop starts (``crop_origin_px`` ``[x, y]``: the calibrated pixel at the image's top-left
 pixel); its images are put back in the calibrated frame at that place, the pixels the crop lacks filled by
 repeating its edge (a crop is exact; nothing is rescaled), so every camera is imaged as calibrated (optical flow
-between cameras of one stream needs images of one size). Any other size is refused in one line naming the camera and the file: a scaled image
-would need a scale nobody stated, and a guessed crop moves every pixel (measured on Pose2Sim's balancing trial,
-whose cam01 and cam02 videos are 1080 wide against a 1088 calibration: docs/patches.md).
+between cameras of one stream needs images of one size). Any other size is refused in one line naming the camera
+and the file: a scaled image would need a scale nobody stated, and a guessed crop moves every pixel (Pose2Sim's
+balancing trial, whose cam01 and cam02 videos are 1080 wide against a 1088 calibration: what its data tell is in
+docs/patches.md).
 
 Every file is checked before any work (opened, its size read; a folder's images from their headers), and every
 problem is one ReconError naming the camera and the file. Videos are decoded forward and the decoded grey frames
@@ -78,7 +79,7 @@ class _Reader:
         if self.files:
             image = cv2.imread(str(self.files[frame]), cv2.IMREAD_GRAYSCALE)
             if image is None:
-                raise ReconError(f"{self.files[frame]}: camera {self.camera}: frame {frame}: cannot be read as an image")
+                raise ReconError(f"{self.files[frame]}: camera {self.camera}: frame {frame}: not readable as an image")
             return self._checked(image, self.files[frame])
         k = frame - self.first_frame
         if self._capture is None or k < self._next or k > self._next + 64:
