@@ -14,9 +14,9 @@ from the same three cameras' OpenPose detections (the group stage, the body over
 L's own detections (median px over frames and joints with confidence >= 0.5).
 
 The videos of cam01 and cam02 are 1080 px wide against the calibration's 1088 (the PROVENANCE): they are read as a
-crop of the calibrated image starting at column ``--crop-x`` (0: the calibrated image's left edge, the reading
-Pose2Sim itself made when it triangulated these detections with this calibration); docs/patches.md says what the
-data tell about it.
+crop of the calibrated image starting at column ``--crop-x`` (0: the calibrated image's left edge, what cam01's
+H.264 stream itself says: coded 1088 wide, its last 8 columns cropped; cam02 is VP9 and keeps no record, see
+docs/patches.md).
 
 One JSON object per line: per left-out camera the cloud's seeds, the patch-steps judged, the median and 90th
 percentile error (px), the median flow in L itself (the error a patch standing still would have), the skeleton's

@@ -17,8 +17,8 @@ pixel); its images are put back in the calibrated frame at that place, the pixel
 repeating its edge (a crop is exact; nothing is rescaled), so every camera is imaged as calibrated (optical flow
 between cameras of one stream needs images of one size). Any other size is refused in one line naming the camera
 and the file: a scaled image would need a scale nobody stated, and a guessed crop moves every pixel (Pose2Sim's
-balancing trial, whose cam01 and cam02 videos are 1080 wide against a 1088 calibration: what its data tell is in
-docs/patches.md).
+balancing trial: its cam01 video is 1080 wide against a 1088 calibration, which only its H.264 stream's own crop
+record places, docs/patches.md).
 
 Every file is checked before any work (opened, its size read; a folder's images from their headers), and every
 problem is one ReconError naming the camera and the file. Videos are decoded forward and the decoded grey frames
