@@ -181,14 +181,3 @@ def test_reconstruct_with_images_adds_the_patch_stream_and_nothing_else(capture,
     again = dome_calib_cli(*args, "-o", str(root / "with"))  # ours, patches.parquet included: replaced whole
     assert again.returncode == 0, again.stderr
     assert not (root / "with" / "patches.parquet").exists()
-
-
-def test_reconstruct_refuses_bad_images_in_one_line(inputs, dome_calib_cli, tmp_path):
-    root, _, _, _ = inputs
-    (tmp_path / "imgs").mkdir()
-    (tmp_path / "imgs" / "images.json").write_text(json.dumps({"cameras": {"01_01": 3}}))
-    out = dome_calib_cli("reconstruct", str(root / "det"), "--bundle", str(root / "bundle"), "--body-model",
-                         "PANOPTIC19", "--images", str(tmp_path / "imgs"), "-o", str(tmp_path / "out"))
-    assert out.returncode != 0
-    assert "images.json: cameras.01_01: expected" in out.stderr and len(out.stderr.strip().splitlines()) == 1
-    assert not (tmp_path / "out").exists()
