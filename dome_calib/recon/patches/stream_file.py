@@ -56,18 +56,19 @@ def patch_table(traj: PatchTrajectories, labels: PartLabels | None = None, perso
     normal = traj.normal[n, t]
     for a, axis in enumerate(_AXES):
         cols[f"normal_{axis}"] = pa.array(normal[:, a].astype(np.float64))
-    names = np.array(traj.cameras, dtype=object)
     vis = traj.visible[n, t]
-    cols["visible_cameras"] = pa.array([list(names[row]) for row in vis], type=pa.list_(pa.string()))
+    offsets = np.concatenate([[0], np.cumsum(vis.sum(1))]).astype(np.int32)
+    names = pa.array(list(traj.cameras), type=pa.string())
+    cols["visible_cameras"] = pa.ListArray.from_arrays(pa.array(offsets), names.take(np.nonzero(vis)[1]))
     if labels is not None:
         pos, bone = labels.person[n], labels.bone[n]
         ids = np.asarray(person_ids if person_ids is not None else np.arange(max(int(pos.max(initial=-1)) + 1, 0)))
         person = np.where(pos >= 0, ids[np.maximum(pos, 0)] if len(ids) else -1, -1).astype(np.int64)
-        part = [BONES[b][0] if b >= 0 else None for b in bone]
+        part = pa.array([b[0] for b in BONES], type=pa.string()).take(pa.array(bone, mask=bone < 0))
     else:
-        person, part = np.full(len(n), -1, np.int64), [None] * len(n)
+        person, part = np.full(len(n), -1, np.int64), pa.nulls(len(n), type=pa.string())
     cols["person_id"] = pa.array(person)
-    cols["part"] = pa.array(part, type=pa.string())
+    cols["part"] = part
     meta = {"format": FORMAT, "version": VERSION, "units": {"position": "cm", "time": "ms"},
             "world": "Panoptic: origin at the dome floor's centre, y down, cm",
             "cameras": list(traj.cameras), "parts": [b[0] for b in BONES], "reference_stream": reference_stream,
