@@ -22,7 +22,8 @@ record places, docs/patches.md).
 
 Every file is checked before any work (opened, its size read; a folder's images from their headers), and every
 problem is one ReconError naming the camera and the file. Videos are decoded forward and the decoded grey frames
-kept in a bounded cache (``cache_mb``); a frame before the last one read reopens the video and seeks.
+kept in a bounded cache (``cache_mb``); a frame before the last one read reopens the video, seeks, and decodes the
+:data:`SEEK_BLOCK` frames up to it (kept too: the patch stage walks backward from its seeds).
 """
 from __future__ import annotations
 
@@ -47,6 +48,11 @@ IMAGES_FILE = "images.json"
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 #: Decoded grey frames kept per source (MB): 60 frames of four 1088 x 1920 phone videos fit.
 CACHE_MB = 512
+#: A video frame further ahead than this is sought, not decoded up to.
+SEEK_AHEAD = 64
+#: A seek decodes this many frames up to the one asked and keeps them: the patch stage walks backward from its
+#: seeds, and one seek (0.3-0.5 s on a 1088 x 1920 phone video) per frame would cost 25-50 x the decoding.
+SEEK_BLOCK = 32
 
 
 class ImagesFile(FileSchema):
@@ -82,7 +88,7 @@ class _Reader:
                 raise ReconError(f"{self.files[frame]}: camera {self.camera}: frame {frame}: not readable as an image")
             return self._checked(image, self.files[frame])
         k = frame - self.first_frame
-        if self._capture is None or k < self._next or k > self._next + 64:
+        if self.seeks(frame):
             self.close()
             self._capture = cv2.VideoCapture(str(self.path))
             if k > 0:
@@ -96,6 +102,11 @@ class _Reader:
         if not ok:
             raise ReconError(f"{self.path}: camera {self.camera}: video frame {k} (frame {frame}) cannot be decoded")
         return self._checked(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), self.path)
+
+    def seeks(self, frame: int) -> bool:
+        """Reading ``frame`` next reopens the video and seeks (a frame behind the last one read, or far ahead)."""
+        k = frame - self.first_frame
+        return not self.files and (self._capture is None or k < self._next or k > self._next + SEEK_AHEAD)
 
     def _checked(self, gray: np.ndarray, path: Path) -> np.ndarray:
         if (gray.shape[1], gray.shape[0]) != self.size:
@@ -140,7 +151,15 @@ class ImageSource:
         if key in self._cache:
             self._cache.move_to_end(key)
             return self._cache[key]
-        image = self._readers[camera].read(int(frame))
+        reader = self._readers[camera]
+        if reader.seeks(int(frame)):  # the frames before it, decoded after the one seek
+            first = int(reader.frames[0])
+            for f in range(max(first, int(frame) - SEEK_BLOCK + 1), int(frame)):
+                if (camera, f) not in self._cache:
+                    self._keep((camera, f), reader.read(f))
+        return self._keep(key, reader.read(int(frame)))
+
+    def _keep(self, key: tuple[str, int], image: np.ndarray) -> np.ndarray:
         image.setflags(write=False)
         self._cache[key] = image
         self._bytes += image.nbytes
