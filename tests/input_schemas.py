@@ -7,6 +7,7 @@ Regenerate the page's generated part with ``python -m tests.input_schemas`` (fro
 from __future__ import annotations
 
 import copy
+import functools
 import json
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -164,6 +165,35 @@ def _read_detections(folder: Path, doc: Any):
     return path, read_detections(path)
 
 
+def _images_example() -> dict:
+    return {"cameras": {"01_01": "frames", "01_02": "cam02.avi"}, "first_frame": {"01_02": 7},
+            "crop_origin_px": {"01_01": [0, 0], "01_02": [4, 2]}}
+
+
+def _read_images(folder: Path, doc: Any):
+    """images.json beside a folder of one 16 x 16 frame and a one-frame 16 x 16 video (crops of the tiny dome's
+    640 x 480 VGA cameras)."""
+    import cv2
+    import numpy as np
+
+    from dome_calib.recon.patches.images import open_images
+
+    images = folder / "images"
+    (images / "frames").mkdir(parents=True)
+    cv2.imwrite(str(images / "frames" / "img_0003.png"), np.zeros((16, 16), np.uint8))
+    video = cv2.VideoWriter(str(images / "cam02.avi"), cv2.VideoWriter_fourcc(*"FFV1"), 25, (16, 16))
+    video.write(np.zeros((16, 16, 3), np.uint8))
+    video.release()
+    return _write(images / "images.json", doc), open_images(images, _tiny_bundle())
+
+
+@functools.cache
+def _tiny_bundle():
+    from dome_calib.synth.dome import nominal_dome
+
+    return nominal_dome("tiny", seed=0)
+
+
 def _report_example() -> dict:
     """report.json of layout 3: the layout-2 file of tests/data/report_files read through its migration."""
     from dome_calib.report.schema import parse_report
@@ -244,6 +274,10 @@ FILES = (
     InputFile("camera map", "the JSON file --camera-map names", ("reconstruct",),
               _schema("dome_calib.recon.openpose_io", "CameraMapFile"), lambda: {"cam01": "00_01", "cam02": "00_02"},
               _read_camera_map, _error("dome_calib.recon.errors", "ReconError"), "cameras.json"),
+    InputFile("images.json", "FOLDER/images.json (`reconstruct --images FOLDER`)", ("reconstruct",),
+              _schema("dome_calib.recon.patches.images", "ImagesFile"), _images_example, _read_images,
+              _error("dome_calib.recon.errors", "ReconError"), "images.json",
+              note="without it, the bundle's cameras are found by name (`<camera>.mp4`, `<camera>/`)"),
     InputFile("detections JSON", "the file `triangulate DETECTIONS` names", ("triangulate",),
               _schema("dome_calib.recon.formats", "DetectionsFile"), _detections_example, _read_detections,
               _error("dome_calib.recon.errors", "ReconError"), "detections.json",

@@ -246,8 +246,50 @@ def test_report_refuses_a_malformed_report_file(tmp_path, monkeypatch, capsys, n
     assert _files(bundle) == before
 
 
+IMAGES_CASES = {  # reconstruct --images FOLDER: FOLDER/images.json (recon.patches.images.ImagesFile)
+    "a path as a number": ({"cameras": {"01_01": 3}}, "cameras.01_01: expected a path relative to the folder, got 3"),
+    "cameras removed": ({"first_frame": {"01_01": 0}}, "cameras: missing"),
+    "a crop origin below 0": ({"cameras": {"01_01": "a"}, "crop_origin_px": {"01_01": [-1, 0]}},
+                              "crop_origin_px.01_01[0]: expected an integer >= 0"),
+    "an unknown field": ({"cameras": {"01_01": "a"}, "first_frames": {}}, "first_frames: unknown field"),
+    "a camera the bundle lacks": ({"cameras": {"99_99": "a"}}, "cameras.99_99: no camera of that name in bundle"),
+}
+
+
+@pytest.fixture(scope="module")
+def tiny_detections(tmp_path_factory):
+    """The tiny dome (with sync tables) and one frame of one person in three VGA cameras."""
+    import numpy as np
+
+    from dome_calib.layout import nominal_dome
+    from dome_calib.synth.openpose_write import write_openpose_folder
+    from dome_calib.synth.skeleton import synthetic_sync
+
+    root = tmp_path_factory.mktemp("images_cases")
+    bundle = nominal_dome("tiny", seed=0)
+    bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=500.0, seed=0)
+    write_bundle(bundle, root / "bundle")
+    person = np.concatenate([np.full((1, 19, 2), 300.0) + np.arange(19)[None, :, None], np.full((1, 19, 1), 0.9)], -1)
+    write_openpose_folder(root / "det", {c: {105: person} for c in ("01_01", "01_02", "01_03")}, body_model="PANOPTIC19")
+    return root
+
+
+@pytest.mark.parametrize("case", sorted(IMAGES_CASES))
+def test_reconstruct_refuses_a_malformed_images_json(tiny_detections, tmp_path, monkeypatch, capsys, case):
+    doc, words = IMAGES_CASES[case]
+    (tmp_path / "imgs" / "a").mkdir(parents=True)
+    path = tmp_path / "imgs" / "images.json"
+    path.write_text(json.dumps(doc))
+    out = tmp_path / "people"
+    done = _run("dome-calib", ["reconstruct", tiny_detections / "det", "--bundle", tiny_detections / "bundle",
+                               "--body-model", "PANOPTIC19", "--images", tmp_path / "imgs", "-o", out],
+                monkeypatch, capsys)
+    _one_line(done, f"{path}: {words}")
+    assert not out.exists()
+
+
 def test_every_input_file_of_the_page_has_a_case_here():
     covered = {"capture.json", "session.json", "timestamps.json", "calibration_<seq>.json", "kcalibration_<seq>.json",
                "synctables_<seq>.json", "ksynctables_<seq>.json", "OpenPose JSON", "camera map", "dome_session.json",
-               "report/report.json", "report/session.json", "report/sync.json", "detections JSON"}
+               "report/report.json", "report/session.json", "report/sync.json", "detections JSON", "images.json"}
     assert covered == NAMES

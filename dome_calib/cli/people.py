@@ -46,6 +46,10 @@ def reconstruct(
                                "16-bit millimetres, k the depth sync table's index): a joint that a Kinect sees "
                                "through (in front of the surface it measured, beyond its noise) is dropped. Needs "
                                "the bundle's Kinect calibration and depth sync tables."),
+    images: Path = typer.Option(None, "--images", help="Folder of the cameras' images: per camera a video or a "
+                                "folder of frames (images.json maps camera names to them, else <camera>.mp4 or "
+                                "<camera>/). After the people, the dense patch trajectory stream is tracked on them, "
+                                "each patch given the body part it moves with, into OUT/patches.parquet."),
     workers: int = typer.Option(1, "--workers", help="Processes for long sessions (chunks of 600 times, then the "
                                 "body over time's windows; 1 to 1024)."),
     scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler (tcp://HOST:PORT) to run the chunks "
@@ -66,12 +70,20 @@ def reconstruct(
         plan = plan_reconstruction(detections, bundle, out, body_model=body_model, camera_map=camera_map,
                                    reference=reference, options=options,
                                    depth_folder=depth, videos=videos)  # every input checked, in seconds
+        patches = None
+        if images is not None:
+            from dome_calib.recon.patches.stage import plan_patches
+            patches = plan_patches(images, plan.bundle, plan.out, plan.fps)  # checked before any work
         page = people_page_writer(plan.out, bundle, detections, camera_map=camera_map, body_model=plan.model.value,
                                   files=plan.source.files)
         with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:
             summary = run_reconstruction(plan, executor=executor, progress=bars.task("reconstructing times"),
-                                         page=page)
+                                         page=page, after_people=None if patches is None else (
+                                             lambda seq: patches.run(seq.times_ms, seq.bodies,
+                                                                     bars.task("tracking patch clouds"))))
         typer.echo(format_summary(summary))
+        if patches is not None:
+            typer.echo(patches.summary)
 
 
 def register(app: typer.Typer) -> None:

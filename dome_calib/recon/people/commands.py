@@ -33,7 +33,7 @@ from dome_calib.recon.people.depth_witness import DepthWitness, DepthWitnessOpti
 from dome_calib.recon.people.detection_cache import PREFIX as KEPT_PREFIX
 from dome_calib.recon.people.extras import extra_joints
 from dome_calib.recon.people.proposals import AssociationOptions
-from dome_calib.recon.people.run import PeopleOptions
+from dome_calib.recon.people.run import PeopleOptions, PeopleSequence
 from dome_calib.recon.people.scene_io import StagedPeople, camera_report, check_people_folder, write_people
 from dome_calib.recon.people.sources import FileSource, StreamLayout, stream_layouts
 from dome_calib.recon.people.temporal import TemporalOptions
@@ -279,19 +279,31 @@ def kept_detections(source, executor=None) -> Iterator:
 
 
 def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callable[[int, int], None] | None = None,
-                       page: Callable[[Path, StagedPeople], None] | None = None) -> ReconstructSummary:
+                       page: Callable[[Path, StagedPeople], None] | None = None,
+                       after_people: Callable[[PeopleSequence], Callable[[Path], None]] | None = None
+                       ) -> ReconstructSummary:
     """The work of a checked plan: people at every time (chunks on ``executor``), then the files, written only at
     the end (staged, then renamed); ``page(staging, staged)`` adds the caller's files to the staged folder from the
     run's own results (:class:`~dome_calib.recon.people.scene_io.StagedPeople`: the scenes written, cameras.json's
-    report, the plan's bundle; the people page: dome_calib.pipeline.people_page.people_page_writer). The camera
-    report is computed once, for cameras.json and the summary."""
+    report, the plan's bundle; the people page: dome_calib.pipeline.people_page.people_page_writer);
+    ``after_people(people)``, a further stage on the people (the patches of ``--images``), returns what adds its
+    files there. The camera report is computed once, for cameras.json and the summary."""
     with kept_detections(plan.source, executor) as source:  # later passes take what the first one read
         seq = reconstruct_people_chunked(plan.views, source, plan.times_ms, plan.options, executor=executor,
                                          depth=plan.depth, progress=progress)
         extras = (extra_joints(plan.views, source, seq, plan.options)
                   if isinstance(source, FileSource) else None)  # the detector's joints beside joints19
+    more = after_people(seq) if after_people is not None else None
+
+    def also(staging: Path, staged: StagedPeople) -> None:
+        if more is not None:
+            more(staging)
+        if page is not None:
+            page(staging, staged)
+
     report = camera_report(seq.cameras)
-    write_people(plan.out, seq, plan.numbers, fps_type_of(plan.reference), also=page, body_model=plan.model.value,
+    write_people(plan.out, seq, plan.numbers, fps_type_of(plan.reference),
+                 also=also if more is not None or page is not None else None, body_model=plan.model.value,
                  extras=extras, lab_up=plan.lab_up, fps=plan.fps, report=report, bundle=plan.bundle)
     ids = {int(i) for b in seq.bodies for i in b.ids}
     nobody = None if ids else why_nobody(seq.cameras, plan.options, len(plan.times_ms))

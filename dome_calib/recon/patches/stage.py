@@ -1,0 +1,98 @@
+"""The patch stage of ``dome-calib reconstruct --images FOLDER``: after the people, the patch trajectory stream on the
+cameras' own images, each patch given the body part it moves with, written as ``patches.parquet`` into the output
+folder (staged with the people's files, :mod:`.stream_file`).
+
+:func:`plan_patches` checks the images and the output place before any work; :meth:`PatchStage.run` takes the
+people and returns what writes the file into the staged folder.
+"""
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+from dome_calib.bundle import Bundle, SyncTable
+from dome_calib.bundle_io import load_bundle
+from dome_calib.io_utils import refuse_output_among_inputs, refuse_output_inside_inputs
+from dome_calib.recon.errors import ReconError
+from dome_calib.recon.patches.images import ImageSource, open_images, with_shared_clock
+from dome_calib.recon.patches.model import PatchOptions
+from dome_calib.recon.patches.parts import label_parts
+from dome_calib.recon.patches.run import patch_stream, reference_stream
+from dome_calib.recon.patches.stream_file import FILE_NAME, patch_table, write_patch_table
+from dome_calib.recon.streams import cameras_by_stream, frame_period_ms
+
+
+@dataclass
+class PatchStage:
+    """The checked images and the bundle (with one clock) the patch stream is run on."""
+
+    source: ImageSource
+    bundle: Bundle
+    cameras: list[str]
+    options: PatchOptions
+    summary: str = ""  # what the run gave, one line (set by run)
+
+    def run(self, times_ms: np.ndarray, bodies: list, progress: Callable[[int, int], None] | None = None
+            ) -> Callable[[Path], None]:
+        """The stream over the people's times (``bodies[t]``: a time's people, with ``ids`` and ``X_cm``), labelled
+        by part -> ``write(staging)`` that puts ``patches.parquet`` into the staged output folder."""
+        t = np.asarray(times_ms, dtype=float)
+        stream = reference_stream(self.bundle, self.cameras)
+        traj = patch_stream(self.bundle, self.source, self.cameras, (float(t[0]), float(t[-1])), self.options,
+                            stream=stream, progress=progress)
+        joints, ids = people_at(t, bodies, traj.times_ms)
+        labels = label_parts(traj.X_cm[:, :, 0], traj.normal, traj.alive, joints)
+        table = patch_table(traj, labels, ids, reference_stream=stream, size_cm=self.options.size_cm,
+                            axis_cm=self.options.axis_cm)
+        self.source.close()
+        labelled = int(np.sum(labels.bone >= 0))
+        self.summary = (f"patches: {len(traj.ids)} trajectories ({table.num_rows} patch-times) at {len(traj.times_ms)} "
+                        f"times of stream {stream} from {len(self.cameras)} cameras, {labelled} given a body part -> "
+                        f"{FILE_NAME}")
+        return lambda staging: write_patch_table(Path(staging) / FILE_NAME, table)
+
+
+def plan_patches(images: str | Path, bundle: Bundle | str | Path, out: Path, fps: Fraction | None,
+                 options: PatchOptions | None = None) -> PatchStage:
+    """Check ``--images`` (every camera's file, its frames and size: :func:`~.images.open_images`) and that the
+    output lies neither among nor inside it; ``bundle`` (or its folder); a bundle without sync tables takes the
+    detections' rate ``fps``."""
+    bundle = bundle if isinstance(bundle, Bundle) else load_bundle(bundle)
+    images = Path(images).resolve()
+    refuse_output_among_inputs(out, [images], whole_folder=True)
+    refuse_output_inside_inputs(out, [images])
+    source = open_images(images, bundle)
+    clocked = with_shared_clock(bundle, source, fps)
+    if len(source.names) < 2:
+        raise ReconError(f"--images {images}: images of {len(source.names)} camera; patches are triangulated from "
+                         "two cameras or more")
+    cameras_by_stream(clocked, source.names)  # every camera's sync table, before any work
+    return PatchStage(source=source, bundle=clocked, cameras=source.names, options=options or PatchOptions())
+
+
+def people_at(times_ms: np.ndarray, bodies: list, at_ms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """People at their times -> ((T', P, 19, 3) joints at ``at_ms``, (P,) ids in increasing order): linear between
+    the two people times around each time (as the streams are brought to a time, gaps wider than 2.5 periods not
+    bridged), NaN where a person or joint is missing on either side or the time is outside."""
+    ids = np.unique(np.concatenate([np.asarray(b.ids, dtype=np.int64) for b in bodies] + [np.zeros(0, np.int64)]))
+    ids = ids[ids >= 0]
+    J = np.full((len(times_ms), len(ids), 19, 3), np.nan)
+    for k, b in enumerate(bodies):
+        for row, i in enumerate(np.asarray(b.ids, dtype=np.int64)):
+            if i >= 0:
+                J[k, np.searchsorted(ids, i)] = b.X_cm[row]
+    table = SyncTable(index=np.arange(len(times_ms), dtype=np.int64), univ_time_ms=np.asarray(times_ms, float))
+    i0, i1, w0, w1 = table.bracket(np.asarray(at_ms, dtype=float))
+    wide = np.abs(table.univ_time_ms[i1] - table.univ_time_ms[i0]) > 2.5 * frame_period_ms(table) + 1e-9
+    with warnings.catch_warnings(), np.errstate(invalid="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        a = np.where((w0 > 0)[:, None, None, None], w0[:, None, None, None] * J[i0], 0.0)
+        b = np.where((w1 > 0)[:, None, None, None], w1[:, None, None, None] * J[i1], 0.0)
+        out = a + b
+    out[~np.isfinite(w1) | wide] = np.nan
+    return out, ids

@@ -1,0 +1,183 @@
+"""`reconstruct --images`: real cameras' images (a folder of frames, a video) read as a frame source, sizes checked
+against the calibration, the patch stream written as Parquet that pandas reads without our code, and a run without
+--images unchanged."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+
+from dome_calib.bundle_io import write_bundle
+from dome_calib.recon.errors import ReconError
+from dome_calib.recon.patches.images import open_images
+from dome_calib.recon.patches.model import PatchTrajectories
+from dome_calib.recon.patches.parts import BONES, PartLabels
+from dome_calib.recon.patches.stage import people_at
+from dome_calib.recon.patches.stream_file import METADATA_KEY, patch_table, write_patch_table
+from dome_calib.recon.project import project_points, view_set
+from dome_calib.synth.dome import nominal_dome
+from dome_calib.synth.group import GroupOptions, make_group
+from dome_calib.synth.openpose_write import write_openpose_folder
+from dome_calib.synth.skeleton import synthetic_sync
+from dome_calib.synth.textured import TexturedScene, TextureOptions
+
+FRAMES = np.arange(116, 123)  # VGA frames: 120 seeds a cloud (every 20th); parts need 5 frames
+VIDEO_CAMERA = "01_01"
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    """8 VGA cameras of the tiny dome, one person, 7 frames: the bundle and the detections (PANOPTIC19)."""
+    root = tmp_path_factory.mktemp("images")
+    bundle = nominal_dome("tiny", seed=0)
+    bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=1500.0, seed=0)
+    truth = make_group(GroupOptions(n_people=1, scenario="conversation", start_ms=100.0, duration_ms=1300.0, seed=2))
+    cams = [n for n in sorted(bundle.cameras) if str(bundle.cameras[n].type) == "vga"][:8]
+    table = bundle.sync.streams["vga"]
+    X, _ = truth.joints_cm(table.times_of(FRAMES))
+    det = {}
+    for cam in cams:
+        p = project_points(view_set(bundle, [cam]), X.reshape(-1, 3))
+        uv = p.uv_px[0].reshape(len(FRAMES), -1, 19, 2)
+        conf = np.where(p.visible[0].reshape(len(FRAMES), -1, 19), 0.9, 0.0)
+        det[cam] = {int(f): np.concatenate([uv[k], conf[k][..., None]], -1) for k, f in enumerate(FRAMES)}
+    write_openpose_folder(root / "det", det, body_model="PANOPTIC19")
+    write_bundle(bundle, root / "bundle")
+    return root, bundle, truth, cams
+
+
+def write_images(folder: Path, cams: list[str], image) -> None:
+    """``image(cam, frame)`` (grey or RGB) for FRAMES: VIDEO_CAMERA as a lossless video (FFV1) starting at the
+    first frame, the others as PNG folders, listed in images.json."""
+    folder.mkdir()
+    files = {}
+    for cam in cams:
+        if cam == VIDEO_CAMERA:
+            first = np.atleast_3d(image(cam, int(FRAMES[0])))
+            video = cv2.VideoWriter(str(folder / f"{cam}.avi"), cv2.VideoWriter_fourcc(*"FFV1"), 25,
+                                    (first.shape[1], first.shape[0]))
+            for f in FRAMES:
+                im = np.atleast_3d(image(cam, int(f)))
+                video.write(cv2.cvtColor(im, cv2.COLOR_GRAY2BGR if im.shape[2] == 1 else cv2.COLOR_RGB2BGR))
+            video.release()
+            files[cam] = f"{cam}.avi"
+        else:
+            (folder / f"frames_{cam}").mkdir()
+            for f in FRAMES:
+                cv2.imwrite(str(folder / f"frames_{cam}" / f"img_{f:05d}.png"), image(cam, int(f)))
+            files[cam] = f"frames_{cam}"
+    (folder / "images.json").write_text(json.dumps({"cameras": files, "first_frame": {VIDEO_CAMERA: int(FRAMES[0])}}))
+
+
+@pytest.fixture(scope="module")
+def capture(inputs):
+    """The inputs with the textured person rendered into every camera (slow tests)."""
+    root, bundle, truth, cams = inputs
+    scene = TexturedScene(bundle, truth, TextureOptions())
+    write_images(root / "images", cams, scene.gray)
+    return root, bundle, scene, cams
+
+
+def noise(cam: str, frame: int) -> np.ndarray:
+    rng = np.random.default_rng([int(cam.replace("_", "")), frame])
+    return rng.integers(0, 256, (480, 640), dtype=np.uint8)
+
+
+def test_images_are_read_as_the_frames_they_are(inputs, tmp_path):
+    _, bundle, _, cams = inputs
+    write_images(tmp_path / "images", cams[:3], noise)
+    source = open_images(tmp_path / "images", bundle)
+    assert source.names == cams[:3]
+    assert np.array_equal(source.frame_indices(VIDEO_CAMERA), FRAMES)
+    for cam in (VIDEO_CAMERA, cams[1]):
+        for f in (121, 117, 120, 116):  # backwards too: the video is reopened and sought
+            assert np.array_equal(source.gray(cam, f), noise(cam, f)), (cam, f)  # lossless video, PNG
+
+
+def test_an_image_of_another_size_is_refused_naming_the_camera(inputs, tmp_path):
+    _, bundle, _, cams = inputs
+    folder = tmp_path / "imgs"
+    (folder / "a").mkdir(parents=True)
+    w, h = bundle.cameras[cams[0]].resolution
+    cv2.imwrite(str(folder / "a" / "f_119.png"), np.zeros((h, w - 8), np.uint8))
+    (folder / "images.json").write_text(json.dumps({"cameras": {cams[0]: "a"}}))
+    with pytest.raises(ReconError, match=rf"f_119.png: camera {cams[0]}: images of {w - 8} x {h} px but the "
+                                          rf"calibration's camera is {w} x {h}"):
+        open_images(folder, bundle)
+    # a crop, stated: put back in the calibrated frame, the missing columns repeated from the edge
+    (folder / "images.json").write_text(json.dumps({"cameras": {cams[0]: "a"},
+                                                    "crop_origin_px": {cams[0]: [8, 0]}}))
+    assert open_images(folder, bundle).gray(cams[0], 119).shape == (h, w)
+    (folder / "images.json").write_text(json.dumps({"cameras": {cams[0]: "a"}, "crop_origin_px": {cams[0]: [9, 0]}}))
+    with pytest.raises(ReconError, match="reach beyond the calibration"):
+        open_images(folder, bundle)
+    (folder / "images.json").write_text(json.dumps({"cameras": {"99_99": "a"}}))
+    with pytest.raises(ReconError, match=r"images.json: cameras.99_99: no camera of that name"):
+        open_images(folder, bundle)
+
+
+def test_the_parquet_file_holds_the_trajectories_for_pandas(tmp_path):
+    rng = np.random.default_rng(0)
+    N, T, cams = 6, 5, ["00_01", "01_02", "50_01"]
+    alive = rng.random((N, T)) < 0.7
+    X = np.where(alive[..., None, None], rng.normal(size=(N, T, 3, 3)) * 50, np.nan)
+    traj = PatchTrajectories(ids=np.arange(N) + 100000 * (np.arange(N) % 2), seed_time_ms=np.full(N, 40.0),
+                             times_ms=np.arange(T) * 33.3667, cameras=cams, X_cm=X, normal=rng.normal(size=(N, T, 3)),
+                             visible=rng.random((N, T, 3)) < 0.5, photometric=np.zeros((N, T, 3), bool), alive=alive)
+    labels = PartLabels(person=np.where(np.arange(N) % 3, 1, -1), bone=np.where(np.arange(N) % 3, 3, -1),
+                        cost=np.zeros(N))
+    write_patch_table(tmp_path / "p.parquet", patch_table(traj, labels, np.array([4, 7]), reference_stream="hd"))
+    df = pd.read_parquet(tmp_path / "p.parquet")  # pandas and pyarrow alone: no code of ours
+    meta = json.loads(pq.read_schema(tmp_path / "p.parquet").metadata[METADATA_KEY])
+    assert meta["cameras"] == cams and meta["units"] == {"position": "cm", "time": "ms"}
+    assert meta["reference_stream"] == "hd" and meta["parts"][3] == BONES[3][0]
+    assert len(df) == alive.sum()
+    assert list(zip(df.patch_id, df.time_ms)) == sorted(zip(df.patch_id, df.time_ms))
+    for row in df.itertuples():
+        i = int(np.flatnonzero(traj.ids == row.patch_id)[0])
+        k = int(np.flatnonzero(traj.times_ms == row.time_ms)[0])
+        assert alive[i, k] and row.seed_time_ms == 40.0
+        assert np.array_equal([row.centre_x_cm, row.centre_y_cm, row.centre_z_cm], X[i, k, 0])
+        assert np.array_equal([row.plane1_x_cm, row.plane1_y_cm, row.plane1_z_cm], X[i, k, 1])
+        assert np.array_equal([row.plane2_x_cm, row.plane2_y_cm, row.plane2_z_cm], X[i, k, 2])
+        assert np.array_equal([row.normal_x, row.normal_y, row.normal_z], traj.normal[i, k])
+        assert list(row.visible_cameras) == [c for c, v in zip(cams, traj.visible[i, k]) if v]
+        assert (row.person_id, None if pd.isna(row.part) else row.part) == ((7, BONES[3][0]) if i % 3 else (-1, None))
+
+
+def test_people_are_brought_to_the_patch_times():
+    class B:
+        def __init__(self, ids, x):
+            self.ids, self.X_cm = np.array(ids), np.full((len(ids), 19, 3), x, float)
+    J, ids = people_at(np.array([0.0, 40.0, 80.0]), [B([3], 0.0), B([3, 5], 4.0), B([5], 8.0)],
+                       np.array([10.0, 40.0, 60.0, 90.0]))
+    assert list(ids) == [3, 5]
+    assert np.allclose(J[:, 0, 0, 0], [1.0, 4.0, np.nan, np.nan], equal_nan=True)  # 3 is gone at 80 ms
+    assert np.allclose(J[:, 1, 0, 0], [np.nan, 4.0, 6.0, np.nan], equal_nan=True)
+
+
+@pytest.mark.slow
+def test_reconstruct_with_images_adds_the_patch_stream_and_nothing_else(capture, dome_calib_cli):
+    root, _, _, cams = capture
+    args = ("reconstruct", str(root / "det"), "--bundle", str(root / "bundle"), "--body-model", "PANOPTIC19")
+    plain = dome_calib_cli(*args, "-o", str(root / "plain"))
+    assert plain.returncode == 0, plain.stderr
+    out = dome_calib_cli(*args, "--images", str(root / "images"), "-o", str(root / "with"))
+    assert out.returncode == 0, out.stderr
+    assert "patches: " in out.stdout and "given a body part -> patches.parquet" in out.stdout
+    df = pd.read_parquet(root / "with" / "patches.parquet")
+    assert len(df) > 100 and set(df["person_id"]) <= {-1, 0}
+    assert df["part"].notna().mean() > 0.5
+    mine = {p.name for p in (root / "with").iterdir()} - {"patches.parquet"}
+    assert mine == {p.name for p in (root / "plain").iterdir()}
+    for name in sorted(mine):
+        if name.startswith("body3DScene") or name == "cameras.json":
+            assert (root / "with" / name).read_bytes() == (root / "plain" / name).read_bytes(), name
+    again = dome_calib_cli(*args, "-o", str(root / "with"))  # ours, patches.parquet included: replaced whole
+    assert again.returncode == 0, again.stderr
+    assert not (root / "with" / "patches.parquet").exists()
