@@ -2,7 +2,7 @@
 cameras, 60 fps, 1088 x 1920; ../shared/data/multiview/pose2sim_balancing, see its PROVENANCE.md).
 
     .venv/bin/python bench/patches_real.py [--data ../shared/data/multiview/pose2sim_balancing] [--frames 60]
-        [--seed-frame 40] [--crop-x 0] [--min-ncc 0.8]
+        [--seed-frame 40] [--crop-x 0] [--min-ncc 0.8] [--seed-method sweep|features] [--match-px 3]
 
 For each camera L in turn, the other three track patches (``recon.patches.run.patch_stream``: one cloud seeded at
 ``--seed-frame``, tracked ``--frames / 2`` frames each way; a seed needs 2 views, as only 3 cameras track) and L
@@ -147,6 +147,8 @@ def main() -> None:
     ap.add_argument("--seed-frame", type=int, default=40)
     ap.add_argument("--crop-x", type=int, default=0)
     ap.add_argument("--min-ncc", type=float, default=0.8)
+    ap.add_argument("--seed-method", choices=["sweep", "features"], default="sweep")
+    ap.add_argument("--match-px", type=float, default=3.0, help='"features": epipolar band and triangulation inliers')
     ap.add_argument("--synthetic", choices=["conversation", "mixed"], default=None,
                     help="judge the judge: a rendered person (standing, or walking) in 8 VGA cameras")
     args = ap.parse_args()
@@ -162,9 +164,11 @@ def main() -> None:
                                camera_map={f"cam{k:02d}_json": f"00_{k:02d}" for k in range(1, 5)})
     half = args.frames // 2
     frames = np.arange(args.seed_frame - half, args.seed_frame + half + 1)
-    o = PatchOptions(track_frames=half, seed_min_views=2, seed_min_ncc=args.min_ncc)
+    o = PatchOptions(track_frames=half, seed_min_views=2, seed_min_ncc=args.min_ncc, seed_method=args.seed_method,
+                     seed_match_px=args.match_px)
     emit(bench="patches_real", frames=int(len(frames)), seed_frame=args.seed_frame, crop_x=args.crop_x,
-         options={"track_frames": half, "seed_min_views": 2, "seed_min_ncc": args.min_ncc},
+         options={"track_frames": half, "seed_min_views": 2, "seed_min_ncc": args.min_ncc,
+                  "seed_method": args.seed_method, "seed_match_px": args.match_px},
          load=[round(x, 2) for x in os.getloadavg()])
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)

@@ -8,7 +8,7 @@ orthonormal); its normal ``u x v`` points to the cameras that see it; its appear
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
 
@@ -25,7 +25,10 @@ class PatchOptions:
     axis_cm: PosFinite = 3.0  # distance of the two plane points from the centre
     seed_every_frames: AtLeast(1) = 20  # a new cloud every 20th frame of the reference stream
     track_frames: AtLeast(0) = 30  # each cloud tracked this many reference frames backward and forward
-    # seeding from image features (reference stream's cameras at the seed frame)
+    # seeding (reference stream's cameras at the seed frame): "sweep" corners put in 3D by a depth sweep scored in
+    # nearby cameras (seed.py: a dense rig); "features" SIFT matched along epipolar lines and triangulated
+    # (seed_features.py: cameras far apart)
+    seed_method: Literal["sweep", "features"] = "sweep"
     seed_features: AtLeast(1) = 400  # corners per camera (cv2.goodFeaturesToTrack)
     seed_min_distance_px: PosFinite = 5.0
     seed_neighbours: AtLeast(2) = 4  # cameras the depth sweep is scored in
@@ -34,6 +37,9 @@ class PatchOptions:
     seed_min_ncc: UnitInterval = 0.8
     seed_views: AtLeast(2) = 12  # cameras nearest the reference in which a seed is refined by optical flow
     seed_min_views: AtLeast(2) = 3
+    seed_sift_features: AtLeast(1) = 4000  # "features": SIFT keypoints per camera
+    seed_match_px: PosFinite = 3.0  # "features": epipolar band of a match and triangulation inliers
+    seed_ratio: Annotated[float, Field(gt=0, le=1)] = 0.8  # "features": nearest / second nearest descriptor
     seed_spacing_cm: PosFinite = 1.5  # one seed per cell of this size
     normal_radius_cm: PosFinite = 4.0  # seeds within this distance give the normal (least principal axis)
     normal_min_points: AtLeast(3) = 5

@@ -20,6 +20,7 @@ from dome_calib.recon.errors import ReconError
 from dome_calib.recon.patches.frames import FrameSource, patch_axes
 from dome_calib.recon.patches.model import PatchOptions, PatchTrajectories
 from dome_calib.recon.patches.seed import Seeds, seed_patches
+from dome_calib.recon.patches.seed_features import seed_from_features
 from dome_calib.recon.patches.refine import refine_normals
 from dome_calib.recon.patches.track import Clock, CloudTrack, judged_frames, quantise_cm, track_cloud
 from dome_calib.recon.patches.visibility import camera_neighbours, estimate_visibility
@@ -119,7 +120,8 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
             raise ReconError(f"seed frame {int(f)} of stream {stream} is not inside the span")
         window = frames_in[max(pos - o.track_frames, 0):pos + o.track_frames + 1]
         t_seed = table.time_of(int(f))
-        ref_seeds = seed_patches(source, ref_views, {n: int(f) for n in ref_names}, o)
+        seeder = seed_from_features if o.seed_method == "features" else seed_patches
+        ref_seeds = seeder(source, ref_views, {n: int(f) for n in ref_names}, o)
         seen = np.zeros((len(ref_seeds.X_cm), len(cameras)), bool)
         seen[:, ref_pos] = ref_seeds.seen
         seeds = Seeds(X_cm=ref_seeds.X_cm, normal=ref_seeds.normal, seen=seen)
