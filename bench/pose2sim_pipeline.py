@@ -153,10 +153,10 @@ def main() -> None:
 
 
 def two_people(tmp: Path) -> None:
-    """Two people of a synthetic group (scenario "crouch": one crouches, one talks) seen by the demo's tiny dome (16 cameras as built, sync tables) through the
-    synthetic OpenPose detector with BODY_25 feet (:func:`~dome_calib.synth.detector.feet_detections`), reconstructed
-    and exported as a user would, then Pose2Sim's three steps in its multi-person mode; the same steps on the
-    truth's own joints (the group's joints19 and :func:`~dome_calib.synth.skeleton.feet_cm`, exported alike); per
+    """Two people of a synthetic group (scenario "crouch": one crouches, one talks) seen by the demo's tiny dome (16
+    cameras as built, sync tables) through the synthetic OpenPose detector with BODY_25 feet
+    (:func:`~dome_calib.synth.detector.feet_detections`), reconstructed and exported as a user would, then
+    Pose2Sim's three steps in its multi-person mode; the same steps on the truth's own joints (the group's joints19 and :func:`~dome_calib.synth.skeleton.feet_cm`, exported alike); per
     person the RMS of the joint angles, ours against the truth's run."""
     from dome_calib.bundle_io import write_bundle
     from dome_calib.recon.people.commands import people_options, reconstruct_folder
@@ -202,8 +202,8 @@ def two_people(tmp: Path) -> None:
         gap = [np.nanmedian(np.linalg.norm(track.X_cm[:, 2] - X[rows, p, 2], axis=-1)) for p in range(len(truth.ids))]
         pairs[pid] = (int(truth.ids[int(np.argmin(gap))]), round(float(np.min(gap)), 2))
     by_id = lambda paths, pid: next(p for p in paths if f"_P{pid}_" in p.name)  # noqa: E731
-    emit(two_people={"reconstruct": str(line), "tracks": {str(p): [int(ours.frames[t.rows[0]]), int(ours.frames[t.rows[-1]])]
-                                                              for p, t in ours.tracks.items()},
+    spans = {str(p): [int(ours.frames[t.rows[0]]), int(ours.frames[t.rows[-1]])] for p, t in ours.tracks.items()}
+    emit(two_people={"reconstruct": str(line), "tracks": spans,
                      "trc": sorted(p.name for p in (root / "trc_ours").glob("*.trc")),
                      "mot": [p.name for p in mots], "matched_truth_id_and_centre_cm": pairs,
                      "angle_rms_deg": {str(pid): {k: round(v, 2) for k, v in
