@@ -156,8 +156,9 @@ def two_people(tmp: Path) -> None:
     """Two people of a synthetic group (scenario "crouch": one crouches, one talks) seen by the demo's tiny dome (16
     cameras as built, sync tables) through the synthetic OpenPose detector with BODY_25 feet
     (:func:`~dome_calib.synth.detector.feet_detections`), reconstructed and exported as a user would, then
-    Pose2Sim's three steps in its multi-person mode; the same steps on the truth's own joints (the group's joints19 and :func:`~dome_calib.synth.skeleton.feet_cm`, exported alike); per
-    person the RMS of the joint angles, ours against the truth's run."""
+    Pose2Sim's three steps in its multi-person mode; the same steps on the truth's own joints (the group's joints19
+    and :func:`~dome_calib.synth.skeleton.feet_cm`, exported alike); per person the RMS of the joint angles, ours
+    against the truth's run."""
     from dome_calib.bundle_io import write_bundle
     from dome_calib.recon.people.commands import people_options, reconstruct_folder
     from dome_calib.skeletons.export import ExportPeopleOptions, export_people
