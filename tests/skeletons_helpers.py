@@ -11,6 +11,7 @@ import numpy as np
 from dome_calib.skeletons.joints import PARENT
 from dome_calib.skeletons.scenes import People
 from dome_calib.synth.group import GroupOptions, make_group
+from dome_calib.synth.skeleton import FEET, feet_cm  # noqa: F401  (the tests' feet)
 
 DATA = Path(__file__).parent / "data" / "pose2sim_balancing"
 CAMERA_MAP = ",".join(f"cam{k:02d}_json=00_{k:02d}" for k in range(1, 5))
@@ -37,29 +38,6 @@ def write_scenes(folder: Path, frames, times_ms, bodies, *, fps_type: str = "vga
         doc["bodies"] = out
         (folder / f"body3DScene_{int(frame):08d}.json").write_text(json.dumps(doc), encoding="utf-8")
     return folder
-
-
-FEET = ("l_big_toe", "l_small_toe", "l_heel", "r_big_toe", "r_small_toe", "r_heel")
-
-
-def feet_cm(X: np.ndarray) -> np.ndarray:
-    """(..., 19, 3) joints19 (Panoptic, y down) -> (..., 6, 3) feet in BODY_25's order, rigid with each ankle and
-    the hips' frame (forward = down x across): big toe 15 cm forward and 6 cm down, small toe 3.5 cm outward of it,
-    heel 5 cm back and 6 cm down; constant bones by construction."""
-    from dome_calib.recon.body_models import JOINTS19 as J
-
-    across = X[..., J.index("l_hip"), :] - X[..., J.index("r_hip"), :]
-    across /= np.linalg.norm(across, axis=-1, keepdims=True)
-    down = np.zeros_like(across)
-    down[..., 1] = 1.0
-    forward = np.cross(down, across)
-    forward /= np.linalg.norm(forward, axis=-1, keepdims=True)
-    out = []
-    for side, ankle in ((1.0, J.index("l_ankle")), (-1.0, J.index("r_ankle"))):
-        a = X[..., ankle, :]
-        big = a + 15.0 * forward + 6.0 * down
-        out += [big, big + side * 3.5 * across, a - 5.0 * forward + 6.0 * down]
-    return np.stack(out, axis=-2)
 
 
 def demo_group_scenes(folder: Path, *, n_people: int = 7, seconds: float = 4.0, seed: int = 0,

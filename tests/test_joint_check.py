@@ -148,3 +148,21 @@ def test_a_neighbours_wrist_in_two_views_is_not_the_persons(right_views):
     assert wrist_error(off)[0] > 50.0  # the failure: the person's wrist on the neighbour's
     err, c = wrist_error(options)
     assert (np.isnan(err) and c == -1) or err < 5.0
+
+
+def test_an_extra_joint_hangs_from_its_body():
+    """The detector's joints beside joints19 are checked as bones are: a big toe 3 m from its ankle (a synthetic
+    crouching person's, which Pose2Sim's kinematics took) is dropped, one 16 cm from it kept; where the ankle is
+    missing, a toe needs 3 inlier views (two always agree)."""
+    from dome_calib.recon.body_models import JOINTS19
+    from dome_calib.recon.people.extras import hangs_from_its_body
+    from dome_calib.recon.people.run import PeopleOptions
+
+    body = np.zeros((3, 19, 3))
+    body[:, JOINTS19.index("l_ankle")] = [0.0, 90.0, 0.0]
+    body[2, JOINTS19.index("l_ankle")] = np.nan
+    toe = np.array([[[16.0, 95.0, 0.0]], [[300.0, 95.0, 0.0]], [[16.0, 95.0, 0.0]]])  # (3 bodies, 1 extra joint, 3)
+    keep = hangs_from_its_body(toe, np.array([[2], [4], [2]]), body, ["l_big_toe"], PeopleOptions())
+    np.testing.assert_array_equal(keep[:, 0], [True, False, False])
+    keep = hangs_from_its_body(toe, np.array([[2], [4], [3]]), body, ["l_big_toe"], PeopleOptions())
+    np.testing.assert_array_equal(keep[:, 0], [True, False, True])

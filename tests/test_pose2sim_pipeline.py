@@ -21,10 +21,11 @@ from .pose2sim_pipeline_helpers import ANGLES, angle_rms_deg, pose2sim_on_trcs, 
 DATA = Path(__file__).parent / "data" / "pose2sim_balancing"
 CAMERA_MAP = ",".join(f"cam{k:02d}_json=cam_{k:02d}" for k in range(1, 5))
 #: Limits (degrees RMS against Pose2Sim's own run), a little above what was measured (docs/export-people.md:
-#: knees 5.7 / 4.5, hips 3.8 / 11.4 flexion, ankles 7.8 / 7.8, pelvis 5.0 / 1.9 / 12.8): the failures they catch are
-#: far beyond them (frozen knees 39 deg, the pelvis turned 77 deg).
-KNEE_LIMIT_DEG = 8.0
-ANY_LIMIT_DEG = 16.0
+#: knees 4.7 / 4.4, hip flexion 4.2 / 8.7, ankles 5.7 / 6.6, pelvis 3.9 / 2.3 / 8.1; before the left hip was
+#: fixed, 11.4 hip flexion and 12.8 pelvis rotation): the failures they catch are far beyond them (frozen knees
+#: 39 deg, the pelvis turned 77 deg).
+KNEE_LIMIT_DEG = 7.0
+ANY_LIMIT_DEG = 12.0
 
 
 @pytest.mark.slow
@@ -132,7 +133,8 @@ def test_every_detector_joint_comes_out_under_pose2sims_names(model, bundle, dom
     joints19 and land on their detections in the images (reprojected through the bundle: median under 12 px, the
     joints19's own figure on this trial); the TRC names every joint as Pose2Sim's tree of that model does, in the
     lab's axes as Pose2Sim writes them (within 8 cm of Pose2Sim's own TRC of these detections per marker, median;
-    its toes land 10.6 px from their detections, ours 4.3 px: bench/pose2sim_pipeline.py)."""
+    its left big toe lands 10.6 px from its detections, ours 9.0 px: bench/pose2sim_pipeline.py; 4.3 px with the
+    10 px inlier threshold, which then fitted 2 of the 4 views)."""
     from anytree import PreOrderIter
     import Pose2Sim.skeletons as p2s
 

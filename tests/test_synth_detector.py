@@ -215,6 +215,56 @@ def test_openpose_files_read_back_the_same_pixels(scene, tmp_path, body_model, n
     assert openpose_file_name("00_01", 42, "dotted") == "00_01.0042.json"
 
 
+def test_feet_share_their_ankle_s_error_and_go_where_body_25_has_them(scene, tmp_path):
+    """BODY_25's feet for the synthetic detector (which draws joints19 only): each foot joint is its ankle's
+    detection moved by the true foot's offset from the true ankle, so it lies as far from the true foot as the ankle
+    from the true ankle; absent with the ankle and for false people; the detections themselves are unchanged; the
+    OpenPose files carry them where BODY_25 has them, the other joints as before."""
+    from dome_calib.recon.body_models import EXTRA_JOINTS, JOINTS19
+    from dome_calib.recon.project import project_points
+    from dome_calib.recon.streams import stream_of_camera
+    from dome_calib.synth.detector import feet_detections
+    from dome_calib.synth.skeleton import FEET, feet_cm
+
+    bundle, truth, _ = scene
+    cams, span = ["00_01", "50_02"], (500.0, 800.0)
+    model = DetectorModel(false_people_per_view=0.5, seed=2)
+    det, ids = synth_detections(bundle, truth, cameras=cams, univ_time_ms=span, model=model, with_ids=True)
+    plain = synth_detections(bundle, truth, cameras=cams, univ_time_ms=span, model=model)
+    feet = feet_detections(bundle, truth, det, ids)
+    assert list(EXTRA_JOINTS["BODY_25"]) == list(FEET)
+    la, ra = JOINTS19.index("l_ankle"), JOINTS19.index("r_ankle")
+    checked = 0
+    for cam in cams:
+        table = stream_of_camera(bundle, cam)[1]  # 50_02: a Kinect's colour camera
+        for f, people in det[cam].items():
+            np.testing.assert_array_equal(people, plain[cam][f])  # the detector's draws are untouched
+            assert feet[cam][f].shape == (len(people), 6, 3)
+            false = ids[cam][f] < 0
+            assert not feet[cam][f][false].any()
+            t = table.univ_time_ms[np.searchsorted(table.index, f)]
+            X = truth.joints_cm(np.array([t]))[0][0]
+            for k in np.flatnonzero(~false):
+                p = list(truth.ids).index(ids[cam][f][k])
+                true_uv = project_points(view_set(bundle, [cam]), np.vstack([X[p], feet_cm(X[p])])).uv_px[0]
+                for e, ankle in enumerate([la] * 3 + [ra] * 3):
+                    if people[k, ankle, 2] > 0:
+                        assert feet[cam][f][k, e, 2] == people[k, ankle, 2]
+                        np.testing.assert_allclose(feet[cam][f][k, e, :2] - true_uv[19 + e],
+                                                   people[k, ankle, :2] - true_uv[ankle], atol=2e-3)
+                        checked += 1
+                    else:
+                        assert not feet[cam][f][k, e].any()
+    assert checked > 100
+    out = write_openpose_folder(tmp_path / "det", det, body_model="BODY_25", extras=feet)
+    for f in sorted(det["00_01"])[:3]:
+        doc = json.loads((out / "00_01" / openpose_file_name("00_01", f)).read_text())
+        kp = np.array([p["pose_keypoints_2d"] for p in doc["people"]], float).reshape(-1, 25, 3)
+        np.testing.assert_allclose(kp[:, [JOINT_NAMES["BODY_25"].index(n) for n in FEET]], feet["00_01"][f])
+        np.testing.assert_array_equal(to_joints19(kp, "BODY_25"), np.where(det["00_01"][f][..., 2:] > 0,
+                                                                            det["00_01"][f], 0.0))
+
+
 def test_without_sync_tables_all_cameras_share_one_clock(scene):
     bundle, truth, _ = scene
     plain = Bundle(seq="plain", cameras={n: bundle.cameras[n] for n in ("00_01", "01_01")})

@@ -104,6 +104,14 @@ DERIVED: dict[BodyModel, dict[str, tuple[str, str]]] = {
     BodyModel.PANOPTIC19: {},
 }
 
+#: Each extra joint's joints19 neighbour and their nominal adult distance (cm): the feet from their ankle (big toe
+#: 16, small toe 16, heel 8), BODY_25B's UpperNeck from joints19's neck (the shoulders' midpoint, ~10 cm below it),
+#: the head top from the nose (18); the bone an extra joint hangs from, as BONE_LENGTH_CM's bones for joints19.
+EXTRA_BONE_CM: dict[str, tuple[str, float]] = {
+    "l_big_toe": ("l_ankle", 16.0), "l_small_toe": ("l_ankle", 16.0), "l_heel": ("l_ankle", 8.0),
+    "r_big_toe": ("r_ankle", 16.0), "r_small_toe": ("r_ankle", 16.0), "r_heel": ("r_ankle", 8.0),
+    "upper_neck": ("neck", 10.0), "head_top": ("nose", 18.0)}
+
 #: The joints of each model that joints19 lacks, in the model's order: carried beside joints19 (:func:`with_extras`).
 EXTRA_JOINTS: dict[BodyModel, list[str]] = {m: [n for n in names if n not in JOINTS19]
                                             for m, names in JOINT_NAMES.items()}

@@ -45,7 +45,7 @@ from dome_calib.synth.detector_model import (CONF_PERCENTILES, DetectionCounts, 
                                              Lognormal)
 from dome_calib.synth.group import GroupTruth
 from dome_calib.synth.openpose_write import NAMINGS, openpose_document, openpose_file_name, write_openpose_folder
-from dome_calib.synth.skeleton import MIRROR19, walking_body_local_cm
+from dome_calib.synth.skeleton import FEET, JOINTS19, MIRROR19, feet_cm, walking_body_local_cm
 
 logger = logging.getLogger(__name__)
 
@@ -245,6 +245,40 @@ def synth_detections(bundle: Bundle, truth: GroupTruth, *, cameras: list[str] | 
             if counts is not None:
                 counts.add(c)
     return (out, ids_out) if with_ids else out
+
+
+def feet_detections(bundle: Bundle, truth: GroupTruth, detections: dict[str, dict[int, np.ndarray]],
+                    ids: dict[str, dict[int, np.ndarray]]) -> dict[str, dict[int, np.ndarray]]:
+    """BODY_25's six foot joints for detections of ``truth`` (:func:`synth_detections` with ``with_ids``): each foot
+    joint of a true person is its ankle's detection moved by the true foot's offset from the true ankle in that
+    image (:func:`~dome_calib.synth.skeleton.feet_cm`), with the ankle's confidence; nothing where the ankle was not
+    detected and for false people. The foot shares its ankle's error (the detector draws no error of its own for
+    it, so every other detection, and every figure measured on them, stays as it was). Returns camera -> frame ->
+    (N, 6, 3) in :data:`~dome_calib.synth.skeleton.FEET`'s order."""
+    out: dict[str, dict[int, np.ndarray]] = {}
+    person_of = {int(pid): p for p, pid in enumerate(truth.ids)}
+    ankles = [JOINTS19.index("l_ankle")] * 3 + [JOINTS19.index("r_ankle")] * 3
+    lo, hi = truth.start_ms - ANCHOR_LEAD_MS, truth.start_ms + truth.duration_ms
+    for _, (table, cams) in sorted(_stream_tables(bundle, sorted(detections), lo, hi).items()):
+        time_of = dict(zip(table.index.tolist(), table.univ_time_ms.tolist()))
+        for cam in cams:
+            vs = view_set(bundle, [cam])
+            out[cam] = {}
+            for frame, det in detections[cam].items():
+                feet = np.zeros((len(det), len(FEET), 3))
+                mine = np.flatnonzero(ids[cam][frame] >= 0)
+                if len(mine):
+                    X = truth.joints_cm(np.array([time_of[int(frame)]]))[0][0]  # (P, 19, 3)
+                    P = [person_of[int(i)] for i in ids[cam][frame][mine]]
+                    pts = np.concatenate([X[P][:, ankles], feet_cm(X[P])], axis=1)  # (n, 12, 3)
+                    uv = project_points(vs, pts.reshape(-1, 3)).uv_px[0].reshape(len(P), 12, 2)
+                    ankle = det[mine][:, ankles]  # (n, 6, 3)
+                    seen = (ankle[..., 2] > 0) & np.isfinite(uv).all(-1).all(-1)[:, None]
+                    feet[mine] = np.where(seen[..., None], np.concatenate(
+                        [ankle[..., :2] + uv[:, 6:] - uv[:, :6], ankle[..., 2:]], axis=-1), 0.0)
+                feet[..., :2] = np.round(feet[..., :2], 3)  # as the detector rounds its pixels
+                out[cam][int(frame)] = feet
+    return out
 
 
 @dataclass(frozen=True)

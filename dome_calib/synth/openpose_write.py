@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.io_utils import atomic_folder
-from dome_calib.recon.body_models import from_joints19, parse_body_model
+from dome_calib.recon.body_models import EXTRA_JOINTS, JOINT_NAMES, from_joints19, parse_body_model
 from dome_calib.schema import path_of_name
 from dome_calib.synth.detector_model import DetectorError
 
@@ -28,11 +28,16 @@ def openpose_file_name(camera: str, frame: int, naming: str = "openpose") -> str
     raise DetectorError(f"naming {naming!r} is unknown (known: {', '.join(NAMINGS)})")
 
 
-def openpose_document(people: np.ndarray, body_model: str = "BODY_25") -> dict:
+def openpose_document(people: np.ndarray, body_model: str = "BODY_25", extras: np.ndarray | None = None) -> dict:
     """(N, 19, 3) joints19 detections of one image -> OpenPose's JSON document (``--write_json``, version 1.3) in
-    the body model's joint order (joints the model has and joints19 lacks, and missed joints: 0, 0, 0)."""
+    the body model's joint order (joints the model has and joints19 lacks, and missed joints: 0, 0, 0). extras
+    (N, E, 3): the model's :data:`~dome_calib.recon.body_models.EXTRA_JOINTS` (e.g. BODY_25's feet), in that order."""
     model = parse_body_model(body_model)
     kp = from_joints19(np.asarray(people, dtype=float).reshape(-1, 19, 3), model)
+    if extras is not None:
+        names = JOINT_NAMES[model]
+        kp[:, [names.index(n) for n in EXTRA_JOINTS[model]]] = np.asarray(extras, dtype=float).reshape(
+            len(kp), len(EXTRA_JOINTS[model]), 3)
     empty = {k: [] for k in ("face_keypoints_2d", "hand_left_keypoints_2d", "hand_right_keypoints_2d",
                              "pose_keypoints_3d", "face_keypoints_3d", "hand_left_keypoints_3d",
                              "hand_right_keypoints_3d")}
@@ -42,13 +47,16 @@ def openpose_document(people: np.ndarray, body_model: str = "BODY_25") -> dict:
 
 
 def write_openpose_folder(folder: str | Path, detections: dict[str, dict[int, np.ndarray]], *,
-                          body_model: str = "BODY_25", naming: str = "openpose") -> Path:
+                          body_model: str = "BODY_25", naming: str = "openpose",
+                          extras: dict[str, dict[int, np.ndarray]] | None = None) -> Path:
     """Write detections as OpenPose writes them: one sub-folder per camera, one JSON file per frame.
 
     Args:
         detections: as :func:`synth_detections` returns (camera -> frame -> (N, 19, 3) joints19).
         body_model: "BODY_25", "BODY_25B", "COCO_18" or "PANOPTIC19" (:mod:`dome_calib.recon.body_models`).
         naming: "openpose" (``<camera>_<frame:012d>_keypoints.json``) or "dotted" (``<camera>.<frame:04d>.json``).
+        extras: in the same shape, each detection's joints of the model that joints19 lacks (``(N, E, 3)``,
+            :func:`~dome_calib.synth.detector.feet_detections` for BODY_25's feet); default: none (0, 0, 0).
     Returns:
         ``folder``, written as a whole (staged beside it, then renamed; an old folder is replaced).
     Example:
@@ -62,7 +70,8 @@ def write_openpose_folder(folder: str | Path, detections: dict[str, dict[int, np
             sub = path_of_name(staging, camera)
             sub.mkdir()
             for frame, people in sorted(detections[camera].items()):
-                doc = openpose_document(people, body_model)
+                doc = openpose_document(people, body_model,
+                                        None if extras is None else extras[camera][frame])
                 (sub / openpose_file_name(camera, int(frame), naming)).write_text(
                     json.dumps(doc, separators=(",", ":")) + "\n", encoding="utf-8")
     logger.info("wrote %d cameras of %s detections to %s", len(detections), body_model, target)

@@ -24,6 +24,28 @@ JOINTS19 = ["neck", "nose", "body_center", "l_shoulder", "l_elbow", "l_wrist", "
 #: Index of each joint's left/right mirror (itself for the midline).
 MIRROR19 = np.array([0, 1, 2, 9, 10, 11, 12, 13, 14, 3, 4, 5, 6, 7, 8, 17, 18, 15, 16])
 
+#: BODY_25's foot joints in its order (OpenPose: LBigToe, LSmallToe, LHeel, RBigToe, RSmallToe, RHeel).
+FEET = ("l_big_toe", "l_small_toe", "l_heel", "r_big_toe", "r_small_toe", "r_heel")
+
+
+def feet_cm(X: np.ndarray) -> np.ndarray:
+    """(..., 19, 3) joints19 (Panoptic, y down) -> (..., 6, 3) feet in :data:`FEET`'s order, rigid with each ankle and
+    the hips' frame (forward = down x across): big toe 15 cm forward and 6 cm down, small toe 3.5 cm outward of it,
+    heel 5 cm back and 6 cm down; constant bones by construction (the synthetic body has no feet of its own)."""
+    across = X[..., JOINTS19.index("l_hip"), :] - X[..., JOINTS19.index("r_hip"), :]
+    across = across / np.linalg.norm(across, axis=-1, keepdims=True)
+    down = np.zeros_like(across)
+    down[..., 1] = 1.0
+    forward = np.cross(down, across)
+    forward /= np.linalg.norm(forward, axis=-1, keepdims=True)
+    out = []
+    for side, ankle in ((1.0, JOINTS19.index("l_ankle")), (-1.0, JOINTS19.index("r_ankle"))):
+        a = X[..., ankle, :]
+        big = a + 15.0 * forward + 6.0 * down
+        out += [big, big + side * 3.5 * across, a - 5.0 * forward + 6.0 * down]
+    return np.stack(out, axis=-2)
+
+
 VGA_FPS = Fraction(25)
 HD_FPS = Fraction(30000, 1001)
 KINECT_FPS = Fraction(30)

@@ -66,7 +66,8 @@ def _robust_blocks(P, var, view, uv_px, conf, sigma_v, use, cam, robust_k, H, g)
         rv = w - uv_px[m, 1]
         s = sigma_v[view[m]]
         ks = robust_k * s
-        weight = conf[m] / (1.0 + (ru * ru + rv * rv) / (ks * ks)) / (s * s)
+        q = 1.0 + (ru * ru + rv * rv) / (ks * ks)
+        weight = conf[m] / (q * q) / (s * s)
         for a in range(3):
             g[i, a] += weight * (J[0, a] * ru + J[1, a] * rv)
             for b in range(a, 3):
@@ -81,8 +82,8 @@ def robust_blocks(P: np.ndarray, var: np.ndarray, view: np.ndarray, uv_px: np.nd
                   sigma_v: np.ndarray, cam: np.ndarray, robust_k: float, use: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Newton blocks of M detections at the points P (n, 3) world cm: H (n, 3, 3) = sum w J^T J and
-    g (n, 3) = sum w J^T r, with the Cauchy weight ``w = c / (1 + (r / k sigma)^2) / sigma^2`` (none behind the camera
-    or outside the lens); var (M,) point of each detection (-1: none), view (M,) its row of ``cam``
+    g (n, 3) = sum w J^T r, with the Geman-McClure weight ``w = c / (1 + (r / k sigma)^2)^2 / sigma^2`` (none behind
+    the camera or outside the lens); var (M,) point of each detection (-1: none), view (M,) its row of ``cam``
     (:func:`~dome_calib.recon.kernel.camera_table`), uv_px (M, 2), conf (M,); sigma_v (V,) each camera's noise;
     use (M,) the detections taken (default all)."""
     H = np.zeros((len(P), 3, 3))

@@ -9,6 +9,14 @@ times the same way (the matching between frames, the slots' order and their coun
 assigned detection is the same person's), and triangulates each extra joint of each body from its assigned
 detections with the run's robust triangulation (per-joint RANSAC, the same inlier threshold and minimum views).
 
+An extra joint hangs from a joint of its body (:data:`~dome_calib.recon.body_models.EXTRA_BONE_CM`: a foot from its
+ankle, the head top from the nose) and is checked as joints19's bones are
+(:mod:`~dome_calib.recon.people.joint_check`): farther from it than ``max_bone_ratio`` x the nominal length +
+``bone_slack_cm`` (40 cm for a big toe), or, where the body lacks that joint, seen by fewer than
+``min_views_alone`` inlier views, it is dropped (two views always agree with each other). Without the check, a
+synthetic crouching person's big toe came out 3 m from its ankle in one frame, and Pose2Sim's filtering and
+kinematics took it.
+
 Each time on its own: the extra joints are not part of the body over time (:mod:`~dome_calib.recon.people.temporal`
 fits joints19), so they carry the per-frame triangulation's noise; Pose2Sim's filtering smooths a TRC before its
 kinematics. Confidence: the mean detection confidence of the inlier views (-1: not reconstructed).
@@ -20,7 +28,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from dome_calib.recon.body_models import EXTRA_JOINTS
+from dome_calib.recon.body_models import EXTRA_BONE_CM, EXTRA_JOINTS, JOINTS19
 from dome_calib.recon.people.assign import assigned_detections
 from dome_calib.recon.people.resample import gather_people
 from dome_calib.recon.people.run import PeopleOptions, PeopleSequence
@@ -69,9 +77,27 @@ def extra_joints(views: ViewSet, source: FileSource, seq: PeopleSequence, option
             cb, nb = tri.confidence.reshape(-1, E), tri.n_inliers.reshape(-1, E)
             for k in range(len(bodies)):
                 sl = slice(sizes[k], sizes[k + 1])
-                X.append(Xb[sl])
-                conf.append(cb[sl])
-                inl.append(nb[sl])
+                keep = hangs_from_its_body(Xb[sl], nb[sl], bodies[k].X_cm, names, options)
+                X.append(np.where(keep[..., None], Xb[sl], np.nan))
+                conf.append(np.where(keep, cb[sl], -1.0))
+                inl.append(np.where(keep, nb[sl], 0))
             if progress is not None:
                 progress(b1, len(t))
     return ExtraJoints(names=list(names), X_cm=X, confidence=conf, n_inliers=inl)
+
+
+def hangs_from_its_body(X: np.ndarray, n_inliers: np.ndarray, body_cm: np.ndarray, names: list[str],
+                         options: PeopleOptions) -> np.ndarray:
+    """(P, E) keep each triangulated extra joint of P bodies (X (P, E, 3), body_cm (P, 19, 3) joints19): within
+    ratio x nominal + slack of the joint it hangs from, or, that joint missing, seen by ``min_views_alone`` views."""
+    check = options.joint_check
+    anchor = np.array([JOINTS19.index(EXTRA_BONE_CM[n][0]) for n in names])
+    limit = np.array([check.max_bone_ratio * EXTRA_BONE_CM[n][1] + check.bone_slack_cm for n in names])
+    A = body_cm[:, anchor]  # (P, E, 3)
+    have = np.isfinite(A).all(-1)
+    with np.errstate(invalid="ignore"):
+        near = np.linalg.norm(X - A, axis=-1) <= limit
+    found = np.isfinite(X).all(-1)
+    if not check.enabled:
+        return found
+    return found & np.where(have, near, n_inliers >= check.min_views_alone)

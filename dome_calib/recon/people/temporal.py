@@ -5,7 +5,7 @@ After association and tracking, every track (a person with an id) has per-frame 
 with joints missing where too few views agreed) and the detections assigned to it in every view
 (:class:`~dome_calib.recon.people.bodies.Observations`). This stage minimises, over all joints of all its times,
 
-    sum_obs  c * rho(|pi_v(X_j(t)) - u|^2 / sigma_v^2)           robust reprojection (Cauchy, scale k sigma_v)
+    sum_obs  c * rho(|pi_v(X_j(t)) - u|^2 / sigma_v^2)           robust reprojection (Geman-McClure, scale k sigma_v)
   + sum_bones (|X_a(t) - X_b(t)| - L_ab)^2 / sigma_L^2          the track's own bone lengths, held
   + sum_j  integral |X_j''(t)|^2 dt / q_j                        smooth motion (white-noise acceleration)
 
@@ -22,9 +22,12 @@ with joints missing where too few views agreed) and the detections assigned to i
   integrated Wiener process): unbiased for constant velocity, on uneven time steps and across short gaps.
 
 A left/right swap or a neighbour's limb in one view sits tens of pixels from where the body puts the joint: the
-Cauchy weight ``1 / (1 + (r / k sigma_v)^2)`` falls to a few percent and the body is not moved (it is counted as
-outvoted). Joints the per-frame triangulation left out are placed by the body where their views, bones and motion
-constrain them well enough (``max_sigma_cm``).
+Geman-McClure weight ``1 / (1 + (r / k sigma_v)^2)^2`` falls to a few percent, and so does its pull (weight x r, at
+most 0.35 sigma_v beyond the outvoted distance of 5 sigma_v with k = 3), and the body is not moved (it is counted as
+outvoted). Cauchy's weight ``1 / (1 + (r / k sigma_v)^2)`` fell too, but its pull did not: ``k^2 sigma_v^2 / r``,
+1.3 sigma_v at 5 sigma_v, more than an inlier's; on Pose2Sim's balancing trial one camera's left hip, 40-55 px
+from the other three's, held the hip 5 cm from where they put it. Joints the per-frame triangulation left out are
+placed by the body where their views, bones and motion constrain them well enough (``max_sigma_cm``).
 
 Solver (no Python per factor: every term is an array operation over all records, joints and times): Gauss-Newton
 with iteratively reweighted least squares (``iterations``). Each step is one sparse system over every joint of
@@ -69,7 +72,7 @@ ACCEL_RMS_CM_S2 = np.array([next(a for a, names in _ACCEL_GROUPS.items() if n in
 @options
 class TemporalOptions:
     """Options of :func:`refine_tracks` (see the module docstring). enabled: False keeps the per-frame joints;
-    robust_k: Cauchy scale in units of the camera's pixel noise; outvoted_k: a detection farther than this many
+    robust_k: Geman-McClure scale in units of the camera's pixel noise; outvoted_k: a detection farther than this many
     sigma from the body is outvoted; bone_sigma_cm; bone_min_views: frames whose two joints have this many inlier
     views estimate a bone; accel_scale: multiplies the body's RMS accelerations; correlation_s; prior_sigma_cm: weak
     pull to the start (only directions nothing else holds); max_sigma_cm: a joint the per-frame triangulation left
