@@ -1,0 +1,285 @@
+"""The body over time with the patches' part motions against the body over time alone (issue 49 part 3).
+
+Run: .venv/bin/python bench/patches_body.py [--rig fewcam,panel] [--people 3] [--seconds 4] [--seeds 1,2]
+         [--occlusions 12] [--stream FILE.npz]
+
+Setup per (rig, seed): the synthetic group (``fewcam``: the 5-camera HD rig of bench/fewcam.py, ``small_area``
+group; ``panel``: the as-built dome's panel preset, VGA of panels 1-2 with their HD and Kinect colour cameras,
+``conversation`` group), the OpenPose-like detector (errors that last) with, per person, ``--occlusions`` spans of
+10 reference frames in which one limb end (wrist or ankle, with its elbow or knee) is removed from every camera (an
+occluded limb). The people are reconstructed per frame and tracked (``reconstruct_people``, body over time off),
+then the body over time is fitted once over the whole span (one window) without and with the ties of
+:mod:`dome_calib.recon.patches.body`, both on the same tracks, detections and priors.
+
+The patches: ``--patches truth`` (default) samples the bodies' surfaces (:mod:`dome_calib.synth.textured`): patch
+triplets (centre and two plane points 3 cm away) seeded every 20 reference frames on the outer surface where at
+least 2 cameras see them, each living 30 frames each way while seen by 2 cameras, with the stream's measured error
+added (bench/patches.py: a constant offset of 2.7 mm median per point, a drift growing as a random walk to 4-5 mm
+median after 10-30 frames); they are labelled by :func:`~dome_calib.recon.patches.parts.label_parts` with the body
+over time alone (not the truth), and their motions fitted by :func:`~dome_calib.recon.patches.motion.part_motions`.
+
+Prints one JSON object per line per (rig, seed) and method: MPJPE (cm, over the true joints both methods put out
+and over those each puts out), joint acceleration error (cm/s^2: the mean norm of the second difference of the
+joints against the truth's, over the times where both are out at the three times), the occluded spans' joints
+recovered within 3 cm (share of the removed joint-times), the share of removed joint-times put out at all, the
+labels' accuracy, motions and ties; then the ratios against the aims.
+"""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import dataclasses  # noqa: E402
+import json  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from dome_calib.recon.body_models import JOINTS19  # noqa: E402
+from dome_calib.recon.patches.body import TieOptions, joint_ties  # noqa: E402
+from dome_calib.recon.patches.motion import part_motions  # noqa: E402
+from dome_calib.recon.patches.parts import label_parts  # noqa: E402
+from dome_calib.recon.people.run import PeopleOptions, reconstruct_people  # noqa: E402
+from dome_calib.recon.people.sources import InMemorySource, people_streams  # noqa: E402
+from dome_calib.recon.people.temporal import TemporalOptions, refine_tracks  # noqa: E402
+from dome_calib.recon.people.windows import WindowTask, session_priors, window_observations  # noqa: E402
+from dome_calib.recon.project import project_points, view_set  # noqa: E402
+from dome_calib.recon.streams import stream_of_camera  # noqa: E402
+from dome_calib.synth.dome import as_built_dome  # noqa: E402
+from dome_calib.synth.group import GroupOptions, make_group  # noqa: E402
+from dome_calib.synth.rig import GROUP_MARGIN_MS, RigOptions, few_camera_rig, rig_group  # noqa: E402
+from dome_calib.synth.skeleton import synthetic_sync  # noqa: E402
+from dome_calib.synth.detector import DetectorModel, synth_detections  # noqa: E402
+from dome_calib.synth.group_eval import match_bodies  # noqa: E402
+from dome_calib.synth.textured import N_PARTS, nearest_surface_points, part_frames, surface_points_cm  # noqa: E402
+from dome_calib.synth.textured import surface_visibility  # noqa: E402
+
+LIMBS = [(JOINTS19.index(a), JOINTS19.index(b)) for a, b in
+         (("l_elbow", "l_wrist"), ("r_elbow", "r_wrist"), ("l_knee", "l_ankle"), ("r_knee", "r_ankle"))]
+
+
+def emit(**fields) -> None:
+    print(json.dumps(fields), flush=True)
+
+
+def true_patches(bundle, cameras, truth, times_ms, seed, *, per_part=40, every=20, reach=30, offset_cm=0.23,
+                 drift_cm=0.06):
+    """Patch trajectories on the true surface (module docstring): X (N, T, 3, 3), normal (N, T, 3), alive (N, T),
+    true person (N,) and part (N,)."""
+    rng = np.random.default_rng([seed, 49])
+    T = len(times_ms)
+    Xs, Ns, As, persons, parts = [], [], [], [], []
+    for s in range(0, T, every):
+        Xj, present = truth.joints_cm(times_ms[s:s + 1])
+        live = np.flatnonzero(present[0])
+        if not len(live):
+            continue
+        fr = part_frames(Xj[0])
+        n = per_part * N_PARTS * len(live)
+        person = np.repeat(live, per_part * N_PARTS)
+        part = np.tile(np.repeat(np.arange(N_PARTS), per_part), len(live))
+        theta, u = rng.uniform(0, 2 * np.pi, n), rng.uniform(0, 1, n)
+        r, L = fr.radius[person, part], fr.length[person, part]
+        local = np.stack([r * np.cos(theta), r * np.sin(theta), u * L], 1)
+        P0, _ = surface_points_cm(truth, times_ms[s:s + 1], person, part, local)
+        on = nearest_surface_points(truth, float(times_ms[s]), P0[0])
+        keep = (on.distance_cm < 1e-6) & (on.person == person) & (on.part == part)
+        person, part, local = person[keep], part[keep], local[keep]
+        # plane points: 3 cm along the surface's two tangents (around the axis, along it), in the part's frame
+        tang = np.stack([-np.sin(theta[keep]), np.cos(theta[keep]), np.zeros(keep.sum())], 1)
+        along = np.tile([0.0, 0.0, 1.0], (keep.sum(), 1))
+        lo, hi = max(0, s - reach), min(T, s + reach + 1)
+        pts = [surface_points_cm(truth, times_ms[lo:hi], person, part, local + 3.0 * d) for d in (0 * tang, tang,
+                                                                                                   along)]
+        X = np.stack([p[0] for p in pts], 2).transpose(1, 0, 2, 3)  # (n, t, 3, 3)
+        normal = pts[0][1].transpose(1, 0, 2)
+        seen = np.stack([surface_visibility(bundle, cameras, truth, float(times_ms[k]), X[:, k - lo, 0],
+                                            normal[:, k - lo]).sum(1) for k in range(lo, hi)], 1) >= 2
+        # a patch lives from its seed while it is seen, each way
+        rel = s - lo
+        ok = seen[:, rel]
+        fwd = np.cumprod(seen[:, rel:], axis=1).astype(bool)
+        bwd = np.cumprod(seen[:, :rel + 1][:, ::-1], axis=1).astype(bool)[:, ::-1]
+        alive_w = np.concatenate([bwd[:, :-1], fwd], 1) & ok[:, None]
+        m = len(person)
+        noise = rng.normal(0, offset_cm, (m, 1, 3, 3)) + np.concatenate(
+            [np.cumsum(rng.normal(0, drift_cm, (m, rel, 3, 3))[:, ::-1], 1)[:, ::-1], np.zeros((m, 1, 3, 3)),
+             np.cumsum(rng.normal(0, drift_cm, (m, hi - lo - rel - 1, 3, 3)), 1)], 1)
+        Xf, Nf, Af = np.full((m, T, 3, 3), np.nan), np.full((m, T, 3), np.nan), np.zeros((m, T), bool)
+        Xf[:, lo:hi] = np.where(alive_w[..., None, None], X + noise, np.nan)
+        Nf[:, lo:hi] = np.where(alive_w[..., None], normal, np.nan)
+        Af[:, lo:hi] = alive_w
+        keep2 = ok
+        Xs.append(Xf[keep2]), Ns.append(Nf[keep2]), As.append(Af[keep2])
+        persons.append(person[keep2]), parts.append(part[keep2])
+    return (np.concatenate(Xs), np.concatenate(Ns), np.concatenate(As), np.concatenate(persons),
+            np.concatenate(parts))
+
+
+def occlude(det, bundle, truth, times_ms, n_spans, seed, span_frames=10):
+    """Remove one limb end and its middle joint of each person from every camera for ``span_frames`` reference
+    frames, ``n_spans`` times per person at random starts (a detection is the person's whose true joints it lies
+    nearest, mean pixel distance): -> (det, removed (T, P, 19) bool, the joint-times taken out of the truth)."""
+    rng = np.random.default_rng([seed, 10])
+    T = len(times_ms)
+    Xt, present = truth.joints_cm(times_ms)
+    removed = np.zeros(Xt.shape[:3], bool)
+    spans = []  # (person, joints, t0_ms, t1_ms)
+    dt = float(np.median(np.diff(times_ms)))
+    for p in range(Xt.shape[1]):
+        slots = np.arange(5, T - span_frames - 5, span_frames + 5)
+        for s in np.sort(rng.choice(slots, min(n_spans, len(slots)), replace=False)):
+            a, b = LIMBS[rng.integers(len(LIMBS))]
+            removed[s:s + span_frames, p, [a, b]] = present[s:s + span_frames, p, None]
+            spans.append((p, [a, b], times_ms[s] - 0.5 * dt, times_ms[s + span_frames - 1] + 0.5 * dt))
+    out = {}
+    for cam, frames in det.items():
+        _, table = stream_of_camera(bundle, cam)
+        views = view_set(bundle, [cam])
+        out[cam] = {}
+        for f, kp in frames.items():
+            t = float(table.time_of(f))
+            hit = [sp for sp in spans if sp[2] <= t <= sp[3]]
+            if not hit or not len(kp):
+                out[cam][f] = kp
+                continue
+            X, on = truth.joints_cm(np.array([t]))
+            uv = project_points(views, X[0].reshape(-1, 3)).uv_px[0].reshape(-1, 19, 2)
+            d = np.linalg.norm(kp[:, None, :, :2] - uv[None], axis=-1)  # (N, P, 19)
+            w = kp[:, None, :, 2] > 0
+            cost = np.where(w, d, 0).sum(-1) / np.maximum(w.sum(-1), 1)
+            cost[:, ~on[0]] = np.inf
+            owner = np.argmin(cost, axis=1)
+            kp = kp.copy()
+            for p, js, _, _ in hit:
+                kp[np.ix_(owner == p, js)] = 0.0
+            out[cam][f] = kp
+    return out, removed
+
+
+def single_window(views, streams, times, seq, options: PeopleOptions):
+    """The tracked bodies of ``seq`` -> (fit without ties, fit(ties)): the body over time over all times at once."""
+    tem = options.temporal
+    source = InMemorySource(streams)
+    views = views.subset(source.cameras)
+    priors = session_priors(seq.bodies, seq.cameras, tem)
+    task = WindowTask(index=0, views=views, source=source, times_ms=times, bodies=seq.bodies, own_start=0,
+                      own_stop=len(times), priors=priors, options=tem, max_gap_frames=options.max_gap_frames,
+                      batch_times=options.batch_times, depth=None)
+    obs = window_observations(task)
+    return lambda ties=None: refine_tracks(views, times, seq.bodies, obs, priors, tem, ties=ties)
+
+
+def _scores(X_est, X, mask, dt_s):
+    err = np.linalg.norm(X_est - X, axis=-1)
+    acc_est = (X_est[2:] - 2 * X_est[1:-1] + X_est[:-2]) / dt_s ** 2
+    acc = (X[2:] - 2 * X[1:-1] + X[:-2]) / dt_s ** 2
+    acc_err = np.linalg.norm(acc_est - acc, axis=-1)
+    m3 = mask[2:] & mask[1:-1] & mask[:-2]
+    return err, acc_err, m3
+
+
+def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int) -> list[dict]:
+    if rig == "fewcam":
+        bundle = few_camera_rig(RigOptions(seed=seed, duration_ms=1000.0 * seconds + GROUP_MARGIN_MS + 100.0))
+        truth = rig_group(bundle, n_people=n_people, seed=seed)
+        ref = "hd"
+        start = truth.start_ms
+    else:
+        bundle = as_built_dome("panel", seed=seed)
+        bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=1000.0 * seconds + 1500.0, seed=seed)
+        truth = make_group(GroupOptions(n_people=n_people, scenario="conversation", start_ms=500.0,
+                                        duration_ms=1000.0 * seconds + 500.0, seed=seed))
+        ref = "vga"
+        start = 750.0
+    table = bundle.sync.streams[ref]
+    span = (table.univ_time_ms >= start) & (table.univ_time_ms <= start + 1000.0 * seconds)
+    times = table.univ_time_ms[span]
+    det = synth_detections(bundle, truth, model=DetectorModel(seed=seed))
+    det, removed = occlude(det, bundle, truth, times, n_occ, seed)
+    streams = people_streams(bundle, det)
+    views = view_set(bundle, [n for s in streams for n in s.cameras])
+    X, present = truth.joints_cm(times)
+    options = PeopleOptions()
+    cpu = time.process_time()
+    seq = reconstruct_people(views, streams, times, dataclasses.replace(options, temporal=TemporalOptions(
+        enabled=False)))
+    fit = single_window(views, streams, times, seq, options)
+    alone = fit()
+    cpu_alone = time.process_time() - cpu
+    # the patches, labelled with the body over time alone
+    ids, body, _ = match_bodies([b.ids for b in alone.bodies], [b.X_cm for b in alone.bodies], X, present)
+    track_ids = np.array([np.bincount(ids[:, p][ids[:, p] >= 0]).argmax() if (ids[:, p] >= 0).any() else -1
+                          for p in range(X.shape[1])])
+    cams = list(views.names)
+    cpu = time.process_time()
+    Pt, normal, alive, t_person, t_part = true_patches(bundle, cams, truth, times, seed)
+    cpu_patches = time.process_time() - cpu
+    cpu = time.process_time()
+    lab = label_parts(Pt[:, :, 0], normal, alive, body)
+    motions = part_motions(Pt, alive, lab.person, lab.bone)
+    ties = joint_ties(motions, track_ids, times, body, TieOptions())
+    ties = dataclasses.replace(ties) if len(ties) else ties
+    withp = fit(ties)
+    cpu_with = time.process_time() - cpu
+    judged = lab.bone >= 0
+    right = judged & (lab.person == t_person) & (lab.bone == t_part)
+    dt_s = float(np.median(np.diff(times))) / 1000.0
+    rows = []
+    est = {}
+    for mode, res in (("body_over_time", alone), ("with_patches", withp)):
+        est[mode] = match_bodies([b.ids for b in res.bodies], [b.X_cm for b in res.bodies], X, present)[1]
+    both = np.isfinite(est["body_over_time"]).all(-1) & np.isfinite(est["with_patches"]).all(-1) & present[..., None]
+    for mode, Y in est.items():
+        err, acc_err, m3 = _scores(Y, X, both, dt_s)
+        out = np.isfinite(Y).all(-1) & present[..., None]
+        e_all = np.linalg.norm(Y - X, axis=-1)
+        rec = removed & out
+        row = {"rig": rig, "seed": seed, "people": n_people, "views": len(cams), "times": len(times), "method": mode,
+               "mpjpe_common_cm": round(float(err[both].mean()), 3),
+               "mpjpe_cm": round(float(np.nanmean(e_all[out])), 3),
+               "accel_error_cm_s2": round(float(acc_err[m3].mean()), 1),
+               "occluded_joint_times": int(removed.sum()),
+               "occluded_put_out": round(float(rec.sum() / max(removed.sum(), 1)), 4),
+               "occluded_within_3cm": round(float((rec & (e_all < 3.0)).sum() / max(removed.sum(), 1)), 4),
+               "occluded_median_error_cm": round(float(np.median(e_all[rec])), 2) if rec.any() else None}
+        if mode == "with_patches":
+            row.update(patches=int(len(lab.bone)), labelled=round(float(judged.mean()), 4),
+                       labels_right=round(float(right.sum() / max(judged.sum(), 1)), 4), motions=len(motions),
+                       motion_rms_cm_median=round(float(np.median(motions.rms_cm)), 3) if len(motions) else None,
+                       ties=len(ties), cpu_s_patches_truth=round(cpu_patches, 1), cpu_s_labels_motions_fit=round(
+                           cpu_with, 1))
+        else:
+            row.update(cpu_s=round(cpu_alone, 1))
+        rows.append(row)
+        emit(**row)
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--rig", default="fewcam,panel")
+    ap.add_argument("--people", type=int, default=3)
+    ap.add_argument("--seconds", type=float, default=4.0)
+    ap.add_argument("--seeds", default="1,2")
+    ap.add_argument("--occlusions", type=int, default=6)
+    args = ap.parse_args()
+    emit(bench="patches_body", cpus=os.cpu_count(), load=[round(x, 2) for x in os.getloadavg()])
+    rows = []
+    for rig in args.rig.split(","):
+        for seed in [int(x) for x in args.seeds.split(",")]:
+            rows += run(rig, args.people, args.seconds, seed, args.occlusions)
+    a = [r for r in rows if r["method"] == "body_over_time"]
+    b = [r for r in rows if r["method"] == "with_patches"]
+    emit(aims={"mpjpe_ratio": [round(y["mpjpe_common_cm"] / x["mpjpe_common_cm"], 3) for x, y in zip(a, b)],
+               "accel_ratio": [round(y["accel_error_cm_s2"] / x["accel_error_cm_s2"], 3) for x, y in zip(a, b)],
+               "occluded_within_3cm": [y["occluded_within_3cm"] for y in b],
+               "occluded_within_3cm_alone": [x["occluded_within_3cm"] for x in a]},
+         load=[round(x, 2) for x in os.getloadavg()])
+
+
+if __name__ == "__main__":
+    main()
