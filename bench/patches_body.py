@@ -54,8 +54,7 @@ from dome_calib.synth.rig import GROUP_MARGIN_MS, RigOptions, few_camera_rig, ri
 from dome_calib.synth.skeleton import synthetic_sync  # noqa: E402
 from dome_calib.synth.detector import DetectorModel, synth_detections  # noqa: E402
 from dome_calib.synth.group_eval import match_bodies  # noqa: E402
-from dome_calib.synth.textured import N_PARTS, nearest_surface_points, part_frames, surface_points_cm  # noqa: E402
-from dome_calib.synth.textured import surface_visibility  # noqa: E402
+from dome_calib.synth.surface_patches import true_patches  # noqa: E402
 
 LIMBS = [(JOINTS19.index(a), JOINTS19.index(b)) for a, b in
          (("l_elbow", "l_wrist"), ("r_elbow", "r_wrist"), ("l_knee", "l_ankle"), ("r_knee", "r_ankle"))]
@@ -63,60 +62,6 @@ LIMBS = [(JOINTS19.index(a), JOINTS19.index(b)) for a, b in
 
 def emit(**fields) -> None:
     print(json.dumps(fields), flush=True)
-
-
-def true_patches(bundle, cameras, truth, times_ms, seed, *, per_part=40, every=20, reach=30, offset_cm=0.23,
-                 drift_cm=0.06):
-    """Patch trajectories on the true surface (module docstring): X (N, T, 3, 3), normal (N, T, 3), alive (N, T),
-    true person (N,) and part (N,)."""
-    rng = np.random.default_rng([seed, 49])
-    T = len(times_ms)
-    Xs, Ns, As, persons, parts = [], [], [], [], []
-    for s in range(0, T, every):
-        Xj, present = truth.joints_cm(times_ms[s:s + 1])
-        live = np.flatnonzero(present[0])
-        if not len(live):
-            continue
-        fr = part_frames(Xj[0])
-        n = per_part * N_PARTS * len(live)
-        person = np.repeat(live, per_part * N_PARTS)
-        part = np.tile(np.repeat(np.arange(N_PARTS), per_part), len(live))
-        theta, u = rng.uniform(0, 2 * np.pi, n), rng.uniform(0, 1, n)
-        r, L = fr.radius[person, part], fr.length[person, part]
-        local = np.stack([r * np.cos(theta), r * np.sin(theta), u * L], 1)
-        P0, _ = surface_points_cm(truth, times_ms[s:s + 1], person, part, local)
-        on = nearest_surface_points(truth, float(times_ms[s]), P0[0])
-        keep = (on.distance_cm < 1e-6) & (on.person == person) & (on.part == part)
-        person, part, local = person[keep], part[keep], local[keep]
-        # plane points: 3 cm along the surface's two tangents (around the axis, along it), in the part's frame
-        tang = np.stack([-np.sin(theta[keep]), np.cos(theta[keep]), np.zeros(keep.sum())], 1)
-        along = np.tile([0.0, 0.0, 1.0], (keep.sum(), 1))
-        lo, hi = max(0, s - reach), min(T, s + reach + 1)
-        pts = [surface_points_cm(truth, times_ms[lo:hi], person, part, local + 3.0 * d) for d in (0 * tang, tang,
-                                                                                                   along)]
-        X = np.stack([p[0] for p in pts], 2).transpose(1, 0, 2, 3)  # (n, t, 3, 3)
-        normal = pts[0][1].transpose(1, 0, 2)
-        seen = np.stack([surface_visibility(bundle, cameras, truth, float(times_ms[k]), X[:, k - lo, 0],
-                                            normal[:, k - lo]).sum(1) for k in range(lo, hi)], 1) >= 2
-        # a patch lives from its seed while it is seen, each way
-        rel = s - lo
-        ok = seen[:, rel]
-        fwd = np.cumprod(seen[:, rel:], axis=1).astype(bool)
-        bwd = np.cumprod(seen[:, :rel + 1][:, ::-1], axis=1).astype(bool)[:, ::-1]
-        alive_w = np.concatenate([bwd[:, :-1], fwd], 1) & ok[:, None]
-        m = len(person)
-        noise = rng.normal(0, offset_cm, (m, 1, 3, 3)) + np.concatenate(
-            [np.cumsum(rng.normal(0, drift_cm, (m, rel, 3, 3))[:, ::-1], 1)[:, ::-1], np.zeros((m, 1, 3, 3)),
-             np.cumsum(rng.normal(0, drift_cm, (m, hi - lo - rel - 1, 3, 3)), 1)], 1)
-        Xf, Nf, Af = np.full((m, T, 3, 3), np.nan), np.full((m, T, 3), np.nan), np.zeros((m, T), bool)
-        Xf[:, lo:hi] = np.where(alive_w[..., None, None], X + noise, np.nan)
-        Nf[:, lo:hi] = np.where(alive_w[..., None], normal, np.nan)
-        Af[:, lo:hi] = alive_w
-        keep2 = ok
-        Xs.append(Xf[keep2]), Ns.append(Nf[keep2]), As.append(Af[keep2])
-        persons.append(person[keep2]), parts.append(part[keep2])
-    return (np.concatenate(Xs), np.concatenate(Ns), np.concatenate(As), np.concatenate(persons),
-            np.concatenate(parts))
 
 
 def occlude(det, bundle, truth, times_ms, n_spans, seed, span_frames=10):

@@ -5,7 +5,8 @@ label_parts`) alive at both times give 3 point pairs each (centre and two plane 
 motion ``X(t+1) = R X(t) + t_cm`` (SE(3), no scale) is the weighted least-squares fit of Kabsch / Umeyama (the SVD
 of the weighted cross-covariance, its sign fixed so that det R = +1), made robust by iterated reweighting:
 
-1. fit with every patch at weight 1;
+1. start from the least median of squares: each patch's own triplet is a rigid motion; of up to ``hypotheses`` of
+   them, the one whose median patch residual over all the part's patches is least;
 2. each patch's residual ``r`` (cm): the RMS over its 3 points of ``|R X(t) + t - X(t+1)|``; the scale ``s`` =
    max(1.4826 x the median residual, ``min_scale_cm``); Cauchy weights ``1 / (1 + (r / s)^2)``; refit
    (``iterations`` times);
@@ -36,6 +37,7 @@ class MotionOptions:
     """How a part's motion is fitted (see the module docstring)."""
 
     min_patches: AtLeast(2) = 3
+    hypotheses: AtLeast(1) = 32
     iterations: AtLeast(0) = 3
     min_scale_cm: PosFinite = 0.1
     reject_k: PosFinite = 3.0
@@ -88,8 +90,7 @@ def fit_part(X0: np.ndarray, X1: np.ndarray, o: MotionOptions) -> tuple[np.ndarr
     if n < o.min_patches:
         return None
     A, B = X0.reshape(-1, 3), X1.reshape(-1, 3)
-    w = np.ones(n)
-    R, t = rigid_fit(A, B, np.repeat(w, 3))
+    R, t = _least_median(X0, X1, o.hypotheses)
     for _ in range(o.iterations):
         r = _patch_residuals(R, t, X0, X1)
         s = max(MAD_SCALE * float(np.median(r)), o.min_scale_cm)
@@ -102,6 +103,26 @@ def fit_part(X0: np.ndarray, X1: np.ndarray, o: MotionOptions) -> tuple[np.ndarr
         return None
     R, t = rigid_fit(X0[inl].reshape(-1, 3), X1[inl].reshape(-1, 3), np.ones(3 * int(inl.sum())))
     return R, t, inl
+
+
+def _least_median(X0: np.ndarray, X1: np.ndarray, hypotheses: int) -> tuple[np.ndarray, np.ndarray]:
+    """The start: each patch's own triplet is a rigid motion (up to ``hypotheses`` of them, evenly spread in patch
+    order); the one whose median patch residual over all patches is least (the first of equal ones)."""
+    n = len(X0)
+    pick = np.unique(np.linspace(0, n - 1, min(n, hypotheses)).round().astype(int))
+    A, B = X0[pick], X1[pick]  # (H, 3, 3) each hypothesis' points
+    ca, cb = A.mean(1), B.mean(1)
+    C = np.einsum("hki,hkj->hij", A - ca[:, None], B - cb[:, None])
+    U, _, Vt = np.linalg.svd(C)
+    d = np.where(np.linalg.det(np.einsum("hji,hkj->hik", Vt, U)) < 0, -1.0, 1.0)
+    D = np.broadcast_to(np.eye(3), C.shape).copy()
+    D[:, 2, 2] = d
+    R = np.einsum("hji,hjk,hlk->hil", Vt, D, U)  # V D U^T
+    t = cb - np.einsum("hij,hj->hi", R, ca)
+    e = np.einsum("hij,nkj->hnki", R, X0) + t[:, None, None] - X1[None]
+    med = np.median(np.sqrt(np.mean(np.sum(e * e, -1), -1)), axis=1)
+    h = int(np.argmin(np.round(med, 9)))
+    return R[h], t[h]
 
 
 def part_motions(X_cm: np.ndarray, alive: np.ndarray, person: np.ndarray, bone: np.ndarray,

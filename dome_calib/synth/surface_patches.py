@@ -1,0 +1,78 @@
+"""Patch trajectories on the true surface of the textured synthetic people (:mod:`dome_calib.synth.textured`), with
+the patch stream's error added: the patches' truth for the stages after the stream (part motions, the body refined
+with them) without tracking images.
+
+Clouds are seeded every ``every`` reference times: per present person and part, ``per_part`` points drawn uniformly
+on the part's capsule (kept where they are on the bodies' outer surface); each becomes a triplet (the centre and two
+plane points ``axis_cm`` away along the surface's tangents: round the axis and along it, in the part's frame) that
+moves rigidly with its part. A patch lives from its seed, each way up to ``reach`` times, while at least
+``min_views`` cameras see its centre (:func:`~dome_calib.synth.textured.surface_visibility`), as a tracked patch ends
+when too few cameras see it. Error, per point: a constant offset (``offset_cm`` per axis) and a random walk from the
+seed (``drift_cm`` per axis and step), the stream's measured figures by default (bench/patches.py: 2.7 mm median at
+the seed, 4-5 mm after 10-30 frames).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from dome_calib.bundle import Bundle
+from dome_calib.synth.group import GroupTruth
+from dome_calib.synth.textured import N_PARTS, nearest_surface_points, part_frames, surface_points_cm
+from dome_calib.synth.textured import surface_visibility
+
+
+def true_patches(bundle: Bundle, cameras: list[str], truth: GroupTruth, times_ms: np.ndarray, seed: int, *,
+                 per_part: int = 40, every: int = 20, reach: int = 30, offset_cm: float = 0.23,
+                 drift_cm: float = 0.06, axis_cm: float = 3.0, min_views: int = 2
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Patch trajectories at (T,) reference times (module docstring) -> X_cm (N, T, 3, 3) centre and plane points
+    (NaN where not alive), normal (N, T, 3), alive (N, T), the true person (N,) (index in ``truth.plans``) and part
+    (N,). Random draws from ``default_rng([seed, 49])``."""
+    rng = np.random.default_rng([seed, 49])
+    T = len(times_ms)
+    Xs, Ns, As, persons, parts = [], [], [], [], []
+    for s in range(0, T, every):
+        Xj, present = truth.joints_cm(times_ms[s:s + 1])
+        live = np.flatnonzero(present[0])
+        if not len(live):
+            continue
+        fr = part_frames(Xj[0])
+        n = per_part * N_PARTS * len(live)
+        person = np.repeat(live, per_part * N_PARTS)
+        part = np.tile(np.repeat(np.arange(N_PARTS), per_part), len(live))
+        theta, u = rng.uniform(0, 2 * np.pi, n), rng.uniform(0, 1, n)
+        r, L = fr.radius[person, part], fr.length[person, part]
+        local = np.stack([r * np.cos(theta), r * np.sin(theta), u * L], 1)
+        P0, _ = surface_points_cm(truth, times_ms[s:s + 1], person, part, local)
+        on = nearest_surface_points(truth, float(times_ms[s]), P0[0])
+        keep = (on.distance_cm < 1e-6) & (on.person == person) & (on.part == part)
+        person, part, local = person[keep], part[keep], local[keep]
+        # plane points: 3 cm along the surface's two tangents (around the axis, along it), in the part's frame
+        tang = np.stack([-np.sin(theta[keep]), np.cos(theta[keep]), np.zeros(keep.sum())], 1)
+        along = np.tile([0.0, 0.0, 1.0], (keep.sum(), 1))
+        lo, hi = max(0, s - reach), min(T, s + reach + 1)
+        pts = [surface_points_cm(truth, times_ms[lo:hi], person, part, local + axis_cm * d) for d in (0 * tang, tang,
+                                                                                                   along)]
+        X = np.stack([p[0] for p in pts], 2).transpose(1, 0, 2, 3)  # (n, t, 3, 3)
+        normal = pts[0][1].transpose(1, 0, 2)
+        seen = np.stack([surface_visibility(bundle, cameras, truth, float(times_ms[k]), X[:, k - lo, 0],
+                                            normal[:, k - lo]).sum(1) for k in range(lo, hi)], 1) >= min_views
+        # a patch lives from its seed while it is seen, each way
+        rel = s - lo
+        ok = seen[:, rel]
+        fwd = np.cumprod(seen[:, rel:], axis=1).astype(bool)
+        bwd = np.cumprod(seen[:, :rel + 1][:, ::-1], axis=1).astype(bool)[:, ::-1]
+        alive_w = np.concatenate([bwd[:, :-1], fwd], 1) & ok[:, None]
+        m = len(person)
+        noise = rng.normal(0, offset_cm, (m, 1, 3, 3)) + np.concatenate(
+            [np.cumsum(rng.normal(0, drift_cm, (m, rel, 3, 3))[:, ::-1], 1)[:, ::-1], np.zeros((m, 1, 3, 3)),
+             np.cumsum(rng.normal(0, drift_cm, (m, hi - lo - rel - 1, 3, 3)), 1)], 1)
+        Xf, Nf, Af = np.full((m, T, 3, 3), np.nan), np.full((m, T, 3), np.nan), np.zeros((m, T), bool)
+        Xf[:, lo:hi] = np.where(alive_w[..., None, None], X + noise, np.nan)
+        Nf[:, lo:hi] = np.where(alive_w[..., None], normal, np.nan)
+        Af[:, lo:hi] = alive_w
+        keep2 = ok
+        Xs.append(Xf[keep2]), Ns.append(Nf[keep2]), As.append(Af[keep2])
+        persons.append(person[keep2]), parts.append(part[keep2])
+    return (np.concatenate(Xs), np.concatenate(Ns), np.concatenate(As), np.concatenate(persons),
+            np.concatenate(parts))
