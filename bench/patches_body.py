@@ -22,7 +22,9 @@ Prints one JSON object per line per (rig, seed) and method: MPJPE (cm, over the 
 and over those each puts out), joint acceleration error (cm/s^2: the mean norm of the second difference of the
 joints against the truth's, over the times where both are out at the three times), the occluded spans' joints
 recovered within 3 cm (share of the removed joint-times), the share of removed joint-times put out at all, the
-labels' accuracy, motions and ties; then the ratios against the aims.
+labels' accuracy, motions and ties, and the per-frame joints flagged wrong
+(:func:`~dome_calib.recon.patches.body.flag_joints` with each method's body; precision and recall against the
+per-frame joints more than 5 cm from the truth); then the ratios against the aims.
 """
 from __future__ import annotations
 
@@ -39,7 +41,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 from dome_calib.recon.body_models import JOINTS19  # noqa: E402
-from dome_calib.recon.patches.body import TieOptions, joint_ties  # noqa: E402
+from dome_calib.recon.patches.body import TieOptions, flag_joints, joint_ties  # noqa: E402
 from dome_calib.recon.patches.motion import part_motions  # noqa: E402
 from dome_calib.recon.patches.parts import label_parts  # noqa: E402
 from dome_calib.recon.people.run import PeopleOptions, reconstruct_people  # noqa: E402
@@ -127,6 +129,26 @@ def _scores(X_est, X, mask, dt_s):
     return err, acc_err, m3
 
 
+def _matched_confidence(bodies, ids) -> np.ndarray:
+    """(T, P, 19) the c of the bodies matched to the true people (NaN: none)."""
+    out = np.full(ids.shape + (19,), np.nan)
+    for t, b in enumerate(bodies):
+        for p in np.flatnonzero(ids[t] >= 0):
+            out[t, p] = b.confidence[int(np.flatnonzero(b.ids == ids[t, p])[0])]
+    return out
+
+
+def _on_tracks(bodies, ids, shape) -> np.ndarray:
+    """(T, P, 19, 3) the joints of the given track ids (T, P) in ``bodies`` (NaN: none or missing)."""
+    out = np.full(shape, np.nan)
+    for t, b in enumerate(bodies):
+        for p in np.flatnonzero(ids[t] >= 0):
+            k = np.flatnonzero(b.ids == ids[t, p])
+            if len(k):
+                out[t, p] = b.X_cm[int(k[0])]
+    return out
+
+
 def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int) -> list[dict]:
     if rig == "fewcam":
         bundle = few_camera_rig(RigOptions(seed=seed, duration_ms=1000.0 * seconds + GROUP_MARGIN_MS + 100.0))
@@ -175,8 +197,12 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int) -> list[
     dt_s = float(np.median(np.diff(times))) / 1000.0
     rows = []
     est = {}
+    conf = {}
     for mode, res in (("body_over_time", alone), ("with_patches", withp)):
-        est[mode] = match_bodies([b.ids for b in res.bodies], [b.X_cm for b in res.bodies], X, present)[1]
+        mids, est[mode], _ = match_bodies([b.ids for b in res.bodies], [b.X_cm for b in res.bodies], X, present)
+        conf[mode] = _matched_confidence(res.bodies, mids)
+    frame = _on_tracks(seq.bodies, mids, X.shape)  # the per-frame joints of the same tracks
+    frame_wrong = np.linalg.norm(frame - X, axis=-1) > 5.0
     both = np.isfinite(est["body_over_time"]).all(-1) & np.isfinite(est["with_patches"]).all(-1) & present[..., None]
     for mode, Y in est.items():
         err, acc_err, m3 = _scores(Y, X, both, dt_s)
@@ -191,6 +217,10 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int) -> list[
                "occluded_put_out": round(float(rec.sum() / max(removed.sum(), 1)), 4),
                "occluded_within_3cm": round(float((rec & (e_all < 3.0)).sum() / max(removed.sum(), 1)), 4),
                "occluded_median_error_cm": round(float(np.median(e_all[rec])), 2) if rec.any() else None}
+        flags = flag_joints(frame, Y, conf[mode])
+        row.update(flags=int(flags.sum()), flags_precision=round(float((flags & frame_wrong).sum() / max(
+            flags.sum(), 1)), 4), flags_recall=round(float((flags & frame_wrong).sum() / max(frame_wrong.sum(), 1)), 4),
+                   per_frame_wrong=int(frame_wrong.sum()))
         if mode == "with_patches":
             row.update(patches=int(len(lab.bone)), labelled=round(float(judged.mean()), 4),
                        labels_right=round(float(right.sum() / max(judged.sum(), 1)), 4), motions=len(motions),

@@ -95,8 +95,11 @@ def test_joint_ties_and_flags():
         TieOptions(floor_cm=0.0)
     d = np.zeros((2, 19, 3))
     d[1, 4] = [6.0, 0, 0]
-    flags = flag_joints(d, np.zeros((2, 19, 3)), np.full((2, 19), 1.0))
+    c = np.full((2, 19), 0.99)
+    flags = flag_joints(d, np.zeros((2, 19, 3)), c)
     assert flags.sum() == 1 and flags[1, 4]
+    c[1, 4] = 0.5  # the body is not sure there: no verdict
+    assert not flag_joints(d, np.zeros((2, 19, 3)), c).any()
 
 
 @pytest.fixture(scope="module")

@@ -19,9 +19,9 @@ smoothness prior's growth ``q d^3 / 3`` by the sum of the tie variances from the
 step has a tie (the smaller of the two), so a joint filled by the patches is put out while its variance stays below
 the temporal stage's ``max_sigma_cm``.
 
-**Wrong joints flagged** (:func:`flag_joints`): a per-frame joint farther than ``flag_k`` of its standard
-deviation (at least ``flag_min_cm``) from the body refined with the patches, where the body's joint was carried by
-ties on both sides.
+**Wrong joints flagged** (:func:`flag_joints`): a per-frame joint farther than ``flag_min_cm`` from the body refined
+with the patches where that body is sure of its joint (``c``, the probability that it lies within 5 cm, at least
+``flag_min_confidence``).
 
 Without ties nothing of the temporal fit changes (the term is absent).
 """
@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from dome_calib.options import options
+from dome_calib.options import UnitInterval, options
 from dome_calib.recon.patches.motion import PartMotions, point_sigma_cm
 from dome_calib.recon.patches.parts import BONES
 from dome_calib.schema import PosFinite
@@ -48,8 +48,8 @@ class TieOptions:
 
     floor_cm: PosFinite = 0.3
     max_sigma_cm: PosFinite = 2.0
-    flag_k: PosFinite = 4.0
     flag_min_cm: PosFinite = 5.0
+    flag_min_confidence: UnitInterval = 0.95
 
 
 @dataclass(frozen=True)
@@ -178,11 +178,12 @@ def _interpolated(J: np.ndarray, t: np.ndarray) -> np.ndarray:
     return out
 
 
-def flag_joints(X_frame_cm: np.ndarray, X_refined_cm: np.ndarray, sigma_cm: np.ndarray,
+def flag_joints(X_frame_cm: np.ndarray, X_refined_cm: np.ndarray, confidence: np.ndarray,
                 options: TieOptions | None = None) -> np.ndarray:
-    """(..., 19, 3) per-frame joints, the body refined with the patches and (..., 19) its standard deviations ->
-    (..., 19) bool: per-frame joints the refined body says are wrong (module docstring)."""
+    """(..., 19, 3) per-frame joints, the body refined with the patches and (..., 19) its confidence ``c`` (the
+    probability that the joint lies within 5 cm) -> (..., 19) bool: per-frame joints farther than ``flag_min_cm``
+    from a refined joint with ``c >= flag_min_confidence`` (module docstring)."""
     o = options or TieOptions()
     d = np.linalg.norm(np.asarray(X_frame_cm) - np.asarray(X_refined_cm), axis=-1)
     with np.errstate(invalid="ignore"):
-        return np.isfinite(d) & (d > np.maximum(o.flag_k * np.asarray(sigma_cm), o.flag_min_cm))
+        return np.isfinite(d) & (d > o.flag_min_cm) & (np.asarray(confidence) >= o.flag_min_confidence)
