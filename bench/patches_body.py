@@ -1,7 +1,7 @@
 """The body over time with the patches' part motions against the body over time alone (issue 49 part 3).
 
 Run: .venv/bin/python bench/patches_body.py [--rig fewcam,panel] [--people 3] [--seconds 4] [--seeds 1,2]
-         [--occlusions 12] [--stream FILE.npz]
+         [--occlusions 6] [--stream FILE.npz]
 
 Setup per (rig, seed): the synthetic group (``fewcam``: the 5-camera HD rig of bench/fewcam.py, ``small_area``
 group; ``panel``: the as-built dome's panel preset, VGA of panels 1-2 with their HD and Kinect colour cameras,
@@ -11,12 +11,14 @@ occluded limb). The people are reconstructed per frame and tracked (``reconstruc
 then the body over time is fitted once over the whole span (one window) without and with the ties of
 :mod:`dome_calib.recon.patches.body`, both on the same tracks, detections and priors.
 
-The patches: ``--patches truth`` (default) samples the bodies' surfaces (:mod:`dome_calib.synth.textured`): patch
+The patches: by default :func:`dome_calib.synth.surface_patches.true_patches` samples the bodies' surfaces (:mod:`dome_calib.synth.textured`): patch
 triplets (centre and two plane points 3 cm away) seeded every 20 reference frames on the outer surface where at
 least 2 cameras see them, each living 30 frames each way while seen by 2 cameras, with the stream's measured error
 added (bench/patches.py: a constant offset of 2.7 mm median per point, a drift growing as a random walk to 4-5 mm
 median after 10-30 frames); they are labelled by :func:`~dome_calib.recon.patches.parts.label_parts` with the body
 over time alone (not the truth), and their motions fitted by :func:`~dome_calib.recon.patches.motion.part_motions`.
+With ``--stream FILE`` (``--rig panel --people 2 --seeds 0``: bench/patches.py's setup, ``--save FILE``), the patches
+are the stream's own, tracked in the rendered images, at its times.
 
 Prints one JSON object per line per (rig, seed) and method: MPJPE (cm, over the true joints both methods put out
 and over those each puts out), joint acceleration error (cm/s^2: the mean norm of the second difference of the
@@ -149,22 +151,25 @@ def _on_tracks(bodies, ids, shape) -> np.ndarray:
     return out
 
 
-def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int) -> list[dict]:
+def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: str = "") -> list[dict]:
     if rig == "fewcam":
         bundle = few_camera_rig(RigOptions(seed=seed, duration_ms=1000.0 * seconds + GROUP_MARGIN_MS + 100.0))
         truth = rig_group(bundle, n_people=n_people, seed=seed)
         ref = "hd"
         start = truth.start_ms
-    else:
+    else:  # as bench/patches.py sets it up (its --save file can be the patches)
         bundle = as_built_dome("panel", seed=seed)
-        bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=1000.0 * seconds + 1500.0, seed=seed)
+        bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=6000.0, seed=seed)
         truth = make_group(GroupOptions(n_people=n_people, scenario="conversation", start_ms=500.0,
-                                        duration_ms=1000.0 * seconds + 500.0, seed=seed))
+                                        duration_ms=5000.0, seed=seed))
         ref = "vga"
-        start = 750.0
+        start = 2500.0 - 500.0 * seconds
     table = bundle.sync.streams[ref]
     span = (table.univ_time_ms >= start) & (table.univ_time_ms <= start + 1000.0 * seconds)
     times = table.univ_time_ms[span]
+    saved = np.load(stream) if stream else None
+    if saved is not None:
+        times = saved["times_ms"]
     det = synth_detections(bundle, truth, model=DetectorModel(seed=seed))
     det, removed = occlude(det, bundle, truth, times, n_occ, seed)
     streams = people_streams(bundle, det)
@@ -183,7 +188,10 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int) -> list[
                           for p in range(X.shape[1])])
     cams = list(views.names)
     cpu = time.process_time()
-    Pt, normal, alive, t_person, t_part = true_patches(bundle, cams, truth, times, seed)
+    if saved is None:
+        Pt, normal, alive, t_person, t_part = true_patches(bundle, cams, truth, times, seed)
+    else:
+        Pt, normal, alive, t_person, t_part = (saved[k] for k in ("X_cm", "normal", "alive", "person", "part"))
     cpu_patches = time.process_time() - cpu
     cpu = time.process_time()
     lab = label_parts(Pt[:, :, 0], normal, alive, body)
@@ -209,7 +217,7 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int) -> list[
         out = np.isfinite(Y).all(-1) & present[..., None]
         e_all = np.linalg.norm(Y - X, axis=-1)
         rec = removed & out
-        row = {"rig": rig, "seed": seed, "people": n_people, "views": len(cams), "times": len(times), "method": mode,
+        row = {"rig": rig, "patches_from": "stream" if stream else "truth", "seed": seed, "people": n_people, "views": len(cams), "times": len(times), "method": mode,
                "mpjpe_common_cm": round(float(err[both].mean()), 3),
                "mpjpe_cm": round(float(np.nanmean(e_all[out])), 3),
                "accel_error_cm_s2": round(float(acc_err[m3].mean()), 1),
@@ -241,12 +249,13 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=4.0)
     ap.add_argument("--seeds", default="1,2")
     ap.add_argument("--occlusions", type=int, default=6)
+    ap.add_argument("--stream", default="", help="bench/patches.py --save FILE: its tracked patches (panel, its seed)")
     args = ap.parse_args()
     emit(bench="patches_body", cpus=os.cpu_count(), load=[round(x, 2) for x in os.getloadavg()])
     rows = []
     for rig in args.rig.split(","):
         for seed in [int(x) for x in args.seeds.split(",")]:
-            rows += run(rig, args.people, args.seconds, seed, args.occlusions)
+            rows += run(rig, args.people, args.seconds, seed, args.occlusions, args.stream)
     a = [r for r in rows if r["method"] == "body_over_time"]
     b = [r for r in rows if r["method"] == "with_patches"]
     emit(aims={"mpjpe_ratio": [round(y["mpjpe_common_cm"] / x["mpjpe_common_cm"], 3) for x, y in zip(a, b)],

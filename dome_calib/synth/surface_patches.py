@@ -3,8 +3,8 @@ the patch stream's error added: the patches' truth for the stages after the stre
 with them) without tracking images.
 
 Clouds are seeded every ``every`` reference times: per present person and part, ``per_part`` points drawn uniformly
-on the part's capsule (kept where they are on the bodies' outer surface); each becomes a triplet (the centre and two
-plane points ``axis_cm`` away along the surface's tangents: round the axis and along it, in the part's frame) that
+on the part's capsule, side and end caps (kept where they are on the bodies' outer surface); each becomes a triplet
+(the centre and two plane points ``axis_cm`` away along two orthogonal tangents of the surface, in the part's frame) that
 moves rigidly with its part. A patch lives from its seed, each way up to ``reach`` times, while at least
 ``min_views`` cameras see its centre (:func:`~dome_calib.synth.textured.surface_visibility`), as a tracked patch ends
 when too few cameras see it. Error, per point: a constant offset (``offset_cm`` per axis) and a random walk from the
@@ -19,6 +19,19 @@ from dome_calib.bundle import Bundle
 from dome_calib.synth.group import GroupTruth
 from dome_calib.synth.textured import N_PARTS, nearest_surface_points, part_frames, surface_points_cm
 from dome_calib.synth.textured import surface_visibility
+
+
+def _capsule_points(rng: np.random.Generator, r: np.ndarray, L: np.ndarray) -> np.ndarray:
+    """(n,) radii and axis lengths -> (n, 3) points drawn uniformly on capsules' surfaces, in their parts' frames
+    (z along the axis from 0 to L): the side (area 2 pi r L) or an end cap (4 pi r^2 both)."""
+    n = len(r)
+    on_cap = rng.uniform(0, 1, n) < 2 * r / (L + 2 * r)
+    theta, u = rng.uniform(0, 2 * np.pi, n), rng.uniform(0, 1, n)
+    side = np.stack([r * np.cos(theta), r * np.sin(theta), u * L], 1)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    cap = r[:, None] * d + np.where(d[:, 2:3] > 0, L[:, None], 0.0) * [[0.0, 0.0, 1.0]]
+    return np.where(on_cap[:, None], cap, side)
 
 
 def true_patches(bundle: Bundle, cameras: list[str], truth: GroupTruth, times_ms: np.ndarray, seed: int, *,
@@ -40,16 +53,19 @@ def true_patches(bundle: Bundle, cameras: list[str], truth: GroupTruth, times_ms
         n = per_part * N_PARTS * len(live)
         person = np.repeat(live, per_part * N_PARTS)
         part = np.tile(np.repeat(np.arange(N_PARTS), per_part), len(live))
-        theta, u = rng.uniform(0, 2 * np.pi, n), rng.uniform(0, 1, n)
         r, L = fr.radius[person, part], fr.length[person, part]
-        local = np.stack([r * np.cos(theta), r * np.sin(theta), u * L], 1)
+        local = _capsule_points(rng, r, L)
         P0, _ = surface_points_cm(truth, times_ms[s:s + 1], person, part, local)
         on = nearest_surface_points(truth, float(times_ms[s]), P0[0])
         keep = (on.distance_cm < 1e-6) & (on.person == person) & (on.part == part)
-        person, part, local = person[keep], part[keep], local[keep]
-        # plane points: 3 cm along the surface's two tangents (around the axis, along it), in the part's frame
-        tang = np.stack([-np.sin(theta[keep]), np.cos(theta[keep]), np.zeros(keep.sum())], 1)
-        along = np.tile([0.0, 0.0, 1.0], (keep.sum(), 1))
+        person, part, local, L = person[keep], part[keep], local[keep], L[keep]
+        # plane points: axis_cm along two orthogonal tangents of the surface, in the part's frame
+        n_loc = local - np.stack([np.zeros(len(local)), np.zeros(len(local)), np.clip(local[:, 2], 0.0, L)], 1)
+        n_loc /= np.linalg.norm(n_loc, axis=1, keepdims=True)
+        ref = np.where(np.abs(n_loc[:, 2:3]) > 0.9, [[1.0, 0.0, 0.0]], [[0.0, 0.0, 1.0]])
+        tang = np.cross(ref, n_loc)
+        tang /= np.linalg.norm(tang, axis=1, keepdims=True)
+        along = np.cross(n_loc, tang)
         lo, hi = max(0, s - reach), min(T, s + reach + 1)
         pts = [surface_points_cm(truth, times_ms[lo:hi], person, part, local + axis_cm * d) for d in (0 * tang, tang,
                                                                                                    along)]
