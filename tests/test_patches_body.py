@@ -71,7 +71,7 @@ def test_the_ties_term_is_their_cost():
         0.5 * x0.ravel() @ H @ x0.ravel() - b.ravel() @ x0.ravel()) == pytest.approx(0.5 * cost, rel=1e-9)
 
 
-def test_gap_variance_grows_with_the_ties_only_across_a_tied_gap():
+def test_gap_variance_grows_with_the_ties_across_a_gap():
     rng = np.random.default_rng(1)
     T = 12
     times = np.arange(T) * 33.0
@@ -83,10 +83,18 @@ def test_gap_variance_grows_with_the_ties_only_across_a_tied_gap():
     ties = _ties(np.nan_to_num(X), times, rng, joints=(5,))
     X0 = np.stack([bodies[k].X_cm[p] for k, p in zip(lay.bf_k, lay.bf_p)])
     base = np.full(lay.n_var, 1e6)
-    var = ties.gap_variance(lay, X0, times, bodies, base)
+    q = np.full(19, 3e5)
+    var = ties.gap_variance(lay, X0, times, bodies, base, q)
     v1 = var[lay.var[(lay.bf_track == 1), 5]]
     assert np.allclose(v1, 0.25 * np.array([0, 0, 0, 1, 2, 3, 2, 1, 0, 0, 0, 0]))  # sigma 0.5: 0.25 per step
-    assert np.all(var[lay.var[(lay.bf_track == 0), 5]][3:8] == 1e6)
+    d = 0.033 * np.array([1, 2, 3, 2, 1])  # track 0 has no ties: the prior's own growth
+    assert np.allclose(var[lay.var[(lay.bf_track == 0), 5]][3:8], 3e5 * d ** 3 / 3)
+    # a step without a tie (4 -> 5) adds the prior's growth over its 33 ms (3.6 cm^2) to the side from time 2
+    cut = ~((ties.joint == 5) & (ties.from_ms == times[4]))
+    part = JointTies(*(getattr(ties, f)[cut] for f in JointTies.__dataclass_fields__))
+    v2 = part.gap_variance(lay, X0, times, bodies, base, q)[lay.var[(lay.bf_track == 1), 5]]
+    assert np.allclose(v2[[3, 4, 6, 7]], 0.25 * np.array([1, 2, 2, 1]))
+    assert v2[5] == pytest.approx(0.75)  # from time 8: 3 tied steps (from time 2: 0.5 + 3.6)
 
 
 def test_joint_ties_and_flags():

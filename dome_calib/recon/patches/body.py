@@ -15,9 +15,9 @@ matrix (a tie couples a joint's consecutive times, inside the chains' band) and 
 round. A joint carried by several parts (the elbow by the upper arm and the forearm) gets each part's tie.
 
 Joints the detections miss are then carried across the gap by the ties: :meth:`JointTies.gap_variance` replaces the
-smoothness prior's growth ``q d^3 / 3`` by the sum of the tie variances from the nearest measured time where every
-step has a tie (the smaller of the two), so a joint filled by the patches is put out while its variance stays below
-the temporal stage's ``max_sigma_cm``.
+smoothness prior's growth ``q d^3 / 3`` from the nearest measured time by the sum of the tie variances of the tied
+steps from a measured time plus the prior's growth over the untied time between (the smaller side), so a joint
+filled by the patches is put out while its variance stays below the temporal stage's ``max_sigma_cm``.
 
 **Wrong joints flagged** (:func:`flag_joints`): a per-frame joint farther than ``flag_min_cm`` from the body refined
 with the patches where that body is sure of its joint (``c``, the probability that it lies within 5 cm, at least
@@ -109,27 +109,41 @@ class JointTies:
         b -= _rows_sum(i0, np.einsum("kji,kj->ki", R, wt), lay.n_var)
         return H, b
 
-    def gap_variance(self, lay, X0: np.ndarray, times_ms: np.ndarray, bodies, base: np.ndarray) -> np.ndarray:
-        """(n_var,) the variance a joint the per-frame triangulation missed gains from its nearest measured time:
-        the smaller of ``base`` (the smoothness prior's) and the sum of the tie variances over the steps between,
-        where every step has a tie (each step's ties combined: 1 / sum 1 / sigma^2)."""
+    def gap_variance(self, lay, X0: np.ndarray, times_ms: np.ndarray, bodies, base: np.ndarray,
+                     q: np.ndarray) -> np.ndarray:
+        """(n_var,) the variance a joint the per-frame triangulation missed gains from a measured time: from each
+        side, the sum of the tie variances of the tied steps between (each step's ties combined: 1 / sum 1 /
+        sigma^2) plus the smoothness prior's ``q d^3 / 3`` over the untied time ``d`` between; the smaller side,
+        and never more than ``base`` (the prior's alone, from the nearest measured time). q (19,) cm^2/s^3."""
         use, i0, i1 = self._matched(lay, times_ms, bodies)
         step_info = np.zeros(lay.n_var)  # information of the step from point i0 to the next
         np.add.at(step_info, i0, 1.0 / self.sigma_cm[use] ** 2)
         out = base.copy()
         have = np.isfinite(X0).all(-1)
+        t_s = np.asarray(times_ms, dtype=float)[lay.bf_k] / 1000.0
         for tr in np.unique(lay.bf_track):
             rows = np.flatnonzero(lay.bf_track == tr)
+            dt = np.diff(t_s[rows])
             for j in np.flatnonzero((lay.var[rows] >= 0).any(0)):
                 v = lay.var[rows, j]
                 seen = have[rows, j]
-                step = np.where(step_info[v[:-1]] > 0, 1.0 / np.maximum(step_info[v[:-1]], 1e-300), np.inf)
-                fwd, bwd = np.full(len(v), np.inf), np.full(len(v), np.inf)
-                for i in range(len(v)):
-                    fwd[i] = 0.0 if seen[i] else (fwd[i - 1] + step[i - 1] if i else np.inf)
-                for i in range(len(v) - 1, -1, -1):
-                    bwd[i] = 0.0 if seen[i] else (bwd[i + 1] + step[i] if i + 1 < len(v) else np.inf)
-                out[v] = np.minimum(out[v], np.minimum(fwd, bwd))
+                info = step_info[v[:-1]]
+                tie_var = np.where(info > 0, 1.0 / np.where(info > 0, info, 1.0), 0.0)
+                untied = np.where(info > 0, 0.0, dt)
+                side = []
+                for order in (np.arange(len(v)), np.arange(len(v))[::-1]):
+                    acc_var, acc_d, started = 0.0, 0.0, False
+                    got = np.full(len(v), np.inf)
+                    for a, i in enumerate(order):
+                        if seen[i]:
+                            acc_var, acc_d, started = 0.0, 0.0, True
+                        elif started:
+                            k = min(i, order[a - 1])  # the step between i and the previous time in this order
+                            acc_var, acc_d = acc_var + tie_var[k], acc_d + untied[k]
+                        if started:
+                            got[i] = acc_var + q[j] * acc_d ** 3 / 3.0
+                    side.append(got)
+                out[v] = np.minimum(out[v], np.minimum(*side))
         return out
 
 

@@ -290,7 +290,7 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
     info = np.linalg.eigvalsh(H_diag + np.asarray(chain.diagonal()).reshape(-1, 3)[:, :, None] * np.eye(3))[:, 0]
     var_cm2 = 1.0 / np.maximum(info, 1e-12)
     gap = _gap_variance(lay, X0, times_s, q)
-    var_cm2 += gap if ties is None else ties.gap_variance(lay, X0, times_ms, bodies, gap)
+    var_cm2 += gap if ties is None else ties.gap_variance(lay, X0, times_ms, bodies, gap, q)
     sigma = np.sqrt(var_cm2)
     shown = _shown(lay, X0, sigma, options.max_sigma_cm)
     residual = distances_px(P, rec_var, obs.view, obs.uv_px, cam).astype(np.float32)  # float32: millions of them
