@@ -14,8 +14,7 @@ then the body over time is fitted once over the whole span (one window) without 
 The patches: by default :func:`dome_calib.synth.surface_patches.true_patches` samples the bodies' surfaces (:mod:`dome_calib.synth.textured`): patch
 triplets (centre and two plane points 3 cm away) seeded every 20 reference frames on the outer surface where at
 least 2 cameras see them, each living 30 frames each way while seen by 2 cameras, with the stream's measured error
-added (bench/patches.py: a constant offset of 2.7 mm median per point, a drift growing as a random walk to 4-5 mm
-median after 10-30 frames); they are labelled by :func:`~dome_calib.recon.patches.parts.label_parts` with the body
+added (a constant offset and a random walk, a little worse than the stream's: see that module); they are labelled by :func:`~dome_calib.recon.patches.parts.label_parts` with the body
 over time alone (not the truth), and their motions fitted by :func:`~dome_calib.recon.patches.motion.part_motions`.
 With ``--stream FILE`` (``--rig panel --people 2 --seeds 0``: bench/patches.py's setup, ``--save FILE``), the patches
 are the stream's own, tracked in the rendered images, at its times.
@@ -23,7 +22,8 @@ are the stream's own, tracked in the rendered images, at its times.
 Prints one JSON object per line per (rig, seed) and method: MPJPE (cm, over the true joints both methods put out
 and over those each puts out), joint acceleration error (cm/s^2: the mean norm of the second difference of the
 joints against the truth's, over the times where both are out at the three times), the occluded spans' joints
-recovered within 3 cm (share of the removed joint-times), the share of removed joint-times put out at all, the
+recovered within 3 cm (share of the removed joint-times; and of those a tie reaches: a part with patches), the share
+of removed joint-times put out at all, the
 labels' accuracy, motions and ties, and the per-frame joints flagged wrong
 (:func:`~dome_calib.recon.patches.body.flag_joints` with each method's body; precision and recall against the
 per-frame joints more than 5 cm from the truth); then the ratios against the aims.
@@ -210,6 +210,11 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
         mids, est[mode], _ = match_bodies([b.ids for b in res.bodies], [b.X_cm for b in res.bodies], X, present)
         conf[mode] = _matched_confidence(res.bodies, mids)
     frame = _on_tracks(seq.bodies, mids, X.shape)  # the per-frame joints of the same tracks
+    tied = np.zeros(X.shape[:3], bool)  # joint-times a tie reaches (from or to)
+    for p, tid in enumerate(track_ids):
+        on = ties.track_id == tid
+        for col in (ties.from_ms[on], ties.to_ms[on]):
+            tied[np.searchsorted(times, col), p, ties.joint[on]] = True
     frame_wrong = np.linalg.norm(frame - X, axis=-1) > 5.0
     both = np.isfinite(est["body_over_time"]).all(-1) & np.isfinite(est["with_patches"]).all(-1) & present[..., None]
     for mode, Y in est.items():
@@ -230,6 +235,9 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
             flags.sum(), 1)), 4), flags_recall=round(float((flags & frame_wrong).sum() / max(frame_wrong.sum(), 1)), 4),
                    per_frame_wrong=int(frame_wrong.sum()))
         if mode == "with_patches":
+            rt = removed & tied
+            row.update(occluded_tied=round(float(rt.sum() / max(removed.sum(), 1)), 4),
+                       occluded_tied_within_3cm=round(float((rt & out & (e_all < 3.0)).sum() / max(rt.sum(), 1)), 4))
             row.update(patches=int(len(lab.bone)), labelled=round(float(judged.mean()), 4),
                        labels_right=round(float(right.sum() / max(judged.sum(), 1)), 4), motions=len(motions),
                        motion_rms_cm_median=round(float(np.median(motions.rms_cm)), 3) if len(motions) else None,

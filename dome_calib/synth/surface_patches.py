@@ -8,8 +8,9 @@ on the part's capsule, side and end caps (kept where they are on the bodies' out
 moves rigidly with its part. A patch lives from its seed, each way up to ``reach`` times, while at least
 ``min_views`` cameras see its centre (:func:`~dome_calib.synth.textured.surface_visibility`), as a tracked patch ends
 when too few cameras see it. Error, per point: a constant offset (``offset_cm`` per axis) and a random walk from the
-seed (``drift_cm`` per axis and step), the stream's measured figures by default (bench/patches.py: 2.7 mm median at
-the seed, 4-5 mm after 10-30 frames).
+seed (``drift_cm`` per axis and step). The defaults (2.3 mm and 0.6 mm: 3.5 mm median at the seed, 5-6 mm after
+10-30 steps; a part motion's residual 1.0 mm median) are a little worse than the stream's own (bench/patches.py's
+conversation: 2.7 mm at the seed, 4-5 mm after 10-30 frames; a part motion's residual 0.6 mm).
 """
 from __future__ import annotations
 

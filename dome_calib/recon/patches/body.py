@@ -1,7 +1,7 @@
 """The body over time refined with the parts' rigid motions: a further term of the temporal fit.
 
 A part's motion from one reference time to the next (:mod:`~dome_calib.recon.patches.motion`) carries the joints at
-its bone's ends (:data:`TIED_JOINTS`): a joint ``X_j`` of a part with motion ``(R, t)`` from time k to k+1 should
+its bone's ends (:data:`TIED_JOINTS`; the head: the whole face): a joint ``X_j`` of a part with motion ``(R, t)`` from time k to k+1 should
 satisfy ``X_j(k+1) = R X_j(k) + t``. The body over time (:func:`~dome_calib.recon.people.temporal.refine_tracks`)
 takes each such tie as the quadratic term
 
@@ -37,9 +37,9 @@ from dome_calib.recon.patches.motion import PartMotions, point_sigma_cm
 from dome_calib.recon.patches.parts import BONES
 from dome_calib.schema import PosFinite
 
-#: Per bone of :data:`BONES`, the joints19 it carries: its two ends (the head: the neck and both ears, whose midpoint
-#: is its end).
-TIED_JOINTS = [tuple(j for j in ((a, b) if b >= 0 else (a, 16, 18))) for _, a, b in BONES]
+#: Per bone of :data:`BONES`, the joints19 it carries: its two ends; the head (neck to the ears' midpoint) carries the
+#: whole face, a rigid skull: the neck, the ears, the nose and the eyes.
+TIED_JOINTS = [(a, b) if b >= 0 else (a, 16, 18, 1, 15, 17) for _, a, b in BONES]
 
 
 @options
