@@ -11,13 +11,14 @@ occluded limb). The people are reconstructed per frame and tracked (``reconstruc
 then the body over time is fitted once over the whole span (one window) without and with the ties of
 :mod:`dome_calib.recon.patches.body`, both on the same tracks, detections and priors.
 
-The patches: by default :func:`dome_calib.synth.surface_patches.true_patches` samples the bodies' surfaces (:mod:`dome_calib.synth.textured`): patch
-triplets (centre and two plane points 3 cm away) seeded every 20 reference frames on the outer surface where at
-least 2 cameras see them, each living 30 frames each way while seen by 2 cameras, with the stream's measured error
-added (a constant offset and a random walk, a little worse than the stream's: see that module); they are labelled by :func:`~dome_calib.recon.patches.parts.label_parts` with the body
+The patches: by default :func:`dome_calib.synth.surface_patches.true_patches` samples the bodies' surfaces
+(:mod:`dome_calib.synth.textured`): patch triplets (centre and two plane points 3 cm away) seeded every 20
+reference frames on the outer surface where at least 2 cameras see them, each living 30 frames each way while seen
+by 2 cameras, with the stream's measured error added (a constant offset and a random walk, a little worse than the
+stream's: see that module); they are labelled by :func:`~dome_calib.recon.patches.parts.label_parts` with the body
 over time alone (not the truth), and their motions fitted by :func:`~dome_calib.recon.patches.motion.part_motions`.
-With ``--stream FILE`` (``--rig panel --people 2 --seeds 0``: bench/patches.py's setup, ``--save FILE``), the patches
-are the stream's own, tracked in the rendered images, at its times.
+With ``--stream FILE`` (``--rig panel --people 2 --seeds 0``: bench/patches.py's setup, ``--save FILE``), the
+patches are the stream's own, tracked in the rendered images, at its times.
 
 Prints one JSON object per line per (rig, seed) and method: MPJPE (cm, over the true joints both methods put out
 and over those each puts out), joint acceleration error (cm/s^2: the mean norm of the second difference of the
@@ -222,7 +223,8 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
         out = np.isfinite(Y).all(-1) & present[..., None]
         e_all = np.linalg.norm(Y - X, axis=-1)
         rec = removed & out
-        row = {"rig": rig, "patches_from": "stream" if stream else "truth", "seed": seed, "people": n_people, "views": len(cams), "times": len(times), "method": mode,
+        row = {"rig": rig, "patches_from": "stream" if stream else "truth", "seed": seed, "people": n_people,
+               "views": len(cams), "times": len(times), "method": mode,
                "mpjpe_common_cm": round(float(err[both].mean()), 3),
                "mpjpe_cm": round(float(np.nanmean(e_all[out])), 3),
                "accel_error_cm_s2": round(float(acc_err[m3].mean()), 1),

@@ -4,13 +4,13 @@ with them) without tracking images.
 
 Clouds are seeded every ``every`` reference times: per present person and part, ``per_part`` points drawn uniformly
 on the part's capsule, side and end caps (kept where they are on the bodies' outer surface); each becomes a triplet
-(the centre and two plane points ``axis_cm`` away along two orthogonal tangents of the surface, in the part's frame) that
-moves rigidly with its part. A patch lives from its seed, each way up to ``reach`` times, while at least
-``min_views`` cameras see its centre (:func:`~dome_calib.synth.textured.surface_visibility`), as a tracked patch ends
-when too few cameras see it. Error, per point: a constant offset (``offset_cm`` per axis) and a random walk from the
-seed (``drift_cm`` per axis and step). The defaults (2.3 mm and 0.6 mm: 3.5 mm median at the seed, 5-6 mm after
-10-30 steps; a part motion's residual 1.0 mm median) are a little worse than the stream's own (bench/patches.py's
-conversation: 2.7 mm at the seed, 4-5 mm after 10-30 frames; a part motion's residual 0.6 mm).
+(the centre and two plane points ``axis_cm`` away along two orthogonal tangents of the surface, in the part's
+frame) that moves rigidly with its part. A patch lives from its seed, each way up to ``reach`` times, while at
+least ``min_views`` cameras see its centre (:func:`~dome_calib.synth.textured.surface_visibility`), as a tracked
+patch ends when too few cameras see it. Error, per point: a constant offset (``offset_cm`` per axis) and a random
+walk from the seed (``drift_cm`` per axis and step). The defaults (2.3 mm and 0.6 mm: 3.5 mm median at the seed,
+5-6 mm after 10-30 steps; a part motion's residual 1.0 mm median) are a little worse than the stream's own
+(bench/patches.py's conversation: 2.7 mm at the seed, 4-5 mm after 10-30 frames; a part motion's residual 0.6 mm).
 """
 from __future__ import annotations
 

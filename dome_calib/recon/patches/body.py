@@ -1,9 +1,9 @@
 """The body over time refined with the parts' rigid motions: a further term of the temporal fit.
 
 A part's motion from one reference time to the next (:mod:`~dome_calib.recon.patches.motion`) carries the joints at
-its bone's ends (:data:`TIED_JOINTS`; the head: the whole face): a joint ``X_j`` of a part with motion ``(R, t)`` from time k to k+1 should
-satisfy ``X_j(k+1) = R X_j(k) + t``. The body over time (:func:`~dome_calib.recon.people.temporal.refine_tracks`)
-takes each such tie as the quadratic term
+its bone's ends (:data:`TIED_JOINTS`; the head: the whole face): a joint ``X_j`` of a part with motion ``(R, t)``
+from time k to k+1 should satisfy ``X_j(k+1) = R X_j(k) + t``. The body over time
+(:func:`~dome_calib.recon.people.temporal.refine_tracks`) takes each such tie as the quadratic term
 
     |X_j(k+1) - R X_j(k) - t|^2 / sigma^2
 
