@@ -198,7 +198,6 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
     lab = label_parts(Pt[:, :, 0], normal, alive, body)
     motions = part_motions(Pt, alive, lab.person, lab.bone)
     ties = joint_ties(motions, track_ids, times, body, TieOptions())
-    ties = dataclasses.replace(ties) if len(ties) else ties
     withp = fit(ties)
     cpu_with = time.process_time() - cpu
     judged = lab.bone >= 0

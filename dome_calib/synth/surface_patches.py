@@ -7,10 +7,11 @@ on the part's capsule, side and end caps (kept where they are on the bodies' out
 (the centre and two plane points ``axis_cm`` away along two orthogonal tangents of the surface, in the part's
 frame) that moves rigidly with its part. A patch lives from its seed, each way up to ``reach`` times, while at
 least ``min_views`` cameras see its centre (:func:`~dome_calib.synth.textured.surface_visibility`), as a tracked
-patch ends when too few cameras see it. Error, per point: a constant offset (``offset_cm`` per axis) and a random
-walk from the seed (``drift_cm`` per axis and step). The defaults (2.3 mm and 0.6 mm: 3.5 mm median at the seed,
-5-6 mm after 10-30 steps; a part motion's residual 1.0 mm median) are a little worse than the stream's own
-(bench/patches.py's conversation: 2.7 mm at the seed, 4-5 mm after 10-30 frames; a part motion's residual 0.6 mm).
+patch ends when too few cameras see it. The normals are the true ones. Error, per point: a constant offset
+(``offset_cm`` per axis) and a random walk from the seed (``drift_cm`` per axis and step). The defaults (2.3 mm and
+0.6 mm: 3.5 mm median at the seed, 5-6 mm after 10-30 steps; a part motion's residual 1.0 mm median) are a little
+worse than the stream's own (bench/patches.py's conversation: 2.7 mm at the seed, 4-5 mm after 10-30 frames; a part
+motion's residual 0.6 mm).
 """
 from __future__ import annotations
 
@@ -88,8 +89,7 @@ def true_patches(bundle: Bundle, cameras: list[str], truth: GroupTruth, times_ms
         Xf[:, lo:hi] = np.where(alive_w[..., None, None], X + noise, np.nan)
         Nf[:, lo:hi] = np.where(alive_w[..., None], normal, np.nan)
         Af[:, lo:hi] = alive_w
-        keep2 = ok
-        Xs.append(Xf[keep2]), Ns.append(Nf[keep2]), As.append(Af[keep2])
-        persons.append(person[keep2]), parts.append(part[keep2])
+        Xs.append(Xf[ok]), Ns.append(Nf[ok]), As.append(Af[ok])  # the patches seen at their seed
+        persons.append(person[ok]), parts.append(part[ok])
     return (np.concatenate(Xs), np.concatenate(Ns), np.concatenate(As), np.concatenate(persons),
             np.concatenate(parts))
