@@ -44,9 +44,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 from dome_calib.recon.body_models import JOINTS19  # noqa: E402
-from dome_calib.recon.patches.body import TieOptions, flag_joints, joint_ties  # noqa: E402
-from dome_calib.recon.patches.motion import part_motions  # noqa: E402
-from dome_calib.recon.patches.parts import label_parts  # noqa: E402
+from dome_calib.recon.patches.body import flag_joints, ties_from_patches  # noqa: E402
 from dome_calib.recon.people.run import PeopleOptions, reconstruct_people  # noqa: E402
 from dome_calib.recon.people.sources import InMemorySource, people_streams  # noqa: E402
 from dome_calib.recon.people.temporal import TemporalOptions, refine_tracks  # noqa: E402
@@ -183,8 +181,8 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
     fit = single_window(views, streams, times, seq, options)
     alone = fit()
     cpu_alone = time.process_time() - cpu
-    # the patches, labelled with the body over time alone
-    ids, body, _ = match_bodies([b.ids for b in alone.bodies], [b.X_cm for b in alone.bodies], X, present)
+    # the truth's people as tracks (for the tied joint-times)
+    ids, _, _ = match_bodies([b.ids for b in alone.bodies], [b.X_cm for b in alone.bodies], X, present)
     track_ids = np.array([np.bincount(ids[:, p][ids[:, p] >= 0]).argmax() if (ids[:, p] >= 0).any() else -1
                           for p in range(X.shape[1])])
     cams = list(views.names)
@@ -195,13 +193,14 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
         Pt, normal, alive, t_person, t_part = (saved[k] for k in ("X_cm", "normal", "alive", "person", "part"))
     cpu_patches = time.process_time() - cpu
     cpu = time.process_time()
-    lab = label_parts(Pt[:, :, 0], normal, alive, body)
-    motions = part_motions(Pt, alive, lab.person, lab.bone)
-    ties = joint_ties(motions, track_ids, times, body, TieOptions())
+    ties, lab, motions = ties_from_patches(Pt, normal, alive, times, alone.bodies)  # labelled with the body alone
+    tracks = np.unique(np.concatenate([b.ids for b in alone.bodies]))
+    lab_track = np.where(lab.person >= 0, tracks[np.maximum(lab.person, 0)], -1)
     withp = fit(ties)
     cpu_with = time.process_time() - cpu
     judged = lab.bone >= 0
-    right = judged & (lab.person == t_person) & (lab.bone == t_part)
+    t_track = np.where(t_person >= 0, track_ids[np.maximum(t_person, 0)], -2)
+    right = judged & (lab_track == t_track) & (lab.bone == t_part)
     dt_s = float(np.median(np.diff(times))) / 1000.0
     rows = []
     est = {}

@@ -8,9 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from dome_calib.recon.patches.body import JointTies, TIED_JOINTS, TieOptions, flag_joints, joint_ties
-from dome_calib.recon.patches.motion import part_motions
-from dome_calib.recon.patches.parts import label_parts
+from dome_calib.recon.patches.body import JointTies, TIED_JOINTS, TieOptions, flag_joints, ties_from_patches
 from dome_calib.recon.people.bodies import Bodies
 from dome_calib.recon.people.run import PeopleOptions, reconstruct_people
 from dome_calib.recon.people.sources import InMemorySource, people_streams
@@ -154,11 +152,9 @@ def test_no_ties_change_nothing(rig):
 def test_true_surface_motions_lower_the_error_and_the_jitter(rig):
     fit, times, X, present, (Pt, normal, alive, _, _) = rig
     alone = fit()
-    ids, body, _ = _matched(alone, X, present)
-    track_ids = np.array([np.bincount(ids[:, p][ids[:, p] >= 0]).argmax() for p in range(X.shape[1])])
-    lab = label_parts(Pt[:, :, 0], normal, alive, body)
-    ties = joint_ties(part_motions(Pt, alive, lab.person, lab.bone), track_ids, times, body)
-    assert len(ties) > 1000
+    body = _matched(alone, X, present)[1]
+    ties, labels, motions = ties_from_patches(Pt, normal, alive, times, alone.bodies)
+    assert len(ties) > 1000 and len(motions) > 500 and (labels.bone >= 0).mean() > 0.9
     withp = _matched(fit(ties), X, present)[1]
     both = np.isfinite(body).all(-1) & np.isfinite(withp).all(-1)
     e0, e1 = (np.linalg.norm(Y - X, axis=-1)[both] for Y in (body, withp))

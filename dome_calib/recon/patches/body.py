@@ -33,8 +33,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from dome_calib.options import UnitInterval, options
-from dome_calib.recon.patches.motion import PartMotions, point_sigma_cm
-from dome_calib.recon.patches.parts import BONES
+from dome_calib.recon.patches.motion import MotionOptions, PartMotions, part_motions, point_sigma_cm
+from dome_calib.recon.patches.parts import BONES, PartLabels, PartOptions, label_parts
 from dome_calib.schema import PosFinite
 
 #: Per bone of :data:`BONES`, the joints19 it carries: its two ends; the head (neck to the ears' midpoint) carries the
@@ -179,6 +179,28 @@ def joint_ties(motions: PartMotions, track_ids: np.ndarray, times_ms: np.ndarray
     t = np.asarray(times_ms, dtype=float)
     return JointTies(track_id=np.asarray(track_ids)[p[keep]], joint=joint[keep], from_ms=t[k[keep]],
                      to_ms=t[k[keep] + 1], R=motions.R[m[keep]], t_cm=motions.t_cm[m[keep]], sigma_cm=sigma[keep])
+
+
+def ties_from_patches(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, times_ms: np.ndarray, bodies,
+                      options: TieOptions | None = None, part_options: PartOptions | None = None,
+                      motion_options: MotionOptions | None = None) -> tuple[JointTies, PartLabels, PartMotions]:
+    """The stage's one entry: patch trajectories and the body over time alone -> the ties for the fit with them.
+
+    Args:
+        X_cm: (N, T, 3, 3) the patches' centres and plane points at the reference times ``times_ms`` (T,).
+        normal: (N, T, 3); alive: (N, T).
+        bodies: the body over time at those times (one :class:`~dome_calib.recon.people.bodies.Bodies` per time,
+            track ids >= 0): the skeleton the patches are labelled with.
+    Returns:
+        (ties, the patches' labels (person: index into the sorted track ids), the part motions).
+    """
+    ids = np.unique(np.concatenate([b.ids for b in bodies] + [np.zeros(0, np.int64)]))
+    J = np.full((len(bodies), len(ids), 19, 3), np.nan)
+    for k, b in enumerate(bodies):
+        J[k, np.searchsorted(ids, b.ids)] = b.X_cm
+    labels = label_parts(X_cm[:, :, 0], normal, alive, J, part_options)
+    motions = part_motions(X_cm, alive, labels.person, labels.bone, motion_options)
+    return joint_ties(motions, ids, times_ms, J, options), labels, motions
 
 
 def _interpolated(J: np.ndarray, t: np.ndarray) -> np.ndarray:
