@@ -41,3 +41,34 @@ def test_true_surface_trajectories_go_to_their_parts():
     # a normal turned inwards points at the bone: that part is refused
     inward = label_parts(P, -normal, alive, joints)
     assert np.mean((inward.person == person) & (inward.bone == part)) < 0.2
+
+
+def test_parts_that_meet_at_a_joint_told_apart_by_their_thickness():
+    """Patches on the end caps of the hips and the upper arms (round the hip joints and the elbows), where the
+    closest point on both the part's bone and the next one's is the shared joint and the true normal points out of
+    that joint: distance and alignment are the same for both bones, and with people standing and the patches
+    drifting (2 mm per step) rigid motion cannot decide. The parts' own radii, measured from the first pass, do."""
+    from dome_calib.recon.patches.parts import PartOptions
+    from dome_calib.synth.rig import RigOptions, few_camera_rig
+    from dome_calib.synth.surface_patches import true_patches
+
+    bundle = few_camera_rig(RigOptions(seed=0, duration_ms=3000.0))
+    truth = make_group(GroupOptions(n_people=2, scenario="conversation", start_ms=0.0, duration_ms=3000.0, seed=2))
+    times = np.arange(1000.0, 1800.0, 40.0)
+    X, normal, alive, person, part = true_patches(bundle, sorted(bundle.cameras), truth, times, 0, per_part=60,
+                                                  every=20, reach=20, drift_cm=0.12)
+    joints, present = truth.joints_cm(times)
+    joints[~present] = np.nan
+    k = np.argmax(alive, axis=1)  # a time each patch is alive
+    fr = [part_frames(joints[t]) for t in range(len(times))]
+    z = np.array([(X[i, k[i], 0] - fr[k[i]].A[person[i], part[i]]) @ fr[k[i]].R[person[i], part[i]][:, 2]
+                  for i in range(len(X))])
+    length = np.array([fr[k[i]].length[person[i], part[i]] for i in range(len(X))])
+    caps = np.isin(part, [3, 4, 5]) & ((z < 0) | (z > length))  # hips' ends, upper arms' elbow ends
+    caps &= ~((part != 3) & (z < 0))  # not the shoulder end of the arms
+    right = {}
+    for w in (0.0, 1.0):
+        lab = label_parts(X[:, :, 0], normal, alive, joints, PartOptions(radius_weight=w))
+        right[w] = np.mean((lab.person == person) & (lab.bone == part), where=caps)
+    assert caps.sum() > 50
+    assert right[1.0] > right[0.0] + 0.1  # measured: 63 -> 84 % of 62 cap patches

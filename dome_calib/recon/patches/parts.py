@@ -6,13 +6,24 @@ patch centre has a positive inner product with the patch normal).
 
 Per patch and candidate bone, over the times the patch is alive (at least ``min_frames``):
 
-- **away**: the share of times with ``(X - closest point on the bone) . normal > 0`` must reach ``min_away``;
+- **away**: the share of times with ``(X - closest point on the bone) . normal > 0`` must reach ``min_away``, and
+  the median distance to the bone must be within ``max_distance_cm`` (a patch whose normal points into its own
+  part, a flipped sign, is left unlabelled rather than given to a far bone that it happens to face away from);
 - **rigid**: a point moving with a bone keeps its distance to the bone's axis ``r`` and its position along it
   ``z`` (both free of the bone's unknown twist); the cost is the RMS of ``r(t) - median r`` and ``z(t) - median z``
   (cm), plus ``distance_weight`` x the median distance to the bone (cm) and ``alignment_weight`` x (1 - the median
   cosine between the normal and the way out of the bone): of two bones that move alike (people standing still),
   the one the patch sits on, whose surface it is (a torso patch next to the shoulders points out of the torso's
   axis, not out of the shoulder line).
+
+- **thickness** (a second pass): a patch lies on its part's surface, at the part's radius from its bone. Where two
+  bones meet at a joint (hips and thigh, upper arm and forearm), the closest point on both is that joint, so
+  distance, alignment and (people standing) rigidity cannot tell them apart; the parts' thicknesses can (the hips
+  are wider than the thigh). Each part's radius is measured from the first pass's labels: per person and bone,
+  the median distance of its patches whose closest point lies inside the bone (not beyond either joint; at least
+  ``min_radius_patches``, else no radius for that part); the second pass adds ``radius_weight`` x
+  ``|median distance - radius|`` (cm) to the cost. Nothing is assumed of a body's shape: the radii are each
+  capture's and person's own.
 
 The label is the bone of least cost among those that pass (costs quantised to 1e-4 cm, ties by person then bone
 order); -1 where none passes. Bones are segments between joints19 joints (:data:`BONES`), one per body part of
@@ -26,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dome_calib.options import AtLeast, UnitInterval, options
-from dome_calib.schema import NonNegFinite
+from dome_calib.schema import NonNegFinite, PosFinite
 
 #: Body parts as (name, joint a, joint b) of joints19; -1 as joint b: the midpoint of the ears (16, 18).
 BONES = [("torso", 2, 0), ("head", 0, -1), ("shoulders", 3, 9), ("hips", 6, 12), ("l_upper_arm", 3, 4),
@@ -44,6 +55,9 @@ class PartOptions:
     min_away: UnitInterval = 0.8
     distance_weight: NonNegFinite = 0.1
     alignment_weight: NonNegFinite = 10.0
+    radius_weight: NonNegFinite = 1.0
+    max_distance_cm: PosFinite = 30.0
+    min_radius_patches: AtLeast(1) = 5
 
 
 @dataclass(frozen=True)
@@ -77,17 +91,54 @@ def label_parts(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, joints_
     """
     o = options or PartOptions()
     A, B = bone_segments(joints_cm)  # (T, P, K, 3)
-    parts = [_label_chunk(X_cm[i:i + _CHUNK], normal[i:i + _CHUNK], alive[i:i + _CHUNK], A, B, o)
+    P, K = A.shape[1:3]
+    parts = [_components(X_cm[i:i + _CHUNK], normal[i:i + _CHUNK], alive[i:i + _CHUNK], A, B, o)
              for i in range(0, len(X_cm), _CHUNK)]
     if not parts:
         return PartLabels(person=np.zeros(0, np.int64), bone=np.zeros(0, np.int64), cost=np.zeros(0))
-    return PartLabels(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("person", "bone", "cost")))
+    c = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    base = c["dev"] + o.distance_weight * c["dist"] + o.alignment_weight * (1.0 - c["align"])
+    first = _choose(base, c["passes"])
+    if o.radius_weight == 0:
+        return first
+    radius = part_radii(first, c["dist"], c["interior"], P, K, o.min_radius_patches)
+    mismatch = np.abs(c["dist"] - radius[None])
+    return _choose(base + o.radius_weight * np.where(np.isfinite(mismatch), mismatch, 0.0), c["passes"])
 
 
-def _label_chunk(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, A: np.ndarray, B: np.ndarray,
-                 o: PartOptions) -> PartLabels:
-    N = len(X_cm)
-    T, P, K = A.shape[:3]
+def part_radii(labels: PartLabels, dist: np.ndarray, interior: np.ndarray, P: int, K: int,
+               min_patches: int) -> np.ndarray:
+    """(P, K) each part's thickness (cm): the median distance to its bone of the patches labelled to it whose
+    closest point on the bone lies inside it (not beyond either joint), from at least ``min_patches`` of them (NaN:
+    fewer, no radius term for that part). dist, interior (N, P, K)."""
+    out = np.full((P, K), np.nan)
+    n = np.arange(len(labels.bone))
+    got = labels.bone >= 0
+    d = dist[n[got], labels.person[got], labels.bone[got]]
+    inside = interior[n[got], labels.person[got], labels.bone[got]]
+    key = labels.person[got] * K + labels.bone[got]
+    for k in np.unique(key[inside]):
+        sel = inside & (key == k)
+        if sel.sum() >= min_patches:
+            out.flat[k] = np.round(np.median(d[sel]) / _QUANTUM) * _QUANTUM
+    return out
+
+
+def _choose(cost: np.ndarray, passes: np.ndarray) -> PartLabels:
+    """(N, P, K) costs and which pass -> the least per patch (quantised, ties by person then bone order)."""
+    N, P, K = cost.shape
+    key = np.where(passes & np.isfinite(cost), np.rint(cost / _QUANTUM), np.inf).reshape(N, P * K)
+    best = np.argmin(key, axis=1)  # first of equal keys: person, then bone order
+    found = np.isfinite(key[np.arange(N), best])
+    return PartLabels(person=np.where(found, best // K, -1), bone=np.where(found, best % K, -1),
+                      cost=np.where(found, key[np.arange(N), best] * _QUANTUM, np.nan))
+
+
+def _components(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, A: np.ndarray, B: np.ndarray,
+                o: PartOptions) -> dict[str, np.ndarray]:
+    """Per patch, person and bone (N, P, K): the rigidity ``dev`` (cm), the median distance ``dist`` (cm) and
+    alignment ``align``, ``interior`` (the median closest point lies inside the bone, not at a joint) and
+    ``passes`` (enough times, normal away from the bone)."""
     d = B - A
     L = np.linalg.norm(d, axis=-1)
     axis = d / np.maximum(L, 1e-9)[..., None]
@@ -96,7 +147,8 @@ def _label_chunk(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, A: np.
     z = np.sum(rel * axis[None], -1)  # (N, T, P, K)
     radial = rel - z[..., None] * axis[None]
     r = np.linalg.norm(radial, axis=-1)
-    s = np.clip(z / np.maximum(L[None], 1e-9), 0.0, 1.0)
+    s_raw = z / np.maximum(L[None], 1e-9)
+    s = np.clip(s_raw, 0.0, 1.0)
     closest = A[None] + s[..., None] * d[None]
     out = X - closest
     dist = np.linalg.norm(out, axis=-1)
@@ -111,12 +163,8 @@ def _label_chunk(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, A: np.
         rm = np.nanmedian(np.where(ok_t, r, np.nan), axis=1)
         dm = np.nanmedian(np.where(ok_t, dist, np.nan), axis=1)
         am = np.nanmedian(np.where(ok_t, align, np.nan), axis=1)
+        sm = np.nanmedian(np.where(ok_t, s_raw, np.nan), axis=1)
         dev = np.where(ok_t, (z - zm[:, None]) ** 2 + (r - rm[:, None]) ** 2, 0.0).sum(1) / np.maximum(n_t, 1)
         share_away = np.where(ok_t, away, False).sum(1) / np.maximum(n_t, 1)
-    cost = np.sqrt(dev) + o.distance_weight * dm + o.alignment_weight * (1.0 - am)
-    passes = (n_t >= o.min_frames) & (share_away >= o.min_away) & np.isfinite(cost)
-    key = np.where(passes, np.rint(cost / _QUANTUM), np.inf).reshape(N, P * K)
-    best = np.argmin(key, axis=1)  # first of equal keys: person, then bone order
-    found = np.isfinite(key[np.arange(N), best])
-    return PartLabels(person=np.where(found, best // K, -1), bone=np.where(found, best % K, -1),
-                      cost=np.where(found, key[np.arange(N), best] * _QUANTUM, np.nan))
+    return {"dev": np.sqrt(dev), "dist": dm, "align": am, "interior": (sm > 0.0) & (sm < 1.0),
+            "passes": (n_t >= o.min_frames) & (share_away >= o.min_away) & (dm <= o.max_distance_cm)}

@@ -208,11 +208,12 @@ def _blocks(n: int, idx_a: np.ndarray, idx_b: np.ndarray, M: np.ndarray) -> tupl
 
 
 def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], obs: Observations,
-                  priors: SessionPriors, options: TemporalOptions | None = None) -> TemporalResult:
+                  priors: SessionPriors, options: TemporalOptions | None = None, ties=None) -> TemporalResult:
     """The tracked bodies of a span of times (ids >= 0) -> the same bodies fitted over time (see the module
     docstring). obs: their detections, rows numbering the bodies in time order
     (:func:`~dome_calib.recon.people.bodies.observations_of`); priors: the session's bone lengths and camera noise;
-    views: the cameras ``obs.view`` and ``priors.noise_px`` index."""
+    views: the cameras ``obs.view`` and ``priors.noise_px`` index; ties: the patches' part motions as a further
+    term (:class:`~dome_calib.recon.patches.body.JointTies`; None: absent)."""
     options = options or TemporalOptions()
     lay = _layout(bodies)
     BF = len(lay.bf_k)
@@ -255,6 +256,9 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
             sr.append(r), sc.append(c), sv.append(v)
     chain = sp.coo_matrix((np.concatenate(sv), (np.concatenate(sr), np.concatenate(sc))), shape=(n, n)).tocsr()
     chain = (chain + w0 * sp.identity(n, format="csr")).tocsr()
+    if ties is not None:  # linear: joins the chains (consecutive times) and the prior's constant
+        H_tie, b_tie = ties.system(lay, times_ms, bodies)
+        chain, P_start = (chain + H_tie).tocsr(), P_start + b_tie / w0
     chain_band = _upper_band(chain, _BAND)
     both = np.concatenate([ba, bb])
     # the detections beyond each joint's strongest: weighed once at the start, then held as a quadratic term
@@ -288,7 +292,8 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
     # the fit held after weighing them once: the full dome's beyond the strongest)
     info = np.linalg.eigvalsh(H_diag + np.asarray(chain.diagonal()).reshape(-1, 3)[:, :, None] * np.eye(3))[:, 0]
     var_cm2 = 1.0 / np.maximum(info, 1e-12)
-    var_cm2 += _gap_variance(lay, X0, times_s, q)
+    gap = _gap_variance(lay, X0, times_s, q)
+    var_cm2 += gap if ties is None else ties.gap_variance(lay, X0, times_ms, bodies, gap, q)
     sigma = np.sqrt(var_cm2)
     shown = _shown(lay, X0, sigma, options.max_sigma_cm)
     residual = distances_px(P, rec_var, obs.view, obs.uv_px, cam).astype(np.float32)  # float32: millions of them

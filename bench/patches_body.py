@@ -1,0 +1,277 @@
+"""The body over time with the patches' part motions against the body over time alone (issue 49 part 3).
+
+Run: .venv/bin/python bench/patches_body.py [--rig fewcam,panel] [--people 3] [--seconds 4] [--seeds 1,2]
+         [--occlusions 6] [--stream FILE.npz]
+
+Setup per (rig, seed): the synthetic group (``fewcam``: the 5-camera HD rig of bench/fewcam.py, ``small_area``
+group; ``panel``: the as-built dome's panel preset, VGA of panels 1-2 with their HD and Kinect colour cameras,
+``conversation`` group), the OpenPose-like detector (errors that last) with, per person, ``--occlusions`` spans of
+10 reference frames in which one limb end (wrist or ankle, with its elbow or knee) is removed from every camera (an
+occluded limb). The people are reconstructed per frame and tracked (``reconstruct_people``, body over time off),
+then the body over time is fitted once over the whole span (one window) without and with the ties of
+:mod:`dome_calib.recon.patches.body`, both on the same tracks, detections and priors.
+
+The patches: by default :func:`dome_calib.synth.surface_patches.true_patches` samples the bodies' surfaces
+(:mod:`dome_calib.synth.textured`): patch triplets (centre and two plane points 3 cm away) seeded every 20
+reference frames on the outer surface where at least 2 cameras see them, each living 30 frames each way while seen
+by 2 cameras, with the stream's measured error added (a constant offset and a random walk, a little worse than the
+stream's: see that module); they are labelled by :func:`~dome_calib.recon.patches.parts.label_parts` with the body
+over time alone (not the truth), and their motions fitted by :func:`~dome_calib.recon.patches.motion.part_motions`.
+With ``--stream FILE`` (``--rig panel --people 2 --seeds 0``: bench/patches.py's setup, ``--save FILE``), the
+patches are the stream's own, tracked in the rendered images, at its times.
+
+Prints one JSON object per line per (rig, seed) and method: MPJPE (cm, over the true joints both methods put out
+and over those each puts out), joint acceleration error (cm/s^2: the mean norm of the second difference of the
+joints against the truth's, over the times where both are out at the three times), the occluded spans' joints
+recovered within 3 cm (share of the removed joint-times; and of those a tie reaches: a part with patches), the share
+of removed joint-times put out at all, the
+labels' accuracy, motions and ties, and the per-frame joints flagged wrong
+(:func:`~dome_calib.recon.patches.body.flag_joints` with each method's body; precision and recall against the
+per-frame joints more than 5 cm from the truth); then the ratios against the aims.
+"""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import dataclasses  # noqa: E402
+import json  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from dome_calib.recon.body_models import JOINTS19  # noqa: E402
+from dome_calib.recon.patches.body import flag_joints, ties_from_patches  # noqa: E402
+from dome_calib.recon.people.run import PeopleOptions, reconstruct_people  # noqa: E402
+from dome_calib.recon.people.sources import InMemorySource, people_streams  # noqa: E402
+from dome_calib.recon.people.temporal import TemporalOptions, refine_tracks  # noqa: E402
+from dome_calib.recon.people.windows import WindowTask, session_priors, window_observations  # noqa: E402
+from dome_calib.recon.project import project_points, view_set  # noqa: E402
+from dome_calib.recon.streams import stream_of_camera  # noqa: E402
+from dome_calib.synth.dome import as_built_dome  # noqa: E402
+from dome_calib.synth.group import GroupOptions, make_group  # noqa: E402
+from dome_calib.synth.rig import GROUP_MARGIN_MS, RigOptions, few_camera_rig, rig_group  # noqa: E402
+from dome_calib.synth.skeleton import synthetic_sync  # noqa: E402
+from dome_calib.synth.detector import DetectorModel, synth_detections  # noqa: E402
+from dome_calib.synth.group_eval import match_bodies  # noqa: E402
+from dome_calib.synth.surface_patches import true_patches  # noqa: E402
+
+LIMBS = [(JOINTS19.index(a), JOINTS19.index(b)) for a, b in
+         (("l_elbow", "l_wrist"), ("r_elbow", "r_wrist"), ("l_knee", "l_ankle"), ("r_knee", "r_ankle"))]
+
+
+def emit(**fields) -> None:
+    print(json.dumps(fields), flush=True)
+
+
+def occlude(det, bundle, truth, times_ms, n_spans, seed, span_frames=10):
+    """Remove one limb end and its middle joint of each person from every camera for ``span_frames`` reference
+    frames, ``n_spans`` times per person at random starts (a detection is the person's whose true joints it lies
+    nearest, mean pixel distance): -> (det, removed (T, P, 19) bool, the joint-times taken out of the truth)."""
+    rng = np.random.default_rng([seed, 10])
+    T = len(times_ms)
+    Xt, present = truth.joints_cm(times_ms)
+    removed = np.zeros(Xt.shape[:3], bool)
+    spans = []  # (person, joints, t0_ms, t1_ms)
+    dt = float(np.median(np.diff(times_ms)))
+    for p in range(Xt.shape[1]):
+        slots = np.arange(5, T - span_frames - 5, span_frames + 5)
+        for s in np.sort(rng.choice(slots, min(n_spans, len(slots)), replace=False)):
+            a, b = LIMBS[rng.integers(len(LIMBS))]
+            removed[s:s + span_frames, p, [a, b]] = present[s:s + span_frames, p, None]
+            spans.append((p, [a, b], times_ms[s] - 0.5 * dt, times_ms[s + span_frames - 1] + 0.5 * dt))
+    out = {}
+    for cam, frames in det.items():
+        _, table = stream_of_camera(bundle, cam)
+        views = view_set(bundle, [cam])
+        out[cam] = {}
+        for f, kp in frames.items():
+            t = float(table.time_of(f))
+            hit = [sp for sp in spans if sp[2] <= t <= sp[3]]
+            if not hit or not len(kp):
+                out[cam][f] = kp
+                continue
+            X, on = truth.joints_cm(np.array([t]))
+            uv = project_points(views, X[0].reshape(-1, 3)).uv_px[0].reshape(-1, 19, 2)
+            d = np.linalg.norm(kp[:, None, :, :2] - uv[None], axis=-1)  # (N, P, 19)
+            w = kp[:, None, :, 2] > 0
+            cost = np.where(w, d, 0).sum(-1) / np.maximum(w.sum(-1), 1)
+            cost[:, ~on[0]] = np.inf
+            owner = np.argmin(cost, axis=1)
+            kp = kp.copy()
+            for p, js, _, _ in hit:
+                kp[np.ix_(owner == p, js)] = 0.0
+            out[cam][f] = kp
+    return out, removed
+
+
+def single_window(views, streams, times, seq, options: PeopleOptions):
+    """The tracked bodies of ``seq`` -> (fit without ties, fit(ties)): the body over time over all times at once."""
+    tem = options.temporal
+    source = InMemorySource(streams)
+    views = views.subset(source.cameras)
+    priors = session_priors(seq.bodies, seq.cameras, tem)
+    task = WindowTask(index=0, views=views, source=source, times_ms=times, bodies=seq.bodies, own_start=0,
+                      own_stop=len(times), priors=priors, options=tem, max_gap_frames=options.max_gap_frames,
+                      batch_times=options.batch_times, depth=None)
+    obs = window_observations(task)
+    return lambda ties=None: refine_tracks(views, times, seq.bodies, obs, priors, tem, ties=ties)
+
+
+def _scores(X_est, X, mask, dt_s):
+    err = np.linalg.norm(X_est - X, axis=-1)
+    acc_est = (X_est[2:] - 2 * X_est[1:-1] + X_est[:-2]) / dt_s ** 2
+    acc = (X[2:] - 2 * X[1:-1] + X[:-2]) / dt_s ** 2
+    acc_err = np.linalg.norm(acc_est - acc, axis=-1)
+    m3 = mask[2:] & mask[1:-1] & mask[:-2]
+    return err, acc_err, m3
+
+
+def _matched_confidence(bodies, ids) -> np.ndarray:
+    """(T, P, 19) the c of the bodies matched to the true people (NaN: none)."""
+    out = np.full(ids.shape + (19,), np.nan)
+    for t, b in enumerate(bodies):
+        for p in np.flatnonzero(ids[t] >= 0):
+            out[t, p] = b.confidence[int(np.flatnonzero(b.ids == ids[t, p])[0])]
+    return out
+
+
+def _on_tracks(bodies, ids, shape) -> np.ndarray:
+    """(T, P, 19, 3) the joints of the given track ids (T, P) in ``bodies`` (NaN: none or missing)."""
+    out = np.full(shape, np.nan)
+    for t, b in enumerate(bodies):
+        for p in np.flatnonzero(ids[t] >= 0):
+            k = np.flatnonzero(b.ids == ids[t, p])
+            if len(k):
+                out[t, p] = b.X_cm[int(k[0])]
+    return out
+
+
+def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: str = "") -> list[dict]:
+    if rig == "fewcam":
+        bundle = few_camera_rig(RigOptions(seed=seed, duration_ms=1000.0 * seconds + GROUP_MARGIN_MS + 100.0))
+        truth = rig_group(bundle, n_people=n_people, seed=seed)
+        ref = "hd"
+        start = truth.start_ms
+    else:  # as bench/patches.py sets it up (its --save file can be the patches)
+        bundle = as_built_dome("panel", seed=seed)
+        bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=6000.0, seed=seed)
+        truth = make_group(GroupOptions(n_people=n_people, scenario="conversation", start_ms=500.0,
+                                        duration_ms=5000.0, seed=seed))
+        ref = "vga"
+        start = 2500.0 - 500.0 * seconds
+    table = bundle.sync.streams[ref]
+    span = (table.univ_time_ms >= start) & (table.univ_time_ms <= start + 1000.0 * seconds)
+    times = table.univ_time_ms[span]
+    saved = np.load(stream) if stream else None
+    if saved is not None:
+        times = saved["times_ms"]
+    det = synth_detections(bundle, truth, model=DetectorModel(seed=seed))
+    det, removed = occlude(det, bundle, truth, times, n_occ, seed)
+    streams = people_streams(bundle, det)
+    views = view_set(bundle, [n for s in streams for n in s.cameras])
+    X, present = truth.joints_cm(times)
+    options = PeopleOptions()
+    cpu = time.process_time()
+    seq = reconstruct_people(views, streams, times, dataclasses.replace(options, temporal=TemporalOptions(
+        enabled=False)))
+    fit = single_window(views, streams, times, seq, options)
+    alone = fit()
+    cpu_alone = time.process_time() - cpu
+    # the truth's people as tracks (for the tied joint-times)
+    ids, _, _ = match_bodies([b.ids for b in alone.bodies], [b.X_cm for b in alone.bodies], X, present)
+    track_ids = np.array([np.bincount(ids[:, p][ids[:, p] >= 0]).argmax() if (ids[:, p] >= 0).any() else -1
+                          for p in range(X.shape[1])])
+    cams = list(views.names)
+    cpu = time.process_time()
+    if saved is None:
+        Pt, normal, alive, t_person, t_part = true_patches(bundle, cams, truth, times, seed)
+    else:
+        Pt, normal, alive, t_person, t_part = (saved[k] for k in ("X_cm", "normal", "alive", "person", "part"))
+    cpu_patches = time.process_time() - cpu
+    cpu = time.process_time()
+    ties, lab, motions = ties_from_patches(Pt, normal, alive, times, alone.bodies)  # labelled with the body alone
+    tracks = np.unique(np.concatenate([b.ids for b in alone.bodies]))
+    lab_track = np.where(lab.person >= 0, tracks[np.maximum(lab.person, 0)], -1)
+    withp = fit(ties)
+    cpu_with = time.process_time() - cpu
+    judged = lab.bone >= 0
+    t_track = np.where(t_person >= 0, track_ids[np.maximum(t_person, 0)], -2)
+    right = judged & (lab_track == t_track) & (lab.bone == t_part)
+    dt_s = float(np.median(np.diff(times))) / 1000.0
+    rows = []
+    est = {}
+    conf = {}
+    for mode, res in (("body_over_time", alone), ("with_patches", withp)):
+        mids, est[mode], _ = match_bodies([b.ids for b in res.bodies], [b.X_cm for b in res.bodies], X, present)
+        conf[mode] = _matched_confidence(res.bodies, mids)
+    frame = _on_tracks(seq.bodies, mids, X.shape)  # the per-frame joints of the same tracks
+    tied = np.zeros(X.shape[:3], bool)  # joint-times a tie reaches (from or to)
+    for p, tid in enumerate(track_ids):
+        on = ties.track_id == tid
+        for col in (ties.from_ms[on], ties.to_ms[on]):
+            tied[np.searchsorted(times, col), p, ties.joint[on]] = True
+    frame_wrong = np.linalg.norm(frame - X, axis=-1) > 5.0
+    both = np.isfinite(est["body_over_time"]).all(-1) & np.isfinite(est["with_patches"]).all(-1) & present[..., None]
+    for mode, Y in est.items():
+        err, acc_err, m3 = _scores(Y, X, both, dt_s)
+        out = np.isfinite(Y).all(-1) & present[..., None]
+        e_all = np.linalg.norm(Y - X, axis=-1)
+        rec = removed & out
+        row = {"rig": rig, "patches_from": "stream" if stream else "truth", "seed": seed, "people": n_people,
+               "views": len(cams), "times": len(times), "method": mode,
+               "mpjpe_common_cm": round(float(err[both].mean()), 3),
+               "mpjpe_cm": round(float(np.nanmean(e_all[out])), 3),
+               "accel_error_cm_s2": round(float(acc_err[m3].mean()), 1),
+               "occluded_joint_times": int(removed.sum()),
+               "occluded_put_out": round(float(rec.sum() / max(removed.sum(), 1)), 4),
+               "occluded_within_3cm": round(float((rec & (e_all < 3.0)).sum() / max(removed.sum(), 1)), 4),
+               "occluded_median_error_cm": round(float(np.median(e_all[rec])), 2) if rec.any() else None}
+        flags = flag_joints(frame, Y, conf[mode])
+        row.update(flags=int(flags.sum()), flags_precision=round(float((flags & frame_wrong).sum() / max(
+            flags.sum(), 1)), 4), flags_recall=round(float((flags & frame_wrong).sum() / max(frame_wrong.sum(), 1)), 4),
+                   per_frame_wrong=int(frame_wrong.sum()))
+        if mode == "with_patches":
+            rt = removed & tied
+            row.update(occluded_tied=round(float(rt.sum() / max(removed.sum(), 1)), 4),
+                       occluded_tied_within_3cm=round(float((rt & out & (e_all < 3.0)).sum() / max(rt.sum(), 1)), 4))
+            row.update(patches=int(len(lab.bone)), labelled=round(float(judged.mean()), 4),
+                       labels_right=round(float(right.sum() / max(judged.sum(), 1)), 4), motions=len(motions),
+                       motion_rms_cm_median=round(float(np.median(motions.rms_cm)), 3) if len(motions) else None,
+                       ties=len(ties), cpu_s_patches_truth=round(cpu_patches, 1), cpu_s_labels_motions_fit=round(
+                           cpu_with, 1))
+        else:
+            row.update(cpu_s=round(cpu_alone, 1))
+        rows.append(row)
+        emit(**row)
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--rig", default="fewcam,panel")
+    ap.add_argument("--people", type=int, default=3)
+    ap.add_argument("--seconds", type=float, default=4.0)
+    ap.add_argument("--seeds", default="1,2")
+    ap.add_argument("--occlusions", type=int, default=6)
+    ap.add_argument("--stream", default="", help="bench/patches.py --save FILE: its tracked patches (panel, its seed)")
+    args = ap.parse_args()
+    emit(bench="patches_body", cpus=os.cpu_count(), load=[round(x, 2) for x in os.getloadavg()])
+    rows = []
+    for rig in args.rig.split(","):
+        for seed in [int(x) for x in args.seeds.split(",")]:
+            rows += run(rig, args.people, args.seconds, seed, args.occlusions, args.stream)
+    a = [r for r in rows if r["method"] == "body_over_time"]
+    b = [r for r in rows if r["method"] == "with_patches"]
+    emit(aims={"mpjpe_ratio": [round(y["mpjpe_common_cm"] / x["mpjpe_common_cm"], 3) for x, y in zip(a, b)],
+               "accel_ratio": [round(y["accel_error_cm_s2"] / x["accel_error_cm_s2"], 3) for x, y in zip(a, b)],
+               "occluded_within_3cm": [y["occluded_within_3cm"] for y in b],
+               "occluded_within_3cm_alone": [x["occluded_within_3cm"] for x in a]},
+         load=[round(x, 2) for x in os.getloadavg()])
+
+
+if __name__ == "__main__":
+    main()
