@@ -17,10 +17,10 @@ import scipy.sparse as sp
 from dome_calib.ba.blas import blas_threads
 from dome_calib.ba.evaluate import residuals, residuals_and_jacobians
 from dome_calib.ba.result import BAResult
-from dome_calib.ba.schur import build_structure, free_columns, linearize, point_step, reduced_system, \
+from dome_calib.ba.schur import Workspace, buffer, build_structure, free_columns, linearize, point_step, reduced_system, \
     sparse_reduced_system
 from dome_calib.ba.sparse import factorise_lower, sparse_layout
-from dome_calib.ba.submatrix import submatrix
+from dome_calib.ba.submatrix import submatrix, submatrix_in_place
 
 
 @dataclass(kw_only=True)
@@ -28,7 +28,9 @@ class QuadraticModel:
     """The bundle adjustment linearised at a solution, over the candidate free parameters (points eliminated):
     S (F, F) reduced normal matrix (dense, or its lower triangle as a CSC matrix where the structure takes the
     sparse path of :mod:`dome_calib.ba.sparse`), b (F,) right-hand side (S step = b), ``index`` (C, 15) position of each
-    camera parameter in S or -1, ``noise_px``: pixel sigma predicted for the model with every candidate free."""
+    camera parameter in S or -1, ``noise_px``: pixel sigma predicted for the model with every candidate free.
+    The dense S and the factors live in ``workspace`` (:class:`dome_calib.ba.schur.Workspace`): valid until the
+    workspace's next solve."""
 
     S: np.ndarray | sp.csc_matrix
     b: np.ndarray
@@ -39,10 +41,11 @@ class QuadraticModel:
     #: lens model judges the principal points, then k3, over the same free set: one factorisation of the full
     #: dome's 7,808 unknowns instead of two); key: (selected positions, damping), value: (key, factor, scale)
     _factor: tuple | None = field(default=None, repr=False, compare=False)
+    workspace: Workspace = field(default_factory=Workspace, repr=False, compare=False)
 
     @classmethod
     def at(cls, result: BAResult, candidate_free: np.ndarray, n_threads: int = 2,
-           noise_floor_px: float = 0.0) -> QuadraticModel:
+           noise_floor_px: float = 0.0, workspace: Workspace | None = None) -> QuadraticModel:
         """Linearise the problem of ``result`` at its solution over the ``candidate_free`` parameters (C, 15).
 
         The noise sigma is the one the fit with every candidate free would leave: the residual cost after a
@@ -53,12 +56,19 @@ class QuadraticModel:
         a step's noise is at most the floor (the lowest is then below it too: the same sigma). The undamped step
         first: its factor is the one :func:`dome_calib.ba.lens_model.select_lens_model`'s steps over the same parameters reuse (full dome: one
         factorisation of 7,808 unknowns a lens pass instead of two).
+
+        ``workspace``: where the large arrays are kept (the solves' own: the Jacobians, the reduced system, compacted
+        to the candidates in its own memory, and the factors reuse their pages; default a new one).
         """
         p = result.problem
+        workspace = Workspace() if workspace is None else workspace
         st = build_structure(p.camera_index, p.point_index, result.inlier, candidate_free & ~result.gauge.held,
-                             p.n_points)
+                             p.n_points, workspace)
+        M = len(st.obs)
         res, Jc, Jp = residuals_and_jacobians(p.camera_params, p.points_cm, st.cam, st.pt, p.uv_px[st.obs],
-                                              n_threads=n_threads)
+                                              n_threads=n_threads,
+                                              out=(buffer(st, "res", (2, M)), buffer(st, "Jc", (2, 15, M)),
+                                                   buffer(st, "Jp", (2, 3, M))))
         cost = 0.5 * float(np.sum(res * res))
         lin = linearize(st, res, Jc, Jp, np.ones(len(st.obs)), n_threads=n_threads)
         del res, Jc, Jp
@@ -69,13 +79,13 @@ class QuadraticModel:
             S, b = layout.matrix(blocks), b[f]
             del blocks
         else:
-            S, b, Li, ypt = reduced_system(st, lin, 0.0, n_threads=n_threads)
-            S, b = submatrix(S, f, n_threads=n_threads), b[f]
+            S, b, Li, ypt = reduced_system(st, lin, 0.0, n_threads=n_threads, reuse=True)
+            S, b = submatrix_in_place(S, f), b[f]
         index = np.full((p.n_cameras, 15), -1, dtype=np.int64)
         local = np.full(len(st.active_cameras) * 15, -1, dtype=np.int64)
         local[f] = np.arange(len(f))
         index[st.active_cameras] = local.reshape(-1, 15)
-        model = cls(S=S, b=b, index=index, noise_px=0.0, n_threads=n_threads)
+        model = cls(S=S, b=b, index=index, noise_px=0.0, n_threads=n_threads, workspace=workspace)
         everything = index >= 0
         dof = max(2 * len(st.obs) - len(f) - 3 * int(st.live_points.sum()), 1)
         evaluated = []
@@ -118,7 +128,9 @@ class QuadraticModel:
                 # the blocks of S^-1 = (D Ss D)^-1 are those of E^T Ss^-1 E with E the columns' unit vectors / d;
                 # with Ss = R^T R (cho_factor's upper R), E^T Ss^-1 E = Z^T Z for Z = R^-T E: one triangular solve
                 # (half of cho_solve's two; the full dome's 2,600 distortion columns: 4.6 -> 2.3 s per lens pass)
-                E = np.zeros((len(d), len(flat)))
+                # Fortran-ordered (the transpose of a kept buffer): the triangular solve overwrites it, no copy
+                E = (np.zeros((len(d), len(flat))) if self.sparse
+                     else self.workspace.array("E", (len(flat), len(d)), zero=True).T)
                 E[flat, np.arange(len(flat))] = 1.0 / d[flat]
                 if self.sparse:  # CHOLMOD: S[p, p] = L L^T, so Z = L^-1 P E
                     Z = factor.solve_L(factor.apply_P(E), use_LDLt_decomposition=False)
@@ -148,12 +160,14 @@ class QuadraticModel:
             sub.data *= (1.0 / d)[sub.indices] * np.repeat(1.0 / d, np.diff(sub.indptr))
             return factorise_lower(sub, damping, ridges=(0.0, 1e-12, 1e-9, 1e-6)), d
         for ridge in (0.0, 1e-12, 1e-9, 1e-6):  # a tiny ridge if some direction is not observable at all
-            Ss = submatrix(self.S, idx, n_threads=self.n_threads)
+            Ss = submatrix(self.S, idx, n_threads=self.n_threads, out=self.workspace.array("Sf", (len(idx), len(idx))))
             Ss /= d[:, None]
             Ss /= d[None, :]  # Jacobi scaling: lens and pose columns differ by many decades
             Ss[np.diag_indices_from(Ss)] += damping + ridge
+            # factorised in place: Ss's transpose is the Fortran-ordered matrix LAPACK takes without a copy, and its
+            # lower triangle is Ss's upper one, the triangle a factorisation of Ss itself reads
             try:
-                return scipy.linalg.cho_factor(Ss, overwrite_a=True, check_finite=False), d
+                return scipy.linalg.cho_factor(Ss.T, lower=True, overwrite_a=True, check_finite=False), d
             except scipy.linalg.LinAlgError:
                 if ridge == 1e-6:
                     raise
