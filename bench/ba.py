@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/ba.py            # 520 real cameras, 3 scenes, 100k points, ~1M observations
     .venv/bin/python bench/ba.py --small    # 130 cameras, 10k points, ~100k observations (a minute or two)
+    .venv/bin/python bench/ba.py --double --skip-peer --only ours   # 1,040 cameras (panels twice as dense), ~2M obs.
     .venv/bin/python bench/ba.py --small --load   # the same while two CPU-bound processes share the 2 cores
 
 Problem: the real Panoptic layout and distortion (tests/data/panoptic/calibration_160906_band1.json, 520
@@ -22,6 +23,7 @@ cost_true_inliers = 0.5 * sum |r|^2 over the observations that are not gross out
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import json
 import pickle
@@ -282,7 +284,29 @@ def metrics(sol: dict, truth, is_outlier: np.ndarray, sigma_px: float, region: n
 
 
 # ----------------------------------------------------------------------------------------------- driver
-def make_data(small: bool, seed: int) -> dict:
+#: ``--double``: each camera's twin is the camera turned about the dome's vertical axis by this much (half the
+#: real dome's median angle between neighbouring cameras, 4.3 deg, seen from its centre)
+TWIN_TURN_DEG = 2.15
+
+
+def twin_cameras(cameras: list) -> list:
+    """The dome with panels twice as dense: every camera and its twin, the same camera (lens, resolution) turned
+    rigidly by :data:`TWIN_TURN_DEG` about the vertical axis through the centroid of the camera centres (the
+    Panoptic frame's y axis), so each twin sits between a camera and its neighbour and looks where they look."""
+    import dataclasses
+
+    from dome_calib.rotation import rotvec_to_matrix
+
+    centre = np.mean([c.center_cm for c in cameras], axis=0)
+    Q = rotvec_to_matrix(np.array([0.0, np.radians(TWIN_TURN_DEG), 0.0]))  # world turned: x' = Q (x - p) + p
+    twins = []
+    for c in cameras:
+        R = c.R @ Q.T
+        twins.append(dataclasses.replace(c, name=f"t{c.name}", R=R, t_cm=c.t_cm + c.R @ centre - R @ centre))
+    return list(cameras) + twins
+
+
+def make_data(small: bool, seed: int, double: bool = False) -> dict:
     from dome_calib.synth.ba_problem import SyntheticOptions, make_problem
     from dome_calib.panoptic_io import read_calibration
 
@@ -292,7 +316,11 @@ def make_data(small: bool, seed: int) -> dict:
     if small:
         names = names[::4]
         opts = SyntheticOptions(seed=seed, n_points=10_000, target_observations=100_000)
-    sp = make_problem([cams[n] for n in names], opts)
+    cameras = [cams[n] for n in names]
+    if double:  # the same points seen by twice the cameras: twice the observations
+        cameras = twin_cameras(cameras)
+        opts = dataclasses.replace(opts, target_observations=2 * opts.target_observations)
+    sp = make_problem(cameras, opts)
     return dict(truth=sp.truth, start=sp.start, is_outlier=sp.is_outlier, noise_px=sp.noise_px)
 
 
@@ -394,6 +422,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--small", action="store_true", help="quick run: 130 cameras, 10k points, ~100k observations")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--double", action="store_true", help="the dome with panels twice as dense (1,040 cameras: "
+                    "each camera and a twin turned 2.15 deg about the vertical axis), twice the observations of the "
+                    "same points")
     ap.add_argument("--skip-peer", action="store_true", help="do not run pycolmap's Ceres BA")
     ap.add_argument("--worker", choices=["ours", "oracle", "colmap", "k1"], help=argparse.SUPPRESS)
     ap.add_argument("--data", help=argparse.SUPPRESS)
@@ -455,7 +486,7 @@ def start_load(n: int) -> list[subprocess.Popen]:
 
 
 def run_all(args, t0: float) -> None:
-    data = make_data(args.small, args.seed)
+    data = make_data(args.small, args.seed, args.double)
     truth, is_outlier, sigma = data["truth"], data["is_outlier"], data["noise_px"]
     emit(dict(bench="ba", what="problem", cameras=truth.n_cameras, scenes=len(truth.scene_names),
               points=truth.n_points, observations=truth.n_observations, outliers=int(is_outlier.sum()),
