@@ -343,12 +343,35 @@ def run_worker(kind: str, data_file: Path, out_file: Path, extra: list[str], reu
     return sol
 
 
-def factorisers(sfm_pickle: str, repeat: int) -> None:
+def _pcg(matrix, b: np.ndarray, groups: list[np.ndarray], rtol: float) -> tuple[np.ndarray, int]:
+    """Conjugate gradients on ``matrix`` (sparse, symmetric) preconditioned by the inverses of its diagonal blocks over
+    ``groups`` (index arrays partitioning the unknowns); (solution, iterations) to a relative residual of ``rtol``."""
+    import scipy.sparse.linalg as spla
+
+    inverses = [np.linalg.inv(matrix[g][:, g].toarray()) for g in groups]
+
+    def precondition(v: np.ndarray) -> np.ndarray:
+        out = np.empty_like(v)
+        for g, inv in zip(groups, inverses):
+            out[g] = inv @ v[g]
+        return out
+
+    n = len(b)
+    count = [0]
+    x, info = spla.cg(matrix, b, rtol=rtol, maxiter=20 * n, callback=lambda _: count.__setitem__(0, count[0] + 1),
+                      M=spla.LinearOperator((n, n), matvec=precondition))
+    return x, count[0] if info == 0 else -count[0]
+
+
+def factorisers(sfm_pickle: str, repeat: int, candidates: set[str] | None = None) -> None:
     """``--factorisers SFM_PKL``: the reduced camera system of an SfM result's problem (every parameter the problem
     frees, at its start, damping 1e-4) factorised and solved by each candidate, each ``repeat`` times (median):
     LAPACK's dense Cholesky (the dense path: float64; 2 BLAS threads from 1,500 unknowns, as the solver), CHOLMOD supernodal (scikit-sparse) under
     METIS and AMD orderings (the analysis once, the numeric factorisation timed, as the solver reuses it), cholespy
-    (CHOLMOD behind a build-and-solve interface: analysis every time) and qdldl (a simplicial LDL^T, AMD)."""
+    (CHOLMOD behind a build-and-solve interface: analysis every time) and qdldl (a simplicial LDL^T, AMD); and
+    preconditioned conjugate gradients on the sparse system (no factorisation: block-Jacobi over each camera's
+    unknowns, or over each panel's, to a relative residual of 1e-10, the mixed-precision path's accuracy class;
+    ``pcg_iterations``). ``candidates``: only those (default all)."""
     import scipy.linalg
     import scipy.sparse as sp
 
@@ -384,36 +407,52 @@ def factorisers(sfm_pickle: str, repeat: int) -> None:
             timings.setdefault(name, []).append(time.perf_counter() - t)
         solutions[name] = x
 
+    def wanted(name: str) -> bool:
+        return candidates is None or name in candidates or name.split("_")[0] in candidates
+
     dense = full.toarray()
+    iterations = {}
     with blas_threads(2 if F >= 1500 else 1):  # the solver's rule (dome_calib.ba.schur._PARALLEL_CHOLESKY_MIN)
         timed("dense_lapack", lambda: scipy.linalg.cho_solve(
             scipy.linalg.cho_factor(dense, check_finite=False), b, check_finite=False))
+        del dense
         cholmod = sparse.cholmod
         fills = {}
-        for ordering in ("metis", "amd"):
+        for ordering in ("metis", "amd") if wanted("cholmod") else ():
             symbolic = cholmod.analyze(lower, mode="supernodal", ordering_method=ordering)
             timed(f"cholmod_{ordering}", lambda: symbolic.cholesky(lower)(b))
             fills[ordering] = int(symbolic.cholesky(lower).L().nnz)
-    import cholespy
-    import qdldl
+        camera_of = st.active_cameras[st.free_flat // 15]  # each free unknown's camera
+        panel_of = np.array([n.split("_")[0] for n in p.camera_names])[camera_of]
+        for name, key in (("pcg_camera", camera_of), ("pcg_panel", panel_of)):
+            if wanted(name):
+                groups = [np.flatnonzero(key == k) for k in np.unique(key)]
+                timed(name, lambda: _pcg(full, b, groups, 1e-10)[0])
+                iterations[name] = {f"{r:g}": _pcg(full, b, groups, r)[1] for r in (1e-4, 1e-6, 1e-10)}
+    if wanted("cholespy"):
+        import cholespy
 
-    coo = full.tocoo()
-    rows, cols = coo.row.astype(np.int32), coo.col.astype(np.int32)
+        coo = full.tocoo()
+        rows, cols = coo.row.astype(np.int32), coo.col.astype(np.int32)
 
-    def cholespy_solve():
-        solver = cholespy.CholeskySolverD(F, rows, cols, coo.data, cholespy.MatrixType.COO)
-        x = np.zeros_like(b)
-        solver.solve(b.copy(), x)
-        return x
+        def cholespy_solve():
+            solver = cholespy.CholeskySolverD(F, rows, cols, coo.data, cholespy.MatrixType.COO)
+            x = np.zeros_like(b)
+            solver.solve(b.copy(), x)
+            return x
 
-    timed("cholespy", cholespy_solve)
-    upper = sp.triu(full).tocsc()
-    timed("qdldl", lambda: qdldl.Solver(upper).solve(b))
+        timed("cholespy", cholespy_solve)
+    if wanted("qdldl"):
+        import qdldl
+
+        upper = sp.triu(full).tocsc()
+        timed("qdldl", lambda: qdldl.Solver(upper).solve(b))
     ref = solutions["dense_lapack"]
     emit({"bench": "ba_factorisers", "problem": sfm_pickle, "cameras": A, "unknowns": F,
           "camera_blocks": len(layout.cols), "camera_blocks_dense": A * (A + 1) // 2,
           "lower_nonzeros": int(lower.nnz), "factor_nonzeros": fills, "layout_s": round(t_layout, 3),
           "seconds_median": {k: round(float(np.median(v)), 4) for k, v in timings.items()},
+          "pcg_iterations": iterations,
           "max_rel_diff_from_dense": {k: float(np.abs(x - ref).max() / np.abs(ref).max()) for k, x in solutions.items()},
           "load_average_1min": round(os.getloadavg()[0], 1)})
 
@@ -430,7 +469,8 @@ def main() -> None:
     ap.add_argument("--data", help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
     ap.add_argument("--workdir", help="keep the problem and solutions in this folder (default: a temp folder)")
-    ap.add_argument("--only", help="comma-separated subset of ours,oracle,colmap,k1")
+    ap.add_argument("--only", help="comma-separated subset of ours,oracle,colmap,k1 (--factorisers: of dense, cholmod, "
+                    "pcg_camera, pcg_panel, cholespy, qdldl; dense always runs, the reference)")
     ap.add_argument("--reuse", action="store_true", help="reuse solutions already in --workdir (same seed/size)")
     ap.add_argument("--load", action="store_true",
                     help="run two CPU-bound processes beside every solver (a busy 2-core machine)")
@@ -442,7 +482,7 @@ def main() -> None:
     args = ap.parse_args()
     globals()["PEER_TIME_LIMIT_S"] = args.peer_time_limit_s
     if args.factorisers:
-        factorisers(args.factorisers, args.repeat)
+        factorisers(args.factorisers, args.repeat, set(args.only.split(",")) if args.only else None)
         return
     if args.worker:
         import logging
