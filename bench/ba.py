@@ -457,6 +457,53 @@ def factorisers(sfm_pickle: str, repeat: int, candidates: set[str] | None = None
           "load_average_1min": round(os.getloadavg()[0], 1)})
 
 
+def iteration_cost(args) -> None:
+    """``--iteration-cost``: one Levenberg-Marquardt iteration of the solver's dense path on the generated problem
+    (``--double``: 1,040 cameras), its parts timed in CPU seconds (the Jacobians, the blocks, the reduced system with
+    the inner constraints, its solve and the points' step), ``--repeat`` times on the same kept buffers (median),
+    per camera; and the process's peak memory. A stage-level measure where a whole solve is too long to run."""
+    from dome_calib.ba.blas import blas_threads
+    from dome_calib.ba.evaluate import residuals_and_jacobians
+    from dome_calib.ba.gauge import inner_constraint_basis
+    from dome_calib.ba.schur import Workspace, buffer, build_reduced_system, build_structure, linearize, solve_reduced
+
+    t0 = time.perf_counter()
+    problem = make_data(args.small, args.seed, args.double)["start"]
+    emit(dict(bench="ba", what="problem", cameras=problem.n_cameras, observations=problem.n_observations,
+              points=problem.n_points, generate_s=round(time.perf_counter() - t0, 1)))
+    st = build_structure(problem.camera_index, problem.point_index, np.ones(problem.n_observations, dtype=bool),
+                         problem.free, problem.n_points, Workspace())
+    M = len(st.obs)
+    parts: dict[str, list[float]] = {}
+
+    walls: dict[str, list[float]] = {}
+
+    def timed(name, fn):
+        c, w = time.process_time(), time.perf_counter()
+        out = fn()
+        parts.setdefault(name, []).append(time.process_time() - c)
+        walls.setdefault(name, []).append(time.perf_counter() - w)
+        return out
+
+    with blas_threads(1):
+        for _ in range(args.repeat):
+            res, Jc, Jp = timed("jacobians", lambda: residuals_and_jacobians(
+                problem.camera_params, problem.points_cm, st.cam, st.pt, problem.uv_px[st.obs], n_threads=2,
+                out=(buffer(st, "res", (2, M)), buffer(st, "Jc", (2, 15, M)), buffer(st, "Jp", (2, 3, M)))))
+            lin = timed("blocks", lambda: linearize(st, res, Jc, Jp, np.ones(M), n_threads=2))
+            basis = inner_constraint_basis(problem.camera_params[st.active_cameras], st.free, lin.D_c)
+            system = timed("reduced_system", lambda: build_reduced_system(st, lin, 1e-4, n_threads=2, gauge_basis=basis))
+            timed("solve_and_point_step", lambda: solve_reduced(st, lin, system, 1e-4, n_threads=2))
+            del system, lin, res, Jc, Jp
+    median = {k: float(np.median(v)) for k, v in parts.items()}
+    total = sum(median.values())
+    emit(dict(bench="ba", what="iteration_cost", cameras=problem.n_cameras, unknowns=len(st.free_flat),
+              observations=M, cpu_s={k: round(v, 2) for k, v in median.items()}, cpu_s_total=round(total, 2),
+              cpu_ms_per_camera=round(1e3 * total / problem.n_cameras, 2),
+              wall_s={k: round(float(np.median(v)), 2) for k, v in walls.items()}, repeat=args.repeat,
+              peak_rss_gb=round(peak_rss_gb(), 2), load_average_1min=round(os.getloadavg()[0], 1)))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--small", action="store_true", help="quick run: 130 cameras, 10k points, ~100k observations")
@@ -478,9 +525,14 @@ def main() -> None:
                     help="cap on each of the two Ceres stages (s); default: none")
     ap.add_argument("--factorisers", metavar="SFM_PKL", help="only the candidate factorisations of the reduced camera "
                     "system of an SfM result's problem (a calibrate work folder's sfm.pkl)")
-    ap.add_argument("--repeat", type=int, default=3, help="--factorisers: runs of each (median)")
+    ap.add_argument("--repeat", type=int, default=3, help="--factorisers, --iteration-cost: runs of each (median)")
+    ap.add_argument("--iteration-cost", action="store_true", help="only one LM iteration's parts on the generated "
+                    "problem (CPU seconds per camera, peak memory; with --double: 1,040 cameras)")
     args = ap.parse_args()
     globals()["PEER_TIME_LIMIT_S"] = args.peer_time_limit_s
+    if args.iteration_cost:
+        iteration_cost(args)
+        return
     if args.factorisers:
         factorisers(args.factorisers, args.repeat, set(args.only.split(",")) if args.only else None)
         return
