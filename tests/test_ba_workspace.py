@@ -40,7 +40,7 @@ def test_the_quadratic_model_and_the_uncertainties_reuse_the_solves_arrays():
     ws = Workspace()
     result = bundle_adjust(problem, BAOptions(n_threads=2, compute_uncertainty=False, outlier_rounds=1), workspace=ws)
     system_bytes = (problem.n_cameras * 15) ** 2 * 8
-    QuadraticModel.at(result, problem.free, workspace=ws)  # the workspace's first quadratic model: its factor's pages
+    QuadraticModel.at(result, problem.free, workspace=ws)  # the workspace's first quadratic model: its factors' pages
     peaks = []
     for call in (lambda: QuadraticModel.at(result, problem.free, workspace=ws),
                  lambda: solution_uncertainty(result, workspace=ws)):

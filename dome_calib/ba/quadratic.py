@@ -9,6 +9,7 @@ covariance the subset would then have. :mod:`dome_calib.ba.lens_model` judges le
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 import scipy.linalg
@@ -20,7 +21,41 @@ from dome_calib.ba.result import BAResult
 from dome_calib.ba.schur import Workspace, buffer, build_structure, free_columns, linearize, point_step, reduced_system, \
     sparse_reduced_system
 from dome_calib.ba.sparse import factorise_lower, sparse_layout
-from dome_calib.ba.submatrix import submatrix, submatrix_in_place
+from dome_calib.ba.submatrix import rectangle, submatrix, submatrix_in_place
+
+
+#: the columns 0..7 of a camera (pose, fx, fy) are its core, never judged by the lens model; 8..14 its lens terms
+CAMERA_PARAMS_CORE = 8
+
+
+@dataclass(kw_only=True)
+class _PartitionedFactor:
+    """The Jacobi-scaled, damped block Ss over some parameters, ordered as [cores P, lens terms L]:
+    Ss = [[A, B], [B^T, C]] with A = L_P L_P^T, V = L_P^-1 B and the Schur complement C - V^T V = L_T L_T^T; positions
+    ``core_local``, ``lens_local`` in the block's own order. Solves as block elimination; the inverse's lens block is
+    (L_T L_T^T)^-1."""
+
+    core_local: np.ndarray
+    lens_local: np.ndarray
+    LP: np.ndarray
+    V: np.ndarray
+    LT: np.ndarray
+
+    def solve(self, r: np.ndarray) -> np.ndarray:
+        tri = partial(scipy.linalg.solve_triangular, lower=True, check_finite=False)
+        y = tri(self.LP, r[self.core_local])
+        x = np.empty_like(r)
+        x[self.lens_local] = xl = scipy.linalg.cho_solve((self.LT, True), r[self.lens_local] - self.V.T @ y,
+                                                         check_finite=False)
+        x[self.core_local] = tri(self.LP, y - self.V @ xl, trans="T")
+        return x
+
+    def root_solve(self, positions: list[int], scale: np.ndarray) -> np.ndarray:
+        """Z with Z^T Z = E^T Ss^-1 E, E the unit columns at ``positions`` (lens terms only) times ``scale``."""
+        where = np.searchsorted(self.lens_local, positions)
+        E = np.zeros((len(self.lens_local), len(positions)), order="F")
+        E[where, np.arange(len(positions))] = scale
+        return scipy.linalg.solve_triangular(self.LT, E, lower=True, overwrite_b=True, check_finite=False)
 
 
 @dataclass(kw_only=True)
@@ -42,6 +77,8 @@ class QuadraticModel:
     #: dome's 7,808 unknowns instead of two); key: (selected positions, damping), value: (key, factor, scale)
     _factor: tuple | None = field(default=None, repr=False, compare=False)
     workspace: Workspace = field(default_factory=Workspace, repr=False, compare=False)
+    #: the cores eliminated for one damping (:meth:`_core`): (damping, kept) or None
+    _core_cache: tuple | None = field(default=None, repr=False, compare=False)
 
     @classmethod
     def at(cls, result: BAResult, candidate_free: np.ndarray, n_threads: int = 2,
@@ -112,32 +149,39 @@ class QuadraticModel:
         pos = np.full(self.index.size, -1, dtype=np.int64)
         pos[sel] = np.arange(len(sel))
         key = (idx.tobytes(), float(damping))
+        cols = [(c, [int(pos[c * 15 + j]) for j in js]) for c, js in (columns_of or {}).items()]
+        flat = [k for _, ks in cols for k in ks]
         with blas_threads(self.n_threads):
             if self._factor is not None and self._factor[0] == key:
                 _, factor, d = self._factor  # the same matrix as the last step's: its factor, bit for bit
             else:
                 self._factor = None  # the old factor's memory goes before the new one is made
-                factor, d = self._factorise(idx, damping)
+                lens_only = all(CAMERA_PARAMS_CORE <= j for js in (columns_of or {}).values() for j in js)
+                factor, d = (self._partitioned(idx, damping) if lens_only else None) or self._factorise(idx, damping)
                 self._factor = (key, factor, d)
-            x = (factor(self.b[idx] / d) if self.sparse
-                 else scipy.linalg.cho_solve(factor, self.b[idx] / d, check_finite=False)) / d
+            if isinstance(factor, _PartitionedFactor):
+                x = factor.solve(self.b[idx] / d) / d
+            else:
+                x = (factor(self.b[idx] / d) if self.sparse
+                     else scipy.linalg.cho_solve(factor, self.b[idx] / d, check_finite=False)) / d
             blocks = {}
             if columns_of:
-                cols = [(c, [int(pos[c * 15 + j]) for j in js]) for c, js in columns_of.items()]
-                flat = [k for _, ks in cols for k in ks]
                 # the blocks of S^-1 = (D Ss D)^-1 are those of E^T Ss^-1 E with E the columns' unit vectors / d;
                 # with Ss = R^T R (cho_factor's upper R), E^T Ss^-1 E = Z^T Z for Z = R^-T E: one triangular solve
                 # (half of cho_solve's two; the full dome's 2,600 distortion columns: 4.6 -> 2.3 s per lens pass)
-                # Fortran-ordered (the transpose of a kept buffer): the triangular solve overwrites it, no copy
-                E = (np.zeros((len(d), len(flat))) if self.sparse
-                     else self.workspace.array("E", (len(flat), len(d)), zero=True).T)
-                E[flat, np.arange(len(flat))] = 1.0 / d[flat]
-                if self.sparse:  # CHOLMOD: S[p, p] = L L^T, so Z = L^-1 P E
-                    Z = factor.solve_L(factor.apply_P(E), use_LDLt_decomposition=False)
+                if isinstance(factor, _PartitionedFactor):
+                    Z = factor.root_solve(flat, 1.0 / d[flat])
                 else:
-                    R, lower = factor
-                    Z = scipy.linalg.solve_triangular(R, E, trans="N" if lower else "T", lower=lower,
-                                                      overwrite_b=True, check_finite=False)
+                    # Fortran-ordered (the transpose of a kept buffer): the triangular solve overwrites it, no copy
+                    E = (np.zeros((len(d), len(flat))) if self.sparse
+                         else self.workspace.array("E", (len(flat), len(d)), zero=True).T)
+                    E[flat, np.arange(len(flat))] = 1.0 / d[flat]
+                    if self.sparse:  # CHOLMOD: S[p, p] = L L^T, so Z = L^-1 P E
+                        Z = factor.solve_L(factor.apply_P(E), use_LDLt_decomposition=False)
+                    else:
+                        R, lower = factor
+                        Z = scipy.linalg.solve_triangular(R, E, trans="N" if lower else "T", lower=lower,
+                                                          overwrite_b=True, check_finite=False)
                 start = 0
                 for c, ks in cols:
                     Zc = Z[:, start:start + len(ks)]
@@ -151,6 +195,67 @@ class QuadraticModel:
     def sparse(self) -> bool:
         """Whether S is held sparse (its lower triangle) and factorised by CHOLMOD."""
         return sp.issparse(self.S)
+
+    def _core(self, damping: float) -> tuple | None:
+        """The camera cores (pose, fx, fy: never judged) eliminated from the whole Jacobi-scaled, damped system, kept
+        per damping: (core positions, lens positions, the cores' Cholesky factor L_P (lower), V = L_P^-1 S_PL,
+        the lenses' Schur complement T = S_LL - V^T V), or None when the cores' block is not positive definite."""
+        if self._core_cache is not None and self._core_cache[0] == damping:
+            return self._core_cache[1]
+        self._core_cache = None
+        kind = np.arange(self.index.size).reshape(self.index.shape) % 15
+        flat = self.index.ravel()
+        core = np.sort(flat[(flat >= 0) & (kind.ravel() < CAMERA_PARAMS_CORE)])
+        lens = np.sort(flat[(flat >= 0) & (kind.ravel() >= CAMERA_PARAMS_CORE)])
+        d = np.sqrt(np.maximum(self.S.diagonal(), 1e-300))
+        ws = self.workspace
+        A = submatrix(self.S, core, n_threads=self.n_threads, out=ws.array("core", (len(core), len(core))))
+        A /= d[core][:, None]
+        A /= d[core][None, :]
+        A[np.diag_indices_from(A)] += damping
+        try:  # A's transpose: Fortran-ordered, factorised in place (its lower triangle is A's upper one)
+            LP = scipy.linalg.cholesky(A.T, lower=True, overwrite_a=True, check_finite=False)
+        except scipy.linalg.LinAlgError:
+            return None
+        # S_PL as the transpose of S_LP gathered by rows (S is symmetric): Fortran-ordered, solved in place
+        B = rectangle(self.S, lens, core, out=ws.array("lens_core", (len(lens), len(core))), n_threads=self.n_threads).T
+        B /= d[core][:, None]
+        B /= d[lens][None, :]
+        V = scipy.linalg.solve_triangular(LP, B, lower=True, overwrite_b=True, check_finite=False)
+        T = submatrix(self.S, lens, n_threads=self.n_threads, out=ws.array("lens", (len(lens), len(lens))))
+        T /= d[lens][:, None]
+        T /= d[lens][None, :]
+        T[np.diag_indices_from(T)] += damping
+        T -= V.T @ V
+        self._core_cache = (damping, (core, lens, LP, V, T))
+        return self._core_cache[1]
+
+    def _partitioned(self, idx: np.ndarray, damping: float) -> tuple[_PartitionedFactor, np.ndarray] | None:
+        """The factor of the block over ``idx`` through the kept elimination of the cores (:meth:`_core`): only the
+        selected lens terms' block of T is factorised (the full dome: at most 3,640 unknowns, not 7,815, for each
+        of the walk's free sets). None when ``idx`` leaves out a core (or on the sparse path): the whole block then."""
+        if self.sparse or len(idx) == 0:
+            return None
+        kept = self._core(damping)
+        if kept is None:
+            return None
+        core, lens, LP, V, T = kept
+        core_local = np.searchsorted(idx, core)
+        if len(core) > len(idx) or not np.array_equal(idx[np.minimum(core_local, len(idx) - 1)], core):
+            return None
+        lens_local = np.setdiff1d(np.arange(len(idx)), core_local, assume_unique=True)
+        ls = np.searchsorted(lens, idx[lens_local])
+        for ridge in (0.0, 1e-12, 1e-9, 1e-6):  # a tiny ridge if some direction is not observable at all
+            Ts = T[np.ix_(ls, ls)]
+            Ts[np.diag_indices_from(Ts)] += ridge
+            try:  # Ts's transpose, Fortran-ordered: factorised in place
+                LT = scipy.linalg.cholesky(Ts.T, lower=True, overwrite_a=True, check_finite=False)
+                break
+            except scipy.linalg.LinAlgError:
+                if ridge == 1e-6:
+                    raise
+        d = np.sqrt(np.maximum(self.S.diagonal()[idx], 1e-300))
+        return _PartitionedFactor(core_local=core_local, lens_local=lens_local, LP=LP, V=V[:, ls], LT=LT), d
 
     def _factorise(self, idx: np.ndarray, damping: float) -> tuple[object, np.ndarray]:
         """Cholesky factor of the Jacobi-scaled, damped block of S over ``idx``, and the scale d."""

@@ -71,3 +71,27 @@ def submatrix_in_place(S: np.ndarray, idx: np.ndarray) -> np.ndarray:
     flat = S.reshape(-1)
     _gather_in_place(flat, n, idx)
     return flat[:k * k].reshape(k, k)
+
+
+@njit(nogil=True, boundscheck=False)
+def _gather_rect(S, rows, cols, out, lo, hi):  # pragma: no cover - compiled
+    k = cols.shape[0]
+    for r in range(lo, hi):
+        src = S[rows[r]]
+        dst = out[r]
+        for c in range(k):
+            dst[c] = src[cols[c]]
+
+
+def rectangle(S: np.ndarray, rows: np.ndarray, cols: np.ndarray, *, out: np.ndarray, n_threads: int = 2
+              ) -> np.ndarray:
+    """``out`` (len(rows), len(cols)) filled with ``S[np.ix_(rows, cols)]`` (``S`` C-ordered float64, indices within
+    it, not checked), by rows in threads."""
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    cols = np.ascontiguousarray(cols, dtype=np.int64)
+    k = len(rows)
+    if k == 0:
+        return out
+    step = -(-k // max(1, 4 * n_threads))
+    run_in_threads(lambda lo: _gather_rect(S, rows, cols, out, lo, min(lo + step, k)), range(0, k, step), n_threads)
+    return out

@@ -22,7 +22,7 @@ from dome_calib.ba.gauge import Gauge, GaugeMode
 from dome_calib.ba.problem import ROT, TRANS, BAProblem
 from dome_calib.ba.result import CameraUncertainty
 from dome_calib.ba.schur import Structure, buffer, linearize, reduced_system
-from dome_calib.ba.submatrix import submatrix
+from dome_calib.ba.submatrix import submatrix_in_place
 from dome_calib.rotation import d_rotate_d_rotvec, rotvec_to_matrix, skew
 
 logger = logging.getLogger(__name__)
@@ -78,7 +78,7 @@ def camera_uncertainty(problem: BAProblem, st: Structure, sigma_px: float, *, ga
 
     def free_system() -> np.ndarray:
         S, _, _, _ = reduced_system(st, lin, 0.0, n_threads=n_threads, reuse=True)
-        return submatrix(S, f, n_threads=n_threads, out=buffer(st, "Sf", (len(f), len(f)))) if len(f) < A * 15 else S
+        return submatrix_in_place(S, f) if len(f) < A * 15 else S  # the free block in S's own memory
 
     Sf = free_system()
     with blas_threads(n_threads):
