@@ -13,6 +13,7 @@ from functools import partial
 
 import numpy as np
 import scipy.linalg
+import scipy.linalg.blas
 import scipy.sparse as sp
 
 from dome_calib.ba.blas import blas_threads
@@ -32,22 +33,25 @@ CAMERA_PARAMS_CORE = 8
 class _PartitionedFactor:
     """The Jacobi-scaled, damped block Ss over some parameters, ordered as [cores P, lens terms L]:
     Ss = [[A, B], [B^T, C]] with A = L_P L_P^T, V = L_P^-1 B and the Schur complement C - V^T V = L_T L_T^T; positions
-    ``core_local``, ``lens_local`` in the block's own order. Solves as block elimination; the inverse's lens block is
-    (L_T L_T^T)^-1."""
+    ``core_local``, ``lens_local`` in the block's own order (V: the columns ``lens_kept`` of the one over all lens
+    terms). Solves as block elimination; the inverse's lens block is (L_T L_T^T)^-1."""
 
     core_local: np.ndarray
     lens_local: np.ndarray
     LP: np.ndarray
-    V: np.ndarray
+    V: np.ndarray  # over every lens term; the block's are its columns ``lens_kept`` (not copied)
+    lens_kept: np.ndarray
     LT: np.ndarray
 
     def solve(self, r: np.ndarray) -> np.ndarray:
         tri = partial(scipy.linalg.solve_triangular, lower=True, check_finite=False)
         y = tri(self.LP, r[self.core_local])
         x = np.empty_like(r)
-        x[self.lens_local] = xl = scipy.linalg.cho_solve((self.LT, True), r[self.lens_local] - self.V.T @ y,
-                                                         check_finite=False)
-        x[self.core_local] = tri(self.LP, y - self.V @ xl, trans="T")
+        rhs = r[self.lens_local] - (self.V.T @ y)[self.lens_kept]
+        x[self.lens_local] = xl = scipy.linalg.cho_solve((self.LT, True), rhs, check_finite=False)
+        spread = np.zeros(self.V.shape[1])
+        spread[self.lens_kept] = xl
+        x[self.core_local] = tri(self.LP, y - self.V @ spread, trans="T")
         return x
 
     def root_solve(self, positions: list[int], scale: np.ndarray) -> np.ndarray:
@@ -199,7 +203,8 @@ class QuadraticModel:
     def _core(self, damping: float) -> tuple | None:
         """The camera cores (pose, fx, fy: never judged) eliminated from the whole Jacobi-scaled, damped system, kept
         per damping: (core positions, lens positions, the cores' Cholesky factor L_P (lower), V = L_P^-1 S_PL,
-        the lenses' Schur complement T = S_LL - V^T V), or None when the cores' block is not positive definite."""
+        the lenses' Schur complement T = S_LL - V^T V, its upper triangle), or None when the cores' block is not
+        positive definite."""
         if self._core_cache is not None and self._core_cache[0] == damping:
             return self._core_cache[1]
         self._core_cache = None
@@ -226,7 +231,10 @@ class QuadraticModel:
         T /= d[lens][:, None]
         T /= d[lens][None, :]
         T[np.diag_indices_from(T)] += damping
-        T -= V.T @ V
+        # T -= V^T V on T's upper triangle, in place (BLAS syrk on T's transpose, Fortran-ordered, lower: half a
+        # product's work, no temporary); T's lower triangle is left as it was, and never read (the factorisations
+        # below read the upper triangle of T's blocks)
+        scipy.linalg.blas.dsyrk(-1.0, V, beta=1.0, c=T.T, trans=1, lower=1, overwrite_c=1)
         self._core_cache = (damping, (core, lens, LP, V, T))
         return self._core_cache[1]
 
@@ -255,7 +263,7 @@ class QuadraticModel:
                 if ridge == 1e-6:
                     raise
         d = np.sqrt(np.maximum(self.S.diagonal()[idx], 1e-300))
-        return _PartitionedFactor(core_local=core_local, lens_local=lens_local, LP=LP, V=V[:, ls], LT=LT), d
+        return _PartitionedFactor(core_local=core_local, lens_local=lens_local, LP=LP, V=V, lens_kept=ls, LT=LT), d
 
     def _factorise(self, idx: np.ndarray, damping: float) -> tuple[object, np.ndarray]:
         """Cholesky factor of the Jacobi-scaled, damped block of S over ``idx``, and the scale d."""
