@@ -492,7 +492,8 @@ def iteration_cost(args) -> None:
                 out=(buffer(st, "res", (2, M)), buffer(st, "Jc", (2, 15, M)), buffer(st, "Jp", (2, 3, M)))))
             lin = timed("blocks", lambda: linearize(st, res, Jc, Jp, np.ones(M), n_threads=2))
             basis = inner_constraint_basis(problem.camera_params[st.active_cameras], st.free, lin.D_c)
-            system = timed("reduced_system", lambda: build_reduced_system(st, lin, 1e-4, n_threads=2, gauge_basis=basis))
+            system = timed("reduced_system", lambda: build_reduced_system(st, lin, 1e-4, n_threads=2,
+                                                                           gauge_basis=basis))
             timed("solve_and_point_step", lambda: solve_reduced(st, lin, system, 1e-4, n_threads=2))
             del system, lin, res, Jc, Jp
     median = {k: float(np.median(v)) for k, v in parts.items()}

@@ -50,6 +50,10 @@ def test_the_walk_steps_through_the_cores_equal_the_whole_blocks(model, seed, mo
 def test_a_block_that_asks_for_a_core_column_takes_the_whole_factor(model):
     free = np.ones_like(model.index, dtype=bool)
     model._factor = None
-    _, blocks = model.step(free, {0: [6, 7]})  # fx, fy: a core's columns
+    model.step(free)  # through the cores, kept for the same free set
+    assert isinstance(model._factor[1], quadratic._PartitionedFactor)
+    _, blocks = model.step(free, {0: [6, 7]})  # fx, fy: a core's columns (the same free set)
     assert not isinstance(model._factor[1], quadratic._PartitionedFactor)
-    assert blocks[0].shape == (2, 2)
+    whole = np.linalg.inv(model.S)  # every candidate free: S itself
+    k = model.index[0, [6, 7]]
+    assert np.abs(blocks[0] - whole[np.ix_(k, k)]).max() <= 1e-8 * np.abs(whole[np.ix_(k, k)]).max()

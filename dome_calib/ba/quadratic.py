@@ -19,8 +19,8 @@ import scipy.sparse as sp
 from dome_calib.ba.blas import blas_threads
 from dome_calib.ba.evaluate import residuals, residuals_and_jacobians
 from dome_calib.ba.result import BAResult
-from dome_calib.ba.schur import Workspace, buffer, build_structure, free_columns, linearize, point_step, reduced_system, \
-    sparse_reduced_system
+from dome_calib.ba.schur import Workspace, buffer, build_structure, free_columns, linearize, point_step, \
+    reduced_system, sparse_reduced_system
 from dome_calib.ba.sparse import factorise_lower, sparse_layout
 from dome_calib.ba.submatrix import rectangle, submatrix, submatrix_in_place
 
@@ -155,12 +155,14 @@ class QuadraticModel:
         key = (idx.tobytes(), float(damping))
         cols = [(c, [int(pos[c * 15 + j]) for j in js]) for c, js in (columns_of or {}).items()]
         flat = [k for _, ks in cols for k in ks]
+        # the factor through the cores gives the inverse's lens blocks only: a core column's block takes the whole one
+        lens_only = all(CAMERA_PARAMS_CORE <= j for js in (columns_of or {}).values() for j in js)
         with blas_threads(self.n_threads):
-            if self._factor is not None and self._factor[0] == key:
+            if (self._factor is not None and self._factor[0] == key
+                    and (lens_only or not isinstance(self._factor[1], _PartitionedFactor))):
                 _, factor, d = self._factor  # the same matrix as the last step's: its factor, bit for bit
             else:
                 self._factor = None  # the old factor's memory goes before the new one is made
-                lens_only = all(CAMERA_PARAMS_CORE <= j for js in (columns_of or {}).values() for j in js)
                 factor, d = (self._partitioned(idx, damping) if lens_only else None) or self._factorise(idx, damping)
                 self._factor = (key, factor, d)
             if isinstance(factor, _PartitionedFactor):

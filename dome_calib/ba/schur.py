@@ -113,9 +113,9 @@ class Workspace:
 
 def buffer(st: Structure | None, name: str, shape: tuple[int, ...], *, zero: bool = False,
            dtype: type = np.float64) -> np.ndarray:
-    """An array of ``shape`` from ``st``'s :class:`Workspace` (a new one if None) under ``name`` (zeroed if ``zero``): the
-    solver's large arrays are allocated once per workspace, not once per iteration. The caller must be done with
-    the previous one of that name (one reduced system of a workspace lives at a time)."""
+    """An array of ``shape`` from ``st``'s :class:`Workspace` (a new one if None) under ``name`` (zeroed if
+    ``zero``): the solver's large arrays are allocated once per workspace, not once per iteration. The caller must
+    be done with the previous one of that name (one reduced system of a workspace lives at a time)."""
     if st is None:
         return np.zeros(shape, dtype=dtype) if zero else np.empty(shape, dtype=dtype)
     return st.workspace.array(name, shape, zero=zero, dtype=dtype)
