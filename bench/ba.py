@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/ba.py            # 520 real cameras, 3 scenes, 100k points, ~1M observations
     .venv/bin/python bench/ba.py --small    # 130 cameras, 10k points, ~100k observations (a minute or two)
+    .venv/bin/python bench/ba.py --double --skip-peer --only ours   # 1,040 cameras (panels twice as dense), ~2M obs.
     .venv/bin/python bench/ba.py --small --load   # the same while two CPU-bound processes share the 2 cores
 
 Problem: the real Panoptic layout and distortion (tests/data/panoptic/calibration_160906_band1.json, 520
@@ -22,6 +23,7 @@ cost_true_inliers = 0.5 * sum |r|^2 over the observations that are not gross out
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import json
 import pickle
@@ -282,7 +284,29 @@ def metrics(sol: dict, truth, is_outlier: np.ndarray, sigma_px: float, region: n
 
 
 # ----------------------------------------------------------------------------------------------- driver
-def make_data(small: bool, seed: int) -> dict:
+#: ``--double``: each camera's twin is the camera turned about the dome's vertical axis by this much (half the
+#: real dome's median angle between neighbouring cameras, 4.3 deg, seen from its centre)
+TWIN_TURN_DEG = 2.15
+
+
+def twin_cameras(cameras: list) -> list:
+    """The dome with panels twice as dense: every camera and its twin, the same camera (lens, resolution) turned
+    rigidly by :data:`TWIN_TURN_DEG` about the vertical axis through the centroid of the camera centres (the
+    Panoptic frame's y axis), so each twin sits between a camera and its neighbour and looks where they look."""
+    import dataclasses
+
+    from dome_calib.rotation import rotvec_to_matrix
+
+    centre = np.mean([c.center_cm for c in cameras], axis=0)
+    Q = rotvec_to_matrix(np.array([0.0, np.radians(TWIN_TURN_DEG), 0.0]))  # world turned: x' = Q (x - p) + p
+    twins = []
+    for c in cameras:
+        R = c.R @ Q.T
+        twins.append(dataclasses.replace(c, name=f"t{c.name}", R=R, t_cm=c.t_cm + c.R @ centre - R @ centre))
+    return list(cameras) + twins
+
+
+def make_data(small: bool, seed: int, double: bool = False) -> dict:
     from dome_calib.synth.ba_problem import SyntheticOptions, make_problem
     from dome_calib.panoptic_io import read_calibration
 
@@ -292,7 +316,11 @@ def make_data(small: bool, seed: int) -> dict:
     if small:
         names = names[::4]
         opts = SyntheticOptions(seed=seed, n_points=10_000, target_observations=100_000)
-    sp = make_problem([cams[n] for n in names], opts)
+    cameras = [cams[n] for n in names]
+    if double:  # the same points seen by twice the cameras: twice the observations
+        cameras = twin_cameras(cameras)
+        opts = dataclasses.replace(opts, target_observations=2 * opts.target_observations)
+    sp = make_problem(cameras, opts)
     return dict(truth=sp.truth, start=sp.start, is_outlier=sp.is_outlier, noise_px=sp.noise_px)
 
 
@@ -315,12 +343,35 @@ def run_worker(kind: str, data_file: Path, out_file: Path, extra: list[str], reu
     return sol
 
 
-def factorisers(sfm_pickle: str, repeat: int) -> None:
+def _pcg(matrix, b: np.ndarray, groups: list[np.ndarray], rtol: float) -> tuple[np.ndarray, int]:
+    """Conjugate gradients on ``matrix`` (sparse, symmetric) preconditioned by the inverses of its diagonal blocks over
+    ``groups`` (index arrays partitioning the unknowns); (solution, iterations) to a relative residual of ``rtol``."""
+    import scipy.sparse.linalg as spla
+
+    inverses = [np.linalg.inv(matrix[g][:, g].toarray()) for g in groups]
+
+    def precondition(v: np.ndarray) -> np.ndarray:
+        out = np.empty_like(v)
+        for g, inv in zip(groups, inverses):
+            out[g] = inv @ v[g]
+        return out
+
+    n = len(b)
+    count = [0]
+    x, info = spla.cg(matrix, b, rtol=rtol, maxiter=20 * n, callback=lambda _: count.__setitem__(0, count[0] + 1),
+                      M=spla.LinearOperator((n, n), matvec=precondition))
+    return x, count[0] if info == 0 else -count[0]
+
+
+def factorisers(sfm_pickle: str, repeat: int, candidates: set[str] | None = None) -> None:
     """``--factorisers SFM_PKL``: the reduced camera system of an SfM result's problem (every parameter the problem
     frees, at its start, damping 1e-4) factorised and solved by each candidate, each ``repeat`` times (median):
     LAPACK's dense Cholesky (the dense path: float64; 2 BLAS threads from 1,500 unknowns, as the solver), CHOLMOD supernodal (scikit-sparse) under
     METIS and AMD orderings (the analysis once, the numeric factorisation timed, as the solver reuses it), cholespy
-    (CHOLMOD behind a build-and-solve interface: analysis every time) and qdldl (a simplicial LDL^T, AMD)."""
+    (CHOLMOD behind a build-and-solve interface: analysis every time) and qdldl (a simplicial LDL^T, AMD); and
+    preconditioned conjugate gradients on the sparse system (no factorisation: block-Jacobi over each camera's
+    unknowns, or over each panel's, to a relative residual of 1e-10, the mixed-precision path's accuracy class;
+    ``pcg_iterations``). ``candidates``: only those (default all)."""
     import scipy.linalg
     import scipy.sparse as sp
 
@@ -356,50 +407,118 @@ def factorisers(sfm_pickle: str, repeat: int) -> None:
             timings.setdefault(name, []).append(time.perf_counter() - t)
         solutions[name] = x
 
+    def wanted(name: str) -> bool:
+        return candidates is None or name in candidates or name.split("_")[0] in candidates
+
     dense = full.toarray()
+    iterations = {}
     with blas_threads(2 if F >= 1500 else 1):  # the solver's rule (dome_calib.ba.schur._PARALLEL_CHOLESKY_MIN)
         timed("dense_lapack", lambda: scipy.linalg.cho_solve(
             scipy.linalg.cho_factor(dense, check_finite=False), b, check_finite=False))
+        del dense
         cholmod = sparse.cholmod
         fills = {}
-        for ordering in ("metis", "amd"):
+        for ordering in ("metis", "amd") if wanted("cholmod") else ():
             symbolic = cholmod.analyze(lower, mode="supernodal", ordering_method=ordering)
             timed(f"cholmod_{ordering}", lambda: symbolic.cholesky(lower)(b))
             fills[ordering] = int(symbolic.cholesky(lower).L().nnz)
-    import cholespy
-    import qdldl
+        camera_of = st.active_cameras[st.free_flat // 15]  # each free unknown's camera
+        panel_of = np.array([n.split("_")[0] for n in p.camera_names])[camera_of]
+        for name, key in (("pcg_camera", camera_of), ("pcg_panel", panel_of)):
+            if wanted(name):
+                groups = [np.flatnonzero(key == k) for k in np.unique(key)]
+                timed(name, lambda: _pcg(full, b, groups, 1e-10)[0])
+                iterations[name] = {f"{r:g}": _pcg(full, b, groups, r)[1] for r in (1e-4, 1e-6, 1e-10)}
+    if wanted("cholespy"):
+        import cholespy
 
-    coo = full.tocoo()
-    rows, cols = coo.row.astype(np.int32), coo.col.astype(np.int32)
+        coo = full.tocoo()
+        rows, cols = coo.row.astype(np.int32), coo.col.astype(np.int32)
 
-    def cholespy_solve():
-        solver = cholespy.CholeskySolverD(F, rows, cols, coo.data, cholespy.MatrixType.COO)
-        x = np.zeros_like(b)
-        solver.solve(b.copy(), x)
-        return x
+        def cholespy_solve():
+            solver = cholespy.CholeskySolverD(F, rows, cols, coo.data, cholespy.MatrixType.COO)
+            x = np.zeros_like(b)
+            solver.solve(b.copy(), x)
+            return x
 
-    timed("cholespy", cholespy_solve)
-    upper = sp.triu(full).tocsc()
-    timed("qdldl", lambda: qdldl.Solver(upper).solve(b))
+        timed("cholespy", cholespy_solve)
+    if wanted("qdldl"):
+        import qdldl
+
+        upper = sp.triu(full).tocsc()
+        timed("qdldl", lambda: qdldl.Solver(upper).solve(b))
     ref = solutions["dense_lapack"]
     emit({"bench": "ba_factorisers", "problem": sfm_pickle, "cameras": A, "unknowns": F,
           "camera_blocks": len(layout.cols), "camera_blocks_dense": A * (A + 1) // 2,
           "lower_nonzeros": int(lower.nnz), "factor_nonzeros": fills, "layout_s": round(t_layout, 3),
           "seconds_median": {k: round(float(np.median(v)), 4) for k, v in timings.items()},
+          "pcg_iterations": iterations,
           "max_rel_diff_from_dense": {k: float(np.abs(x - ref).max() / np.abs(ref).max()) for k, x in solutions.items()},
           "load_average_1min": round(os.getloadavg()[0], 1)})
+
+
+def iteration_cost(args) -> None:
+    """``--iteration-cost``: one Levenberg-Marquardt iteration of the solver's dense path on the generated problem
+    (``--double``: 1,040 cameras), its parts timed in CPU seconds (the Jacobians, the blocks, the reduced system with
+    the inner constraints, its solve and the points' step), ``--repeat`` times on the same kept buffers (median),
+    per camera; and the process's peak memory. A stage-level measure where a whole solve is too long to run."""
+    from dome_calib.ba.blas import blas_threads
+    from dome_calib.ba.evaluate import residuals_and_jacobians
+    from dome_calib.ba.gauge import inner_constraint_basis
+    from dome_calib.ba.schur import Workspace, buffer, build_reduced_system, build_structure, linearize, solve_reduced
+
+    t0 = time.perf_counter()
+    problem = make_data(args.small, args.seed, args.double)["start"]
+    emit(dict(bench="ba", what="problem", cameras=problem.n_cameras, observations=problem.n_observations,
+              points=problem.n_points, generate_s=round(time.perf_counter() - t0, 1)))
+    st = build_structure(problem.camera_index, problem.point_index, np.ones(problem.n_observations, dtype=bool),
+                         problem.free, problem.n_points, Workspace())
+    M = len(st.obs)
+    parts: dict[str, list[float]] = {}
+
+    walls: dict[str, list[float]] = {}
+
+    def timed(name, fn):
+        c, w = time.process_time(), time.perf_counter()
+        out = fn()
+        parts.setdefault(name, []).append(time.process_time() - c)
+        walls.setdefault(name, []).append(time.perf_counter() - w)
+        return out
+
+    with blas_threads(1):
+        for _ in range(args.repeat):
+            res, Jc, Jp = timed("jacobians", lambda: residuals_and_jacobians(
+                problem.camera_params, problem.points_cm, st.cam, st.pt, problem.uv_px[st.obs], n_threads=2,
+                out=(buffer(st, "res", (2, M)), buffer(st, "Jc", (2, 15, M)), buffer(st, "Jp", (2, 3, M)))))
+            lin = timed("blocks", lambda: linearize(st, res, Jc, Jp, np.ones(M), n_threads=2))
+            basis = inner_constraint_basis(problem.camera_params[st.active_cameras], st.free, lin.D_c)
+            system = timed("reduced_system", lambda: build_reduced_system(st, lin, 1e-4, n_threads=2,
+                                                                           gauge_basis=basis))
+            timed("solve_and_point_step", lambda: solve_reduced(st, lin, system, 1e-4, n_threads=2))
+            del system, lin, res, Jc, Jp
+    median = {k: float(np.median(v)) for k, v in parts.items()}
+    total = sum(median.values())
+    emit(dict(bench="ba", what="iteration_cost", cameras=problem.n_cameras, unknowns=len(st.free_flat),
+              observations=M, cpu_s={k: round(v, 2) for k, v in median.items()}, cpu_s_total=round(total, 2),
+              cpu_ms_per_camera=round(1e3 * total / problem.n_cameras, 2),
+              wall_s={k: round(float(np.median(v)), 2) for k, v in walls.items()}, repeat=args.repeat,
+              peak_rss_gb=round(peak_rss_gb(), 2), load_average_1min=round(os.getloadavg()[0], 1)))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--small", action="store_true", help="quick run: 130 cameras, 10k points, ~100k observations")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--double", action="store_true", help="the dome with panels twice as dense (1,040 cameras: "
+                    "each camera and a twin turned 2.15 deg about the vertical axis), twice the observations of the "
+                    "same points")
     ap.add_argument("--skip-peer", action="store_true", help="do not run pycolmap's Ceres BA")
     ap.add_argument("--worker", choices=["ours", "oracle", "colmap", "k1"], help=argparse.SUPPRESS)
     ap.add_argument("--data", help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
     ap.add_argument("--workdir", help="keep the problem and solutions in this folder (default: a temp folder)")
-    ap.add_argument("--only", help="comma-separated subset of ours,oracle,colmap,k1")
+    ap.add_argument("--only", help="comma-separated subset of ours,oracle,colmap,k1 (--factorisers: of dense, cholmod, "
+                    "pcg_camera, pcg_panel, cholespy, qdldl; dense always runs, the reference)")
     ap.add_argument("--reuse", action="store_true", help="reuse solutions already in --workdir (same seed/size)")
     ap.add_argument("--load", action="store_true",
                     help="run two CPU-bound processes beside every solver (a busy 2-core machine)")
@@ -407,11 +526,16 @@ def main() -> None:
                     help="cap on each of the two Ceres stages (s); default: none")
     ap.add_argument("--factorisers", metavar="SFM_PKL", help="only the candidate factorisations of the reduced camera "
                     "system of an SfM result's problem (a calibrate work folder's sfm.pkl)")
-    ap.add_argument("--repeat", type=int, default=3, help="--factorisers: runs of each (median)")
+    ap.add_argument("--repeat", type=int, default=3, help="--factorisers, --iteration-cost: runs of each (median)")
+    ap.add_argument("--iteration-cost", action="store_true", help="only one LM iteration's parts on the generated "
+                    "problem (CPU seconds per camera, peak memory; with --double: 1,040 cameras)")
     args = ap.parse_args()
     globals()["PEER_TIME_LIMIT_S"] = args.peer_time_limit_s
+    if args.iteration_cost:
+        iteration_cost(args)
+        return
     if args.factorisers:
-        factorisers(args.factorisers, args.repeat)
+        factorisers(args.factorisers, args.repeat, set(args.only.split(",")) if args.only else None)
         return
     if args.worker:
         import logging
@@ -455,7 +579,7 @@ def start_load(n: int) -> list[subprocess.Popen]:
 
 
 def run_all(args, t0: float) -> None:
-    data = make_data(args.small, args.seed)
+    data = make_data(args.small, args.seed, args.double)
     truth, is_outlier, sigma = data["truth"], data["is_outlier"], data["noise_px"]
     emit(dict(bench="ba", what="problem", cameras=truth.n_cameras, scenes=len(truth.scene_names),
               points=truth.n_points, observations=truth.n_observations, outliers=int(is_outlier.sum()),

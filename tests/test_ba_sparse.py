@@ -118,6 +118,10 @@ def test_the_lens_models_quadratic_model_is_the_same_on_the_sparse_path(ring, mo
     held = ring.free.copy()
     held[:, 14] = False
     models = {}
+    # against the dense path's whole factorisation (its factor through the cameras' cores is compared with that one
+    # in tests/test_ba_quadratic.py: this ring's undamped system is too ill-conditioned for two orderings to agree
+    # on the inverse's small entries, 8e-4 of a block's largest apart)
+    monkeypatch.setattr(QuadraticModel, "_partitioned", lambda self, idx, damping: None)
     for name, minimum in (("dense", 10**9), ("sparse", 0)):
         monkeypatch.setattr(sparse, "SPARSE_MIN_UNKNOWNS", minimum)
         models[name] = QuadraticModel.at(result, ring.free)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dome_calib.ba.submatrix import submatrix
+from dome_calib.ba.submatrix import submatrix, submatrix_in_place
 
 
 @pytest.mark.parametrize("n_threads", [1, 2, 3])
@@ -31,3 +31,22 @@ def test_an_index_outside_the_matrix_is_refused():
     S = np.zeros((300, 300))
     with pytest.raises(IndexError, match="300 x 300"):
         submatrix(S, np.arange(1, 301))
+
+
+def test_the_in_place_gather_equals_fancy_indexing_and_uses_the_matrix_own_memory():
+    rng = np.random.default_rng(2)
+    S = rng.standard_normal((500, 500))
+    for idx in (np.sort(rng.choice(500, 460, replace=False)), np.arange(500), np.array([3, 250, 499]),
+                np.arange(0, 500, 7)):
+        work = S.copy()
+        out = submatrix_in_place(work, idx)
+        assert np.array_equal(out, S[np.ix_(idx, idx)])
+        assert np.shares_memory(out, work) and out.flags.c_contiguous
+
+
+def test_the_in_place_gather_refuses_what_it_cannot_do_in_place():
+    S = np.zeros((300, 300))
+    with pytest.raises(IndexError, match="ascending"):
+        submatrix_in_place(S, np.array([5, 2]))
+    with pytest.raises(ValueError, match="square C-ordered"):
+        submatrix_in_place(np.asfortranarray(S), np.arange(3))

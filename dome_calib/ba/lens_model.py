@@ -95,6 +95,7 @@ import scipy.stats
 from dome_calib.ba.problem import CAMERA_PARAMS, BAProblem
 from dome_calib.ba.quadratic import QuadraticModel
 from dome_calib.ba.result import BAResult
+from dome_calib.ba.schur import Workspace
 from dome_calib.ba.solver import BAOptions, bundle_adjust
 from dome_calib.camera import distort_with_jacobians, pixels_to_normalized
 from dome_calib.options import AtLeast, Field, UnitInterval, options
@@ -316,18 +317,23 @@ def _walk(model: QuadraticModel, point: BAResult, initial: BAProblem, candidate:
     return free, decisions
 
 
-def warm_solver(options: BAOptions) -> Callable[[BAProblem, BAResult | None], BAResult]:
+def warm_solver(options: BAOptions, workspace: Workspace | None = None
+                ) -> Callable[[BAProblem, BAResult | None], BAResult]:
     """The ``solve`` of :func:`select_lens_model` with :func:`dome_calib.ba.solver.bundle_adjust`: the whole
-    schedule for the first solve, warm starts (the previous solution and inliers) for the others."""
+    schedule for the first solve, warm starts (the previous solution and inliers) for the others; every solve's
+    large arrays in ``workspace`` (:class:`dome_calib.ba.schur.Workspace`, default one of the solver's own)."""
+    workspace = Workspace() if workspace is None else workspace
+
     def solve(problem: BAProblem, previous: BAResult | None) -> BAResult:
         if previous is None:
-            return bundle_adjust(problem, options)
-        return bundle_adjust(problem, options, start_inlier=previous.inlier)
+            return bundle_adjust(problem, options, workspace=workspace)
+        return bundle_adjust(problem, options, start_inlier=previous.inlier, workspace=workspace)
     return solve
 
 
 def select_lens_model(initial: BAProblem, solve: Callable[[BAProblem, BAResult | None], BAResult],
-                      options: LensModelOptions | None = None, *, n_threads: int = 2) -> tuple[BAResult, LensModel]:
+                      options: LensModelOptions | None = None, *, n_threads: int = 2,
+                      workspace: Workspace | None = None) -> tuple[BAResult, LensModel]:
     """Bundle adjustment with, per camera, only the lens terms the observations support (module docstring).
 
     Args:
@@ -336,6 +342,8 @@ def select_lens_model(initial: BAProblem, solve: Callable[[BAProblem, BAResult |
         solve: the bundle adjustment, ``solve(problem, previous)``: the first call with None (the whole
             schedule from ``initial``), the later ones with the previous solve's result to warm-start from (its
             inliers; ``problem`` starts at its solution), see :func:`warm_solver`.
+        workspace: where the quadratic models keep their large arrays; the one ``solve`` uses, to share its pages
+            (:class:`dome_calib.ba.schur.Workspace`; default a new one).
     Returns:
         the result of the final solve (the chosen model; uncertainties as ``solve`` gives them) and the
         per-camera :class:`LensModel`.
@@ -359,7 +367,8 @@ def select_lens_model(initial: BAProblem, solve: Callable[[BAProblem, BAResult |
     n_judged_terms = int(candidate[judged][:, lens_cols].sum())
     solved_with: tuple[dict[str, list[GroupDecision]], float] | None = None
     for _ in range(options.max_passes):
-        model = QuadraticModel.at(point, candidate, n_threads=n_threads, noise_floor_px=options.min_noise_px)
+        model = QuadraticModel.at(point, candidate, n_threads=n_threads, noise_floor_px=options.min_noise_px,
+                                  workspace=workspace)
         chosen, decisions = _walk(model, point, initial, candidate, judged, options)
         if len(iterations) > 1:
             flipped = int(np.sum(chosen[judged][:, lens_cols] != free[judged][:, lens_cols]))

@@ -69,30 +69,62 @@ class Structure:
     pt_pos: np.ndarray
     cam_pt: np.ndarray
     live_points: np.ndarray  # (P,) bool: points with >= 2 observations (the others are not refined)
-    #: what is computed once per observation set (the sparse layout) and the solver's large arrays, allocated
-    #: once and reused by every reduced system of this set (:func:`buffer`)
+    #: what is computed once per observation set (the sparse layout)
     cache: dict = field(default_factory=dict, repr=False, compare=False)
+    #: the solver's large arrays, allocated once and reused by every reduced system of this set (:func:`buffer`);
+    #: shared with other structures when one :class:`Workspace` is handed to several (a whole calibration's solves)
+    workspace: Workspace = field(default_factory=lambda: Workspace(), repr=False, compare=False)
+
+
+class Workspace:
+    """The bundle adjustment's large arrays by name, kept and handed out again (:func:`buffer`).
+
+    Each name holds one flat allocation that grows to the largest shape asked of it and is handed out as a view of
+    its first elements: the reduced systems of every outlier round, every solve of the lens-model selection, its
+    quadratic models and the final uncertainties (each a few hundred MB on the full dome) then share the same pages
+    instead of mapping fresh ones (glibc maps an allocation that large anew each time, and the kernel zeroes every
+    page of it on first touch: 1.5 M extra page faults and 38 s of system time on the full dome's calibration). An
+    array handed out under a name is valid until the next request of that name. Nothing process-wide: the arrays go
+    with the workspace.
+    """
+
+    def __init__(self) -> None:
+        self._flat: dict[tuple[str, np.dtype], np.ndarray] = {}
+
+    def array(self, name: str, shape: tuple[int, ...], *, zero: bool = False, dtype: type = np.float64
+              ) -> np.ndarray:
+        """A C-ordered array of ``shape`` under ``name`` (its contents left from the last use, or zeros if
+        ``zero``)."""
+        key = (name, np.dtype(dtype))
+        n = int(np.prod(shape, dtype=np.int64))
+        flat = self._flat.get(key)
+        if flat is None or len(flat) < n:
+            self._flat[key] = None  # the old one goes before the new one is made
+            flat = self._flat[key] = np.empty(n, dtype=dtype)
+        out = flat[:n].reshape(shape)
+        if zero:
+            out.fill(0)
+        return out
+
+    def nbytes(self) -> int:
+        """Bytes held."""
+        return sum(f.nbytes for f in self._flat.values() if f is not None)
 
 
 def buffer(st: Structure | None, name: str, shape: tuple[int, ...], *, zero: bool = False,
            dtype: type = np.float64) -> np.ndarray:
-    """An array of ``shape`` kept on ``st`` (a new one if None) under ``name`` and handed out again on the next call (zeroed if
-    ``zero``): the solver's large arrays are allocated once per observation set, not once per iteration. The
-    caller must be done with the previous one (one reduced system of a structure lives at a time)."""
+    """An array of ``shape`` from ``st``'s :class:`Workspace` (a new one if None) under ``name`` (zeroed if
+    ``zero``): the solver's large arrays are allocated once per workspace, not once per iteration. The caller must
+    be done with the previous one of that name (one reduced system of a workspace lives at a time)."""
     if st is None:
         return np.zeros(shape, dtype=dtype) if zero else np.empty(shape, dtype=dtype)
-    buf = st.cache.get(name)
-    if buf is None or buf.shape != shape or buf.dtype != dtype:
-        st.cache[name] = None  # the old one goes before the new one is made
-        buf = st.cache[name] = np.zeros(shape, dtype=dtype) if zero else np.empty(shape, dtype=dtype)
-    elif zero:
-        buf.fill(0.0)
-    return buf
+    return st.workspace.array(name, shape, zero=zero, dtype=dtype)
 
 
 def build_structure(camera_index: np.ndarray, point_index: np.ndarray, obs_mask: np.ndarray, free: np.ndarray,
-                    n_points: int) -> Structure:
-    """Sort the kept observations, drop points seen fewer than twice, and index the free camera parameters."""
+                    n_points: int, workspace: Workspace | None = None) -> Structure:
+    """Sort the kept observations, drop points seen fewer than twice, and index the free camera parameters.
+    ``workspace``: where its large arrays are kept (default: a new one, the structure's own)."""
     keep = np.flatnonzero(obs_mask)
     counts = np.bincount(point_index[keep], minlength=n_points)
     keep = keep[counts[point_index[keep]] >= 2]
@@ -118,7 +150,8 @@ def build_structure(camera_index: np.ndarray, point_index: np.ndarray, obs_mask:
                      act=act, act_starts=act_starts, act_index=np.flatnonzero(act), pt_act=pt_act, free=free_a,
                      free_flat=np.flatnonzero(free_a.ravel()),
                      pt_order=pt_order, pt_ptr=pt_ptr, pt_pos=pt_pos,
-                     cam_pt=cam_local[act][pt_order], live_points=live)
+                     cam_pt=cam_local[act][pt_order], live_points=live,
+                     workspace=Workspace() if workspace is None else workspace)
 
 
 @dataclass(kw_only=True)
@@ -217,7 +250,8 @@ def reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: 
     if len(cols) == 15:
         subtract_yyt(S4, ypt, st, n_threads)
     elif len(cols):
-        compact = np.zeros((A, len(cols), A, len(cols)))
+        shape = (A, len(cols), A, len(cols))
+        compact = buffer(st, "compact", shape, zero=True) if reuse else np.zeros(shape)
         subtract_yyt(compact, ypt, st, n_threads)
         S4[np.ix_(np.arange(A), cols, np.arange(A), cols)] = compact
         del compact

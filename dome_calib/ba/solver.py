@@ -41,7 +41,8 @@ from dome_calib.ba.gauge import Gauge, GaugeMode, choose_gauge, inner_constraint
 from dome_calib.ba.problem import BAProblem
 from dome_calib.ba.result import BAResult, CameraUncertainty, IterationLog, camera_statistics
 from dome_calib.ba.robust import LossKind, robust_cost_and_weight, robust_sigma_px
-from dome_calib.ba.schur import Structure, buffer, build_reduced_system, build_structure, linearize, solve_reduced
+from dome_calib.ba.schur import Structure, Workspace, buffer, build_reduced_system, build_structure, linearize, \
+    solve_reduced
 from dome_calib.ba.uncertainty import camera_uncertainty
 from dome_calib.options import AtLeast, Lax, UnitInterval, options
 from dome_calib.schema import NonNegFinite, PosFinite
@@ -234,7 +235,7 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
 
 
 def bundle_adjust(problem: BAProblem, options: BAOptions | None = None, *,
-                  start_inlier: np.ndarray | None = None) -> BAResult:
+                  start_inlier: np.ndarray | None = None, workspace: Workspace | None = None) -> BAResult:
     """Refine cameras and points of ``problem`` (not modified); returns a :class:`BAResult`.
 
     The gauge is fixed as described in :mod:`dome_calib.ba.gauge`; parameters with ``problem.free`` False stay
@@ -248,6 +249,9 @@ def bundle_adjust(problem: BAProblem, options: BAOptions | None = None, *,
     The damping starts at ``options.initial_lambda`` as in a cold start: the earlier solve's last damping is far
     too small for a problem with other parameters free (measured on the panel dome: 6 rejected steps, 30 % more
     reduced systems, for the same minimum).
+
+    ``workspace``: where the solver keeps its large arrays (:class:`dome_calib.ba.schur.Workspace`; default a new one
+    for this solve): hand the same one to a series of solves of one problem to reuse them across the series.
     Example:
         >>> result = bundle_adjust(problem, BAOptions(loss="huber", loss_scale_px=2.0))
         >>> bundle = result.problem.to_bundle(seq="160906_band1")
@@ -258,19 +262,23 @@ def bundle_adjust(problem: BAProblem, options: BAOptions | None = None, *,
                          f"{problem.n_observations} observations")
     # small BLAS calls: one thread (see dome_calib.ba.blas); the big Cholesky takes more
     with blas_threads(1):
-        return _bundle_adjust(problem, options, start_inlier)
+        return _bundle_adjust(problem, options, start_inlier, Workspace() if workspace is None else workspace)
 
 
-def solution_uncertainty(result: BAResult, *, n_threads: int = 2) -> CameraUncertainty:
+def solution_uncertainty(result: BAResult, *, n_threads: int = 2, workspace: Workspace | None = None
+                         ) -> CameraUncertainty:
     """The camera uncertainties of a solve's solution (what ``BAOptions.compute_uncertainty`` adds to it), for
-    a result computed without them: the same reduced system at ``result.problem`` over its used observations."""
+    a result computed without them: the same reduced system at ``result.problem`` over its used observations
+    (its large arrays in ``workspace``, e.g. the one the solves used)."""
     p = result.problem
-    st = build_structure(p.camera_index, p.point_index, result.inlier, p.free & ~result.gauge.held, p.n_points)
+    st = build_structure(p.camera_index, p.point_index, result.inlier, p.free & ~result.gauge.held, p.n_points,
+                         workspace)
     with blas_threads(1):
         return camera_uncertainty(p, st, result.sigma_px, n_threads=n_threads, gauge=result.gauge)
 
 
-def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndarray | None) -> BAResult:
+def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndarray | None, workspace: Workspace
+                   ) -> BAResult:
     t0 = time.perf_counter()
     gauge: Gauge = choose_gauge(problem, mode=options.gauge, reference_camera=options.gauge_reference_camera,
                                 scale_camera=options.gauge_scale_camera)
@@ -281,7 +289,7 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndar
     warm = start_inlier is not None
     inlier = np.asarray(start_inlier, dtype=bool).copy() if warm else np.ones(M, dtype=bool)
     rounds = options.outlier_rounds
-    st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points)
+    st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points, workspace)
     # stage 0: cold, the robust loss on everything until the basin is found; warm (in the basin, gross outliers
     # known), the final loss on the given inliers. Both to the first stage's looser tolerance when rounds follow
     # (they re-judge and converge it; measured on the panel dome's warm lens-model solve: 24 iterations, not 28)
@@ -312,7 +320,7 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndar
             reasons.append(reason)
             continue
         inlier = new_inlier
-        st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points)
+        st = build_structure(problem.camera_index, problem.point_index, inlier, free, problem.n_points, workspace)
         cap = options.intermediate_round_iterations if rnd < rounds and options.intermediate_round_iterations else None
         state, reason, lam = final_stage(state, st, options, stage=rnd, lam=lam, max_iterations=cap)
         reasons.append(reason)
@@ -322,7 +330,7 @@ def _bundle_adjust(problem: BAProblem, options: BAOptions, start_inlier: np.ndar
     refined.points_cm = state.points_cm
     if gauge.inner:  # statistics and uncertainties with the gauge held (7 fewer unknowns, a regular system)
         st = build_structure(problem.camera_index, problem.point_index, inlier, problem.free & ~gauge.held,
-                             problem.n_points)
+                             problem.n_points, workspace)
     result = camera_statistics(refined, st, inlier, gauge=gauge, iterations=state.iterations,
                                termination=reasons, outlier_threshold_px=threshold_px)
     if options.compute_uncertainty:

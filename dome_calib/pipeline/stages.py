@@ -19,6 +19,7 @@ import pycolmap
 from dome_calib.ba.lens_model import LensModelOptions, select_lens_model, warm_solver
 from dome_calib.ba.problem import BAProblem
 from dome_calib.ba.result import BAResult
+from dome_calib.ba.schur import Workspace
 from dome_calib.ba.solver import BAOptions, bundle_adjust, solution_uncertainty
 from dome_calib.bundle import Bundle, Camera
 from dome_calib.camera import project
@@ -180,11 +181,11 @@ def ba_options() -> BAOptions:
     return BAOptions(compute_uncertainty=True)
 
 
-def _with_uncertainty(result: BAResult, options: BAOptions) -> BAResult:
+def _with_uncertainty(result: BAResult, options: BAOptions, workspace: Workspace | None = None) -> BAResult:
     """The result with its camera uncertainties (the covariance, not the solve, can fail on a near-singular
     system: then without them, with a warning)."""
     try:
-        result.uncertainty = solution_uncertainty(result, n_threads=options.n_threads)
+        result.uncertainty = solution_uncertainty(result, n_threads=options.n_threads, workspace=workspace)
     except np.linalg.LinAlgError as exc:
         logger.warning("bundle adjustment: no parameter uncertainties (%s)", exc)
     return result
@@ -205,8 +206,12 @@ def run_ba_stage(problem: BAProblem, *, options: BAOptions | None = None,
     t0, cpu0 = time.perf_counter(), time.process_time()
     if options.compute_uncertainty:
         solve_only = dataclasses.replace(options, compute_uncertainty=False)  # uncertainties once, at the end
-        result, chosen = select_lens_model(problem, warm_solver(solve_only), lens, n_threads=options.n_threads)
-        result = _with_uncertainty(result, options)
+        # one workspace for every solve, quadratic model and the uncertainties: their large arrays share pages
+        workspace = Workspace()
+        result, chosen = select_lens_model(problem, warm_solver(solve_only, workspace), lens,
+                                           n_threads=options.n_threads, workspace=workspace)
+        result = _with_uncertainty(result, options, workspace)
+        del workspace
         lens_model = chosen.as_dict()
     else:
         result = bundle_adjust(problem, options)
