@@ -1,7 +1,7 @@
 """The body over time with the patches' part motions against the body over time alone (issue 49 part 3).
 
 Run: .venv/bin/python bench/patches_body.py [--rig fewcam,panel] [--people 3] [--seconds 4] [--seeds 1,2]
-         [--occlusions 6] [--stream FILE.npz]
+         [--occlusions 6] [--stream FILE.npz] [--end-to-end]
 
 Setup per (rig, seed): the synthetic group (``fewcam``: the 5-camera HD rig of bench/fewcam.py, ``small_area``
 group; ``panel``: the as-built dome's panel preset, VGA of panels 1-2 with their HD and Kinect colour cameras,
@@ -9,7 +9,9 @@ group; ``panel``: the as-built dome's panel preset, VGA of panels 1-2 with their
 10 reference frames in which one limb end (wrist or ankle, with its elbow or knee) is removed from every camera (an
 occluded limb). The people are reconstructed per frame and tracked (``reconstruct_people``, body over time off),
 then the body over time is fitted once over the whole span (one window) without and with the ties of
-:mod:`dome_calib.recon.patches.body`, both on the same tracks, detections and priors.
+:mod:`dome_calib.recon.patches.body`, both on the same tracks, detections and priors. ``--end-to-end``: the path of
+``reconstruct --images`` after its patch stage instead: the body over time in the session's windows, then fitted
+again from the same tracks with the ties (:func:`~dome_calib.recon.people.run.refit_over_time`).
 
 The patches: by default :func:`dome_calib.synth.surface_patches.true_patches` samples the bodies' surfaces
 (:mod:`dome_calib.synth.textured`): patch triplets (centre and two plane points 3 cm away) seeded every 20
@@ -45,7 +47,7 @@ import numpy as np  # noqa: E402
 
 from dome_calib.recon.body_models import JOINTS19  # noqa: E402
 from dome_calib.recon.patches.body import flag_joints, ties_from_patches  # noqa: E402
-from dome_calib.recon.people.run import PeopleOptions, reconstruct_people  # noqa: E402
+from dome_calib.recon.people.run import PeopleOptions, reconstruct_people, refit_over_time  # noqa: E402
 from dome_calib.recon.people.sources import InMemorySource, people_streams  # noqa: E402
 from dome_calib.recon.people.temporal import TemporalOptions, refine_tracks  # noqa: E402
 from dome_calib.recon.people.windows import WindowTask, session_priors, window_observations  # noqa: E402
@@ -150,7 +152,8 @@ def _on_tracks(bodies, ids, shape) -> np.ndarray:
     return out
 
 
-def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: str = "") -> list[dict]:
+def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: str = "",
+        end_to_end: bool = False) -> list[dict]:
     if rig == "fewcam":
         bundle = few_camera_rig(RigOptions(seed=seed, duration_ms=1000.0 * seconds + GROUP_MARGIN_MS + 100.0))
         truth = rig_group(bundle, n_people=n_people, seed=seed)
@@ -176,10 +179,15 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
     X, present = truth.joints_cm(times)
     options = PeopleOptions()
     cpu = time.process_time()
-    seq = reconstruct_people(views, streams, times, dataclasses.replace(options, temporal=TemporalOptions(
-        enabled=False)))
-    fit = single_window(views, streams, times, seq, options)
-    alone = fit()
+    if end_to_end:  # reconstruct's own path: the body over time in the session's windows, then again with the ties
+        alone = reconstruct_people(views, streams, times, options)
+        seq = alone.tracked
+        fit = lambda ties: refit_over_time(views, InMemorySource(streams), alone, options, ties)  # noqa: E731
+    else:
+        seq = reconstruct_people(views, streams, times, dataclasses.replace(options, temporal=TemporalOptions(
+            enabled=False)))
+        fit = single_window(views, streams, times, seq, options)
+        alone = fit()
     cpu_alone = time.process_time() - cpu
     # the truth's people as tracks (for the tied joint-times)
     ids, _, _ = match_bodies([b.ids for b in alone.bodies], [b.X_cm for b in alone.bodies], X, present)
@@ -222,6 +230,7 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
         e_all = np.linalg.norm(Y - X, axis=-1)
         rec = removed & out
         row = {"rig": rig, "patches_from": "stream" if stream else "truth", "seed": seed, "people": n_people,
+               "path": "reconstruct (session windows, refit_over_time)" if end_to_end else "one window",
                "views": len(cams), "times": len(times), "method": mode,
                "mpjpe_common_cm": round(float(err[both].mean()), 3),
                "mpjpe_cm": round(float(np.nanmean(e_all[out])), 3),
@@ -258,12 +267,14 @@ def main() -> None:
     ap.add_argument("--seeds", default="1,2")
     ap.add_argument("--occlusions", type=int, default=6)
     ap.add_argument("--stream", default="", help="bench/patches.py --save FILE: its tracked patches (panel, its seed)")
+    ap.add_argument("--end-to-end", action="store_true", help="reconstruct's path: the session's windows, then "
+                    "the body over time fitted again with the ties (recon.people.run.refit_over_time)")
     args = ap.parse_args()
     emit(bench="patches_body", cpus=os.cpu_count(), load=[round(x, 2) for x in os.getloadavg()])
     rows = []
     for rig in args.rig.split(","):
         for seed in [int(x) for x in args.seeds.split(",")]:
-            rows += run(rig, args.people, args.seconds, seed, args.occlusions, args.stream)
+            rows += run(rig, args.people, args.seconds, seed, args.occlusions, args.stream, args.end_to_end)
     a = [r for r in rows if r["method"] == "body_over_time"]
     b = [r for r in rows if r["method"] == "with_patches"]
     emit(aims={"mpjpe_ratio": [round(y["mpjpe_common_cm"] / x["mpjpe_common_cm"], 3) for x, y in zip(a, b)],

@@ -12,6 +12,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
+from dome_calib.body3d_scene import read_scene
 from dome_calib.bundle_io import write_bundle
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.patches.images import open_images
@@ -40,13 +41,17 @@ def inputs(tmp_path_factory):
     cams = [n for n in sorted(bundle.cameras) if str(bundle.cameras[n].type) == "vga"][:8]
     table = bundle.sync.streams["vga"]
     X, _ = truth.joints_cm(table.times_of(FRAMES))
-    det = {}
+    det, noisy = {}, {}
+    rng = np.random.default_rng(7)
     for cam in cams:
         p = project_points(view_set(bundle, [cam]), X.reshape(-1, 3))
         uv = p.uv_px[0].reshape(len(FRAMES), -1, 19, 2)
         conf = np.where(p.visible[0].reshape(len(FRAMES), -1, 19), 0.9, 0.0)
         det[cam] = {int(f): np.concatenate([uv[k], conf[k][..., None]], -1) for k, f in enumerate(FRAMES)}
+        noisy[cam] = {f: np.concatenate([kp[..., :2] + rng.normal(0.0, 2.0, kp[..., :2].shape), kp[..., 2:]], -1)
+                      for f, kp in det[cam].items()}  # 2 px per axis: what the patches have to lower
     write_openpose_folder(root / "det", det, body_model="PANOPTIC19")
+    write_openpose_folder(root / "det_noisy", noisy, body_model="PANOPTIC19")
     write_bundle(bundle, root / "bundle")
     return root, bundle, truth, cams
 
@@ -161,23 +166,46 @@ def test_people_are_brought_to_the_patch_times():
     assert np.allclose(J[:, 1, 0, 0], [np.nan, 4.0, 6.0, np.nan], equal_nan=True)
 
 
+def mpjpe_cm(folder: Path, truth) -> float:
+    """The mean joint error of a reconstruct output's one person against the truth (joints both have)."""
+    errs = []
+    for path in sorted(folder.glob("body3DScene_*.json")):
+        time_ms, bodies = read_scene(path)
+        X, present = truth.joints_cm(np.array([time_ms]))
+        for J in bodies.values():
+            d = np.linalg.norm(np.where(J[:, 3:] >= 0, J[:, :3], np.nan) - X[0, 0], axis=-1)
+            errs.append(d[np.isfinite(d)])
+    return float(np.concatenate(errs).mean())
+
+
 @pytest.mark.slow
-def test_reconstruct_with_images_adds_the_patch_stream_and_nothing_else(capture, dome_calib_cli):
+def test_reconstruct_with_images_refines_the_people_and_adds_the_patch_stream(capture, inputs, dome_calib_cli):
     root, _, _, cams = capture
+    truth = inputs[2]
     args = ("reconstruct", str(root / "det"), "--bundle", str(root / "bundle"), "--body-model", "PANOPTIC19")
     plain = dome_calib_cli(*args, "-o", str(root / "plain"))
     assert plain.returncode == 0, plain.stderr
     out = dome_calib_cli(*args, "--images", str(root / "images"), "-o", str(root / "with"))
     assert out.returncode == 0, out.stderr
     assert "patches: " in out.stdout and "given a body part -> patches.parquet" in out.stdout
+    assert "joint ties on the people's times" in out.stdout and "per-frame joints as wrong" in out.stdout
     df = pd.read_parquet(root / "with" / "patches.parquet")
     assert len(df) > 100 and set(df["person_id"]) <= {-1, 0}
     assert df["part"].notna().mean() > 0.5
     mine = {p.name for p in (root / "with").iterdir()} - {"patches.parquet"}
     assert mine == {p.name for p in (root / "plain").iterdir()}
-    for name in sorted(mine):
-        if name.startswith("body3DScene") or name == "cameras.json":
-            assert (root / "with" / name).read_bytes() == (root / "plain" / name).read_bytes(), name
+    scenes = sorted(n for n in mine if n.startswith("body3DScene"))
+    assert any((root / "with" / n).read_bytes() != (root / "plain" / n).read_bytes() for n in scenes)
+    noisy = ("reconstruct", str(root / "det_noisy"), "--bundle", str(root / "bundle"), "--body-model", "PANOPTIC19")
+    assert dome_calib_cli(*noisy, "-o", str(root / "noisy")).returncode == 0
+    got = dome_calib_cli(*noisy, "--images", str(root / "images"), "-o", str(root / "noisy_with"))
+    assert got.returncode == 0, got.stderr
+    e0, e1 = mpjpe_cm(root / "noisy", truth), mpjpe_cm(root / "noisy_with", truth)
+    print(f"MPJPE without --images {e0:.3f} cm, with {e1:.3f} cm; {got.stdout}")
+    assert e1 < 0.95 * e0, (e0, e1, got.stdout)
     again = dome_calib_cli(*args, "-o", str(root / "with"))  # ours, patches.parquet included: replaced whole
     assert again.returncode == 0, again.stderr
     assert not (root / "with" / "patches.parquet").exists()
+    for name in sorted(mine):  # without --images: the people of the run without, byte for byte
+        if name.startswith("body3DScene") or name == "cameras.json":
+            assert (root / "with" / name).read_bytes() == (root / "plain" / name).read_bytes(), name

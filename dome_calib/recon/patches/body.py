@@ -68,6 +68,11 @@ class JointTies:
     def __len__(self) -> int:
         return len(self.joint)
 
+    def between(self, first_ms: float, last_ms: float) -> JointTies:
+        """The ties whose both times lie in [first_ms, last_ms] (a window's fitted span)."""
+        keep = (self.from_ms >= first_ms) & (self.to_ms <= last_ms)
+        return JointTies(*(getattr(self, f)[keep] for f in JointTies.__dataclass_fields__))
+
     def _matched(self, lay, times_ms: np.ndarray, bodies) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The ties inside a temporal layout: (which ties, point index at ``from``, point index at ``to``)."""
         t = np.asarray(times_ms, dtype=float)

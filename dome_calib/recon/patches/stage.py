@@ -19,8 +19,11 @@ from dome_calib.bundle import Bundle, SyncTable
 from dome_calib.bundle_io import load_bundle
 from dome_calib.io_utils import refuse_output_among_inputs, refuse_output_inside_inputs
 from dome_calib.recon.errors import ReconError
+from dome_calib.recon.people.commands import FurtherStage
 from dome_calib.recon.patches.images import ImageSource, open_images, with_shared_clock
+from dome_calib.recon.patches.body import TieOptions, flag_joints, joint_ties
 from dome_calib.recon.patches.model import PatchOptions
+from dome_calib.recon.patches.motion import part_motions
 from dome_calib.recon.patches.parts import label_parts
 from dome_calib.recon.patches.run import patch_stream, reference_stream
 from dome_calib.recon.patches.stream_file import FILE_NAME, patch_table, write_patch_table
@@ -35,26 +38,54 @@ class PatchStage:
     bundle: Bundle
     cameras: list[str]
     options: PatchOptions
-    summary: str = ""  # what the run gave, one line (set by run)
+    ties_options: TieOptions | None = None
+    summary: str = ""  # what the run gave, one line (set by run, completed once the people are refined)
 
     def run(self, times_ms: np.ndarray, bodies: list, progress: Callable[[int, int], None] | None = None
-            ) -> Callable[[Path], None]:
+            ) -> FurtherStage:
         """The stream over the people's times (``bodies[t]``: a time's people, with ``ids`` and ``X_cm``), labelled
-        by part -> ``write(staging)`` that puts ``patches.parquet`` into the staged output folder."""
+        by part, the parts' motions as ties on the patches' times (the people's own where the images' reference
+        stream is the people's; a tie on another time ties nothing) -> the :class:`FurtherStage` whose ``write``
+        puts ``patches.parquet`` into the staged output folder."""
         t = np.asarray(times_ms, dtype=float)
         stream = reference_stream(self.bundle, self.cameras)
         traj = patch_stream(self.bundle, self.source, self.cameras, (float(t[0]), float(t[-1])), self.options,
                             stream=stream, progress=progress)
         joints, ids = people_at(t, bodies, traj.times_ms)
         labels = label_parts(traj.X_cm[:, :, 0], traj.normal, traj.alive, joints)
+        motions = part_motions(traj.X_cm, traj.alive, labels.person, labels.bone)
+        ties = joint_ties(motions, ids, traj.times_ms, joints, self.ties_options)
+        on_times = np.isin(ties.from_ms, t) & np.isin(ties.to_ms, t)
         table = patch_table(traj, labels, ids, reference_stream=stream, size_cm=self.options.size_cm,
                             axis_cm=self.options.axis_cm)
         self.source.close()
         labelled = int(np.sum(labels.bone >= 0))
         self.summary = (f"patches: {len(traj.ids)} trajectories ({table.num_rows} patch-times) at {len(traj.times_ms)} "
                         f"times of stream {stream} from {len(self.cameras)} cameras, {labelled} given a body part -> "
-                        f"{FILE_NAME}")
-        return lambda staging: write_patch_table(Path(staging) / FILE_NAME, table)
+                        f"{FILE_NAME}; {len(motions.bone)} part motions, {int(on_times.sum())} joint ties on the "
+                        "people's times")
+        return FurtherStage(write=lambda staging: write_patch_table(Path(staging) / FILE_NAME, table), ties=ties,
+                            refined=self.report_flags)
+
+    def report_flags(self, first, final) -> None:
+        """The people fitted again with the ties -> the summary line says how many per-frame joints (the tracked
+        people before the body over time) that body finds wrong (:func:`~.body.flag_joints`), and of whom."""
+        per_frame = first.tracked if first.tracked is not None else first
+        flagged, judged, who = 0, 0, {}
+        for a, b in zip(per_frame.bodies, final.bodies):
+            ids = np.asarray(b.ids)
+            for row, i in enumerate(np.asarray(a.ids)):
+                at = np.flatnonzero(ids == i)
+                if i < 0 or not len(at):
+                    continue
+                f = flag_joints(a.X_cm[row], b.X_cm[at[0]], b.confidence[at[0]], self.ties_options)
+                judged += int(np.isfinite(a.X_cm[row]).all(-1).sum())
+                flagged += int(f.sum())
+                if f.any():
+                    who[int(i)] = who.get(int(i), 0) + int(f.sum())
+        shown = ", ".join(f"person {i}: {n}" for i, n in sorted(who.items()))
+        self.summary += (f"; the body refined with them flags {flagged} of {judged} per-frame joints as wrong"
+                         + (f" ({shown})" if shown else ""))
 
 
 def plan_patches(images: str | Path, bundle: Bundle | str | Path, out: Path, fps: Fraction | None,

@@ -33,7 +33,7 @@ from dome_calib.recon.people.depth_witness import DepthWitness, DepthWitnessOpti
 from dome_calib.recon.people.detection_cache import PREFIX as KEPT_PREFIX
 from dome_calib.recon.people.extras import extra_joints
 from dome_calib.recon.people.proposals import AssociationOptions
-from dome_calib.recon.people.run import PeopleOptions, PeopleSequence
+from dome_calib.recon.people.run import PeopleOptions, PeopleSequence, refit_over_time
 from dome_calib.recon.people.scene_io import StagedPeople, camera_report, check_people_folder, write_people
 from dome_calib.recon.people.sources import FileSource, StreamLayout, stream_layouts
 from dome_calib.recon.people.temporal import TemporalOptions
@@ -67,6 +67,18 @@ class ReconstructSummary:
     nobody: str | None = None
     fps: Fraction | None = None
     fps_from: str = ""
+
+
+@dataclass(frozen=True)
+class FurtherStage:
+    """What a further stage on the people (``after_people``: the patches of ``--images``) gives back: ``write``
+    adds its files to the staged output folder; ``ties`` (None: none), the part motions the body over time is
+    fitted again with (:class:`~dome_calib.recon.patches.body.JointTies`); ``refined(first, final)`` is told both
+    people sequences once that is done (the stage's report)."""
+
+    write: Callable[[Path], None]
+    ties: object | None = None
+    refined: Callable[[PeopleSequence, PeopleSequence], None] | None = None
 
 
 @dataclass(frozen=True)
@@ -280,24 +292,32 @@ def kept_detections(source, executor=None) -> Iterator:
 
 def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callable[[int, int], None] | None = None,
                        page: Callable[[Path, StagedPeople], None] | None = None,
-                       after_people: Callable[[PeopleSequence], Callable[[Path], None]] | None = None
+                       after_people: Callable[[PeopleSequence], FurtherStage] | None = None
                        ) -> ReconstructSummary:
     """The work of a checked plan: people at every time (chunks on ``executor``), then the files, written only at
     the end (staged, then renamed); ``page(staging, staged)`` adds the caller's files to the staged folder from the
     run's own results (:class:`~dome_calib.recon.people.scene_io.StagedPeople`: the scenes written, cameras.json's
     report, the plan's bundle; the people page: dome_calib.pipeline.people_page.people_page_writer);
-    ``after_people(people)``, a further stage on the people (the patches of ``--images``), returns what adds its
-    files there. The camera report is computed once, for cameras.json and the summary."""
+    ``after_people(people)``, a further stage on the people (the patches of ``--images``), returns a
+    :class:`FurtherStage`: what adds its files there and, with ties, the body over time is fitted again from the
+    same tracks with them (:func:`~dome_calib.recon.people.run.refit_over_time`, the same windows on the same
+    executor) and those people are written. The camera report is computed once, for cameras.json and the
+    summary."""
     with kept_detections(plan.source, executor) as source:  # later passes take what the first one read
         seq = reconstruct_people_chunked(plan.views, source, plan.times_ms, plan.options, executor=executor,
                                          depth=plan.depth, progress=progress)
+        more = after_people(seq) if after_people is not None else None
+        if more is not None and more.ties is not None:
+            first, seq = seq, refit_over_time(plan.views, source, seq, plan.options, more.ties, depth=plan.depth,
+                                              executor=executor)
+            if more.refined is not None:
+                more.refined(first, seq)
         extras = (extra_joints(plan.views, source, seq, plan.options)
                   if isinstance(source, FileSource) else None)  # the detector's joints beside joints19
-    more = after_people(seq) if after_people is not None else None
 
     def also(staging: Path, staged: StagedPeople) -> None:
         if more is not None:
-            more(staging)
+            more.write(staging)
         if page is not None:
             page(staging, staged)
 

@@ -55,11 +55,13 @@ logger = logging.getLogger(__name__)
 
 @dataclass
 class PeopleSequence:
-    """times_ms (T,), bodies[t] (:class:`Bodies`), cameras (:class:`CameraAgreement`)."""
+    """times_ms (T,), bodies[t] (:class:`Bodies`), cameras (:class:`CameraAgreement`); tracked: the same session
+    tracked but before the body over time (what :func:`refit_over_time` fits again; None: no body over time)."""
 
     times_ms: np.ndarray
     bodies: list[Bodies]
     cameras: CameraAgreement
+    tracked: PeopleSequence | None = None
 
 
 def people_at_times(views: ViewSet, streams: list[PeopleStream], times_ms: np.ndarray,
@@ -127,7 +129,23 @@ def over_time(views: ViewSet, source: InMemorySource | FileSource, seq: PeopleSe
     if options.tracking.bridge_gaps:
         bodies, cameras = bridge_gaps(views, source, seq.times_ms, bodies, cameras, options, depth=depth)
     bodies = smooth_tracks(seq.times_ms, bodies, options.tracking.smooth_half_window)
+    tracked = PeopleSequence(times_ms=seq.times_ms, bodies=bodies, cameras=cameras)
     bodies, cameras = refine_session(views, source, seq.times_ms, bodies, cameras, options.temporal,
                                      max_gap_frames=options.max_gap_frames, batch_times=options.batch_times,
                                      depth=depth, executor=executor, progress=progress)
-    return PeopleSequence(times_ms=seq.times_ms, bodies=bodies, cameras=cameras)
+    return PeopleSequence(times_ms=seq.times_ms, bodies=bodies, cameras=cameras,
+                          tracked=tracked if options.temporal.enabled else None)
+
+
+def refit_over_time(views: ViewSet, source: InMemorySource | FileSource, seq: PeopleSequence, options: PeopleOptions,
+                    ties, *, depth: DepthWitness | None = None, executor=None) -> PeopleSequence:
+    """The body over time fitted again from the same tracks (``seq.tracked``) with ``ties``, the patches' part
+    motions (:class:`~dome_calib.recon.patches.body.JointTies`), as a further term, in the session's windows on
+    ``executor``; ``seq`` as it is when it has no body over time (``--per-frame``)."""
+    if seq.tracked is None:
+        return seq
+    t = seq.tracked
+    bodies, cameras = refine_session(views, source, t.times_ms, t.bodies, t.cameras, options.temporal,
+                                     max_gap_frames=options.max_gap_frames, batch_times=options.batch_times,
+                                     depth=depth, executor=executor, ties=ties)
+    return PeopleSequence(times_ms=t.times_ms, bodies=bodies, cameras=cameras, tracked=t)

@@ -145,6 +145,7 @@ class WindowTask:
     max_gap_frames: float
     batch_times: int
     depth: DepthWitness | None
+    ties: object | None = None  # the patches' part motions on the fitted span's times (JointTies), or None
 
 
 def window_observations(task: WindowTask) -> Observations:
@@ -165,7 +166,7 @@ def window_observations(task: WindowTask) -> Observations:
 def run_window(task: WindowTask) -> tuple[int, list[Bodies], CameraAgreement]:
     """Executor task: one window fitted -> (index, the bodies of its own times, the verdicts on their detections)."""
     obs = window_observations(task)
-    fit = refine_tracks(task.views, task.times_ms, task.bodies, obs, task.priors, task.options)
+    fit = refine_tracks(task.views, task.times_ms, task.bodies, obs, task.priors, task.options, ties=task.ties)
     own = slice(task.own_start, task.own_stop)
     bodies = fit.bodies[own]
     if task.depth is not None:  # the witness has the last word on the joints the body placed too
@@ -181,10 +182,13 @@ def run_window(task: WindowTask) -> tuple[int, list[Bodies], CameraAgreement]:
 def refine_session(views: ViewSet, source: InMemorySource | FileSource, times_ms: np.ndarray, bodies: list[Bodies],
                    cameras: CameraAgreement, options: TemporalOptions, *, max_gap_frames: float, batch_times: int,
                    depth: DepthWitness | None = None, executor=None,
-                   progress: Callable[[int], None] | None = None) -> tuple[list[Bodies], CameraAgreement]:
+                   progress: Callable[[int], None] | None = None,
+                   ties=None) -> tuple[list[Bodies], CameraAgreement]:
     """The tracked bodies of a whole session (ids >= 0, with their assigned detections) and its per-frame tallies ->
     the bodies over time and the tallies with the body's verdicts (module docstring). Windows run on ``executor``
-    (``map``; None: in this process); ``progress(times_done)`` after each window."""
+    (``map``; None: in this process); ``progress(times_done)`` after each window. ``ties``: the patches' part
+    motions (:class:`~dome_calib.recon.patches.body.JointTies`) as a further term; each window gets those between
+    its fitted span's first and last time (None: absent, the fit unchanged to the bit)."""
     t = np.asarray(times_ms, dtype=float)
     if not options.enabled or not len(t):
         return bodies, cameras
@@ -192,7 +196,8 @@ def refine_session(views: ViewSet, source: InMemorySource | FileSource, times_ms
     priors = session_priors(bodies, cameras, options)
     tasks = [WindowTask(index=i, views=views, source=source, times_ms=t[lo:hi], bodies=bodies[lo:hi],
                         own_start=a - lo, own_stop=b - lo, priors=priors, options=options,
-                        max_gap_frames=max_gap_frames, batch_times=batch_times, depth=depth)
+                        max_gap_frames=max_gap_frames, batch_times=batch_times, depth=depth,
+                        ties=None if ties is None else ties.between(float(t[lo]), float(t[hi - 1])))
              for i, (lo, a, b, hi) in enumerate(time_windows(t, options))]
     results: dict[int, tuple[list[Bodies], CameraAgreement]] = {}
     for index, got, verdicts in (map if executor is None or len(tasks) <= 1 else executor.map)(run_window, tasks):
