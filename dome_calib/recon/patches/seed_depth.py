@@ -13,7 +13,8 @@ period off, 1.7 cm at 1 m/s), so each point is placed at the seed time in the im
 into the reference camera that looks at it most nearly as its depth camera did (smallest angle at the point; the
 normal facing the camera by more than ``min_cos_view``, the point in the image: the camera most likely to
 see what the depth camera saw), followed from there by optical flow into the ``seed_views`` nearest cameras and
-triangulated robustly (:func:`dome_calib.recon.patches.seed.flow_to_neighbours`, as image seeds are). The
+triangulated robustly (:func:`dome_calib.recon.patches.seed.flow_to_neighbours`, as image seeds are), if the image
+can be tracked there (:func:`trackable`: the depth also sees the floor and the walls). The
 triangulated seeds are thinned again as image seeds are (most inlier views, then the camera) and the normal's
 sign is chosen by the cameras that see it (the triangulation's inliers). Every choice is per point on quantised
 keys: the cloud depends on the depth frames and the images, never on how the work is cut.
@@ -24,11 +25,12 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from dome_calib.bundle import Bundle
 from dome_calib.recon.depth import pointcloud_at
-from dome_calib.recon.patches.frames import FrameSource
+from dome_calib.recon.patches.frames import FrameSource, sample
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.seed import Seeds, _normals, flow_to_neighbours, patch_triplets, thin_to_cells
 from dome_calib.recon.project import ViewSet, depth_from_world, project_points
@@ -50,6 +52,18 @@ class DepthFrames:
 def _in_volume(X: np.ndarray, o: PatchOptions) -> np.ndarray:
     return ((X[:, 0] ** 2 + X[:, 2] ** 2 <= o.volume_radius_cm ** 2) & (X[:, 1] >= -o.volume_height_cm)
             & (X[:, 1] <= -o.depth_floor_cm))
+
+
+#: A seed is kept where its reference camera's image can be tracked: the structure tensor's smaller eigenvalue
+#: (``cv2.cornerMinEigenVal``, 5 px blocks) at its pixel at least this share of the image's largest, the quality
+#: level of the image seeds' corners (:func:`dome_calib.recon.patches.seed.seed_camera`). A flat background is not.
+TRACKABLE_QUALITY = 0.02
+
+
+def trackable(gray: np.ndarray, uv_px: np.ndarray) -> np.ndarray:
+    """(M,) whether the image can be tracked at pixels (M, 2) (:data:`TRACKABLE_QUALITY`)."""
+    eig = cv2.cornerMinEigenVal(gray, 5)
+    return sample(eig, uv_px) >= TRACKABLE_QUALITY * float(eig.max())
 
 
 def seed_from_depth(bundle: Bundle, depth: DepthFrames, seed_time_ms: float, source: FrameSource, views: ViewSet,
@@ -93,6 +107,9 @@ def seed_from_depth(bundle: Bundle, depth: DepthFrames, seed_time_ms: float, sou
     got_X, got_seen, got_n, got_r, got_k = [], [], [], [], []
     for r in range(V):
         idx = np.flatnonzero(has & (ref == r))
+        if len(idx) == 0:
+            continue
+        idx = idx[trackable(source.gray(views.names[r], frames[views.names[r]]), centre_px[r, idx])]
         if len(idx) == 0:
             continue
         uv, conf = flow_to_neighbours(source, views, frames, r, centre_px[r, idx], X[idx], o)
