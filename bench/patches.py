@@ -47,7 +47,7 @@ from dome_calib.recon.patches.run import patch_stream  # noqa: E402
 from dome_calib.recon.project import view_set  # noqa: E402
 
 
-KCALIBRATION = Path(__file__).resolve().parent.parent / "tests" / "data" / "panoptic" / "kcalibration_171026_cello3.json"
+KCALIBRATION = Path(__file__).resolve().parents[1] / "tests" / "data" / "panoptic" / "kcalibration_171026_cello3.json"
 
 
 def emit(**fields) -> None:
