@@ -25,10 +25,17 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from dome_calib.panoptic_io import read_kcalibration  # noqa: E402
+from dome_calib.recon.depth import depth_folder_reader  # noqa: E402
+from dome_calib.recon.patches import run as patch_run  # noqa: E402
+from dome_calib.recon.patches.seed_depth import DepthFrames  # noqa: E402
+from dome_calib.synth.depth_people import write_group_depth  # noqa: E402
 from dome_calib.synth.dome import as_built_dome  # noqa: E402
 from dome_calib.synth.group import GroupOptions, make_group  # noqa: E402
 from dome_calib.synth.skeleton import synthetic_sync  # noqa: E402
@@ -38,6 +45,9 @@ from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
 from dome_calib.recon.patches.parts import PartOptions, label_parts  # noqa: E402
 from dome_calib.recon.patches.run import patch_stream  # noqa: E402
 from dome_calib.recon.project import view_set  # noqa: E402
+
+
+KCALIBRATION = Path(__file__).resolve().parents[1] / "tests" / "data" / "panoptic" / "kcalibration_171026_cello3.json"
 
 
 def emit(**fields) -> None:
@@ -53,32 +63,35 @@ def precision_recall(est: np.ndarray, true: np.ndarray) -> tuple[float, float]:
     return round(float(tp / max(est.sum(), 1)), 4), round(float(tp / max(true.sum(), 1)), 4)
 
 
-def run(args: argparse.Namespace) -> None:
-    bundle = as_built_dome("panel", seed=args.seed)
-    bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=6000.0, seed=args.seed)
-    truth = make_group(GroupOptions(n_people=args.people, scenario=args.scenario, start_ms=500.0,
-                                    duration_ms=5000.0, seed=args.seed))
-    scene = TexturedScene(bundle, truth, TextureOptions(seed=args.seed, scale={"vga": 1.0, "hd": 0.5,
-                                                                              "kinect-color": 0.5}))
-    by_type = {t: sorted(n for n, c in bundle.cameras.items() if str(c.type) == t) for t in ("vga", "hd",
-                                                                                             "kinect-color")}
-    cams = by_type["vga"][:args.vga] + by_type["hd"][:args.hd] + by_type["kinect-color"][:args.kinect]
-    table = bundle.sync.streams["vga"]
-    pos = int(np.searchsorted(table.univ_time_ms, 2500.0))
-    f = int(table.index[pos])
-    f -= f % 20
-    nf = args.frames
-    span = (table.time_of(f - nf), table.time_of(f + nf))
-    o = PatchOptions(track_frames=nf)
-    load = os.getloadavg()
-    cpu0, wall0 = time.process_time(), time.perf_counter()
-    traj = patch_stream(bundle, scene, cams, span, o, seed_frames=[f])
-    cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
-    render_cpu = sum(scene.render_s.values())
-    emit(what="render", **{f"{k}_cpu_ms_per_view": round(1000.0 * scene.render_s[k] / scene.renders[k], 1)
-                           for k in sorted(scene.renders)}, renders=scene.renders, people=args.people,
-         load=[round(x, 2) for x in load])
-    t_seed = table.time_of(f)
+class PhaseTimer:
+    """CPU seconds of the stage's seed and track tasks (run in this process), rendering inside them apart."""
+
+    def __init__(self, scene: TexturedScene) -> None:
+        self.scene = scene
+        self.cpu = {"seed": 0.0, "track": 0.0}
+        self.render = {"seed": 0.0, "track": 0.0}
+        self._saved = (patch_run.seed_task, patch_run.track_task)
+
+    def _wrap(self, phase: str, fn):
+        def timed(task):
+            c0, r0 = time.process_time(), sum(self.scene.render_s.values())
+            out = fn(task)
+            self.cpu[phase] += time.process_time() - c0
+            self.render[phase] += sum(self.scene.render_s.values()) - r0
+            return out
+        return timed
+
+    def __enter__(self) -> PhaseTimer:
+        patch_run.seed_task = self._wrap("seed", self._saved[0])
+        patch_run.track_task = self._wrap("track", self._saved[1])
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        patch_run.seed_task, patch_run.track_task = self._saved
+
+
+def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int) -> dict:
+    """The stream against the renderer's truth (module docstring)."""
     s = int(np.argmin(np.abs(traj.times_ms - t_seed)))
     sp = nearest_surface_points(truth, t_seed, traj.X_cm[:, s, 0])
     P, normal = surface_points_cm(truth, traj.times_ms, sp.person, sp.part, sp.local_cm)  # (T, N, 3)
@@ -88,6 +101,11 @@ def run(args: argparse.Namespace) -> None:
         cols = [c for c in (s - lag, s + lag) if 0 <= c < len(traj.times_ms)]
         e = np.concatenate([err_mm[traj.alive[:, c], c] for c in cols] + [np.zeros(0)])
         errors[f"after_{lag}"] = {"median_mm": _pct(e, 50), "p90_mm": _pct(e, 90), "n": int(len(e))}
+    seed_normal_deg = None
+    live = traj.alive[:, s]
+    if live.any():
+        cos = np.clip(np.sum(traj.normal[live, s] * normal[s][live], -1), -1.0, 1.0)
+        seed_normal_deg = {"median": _pct(np.degrees(np.arccos(cos)), 50), "p90": _pct(np.degrees(np.arccos(cos)), 90)}
     back = traj.alive[:, :s + 1][:, ::-1].cumprod(axis=1).sum(axis=1) - 1
     fwd = traj.alive[:, s:].cumprod(axis=1).sum(axis=1) - 1
     lengths = np.concatenate([back, fwd])[np.concatenate([traj.alive[:, s]] * 2)]
@@ -103,14 +121,13 @@ def run(args: argparse.Namespace) -> None:
         near.append(np.broadcast_to((err_mm[a, k] < 10.0)[:, None], true[-1].shape))
         to_cam = centres[None] - P[k][a][:, None]
         facing.append(np.sum(to_cam * normal[k][a][:, None], -1) / np.linalg.norm(to_cam, axis=-1) >= 0.2)
-    est, base, true = np.concatenate(est), np.concatenate(base), np.concatenate(true)
-    near, facing = np.concatenate(near), np.concatenate(facing)
+    V = len(cams)
+    est, base, true = (np.concatenate(x + [np.zeros((0, V), bool)]) for x in (est, base, true))
+    near, facing = (np.concatenate(x + [np.zeros((0, V), bool)]) for x in (near, facing))
     split = {}
     for name, m in (("patch_within_1cm", near), ("view_cos_at_least_0.2", facing)):
-        split[name] = {"share": round(float(m.mean()), 3),
+        split[name] = {"share": round(float(m.mean()), 3) if m.size else None,
                        "map": precision_recall(est & m, true & m), "photometric": precision_recall(base & m, true & m)}
-    pvf = int(traj.visible.sum())
-    stage_cpu = cpu - render_cpu
     labels = {}
     Xj, present = truth.joints_cm(traj.times_ms)
     Xj[~present] = np.nan
@@ -126,19 +143,66 @@ def run(args: argparse.Namespace) -> None:
         np.savez_compressed(args.save, X_cm=traj.X_cm, normal=traj.normal, alive=traj.alive, visible=traj.visible,
                             photometric=traj.photometric, times_ms=traj.times_ms, person=sp.person, part=sp.part,
                             local_cm=sp.local_cm, joints_cm=Xj)
-    emit(what="patches", scenario=args.scenario, people=args.people, cameras=len(cams),
-         vga=args.vga, hd=args.hd, kinect=args.kinect, frames_each_way=nf, seed=args.seed,
-         seeds=int(traj.alive[:, s].sum()), errors=errors,
-         length_median_frames=float(np.median(lengths)) if len(lengths) else None,
-         length_share_25=round(float(np.mean(lengths >= min(25, nf))), 3) if len(lengths) else None,
-         visibility_map={"precision": precision_recall(est, true)[0], "recall": precision_recall(est, true)[1]},
-         visibility_photometric={"precision": precision_recall(base, true)[0],
-                                 "recall": precision_recall(base, true)[1]},
-         visibility_split=split, true_views_per_patch=round(float(true.sum(1).mean()), 2), map_views_per_patch=round(float(est.sum(1).mean()),
-                                                                                              2),
-         parts=labels, patch_views_frames=pvf, stage_cpu_s=round(stage_cpu, 1), render_cpu_s=round(render_cpu, 1),
-         wall_s=round(wall, 1), patch_views_frames_per_cpu_s=round(pvf / max(stage_cpu, 1e-9), 1),
-         load=[round(x, 2) for x in os.getloadavg()])
+    return dict(seeds=int(live.sum()), errors=errors, seed_normal_error_deg=seed_normal_deg,
+                length_median_frames=float(np.median(lengths)) if len(lengths) else None,
+                length_share_25=round(float(np.mean(lengths >= min(25, nf))), 3) if len(lengths) else None,
+                visibility_map={"precision": precision_recall(est, true)[0], "recall": precision_recall(est, true)[1]},
+                visibility_photometric={"precision": precision_recall(base, true)[0],
+                                        "recall": precision_recall(base, true)[1]},
+                visibility_split=split,
+                true_views_per_patch=round(float(true.sum(1).mean()), 2) if len(true) else None,
+                map_views_per_patch=round(float(est.sum(1).mean()), 2) if len(est) else None,
+                parts=labels, patch_frames=int(traj.alive.sum()), patch_views_frames=int(traj.visible.sum()))
+
+
+def run(args: argparse.Namespace) -> None:
+    bundle = as_built_dome("panel", seed=args.seed)
+    bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=6000.0, seed=args.seed)
+    bundle.kinect = read_kcalibration(KCALIBRATION)
+    truth = make_group(GroupOptions(n_people=args.people, scenario=args.scenario, start_ms=500.0,
+                                    duration_ms=5000.0, seed=args.seed))
+    scene = TexturedScene(bundle, truth, TextureOptions(seed=args.seed, scale={"vga": 1.0, "hd": 0.5,
+                                                                              "kinect-color": 0.5}))
+    by_type = {t: sorted(n for n, c in bundle.cameras.items() if str(c.type) == t) for t in ("vga", "hd",
+                                                                                             "kinect-color")}
+    cams = by_type["vga"][:args.vga] + by_type["hd"][:args.hd] + by_type["kinect-color"][:args.kinect]
+    table = bundle.sync.streams["vga"]
+    pos = int(np.searchsorted(table.univ_time_ms, 2500.0))
+    f = int(table.index[pos])
+    f -= f % 20
+    nf = args.frames
+    span = (table.time_of(f - nf), table.time_of(f + nf))
+    t_seed = table.time_of(f)
+    o = PatchOptions(track_frames=nf)
+    with tempfile.TemporaryDirectory() as tmp:
+        c0 = time.process_time()
+        write_group_depth(Path(tmp) / "depth", bundle, truth, (t_seed - 40.0, t_seed + 40.0), seed=args.seed)
+        depth = DepthFrames(depth_folder_reader(Path(tmp) / "depth"))
+        depth_cpu = time.process_time() - c0
+        emit(what="depth", nodes=list(depth.read_frame.nodes), cpu_s=round(depth_cpu, 2),
+             load=[round(x, 2) for x in os.getloadavg()])
+        for seeding in args.seeding.split(","):
+            load = os.getloadavg()
+            cpu0, wall0, render0 = time.process_time(), time.perf_counter(), sum(scene.render_s.values())
+            with PhaseTimer(scene) as phases:
+                traj = patch_stream(bundle, scene, cams, span, o, seed_frames=[f],
+                                    depth=depth if seeding == "depth" else None)
+            cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
+            render_cpu = sum(scene.render_s.values()) - render0
+            emit(what="render", **{f"{k}_cpu_ms_per_view": round(1000.0 * scene.render_s[k] / scene.renders[k], 1)
+                                   for k in sorted(scene.renders)}, renders=scene.renders, people=args.people,
+                 load=[round(x, 2) for x in load])
+            got = evaluate(args, bundle, truth, cams, traj, t_seed, nf)
+            stage_cpu = cpu - render_cpu
+            track_cpu = phases.cpu["track"] - phases.render["track"]
+            emit(what="patches", seeding=seeding, scenario=args.scenario, people=args.people, cameras=len(cams),
+                 vga=args.vga, hd=args.hd, kinect=args.kinect, frames_each_way=nf, seed=args.seed, **got,
+                 stage_cpu_s=round(stage_cpu, 1), render_cpu_s=round(render_cpu, 1),
+                 seed_cpu_s=round(phases.cpu["seed"] - phases.render["seed"], 2),
+                 track_cpu_s=round(track_cpu, 2), wall_s=round(wall, 1),
+                 patch_views_frames_per_cpu_s=round(got["patch_views_frames"] / max(stage_cpu, 1e-9), 1),
+                 tracking_patch_views_frames_per_cpu_s=round(got["patch_views_frames"] / max(track_cpu, 1e-9), 1),
+                 load_before=[round(x, 2) for x in load], load=[round(x, 2) for x in os.getloadavg()])
 
 
 def main() -> None:
@@ -149,7 +213,9 @@ def main() -> None:
     ap.add_argument("--hd", type=int, default=4)
     ap.add_argument("--kinect", type=int, default=2)
     ap.add_argument("--frames", type=int, default=30)
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=0, help="the synthetic group's and the renderer's random seed")
+    ap.add_argument("--seeding", type=str, default="images,depth",
+                    help="how clouds are seeded, one run each: images (triangulated features), depth (the Kinects)")
     ap.add_argument("--save", type=str, default="", help="also write the trajectories and truth to this .npz")
     run(ap.parse_args())
 

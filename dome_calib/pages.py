@@ -10,9 +10,12 @@ element for errors carries ``data-page-errors``.
 """
 from __future__ import annotations
 
+import base64
 import json
 from importlib import resources
 from typing import Any
+
+import numpy as np
 
 #: Characters escaped in the inline JSON: none of them can then end the script element, open a comment or a tag, or
 #: end a line of script (JSON.parse reads the escapes back).
@@ -26,6 +29,12 @@ def inline_json(data: Any) -> str:
     for char, escape in INLINE_ESCAPES.items():
         text = text.replace(char, escape)
     return text
+
+
+def pack_b64(a: np.ndarray, dtype: str) -> str:
+    """An array as base64 of its bytes in ``dtype`` (e.g. ``"<i2"``, little-endian: the pages read them with typed
+    arrays)."""
+    return base64.b64encode(np.ascontiguousarray(a, dtype=dtype).tobytes()).decode("ascii")
 
 
 def _shared(name: str) -> str:

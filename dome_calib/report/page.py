@@ -23,7 +23,6 @@ and maximum.
 """
 from __future__ import annotations
 
-import base64
 import logging
 import math
 from pathlib import Path
@@ -32,7 +31,7 @@ import numpy as np
 
 from dome_calib.errors import BundleFormatError, ReportError
 from dome_calib.io_utils import atomic_write_text
-from dome_calib.pages import render
+from dome_calib.pages import pack_b64, render
 from dome_calib.panoptic_io import read_ksynctables, read_synctables
 from dome_calib.report.kept import SessionReport, SyncReport, read_kept
 from dome_calib.report.schema import CameraLens, Report, read_report
@@ -48,10 +47,6 @@ TAIL_PERCENTILE = 99.5  # the histogram's regular bins end here; the rest is one
 CENTI_PX_MAX = 32767  # int16
 
 
-def _b64(a: np.ndarray, dtype: str) -> str:
-    return base64.b64encode(np.ascontiguousarray(a, dtype=dtype).tobytes()).decode("ascii")
-
-
 def arrows_of(uv_px: np.ndarray, res_px: np.ndarray, max_arrows: int = MAX_ARROWS) -> dict:
     """One camera's arrows for the page: every k-th observation (k = ceil(n / max_arrows)) packed as int16."""
     n = len(res_px)
@@ -59,7 +54,7 @@ def arrows_of(uv_px: np.ndarray, res_px: np.ndarray, max_arrows: int = MAX_ARROW
     keep = np.arange(0, n, step)
     packed = np.column_stack([np.rint(uv_px[keep]), np.clip(np.rint(res_px[keep] * 100.0), -CENTI_PX_MAX,
                                                             CENTI_PX_MAX)])
-    return {"n": int(n), "step": int(step), "kept": int(len(keep)), "b64": _b64(packed, "<i2")}
+    return {"n": int(n), "step": int(step), "kept": int(len(keep)), "b64": pack_b64(packed, "<i2")}
 
 
 def coverage_of(uv_px: np.ndarray, resolution: list[int], grid: tuple[int, int] = COVERAGE_GRID) -> dict:
@@ -68,7 +63,7 @@ def coverage_of(uv_px: np.ndarray, resolution: list[int], grid: tuple[int, int] 
     gx = np.clip((uv_px[:, 0] / w * grid[0]).astype(int), 0, grid[0] - 1)
     gy = np.clip((uv_px[:, 1] / h * grid[1]).astype(int), 0, grid[1] - 1)
     counts = np.bincount(gy * grid[0] + gx, minlength=grid[0] * grid[1])
-    return {"grid": list(grid), "b64": _b64(np.minimum(counts, 65535), "<u2"),
+    return {"grid": list(grid), "b64": pack_b64(np.minimum(counts, 65535), "<u2"),
             "covered_pct": round(100.0 * float(np.count_nonzero(counts)) / counts.size, 1)}
 
 

@@ -13,7 +13,6 @@ while the page holds at most :data:`MAX_DETECTED_PEOPLE` detected people; the pa
 """
 from __future__ import annotations
 
-import base64
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +21,7 @@ import numpy as np
 
 from dome_calib.bundle import Bundle
 from dome_calib.ownership import write_text
-from dome_calib.pages import render
+from dome_calib.pages import pack_b64, render
 from dome_calib.skeletons.joints import JOINTS19, bones, marker_names
 from dome_calib.skeletons.scenes import People
 
@@ -42,10 +41,6 @@ class CameraDetections:
     camera: str
     times_ms: np.ndarray
     people: list[np.ndarray]
-
-
-def _b64(a: np.ndarray, dtype: str) -> str:
-    return base64.b64encode(np.ascontiguousarray(a, dtype=dtype).tobytes()).decode("ascii")
 
 
 def _mm_i16(X_cm: np.ndarray) -> tuple[np.ndarray, int]:
@@ -73,22 +68,23 @@ def _detections(det: CameraDetections) -> dict:
     packed = np.stack([np.clip(np.rint(kp[..., 0] * 4), -32767, 32767), np.clip(np.rint(kp[..., 1] * 4), -32767,
                                                                                   32767),
                        np.clip(np.rint(kp[..., 2] * 10000), 0, 32767)], axis=-1)
-    return {"times_ms": np.round(det.times_ms, 3).tolist(), "counts": _b64(np.minimum(counts, 65535), "<u2"),
-            "kp": _b64(packed, "<i2")}
+    return {"times_ms": np.round(det.times_ms, 3).tolist(), "counts": pack_b64(np.minimum(counts, 65535), "<u2"),
+            "kp": pack_b64(packed, "<i2")}
 
 
 def page_data(people: People, *, bundle: Bundle | None = None, detections: list[CameraDetections] | None = None,
-              notes: list[str] | None = None, folder: Path | None = None) -> dict:
+              notes: list[str] | None = None, folder: Path | None = None, patches: dict | None = None) -> dict:
     """Everything the page shows, as plain data (the template's ``DATA``); ``folder``: the folder named on the page
-    (default: the one read; reconstruct reads its staging folder and names its output)."""
+    (default: the one read; reconstruct reads its staging folder and names its output); ``patches``: the patch
+    layer (:func:`dome_calib.recon.patches.page_layer.patch_layer`), drawn under the bodies."""
     notes = list(notes or [])
     folder = Path(folder) if folder is not None else people.folder
     tracks, beyond = [], 0
     for pid, track in people.tracks.items():
         xyz, far = _mm_i16(track.X_cm)
         beyond += far
-        tracks.append({"id": int(pid), "n": int(len(track.rows)), "rows": _b64(track.rows, "<i4"),
-                       "xyz": _b64(xyz, "<i2")})
+        tracks.append({"id": int(pid), "n": int(len(track.rows)), "rows": pack_b64(track.rows, "<i4"),
+                       "xyz": pack_b64(xyz, "<i2")})
     if beyond:
         notes.append(f"{beyond} joints beyond 32.7 m of the origin are not drawn")
     return {"title": folder.name, "source": str(folder), "layout": people.layout,
@@ -98,7 +94,8 @@ def page_data(people: People, *, bundle: Bundle | None = None, detections: list[
             "times_ms": np.round(people.times_ms, 3).tolist(), "people": tracks, "trail_s": TRAIL_S,
             "cameras": _cameras(bundle) if bundle is not None else [],
             "detections": {d.camera: _detections(d) for d in detections or []},
-            "detection_bones": bones(JOINTS19), "notes": notes}
+            "detection_bones": bones(JOINTS19), "notes": notes + list((patches or {}).get("notes", [])),
+            "patches": patches}
 
 
 def render_page(data: dict) -> str:
@@ -109,13 +106,13 @@ def render_page(data: dict) -> str:
 
 def write_people_page(path: str | Path, people: People, *, bundle: Bundle | None = None,
                       detections: list[CameraDetections] | None = None, notes: list[str] | None = None,
-                      folder: Path | None = None) -> Path:
+                      folder: Path | None = None, patches: dict | None = None) -> Path:
     """Write the page of ``people`` to ``path`` (atomic, where :mod:`dome_calib.ownership` allows); returns the path
     (``folder``: see :func:`page_data`; a page staged with its folder is said at the folder's final place,
     ``folder / path.name``: the staging folder is gone after the rename)."""
     path = Path(path)
     write_text(path, render_page(page_data(people, bundle=bundle, detections=detections, notes=notes,
-                                           folder=folder)))
+                                           folder=folder, patches=patches)))
     said = path if folder is None or path.parent == Path(folder) else Path(folder) / path.name
     logger.info("people page written to %s (%.0f kB)", said, path.stat().st_size / 1e3)
     return path

@@ -83,7 +83,7 @@ def _capsule_hit(d1: tuple[np.ndarray, ...], a: np.ndarray, r: tuple[np.ndarray,
     return d2min < rad2
 
 
-def _point_segment_distance2(x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def point_segment_distance2(x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(..., 3) points, (..., 3) segment ends -> (...) squared distances."""
     d = b - a
     t = np.clip(np.sum((x - a) * d, -1) / np.maximum(np.sum(d * d, -1), 1e-12), 0.0, 1.0)
@@ -123,7 +123,7 @@ def occluders(cam_centres_cm: np.ndarray, X: np.ndarray, present: np.ndarray | N
     joints = Xp.reshape(-1, 3)  # (M, 3), M = Q * 19
     M = len(joints)
     # The person's own capsules a joint sits in do not hide it.
-    own = (_point_segment_distance2(Xp[:, :, None], A[:, None], B[:, None])
+    own = (point_segment_distance2(Xp[:, :, None], A[:, None], B[:, None])
            < (rad[:, None] + INSIDE_MARGIN_CM) ** 2)  # (Q, 19, 12)
     inside = np.zeros((Q, 19, Q, A.shape[1]), dtype=bool)
     inside[np.arange(Q), :, np.arange(Q)] = own

@@ -45,7 +45,7 @@ from dome_calib.options import Field, options
 from dome_calib.recon.project import project_points, view_set
 from dome_calib.recon.streams import stream_of_camera
 from dome_calib.schema import NonNegFinite
-from dome_calib.synth.body_volume import CAPSULE_NAMES, _point_segment_distance2, capsules_cm
+from dome_calib.synth.body_volume import CAPSULE_NAMES, point_segment_distance2, capsules_cm
 from dome_calib.synth.depth_people import nearest_capsule_hits
 from dome_calib.synth.group import GroupTruth
 from dome_calib.synth.rays import CameraRays
@@ -170,7 +170,7 @@ def nearest_surface_points(truth: GroupTruth, univ_time_ms: float, X_world: np.n
             on = axis + _unit(off) * fr.radius[p, k]
             W = fr.A[p, k] + on @ fr.R[p, k].T
             others = np.arange(len(rad)) != i * N_PARTS + k
-            d2 = _point_segment_distance2(W[:, None], A[others][None], B[others][None])
+            d2 = point_segment_distance2(W[:, None], A[others][None], B[others][None])
             buried = np.any(d2 < (rad[others] - BURIED_MARGIN_CM) ** 2, axis=1)
             take = (d < best) & ~buried
             best = np.where(take, d, best)
@@ -369,6 +369,12 @@ class TexturedScene:
         self.render_s: dict[str, float] = {}  # CPU seconds spent rendering, by camera type
         self.renders: dict[str, int] = {}
         self._rays: dict[str, CameraRays] = {}
+
+    def __getstate__(self) -> dict:
+        """Pickled without its rendered images and rays (an executor task renders what it reads)."""
+        state = dict(self.__dict__)
+        state["_cache"], state["_rays"] = {}, {}
+        return state
 
     def camera(self, name: str) -> Camera:
         cam = self.bundle.cameras[name]

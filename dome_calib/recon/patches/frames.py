@@ -33,7 +33,7 @@ class FrameSource(Protocol):
 
 
 def sample(gray: np.ndarray, uv_px: np.ndarray) -> np.ndarray:
-    """(H, W) uint8 image, (..., 2) pixels -> (...) float32 bilinear samples (0 outside the image)."""
+    """(H, W) uint8 or float32 image, (..., 2) pixels -> (...) float32 bilinear samples (0 outside the image)."""
     uv_px = np.asarray(uv_px)
     uv = uv_px.astype(np.float32).reshape(-1, 2)
     n = len(uv)

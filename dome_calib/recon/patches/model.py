@@ -46,6 +46,8 @@ class PatchOptions:
     refine_normals: bool = True  # then refined photometrically in the cameras that see the seed (refine.py)
     volume_radius_cm: PosFinite = 250.0  # the capture volume: a vertical cylinder on the floor
     volume_height_cm: PosFinite = 220.0
+    # seeding from Kinect depth (seed_depth.py): points of the capture volume this far above the floor (y = 0)
+    depth_floor_cm: Annotated[float, Field(ge=0)] = 2.0
     # optical flow
     lk_window_px: AtLeast(5) = 15
     lk_levels: AtLeast(0) = 3

@@ -12,14 +12,17 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from dome_calib.bundle import Bundle
+from dome_calib.executor import in_order
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.patches.frames import FrameSource, patch_axes
 from dome_calib.recon.patches.model import PatchOptions, PatchTrajectories
-from dome_calib.recon.patches.seed import Seeds, seed_patches
+from dome_calib.recon.patches.seed import CameraSeeds, Seeds, merge_camera_seeds, seed_camera
+from dome_calib.recon.patches.seed_depth import DepthFrames, seed_from_depth
 from dome_calib.recon.patches.seed_features import seed_from_features
 from dome_calib.recon.patches.refine import refine_normals
 from dome_calib.recon.patches.track import Clock, CloudTrack, judged_frames, quantise_cm, track_cloud
@@ -66,14 +69,16 @@ def seed_frames_in(table_index: np.ndarray, table_times: np.ndarray, span_ms: tu
 
 
 def run_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], seed_time_ms: float, times_ms: np.ndarray,
-              seeds: Seeds, o: PatchOptions, neighbours: np.ndarray | None = None) -> tuple[CloudTrack, CloudTrack]:
+              seeds: Seeds, o: PatchOptions, neighbours: np.ndarray | None = None, *, refine: bool | None = None
+              ) -> tuple[CloudTrack, CloudTrack]:
     """One cloud (or any subset of its seeds) tracked from ``seed_time_ms`` over ``times_ms`` (increasing, holding
-    the seed time): (backward, forward), each in travel order from the seed."""
+    the seed time): (backward, forward), each in travel order from the seed. ``refine``: refine the seeds' normals
+    photometrically first (:mod:`.refine`; None: ``o.refine_normals``)."""
     neighbours = camera_neighbours(views, o.prior_neighbours) if neighbours is None else neighbours
     t = np.asarray(times_ms, dtype=float)
     s = int(np.argmin(np.abs(t - seed_time_ms)))
     X = quantise_cm(seeds.X_cm)
-    if o.refine_normals and len(X):
+    if (o.refine_normals if refine is None else refine) and len(X):
         frames = judged_frames(clocks, float(t[s]))
         vis = estimate_visibility(source, views, frames, X, np.zeros_like(X), seeds.seen, None, neighbours, o)
         X = quantise_cm(refine_normals(source, views, frames, X, vis.visible, o))
@@ -82,22 +87,107 @@ def run_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], seed_tim
     return back, fwd
 
 
+@dataclass(frozen=True)
+class SeedTask:
+    """Executor task: the seeds of cloud ``cloud`` from reference camera ``camera`` (image seeding by the depth
+    sweep), or the whole cloud (``camera`` -1) from the Kinects' depth (``depth`` given) or from matched features
+    (``options.seed_method == "features"``: :mod:`.seed_features`)."""
+
+    cloud: int
+    camera: int
+    source: FrameSource
+    ref_views: ViewSet
+    frames: dict[str, int]
+    seed_time_ms: float
+    options: PatchOptions
+    bundle: Bundle | None = None
+    depth: DepthFrames | None = None
+
+    @property
+    def key(self) -> tuple[int, int]:
+        return (self.cloud, self.camera)
+
+
+def seed_task(task: SeedTask) -> tuple[tuple[int, int], CameraSeeds | Seeds]:
+    """Run one :class:`SeedTask` (module level: picklable for a process pool or Dask)."""
+    if task.depth is not None:
+        return task.key, seed_from_depth(task.bundle, task.depth, task.seed_time_ms, task.source, task.ref_views,
+                                         task.frames, task.options)
+    if task.options.seed_method == "features":
+        return task.key, seed_from_features(task.source, task.ref_views, task.frames, task.options)
+    return task.key, seed_camera(task.source, task.ref_views, task.frames, task.camera, task.options)
+
+
+@dataclass(frozen=True)
+class TrackTask:
+    """Executor task: seeds ``start``.. of cloud ``cloud`` (``seeds`` holds them), refined and tracked both ways."""
+
+    cloud: int
+    start: int
+    source: FrameSource
+    views: ViewSet
+    clocks: list[Clock]
+    seed_time_ms: float
+    times_ms: np.ndarray
+    seeds: Seeds
+    neighbours: np.ndarray
+    options: PatchOptions
+    refine: bool = True
+
+    @property
+    def key(self) -> tuple[int, int]:
+        return (self.cloud, self.start)
+
+
+def track_task(task: TrackTask) -> tuple[tuple[int, int], CloudTrack, CloudTrack]:
+    """Run one :class:`TrackTask` (module level: picklable)."""
+    back, fwd = run_cloud(task.source, task.views, task.clocks, task.seed_time_ms, task.times_ms, task.seeds,
+                          task.options, task.neighbours, refine=task.refine)
+    return task.key, back, fwd
+
+
+def run_tasks(executor, fn: Callable, tasks: list) -> list:
+    """``fn`` of every task (each with a ``key``), in the tasks' order: on ``executor`` (``map``: a local pool or
+    Dask), or in this process when there is none or a single task."""
+    if executor is None or len(tasks) <= 1:
+        return [fn(t) for t in tasks]
+    return list(in_order(executor.map(fn, tasks), [t.key for t in tasks], lambda r: r[0]))
+
+
+def _concat_tracks(tracks: list[CloudTrack]) -> CloudTrack:
+    return CloudTrack(times_ms=tracks[0].times_ms, X_cm=np.concatenate([t.X_cm for t in tracks]),
+                      visible=np.concatenate([t.visible for t in tracks]),
+                      photometric=np.concatenate([t.photometric for t in tracks]),
+                      alive=np.concatenate([t.alive for t in tracks]))
+
+
 def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_ms: tuple[float, float],
                  options: PatchOptions | None = None, *, stream: str | None = None,
-                 seed_frames: list[int] | None = None,
+                 seed_frames: list[int] | None = None, depth: DepthFrames | None = None, executor=None,
+                 patches_per_task: int = 1000,
                  progress: Callable[[int, int], None] | None = None) -> PatchTrajectories:
     """The dense patch trajectory stream of ``cameras`` (all streams) over ``span_ms``.
 
+    The work runs on ``executor`` (``map``; a local process pool or Dask; None: in this process) in two rounds of
+    tasks: the seeds (per cloud and reference camera; per cloud from depth), merged per cloud here, then the tracks
+    (per cloud and run of ``patches_per_task`` seeds, both ways). Depth seeds keep the normal of the depth (the SVD of
+    the dense depth points is better than the photometric refinement of image seeds: 4 against 10 deg median on the
+    small test group). Every patch's result depends on its own seed and
+    the images only, so how the work is cut changes not a bit of the result (``tests/test_patches_executor.py``).
+
     Args:
         bundle: cameras and sync tables (the cameras' own streams).
-        source: images (:class:`~dome_calib.recon.patches.frames.FrameSource`).
+        source: images (:class:`~dome_calib.recon.patches.frames.FrameSource`; picklable for a process pool).
         stream: the reference stream (default :func:`reference_stream`).
         seed_frames: the reference frames that seed clouds (default every ``seed_every_frames``-th in the span).
-        progress: called with (clouds done, clouds).
+        depth: the Kinects' depth frames: clouds seeded from depth (:mod:`.seed_depth`); None: from image features.
+        progress: called with (tracking tasks done, tracking tasks).
     Example:
         >>> traj = patch_stream(bundle, TexturedScene(bundle, truth), vga_names, (1000.0, 3000.0))
     """
     o = options or PatchOptions()
+    if patches_per_task < 1:
+        raise ReconError(f"patches_per_task must be at least 1 (got {patches_per_task})")
     stream = stream or reference_stream(bundle, cameras)
     groups, tables = cameras_by_stream(bundle, cameras)
     if stream not in groups:
@@ -113,22 +203,45 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
     frames_in = table.index[inside]
     seeds_at = (np.asarray(seed_frames, dtype=np.int64) if seed_frames is not None
                 else seed_frames_in(table.index, table.univ_time_ms, span_ms, o.seed_every_frames))
-    parts = []
-    for c, f in enumerate(seeds_at):
+    windows = []
+    for f in seeds_at:
         pos = int(np.searchsorted(frames_in, f))
         if pos >= len(frames_in) or frames_in[pos] != f:
             raise ReconError(f"seed frame {int(f)} of stream {stream} is not inside the span")
-        window = frames_in[max(pos - o.track_frames, 0):pos + o.track_frames + 1]
-        t_seed = table.time_of(int(f))
-        seeder = seed_from_features if o.seed_method == "features" else seed_patches
-        ref_seeds = seeder(source, ref_views, {n: int(f) for n in ref_names}, o)
+        windows.append(frames_in[max(pos - o.track_frames, 0):pos + o.track_frames + 1])
+    seed_times = [table.time_of(int(f)) for f in seeds_at]
+    seed_tasks = []
+    for c, f in enumerate(seeds_at):
+        frames = {n: int(f) for n in ref_names}
+        if depth is not None or o.seed_method == "features":  # the whole cloud in one task
+            seed_tasks.append(SeedTask(c, -1, source, ref_views, frames, seed_times[c], o, bundle, depth))
+        else:
+            seed_tasks += [SeedTask(c, r, source, ref_views, frames, seed_times[c], o) for r in range(len(ref_names))]
+    got: dict[int, list] = {}
+    for (c, _), result in run_tasks(executor, seed_task, seed_tasks):
+        got.setdefault(c, []).append(result)
+    track_tasks = []
+    for c in range(len(seeds_at)):
+        ref_seeds = (got[c][0] if depth is not None or o.seed_method == "features"
+                     else merge_camera_seeds(got.get(c, []), ref_views, o))
         seen = np.zeros((len(ref_seeds.X_cm), len(cameras)), bool)
         seen[:, ref_pos] = ref_seeds.seen
         seeds = Seeds(X_cm=ref_seeds.X_cm, normal=ref_seeds.normal, seen=seen)
-        back, fwd = run_cloud(source, views, clocks, t_seed, table.times_of(window), seeds, o, neighbours)
-        parts.append((c, t_seed, window, back, fwd))
+        for lo in range(0, max(len(seeds.X_cm), 1), patches_per_task):
+            part = slice(lo, lo + patches_per_task)
+            track_tasks.append(TrackTask(c, lo, source, views, clocks, seed_times[c], table.times_of(windows[c]),
+                                         Seeds(X_cm=seeds.X_cm[part], normal=seeds.normal[part],
+                                               seen=seeds.seen[part]), neighbours, o,
+                                         refine=o.refine_normals and depth is None))
+    tracks: dict[int, list[tuple[CloudTrack, CloudTrack]]] = {}
+    results = (map(track_task, track_tasks) if executor is None or len(track_tasks) <= 1
+               else in_order(executor.map(track_task, track_tasks), [t.key for t in track_tasks], lambda r: r[0]))
+    for done, ((c, _), back, fwd) in enumerate(results, start=1):
+        tracks.setdefault(c, []).append((back, fwd))
         if progress is not None:
-            progress(c + 1, len(seeds_at))
+            progress(done, len(track_tasks))
+    parts = [(c, seed_times[c], windows[c], _concat_tracks([b for b, _ in tracks[c]]),
+              _concat_tracks([f for _, f in tracks[c]])) for c in range(len(seeds_at))]
     return assemble(parts, table.times_of(frames_in), list(cameras))
 
 

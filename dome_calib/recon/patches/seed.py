@@ -140,7 +140,7 @@ def optical_flow(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, o: PatchOptio
     return _lk(src, dst, p0, guess, o)
 
 
-def _refine(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int, corners: np.ndarray,
+def flow_to_neighbours(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int, corners: np.ndarray,
             X: np.ndarray, o: PatchOptions) -> tuple[np.ndarray, np.ndarray]:
     """Corners of view r with sweep points X (N, 3) -> ((N, V, 2) pixels, (N, V) conf) in view r and its
     ``seed_views`` nearest views (by LK from the reference image, started at the projection)."""
@@ -165,17 +165,31 @@ def _refine(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int,
     return uv, conf
 
 
-def _normals(X: np.ndarray, seen: np.ndarray, centres: np.ndarray, o: PatchOptions
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(N, 3) seeds -> (normal (N, 3), first axis (N, 3), ok (N,)) by SVD of the seeds within ``normal_radius_cm``."""
-    tree = cKDTree(X)
-    near = tree.query_ball_point(X, o.normal_radius_cm)
+def thin_to_cells(X: np.ndarray, keys: list[np.ndarray], spacing_cm: float) -> np.ndarray:
+    """Indices (increasing) of one point (N, 3) per ``spacing_cm`` cell: the cell's first by ``keys`` (lexsort keys,
+    most significant LAST, as ``np.lexsort``; they must break every tie, so no order of work decides it)."""
+    if len(X) == 0:
+        return np.zeros(0, np.int64)
+    cell = np.floor(X / spacing_cm).astype(np.int64)
+    order = np.lexsort((*keys, cell[:, 2], cell[:, 1], cell[:, 0]))
+    first = np.ones(len(order), bool)
+    first[1:] = np.any(cell[order][1:] != cell[order][:-1], axis=1)
+    return np.sort(order[first])
+
+
+def _normals(X: np.ndarray, cloud: np.ndarray, seen: np.ndarray, centres: np.ndarray, radius_cm: float,
+             min_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Seeds (N, 3) -> (normal (N, 3), first axis (N, 3), ok (N,)): the least principal axis (SVD) of the ``cloud``
+    points within ``radius_cm`` (at least ``min_points``), its sign towards the cameras ``seen`` (N, V) with centres
+    (V, 3)."""
+    tree = cKDTree(cloud)
+    near = tree.query_ball_point(X, radius_cm)
     normal, axis = np.full(X.shape, np.nan), np.full(X.shape, np.nan)
     ok = np.zeros(len(X), bool)
     for i, nb in enumerate(near):
-        if len(nb) < o.normal_min_points:
+        if len(nb) < min_points:
             continue
-        Q = X[sorted(nb)]
+        Q = cloud[sorted(nb)]
         _, _, Vt = np.linalg.svd(Q - Q.mean(0), full_matrices=False)
         n = Vt[2]
         towards = (centres[seen[i]] - X[i]).sum(0)
@@ -185,49 +199,69 @@ def _normals(X: np.ndarray, seen: np.ndarray, centres: np.ndarray, o: PatchOptio
     return normal, axis, ok
 
 
+@dataclass(frozen=True)
+class CameraSeeds:
+    """The triangulated seeds of one reference camera: X_cm (M, 3), seen (M, V) inlier views, n_inliers (M,)."""
+
+    camera: int
+    X_cm: np.ndarray
+    seen: np.ndarray
+    n_inliers: np.ndarray
+
+
+def seed_camera(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int, o: PatchOptions) -> CameraSeeds:
+    """The seeds of reference camera ``r``: its corners swept in depth, refined by optical flow in the nearby cameras
+    and triangulated (module docstring). Depends on ``r``'s images and its neighbours' only: one task per camera."""
+    tri_o = TriangulationOptions(inlier_threshold_px=o.triangulation_px, min_views=o.seed_min_views)
+    V = len(views.names)
+    empty = CameraSeeds(camera=r, X_cm=np.zeros((0, 3)), seen=np.zeros((0, V), bool), n_inliers=np.zeros(0, int))
+    name = views.names[r]
+    corners = cv2.goodFeaturesToTrack(source.gray(name, frames[name]), o.seed_features, 0.02,
+                                      o.seed_min_distance_px, blockSize=5)
+    if corners is None:
+        return empty
+    corners = corners.reshape(-1, 2).astype(float)
+    X, _ = _sweep(source, views, frames, r, corners, o)
+    keep = np.all(np.isfinite(X), axis=1)
+    if not keep.any():
+        return empty
+    uv, conf = flow_to_neighbours(source, views, frames, r, corners[keep], X[keep], o)
+    tri = triangulate(views, uv, conf, tri_o)
+    good = np.all(np.isfinite(tri.X_cm), axis=1) & tri.inliers[:, r]
+    logger.debug("seed %s: %d corners, %d swept, %d triangulated", name, len(corners), keep.sum(), good.sum())
+    return CameraSeeds(camera=r, X_cm=tri.X_cm[good], seen=tri.inliers[good], n_inliers=tri.n_inliers[good])
+
+
+def patch_triplets(X: np.ndarray, normal: np.ndarray, axis: np.ndarray, axis_cm: float) -> np.ndarray:
+    """Centres (N, 3), normals (N, 3), a first in-plane direction (N, 3) -> patches (N, 3, 3): centre and the two
+    plane points at ``axis_cm`` (u the direction made orthogonal to the normal, v = normal x u)."""
+    u = axis - np.sum(axis * normal, 1, keepdims=True) * normal
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(normal, u)
+    return np.stack([X, X + axis_cm * u, X + axis_cm * v], 1)
+
+
+def merge_camera_seeds(per_camera: list[CameraSeeds], views: ViewSet, o: PatchOptions) -> Seeds:
+    """The reference cameras' seeds (any order) -> one cloud: thinned to one per ``seed_spacing_cm`` cell (most
+    inlier views, then the first camera by position), each with its normal from the seeds round it."""
+    V = len(views.names)
+    parts = sorted((c for c in per_camera if len(c.X_cm)), key=lambda c: c.camera)
+    if not parts:
+        return Seeds(X_cm=np.zeros((0, 3, 3)), normal=np.zeros((0, 3)), seen=np.zeros((0, V), bool))
+    X, seen_a = np.concatenate([c.X_cm for c in parts]), np.concatenate([c.seen for c in parts])
+    n_a = np.concatenate([c.n_inliers for c in parts])
+    r_a = np.concatenate([np.full(len(c.X_cm), c.camera) for c in parts])
+    pick = thin_to_cells(X, [r_a, -n_a], o.seed_spacing_cm)
+    X, seen_a = X[pick], seen_a[pick]
+    normal, axis, ok = _normals(X, X, seen_a, views.center_cm, o.normal_radius_cm, o.normal_min_points)
+    logger.info("seed cloud: %d patches from %d cameras", ok.sum(), V)
+    return Seeds(X_cm=patch_triplets(X[ok], normal[ok], axis[ok], o.axis_cm), normal=normal[ok], seen=seen_a[ok])
+
+
 def seed_patches(source: FrameSource, views: ViewSet, frames: dict[str, int], o: PatchOptions) -> Seeds:
     """A seed cloud from the cameras ``views`` (one stream: their ``frames`` share a time).
 
     Example:
         >>> seeds = seed_patches(scene, view_set(imaged, vga_names), {n: 130 for n in vga_names}, PatchOptions())
     """
-    tri_o = TriangulationOptions(inlier_threshold_px=o.triangulation_px, min_views=o.seed_min_views)
-    V = len(views.names)
-    pts, seen, n_inl, ref_rank = [], [], [], []
-    for r in range(V):
-        name = views.names[r]
-        corners = cv2.goodFeaturesToTrack(source.gray(name, frames[name]), o.seed_features, 0.02,
-                                          o.seed_min_distance_px, blockSize=5)
-        if corners is None:
-            continue
-        corners = corners.reshape(-1, 2).astype(float)
-        X, _ = _sweep(source, views, frames, r, corners, o)
-        keep = np.all(np.isfinite(X), axis=1)
-        if not keep.any():
-            continue
-        uv, conf = _refine(source, views, frames, r, corners[keep], X[keep], o)
-        tri = triangulate(views, uv, conf, tri_o)
-        good = np.all(np.isfinite(tri.X_cm), axis=1) & tri.inliers[:, r]
-        pts.append(tri.X_cm[good])
-        seen.append(tri.inliers[good])
-        n_inl.append(tri.n_inliers[good])
-        ref_rank.append(np.full(good.sum(), r))
-        logger.debug("seed %s: %d corners, %d swept, %d triangulated", name, len(corners), keep.sum(), good.sum())
-    if not pts:
-        return Seeds(X_cm=np.zeros((0, 3, 3)), normal=np.zeros((0, 3)), seen=np.zeros((0, V), bool))
-    X, seen_a = np.concatenate(pts), np.concatenate(seen)
-    n_a, r_a = np.concatenate(n_inl), np.concatenate(ref_rank)
-    cell = np.floor(X / o.seed_spacing_cm).astype(np.int64)
-    order = np.lexsort((r_a, -n_a, cell[:, 2], cell[:, 1], cell[:, 0]))
-    first = np.ones(len(order), bool)
-    first[1:] = np.any(cell[order][1:] != cell[order][:-1], axis=1)
-    pick = np.sort(order[first])
-    X, seen_a = X[pick], seen_a[pick]
-    normal, axis, ok = _normals(X, seen_a, views.center_cm, o)
-    X, seen_a, normal, axis = X[ok], seen_a[ok], normal[ok], axis[ok]
-    u = axis - np.sum(axis * normal, 1, keepdims=True) * normal
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    v = np.cross(normal, u)
-    trip = np.stack([X, X + o.axis_cm * u, X + o.axis_cm * v], 1)
-    logger.info("seed cloud: %d patches from %d cameras", len(X), V)
-    return Seeds(X_cm=trip, normal=normal, seen=seen_a)
+    return merge_camera_seeds([seed_camera(source, views, frames, r, o) for r in range(len(views.names))], views, o)
