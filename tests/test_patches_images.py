@@ -178,6 +178,14 @@ def mpjpe_cm(folder: Path, truth) -> float:
     return float(np.concatenate(errs).mean())
 
 
+def _page_data(folder: Path) -> dict:
+    """The data the people page of ``folder`` shows (its JSON element)."""
+    html = (folder / "index.html").read_text(encoding="utf-8")
+    start = html.index('<script id="people-data" type="application/json">') + len(
+        '<script id="people-data" type="application/json">')
+    return json.loads(html[start:html.index("</script>", start)])
+
+
 @pytest.mark.slow
 def test_reconstruct_with_images_refines_the_people_and_adds_the_patch_stream(capture, inputs, dome_calib_cli):
     root, _, _, cams = capture
@@ -196,6 +204,9 @@ def test_reconstruct_with_images_refines_the_people_and_adds_the_patch_stream(ca
     assert mine == {p.name for p in (root / "plain").iterdir()}
     scenes = sorted(n for n in mine if n.startswith("body3DScene"))
     assert any((root / "with" / n).read_bytes() != (root / "plain" / n).read_bytes() for n in scenes)
+    assert _page_data(root / "plain")["patches"] is None  # the people page: the patches coloured by part
+    layer = _page_data(root / "with")["patches"]
+    assert layer is not None and layer["parts"], sorted(layer or {})
     noisy = ("reconstruct", str(root / "det_noisy"), "--bundle", str(root / "bundle"), "--body-model", "PANOPTIC19")
     assert dome_calib_cli(*noisy, "-o", str(root / "noisy")).returncode == 0
     got = dome_calib_cli(*noisy, "--images", str(root / "images"), "-o", str(root / "noisy_with"))

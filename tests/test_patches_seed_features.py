@@ -62,3 +62,16 @@ def test_matches_keep_to_the_epipolar_band_and_are_mutual(wide):
     # a second candidate with the same descriptor on the same line: ambiguous, refused by the ratio test
     twin = np.concatenate([uv[1], uv[1] + (uv[1] - uv[0]) * 1e-3])
     assert len(match_pair(uv[0], desc, twin, np.concatenate([desc, desc]), views, 0, 1, o)) == 0
+
+
+def test_the_stream_seeds_by_features_in_one_task_per_cloud_and_tracks_them(wide):
+    """patch_stream with ``seed_method="features"``: the cloud's seeds are the features' (one task per cloud, as
+    depth seeds), tracked both ways."""
+    from dome_calib.recon.patches.run import patch_stream
+
+    bundle, _, scene, views, t = wide
+    o = PatchOptions(seed_min_views=2, seed_method="features", track_frames=2, min_visible=2)
+    seeds = seed_from_features(scene, views, {n: FRAME for n in CAMS}, o)
+    traj = patch_stream(bundle, scene, CAMS, (t - 100.0, t + 100.0), o, stream="vga", seed_frames=[FRAME])
+    assert len(traj.ids) == len(seeds.X_cm) >= 5
+    assert traj.alive[:, list(traj.times_ms).index(t)].all()

@@ -119,7 +119,8 @@ def build_people_page(people_folder: str | Path, *, out: str | Path | None = Non
         det, notes = read_detections(detections, cal, people, camera_map=camera_map, body_model=body_model,
                                      cameras=cameras, files=files)
     write_people_page(page, people, bundle=cal, detections=det, notes=notes,
-                      folder=Path(shown_as) if shown_as is not None else None)
+                      folder=Path(shown_as) if shown_as is not None else None,
+                      patches=staged.patches if staged is not None else None)
     return PeoplePageSummary(page=page, people=len(people.tracks), frames=len(people.frames),
                              cameras=len(cal.cameras) if cal is not None else 0,
                              detection_cameras=[d.camera for d in det], notes=notes)

@@ -24,6 +24,7 @@ from dome_calib.recon.patches.images import ImageSource, open_images, with_share
 from dome_calib.recon.patches.body import TieOptions, flag_joints, joint_ties
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.motion import part_motions
+from dome_calib.recon.patches.page_layer import patch_layer
 from dome_calib.recon.patches.parts import label_parts
 from dome_calib.recon.patches.run import patch_stream, reference_stream
 from dome_calib.recon.patches.stream_file import FILE_NAME, patch_table, write_patch_table
@@ -65,7 +66,7 @@ class PatchStage:
                         f"{FILE_NAME}; {len(motions.bone)} part motions, {int(on_times.sum())} joint ties on the "
                         "people's times")
         return FurtherStage(write=lambda staging: write_patch_table(Path(staging) / FILE_NAME, table), ties=ties,
-                            refined=self.report_flags)
+                            refined=self.report_flags, page_layer=patch_layer(traj, labels))
 
     def report_flags(self, first, final) -> None:
         """The people fitted again with the ties -> the summary line says how many per-frame joints (the tracked

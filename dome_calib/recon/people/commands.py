@@ -74,11 +74,13 @@ class FurtherStage:
     """What a further stage on the people (``after_people``: the patches of ``--images``) gives back: ``write``
     adds its files to the staged output folder; ``ties`` (None: none), the part motions the body over time is
     fitted again with (:class:`~dome_calib.recon.patches.body.JointTies`); ``refined(first, final)`` is told both
-    people sequences once that is done (the stage's report)."""
+    people sequences once that is done (the stage's report); ``page_layer`` (None: none), what it adds to the people
+    page (the patches coloured by part: :func:`~dome_calib.recon.patches.page_layer.patch_layer`)."""
 
     write: Callable[[Path], None]
     ties: object | None = None
     refined: Callable[[PeopleSequence, PeopleSequence], None] | None = None
+    page_layer: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -319,7 +321,7 @@ def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callab
         if more is not None:
             more.write(staging)
         if page is not None:
-            page(staging, staged)
+            page(staging, staged if more is None else replace(staged, patches=more.page_layer))
 
     report = camera_report(seq.cameras)
     write_people(plan.out, seq, plan.numbers, fps_type_of(plan.reference),

@@ -95,12 +95,14 @@ class StagedPeople:
     are made from the run's own results, not read back: ``files`` ((frame, path) of each body3DScene file in the
     staging folder, in frame order), ``scenes()`` (the objects written, in that order, made again one at a time from
     the run's arrays: a long session's scenes are never all in memory), ``report`` (cameras.json's), ``bundle`` (the
-    run's calibration, loaded once by the plan; None: the caller's)."""
+    run's calibration, loaded once by the plan; None: the caller's), ``patches`` (the page's patch layer of a further
+    stage, :func:`~dome_calib.recon.patches.page_layer.patch_layer`; None: none)."""
 
     files: list[tuple[int, Path]]
     scenes: Callable[[], Iterator[dict]]
     report: dict
     bundle: Bundle | None = None
+    patches: dict | None = None
 
 
 def people_scenes(seq: PeopleSequence, fps_type: str, *, body_model: str | None = None,
