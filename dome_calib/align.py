@@ -22,6 +22,7 @@ import pycolmap
 from dome_calib.bundle import Camera
 from dome_calib.errors import DomeCalibError
 from dome_calib.options import AtLeast, UnitInterval, options
+from dome_calib.rotation import rigid_fit as weighted_rigid_fit
 from dome_calib.schema import PosFinite
 
 logger = logging.getLogger(__name__)
@@ -129,12 +130,9 @@ def sim3_rotation(tgt_from_src: pycolmap.Sim3d) -> np.ndarray:
 
 
 def rigid_fit(src: np.ndarray, tgt: np.ndarray) -> pycolmap.Sim3d:
-    """Least-squares rotation + translation (scale 1): Kabsch on centred points."""
-    mu_s, mu_t = src.mean(axis=0), tgt.mean(axis=0)
-    U, _, Vt = np.linalg.svd((tgt - mu_t).T @ (src - mu_s))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = U @ D @ Vt
-    return pycolmap.Sim3d(1.0, pycolmap.Rotation3d(R), mu_t - R @ mu_s)
+    """Least-squares rotation + translation (scale 1) of corresponding points (:func:`dome_calib.rotation.rigid_fit`)."""
+    R, t = weighted_rigid_fit(src, tgt)
+    return pycolmap.Sim3d(1.0, pycolmap.Rotation3d(R), t)
 
 
 def align_points(src: np.ndarray, tgt: np.ndarray, options: AlignOptions | None = None) -> tuple[pycolmap.Sim3d, np.ndarray]:

@@ -63,3 +63,14 @@ def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
     cos = (np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0
     vee = np.stack([rel[..., 2, 1] - rel[..., 1, 2], rel[..., 0, 2] - rel[..., 2, 0], rel[..., 1, 0] - rel[..., 0, 1]], -1)
     return np.degrees(np.arctan2(np.linalg.norm(vee, axis=-1) / 2.0, cos))  # accurate near 0, unlike arccos
+
+
+def rigid_fit(A: np.ndarray, B: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation and translation (no scale) taking the points A (K, 3) onto B (K, 3) in weighted least squares:
+    (R (3, 3), t (3,)) minimising ``sum w |R A + t - B|^2`` with det R = +1 (w (K,); None: equal). The rotation is
+    scipy's weighted Kabsch (``Rotation.align_vectors``) on the centred points."""
+    A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
+    w = np.ones(len(A)) if w is None else np.asarray(w, dtype=float)
+    ca, cb = (w @ A) / w.sum(), (w @ B) / w.sum()
+    R = Rotation.align_vectors(B - cb, A - ca, weights=w)[0].as_matrix()
+    return R, cb - R @ ca

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from dome_calib.errors import OptionsError
-from dome_calib.recon.patches.motion import MotionOptions, part_motions, point_sigma_cm, rigid_fit
+from dome_calib.recon.patches.motion import MotionOptions, part_motions, point_sigma_cm
+from dome_calib.rotation import rigid_fit
 from dome_calib.synth.group import GroupOptions, make_group
 from dome_calib.synth.surface_patches import true_patches
 from dome_calib.synth.rig import RigOptions, few_camera_rig

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dome_calib.options import AtLeast, options
+from dome_calib.rotation import rigid_fit
 from dome_calib.schema import PosFinite
 
 #: 1 / the standard normal's median absolute deviation.
@@ -62,19 +63,6 @@ class PartMotions:
 
     def __len__(self) -> int:
         return len(self.step)
-
-
-def rigid_fit(A: np.ndarray, B: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted Kabsch / Umeyama without scale: (K, 3) points A, B and (K,) weights -> (R, t) minimising
-    ``sum w |R A + t - B|^2`` with det R = +1."""
-    w = np.asarray(w, dtype=float)
-    W = w.sum()
-    ca, cb = (w @ A) / W, (w @ B) / W
-    C = ((A - ca) * w[:, None]).T @ (B - cb)  # sum w a b^T
-    U, _, Vt = np.linalg.svd(C)
-    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
-    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-    return R, cb - R @ ca
 
 
 def _patch_residuals(R: np.ndarray, t: np.ndarray, X0: np.ndarray, X1: np.ndarray) -> np.ndarray:
