@@ -263,6 +263,30 @@ def test_the_extra_joints_pass_reads_no_file_the_first_pass_kept(group, tmp_path
         np.testing.assert_array_equal(a, b)
 
 
+def test_reconstruct_reads_each_detection_file_once(group, tmp_path, monkeypatch):
+    """`reconstruct` with its people page (as the command line runs it, one process): every OpenPose file is parsed
+    once, by the run's first pass; the later passes and the page take the run's kept detections (float32, as the run
+    used them), and the page shows the detections of its cameras."""
+    import dome_calib.recon.openpose_io as openpose_io
+    from dome_calib.pipeline.people_page import people_page_writer
+    from dome_calib.recon.people.commands import plan_reconstruction, run_reconstruction
+    from dome_calib.recon.people.run import PeopleOptions
+    from dome_calib.skeletons.page import PAGE_FILE
+
+    root, _, _ = group
+    options = PeopleOptions(temporal=dataclasses.replace(PeopleOptions().temporal, enabled=False))
+    plan = plan_reconstruction(root / "det", root / "bundle", tmp_path / "out", body_model="BODY_25", options=options)
+    page = people_page_writer(plan.out, root / "bundle", root / "det", body_model=plan.model.value,
+                              files=plan.source.files)
+    raw, opened = openpose_io._raw_people, []
+    monkeypatch.setattr(openpose_io, "_raw_people", lambda path, *a, **k: opened.append(path) or raw(path, *a, **k))
+    run_reconstruction(plan, page=page)
+    every = sorted(p for frames in plan.source.files.values() for p in frames.values())
+    assert sorted(opened) == every  # each once: none left unread, none read twice
+    html = (tmp_path / "out" / PAGE_FILE).read_text(encoding="utf-8")
+    assert '"detections": {"' in html or '"detections":{"' in html
+
+
 def test_kept_detections_come_back_as_read(tmp_path):
     """store / load: every (camera, frame) as it was read (float32), across files of 64 frames, and only the frames
     asked for."""
