@@ -307,6 +307,28 @@ def test_kept_detections_come_back_as_read(tmp_path):
     assert load(tmp_path, 1, cameras, frames) == {}
 
 
+def test_the_page_takes_one_cameras_kept_joints19_and_only_the_frames_kept(tmp_path):
+    """KeptDetections.of_camera (the people page of a run): the camera's joints19 of the frames kept (the extra
+    joints dropped, the float32 values as float64), from its own stream; a frame not kept is absent (the page reads
+    its file)."""
+    from dome_calib.recon.people.detection_cache import KeptDetections, store
+
+    rng = np.random.default_rng(1)
+    streams = [["00_01", "00_02"], ["50_01"]]
+    people = [{c: {f: rng.normal(size=(2, 19 + 4, 3)) for f in range(0, 10)} for c in cams} for cams in streams]
+    for i, cams in enumerate(streams):
+        store(tmp_path, i, cams, people[i])
+    kept = KeptDetections(folder=tmp_path, streams=streams)
+    got = kept.of_camera("50_01", np.array([3, 4, 12]))
+    assert sorted(got) == [3, 4]
+    for f in (3, 4):
+        assert got[f].dtype == np.float64 and got[f].shape == (2, 19, 3)
+        np.testing.assert_array_equal(got[f], people[1]["50_01"][f][:, :19].astype(np.float32))
+    assert kept.of_camera("00_02", np.array([0]))[0].tolist() == people[0]["00_02"][0][:, :19].astype(
+        np.float32).tolist()
+    assert kept.of_camera("99_99", np.array([0])) == {}
+
+
 def test_a_kept_detection_folder_left_by_a_killed_run_is_removed_by_the_next(tmp_path):
     """A run killed with SIGKILL cannot remove its kept detections: the next run on the machine removes the folder
     once that run is provably over (io_utils.run_temp_folder: the owner tag of its name), and leaves a live run's
