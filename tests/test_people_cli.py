@@ -263,6 +263,30 @@ def test_the_extra_joints_pass_reads_no_file_the_first_pass_kept(group, tmp_path
         np.testing.assert_array_equal(a, b)
 
 
+def test_reconstruct_reads_each_detection_file_once(group, tmp_path, monkeypatch):
+    """`reconstruct` with its people page (as the command line runs it, one process): every OpenPose file is parsed
+    once, by the run's first pass; the later passes and the page take the run's kept detections (float32, as the run
+    used them), and the page shows the detections of its cameras."""
+    import dome_calib.recon.openpose_io as openpose_io
+    from dome_calib.pipeline.people_page import people_page_writer
+    from dome_calib.recon.people.commands import plan_reconstruction, run_reconstruction
+    from dome_calib.recon.people.run import PeopleOptions
+    from dome_calib.skeletons.page import PAGE_FILE
+
+    root, _, _ = group
+    options = PeopleOptions(temporal=dataclasses.replace(PeopleOptions().temporal, enabled=False))
+    plan = plan_reconstruction(root / "det", root / "bundle", tmp_path / "out", body_model="BODY_25", options=options)
+    page = people_page_writer(plan.out, root / "bundle", root / "det", body_model=plan.model.value,
+                              files=plan.source.files)
+    raw, opened = openpose_io._raw_people, []
+    monkeypatch.setattr(openpose_io, "_raw_people", lambda path, *a, **k: opened.append(path) or raw(path, *a, **k))
+    run_reconstruction(plan, page=page)
+    every = sorted(p for frames in plan.source.files.values() for p in frames.values())
+    assert sorted(opened) == every  # each once: none left unread, none read twice
+    html = (tmp_path / "out" / PAGE_FILE).read_text(encoding="utf-8")
+    assert '"detections": {"' in html or '"detections":{"' in html
+
+
 def test_kept_detections_come_back_as_read(tmp_path):
     """store / load: every (camera, frame) as it was read (float32), across files of 64 frames, and only the frames
     asked for."""
@@ -281,6 +305,28 @@ def test_kept_detections_come_back_as_read(tmp_path):
     for key, p in want.items():
         np.testing.assert_array_equal(got[key], p.astype(np.float32))
     assert load(tmp_path, 1, cameras, frames) == {}
+
+
+def test_the_page_takes_one_cameras_kept_joints19_and_only_the_frames_kept(tmp_path):
+    """KeptDetections.of_camera (the people page of a run): the camera's joints19 of the frames kept (the extra
+    joints dropped, the float32 values as float64), from its own stream; a frame not kept is absent (the page reads
+    its file)."""
+    from dome_calib.recon.people.detection_cache import KeptDetections, store
+
+    rng = np.random.default_rng(1)
+    streams = [["00_01", "00_02"], ["50_01"]]
+    people = [{c: {f: rng.normal(size=(2, 19 + 4, 3)) for f in range(0, 10)} for c in cams} for cams in streams]
+    for i, cams in enumerate(streams):
+        store(tmp_path, i, cams, people[i])
+    kept = KeptDetections(folder=tmp_path, streams=streams)
+    got = kept.of_camera("50_01", np.array([3, 4, 12]))
+    assert sorted(got) == [3, 4]
+    for f in (3, 4):
+        assert got[f].dtype == np.float64 and got[f].shape == (2, 19, 3)
+        np.testing.assert_array_equal(got[f], people[1]["50_01"][f][:, :19].astype(np.float32))
+    assert kept.of_camera("00_02", np.array([0]))[0].tolist() == people[0]["00_02"][0][:, :19].astype(
+        np.float32).tolist()
+    assert kept.of_camera("99_99", np.array([0])) == {}
 
 
 def test_a_kept_detection_folder_left_by_a_killed_run_is_removed_by_the_next(tmp_path):

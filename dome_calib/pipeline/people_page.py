@@ -6,6 +6,9 @@ reader, the cameras' streams) and the people-out room (the folder, the page).
 Detections: the folder ``dome-calib reconstruct`` reads (one sub-folder per camera, ``--camera-map``,
 ``--body-model``); each camera's frames are put on universal time by the bundle's sync tables (without them, frame /
 the folder's frame rate, as reconstruct does with ``--fps``); only the frames within the people's span are read.
+The page ``reconstruct`` writes shows the detections as the run used them (its kept float32 values,
+:class:`~dome_calib.recon.people.detection_cache.KeptDetections`: no file is read again); ``dome-calib people-page``
+reads the files.
 """
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ from dome_calib.bundle_io import load_bundle
 from dome_calib.ownership import claim_file
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, parse_camera_map, read_openpose_files
+from dome_calib.recon.people.detection_cache import KeptDetections
 from dome_calib.recon.people.scene_io import StagedPeople
 from dome_calib.recon.streams import stream_of_camera
 from dome_calib.skeletons.errors import PeopleFileError
@@ -54,11 +58,13 @@ def camera_times_ms(bundle: Bundle, camera: str, frames: np.ndarray, people: Peo
 
 def read_detections(folder: str | Path, bundle: Bundle, people: People, *, camera_map: str | None = None,
                     body_model: str | None = None, cameras: list[str] | None = None,
-                    max_people: int = MAX_DETECTED_PEOPLE, files: dict[str, dict[int, Path]] | None = None
-                    ) -> tuple[list[CameraDetections], list[str]]:
+                    max_people: int = MAX_DETECTED_PEOPLE, files: dict[str, dict[int, Path]] | None = None,
+                    kept: KeptDetections | None = None) -> tuple[list[CameraDetections], list[str]]:
     """The detections of ``cameras`` (default: in name order while at most ``max_people`` detected people, at least
     one camera) at frames within the people's span -> (per camera, notes for the page). ``files``: the folder's
-    index (camera -> frame -> file) when the caller has already made it (reconstruct's plan)."""
+    index (camera -> frame -> file) when the caller has already made it (reconstruct's plan); ``kept``: the
+    detections a run kept (reconstruct's), taken as the run used them (float32) where it kept the frame, the file
+    read only where it did not."""
     if files is None:
         files = index_openpose_folder(folder, camera_map=parse_camera_map(camera_map), cameras=set(bundle.cameras))
     if cameras:
@@ -66,7 +72,8 @@ def read_detections(folder: str | Path, bundle: Bundle, people: People, *, camer
         if unknown:
             raise ReconError(f"{folder}: --cameras: no detections of camera {unknown[0]} (cameras: "
                              f"{', '.join(sorted(files))})")
-    model = body_model_of(files, body_model)
+    # told and checked where files are read (a run's kept detections were read with the run's checked model)
+    model = body_model_of(files, body_model) if kept is None else None
     t0, t1 = float(people.times_ms[0]), float(people.times_ms[-1])
     margin = 1000.0 / float(people.fps)
     out, total, notes = [], 0, []
@@ -77,7 +84,11 @@ def read_detections(folder: str | Path, bundle: Bundle, people: People, *, camer
         keep = np.isfinite(t) & (t >= t0 - margin) & (t <= t1 + margin)
         if not keep.any():
             continue
-        read = read_openpose_files({cam: {int(f): files[cam][int(f)] for f in frames[keep]}}, model)[cam]
+        read = kept.of_camera(cam, frames[keep]) if kept is not None else {}
+        unkept = {int(f): files[cam][int(f)] for f in frames[keep] if int(f) not in read}
+        if unkept:
+            model = model or body_model_of(files, body_model)
+            read.update(read_openpose_files({cam: unkept}, model)[cam])
         det = CameraDetections(camera=cam, times_ms=t[keep], people=[read[int(f)] for f in frames[keep]])
         n = sum(len(p) for p in det.people)
         if out and not cameras and total + n > max_people:
@@ -117,7 +128,8 @@ def build_people_page(people_folder: str | Path, *, out: str | Path | None = Non
     det, notes = ([], [])
     if detections is not None and cal is not None:
         det, notes = read_detections(detections, cal, people, camera_map=camera_map, body_model=body_model,
-                                     cameras=cameras, files=files)
+                                     cameras=cameras, files=files,
+                                     kept=staged.detections if staged is not None else None)
     write_people_page(page, people, bundle=cal, detections=det, notes=notes,
                       folder=Path(shown_as) if shown_as is not None else None,
                       patches=staged.patches if staged is not None else None)
@@ -146,7 +158,7 @@ def people_page_writer(out: str | Path, bundle: str | Path, detections: str | Pa
     ``staging/index.html`` from the body3DScene files just staged there as the run holds them
     (:class:`~dome_calib.recon.people.scene_io.StagedPeople`: not read back; the run's bundle, else ``bundle``),
     with the detections reconstruct read (``files``: its index of the detections folder, so the folder is not
-    scanned twice)."""
+    scanned twice; ``staged.detections``: what the run kept of them, so no file is read twice)."""
     mapping = ",".join(f"{k}={v}" for k, v in camera_map.items()) if isinstance(camera_map, dict) else camera_map
 
     def write(staging: Path, staged: StagedPeople | None = None) -> None:

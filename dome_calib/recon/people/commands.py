@@ -299,7 +299,8 @@ def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callab
     """The work of a checked plan: people at every time (chunks on ``executor``), then the files, written only at
     the end (staged, then renamed); ``page(staging, staged)`` adds the caller's files to the staged folder from the
     run's own results (:class:`~dome_calib.recon.people.scene_io.StagedPeople`: the scenes written, cameras.json's
-    report, the plan's bundle; the people page: dome_calib.pipeline.people_page.people_page_writer);
+    report, the plan's bundle, the detections the run kept (the page shows those, as the run used them, and reads
+    no detection file again); the people page: dome_calib.pipeline.people_page.people_page_writer);
     ``after_people(people)``, a further stage on the people (the patches of ``--images``), returns a
     :class:`FurtherStage`: what adds its files there and, with ties, the body over time is fitted again from the
     same tracks with them (:func:`~dome_calib.recon.people.run.refit_over_time`, the same windows on the same
@@ -316,17 +317,18 @@ def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callab
                 more.refined(first, seq)
         extras = (extra_joints(plan.views, source, seq, plan.options)
                   if isinstance(source, FileSource) else None)  # the detector's joints beside joints19
+        kept = source.kept() if isinstance(source, FileSource) else None  # the page's detections: read once
 
-    def also(staging: Path, staged: StagedPeople) -> None:
-        if more is not None:
-            more.write(staging)
-        if page is not None:
-            page(staging, staged if more is None else replace(staged, patches=more.page_layer))
+        def also(staging: Path, staged: StagedPeople) -> None:
+            if more is not None:
+                more.write(staging)
+            if page is not None:
+                page(staging, replace(staged, detections=kept, patches=more.page_layer if more is not None else None))
 
-    report = camera_report(seq.cameras)
-    write_people(plan.out, seq, plan.numbers, fps_type_of(plan.reference),
-                 also=also if more is not None or page is not None else None, body_model=plan.model.value,
-                 extras=extras, lab_up=plan.lab_up, fps=plan.fps, report=report, bundle=plan.bundle)
+        report = camera_report(seq.cameras)
+        write_people(plan.out, seq, plan.numbers, fps_type_of(plan.reference),
+                     also=also if more is not None or page is not None else None, body_model=plan.model.value,
+                     extras=extras, lab_up=plan.lab_up, fps=plan.fps, report=report, bundle=plan.bundle)
     ids = {int(i) for b in seq.bodies for i in b.ids}
     nobody = None if ids else why_nobody(seq.cameras, plan.options, len(plan.times_ms))
     if ids and seq.cameras.depth_rejected > DEPTH_SUSPECT_SHARE * seq.cameras.depth_joints:

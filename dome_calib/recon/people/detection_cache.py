@@ -14,11 +14,15 @@ The folder belongs to one run and to one machine (``dome_calib.io_utils.run_temp
 folder named with the run's owner tag, removed when the run ends, also on an interrupt; one a killed run left behind
 is removed by the next run on the machine, once that run is provably over). On a cluster whose workers may be other
 machines (``executor.is_remote``) nothing is kept and every pass reads its files.
+
+The run's people page takes its detections from there too (:class:`KeptDetections`): it shows the values the run
+used (float32), and a file is read by the page only where the run kept no frame of it.
 """
 from __future__ import annotations
 
 import os
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -75,3 +79,21 @@ def load(folder: Path, stream: int, cameras: list[str], frames: np.ndarray) -> d
         for k in np.flatnonzero(np.isin(frame, list(wanted))):
             out[(cameras[int(camera[k])], int(frame[k]))] = kp[offsets[k]: offsets[k + 1]]
     return out
+
+
+@dataclass(frozen=True)
+class KeptDetections:
+    """A run's kept detections read by camera, for what is written beside the people (the people page): ``folder``
+    (the run's, alive while they are written), ``streams`` (each stream's cameras, in the source's layout order)."""
+
+    folder: Path
+    streams: list[list[str]]
+
+    def of_camera(self, camera: str, frames: np.ndarray) -> dict[int, np.ndarray]:
+        """frame -> (N, 19, 3) joints19 of ``camera`` at those of ``frames`` the run kept (float32 as kept, given as
+        float64); a frame it did not keep is absent."""
+        for i, cameras in enumerate(self.streams):
+            if camera in cameras:
+                kept = load(self.folder, i, cameras, np.asarray(frames, dtype=np.int64))
+                return {f: p[:, :19].astype(float) for (n, f), p in kept.items() if n == camera}
+        return {}

@@ -43,6 +43,7 @@ from dome_calib.body3d_scene import scene_json, scene_name, write_scene_folder
 from dome_calib.bundle import Bundle
 from dome_calib.ownership import claim_folder
 from dome_calib.recon.people.agreement import CameraAgreement
+from dome_calib.recon.people.detection_cache import KeptDetections
 from dome_calib.recon.people.extras import ExtraJoints
 from dome_calib.recon.people.run import PeopleSequence
 
@@ -96,13 +97,16 @@ class StagedPeople:
     staging folder, in frame order), ``scenes()`` (the objects written, in that order, made again one at a time from
     the run's arrays: a long session's scenes are never all in memory), ``report`` (cameras.json's), ``bundle`` (the
     run's calibration, loaded once by the plan; None: the caller's), ``patches`` (the page's patch layer of a further
-    stage, :func:`~dome_calib.recon.patches.page_layer.patch_layer`; None: none)."""
+    stage, :func:`~dome_calib.recon.patches.page_layer.patch_layer`; None: none), ``detections`` (the detections the
+    run kept, as it used them, :class:`~dome_calib.recon.people.detection_cache.KeptDetections`; None: none kept, the
+    page reads the files)."""
 
     files: list[tuple[int, Path]]
     scenes: Callable[[], Iterator[dict]]
     report: dict
     bundle: Bundle | None = None
     patches: dict | None = None
+    detections: KeptDetections | None = None
 
 
 def people_scenes(seq: PeopleSequence, fps_type: str, *, body_model: str | None = None,

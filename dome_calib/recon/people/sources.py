@@ -20,7 +20,7 @@ from dome_calib.bundle import Bundle, CameraType, SyncTable
 from dome_calib.recon.body_models import EXTRA_JOINTS, BodyModel
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.openpose_io import read_openpose_files
-from dome_calib.recon.people.detection_cache import load, store
+from dome_calib.recon.people.detection_cache import KeptDetections, load, store
 from dome_calib.recon.streams import cameras_by_stream, frame_period_ms
 
 SHARED_STREAM = "shared"
@@ -181,6 +181,12 @@ class FileSource:
     @property
     def cameras(self) -> list[str]:
         return [n for s in self.layouts for n in s.cameras]
+
+    def kept(self) -> KeptDetections | None:
+        """What the passes have kept, by camera (None without ``cache_dir``)."""
+        if self.cache_dir is None:
+            return None
+        return KeptDetections(folder=self.cache_dir, streams=[list(s.cameras) for s in self.layouts])
 
     def chunk(self, t0_ms: float, t1_ms: float, max_gap_frames: float) -> list[PeopleStream]:
         out = []
