@@ -28,7 +28,7 @@ import json
 import logging
 import shutil
 import time
-
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +36,7 @@ import pycolmap
 
 from dome_calib.bundle import Camera, camera_type_from_name
 from dome_calib.io_utils import atomic_folder, atomic_write_text
-from projector.database import camera_of_image, intrinsics_from_colmap, read_summary
+from projector.database import DatabaseSummary, camera_of_image, intrinsics_from_colmap, read_summary
 from projector.known_poses import add_posed_image, register_cameras, triangulate_known
 from projector.mapping import SceneModel, describe_model
 from dome_calib.options import AtLeast, options
@@ -167,37 +167,86 @@ def map_known_scene(database_path: str | Path, image_dir: str | Path, output_dir
                     scene: str = "") -> tuple[SceneModel, str | None]:
     """The scene's model with the reference's cameras held (module docstring), and None; or, when the result is
     too poor to use (``options``' limits), the model and the reason to map the scene with GLOMAP instead."""
+    database_path = Path(database_path)
+    job = KnownJob(scene=scene or database_path.parent.name, database=database_path, images=Path(image_dir),
+                   output=Path(output_dir))
+    return map_known_scenes([job], reference, options)[job.scene]
+
+
+@dataclass(frozen=True)
+class KnownJob:
+    """One scene to triangulate at the reference's poses: its database, image folder and output folder."""
+
+    scene: str
+    database: Path
+    images: Path
+    output: Path
+
+
+def map_known_scenes(jobs: list[KnownJob], reference: SceneModel, options: KnownPoseOptions | None = None
+                     ) -> dict[str, tuple[SceneModel, str | None]]:
+    """:func:`map_known_scene` of every job, by scene, each step over all the scenes before the next (the saved
+    models and databases read, the summaries, the triangulations, the writes, the descriptions): the work folder
+    goes through each module once. The same models as one scene after the other (each scene its own database)."""
     options = options or KnownPoseOptions()
-    database_path, output_dir = Path(database_path), Path(output_dir)
-    scene = scene or database_path.parent.name
-    t0 = time.perf_counter()
     digest = reference_digest(reference)
-    saved = _load(output_dir, digest) if options.reuse else None
-    if saved is not None:
-        rec, pnp_failed = saved
-        logger.info("%s: reusing the known-pose model in %s", scene, output_dir)
-    else:
-        held = reference_cameras(reference)
-        db_cams, ids = _database_cameras(database_path)
-    # the database is only read below: its summary, read once, describes the model made from it
-    database = read_summary(database_path)
-    if saved is None:
+    held = reference_cameras(reference)
+    seconds = {job.scene: 0.0 for job in jobs}
+    saved, db = {}, {}
+    for job in jobs:  # what the work folder holds: a model made from this reference, else the database's cameras
+        t0 = time.perf_counter()
+        saved[job.scene] = _load(job.output, digest) if options.reuse else None
+        if saved[job.scene] is not None:
+            logger.info("%s: reusing the known-pose model in %s", job.scene, job.output)
+        else:
+            db[job.scene] = _database_cameras(job.database)
+        seconds[job.scene] += time.perf_counter() - t0
+    # the databases are only read below: each summary, read once, describes the model made from it
+    summaries = {}
+    for job in jobs:
+        t0 = time.perf_counter()
+        summaries[job.scene] = read_summary(job.database)
+        seconds[job.scene] += time.perf_counter() - t0
+    made = {}
+    for job in (j for j in jobs if saved[j.scene] is None):
+        t0 = time.perf_counter()
+        db_cams, ids = db[job.scene]
         in_scene = sorted(n for n in held if n in ids)
-        rec = triangulate_known(database_path, image_dir, output_dir / "triangulated", held, in_scene,
+        rec = triangulate_known(job.database, job.images, job.output / "triangulated", held, in_scene,
                                 triangulator_options(options))
-        regs, pnp_failed = register_cameras(database_path, rec, db_cams, sorted(set(ids) - set(held)))
-        with pycolmap.Database.open(str(database_path)) as db:
-            _add_registered(rec, db, regs, ids)
-        shutil.rmtree(output_dir / "triangulated", ignore_errors=True)
-        with atomic_folder(output_dir / "model") as staging:
+        regs, pnp_failed = register_cameras(job.database, rec, db_cams, sorted(set(ids) - set(held)))
+        with pycolmap.Database.open(str(job.database)) as database:
+            _add_registered(rec, database, regs, ids)
+        shutil.rmtree(job.output / "triangulated", ignore_errors=True)
+        made[job.scene] = rec, pnp_failed
+        seconds[job.scene] += time.perf_counter() - t0
+    for scene, (rec, pnp_failed) in made.items():  # the writes, together
+        t0 = time.perf_counter()
+        output = next(j.output for j in jobs if j.scene == scene)
+        with atomic_folder(output / "model") as staging:
             rec.write(str(staging))
-        atomic_write_text(output_dir / "reference.json", json.dumps({"reference": reference.scene, "digest": digest,
-                                                                      "absolute_pose_failures": pnp_failed}, indent=1))
+        atomic_write_text(output / "reference.json", json.dumps({"reference": reference.scene, "digest": digest,
+                                                                 "absolute_pose_failures": pnp_failed}, indent=1))
+        seconds[scene] += time.perf_counter() - t0
+    out = {}
+    for job in jobs:
+        t0 = time.perf_counter()
+        rec, pnp_failed = saved[job.scene] or made[job.scene]
+        out[job.scene] = _judged(rec, pnp_failed, summaries[job.scene], job.scene, reference, options)
+        out[job.scene][0].seconds = seconds[job.scene] + time.perf_counter() - t0
+        logger.info("%s: known poses from %s: %d cameras registered, %d points, %.1f s%s", job.scene,
+                    reference.scene, len(out[job.scene][0].registered), rec.num_points3D(),
+                    out[job.scene][0].seconds, f" ({out[job.scene][1]})" if out[job.scene][1] else "")
+    return out
+
+
+def _judged(rec: pycolmap.Reconstruction, pnp_failed: dict[str, str], database: DatabaseSummary, scene: str,
+            reference: SceneModel, options: KnownPoseOptions) -> tuple[SceneModel, str | None]:
+    """The model described, and why to map the scene with GLOMAP instead (None: it will do)."""
     model = describe_model(rec, database, scene, options.min_points_per_image,
                            reasons={n: f"absolute pose against the points of {reference.scene}'s cameras: {why}"
                                     for n, why in pnp_failed.items()})
     model.num_models = 1
-    model.seconds = time.perf_counter() - t0
     n_verified = len(database.verified)  # cameras with a verified pair
     need = options.min_registered_fraction * n_verified
     why = None
@@ -206,6 +255,4 @@ def map_known_scene(database_path: str | Path, image_dir: str | Path, output_dir
                f"(need {options.min_registered_fraction:.0%})")
     elif rec.num_points3D() < options.min_points:
         why = f"known poses triangulated only {rec.num_points3D()} points (need {options.min_points})"
-    logger.info("%s: known poses from %s: %d cameras registered, %d points, %.1f s%s", scene, reference.scene,
-                len(model.registered), rec.num_points3D(), model.seconds, f" ({why})" if why else "")
     return model, why

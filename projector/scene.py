@@ -3,7 +3,7 @@
 (:mod:`dome_calib.pipeline.quick`) calls :func:`match_scene` on one scene.
 
     scene_models        every scene's model: features, the reference (GLOMAP), the later scenes at its poses,
-                        the mappers in threads while the pool works on the next step
+                        the reference's GLOMAP in a thread while the pool extracts the other features
     ScenesRun           the places, prior, options and executor held once; one method per step, each handing the
                         scene's places to one stage module (features, matching, mapping, known_scene)
     scene_features      features of one scene into its database
@@ -26,7 +26,7 @@ from dome_calib.io_utils import atomic_write_text
 from dome_calib.progress import task_progress
 from projector.database import camera_of_image, drop_matches, read_summary
 from projector.features import FeatureReport, extract_features
-from projector.known_scene import map_known_scene, reference_cameras
+from projector.known_scene import KnownJob, map_known_scenes, reference_cameras
 from projector.mapping import SceneModel, map_scene, remove_model_folder
 from projector.matching import MatchReport, match_pairs
 from projector.pairs import (Pair, PairOptions, UnknownStrategy, expand_pairs_from_matches, pairs_for_unknown,
@@ -70,7 +70,10 @@ def match_scene(
 ) -> tuple[FeatureReport, list[Pair], MatchReport]:
     """Features (unless given), pairs (unless given: :func:`select_pairs` from the prior) and matching of one scene
     into ``work_dir/<scene>/database.db`` (resumable); the matched pairs in ``pairs.txt``."""
-    return ScenesRun(capture_dir, work_dir, prior, options, executor).match_pairs(scene, options, feats, pairs)
+    run = ScenesRun(capture_dir, work_dir, prior, options, executor)
+    matched = run.match_pairs(scene, options, feats, pairs)
+    run.write_pairs()
+    return matched
 
 
 def known_scene_pairs(names: list[str], prior: Mapping[str, Camera], reference: SceneModel,
@@ -204,6 +207,7 @@ class ScenesRun:
                  executor: Executor | None) -> None:
         self._capture_dir, self._work_dir = capture_dir, work_dir
         self._prior, self._options, self._executor = prior, options, executor
+        self._pairs: dict[str, list[Pair]] = {}  # the pairs each scene was last matched on (:meth:`write_pairs`)
 
     def features(self, scene: str) -> FeatureReport:
         """Features of the scene's images into its database (:func:`projector.features.extract_features`)."""
@@ -226,9 +230,9 @@ class ScenesRun:
     def match_pairs(self, scene: str, options: SfmOptions, feats: FeatureReport | None = None,
                     pairs: list[Pair] | None = None) -> tuple[FeatureReport, list[Pair], MatchReport]:
         """Features (unless given), pairs (unless given: :func:`select_pairs` from the prior) and matching of the
-        scene into its database (:func:`projector.matching.match_pairs`); the matched pairs in ``pairs.txt``."""
+        scene into its database (:func:`projector.matching.match_pairs`); the pairs kept for :meth:`write_pairs`."""
         executor = self._executor
-        db_path, pairs_file = self._work_dir / scene / "database.db", self._work_dir / scene / "pairs.txt"
+        db_path = self._work_dir / scene / "database.db"
         if feats is None:
             feats = self.features(scene)
         names = sorted(feats.num_features)
@@ -242,8 +246,14 @@ class ScenesRun:
                 pairs = sorted(set(pairs) | set(extra))
                 matches = match_pairs(db_path, pairs, options=options.matching, executor=executor, scene=scene,
                                       progress=task_progress(options.progress, f"matching {scene}"))
-        atomic_write_text(pairs_file, pairs_text(pairs))  # the pairs matched (a record: reruns select them again)
+        self._pairs[scene] = pairs
         return feats, pairs, matches
+
+    def write_pairs(self) -> None:
+        """Each matched scene's pairs in its ``pairs.txt``, together once the run's matching is done (a record:
+        reruns select them again)."""
+        for scene, pairs in self._pairs.items():
+            atomic_write_text(self._work_dir / scene / "pairs.txt", pairs_text(pairs))
 
     def match(self, scene: str, options: SfmOptions, feats: FeatureReport,
               reference: SceneModel | None = None) -> Matched:
@@ -262,13 +272,16 @@ class ScenesRun:
         return map_scene(work / "database.db", self.mapper_images(scene, options), work / "sparse",
                          options=options.mapping, scene=scene, database=database)
 
-    def known(self, matched: Matched, options: SfmOptions) -> tuple[SceneModel, str | None]:
-        """The scene triangulated with its cameras held at ``matched.reference``'s poses
-        (:func:`projector.known_scene.map_known_scene`): the model and None, or the model and why to map the scene
-        with GLOMAP instead. Uses no executor: it runs in a thread while the next scene is matched."""
-        scene, work = matched.scene, self._work_dir / matched.scene
-        return map_known_scene(work / "database.db", self.mapper_images(scene, options), work / "known",
-                               matched.reference, options.known_poses, scene=scene)
+    def known(self, matched: list[Matched], options: SfmOptions) -> dict[str, tuple[SceneModel, str | None]]:
+        """The scenes (all at one reference's poses) triangulated with their cameras held there
+        (:func:`projector.known_scene.map_known_scenes`, each step over all of them): by scene, the model and None,
+        or the model and why to map the scene with GLOMAP instead."""
+        if not matched:
+            return {}
+        jobs = [KnownJob(scene=m.scene, database=self._work_dir / m.scene / "database.db",
+                         images=self.mapper_images(m.scene, options), output=self._work_dir / m.scene / "known")
+                for m in matched]
+        return map_known_scenes(jobs, matched[0].reference, options.known_poses)
 
     def drop(self, scene: str) -> None:
         """A scene's matches and GLOMAP model dropped, as if they were never made (its features kept)."""
@@ -284,7 +297,7 @@ class ScenesRun:
                                                    matched.reference)
         fallback = None
         if reference is not None:
-            model, fallback = known if known is not None else self.known(matched, options)
+            model, fallback = known if known is not None else self.known([matched], options)[scene]
             if fallback is None:
                 return SceneStats(scene=scene, features=feats, pairs=len(pairs), matches=matches, model=model,
                                   mapping=f"known poses (from {reference.scene})")
@@ -302,9 +315,8 @@ class ScenesRun:
 
 def scene_models(capture_dir: Path, work_dir: Path, scenes: list[str], prior: Mapping[str, Camera],
                  options: SfmOptions, executor: Executor) -> SceneModels:
-    """Every scene's model, the two cores kept busy (the same result as one step after the other): the mappers run
-    in threads (they use no executor; pycolmap's mappers release the GIL) while the pool extracts features or
-    matches the next scene. Measured on the panel bench: 2-3 s of its minute.
+    """Every scene's model (the same result as one step after the other): the reference's GLOMAP runs in a thread
+    (it uses no executor; pycolmap's mappers release the GIL) while the pool extracts the other scenes' features.
 
     1. Features of every scene. The likely reference (the most images, ties by name: :func:`likely_reference`)
        first; it is then matched and mapped with GLOMAP in a thread while the pool extracts the other scenes'
@@ -313,8 +325,10 @@ def scene_models(capture_dir: Path, work_dir: Path, scenes: list[str], prior: Ma
     2. The reference (:func:`reference_scene`): the early mapping's model when it mapped this scene; else the
        likely one's matches and model are dropped (:func:`projector.database.drop_matches`), as if they never
        were, and the reference is matched and mapped now.
-    3. Each later scene matched, then triangulated at the reference's poses in a thread while the next one is
-       matched (one at a time); a fallback to GLOMAP runs after all are matched.
+    3. Every later scene matched, then all of them triangulated at the reference's poses
+       (:func:`projector.known_scene.map_known_scenes`: each step over all the scenes, so that the work folder goes
+       through each stage module once); a fallback to GLOMAP runs after. Each scene's ``pairs.txt`` is written
+       last (:meth:`ScenesRun.write_pairs`).
     """
     run = ScenesRun(capture_dir, work_dir, prior, options, executor)
     # 1. features: the likely reference first; a rerun first finishes the features it had begun (once every scene
@@ -351,22 +365,11 @@ def scene_models(capture_dir: Path, work_dir: Path, scenes: list[str], prior: Ma
             run.drop(early_matched.scene)
         stats = {ref: run.model(run.match(ref, ref_options, feats[ref]), ref_options)}
     reference = stats[ref].model
-    # 3. every other scene: pairs by the reference's geometry, matching, triangulation at its poses
-    later: list[tuple[Matched, InThread | None]] = []
-    try:
-        for scene in (s for s in scenes if s != ref):
-            matched = run.match(scene, options, feats[scene], reference)
-            if later and later[-1][1] is not None:
-                later[-1][1].wait()
-            later.append((matched, InThread(run.known, matched, options) if matched.reference is not None else None))
-    except Exception:  # no mapper left running in a process that goes on (an interrupt does not wait)
-        for matched, job in later:
-            if job is not None:
-                _log_thread_error(f"{matched.scene}: triangulation at known poses", job.wait())
-        raise
-    if later and later[-1][1] is not None:  # none still running when an error is raised below
-        later[-1][1].wait()
-    stats.update({matched.scene: run.model(matched, options, known=job.result() if job is not None else None)
-                  for matched, job in later})
+    # 3. every other scene: pairs by the reference's geometry and matching, then all of them triangulated at its
+    # poses (each step over all the scenes: the work folder goes through each stage once); a fallback to GLOMAP last
+    later = [run.match(scene, options, feats[scene], reference) for scene in scenes if scene != ref]
+    known = run.known([m for m in later if m.reference is not None], options)
+    stats.update({m.scene: run.model(m, options, known=known.get(m.scene)) for m in later})
+    run.write_pairs()
     return SceneModels(scenes={scene: stats[scene] for scene in scenes}, reference=ref, options=options,
                        reference_options=ref_options)

@@ -18,8 +18,9 @@ triangulated with the cameras held at the reference's poses and intrinsics (:mod
 falling back on the full pair set and GLOMAP when that gives too little (logged, and said in the report).
 ``SfmOptions.known_poses.enabled = False``, or a reference with fewer than ``known_poses.min_images`` images (40: a
 small capture's GLOMAP runs take seconds), maps every scene with GLOMAP on the prior's pairs, holding the prior's
-intrinsics (slower on the dome; measured in the README). The mappers run in threads while the process pool
-works on the next step (:func:`projector.scene.scene_models`: the same result, the two cores kept busy).
+intrinsics (slower on the dome; measured in the README). The reference's GLOMAP runs in a thread while the process
+pool extracts the other scenes' features; the later scenes are matched, then triangulated together
+(:func:`projector.scene.scene_models`: the same result).
 
 Work folder layout (everything resumable)::
 

@@ -245,13 +245,13 @@ def test_a_likely_reference_that_is_not_the_reference_leaves_no_trace(capture, t
     assert early.scenes["scene_01"].pairs == late.scenes["scene_01"].pairs
 
 
-def test_an_error_in_a_later_scenes_mapping_thread_is_raised(capture, tmp_path, monkeypatch):
-    """A later scene is triangulated in a thread while the next is matched: its error reaches the caller."""
+def test_an_error_in_the_later_scenes_triangulation_is_raised(capture, tmp_path, monkeypatch):
+    """The later scenes are triangulated together once all are matched: an error there reaches the caller."""
     import projector.scene as scene
 
     def broken(*args, **kwargs):
         raise RuntimeError("triangulator exploded")
 
-    monkeypatch.setattr(scene, "map_known_scene", broken)
+    monkeypatch.setattr(scene, "map_known_scenes", broken)
     with pytest.raises(RuntimeError, match="triangulator exploded"):
         _run(capture, tmp_path / "work", enabled=True)
