@@ -2,7 +2,8 @@
 (:mod:`dome_calib.synth.textured`), judged against the renderer's truth.
 
 Run: .venv/bin/python bench/patches.py [--people 2] [--scenario conversation] [--vga 24] [--hd 4] [--kinect 2]
-         [--frames 30] [--seed 0]
+         [--frames 30] [--seed 0] [--executors here,pool,dask --workers 2 --patches-per-task 1000]
+     (``python -P`` with ``dask``: bench/distributed.py would shadow the ``distributed`` package)
 Setup: the as-built dome's panel preset (VGA of panels 1-2, the HD and Kinect colour cameras nearest them), the
 first ``--vga`` VGA by name and the first ``--hd`` / ``--kinect`` others; VGA at 640 x 480, HD and Kinect colour
 rendered at half size (960 x 540); the group seeded by ``--seed``; one cloud seeded at a VGA frame (a multiple of
@@ -15,7 +16,10 @@ rendered at half size (960 x 540); the group seeded by ``--seed``; one cloud see
   (precision and recall of the MAP labels and of photometric consistency alone, the CVPR 2014 baseline, over all
   live patch-times and cameras; split: patches within 1 cm of their true point, views within 78 deg of the true
   normal), patches given to the right body part (true skeleton, and the truth plus 1.5 cm noise per joint),
-  patch-views-frames per CPU-second of the stage (rendering excluded), load average.
+  patch-views-frames per CPU-second of the stage (rendering excluded), load average;
+- ``executor`` (with ``--executors``, image seeding only, not judged): per executor the CPU of this process and of
+  its worker processes (rendering included: each worker renders the frames it reads), the wall of the stream and of
+  starting the executor, and whether the arrays are the bits of the first executor's.
 """
 from __future__ import annotations
 
@@ -24,6 +28,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import contextlib  # noqa: E402
 import json  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
@@ -155,6 +160,71 @@ def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int) -> dict:
                 parts=labels, patch_frames=int(traj.alive.sum()), patch_views_frames=int(traj.visible.sum()))
 
 
+def _children_cpu_s() -> dict[int, float]:
+    """CPU seconds so far of this process's descendants (a pool's workers, a LocalCluster's nannies and workers)."""
+    import psutil  # distributed's dependency
+
+    out = {}
+    for child in psutil.Process().children(recursive=True):
+        try:
+            t = child.cpu_times()
+            out[child.pid] = t.user + t.system
+        except psutil.Error:
+            pass
+    return out
+
+
+def _open_executor(kind: str, workers: int):
+    if kind == "here":
+        return contextlib.nullcontext(None)
+    if kind == "pool":
+        from dome_calib.executor.local import LocalProcessExecutor
+        return LocalProcessExecutor(workers)
+    if kind == "dask":
+        from distributed import Client, LocalCluster
+
+        from dome_calib.executor.dask import DaskExecutor
+
+        @contextlib.contextmanager
+        def cluster():
+            with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                              worker_dashboard_address=":0") as lc, Client(lc, set_as_default=False) as client:
+                yield DaskExecutor(lc.scheduler_address, client=client)
+        return cluster()
+    raise SystemExit(f"--executors: unknown executor {kind!r} (here, pool, dask)")
+
+
+def run_executors(args, bundle, scene, cams, span, o, f: int) -> None:
+    """The same stream (``--seeding images``) on each of ``--executors``: CPU (this process and its worker
+    processes, rendering included: workers render what they read) and wall, and whether the arrays are the bits of
+    the first run."""
+    first = None
+    for kind in args.executors.split(","):
+        load = os.getloadavg()
+        w0 = time.perf_counter()
+        with _open_executor(kind, args.workers) as ex:
+            start_wall = time.perf_counter() - w0
+            before, cpu0, wall0 = _children_cpu_s(), time.process_time(), time.perf_counter()
+            traj = patch_stream(bundle, scene, cams, span, o, seed_frames=[f], executor=ex,
+                                patches_per_task=args.patches_per_task)
+            wall = time.perf_counter() - wall0
+            head_cpu, after = time.process_time() - cpu0, _children_cpu_s()
+        workers_cpu = sum(c - before.get(pid, 0.0) for pid, c in after.items())
+        arrays = {k: getattr(traj, k) for k in ("ids", "seed_time_ms", "times_ms", "X_cm", "normal", "visible",
+                                                "photometric", "alive")}
+        same = None if first is None else all(
+            np.array_equal(first[k], a, equal_nan=a.dtype.kind == "f") and first[k].dtype == a.dtype
+            for k, a in arrays.items())
+        first = arrays if first is None else first
+        emit(what="executor", executor=kind, workers=1 if kind == "here" else args.workers,
+             patches_per_task=args.patches_per_task, cameras=len(cams), frames_each_way=args.frames,
+             seeds=int(traj.alive.any(1).sum()), patch_views_frames=int(traj.visible.sum()),
+             same_bits_as_first=same, start_wall_s=round(start_wall, 1), wall_s=round(wall, 1),
+             head_cpu_s=round(head_cpu, 1), workers_cpu_s=round(workers_cpu, 1),
+             cpu_s=round(head_cpu + workers_cpu, 1), load_before=[round(x, 2) for x in load],
+             load=[round(x, 2) for x in os.getloadavg()])
+
+
 def run(args: argparse.Namespace) -> None:
     bundle = as_built_dome("panel", seed=args.seed)
     bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=6000.0, seed=args.seed)
@@ -174,6 +244,8 @@ def run(args: argparse.Namespace) -> None:
     span = (table.time_of(f - nf), table.time_of(f + nf))
     t_seed = table.time_of(f)
     o = PatchOptions(track_frames=nf)
+    if args.executors != "here":
+        return run_executors(args, bundle, scene, cams, span, o, f)
     with tempfile.TemporaryDirectory() as tmp:
         c0 = time.process_time()
         write_group_depth(Path(tmp) / "depth", bundle, truth, (t_seed - 40.0, t_seed + 40.0), seed=args.seed)
@@ -217,7 +289,15 @@ def main() -> None:
     ap.add_argument("--seeding", type=str, default="images,depth",
                     help="how clouds are seeded, one run each: images (triangulated features), depth (the Kinects)")
     ap.add_argument("--save", type=str, default="", help="also write the trajectories and truth to this .npz")
-    run(ap.parse_args())
+    ap.add_argument("--executors", type=str, default="here",
+                    help="here (this process), or a comma list of here, pool (a local process pool), dask (a Dask "
+                         "LocalCluster of worker processes): the image-seeded stream on each, CPU, wall, same bits")
+    ap.add_argument("--workers", type=int, default=2, help="worker processes of --executors pool and dask")
+    ap.add_argument("--patches-per-task", type=int, default=1000)
+    args = ap.parse_args()
+    if args.workers < 1 or args.patches_per_task < 1:
+        raise SystemExit("--workers and --patches-per-task must be at least 1")
+    run(args)
 
 
 if __name__ == "__main__":

@@ -1,12 +1,19 @@
-"""The patch stream on the executor: one task, many tasks in this process and a local pool of 2 workers give the
-same arrays bit for bit; seeding from Kinect depth places seeds on the true surface."""
+"""The patch stream on the executor: one task, many tasks in this process, a local pool of 2 workers and a Dask
+cluster of 2 worker processes give the same arrays bit for bit, from the rendered scene and from its images read
+back from a video and PNG folders (the image source pickles without its open video and reopens it in the worker);
+seeding from Kinect depth places seeds on the true surface."""
 from __future__ import annotations
 
+import json
+import pickle
+
+import cv2
 import numpy as np
 import pytest
 
 from dome_calib.executor import SerialExecutor
 from dome_calib.executor.local import LocalProcessExecutor
+from dome_calib.recon.patches.images import open_images
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.run import patch_stream
 from dome_calib.synth.dome import nominal_dome
@@ -64,3 +71,75 @@ def test_a_pool_of_two_workers_gives_the_arrays_of_one_task(scene, whole):
         pooled = patch_stream(bundle, source, cams, span, OPTIONS, seed_frames=SEED_FRAMES, executor=pool,
                               patches_per_task=40)
     _same(traj, pooled)
+
+
+def write_images(folder, scene, cams: list[str], frames: range) -> None:
+    """The scene's grey frames of ``cams``: the first camera as a lossless video (FFV1), the others as PNG folders."""
+    folder.mkdir()
+    files = {}
+    for i, cam in enumerate(cams):
+        if i == 0:
+            video = cv2.VideoWriter(str(folder / f"{cam}.avi"), cv2.VideoWriter_fourcc(*"FFV1"), 25, (640, 480))
+            for f in frames:
+                video.write(cv2.cvtColor(scene.gray(cam, f), cv2.COLOR_GRAY2BGR))
+            video.release()
+            files[cam] = f"{cam}.avi"
+        else:
+            (folder / cam).mkdir()
+            for f in frames:
+                cv2.imwrite(str(folder / cam / f"img_{f:05d}.png"), scene.gray(cam, f))
+            files[cam] = cam
+    (folder / "images.json").write_text(json.dumps({"cameras": files, "first_frame": {cams[0]: frames[0]}}))
+
+
+@pytest.fixture(scope="module")
+def images(scene, tmp_path_factory):
+    bundle, source, cams = scene
+    folder = tmp_path_factory.mktemp("patch_images") / "images"
+    write_images(folder, source, cams, range(119, 125))
+    return folder
+
+
+class _Noise:
+    """Grey noise frames (cheap to make): what the image source reads back needs no scene."""
+
+    def gray(self, cam: str, frame: int) -> np.ndarray:
+        return np.random.default_rng([int(cam.replace("_", "")), frame]).integers(0, 256, (480, 640), np.uint8)
+
+
+def test_the_image_source_pickles_without_its_open_video_and_frames(scene, tmp_path):
+    bundle, _, cams = scene
+    write_images(tmp_path / "images", _Noise(), cams[:2], range(119, 125))
+    source = open_images(tmp_path / "images", bundle)
+    first = source.gray(cams[0], 122)  # the video is open and frames are cached
+    copy = pickle.loads(pickle.dumps(source))
+    assert len(pickle.dumps(source)) < 20_000  # paths and sizes, not decoded frames
+    for cam in cams[:2]:
+        for f in (123, 120):  # backward: the copy reopens and seeks
+            assert np.array_equal(copy.gray(cam, f), source.gray(cam, f))
+    assert np.array_equal(copy.gray(cams[0], 122), first)
+    source.close(), copy.close()
+
+
+@pytest.mark.slow  # a LocalCluster of 2 processes: each imports the toolkit, compiles and renders/decodes: ~25 CPU-s
+def test_a_dask_cluster_gives_the_arrays_of_one_task(scene, whole, images):
+    from distributed import Client, LocalCluster
+
+    from dome_calib.executor.dask import DaskExecutor
+
+    bundle, source, cams = scene
+    span, traj = whole
+    read = open_images(images, bundle)
+    from_images = patch_stream(bundle, read, cams, span, OPTIONS, seed_frames=SEED_FRAMES)
+    assert from_images.alive.any(1).sum() > 30
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
+                      worker_dashboard_address=":0") as lc, Client(lc, set_as_default=False) as client:
+        ex = DaskExecutor(lc.scheduler_address, client=client)
+        rendered = patch_stream(bundle, source, cams, span, OPTIONS, seed_frames=SEED_FRAMES, executor=ex,
+                                patches_per_task=40)
+        decoded = patch_stream(bundle, read, cams, span, OPTIONS, seed_frames=SEED_FRAMES, executor=ex,
+                               patches_per_task=40)
+        stages = ex.stats_dict()["stages"]
+    _same(traj, rendered)
+    _same(from_images, decoded)
+    assert len(stages["seed_task"]["workers"]) == 2 and stages["track_task"]["tasks"] > 2

@@ -220,3 +220,22 @@ def test_reconstruct_with_images_refines_the_people_and_adds_the_patch_stream(ca
     for name in sorted(mine):  # without --images: the people of the run without, byte for byte
         if name.startswith("body3DScene") or name == "cameras.json":
             assert (root / "with" / name).read_bytes() == (root / "plain" / name).read_bytes(), name
+
+
+@pytest.mark.slow  # reconstruct --images twice, once on a pool of 2 spawned workers: ~40 CPU-s
+def test_reconstruct_images_on_two_workers_writes_the_same_patch_file(capture, dome_calib_cli):
+    root, _, _, _ = capture
+    args = ("reconstruct", str(root / "det"), "--bundle", str(root / "bundle"), "--body-model", "PANOPTIC19",
+            "--images", str(root / "images"))
+    one = dome_calib_cli(*args, "--workers", "1", "-o", str(root / "workers1"))
+    assert one.returncode == 0, one.stderr
+    two = dome_calib_cli(*args, "--workers", "2", "-o", str(root / "workers2"))
+    assert two.returncode == 0, two.stderr
+    names = sorted(p.name for p in (root / "workers1").iterdir())
+    assert "patches.parquet" in names and names == sorted(p.name for p in (root / "workers2").iterdir())
+    for name in names:  # the patch file and the people byte for byte; the page and the manifest name their folder
+        if name not in ("index.html", ".dome-calib-written.json"):
+            assert (root / "workers2" / name).read_bytes() == (root / "workers1" / name).read_bytes(), name
+    page = [(root / f"workers{n}" / "index.html").read_text().replace(f"workers{n}", "OUT") for n in (1, 2)]
+    assert page[0] == page[1]
+    assert one.stdout.replace("workers1", "OUT") == two.stdout.replace("workers2", "OUT")

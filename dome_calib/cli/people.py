@@ -51,9 +51,9 @@ def reconstruct(
                                 "<camera>/). After the people, the dense patch trajectory stream is tracked on them, "
                                 "each patch given the body part it moves with, into OUT/patches.parquet."),
     workers: int = typer.Option(1, "--workers", help="Processes for long sessions (chunks of 600 times, then the "
-                                "body over time's windows; 1 to 1024)."),
-    scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler (tcp://HOST:PORT) to run the chunks "
-                                  "and windows on instead of local processes."),
+                                "body over time's windows, the --images patch clouds; 1 to 1024)."),
+    scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler (tcp://HOST:PORT) to run the chunks, "
+                                  "windows and patch clouds on instead of local processes."),
 ) -> None:
     """Reconstruct groups of people from per-camera OpenPose detections: find each person across the cameras,
     triangulate their joints in the world frame (cm), keep their id over time, and write one Panoptic
@@ -80,7 +80,8 @@ def reconstruct(
             summary = run_reconstruction(plan, executor=executor, progress=bars.task("reconstructing times"),
                                          page=page, after_people=None if patches is None else (
                                              lambda seq: patches.run(seq.times_ms, seq.bodies,
-                                                                     bars.task("tracking patch clouds"))))
+                                                                     bars.task("tracking patch clouds"),
+                                                                     executor=executor)))
         typer.echo(format_summary(summary))
         if patches is not None:
             typer.echo(patches.summary)

@@ -24,6 +24,10 @@ Every file is checked before any work (opened, its size read; a folder's images 
 problem is one ReconError naming the camera and the file. Videos are decoded forward and the decoded grey frames
 kept in a bounded cache (``cache_mb``); a frame before the last one read reopens the video, seeks, and decodes the
 :data:`SEEK_BLOCK` frames up to it (kept too: the patch stage walks backward from its seeds).
+
+**On an executor.** The source pickles as its paths and checked sizes, without decoded frames or open videos: a
+worker process (the local pool, a Dask worker) reopens the files itself at the same paths (``open_images`` resolves
+them), so the workers need the images folder mounted where this machine has it.
 """
 from __future__ import annotations
 
@@ -121,6 +125,13 @@ class _Reader:
             self._capture.release()
             self._capture = None
 
+    def __getstate__(self) -> dict:
+        """Pickled without the open video (an OpenCV capture does not pickle): the copy reopens the file at its
+        first read (an executor's worker reads the same path)."""
+        state = dict(self.__dict__)
+        state["_capture"], state["_next"] = None, 0
+        return state
+
 
 class ImageSource:
     """Real images of named cameras (a :class:`~dome_calib.recon.patches.frames.FrameSource`); see the module
@@ -171,6 +182,13 @@ class ImageSource:
     def close(self) -> None:
         for r in self._readers.values():
             r.close()
+
+    def __getstate__(self) -> dict:
+        """Pickled without its decoded frames (an executor task decodes what it reads, from the same paths) and
+        without open videos (:meth:`_Reader.__getstate__`)."""
+        state = dict(self.__dict__)
+        state["_cache"], state["_bytes"] = OrderedDict(), 0
+        return state
 
 
 def images_entries(folder: Path, bundle: Bundle) -> ImagesFile:
@@ -246,8 +264,9 @@ def _folder_reader(camera: str, path: Path) -> _Reader:
 
 def open_images(folder: str | Path, bundle: Bundle, *, cache_mb: float = CACHE_MB) -> ImageSource:
     """Check and open the images of ``folder`` (see the module docstring): every camera's file opened, its frames
-    listed and its size checked against the calibration, before any image is decoded."""
-    folder = Path(folder)
+    listed and its size checked against the calibration, before any image is decoded. Paths are made absolute: an
+    executor's workers reopen them."""
+    folder = Path(folder).resolve()
     if not folder.is_dir():
         raise ReconError(f"--images {folder}: not a folder")
     entries = images_entries(folder, bundle)

@@ -42,16 +42,17 @@ class PatchStage:
     ties_options: TieOptions | None = None
     summary: str = ""  # what the run gave, one line (set by run, completed once the people are refined)
 
-    def run(self, times_ms: np.ndarray, bodies: list, progress: Callable[[int, int], None] | None = None
-            ) -> FurtherStage:
-        """The stream over the people's times (``bodies[t]``: a time's people, with ``ids`` and ``X_cm``), labelled
+    def run(self, times_ms: np.ndarray, bodies: list, progress: Callable[[int, int], None] | None = None, *,
+            executor=None) -> FurtherStage:
+        """The stream over the people's times (``bodies[t]``: a time's people, with ``ids`` and ``X_cm``; its seeding
+        and tracking tasks on ``executor``: ``reconstruct``'s ``--workers`` / ``--scheduler``, None here), labelled
         by part, the parts' motions as ties on the patches' times (the people's own where the images' reference
         stream is the people's; a tie on another time ties nothing) -> the :class:`FurtherStage` whose ``write``
         puts ``patches.parquet`` into the staged output folder."""
         t = np.asarray(times_ms, dtype=float)
         stream = reference_stream(self.bundle, self.cameras)
         traj = patch_stream(self.bundle, self.source, self.cameras, (float(t[0]), float(t[-1])), self.options,
-                            stream=stream, progress=progress)
+                            stream=stream, executor=executor, progress=progress)
         joints, ids = people_at(t, bodies, traj.times_ms)
         labels = label_parts(traj.X_cm[:, :, 0], traj.normal, traj.alive, joints)
         motions = part_motions(traj.X_cm, traj.alive, labels.person, labels.bone)
