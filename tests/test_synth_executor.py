@@ -27,6 +27,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow  # ~10 s: a Dask cluster's start; test_executor_dask and test_calibrate keep Dask in the default run
 def test_a_dask_cluster_renders_the_same_bytes_as_this_process(tmp_path):
     from distributed import Client, LocalCluster
 
