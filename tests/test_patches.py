@@ -12,11 +12,10 @@ from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.run import clocks_of, imaged_views, patch_stream, run_cloud
 from dome_calib.recon.patches.seed import Seeds, seed_patches
 from dome_calib.recon.patches.track import Clock, flow_camera, quantise_cm
-from dome_calib.synth.dome import nominal_dome
-from dome_calib.synth.group import GroupOptions, make_group
-from dome_calib.synth.skeleton import synthetic_sync
 from dome_calib.synth.textured import (TexturedScene, TextureOptions, nearest_surface_points, surface_points_cm,
                                        surface_visibility)
+
+from .patches_helpers import one_person_capture
 
 VELOCITY_PX_MS = np.array([0.11, -0.07])  # 3.7 / 2.3 px per 33 ms frame
 
@@ -60,9 +59,7 @@ def test_a_camera_on_its_own_clock_is_brought_to_the_reference_times(forward):
 @pytest.fixture(scope="module")
 def small():
     """8 VGA (4 on each of two panels) of the tiny dome, 1 HD at half size; one person; a cloud tracked 1 frame."""
-    bundle = nominal_dome("tiny", seed=0)
-    bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=1500.0, seed=0)
-    truth = make_group(GroupOptions(n_people=1, scenario="conversation", start_ms=100.0, duration_ms=1300.0, seed=2))
+    bundle, truth = one_person_capture()
     scene = TexturedScene(bundle, truth, TextureOptions(scale={"vga": 1.0, "hd": 0.5, "kinect-color": 0.5}))
     vga = [n for n in sorted(bundle.cameras) if str(bundle.cameras[n].type) == "vga"]
     hd = [n for n in sorted(bundle.cameras) if str(bundle.cameras[n].type) == "hd"][:1]

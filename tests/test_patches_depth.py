@@ -11,19 +11,15 @@ from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.run import imaged_views
 from dome_calib.recon.patches.seed_depth import DepthFrames, seed_from_depth
 from dome_calib.synth.depth_people import write_group_depth
-from dome_calib.synth.dome import nominal_dome
-from dome_calib.synth.group import GroupOptions, make_group
-from dome_calib.synth.skeleton import synthetic_sync
 from dome_calib.synth.textured import TexturedScene, TextureOptions, nearest_surface_points, surface_points_cm
 
+from .patches_helpers import one_person_capture
 from .recon_helpers import REAL_KCALIBRATION
 
 
 def test_depth_seeds_lie_on_the_surface_with_its_normal(tmp_path):
-    bundle = nominal_dome("tiny", seed=0)
-    bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=1500.0, seed=0)
+    bundle, truth = one_person_capture()
     bundle.kinect = read_kcalibration(REAL_KCALIBRATION)
-    truth = make_group(GroupOptions(n_people=1, scenario="conversation", start_ms=100.0, duration_ms=1300.0, seed=2))
     scene = TexturedScene(bundle, truth, TextureOptions())
     vga = [n for n in sorted(bundle.cameras) if str(bundle.cameras[n].type) == "vga"]
     t = bundle.sync.streams["vga"].time_of(120)

@@ -16,17 +16,14 @@ from dome_calib.executor.local import LocalProcessExecutor
 from dome_calib.recon.patches.images import open_images
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.run import patch_stream
-from dome_calib.synth.dome import nominal_dome
-from dome_calib.synth.group import GroupOptions, make_group
-from dome_calib.synth.skeleton import synthetic_sync
 from dome_calib.synth.textured import TexturedScene, TextureOptions
+
+from .patches_helpers import one_person_capture
 
 
 @pytest.fixture(scope="module")
 def scene():
-    bundle = nominal_dome("tiny", seed=0)
-    bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=1500.0, seed=0)
-    truth = make_group(GroupOptions(n_people=1, scenario="conversation", start_ms=100.0, duration_ms=1300.0, seed=2))
+    bundle, truth = one_person_capture()
     scene = TexturedScene(bundle, truth, TextureOptions(scale={"vga": 1.0, "hd": 0.5, "kinect-color": 0.5}))
     cams = [n for n in sorted(bundle.cameras) if str(bundle.cameras[n].type) == "vga"][:5]
     return bundle, scene, cams

@@ -21,11 +21,10 @@ from dome_calib.recon.patches.parts import BONES, PartLabels
 from dome_calib.recon.patches.stage import people_at
 from dome_calib.recon.patches.stream_file import METADATA_KEY, patch_table, write_patch_table
 from dome_calib.recon.project import project_points, view_set
-from dome_calib.synth.dome import nominal_dome
-from dome_calib.synth.group import GroupOptions, make_group
 from dome_calib.synth.openpose_write import write_openpose_folder
-from dome_calib.synth.skeleton import synthetic_sync
 from dome_calib.synth.textured import TexturedScene, TextureOptions
+
+from .patches_helpers import one_person_capture
 
 FRAMES = np.arange(116, 123)  # VGA frames: 120 seeds a cloud (every 20th); parts need 5 frames
 VIDEO_CAMERA = "01_01"
@@ -35,9 +34,7 @@ VIDEO_CAMERA = "01_01"
 def inputs(tmp_path_factory):
     """8 VGA cameras of the tiny dome, one person, 7 frames: the bundle and the detections (PANOPTIC19)."""
     root = tmp_path_factory.mktemp("images")
-    bundle = nominal_dome("tiny", seed=0)
-    bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=1500.0, seed=0)
-    truth = make_group(GroupOptions(n_people=1, scenario="conversation", start_ms=100.0, duration_ms=1300.0, seed=2))
+    bundle, truth = one_person_capture()
     cams = [n for n in sorted(bundle.cameras) if str(bundle.cameras[n].type) == "vga"][:8]
     table = bundle.sync.streams["vga"]
     X, _ = truth.joints_cm(table.times_of(FRAMES))

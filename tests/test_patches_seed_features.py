@@ -12,10 +12,9 @@ from dome_calib.recon.patches.run import imaged_views
 from dome_calib.recon.patches.seed import seed_patches
 from dome_calib.recon.patches.seed_features import match_pair, seed_from_features
 from dome_calib.recon.project import project_points
-from dome_calib.synth.dome import nominal_dome
-from dome_calib.synth.group import GroupOptions, make_group
-from dome_calib.synth.skeleton import synthetic_sync
 from dome_calib.synth.textured import TexturedScene, TextureOptions, nearest_surface_points
+
+from .patches_helpers import one_person_capture
 
 CAMS = ["01_02", "13_02"]
 FRAME = 120
@@ -23,9 +22,7 @@ FRAME = 120
 
 @pytest.fixture(scope="module")
 def wide():
-    bundle = nominal_dome("tiny", seed=0)
-    bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=1500.0, seed=0)
-    truth = make_group(GroupOptions(n_people=1, scenario="conversation", start_ms=100.0, duration_ms=1300.0, seed=2))
+    bundle, truth = one_person_capture()
     scene = TexturedScene(bundle, truth, TextureOptions())
     views = imaged_views(scene, CAMS)
     axes = views.R[:, 2]
