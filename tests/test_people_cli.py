@@ -358,3 +358,27 @@ def test_a_kept_detection_folder_left_by_a_killed_run_is_removed_by_the_next(tmp
         assert folder.is_dir() and folder.name.startswith(f"{PREFIX}{tag}.")
         assert not dead.exists() and live.exists() and elsewhere.exists() and other.exists()
     assert not folder.exists()
+
+
+def test_every_input_place_of_reconstruct_is_checked_in_the_plan(group, tmp_path):
+    """The plan holds every input place of `reconstruct` in one list (detections, bundle, --depth, --videos,
+    --images): an output inside any of them, or holding one, is refused before any work. --videos and --images were
+    outside that list (--images had its own copy of the check in the patch stage; --videos none)."""
+    import pytest
+
+    from dome_calib.io_utils import OutputPathError
+    from dome_calib.recon.people.commands import plan_reconstruction
+
+    root, _, _ = group
+    for flag in ("videos", "images"):
+        place = tmp_path / flag
+        place.mkdir()
+        with pytest.raises(OutputPathError, match="inside the input folder"):
+            plan_reconstruction(root / "det", root / "bundle", place / "out", body_model="BODY_25", **{flag: place})
+        holder = tmp_path / f"holds_{flag}"
+        (holder / "in").mkdir(parents=True)
+        with pytest.raises(OutputPathError, match="holds the input"):
+            plan_reconstruction(root / "det", root / "bundle", holder, body_model="BODY_25", **{flag: holder / "in"})
+    plan = plan_reconstruction(root / "det", root / "bundle", tmp_path / "out", body_model="BODY_25",
+                               images=tmp_path / "images")
+    assert plan.images == (tmp_path / "images").resolve()

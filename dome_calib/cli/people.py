@@ -69,11 +69,11 @@ def reconstruct(
         check_workers(workers)
         plan = plan_reconstruction(detections, bundle, out, body_model=body_model, camera_map=camera_map,
                                    reference=reference, options=options,
-                                   depth_folder=depth, videos=videos)  # every input checked, in seconds
+                                   depth_folder=depth, videos=videos, images=images)  # every input, in seconds
         patches = None
         if images is not None:
             from dome_calib.recon.patches.stage import plan_patches
-            patches = plan_patches(images, plan.bundle, plan.out, plan.fps)  # checked before any work
+            patches = plan_patches(plan)  # the images' contents, before any work
         page = people_page_writer(plan.out, bundle, detections, camera_map=camera_map, body_model=plan.model.value,
                                   files=plan.source.files)
         with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:

@@ -10,16 +10,13 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
-from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 
 from dome_calib.bundle import Bundle, SyncTable
-from dome_calib.bundle_io import load_bundle
-from dome_calib.io_utils import refuse_output_among_inputs, refuse_output_inside_inputs
 from dome_calib.recon.errors import ReconError
-from dome_calib.recon.people.commands import FurtherStage
+from dome_calib.recon.people.commands import FurtherStage, ReconstructPlan
 from dome_calib.recon.patches.images import ImageSource, open_images, with_shared_clock
 from dome_calib.recon.patches.body import TieOptions, flag_joints, joint_ties
 from dome_calib.recon.patches.model import PatchOptions
@@ -90,20 +87,17 @@ class PatchStage:
                          + (f" ({shown})" if shown else ""))
 
 
-def plan_patches(images: str | Path, bundle: Bundle | str | Path, out: Path, fps: Fraction | None,
-                 options: PatchOptions | None = None) -> PatchStage:
-    """Check ``--images`` (every camera's file, its frames and size: :func:`~.images.open_images`) and that the
-    output lies neither among nor inside it; ``bundle`` (or its folder); a bundle without sync tables takes the
-    detections' rate ``fps``."""
-    bundle = bundle if isinstance(bundle, Bundle) else load_bundle(bundle)
-    images = Path(images).resolve()
-    refuse_output_among_inputs(out, [images], whole_folder=True)
-    refuse_output_inside_inputs(out, [images])
-    source = open_images(images, bundle)
-    clocked = with_shared_clock(bundle, source, fps)
+def plan_patches(plan: ReconstructPlan, options: PatchOptions | None = None) -> PatchStage:
+    """Check the images of a reconstruction's plan (``--images``, which :func:`plan_reconstruction` checked as an
+    input place beside the others): every camera's file, its frames and size (:func:`~.images.open_images`); a
+    bundle without sync tables takes the detections' rate ``plan.fps``."""
+    if plan.images is None:
+        raise ValueError("plan_patches: the plan has no images (plan_reconstruction(..., images=FOLDER))")
+    source = open_images(plan.images, plan.bundle)
+    clocked = with_shared_clock(plan.bundle, source, plan.fps)
     if len(source.names) < 2:
-        raise ReconError(f"--images {images}: images of {len(source.names)} camera; patches are triangulated from "
-                         "two cameras or more")
+        raise ReconError(f"--images {plan.images}: images of {len(source.names)} camera; patches are triangulated "
+                         "from two cameras or more")
     cameras_by_stream(clocked, source.names)  # every camera's sync table, before any work
     return PatchStage(source=source, bundle=clocked, cameras=source.names, options=options or PatchOptions())
 

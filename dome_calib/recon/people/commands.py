@@ -100,6 +100,7 @@ class ReconstructPlan:
     fps_from: str = ""
     lab_up: str | None = None
     bundle: Bundle | None = None  # the calibration read once, handed to the files written beside the people
+    images: Path | None = None  # --images: the cameras' frames for the patch stream, checked as an input place
 
 
 def people_options(*, min_views: int = 3, smooth: int = 0, fps: str | None = None, per_frame: bool = False
@@ -200,10 +201,12 @@ def plan_reconstruction(detections: str | Path, bundle_folder: str | Path, out: 
                         reference: str | None = None, options: PeopleOptions | None = None,
                         depth_folder: str | Path | None = None,
                         depth_options: DepthWitnessOptions | None = None,
-                        videos: str | Path | None = None) -> ReconstructPlan:
+                        videos: str | Path | None = None, images: str | Path | None = None) -> ReconstructPlan:
     """Check every input and the output place, in seconds, before any work (see the module docstring); the paths
-    are resolved (``.``, ``..``, links), ``out`` defaults to :func:`default_output` and may lie neither inside the
-    detections, the bundle nor the depth frames. ``depth_folder``: Kinect depth frames (``KINECTNODE<n>/depth_<k>.png``)
+    are resolved (``.``, ``..``, links), ``out`` defaults to :func:`default_output` and may lie inside none of the
+    input places (detections, bundle, depth frames, videos, images), nor be or hold one. ``images``: the cameras'
+    frames of the patch stream (``--images``), only checked here as a place; their contents are checked by
+    :func:`~dome_calib.recon.patches.stage.plan_patches`. ``depth_folder``: Kinect depth frames (``KINECTNODE<n>/depth_<k>.png``)
     whose sensors witness the joints (:mod:`~dome_calib.recon.people.depth_witness`); the bundle must then hold the
     Kinects' calibration and depth sync tables. ``videos``: the folder of the cameras' videos, whose frame rate is
     the detections' when the bundle has no sync tables and ``options.shared_fps`` is not given
@@ -217,7 +220,8 @@ def plan_reconstruction(detections: str | Path, bundle_folder: str | Path, out: 
                              f"{', '.join(m.value for m in BodyModel)})") from None
     detections = Path(detections).resolve()
     out = Path(out) if out is not None else default_output(detections)
-    inputs = [detections, bundle_folder] + ([depth_folder] if depth_folder is not None else [])
+    images = Path(images).resolve() if images is not None else None
+    inputs = [detections, bundle_folder] + [p for p in (depth_folder, videos, images) if p is not None]
     refuse_output_among_inputs(out, inputs, whole_folder=True)  # OUT is replaced whole
     refuse_output_inside_inputs(out, inputs)
     check_people_folder(out)
@@ -243,7 +247,7 @@ def plan_reconstruction(detections: str | Path, bundle_folder: str | Path, out: 
     return ReconstructPlan(out=out, views=view_set(bundle, source.cameras), source=source, times_ms=times,
                            numbers=numbers, reference=ref, model=model, options=options, depth=depth, fps=fps,
                            fps_from=fps_from if fps is not None else "",
-                           lab_up=imported_up(bundle.calib_data_source), bundle=bundle)
+                           lab_up=imported_up(bundle.calib_data_source), bundle=bundle, images=images)
 
 
 #: The share of the joints the cameras agreed on that the Kinects' depth may see through before the run says so:
