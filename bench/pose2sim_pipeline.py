@@ -12,6 +12,9 @@ Prints one JSON object per line:
 - ``reprojection_px``: per marker, the median pixel distance between each run's TRC markers reprojected through the
   imported bundle and the participant's detections (confidence > 0.3), over the 4 cameras and 100 frames: which run
   lands on the images;
+- ``per_camera_px``: the same per camera (the participant: the detected person nearest both runs' markers), and
+  ``others_triangulate_px``: per marker and camera, the median px between that camera's detection and the point the
+  other three triangulate to: which cameras agree, so which run lands on the cameras that agree;
 - ``two_people`` (``--two-people``): two people of a synthetic group seen by the demo's tiny dome through the
   synthetic detector with BODY_25 feet, reconstructed, exported to TRC and through Pose2Sim's three steps in its
   multi-person mode: the ``.mot`` files (one per person) and per person the joint angles' RMS against the same
@@ -71,6 +74,8 @@ def trc_world_cm(path: Path) -> tuple[list[str], np.ndarray]:
 
 
 def reprojection_px(bundle, trc: Path, det) -> dict[str, float]:
+    """Per marker, the median over cameras and frames of the distance between the TRC's marker reprojected and the
+    nearest detection of that joint (confidence > 0.3)."""
     markers, X = trc_world_cm(trc)
     out = {}
     for m, j in BODY_25B_ID.items():
@@ -84,6 +89,68 @@ def reprojection_px(bundle, trc: Path, det) -> dict[str, float]:
                 if len(seen) and np.isfinite(uv[k]).all():
                     errs.append(float(np.min(np.linalg.norm(seen - uv[k], axis=-1))))
         out[m] = round(float(np.median(errs)), 1)
+    return out
+
+
+def participant_detections(bundle, det, trcs: list[Path]) -> tuple[list[str], np.ndarray]:
+    """The participant's detection in every camera and frame: the detected person nearest (median over the compared
+    joints) to the runs' markers reprojected, averaged over the runs ``trcs``. -> cameras, (F, V, 25, 3) BODY_25B
+    keypoints (confidence 0 where none)."""
+    cams = sorted(bundle.cameras)
+    runs = [trc_world_cm(t) for t in trcs]
+    F = min(len(X) for _, X in runs)
+    out = np.zeros((F, len(cams), 25, 3))
+    ids = list(BODY_25B_ID.values())
+    for v, cam in enumerate(cams):
+        frames = sorted(det.people[cam])[:F]
+        uv = np.mean([project_points(view_set(bundle, [cam]), X[:len(frames), [mk.index(m) for m in BODY_25B_ID]]
+                                     .reshape(-1, 3)).uv_px[0].reshape(len(frames), len(ids), 2)
+                      for mk, X in runs], axis=0)
+        for k, f in enumerate(frames):
+            kp = raw_keypoints(cam, f)
+            if not len(kp):
+                continue
+            d = np.where(kp[:, ids, 2] > 0.3, np.linalg.norm(kp[:, ids, :2] - uv[k][None], axis=-1), np.nan)
+            score = np.array([np.nanmedian(r) if np.isfinite(r).any() else np.inf for r in d])
+            if np.isfinite(score).any():
+                out[k, v] = kp[int(np.argmin(score))]
+    return cams, out
+
+
+def per_camera_px(bundle, trc: Path, cams: list[str], kp: np.ndarray) -> dict[str, dict[str, float]]:
+    """marker -> camera -> median px between the TRC's marker reprojected and the participant's detection
+    (confidence > 0.3)."""
+    markers, X = trc_world_cm(trc)
+    out: dict[str, dict[str, float]] = {}
+    for m, j in BODY_25B_ID.items():
+        out[m] = {}
+        for v, cam in enumerate(cams):
+            uv = project_points(view_set(bundle, [cam]), X[:len(kp), markers.index(m)]).uv_px[0]
+            d = np.where(kp[:, v, j, 2] > 0.3, np.linalg.norm(uv - kp[:, v, j, :2], axis=-1), np.nan)
+            out[m][cam] = round(float(np.nanmedian(d)), 1) if np.isfinite(d).any() else None
+    return out
+
+
+def camera_agreement(bundle, cams: list[str], kp: np.ndarray) -> dict[str, dict[str, float]]:
+    """marker -> camera -> median px between the camera's detection of the participant's joint and the point the
+    other cameras' detections triangulate to (no outlier rejection): a camera far from the others disagrees with
+    them, whichever run is right."""
+    from dome_calib.recon.triangulate import TriangulationOptions, triangulate
+
+    views = view_set(bundle, cams)
+    loose = TriangulationOptions(inlier_threshold_px=1e6, min_views=2)
+    out: dict[str, dict[str, float]] = {}
+    for m, j in BODY_25B_ID.items():
+        conf = np.where(kp[:, :, j, 2] > 0.3, np.minimum(kp[:, :, j, 2], 1.0), 0.0)
+        uv = np.where(conf[..., None] > 0, kp[:, :, j, :2], np.nan)
+        out[m] = {}
+        for v, cam in enumerate(cams):
+            others = conf.copy()
+            others[:, v] = 0.0
+            X = triangulate(views, uv, others, loose).X_cm
+            back = project_points(view_set(bundle, [cam]), X).uv_px[0]
+            d = np.linalg.norm(back - uv[:, v], axis=-1)
+            out[m][cam] = round(float(np.nanmedian(d)), 1) if np.isfinite(d).any() else None
     return out
 
 
@@ -148,6 +215,10 @@ def main() -> None:
         ref_trc = next((tmp / "pose2sim" / "pose-3d").glob("*_0-99.trc"))
         emit(reprojection_px={"ours": reprojection_px(bundle, trcs[0], det),
                               "pose2sim": reprojection_px(bundle, ref_trc, det)})
+        cams, kp = participant_detections(bundle, det, [trcs[0], ref_trc])
+        emit(per_camera_px={"ours": per_camera_px(bundle, trcs[0], cams, kp),
+                            "pose2sim": per_camera_px(bundle, ref_trc, cams, kp)},
+             others_triangulate_px=camera_agreement(bundle, cams, kp))
         if args.two_people:
             two_people(tmp)
 
