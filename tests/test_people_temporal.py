@@ -344,6 +344,24 @@ def test_a_joint_two_close_views_see_is_held_by_the_bone_the_body_size_gives(rig
     assert ankle_error(filled, inferred).max() < 3.0
 
 
+def test_an_extra_joints_depth_is_unheld_by_two_close_views_only(rig):
+    """Which extra joints move with their anchor: those two views only see (two always agree) whose rays meet at less
+    than 30 degrees (8 here; the tiny dome's 10); not two views 64 degrees apart (two of the few-camera rig's, as
+    the real Pose2Sim trial's 55-130: there moving the feet with the ankles put them farther from the cameras that
+    agree), nor three views."""
+    from dome_calib.recon.people.extras import depth_unheld
+
+    bundle, _, _, X, present = rig
+    views = _with_twin(view_set(bundle, sorted(bundle.cameras)[:4]), "00_00", 10.0)
+    point = X[0, np.flatnonzero(present[0])[0], JOINTS19.index("l_ankle")]
+    inliers = np.zeros((4, 5), bool)
+    inliers[0, [0, 4]] = True  # 00_00 and its twin, 10 degrees
+    inliers[1, [0, 1]] = True  # two of the rig's cameras
+    inliers[2, [0, 1, 4]] = True  # three views
+    inliers[3, [0]] = True  # one view: not triangulated
+    np.testing.assert_array_equal(depth_unheld(views, np.tile(point, (4, 1)), inliers, 3), [True, False, False, False])
+
+
 def test_an_extra_joint_moves_with_its_anchor():
     """A foot seen by the same two near-parallel views as its ankle shares the ankle's error along their rays (the
     same camera's bias, the same person): the extra joint is put at the body's ankle + its offset from the ankle
