@@ -12,9 +12,10 @@ Prints one JSON object per line:
 - ``reprojection_px``: per marker, the median pixel distance between each run's TRC markers reprojected through the
   imported bundle and the participant's detections (confidence > 0.3), over the 4 cameras and 100 frames: which run
   lands on the images;
-- ``per_camera_px``: the same per camera (the participant: the detected person nearest both runs' markers), and
-  ``others_triangulate_px``: per marker and camera, the median px between that camera's detection and the point the
-  other three triangulate to: which cameras agree, so which run lands on the cameras that agree;
+- ``per_camera_px``: the same per camera (the participant: the detected person nearest both runs' markers);
+  ``agreeing_cameras``: per marker, the frames where 3 of the 4 cameras agree within 15 px and how often each camera
+  is the odd one; ``px_on_agreeing_cameras_filtered``: each run's TRC after Pose2Sim's filtering (what its
+  kinematics reads) against the detections of the cameras that agree, median px: which run the images side with;
 - ``two_people`` (``--two-people``): two people of a synthetic group seen by the demo's tiny dome through the
   synthetic detector with BODY_25 feet, reconstructed, exported to TRC and through Pose2Sim's three steps in its
   multi-person mode: the ``.mot`` files (one per person) and per person the joint angles' RMS against the same
@@ -131,26 +132,47 @@ def per_camera_px(bundle, trc: Path, cams: list[str], kp: np.ndarray) -> dict[st
     return out
 
 
-def camera_agreement(bundle, cams: list[str], kp: np.ndarray) -> dict[str, dict[str, float]]:
-    """marker -> camera -> median px between the camera's detection of the participant's joint and the point the
-    other cameras' detections triangulate to (no outlier rejection): a camera far from the others disagrees with
-    them, whichever run is right."""
+def agreeing_cameras(bundle, cams: list[str], kp: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """marker -> ((F,) frames where 3 of the 4 cameras agree, (F, V) those cameras): per frame, the best of the
+    3-camera triangulations of the participant's detections (the smallest worst reprojection, no outlier rejection),
+    if that worst is within 15 px (3 sigma of this detector's noise); the fourth camera is then the odd one."""
+    import itertools
+
     from dome_calib.recon.triangulate import TriangulationOptions, triangulate
 
     views = view_set(bundle, cams)
     loose = TriangulationOptions(inlier_threshold_px=1e6, min_views=2)
-    out: dict[str, dict[str, float]] = {}
+    out = {}
+    F, V = kp.shape[:2]
     for m, j in BODY_25B_ID.items():
         conf = np.where(kp[:, :, j, 2] > 0.3, np.minimum(kp[:, :, j, 2], 1.0), 0.0)
         uv = np.where(conf[..., None] > 0, kp[:, :, j, :2], np.nan)
-        out[m] = {}
-        for v, cam in enumerate(cams):
-            others = conf.copy()
-            others[:, v] = 0.0
-            X = triangulate(views, uv, others, loose).X_cm
-            back = project_points(view_set(bundle, [cam]), X).uv_px[0]
-            d = np.linalg.norm(back - uv[:, v], axis=-1)
-            out[m][cam] = round(float(np.nanmedian(d)), 1) if np.isfinite(d).any() else None
+        best, agree = np.full(F, np.inf), np.zeros((F, V), bool)
+        for three in itertools.combinations(range(V), 3):
+            c = np.zeros_like(conf)
+            c[:, three] = conf[:, three]
+            X = triangulate(views, uv, c, loose).X_cm
+            r = np.stack([np.linalg.norm(project_points(view_set(bundle, [cams[v]]), X).uv_px[0] - uv[:, v], axis=-1)
+                          for v in three], axis=1)
+            worst = np.where(np.isfinite(r).all(1), r.max(1), np.inf)
+            better = worst < best
+            best[better] = worst[better]
+            agree[better] = np.isin(np.arange(V), three)
+        out[m] = (best < 15.0, agree)
+    return out
+
+
+def on_agreeing_cameras(bundle, trc: Path, cams: list[str], kp: np.ndarray, agreeing) -> dict[str, float]:
+    """marker -> median px between the TRC's marker reprojected and the participant's detections in the cameras
+    that agree (:func:`agreeing_cameras`)."""
+    markers, X = trc_world_cm(trc)
+    out = {}
+    for m, j in BODY_25B_ID.items():
+        ok, agree = agreeing[m]
+        d = np.stack([np.linalg.norm(project_points(view_set(bundle, [cam]), X[:len(kp), markers.index(m)]).uv_px[0]
+                                     - kp[:, v, j, :2], axis=-1) for v, cam in enumerate(cams)], axis=1)
+        d = d[ok[:, None] & agree]
+        out[m] = round(float(np.nanmedian(d)), 1) if np.isfinite(d).any() else None
     return out
 
 
@@ -216,9 +238,16 @@ def main() -> None:
         emit(reprojection_px={"ours": reprojection_px(bundle, trcs[0], det),
                               "pose2sim": reprojection_px(bundle, ref_trc, det)})
         cams, kp = participant_detections(bundle, det, [trcs[0], ref_trc])
+        agreeing = agreeing_cameras(bundle, cams, kp)
+        filtered = {"ours": next((tmp / "ours" / "pose-3d").glob("*_filt_butterworth.trc")),
+                    "pose2sim": next((tmp / "pose2sim" / "pose-3d").glob("*_filt_butterworth.trc"))}
         emit(per_camera_px={"ours": per_camera_px(bundle, trcs[0], cams, kp),
                             "pose2sim": per_camera_px(bundle, ref_trc, cams, kp)},
-             others_triangulate_px=camera_agreement(bundle, cams, kp))
+             agreeing_cameras={m: {"frames": int(ok.sum()),
+                                   "odd_camera_frames": {c: int((ok & ~agree[:, v]).sum()) for v, c in enumerate(cams)}}
+                               for m, (ok, agree) in agreeing.items()},
+             px_on_agreeing_cameras_filtered={k: on_agreeing_cameras(bundle, t, cams, kp, agreeing)
+                                             for k, t in filtered.items()})
         if args.two_people:
             two_people(tmp)
 
