@@ -166,12 +166,13 @@ def on_agreeing_cameras(bundle, trc: Path, cams: list[str], kp: np.ndarray, agre
     """marker -> median px between the TRC's marker reprojected and the participant's detections in the cameras
     that agree (:func:`agreeing_cameras`)."""
     markers, X = trc_world_cm(trc)
+    F = min(len(X), len(kp))  # Pose2Sim's filtered file holds 99 of the 100 frames (from frame 0)
     out = {}
     for m, j in BODY_25B_ID.items():
         ok, agree = agreeing[m]
-        d = np.stack([np.linalg.norm(project_points(view_set(bundle, [cam]), X[:len(kp), markers.index(m)]).uv_px[0]
-                                     - kp[:, v, j, :2], axis=-1) for v, cam in enumerate(cams)], axis=1)
-        d = d[ok[:, None] & agree]
+        d = np.stack([np.linalg.norm(project_points(view_set(bundle, [cam]), X[:F, markers.index(m)]).uv_px[0]
+                                     - kp[:F, v, j, :2], axis=-1) for v, cam in enumerate(cams)], axis=1)
+        d = d[ok[:F, None] & agree[:F]]
         out[m] = round(float(np.nanmedian(d)), 1) if np.isfinite(d).any() else None
     return out
 
