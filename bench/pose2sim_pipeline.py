@@ -12,6 +12,10 @@ Prints one JSON object per line:
 - ``reprojection_px``: per marker, the median pixel distance between each run's TRC markers reprojected through the
   imported bundle and the participant's detections (confidence > 0.3), over the 4 cameras and 100 frames: which run
   lands on the images;
+- ``per_camera_px``: the same per camera (the participant: the detected person nearest both runs' markers);
+  ``agreeing_cameras``: per marker, the frames where 3 of the 4 cameras agree within 15 px and how often each camera
+  is the odd one; ``px_on_agreeing_cameras_filtered``: each run's TRC after Pose2Sim's filtering (what its
+  kinematics reads) against the detections of the cameras that agree, median px: which run the images side with;
 - ``two_people`` (``--two-people``): two people of a synthetic group seen by the demo's tiny dome through the
   synthetic detector with BODY_25 feet, reconstructed, exported to TRC and through Pose2Sim's three steps in its
   multi-person mode: the ``.mot`` files (one per person) and per person the joint angles' RMS against the same
@@ -71,6 +75,8 @@ def trc_world_cm(path: Path) -> tuple[list[str], np.ndarray]:
 
 
 def reprojection_px(bundle, trc: Path, det) -> dict[str, float]:
+    """Per marker, the median over cameras and frames of the distance between the TRC's marker reprojected and the
+    nearest detection of that joint (confidence > 0.3)."""
     markers, X = trc_world_cm(trc)
     out = {}
     for m, j in BODY_25B_ID.items():
@@ -84,6 +90,90 @@ def reprojection_px(bundle, trc: Path, det) -> dict[str, float]:
                 if len(seen) and np.isfinite(uv[k]).all():
                     errs.append(float(np.min(np.linalg.norm(seen - uv[k], axis=-1))))
         out[m] = round(float(np.median(errs)), 1)
+    return out
+
+
+def participant_detections(bundle, det, trcs: list[Path]) -> tuple[list[str], np.ndarray]:
+    """The participant's detection in every camera and frame: the detected person nearest (median over the compared
+    joints) to the runs' markers reprojected, averaged over the runs ``trcs``. -> cameras, (F, V, 25, 3) BODY_25B
+    keypoints (confidence 0 where none)."""
+    cams = sorted(bundle.cameras)
+    runs = [trc_world_cm(t) for t in trcs]
+    F = min(len(X) for _, X in runs)
+    out = np.zeros((F, len(cams), 25, 3))
+    ids = list(BODY_25B_ID.values())
+    for v, cam in enumerate(cams):
+        frames = sorted(det.people[cam])[:F]
+        uv = np.mean([project_points(view_set(bundle, [cam]), X[:len(frames), [mk.index(m) for m in BODY_25B_ID]]
+                                     .reshape(-1, 3)).uv_px[0].reshape(len(frames), len(ids), 2)
+                      for mk, X in runs], axis=0)
+        for k, f in enumerate(frames):
+            kp = raw_keypoints(cam, f)
+            if not len(kp):
+                continue
+            d = np.where(kp[:, ids, 2] > 0.3, np.linalg.norm(kp[:, ids, :2] - uv[k][None], axis=-1), np.nan)
+            score = np.array([np.nanmedian(r) if np.isfinite(r).any() else np.inf for r in d])
+            if np.isfinite(score).any():
+                out[k, v] = kp[int(np.argmin(score))]
+    return cams, out
+
+
+def per_camera_px(bundle, trc: Path, cams: list[str], kp: np.ndarray) -> dict[str, dict[str, float]]:
+    """marker -> camera -> median px between the TRC's marker reprojected and the participant's detection
+    (confidence > 0.3)."""
+    markers, X = trc_world_cm(trc)
+    out: dict[str, dict[str, float]] = {}
+    for m, j in BODY_25B_ID.items():
+        out[m] = {}
+        for v, cam in enumerate(cams):
+            uv = project_points(view_set(bundle, [cam]), X[:len(kp), markers.index(m)]).uv_px[0]
+            d = np.where(kp[:, v, j, 2] > 0.3, np.linalg.norm(uv - kp[:, v, j, :2], axis=-1), np.nan)
+            out[m][cam] = round(float(np.nanmedian(d)), 1) if np.isfinite(d).any() else None
+    return out
+
+
+def agreeing_cameras(bundle, cams: list[str], kp: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """marker -> ((F,) frames where 3 of the 4 cameras agree, (F, V) those cameras): per frame, the best of the
+    3-camera triangulations of the participant's detections (the smallest worst reprojection, no outlier rejection),
+    if that worst is within 15 px (3 sigma of this detector's noise); the fourth camera is then the odd one."""
+    import itertools
+
+    from dome_calib.recon.triangulate import TriangulationOptions, triangulate
+
+    views = view_set(bundle, cams)
+    loose = TriangulationOptions(inlier_threshold_px=1e6, min_views=2)
+    out = {}
+    F, V = kp.shape[:2]
+    for m, j in BODY_25B_ID.items():
+        conf = np.where(kp[:, :, j, 2] > 0.3, np.minimum(kp[:, :, j, 2], 1.0), 0.0)
+        uv = np.where(conf[..., None] > 0, kp[:, :, j, :2], np.nan)
+        best, agree = np.full(F, np.inf), np.zeros((F, V), bool)
+        for three in itertools.combinations(range(V), 3):
+            c = np.zeros_like(conf)
+            c[:, three] = conf[:, three]
+            X = triangulate(views, uv, c, loose).X_cm
+            r = np.stack([np.linalg.norm(project_points(view_set(bundle, [cams[v]]), X).uv_px[0] - uv[:, v], axis=-1)
+                          for v in three], axis=1)
+            worst = np.where(np.isfinite(r).all(1), r.max(1), np.inf)
+            better = worst < best
+            best[better] = worst[better]
+            agree[better] = np.isin(np.arange(V), three)
+        out[m] = (best < 15.0, agree)
+    return out
+
+
+def on_agreeing_cameras(bundle, trc: Path, cams: list[str], kp: np.ndarray, agreeing) -> dict[str, float]:
+    """marker -> median px between the TRC's marker reprojected and the participant's detections in the cameras
+    that agree (:func:`agreeing_cameras`)."""
+    markers, X = trc_world_cm(trc)
+    F = min(len(X), len(kp))  # Pose2Sim's filtered file holds 99 of the 100 frames (from frame 0)
+    out = {}
+    for m, j in BODY_25B_ID.items():
+        ok, agree = agreeing[m]
+        d = np.stack([np.linalg.norm(project_points(view_set(bundle, [cam]), X[:F, markers.index(m)]).uv_px[0]
+                                     - kp[:F, v, j, :2], axis=-1) for v, cam in enumerate(cams)], axis=1)
+        d = d[ok[:F, None] & agree[:F]]
+        out[m] = round(float(np.nanmedian(d)), 1) if np.isfinite(d).any() else None
     return out
 
 
@@ -148,6 +238,17 @@ def main() -> None:
         ref_trc = next((tmp / "pose2sim" / "pose-3d").glob("*_0-99.trc"))
         emit(reprojection_px={"ours": reprojection_px(bundle, trcs[0], det),
                               "pose2sim": reprojection_px(bundle, ref_trc, det)})
+        cams, kp = participant_detections(bundle, det, [trcs[0], ref_trc])
+        agreeing = agreeing_cameras(bundle, cams, kp)
+        filtered = {"ours": next((tmp / "ours" / "pose-3d").glob("*_filt_butterworth.trc")),
+                    "pose2sim": next((tmp / "pose2sim" / "pose-3d").glob("*_filt_butterworth.trc"))}
+        emit(per_camera_px={"ours": per_camera_px(bundle, trcs[0], cams, kp),
+                            "pose2sim": per_camera_px(bundle, ref_trc, cams, kp)},
+             agreeing_cameras={m: {"frames": int(ok.sum()),
+                                   "odd_camera_frames": {c: int((ok & ~agree[:, v]).sum()) for v, c in enumerate(cams)}}
+                               for m, (ok, agree) in agreeing.items()},
+             px_on_agreeing_cameras_filtered={k: on_agreeing_cameras(bundle, t, cams, kp, agreeing)
+                                             for k, t in filtered.items()})
         if args.two_people:
             two_people(tmp)
 

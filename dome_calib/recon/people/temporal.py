@@ -15,7 +15,11 @@ with joints missing where too few views agreed) and the detections assigned to i
   (clipped to [0, 1]).
 - ``L_ab``, per track, once over the whole session: the median over all its times of the per-frame bone length
   where both joints had at least ``bone_min_views`` inlier views. ``sigma_L`` (1.5 cm) is the play of a detector's
-  joint centres, not of bones. Both come in :class:`SessionPriors`.
+  joint centres, not of bones. A limb or trunk bone never measured so (a joint only two cameras see) is the body's
+  size x its nominal length (:func:`~dome_calib.recon.people.windows.infer_unmeasured_bones`), held with
+  ``inferred_bone_sigma_cm`` (3 cm: on Pose2Sim's real balancing trial the nine limb and trunk bones' measured /
+  nominal spread 0.92-1.02 about their median 0.957, SD 3.6 %, so a bone put at the median is typically 1.5 cm and
+  at worst 3 cm off a shin's 42). Both come in :class:`SessionPriors`.
 - ``q_j`` (cm^2/s^3): the spectral density of a joint's acceleration, from the body (``2 a_rms^2 tau`` with RMS
   accelerations of everyday motion: trunk and head 300 cm/s^2, elbows and knees 800, wrists and ankles 1,200, over a
   correlation time of 0.1 s). The integral penalty is the cubic smoothing spline (the posterior mean of an
@@ -75,7 +79,8 @@ class TemporalOptions:
     robust_k: Geman-McClure scale in units of the camera's pixel noise; outvoted_k: a detection farther than this many
     sigma from the body is outvoted; bone_sigma_cm; bone_min_views: frames whose two joints have this many inlier
     views estimate a bone; accel_scale: multiplies the body's RMS accelerations; correlation_s; prior_sigma_cm: weak
-    pull to the start (only directions nothing else holds); max_sigma_cm: a joint the per-frame triangulation left
+    pull to the start (only directions nothing else holds); inferred_bone_sigma_cm: the play of a bone inferred from
+    the body's size (never measured); max_sigma_cm: a joint the per-frame triangulation left
     out is output only if its standard deviation is below this; min_noise_px: floor of a camera's pixel noise;
     max_views_per_joint: the fit reweighs a joint's most confident detections up to this many at every round; the
     others are weighed once at the start and held (every detection is judged at the end); window_edge_influence,
@@ -88,6 +93,7 @@ class TemporalOptions:
     robust_k: PosFinite = 3.0
     outvoted_k: PosFinite = 5.0
     bone_sigma_cm: PosFinite = 1.5
+    inferred_bone_sigma_cm: PosFinite = 3.0
     bone_min_views: AtLeast(2) = 3
     accel_scale: PosFinite = 1.0
     correlation_s: PosFinite = 0.1
@@ -110,17 +116,24 @@ class TemporalOptions:
 class SessionPriors:
     """What the fit holds, measured once over the whole session (:mod:`~dome_calib.recon.people.windows`): each
     track's bone lengths, bone_cm (K, E) for the track ids ``track_ids`` (K,) increasing (NaN: a bone never seen
-    well), ``BONE_LENGTH_CM``'s order; noise_px (V,) each camera's pixel noise (finite)."""
+    well), ``BONE_LENGTH_CM``'s order; noise_px (V,) each camera's pixel noise (finite); bone_inferred (K, E): the
+    bones inferred from the body's size, not measured (None: none)."""
 
     track_ids: np.ndarray
     bone_cm: np.ndarray
     noise_px: np.ndarray
+    bone_inferred: np.ndarray | None = None
 
-    def bones_of(self, ids: np.ndarray) -> np.ndarray:
-        """(len(ids), E) the bone lengths of the given track ids (NaN rows for ids not measured)."""
-        k = np.clip(np.searchsorted(self.track_ids, ids), 0, max(len(self.track_ids) - 1, 0))
-        found = (self.track_ids[k] == ids) if len(self.track_ids) else np.zeros(len(ids), bool)
-        return np.where(found[:, None], self.bone_cm[k] if len(self.track_ids) else np.nan, np.nan)
+    def bones_of(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(len(ids), E) the bone lengths of the given track ids (NaN rows for ids not measured), and (len(ids), E)
+        which of them were inferred."""
+        E = self.bone_cm.shape[1]
+        if not len(self.track_ids):
+            return np.full((len(ids), E), np.nan), np.zeros((len(ids), E), bool)
+        k = np.clip(np.searchsorted(self.track_ids, ids), 0, len(self.track_ids) - 1)
+        found = self.track_ids[k] == ids
+        inferred = self.bone_inferred if self.bone_inferred is not None else np.zeros(self.bone_cm.shape, bool)
+        return np.where(found[:, None], self.bone_cm[k], np.nan), found[:, None] & inferred[k]
 
 
 @dataclass(frozen=True)
@@ -236,12 +249,13 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
     sel_var, sel_view, sel_uv, sel_c = rec_var[sel], obs.view[sel], obs.uv_px[sel], obs.conf[sel]
     q = options.spectral_density()
     s_idx, s_coef, s_w = _smoothness(lay, times_s, q)
-    L = priors.bones_of(np.unique(np.concatenate([b.ids for b in bodies])))  # (tracks, E), _layout's numbering
+    L, inferred = priors.bones_of(np.unique(np.concatenate([b.ids for b in bodies])))  # (tracks, E), _layout's
     bone_bf, bone_e = np.nonzero((lay.var[:, BONE_A] >= 0) & (lay.var[:, BONE_B] >= 0)
                                  & np.isfinite(L[lay.bf_track]))
     ba, bb = lay.var[bone_bf, BONE_A[bone_e]], lay.var[bone_bf, BONE_B[bone_e]]
     bone_len = L[lay.bf_track[bone_bf], bone_e]
-    w_bone = 1.0 / options.bone_sigma_cm ** 2
+    w_bone = 1.0 / np.where(inferred[lay.bf_track[bone_bf], bone_e], options.inferred_bone_sigma_cm,
+                            options.bone_sigma_cm)[:, None] ** 2
     P = _initial_points(lay, X0, times_s)
     P_start = P.copy()
     w0 = 1.0 / options.prior_sigma_cm ** 2
@@ -273,7 +287,7 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
         d = P[ba] - P[bb]
         length = np.maximum(np.linalg.norm(d, axis=1), 1e-6)
         u = d / length[:, None]
-        uu = w_bone * u[:, :, None] * u[:, None, :]
+        uu = w_bone[:, :, None] * u[:, :, None] * u[:, None, :]
         rb = (length - bone_len)[:, None] * u * w_bone
         H_diag = H_d + _sum_by(both, np.concatenate([uu, uu]), lay.n_var)
         g += _sum_by(both, np.concatenate([rb, -rb]), lay.n_var)

@@ -2,7 +2,8 @@
 session's own time index (on an executor), so that no result depends on how the per-frame work was cut.
 
 1. :func:`session_priors`: each track's bone lengths (the median, in 0.01 cm steps, over all its times where both
-   joints had ``bone_min_views`` inlier views) and each camera's pixel noise (the median of its detections' distances
+   joints had ``bone_min_views`` inlier views; a limb or trunk bone never measured so is inferred from the body's
+   size: :func:`infer_unmeasured_bones`) and each camera's pixel noise (the median of its detections' distances
    to the per-frame joints, from the histogram the per-frame tallies summed over every time:
    :attr:`~dome_calib.recon.people.agreement.CameraAgreement.noise`, / 1.177, a 2D Gaussian's median radius in units
    of its per-axis sigma). Both are read from integer steps: no choice rests on the last bits of a float.
@@ -33,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dome_calib.recon.body_models import MIRROR19
+from dome_calib.recon.body_models import BONE_LENGTH_CM, MIRROR19
 from dome_calib.recon.people.agreement import NOISE_BIN_PX, CameraAgreement, tally_verdicts
 from dome_calib.recon.people.bodies import Bodies, Observations, observations_of
 from dome_calib.recon.people.depth_witness import DepthWitness
@@ -49,6 +50,13 @@ BONE_STEP_CM = 0.01
 #: Each bone's left/right mirror in BONE_LENGTH_CM's order (itself for the midline and cross bones).
 BONE_MIRROR = np.array([next(f for f, (c, d) in enumerate(zip(BONE_A, BONE_B))
                              if {MIRROR19[a], MIRROR19[b]} == {c, d}) for a, b in zip(BONE_A, BONE_B)])
+#: The face's joints: a detector puts the nose, eyes and ears where its own conventions say (BONE_LENGTH_CM's neck to
+#: nose, 20 cm, is 15.5 on the synthetic body), so their bones neither tell a body's size nor are inferred from it.
+FACE19 = ("nose", "l_eye", "r_eye", "l_ear", "r_ear")
+#: The bones a body's size is read from, and that may be inferred from it: the limbs' and the trunk's.
+SIZE_BONES = np.array([a not in FACE19 and b not in FACE19 for a, b in BONE_LENGTH_CM])
+#: A body's size is read from this many of its size bones at least (a bone and its mirror count once).
+MIN_SIZE_BONES = 3
 #: A camera's noise is measured from this many of its detections at least (else the other cameras' median).
 MIN_NOISE_RECORDS = 30
 #: The noise of every camera when none has enough detections (px).
@@ -98,10 +106,33 @@ def bone_lengths(bodies: list[Bodies], min_views: int) -> tuple[np.ndarray, np.n
     return track_ids, out
 
 
+def infer_unmeasured_bones(bone_cm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(K, E) bone lengths (:func:`bone_lengths`; NaN: never measured) -> the same with each unmeasured limb or trunk
+    bone (:data:`SIZE_BONES`) put at the body's size x its nominal length (BONE_LENGTH_CM), and (K, E) bool: which
+    were inferred. The body's size: the median of measured / nominal over its measured size bones (a bone and its
+    mirror once), when it has MIN_SIZE_BONES of them; in BONE_STEP_CM steps.
+
+    Why: a bone is measured only where both joints had ``bone_min_views`` inlier views (two views always agree), so
+    a joint that only two cameras see has no bone, and nothing holds it along their rays but those two views. On
+    the demo's tiny dome a crouching person's ankles are inside the image of two cameras only, 10 degrees apart: a
+    few pixels of detector bias there put the ankles 10 cm off along the rays and the shin at 55 cm (45.8 true)."""
+    nominal = np.array(list(BONE_LENGTH_CM.values()))
+    once = SIZE_BONES & (np.arange(len(nominal)) <= BONE_MIRROR)  # mirrors share one length: count one of each
+    ratio = np.where(once, bone_cm / nominal, np.nan)
+    count = np.isfinite(ratio).sum(1)
+    with np.errstate(all="ignore"):
+        size = np.where(count >= MIN_SIZE_BONES, np.nanmedian(np.where(count[:, None] > 0, ratio, 1.0), axis=1),
+                        np.nan)
+    inferred = SIZE_BONES & np.isnan(bone_cm) & np.isfinite(size)[:, None]
+    guess = np.round(size[:, None] * nominal / BONE_STEP_CM) * BONE_STEP_CM
+    return np.where(inferred, guess, bone_cm), inferred
+
+
 def session_priors(bodies: list[Bodies], cameras: CameraAgreement, options: TemporalOptions) -> SessionPriors:
     """The whole session's tracked bodies and per-frame tallies -> what every window holds (module docstring)."""
     track_ids, bone_cm = bone_lengths(bodies, options.bone_min_views)
-    return SessionPriors(track_ids=track_ids, bone_cm=bone_cm,
+    bone_cm, inferred = infer_unmeasured_bones(bone_cm)
+    return SessionPriors(track_ids=track_ids, bone_cm=bone_cm, bone_inferred=inferred,
                          noise_px=noise_px_of(cameras.noise, options.min_noise_px))
 
 
