@@ -27,6 +27,7 @@ from dome_calib.recon.patches.motion import part_motions
 from dome_calib.recon.patches.page_layer import patch_layer
 from dome_calib.recon.patches.parts import label_parts
 from dome_calib.recon.patches.run import patch_stream, reference_stream
+from dome_calib.recon.patches.seed_skeleton import BodyPrior
 from dome_calib.recon.patches.stream_file import FILE_NAME, patch_table, write_patch_table
 from dome_calib.recon.streams import cameras_by_stream, frame_period_ms
 
@@ -51,8 +52,13 @@ class PatchStage:
         puts ``patches.parquet`` into the staged output folder."""
         t = np.asarray(times_ms, dtype=float)
         stream = reference_stream(self.bundle, self.cameras)
+        body = None
+        if self.options.seed_method == "skeleton":  # the people as the seeds' depth prior, at the stream's times
+            table = cameras_by_stream(self.bundle, self.cameras)[1][stream]
+            at = table.univ_time_ms[(table.univ_time_ms >= t[0]) & (table.univ_time_ms <= t[-1])]
+            body = BodyPrior(times_ms=at, joints_cm=people_at(t, bodies, at)[0])
         traj = patch_stream(self.bundle, self.source, self.cameras, (float(t[0]), float(t[-1])), self.options,
-                            stream=stream, executor=executor, progress=progress)
+                            stream=stream, body=body, executor=executor, progress=progress)
         joints, ids = people_at(t, bodies, traj.times_ms)
         labels = label_parts(traj.X_cm[:, :, 0], traj.normal, traj.alive, joints)
         motions = part_motions(traj.X_cm, traj.alive, labels.person, labels.bone)
