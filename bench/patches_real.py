@@ -2,10 +2,13 @@
 cameras, 60 fps, 1088 x 1920; ../shared/data/multiview/pose2sim_balancing, see its PROVENANCE.md).
 
     .venv/bin/python bench/patches_real.py [--data ../shared/data/multiview/pose2sim_balancing] [--frames 60]
-        [--seed-frame 40] [--crop-x 0] [--min-ncc 0.8] [--seed-method sweep|features] [--match-px 3]
+        [--seed-frame 40] [--clouds 1] [--crop-x 0] [--min-ncc 0.8] [--seed-method sweep|features|skeleton]
+        [--match-px 3] [--depth-window 6] [--corners 400] [--lk-window 15]
 
-For each camera L in turn, the other three track patches (``recon.patches.run.patch_stream``: one cloud seeded at
-``--seed-frame``, tracked ``--frames / 2`` frames each way; a seed needs 2 views, as only 3 cameras track) and L
+For each camera L in turn, the other three track patches (``recon.patches.run.patch_stream``: ``--clouds`` clouds
+seeded at ``--seed-frame`` + 20 k, each tracked ``--frames / 2`` frames each way; a seed needs 2 views, as only 3
+cameras track; ``--seed-method skeleton``: seeded on the participant reconstructed from the same three cameras'
+detections, the body over time, ``recon.patches.seed_skeleton``) and L
 judges them with its own images: at every step k -> k+1 where a patch is alive at both times, faces L (the normal's
 cosine towards L's centre above 0.2) and projects into L's image, L's own pyramidal Lucas-Kanade flow
 (``seed.optical_flow``, forward-backward checked) carries the projection at k to frame k+1; the distance from there
@@ -13,17 +16,28 @@ to the projection at k+1 is the patch's error in L (px). Beside it, the skeleton
 from the same three cameras' OpenPose detections (the group stage, the body over time), projected into L, against
 L's own detections (median px over frames and joints with confidence >= 0.5).
 
+A patch that stands still scores L's own flow in that step (``flow_median_px``); the participant barely moves, so
+the steps alone cannot tell a tracked patch from one that stands still. So L also judges each patch over its whole
+track: L's flow carries the patch's seed-time projection frame by frame away from the seed (chained, both ways), and
+per patch and time the error is the distance to the patch's projection, beside the do-nothing baseline, the
+seed-time projection held still (``from_seed_*``, ``held_still_*``, ``beats_held_still_share``; ``farthest_*`` at
+the largest distance from the seed judged).
+
 The videos of cam01 and cam02 are 1080 px wide against the calibration's 1088 (the PROVENANCE): they are read as a
 crop of the calibrated image starting at column ``--crop-x`` (0: the calibrated image's left edge, what cam01's
 H.264 stream itself says: coded 1088 wide, its last 8 columns cropped; cam02 is VP9 and keeps no record, see
 docs/patches.md).
 
-One JSON object per line: per left-out camera the cloud's seeds, the patch-steps judged, the median and 90th
-percentile error (px), the median flow in L itself (the error a patch standing still would have), the skeleton's
-median reprojection in L (px), CPU seconds, load average.
+One JSON object per line: per left-out camera the clouds' seeds (and those facing L at their seed), the
+patch-steps judged, the median and 90th percentile error (px), the median flow in L itself (the error a patch
+standing still would have), the judgement from the seed beside the patch held still, the skeleton's median
+reprojection in L (px), CPU seconds, load average.
 
 ``--synthetic conversation|mixed`` judges the judge: the same left-out test on a rendered, textured person (standing
-and talking, or walking) in the tiny dome's first 8 VGA cameras (one cloud at VGA frame 120, 5 frames each way; each of the first two cameras left out, seven tracking).
+and talking, or walking) in the tiny dome's first 8 VGA cameras (one cloud at VGA frame 120, 5 frames each way;
+each of the first two cameras left out, seven tracking); with ``--seed-method skeleton`` the prior is the true
+joints with ``--joint-noise`` cm of noise per coordinate, and the seeds are judged against the true surface
+(centre distance, normal angle).
 """
 from __future__ import annotations
 
@@ -95,10 +109,10 @@ def judge_in(source, bundle, traj, cam: str, o: PatchOptions) -> tuple[np.ndarra
 
 def judge_from_seed(source, bundle, traj, cam: str, o: PatchOptions) -> dict:
     """Judged over the whole track, not step by step: ``cam``'s own flow carries each patch's seed-time projection
-    (patches alive at their cloud's seed, facing ``cam``, in its image) frame by frame away from the seed, both ways (chained
-    Lucas-Kanade, forward-backward checked; a point lost stays lost); per patch and time where the patch is alive
-    and still faces ``cam``: the error |that track - the patch's projection| and the do-nothing baseline |that
-    track - the seed-time projection| (a patch held still at its seed), px."""
+    (patches alive at their cloud's seed, facing ``cam``, in its image) frame by frame away from the seed, both
+    ways (chained Lucas-Kanade, forward-backward checked; a point lost stays lost); per patch and time where the
+    patch is alive and still faces ``cam``: the error |that track - the patch's projection| and the do-nothing
+    baseline |that track - the seed-time projection| (a patch held still at its seed), px."""
     views = view_set(bundle, [cam])
     centre = bundle.cameras[cam].center_cm
     frames, off_ms = stream_of_camera(bundle, cam)[1].nearest(traj.times_ms)
@@ -248,6 +262,8 @@ def main() -> None:
     ap.add_argument("--seed-method", choices=["sweep", "features", "skeleton"], default="sweep")
     ap.add_argument("--depth-window", type=float, default=PatchOptions().seed_depth_window_cm,
                     help='"skeleton": cm searched either side of the body\'s capsules')
+    ap.add_argument("--lk-window", type=int, default=PatchOptions().lk_window_px,
+                    help="optical flow's window (px), the tracking's and the judge's")
     ap.add_argument("--corners", type=int, default=PatchOptions().seed_features, help="corners per camera")
     ap.add_argument("--joint-noise", type=float, default=3.0,
                     help="--synthetic with skeleton seeds: the prior is the true joints with this much noise (cm)")
@@ -272,11 +288,13 @@ def main() -> None:
     seed_frames = [args.seed_frame + 20 * k for k in range(args.clouds)]
     frames = np.arange(max(seed_frames[0] - half, 0), min(seed_frames[-1] + half, 99) + 1)
     o = PatchOptions(track_frames=half, seed_min_views=2, seed_min_ncc=args.min_ncc, seed_method=args.seed_method,
-                     seed_match_px=args.match_px, seed_depth_window_cm=args.depth_window, seed_features=args.corners)
+                     seed_match_px=args.match_px, seed_depth_window_cm=args.depth_window, seed_features=args.corners,
+                     lk_window_px=args.lk_window)
     emit(bench="patches_real", frames=int(len(frames)), seed_frames=seed_frames, crop_x=args.crop_x,
          options={"track_frames": half, "seed_min_views": 2, "seed_min_ncc": args.min_ncc,
                   "seed_method": args.seed_method, "seed_match_px": args.match_px,
-                  "seed_depth_window_cm": args.depth_window, "seed_features": args.corners},
+                  "seed_depth_window_cm": args.depth_window, "seed_features": args.corners,
+                  "lk_window_px": args.lk_window},
          load=[round(x, 2) for x in os.getloadavg()])
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)

@@ -9,23 +9,20 @@ import pytest
 
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.patches.model import PatchOptions
-from dome_calib.recon.patches.run import imaged_views, patch_stream
+from dome_calib.recon.patches.run import patch_stream
 from dome_calib.recon.patches.seed_skeleton import BodyPrior, body_capsules, ray_capsules, seed_on_body
-from dome_calib.synth.textured import TexturedScene, TextureOptions, nearest_surface_points, surface_points_cm
+from dome_calib.synth.textured import nearest_surface_points, surface_points_cm
 
-from .patches_helpers import one_person_capture
+from .patches_helpers import WIDE_PAIR, wide_pair_scene
 
-CAMS = ["01_02", "13_02"]
+CAMS = WIDE_PAIR
 FRAME = 120
 NOISE_CM = 3.0
 
 
 @pytest.fixture(scope="module")
 def wide():
-    bundle, truth = one_person_capture()
-    scene = TexturedScene(bundle, truth, TextureOptions())
-    views = imaged_views(scene, CAMS)
-    t = bundle.sync.streams["vga"].time_of(FRAME)
+    bundle, truth, scene, views, t = wide_pair_scene(FRAME)
     J, present = truth.joints_cm(np.array([t]))
     noisy = J[0][present[0]] + np.random.default_rng(1).normal(0.0, NOISE_CM, J[0][present[0]].shape)
     return bundle, truth, scene, views, t, noisy

@@ -11,9 +11,9 @@ them), so the depth of a pixel on a person is known to a few centimetres:
    seed time, the body over time) a capsule of the part's radius (:data:`PART_RADIUS_CM`, a generic adult; where
    a bone's end is missing the part is left out).
 2. **Pixels on the person**, per reference camera (in name order): corners (``cv2.goodFeaturesToTrack``,
-   ``seed_features`` per image, quality :data:`CORNER_QUALITY` of the best) among the pixels whose ray meets a capsule (a mask made on
-   a 4 px grid of the capsules' box in the image), each ray's first capsule hit giving an **initial depth and
-   normal** (the capsule's outward normal there).
+   ``seed_features`` per image, quality :data:`CORNER_QUALITY` of the best) among the pixels whose ray meets a
+   capsule (a mask made on a 4 px grid of the capsules' box in the image), each ray's first capsule hit giving an
+   **initial depth and normal** (the capsule's outward normal there).
 3. **Refined photometrically** along the ray within ``seed_depth_window_cm`` of the hit (coarse steps of
    ``seed_depth_step_cm``, then a fifth of it round the best): the patch's square (``ncc_size_cm``, its plane
    given by the normal) is sampled in the reference camera and in each other camera of the stream that may see it
@@ -260,7 +260,8 @@ def seed_camera_on_body(source: FrameSource, views: ViewSet, frames: dict[str, i
     mask = person_mask(views, r, (gray_r.shape[1], gray_r.shape[0]), A, B, radius)
     if not mask.any():
         return empty
-    corners = cv2.goodFeaturesToTrack(gray_r, o.seed_features, CORNER_QUALITY, o.seed_min_distance_px, mask=mask, blockSize=5)
+    corners = cv2.goodFeaturesToTrack(gray_r, o.seed_features, CORNER_QUALITY, o.seed_min_distance_px, mask=mask,
+                                      blockSize=5)
     if corners is None:
         return empty
     corners = corners.reshape(-1, 2).astype(float)
