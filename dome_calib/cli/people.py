@@ -77,10 +77,9 @@ def reconstruct(
                                    depth_folder=depth, videos=videos)  # every input checked, in seconds
         patches = None
         if images is not None:
-            from dome_calib.recon.patches.model import PatchOptions
             from dome_calib.recon.patches.stage import plan_patches
             patches = plan_patches(images, plan.bundle, plan.out, plan.fps,  # checked before any work
-                                   PatchOptions(seed_method=patch_seeds))
+                                   seed_method=patch_seeds)
         page = people_page_writer(plan.out, bundle, detections, camera_map=camera_map, body_model=plan.model.value,
                                   files=plan.source.files)
         with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from fractions import Fraction
 from pathlib import Path
 
@@ -97,10 +97,13 @@ class PatchStage:
 
 
 def plan_patches(images: str | Path, bundle: Bundle | str | Path, out: Path, fps: Fraction | None,
-                 options: PatchOptions | None = None) -> PatchStage:
+                 options: PatchOptions | None = None, *, seed_method: str | None = None) -> PatchStage:
     """Check ``--images`` (every camera's file, its frames and size: :func:`~.images.open_images`) and that the
     output lies neither among nor inside it; ``bundle`` (or its folder); a bundle without sync tables takes the
-    detections' rate ``fps``."""
+    detections' rate ``fps``. ``seed_method`` (``--patch-seeds``) replaces the options' seeding method."""
+    options = options or PatchOptions()
+    if seed_method is not None:
+        options = replace(options, seed_method=seed_method)
     bundle = bundle if isinstance(bundle, Bundle) else load_bundle(bundle)
     images = Path(images).resolve()
     refuse_output_among_inputs(out, [images], whole_folder=True)
@@ -111,7 +114,7 @@ def plan_patches(images: str | Path, bundle: Bundle | str | Path, out: Path, fps
         raise ReconError(f"--images {images}: images of {len(source.names)} camera; patches are triangulated from "
                          "two cameras or more")
     cameras_by_stream(clocked, source.names)  # every camera's sync table, before any work
-    return PatchStage(source=source, bundle=clocked, cameras=source.names, options=options or PatchOptions())
+    return PatchStage(source=source, bundle=clocked, cameras=source.names, options=options)
 
 
 def people_at(times_ms: np.ndarray, bodies: list, at_ms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
