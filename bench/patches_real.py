@@ -245,7 +245,9 @@ def synthetic_check(frames: int, o: PatchOptions, scenario: str, joint_noise_cm:
         emit(synthetic=scenario, seed_method=o.seed_method, joint_noise_cm=joint_noise_cm if body else None,
              seed_centre_median_cm=_pct(near.distance_cm[on], 50), seed_centre_p90_cm=_pct(near.distance_cm[on], 90),
              seed_normal_median_deg=_pct(ang, 50), seed_normal_p90_deg=_pct(ang, 90))
-        emit(synthetic=scenario, left_out=left, tracking=len(tracking), seeds=int(traj.alive.any(1).sum()),
+        whole = judge_from_seed(scene, bundle, traj, left, o)
+        whole["seeds_facing_left_out"] = whole.pop("patches_judged")
+        emit(synthetic=scenario, left_out=left, tracking=len(tracking), seeds=int(traj.alive.any(1).sum()), **whole,
              patch_steps_judged=int(len(err)), patch_median_px=_pct(err, 50), patch_p90_px=_pct(err, 90),
              flow_median_px=_pct(move, 50), load=[round(x, 2) for x in os.getloadavg()])
 

@@ -47,7 +47,8 @@ class PatchStage:
             executor=None) -> FurtherStage:
         """The stream over the people's times (``bodies[t]``: a time's people, with ``ids`` and ``X_cm``; its seeding
         and tracking tasks on ``executor``: ``reconstruct``'s ``--workers`` / ``--scheduler``, None here), labelled
-        by part, the parts' motions as ties on the patches' times (the people's own where the images' reference
+        by part (with ``seed_method="skeleton"`` the people, at the reference stream's times, are the seeds' depth
+        prior), the parts' motions as ties on the patches' times (the people's own where the images' reference
         stream is the people's; a tie on another time ties nothing) -> the :class:`FurtherStage` whose ``write``
         puts ``patches.parquet`` into the staged output folder."""
         t = np.asarray(times_ms, dtype=float)
