@@ -3,7 +3,7 @@ cameras, 60 fps, 1088 x 1920; ../shared/data/multiview/pose2sim_balancing, see i
 
     .venv/bin/python bench/patches_real.py [--data ../shared/data/multiview/pose2sim_balancing] [--frames 60]
         [--seed-frame 40] [--clouds 1] [--crop-x 0] [--min-ncc 0.8] [--seed-method sweep|features|skeleton]
-        [--match-px 3] [--depth-window 6] [--corners 400] [--lk-window 15]
+        [--match-px 3] [--depth-window 6] [--corners 400] [--lk-window 15] [--judge-occlusion]
 
 For each camera L in turn, the other three track patches (``recon.patches.run.patch_stream``: ``--clouds`` clouds
 seeded at ``--seed-frame`` + 20 k, each tracked ``--frames / 2`` frames each way; a seed needs 2 views, as only 3
@@ -14,7 +14,10 @@ cosine towards L's centre above 0.2) and projects into L's image, L's own pyrami
 (``seed.optical_flow``, forward-backward checked) carries the projection at k to frame k+1; the distance from there
 to the projection at k+1 is the patch's error in L (px). Beside it, the skeleton: the participant reconstructed
 from the same three cameras' OpenPose detections (the group stage, the body over time), projected into L, against
-L's own detections (median px over frames and joints with confidence >= 0.5).
+L's own detections (median px over frames and joints with confidence >= 0.5). ``--judge-occlusion``: L also
+leaves out patches that the participant's own body hides from it (the ray from L meets one of the skeleton's
+capsules more than ``seed_depth_window_cm`` before the patch): facing L is not seen by L when an arm or the torso
+is in the way, or when a normal is wrong.
 
 A patch that stands still scores L's own flow in that step (``flow_median_px``); the participant barely moves, so
 the steps alone cannot tell a tracked patch from one that stands still. So L also judges each patch over its whole
@@ -64,7 +67,7 @@ from dome_calib.recon.openpose_io import read_openpose_folder  # noqa: E402
 from dome_calib.recon.patches.images import open_images, with_shared_clock  # noqa: E402
 from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
 from dome_calib.recon.patches.run import patch_stream  # noqa: E402
-from dome_calib.recon.patches.seed_skeleton import BodyPrior  # noqa: E402
+from dome_calib.recon.patches.seed_skeleton import BodyPrior, body_capsules, ray_capsules  # noqa: E402
 from dome_calib.recon.patches.seed import optical_flow  # noqa: E402
 from dome_calib.recon.people.run import PeopleOptions, reconstruct_people  # noqa: E402
 from dome_calib.recon.people.sources import people_streams  # noqa: E402
@@ -83,9 +86,24 @@ def _pct(x: np.ndarray, q: float) -> float | None:
     return round(float(np.percentile(x, q)), 2) if len(x) else None
 
 
-def judge_in(source, bundle, traj, cam: str, o: PatchOptions) -> tuple[np.ndarray, np.ndarray]:
-    """Per patch-step seen by ``cam``: (|cam's own LK flow of the projection - the next projection|, |that flow|: the
-    error a patch that did not move would have) px."""
+def hidden_by_body(centre: np.ndarray, X: np.ndarray, body: BodyPrior | None, t_ms: float, margin_cm: float
+                   ) -> np.ndarray:
+    """(N,) patches (N, 3) that the participant's own body (its capsules at ``t_ms``) hides from a camera at
+    ``centre``: the ray meets a capsule more than ``margin_cm`` before the patch (all False without a body)."""
+    if body is None or not len(X):
+        return np.zeros(len(X), bool)
+    A, B, radius = body_capsules(body.at(t_ms))
+    to = X - centre
+    dist = np.linalg.norm(to, axis=1)
+    s, _ = ray_capsules(centre, to / np.maximum(dist, 1e-9)[:, None], A, B, radius)
+    return s < dist - margin_cm
+
+
+def judge_in(source, bundle, traj, cam: str, o: PatchOptions, body: BodyPrior | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Per patch-step seen by ``cam`` (facing it, in its image, not hidden by the participant's ``body``): (|cam's
+    own LK flow of the projection - the next projection|, |that flow|: the error a patch that did not move would
+    have) px."""
     views = view_set(bundle, [cam])
     centre = bundle.cameras[cam].center_cm
     frames, off_ms = stream_of_camera(bundle, cam)[1].nearest(traj.times_ms)  # L's own frames at the patch times
@@ -98,6 +116,7 @@ def judge_in(source, bundle, traj, cam: str, o: PatchOptions) -> tuple[np.ndarra
         cos = np.sum(traj.normal[both, k] * to_cam, 1) / np.linalg.norm(to_cam, axis=1)
         p0, p1 = project_points(views, X0), project_points(views, X1)
         ok = (cos > o.min_cos_view) & p0.visible[0] & p1.visible[0]
+        ok &= ~hidden_by_body(centre, np.nan_to_num(X0), body, float(traj.times_ms[k]), o.seed_depth_window_cm)
         if not ok.any():
             continue
         q, tracked = optical_flow(source.gray(cam, int(frames[k])), source.gray(cam, int(frames[k + 1])),
@@ -107,7 +126,7 @@ def judge_in(source, bundle, traj, cam: str, o: PatchOptions) -> tuple[np.ndarra
     return np.concatenate(errors + [np.zeros(0)]), np.concatenate(moves + [np.zeros(0)])
 
 
-def judge_from_seed(source, bundle, traj, cam: str, o: PatchOptions) -> dict:
+def judge_from_seed(source, bundle, traj, cam: str, o: PatchOptions, body: BodyPrior | None = None) -> dict:
     """Judged over the whole track, not step by step: ``cam``'s own flow carries each patch's seed-time projection
     (patches alive at their cloud's seed, facing ``cam``, in its image) frame by frame away from the seed, both
     ways (chained Lucas-Kanade, forward-backward checked; a point lost stays lost); per patch and time where the
@@ -123,7 +142,9 @@ def judge_from_seed(source, bundle, traj, cam: str, o: PatchOptions) -> dict:
         to_cam = centre - X
         cos = np.sum(traj.normal[:, k] * to_cam, 1) / np.linalg.norm(to_cam, axis=1)
         p = project_points(views, X)
-        return traj.alive[:, k] & (np.nan_to_num(cos) > o.min_cos_view) & p.visible[0], p.uv_px[0]
+        seen = traj.alive[:, k] & (np.nan_to_num(cos) > o.min_cos_view) & p.visible[0]
+        seen &= ~hidden_by_body(centre, X, body, float(traj.times_ms[k]), o.seed_depth_window_cm)
+        return seen, p.uv_px[0]
 
     err, still, far, n_judged = [], [], {}, 0
     for t_seed in np.unique(traj.seed_time_ms):
@@ -264,6 +285,8 @@ def main() -> None:
     ap.add_argument("--seed-method", choices=["sweep", "features", "skeleton"], default="sweep")
     ap.add_argument("--depth-window", type=float, default=PatchOptions().seed_depth_window_cm,
                     help='"skeleton": cm searched either side of the body\'s capsules')
+    ap.add_argument("--judge-occlusion", action="store_true",
+                    help="L judges only patches its view of the participant's body (capsules) does not hide")
     ap.add_argument("--lk-window", type=int, default=PatchOptions().lk_window_px,
                     help="optical flow's window (px), the tracking's and the judge's")
     ap.add_argument("--corners", type=int, default=PatchOptions().seed_features, help="corners per camera")
@@ -296,7 +319,7 @@ def main() -> None:
          options={"track_frames": half, "seed_min_views": 2, "seed_min_ncc": args.min_ncc,
                   "seed_method": args.seed_method, "seed_match_px": args.match_px,
                   "seed_depth_window_cm": args.depth_window, "seed_features": args.corners,
-                  "lk_window_px": args.lk_window},
+                  "lk_window_px": args.lk_window, "judge_occlusion": args.judge_occlusion},
          load=[round(x, 2) for x in os.getloadavg()])
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
@@ -316,10 +339,11 @@ def main() -> None:
             cpu0 = time.process_time()
             traj = patch_stream(clocked, source, tracking, span, o, seed_frames=seed_frames, body=body)
             cpu = time.process_time() - cpu0
-            err, move = judge_in(source, clocked, traj, left, o)
+            who = body_prior(found[1], found[2], table.times_of(frames)) if args.judge_occlusion else None
+            err, move = judge_in(source, clocked, traj, left, o, who)
             skel, n_joints = skeleton_in(bundle, det, tracking, left, frames, found)
             length = traj.alive.sum(1)
-            whole = judge_from_seed(source, clocked, traj, left, o)
+            whole = judge_from_seed(source, clocked, traj, left, o, who)
             emit(left_out=left, tracking=tracking, seeds=int(len(traj.ids)),
                  seeds_facing_left_out=whole.pop("patches_judged"),
                  median_frames_alive=(int(np.median(length)) if len(length) else None),
