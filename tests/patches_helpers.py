@@ -14,3 +14,23 @@ def one_person_capture():
     bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=1500.0, seed=0)
     truth = make_group(GroupOptions(n_people=1, scenario="conversation", start_ms=100.0, duration_ms=1300.0, seed=2))
     return bundle, truth
+
+
+#: Two VGA cameras 72 deg apart (one on each of the tiny dome's two panels): a wide baseline, as a real rig's phones.
+WIDE_PAIR = ["01_02", "13_02"]
+
+
+def wide_pair_scene(frame: int = 120):
+    """(bundle, truth, rendered scene, the pair's imaged views, the time of VGA ``frame``) of :func:`one_person_capture`
+    seen by :data:`WIDE_PAIR`."""
+    import numpy as np
+
+    from dome_calib.recon.patches.run import imaged_views
+    from dome_calib.synth.textured import TexturedScene, TextureOptions
+
+    bundle, truth = one_person_capture()
+    scene = TexturedScene(bundle, truth, TextureOptions())
+    views = imaged_views(scene, WIDE_PAIR)
+    axes = views.R[:, 2]
+    assert np.degrees(np.arccos(axes[0] @ axes[1])) > 60.0
+    return bundle, truth, scene, views, bundle.sync.streams["vga"].time_of(frame)

@@ -236,3 +236,15 @@ def test_reconstruct_images_on_two_workers_writes_the_same_patch_file(capture, d
     page = [(root / f"workers{n}" / "index.html").read_text().replace(f"workers{n}", "OUT") for n in (1, 2)]
     assert page[0] == page[1]
     assert one.stdout.replace("workers1", "OUT") == two.stdout.replace("workers2", "OUT")
+
+
+@pytest.mark.slow  # reconstruct --images: ~15 CPU-s
+def test_reconstruct_images_seeds_patches_on_the_people_with_patch_seeds_skeleton(capture, dome_calib_cli):
+    """``--patch-seeds skeleton``: the people just reconstructed are the seeds' depth prior (seed_skeleton)."""
+    root, _, _, _ = capture
+    out = dome_calib_cli("reconstruct", str(root / "det"), "--bundle", str(root / "bundle"), "--body-model",
+                         "PANOPTIC19", "--images", str(root / "images"), "--patch-seeds", "skeleton", "-o",
+                         str(root / "skeleton_seeds"))
+    assert out.returncode == 0, out.stderr
+    df = pd.read_parquet(root / "skeleton_seeds" / "patches.parquet")
+    assert len(df) > 100 and df["part"].notna().mean() > 0.5, out.stdout

@@ -8,26 +8,20 @@ import numpy as np
 import pytest
 
 from dome_calib.recon.patches.model import PatchOptions
-from dome_calib.recon.patches.run import imaged_views
 from dome_calib.recon.patches.seed import seed_patches
 from dome_calib.recon.patches.seed_features import match_pair, seed_from_features
 from dome_calib.recon.project import project_points
-from dome_calib.synth.textured import TexturedScene, TextureOptions, nearest_surface_points
+from dome_calib.synth.textured import nearest_surface_points
 
-from .patches_helpers import one_person_capture
+from .patches_helpers import WIDE_PAIR, wide_pair_scene
 
-CAMS = ["01_02", "13_02"]
+CAMS = WIDE_PAIR
 FRAME = 120
 
 
 @pytest.fixture(scope="module")
 def wide():
-    bundle, truth = one_person_capture()
-    scene = TexturedScene(bundle, truth, TextureOptions())
-    views = imaged_views(scene, CAMS)
-    axes = views.R[:, 2]
-    assert np.degrees(np.arccos(axes[0] @ axes[1])) > 60.0  # a wide baseline, as the phones of a real rig
-    return bundle, truth, scene, views, bundle.sync.streams["vga"].time_of(FRAME)
+    return wide_pair_scene(FRAME)  # a wide baseline, as the phones of a real rig
 
 
 def test_features_seed_the_true_surface_where_the_depth_sweep_finds_nothing(wide):

@@ -50,6 +50,11 @@ def reconstruct(
                                 "folder of frames (images.json maps camera names to them, else <camera>.mp4 or "
                                 "<camera>/). After the people, the dense patch trajectory stream is tracked on them, "
                                 "each patch given the body part it moves with, into OUT/patches.parquet."),
+    patch_seeds: str = typer.Option("sweep", "--patch-seeds", help="How --images seeds its patches: sweep (corners "
+                                    "put in 3D by a depth sweep in nearby cameras: a dense dome), features (SIFT "
+                                    "matched along epipolar lines), skeleton (corners on the people put in 3D by "
+                                    "their bodies' capsules, refined photometrically nearby: a few cameras far "
+                                    "apart; the people are the depth prior)."),
     workers: int = typer.Option(1, "--workers", help="Processes for long sessions (chunks of 600 times, then the "
                                 "body over time's windows, the --images patch clouds; 1 to 1024)."),
     scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler (tcp://HOST:PORT) to run the chunks, "
@@ -73,7 +78,7 @@ def reconstruct(
         patches = None
         if images is not None:
             from dome_calib.recon.patches.stage import plan_patches
-            patches = plan_patches(plan)  # the images' contents, before any work
+            patches = plan_patches(plan, seed_method=patch_seeds)  # the images' contents, before any work
         page = people_page_writer(plan.out, bundle, detections, camera_map=camera_map, body_model=plan.model.value,
                                   files=plan.source.files)
         with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:

@@ -27,8 +27,10 @@ class PatchOptions:
     track_frames: AtLeast(0) = 30  # each cloud tracked this many reference frames backward and forward
     # seeding (reference stream's cameras at the seed frame): "sweep" corners put in 3D by a depth sweep scored in
     # nearby cameras (seed.py: a dense rig); "features" SIFT matched along epipolar lines and triangulated
-    # (seed_features.py: cameras far apart)
-    seed_method: Literal["sweep", "features"] = "sweep"
+    # (seed_features.py: cameras far apart); "skeleton" corners on the people put in 3D by the body's capsules and
+    # refined photometrically within seed_depth_window_cm (seed_skeleton.py: a few cameras far apart; needs the
+    # people, ``patch_stream(..., body=)``)
+    seed_method: Literal["sweep", "features", "skeleton"] = "sweep"
     seed_features: AtLeast(1) = 400  # corners per camera (cv2.goodFeaturesToTrack)
     seed_min_distance_px: PosFinite = 5.0
     seed_neighbours: AtLeast(2) = 4  # cameras the depth sweep is scored in
@@ -40,6 +42,8 @@ class PatchOptions:
     seed_sift_features: AtLeast(1) = 4000  # "features": SIFT keypoints per camera
     seed_match_px: PosFinite = 3.0  # "features": epipolar band of a match and triangulation inliers
     seed_ratio: Annotated[float, Field(gt=0, le=1)] = 0.8  # "features": nearest / second nearest descriptor
+    seed_depth_window_cm: PosFinite = 6.0  # "skeleton": depths searched this far either side of the body's surface
+    seed_depth_step_cm: PosFinite = 0.5  # "skeleton": the search's coarse step (then a fifth of it)
     seed_spacing_cm: PosFinite = 1.5  # one seed per cell of this size
     normal_radius_cm: PosFinite = 4.0  # seeds within this distance give the normal (least principal axis)
     normal_min_points: AtLeast(3) = 5

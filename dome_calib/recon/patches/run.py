@@ -24,6 +24,7 @@ from dome_calib.recon.patches.model import PatchOptions, PatchTrajectories
 from dome_calib.recon.patches.seed import CameraSeeds, Seeds, merge_camera_seeds, seed_camera
 from dome_calib.recon.patches.seed_depth import DepthFrames, seed_from_depth
 from dome_calib.recon.patches.seed_features import seed_from_features
+from dome_calib.recon.patches.seed_skeleton import BodyPrior, CameraBodySeeds, merge_body_seeds, seed_camera_on_body
 from dome_calib.recon.patches.refine import refine_normals
 from dome_calib.recon.patches.track import Clock, CloudTrack, judged_frames, quantise_cm, track_cloud
 from dome_calib.recon.patches.visibility import camera_neighbours, estimate_visibility
@@ -90,8 +91,9 @@ def run_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], seed_tim
 @dataclass(frozen=True)
 class SeedTask:
     """Executor task: the seeds of cloud ``cloud`` from reference camera ``camera`` (image seeding by the depth
-    sweep), or the whole cloud (``camera`` -1) from the Kinects' depth (``depth`` given) or from matched features
-    (``options.seed_method == "features"``: :mod:`.seed_features`)."""
+    sweep, or on the people ``body_cm`` at the seed time with ``options.seed_method == "skeleton"``:
+    :mod:`.seed_skeleton`), or the whole cloud (``camera`` -1) from the Kinects' depth (``depth`` given) or from
+    matched features (``options.seed_method == "features"``: :mod:`.seed_features`)."""
 
     cloud: int
     camera: int
@@ -102,19 +104,23 @@ class SeedTask:
     options: PatchOptions
     bundle: Bundle | None = None
     depth: DepthFrames | None = None
+    body_cm: np.ndarray | None = None
 
     @property
     def key(self) -> tuple[int, int]:
         return (self.cloud, self.camera)
 
 
-def seed_task(task: SeedTask) -> tuple[tuple[int, int], CameraSeeds | Seeds]:
+def seed_task(task: SeedTask) -> tuple[tuple[int, int], CameraSeeds | CameraBodySeeds | Seeds]:
     """Run one :class:`SeedTask` (module level: picklable for a process pool or Dask)."""
     if task.depth is not None:
         return task.key, seed_from_depth(task.bundle, task.depth, task.seed_time_ms, task.source, task.ref_views,
                                          task.frames, task.options)
     if task.options.seed_method == "features":
         return task.key, seed_from_features(task.source, task.ref_views, task.frames, task.options)
+    if task.options.seed_method == "skeleton":
+        return task.key, seed_camera_on_body(task.source, task.ref_views, task.frames, task.camera, task.body_cm,
+                                             task.options)
     return task.key, seed_camera(task.source, task.ref_views, task.frames, task.camera, task.options)
 
 
@@ -163,7 +169,8 @@ def _concat_tracks(tracks: list[CloudTrack]) -> CloudTrack:
 
 def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_ms: tuple[float, float],
                  options: PatchOptions | None = None, *, stream: str | None = None,
-                 seed_frames: list[int] | None = None, depth: DepthFrames | None = None, executor=None,
+                 seed_frames: list[int] | None = None, depth: DepthFrames | None = None,
+                 body: BodyPrior | None = None, executor=None,
                  patches_per_task: int = 1000,
                  progress: Callable[[int, int], None] | None = None) -> PatchTrajectories:
     """The dense patch trajectory stream of ``cameras`` (all streams) over ``span_ms``.
@@ -181,6 +188,8 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
         stream: the reference stream (default :func:`reference_stream`).
         seed_frames: the reference frames that seed clouds (default every ``seed_every_frames``-th in the span).
         depth: the Kinects' depth frames: clouds seeded from depth (:mod:`.seed_depth`); None: from image features.
+        body: the people over time, the depth prior of ``seed_method="skeleton"`` (:mod:`.seed_skeleton`; needed
+            there, at the seed frames' times).
         progress: called with (tracking tasks done, tracking tasks).
     Example:
         >>> traj = patch_stream(bundle, TexturedScene(bundle, truth), vga_names, (1000.0, 3000.0))
@@ -188,6 +197,9 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
     o = options or PatchOptions()
     if patches_per_task < 1:
         raise ReconError(f"patches_per_task must be at least 1 (got {patches_per_task})")
+    on_body = depth is None and o.seed_method == "skeleton"
+    if on_body and body is None:
+        raise ReconError('seed_method "skeleton" needs the people over time (patch_stream(..., body=BodyPrior))')
     stream = stream or reference_stream(bundle, cameras)
     groups, tables = cameras_by_stream(bundle, cameras)
     if stream not in groups:
@@ -216,13 +228,16 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
         if depth is not None or o.seed_method == "features":  # the whole cloud in one task
             seed_tasks.append(SeedTask(c, -1, source, ref_views, frames, seed_times[c], o, bundle, depth))
         else:
-            seed_tasks += [SeedTask(c, r, source, ref_views, frames, seed_times[c], o) for r in range(len(ref_names))]
+            body_cm = body.at(seed_times[c]) if on_body else None
+            seed_tasks += [SeedTask(c, r, source, ref_views, frames, seed_times[c], o, body_cm=body_cm)
+                           for r in range(len(ref_names))]
     got: dict[int, list] = {}
     for (c, _), result in run_tasks(executor, seed_task, seed_tasks):
         got.setdefault(c, []).append(result)
     track_tasks = []
     for c in range(len(seeds_at)):
         ref_seeds = (got[c][0] if depth is not None or o.seed_method == "features"
+                     else merge_body_seeds(got.get(c, []), len(ref_names), o) if on_body
                      else merge_camera_seeds(got.get(c, []), ref_views, o))
         seen = np.zeros((len(ref_seeds.X_cm), len(cameras)), bool)
         seen[:, ref_pos] = ref_seeds.seen
@@ -232,7 +247,7 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
             track_tasks.append(TrackTask(c, lo, source, views, clocks, seed_times[c], table.times_of(windows[c]),
                                          Seeds(X_cm=seeds.X_cm[part], normal=seeds.normal[part],
                                                seen=seeds.seen[part]), neighbours, o,
-                                         refine=o.refine_normals and depth is None))
+                                         refine=o.refine_normals and depth is None and not on_body))
     tracks: dict[int, list[tuple[CloudTrack, CloudTrack]]] = {}
     results = (map(track_task, track_tasks) if executor is None or len(track_tasks) <= 1
                else in_order(executor.map(track_task, track_tasks), [t.key for t in track_tasks], lambda r: r[0]))

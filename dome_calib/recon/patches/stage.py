@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +24,7 @@ from dome_calib.recon.patches.motion import part_motions
 from dome_calib.recon.patches.page_layer import patch_layer
 from dome_calib.recon.patches.parts import label_parts
 from dome_calib.recon.patches.run import patch_stream, reference_stream
+from dome_calib.recon.patches.seed_skeleton import BodyPrior
 from dome_calib.recon.patches.stream_file import FILE_NAME, patch_table, write_patch_table
 from dome_calib.recon.streams import cameras_by_stream, frame_period_ms
 
@@ -43,13 +44,19 @@ class PatchStage:
             executor=None) -> FurtherStage:
         """The stream over the people's times (``bodies[t]``: a time's people, with ``ids`` and ``X_cm``; its seeding
         and tracking tasks on ``executor``: ``reconstruct``'s ``--workers`` / ``--scheduler``, None here), labelled
-        by part, the parts' motions as ties on the patches' times (the people's own where the images' reference
+        by part (with ``seed_method="skeleton"`` the people, at the reference stream's times, are the seeds' depth
+        prior), the parts' motions as ties on the patches' times (the people's own where the images' reference
         stream is the people's; a tie on another time ties nothing) -> the :class:`FurtherStage` whose ``write``
         puts ``patches.parquet`` into the staged output folder."""
         t = np.asarray(times_ms, dtype=float)
         stream = reference_stream(self.bundle, self.cameras)
+        body = None
+        if self.options.seed_method == "skeleton":  # the people as the seeds' depth prior, at the stream's times
+            table = cameras_by_stream(self.bundle, self.cameras)[1][stream]
+            at = table.univ_time_ms[(table.univ_time_ms >= t[0]) & (table.univ_time_ms <= t[-1])]
+            body = BodyPrior(times_ms=at, joints_cm=people_at(t, bodies, at)[0])
         traj = patch_stream(self.bundle, self.source, self.cameras, (float(t[0]), float(t[-1])), self.options,
-                            stream=stream, executor=executor, progress=progress)
+                            stream=stream, body=body, executor=executor, progress=progress)
         joints, ids = people_at(t, bodies, traj.times_ms)
         labels = label_parts(traj.X_cm[:, :, 0], traj.normal, traj.alive, joints)
         motions = part_motions(traj.X_cm, traj.alive, labels.person, labels.bone)
@@ -87,19 +94,24 @@ class PatchStage:
                          + (f" ({shown})" if shown else ""))
 
 
-def plan_patches(plan: ReconstructPlan, options: PatchOptions | None = None) -> PatchStage:
+def plan_patches(plan: ReconstructPlan, options: PatchOptions | None = None, *,
+                 seed_method: str | None = None) -> PatchStage:
     """Check the images of a reconstruction's plan (``--images``, which :func:`plan_reconstruction` checked as an
     input place beside the others): every camera's file, its frames and size (:func:`~.images.open_images`); a
-    bundle without sync tables takes the detections' rate ``plan.fps``."""
+    bundle without sync tables takes the detections' rate ``plan.fps``. ``seed_method`` (``--patch-seeds``)
+    replaces the options' seeding method."""
     if plan.images is None:
         raise ValueError("plan_patches: the plan has no images (plan_reconstruction(..., images=FOLDER))")
+    options = options or PatchOptions()
+    if seed_method is not None:
+        options = replace(options, seed_method=seed_method)
     source = open_images(plan.images, plan.bundle)
     clocked = with_shared_clock(plan.bundle, source, plan.fps)
     if len(source.names) < 2:
         raise ReconError(f"--images {plan.images}: images of {len(source.names)} camera; patches are triangulated "
                          "from two cameras or more")
     cameras_by_stream(clocked, source.names)  # every camera's sync table, before any work
-    return PatchStage(source=source, bundle=clocked, cameras=source.names, options=options or PatchOptions())
+    return PatchStage(source=source, bundle=clocked, cameras=source.names, options=options)
 
 
 def people_at(times_ms: np.ndarray, bodies: list, at_ms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,346 @@
+"""Seed patches from the reconstructed skeleton's surface (no depth sensor, cameras far apart): the body as
+capsules is a depth prior that turns the wide-baseline search into a local one.
+
+On a rig of a few cameras 55-130 deg apart, neither the depth sweep (:mod:`.seed`: upright windows compared in
+nearby cameras, refined by optical flow from the reference image) nor matched features (:mod:`.seed_features`:
+pairwise matches must close a triangle over three cameras) finds patches. Both search the whole capture volume.
+The people are already reconstructed when the patches are made (``reconstruct --images`` runs this stage after
+them), so the depth of a pixel on a person is known to a few centimetres:
+
+1. **The body as capsules** at the seed time: each part of :data:`~.parts.BONES` (the person's joints19 at the
+   seed time, the body over time) a capsule of the part's radius (:data:`PART_RADIUS_CM`, a generic adult; where
+   a bone's end is missing the part is left out).
+2. **Pixels on the person**, per reference camera (in name order): corners (``cv2.goodFeaturesToTrack``,
+   ``seed_features`` per image, quality :data:`CORNER_QUALITY` of the best) among the pixels whose ray meets a
+   capsule (a mask made on a 4 px grid of the capsules' box in the image), each ray's first capsule hit giving an
+   **initial depth and normal** (the capsule's outward normal there).
+3. **Refined photometrically** along the ray within ``seed_depth_window_cm`` of the hit (coarse steps of
+   ``seed_depth_step_cm``, then a fifth of it round the best): the patch's square (``ncc_size_cm``, its plane
+   given by the normal) is sampled in the reference camera and in each other camera of the stream that may see it
+   (the whole square in the image, the normal facing it by more than ``min_cos_view``, no capsule on the way to it
+   more than the window before it: the body hides itself), up to ``seed_views`` of them nearest the reference;
+   the depth of the highest mean NCC wins (quantised to 1e-6; ties the nearer depth). Unlike the sweep's upright
+   windows, the square is warped by its plane into each camera, which is what a wide baseline needs. The normal is
+   then tilted as PMVS does (:func:`.refine.refine_normals`) and the depth searched once more with it.
+4. **Kept** only where the square's NCC with the reference reaches ``seed_min_ncc`` in at least
+   ``seed_min_views - 1`` other cameras (``seed_min_views`` cameras agree), and the best depth is not at either end
+   of the window (there the surface lies outside it, or nothing matched). Those cameras are the seed's ``seen``.
+
+Seeds of all reference cameras are thinned to one per ``seed_spacing_cm`` cell (most agreeing cameras, then the
+first reference camera by position) and keep their own normals. Each camera's seeds depend on the images and the
+body at the seed time only (one task per camera), so how the work is cut changes no bit.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from dome_calib.camera import pixels_to_normalized
+from dome_calib.recon.patches.frames import GRID_SIDE, FrameSource, ncc, patch_axes, sample
+from dome_calib.recon.patches.model import PatchOptions
+from dome_calib.recon.patches.parts import BONES
+from dome_calib.recon.patches.refine import refine_normals
+from dome_calib.recon.patches.seed import Seeds, _nearest_views, patch_triplets, thin_to_cells
+from dome_calib.recon.patches.visibility import Frames
+from dome_calib.recon.project import ViewSet, project_points
+
+logger = logging.getLogger(__name__)
+
+#: The radius of each part's capsule (cm), in :data:`~.parts.BONES` order: a generic adult's (torso, head,
+#: shoulders, hips, upper arms, forearms, thighs, shins). A prior only: the photometric search looks
+#: ``seed_depth_window_cm`` either side of it, so a real body's own thickness (a chest is not round) is found there.
+PART_RADIUS_CM = np.array([13.0, 9.0, 6.0, 10.0, 5.0, 5.0, 4.0, 4.0, 7.0, 7.0, 5.0, 5.0])
+#: Corners' quality level (of the best corner on the people): a quarter of the sweep's 0.02, as the mask keeps only
+#: the people, whose skin and clothes are low-contrast (on the balancing trial's phone videos 0.02 finds 75-122
+#: corners per camera on the participant, this 134-320).
+CORNER_QUALITY = 0.005
+MASK_STEP_PX = 4  # the person's mask is made on this grid of pixels
+FINE_STEPS = 5  # the fine search: this many steps of a fifth of the coarse step either side of the best
+_CHUNK = 64
+
+
+@dataclass(frozen=True)
+class BodyPrior:
+    """The people over time as the seeds' depth prior: times_ms (T,) and joints_cm (T, P, 19, 3) joints19 (world cm,
+    NaN where missing), e.g. the body over time at the reference stream's times."""
+
+    times_ms: np.ndarray
+    joints_cm: np.ndarray
+
+    def at(self, t_ms: float) -> np.ndarray:
+        """(P, 19, 3) the people at ``t_ms`` (one of the prior's times, within 0.5 ms; none there: (0, 19, 3))."""
+        t = np.asarray(self.times_ms, dtype=float)
+        if not len(t):
+            return np.zeros((0, 19, 3))
+        k = int(np.argmin(np.abs(t - t_ms)))
+        return np.asarray(self.joints_cm[k], float) if abs(t[k] - t_ms) < 0.5 else np.zeros((0, 19, 3))
+
+
+def body_capsules(joints_cm: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(P, 19, 3) joints -> capsules (A (K, 3), B (K, 3), radius (K,)) of every part whose ends are known."""
+    X = np.asarray(joints_cm, dtype=float).reshape(-1, 19, 3)
+    A, B, R = [], [], []
+    for p in range(len(X)):
+        for k, (_, a, b) in enumerate(BONES):
+            end = 0.5 * (X[p, 16] + X[p, 18]) if b < 0 else X[p, b]
+            if np.all(np.isfinite(X[p, a])) and np.all(np.isfinite(end)) and np.linalg.norm(end - X[p, a]) > 1e-6:
+                A.append(X[p, a]), B.append(end), R.append(PART_RADIUS_CM[k])
+    if not A:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+    return np.array(A), np.array(B), np.array(R)
+
+
+def ray_capsules(origin: np.ndarray, dirs: np.ndarray, A: np.ndarray, B: np.ndarray, radius: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Unit rays ``origin + s dirs`` (N, 3) against capsules -> ((N,) first hit s > 0, inf: none; (N, 3) the
+    capsule's outward unit normal there, NaN: none). A capsule is the cylinder round [A, B] and the two spheres at
+    its ends; the first of their entry points that lies on the capsule's surface."""
+    N = len(dirs)
+    best = np.full(N, np.inf)
+    normal = np.full((N, 3), np.nan)
+    for a, b, r in zip(A, B, radius):
+        axis = (b - a) / np.linalg.norm(b - a)
+        length = float(np.linalg.norm(b - a))
+        oa = origin - a
+        d_perp = dirs - np.outer(dirs @ axis, axis)
+        w = oa - (oa @ axis) * axis
+        qa, qb, qc = np.sum(d_perp ** 2, 1), 2 * d_perp @ w, w @ w - r * r
+        disc = qb * qb - 4 * qa * qc
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s_cyl = (-qb - np.sqrt(disc)) / (2 * qa)
+        along = (oa @ axis) + s_cyl * (dirs @ axis)
+        s_cyl = np.where((disc > 0) & (qa > 1e-12) & (along >= 0) & (along <= length) & (s_cyl > 0), s_cyl, np.inf)
+        hits = [s_cyl]
+        for c in (a, b):
+            oc = origin - c
+            half_b = dirs @ oc
+            disc_s = half_b * half_b - (oc @ oc - r * r)
+            with np.errstate(invalid="ignore"):
+                s = -half_b - np.sqrt(disc_s)
+            hits.append(np.where((disc_s > 0) & (s > 0), s, np.inf))
+        s = np.min(hits, axis=0)
+        nearer = s < best
+        if nearer.any():
+            P = origin + s[nearer, None] * dirs[nearer]
+            t = np.clip((P - a) @ axis, 0.0, length)
+            n = P - (a + t[:, None] * axis)
+            normal[nearer] = n / np.linalg.norm(n, axis=1, keepdims=True)
+            best[nearer] = s[nearer]
+    return best, normal
+
+
+def _rays(views: ViewSet, v: int, uv: np.ndarray) -> np.ndarray:
+    xn = pixels_to_normalized(uv, views.intr[v], views.dist[v])
+    d = np.concatenate([xn, np.ones((len(xn), 1))], 1) @ views.R[v]
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def person_mask(views: ViewSet, v: int, size_wh: tuple[int, int], A: np.ndarray, B: np.ndarray,
+                radius: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 mask (255) of view ``v``'s pixels whose rays meet a capsule, made on a ``MASK_STEP_PX`` grid of
+    the capsules' box in the image (each grid cell takes its corner's verdict)."""
+    W, H = size_wh
+    mask = np.zeros((H, W), np.uint8)
+    t = np.linspace(0.0, 1.0, 5)
+    axis_pts = (A[:, None] + t[None, :, None] * (B - A)[:, None]).reshape(-1, 3)
+    offs = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+    pts = (axis_pts[:, None] + np.repeat(radius, len(t))[:, None, None] * offs[None]).reshape(-1, 3)
+    p = project_points(views.subset([views.names[v]]), pts)
+    if not p.visible[0].any():
+        return mask
+    uv = p.uv_px[0][p.visible[0]]
+    u0, v0 = (np.clip(np.floor(uv.min(0)) - 2 * MASK_STEP_PX, 0, [W - 1, H - 1])).astype(int)
+    u1, v1 = (np.clip(np.ceil(uv.max(0)) + 2 * MASK_STEP_PX, 0, [W - 1, H - 1])).astype(int)
+    gu, gv = np.arange(u0, u1 + 1, MASK_STEP_PX), np.arange(v0, v1 + 1, MASK_STEP_PX)
+    grid = np.stack(np.meshgrid(gu, gv), -1).reshape(-1, 2).astype(float)
+    s, _ = ray_capsules(views.center_cm[v], _rays(views, v, grid), A, B, radius)
+    hit = np.isfinite(s).reshape(len(gv), len(gu))
+    mask[v0:v0 + len(gv) * MASK_STEP_PX, u0:u0 + len(gu) * MASK_STEP_PX] = np.repeat(
+        np.repeat(hit, MASK_STEP_PX, 0), MASK_STEP_PX, 1)[:H - v0, :W - u0].astype(np.uint8) * 255
+    return mask
+
+
+def _squares(X0: np.ndarray, u: np.ndarray, v: np.ndarray, size_cm: float) -> np.ndarray:
+    """Centres (..., 3), plane axes (..., 3) -> (..., G, 3) the square's sample points."""
+    g = (np.arange(GRID_SIDE) / (GRID_SIDE - 1) - 0.5) * size_cm
+    a, b = (x.ravel() for x in np.meshgrid(g, g))
+    return X0[..., None, :] + a[:, None] * u[..., None, :] + b[:, None] * v[..., None, :]
+
+
+def _plane_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) unit normals -> (u, v) in-plane axes: u the world's down (y) made orthogonal (else x)."""
+    ref = np.where(np.abs(normal[:, 1:2]) < 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+    u = ref - np.sum(ref * normal, 1, keepdims=True) * normal
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    return u, np.cross(normal, u)
+
+
+def _depth_scores(grays: list[np.ndarray], views: ViewSet, cams: np.ndarray, origin: np.ndarray, dirs: np.ndarray,
+                  s: np.ndarray, normal: np.ndarray, o: PatchOptions) -> np.ndarray:
+    """Per ray (N,) and depth (N, D): NCC (N, D, K) of the square at ``origin + s dirs`` (plane ``normal`` (N, 3))
+    in each camera ``cams`` (N, K) (-1: none) against the reference (``grays[0]``, view ``cams``' reference is the
+    first of ``views``); NaN where a camera is none or the square leaves an image."""
+    N, D = s.shape
+    K = cams.shape[1]
+    u, v = _plane_axes(normal)
+    X0 = origin + s[..., None] * dirs[:, None]  # (N, D, 3)
+    sq = _squares(X0, np.broadcast_to(u[:, None], X0.shape), np.broadcast_to(v[:, None], X0.shape), o.ncc_size_cm)
+    G = sq.shape[2]
+
+    def look(c: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p = project_points(views.subset([views.names[c]]), sq[rows].reshape(-1, 3))
+        return (sample(grays[c], p.uv_px[0].reshape(len(rows), D, G, 2)),
+                p.visible[0].reshape(len(rows), D, G).all(-1))
+
+    ref, ref_in = look(0, np.arange(N))
+    out = np.full((N, D, K), np.nan)
+    for c in np.unique(cams[cams >= 0]):
+        rows, ks = np.nonzero(cams == c)
+        smp, inside = look(int(c), rows)
+        corr = ncc(smp, ref[rows])
+        out[rows, :, ks] = np.where(inside & ref_in[rows], corr, np.nan)
+    return out
+
+
+def _search(grays, views, cams, origin, dirs, centre_s, half_cm, step_cm, normal, o
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The depth of best mean NCC within ``centre_s +- half_cm`` (steps ``step_cm``) -> (best s (N,), NCC per camera
+    there (N, K), at an end of the range (N,))."""
+    n_steps = int(round(half_cm / step_cm))
+    s = centre_s[:, None] + step_cm * np.arange(-n_steps, n_steps + 1)[None]
+    score = _depth_scores(grays, views, cams, origin, dirs, s, normal, o)
+    have = np.isfinite(score)
+    mean = np.where(have.any(-1), np.where(have, score, 0.0).sum(-1) / np.maximum(have.sum(-1), 1), -2.0)
+    k = np.argmax(np.rint(mean * 1e6), axis=1)  # ties: the nearer depth
+    rows = np.arange(len(k))
+    return s[rows, k], score[rows, k], (k == 0) | (k == s.shape[1] - 1)
+
+
+def _candidates(views: ViewSet, r: int, X: np.ndarray, normal: np.ndarray, A, B, radius, o: PatchOptions
+                ) -> np.ndarray:
+    """(N, K) the views (positions, -1: none) that may see each point: among the ``seed_views`` nearest ``r``, the
+    normal facing the camera by more than ``min_cos_view``, no capsule on the way more than the window before it."""
+    near = _nearest_views(views, r, min(o.seed_views, len(views.names) - 1))
+    cams = np.full((len(X), len(near)), -1, np.int64)
+    for k, c in enumerate(near):
+        to_cam = views.center_cm[c] - X
+        dist = np.linalg.norm(to_cam, axis=1)
+        ok = np.sum(to_cam * normal, 1) / dist > o.min_cos_view
+        s, _ = ray_capsules(views.center_cm[c], -to_cam / dist[:, None], A, B, radius)
+        ok &= s >= dist - o.seed_depth_window_cm
+        cams[ok, k] = c
+    return cams
+
+
+@dataclass(frozen=True)
+class CameraBodySeeds:
+    """One reference camera's seeds: ``camera`` its position, ``seeds`` (patches, normals, agreeing views), n_agree
+    (M,) how many cameras agree on each."""
+
+    camera: int
+    seeds: Seeds
+    n_agree: np.ndarray
+
+
+def seed_camera_on_body(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int, joints_cm: np.ndarray,
+                        o: PatchOptions) -> CameraBodySeeds:
+    """The seeds of reference camera ``r`` on the people ``joints_cm`` (P, 19, 3) at the seed time (module
+    docstring). Depends on the images and the body at that time only: one task per camera."""
+    V = len(views.names)
+    empty = CameraBodySeeds(camera=r, seeds=Seeds(X_cm=np.zeros((0, 3, 3)), normal=np.zeros((0, 3)),
+                                                  seen=np.zeros((0, V), bool)), n_agree=np.zeros(0, np.int64))
+    A, B, radius = body_capsules(joints_cm)
+    if not len(A) or V < 2:
+        return empty
+    name = views.names[r]
+    gray_r = source.gray(name, frames[name])
+    mask = person_mask(views, r, (gray_r.shape[1], gray_r.shape[0]), A, B, radius)
+    if not mask.any():
+        return empty
+    corners = cv2.goodFeaturesToTrack(gray_r, o.seed_features, CORNER_QUALITY, o.seed_min_distance_px, mask=mask,
+                                      blockSize=5)
+    if corners is None:
+        return empty
+    corners = corners.reshape(-1, 2).astype(float)
+    q = np.rint(corners * 8).astype(np.int64)
+    corners = corners[np.lexsort((q[:, 0], q[:, 1]))]  # row then column: no detector order decides anything
+    origin = views.center_cm[r]
+    dirs = _rays(views, r, corners)
+    s0, n0 = ray_capsules(origin, dirs, A, B, radius)
+    hit = np.isfinite(s0)
+    corners, dirs, s0, n0 = corners[hit], dirs[hit], s0[hit], n0[hit]
+    if not len(corners):
+        return empty
+    # views in ``grays`` order: the reference first, then the others by position
+    order = [r] + [c for c in range(V) if c != r]
+    sub = views.subset([views.names[c] for c in order])
+    grays = [source.gray(views.names[c], frames[views.names[c]]) for c in order]
+    to_sub = np.argsort(order)  # view position -> position in ``sub``
+    frames_sub = Frames(frame=np.array([frames[views.names[c]] for c in order]), offset_ms=np.zeros(V))
+    step, half = o.seed_depth_step_cm, o.seed_depth_window_cm
+    keep_X, keep_n, keep_seen, keep_agree = [], [], [], []
+    for c0 in range(0, len(corners), _CHUNK):
+        sl = slice(c0, c0 + _CHUNK)
+        d, n = dirs[sl], n0[sl]
+        cams = _candidates(views, r, origin + s0[sl, None] * d, n, A, B, radius, o)
+        cams_sub = np.where(cams >= 0, to_sub[np.maximum(cams, 0)], -1)
+        s, _, edge = _search(grays, sub, cams_sub, origin, d, s0[sl], half, step, n, o)
+        # the normal tilted as PMVS does, in the cameras that agree at that depth, then the depth once more
+        X = origin + s[:, None] * d
+        u, v = _plane_axes(n)
+        trip = np.stack([X, X + o.axis_cm * u, X + o.axis_cm * v], 1)
+        seen = np.zeros((len(X), V), bool)
+        seen[:, 0] = True
+        rows, ks = np.nonzero(cams_sub >= 0)
+        seen[rows, cams_sub[rows, ks]] = True
+        trip = refine_normals(source, sub, frames_sub, trip, seen, o)
+        _, _, n = patch_axes(trip[:, 0], trip[:, 1], trip[:, 2])
+        s, score, _ = _search(grays, sub, cams_sub, origin, d, s, step, step / FINE_STEPS, n, o)
+        agree = np.nan_to_num(score, nan=-1.0) >= o.seed_min_ncc
+        n_agree = 1 + agree.sum(1)
+        ok = (n_agree >= o.seed_min_views) & ~edge
+        if not ok.any():
+            continue
+        X = origin + s[ok, None] * d[ok]
+        seen_v = np.zeros((int(ok.sum()), V), bool)
+        seen_v[:, r] = True
+        rows, ks = np.nonzero(agree[ok])
+        seen_v[rows, cams[ok][rows, ks]] = True
+        keep_X.append(X), keep_n.append(n[ok]), keep_seen.append(seen_v), keep_agree.append(n_agree[ok])
+    logger.debug("seed %s on the body: %d corners on it, %d kept", name, len(corners), sum(len(x) for x in keep_X))
+    if not keep_X:
+        return empty
+    X, normal = np.concatenate(keep_X), np.concatenate(keep_n)
+    u, _ = _plane_axes(normal)
+    return CameraBodySeeds(camera=r, seeds=Seeds(X_cm=patch_triplets(X, normal, u, o.axis_cm), normal=normal,
+                                                 seen=np.concatenate(keep_seen)), n_agree=np.concatenate(keep_agree))
+
+
+def merge_body_seeds(per_camera: list[CameraBodySeeds], V: int, o: PatchOptions) -> Seeds:
+    """The reference cameras' seeds (any order) -> one cloud: one per ``seed_spacing_cm`` cell (most agreeing
+    cameras, then the first camera by position), each keeping its own normal."""
+    parts = sorted((c for c in per_camera if len(c.seeds.X_cm)), key=lambda c: c.camera)
+    if not parts:
+        return Seeds(X_cm=np.zeros((0, 3, 3)), normal=np.zeros((0, 3)), seen=np.zeros((0, V), bool))
+    X = np.concatenate([c.seeds.X_cm for c in parts])
+    normal, seen = np.concatenate([c.seeds.normal for c in parts]), np.concatenate([c.seeds.seen for c in parts])
+    agree = np.concatenate([c.n_agree for c in parts])
+    cam = np.concatenate([np.full(len(c.seeds.X_cm), c.camera) for c in parts])
+    pick = thin_to_cells(X[:, 0], [np.arange(len(X)), cam, -agree], o.seed_spacing_cm)
+    logger.info("seed cloud (skeleton): %d patches from %d cameras", len(pick), len(parts))
+    return Seeds(X_cm=X[pick], normal=normal[pick], seen=seen[pick])
+
+
+def seed_on_body(source: FrameSource, views: ViewSet, frames: dict[str, int], joints_cm: np.ndarray,
+                 o: PatchOptions) -> Seeds:
+    """A seed cloud from the cameras ``views`` (one stream: their ``frames`` share a time) on the people
+    ``joints_cm`` (P, 19, 3) at that time.
+
+    Example:
+        >>> seeds = seed_on_body(scene, view_set(imaged, names), {n: 130 for n in names}, joints_at_130, o)
+    """
+    return merge_body_seeds([seed_camera_on_body(source, views, frames, r, joints_cm, o)
+                             for r in range(len(views.names))], len(views.names), o)
