@@ -505,6 +505,88 @@ def iteration_cost(args) -> None:
               peak_rss_gb=round(peak_rss_gb(), 2), load_average_1min=round(os.getloadavg()[0], 1)))
 
 
+class _Phases:
+    """CPU seconds, minor page faults and calls of the solver's parts, each wrapped where the solver looks it up
+    (inclusive: a part called inside another counts in both)."""
+
+    def __init__(self) -> None:
+        self.cpu: dict[str, float] = {}
+        self.faults: dict[str, int] = {}
+        self.calls: dict[str, int] = {}
+
+    def wrap(self, module, attr: str, name: str) -> None:
+        fn = getattr(module, attr)
+
+        def wrapped(*a, **k):
+            c, f = time.process_time(), resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+            try:
+                return fn(*a, **k)
+            finally:
+                self.cpu[name] = self.cpu.get(name, 0.0) + time.process_time() - c
+                self.faults[name] = self.faults.get(name, 0) + resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f
+                self.calls[name] = self.calls.get(name, 0) + 1
+
+        setattr(module, attr, wrapped)
+
+
+def worker_phases(data: dict) -> dict:
+    """A whole solve (``bundle_adjust`` from the perturbed start, then the uncertainties) with its parts timed in
+    CPU seconds and counted in minor page faults (:class:`_Phases`)."""
+    from dome_calib.ba import schur, solver
+    from dome_calib.ba import BAOptions, bundle_adjust, solution_uncertainty
+
+    ph = _Phases()
+    for module, attr, name in ((solver, "residuals_and_jacobians", "jacobians"), (solver, "linearize", "blocks"),
+                               (solver, "_cost", "cost"), (solver, "build_structure", "structure"),
+                               (solver, "build_reduced_system", "reduced_system"),
+                               (schur, "_eliminate", "reduced_system.points_eliminated"),
+                               (schur, "subtract_yyt", "reduced_system.yyt"),
+                               (schur, "subtract_yyt_blocks", "reduced_system.yyt"),
+                               (solver, "solve_reduced", "solve"), (schur, "solve_free", "solve.factorisation"),
+                               (schur, "solve_sparse", "solve.factorisation"),
+                               (schur, "point_step", "solve.point_step")):
+        ph.wrap(module, attr, name)
+    problem = data["start"]
+    usage0 = resource.getrusage(resource.RUSAGE_SELF)
+    c0 = time.process_time()
+    res = bundle_adjust(problem, BAOptions(n_threads=2, compute_uncertainty=False))
+    cpu = time.process_time() - c0
+    usage1 = resource.getrusage(resource.RUSAGE_SELF)
+    c1 = time.process_time()
+    solution_uncertainty(res, n_threads=2)
+    cpu_unc = time.process_time() - c1
+    usage2 = resource.getrusage(resource.RUSAGE_SELF)
+    C = problem.n_cameras
+    return dict(camera_params=res.problem.camera_params, points_cm=res.problem.points_cm, used=res.used,
+                cameras=C, observations=problem.n_observations, iterations=len(res.iterations),
+                reduced_systems=ph.calls.get("reduced_system", 0), factorisations=ph.calls.get("solve", 0),
+                termination=res.termination, cpu_s=round(cpu, 1), cpu_ms_per_camera=round(1e3 * cpu / C, 1),
+                system_s=round(usage1.ru_stime - usage0.ru_stime, 1), minor_faults=usage1.ru_minflt - usage0.ru_minflt,
+                uncertainty_cpu_s=round(cpu_unc, 1), uncertainty_minor_faults=usage2.ru_minflt - usage1.ru_minflt,
+                phases_cpu_s={k: round(v, 1) for k, v in sorted(ph.cpu.items())},
+                phases_minor_faults=dict(sorted(ph.faults.items())), phases_calls=dict(sorted(ph.calls.items())),
+                load_average_1min=round(os.getloadavg()[0], 1))
+
+
+def solve_phases(args) -> None:
+    """``--solve-phases``: :func:`worker_phases` on the generated problem, in a child process (its peak memory is
+    the solve's and the problem's only)."""
+    t0 = time.perf_counter()
+    data = make_data(args.small, args.seed, args.double)
+    emit(dict(bench="ba", what="problem", cameras=data["start"].n_cameras, observations=data["start"].n_observations,
+              points=data["start"].n_points, generate_s=round(time.perf_counter() - t0, 1)))
+    with tempfile.TemporaryDirectory(prefix="bench_ba_") as tmp:
+        tmp = args.workdir or tmp
+        Path(tmp).mkdir(parents=True, exist_ok=True)
+        data_file = Path(tmp) / "data.pkl"
+        with open(data_file, "wb") as fh:
+            pickle.dump(dict(start=data["start"]), fh, protocol=pickle.HIGHEST_PROTOCOL)
+        del data
+        sol = run_worker("phases", data_file, Path(tmp) / "phases.npz", [])
+    info = {k: v for k, v in sol.items() if k not in ("camera_params", "points_cm", "used")}
+    emit(dict(bench="ba", what="solve_phases", layout="double" if args.double else "dome", **info))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--small", action="store_true", help="quick run: 130 cameras, 10k points, ~100k observations")
@@ -513,7 +595,7 @@ def main() -> None:
                     "each camera and a twin turned 2.15 deg about the vertical axis), twice the observations of the "
                     "same points")
     ap.add_argument("--skip-peer", action="store_true", help="do not run pycolmap's Ceres BA")
-    ap.add_argument("--worker", choices=["ours", "oracle", "colmap", "k1"], help=argparse.SUPPRESS)
+    ap.add_argument("--worker", choices=["ours", "oracle", "colmap", "k1", "phases"], help=argparse.SUPPRESS)
     ap.add_argument("--data", help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
     ap.add_argument("--workdir", help="keep the problem and solutions in this folder (default: a temp folder)")
@@ -529,8 +611,14 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3, help="--factorisers, --iteration-cost: runs of each (median)")
     ap.add_argument("--iteration-cost", action="store_true", help="only one LM iteration's parts on the generated "
                     "problem (CPU seconds per camera, peak memory; with --double: 1,040 cameras)")
+    ap.add_argument("--solve-phases", action="store_true", help="only our whole solve and its uncertainties (in a "
+                    "child process): iterations, reduced systems, CPU seconds and minor page faults of each part, "
+                    "per camera, peak memory")
     args = ap.parse_args()
     globals()["PEER_TIME_LIMIT_S"] = args.peer_time_limit_s
+    if args.solve_phases:
+        solve_phases(args)
+        return
     if args.iteration_cost:
         iteration_cost(args)
         return
@@ -548,6 +636,8 @@ def main() -> None:
             out = worker_ours(data, "truth")
         elif args.worker == "k1":
             out = worker_k1(data)
+        elif args.worker == "phases":
+            out = worker_phases(data)
         else:
             out = worker_colmap(data)
         arrays = {k: out.pop(k) for k in ("camera_params", "points_cm", "used")}
