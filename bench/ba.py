@@ -306,7 +306,30 @@ def twin_cameras(cameras: list) -> list:
     return list(cameras) + twins
 
 
-def make_data(small: bool, seed: int, double: bool = False) -> dict:
+#: ``--pair``: the second dome stands this far along the world x axis from the first (one dome diameter: the two
+#: spheres touch), each with its own scenes, its tents placed as the first dome's
+PAIR_OFFSET_CM = 549.0
+PAIR_SCENE_CENTRES_CM = ((0.0, 0.0, 0.0), (30.0, 0.0, -25.0), (-25.0, 0.0, 35.0))
+
+
+def pair_cameras(cameras: list) -> tuple[list, np.ndarray]:
+    """Two domes side by side: every camera, and its copy in a second dome turned 180 deg about the vertical axis
+    through the centroid of the camera centres and moved :data:`PAIR_OFFSET_CM` along x (twice the panels at the
+    same density; each camera still aimed at its own dome's centre). Also the rigid map (4, 4) of the first
+    dome's world onto the second's, for its scenes."""
+    import dataclasses
+
+    centre = np.mean([c.center_cm for c in cameras], axis=0)
+    Q = np.diag([-1.0, 1.0, -1.0])  # 180 deg about y
+    shift = centre - Q @ centre + np.array([PAIR_OFFSET_CM, 0.0, 0.0])  # x' = Q x + shift
+    copies = [dataclasses.replace(c, name=f"w{c.name}", R=c.R @ Q.T, t_cm=c.t_cm - c.R @ Q.T @ shift)
+              for c in cameras]
+    world = np.eye(4)
+    world[:3, :3], world[:3, 3] = Q, shift
+    return list(cameras) + copies, world
+
+
+def make_data(small: bool, seed: int, double: bool = False, pair: bool = False) -> dict:
     from dome_calib.synth.ba_problem import SyntheticOptions, make_problem
     from dome_calib.panoptic_io import read_calibration
 
@@ -320,6 +343,11 @@ def make_data(small: bool, seed: int, double: bool = False) -> dict:
     if double:  # the same points seen by twice the cameras: twice the observations
         cameras = twin_cameras(cameras)
         opts = dataclasses.replace(opts, target_observations=2 * opts.target_observations)
+    if pair:  # twice the cameras, points and observations: each point seen by about as many cameras as before
+        cameras, world = pair_cameras(cameras)
+        second = [tuple(world[:3, :3] @ np.array(c) + world[:3, 3] * [1.0, 0.0, 1.0]) for c in PAIR_SCENE_CENTRES_CM]
+        opts = dataclasses.replace(opts, n_scenes=6, scene_centres_cm=PAIR_SCENE_CENTRES_CM + tuple(second),
+                                   n_points=2 * opts.n_points, target_observations=2 * opts.target_observations)
     sp = make_problem(cameras, opts)
     return dict(truth=sp.truth, start=sp.start, is_outlier=sp.is_outlier, noise_px=sp.noise_px)
 
@@ -468,7 +496,7 @@ def iteration_cost(args) -> None:
     from dome_calib.ba.schur import Workspace, buffer, build_reduced_system, build_structure, linearize, solve_reduced
 
     t0 = time.perf_counter()
-    problem = make_data(args.small, args.seed, args.double)["start"]
+    problem = make_data(args.small, args.seed, args.double, args.pair)["start"]
     emit(dict(bench="ba", what="problem", cameras=problem.n_cameras, observations=problem.n_observations,
               points=problem.n_points, generate_s=round(time.perf_counter() - t0, 1)))
     st = build_structure(problem.camera_index, problem.point_index, np.ones(problem.n_observations, dtype=bool),
@@ -513,6 +541,7 @@ class _Phases:
         self.cpu: dict[str, float] = {}
         self.faults: dict[str, int] = {}
         self.calls: dict[str, int] = {}
+        self.faults_per_call: dict[str, list[int]] = {}
 
     def wrap(self, module, attr: str, name: str) -> None:
         fn = getattr(module, attr)
@@ -523,17 +552,32 @@ class _Phases:
                 return fn(*a, **k)
             finally:
                 self.cpu[name] = self.cpu.get(name, 0.0) + time.process_time() - c
-                self.faults[name] = self.faults.get(name, 0) + resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f
+                df = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f
+                self.faults[name] = self.faults.get(name, 0) + df
+                self.faults_per_call.setdefault(name, []).append(df)
                 self.calls[name] = self.calls.get(name, 0) + 1
 
         setattr(module, attr, wrapped)
 
 
-def worker_phases(data: dict) -> dict:
+def _thp_faults() -> dict[str, int]:
+    """The kernel's transparent-huge-page fault counters (machine-wide: other processes' count too)."""
+    with open("/proc/vmstat") as fh:
+        return {k: int(v) for k, v in (line.split() for line in fh) if k in ("thp_fault_alloc", "thp_fault_fallback")}
+
+
+def worker_phases(data: dict, huge_pages: bool = True) -> dict:
     """A whole solve (``bundle_adjust`` from the perturbed start, then the uncertainties) with its parts timed in
-    CPU seconds and counted in minor page faults (:class:`_Phases`)."""
+    CPU seconds and counted in minor page faults (:class:`_Phases`). ``huge_pages`` False: numpy does not advise
+    the kernel to back its large arrays by 2 MB pages (a diagnostic: every fault is then one 4 kB page, so the
+    count no longer depends on how many huge pages the machine's memory could give at that moment)."""
     from dome_calib.ba import schur, solver
     from dome_calib.ba import BAOptions, bundle_adjust, solution_uncertainty
+
+    if not huge_pages:
+        from numpy._core.multiarray import _set_madvise_hugepage
+        _set_madvise_hugepage(False)
+    thp0 = _thp_faults()
 
     ph = _Phases()
     for module, attr, name in ((solver, "residuals_and_jacobians", "jacobians"), (solver, "linearize", "blocks"),
@@ -565,6 +609,11 @@ def worker_phases(data: dict) -> dict:
                 uncertainty_cpu_s=round(cpu_unc, 1), uncertainty_minor_faults=usage2.ru_minflt - usage1.ru_minflt,
                 phases_cpu_s={k: round(v, 1) for k, v in sorted(ph.cpu.items())},
                 phases_minor_faults=dict(sorted(ph.faults.items())), phases_calls=dict(sorted(ph.calls.items())),
+                phases_minor_faults_first_call={k: v[0] for k, v in sorted(ph.faults_per_call.items())},
+                phases_minor_faults_later_median={k: int(np.median(v[1:])) for k, v in sorted(ph.faults_per_call.items())
+                                                  if len(v) > 1},
+                huge_pages_advised=huge_pages,
+                thp_faults_machine={k: v - thp0[k] for k, v in _thp_faults().items()},
                 load_average_1min=round(os.getloadavg()[0], 1))
 
 
@@ -572,7 +621,7 @@ def solve_phases(args) -> None:
     """``--solve-phases``: :func:`worker_phases` on the generated problem, in a child process (its peak memory is
     the solve's and the problem's only)."""
     t0 = time.perf_counter()
-    data = make_data(args.small, args.seed, args.double)
+    data = make_data(args.small, args.seed, args.double, args.pair)
     emit(dict(bench="ba", what="problem", cameras=data["start"].n_cameras, observations=data["start"].n_observations,
               points=data["start"].n_points, generate_s=round(time.perf_counter() - t0, 1)))
     with tempfile.TemporaryDirectory(prefix="bench_ba_") as tmp:
@@ -582,9 +631,14 @@ def solve_phases(args) -> None:
         with open(data_file, "wb") as fh:
             pickle.dump(dict(start=data["start"]), fh, protocol=pickle.HIGHEST_PROTOCOL)
         del data
-        sol = run_worker("phases", data_file, Path(tmp) / "phases.npz", [])
+        sol = run_worker("phases", data_file, Path(tmp) / "phases.npz", ["--no-huge-pages"] if args.no_huge_pages else [])
     info = {k: v for k, v in sol.items() if k not in ("camera_params", "points_cm", "used")}
-    emit(dict(bench="ba", what="solve_phases", layout="double" if args.double else "dome", **info))
+    emit(dict(bench="ba", what="solve_phases", layout="twin" if args.double else "pair" if args.pair else "dome", commit=_commit(), **info))
+
+
+def _commit() -> str:
+    return subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
+                          text=True).stdout.strip()
 
 
 def main() -> None:
@@ -594,6 +648,9 @@ def main() -> None:
     ap.add_argument("--double", action="store_true", help="the dome with panels twice as dense (1,040 cameras: "
                     "each camera and a twin turned 2.15 deg about the vertical axis), twice the observations of the "
                     "same points")
+    ap.add_argument("--pair", action="store_true", help="two domes side by side (1,040 cameras: a copy of the dome "
+                    "turned 180 deg and moved one diameter along x), each with its own three scenes: twice the points "
+                    "and observations, each point seen by about as many cameras as in one dome")
     ap.add_argument("--skip-peer", action="store_true", help="do not run pycolmap's Ceres BA")
     ap.add_argument("--worker", choices=["ours", "oracle", "colmap", "k1", "phases"], help=argparse.SUPPRESS)
     ap.add_argument("--data", help=argparse.SUPPRESS)
@@ -614,6 +671,8 @@ def main() -> None:
     ap.add_argument("--solve-phases", action="store_true", help="only our whole solve and its uncertainties (in a "
                     "child process): iterations, reduced systems, CPU seconds and minor page faults of each part, "
                     "per camera, peak memory")
+    ap.add_argument("--no-huge-pages", action="store_true", help="--solve-phases: numpy's large arrays not advised "
+                    "to 2 MB pages (every page fault one 4 kB page: counts comparable between runs)")
     args = ap.parse_args()
     globals()["PEER_TIME_LIMIT_S"] = args.peer_time_limit_s
     if args.solve_phases:
@@ -637,7 +696,7 @@ def main() -> None:
         elif args.worker == "k1":
             out = worker_k1(data)
         elif args.worker == "phases":
-            out = worker_phases(data)
+            out = worker_phases(data, huge_pages=not args.no_huge_pages)
         else:
             out = worker_colmap(data)
         arrays = {k: out.pop(k) for k in ("camera_params", "points_cm", "used")}
@@ -669,7 +728,7 @@ def start_load(n: int) -> list[subprocess.Popen]:
 
 
 def run_all(args, t0: float) -> None:
-    data = make_data(args.small, args.seed, args.double)
+    data = make_data(args.small, args.seed, args.double, args.pair)
     truth, is_outlier, sigma = data["truth"], data["is_outlier"], data["noise_px"]
     emit(dict(bench="ba", what="problem", cameras=truth.n_cameras, scenes=len(truth.scene_names),
               points=truth.n_points, observations=truth.n_observations, outliers=int(is_outlier.sum()),
