@@ -596,6 +596,10 @@ def worker_phases(data: dict, huge_pages: bool = True) -> dict:
     res = bundle_adjust(problem, BAOptions(n_threads=2, compute_uncertainty=False))
     cpu = time.process_time() - c0
     usage1 = resource.getrusage(resource.RUSAGE_SELF)
+    print(json.dumps(dict(solve_cpu_s=round(cpu, 1), iterations=len(res.iterations), peak_rss_gb=peak_rss_gb(),
+                          minor_faults=usage1.ru_minflt - usage0.ru_minflt,
+                          phases_cpu_s={k: round(v, 1) for k, v in sorted(ph.cpu.items())},
+                          phases_calls=dict(sorted(ph.calls.items())))), file=sys.stderr, flush=True)
     c1 = time.process_time()
     solution_uncertainty(res, n_threads=2)
     cpu_unc = time.process_time() - c1
@@ -631,8 +635,14 @@ def solve_phases(args) -> None:
         with open(data_file, "wb") as fh:
             pickle.dump(dict(start=data["start"]), fh, protocol=pickle.HIGHEST_PROTOCOL)
         del data
-        sol = run_worker("phases", data_file, Path(tmp) / "phases.npz", ["--no-huge-pages"] if args.no_huge_pages else [])
-    info = {k: v for k, v in sol.items() if k not in ("camera_params", "points_cm", "used")}
+        out_file = Path(tmp) / "phases.npz"
+        cmd = [sys.executable, __file__, "--worker", "phases", "--data", str(data_file), "--out", str(out_file)]
+        with open(out_file.with_suffix(".log"), "w") as log:  # the solver's iterations, live
+            proc = subprocess.run(cmd + (["--no-huge-pages"] if args.no_huge_pages else []), stdout=subprocess.PIPE,
+                                  stderr=log, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"worker phases failed: see {out_file.with_suffix('.log')}")
+        info = json.loads(proc.stdout.strip().splitlines()[-1])
     emit(dict(bench="ba", what="solve_phases", layout="twin" if args.double else "pair" if args.pair else "dome", commit=_commit(), **info))
 
 
