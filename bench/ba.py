@@ -559,6 +559,13 @@ class _Phases:
 
         setattr(module, attr, wrapped)
 
+    def log(self, file) -> None:
+        """The figures so far, one JSON line (a run that cannot finish still tells its cost per reduced system)."""
+        print(json.dumps(dict(cpu_s=round(time.process_time(), 1), phases_cpu_s={k: round(v, 1) for k, v in
+                                                                                sorted(self.cpu.items())},
+                              phases_calls=dict(sorted(self.calls.items())), peak_rss_gb=peak_rss_gb(),
+                              minor_faults=resource.getrusage(resource.RUSAGE_SELF).ru_minflt)), file=file, flush=True)
+
 
 def _thp_faults() -> dict[str, int]:
     """The kernel's transparent-huge-page fault counters (machine-wide: other processes' count too)."""
@@ -590,6 +597,14 @@ def worker_phases(data: dict, huge_pages: bool = True) -> dict:
                                (schur, "solve_sparse", "solve.factorisation"),
                                (schur, "point_step", "solve.point_step")):
         ph.wrap(module, attr, name)
+    solve = solver.solve_reduced
+
+    def solve_and_log(*a, **k):
+        out = solve(*a, **k)
+        ph.log(sys.stderr)
+        return out
+
+    solver.solve_reduced = solve_and_log
     problem = data["start"]
     usage0 = resource.getrusage(resource.RUSAGE_SELF)
     c0 = time.process_time()
