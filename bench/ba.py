@@ -4,6 +4,9 @@
     .venv/bin/python bench/ba.py --small    # 130 cameras, 10k points, ~100k observations (a minute or two)
     .venv/bin/python bench/ba.py --double --skip-peer --only ours   # 1,040 cameras (panels twice as dense), ~2M obs.
     .venv/bin/python bench/ba.py --small --load   # the same while two CPU-bound processes share the 2 cores
+    .venv/bin/python bench/ba.py --solve-phases [--double | --pair] [--no-huge-pages]   # our whole solve's parts:
+        # CPU seconds and minor page faults of each, reduced systems, per camera, peak memory (--pair: two domes
+        # side by side, 1,040 cameras, each point seen by about as many cameras as in one dome)
 
 Problem: the real Panoptic layout and distortion (tests/data/panoptic/calibration_160906_band1.json, 520
 cameras), points on a tent-like surface, Gaussian pixel noise sigma = 0.5 px, 1 % gross outliers; the start
