@@ -286,6 +286,18 @@ def test_evaluation_works_in_small_chunks_with_the_same_bits(cameras, monkeypatc
     assert np.array_equal(r_chunked, residuals(*args, n_threads=1))
 
 
+def test_scenes_stand_where_they_are_placed(cameras):
+    """SyntheticOptions.scene_centres_cm: each scene's tent at its own place (bench/ba.py --pair puts three in a
+    second dome); one place per scene."""
+    centres = ((0.0, 0.0, 0.0), (60.0, 0.0, -50.0))
+    p = small(cameras, n_points=400, target_observations=2000, n_scenes=2, scene_centres_cm=centres).truth
+    for name, centre in zip(p.scene_names, centres):
+        mid = p.scene_points(name).mean(axis=0)
+        assert np.hypot(mid[0] - centre[0], mid[2] - centre[2]) < 30.0, (name, mid)
+    with pytest.raises(ValueError, match="scene_centres_cm has 1 places for 2 scenes"):
+        small(cameras, n_scenes=2, scene_centres_cm=centres[:1])
+
+
 def test_output_is_a_bundle_keyed_by_name(cameras):
     sp = small(cameras, noise_px=0.3)
     res = bundle_adjust(sp.start, quick(outlier_rounds=0, loss="trivial"))
