@@ -4,6 +4,9 @@
     .venv/bin/python bench/ba.py --small    # 130 cameras, 10k points, ~100k observations (a minute or two)
     .venv/bin/python bench/ba.py --double --skip-peer --only ours   # 1,040 cameras (panels twice as dense), ~2M obs.
     .venv/bin/python bench/ba.py --small --load   # the same while two CPU-bound processes share the 2 cores
+    .venv/bin/python bench/ba.py --solve-phases [--double | --pair] [--no-huge-pages]   # our whole solve's parts:
+        # CPU seconds and minor page faults of each, reduced systems, per camera, peak memory (--pair: two domes
+        # side by side, 1,040 cameras, each point seen by about as many cameras as in one dome)
 
 Problem: the real Panoptic layout and distortion (tests/data/panoptic/calibration_160906_band1.json, 520
 cameras), points on a tent-like surface, Gaussian pixel noise sigma = 0.5 px, 1 % gross outliers; the start
@@ -306,7 +309,30 @@ def twin_cameras(cameras: list) -> list:
     return list(cameras) + twins
 
 
-def make_data(small: bool, seed: int, double: bool = False) -> dict:
+#: ``--pair``: the second dome stands this far along the world x axis from the first (one dome diameter: the two
+#: spheres touch), each with its own scenes, its tents placed as the first dome's
+PAIR_OFFSET_CM = 549.0
+PAIR_SCENE_CENTRES_CM = ((0.0, 0.0, 0.0), (30.0, 0.0, -25.0), (-25.0, 0.0, 35.0))
+
+
+def pair_cameras(cameras: list) -> tuple[list, np.ndarray]:
+    """Two domes side by side: every camera, and its copy in a second dome turned 180 deg about the vertical axis
+    through the centroid of the camera centres and moved :data:`PAIR_OFFSET_CM` along x (twice the panels at the
+    same density; each camera still aimed at its own dome's centre). Also the rigid map (4, 4) of the first
+    dome's world onto the second's, for its scenes."""
+    import dataclasses
+
+    centre = np.mean([c.center_cm for c in cameras], axis=0)
+    Q = np.diag([-1.0, 1.0, -1.0])  # 180 deg about y
+    shift = centre - Q @ centre + np.array([PAIR_OFFSET_CM, 0.0, 0.0])  # x' = Q x + shift
+    copies = [dataclasses.replace(c, name=f"w{c.name}", R=c.R @ Q.T, t_cm=c.t_cm - c.R @ Q.T @ shift)
+              for c in cameras]
+    world = np.eye(4)
+    world[:3, :3], world[:3, 3] = Q, shift
+    return list(cameras) + copies, world
+
+
+def make_data(small: bool, seed: int, double: bool = False, pair: bool = False) -> dict:
     from dome_calib.synth.ba_problem import SyntheticOptions, make_problem
     from dome_calib.panoptic_io import read_calibration
 
@@ -320,6 +346,11 @@ def make_data(small: bool, seed: int, double: bool = False) -> dict:
     if double:  # the same points seen by twice the cameras: twice the observations
         cameras = twin_cameras(cameras)
         opts = dataclasses.replace(opts, target_observations=2 * opts.target_observations)
+    if pair:  # twice the cameras, points and observations: each point seen by about as many cameras as before
+        cameras, world = pair_cameras(cameras)
+        second = [tuple(world[:3, :3] @ np.array(c) + world[:3, 3] * [1.0, 0.0, 1.0]) for c in PAIR_SCENE_CENTRES_CM]
+        opts = dataclasses.replace(opts, n_scenes=6, scene_centres_cm=PAIR_SCENE_CENTRES_CM + tuple(second),
+                                   n_points=2 * opts.n_points, target_observations=2 * opts.target_observations)
     sp = make_problem(cameras, opts)
     return dict(truth=sp.truth, start=sp.start, is_outlier=sp.is_outlier, noise_px=sp.noise_px)
 
@@ -468,7 +499,7 @@ def iteration_cost(args) -> None:
     from dome_calib.ba.schur import Workspace, buffer, build_reduced_system, build_structure, linearize, solve_reduced
 
     t0 = time.perf_counter()
-    problem = make_data(args.small, args.seed, args.double)["start"]
+    problem = make_data(args.small, args.seed, args.double, args.pair)["start"]
     emit(dict(bench="ba", what="problem", cameras=problem.n_cameras, observations=problem.n_observations,
               points=problem.n_points, generate_s=round(time.perf_counter() - t0, 1)))
     st = build_structure(problem.camera_index, problem.point_index, np.ones(problem.n_observations, dtype=bool),
@@ -505,6 +536,139 @@ def iteration_cost(args) -> None:
               peak_rss_gb=round(peak_rss_gb(), 2), load_average_1min=round(os.getloadavg()[0], 1)))
 
 
+class _Phases:
+    """CPU seconds, minor page faults and calls of the solver's parts, each wrapped where the solver looks it up
+    (inclusive: a part called inside another counts in both)."""
+
+    def __init__(self) -> None:
+        self.cpu: dict[str, float] = {}
+        self.faults: dict[str, int] = {}
+        self.calls: dict[str, int] = {}
+        self.faults_per_call: dict[str, list[int]] = {}
+
+    def wrap(self, module, attr: str, name: str) -> None:
+        fn = getattr(module, attr)
+
+        def wrapped(*a, **k):
+            c, f = time.process_time(), resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+            try:
+                return fn(*a, **k)
+            finally:
+                self.cpu[name] = self.cpu.get(name, 0.0) + time.process_time() - c
+                df = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f
+                self.faults[name] = self.faults.get(name, 0) + df
+                self.faults_per_call.setdefault(name, []).append(df)
+                self.calls[name] = self.calls.get(name, 0) + 1
+
+        setattr(module, attr, wrapped)
+
+    def log(self, file) -> None:
+        """The figures so far, one JSON line (a run that cannot finish still tells its cost per reduced system)."""
+        print(json.dumps(dict(cpu_s=round(time.process_time(), 1), phases_cpu_s={k: round(v, 1) for k, v in
+                                                                                sorted(self.cpu.items())},
+                              phases_calls=dict(sorted(self.calls.items())), peak_rss_gb=peak_rss_gb(),
+                              minor_faults=resource.getrusage(resource.RUSAGE_SELF).ru_minflt)), file=file, flush=True)
+
+
+def _thp_faults() -> dict[str, int]:
+    """The kernel's transparent-huge-page fault counters (machine-wide: other processes' count too)."""
+    with open("/proc/vmstat") as fh:
+        return {k: int(v) for k, v in (line.split() for line in fh) if k in ("thp_fault_alloc", "thp_fault_fallback")}
+
+
+def worker_phases(data: dict, huge_pages: bool = True) -> dict:
+    """A whole solve (``bundle_adjust`` from the perturbed start, then the uncertainties) with its parts timed in
+    CPU seconds and counted in minor page faults (:class:`_Phases`). ``huge_pages`` False: numpy does not advise
+    the kernel to back its large arrays by 2 MB pages (a diagnostic: every fault is then one 4 kB page, so the
+    count no longer depends on how many huge pages the machine's memory could give at that moment)."""
+    from dome_calib.ba import schur, solver
+    from dome_calib.ba import BAOptions, bundle_adjust, solution_uncertainty
+
+    if not huge_pages:
+        from numpy._core.multiarray import _set_madvise_hugepage
+        _set_madvise_hugepage(False)
+    thp0 = _thp_faults()
+
+    ph = _Phases()
+    for module, attr, name in ((solver, "residuals_and_jacobians", "jacobians"), (solver, "linearize", "blocks"),
+                               (solver, "_cost", "cost"), (solver, "build_structure", "structure"),
+                               (solver, "build_reduced_system", "reduced_system"),
+                               (schur, "_eliminate", "reduced_system.points_eliminated"),
+                               (schur, "subtract_yyt", "reduced_system.yyt"),
+                               (schur, "subtract_yyt_blocks", "reduced_system.yyt"),
+                               (solver, "solve_reduced", "solve"), (schur, "solve_free", "solve.factorisation"),
+                               (schur, "solve_sparse", "solve.factorisation"),
+                               (schur, "point_step", "solve.point_step")):
+        ph.wrap(module, attr, name)
+    solve = solver.solve_reduced
+
+    def solve_and_log(*a, **k):
+        out = solve(*a, **k)
+        ph.log(sys.stderr)
+        return out
+
+    solver.solve_reduced = solve_and_log
+    problem = data["start"]
+    usage0 = resource.getrusage(resource.RUSAGE_SELF)
+    c0 = time.process_time()
+    res = bundle_adjust(problem, BAOptions(n_threads=2, compute_uncertainty=False))
+    cpu = time.process_time() - c0
+    usage1 = resource.getrusage(resource.RUSAGE_SELF)
+    print(json.dumps(dict(solve_cpu_s=round(cpu, 1), iterations=len(res.iterations), peak_rss_gb=peak_rss_gb(),
+                          minor_faults=usage1.ru_minflt - usage0.ru_minflt,
+                          phases_cpu_s={k: round(v, 1) for k, v in sorted(ph.cpu.items())},
+                          phases_calls=dict(sorted(ph.calls.items())))), file=sys.stderr, flush=True)
+    c1 = time.process_time()
+    solution_uncertainty(res, n_threads=2)
+    cpu_unc = time.process_time() - c1
+    usage2 = resource.getrusage(resource.RUSAGE_SELF)
+    C = problem.n_cameras
+    return dict(camera_params=res.problem.camera_params, points_cm=res.problem.points_cm, used=res.used,
+                cameras=C, observations=problem.n_observations, iterations=len(res.iterations),
+                reduced_systems=ph.calls.get("reduced_system", 0), factorisations=ph.calls.get("solve", 0),
+                termination=res.termination, cpu_s=round(cpu, 1), cpu_ms_per_camera=round(1e3 * cpu / C, 1),
+                system_s=round(usage1.ru_stime - usage0.ru_stime, 1), minor_faults=usage1.ru_minflt - usage0.ru_minflt,
+                uncertainty_cpu_s=round(cpu_unc, 1), uncertainty_minor_faults=usage2.ru_minflt - usage1.ru_minflt,
+                phases_cpu_s={k: round(v, 1) for k, v in sorted(ph.cpu.items())},
+                phases_minor_faults=dict(sorted(ph.faults.items())), phases_calls=dict(sorted(ph.calls.items())),
+                phases_minor_faults_first_call={k: v[0] for k, v in sorted(ph.faults_per_call.items())},
+                phases_minor_faults_later_median={k: int(np.median(v[1:])) for k, v in sorted(ph.faults_per_call.items())
+                                                  if len(v) > 1},
+                huge_pages_advised=huge_pages,
+                thp_faults_machine={k: v - thp0[k] for k, v in _thp_faults().items()},
+                load_average_1min=round(os.getloadavg()[0], 1))
+
+
+def solve_phases(args) -> None:
+    """``--solve-phases``: :func:`worker_phases` on the generated problem, in a child process (its peak memory is
+    the solve's and the problem's only)."""
+    t0 = time.perf_counter()
+    data = make_data(args.small, args.seed, args.double, args.pair)
+    emit(dict(bench="ba", what="problem", cameras=data["start"].n_cameras, observations=data["start"].n_observations,
+              points=data["start"].n_points, generate_s=round(time.perf_counter() - t0, 1)))
+    with tempfile.TemporaryDirectory(prefix="bench_ba_") as tmp:
+        tmp = args.workdir or tmp
+        Path(tmp).mkdir(parents=True, exist_ok=True)
+        data_file = Path(tmp) / "data.pkl"
+        with open(data_file, "wb") as fh:
+            pickle.dump(dict(start=data["start"]), fh, protocol=pickle.HIGHEST_PROTOCOL)
+        del data
+        out_file = Path(tmp) / "phases.npz"
+        cmd = [sys.executable, __file__, "--worker", "phases", "--data", str(data_file), "--out", str(out_file)]
+        with open(out_file.with_suffix(".log"), "w") as log:  # the solver's iterations, live
+            proc = subprocess.run(cmd + (["--no-huge-pages"] if args.no_huge_pages else []), stdout=subprocess.PIPE,
+                                  stderr=log, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"worker phases failed: see {out_file.with_suffix('.log')}")
+        info = json.loads(proc.stdout.strip().splitlines()[-1])
+    emit(dict(bench="ba", what="solve_phases", layout="twin" if args.double else "pair" if args.pair else "dome", commit=_commit(), **info))
+
+
+def _commit() -> str:
+    return subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
+                          text=True).stdout.strip()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--small", action="store_true", help="quick run: 130 cameras, 10k points, ~100k observations")
@@ -512,8 +676,11 @@ def main() -> None:
     ap.add_argument("--double", action="store_true", help="the dome with panels twice as dense (1,040 cameras: "
                     "each camera and a twin turned 2.15 deg about the vertical axis), twice the observations of the "
                     "same points")
+    ap.add_argument("--pair", action="store_true", help="two domes side by side (1,040 cameras: a copy of the dome "
+                    "turned 180 deg and moved one diameter along x), each with its own three scenes: twice the points "
+                    "and observations, each point seen by about as many cameras as in one dome")
     ap.add_argument("--skip-peer", action="store_true", help="do not run pycolmap's Ceres BA")
-    ap.add_argument("--worker", choices=["ours", "oracle", "colmap", "k1"], help=argparse.SUPPRESS)
+    ap.add_argument("--worker", choices=["ours", "oracle", "colmap", "k1", "phases"], help=argparse.SUPPRESS)
     ap.add_argument("--data", help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
     ap.add_argument("--workdir", help="keep the problem and solutions in this folder (default: a temp folder)")
@@ -529,8 +696,16 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3, help="--factorisers, --iteration-cost: runs of each (median)")
     ap.add_argument("--iteration-cost", action="store_true", help="only one LM iteration's parts on the generated "
                     "problem (CPU seconds per camera, peak memory; with --double: 1,040 cameras)")
+    ap.add_argument("--solve-phases", action="store_true", help="only our whole solve and its uncertainties (in a "
+                    "child process): iterations, reduced systems, CPU seconds and minor page faults of each part, "
+                    "per camera, peak memory")
+    ap.add_argument("--no-huge-pages", action="store_true", help="--solve-phases: numpy's large arrays not advised "
+                    "to 2 MB pages (every page fault one 4 kB page: counts comparable between runs)")
     args = ap.parse_args()
     globals()["PEER_TIME_LIMIT_S"] = args.peer_time_limit_s
+    if args.solve_phases:
+        solve_phases(args)
+        return
     if args.iteration_cost:
         iteration_cost(args)
         return
@@ -548,6 +723,8 @@ def main() -> None:
             out = worker_ours(data, "truth")
         elif args.worker == "k1":
             out = worker_k1(data)
+        elif args.worker == "phases":
+            out = worker_phases(data, huge_pages=not args.no_huge_pages)
         else:
             out = worker_colmap(data)
         arrays = {k: out.pop(k) for k in ("camera_params", "points_cm", "used")}
@@ -579,7 +756,7 @@ def start_load(n: int) -> list[subprocess.Popen]:
 
 
 def run_all(args, t0: float) -> None:
-    data = make_data(args.small, args.seed, args.double)
+    data = make_data(args.small, args.seed, args.double, args.pair)
     truth, is_outlier, sigma = data["truth"], data["is_outlier"], data["noise_px"]
     emit(dict(bench="ba", what="problem", cameras=truth.n_cameras, scenes=len(truth.scene_names),
               points=truth.n_points, observations=truth.n_observations, outliers=int(is_outlier.sum()),

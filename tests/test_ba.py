@@ -261,6 +261,43 @@ def test_component_major_jacobians_equal_foundation(cameras):
     assert np.allclose(Jp.transpose(2, 0, 1), ref.d_point, rtol=1e-9, atol=1e-12)
 
 
+def test_evaluation_works_in_small_chunks_with_the_same_bits(cameras, monkeypatch):
+    """The residuals and Jacobians are evaluated a chunk of observations at a time, so their elementwise temporaries
+    stay small (reused from the heap; one slice per thread made each of them half the observations long, a fresh
+    mapping on the full dome on every call); every observation alone, so the chunking changes no bit."""
+    import tracemalloc
+
+    from dome_calib.ba import evaluate
+
+    p = small(cameras, n_points=100, target_observations=600, noise_px=0.5).start
+    rep = np.tile(np.arange(p.n_observations), 200_000 // p.n_observations + 1)[:200_000]
+    args = (p.camera_params, p.points_cm, p.camera_index[rep], p.point_index[rep], p.uv_px[rep])
+    M = len(rep)
+    out = (np.empty((2, M)), np.empty((2, 15, M)), np.empty((2, 3, M)))
+    tracemalloc.start()
+    chunked = [a.copy() for a in residuals_and_jacobians(*args, n_threads=2, out=out)]
+    peak = tracemalloc.get_traced_memory()[1] - sum(a.nbytes for a in chunked)
+    tracemalloc.stop()
+    assert peak < 2 * 100 * evaluate.CHUNK_OBSERVATIONS * 8, peak  # ~70 live temporaries of a chunk per thread
+    r_chunked = residuals(*args, n_threads=2)
+    monkeypatch.setattr(evaluate, "CHUNK_OBSERVATIONS", M)  # one slice: what a thread evaluated before
+    whole = residuals_and_jacobians(*args, n_threads=1)
+    assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(chunked, whole))
+    assert np.array_equal(r_chunked, residuals(*args, n_threads=1))
+
+
+def test_scenes_stand_where_they_are_placed(cameras):
+    """SyntheticOptions.scene_centres_cm: each scene's tent at its own place (bench/ba.py --pair puts three in a
+    second dome); one place per scene."""
+    centres = ((0.0, 0.0, 0.0), (60.0, 0.0, -50.0))
+    p = small(cameras, n_points=400, target_observations=2000, n_scenes=2, scene_centres_cm=centres).truth
+    for name, centre in zip(p.scene_names, centres):
+        mid = p.scene_points(name).mean(axis=0)
+        assert np.hypot(mid[0] - centre[0], mid[2] - centre[2]) < 30.0, (name, mid)
+    with pytest.raises(ValueError, match="scene_centres_cm has 1 places for 2 scenes"):
+        small(cameras, n_scenes=2, scene_centres_cm=centres[:1])
+
+
 def test_output_is_a_bundle_keyed_by_name(cameras):
     sp = small(cameras, noise_px=0.3)
     res = bundle_adjust(sp.start, quick(outlier_rounds=0, loss="trivial"))

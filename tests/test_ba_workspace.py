@@ -55,3 +55,34 @@ def test_the_quadratic_model_and_the_uncertainties_reuse_the_solves_arrays():
     shared = solution_uncertainty(result, workspace=ws)
     assert np.array_equal(alone.sigma_center_cm, shared.sigma_center_cm)
     assert np.array_equal(alone.sigma_intr_px, shared.sigma_intr_px)
+
+
+def test_a_reduced_system_with_the_inner_constraints_allocates_nothing_of_its_size_once_warm():
+    """The inner constraints' rank-7 term goes into S through a kept buffer: before, each block of its rows was a
+    fresh array (on the full dome 64 MB each, past glibc's largest heap size: a new mapping faulted in and zeroed
+    by the kernel, 8 per reduced system), here one of S's size since the system has fewer rows than a block."""
+    from dome_calib.ba.evaluate import residuals_and_jacobians
+    from dome_calib.ba.gauge import inner_constraint_basis
+    from dome_calib.ba.schur import build_reduced_system, build_structure, linearize
+
+    cams, _ = read_calibration(CALIBRATION)
+    names = sorted(n for n in cams if not n.startswith("50_"))[:48]
+    problem = make_problem([cams[n] for n in names], SyntheticOptions(
+        n_points=400, target_observations=4000, noise_px=0.3, outlier_fraction=0.0, seed=3)).start
+    st = build_structure(problem.camera_index, problem.point_index, np.ones(problem.n_observations, dtype=bool),
+                         problem.free, problem.n_points, Workspace())
+    res, Jc, Jp = residuals_and_jacobians(problem.camera_params, problem.points_cm, st.cam, st.pt,
+                                          problem.uv_px[st.obs])
+    lin = linearize(st, res, Jc, Jp, np.ones(len(st.obs)))
+    basis = inner_constraint_basis(problem.camera_params[st.active_cameras], st.free, lin.D_c)
+    plain = build_reduced_system(st, lin, 1e-4).S.copy()
+    build_reduced_system(st, lin, 1e-4, gauge_basis=basis)  # warm
+    tracemalloc.start()
+    S = build_reduced_system(st, lin, 1e-4, gauge_basis=basis).S
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 0.5 * S.nbytes, (peak, S.nbytes)
+    expected = plain
+    for i in range(0, len(expected), 1024):  # the former expression: the same bits
+        expected[i:i + 1024] += basis[i:i + 1024] @ basis.T
+    assert np.array_equal(S, expected)

@@ -399,6 +399,24 @@ class ReducedSystem:
     gauge_basis: np.ndarray | None = None
 
 
+#: rows of :func:`add_outer_rows`' product at a time
+OUTER_ROWS = 1024
+
+
+def add_outer_rows(S: np.ndarray, B: np.ndarray, st: Structure | None) -> None:
+    """S += B B^T (B (n, k), k small: the inner constraints' rank-7 term), in blocks of :data:`OUTER_ROWS` rows
+    through one kept buffer of ``st``'s workspace: no (n, n) temporary, and no fresh block per call either (a
+    1,024-row block of the full dome's system is 64 MB, past the largest size glibc serves from its heap, so each
+    block was a new mapping whose pages the kernel faulted in and zeroed again: 8 per reduced system, 16 of 128 MB
+    on a dome twice as large). The same products as ``B[i:j] @ B.T`` block by block, so the same bits."""
+    n = len(S)
+    rows = buffer(st, "outer_rows", (min(OUTER_ROWS, n), n))
+    for i in range(0, n, OUTER_ROWS):
+        block = rows[:min(OUTER_ROWS, n - i)]
+        np.matmul(B[i:i + OUTER_ROWS], B.T, out=block)
+        S[i:i + OUTER_ROWS] += block
+
+
 def build_reduced_system(st: Structure, lin: Linearization, lam: float, *, n_threads: int = 2,
                          gauge_basis: np.ndarray | None = None) -> ReducedSystem:
     """The damped reduced system; ``gauge_basis`` (A*15, k): S += B B^T (inner constraints, see
@@ -411,8 +429,7 @@ def build_reduced_system(st: Structure, lin: Linearization, lam: float, *, n_thr
                              layout=layout, gauge_basis=gauge_basis)
     S, rhs, Li, ypt = reduced_system(st, lin, lam, n_threads=n_threads, reuse=True)
     if gauge_basis is not None:
-        for i in range(0, len(S), 1024):  # in row blocks: no second (A*15)^2 temporary
-            S[i:i + 1024] += gauge_basis[i:i + 1024] @ gauge_basis.T
+        add_outer_rows(S, gauge_basis, st)
     return ReducedSystem(S=S, rhs=rhs, Li=Li, ypt=ypt, lam=lam, lam_cameras=lam)
 
 

@@ -38,6 +38,9 @@ class SyntheticOptions:
     principal_point_noise_px: NonNegFinite = 2.0
     point_noise_cm: NonNegFinite = 1.0
     seed: AtLeast(0) = 0
+    #: where each scene's tent stands (cm, world frame; one per scene, ``n_scenes`` of them): None, near the dome
+    #: centre (the first at it, the others within 40 cm); given, each scene's tent at its place, turned at random
+    scene_centres_cm: tuple[tuple[float, float, float], ...] | None = None
 
 
 @dataclass(kw_only=True)
@@ -90,6 +93,8 @@ def _visible_pairs(cams: list[Camera], X: np.ndarray, normals: np.ndarray, chunk
 def make_problem(cameras: list[Camera], options: SyntheticOptions | None = None) -> SyntheticProblem:
     """A seeded synthetic problem over ``cameras`` (ground truth) with noisy observations and a perturbed start."""
     o = options or SyntheticOptions()
+    if o.scene_centres_cm is not None and len(o.scene_centres_cm) != o.n_scenes:
+        raise ValueError(f"scene_centres_cm has {len(o.scene_centres_cm)} places for {o.n_scenes} scenes")
     rng = np.random.default_rng(o.seed)
     per_scene = np.full(o.n_scenes, o.n_points // o.n_scenes)
     per_scene[: o.n_points - per_scene.sum()] += 1
@@ -97,6 +102,8 @@ def make_problem(cameras: list[Camera], options: SyntheticOptions | None = None)
     for s, n in enumerate(per_scene):
         yaw = rng.uniform(0, 2 * np.pi)
         off = np.array([rng.uniform(-40, 40), 0.0, rng.uniform(-40, 40)]) if s else np.zeros(3)
+        if o.scene_centres_cm is not None:
+            off = np.asarray(o.scene_centres_cm[s], dtype=float)
         X, N = tent_points(int(n), rng, yaw_rad=yaw, offset_cm=off)
         ci, pi, uv = _visible_pairs(cameras, X, N)
         scenes[f"scene_{s + 1:02d}"] = X
