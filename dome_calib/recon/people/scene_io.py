@@ -24,10 +24,14 @@ cameras.json: per camera the people it detected, the share of them used by a rec
 pixel distance between its used joints and the reconstructed joints; ``flagged`` lists the cameras that disagree
 (median error above ``max(3 x the cameras' median, 5 px)`` or a share used below half the cameras' median, or, an
 absolute criterion that holds when half the cameras are off, more than :data:`OUTVOTED_LIMIT` of its joint
-detections outvoted by the body over time): a camera that moved since calibration, a bad lens, or a camera that sees
-nobody well. With the body over time, per
-camera also the share of its joint detections that the body outvoted (farther than 5 sigma of that camera's
-measured pixel noise from where the body puts the joint: swaps, a neighbour's limb, a moved camera).
+detections outvoted by the body over time, or its detections lying to one side of the bodies: :data:`OFFSET_Z`,
+:data:`OFFSET_FLOOR`): a camera that moved since calibration, a bad lens, or a camera that sees nobody well. With the
+body over time, per camera also the share of its joint detections that the body outvoted (farther than 5 sigma of
+that camera's measured pixel noise from where the body puts the joint: swaps, a neighbour's limb, a moved camera),
+``median_offset_px`` (u, v: the median of its inlier detections minus the body's joints projected), over
+``offset_joints``, ``offset_z`` (its length in standard errors) and ``offset_floor_px``; ``notes``: one line per camera
+flagged for its offset ("camera 03: its joints lie 16 px to the left of where the others put them: moved or
+re-aimed?").
 """
 from __future__ import annotations
 
@@ -62,7 +66,10 @@ MIN_JUDGED = 100  # the people page, written into the staging folder by write_pe
 #: OFFSET_Z standard errors of a median of its n inliers (sqrt(pi / 2) sigma / sqrt(n), sigma the camera's measured
 #: pixel noise per axis, :func:`~dome_calib.recon.people.windows.noise_px_of`) and than OFFSET_FLOOR of its image
 #: diagonal. Noise alone averages out; a camera that moved or was re-aimed since calibration puts every person to
-#: one side of where the others put them.
+#: one side of where the others put them. The floor is twice the largest offset of a camera agreeing with the others
+#: on the real Pose2Sim trial (3.7 px of a 1088 x 1920 image: the detector's per-joint biases, the calibration's
+#: error); its disagreeing camera has 23 px. The detector's noise is correlated over ~150 ms
+#: (``bench/detector_stats.py``), so with thousands of joints the significance is overstated and the floor decides.
 OFFSET_Z = 5.0
 OFFSET_FLOOR = 0.0035
 
