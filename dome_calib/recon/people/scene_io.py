@@ -50,6 +50,7 @@ from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.detection_cache import KeptDetections
 from dome_calib.recon.people.extras import ExtraJoints
 from dome_calib.recon.people.run import PeopleSequence
+from dome_calib.recon.people.windows import noise_px_of
 
 CAMERAS_FILE = "cameras.json"
 PAGE_FILE = "index.html"
@@ -94,8 +95,6 @@ def camera_report(agreement: CameraAgreement, resolution_px: np.ndarray | None =
     """The per-camera agreement as a JSON object (see the module docstring). resolution_px (V, 2): each camera's
     image (width, height), in ``agreement.names`` order, for the offset criterion's floor (None: that criterion is
     not applied); min_noise_px: the body over time's floor of a camera's pixel noise."""
-    from dome_calib.recon.people.windows import noise_px_of
-
     offset, n_off = agreement.median_offset_px()
     noise = noise_px_of(agreement.noise, min_noise_px)
     off_len = np.hypot(offset[:, 0], offset[:, 1])
