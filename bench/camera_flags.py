@@ -1,7 +1,8 @@
 """Camera flags when several cameras are off (issue 51, "flags that hold when half the cameras are off"): the
 few-camera rig (5 HD cameras, 2 people, the detector whose errors last), ``--off`` of its cameras turned by
 ``--degrees`` about their own vertical axis in the bundle given to ``reconstruct`` (the detections come from the true
-cameras), then ``cameras.json``'s verdict and, per camera, the median reprojection, the share outvoted and the mean
+cameras), then ``cameras.json``'s verdict and, per camera, the median reprojection, the share outvoted, cameras.json's
+median offset of its inlier detections (with its significance, standard errors, and floor, px) and the mean
 residual vector (detection minus the reprojected body over all its used joints, px): a camera that moved shifts its
 detections to one side, which detector noise does not.
 
@@ -91,14 +92,15 @@ def main() -> None:
         summary = reconstruct_folder(root / "det", root / "b", root / "out", body_model="BODY_25",
                                      options=people_options())
         report = json.loads((root / "out" / "cameras.json").read_text())
-        emit(turned=turned, degrees=args.degrees, flagged=report["flagged"], people=summary.people,
-             median_reprojection_px=report["median_reprojection_px"])
+        emit(turned=turned, degrees=args.degrees, flagged=report["flagged"], notes=report["notes"],
+             people=summary.people, median_reprojection_px=report["median_reprojection_px"])
         det = read_openpose_folder(root / "det", body_model="BODY_25")
         people = read_people(root / "out")
         for name, c in report["cameras"].items():
             mean, n = mean_residual_px(moved, det, people, name)
             emit(camera=name, turned=name in turned, median_reprojection_px=c["median_reprojection_px"],
-                 outvoted_share=c["outvoted_share"], mean_residual_px=mean,
+                 outvoted_share=c["outvoted_share"], median_offset_px=c["median_offset_px"],
+                 offset_z=c["offset_z"], offset_floor_px=c["offset_floor_px"], mean_residual_px=mean,
                  mean_residual_length_px=None if mean[0] is None else round(float(np.hypot(*mean)), 1),
                  joints=n)
 

@@ -24,6 +24,9 @@ Prints one JSON object per line: one per (setup, people) with
   session's windows also fit M context times on both sides of their W: cpu_steps_per_s_long_session counts the body
   over time's share (its own process time, the tracks' apart) (W + 2M) / W times; body_over_time_cpu_ms_per_step:
   that share per step;
+- flagged_cameras: the cameras cameras.json would flag (the body over time's tallies;
+  :func:`~dome_calib.recon.people.scene_io.camera_report`), largest_offset_px: the longest median offset of a
+  camera's inlier detections from the bodies (px);
 
 then the aims, and two table lines per setup (wall clock, process time) of the time per step against views and
 people.
@@ -40,9 +43,12 @@ import dataclasses  # noqa: E402
 import json  # noqa: E402
 import time  # noqa: E402
 
+import numpy as np  # noqa: E402
+
 from dome_calib.bundle import Bundle  # noqa: E402
 from dome_calib.recon.people.proposals import AssociationOptions  # noqa: E402
 from dome_calib.recon.people.run import PeopleOptions, over_time, people_at_times, reconstruct_people  # noqa: E402
+from dome_calib.recon.people.scene_io import camera_report  # noqa: E402
 from dome_calib.recon.people.sources import InMemorySource, people_streams  # noqa: E402
 from dome_calib.recon.people.temporal import TemporalOptions  # noqa: E402
 from dome_calib.recon.people.windows import margin_times  # noqa: E402
@@ -110,6 +116,8 @@ def run(setup: str, n_people: int, seconds: float, seed: int, passes: int = 2, m
     M = margin_times(times, options.temporal)
     W = options.temporal.window_margins * M
     long_cpu = cpu_pf + cpu_track + (cpu_t - cpu_track) * (W + 2 * M) / W
+    report = camera_report(seq.cameras, views.subset(seq.cameras.names).resolution, options.temporal.min_noise_px)
+    offsets = [np.hypot(*c["median_offset_px"]) for c in report["cameras"].values() if c["median_offset_px"]]
     return {"setup": setup, "views": len(views.names), "people": n_people, "times": len(times), "seed": seed,
             "passes": passes, "max_pairs": max_pairs,
             **result, "steps_per_s": round(len(times) / wall, 2), "cpu_steps_per_s": round(len(times) / cpu, 2),
@@ -118,7 +126,9 @@ def run(setup: str, n_people: int, seconds: float, seed: int, passes: int = 2, m
             "per_frame_cpu_steps_per_s": round(len(times) / (cpu_pf + cpu_track), 2),
             "body_over_time_cpu_ms_per_step": round(1000 * (cpu_t - cpu_track) / len(times), 2),
             "margin_times": M, "window_times": W,
-            "cpu_steps_per_s_long_session": round(len(times) / long_cpu, 2)}
+            "cpu_steps_per_s_long_session": round(len(times) / long_cpu, 2),
+            "flagged_cameras": report["flagged"],
+            "largest_offset_px": round(float(max(offsets)), 2) if offsets else None}
 
 
 def main() -> None:

@@ -10,7 +10,10 @@ Prints one JSON object per line:
   result, not a truth), the share of (frame, joint) reconstructed, and per camera the median distance (px) between
   our participant's reprojected joints and that camera's detections; the per-camera noise and outvoted share the
   body over time measured;
-- Pose2Sim's own reprojection onto the same detections, per camera (the peer's result, same scorer).
+- Pose2Sim's own reprojection onto the same detections, per camera (the peer's result, same scorer);
+- per mode, cameras.json's verdict (:func:`~dome_calib.recon.people.scene_io.camera_report`): the cameras flagged,
+  why, and per camera the median offset of its inlier detections from the body (px, u v), how many, its
+  significance (standard errors) and its floor (px).
 
 Camera 03 disagrees with the other three by ~40 px on every joint (flagged by cameras.json; Pose2Sim's own result
 reprojects 21 px off there).
@@ -33,6 +36,7 @@ sys.path.insert(0, str(ROOT))
 from dome_calib.recon.body_models import JOINTS19  # noqa: E402
 from dome_calib.recon.openpose_io import read_openpose_folder  # noqa: E402
 from dome_calib.recon.people.run import PeopleOptions, reconstruct_people  # noqa: E402
+from dome_calib.recon.people.scene_io import camera_report  # noqa: E402
 from dome_calib.recon.people.sources import people_streams  # noqa: E402
 from dome_calib.recon.people.temporal import TemporalOptions  # noqa: E402
 from dome_calib.recon.project import project_points, view_set  # noqa: E402
@@ -93,6 +97,10 @@ def main() -> None:
              reprojection_px=reprojection_px(bundle, X[:, ji], det.people, ji),
              outvoted_share={n: (round(float(o / j), 4) if j else None)
                              for n, o, j in zip(a.names, a.outvoted, a.judged)})
+        report = camera_report(a, views.subset(a.names).resolution)
+        emit(mode=mode, flagged=report["flagged"], notes=report["notes"],
+             offset={n: {k: c[k] for k in ("median_offset_px", "offset_joints", "offset_z", "offset_floor_px")}
+                     for n, c in report["cameras"].items()})
 
 
 if __name__ == "__main__":

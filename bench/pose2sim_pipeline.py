@@ -4,6 +4,7 @@ a user would (`dome-calib import --from pose2sim`, `reconstruct --videos`, `expo
 kinematics) on our TRC, against the same steps on Pose2Sim's own triangulation of the same detections.
 
 Run: .venv/bin/python bench/pose2sim_pipeline.py [--data ../shared/data/multiview/pose2sim_balancing] [--per-frame]
+[--cameras-only] (stop after reconstruct: cameras.json's flags and per-camera offsets, the ``cameras_json`` line)
 Prints one JSON object per line:
 - ``machine``: load average at the start;
 - ``ours``: the reconstruct summary line, the TRC files, the seconds of each stage;
@@ -200,6 +201,8 @@ def main() -> None:
     ap.add_argument("--per-frame", action="store_true", help="reconstruct --per-frame (no body over time)")
     ap.add_argument("--two-people", action="store_true", help="also two synthetic people through Pose2Sim")
     ap.add_argument("--only-two-people", action="store_true", help="only the two synthetic people")
+    ap.add_argument("--cameras-only", action="store_true",
+                    help="stop after reconstruct: cameras.json's verdict on the real trial only")
     args = ap.parse_args()
     if args.only_two_people:
         with tempfile.TemporaryDirectory() as tmp:
@@ -217,6 +220,14 @@ def main() -> None:
                           "BODY_25B", "--camera-map", CAMERA_MAP, "--videos", str(data / "videos"), "-o",
                           str(tmp / "people"), *extra)
         t1 = time.perf_counter()
+        report = json.loads((tmp / "people" / "cameras.json").read_text())
+        emit(cameras_json={"flagged": report["flagged"], "notes": report["notes"],
+                           "cameras": {n: {k: c[k] for k in ("median_reprojection_px", "outvoted_share",
+                                                             "median_offset_px", "offset_joints", "offset_z",
+                                                             "offset_floor_px")}
+                                       for n, c in report["cameras"].items()}})
+        if args.cameras_only:
+            return
         dome_calib("export-people", str(tmp / "people"), "--to", "trc", "-o", str(tmp / "trc"), "--trial",
                    "balancing")
         trcs = sorted((tmp / "trc").glob("*.trc"))

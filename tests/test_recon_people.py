@@ -197,7 +197,7 @@ def test_no_result_depends_on_how_the_work_is_cut(mixed_group):
         _same_people(whole, other, 1e-3)
         for x, y in zip(whole.bodies, other.bodies):
             np.testing.assert_allclose(x.confidence[np.argsort(x.ids)], y.confidence[np.argsort(y.ids)], atol=1e-6)
-        for tally in ("detected", "used", "hist", "judged", "outvoted", "noise"):  # cameras.json: each time once
+        for tally in ("detected", "used", "hist", "judged", "outvoted", "noise", "offset"):  # cameras.json: once
             np.testing.assert_array_equal(getattr(other.cameras, tally), getattr(whole.cameras, tally))
     assert whole.cameras.judged.sum() > 0
     assert calls[-1] == (2 * len(times), 2 * len(times)) and len(calls) > 5  # per frame, then over time

@@ -67,6 +67,7 @@ class ReconstructSummary:
     nobody: str | None = None
     fps: Fraction | None = None
     fps_from: str = ""
+    camera_notes: tuple[str, ...] = ()  # cameras.json's ``notes``: why a camera is flagged, where the report says
 
 
 @dataclass(frozen=True)
@@ -329,7 +330,8 @@ def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callab
             if page is not None:
                 page(staging, replace(staged, detections=kept, patches=more.page_layer if more is not None else None))
 
-        report = camera_report(seq.cameras)
+        report = camera_report(seq.cameras, plan.views.subset(seq.cameras.names).resolution,
+                               plan.options.temporal.min_noise_px)
         write_people(plan.out, seq, plan.numbers, fps_type_of(plan.reference),
                      also=also if more is not None or page is not None else None, body_model=plan.model.value,
                      extras=extras, lab_up=plan.lab_up, fps=plan.fps, report=report, bundle=plan.bundle)
@@ -341,7 +343,7 @@ def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callab
                               body_model=plan.model.value, reference=plan.reference, people=len(ids),
                               body_frames=sum(len(b.ids) for b in seq.bodies), flagged_cameras=report["flagged"],
                               median_reprojection_px=report["median_reprojection_px"], nobody=nobody,
-                              fps=plan.fps, fps_from=plan.fps_from)
+                              fps=plan.fps, fps_from=plan.fps_from, camera_notes=tuple(report["notes"]))
 
 
 def reconstruct_folder(detections: str | Path, bundle_folder: str | Path, out: str | Path | None = None, *,
@@ -373,5 +375,6 @@ def format_summary(summary: ReconstructSummary) -> str:
         return f"{head}no person reconstructed: {summary.nobody} -> {summary.out}"
     err = "n/a" if summary.median_reprojection_px is None else f"{summary.median_reprojection_px:.1f} px"
     flagged = ", ".join(summary.flagged_cameras) or "none"
+    notes = "".join(f" ({note})" for note in summary.camera_notes)
     return (f"{head}{summary.people} people, {summary.body_frames} body-frames, median reprojection {err}; cameras "
-            f"that disagree: {flagged} -> {summary.out}")
+            f"that disagree: {flagged}{notes} -> {summary.out}")

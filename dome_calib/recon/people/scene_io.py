@@ -24,10 +24,14 @@ cameras.json: per camera the people it detected, the share of them used by a rec
 pixel distance between its used joints and the reconstructed joints; ``flagged`` lists the cameras that disagree
 (median error above ``max(3 x the cameras' median, 5 px)`` or a share used below half the cameras' median, or, an
 absolute criterion that holds when half the cameras are off, more than :data:`OUTVOTED_LIMIT` of its joint
-detections outvoted by the body over time): a camera that moved since calibration, a bad lens, or a camera that sees
-nobody well. With the body over time, per
-camera also the share of its joint detections that the body outvoted (farther than 5 sigma of that camera's
-measured pixel noise from where the body puts the joint: swaps, a neighbour's limb, a moved camera).
+detections outvoted by the body over time, or its detections lying to one side of the bodies: :data:`OFFSET_Z`,
+:data:`OFFSET_FLOOR`): a camera that moved since calibration, a bad lens, or a camera that sees nobody well. With the
+body over time, per camera also the share of its joint detections that the body outvoted (farther than 5 sigma of
+that camera's measured pixel noise from where the body puts the joint: swaps, a neighbour's limb, a moved camera),
+``median_offset_px`` (u, v: the median of its inlier detections minus the body's joints projected), over
+``offset_joints``, ``offset_z`` (its length in standard errors) and ``offset_floor_px``; ``notes``: one line per camera
+flagged for its offset ("camera 03: its joints lie 16 px to the left of where the others put them: moved or
+re-aimed?").
 """
 from __future__ import annotations
 
@@ -46,6 +50,7 @@ from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.detection_cache import KeptDetections
 from dome_calib.recon.people.extras import ExtraJoints
 from dome_calib.recon.people.run import PeopleSequence
+from dome_calib.recon.people.windows import noise_px_of
 
 CAMERAS_FILE = "cameras.json"
 PAGE_FILE = "index.html"
@@ -57,6 +62,17 @@ PAGE_FILE = "index.html"
 OUTVOTED_LIMIT = 0.25
 #: ... once at least this many of its joint detections were judged.
 MIN_JUDGED = 100  # the people page, written into the staging folder by write_people's ``also``
+#: A camera is flagged, whatever the others do, when the median offset of its inlier detections from the body
+#: (detection minus the body's joint projected, per image axis) is both significant and large: longer than
+#: OFFSET_Z standard errors of a median of its n inliers (sqrt(pi / 2) sigma / sqrt(n), sigma the camera's measured
+#: pixel noise per axis, :func:`~dome_calib.recon.people.windows.noise_px_of`) and than OFFSET_FLOOR of its image
+#: diagonal. Noise alone averages out; a camera that moved or was re-aimed since calibration puts every person to
+#: one side of where the others put them. The floor is twice the largest offset of a camera agreeing with the others
+#: on the real Pose2Sim trial (3.7 px of a 1088 x 1920 image: the detector's per-joint biases, the calibration's
+#: error); its disagreeing camera has 23 px. The detector's noise is correlated over ~150 ms
+#: (``bench/detector_stats.py``), so with thousands of joints the significance is overstated and the floor decides.
+OFFSET_Z = 5.0
+OFFSET_FLOOR = 0.0035
 
 
 def check_people_folder(folder: str | Path) -> Path:
@@ -65,8 +81,27 @@ def check_people_folder(folder: str | Path) -> Path:
     return claim_folder(folder)
 
 
-def camera_report(agreement: CameraAgreement) -> dict:
-    """The per-camera agreement as a JSON object (see the module docstring)."""
+def offset_words(offset_px: np.ndarray) -> str:
+    """(2,) an offset in the image (u right, v down; px) -> "16 px to the left", "12 px up and to the right"."""
+    u, v = float(offset_px[0]), float(offset_px[1])
+    length = float(np.hypot(u, v))
+    side = "" if abs(u) < 0.4 * length else ("to the right" if u > 0 else "to the left")
+    height = "" if abs(v) < 0.4 * length else ("down" if v > 0 else "up")
+    return f"{length:.0f} px " + " and ".join(w for w in (height, side) if w)
+
+
+def camera_report(agreement: CameraAgreement, resolution_px: np.ndarray | None = None,
+                  min_noise_px: float = 0.5) -> dict:
+    """The per-camera agreement as a JSON object (see the module docstring). resolution_px (V, 2): each camera's
+    image (width, height), in ``agreement.names`` order, for the offset criterion's floor (None: that criterion is
+    not applied); min_noise_px: the body over time's floor of a camera's pixel noise."""
+    offset, n_off = agreement.median_offset_px()
+    noise = noise_px_of(agreement.noise, min_noise_px)
+    off_len = np.hypot(offset[:, 0], offset[:, 1])
+    off_z = off_len / (np.sqrt(np.pi / 2.0) * noise / np.sqrt(np.maximum(n_off, 1)))
+    floor = (OFFSET_FLOOR * np.hypot(*np.asarray(resolution_px, float).T) if resolution_px is not None
+             else np.full(len(agreement.names), np.inf))
+    notes = []
     med = agreement.median_px()
     share = np.where(agreement.detected > 0, agreement.used / np.maximum(agreement.detected, 1), np.nan)
     all_med = float(np.nanmedian(med)) if np.isfinite(med).any() else float("nan")
@@ -78,16 +113,25 @@ def camera_report(agreement: CameraAgreement) -> dict:
         bad_share = np.isfinite(share[v]) and share[v] < 0.5 * all_share
         judged = int(agreement.judged[v])
         bad_outvoted = judged >= MIN_JUDGED and agreement.outvoted[v] > OUTVOTED_LIMIT * judged  # absolute
-        if bad_err or bad_share or bad_outvoted:
+        bad_offset = bool(n_off[v] >= MIN_JUDGED and off_z[v] > OFFSET_Z and off_len[v] > floor[v])  # absolute
+        if bad_offset:
+            notes.append(f"camera {name}: its joints lie {offset_words(offset[v])} of where the others put them: "
+                         f"moved or re-aimed?")
+        if bad_err or bad_share or bad_outvoted or bad_offset:
             flagged.append(name)
         cams[name] = {"detected": int(agreement.detected[v]), "used": int(agreement.used[v]),
                       "share_used": None if not np.isfinite(share[v]) else round(float(share[v]), 4),
                       "median_reprojection_px": None if not np.isfinite(med[v]) else round(float(med[v]), 2),
                       "joints_judged": judged,
-                      "outvoted_share": round(int(agreement.outvoted[v]) / judged, 4) if judged else None}
+                      "outvoted_share": round(int(agreement.outvoted[v]) / judged, 4) if judged else None,
+                      "median_offset_px": (None if not n_off[v] else
+                                           [round(float(offset[v, 0]), 2), round(float(offset[v, 1]), 2)]),
+                      "offset_joints": int(n_off[v]),
+                      "offset_z": round(float(off_z[v]), 1) if n_off[v] else None,
+                      "offset_floor_px": round(float(floor[v]), 2) if np.isfinite(floor[v]) else None}
     return {"median_reprojection_px": None if not np.isfinite(all_med) else round(all_med, 2),
             "median_share_used": None if not np.isfinite(all_share) else round(all_share, 4),
-            "flagged": flagged, "cameras": cams}
+            "flagged": flagged, "notes": notes, "cameras": cams}
 
 
 @dataclass(frozen=True)

@@ -60,7 +60,7 @@ from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
 from dome_calib.schema import PosFinite, Vec
 from dome_calib.recon.kernel import camera_table
 from dome_calib.recon.people.bodies import Bodies, Observations
-from dome_calib.recon.people.compiled import distances_px, robust_blocks
+from dome_calib.recon.people.compiled import residuals_px, robust_blocks
 from dome_calib.recon.project import ViewSet
 
 BONE_A = np.array([JOINTS19.index(a) for a, _ in BONE_LENGTH_CM])
@@ -140,12 +140,15 @@ class SessionPriors:
 class TemporalResult:
     """The refined bodies (same times, same people, same ids) and the verdict on every detection record of
     ``obs``: record_time (M,) its time index, residual_px (M,) its distance to the final body (NaN where its joint
-    is not put out: not judged), outvoted (M,) farther than ``outvoted_k`` sigma of its camera's noise."""
+    is not put out: not judged), outvoted (M,) farther than ``outvoted_k`` sigma of its camera's noise, offset_px
+    (M, 2) the detection minus the final body's joint projected into its camera (px; NaN where residual_px is): a
+    camera that moved shifts its detections to one side (:mod:`~dome_calib.recon.people.agreement`)."""
 
     bodies: list[Bodies]
     record_time: np.ndarray
     residual_px: np.ndarray
     outvoted: np.ndarray
+    offset_px: np.ndarray
 
 
 @dataclass
@@ -232,7 +235,7 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
     BF = len(lay.bf_k)
     M = len(obs.row)
     none = TemporalResult(bodies=bodies, record_time=np.zeros(M, np.int64), residual_px=np.full(M, np.nan),
-                          outvoted=np.zeros(M, bool))
+                          outvoted=np.zeros(M, bool), offset_px=np.full((M, 2), np.nan, np.float32))
     if BF == 0 or lay.n_var == 0 or not options.enabled:
         return none
     X0 = np.stack([bodies[a].X_cm[b] for a, b in zip(lay.bf_k, lay.bf_p)])
@@ -310,14 +313,18 @@ def refine_tracks(views: ViewSet, times_ms: np.ndarray, bodies: list[Bodies], ob
     var_cm2 += gap if ties is None else ties.gap_variance(lay, X0, times_ms, bodies, gap, q)
     sigma = np.sqrt(var_cm2)
     shown = _shown(lay, X0, sigma, options.max_sigma_cm)
-    residual = distances_px(P, rec_var, obs.view, obs.uv_px, cam).astype(np.float32)  # float32: millions of them
+    offset = residuals_px(P, rec_var, obs.view, obs.uv_px, cam)
+    residual = np.hypot(offset[:, 0], offset[:, 1]).astype(np.float32)  # float32: millions of them
     residual[~shown[rec_var] | (rec_var < 0)] = np.nan
+    offset = offset.astype(np.float32)
+    offset[np.isnan(residual)] = np.nan
     judged = np.isfinite(residual)
     inlier = judged & (residual < (options.outvoted_k * sigma_v).astype(np.float32)[obs.view])
     n_inl = np.bincount(rec_var[inlier], minlength=lay.n_var)
     outvoted = judged & ~inlier
     return TemporalResult(bodies=_write_back(bodies, lay, P, sigma, n_inl, shown),
-                          record_time=lay.bf_k[bf_rec].astype(np.int32), residual_px=residual, outvoted=outvoted)
+                          record_time=lay.bf_k[bf_rec].astype(np.int32), residual_px=residual, outvoted=outvoted,
+                          offset_px=offset)
 
 
 def _sum_by(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:

@@ -206,7 +206,8 @@ def run_window(task: WindowTask) -> tuple[int, list[Bodies], CameraAgreement]:
                 gone = ~task.depth.keep(b.X_cm, float(time_ms)) & np.isfinite(b.X_cm).all(-1)
                 b.X_cm[gone], b.confidence[gone], b.n_inliers[gone] = np.nan, -1.0, 0
     mine = (fit.record_time >= task.own_start) & (fit.record_time < task.own_stop)
-    verdicts = tally_verdicts(list(task.views.names), obs.view[mine], fit.residual_px[mine], fit.outvoted[mine])
+    verdicts = tally_verdicts(list(task.views.names), obs.view[mine], fit.residual_px[mine], fit.outvoted[mine],
+                              fit.offset_px[mine])
     return task.index, bodies, verdicts
 
 
