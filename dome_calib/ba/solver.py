@@ -20,6 +20,11 @@ Nielsen's rule lowering lambda by only 10-50 % per step (measured on the panel d
 accepted steps at lambda ~5e-7 crawling along that valley, then 2 steps to converge once lambda reached 1e-11).
 Later stages start from the damping the previous stage ended with.
 
+A stage's last step, the one that meets the stopping rule, is first tried on the previous accepted step's system
+and factor (``chord_stop``; :func:`dome_calib.ba.schur.chord_step`: the new gradient through the kept elimination):
+taken when its predicted and actual decrease both meet the rule, it costs no new reduced system or factorisation
+(each stage ends with one; on the full dome a reduced system and its factorisation are most of an iteration).
+
 The first stage also ends when the outlier verdicts it hands to the rounds have settled (two accepted
 iterates reject the same observations within ``outlier_change_tolerance``): its robust loss keeps decreasing
 slowly on the gross outliers' linear part long after the inliers sit in the basin (``bench/ba.py --small``:
