@@ -20,10 +20,11 @@ Nielsen's rule lowering lambda by only 10-50 % per step (measured on the panel d
 accepted steps at lambda ~5e-7 crawling along that valley, then 2 steps to converge once lambda reached 1e-11).
 Later stages start from the damping the previous stage ended with.
 
-A stage's last step, the one that meets the stopping rule, is first tried on the previous accepted step's system
-and factor (``chord_stop``; :func:`dome_calib.ba.schur.chord_step`: the new gradient through the kept elimination):
-taken when its predicted and actual decrease both meet the rule, it costs no new reduced system or factorisation
-(each stage ends with one; on the full dome a reduced system and its factorisation are most of an iteration).
+With ``chord_stop`` (off by default), a stage's last step, the one that meets the stopping rule, is first tried on
+the previous accepted step's system and factor (:func:`dome_calib.ba.schur.chord_step`: the new gradient through
+the kept elimination): taken when its predicted and actual decrease both meet the rule, it costs no new reduced
+system or factorisation. It moves the path, and so the outlier verdicts: on the full dome the largest centre error
+by +2.8 %, hence off (docs/benchmarks.md).
 
 The first stage also ends when the outlier verdicts it hands to the rounds have settled (two accepted
 iterates reject the same observations within ``outlier_change_tolerance``): its robust loss keeps decreasing
@@ -99,8 +100,10 @@ class BAOptions:
     n_threads: AtLeast(1) = 2
     compute_uncertainty: bool = True
     # try the stopping step on the last accepted step's factor first (schur.chord_step): a stage's last iteration,
-    # which only confirms convergence, then costs no new reduced system or factorisation
-    chord_stop: bool = True
+    # which only confirms convergence, then costs no new reduced system or factorisation. Off by default: on the
+    # full dome it saved 6 of 25 reduced systems (CPU 0.80x of cc26ef0's) but moved the outlier verdicts, and the
+    # largest centre error by +2.8 % (docs/benchmarks.md, "Fewer factorisations")
+    chord_stop: bool = False
 
 
 @dataclass(kw_only=True)
