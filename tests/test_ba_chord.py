@@ -46,7 +46,7 @@ def test_the_chord_step_of_the_same_linearisation_is_the_step_itself(problem):
     free[2] = False
     st, lin = _linearised(problem, free)
     system = build_reduced_system(st, lin, 1e-3, n_threads=2)
-    step = solve_reduced(st, lin, system, 1e-3, n_threads=2)
+    step = solve_reduced(st, lin, system, 1e-3, n_threads=2, keep_factor=True)
     chord = chord_step(st, lin, system)
     assert chord is not None
     scale = np.abs(step.dc).max()
@@ -54,7 +54,7 @@ def test_the_chord_step_of_the_same_linearisation_is_the_step_itself(problem):
     np.testing.assert_allclose(chord.dp, step.dp, rtol=0, atol=1e-9 * np.abs(step.dp).max())
     assert chord.predicted_decrease == pytest.approx(step.predicted_decrease, rel=1e-9)
     # a retry with more camera damping factorises again: the kept solver is then that factorisation's
-    step2 = solve_reduced(st, lin, system, 1e-1, n_threads=2)
+    step2 = solve_reduced(st, lin, system, 1e-1, n_threads=2, keep_factor=True)
     np.testing.assert_allclose(chord_step(st, lin, system).dc, step2.dc, rtol=0, atol=1e-9 * np.abs(step2.dc).max())
 
 
@@ -77,9 +77,13 @@ def test_a_stage_ends_on_the_last_factor_with_fewer_factorisations(problem):
 
 
 def test_no_chord_without_a_kept_factor(problem):
-    """A solve that does not keep its system (solve_step's overwrite) has no solver to reuse."""
+    """A solve that does not keep its system (solve_step's overwrite), or not its factor (chord_stop off: no factor
+    held past its step), has no solver to reuse."""
     st, lin = _linearised(problem, problem.free)
     system = build_reduced_system(st, lin, 1e-3, n_threads=2)
-    solve_reduced(st, lin, system, 1e-3, n_threads=2, keep=False)
+    solve_reduced(st, lin, system, 1e-3, n_threads=2, keep=False, keep_factor=True)
+    assert chord_step(st, lin, system) is None
+    system = build_reduced_system(st, lin, 1e-3, n_threads=2)
+    solve_reduced(st, lin, system, 1e-3, n_threads=2)
     assert chord_step(st, lin, system) is None
     assert dataclasses.replace(BAOptions(), chord_stop=False).chord_stop is False

@@ -459,12 +459,13 @@ def build_reduced_system(st: Structure, lin: Linearization, lam: float, *, n_thr
 
 
 def solve_reduced(st: Structure, lin: Linearization, system: ReducedSystem, lam_cameras: float, *,
-                  n_threads: int = 2, keep: bool = True) -> Step:
+                  n_threads: int = 2, keep: bool = True, keep_factor: bool = False) -> Step:
     """The step of ``system`` with the cameras damped by ``lam_cameras`` instead of ``system.lam`` (the points
     keep ``system.lam``): the exact solution of (H + Lambda) d = -g with Lambda = blockdiag(lam_cameras D_c,
     system.lam D_p), so the predicted decrease is exact for that damping. ``keep``: ``system.S`` stays usable for
     another retry (its diagonal is moved to ``lam_cameras`` in place, the factorisation works on a copy only
-    where the solver needs one: no copy of the 7,800-unknown system on the mixed-precision path)."""
+    where the solver needs one: no copy of the 7,800-unknown system on the mixed-precision path). ``keep_factor``
+    (with ``keep``): the factorisation's solver is kept in ``system.solver`` for :func:`chord_step`."""
     A = len(st.active_cameras)
     if system.layout is not None:
         dc = np.zeros(A * 15)
@@ -488,7 +489,7 @@ def solve_reduced(st: Structure, lin: Linearization, system: ReducedSystem, lam_
         solvers: list = []
         system.solver = None  # the old factor is gone once the system is factorised again
         dc = solve_free(S, system.rhs, st.free_flat, n_threads=n_threads, overwrite=not keep,
-                        st=st, solvers=solvers if keep else None).reshape(A, 15)
+                        st=st, solvers=solvers if keep and keep_factor else None).reshape(A, 15)
         system.solver = solvers[0] if solvers else None
         del S
     dp = point_step(st, lin, system.Li, system.ypt, dc)

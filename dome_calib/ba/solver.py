@@ -247,7 +247,7 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
                 if system is None or rejections % (cheap + 1) == 0:
                     system = None  # the old system's memory goes before the new one is built
                     system = build_reduced_system(st, lin, lam, n_threads=options.n_threads, gauge_basis=basis)
-                step = solve_reduced(st, lin, system, lam, n_threads=options.n_threads)
+                step = solve_reduced(st, lin, system, lam, n_threads=options.n_threads, keep_factor=options.chord_stop)
                 new_state = _apply(state, st, step.dc, step.dp)
                 new_cost, new_r = _cost(new_state, problem, st, loss, scale, options.n_threads)
             except np.linalg.LinAlgError:
@@ -269,7 +269,7 @@ def _levenberg_marquardt(problem: BAProblem, state: _State, st: Structure, optio
         decrease = cost - new_cost
         stop = _stops(decrease, cost, last_decrease, ftol, options)
         state, cost = new_state, new_cost
-        chord_from = system
+        chord_from = system if options.chord_stop else None
         rms = float(np.sqrt(np.sum(new_r * new_r) / n_res))  # plain RMS of the residuals, whatever the loss
         entry = IterationLog(stage=stage, iteration=it, cost=cost, rms_px=rms, step_norm=step_norm, lam=lam,
                              rejected_steps=rejections, time_s=time.perf_counter() - t_start,
