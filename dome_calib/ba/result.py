@@ -15,7 +15,9 @@ from dome_calib.bundle import Bundle
 @dataclass(kw_only=True)
 class IterationLog:
     """One accepted LM iteration. cost = 0.5 * sum rho(|r|^2) (px^2); rms_px per coordinate over the stage's
-    observations (plain, whatever the loss); step_norm in parameter units; lam the damping after the step."""
+    observations (plain, whatever the loss); step_norm in parameter units; lam the damping after the step;
+    factorisations: of the reduced camera system in this iteration (one per step tried; 0 for a step on the last
+    iteration's factor, :func:`dome_calib.ba.schur.chord_step`)."""
 
     stage: int
     iteration: int
@@ -25,6 +27,7 @@ class IterationLog:
     lam: float
     rejected_steps: int
     time_s: float
+    factorisations: int = 1
 
 
 @dataclass(kw_only=True)

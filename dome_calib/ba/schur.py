@@ -21,6 +21,7 @@ and solved by a dense LAPACK Cholesky.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -273,28 +274,39 @@ def sparse_reduced_system(st: Structure, lin: Linearization, lam: float, layout:
 
 
 def _cholesky_solve(S: np.ndarray, b: np.ndarray, n_threads: int, overwrite: bool = True,
-                    st: Structure | None = None) -> np.ndarray:
+                    st: Structure | None = None) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]:
     """Solve S x = b (S SPD; overwritten if ``overwrite``) by dense LAPACK Cholesky.
 
     Large systems first try a single-precision factor (half the work of double precision) used as the
     preconditioner of a double-precision conjugate-gradient solve on the Jacobi-scaled system, which reaches
     double-precision accuracy in a few iterations when the scaled system is not too ill-conditioned; otherwise
     (factor fails or CG stalls) the double-precision Cholesky is used. ``st``: the single-precision copy in its
-    kept buffer.
+    kept buffer. Returns the solution and a solver of ``S x = b'`` for other right-hand sides on the same factor
+    (valid while S, the factor's memory and the kept buffers are not reused: :func:`chord_step`).
     """
     n = len(b)
     threads = n_threads if n >= _PARALLEL_CHOLESKY_MIN else 1
     with blas_threads(threads):
         if n >= _MIXED_PRECISION_MIN:
-            x = _mixed_precision_solve(S, b, buffer(st, "S32", S.shape, dtype=np.float32))
-            if x is not None:
-                return x
+            solved = _mixed_precision_solve(S, b, buffer(st, "S32", S.shape, dtype=np.float32))
+            if solved is not None:
+                x, refined = solved
+
+                def again_refined(rhs: np.ndarray) -> np.ndarray | None:
+                    with blas_threads(threads):
+                        return refined(rhs)
+                return x, again_refined
         factor = scipy.linalg.cho_factor(S.T, lower=False, overwrite_a=overwrite, check_finite=False)
-        return scipy.linalg.cho_solve(factor, b, check_finite=False)
+
+        def again(rhs: np.ndarray) -> np.ndarray:
+            with blas_threads(threads):
+                return scipy.linalg.cho_solve(factor, rhs, check_finite=False)
+        return scipy.linalg.cho_solve(factor, b, check_finite=False), again
 
 
 def _mixed_precision_solve(S: np.ndarray, b: np.ndarray, S32: np.ndarray, *, rtol: float = 1e-13,
-                           max_iterations: int = 30) -> np.ndarray | None:
+                           max_iterations: int = 30
+                           ) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray | None]] | None:
     diag = np.diag(S).copy()
     if np.any(diag <= 0):
         return None
@@ -314,6 +326,16 @@ def _mixed_precision_solve(S: np.ndarray, b: np.ndarray, S32: np.ndarray, *, rto
     def matvec(v: np.ndarray) -> np.ndarray:
         return d * (S @ (d * v))
 
+    def again(rhs: np.ndarray) -> np.ndarray | None:
+        return _refined_solve(rhs, d, precond, matvec, rtol, max_iterations)
+    x = _refined_solve(b, d, precond, matvec, rtol, max_iterations)
+    return None if x is None else (x, again)
+
+
+def _refined_solve(b: np.ndarray, d: np.ndarray, precond: Callable[[np.ndarray], np.ndarray],
+                   matvec: Callable[[np.ndarray], np.ndarray], rtol: float, max_iterations: int) -> np.ndarray | None:
+    """Conjugate gradients on the Jacobi-scaled system (``matvec``) preconditioned by its single-precision factor
+    (``precond``): x with S x = b, or None when it does not converge."""
     bs = d * b
     b_norm = np.linalg.norm(bs)
     if b_norm == 0:
@@ -341,12 +363,13 @@ def _mixed_precision_solve(S: np.ndarray, b: np.ndarray, S32: np.ndarray, *, rto
 
 
 def solve_free(S: np.ndarray, rhs: np.ndarray, free_flat: np.ndarray, *, n_threads: int = 2,
-               overwrite: bool = True, st: Structure | None = None) -> np.ndarray:
+               overwrite: bool = True, st: Structure | None = None, solvers: list | None = None) -> np.ndarray:
     """Solve the reduced system for the free parameters by dense Cholesky; zeros elsewhere.
 
     Raises numpy.linalg.LinAlgError if the system is not positive definite. ``S`` is overwritten, or with
     ``overwrite`` False only the rows and columns of fixed parameters are (set to the identity's). ``st``: the
-    free block and the single-precision copy in its kept buffers.
+    free block and the single-precision copy in its kept buffers. ``solvers``: the solver of the same system for other
+    right-hand sides (all parameters in, the free ones out; see :func:`_cholesky_solve`) is appended to it.
     """
     n = len(rhs)
     x = np.zeros(n)
@@ -366,10 +389,24 @@ def solve_free(S: np.ndarray, rhs: np.ndarray, free_flat: np.ndarray, *, n_threa
                        out=buffer(st, "Sf", (len(free_flat), len(free_flat))) if st is not None else None)
         b = rhs[free_flat]
     try:
-        sol = _cholesky_solve(Sf, b, n_threads, overwrite=overwrite or not full, st=st)
+        sol, again = _cholesky_solve(Sf, b, n_threads, overwrite=overwrite or not full, st=st)
     except scipy.linalg.LinAlgError as exc:
         raise np.linalg.LinAlgError(str(exc)) from None
     x[free_flat] = sol[free_flat] if full else sol
+    if solvers is not None:
+        def solve_other(other: np.ndarray) -> np.ndarray | None:
+            if full:
+                b = other.copy()
+                b[fixed] = 0.0
+            else:
+                b = other[free_flat]
+            sol = again(b)
+            if sol is None:
+                return None
+            out = np.zeros(n)
+            out[free_flat] = sol[free_flat] if full else sol
+            return out
+        solvers.append(solve_other)
     return x
 
 
@@ -397,6 +434,11 @@ class ReducedSystem:
     blocks: np.ndarray | None = None
     layout: SparseLayout | None = None
     gauge_basis: np.ndarray | None = None
+    #: the LM scaling diagonals the system was damped with (D_c, D_p) and, after :func:`solve_reduced`, the solver
+    #: of its last factorisation for other right-hand sides (dense path only; :func:`chord_step`)
+    D_c: np.ndarray | None = None
+    D_p: np.ndarray | None = None
+    solver: Callable[[np.ndarray], np.ndarray | None] | None = None
 
 
 #: rows of :func:`add_outer_rows`' product at a time
@@ -430,16 +472,17 @@ def build_reduced_system(st: Structure, lin: Linearization, lam: float, *, n_thr
     S, rhs, Li, ypt = reduced_system(st, lin, lam, n_threads=n_threads, reuse=True)
     if gauge_basis is not None:
         add_outer_rows(S, gauge_basis, st)
-    return ReducedSystem(S=S, rhs=rhs, Li=Li, ypt=ypt, lam=lam, lam_cameras=lam)
+    return ReducedSystem(S=S, rhs=rhs, Li=Li, ypt=ypt, lam=lam, lam_cameras=lam, D_c=lin.D_c, D_p=lin.D_p)
 
 
 def solve_reduced(st: Structure, lin: Linearization, system: ReducedSystem, lam_cameras: float, *,
-                  n_threads: int = 2, keep: bool = True) -> Step:
+                  n_threads: int = 2, keep: bool = True, keep_factor: bool = False) -> Step:
     """The step of ``system`` with the cameras damped by ``lam_cameras`` instead of ``system.lam`` (the points
     keep ``system.lam``): the exact solution of (H + Lambda) d = -g with Lambda = blockdiag(lam_cameras D_c,
     system.lam D_p), so the predicted decrease is exact for that damping. ``keep``: ``system.S`` stays usable for
     another retry (its diagonal is moved to ``lam_cameras`` in place, the factorisation works on a copy only
-    where the solver needs one: no copy of the 7,800-unknown system on the mixed-precision path)."""
+    where the solver needs one: no copy of the 7,800-unknown system on the mixed-precision path). ``keep_factor``
+    (with ``keep``): the factorisation's solver is kept in ``system.solver`` for :func:`chord_step`."""
     A = len(st.active_cameras)
     if system.layout is not None:
         dc = np.zeros(A * 15)
@@ -460,12 +503,46 @@ def solve_reduced(st: Structure, lin: Linearization, system: ReducedSystem, lam_
             d = np.arange(A * 15)
             S[d, d] += (lam_cameras - system.lam_cameras) * lin.D_c.ravel()
             system.lam_cameras = lam_cameras
+        solvers: list = []
+        system.solver = None  # the old factor is gone once the system is factorised again
         dc = solve_free(S, system.rhs, st.free_flat, n_threads=n_threads, overwrite=not keep,
-                        st=st).reshape(A, 15)
+                        st=st, solvers=solvers if keep and keep_factor else None).reshape(A, 15)
+        system.solver = solvers[0] if solvers else None
         del S
     dp = point_step(st, lin, system.Li, system.ypt, dc)
     g_dot = float(np.sum(lin.g_c * dc) + np.sum(lin.g_p * dp))
     d_dot = float(lam_cameras * np.sum(lin.D_c * dc * dc) + system.lam * np.sum(lin.D_p * dp * dp))
+    return Step(dc=dc, dp=dp, predicted_decrease=0.5 * (-g_dot + d_dot))
+
+
+def chord_step(st: Structure, lin: Linearization, system: ReducedSystem) -> Step | None:
+    """The step of a new linearisation ``lin`` (its gradient) on an earlier one's damped system ``system`` and its
+    kept factor (the chord method: the points' elimination, y blocks and camera factor of ``system``, only the
+    right-hand side new), with the cost decrease that system's quadratic model predicts for it. Near a minimum the
+    Hessian barely moves from one iterate to the next, so this is the next Levenberg-Marquardt step to second
+    order, for a right-hand side and two triangular solves instead of a new reduced system and factorisation.
+    None where ``system`` kept no factor (the sparse path, or a factor that failed)."""
+    if system.solver is None or system.S is None:
+        return None
+    A = len(st.active_cameras)
+    cols = free_columns(st)
+    h = np.einsum("pjl,pl->pj", system.Li, lin.g_p)
+    rhs = -lin.g_c
+    if len(cols) and len(system.ypt):
+        # each observation's y_i L^-1 g_p, summed per camera (y_blocks' rc, from the kept y blocks)
+        points = np.repeat(np.arange(st.n_points), np.diff(st.pt_ptr))
+        per_obs = np.einsum("njr,nj->nr", system.ypt[:, :, :len(cols)], h[points])
+        rc = np.zeros((A, len(cols)))
+        for r in range(len(cols)):
+            rc[:, r] = np.bincount(st.cam_pt, weights=per_obs[:, r], minlength=A)
+        rhs[:, cols] += rc
+    dc = system.solver(rhs.ravel())
+    if dc is None or not np.all(np.isfinite(dc)):
+        return None
+    dc = dc.reshape(A, 15)
+    dp = point_step(st, lin, system.Li, system.ypt, dc)
+    g_dot = float(np.sum(lin.g_c * dc) + np.sum(lin.g_p * dp))
+    d_dot = float(system.lam_cameras * np.sum(system.D_c * dc * dc) + system.lam * np.sum(system.D_p * dp * dp))
     return Step(dc=dc, dp=dp, predicted_decrease=0.5 * (-g_dot + d_dot))
 
 
