@@ -5,12 +5,13 @@ Per patch and camera, the cost of "visible" (the cost of "not visible" is 0):
 - **photometric**: ``photometric_weight * (tau - NCC) / (1 - tau)``, NCC of the patch's square (a 7 x 7 grid on its
   plane, bilinear samples) in the camera against the reference camera (the camera that saw the patch at the
   previous time, or at the seed, most face-on; the most face-on candidate if none did), ``tau`` =
-  ``ncc_threshold``. With ``neighbour_ncc`` (the default) NCC is the best of that and the NCC against each of the
+  ``ncc_threshold``. With ``neighbour_ncc`` (off by default) NCC is the best of that and the NCC against each of the
   camera's prior neighbours that saw the patch at the previous time and is a candidate now, and ``tau`` =
   ``map_ncc_threshold``: a plane that is a little off (a curved limb, a normal 10-15 deg wrong) looks alike in
   cameras a few degrees apart but not in cameras far from the reference, so a camera agreeing with a neighbour
-  that saw the patch is consistent (recall of truly visible views seen at a good angle whose NCC against the
-  reference fell below 0.6, the largest class of misses on the bench);
+  that saw the patch is consistent (the largest class of misses on the bench: truly visible views at a good angle
+  whose NCC against the reference is below 0.6). Off by default: tracking with the views it adds lets more patches
+  drift, and precision falls (docs/benchmarks.md);
 - **motion**: for cameras the patch was tracked in, ``motion_weight * (min(r / motion_sigma_px, 3) - 1)``, ``r`` the
   largest distance between a point's optical flow and the reprojection of its triangulated motion (a failed flow
   counts as 3 sigmas); 0 for the others;
