@@ -15,7 +15,8 @@ rendered at half size (960 x 540); the group seeded by ``--seed``; one cloud see
   trajectory length (frames each way, median and share reaching 25), visibility against the renderer's truth
   (precision and recall of the MAP labels and of photometric consistency alone, the CVPR 2014 baseline, over all
   live patch-times and cameras; split: patches within 1 cm of their true point, views within 78 deg of the true
-  normal), patches given to the right body part (true skeleton, and the truth plus 1.5 cm noise per joint),
+  normal; ``visibility_errors``: the false positives and negatives of each, counted by cause, :func:`error_causes`),
+  patches given to the right body part (true skeleton, and the truth plus 1.5 cm noise per joint),
   patch-views-frames per CPU-second of the stage (rendering excluded), load average;
 - ``executor`` (with ``--executors``, image seeding only, not judged): per executor the CPU of this process and of
   its worker processes (rendering included: each worker renders the frames it reads), the wall of the stream and of
@@ -44,12 +45,14 @@ from dome_calib.synth.depth_people import write_group_depth  # noqa: E402
 from dome_calib.synth.dome import as_built_dome  # noqa: E402
 from dome_calib.synth.group import GroupOptions, make_group  # noqa: E402
 from dome_calib.synth.skeleton import synthetic_sync  # noqa: E402
-from dome_calib.synth.textured import (TexturedScene, TextureOptions, nearest_surface_points,  # noqa: E402
-                                       surface_points_cm, surface_visibility)
+from dome_calib.synth.depth_people import nearest_capsule_hits  # noqa: E402
+from dome_calib.synth.textured import (VISIBILITY_TOLERANCE_CM, TexturedScene, TextureOptions,  # noqa: E402
+                                       nearest_surface_points, part_frames, surface_points_cm, surface_visibility)
+from dome_calib.recon.patches.frames import patch_grid_cm  # noqa: E402
 from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
 from dome_calib.recon.patches.parts import PartOptions, label_parts  # noqa: E402
-from dome_calib.recon.patches.run import patch_stream  # noqa: E402
-from dome_calib.recon.project import view_set  # noqa: E402
+from dome_calib.recon.patches.run import imaged_views, patch_stream  # noqa: E402
+from dome_calib.recon.project import project_points, view_set  # noqa: E402
 
 
 KCALIBRATION = Path(__file__).resolve().parents[1] / "tests" / "data" / "panoptic" / "kcalibration_171026_cello3.json"
@@ -66,6 +69,62 @@ def _pct(x: np.ndarray, q: float) -> float | None:
 def precision_recall(est: np.ndarray, true: np.ndarray) -> tuple[float, float]:
     tp = np.sum(est & true)
     return round(float(tp / max(est.sum(), 1)), 4), round(float(tp / max(true.sum(), 1)), 4)
+
+
+#: Causes of the visibility's errors, first that applies (:func:`error_causes`).
+FALSE_POSITIVE_CAUSES = ("drifted", "back_facing", "occluded_other_person", "occluded_own_other_part",
+                         "occluded_own_part", "out_of_image", "other")
+FALSE_NEGATIVE_CAUSES = ("drifted", "near_border", "grazing", "wrong_normal", "labelled_not_visible")
+
+
+def error_causes(truth, views, t_ms: float, X: np.ndarray, P: np.ndarray, normal: np.ndarray, person: np.ndarray,
+                 part: np.ndarray, err_mm: np.ndarray, est: np.ndarray, true: np.ndarray, o: PatchOptions
+                 ) -> dict[str, dict[str, int]]:
+    """The visibility's false positives and negatives at one time, each given the first cause that applies.
+
+    False positive (labelled visible, the truth says not): ``drifted`` (the patch is more than 1 cm from its true
+    point), ``back_facing`` (the true surface faces away), occluded by a capsule of ``other_person``, of the same
+    person's ``own_other_part`` or ``own_part`` (the truth's ray test), ``out_of_image``, ``other``. False negative:
+    ``drifted``, ``near_border`` (the patch's square leaves the image: no candidate), ``grazing`` (true cosine
+    below ``min_cos_view``: no candidate), ``wrong_normal`` (true cosine above it, the estimated one not),
+    ``labelled_not_visible`` (a candidate the minimum cut labelled not visible)."""
+    V = len(views.names)
+    C = views.center_cm
+    to_t = C[None] - P[:, None]
+    cos_t = np.einsum("nvi,ni->nv", to_t, normal) / np.linalg.norm(to_t, axis=-1)
+    to_e = C[None] - X[:, None, 0]
+    n_e = np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
+    cos_e = np.einsum("nvi,ni->nv", to_e, n_e) / np.linalg.norm(to_e, axis=-1) / np.linalg.norm(n_e, axis=-1)[:, None]
+    grid = patch_grid_cm(X[:, 0], X[:, 1], X[:, 2], o.ncc_size_cm)
+    square_in = project_points(views, grid.reshape(-1, 3)).visible.reshape(V, len(X), -1).all(-1).T
+    in_image = project_points(views, P).visible.T
+    Xj, present = truth.joints_cm(np.array([t_ms]))
+    people = np.flatnonzero(present[0])
+    fr = part_frames(Xj[0, people])
+    A = fr.A.reshape(-1, 3)
+    B = A + fr.R[..., 2].reshape(-1, 3) * fr.length.reshape(-1, 1)
+    occ_person, occ_part = np.full((len(X), V), -1), np.full((len(X), V), -1)
+    for v in range(V):
+        d = P - C[v]
+        s = np.linalg.norm(d, axis=1)
+        hit, which = nearest_capsule_hits(C[v], d / s[:, None], A, B, fr.radius.reshape(-1))
+        hidden = hit < s - VISIBILITY_TOLERANCE_CM
+        occ_person[hidden, v] = people[which[hidden] // fr.radius.shape[1]]
+        occ_part[hidden, v] = which[hidden] % fr.radius.shape[1]
+    drift = np.broadcast_to((err_mm > 10.0)[:, None], est.shape)
+    own = occ_person == person[:, None]
+    fp_rules = [drift, cos_t <= 0, (occ_person >= 0) & ~own, own & (occ_part != part[:, None]),
+                own & (occ_part == part[:, None]), ~in_image, np.ones_like(est)]
+    fn_rules = [drift, ~square_in, cos_t < o.min_cos_view, cos_e <= o.min_cos_view, np.ones_like(est)]
+    out = {}
+    for kind, wrong, rules, names in (("false_positive", est & ~true, fp_rules, FALSE_POSITIVE_CAUSES),
+                                      ("false_negative", true & ~est, fn_rules, FALSE_NEGATIVE_CAUSES)):
+        left, counts = wrong.copy(), {}
+        for name, rule in zip(names, rules):
+            counts[name] = int((left & rule).sum())
+            left &= ~rule
+        out[kind] = counts
+    return out
 
 
 class PhaseTimer:
@@ -95,7 +154,8 @@ class PhaseTimer:
         patch_run.seed_task, patch_run.track_task = self._saved
 
 
-def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int) -> dict:
+def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int, imaged=None, o: PatchOptions | None = None
+             ) -> dict:
     """The stream against the renderer's truth (module docstring)."""
     s = int(np.argmin(np.abs(traj.times_ms - t_seed)))
     sp = nearest_surface_points(truth, t_seed, traj.X_cm[:, s, 0])
@@ -115,6 +175,7 @@ def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int) -> dict:
     fwd = traj.alive[:, s:].cumprod(axis=1).sum(axis=1) - 1
     lengths = np.concatenate([back, fwd])[np.concatenate([traj.alive[:, s]] * 2)]
     est, base, true, near, facing = [], [], [], [], []
+    causes = {m: {} for m in ("map", "photometric")}
     centres = view_set(bundle, cams).center_cm
     for k in range(len(traj.times_ms)):
         a = traj.alive[:, k]
@@ -126,6 +187,14 @@ def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int) -> dict:
         near.append(np.broadcast_to((err_mm[a, k] < 10.0)[:, None], true[-1].shape))
         to_cam = centres[None] - P[k][a][:, None]
         facing.append(np.sum(to_cam * normal[k][a][:, None], -1) / np.linalg.norm(to_cam, axis=-1) >= 0.2)
+        if imaged is not None:
+            for m, labels in (("map", est[-1]), ("photometric", base[-1])):
+                got = error_causes(truth, imaged, float(traj.times_ms[k]), traj.X_cm[a, k], P[k][a], normal[k][a],
+                                   sp.person[a], sp.part[a], err_mm[a, k], labels, true[-1], o)
+                for kind, counts in got.items():
+                    for name, c in counts.items():
+                        causes[m].setdefault(kind, {}).setdefault(name, 0)
+                        causes[m][kind][name] += c
     V = len(cams)
     est, base, true = (np.concatenate(x + [np.zeros((0, V), bool)]) for x in (est, base, true))
     near, facing = (np.concatenate(x + [np.zeros((0, V), bool)]) for x in (near, facing))
@@ -154,7 +223,7 @@ def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int) -> dict:
                 visibility_map={"precision": precision_recall(est, true)[0], "recall": precision_recall(est, true)[1]},
                 visibility_photometric={"precision": precision_recall(base, true)[0],
                                         "recall": precision_recall(base, true)[1]},
-                visibility_split=split,
+                visibility_split=split, visibility_errors=causes if imaged is not None else None,
                 true_views_per_patch=round(float(true.sum(1).mean()), 2) if len(true) else None,
                 map_views_per_patch=round(float(est.sum(1).mean()), 2) if len(est) else None,
                 parts=labels, patch_frames=int(traj.alive.sum()), patch_views_frames=int(traj.visible.sum()))
@@ -264,7 +333,7 @@ def run(args: argparse.Namespace) -> None:
             emit(what="render", **{f"{k}_cpu_ms_per_view": round(1000.0 * scene.render_s[k] / scene.renders[k], 1)
                                    for k in sorted(scene.renders)}, renders=scene.renders, people=args.people,
                  load=[round(x, 2) for x in load])
-            got = evaluate(args, bundle, truth, cams, traj, t_seed, nf)
+            got = evaluate(args, bundle, truth, cams, traj, t_seed, nf, imaged_views(scene, cams), o)
             stage_cpu = cpu - render_cpu
             track_cpu = phases.cpu["track"] - phases.render["track"]
             emit(what="patches", seeding=seeding, scenario=args.scenario, people=args.people, cameras=len(cams),

@@ -59,6 +59,11 @@ class PatchOptions:
     triangulation_px: PosFinite = 2.5  # inlier threshold of the patches' points
     # visibility (MAP): unary costs of "visible" against "not visible" (the latter 0), Potts prior
     ncc_threshold: Annotated[float, Field(ge=-1, le=1)] = 0.6  # photometric: NCC above this favours "visible"
+    # photometric term of the MAP: True, the best NCC against the reference and the previously visible neighbours
+    # (visibility.neighbour_ncc), judged against map_ncc_threshold; False (default): the reference alone,
+    # ncc_threshold. Off: on the bench it gains recall but its extra views make patches drift (docs/benchmarks.md)
+    neighbour_ncc: bool = False
+    map_ncc_threshold: Annotated[float, Field(ge=-1, lt=1)] = 0.7
     photometric_weight: PosFinite = 2.0
     motion_sigma_px: PosFinite = 1.5  # motion: flow against the reprojected 3D motion
     motion_weight: PosFinite = 1.0

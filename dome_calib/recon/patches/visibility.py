@@ -2,9 +2,16 @@
 
 Per patch and camera, the cost of "visible" (the cost of "not visible" is 0):
 
-- **photometric**: ``photometric_weight * (ncc_threshold - NCC) / (1 - ncc_threshold)``, NCC of the patch's square
-  (a 7 x 7 grid on its plane, bilinear samples) in the camera against the reference camera (the camera that saw the
-  patch at the previous time, or at the seed, most face-on; the most face-on candidate if none did);
+- **photometric**: ``photometric_weight * (tau - NCC) / (1 - tau)``, NCC of the patch's square (a 7 x 7 grid on its
+  plane, bilinear samples) in the camera against the reference camera (the camera that saw the patch at the
+  previous time, or at the seed, most face-on; the most face-on candidate if none did), ``tau`` =
+  ``ncc_threshold``. With ``neighbour_ncc`` (off by default) NCC is the best of that and the NCC against each of the
+  camera's prior neighbours that saw the patch at the previous time and is a candidate now, and ``tau`` =
+  ``map_ncc_threshold``: a plane that is a little off (a curved limb, a normal 10-15 deg wrong) looks alike in
+  cameras a few degrees apart but not in cameras far from the reference, so a camera agreeing with a neighbour
+  that saw the patch is consistent (the largest class of misses on the bench: truly visible views at a good angle
+  whose NCC against the reference is below 0.6). Off by default: tracking with the views it adds lets more patches
+  drift, and precision falls (docs/benchmarks.md);
 - **motion**: for cameras the patch was tracked in, ``motion_weight * (min(r / motion_sigma_px, 3) - 1)``, ``r`` the
   largest distance between a point's optical flow and the reprojection of its triangulated motion (a failed flow
   counts as 3 sigmas); 0 for the others;
@@ -42,6 +49,24 @@ def camera_neighbours(views: ViewSet, k: int) -> np.ndarray:
         for _, _, j in order[:k]:
             pairs.add((min(i, j), max(i, j)))
     return np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
+
+
+def neighbour_ncc(samples: np.ndarray, anchor: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+    """(N, V) each camera's best NCC against its prior neighbours that are anchors (-1 where it has none).
+
+    Args:
+        samples: (N, V, G) the patches' squares sampled in every camera.
+        anchor: (N, V) bool, the cameras a camera may be compared with (those that saw the patch before and are
+            candidates now).
+        neighbours: (E, 2) camera pairs (:func:`camera_neighbours`), both ways.
+    """
+    N, V = anchor.shape
+    best = np.full((N, V), -1.0)
+    for i, j in neighbours:
+        c = ncc(samples[:, i], samples[:, j])
+        best[:, i] = np.where(anchor[:, j], np.maximum(best[:, i], c), best[:, i])
+        best[:, j] = np.where(anchor[:, i], np.maximum(best[:, j], c), best[:, j])
+    return best
 
 
 @dataclass(frozen=True)
@@ -110,8 +135,10 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
         samples = np.zeros((N, V, 1), np.float32)
     corr = ncc(samples, samples[np.arange(N), ref][:, None])
     corr = np.where(in_image & has_ref[:, None], corr, -1.0)
-    tau = o.ncc_threshold
-    cost1 = o.photometric_weight * (tau - corr) / (1.0 - tau)
+    best = np.maximum(corr, neighbour_ncc(samples, prev, neighbours)) if o.neighbour_ncc else corr
+    best = np.where(in_image & has_ref[:, None], best, -1.0)
+    tau = o.map_ncc_threshold if o.neighbour_ncc else o.ncc_threshold
+    cost1 = o.photometric_weight * (tau - best) / (1.0 - tau)
     if motion_px is not None:
         r = np.where(np.isnan(motion_px), np.nan, np.minimum(motion_px / o.motion_sigma_px, 3.0))
         cost1 += np.where(np.isnan(r), 0.0, o.motion_weight * (r - 1.0))
