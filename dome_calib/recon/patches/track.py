@@ -166,6 +166,40 @@ def _stretched(X: np.ndarray, o: PatchOptions) -> np.ndarray:
     return np.any(np.abs(d / o.axis_cm - 1.0) > o.max_stretch, axis=1)
 
 
+def best_views(views: ViewSet, X: np.ndarray, candidates: np.ndarray, k: int, spread_deg: float) -> np.ndarray:
+    """The cameras each patch is tracked in: at most ``k`` of its ``candidates`` (N, V) (the cameras that saw it),
+    chosen greedily, most face-on first: each pick maximises ``cos * min(1, angle / spread_deg)``, ``cos`` the
+    cosine between the patch normal and the direction to the camera (0 if it faces away), ``angle`` the smallest
+    angle at the patch between that direction and those already picked. A dense dome puts several cameras a few
+    degrees apart: the spread keeps the picks from crowding one panel, which triangulates no better than one of
+    them. Scores are quantised to 1e-6 and ties go to the first camera; every patch's pick depends on its own row
+    only. ``k`` 0, or a patch with at most ``k`` candidates: all of them. -> (N, V) bool."""
+    N, V = candidates.shape
+    if k <= 0 or N == 0:
+        return candidates.copy()
+    _, _, normal = patch_axes(X[:, 0], X[:, 1], X[:, 2])
+    d = views.center_cm[None] - X[:, None, 0]  # (N, V, 3)
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    face = np.clip(np.sum(d * normal[:, None], axis=-1), 0.0, 1.0)
+    chosen = np.zeros((N, V), bool)
+    gap = np.ones((N, V))
+    rows = np.arange(N)
+    todo = rows[candidates.sum(1) > k]
+    chosen[candidates.sum(1) <= k] = candidates[candidates.sum(1) <= k]
+    avail = candidates[todo].copy()
+    dt, ft, gt = d[todo], face[todo], gap[todo]
+    sub = np.arange(len(todo))
+    for _ in range(k):
+        score = np.where(avail, np.rint(ft * gt * 1e6), -1.0)
+        j = np.argmax(score, axis=1)
+        chosen[todo, j] = True
+        avail[sub, j] = False
+        if spread_deg > 0:
+            cos_j = np.clip(np.sum(dt * dt[sub, j][:, None], axis=-1), -1.0, 1.0)
+            gt = np.minimum(gt, np.degrees(np.arccos(cos_j)) / spread_deg)
+    return chosen
+
+
 def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_ms: np.ndarray, X0: np.ndarray,
                 seen: np.ndarray, neighbours: np.ndarray, o: PatchOptions) -> CloudTrack:
     """Track N patches (X0 (N, 3, 3) at ``times_ms[0]``, the seed time; ``seen`` (N, V) the seed's cameras) over
@@ -184,8 +218,10 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             t0, t1 = float(times_ms[k - 1]), float(times_ms[k])
             uv = np.full((N, 3, V, 2), np.nan)
             tracked = np.zeros((N, 3, V), bool)
+            was = vis_out[:, k - 1]
+            flown = best_views(views, X, was & live[:, None], o.track_views, o.track_view_spread_deg)
             for v, name in enumerate(views.names):
-                idx = np.flatnonzero(live & vis_out[:, k - 1, v])
+                idx = np.flatnonzero(flown[:, v])
                 if len(idx) == 0:
                     continue
                 p = project_points(views.subset([name]), X[idx].reshape(-1, 3)).uv_px[0]
@@ -203,8 +239,8 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             velocity = (X_new - X) / (t1 - t0)
             proj = project_points(views, X_new.reshape(-1, 3)).uv_px.reshape(V, N, 3, 2).transpose(1, 2, 0, 3)
             resid = np.linalg.norm(uv - proj, axis=-1).max(axis=1)  # (N, V)
-            was = vis_out[:, k - 1]
-            motion = np.where(tracked.all(axis=1), resid, np.where(was, np.inf, np.nan))
+            # the motion term where the patch was flown: its residual, a failed flow 3 sigmas; elsewhere none
+            motion = np.where(tracked.all(axis=1), resid, np.where(flown, np.inf, np.nan))
             vis = estimate_visibility(source, views, judged_frames(clocks, t1), X_new, velocity, was, motion,
                                       neighbours, o)
             use = vis.visible[:, None, :] & tracked
