@@ -1,6 +1,6 @@
 """The patch stream's rules for a dense dome: a patch is flown in at most ``track_views`` cameras, the most face-on
-and spread in direction (visibility still judged in all); visibility judged only in the cameras a patch's normal
-faces gives estimate_visibility's labels bit for bit; clouds seeded from a cover of the reference cameras."""
+and spread in direction (visibility still judged in all); a patch is projected for its visibility only into the
+cameras its normal faces (the others are never candidates); clouds seeded from a cover of the reference cameras."""
 from __future__ import annotations
 
 import numpy as np
@@ -10,7 +10,8 @@ from dome_calib.recon.patches import track as track_mod
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.run import clocks_of, imaged_views, run_cloud
 from dome_calib.recon.patches.seed import Seeds, patch_triplets, reference_cameras
-from dome_calib.recon.patches.track import best_views, judged_frames, visibility_in_facing
+from dome_calib.recon.patches import visibility as vis_mod
+from dome_calib.recon.patches.track import best_views, judged_frames
 from dome_calib.recon.patches.visibility import camera_neighbours, estimate_visibility
 from dome_calib.recon.project import view_set
 from dome_calib.synth.dome import as_built_dome
@@ -42,27 +43,32 @@ def capture():
     return bundle, scene, views, clocks, t, X
 
 
-def test_judging_only_the_facing_cameras_gives_the_same_labels(capture):
+def test_visibility_projects_a_patch_only_into_the_cameras_it_faces(capture, monkeypatch):
     _, scene, views, clocks, t, X = capture
     o = PatchOptions()
     frames = judged_frames(clocks, t)
     nb = camera_neighbours(views, o.prior_neighbours)
     prev = np.ones((len(X), len(views.names)), bool)
-    rng = np.random.default_rng(2)
-    motion = np.where(rng.random(prev.shape) < 0.5, rng.uniform(0, 4, prev.shape), np.nan)
-    velocity = rng.normal(0, 0.01, X.shape)  # cm per ms: the HD camera is judged at its own frame's time
-    full = estimate_visibility(scene, views, frames, X, velocity, prev, motion, nb, o)
-    fast = visibility_in_facing(scene, views, frames, X, velocity, prev, motion, nb, o)
-    assert full.candidate.any() and not full.candidate.all()  # some cameras face away from some patches
-    assert np.array_equal(full.visible, fast.visible) and np.array_equal(full.candidate, fast.candidate)
-    has = full.candidate.any(1)
-    assert np.array_equal(full.reference[has], fast.reference[has])
-    faced = fast.ncc > -1.0
-    assert np.array_equal(full.photometric & faced, fast.photometric)
-    assert np.array_equal(full.ncc[faced], fast.ncc[faced])
-    # a patch's labels do not depend on the others judged with it
-    part = visibility_in_facing(scene, views, frames, X[::3], velocity[::3], prev[::3], motion[::3], nb, o)
-    assert np.array_equal(part.visible, fast.visible[::3])
+    velocity = np.random.default_rng(2).normal(0, 0.01, X.shape)  # cm per ms: the HD camera judged at its own time
+    projected = []
+    real = vis_mod.project_points
+
+    def counting(v, P):
+        projected.append(len(P))
+        return real(v, P)
+    monkeypatch.setattr(vis_mod, "project_points", counting)
+    got = estimate_visibility(scene, views, frames, X, velocity, prev, None, nb, o)
+    _, _, n = track_mod.patch_axes(X[:, 0], X[:, 1], X[:, 2])
+    facing = np.zeros((len(X), len(views.names)), bool)
+    for v in range(len(views.names)):
+        to_cam = views.center_cm[v] - (X + velocity * frames.offset_ms[v])[:, 0]
+        facing[:, v] = np.sum(to_cam * n, 1) / np.linalg.norm(to_cam, axis=1) > o.min_cos_view
+    assert 0 < facing.sum() < facing.size  # some patches turn away from some cameras
+    assert sum(projected) == 49 * int(facing.sum())  # the 7 x 7 grid, in the facing cameras only
+    assert got.visible.any() and not (got.visible & ~got.candidate).any()
+    assert not (got.photometric & ~facing).any() and np.all(got.ncc[~facing] == -1.0)
+    part = estimate_visibility(scene, views, frames, X[::3], velocity[::3], prev[::3], None, nb, o)
+    assert np.array_equal(part.visible, got.visible[::3])  # a patch's labels do not depend on the others
 
 
 def test_best_views_are_the_most_face_on_spread_and_at_most_k():

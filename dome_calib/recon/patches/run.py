@@ -26,9 +26,8 @@ from dome_calib.recon.patches.seed import (CameraSeeds, Seeds, merge_camera_seed
 from dome_calib.recon.patches.seed_depth import DepthFrames, seed_from_depth
 from dome_calib.recon.patches.seed_features import seed_from_features
 from dome_calib.recon.patches.refine import refine_normals
-from dome_calib.recon.patches.track import (Clock, CloudTrack, judged_frames, quantise_cm, track_cloud,
-                                            visibility_in_facing)
-from dome_calib.recon.patches.visibility import camera_neighbours
+from dome_calib.recon.patches.track import Clock, CloudTrack, judged_frames, quantise_cm, track_cloud
+from dome_calib.recon.patches.visibility import camera_neighbours, estimate_visibility
 from dome_calib.recon.project import ViewSet, view_set
 from dome_calib.recon.streams import cameras_by_stream
 
@@ -82,7 +81,7 @@ def run_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], seed_tim
     X = quantise_cm(seeds.X_cm)
     if (o.refine_normals if refine is None else refine) and len(X):
         frames = judged_frames(clocks, float(t[s]))
-        vis = visibility_in_facing(source, views, frames, X, np.zeros_like(X), seeds.seen, None, neighbours, o)
+        vis = estimate_visibility(source, views, frames, X, np.zeros_like(X), seeds.seen, None, neighbours, o)
         X = quantise_cm(refine_normals(source, views, frames, X, vis.visible, o))
     back = track_cloud(source, views, clocks, t[:s + 1][::-1], X, seeds.seen, neighbours, o)
     fwd = track_cloud(source, views, clocks, t[s:], X, seeds.seen, neighbours, o)

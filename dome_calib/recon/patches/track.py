@@ -1,6 +1,8 @@
 """Track a patch cloud from its seed time, one reference-stream frame at a time, backward or forward.
 
-One step, from reference time ``t`` to ``t'``, for every camera that sees a patch at ``t``:
+One step, from reference time ``t`` to ``t'``, for each of the at most ``track_views`` cameras that saw a patch at
+``t`` chosen by :func:`best_views` (the most face-on, spread in direction; ``track_views`` 0: every camera that saw
+it):
 
 1. **the camera's own frames** (its stream's sync table, :func:`dome_calib.recon.streams.frame_brackets`: the one
    place where a stream is brought to universal time): ``t`` lies between frames ``a`` and ``a+`` (weight ``w``
@@ -11,8 +13,9 @@ One step, from reference time ``t`` to ``t'``, for every camera that sees a patc
    frames up to the two frames around ``t'``, and the track is interpolated linearly to ``t'`` the same way
    (for a reference-stream camera both weights are 0 or 1: one flow step, the CVPR 2014 method itself);
 3. **triangulation** of each point from the cameras it was tracked in (robust, inliers within
-   ``triangulation_px``), then the MAP visibility at ``t'`` (:mod:`.visibility`), then the points triangulated
-   again from the visible tracked cameras alone (if at least two).
+   ``triangulation_px``), then the MAP visibility at ``t'`` in **every** camera (:mod:`.visibility`; a camera the
+   patch was not flown in has no motion term), then the points triangulated again from the visible tracked
+   cameras alone (if at least two).
 
 A plane point that cannot be triangulated moves with the centre. A patch ends when its centre cannot be
 triangulated, fewer than ``min_visible`` cameras see it, or a plane point's distance to the centre changed by more
@@ -200,75 +203,6 @@ def best_views(views: ViewSet, X: np.ndarray, candidates: np.ndarray, k: int, sp
     return chosen
 
 
-def _directions(n: int) -> np.ndarray:
-    """(n, 3) unit directions spread evenly on the sphere (a Fibonacci lattice)."""
-    i = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * i / n
-    phi = np.pi * (1.0 + 5.0 ** 0.5) * i
-    r = np.sqrt(1.0 - z * z)
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], 1)
-
-
-#: Patches are judged visible in groups of like normals (this many directions), each group in the cameras that
-#: face one of its patches: a camera facing none of them would be no candidate of any (:func:`visibility_in_facing`).
-NORMAL_GROUPS = 48
-_FACING_MARGIN = 1e-6
-
-
-def visibility_in_facing(source: FrameSource, views: ViewSet, frames: Frames, X: np.ndarray, velocity: np.ndarray,
-                         previous: np.ndarray, motion_px: np.ndarray | None, neighbours: np.ndarray,
-                         o: PatchOptions) -> Visibility:
-    """:func:`~.visibility.estimate_visibility`, each patch judged only in the cameras its normal can face: the same
-    labels bit for bit (same arguments, same result), for a fraction of the work in a dome all round.
-
-    ``estimate_visibility`` projects every patch's 7 x 7 grid into every camera, but a camera whose direction from
-    the patch (moved to that camera's frame time, as it does) makes a cosine with the normal of at most
-    ``min_cos_view`` is never a candidate: it gets no label, no NCC, no edge of the cut, and cannot be the
-    reference. So the patches are grouped by the nearest of :data:`NORMAL_GROUPS` directions to their normal, and
-    each group is judged in the cameras that face at least one of its patches (cosine above ``min_cos_view`` less
-    1e-6, computed as ``estimate_visibility`` does), with the prior's edges among those; every other camera is
-    filled in as ``estimate_visibility`` leaves a non-candidate (not visible, NCC -1). Each patch's labels depend
-    on its own row only, so how patches are grouped changes nothing (its cut is separate, its reference chosen
-    among its own candidates). One difference: the photometric-alone baseline and the NCC are kept only in the
-    cameras the patch itself faces (``estimate_visibility`` also gives them in cameras behind the patch, where
-    no labelling could use them)."""
-    N, V = len(X), len(views.names)
-    if N == 0:
-        return estimate_visibility(source, views, frames, X, velocity, previous, motion_px, neighbours, o)
-    _, _, normal = patch_axes(X[:, 0], X[:, 1], X[:, 2])
-    cos = np.full((N, V), -1.0)
-    C = views.center_cm
-    for v in range(V):
-        if frames.frame[v] < 0:
-            continue
-        to_cam = C[v] - (X + velocity * frames.offset_ms[v])[:, 0]
-        cos[:, v] = np.sum(to_cam * normal, 1) / np.linalg.norm(to_cam, axis=1)
-    facing = cos > o.min_cos_view - _FACING_MARGIN
-    group = np.argmax(np.rint(normal @ _directions(NORMAL_GROUPS).T * 1e6), axis=1)
-    visible, photometric = np.zeros((N, V), bool), np.zeros((N, V), bool)
-    corr, candidate = np.full((N, V), -1.0), np.zeros((N, V), bool)
-    reference = np.zeros(N, np.int64)
-    for g in np.unique(group):
-        rows = np.flatnonzero(group == g)
-        cams = np.flatnonzero(facing[rows].any(0))
-        if len(cams) == 0:
-            continue
-        pos = np.full(V, -1, np.int64)
-        pos[cams] = np.arange(len(cams))
-        e = pos[neighbours] if len(neighbours) else np.zeros((0, 2), np.int64)
-        e = e[(e >= 0).all(1)] if len(e) else e
-        sub = views.subset([views.names[c] for c in cams])
-        vis = estimate_visibility(source, sub, Frames(frame=frames.frame[cams], offset_ms=frames.offset_ms[cams]),
-                                  X[rows], velocity[rows], previous[rows][:, cams],
-                                  None if motion_px is None else motion_px[rows][:, cams], e, o)
-        at = np.ix_(rows, cams)
-        visible[at], photometric[at], corr[at], candidate[at] = vis.visible, vis.photometric, vis.ncc, vis.candidate
-        reference[rows] = np.where(vis.candidate.any(1), cams[vis.reference], 0)
-    photometric &= facing
-    corr = np.where(facing, corr, -1.0)
-    return Visibility(visible=visible, photometric=photometric, ncc=corr, candidate=candidate, reference=reference)
-
-
 def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_ms: np.ndarray, X0: np.ndarray,
                 seen: np.ndarray, neighbours: np.ndarray, o: PatchOptions) -> CloudTrack:
     """Track N patches (X0 (N, 3, 3) at ``times_ms[0]``, the seed time; ``seen`` (N, V) the seed's cameras) over
@@ -280,7 +214,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
     alive = np.zeros((N, T), bool)
     X = quantise_cm(np.asarray(X0, dtype=float))
     zero = np.zeros_like(X)
-    vis = visibility_in_facing(source, views, judged_frames(clocks, times_ms[0]), X, zero, seen, None, neighbours, o)
+    vis = estimate_visibility(source, views, judged_frames(clocks, times_ms[0]), X, zero, seen, None, neighbours, o)
     live = vis.visible.sum(1) >= o.min_visible
     for k in range(T):
         if k > 0:
@@ -313,7 +247,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                 resid[idx, v] = np.linalg.norm(uv[idx, :, v] - proj.reshape(-1, 3, 2), axis=-1).max(axis=1)
             # the motion term where the patch was flown: its residual, a failed flow 3 sigmas; elsewhere none
             motion = np.where(tracked.all(axis=1), resid, np.where(flown, np.inf, np.nan))
-            vis = visibility_in_facing(source, views, judged_frames(clocks, t1), X_new, velocity, was, motion,
+            vis = estimate_visibility(source, views, judged_frames(clocks, t1), X_new, velocity, was, motion,
                                       neighbours, o)
             use = vis.visible[:, None, :] & tracked
             again = _triangulate_points(views, uv, use.astype(float), o)
