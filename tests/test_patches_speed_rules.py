@@ -71,7 +71,7 @@ def test_visibility_projects_a_patch_only_into_the_cameras_it_faces(capture, mon
     assert np.array_equal(part.visible, got.visible[::3])  # a patch's labels do not depend on the others
 
 
-def test_best_views_are_the_most_face_on_spread_and_at_most_k():
+def test_best_views_are_the_most_face_on_spread_and_at_most_k(monkeypatch):
     views = view_set(as_built_dome("panel", seed=0))
     V = len(views.names)
     X = patch_triplets(np.array([[0.0, -100.0, 0.0], [20.0, -120.0, 10.0]]),
@@ -95,6 +95,8 @@ def test_best_views_are_the_most_face_on_spread_and_at_most_k():
         return np.degrees(np.arccos(c)).min()
     assert min_pair_deg(spread[0]) > min_pair_deg(tight[0])
     assert np.array_equal(best_views(views, X, candidates, 0, 10.0), candidates)  # k = 0: all
+    monkeypatch.setattr(track_mod, "BEST_VIEWS_CHUNK", 1)
+    assert np.array_equal(best_views(views, X, candidates, 8, 15.0), spread)  # patch by patch: the same
 
 
 def test_a_patch_is_flown_in_at_most_track_views_cameras(capture, monkeypatch):

@@ -169,6 +169,10 @@ def _stretched(X: np.ndarray, o: PatchOptions) -> np.ndarray:
     return np.any(np.abs(d / o.axis_cm - 1.0) > o.max_stretch, axis=1)
 
 
+#: Patches whose flown views are chosen together (memory: chunk x cameras x 3 directions).
+BEST_VIEWS_CHUNK = 1024
+
+
 def best_views(views: ViewSet, X: np.ndarray, candidates: np.ndarray, k: int, spread_deg: float) -> np.ndarray:
     """The cameras each patch is tracked in: at most ``k`` of its ``candidates`` (N, V) (the cameras that saw it),
     chosen greedily, most face-on first: each pick maximises ``cos * min(1, angle / spread_deg)``, ``cos`` the
@@ -180,26 +184,27 @@ def best_views(views: ViewSet, X: np.ndarray, candidates: np.ndarray, k: int, sp
     N, V = candidates.shape
     if k <= 0 or N == 0:
         return candidates.copy()
-    _, _, normal = patch_axes(X[:, 0], X[:, 1], X[:, 2])
-    d = views.center_cm[None] - X[:, None, 0]  # (N, V, 3)
-    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
-    face = np.clip(np.sum(d * normal[:, None], axis=-1), 0.0, 1.0)
-    chosen = np.zeros((N, V), bool)
-    gap = np.ones((N, V))
-    rows = np.arange(N)
-    todo = rows[candidates.sum(1) > k]
-    chosen[candidates.sum(1) <= k] = candidates[candidates.sum(1) <= k]
-    avail = candidates[todo].copy()
-    dt, ft, gt = d[todo], face[todo], gap[todo]
-    sub = np.arange(len(todo))
-    for _ in range(k):
-        score = np.where(avail, np.rint(ft * gt * 1e6), -1.0)
-        j = np.argmax(score, axis=1)
-        chosen[todo, j] = True
-        avail[sub, j] = False
-        if spread_deg > 0:
-            cos_j = np.clip(np.sum(dt * dt[sub, j][:, None], axis=-1), -1.0, 1.0)
-            gt = np.minimum(gt, np.degrees(np.arccos(cos_j)) / spread_deg)
+    many = candidates.sum(1) > k
+    chosen = np.where(many[:, None], False, candidates)
+    todo = np.flatnonzero(many)
+    for lo in range(0, len(todo), BEST_VIEWS_CHUNK):  # (n, V, 3) directions per chunk: a cloud's would not fit
+        rows = todo[lo:lo + BEST_VIEWS_CHUNK]
+        Xr = X[rows]
+        _, _, normal = patch_axes(Xr[:, 0], Xr[:, 1], Xr[:, 2])
+        d = views.center_cm[None] - Xr[:, None, 0]  # (n, V, 3)
+        d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        face = np.clip(np.sum(d * normal[:, None], axis=-1), 0.0, 1.0)
+        gap = np.ones((len(rows), V))
+        avail = candidates[rows].copy()
+        sub = np.arange(len(rows))
+        for _ in range(k):
+            score = np.where(avail, np.rint(face * gap * 1e6), -1.0)
+            j = np.argmax(score, axis=1)
+            chosen[rows, j] = True
+            avail[sub, j] = False
+            if spread_deg > 0:
+                cos_j = np.clip(np.sum(d * d[sub, j][:, None], axis=-1), -1.0, 1.0)
+                gap = np.minimum(gap, np.degrees(np.arccos(cos_j)) / spread_deg)
     return chosen
 
 
