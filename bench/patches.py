@@ -30,11 +30,13 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import contextlib  # noqa: E402
+import dataclasses  # noqa: E402
 import json  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from dome_calib.panoptic_io import read_kcalibration  # noqa: E402
@@ -52,6 +54,7 @@ from dome_calib.recon.patches.frames import patch_grid_cm  # noqa: E402
 from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
 from dome_calib.recon.patches.parts import PartOptions, label_parts  # noqa: E402
 from dome_calib.recon.patches.run import imaged_views, patch_stream  # noqa: E402
+from dome_calib.recon.patches.seed import reference_cameras  # noqa: E402
 from dome_calib.recon.project import project_points, view_set  # noqa: E402
 
 
@@ -127,31 +130,70 @@ def error_causes(truth, views, t_ms: float, X: np.ndarray, P: np.ndarray, normal
     return out
 
 
+class GrayCache:
+    """The scene's grey images kept once rendered (``--track-views`` / ``--ref-spacing-deg`` run the stage several
+    times on the same frames: each is rendered once); the frame source the stage reads."""
+
+    def __init__(self, scene: TexturedScene) -> None:
+        self.scene, self._gray = scene, {}
+        self.render_s, self.renders = scene.render_s, scene.renders
+
+    def camera(self, name: str):
+        return self.scene.camera(name)
+
+    def frame_indices(self, name: str) -> np.ndarray:
+        return self.scene.frame_indices(name)
+
+    def gray(self, name: str, frame: int) -> np.ndarray:
+        key = (name, int(frame))
+        if key not in self._gray:
+            self._gray[key] = self.scene.gray(name, frame)
+        return self._gray[key]
+
+
 class PhaseTimer:
     """CPU seconds of the stage's seed and track tasks (run in this process), rendering inside them apart."""
 
-    def __init__(self, scene: TexturedScene) -> None:
+    def __init__(self, scene: TexturedScene, seeds_memo: dict | None = None) -> None:
         self.scene = scene
         self.cpu = {"seed": 0.0, "track": 0.0}
         self.render = {"seed": 0.0, "track": 0.0}
         self._saved = (patch_run.seed_task, patch_run.track_task)
+        self.memo = seeds_memo  # seed tasks' results by key, reused (their CPU then counted as at the first run)
+        self.reused = 0.0
 
     def _wrap(self, phase: str, fn):
         def timed(task):
+            if phase == "seed" and self.memo is not None and task.key in self.memo:
+                out, cpu = self.memo[task.key]
+                self.cpu[phase] += cpu
+                self.reused += cpu
+                return out
             c0, r0 = time.process_time(), sum(self.scene.render_s.values())
             out = fn(task)
+            if phase == "seed" and self.memo is not None:
+                self.memo[task.key] = (out, time.process_time() - c0 - (sum(self.scene.render_s.values()) - r0))
             self.cpu[phase] += time.process_time() - c0
             self.render[phase] += sum(self.scene.render_s.values()) - r0
             return out
         return timed
 
     def __enter__(self) -> PhaseTimer:
+        self.lk = {"calls": 0, "points": 0}
+        self._lk_saved = cv2.calcOpticalFlowPyrLK
+
+        def counted(prev, nxt, pts, *a, **k):  # every optical-flow call builds both images' pyramids anew
+            self.lk["calls"] += 1
+            self.lk["points"] += len(pts)
+            return self._lk_saved(prev, nxt, pts, *a, **k)
+        cv2.calcOpticalFlowPyrLK = counted
         patch_run.seed_task = self._wrap("seed", self._saved[0])
         patch_run.track_task = self._wrap("track", self._saved[1])
         return self
 
     def __exit__(self, *exc: object) -> None:
         patch_run.seed_task, patch_run.track_task = self._saved
+        cv2.calcOpticalFlowPyrLK = self._lk_saved
 
 
 def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int, imaged=None, o: PatchOptions | None = None
@@ -295,13 +337,14 @@ def run_executors(args, bundle, scene, cams, span, o, f: int) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    bundle = as_built_dome("panel", seed=args.seed)
+    bundle = as_built_dome(args.preset, seed=args.seed)
     bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=6000.0, seed=args.seed)
     bundle.kinect = read_kcalibration(KCALIBRATION)
     truth = make_group(GroupOptions(n_people=args.people, scenario=args.scenario, start_ms=500.0,
                                     duration_ms=5000.0, seed=args.seed))
     scene = TexturedScene(bundle, truth, TextureOptions(seed=args.seed, scale={"vga": 1.0, "hd": 0.5,
-                                                                              "kinect-color": 0.5}))
+                                                                              "kinect-color": 0.5}),
+                          cache_frames=1 if args.preset == "full" else 3)  # the grey images are kept (GrayCache)
     by_type = {t: sorted(n for n, c in bundle.cameras.items() if str(c.type) == t) for t in ("vga", "hd",
                                                                                              "kinect-color")}
     cams = by_type["vga"][:args.vga] + by_type["hd"][:args.hd] + by_type["kinect-color"][:args.kinect]
@@ -315,6 +358,10 @@ def run(args: argparse.Namespace) -> None:
     o = PatchOptions(track_frames=nf)
     if args.executors != "here":
         return run_executors(args, bundle, scene, cams, span, o, f)
+    source = GrayCache(scene)
+    track_views = [int(k) for k in args.track_views.split(",")] if args.track_views else [o.track_views]
+    spacings = ([float(x) for x in args.ref_spacing_deg.split(",")] if args.ref_spacing_deg
+                else [o.seed_reference_spacing_deg])
     with tempfile.TemporaryDirectory() as tmp:
         c0 = time.process_time()
         write_group_depth(Path(tmp) / "depth", bundle, truth, (t_seed - 40.0, t_seed + 40.0), seed=args.seed)
@@ -322,11 +369,15 @@ def run(args: argparse.Namespace) -> None:
         depth_cpu = time.process_time() - c0
         emit(what="depth", nodes=list(depth.read_frame.nodes), cpu_s=round(depth_cpu, 2),
              load=[round(x, 2) for x in os.getloadavg()])
-        for seeding in args.seeding.split(","):
+        runs = [(seeding, spacing, k) for seeding in args.seeding.split(",")
+                for spacing in (spacings if seeding == "images" else [0.0]) for k in track_views]
+        memo: dict = {}
+        for seeding, spacing, k in runs:
+            ok = dataclasses.replace(o, track_views=k, seed_reference_spacing_deg=spacing)
             load = os.getloadavg()
             cpu0, wall0, render0 = time.process_time(), time.perf_counter(), sum(scene.render_s.values())
-            with PhaseTimer(scene) as phases:
-                traj = patch_stream(bundle, scene, cams, span, o, seed_frames=[f],
+            with PhaseTimer(scene, memo.setdefault((seeding, spacing), {})) as phases:
+                traj = patch_stream(bundle, source, cams, span, ok, seed_frames=[f],
                                     depth=depth if seeding == "depth" else None)
             cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
             render_cpu = sum(scene.render_s.values()) - render0
@@ -334,13 +385,17 @@ def run(args: argparse.Namespace) -> None:
                                    for k in sorted(scene.renders)}, renders=scene.renders, people=args.people,
                  load=[round(x, 2) for x in load])
             got = evaluate(args, bundle, truth, cams, traj, t_seed, nf, imaged_views(scene, cams), o)
-            stage_cpu = cpu - render_cpu
+            stage_cpu = cpu - render_cpu + phases.reused  # seeds reused from an earlier run count their CPU
             track_cpu = phases.cpu["track"] - phases.render["track"]
-            emit(what="patches", seeding=seeding, scenario=args.scenario, people=args.people, cameras=len(cams),
+            emit(what="patches", seeding=seeding, track_views=k, ref_spacing_deg=spacing,
+                 reference_cameras=len(reference_cameras(view_set(bundle, [c for c in cams if c in by_type["vga"]]),
+                                                         spacing, o.volume_height_cm)),
+                 scenario=args.scenario, people=args.people, cameras=len(cams),
                  vga=args.vga, hd=args.hd, kinect=args.kinect, frames_each_way=nf, seed=args.seed, **got,
                  stage_cpu_s=round(stage_cpu, 1), render_cpu_s=round(render_cpu, 1),
                  seed_cpu_s=round(phases.cpu["seed"] - phases.render["seed"], 2),
-                 track_cpu_s=round(track_cpu, 2), wall_s=round(wall, 1),
+                 track_cpu_s=round(track_cpu, 2), wall_s=round(wall, 1), lk_calls=phases.lk["calls"],
+                 lk_points=phases.lk["points"],
                  patch_views_frames_per_cpu_s=round(got["patch_views_frames"] / max(stage_cpu, 1e-9), 1),
                  tracking_patch_views_frames_per_cpu_s=round(got["patch_views_frames"] / max(track_cpu, 1e-9), 1),
                  load_before=[round(x, 2) for x in load], load=[round(x, 2) for x in os.getloadavg()])
@@ -348,6 +403,7 @@ def run(args: argparse.Namespace) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--preset", type=str, default="panel", help="the as-built dome's preset: panel or full")
     ap.add_argument("--people", type=int, default=2)
     ap.add_argument("--scenario", type=str, default="conversation")
     ap.add_argument("--vga", type=int, default=24)
@@ -363,6 +419,10 @@ def main() -> None:
                          "LocalCluster of worker processes): the image-seeded stream on each, CPU, wall, same bits")
     ap.add_argument("--workers", type=int, default=2, help="worker processes of --executors pool and dask")
     ap.add_argument("--patches-per-task", type=int, default=1000)
+    ap.add_argument("--track-views", type=str, default="",
+                    help="comma list of PatchOptions.track_views (0: all), one run each on the same rendered frames")
+    ap.add_argument("--ref-spacing-deg", type=str, default="",
+                    help="comma list of PatchOptions.seed_reference_spacing_deg (image seeding), one run each")
     args = ap.parse_args()
     if args.workers < 1 or args.patches_per_task < 1:
         raise SystemExit("--workers and --patches-per-task must be at least 1")

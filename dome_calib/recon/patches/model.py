@@ -33,6 +33,9 @@ class PatchOptions:
     seed_method: Literal["sweep", "features", "skeleton"] = "sweep"
     seed_features: AtLeast(1) = 400  # corners per camera (cv2.goodFeaturesToTrack)
     seed_min_distance_px: PosFinite = 5.0
+    # reference cameras: every camera of the reference stream (0), or a cover of them spaced this far apart as seen
+    # from the capture volume's centre (seed.reference_cameras): in a dense dome neighbours' seeds are the same
+    seed_reference_spacing_deg: Annotated[float, Field(ge=0, lt=180)] = 0.0
     seed_neighbours: AtLeast(2) = 4  # cameras the depth sweep is scored in
     seed_step_cm: PosFinite = 1.5  # depth sweep step along the ray
     seed_window_px: AtLeast(3) = 7  # NCC window of the sweep (odd)
@@ -56,6 +59,10 @@ class PatchOptions:
     lk_window_px: AtLeast(5) = 15
     lk_levels: AtLeast(0) = 3
     lk_fb_px: PosFinite = 0.5  # forward-backward check
+    # each step tracks a patch by optical flow in at most this many of the cameras that saw it (track.py
+    # best_views: the most face-on, spread in direction; 0: all); visibility is still judged in every camera
+    track_views: Annotated[int, Field(ge=0)] = 8
+    track_view_spread_deg: Annotated[float, Field(ge=0, lt=90)] = 10.0  # views closer than this to a chosen one pay
     triangulation_px: PosFinite = 2.5  # inlier threshold of the patches' points
     # visibility (MAP): unary costs of "visible" against "not visible" (the latter 0), Potts prior
     ncc_threshold: Annotated[float, Field(ge=-1, le=1)] = 0.6  # photometric: NCC above this favours "visible"

@@ -21,7 +21,8 @@ from dome_calib.executor import in_order
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.patches.frames import FrameSource, patch_axes
 from dome_calib.recon.patches.model import PatchOptions, PatchTrajectories
-from dome_calib.recon.patches.seed import CameraSeeds, Seeds, merge_camera_seeds, seed_camera
+from dome_calib.recon.patches.seed import (CameraSeeds, Seeds, merge_camera_seeds, reference_cameras,
+                                           seed_camera)
 from dome_calib.recon.patches.seed_depth import DepthFrames, seed_from_depth
 from dome_calib.recon.patches.seed_features import seed_from_features
 from dome_calib.recon.patches.seed_skeleton import BodyPrior, CameraBodySeeds, merge_body_seeds, seed_camera_on_body
@@ -222,6 +223,7 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
             raise ReconError(f"seed frame {int(f)} of stream {stream} is not inside the span")
         windows.append(frames_in[max(pos - o.track_frames, 0):pos + o.track_frames + 1])
     seed_times = [table.time_of(int(f)) for f in seeds_at]
+    refs = reference_cameras(ref_views, o.seed_reference_spacing_deg, o.volume_height_cm)
     seed_tasks = []
     for c, f in enumerate(seeds_at):
         frames = {n: int(f) for n in ref_names}
@@ -229,8 +231,8 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
             seed_tasks.append(SeedTask(c, -1, source, ref_views, frames, seed_times[c], o, bundle, depth))
         else:
             body_cm = body.at(seed_times[c]) if on_body else None
-            seed_tasks += [SeedTask(c, r, source, ref_views, frames, seed_times[c], o, body_cm=body_cm)
-                           for r in range(len(ref_names))]
+            seed_tasks += [SeedTask(c, int(r), source, ref_views, frames, seed_times[c], o, body_cm=body_cm)
+                           for r in refs]
     got: dict[int, list] = {}
     for (c, _), result in run_tasks(executor, seed_task, seed_tasks):
         got.setdefault(c, []).append(result)

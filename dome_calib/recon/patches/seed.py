@@ -232,6 +232,26 @@ def seed_camera(source: FrameSource, views: ViewSet, frames: dict[str, int], r: 
     return CameraSeeds(camera=r, X_cm=tri.X_cm[good], seen=tri.inliers[good], n_inliers=tri.n_inliers[good])
 
 
+def reference_cameras(views: ViewSet, spacing_deg: float, volume_height_cm: float) -> np.ndarray:
+    """Positions (increasing) of the cameras that seed a cloud: all of ``views`` if ``spacing_deg`` is 0, else a
+    cover of them: in name order, a camera is taken unless one already taken lies within ``spacing_deg`` of it, as
+    seen from the capture volume's centre (on the axis, half ``volume_height_cm`` above the floor). Every camera
+    then has a reference within ``spacing_deg``, and no two references are closer: a dense dome's neighbours a few
+    degrees apart see the same surface and seed the same cells (the cells keep one seed each), so one of them
+    seeds it once. Depends on the cameras' centres and names only."""
+    V = len(views.names)
+    if spacing_deg <= 0 or V == 0:
+        return np.arange(V)
+    d = views.center_cm - np.array([0.0, -0.5 * volume_height_cm, 0.0])
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    limit = np.cos(np.radians(spacing_deg))
+    taken: list[int] = []
+    for i in sorted(range(V), key=lambda j: views.names[j]):
+        if not taken or np.max(np.rint(d[taken] @ d[i] * 1e9)) <= np.rint(limit * 1e9):
+            taken.append(i)
+    return np.array(sorted(taken), dtype=np.int64)
+
+
 def patch_triplets(X: np.ndarray, normal: np.ndarray, axis: np.ndarray, axis_cm: float) -> np.ndarray:
     """Centres (N, 3), normals (N, 3), a first in-plane direction (N, 3) -> patches (N, 3, 3): centre and the two
     plane points at ``axis_cm`` (u the direction made orthogonal to the normal, v = normal x u)."""
@@ -264,4 +284,5 @@ def seed_patches(source: FrameSource, views: ViewSet, frames: dict[str, int], o:
     Example:
         >>> seeds = seed_patches(scene, view_set(imaged, vga_names), {n: 130 for n in vga_names}, PatchOptions())
     """
-    return merge_camera_seeds([seed_camera(source, views, frames, r, o) for r in range(len(views.names))], views, o)
+    refs = reference_cameras(views, o.seed_reference_spacing_deg, o.volume_height_cm)
+    return merge_camera_seeds([seed_camera(source, views, frames, int(r), o) for r in refs], views, o)

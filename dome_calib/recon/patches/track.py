@@ -1,6 +1,8 @@
 """Track a patch cloud from its seed time, one reference-stream frame at a time, backward or forward.
 
-One step, from reference time ``t`` to ``t'``, for every camera that sees a patch at ``t``:
+One step, from reference time ``t`` to ``t'``, for each of the at most ``track_views`` cameras that saw a patch at
+``t`` chosen by :func:`best_views` (the most face-on, spread in direction; ``track_views`` 0: every camera that saw
+it):
 
 1. **the camera's own frames** (its stream's sync table, :func:`dome_calib.recon.streams.frame_brackets`: the one
    place where a stream is brought to universal time): ``t`` lies between frames ``a`` and ``a+`` (weight ``w``
@@ -11,8 +13,9 @@ One step, from reference time ``t`` to ``t'``, for every camera that sees a patc
    frames up to the two frames around ``t'``, and the track is interpolated linearly to ``t'`` the same way
    (for a reference-stream camera both weights are 0 or 1: one flow step, the CVPR 2014 method itself);
 3. **triangulation** of each point from the cameras it was tracked in (robust, inliers within
-   ``triangulation_px``), then the MAP visibility at ``t'`` (:mod:`.visibility`), then the points triangulated
-   again from the visible tracked cameras alone (if at least two).
+   ``triangulation_px``), then the MAP visibility at ``t'`` in **every** camera (:mod:`.visibility`; a camera the
+   patch was not flown in has no motion term), then the points triangulated again from the visible tracked
+   cameras alone (if at least two).
 
 A plane point that cannot be triangulated moves with the centre. A patch ends when its centre cannot be
 triangulated, fewer than ``min_visible`` cameras see it, or a plane point's distance to the centre changed by more
@@ -166,6 +169,45 @@ def _stretched(X: np.ndarray, o: PatchOptions) -> np.ndarray:
     return np.any(np.abs(d / o.axis_cm - 1.0) > o.max_stretch, axis=1)
 
 
+#: Patches whose flown views are chosen together (memory: chunk x cameras x 3 directions).
+BEST_VIEWS_CHUNK = 1024
+
+
+def best_views(views: ViewSet, X: np.ndarray, candidates: np.ndarray, k: int, spread_deg: float) -> np.ndarray:
+    """The cameras each patch is tracked in: at most ``k`` of its ``candidates`` (N, V) (the cameras that saw it),
+    chosen greedily, most face-on first: each pick maximises ``cos * min(1, angle / spread_deg)``, ``cos`` the
+    cosine between the patch normal and the direction to the camera (0 if it faces away), ``angle`` the smallest
+    angle at the patch between that direction and those already picked. A dense dome puts several cameras a few
+    degrees apart: the spread keeps the picks from crowding one panel, which triangulates no better than one of
+    them. Scores are quantised to 1e-6 and ties go to the first camera; every patch's pick depends on its own row
+    only. ``k`` 0, or a patch with at most ``k`` candidates: all of them. -> (N, V) bool."""
+    N, V = candidates.shape
+    if k <= 0 or N == 0:
+        return candidates.copy()
+    many = candidates.sum(1) > k
+    chosen = np.where(many[:, None], False, candidates)
+    todo = np.flatnonzero(many)
+    for lo in range(0, len(todo), BEST_VIEWS_CHUNK):  # (n, V, 3) directions per chunk: a cloud's would not fit
+        rows = todo[lo:lo + BEST_VIEWS_CHUNK]
+        Xr = X[rows]
+        _, _, normal = patch_axes(Xr[:, 0], Xr[:, 1], Xr[:, 2])
+        d = views.center_cm[None] - Xr[:, None, 0]  # (n, V, 3)
+        d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        face = np.clip(np.sum(d * normal[:, None], axis=-1), 0.0, 1.0)
+        gap = np.ones((len(rows), V))
+        avail = candidates[rows].copy()
+        sub = np.arange(len(rows))
+        for _ in range(k):
+            score = np.where(avail, np.rint(face * gap * 1e6), -1.0)
+            j = np.argmax(score, axis=1)
+            chosen[rows, j] = True
+            avail[sub, j] = False
+            if spread_deg > 0:
+                cos_j = np.clip(np.sum(d * d[sub, j][:, None], axis=-1), -1.0, 1.0)
+                gap = np.minimum(gap, np.degrees(np.arccos(cos_j)) / spread_deg)
+    return chosen
+
+
 def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_ms: np.ndarray, X0: np.ndarray,
                 seen: np.ndarray, neighbours: np.ndarray, o: PatchOptions) -> CloudTrack:
     """Track N patches (X0 (N, 3, 3) at ``times_ms[0]``, the seed time; ``seen`` (N, V) the seed's cameras) over
@@ -184,8 +226,10 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             t0, t1 = float(times_ms[k - 1]), float(times_ms[k])
             uv = np.full((N, 3, V, 2), np.nan)
             tracked = np.zeros((N, 3, V), bool)
+            was = vis_out[:, k - 1]
+            flown = best_views(views, X, was & live[:, None], o.track_views, o.track_view_spread_deg)
             for v, name in enumerate(views.names):
-                idx = np.flatnonzero(live & vis_out[:, k - 1, v])
+                idx = np.flatnonzero(flown[:, v])
                 if len(idx) == 0:
                     continue
                 p = project_points(views.subset([name]), X[idx].reshape(-1, 3)).uv_px[0]
@@ -201,10 +245,13 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             X_new = np.where(np.isfinite(X_new), X_new, X + moved)
             X_new = quantise_cm(np.where(live[:, None, None], X_new, 0.0))
             velocity = (X_new - X) / (t1 - t0)
-            proj = project_points(views, X_new.reshape(-1, 3)).uv_px.reshape(V, N, 3, 2).transpose(1, 2, 0, 3)
-            resid = np.linalg.norm(uv - proj, axis=-1).max(axis=1)  # (N, V)
-            was = vis_out[:, k - 1]
-            motion = np.where(tracked.all(axis=1), resid, np.where(was, np.inf, np.nan))
+            resid = np.full((N, V), np.nan)  # the flow against the reprojected motion, where flown
+            for v in np.flatnonzero(flown.any(0)):
+                idx = np.flatnonzero(flown[:, v])
+                proj = project_points(views.subset([views.names[v]]), X_new[idx].reshape(-1, 3)).uv_px[0]
+                resid[idx, v] = np.linalg.norm(uv[idx, :, v] - proj.reshape(-1, 3, 2), axis=-1).max(axis=1)
+            # the motion term where the patch was flown: its residual, a failed flow 3 sigmas; elsewhere none
+            motion = np.where(tracked.all(axis=1), resid, np.where(flown, np.inf, np.nan))
             vis = estimate_visibility(source, views, judged_frames(clocks, t1), X_new, velocity, was, motion,
                                       neighbours, o)
             use = vis.visible[:, None, :] & tracked

@@ -15,8 +15,8 @@ Per patch and camera, the cost of "visible" (the cost of "not visible" is 0):
 - **motion**: for cameras the patch was tracked in, ``motion_weight * (min(r / motion_sigma_px, 3) - 1)``, ``r`` the
   largest distance between a point's optical flow and the reprojection of its triangulated motion (a failed flow
   counts as 3 sigmas); 0 for the others;
-- **geometric**: a camera is a candidate only if the whole square projects into its image and the normal faces it
-  (cosine above ``min_cos_view``); then ``geometric_weight * max(0, 0.5 - cos) / 0.5`` (grazing views cost).
+- **geometric**: a camera is a candidate only if the normal faces it (cosine above ``min_cos_view``; the others are
+  not projected) and the whole square projects into its image; then ``geometric_weight * max(0, 0.5 - cos) / 0.5`` (grazing views cost).
 
 Prior: ``prior_weight`` for each pair of neighbouring candidate cameras (each camera's ``prior_neighbours``
 nearest centres) labelled differently. All patches' graphs go through one cut (:mod:`.mincut`); each gets its own
@@ -24,8 +24,8 @@ labels whatever else is solved with it.
 
 Cameras of other streams than the reference are judged at their own nearest frame, the patch moved there with
 its last step's velocity (``X(tau) = X(t) + (tau - t) / dt * (X(t) - X(t - dt))``; at the seed, no motion).
-The CVPR 2014 paper's baseline, photometric consistency alone, is returned beside it: in the image and NCC at
-least ``ncc_threshold``.
+The CVPR 2014 paper's baseline, photometric consistency alone, is returned beside it: facing the camera (cosine
+above ``min_cos_view``), in the image and NCC at least ``ncc_threshold``.
 """
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dome_calib.recon.patches.frames import FrameSource, ncc, patch_axes, patch_grid_cm, sample
+from dome_calib.recon.patches.frames import GRID_SIDE, FrameSource, ncc, patch_axes, patch_grid_cm, sample
 from dome_calib.recon.patches.mincut import min_cut_labels
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.project import ViewSet, project_points
@@ -104,35 +104,35 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
         neighbours: (E, 2) camera pairs of the prior (:func:`camera_neighbours`).
     """
     N, V = len(X), len(views.names)
-    G = None
-    samples = None
     in_image = np.zeros((N, V), bool)
     cos = np.full((N, V), -1.0)
     _, _, normal = patch_axes(X[:, 0], X[:, 1], X[:, 2])
     C = views.center_cm
+    G = GRID_SIDE * GRID_SIDE
+    samples = np.zeros((N, V, G), np.float32)
     for v, name in enumerate(views.names):
         f = int(frames.frame[v])
         if f < 0 or N == 0:
             continue
         Xv = X + velocity * frames.offset_ms[v]
-        grid = patch_grid_cm(Xv[:, 0], Xv[:, 1], Xv[:, 2], o.ncc_size_cm)  # (N, G, 3)
-        if G is None:
-            G = grid.shape[1]
-            samples = np.zeros((N, V, G), np.float32)
-        p = project_points(views.subset([name]), grid.reshape(-1, 3))
-        inside = p.visible[0].reshape(N, G).all(axis=1)
-        in_image[:, v] = inside
-        if inside.any():
-            samples[inside, v] = sample(source.gray(name, f), p.uv_px[0].reshape(N, G, 2)[inside])
         to_cam = C[v] - Xv[:, 0]
         cos[:, v] = np.sum(to_cam * normal, 1) / np.linalg.norm(to_cam, axis=1)
+        # only patches whose normal faces the camera can be candidates: the others are not projected (a dome's
+        # camera faces a third of a patch's cameras; their NCC and the photometric baseline are left out there)
+        rows = np.flatnonzero(cos[:, v] > o.min_cos_view)
+        if len(rows) == 0:
+            continue
+        grid = patch_grid_cm(Xv[rows, 0], Xv[rows, 1], Xv[rows, 2], o.ncc_size_cm)  # (n, G, 3)
+        p = project_points(views.subset([name]), grid.reshape(-1, 3))
+        inside = p.visible[0].reshape(len(rows), G).all(axis=1)
+        in_image[rows, v] = inside
+        if inside.any():
+            samples[rows[inside], v] = sample(source.gray(name, f), p.uv_px[0].reshape(len(rows), G, 2)[inside])
     candidate = in_image & (cos > o.min_cos_view)
     prev = previous & candidate
     score = np.where(prev, cos, np.where(candidate, cos - 2.0, -np.inf))
     ref = np.argmax(np.where(np.isfinite(score), np.rint(score * 1e6), -1e9), axis=1)  # quantised: ties by position
     has_ref = np.isfinite(score[np.arange(N), ref])
-    if samples is None:
-        samples = np.zeros((N, V, 1), np.float32)
     corr = ncc(samples, samples[np.arange(N), ref][:, None])
     corr = np.where(in_image & has_ref[:, None], corr, -1.0)
     best = np.maximum(corr, neighbour_ncc(samples, prev, neighbours)) if o.neighbour_ncc else corr
