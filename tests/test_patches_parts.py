@@ -1,6 +1,8 @@
 """Patches given to body parts (dome_calib.recon.patches.parts) on true surface trajectories of a moving group."""
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from dome_calib.recon.patches.parts import BONES, label_parts
@@ -72,3 +74,50 @@ def test_parts_that_meet_at_a_joint_told_apart_by_their_thickness():
         right[w] = np.mean((lab.person == person) & (lab.bone == part), where=caps)
     assert caps.sum() > 50
     assert right[1.0] > right[0.0] + 0.1  # measured: 63 -> 84 % of 62 cap patches
+
+
+@functools.lru_cache(maxsize=1)
+def _walkers_patches():
+    """Two walkers' surface patches (few-camera rig, seen by 2 cameras, drifting 1.2 mm per step), their true
+    labels and the true skeleton."""
+    from dome_calib.synth.rig import RigOptions, few_camera_rig
+    from dome_calib.synth.surface_patches import true_patches
+
+    bundle = few_camera_rig(RigOptions(seed=0, duration_ms=3000.0))
+    truth = make_group(GroupOptions(n_people=2, scenario="mixed", start_ms=0.0, duration_ms=3000.0, seed=2))
+    times = np.arange(1000.0, 1800.0, 40.0)
+    X, normal, alive, person, part = true_patches(bundle, sorted(bundle.cameras), truth, times, 0, per_part=60,
+                                                  every=20, reach=20, drift_cm=0.12)
+    joints, present = truth.joints_cm(times)
+    joints[~present] = np.nan
+    return X[:, :, 0], normal, alive, person, part, joints
+
+
+def _share_right(lab, person, part, alive):
+    judged = (alive.sum(1) >= 5) & (lab.bone >= 0)
+    return float(np.mean(((lab.person == person) & (lab.bone == part))[judged]))
+
+
+def test_rigidity_is_the_parts_motion_not_the_skeletons_jitter():
+    """Against a skeleton with 1.5 cm of independent noise per joint and frame, a patch's distance to a bone jitters
+    by that noise whatever the patch does (more on short bones); averaged over 5 frames it is the part's motion.
+    Measured: 99.4 / 99.7 / 99.4 % right (97.0 / 97.9 / 98.5 with the unaveraged distances)."""
+    from dome_calib.recon.patches.parts import PartOptions
+
+    X, normal, alive, person, part, joints = _walkers_patches()
+    right = {}
+    for half in (0, 2):
+        right[half] = [_share_right(label_parts(X, normal, alive, joints + np.random.default_rng(s).normal(
+            0.0, 1.5, joints.shape), PartOptions(rigidity_half_window_frames=half)), person, part, alive)
+            for s in range(3)]
+    assert min(right[2]) >= 0.99
+    assert sum(right[2]) > sum(right[0])
+
+
+def test_a_part_with_a_radius_is_judged_by_its_surface_not_its_bone():
+    """Once a part's radius is measured, the patch's distance from that surface replaces its distance from the
+    bone, which at a crease (torso and hips, shoulders and upper arm) favours the thinner part. Measured on two
+    walkers' drifting surface patches with the true skeleton: every patch right (99.4 % when the bone's distance
+    was kept)."""
+    X, normal, alive, person, part, joints = _walkers_patches()
+    assert _share_right(label_parts(X, normal, alive, joints), person, part, alive) == 1.0

@@ -11,7 +11,9 @@ Per patch and candidate bone, over the times the patch is alive (at least ``min_
   part, a flipped sign, is left unlabelled rather than given to a far bone that it happens to face away from);
 - **rigid**: a point moving with a bone keeps its distance to the bone's axis ``r`` and its position along it
   ``z`` (both free of the bone's unknown twist); the cost is the RMS of ``r(t) - median r`` and ``z(t) - median z``
-  (cm), plus ``distance_weight`` x the median distance to the bone (cm) and ``alignment_weight`` x (1 - the median
+  (cm), each series first averaged over ``2 rigidity_half_window_frames + 1`` consecutive reference times (a
+  body moves smoothly, the skeleton's per-frame errors do not: against a skeleton with 1.5 cm of independent
+  noise per joint and frame, the unaveraged RMS is that noise, larger on short bones whatever the patch does), plus ``distance_weight`` x the median distance to the bone (cm) and ``alignment_weight`` x (1 - the median
   cosine between the normal and the way out of the bone): of two bones that move alike (people standing still),
   the one the patch sits on, whose surface it is (a torso patch next to the shoulders points out of the torso's
   axis, not out of the shoulder line).
@@ -21,9 +23,11 @@ Per patch and candidate bone, over the times the patch is alive (at least ``min_
   distance, alignment and (people standing) rigidity cannot tell them apart; the parts' thicknesses can (the hips
   are wider than the thigh). Each part's radius is measured from the first pass's labels: per person and bone,
   the median distance of its patches whose closest point lies inside the bone (not beyond either joint; at least
-  ``min_radius_patches``, else no radius for that part); the second pass adds ``radius_weight`` x
-  ``|median distance - radius|`` (cm) to the cost. Nothing is assumed of a body's shape: the radii are each
-  capture's and person's own.
+  ``min_radius_patches``, else no radius for that part); in the second pass, for a part with a radius, the
+  patch's distance from the part's surface, ``radius_weight`` x ``|median distance - radius|`` (cm), takes the
+  place of ``distance_weight`` x its distance from the bone (which, at a crease, favours the thinner part: a
+  patch where the torso meets the hips is nearer the hips' bone whichever surface it is on). Nothing is assumed
+  of a body's shape: the radii are each capture's and person's own.
 
 The label is the bone of least cost among those that pass (costs quantised to 1e-4 cm, ties by person then bone
 order); -1 where none passes. Bones are segments between joints19 joints (:data:`BONES`), one per body part of
@@ -58,6 +62,7 @@ class PartOptions:
     radius_weight: NonNegFinite = 1.0
     max_distance_cm: PosFinite = 30.0
     min_radius_patches: AtLeast(1) = 5
+    rigidity_half_window_frames: AtLeast(0) = 2
 
 
 @dataclass(frozen=True)
@@ -97,13 +102,14 @@ def label_parts(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, joints_
     if not parts:
         return PartLabels(person=np.zeros(0, np.int64), bone=np.zeros(0, np.int64), cost=np.zeros(0))
     c = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    base = c["dev"] + o.distance_weight * c["dist"] + o.alignment_weight * (1.0 - c["align"])
-    first = _choose(base, c["passes"])
+    shape = c["dev"] + o.alignment_weight * (1.0 - c["align"])
+    first = _choose(shape + o.distance_weight * c["dist"], c["passes"])
     if o.radius_weight == 0:
         return first
     radius = part_radii(first, c["dist"], c["interior"], P, K, o.min_radius_patches)
     mismatch = np.abs(c["dist"] - radius[None])
-    return _choose(base + o.radius_weight * np.where(np.isfinite(mismatch), mismatch, 0.0), c["passes"])
+    on_part = np.where(np.isfinite(mismatch), o.radius_weight * mismatch, o.distance_weight * c["dist"])
+    return _choose(shape + on_part, c["passes"])
 
 
 def part_radii(labels: PartLabels, dist: np.ndarray, interior: np.ndarray, P: int, K: int,
@@ -134,6 +140,20 @@ def _choose(cost: np.ndarray, passes: np.ndarray) -> PartLabels:
                       cost=np.where(found, key[np.arange(N), best] * _QUANTUM, np.nan))
 
 
+def windowed_mean(v: np.ndarray, ok: np.ndarray, half: int) -> np.ndarray:
+    """(N, T, ...) values and where they count -> each counted value replaced by the mean of the counted values
+    within ``half`` times of it (axis 1; 0: unchanged); NaN where not counted."""
+    w = np.where(ok, v, 0.0)
+    if half > 0:
+        n = ok.astype(float)
+        cw = np.concatenate([np.zeros_like(w[:, :1]), np.cumsum(w, axis=1)], axis=1)
+        cn = np.concatenate([np.zeros_like(n[:, :1]), np.cumsum(n, axis=1)], axis=1)
+        T = v.shape[1]
+        lo, hi = np.maximum(np.arange(T) - half, 0), np.minimum(np.arange(T) + half + 1, T)
+        w = (cw[:, hi] - cw[:, lo]) / np.maximum(cn[:, hi] - cn[:, lo], 1.0)
+    return np.where(ok, w, np.nan)
+
+
 def _components(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, A: np.ndarray, B: np.ndarray,
                 o: PartOptions) -> dict[str, np.ndarray]:
     """Per patch, person and bone (N, P, K): the rigidity ``dev`` (cm), the median distance ``dist`` (cm) and
@@ -157,14 +177,15 @@ def _components(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, A: np.n
     align = along / np.maximum(dist, 1e-9)  # cosine between the normal and the way out of the bone
     ok_t = alive[:, :, None, None] & np.isfinite(z) & np.isfinite(r)
     n_t = ok_t.sum(1)  # (N, P, K)
+    zs, rs = (windowed_mean(v, ok_t, o.rigidity_half_window_frames) for v in (z, r))
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a bone of an absent person: all-NaN medians, refused below
-        zm = np.nanmedian(np.where(ok_t, z, np.nan), axis=1)
-        rm = np.nanmedian(np.where(ok_t, r, np.nan), axis=1)
+        zm = np.nanmedian(np.where(ok_t, zs, np.nan), axis=1)
+        rm = np.nanmedian(np.where(ok_t, rs, np.nan), axis=1)
         dm = np.nanmedian(np.where(ok_t, dist, np.nan), axis=1)
         am = np.nanmedian(np.where(ok_t, align, np.nan), axis=1)
         sm = np.nanmedian(np.where(ok_t, s_raw, np.nan), axis=1)
-        dev = np.where(ok_t, (z - zm[:, None]) ** 2 + (r - rm[:, None]) ** 2, 0.0).sum(1) / np.maximum(n_t, 1)
+        dev = np.where(ok_t, (zs - zm[:, None]) ** 2 + (rs - rm[:, None]) ** 2, 0.0).sum(1) / np.maximum(n_t, 1)
         share_away = np.where(ok_t, away, False).sum(1) / np.maximum(n_t, 1)
     return {"dev": np.sqrt(dev), "dist": dm, "align": am, "interior": (sm > 0.0) & (sm < 1.0),
             "passes": (n_t >= o.min_frames) & (share_away >= o.min_away) & (dm <= o.max_distance_cm)}
