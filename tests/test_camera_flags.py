@@ -11,13 +11,13 @@ from dome_calib.recon.people.scene_io import camera_report, offset_words
 HD = np.array([[1920, 1080]] * 5)
 
 
-def tallies(shift_px: list[tuple[float, float]], n: int = 3000, sigma_px: float = 3.0, seed: int = 0
-            ) -> CameraAgreement:
-    """Five cameras' tallies as the body over time gives them: n inlier detections each, Gaussian noise of
+def tallies(shift_px: list[tuple[float, float]], n: int = 3000, sigma_px: float = 3.0, seed: int = 0,
+            names: list[str] | None = None) -> CameraAgreement:
+    """Five cameras' tallies (``names``: theirs, default 00_00 ... 00_04) as the body over time gives them: n inlier detections each, Gaussian noise of
     ``sigma_px`` per axis around ``shift_px`` (the camera's systematic offset), the noise histogram measured on the
     same detections, every camera's median error and share used alike enough for the relative criteria."""
     rng = np.random.default_rng(seed)
-    names = [f"00_{k:02d}" for k in range(5)]
+    names = names or [f"00_{k:02d}" for k in range(5)]
     view = np.repeat(np.arange(5), n)
     offset = rng.normal(0.0, sigma_px, (5 * n, 2)) + np.repeat(np.asarray(shift_px, float), n, axis=0)
     residual = np.hypot(offset[:, 0], offset[:, 1])

@@ -130,6 +130,7 @@ def reconstruct_group(group: Path, bundle_dir: Path, bundle: Bundle, people: Pat
     logger.info("group: %d ids from %d cameras in %.1f s", summary.people, summary.cameras, reconstruct_s)
     return figures | {"body_model": body_model, "reference": summary.reference, "reconstruct_seconds": reconstruct_s,
                       "seconds": time.perf_counter() - t0, "flagged_cameras": summary.flagged_cameras,
+                      "camera_notes": list(summary.camera_notes),
                       "median_reprojection_px": summary.median_reprojection_px}
 
 
@@ -249,6 +250,7 @@ def format_group(g: dict) -> list[str]:
     px = g["median_reprojection_px"]
     lines.append(f"  cameras that disagree: {', '.join(g['flagged_cameras']) or 'none'} (median reprojection "
                  + ("n/a" if px is None else f"{px:.1f} px") + f"); group part {g['seconds']:.1f} s in all")
+    lines += [f"    {note}" for note in g["camera_notes"]]  # why a camera is flagged (cameras.json's notes)
     lines.append("  (matched to the truth by Hungarian on mean joint distance, < 20 cm; session-aligned: one rigid\n"
                  "   motion fitted on the matched joints, as for the person above)")
     return lines

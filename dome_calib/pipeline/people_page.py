@@ -25,7 +25,7 @@ from dome_calib.ownership import claim_file
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, parse_camera_map, read_openpose_files
 from dome_calib.recon.people.detection_cache import KeptDetections
-from dome_calib.recon.people.scene_io import StagedPeople
+from dome_calib.recon.people.scene_io import StagedPeople, offset_words
 from dome_calib.recon.streams import stream_of_camera
 from dome_calib.skeletons.errors import PeopleFileError
 from dome_calib.skeletons.page import MAX_DETECTED_PEOPLE, PAGE_FILE, CameraDetections, write_people_page
@@ -54,6 +54,29 @@ def camera_times_ms(bundle: Bundle, camera: str, frames: np.ndarray, people: Peo
     out = np.full(len(frames), np.nan)
     out[inside] = table.times_of(frames[inside])
     return out
+
+
+def camera_flags(report: dict | None) -> list[dict]:
+    """cameras.json's report (:func:`~dome_calib.recon.people.scene_io.camera_report`) -> one row per camera for the
+    page, flagged cameras first, then in name order: ``camera``, ``reprojection_px``, ``outvoted_share``, ``offset`` ("15 px to the left
+    (-15.0, 0.3)", or "" without an offset), ``flagged`` and ``verdict`` (the camera's offset note where the report
+    has one, "flagged" for the report's other criteria, "agrees" otherwise). Plain data: the page puts every string
+    in as text."""
+    if not report:
+        return []
+    flagged = set(report.get("flagged", []))
+    rows = []
+    for name in sorted(report.get("cameras", {}), key=lambda n: (n not in flagged, n)):
+        cam = report["cameras"][name]
+        said = f"camera {name}: "
+        notes = [n[len(said):] for n in report.get("notes", []) if n.startswith(said)]
+        off = cam.get("median_offset_px")
+        offset = "" if off is None else f"{offset_words(np.asarray(off, float))} ({off[0]:+.1f}, {off[1]:+.1f})"
+        rows.append({"camera": name, "reprojection_px": cam.get("median_reprojection_px"),
+                     "outvoted_share": cam.get("outvoted_share"), "offset": offset, "flagged": name in flagged,
+                     "verdict": ("flagged: " + "; ".join(notes) if notes else "flagged") if name in flagged
+                     else "agrees"})
+    return rows
 
 
 def read_detections(folder: str | Path, bundle: Bundle, people: People, *, camera_map: str | None = None,
@@ -132,7 +155,8 @@ def build_people_page(people_folder: str | Path, *, out: str | Path | None = Non
                                      kept=staged.detections if staged is not None else None)
     write_people_page(page, people, bundle=cal, detections=det, notes=notes,
                       folder=Path(shown_as) if shown_as is not None else None,
-                      patches=staged.patches if staged is not None else None)
+                      patches=staged.patches if staged is not None else None,
+                      camera_flags=camera_flags(staged.report if staged is not None else None))
     return PeoplePageSummary(page=page, people=len(people.tracks), frames=len(people.frames),
                              cameras=len(cal.cameras) if cal is not None else 0,
                              detection_cameras=[d.camera for d in det], notes=notes)

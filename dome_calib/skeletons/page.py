@@ -73,10 +73,13 @@ def _detections(det: CameraDetections) -> dict:
 
 
 def page_data(people: People, *, bundle: Bundle | None = None, detections: list[CameraDetections] | None = None,
-              notes: list[str] | None = None, folder: Path | None = None, patches: dict | None = None) -> dict:
+              notes: list[str] | None = None, folder: Path | None = None, patches: dict | None = None,
+              camera_flags: list[dict] | None = None) -> dict:
     """Everything the page shows, as plain data (the template's ``DATA``); ``folder``: the folder named on the page
     (default: the one read; reconstruct reads its staging folder and names its output); ``patches``: the patch
-    layer (:func:`dome_calib.recon.patches.page_layer.patch_layer`), drawn under the bodies."""
+    layer (:func:`dome_calib.recon.patches.page_layer.patch_layer`), drawn under the bodies; ``camera_flags``: the
+    run's camera agreement, one row per camera (:func:`dome_calib.pipeline.people_page.camera_flags`), shown as a
+    table above the views (none: no table)."""
     notes = list(notes or [])
     folder = Path(folder) if folder is not None else people.folder
     tracks, beyond = [], 0
@@ -95,7 +98,7 @@ def page_data(people: People, *, bundle: Bundle | None = None, detections: list[
             "cameras": _cameras(bundle) if bundle is not None else [],
             "detections": {d.camera: _detections(d) for d in detections or []},
             "detection_bones": bones(JOINTS19), "notes": notes + list((patches or {}).get("notes", [])),
-            "patches": patches}
+            "patches": patches, "camera_flags": list(camera_flags or [])}
 
 
 def render_page(data: dict) -> str:
@@ -106,13 +109,14 @@ def render_page(data: dict) -> str:
 
 def write_people_page(path: str | Path, people: People, *, bundle: Bundle | None = None,
                       detections: list[CameraDetections] | None = None, notes: list[str] | None = None,
-                      folder: Path | None = None, patches: dict | None = None) -> Path:
+                      folder: Path | None = None, patches: dict | None = None,
+                      camera_flags: list[dict] | None = None) -> Path:
     """Write the page of ``people`` to ``path`` (atomic, where :mod:`dome_calib.ownership` allows); returns the path
     (``folder``: see :func:`page_data`; a page staged with its folder is said at the folder's final place,
     ``folder / path.name``: the staging folder is gone after the rename)."""
     path = Path(path)
     write_text(path, render_page(page_data(people, bundle=bundle, detections=detections, notes=notes,
-                                           folder=folder, patches=patches)))
+                                           folder=folder, patches=patches, camera_flags=camera_flags)))
     said = path if folder is None or path.parent == Path(folder) else Path(folder) / path.name
     logger.info("people page written to %s (%.0f kB)", said, path.stat().st_size / 1e3)
     return path
