@@ -55,3 +55,18 @@ def test_the_page_of_a_run_shows_the_flagged_camera_and_escapes_its_name(tmp_pat
     assert inline_json(rows)[1:-1] in html  # the rows as the template's data, through the one module
     assert inline_json(rows[0]["verdict"]) in html and "16 px to the left" in html
     assert 'id="flagrows"' in html  # the table the template fills (text only: PageKit.el)
+
+
+def test_the_demos_printout_says_why_a_camera_is_flagged():
+    """`make demo`'s group lines: under the flagged cameras, cameras.json's notes (figures here are placeholders)."""
+    from collections import defaultdict
+
+    from dome_calib.pipeline.demo import format_group
+
+    report = _report()
+    g = defaultdict(lambda: 1) | {"reference": "hd", "scenario": "mixed", "body_model": "BODY_25",
+                                  "flagged_cameras": report["flagged"], "camera_notes": report["notes"],
+                                  "median_reprojection_px": 7.1}
+    lines = "\n".join(format_group(defaultdict(lambda: 1, g)))
+    assert f"cameras that disagree: {HOSTILE} (median reprojection 7.1 px)" in lines
+    assert f"\n    camera {HOSTILE}: its joints lie 16 px to the left of where the others put them" in lines
