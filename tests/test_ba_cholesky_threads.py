@@ -59,7 +59,7 @@ def test_the_uncertainties_factorise_with_the_bounded_thread_count(monkeypatch):
 
 @pytest.mark.slow
 def test_a_float64_system_of_the_two_domes_size_factorises_and_inverts(tmp_path):
-    """~2 GB and ~1.5 min: the uncertainties' factorisation and inverse at 15,593 unknowns, in a child process (on
+    """~4 GB peak and ~1.5 min: the uncertainties' factorisation and inverse at 15,593 unknowns, in a child process (on
     2 threads without the bound it died in potrf)."""
     script = textwrap.dedent("""
         import numpy as np, scipy.linalg
