@@ -13,7 +13,7 @@ import logging
 import os
 from collections.abc import Iterator
 
-import numpy  # noqa: F401  (loads its OpenBLAS: _openblas_libraries finds it in /proc/self/maps)
+import numpy as np  # (also loads its OpenBLAS: _openblas_libraries finds it in /proc/self/maps)
 import scipy.linalg  # noqa: F401  (and scipy's)
 
 import dome_calib.ba.sparse  # noqa: F401  (and CHOLMOD's, the system's, when the optional scikit-sparse is there)
@@ -25,6 +25,18 @@ _SETTERS = ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads
 _GETTERS = ("scipy_openblas_get_num_threads64_", "scipy_openblas_get_num_threads", "openblas_get_num_threads64_",
             "openblas_get_num_threads")
 _libs: list[tuple[object, object]] | None = None
+
+#: The largest ``n * itemsize`` (bytes of one column) of a matrix whose Cholesky factorisation (LAPACK potrf) is given
+#: more than one OpenBLAS thread. OpenBLAS's threaded potrf (``lapack/potrf/potrf_parallel.c``, its ``thread_driver``)
+#: packs a panel as wide as a thread's share of the columns into the thread's fixed work buffer, with no bound (on 2
+#: threads the first share is ~0.71 n columns); past some size the panel runs past the buffer and overwrites the
+#: memory next to it. Measured here (OpenBLAS 0.3.30 as bundled by scipy 1.17.1, SkylakeX kernels, 2 threads,
+#: float64): 12,000 unknowns factorised; 15,593 (the two-dome bench's uncertainties) died in potrf, twice (SIGSEGV;
+#: in the bench, SIGBUS in ``free`` or ``munmap_chunk(): invalid pointer`` later); on one thread, 22 s and fine.
+#: One thread is the single-threaded driver, blocked to fit its buffer (OpenBLAS issue 2562 is the same crash on 2
+#: threads). The bound keeps the full dome (7,815 float64 unknowns, 62 kB a column; 15,600 float32 in the two
+#: domes' solve factor, 62 kB) on 2 threads.
+CHOLESKY_PARALLEL_MAX_COLUMN_BYTES = 80_000
 
 
 def _openblas_libraries() -> list[tuple[object, object]]:
@@ -67,6 +79,13 @@ def set_blas_threads(n: int) -> None:
     """Set the thread count of every OpenBLAS found."""
     for setter, _ in _openblas_libraries():
         setter(ctypes.c_int(int(n)))
+
+
+def cholesky_threads(n: int, dtype: np.dtype | type, n_threads: int) -> int:
+    """The OpenBLAS threads for a dense Cholesky factorisation (and the inverse from it) of an ``n`` x ``n`` matrix
+    of ``dtype``: ``n_threads``, or 1 past :data:`CHOLESKY_PARALLEL_MAX_COLUMN_BYTES` (OpenBLAS's threaded potrf
+    then writes past its work buffer)."""
+    return n_threads if n * np.dtype(dtype).itemsize <= CHOLESKY_PARALLEL_MAX_COLUMN_BYTES else 1
 
 
 @contextlib.contextmanager

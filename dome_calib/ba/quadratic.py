@@ -16,7 +16,7 @@ import scipy.linalg
 import scipy.linalg.blas
 import scipy.sparse as sp
 
-from dome_calib.ba.blas import blas_threads
+from dome_calib.ba.blas import blas_threads, cholesky_threads
 from dome_calib.ba.evaluate import residuals, residuals_and_jacobians
 from dome_calib.ba.result import BAResult
 from dome_calib.ba.schur import Workspace, buffer, build_structure, free_columns, linearize, point_step, \
@@ -221,7 +221,8 @@ class QuadraticModel:
         A /= d[core][None, :]
         A[np.diag_indices_from(A)] += damping
         try:  # A's transpose: Fortran-ordered, factorised in place (its lower triangle is A's upper one)
-            LP = scipy.linalg.cholesky(A.T, lower=True, overwrite_a=True, check_finite=False)
+            with blas_threads(cholesky_threads(len(core), A.dtype, self.n_threads)):
+                LP = scipy.linalg.cholesky(A.T, lower=True, overwrite_a=True, check_finite=False)
         except scipy.linalg.LinAlgError:
             return None
         # S_PL as the transpose of S_LP gathered by rows (S is symmetric): Fortran-ordered, solved in place
@@ -282,7 +283,8 @@ class QuadraticModel:
             # factorised in place: Ss's transpose is the Fortran-ordered matrix LAPACK takes without a copy, and its
             # lower triangle is Ss's upper one, the triangle a factorisation of Ss itself reads
             try:
-                return scipy.linalg.cho_factor(Ss.T, lower=True, overwrite_a=True, check_finite=False), d
+                with blas_threads(cholesky_threads(len(idx), Ss.dtype, self.n_threads)):
+                    return scipy.linalg.cho_factor(Ss.T, lower=True, overwrite_a=True, check_finite=False), d
             except scipy.linalg.LinAlgError:
                 if ridge == 1e-6:
                     raise

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from dome_calib.ba.blas import blas_threads
+from dome_calib.ba.blas import blas_threads, cholesky_threads
 from dome_calib.ba.blocks import linearize_blocks, point_step_blocks, y_blocks
 from dome_calib.ba.sparse import SparseLayout, solve_sparse, sparse_layout
 from dome_calib.ba.submatrix import submatrix
@@ -286,16 +286,19 @@ def _cholesky_solve(S: np.ndarray, b: np.ndarray, n_threads: int, overwrite: boo
     """
     n = len(b)
     threads = n_threads if n >= _PARALLEL_CHOLESKY_MIN else 1
-    with blas_threads(threads):
-        if n >= _MIXED_PRECISION_MIN:
+    if n >= _MIXED_PRECISION_MIN:
+        threads32 = cholesky_threads(n, np.float32, threads)
+        with blas_threads(threads32):
             solved = _mixed_precision_solve(S, b, buffer(st, "S32", S.shape, dtype=np.float32))
-            if solved is not None:
-                x, refined = solved
+        if solved is not None:
+            x, refined = solved
 
-                def again_refined(rhs: np.ndarray) -> np.ndarray | None:
-                    with blas_threads(threads):
-                        return refined(rhs)
-                return x, again_refined
+            def again_refined(rhs: np.ndarray) -> np.ndarray | None:
+                with blas_threads(threads32):
+                    return refined(rhs)
+            return x, again_refined
+    threads = cholesky_threads(n, S.dtype, threads)
+    with blas_threads(threads):
         factor = scipy.linalg.cho_factor(S.T, lower=False, overwrite_a=overwrite, check_finite=False)
 
         def again(rhs: np.ndarray) -> np.ndarray:

@@ -16,7 +16,7 @@ import numpy as np
 import scipy.linalg
 from scipy.linalg import lapack
 
-from dome_calib.ba.blas import blas_threads
+from dome_calib.ba.blas import blas_threads, cholesky_threads
 from dome_calib.ba.evaluate import residuals_and_jacobians
 from dome_calib.ba.gauge import Gauge, GaugeMode
 from dome_calib.ba.problem import ROT, TRANS, BAProblem
@@ -81,7 +81,7 @@ def camera_uncertainty(problem: BAProblem, st: Structure, sigma_px: float, *, ga
         return submatrix_in_place(S, f) if len(f) < A * 15 else S  # the free block in S's own memory
 
     Sf = free_system()
-    with blas_threads(n_threads):
+    with blas_threads(cholesky_threads(len(f), np.float64, n_threads)):  # past the bound OpenBLAS's threads overrun
         for ridge in (0.0, 1e-12, 1e-9, 1e-6):  # a tiny ridge if some parameter is unobservable
             try:
                 if ridge:  # the failed factorisation overwrote the system: built again (a rare path)
