@@ -17,16 +17,6 @@ from dome_calib.jit import njit
 _COMPILED_MIN = 256 * 256
 
 
-@njit(nogil=True, boundscheck=False)
-def _gather_rows(S, idx, out, lo, hi):  # pragma: no cover - compiled
-    k = idx.shape[0]
-    for r in range(lo, hi):
-        src = S[idx[r]]
-        dst = out[r]
-        for c in range(k):
-            dst[c] = src[idx[c]]
-
-
 def submatrix(S: np.ndarray, idx: np.ndarray, *, n_threads: int = 2, out: np.ndarray | None = None) -> np.ndarray:
     """A C-ordered float64 array equal to ``S[np.ix_(idx, idx)]`` (``S`` 2-D float64, ``idx`` integer indices
     within its rows and columns; not checked when compiled, as numpy would): new, or ``out`` (k, k) filled."""
@@ -39,10 +29,7 @@ def submatrix(S: np.ndarray, idx: np.ndarray, *, n_threads: int = 2, out: np.nda
         return out
     if k and (idx.min() < 0 or idx.max() >= min(S.shape)):
         raise IndexError(f"index out of range for a {S.shape[0]} x {S.shape[1]} matrix")
-    out = np.empty((k, k)) if out is None else out
-    step = -(-k // max(1, 4 * n_threads))
-    run_in_threads(lambda lo: _gather_rows(S, idx, out, lo, min(lo + step, k)), range(0, k, step), n_threads)
-    return out
+    return rectangle(S, idx, idx, out=np.empty((k, k)) if out is None else out, n_threads=n_threads)
 
 
 @njit(nogil=True, boundscheck=False)
