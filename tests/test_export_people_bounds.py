@@ -179,8 +179,11 @@ def test_sigterm_during_export_people_cleans_up_and_says_one_line(tmp_path):
         if staging and len(list(staging[0].iterdir())) >= 20:
             break
         time.sleep(0.02)
-    assert proc.poll() is None, f"the export ended before it could be stopped: {proc.communicate()}"
-    proc.send_signal(signal.SIGTERM)
+    proc.send_signal(signal.SIGSTOP)  # frozen where it stands: the check below and the SIGTERM see the same moment
+    staged = [p for p in tmp_path.iterdir() if p.name.startswith(".o.")]
+    assert proc.poll() is None and staged, f"the export ended before it could be stopped: {proc.communicate()}"
+    proc.send_signal(signal.SIGTERM)  # pending until it runs again (before: sent between two polls, it could land
+    proc.send_signal(signal.SIGCONT)  # after the export had finished, exit 0 on a fast machine)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err[-2000:]
     lines = [ln for ln in err.strip().splitlines() if not ln.startswith("dome-calib: read ")]  # progress log
