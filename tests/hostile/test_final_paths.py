@@ -1,0 +1,66 @@
+"""A path reaches the user only at its final place (:func:`dome_calib.final_place.said`): the commands the hostile
+matrix never sees go through (``report``), the nested staging of ``calibrate`` (the report staged inside the staged
+bundle), an error naming a staging folder."""
+from __future__ import annotations
+
+import io
+import logging
+import shutil
+from pathlib import Path
+
+from dome_calib.bundle_io import load_bundle, replace_folder, staging_folder
+from dome_calib.errors import console_handler
+from dome_calib.final_place import STAGING_MARK, said
+from dome_calib.io_utils import atomic_folder
+from dome_calib.report.build import ReportOptions, write_report
+
+from .catalogue import ENTRIES
+from .oracle import judge, snapshot
+from .test_matrix import _run_in_process
+
+
+def test_report_says_its_page_at_its_final_place(hostile_inputs, tmp_path, monkeypatch, capsys):
+    """`dome-calib report` logged "report page written to BUNDLE/.report.new.<random>/index.html" (gone at exit);
+    the matrix runs report only where it is refused, so its one run that goes through is judged here."""
+    entry = ENTRIES["report"][0]
+    sandbox = tmp_path / "sandbox"
+    shutil.copytree(hostile_inputs.bundle, sandbox / "bundle")
+    out = entry.out_at(sandbox)
+    monkeypatch.chdir(sandbox)
+    before = snapshot(sandbox)
+    done = _run_in_process(entry, entry.argv(hostile_inputs, out), monkeypatch, capsys)
+    assert done.returncode == 0, done.stderr
+    assert f"report page written to {out / 'index.html'} (" in done.stderr
+    judge(done, before, snapshot(sandbox), sandbox=sandbox, out=out, also=[], must_refuse=False)
+
+
+def test_a_report_staged_in_a_staged_bundle_is_said_in_the_bundle(hostile_inputs, tmp_path):
+    """calibrate's write: the report staged (``.report.new.*``) inside the bundle's staging folder
+    (``.bundle.staging``): both are said at the bundle's place, which holds them after the swap."""
+    out = tmp_path / "bundle"
+    log, handler = io.StringIO(), console_handler("dome-calib")
+    handler.setStream(log)
+    logger = logging.getLogger("dome_calib")
+    level, logger.level = logger.level, logging.INFO
+    logger.addHandler(handler)
+    try:
+        staging = staging_folder(out)
+        write_report(staging, load_bundle(hostile_inputs.bundle), options=ReportOptions(plots=False))
+        replace_folder(staging, out)
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+    text = log.getvalue()
+    assert f"report page written to {out / 'report' / 'index.html'} (" in text, text
+    assert f"report written to {out / 'report'} (" in text, text
+    assert not STAGING_MARK.search(text) and (out / "report" / "index.html").is_file()
+
+
+def test_an_error_naming_a_staging_folder_names_the_output(tmp_path):
+    out = tmp_path / "out"
+    try:
+        with atomic_folder(out) as staging:
+            raise ValueError(f"{staging / 'cameras.json'}: cut short")
+    except ValueError as exc:
+        said_error = said(str(exc))
+    assert said_error == f"{out / 'cameras.json'}: cut short" and not out.exists()
