@@ -1,9 +1,10 @@
 """A path reaches the user only at its final place (:func:`dome_calib.final_place.said`): the commands the hostile
 matrix never sees go through (``report``), the nested staging of ``calibrate`` (the report staged inside the staged
-bundle), an error naming a staging folder."""
+bundle), an error naming a staging folder; and ``people-page`` rebuilds the camera table ``reconstruct`` wrote."""
 from __future__ import annotations
 
 import io
+import json
 import logging
 import shutil
 from pathlib import Path
@@ -64,3 +65,22 @@ def test_an_error_naming_a_staging_folder_names_the_output(tmp_path):
     except ValueError as exc:
         said_error = said(str(exc))
     assert said_error == f"{out / 'cameras.json'}: cut short" and not out.exists()
+
+
+def _page_data(page: Path) -> dict:
+    html = page.read_text(encoding="utf-8")
+    start = html.index('<script id="people-data" type="application/json">') + len(
+        '<script id="people-data" type="application/json">')
+    return json.loads(html[start:html.index("</script>", start)])
+
+
+def test_people_page_rebuilds_the_camera_table_reconstruct_wrote(hostile_inputs, tmp_path, monkeypatch, capsys):
+    """`dome-calib people-page` read no cameras.json: the rebuilt page had no camera table. It reads it through its
+    schema (:class:`~dome_calib.recon.people.scene_io.CamerasFile`) and shows the table reconstruct's page shows."""
+    i, people, page = hostile_inputs, tmp_path / "people", tmp_path / "page.html"
+    for entry, args in ((ENTRIES["reconstruct"][0], ENTRIES["reconstruct"][0].argv(i, people)),
+                        (ENTRIES["people-page"][0], ["people-page", people, "-o", page, "--bundle", i.bundle])):
+        done = _run_in_process(entry, args, monkeypatch, capsys)
+        assert done.returncode == 0, done.stderr
+    written = _page_data(people / "index.html")["camera_flags"]
+    assert written and _page_data(page)["camera_flags"] == written
