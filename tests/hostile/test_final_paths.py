@@ -4,10 +4,8 @@ bundle), an error naming a staging folder; and ``people-page`` rebuilds the came
 from __future__ import annotations
 
 import io
-import json
 import logging
 import shutil
-from pathlib import Path
 
 from dome_calib.bundle_io import load_bundle, replace_folder, staging_folder
 from dome_calib.errors import console_handler
@@ -15,6 +13,7 @@ from dome_calib.final_place import STAGING_MARK, said
 from dome_calib.io_utils import atomic_folder
 from dome_calib.report.build import ReportOptions, write_report
 
+from ..skeletons_helpers import people_page_data
 from .catalogue import ENTRIES
 from .oracle import judge, snapshot
 from .test_matrix import _run_in_process
@@ -67,13 +66,6 @@ def test_an_error_naming_a_staging_folder_names_the_output(tmp_path):
     assert said_error == f"{out / 'cameras.json'}: cut short" and not out.exists()
 
 
-def _page_data(page: Path) -> dict:
-    html = page.read_text(encoding="utf-8")
-    start = html.index('<script id="people-data" type="application/json">') + len(
-        '<script id="people-data" type="application/json">')
-    return json.loads(html[start:html.index("</script>", start)])
-
-
 def test_people_page_rebuilds_the_camera_table_reconstruct_wrote(hostile_inputs, tmp_path, monkeypatch, capsys):
     """`dome-calib people-page` read no cameras.json: the rebuilt page had no camera table. It reads it through its
     schema (:class:`~dome_calib.recon.people.scene_io.CamerasFile`) and shows the table reconstruct's page shows."""
@@ -82,5 +74,5 @@ def test_people_page_rebuilds_the_camera_table_reconstruct_wrote(hostile_inputs,
                         (ENTRIES["people-page"][0], ["people-page", people, "-o", page, "--bundle", i.bundle])):
         done = _run_in_process(entry, args, monkeypatch, capsys)
         assert done.returncode == 0, done.stderr
-    written = _page_data(people / "index.html")["camera_flags"]
-    assert written and _page_data(page)["camera_flags"] == written
+    written = people_page_data(people / "index.html")["camera_flags"]
+    assert written and people_page_data(page)["camera_flags"] == written
