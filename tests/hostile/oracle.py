@@ -42,8 +42,8 @@ _PATH_END = re.compile(r"[\s'\"()\[\]{},;]")
 
 def printed_paths(text: str, sandbox: Path, known: set[str] = frozenset()) -> list[str]:
     """The paths in ``text`` that lie in the sandbox, relative to it: absolute ones (from the sandbox's own path on)
-    and relative ones (a word holding a ``/`` whose first part is ``known``: the sandbox's entries, the commands'
-    working folder), each up to white space, a quote, a bracket, a comma or a semicolon, without the punctuation that
+    and relative ones (a word whose first part, up to a ``/`` if it holds one, is ``known``: the sandbox's entries,
+    the commands' working folder), each up to white space, a quote, a bracket, a comma or a semicolon, without the punctuation that
     ends a sentence or a name (``.``, ``:``)."""
     root, found = str(sandbox), []
     for start in (m.start() for m in re.finditer(re.escape(root), text)):
@@ -51,7 +51,7 @@ def printed_paths(text: str, sandbox: Path, known: set[str] = frozenset()) -> li
         found.append(os.path.relpath(rest.rstrip(".:"), root))
     for word in _PATH_END.split(text):
         word = word.rstrip(".:")
-        if "/" in word and not word.startswith("/") and word.split("/", 1)[0] in known:
+        if not word.startswith("/") and word.split("/", 1)[0] in known:
             found.append(os.path.normpath(word))
     return found
 

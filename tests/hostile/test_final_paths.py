@@ -1,11 +1,15 @@
 """A path reaches the user only at its final place (:func:`dome_calib.final_place.said`): the commands the hostile
 matrix never sees go through (``report``), the nested staging of ``calibrate`` (the report staged inside the staged
-bundle), an error naming a staging folder; and ``people-page`` rebuilds the camera table ``reconstruct`` wrote."""
+bundle), an error naming a staging folder; the judge of what is printed; and ``people-page`` rebuilds the camera
+table ``reconstruct`` wrote."""
 from __future__ import annotations
 
 import io
 import logging
 import shutil
+import subprocess
+
+import pytest
 
 from dome_calib.bundle_io import load_bundle, replace_folder, staging_folder
 from dome_calib.errors import console_handler
@@ -15,7 +19,7 @@ from dome_calib.report.build import ReportOptions, write_report
 
 from ..skeletons_helpers import people_page_data
 from .catalogue import ENTRIES
-from .oracle import judge, snapshot
+from .oracle import judge, judge_printed, snapshot
 from .test_matrix import _run_in_process
 
 
@@ -76,3 +80,23 @@ def test_people_page_rebuilds_the_camera_table_reconstruct_wrote(hostile_inputs,
         assert done.returncode == 0, done.stderr
     written = people_page_data(people / "index.html")["camera_flags"]
     assert written and people_page_data(page)["camera_flags"] == written
+
+
+def test_the_judge_refuses_a_staging_name_and_a_printed_path_that_is_gone(tmp_path):
+    """The oracle's check of what is printed (:func:`.oracle.judge_printed`), on the lines the old code printed."""
+    sandbox = tmp_path / "sandbox"
+    (sandbox / "out").mkdir(parents=True)
+    (sandbox / "out" / "index.html").write_text("page")
+    after = snapshot(sandbox)
+
+    def printed(line: str, code: int = 0) -> subprocess.CompletedProcess:
+        return subprocess.CompletedProcess(["dome-calib"], code, "", line + "\n")
+
+    judge_printed(printed(f"dome-calib: people page written to {sandbox}/out/index.html (42 kB)"), sandbox, {}, after)
+    judge_printed(printed("dome-calib: people page written to out/index.html (42 kB)"), sandbox, {}, after)
+    for line, code in ((f"dome-calib: report page written to {sandbox}/.out.new.82yjm5p2/index.html (42 kB)", 0),
+                       ("dome-calib: report written to bundle.work/.calibration.staging/report", 0),
+                       (f"dome-calib: error: {sandbox}/.out.a1b2c3d4.tmp: No space left on device", 1),
+                       (f"wrote {sandbox}/out/cameras.json", 0), ("wrote out/cameras.json, out/index.html", 0)):
+        with pytest.raises(AssertionError):
+            judge_printed(printed(line, code), sandbox, {}, after)
