@@ -80,6 +80,13 @@ def test_people_page_rebuilds_the_camera_table_reconstruct_wrote(hostile_inputs,
         assert done.returncode == 0, done.stderr
     written = people_page_data(people / "index.html")["camera_flags"]
     assert written and people_page_data(page)["camera_flags"] == written
+    cameras = people / "cameras.json"  # a field out of place: one line naming the file and the field, no page
+    cameras.write_text(cameras.read_text().replace('"detected": ', '"detected": -', 1))
+    done = _run_in_process(ENTRIES["people-page"][0], ["people-page", people, "-o", tmp_path / "bad.html"],
+                           monkeypatch, capsys)
+    lines = [ln for ln in done.stderr.splitlines() if ln.startswith("dome-calib: error:")]
+    assert done.returncode == 1 and len(lines) == 1 and f"{cameras}: cameras." in lines[0], done.stderr
+    assert ".detected: expected an integer >= 0" in lines[0] and not (tmp_path / "bad.html").exists()
 
 
 def test_the_judge_refuses_a_staging_name_and_a_printed_path_that_is_gone(tmp_path):
