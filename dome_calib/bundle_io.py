@@ -17,6 +17,7 @@ from pathlib import Path
 from dome_calib import panoptic_io as pio
 from dome_calib.bundle import Bundle, SyncTables
 from dome_calib.errors import BundleFormatError
+from dome_calib.final_place import stage
 from dome_calib.ownership import claim_file, claim_folder, claim_into, seal, write_bytes
 
 logger = logging.getLogger(__name__)
@@ -122,7 +123,7 @@ def staging_folder(target: Path) -> Path:
     staging = _sibling(Path(target), "staging")
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
-    return staging
+    return stage(staging, target)  # said at ``target`` (:func:`dome_calib.final_place.said`)
 
 
 def recover_folder(target: Path) -> None:

@@ -16,6 +16,8 @@ import threading
 from collections.abc import Callable, Iterator
 from typing import Any
 
+from dome_calib.final_place import said
+
 logger = logging.getLogger("dome_calib")
 
 
@@ -201,15 +203,35 @@ class _HandlerGuard(importlib.abc.MetaPathFinder, importlib.abc.Loader):
             signal.signal(signal.SIGTERM, handler)
 
 
+class _SaidAtFinalPlace(logging.Formatter):
+    """A log line as the user reads it: every staged path in it said at its final place
+    (:func:`dome_calib.final_place.said`; a library logs where it writes, the staging folder)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return said(super().format(record))
+
+
+def console_handler(prog: str) -> logging.Handler:
+    """The commands' log handler: ``PROG: message`` on stderr, paths said at their final place."""
+    handler = logging.StreamHandler()
+    handler.setFormatter(_SaidAtFinalPlace(f"{prog}: %(message)s"))
+    return handler
+
+
+def _error_line(prog: str, msg: str) -> str:
+    return said(f"{prog}: error: {msg}")
+
+
 def run_cli(app: Callable[..., object], *, prog: str, user_errors: tuple[type[BaseException], ...] = ()) -> None:
     """Run a typer app; turn user errors into one line on stderr and exit code 1, no traceback. SIGTERM during any
     command: staged outputs removed on the way out, one line, exit 130 (also after a late import of pycolmap, whose
-    C-level handler would kill the process: :class:`_HandlerGuard`).
+    C-level handler would kill the process: :class:`_HandlerGuard`). Every log line and the error line name an
+    output at its final place, never its staging place (:func:`console_handler`, :func:`dome_calib.final_place.said`).
 
     Set ``DOME_CALIB_DEBUG=1`` to see the full traceback instead.
     """
     handled = (DomeCalibError, OSError, *user_errors)
-    logging.basicConfig(level=logging.INFO, format=f"{prog}: %(message)s")
+    logging.basicConfig(level=logging.INFO, handlers=[console_handler(prog)])
     _interrupt_as_one_line_in_every_command(app, prog)
     guard = _HandlerGuard()
     sys.meta_path.insert(0, guard)
@@ -221,13 +243,14 @@ def run_cli(app: Callable[..., object], *, prog: str, user_errors: tuple[type[Ba
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
             msg = f"{exc.filename}: {msg}"
-        print(f"{prog}: error: {msg}", file=sys.stderr)
+        print(_error_line(prog, msg), file=sys.stderr)
         sys.exit(1)
     except Exception as exc:  # a write the disk refused, as a library reports it (RuntimeError, sqlite3 error)
         why = storage_failure(exc)
         if why is None or os.environ.get("DOME_CALIB_DEBUG"):
             raise
-        print(f"{prog}: error: {why} ({str(exc).splitlines()[0]}); free space or write elsewhere", file=sys.stderr)
+        print(_error_line(prog, f"{why} ({str(exc).splitlines()[0]}); free space or write elsewhere"),
+              file=sys.stderr)
         sys.exit(1)
     finally:
         sys.meta_path.remove(guard)

@@ -12,6 +12,10 @@ A folder replaced whole (:func:`atomic_folder`) is staged beside it under a name
 time). A run stopped where no handler runs (SIGKILL, a power cut) leaves it behind; the next run that writes the
 same folder removes the ones it can prove are dead (same machine, and another boot, or no such process now, or
 a process of that id started at another time) and leaves the others (another machine's, a live run's).
+
+A path reaches the user only at its final place (:mod:`dome_calib.final_place`): every staging place made here
+(:func:`atomic_path`'s temporary file, :func:`atomic_folder`'s folder) is recorded with the place it is renamed to
+when it is made, so that the commands say it there.
 """
 from __future__ import annotations
 
@@ -29,6 +33,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from dome_calib.errors import DomeCalibError
+from dome_calib.final_place import stage
 
 logger = logging.getLogger(__name__)
 
@@ -96,7 +101,7 @@ def atomic_path(path: str | os.PathLike[str], *, before_rename: Callable[[], obj
     mode = stat.S_IMODE(target.stat().st_mode) if target.exists() else new_mode(0o666)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     os.close(fd)
-    tmp = Path(tmp_name)
+    tmp = stage(tmp_name, target)
     try:
         yield tmp
         os.chmod(tmp, mode)  # mkstemp makes 0600; give the file the permissions open() would (or it had)
@@ -190,7 +195,7 @@ def atomic_folder(path: str | os.PathLike[str], *,
     target = output_folder(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_staging(target)
-    staging = Path(tempfile.mkdtemp(prefix=_staging_name(target, "new"), dir=target.parent))
+    staging = stage(tempfile.mkdtemp(prefix=_staging_name(target, "new"), dir=target.parent), target)
     old = None
     try:
         os.chmod(staging, new_mode(0o777))  # mkdtemp makes 0700

@@ -224,6 +224,23 @@ def _read_manifest(folder: Path, doc: Any):
     return _write(folder / "dome_session.json", doc), _made_here(folder)
 
 
+def _cameras_report_example() -> dict:
+    """reconstruct's cameras.json (:func:`dome_calib.recon.people.scene_io.camera_report`): two cameras, one flagged
+    for its offset."""
+    row = {"detected": 120, "used": 118, "share_used": 0.9833, "median_reprojection_px": 2.41, "joints_judged": 1800,
+           "outvoted_share": 0.0028, "median_offset_px": [-0.12, 0.3], "offset_joints": 1750, "offset_z": 1.9,
+           "offset_floor_px": 7.71}
+    return {"median_reprojection_px": 2.6, "median_share_used": 0.97, "flagged": ["00_03"],
+            "notes": ["camera 00_03: its joints lie 16 px to the left of where the others put them: moved or re-aimed?"],
+            "cameras": {"00_01": row, "00_03": {**row, "median_offset_px": [-16.2, 0.4], "offset_z": 88.5}}}
+
+
+def _read_cameras_report(folder: Path, doc: Any):
+    from dome_calib.recon.people.scene_io import read_camera_report
+
+    return _write(folder / "cameras.json", doc), read_camera_report(folder)
+
+
 def _schema(module: str, name: str) -> Callable[[], type]:
     def get() -> type:
         import importlib
@@ -278,6 +295,11 @@ FILES = (
               _schema("dome_calib.recon.patches.images", "ImagesFile"), _images_example, _read_images,
               _error("dome_calib.recon.errors", "ReconError"), "images.json",
               note="without it, the bundle's cameras are found by name (`<camera>.mp4`, `<camera>/`)"),
+    InputFile("cameras.json", "PEOPLE/cameras.json (written by reconstruct)", ("people-page",),
+              _schema("dome_calib.recon.people.scene_io", "CamerasFile"), _cameras_report_example,
+              _read_cameras_report, _error("dome_calib.errors", "PeopleFileError"), "cameras.json",
+              note="its camera table on the page; without it, none",
+              tests="tests/test_input_mutations.py, tests/hostile/test_final_paths.py"),
     InputFile("detections JSON", "the file `triangulate DETECTIONS` names", ("triangulate",),
               _schema("dome_calib.recon.formats", "DetectionsFile"), _detections_example, _read_detections,
               _error("dome_calib.recon.errors", "ReconError"), "detections.json",

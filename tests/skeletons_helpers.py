@@ -188,3 +188,11 @@ def demo_group_reconstructed(tmp_path_factory) -> Path:
                        options=people_options())
     (root / "people.tmp").rename(root / "people")
     return root
+
+
+def people_page_data(page: Path) -> dict:
+    """The data a people page shows (its JSON element, as the template's script reads it)."""
+    html = page.read_text(encoding="utf-8")
+    mark = '<script id="people-data" type="application/json">'
+    start = html.index(mark) + len(mark)
+    return json.loads(html[start:html.index("</script>", start)])

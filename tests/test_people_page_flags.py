@@ -11,9 +11,9 @@ import numpy as np
 
 from dome_calib.pages import inline_json
 from dome_calib.pipeline.people_page import build_people_page, camera_flags
-from dome_calib.recon.people.scene_io import StagedPeople, camera_report
+from dome_calib.recon.people.scene_io import CAMERAS_FILE, StagedPeople, camera_report, camera_report_text
 
-from .skeletons_helpers import write_scenes
+from .skeletons_helpers import people_page_data, write_scenes
 from .test_camera_flags import HD, tallies
 
 HOSTILE = "<script>window.__pwned=1</script>"
@@ -70,3 +70,19 @@ def test_the_demos_printout_says_why_a_camera_is_flagged():
     lines = "\n".join(format_group(defaultdict(lambda: 1, g)))
     assert f"cameras that disagree: {HOSTILE} (median reprojection 7.1 px)" in lines
     assert f"\n    camera {HOSTILE}: its joints lie 16 px to the left of where the others put them" in lines
+
+
+def test_a_rebuilt_page_shows_the_runs_table_from_cameras_json_as_text(tmp_path):
+    """`dome-calib people-page` reads cameras.json back (its schema, CamerasFile): the same rows as the page of the
+    run, a camera name holding markup (a camera name has no '/') still only text."""
+    markup = "<img src=x onerror=window.__pwned=1>"
+    report = camera_report(tallies([(-16.0, 0.0), (0.0, 1.0), (1.0, 0.5), (-2.0, 1.0), (0.5, -1.5)], sigma_px=6.0,
+                                   names=[markup, "00_01", "00_02", "00_03", "00_04"]), HD)
+    folder = tmp_path / "people"
+    staged = _staged(folder, report)
+    (folder / CAMERAS_FILE).write_text(camera_report_text(report), encoding="utf-8")  # as reconstruct writes it
+    run = build_people_page(folder, out=tmp_path / "run.html", staged=staged).page
+    rebuilt = build_people_page(folder, out=tmp_path / "rebuilt.html").page
+    assert people_page_data(rebuilt)["camera_flags"] == people_page_data(run)["camera_flags"] == camera_flags(report)
+    html = rebuilt.read_text(encoding="utf-8")
+    assert markup not in html and "__pwned" in html and camera_flags(report)[0]["camera"] == markup

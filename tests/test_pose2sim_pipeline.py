@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dome_calib.final_place import said
+
 from .pose2sim_pipeline_helpers import ANGLES, angle_rms_deg, pose2sim_on_trcs, pose2sim_reference
 
 DATA = Path(__file__).parent / "data" / "pose2sim_balancing"
@@ -114,7 +116,7 @@ def test_no_rate_is_assumed_without_sync_tables(bundle, dome_calib_cli, tmp_path
     run = dome_calib_cli(*args, "--videos", str(tmp_path / "videos"), "-o", str(tmp_path / "people"))
     assert run.returncode == 0, run.stderr
     assert "(shared, 60 fps from the videos)" in run.stdout
-    assert f"people page written to {tmp_path / 'people' / 'index.html'} (" in caplog.text  # not the staging folder
+    assert f"people page written to {tmp_path / 'people' / 'index.html'} (" in said(caplog.text)  # as the user reads it
     times = [json.loads((tmp_path / "people" / f"body3DScene_{f:08d}.json").read_text())["univTime"] for f in (0, 6)]
     assert times[1] - times[0] == pytest.approx(100.0)  # 6 frames at 60 fps
     _video(tmp_path / "videos" / "cam04.avi", 30.0)

@@ -25,7 +25,7 @@ from dome_calib.ownership import claim_file
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.openpose_io import body_model_of, index_openpose_folder, parse_camera_map, read_openpose_files
 from dome_calib.recon.people.detection_cache import KeptDetections
-from dome_calib.recon.people.scene_io import StagedPeople, offset_words
+from dome_calib.recon.people.scene_io import StagedPeople, offset_words, read_camera_report
 from dome_calib.recon.streams import stream_of_camera
 from dome_calib.skeletons.errors import PeopleFileError
 from dome_calib.skeletons.page import MAX_DETECTED_PEOPLE, PAGE_FILE, CameraDetections, write_people_page
@@ -135,12 +135,14 @@ def build_people_page(people_folder: str | Path, *, out: str | Path | None = Non
     """Write the people page of ``people_folder`` to ``out`` (default ``people_folder/index.html``); ``shown_as``:
     the folder the page names (default ``people_folder``); ``staged``: the files ``reconstruct`` has just staged in
     ``people_folder``, in memory (their scenes are not read back; its bundle, when it has one, is not loaded
-    again)."""
+    again; its camera report is the table's). Without ``staged`` the table is the folder's cameras.json, read
+    through its schema (:func:`~dome_calib.recon.people.scene_io.read_camera_report`; none without the file)."""
     if detections is not None and bundle is None:
         raise PeopleFileError(f"{detections}: detections need the calibration bundle (--bundle) to be put on "
                               "universal time and compared with the reprojected bodies")
     page = Path(out) if out is not None else Path(people_folder) / PAGE_FILE
     claim_file(page, inputs=_inputs(people_folder, bundle, detections))  # before any reading
+    report = staged.report if staged is not None else read_camera_report(people_folder)  # the run's, or its file
     people = (people_of_scenes(people_folder, staged.files, staged.scenes()) if staged is not None
               else read_people(people_folder, progress=progress))
     people = with_rate(people,  # the page plays at the folder's rate
@@ -156,7 +158,7 @@ def build_people_page(people_folder: str | Path, *, out: str | Path | None = Non
     write_people_page(page, people, bundle=cal, detections=det, notes=notes,
                       folder=Path(shown_as) if shown_as is not None else None,
                       patches=staged.patches if staged is not None else None,
-                      camera_flags=camera_flags(staged.report if staged is not None else None))
+                      camera_flags=camera_flags(report))
     return PeoplePageSummary(page=page, people=len(people.tracks), frames=len(people.frames),
                              cameras=len(cal.cameras) if cal is not None else 0,
                              detection_cameras=[d.camera for d in det], notes=notes)

@@ -175,8 +175,8 @@ def run_session(session: Path, out: Path, options: SessionOptions | None = None,
         write_page(staging / "report")  # the page again, now with the Kinect and sync sections
         try:
             load_bundle(staging)  # what is swapped in reads back
-        except BundleFormatError as exc:  # name the output, not the staging folder removed below
-            raise BundleFormatError(f"{str(exc).replace(str(staging), str(out))} (nothing written to {out})") from None
+        except BundleFormatError as exc:  # the staging folder is said as OUT (dome_calib.final_place.said)
+            raise BundleFormatError(f"{exc} (nothing written to {out})") from None
         replace_folder(staging, out)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)

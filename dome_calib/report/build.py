@@ -29,6 +29,7 @@ from dome_calib.bundle import Bundle, CameraType, camera_type_from_name
 from dome_calib.bundle_io import replace_folder
 from dome_calib.ownership import claim_folder
 from dome_calib.errors import ReportError
+from dome_calib.final_place import stage
 from dome_calib.io_utils import new_mode
 from dome_calib.options import AtLeast, options
 from dome_calib.reasons import Reason, ReasonCode, reason
@@ -187,7 +188,7 @@ def write_report(bundle_folder: str | Path, bundle: Bundle, residuals: Residuals
         raise ReportError(f"{folder}: not a folder")
     claim_folder(folder / REPORT_DIR, option="report folder", keep=CARRIED_FILES)  # replaced whole: ours only
     content = build_report(bundle, residuals, options, **kwargs)
-    staging = Path(tempfile.mkdtemp(prefix=f".{REPORT_DIR}.new.", dir=folder))
+    staging = stage(tempfile.mkdtemp(prefix=f".{REPORT_DIR}.new.", dir=folder), folder / REPORT_DIR)
     try:
         os.chmod(staging, new_mode(0o777))  # mkdtemp makes 0700; report/ gets the mode mkdir() would give
         if residuals is not None:

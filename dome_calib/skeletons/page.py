@@ -112,11 +112,10 @@ def write_people_page(path: str | Path, people: People, *, bundle: Bundle | None
                       folder: Path | None = None, patches: dict | None = None,
                       camera_flags: list[dict] | None = None) -> Path:
     """Write the page of ``people`` to ``path`` (atomic, where :mod:`dome_calib.ownership` allows); returns the path
-    (``folder``: see :func:`page_data`; a page staged with its folder is said at the folder's final place,
-    ``folder / path.name``: the staging folder is gone after the rename)."""
+    (``folder``: see :func:`page_data`). A page staged with its folder is logged where it is written: the commands
+    say it at its final place (:func:`dome_calib.final_place.said`)."""
     path = Path(path)
     write_text(path, render_page(page_data(people, bundle=bundle, detections=detections, notes=notes,
                                            folder=folder, patches=patches, camera_flags=camera_flags)))
-    said = path if folder is None or path.parent == Path(folder) else Path(folder) / path.name
-    logger.info("people page written to %s (%.0f kB)", said, path.stat().st_size / 1e3)
+    logger.info("people page written to %s (%.0f kB)", path, path.stat().st_size / 1e3)
     return path

@@ -104,7 +104,7 @@ ENTRIES: dict[str, list[Entry]] = {
         inputs=lambda i: [_first_file(i.people), i.bundle / CAL, _first_file(i.det)],
         names=lambda i, o, n: ["people-page", i.people, "-o", o, "--bundle", i.bundle, "--detections", i.det,
                                "--body-model", "BODY_25", "--cameras", n],
-        reads=lambda i: [*_scenes(i), i.bundle, i.det], contents=ALL)],
+        reads=lambda i: [*_scenes(i), i.people / "cameras.json", i.bundle, i.det], contents=ALL)],
     "reconstruct": [Entry(
         "dome-calib", "folder",
         lambda i, o: ["reconstruct", i.det, "--bundle", i.bundle, "--body-model", "BODY_25", "-o", o],

@@ -1,14 +1,17 @@
 """The one oracle of the hostile matrix: no traceback; a failure is a non-zero exit with one line naming the thing;
 nothing outside the output written; nothing that was there before lost or changed; no page that runs a file's
-text."""
+text; no printed text naming a staging place, and after a run that went through, every path it printed in the
+sandbox is there (a path reaches the user only at its final place)."""
 from __future__ import annotations
 
 import hashlib
 import os
+import re
 import stat
 import subprocess
 from pathlib import Path
 
+from dome_calib.final_place import STAGING_MARK
 from dome_calib.ownership import RECORD
 
 SCRIPT = "<script>alert(1)</script>"
@@ -33,6 +36,43 @@ def snapshot(root: Path) -> dict[str, str]:
     return out
 
 
+#: Where a printed path ends: white space, quotes, brackets, a comma or semicolon.
+_PATH_END = re.compile(r"[\s'\"()\[\]{},;]")
+
+
+def printed_paths(text: str, sandbox: Path, known: set[str] = frozenset()) -> list[str]:
+    """The paths in ``text`` that lie in the sandbox, relative to it: absolute ones (from the sandbox's own path on)
+    and relative ones (a word whose first part, up to a ``/`` if it holds one, is ``known``: the sandbox's entries,
+    the commands' working folder), each up to white space, a quote, a bracket, a comma or a semicolon, without the punctuation that
+    ends a sentence or a name (``.``, ``:``)."""
+    root, found = str(sandbox), []
+    for start in (m.start() for m in re.finditer(re.escape(root), text)):
+        rest = _PATH_END.split(text[start:], maxsplit=1)[0]
+        found.append(os.path.relpath(rest.rstrip(".:"), root))
+    for word in _PATH_END.split(text):
+        word = word.rstrip(".:")
+        if not word.startswith("/") and word.split("/", 1)[0] in known:
+            found.append(os.path.normpath(word))
+    return found
+
+
+def judge_printed(done: subprocess.CompletedProcess, sandbox: Path, before: dict[str, str],
+                  after: dict[str, str]) -> None:
+    """No printed line names a staging place (:data:`dome_calib.final_place.STAGING_MARK`: gone when the command
+    exits); after a run that went through, every path it printed that lies in the sandbox is there (or is the
+    start of one cut at white space: a name holding a newline or a space)."""
+    text = done.stdout + done.stderr
+    for line in text.splitlines():
+        assert not STAGING_MARK.search(line), f"printed a staging place: {line}"
+    if done.returncode != 0:
+        return
+    known = {Path(k).parts[0] for k in (*before, *after)}
+    there = set(after) | {"."}
+    gone = [p for p in printed_paths(text, sandbox, known)
+            if p not in there and not any(k.startswith(p) and k[len(p)].isspace() for k in after if len(k) > len(p))]
+    assert gone == [], f"printed paths that are not there after the run: {gone[:5]}\n{text}"
+
+
 def _inside(rel: str, places: list[str]) -> bool:
     return any(rel == p or rel.startswith(p + os.sep) for p in places)
 
@@ -46,6 +86,7 @@ def judge(done: subprocess.CompletedProcess, before: dict[str, str], after: dict
     prog = done.args[0]
     text = done.stdout + done.stderr
     assert "Traceback" not in text, text
+    judge_printed(done, sandbox, before, after)
     if must_refuse:
         assert done.returncode != 0, f"not refused (exit 0): {text}"
     changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))

@@ -11,6 +11,7 @@ A command without a catalogue entry fails :func:`test_every_command_has_a_catalo
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import random
 import shutil
@@ -156,11 +157,24 @@ def _situation(entry: Entry, kind: str, i: Inputs, sandbox: Path, rng: random.Ra
 
 
 def _run_in_process(entry: Entry, args: list, monkeypatch, capsys) -> subprocess.CompletedProcess:
+    """As the console script runs, its log lines on stderr too, through the commands' own handler (pytest's handlers
+    keep run_cli from adding it: the log is judged like the rest of what is printed)."""
+    from dome_calib.errors import console_handler
+
     if entry.prog == "timecode":
         from timecode.cli import main
     else:
         from dome_calib.cli import main
-    return run_in_process(main, entry.prog, args, monkeypatch, capsys)
+    root = logging.getLogger()
+    handler = console_handler(entry.prog)  # on the captured stderr
+    level = root.level
+    root.addHandler(handler)
+    root.setLevel(logging.INFO)
+    try:
+        return run_in_process(main, entry.prog, args, monkeypatch, capsys)
+    finally:
+        root.removeHandler(handler)
+        root.setLevel(level)
 
 
 def _run_and_stop(entry: Entry, args: list, sandbox: Path) -> subprocess.CompletedProcess:

@@ -40,17 +40,22 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
+from pydantic import model_validator
 
 from dome_calib.body3d_scene import scene_json, scene_name, write_scene_folder
 from dome_calib.bundle import Bundle
+from dome_calib.errors import PeopleFileError
 from dome_calib.ownership import claim_folder
 from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.detection_cache import KeptDetections
 from dome_calib.recon.people.extras import ExtraJoints
 from dome_calib.recon.people.run import PeopleSequence
 from dome_calib.recon.people.windows import noise_px_of
+from dome_calib.schema import (CameraName, Field, FieldError, FileSchema, NonNegFinite, NonNegInt, Unique, Vec,
+                               read_json)
 
 CAMERAS_FILE = "cameras.json"
 PAGE_FILE = "index.html"
@@ -178,9 +183,64 @@ def write_people(folder: str | Path, seq: PeopleSequence, numbers: np.ndarray, f
     report = camera_report(seq.cameras) if report is None else report
 
     def beside(staging: Path) -> None:
-        (staging / CAMERAS_FILE).write_text(json.dumps(report, indent=1, allow_nan=False) + "\n", encoding="utf-8")
+        (staging / CAMERAS_FILE).write_text(camera_report_text(report), encoding="utf-8")
         if also is not None:
             staged = [(int(n), staging / scene_name(n)) for n in numbers]
             also(staging, StagedPeople(files=staged, scenes=scenes, report=report, bundle=bundle))
 
     return write_scene_folder(folder, numbers, scenes(), also=beside)
+
+
+def camera_report_text(report: dict) -> str:
+    """cameras.json's text: the report of :func:`camera_report` (read back by :func:`read_camera_report`)."""
+    return json.dumps(report, indent=1, allow_nan=False) + "\n"
+
+
+Share = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
+
+
+class CameraAgreementRow(FileSchema):
+    """One camera of cameras.json (:func:`camera_report`): its tallies, and the figures of the body over time (null
+    where it judged none of the camera's joints, or, ``offset_floor_px``, without the image size)."""
+
+    detected: NonNegInt = Field(description="people the camera detected")
+    used: NonNegInt = Field(description="of them, used by a reconstructed body")
+    share_used: Share | None = Field(None, description="used / detected")
+    median_reprojection_px: NonNegFinite | None = Field(
+        None, description="median pixel distance between its used joints and the reconstructed joints")
+    joints_judged: NonNegInt = Field(0, description="its joint detections the body over time judged")
+    outvoted_share: Share | None = Field(None, description="share of them the body outvoted (farther than 5 sigma)")
+    median_offset_px: Vec(2) | None = Field(
+        None, description="[u, v] median of its inlier detections minus the body's joints projected")
+    offset_joints: NonNegInt = Field(0, description="the detections that median is over")
+    offset_z: NonNegFinite | None = Field(None, description="the offset's length in standard errors")
+    offset_floor_px: NonNegFinite | None = Field(None, description="the offset a flag needs at least (a share of "
+                                                 "the image diagonal)")
+
+
+class CamerasFile(FileSchema):
+    """cameras.json as ``reconstruct`` writes it (:func:`camera_report`, the module docstring), read back by
+    ``dome-calib people-page`` for the page's camera table."""
+
+    median_reprojection_px: NonNegFinite | None = Field(None, description="the cameras' median of theirs")
+    median_share_used: Share | None = Field(None, description="the cameras' median share used")
+    flagged: Unique(CameraName) = Field([], description="the cameras that disagree (each one of cameras)")
+    notes: list[str] = Field([], description="one line per camera flagged for its offset")
+    cameras: dict[CameraName, CameraAgreementRow] = Field(description="camera name -> its row")
+
+    @model_validator(mode="after")
+    def _flagged_are_cameras(self) -> CamerasFile:
+        for k, name in enumerate(self.flagged):
+            if name not in self.cameras:
+                raise FieldError(("flagged", k), f"camera {name} is not one of cameras")
+        return self
+
+
+def read_camera_report(folder: str | Path) -> dict | None:
+    """``folder``'s cameras.json through :class:`CamerasFile`, as the report :func:`camera_report` gave (None when
+    the folder has none: a body3DScene folder another tool wrote); PeopleFileError of one line naming the file and
+    the field when it does not read."""
+    path = Path(folder) / CAMERAS_FILE
+    if not path.is_file():
+        return None
+    return read_json(path, CamerasFile, error=PeopleFileError).model_dump(mode="json")
