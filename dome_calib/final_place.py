@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import re
 import threading
+from collections import OrderedDict
 from pathlib import Path
 
 #: Every name given to a staging place: ``.<name>.new.<tag>.<random>`` / ``.old.``
@@ -25,8 +26,10 @@ from pathlib import Path
 #: (:func:`dome_calib.io_utils.atomic_path`). A printed text holding one names a place that is gone when the command exits.
 STAGING_MARK = re.compile(r"\.(?:new|old)\.|\.(?:staging|aside)\b|\.tmp\b")
 
-#: staging path -> the path it is renamed to (both as given and absolute); see :func:`said`.
-_FINAL: dict[str, str] = {}
+#: staging path -> the path it is renamed to (both as given and absolute); see :func:`said`. Bounded: a process that
+#: writes for ever (a library user's server) keeps only the latest places; a command makes a few dozen.
+_FINAL: OrderedDict[str, str] = OrderedDict()
+_FINAL_KEPT = 4096
 _FINAL_LOCK = threading.Lock()
 
 
@@ -38,6 +41,8 @@ def stage(staging: str | os.PathLike[str], final: str | os.PathLike[str]) -> Pat
     with _FINAL_LOCK:
         _FINAL[str(staging)] = str(final)
         _FINAL[os.path.abspath(staging)] = os.path.abspath(final)
+        while len(_FINAL) > _FINAL_KEPT:
+            _FINAL.popitem(last=False)  # the oldest first
     return staging
 
 

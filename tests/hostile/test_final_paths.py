@@ -107,3 +107,13 @@ def test_the_judge_refuses_a_staging_name_and_a_printed_path_that_is_gone(tmp_pa
                        (f"wrote {sandbox}/out/cameras.json", 0), ("wrote out/cameras.json, out/index.html", 0)):
         with pytest.raises(AssertionError):
             judge_printed(printed(line, code), sandbox, {}, after)
+
+
+def test_the_record_of_staging_places_is_bounded(tmp_path):
+    """A library user writing for ever does not grow the record without end; the latest places are still said."""
+    from dome_calib import final_place
+    for k in range(final_place._FINAL_KEPT + 10):
+        final_place.stage(tmp_path / f".o{k}.new.x", tmp_path / f"o{k}")
+    assert len(final_place._FINAL) <= final_place._FINAL_KEPT
+    last = final_place._FINAL_KEPT + 9
+    assert final_place.said(str(tmp_path / f".o{last}.new.x" / "a")) == str(tmp_path / f"o{last}" / "a")
