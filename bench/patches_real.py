@@ -3,7 +3,7 @@ cameras, 60 fps, 1088 x 1920; ../shared/data/multiview/pose2sim_balancing, see i
 
     .venv/bin/python bench/patches_real.py [--data ../shared/data/multiview/pose2sim_balancing] [--frames 60]
         [--seed-frame 40] [--clouds 1] [--crop-x 0] [--min-ncc 0.8] [--seed-method sweep|features|skeleton]
-        [--match-px 3] [--depth-window 6] [--corners 400] [--lk-window 15] [--judge-occlusion]
+        [--match-px 3] [--depth-window 6] [--corners 400] [--lk-window 0] [--judge-occlusion]
 
 For each camera L in turn, the other three track patches (``recon.patches.run.patch_stream``: ``--clouds`` clouds
 seeded at ``--seed-frame`` + 20 k, each tracked ``--frames / 2`` frames each way; a seed needs 2 views, as only 3
@@ -24,7 +24,17 @@ the steps alone cannot tell a tracked patch from one that stands still. So L als
 track: L's flow carries the patch's seed-time projection frame by frame away from the seed (chained, both ways), and
 per patch and time the error is the distance to the patch's projection, beside the do-nothing baseline, the
 seed-time projection held still (``from_seed_*``, ``held_still_*``, ``beats_held_still_share``; ``farthest_*`` at
-the largest distance from the seed judged).
+the largest distance from the seed judged; ``at_1``, ``at_10``, ``at_30``: at exactly that many frames from the
+seed, either way).
+
+What the rig allows L to judge (``rig_allows``, from the participant's capsules at each seed time): L's pixels on
+the body put on the capsules; of the surface points facing L (``min_cos_view``) and not hidden from it by the body,
+how many ``seed_min_views`` (2) of the three tracking cameras also see. Only such a patch can be seeded, tracked and
+judged; on this rig that is 0-11 of 1,500-2,000 (docs/patches.md).
+
+The flow's window (``--lk-window``, the tracking's and the judge's; 0, the default: sized to the patch) is the
+patch's side ``ncc_size_cm`` at the participant's distance in the tracking cameras (median, made odd): 31-33 px
+on these phones (focal length ~1,680 px, 3.2-3.8 m), where the dome's default is 15 px for VGA.
 
 The videos of cam01 and cam02 are 1080 px wide against the calibration's 1088 (the PROVENANCE): they are read as a
 crop of the calibrated image starting at column ``--crop-x`` (0: the calibrated image's left edge, what cam01's
@@ -49,6 +59,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -67,7 +78,8 @@ from dome_calib.recon.openpose_io import read_openpose_folder  # noqa: E402
 from dome_calib.recon.patches.images import open_images, with_shared_clock  # noqa: E402
 from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
 from dome_calib.recon.patches.run import patch_stream  # noqa: E402
-from dome_calib.recon.patches.seed_skeleton import BodyPrior, body_capsules, ray_capsules  # noqa: E402
+from dome_calib.recon.patches.seed_skeleton import (  # noqa: E402
+    BodyPrior, _rays, body_capsules, person_mask, ray_capsules)
 from dome_calib.recon.patches.seed import optical_flow  # noqa: E402
 from dome_calib.recon.people.run import PeopleOptions, reconstruct_people  # noqa: E402
 from dome_calib.recon.people.sources import people_streams  # noqa: E402
@@ -76,6 +88,7 @@ from dome_calib.recon.streams import stream_of_camera  # noqa: E402
 
 CAMS = [f"00_{k:02d}" for k in range(1, 5)]
 FPS = Fraction(60)
+HORIZONS = (1, 10, 30)  # frames from the seed at which the whole-track judgement is also given on its own
 
 
 def emit(**fields) -> None:
@@ -97,6 +110,44 @@ def hidden_by_body(centre: np.ndarray, X: np.ndarray, body: BodyPrior | None, t_
     dist = np.linalg.norm(to, axis=1)
     s, _ = ray_capsules(centre, to / np.maximum(dist, 1e-9)[:, None], A, B, radius)
     return s < dist - margin_cm
+
+
+def judgeable_share(views, left: str, tracking: list[str], joints_cm: np.ndarray, o: PatchOptions) -> dict:
+    """What the rig allows ``left`` to judge, from the participant's capsules (``joints_cm`` (19, 3)): ``left``'s
+    pixels on the body (a 8 px grid of its mask) put on the capsules; of the surface points that face ``left`` (the
+    visibility's ``min_cos_view``) and that the body does not hide from it, how many at least ``seed_min_views`` of
+    the tracking cameras also see (facing them, not hidden): only such a patch can be seeded, tracked and judged."""
+    A, B, R = body_capsules(joints_cm[None])
+    if not len(A):
+        return {"facing_left_out": 0, "seen_by_enough_trackers": 0}
+    v = views.names.index(left)
+    mask = person_mask(views, v, tuple(int(x) for x in views.resolution[v]), A, B, R)
+    rows, cols = np.nonzero(mask[::8, ::8])
+    dirs = _rays(views, v, np.stack([cols * 8, rows * 8], 1).astype(float))
+    s, n = ray_capsules(views.center_cm[v], dirs, A, B, R)
+    hit = np.isfinite(s)
+    P, n = views.center_cm[v] + s[hit, None] * dirs[hit], n[hit]
+
+    def sees(c: int) -> np.ndarray:
+        to = views.center_cm[c] - P
+        dist = np.linalg.norm(to, axis=1)
+        first, _ = ray_capsules(views.center_cm[c], -to / dist[:, None], A, B, R)
+        return (np.sum(to * n, 1) / dist > o.min_cos_view) & (first > dist - o.seed_depth_window_cm)
+
+    seen = sees(v)
+    n_track = sum(sees(views.names.index(c)).astype(int) for c in tracking)
+    return {"facing_left_out": int(seen.sum()),
+            "seen_by_enough_trackers": int((seen & (n_track >= o.seed_min_views)).sum()),
+            "seen_by_one_tracker": int((seen & (n_track == 1)).sum())}
+
+
+def patch_window_px(views, joints_cm: np.ndarray, cams: list[str], size_cm: float) -> int:
+    """The optical flow's window sized to the patch: ``size_cm`` at the participant's distance (the joints'
+    centroid) in the cameras ``cams``, median px, made odd."""
+    mid = np.nanmean(joints_cm, axis=0)
+    idx = [views.names.index(c) for c in cams]
+    px = views.intr[idx, 0] * size_cm / np.linalg.norm(views.center_cm[idx] - mid, axis=1)
+    return int(2 * round(float(np.median(px)) / 2) + 1)
 
 
 def judge_in(source, bundle, traj, cam: str, o: PatchOptions, body: BodyPrior | None = None
@@ -163,7 +214,15 @@ def judge_from_seed(source, bundle, traj, cam: str, o: PatchOptions, body: BodyP
             "held_still_p90_px": _pct(m, 90),
             "beats_held_still_share": round(float(np.mean(e < m)), 3) if len(e) else None,
             "farthest_frames": int(last), "farthest_judged": int(len(e_last)),
-            "farthest_median_px": _pct(e_last, 50), "farthest_held_still_median_px": _pct(m_last, 50)}
+            "farthest_median_px": _pct(e_last, 50), "farthest_held_still_median_px": _pct(m_last, 50),
+            **{f"at_{d}": _at(far.get(d, [])) for d in HORIZONS}}
+
+
+def _at(judged: list) -> dict:
+    """The judgement at one distance from the seed: patch-times, median and 90th percentile error, held still."""
+    e = np.concatenate([x for x, _ in judged] + [np.zeros(0)])
+    m = np.concatenate([y for _, y in judged] + [np.zeros(0)])
+    return {"n": int(len(e)), "median_px": _pct(e, 50), "p90_px": _pct(e, 90), "held_still_median_px": _pct(m, 50)}
 
 
 def _follow(source, cam, frames, traj, facing, idx, p_seed, s, direction, o, err, still, far) -> None:
@@ -287,8 +346,9 @@ def main() -> None:
                     help='"skeleton": cm searched either side of the body\'s capsules')
     ap.add_argument("--judge-occlusion", action="store_true",
                     help="L judges only patches its view of the participant's body (capsules) does not hide")
-    ap.add_argument("--lk-window", type=int, default=PatchOptions().lk_window_px,
-                    help="optical flow's window (px), the tracking's and the judge's")
+    ap.add_argument("--lk-window", type=int, default=0,
+                    help="optical flow's window (px), the tracking's and the judge's; 0: sized to the patch "
+                    "(ncc_size_cm at the participant's distance in the tracking cameras, made odd: 31 px here)")
     ap.add_argument("--corners", type=int, default=PatchOptions().seed_features, help="corners per camera")
     ap.add_argument("--joint-noise", type=float, default=3.0,
                     help="--synthetic with skeleton seeds: the prior is the true joints with this much noise (cm)")
@@ -314,7 +374,7 @@ def main() -> None:
     frames = np.arange(max(seed_frames[0] - half, 0), min(seed_frames[-1] + half, 99) + 1)
     o = PatchOptions(track_frames=half, seed_min_views=2, seed_min_ncc=args.min_ncc, seed_method=args.seed_method,
                      seed_match_px=args.match_px, seed_depth_window_cm=args.depth_window, seed_features=args.corners,
-                     lk_window_px=args.lk_window)
+                     lk_window_px=args.lk_window or PatchOptions().lk_window_px)  # 0: set per left-out camera
     emit(bench="patches_real", frames=int(len(frames)), seed_frames=seed_frames, crop_x=args.crop_x,
          options={"track_frames": half, "seed_min_views": 2, "seed_min_ncc": args.min_ncc,
                   "seed_method": args.seed_method, "seed_match_px": args.match_px,
@@ -336,6 +396,11 @@ def main() -> None:
             tracking = [c for c in CAMS if c != left]
             found = participant(bundle, det, tracking, frames)
             body = body_prior(found[1], found[2], table.times_of(frames)) if args.seed_method == "skeleton" else None
+            at_seed = body_prior(found[1], found[2], table.times_of(np.array(seed_frames))).joints_cm[:, 0]
+            views = view_set(bundle, CAMS)
+            o = dataclasses.replace(o, lk_window_px=args.lk_window or patch_window_px(views, at_seed[0], tracking,
+                                                                                    o.ncc_size_cm))
+            allowed = [judgeable_share(views, left, tracking, J, o) for J in at_seed]
             cpu0 = time.process_time()
             traj = patch_stream(clocked, source, tracking, span, o, seed_frames=seed_frames, body=body)
             cpu = time.process_time() - cpu0
@@ -349,6 +414,7 @@ def main() -> None:
                  median_frames_alive=(int(np.median(length)) if len(length) else None),
                  patch_steps_judged=int(len(err)), patch_median_px=_pct(err, 50), patch_p90_px=_pct(err, 90),
                  flow_median_px=_pct(move, 50), **whole, skeleton_median_px=skel, skeleton_joints=n_joints,
+                 lk_window_px=o.lk_window_px, rig_allows={k: sum(a[k] for a in allowed) for k in allowed[0]},
                  stage_cpu_s=round(cpu, 1), load=[round(x, 2) for x in os.getloadavg()])
         source.close()
 
