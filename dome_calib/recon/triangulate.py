@@ -320,11 +320,20 @@ def _ransac(views: ViewSet, xn: np.ndarray, conf: np.ndarray, valid: np.ndarray,
     # threshold: a two-view point is noisy) and then at the threshold, so a set of views that agree is judged by
     # its own point, not by the midpoint of two of its rays (which can miss the third view by more than the
     # threshold where the three meet within it)
-    X_lo = X_h
-    for loose in (4.0, 1.0):
-        err2, zc = _scoring_err2(views, sv, xn, X_lo)
-        X_lo = _refit_rays(views, sv, xn, X_lo, c_s * ((err2 < thr2 * F32(loose)) & (zc > MIN_DEPTH)), zc)
-    err2, zc = _scoring_err2(views, sv, xn, X_lo)
+    X_lo = X_h.copy()
+    err2, zc = _scoring_err2(views, sv, xn, X_h)
+    seen = s_ok & (zc > MIN_DEPTH)
+    n_h = np.where(good, (seen & (err2 < thr2)).sum(axis=-1), -1)
+    n_loose = np.where(good, (seen & (err2 < F32(4.0) * thr2)).sum(axis=-1), -1)
+    # only a point where some pair point comes near (within twice the threshold) more views than the best one
+    # explains can gain a view by the refit (with few wrong detections, most points have none)
+    need = np.flatnonzero((n_loose > n_h.max(axis=1, keepdims=True)).any(axis=1))
+    if need.size:
+        Xs, e2, z, sv_n, xn_n = X_h[need], err2[need], zc[need], sv[need], xn[need]
+        for loose in (4.0, 1.0):
+            Xs = _refit_rays(views, sv_n, xn_n, Xs, c_s[need] * ((e2 < thr2 * F32(loose)) & (z > MIN_DEPTH)), z)
+            e2, z = _scoring_err2(views, sv_n, xn_n, Xs)
+        X_lo[need], err2[need], zc[need] = Xs, e2, z
     good &= np.all(np.isfinite(X_lo), axis=-1)
     inlier = s_ok & (zc > MIN_DEPTH) & (err2 < thr2)
     err2 = np.where(zc > MIN_DEPTH, np.minimum(err2, thr2), thr2)
