@@ -85,10 +85,12 @@ def test_pose2sim_balancing(run, dome_calib_cli):
     # cameras 01, 02, 04 agree within a few pixels; camera 03 is ~40 px off all the time: flagged.
     assert max(med["00_01"], med["00_02"], med["00_04"]) < 8.0 and med["00_03"] > 25.0
     assert report["flagged"] == ["00_03"]
-    # the body over time outvotes camera 03's detections far more often than the others' (32 % against 16 % for
-    # camera 01, whose left hip lies 40-55 px from the other three's, and 0.5-0.9 % for 02 and 04)
+    # the body over time outvotes cameras 03 and 01 far more often than 02 and 04 (13 % and 15 % against 0.1-0.4 %):
+    # camera 01's left hip lies 40-55 px from the other three's; camera 03's joints ~24 px off (32 % outvoted
+    # before a joint's views were chosen by the most that agree: where its joints are 20-30 px off, the four
+    # cameras' own point can land within 15 px of each, and camera 03 counts, as in Pose2Sim's triangulation)
     share = {n: c["outvoted_share"] for n, c in report["cameras"].items()}
-    assert share["00_03"] > 1.5 * share["00_01"] and share["00_03"] > 10 * max(share["00_02"], share["00_04"])
+    assert min(share["00_03"], share["00_01"]) > 10 * max(share["00_02"], share["00_04"])
     # Pose2Sim's result, axes mapped: reprojected onto the detections of the agreeing cameras it lands within
     # ~12 px (this is the check of WORLD_FROM_TRC), and our joints are within a few cm of it.
     markers, P2S = read_trc_cm(root / "pose2sim_result" / "S00_P00_T01_BalancingTrial_0-100.trc")

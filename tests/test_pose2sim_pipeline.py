@@ -23,11 +23,13 @@ from .pose2sim_pipeline_helpers import ANGLES, angle_rms_deg, pose2sim_on_trcs, 
 DATA = Path(__file__).parent / "data" / "pose2sim_balancing"
 CAMERA_MAP = ",".join(f"cam{k:02d}_json=cam_{k:02d}" for k in range(1, 5))
 #: Limits (degrees RMS against Pose2Sim's own run), a little above what was measured (docs/export-people.md:
-#: knees 4.7 / 4.4, hip flexion 4.2 / 8.7, ankles 5.7 / 6.6, pelvis 3.9 / 2.3 / 8.1; before the left hip was
-#: fixed, 11.4 hip flexion and 12.8 pelvis rotation): the failures they catch are far beyond them (frozen knees
-#: 39 deg, the pelvis turned 77 deg).
-KNEE_LIMIT_DEG = 7.0
-ANY_LIMIT_DEG = 12.0
+#: knees 3.4 / 2.6, hip flexion 3.0 / 2.9, adduction 1.9 / 2.1, rotation 2.9 / 2.3, pelvis 1.6 / 1.5 / 3.2, ankles
+#: 4.7 / 6.9); the hips and the pelvis within the issue's 5 deg: before a joint's views were chosen by the most that
+#: agree, a pair of cameras held the left hip on camera 01's side for 15 frames (hip flexion 8.7, pelvis rotation
+#: 8.1); the other failures caught are far beyond (frozen knees 39 deg, the pelvis turned 77 deg).
+KNEE_LIMIT_DEG = 5.0
+HIP_PELVIS_LIMIT_DEG = 5.0
+ANY_LIMIT_DEG = 10.0
 
 
 @pytest.mark.slow
@@ -55,6 +57,7 @@ def test_pose2sims_filtering_augmentation_and_kinematics_run_on_our_trc(dome_cal
     print(json.dumps({"angle_rms_deg": {k: round(v, 2) for k, v in rms.items()}}))
     assert set(rms) == set(ANGLES)
     assert max(rms["knee_angle_r"], rms["knee_angle_l"]) < KNEE_LIMIT_DEG, rms
+    assert max(v for k, v in rms.items() if k.startswith(("hip_", "pelvis_"))) < HIP_PELVIS_LIMIT_DEG, rms
     assert max(rms.values()) < ANY_LIMIT_DEG, rms
 
 

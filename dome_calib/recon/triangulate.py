@@ -3,14 +3,19 @@
 Pipeline per point (all points of a batch at once, no Python loop over points):
 
 1. rays: detections -> undistorted normalised coordinates (batched Newton inverse of the lens model);
-2. RANSAC over views: pairs of views give two-view (midpoint) hypotheses, scored on a subset of the point's
-   views with a truncated, confidence-weighted squared reprojection error (MSAC). A point with few views tries
-   every pair; otherwise the pairs and the scoring views are drawn at random, and the draws of a point are a
-   function of its own detections only (a counter-based hash of them, :func:`point_draws`), never of the batch
-   it is in: the same detections give the same point whatever else is triangulated with them;
-3. weighted linear triangulation (DLT on the rays of the inlier views, weights = detection confidence);
-4. Levenberg-Marquardt on the confidence-weighted reprojection error ``sum_v c_v |pi_v(X) - u_v|^2`` (the
-   weighted cost of the Panoptic 3D node proposals), with the analytic point Jacobian of the camera model;
+2. RANSAC over views: pairs of views give two-view (midpoint) hypotheses. A point with few views tries every pair;
+   otherwise the pairs and the scoring views are drawn at random, and the draws of a point are a function of its
+   own detections only (a counter-based hash of them, :func:`point_draws`), never of the batch it is in: the same
+   detections give the same point whatever else is triangulated with them. Each hypothesis is refitted to the
+   scoring views it explains (local optimisation, LO-RANSAC: within twice the threshold, then within it), and the
+   refitted point explaining the most views wins, ties going to the truncated, confidence-weighted squared
+   reprojection error (MSAC). A two-view point fits its two views exactly (two rays always meet), so scored on the
+   error alone a pair beat three views that agree within the threshold whenever the midpoint of two of the three
+   missed the third (Pose2Sim's real balancing trial: a phone's left hip 50 px from three that agree, winning with
+   one of them in 9 of 10 frames); Pose2Sim's own triangulation also keeps the most cameras within its threshold;
+3. weighted linear triangulation (DLT on the rays of the views the hypothesis explains, weights = confidence);
+4. Levenberg-Marquardt on the confidence-weighted reprojection error ``sum_v c_v |pi_v(X) - u_v|^2`` over those
+   views (the weighted cost of the Panoptic 3D node proposals), with the analytic point Jacobian of the camera model;
 5. final inliers: views whose reprojection error is below ``inlier_threshold_px``.
 
 Inputs are (P, V, 2) pixels and (P, V) confidences (0 or NaN pixels = no detection) for the views of a
@@ -222,6 +227,45 @@ def _all_pairs(n_max: int) -> dict[int, np.ndarray]:
     return {n: np.array([(i, j) for i in range(n) for j in range(i + 1, n)]) for n in range(2, n_max + 1)}
 
 
+def _scoring_err2(views: ViewSet, sv: np.ndarray, xn: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Squared reprojection errors (px^2, in each view's focal units) of hypotheses X (P, H, 3) in the scoring views
+    sv (P, S) of normalised detections xn (P, V, 2) -> err2 (P, H, S), depths zc (P, H, S) (float32)."""
+    rows = np.arange(len(sv))[:, None]
+    Rs = views.R[sv].astype(F32)[:, None]  # (P, 1, S, 3, 3)
+    ts = views.t_cm[sv].astype(F32)[:, None]  # (P, 1, S, 3)
+    Xh = np.where(np.isfinite(X), X, 0.0).astype(F32)[:, :, None]  # (P, H, 1, 3)
+    xc, yc, zc = (Rs[..., i, 0] * Xh[..., 0] + Rs[..., i, 1] * Xh[..., 1] + Rs[..., i, 2] * Xh[..., 2] + ts[..., i]
+                  for i in range(3))  # (P, H, S)
+    front = zc > MIN_DEPTH
+    inv_z = 1.0 / np.where(front, zc, F32(1.0))
+    f = views.intr[sv].astype(F32)[:, None]  # (P, 1, S, 4)
+    obs = xn[rows, sv].astype(F32)[:, None]  # (P, 1, S, 2)
+    err2 = ((xc * inv_z - obs[..., 0]) * f[..., 0]) ** 2 + ((yc * inv_z - obs[..., 1]) * f[..., 1]) ** 2
+    return err2, zc
+
+
+def _refit_rays(views: ViewSet, sv: np.ndarray, xn: np.ndarray, X: np.ndarray, w: np.ndarray,
+                zc: np.ndarray) -> np.ndarray:
+    """Hypotheses X (P, H, 3) refitted to the rays of the scoring views sv (P, S) with weights w (P, H, S): the point
+    nearest the rays, each ray's squared distance over the hypothesis' depth squared (about the reprojection error
+    in normalised units). Hypotheses with fewer than 2 weighted views keep X."""
+    rows = np.arange(len(sv))[:, None]
+    xh = np.concatenate([xn[rows, sv], np.ones(sv.shape + (1,))], axis=-1)  # (P, S, 3)
+    d = np.einsum("psji,psj->psi", views.R[sv], xh)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    M = np.eye(3) - d[..., :, None] * d[..., None, :]  # (P, S, 3, 3)
+    c = views.center_cm[sv]  # (P, S, 3)
+    ww = w / np.maximum(np.asarray(zc, dtype=float), MIN_DEPTH) ** 2  # (P, H, S)
+    A = np.einsum("phs,psij->phij", ww, M)
+    b = np.einsum("phs,psij,psj->phi", ww, M, c)
+    enough = (w > 0).sum(axis=-1) >= 2
+    A = np.where(enough[..., None, None], A, np.eye(3))
+    with np.errstate(invalid="ignore"):
+        Xr = np.linalg.solve(A + 1e-12 * np.trace(A, axis1=-2, axis2=-1)[..., None, None] * np.eye(3),
+                             b[..., None])[..., 0]
+    return np.where(enough[..., None], Xr, X)
+
+
 def _ransac(views: ViewSet, xn: np.ndarray, conf: np.ndarray, valid: np.ndarray,
             options: TriangulationOptions, uv_px: np.ndarray) -> np.ndarray:
     """Best two-view hypothesis (P, 3) per point by MSAC over a subset of its views (NaN if none).
@@ -269,23 +313,37 @@ def _ransac(views: ViewSet, xn: np.ndarray, conf: np.ndarray, valid: np.ndarray,
 
     S = min(options.ransac_score_views, V)
     sv = order[:, :S]  # (P, S)
-    s_ok = np.arange(S)[None, :] < n_valid[:, None]
-    Rs = views.R[sv].astype(F32)[:, None]  # (P, 1, S, 3, 3)
-    ts = views.t_cm[sv].astype(F32)[:, None]  # (P, 1, S, 3)
-    Xh = X_h.astype(F32)[:, :, None]  # (P, H, 1, 3)
-    xc, yc, zc = (Rs[..., i, 0] * Xh[..., 0] + Rs[..., i, 1] * Xh[..., 1] + Rs[..., i, 2] * Xh[..., 2] + ts[..., i]
-                  for i in range(3))  # (P, H, S)
-    front = zc > MIN_DEPTH
-    inv_z = 1.0 / np.where(front, zc, F32(1.0))
-    f = views.intr[sv].astype(F32)[:, None]  # (P, 1, S, 4)
-    obs = xn[rows, sv].astype(F32)[:, None]  # (P, 1, S, 2)
-    err2 = ((xc * inv_z - obs[..., 0]) * f[..., 0]) ** 2 + ((yc * inv_z - obs[..., 1]) * f[..., 1]) ** 2
+    s_ok = (np.arange(S)[None, :] < n_valid[:, None])[:, None, :]  # (P, 1, S)
+    c_s = np.where(s_ok, conf[rows, sv][:, None, :], 0.0)  # (P, 1, S)
     thr2 = F32(options.inlier_threshold_px**2)
-    err2 = np.where(front, np.minimum(err2, thr2), thr2)
-    score = np.einsum("phs,ps->ph", err2, np.where(s_ok, conf[rows, sv], 0.0).astype(F32))
-    score = np.where(good, score, np.inf)
+    # local optimisation (LO-RANSAC): every hypothesis is refitted to the views it explains, loosely (2 x the
+    # threshold: a two-view point is noisy) and then at the threshold, so a set of views that agree is judged by
+    # its own point, not by the midpoint of two of its rays (which can miss the third view by more than the
+    # threshold where the three meet within it)
+    X_lo = X_h.copy()
+    err2, zc = _scoring_err2(views, sv, xn, X_h)
+    seen = s_ok & (zc > MIN_DEPTH)
+    n_h = np.where(good, (seen & (err2 < thr2)).sum(axis=-1), -1)
+    n_loose = np.where(good, (seen & (err2 < F32(4.0) * thr2)).sum(axis=-1), -1)
+    # only a point where some pair point comes near (within twice the threshold) more views than the best one
+    # explains can gain a view by the refit (with few wrong detections, most points have none)
+    need = np.flatnonzero((n_loose > n_h.max(axis=1, keepdims=True)).any(axis=1))
+    if need.size:
+        Xs, e2, z, sv_n, xn_n = X_h[need], err2[need], zc[need], sv[need], xn[need]
+        for loose in (4.0, 1.0):
+            Xs = _refit_rays(views, sv_n, xn_n, Xs, c_s[need] * ((e2 < thr2 * F32(loose)) & (z > MIN_DEPTH)), z)
+            e2, z = _scoring_err2(views, sv_n, xn_n, Xs)
+        X_lo[need], err2[need], zc[need] = Xs, e2, z
+    good &= np.all(np.isfinite(X_lo), axis=-1)
+    inlier = s_ok & (zc > MIN_DEPTH) & (err2 < thr2)
+    err2 = np.where(zc > MIN_DEPTH, np.minimum(err2, thr2), thr2)
+    score = np.einsum("phs,phs->ph", err2, c_s.astype(F32) * np.ones_like(err2))
+    # the most views first (a pair always meets, so two views fitted exactly must not outscore three that agree
+    # within the threshold), then the truncated, confidence-weighted squared error (MSAC)
+    n_in = np.where(good, inlier.sum(axis=-1), -1)
+    score = np.where(good & (n_in == n_in.max(axis=1, keepdims=True)), score, np.inf)
     best = np.argmin(score, axis=1)
-    X_best = X_h[np.arange(P), best]
+    X_best = X_lo[np.arange(P), best]
     X_best[~np.isfinite(score[np.arange(P), best])] = np.nan
     return X_best
 
@@ -327,9 +385,9 @@ def triangulate(views: ViewSet, uv_px: np.ndarray, conf: np.ndarray,
     X = _ransac(views, xn, w, valid, options, uv)
     have = np.all(np.isfinite(X), axis=1, keepdims=True)
     err = kernel.reprojection_error_px(np.where(have, X, 0.0), u_obs, v_obs)
-    inl = valid & have & (err < 2.0 * thr)  # loose: two-view points are noisy
+    inl = valid & have & (err < thr)  # the views the hypothesis, refitted to them (_ransac), explains
     X = triangulate_dlt(views, xn, np.where(inl, w, 0.0))
-    X, ev = refine_lm(kernel, X, uv, w, iterations=options.lm_iterations, gate_px=thr)
+    X, ev = refine_lm(kernel, X, uv, np.where(inl, w, 0.0), iterations=options.lm_iterations)
     err = np.sqrt(ev.r_u * ev.r_u + ev.r_v * ev.r_v).astype(float)
     inl = valid & (err < thr)
     n_inl = inl.sum(axis=1)
