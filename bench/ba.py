@@ -775,7 +775,8 @@ def sparsity(args) -> None:
     """``--sparsity``: how sparse the reduced camera system is. Per layout (the dome, ``--pair``, ``--double``; or an
     SfM result's problem, ``--sfm SFM_PKL``): the camera pairs that share at least k points (k = 1: the blocks of S
     that are not zero), and the factor's fill under several fill-reducing orderings (natural; reverse Cuthill-McKee,
-    scipy; AMD, COLAMD, METIS nested dissection, CHOLMOD's own nested dissection, through CHOLMOD's analysis), counted
+    scipy; AMD, COLAMD, METIS nested dissection, CHOLMOD's own nested dissection, through CHOLMOD's analysis; gtsam's
+    COLAMD and METIS on the camera graph as a symbolic factor graph), counted
     in camera blocks against the dense triangle, with the block factorisation's flops against the dense one's; and
     the same with only the pairs sharing at least k points kept (what a factorisation that dropped the weak links,
     e.g. as a preconditioner, would fill). Symbolic only: no values, seconds per layout."""
@@ -788,6 +789,10 @@ def sparsity(args) -> None:
         import sksparse.cholmod as cholmod
     except ImportError:  # the optional extra `sparse`
         cholmod = None
+    try:
+        import gtsam
+    except ImportError:  # pragma: no cover - a base dependency
+        gtsam = None
     if args.sfm:
         with open(args.sfm, "rb") as fh:
             p = pickle.load(fh).problem
@@ -815,6 +820,15 @@ def sparsity(args) -> None:
             lower = sp.tril(graph.astype(float) * 1.0 + sp.identity(C, format="csc") * C, format="csc")
             for method in ("amd", "colamd", "metis", "nesdis"):
                 orders[method] = cholmod.analyze(lower, mode="simplicial", ordering_method=method).P()
+        if gtsam is not None:  # gtsam's orderings on the camera graph (a base dependency)
+            fg = gtsam.SymbolicFactorGraph()
+            for c in range(C):
+                fg.push_factor(c)
+            for i, j in zip(*kept.nonzero()):
+                fg.push_factor(int(i), int(j))
+            for method in ("Colamd", "Metis"):
+                o = getattr(gtsam.Ordering, f"{method}SymbolicFactorGraph")(fg)
+                orders[f"gtsam_{method.lower()}"] = np.array([o.at(i) for i in range(o.size())])
         upper = sp.triu(graph).tocsr()  # the block pattern as dome_calib.ba.sparse reads it (diagonal first)
         dense_flops = float(np.sum(np.arange(C, dtype=float) ** 2))
         for name, order in orders.items():
