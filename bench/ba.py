@@ -374,11 +374,8 @@ def run_worker(kind: str, data_file: Path, out_file: Path, extra: list[str], reu
     return sol
 
 
-def _pcg(matrix, b: np.ndarray, groups: list[np.ndarray], rtol: float) -> tuple[np.ndarray, int]:
-    """Conjugate gradients on ``matrix`` (sparse, symmetric) preconditioned by the inverses of its diagonal blocks over
-    ``groups`` (index arrays partitioning the unknowns); (solution, iterations) to a relative residual of ``rtol``."""
-    import scipy.sparse.linalg as spla
-
+def _block_jacobi(matrix, groups: list[np.ndarray]):
+    """The preconditioner v -> (the inverses of ``matrix``'s diagonal blocks over ``groups``) v."""
     inverses = [np.linalg.inv(matrix[g][:, g].toarray()) for g in groups]
 
     def precondition(v: np.ndarray) -> np.ndarray:
@@ -386,6 +383,13 @@ def _pcg(matrix, b: np.ndarray, groups: list[np.ndarray], rtol: float) -> tuple[
         for g, inv in zip(groups, inverses):
             out[g] = inv @ v[g]
         return out
+    return precondition
+
+
+def _pcg(matrix, b: np.ndarray, precondition, rtol: float) -> tuple[np.ndarray, int]:
+    """Conjugate gradients on ``matrix`` (sparse, symmetric) preconditioned by ``precondition`` (v -> M^-1 v);
+    (solution, iterations) to a relative residual of ``rtol`` (iterations negative if it did not get there)."""
+    import scipy.sparse.linalg as spla
 
     n = len(b)
     count = [0]
@@ -543,7 +547,9 @@ def factorisers(sfm_pickle: str, repeat: int, candidates: set[str] | None = None
             blocked[per] = dict(supernodes=len(members), factor_blocks=factor_blocks[-1],
                                 dense_blocks=len(members) * (len(members) + 1) // 2)
     del dense32
-    full = (lower + sp.tril(lower, -1).T).tocsc() if any(wanted(n) for n in ("pcg", "cholespy", "qdldl")) else None
+    strong_info: dict[str, dict] = {}
+    full = ((lower + sp.tril(lower, -1).T).tocsc()
+            if candidates is None or any(c.split("_")[0] in ("pcg", "cholespy", "qdldl") for c in candidates) else None)
     with blas_threads(threads):
         cholmod = sparse.cholmod
         fills = {}
@@ -555,9 +561,42 @@ def factorisers(sfm_pickle: str, repeat: int, candidates: set[str] | None = None
         panel_of = np.array([n.split("_")[0] for n in p.camera_names])[camera_of]
         for name, key in (("pcg_camera", camera_of), ("pcg_panel", panel_of)):
             if wanted(name):
-                groups = [np.flatnonzero(key == k) for k in np.unique(key)]
-                timed(name, lambda: _pcg(full, b, groups, 1e-10)[0])
-                iterations[name] = {f"{r:g}": _pcg(full, b, groups, r)[1] for r in (1e-4, 1e-6, 1e-10)}
+                pre = _block_jacobi(full, [np.flatnonzero(key == k) for k in np.unique(key)])
+                timed(name, lambda: _pcg(full, b, pre, 1e-10)[0])
+                iterations[name] = {f"{r:g}": _pcg(full, b, pre, r)[1] for r in (1e-4, 1e-6, 1e-10)}
+        # the strong links only: CHOLMOD's factor of the system without the blocks of camera pairs sharing fewer than
+        # k points (a ridge on the scaled diagonal if that is not positive definite), as CG's preconditioner
+        shared = None
+        for k_min in (20, 50):
+            name = f"pcg_strong{k_min}"
+            if not wanted(name):
+                continue
+            if shared is None:
+                shared = _camera_graph(p.camera_index, p.point_index, p.n_cameras)[st.active_cameras][:, st.active_cameras].toarray()
+            coo = lower.tocoo()
+            ci, cj = st.free_flat[coo.row] // 15, st.free_flat[coo.col] // 15  # local cameras
+            keep = (ci == cj) | (shared[ci, cj] >= k_min)
+            strong = sp.csc_matrix((coo.data[keep], (coo.row[keep], coo.col[keep])), shape=lower.shape)
+            del coo, ci, cj, keep
+            symbolic = cholmod.analyze(strong, mode="supernodal", ordering_method="amd")
+            ridge_used = None
+            for ridge in (0.0, 1e-6, 1e-4, 1e-2, 1e-1):
+                try:
+                    factor = symbolic.cholesky(strong, beta=ridge)
+                    ridge_used = ridge
+                    break
+                except cholmod.CholmodNotPositiveDefiniteError:
+                    continue
+            if ridge_used is None:
+                continue
+            timed(name, lambda: _pcg(full, b, factor, 1e-10)[0])
+            iterations[name] = {f"{r:g}": _pcg(full, b, factor, r)[1] for r in (1e-4, 1e-6, 1e-10)}
+            strong_info[name] = dict(kept_nonzeros=int(strong.nnz), factor_nonzeros=int(factor.L().nnz),
+                                     ridge=ridge_used)
+            t = time.process_time()
+            symbolic.cholesky(strong, beta=ridge_used)
+            strong_info[name]["factorise_cpu_s"] = round(time.process_time() - t, 2)
+            del strong, factor
     if wanted("cholespy"):
         import cholespy
 
@@ -579,7 +618,7 @@ def factorisers(sfm_pickle: str, repeat: int, candidates: set[str] | None = None
     ref = solutions["dense_lapack"]
     emit({"bench": "ba_factorisers", "problem": sfm_pickle, "n_observations": int(p.n_observations), "cameras": A, "unknowns": F,
           "camera_blocks": len(layout.cols), "camera_blocks_dense": A * (A + 1) // 2,
-          "lower_nonzeros": int(lower.nnz), "factor_nonzeros": fills, "blocked": blocked, "layout_s": round(t_layout, 3),
+          "lower_nonzeros": int(lower.nnz), "factor_nonzeros": fills, "blocked": blocked, "strong": strong_info, "layout_s": round(t_layout, 3),
           "seconds_median": {k: round(float(np.median(v)), 4) for k, v in timings.items()},
           "cpu_seconds_median": {k: round(float(np.median(v)), 4) for k, v in cpu.items()},
           "pcg_iterations": iterations,
@@ -870,7 +909,7 @@ def main() -> None:
     ap.add_argument("--out", help=argparse.SUPPRESS)
     ap.add_argument("--workdir", help="keep the problem and solutions in this folder (default: a temp folder)")
     ap.add_argument("--only", help="comma-separated subset of ours,oracle,colmap,k1 (--factorisers: of dense, cholmod, "
-                    "pcg_camera, pcg_panel, cholespy, qdldl; dense always runs, the reference)")
+                    "pcg_camera, pcg_panel, pcg_strong20, pcg_strong50, blocked, cholespy, qdldl; dense always runs, the reference)")
     ap.add_argument("--reuse", action="store_true", help="reuse solutions already in --workdir (same seed/size)")
     ap.add_argument("--load", action="store_true",
                     help="run two CPU-bound processes beside every solver (a busy 2-core machine)")
