@@ -590,8 +590,15 @@ def factorisers(sfm_pickle: str, repeat: int, candidates: set[str] | None = None
                     continue
             if ridge_used is None:
                 continue
-            timed(name, lambda: _pcg(full, b, factor, 1e-10)[0])
-            iterations[name] = {f"{r:g}": _pcg(full, b, factor, r)[1] for r in (1e-4, 1e-6, 1e-10)}
+            counts: list[int] = []
+
+            def run_strong():
+                x, n = _pcg(full, b, factor, 1e-10)
+                counts.append(n)
+                return x
+
+            timed(name, run_strong)
+            iterations[name] = {"1e-06": _pcg(full, b, factor, 1e-6)[1], "1e-10": counts[-1]}
             strong_info[name] = dict(kept_nonzeros=int(strong.nnz), factor_nonzeros=int(factor.L().nnz),
                                      ridge=ridge_used)
             t = time.process_time()
