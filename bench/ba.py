@@ -374,11 +374,8 @@ def run_worker(kind: str, data_file: Path, out_file: Path, extra: list[str], reu
     return sol
 
 
-def _pcg(matrix, b: np.ndarray, groups: list[np.ndarray], rtol: float) -> tuple[np.ndarray, int]:
-    """Conjugate gradients on ``matrix`` (sparse, symmetric) preconditioned by the inverses of its diagonal blocks over
-    ``groups`` (index arrays partitioning the unknowns); (solution, iterations) to a relative residual of ``rtol``."""
-    import scipy.sparse.linalg as spla
-
+def _block_jacobi(matrix, groups: list[np.ndarray]):
+    """The preconditioner v -> (the inverses of ``matrix``'s diagonal blocks over ``groups``) v."""
     inverses = [np.linalg.inv(matrix[g][:, g].toarray()) for g in groups]
 
     def precondition(v: np.ndarray) -> np.ndarray:
@@ -386,6 +383,13 @@ def _pcg(matrix, b: np.ndarray, groups: list[np.ndarray], rtol: float) -> tuple[
         for g, inv in zip(groups, inverses):
             out[g] = inv @ v[g]
         return out
+    return precondition
+
+
+def _pcg(matrix, b: np.ndarray, precondition, rtol: float) -> tuple[np.ndarray, int]:
+    """Conjugate gradients on ``matrix`` (sparse, symmetric) preconditioned by ``precondition`` (v -> M^-1 v);
+    (solution, iterations) to a relative residual of ``rtol`` (iterations negative if it did not get there)."""
+    import scipy.sparse.linalg as spla
 
     n = len(b)
     count = [0]
@@ -394,7 +398,62 @@ def _pcg(matrix, b: np.ndarray, groups: list[np.ndarray], rtol: float) -> tuple[
     return x, count[0] if info == 0 else -count[0]
 
 
-def factorisers(sfm_pickle: str, repeat: int, candidates: set[str] | None = None) -> None:
+def _blocked_cholesky32(S: np.ndarray, members: list[np.ndarray], coupled: np.ndarray) -> dict:
+    """A right-looking block Cholesky of the symmetric ``S`` (F, F) in single precision over the supernodes
+    ``members`` (each an array of unknowns, in elimination order), forming and updating only the blocks that are
+    not zero: ``coupled`` (B, B) bool, the supernodes whose unknowns share a point (their block of S is not zero);
+    fill-in blocks are made as the elimination creates them. Returns the factor's blocks {(I, J): L_IJ}, I >= J."""
+    import scipy.linalg
+    from scipy.linalg.blas import strsm
+
+    B = len(members)
+    L: dict[tuple[int, int], np.ndarray] = {}
+    below: list[set[int]] = [set() for _ in range(B)]  # each block column's rows below the diagonal
+    for J in range(B):
+        for I in range(J, B):
+            if coupled[I, J]:
+                L[I, J] = S[np.ix_(members[I], members[J])].astype(np.float32)
+                if I > J:
+                    below[J].add(I)
+    for J in range(B):
+        L[J, J] = scipy.linalg.cholesky(L[J, J], lower=True, overwrite_a=True, check_finite=False)
+        rows = sorted(below[J])
+        for I in rows:  # L_IJ = A_IJ L_JJ^-T
+            L[I, J] = strsm(1.0, L[J, J], L[I, J], side=1, lower=1, trans_a=1)
+        for a, I in enumerate(rows):
+            for K in rows[:a + 1]:  # A_IK -= L_IJ L_KJ^T, K <= I (fill-in made here)
+                if (I, K) not in L:
+                    L[I, K] = np.zeros((len(members[I]), len(members[K])), dtype=np.float32)
+                    below[K].add(I)
+                L[I, K] -= L[I, J] @ L[K, J].T
+    return L
+
+
+def _blocked_solve32(L: dict, members: list[np.ndarray], b: np.ndarray) -> np.ndarray:
+    """S x = b through the block factor of :func:`_blocked_cholesky32` (forward, then backward by blocks)."""
+    from scipy.linalg import solve_triangular
+
+    B = len(members)
+    cols: list[list[int]] = [[] for _ in range(B)]
+    for I, J in L:
+        if I > J:
+            cols[J].append(I)
+    y = [b[m].astype(np.float32) for m in members]
+    for J in range(B):
+        y[J] = solve_triangular(L[J, J], y[J], lower=True, check_finite=False)
+        for I in cols[J]:
+            y[I] -= L[I, J] @ y[J]
+    for J in reversed(range(B)):
+        for I in cols[J]:
+            y[J] -= L[I, J].T @ y[I]
+        y[J] = solve_triangular(L[J, J], y[J], lower=True, trans="T", check_finite=False)
+    x = np.empty(len(b))
+    for m, v in zip(members, y):
+        x[m] = v
+    return x
+
+
+def factorisers(sfm_pickle: str, repeat: int, candidates: set[str] | None = None, problem=None) -> None:
     """``--factorisers SFM_PKL``: the reduced camera system of an SfM result's problem (every parameter the problem
     frees, at its start, damping 1e-4) factorised and solved by each candidate, each ``repeat`` times (median):
     LAPACK's dense Cholesky (the dense path: float64; 2 BLAS threads from 1,500 unknowns, as the solver), CHOLMOD supernodal (scikit-sparse) under
@@ -402,18 +461,24 @@ def factorisers(sfm_pickle: str, repeat: int, candidates: set[str] | None = None
     (CHOLMOD behind a build-and-solve interface: analysis every time) and qdldl (a simplicial LDL^T, AMD); and
     preconditioned conjugate gradients on the sparse system (no factorisation: block-Jacobi over each camera's
     unknowns, or over each panel's, to a relative residual of 1e-10, the mixed-precision path's accuracy class;
-    ``pcg_iterations``). ``candidates``: only those (default all)."""
+    ``pcg_iterations``). ``candidates``: only those (default all). ``dense_float32``: the dense path's own
+    single-precision factor (the solver's from 3,000 unknowns, refined by CG in double precision), its threads by
+    :func:`dome_calib.ba.blas.cholesky_threads`, and the float64 one on those threads too. ``problem``: a generated
+    problem instead of the SfM result's (``--factorisers generated [--pair | --double]``)."""
     import scipy.linalg
     import scipy.sparse as sp
 
     from dome_calib.ba import sparse
-    from dome_calib.ba.blas import blas_threads
+    from dome_calib.ba.blas import blas_threads, cholesky_threads
     from dome_calib.ba.evaluate import residuals_and_jacobians
     from dome_calib.ba.schur import build_structure, free_columns, linearize, sparse_reduced_system
     from dome_calib.ba.yyt import block_pattern
 
-    with open(sfm_pickle, "rb") as fh:
-        p = pickle.load(fh).problem
+    if problem is None:
+        with open(sfm_pickle, "rb") as fh:
+            p = pickle.load(fh).problem
+    else:
+        p = problem
     st = build_structure(p.camera_index, p.point_index, np.ones(p.n_observations, dtype=bool), p.free, p.n_points)
     res, Jc, Jp = residuals_and_jacobians(p.camera_params, p.points_cm, st.cam, st.pt, p.uv_px[st.obs], n_threads=2)
     lin = linearize(st, res, Jc, Jp, np.ones(len(st.obs)), n_threads=2)
@@ -431,22 +496,62 @@ def factorisers(sfm_pickle: str, repeat: int, candidates: set[str] | None = None
     timings: dict[str, list[float]] = {}
     solutions: dict[str, np.ndarray] = {}
 
+    cpu: dict[str, list[float]] = {}
+
     def timed(name, fn):
         for _ in range(repeat):
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             x = fn()
             timings.setdefault(name, []).append(time.perf_counter() - t)
+            cpu.setdefault(name, []).append(time.process_time() - c)
         solutions[name] = x
 
     def wanted(name: str) -> bool:
         return candidates is None or name in candidates or name.split("_")[0] in candidates
 
-    dense = full.toarray()
     iterations = {}
-    with blas_threads(2 if F >= 1500 else 1):  # the solver's rule (dome_calib.ba.schur._PARALLEL_CHOLESKY_MIN)
-        timed("dense_lapack", lambda: scipy.linalg.cho_solve(
-            scipy.linalg.cho_factor(dense, check_finite=False), b, check_finite=False))
+    threads = 2 if F >= 1500 else 1  # the solver's rule (dome_calib.ba.schur._PARALLEL_CHOLESKY_MIN)
+    blocked: dict = {}
+    if wanted("dense") or wanted("blocked"):  # the dense reference (float64), the dense path's float32
+        dense = full.toarray()
+        with blas_threads(cholesky_threads(F, np.float64, threads)):  # the float64 Cholesky's threads (blas.py)
+            timed("dense_lapack", lambda: scipy.linalg.cho_solve(
+                scipy.linalg.cho_factor(dense, check_finite=False), b, check_finite=False))
+        dense32 = dense.astype(np.float32)
         del dense
+        with blas_threads(cholesky_threads(F, np.float32, threads)):
+            timed("dense_float32", lambda: scipy.linalg.cho_solve(scipy.linalg.cho_factor(
+                dense32, check_finite=False), b.astype(np.float32), check_finite=False).astype(float))
+            # the same single precision by blocks of cameras under METIS's order of the camera graph, forming only the
+            # blocks that are not zero (a supernodal factor in dense storage: what the dome's sparsity saves in flops)
+            camera_of_unknown = st.free_flat // 15
+            a_of = np.repeat(np.arange(A), np.diff(layout.row_ptr))
+            graph = sp.csc_matrix((np.ones(len(layout.cols)), (layout.cols, a_of)), shape=(A, A))  # lower, diagonal in
+            order = sparse.cholmod.analyze(graph + sp.identity(A, format="csc") * A, mode="simplicial",
+                                           ordering_method="metis").P() if wanted("blocked") else []
+            for per in (16, 48) if wanted("blocked") else ():
+                group = np.empty(A, dtype=np.int64)
+                group[order] = np.arange(A) // per
+                members = [np.flatnonzero(group[camera_of_unknown] == g) for g in range(group.max() + 1)]
+                coupled = np.zeros((len(members), len(members)), dtype=bool)
+                coupled[group[a_of], group[layout.cols]] = True
+                coupled |= coupled.T
+                factor_blocks = []
+
+                def run_blocked():
+                    L = _blocked_cholesky32(dense32, members, coupled)
+                    factor_blocks.append(len(L))
+                    return _blocked_solve32(L, members, b)
+
+                timed(f"blocked_metis32_{per}", run_blocked)
+                blocked[per] = dict(supernodes=len(members), factor_blocks=factor_blocks[-1],
+                                    dense_blocks=len(members) * (len(members) + 1) // 2)
+        del dense32
+    del full
+    strong_info: dict[str, dict] = {}
+    full = ((lower + sp.tril(lower, -1).T).tocsc()
+            if candidates is None or any(c.split("_")[0] in ("pcg", "cholespy", "qdldl") for c in candidates) else None)
+    with blas_threads(threads):
         cholmod = sparse.cholmod
         fills = {}
         for ordering in ("metis", "amd") if wanted("cholmod") else ():
@@ -457,9 +562,49 @@ def factorisers(sfm_pickle: str, repeat: int, candidates: set[str] | None = None
         panel_of = np.array([n.split("_")[0] for n in p.camera_names])[camera_of]
         for name, key in (("pcg_camera", camera_of), ("pcg_panel", panel_of)):
             if wanted(name):
-                groups = [np.flatnonzero(key == k) for k in np.unique(key)]
-                timed(name, lambda: _pcg(full, b, groups, 1e-10)[0])
-                iterations[name] = {f"{r:g}": _pcg(full, b, groups, r)[1] for r in (1e-4, 1e-6, 1e-10)}
+                pre = _block_jacobi(full, [np.flatnonzero(key == k) for k in np.unique(key)])
+                timed(name, lambda: _pcg(full, b, pre, 1e-10)[0])
+                iterations[name] = {f"{r:g}": _pcg(full, b, pre, r)[1] for r in (1e-4, 1e-6, 1e-10)}
+        # the strong links only: CHOLMOD's factor of the system without the blocks of camera pairs sharing fewer than
+        # k points (a ridge on the scaled diagonal if that is not positive definite), as CG's preconditioner
+        shared = None
+        for k_min in (20, 50):
+            name = f"pcg_strong{k_min}"
+            if not wanted(name):
+                continue
+            if shared is None:
+                shared = _camera_graph(p.camera_index, p.point_index, p.n_cameras)[st.active_cameras][:, st.active_cameras].toarray()
+            coo = lower.tocoo()
+            ci, cj = st.free_flat[coo.row] // 15, st.free_flat[coo.col] // 15  # local cameras
+            keep = (ci == cj) | (shared[ci, cj] >= k_min)
+            strong = sp.csc_matrix((coo.data[keep], (coo.row[keep], coo.col[keep])), shape=lower.shape)
+            del coo, ci, cj, keep
+            symbolic = cholmod.analyze(strong, mode="supernodal", ordering_method="amd")
+            ridge_used = None
+            for ridge in (0.0, 1e-6, 1e-4, 1e-2, 1e-1):
+                try:
+                    factor = symbolic.cholesky(strong, beta=ridge)
+                    ridge_used = ridge
+                    break
+                except cholmod.CholmodNotPositiveDefiniteError:
+                    continue
+            if ridge_used is None:
+                continue
+            counts: list[int] = []
+
+            def run_strong():
+                x, n = _pcg(full, b, factor, 1e-10)
+                counts.append(n)
+                return x
+
+            timed(name, run_strong)
+            iterations[name] = {"1e-06": _pcg(full, b, factor, 1e-6)[1], "1e-10": counts[-1]}
+            strong_info[name] = dict(kept_nonzeros=int(strong.nnz), factor_nonzeros=int(factor.L().nnz),
+                                     ridge=ridge_used)
+            t = time.process_time()
+            symbolic.cholesky(strong, beta=ridge_used)
+            strong_info[name]["factorise_cpu_s"] = round(time.process_time() - t, 2)
+            del strong, factor
     if wanted("cholespy"):
         import cholespy
 
@@ -478,14 +623,17 @@ def factorisers(sfm_pickle: str, repeat: int, candidates: set[str] | None = None
 
         upper = sp.triu(full).tocsc()
         timed("qdldl", lambda: qdldl.Solver(upper).solve(b))
-    ref = solutions["dense_lapack"]
-    emit({"bench": "ba_factorisers", "problem": sfm_pickle, "cameras": A, "unknowns": F,
+    ref = solutions.get("dense_lapack")
+    emit({"bench": "ba_factorisers", "problem": sfm_pickle, "n_observations": int(p.n_observations), "cameras": A, "unknowns": F,
           "camera_blocks": len(layout.cols), "camera_blocks_dense": A * (A + 1) // 2,
-          "lower_nonzeros": int(lower.nnz), "factor_nonzeros": fills, "layout_s": round(t_layout, 3),
+          "lower_nonzeros": int(lower.nnz), "factor_nonzeros": fills, "blocked": blocked, "strong": strong_info, "layout_s": round(t_layout, 3),
           "seconds_median": {k: round(float(np.median(v)), 4) for k, v in timings.items()},
+          "cpu_seconds_median": {k: round(float(np.median(v)), 4) for k, v in cpu.items()},
           "pcg_iterations": iterations,
-          "max_rel_diff_from_dense": {k: float(np.abs(x - ref).max() / np.abs(ref).max()) for k, x in solutions.items()},
-          "load_average_1min": round(os.getloadavg()[0], 1)})
+          "max_rel_diff_from_dense": {k: float(np.abs(x - ref).max() / np.abs(ref).max()) for k, x in solutions.items()}
+          if ref is not None else None,
+          "load_average_1min": round(os.getloadavg()[0], 1), "peak_rss_gb": round(peak_rss_gb(), 2),
+          "commit": _commit()})
 
 
 def iteration_cost(args) -> None:
@@ -664,6 +812,91 @@ def solve_phases(args) -> None:
     emit(dict(bench="ba", what="solve_phases", layout="twin" if args.double else "pair" if args.pair else "dome", commit=_commit(), **info))
 
 
+def _camera_graph(camera_index: np.ndarray, point_index: np.ndarray, n_cameras: int):
+    """Shared points per camera pair: the (C, C) integer matrix K K^T (CSR) of the camera-point incidence K (a
+    point seen twice by one camera counts once)."""
+    import scipy.sparse as sp
+
+    K = sp.csr_matrix((np.ones(len(camera_index), dtype=np.int64), (camera_index, point_index)),
+                      shape=(n_cameras, int(point_index.max()) + 1))
+    K.data[:] = 1  # duplicates summed by the constructor: back to incidence
+    return (K @ K.T).tocsr()
+
+
+def sparsity(args) -> None:
+    """``--sparsity``: how sparse the reduced camera system is. Per layout (the dome, ``--pair``, ``--double``; or an
+    SfM result's problem, ``--sfm SFM_PKL``): the camera pairs that share at least k points (k = 1: the blocks of S
+    that are not zero), and the factor's fill under several fill-reducing orderings (natural; reverse Cuthill-McKee,
+    scipy; AMD, COLAMD, METIS nested dissection, CHOLMOD's own nested dissection, through CHOLMOD's analysis; gtsam's
+    COLAMD and METIS on the camera graph as a symbolic factor graph), counted
+    in camera blocks against the dense triangle, with the block factorisation's flops against the dense one's; and
+    the same with only the pairs sharing at least k points kept (what a factorisation that dropped the weak links,
+    e.g. as a preconditioner, would fill). Symbolic only: no values, seconds per layout."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+    from dome_calib.ba.sparse import block_factor_counts
+
+    try:
+        import sksparse.cholmod as cholmod
+    except ImportError:  # the optional extra `sparse`
+        cholmod = None
+    try:
+        import gtsam
+    except ImportError:  # pragma: no cover - a base dependency
+        gtsam = None
+    if args.sfm:
+        with open(args.sfm, "rb") as fh:
+            p = pickle.load(fh).problem
+        layout = "sfm:" + Path(args.sfm).parent.parent.name
+    else:
+        p = make_data(args.small, args.seed, args.double, args.pair)["start"]
+        layout = "twin" if args.double else "pair" if args.pair else "dome"
+    t0 = time.process_time()
+    shared = _camera_graph(p.camera_index, p.point_index, p.n_cameras)
+    C = p.n_cameras
+    dense = C * (C + 1) // 2
+    off = sp.triu(shared, 1).tocsr()
+    shared_counts = off.data  # shared points of each pair that shares one
+    pairs = C * (C - 1) // 2
+    for k in (1, 2, 5, 10, 20, 50):
+        kept = off.copy()
+        kept.data = (kept.data >= k).astype(np.int8)
+        kept.eliminate_zeros()
+        graph = (kept + kept.T + sp.identity(C, dtype=np.int8, format="csr")).tocsc()
+        row = dict(bench="ba", what="sparsity", layout=layout, cameras=C, observations=p.n_observations,
+                   min_shared_points=k, pairs_kept=int(kept.nnz), pairs_kept_share=round(kept.nnz / pairs, 4),
+                   blocks_share=round((kept.nnz + C) / dense, 4))
+        orders = {"natural": np.arange(C), "rcm": reverse_cuthill_mckee(graph.tocsr(), symmetric_mode=True)}
+        if cholmod is not None:
+            lower = sp.tril(graph.astype(float) * 1.0 + sp.identity(C, format="csc") * C, format="csc")
+            for method in ("amd", "colamd", "metis", "nesdis"):
+                orders[method] = cholmod.analyze(lower, mode="simplicial", ordering_method=method).P()
+        if gtsam is not None:  # gtsam's orderings on the camera graph (a base dependency)
+            fg = gtsam.SymbolicFactorGraph()
+            for c in range(C):
+                fg.push_factor(c)
+            for i, j in zip(*kept.nonzero()):
+                fg.push_factor(int(i), int(j))
+            for method in ("Colamd", "Metis"):
+                o = getattr(gtsam.Ordering, f"{method}SymbolicFactorGraph")(fg)
+                orders[f"gtsam_{method.lower()}"] = np.array([o.at(i) for i in range(o.size())])
+        upper = sp.triu(graph).tocsr()  # the block pattern as dome_calib.ba.sparse reads it (diagonal first)
+        dense_flops = float(np.sum(np.arange(C, dtype=float) ** 2))
+        for name, order in orders.items():
+            counts = block_factor_counts(upper.indptr, upper.indices, np.asarray(order))
+            row[f"fill_{name}"] = round(int(counts.sum()) / dense, 4)
+            row[f"flops_{name}"] = round(float(np.sum((counts - 1.0) ** 2)) / dense_flops, 4)
+        emit(row)
+        if k == 1 and args.small:
+            break
+    q = np.percentile(shared_counts, [10, 25, 50, 75, 90]) if len(shared_counts) else []
+    emit(dict(bench="ba", what="sparsity_shared_points", layout=layout, cameras=C,
+              shared_points_percentiles_10_25_50_75_90=[float(v) for v in q],
+              cpu_s=round(time.process_time() - t0, 1), commit=_commit(),
+              load_average_1min=round(os.getloadavg()[0], 1)))
+
+
 def _commit() -> str:
     return subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
                           text=True).stdout.strip()
@@ -685,14 +918,15 @@ def main() -> None:
     ap.add_argument("--out", help=argparse.SUPPRESS)
     ap.add_argument("--workdir", help="keep the problem and solutions in this folder (default: a temp folder)")
     ap.add_argument("--only", help="comma-separated subset of ours,oracle,colmap,k1 (--factorisers: of dense, cholmod, "
-                    "pcg_camera, pcg_panel, cholespy, qdldl; dense always runs, the reference)")
+                    "pcg_camera, pcg_panel, pcg_strong20, pcg_strong50, blocked, cholespy, qdldl; dense always runs, the reference)")
     ap.add_argument("--reuse", action="store_true", help="reuse solutions already in --workdir (same seed/size)")
     ap.add_argument("--load", action="store_true",
                     help="run two CPU-bound processes beside every solver (a busy 2-core machine)")
     ap.add_argument("--peer-time-limit-s", type=float, default=PEER_TIME_LIMIT_S,
                     help="cap on each of the two Ceres stages (s); default: none")
     ap.add_argument("--factorisers", metavar="SFM_PKL", help="only the candidate factorisations of the reduced camera "
-                    "system of an SfM result's problem (a calibrate work folder's sfm.pkl)")
+                    "system of an SfM result's problem (a calibrate work folder's sfm.pkl; 'generated': this bench's problem, with "
+                    "--pair or --double)")
     ap.add_argument("--repeat", type=int, default=3, help="--factorisers, --iteration-cost: runs of each (median)")
     ap.add_argument("--iteration-cost", action="store_true", help="only one LM iteration's parts on the generated "
                     "problem (CPU seconds per camera, peak memory; with --double: 1,040 cameras)")
@@ -701,8 +935,15 @@ def main() -> None:
                     "per camera, peak memory")
     ap.add_argument("--no-huge-pages", action="store_true", help="--solve-phases: numpy's large arrays not advised "
                     "to 2 MB pages (every page fault one 4 kB page: counts comparable between runs)")
+    ap.add_argument("--sparsity", action="store_true", help="only how sparse the reduced camera system is: camera "
+                    "pairs sharing points and the factor's fill under fill-reducing orderings (symbolic; with --pair, "
+                    "--double or --sfm)")
+    ap.add_argument("--sfm", metavar="SFM_PKL", help="--sparsity: an SfM result's problem instead of the generated one")
     args = ap.parse_args()
     globals()["PEER_TIME_LIMIT_S"] = args.peer_time_limit_s
+    if args.sparsity:
+        sparsity(args)
+        return
     if args.solve_phases:
         solve_phases(args)
         return
@@ -710,7 +951,9 @@ def main() -> None:
         iteration_cost(args)
         return
     if args.factorisers:
-        factorisers(args.factorisers, args.repeat, set(args.only.split(",")) if args.only else None)
+        generated = (make_data(args.small, args.seed, args.double, args.pair)["start"]
+                     if args.factorisers == "generated" else None)
+        factorisers(args.factorisers, args.repeat, set(args.only.split(",")) if args.only else None, generated)
         return
     if args.worker:
         import logging

@@ -106,6 +106,10 @@ def test_block_fill_counts_the_factors_blocks():
     cols = np.array([0, 1, 2, 3, 4, 5, 1, 2, 3, 4, 5])
     assert sparse.block_factor_fill(row_ptr, cols, np.arange(A)) == A * (A + 1) // 2  # the hub first: full fill
     assert sparse.block_factor_fill(row_ptr, cols, np.array([1, 2, 3, 4, 5, 0])) == 2 * A - 1  # the hub last: none
+    # per column, in elimination order: the hub first fills every later column to the bottom (6, 5, ..., 1 blocks);
+    # the hub last leaves each leaf its diagonal and the hub's block (2 blocks), the hub its diagonal alone
+    assert sparse.block_factor_counts(row_ptr, cols, np.arange(A)).tolist() == [6, 5, 4, 3, 2, 1]
+    assert sparse.block_factor_counts(row_ptr, cols, np.array([1, 2, 3, 4, 5, 0])).tolist() == [2, 2, 2, 2, 2, 1]
 
 
 def test_the_lens_models_quadratic_model_is_the_same_on_the_sparse_path(ring, monkeypatch):

@@ -108,6 +108,13 @@ def sparse_layout(st, free_cols: np.ndarray) -> SparseLayout | None:
 def block_factor_fill(row_ptr: np.ndarray, cols: np.ndarray, order: np.ndarray) -> int:
     """Camera blocks of the Cholesky factor of the block pattern (row_ptr, cols) eliminated in ``order`` (a
     symbolic elimination on the camera graph: blocks, not entries, so a few hundred cameras cost milliseconds)."""
+    return int(block_factor_counts(row_ptr, cols, order).sum())
+
+
+def block_factor_counts(row_ptr: np.ndarray, cols: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Camera blocks in each block column of the Cholesky factor of the block pattern (row_ptr, cols) eliminated in
+    ``order`` (A,), the diagonal block included, in elimination order: its sum is the factor's blocks, the sum of
+    (count - 1)^2 its block flops up to a constant (the dense factor's: sum of k^2 for k < A)."""
     A = len(row_ptr) - 1
     rank = np.empty(A, dtype=np.int64)
     rank[order] = np.arange(A)
@@ -115,12 +122,12 @@ def block_factor_fill(row_ptr: np.ndarray, cols: np.ndarray, order: np.ndarray) 
     M = np.zeros((A, A), dtype=bool)
     M[rank[a_of], rank[cols]] = True
     M[rank[cols], rank[a_of]] = True
-    count = 0
+    counts = np.empty(A, dtype=np.int64)
     for k in range(A):
         nz = k + 1 + np.flatnonzero(M[k, k + 1:])
-        count += len(nz) + 1
+        counts[k] = len(nz) + 1
         M[np.ix_(nz, nz)] = True
-    return count
+    return counts
 
 
 def _layout(st, free_cols: np.ndarray, row_ptr: np.ndarray, cols: np.ndarray) -> SparseLayout:
