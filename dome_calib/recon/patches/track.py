@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dome_calib.bundle import SyncTable
+from dome_calib.recon.patches.anchor import SAME_TIME_MS, anchor, as_columns, now_frames, templates
 from dome_calib.recon.patches.frames import FrameSource, patch_axes
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.seed import optical_flow
@@ -208,6 +209,72 @@ def best_views(views: ViewSet, X: np.ndarray, candidates: np.ndarray, k: int, sp
     return chosen
 
 
+@dataclass
+class SeedViews:
+    """Where each patch's three points were in each camera that saw it at the seed (the reference stream's cameras,
+    whose frames are at the seed time), and those frames: the appearance a drifting track is pulled back to."""
+
+    uv: np.ndarray  # (N, 3, V, 2) float32, NaN where the camera has no seed view of the patch
+    frame: np.ndarray  # (V,) the seed frame of each camera (-1: none at the seed time)
+    gray: dict
+
+    @classmethod
+    def at_seed(cls, source: FrameSource, views: ViewSet, frames: Frames, X: np.ndarray, seen: np.ndarray
+                ) -> SeedViews:
+        N, V = seen.shape
+        now = now_frames(frames)
+        uv = np.full((N, 3, V, 2), np.nan, np.float32)
+        for v in np.flatnonzero((seen & now[None]).any(0)):
+            idx = np.flatnonzero(seen[:, v])
+            p = project_points(views.subset([views.names[v]]), X[idx].reshape(-1, 3)).uv_px[0]
+            uv[idx, :, v] = p.reshape(-1, 3, 2)
+        return cls(uv=uv, frame=np.where(now, frames.frame, -1), gray={})
+
+    def realign(self, source: FrameSource, name: str, frames: Frames, v: int, idx: np.ndarray, q: np.ndarray,
+                ok: np.ndarray, o: PatchOptions) -> tuple[np.ndarray, np.ndarray]:
+        """Flown points ``q`` (n, 3, 2), ``ok`` (n, 3) of patches ``idx`` in camera ``v`` (``name``) at this step's
+        time -> ((3 n, 2), (3 n,)), aligned to their seed appearance (Lucas-Kanade from the camera's seed image at the seed pixels, one
+        pyramid level, started at the flown point; forward-backward checked): moved there when within
+        ``anchor_flow_px`` of the flown point; a point farther (the flow slid, or the view changed) or not aligned
+        is rejected in this camera when ``anchor_reject``. Points without a seed view in ``v``, or a camera with
+        no frame at this very time, are left as flown."""
+        q, ok = q.reshape(-1, 2).copy(), ok.reshape(-1).copy()
+        f = int(frames.frame[v])
+        if self.frame[v] < 0 or f < 0 or abs(float(frames.offset_ms[v])) >= SAME_TIME_MS:
+            return q, ok
+        p0 = self.uv[idx, :, v].reshape(-1, 2).astype(float)
+        has = np.all(np.isfinite(p0), axis=1) & ok
+        if not has.any():
+            return q, ok
+        if v not in self.gray:
+            self.gray[v] = source.gray(name, int(self.frame[v]))
+        r, good = optical_flow(self.gray[v], source.gray(name, f), p0[has], o, guess=q[has], levels=1)
+        near = good & (np.linalg.norm(r - q[has], axis=1) <= o.anchor_flow_px)
+        rows = np.flatnonzero(has)
+        q[rows[near]] = r[near]
+        if o.anchor_reject:
+            ok[rows[~near]] = False
+        return q, ok
+
+
+def _anchored(source: FrameSource, views: ViewSet, frames: Frames, X: np.ndarray, tmpl: np.ndarray,
+              seen: np.ndarray, live: np.ndarray, o: PatchOptions) -> tuple[np.ndarray, np.ndarray]:
+    """The live patches re-anchored to their templates (:mod:`.anchor`) in at most ``anchor_views`` of the cameras
+    ``seen`` (N, V) (with a template, visible now) that have a frame at this time -> (X, (N,) slid: the best
+    score below ``anchor_min_ncc``; a patch no camera can judge is left as it is)."""
+    rows = np.flatnonzero(live)
+    slid = np.zeros(len(X), bool)
+    if len(rows) == 0:
+        return X, slid
+    pick = best_views(views, X[rows], seen[rows] & now_frames(frames)[None], o.anchor_views,
+                      o.track_view_spread_deg)
+    Xa, score = anchor(source, views, frames, X[rows], tmpl[rows], as_columns(pick), o)
+    X = X.copy()
+    X[rows] = quantise_cm(Xa)
+    slid[rows] = (score > -1.0) & (score < o.anchor_min_ncc)
+    return X, slid
+
+
 def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_ms: np.ndarray, X0: np.ndarray,
                 seen: np.ndarray, neighbours: np.ndarray, o: PatchOptions) -> CloudTrack:
     """Track N patches (X0 (N, 3, 3) at ``times_ms[0]``, the seed time; ``seen`` (N, V) the seed's cameras) over
@@ -221,6 +288,10 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
     zero = np.zeros_like(X)
     vis = estimate_visibility(source, views, judged_frames(clocks, times_ms[0]), X, zero, seen, None, neighbours, o)
     live = vis.visible.sum(1) >= o.min_visible
+    if o.anchor:
+        tmpl, has_tmpl = templates(source, views, judged_frames(clocks, times_ms[0]), X, vis.visible & live[:, None], o)
+    if o.anchor_flow:
+        seed_of = SeedViews.at_seed(source, views, judged_frames(clocks, times_ms[0]), X, vis.visible & live[:, None])
     for k in range(T):
         if k > 0:
             t0, t1 = float(times_ms[k - 1]), float(times_ms[k])
@@ -228,12 +299,15 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             tracked = np.zeros((N, 3, V), bool)
             was = vis_out[:, k - 1]
             flown = best_views(views, X, was & live[:, None], o.track_views, o.track_view_spread_deg)
+            frames1 = judged_frames(clocks, t1)
             for v, name in enumerate(views.names):
                 idx = np.flatnonzero(flown[:, v])
                 if len(idx) == 0:
                     continue
                 p = project_points(views.subset([name]), X[idx].reshape(-1, 3)).uv_px[0]
                 q, ok = flow_camera(source, name, clocks[v], t0, t1, p, o)
+                if o.anchor_flow:
+                    q, ok = seed_of.realign(source, name, frames1, v, idx, q.reshape(-1, 3, 2), ok.reshape(-1, 3), o)
                 uv[idx, :, v] = q.reshape(-1, 3, 2)
                 tracked[idx, :, v] = ok.reshape(-1, 3)
             X_new = _triangulate_points(views, uv, tracked.astype(float), o)
@@ -252,8 +326,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                 resid[idx, v] = np.linalg.norm(uv[idx, :, v] - proj.reshape(-1, 3, 2), axis=-1).max(axis=1)
             # the motion term where the patch was flown: its residual, a failed flow 3 sigmas; elsewhere none
             motion = np.where(tracked.all(axis=1), resid, np.where(flown, np.inf, np.nan))
-            vis = estimate_visibility(source, views, judged_frames(clocks, t1), X_new, velocity, was, motion,
-                                      neighbours, o)
+            vis = estimate_visibility(source, views, frames1, X_new, velocity, was, motion, neighbours, o)
             use = vis.visible[:, None, :] & tracked
             again = _triangulate_points(views, uv, use.astype(float), o)
             redo = live & (use.sum(axis=2) >= 2).all(axis=1) & np.all(np.isfinite(again), axis=(1, 2))
@@ -261,9 +334,13 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             unseen = live & (vis.visible.sum(1) < o.min_visible)
             stretched = live & ~unseen & _stretched(X, o)
             live &= ~unseen & ~stretched
+            slid = np.zeros(N, bool)
+            if o.anchor:
+                X, slid = _anchored(source, views, frames1, X, tmpl, has_tmpl & vis.visible, live, o)
+                live &= ~slid
             X = quantise_cm(square_up(X, o.axis_cm))
-            logger.debug("step %d: %d live; ended: %d centre not triangulated, %d seen by too few, %d stretched",
-                         k, live.sum(), lost.sum(), unseen.sum(), stretched.sum())
+            logger.debug("step %d: %d live; ended: %d centre not triangulated, %d seen by too few, %d stretched, "
+                         "%d slid", k, live.sum(), lost.sum(), unseen.sum(), stretched.sum(), slid.sum())
         vis_v: Visibility = vis
         X_out[live, k] = X[live]
         vis_out[live, k] = vis_v.visible[live]

@@ -1,0 +1,61 @@
+"""A tracked patch pulled back to its seed appearance (recon.patches.track.SeedViews, ``anchor_flow``): a flown
+point that slid by less than the forward-backward check can see is realigned to where its seed appearance is; one
+that slid farther is rejected in that camera; cameras without a frame at that very time are left alone."""
+from __future__ import annotations
+
+import numpy as np
+
+from dome_calib.bundle import SyncTable
+from dome_calib.recon.patches.model import PatchOptions
+from dome_calib.recon.patches.track import Clock, SeedViews, flow_camera
+from dome_calib.recon.patches.visibility import Frames
+
+from .test_patches import VELOCITY_PX_MS, MovingTexture
+
+P0 = np.array([[150.0, 110.0], [170.3, 130.6], [140.8, 95.2]])  # one patch's three points at frame 0
+
+
+def _setup(anchor_reject: bool = True):
+    index = np.arange(0, 40)
+    clock = Clock(table=SyncTable(index=index, univ_time_ms=index * 40.0), frames=index)
+    source = MovingTexture(clock)
+    seeds = SeedViews(uv=P0.astype(np.float32).reshape(1, 3, 1, 2), frame=np.array([0]), gray={})
+    o = PatchOptions(anchor_flow=True, anchor_reject=anchor_reject)
+    return clock, source, seeds, o
+
+
+def _truth(frame: int) -> np.ndarray:
+    return P0 + VELOCITY_PX_MS * frame * 40.0
+
+
+def test_a_point_slid_below_the_flow_checks_is_pulled_back_to_its_seed_appearance():
+    clock, source, seeds, o = _setup()
+    # the flow itself passes its forward-backward check with a slide of this size: nothing per step sees it
+    q, ok = flow_camera(source, "c", clock, 360.0, 400.0, _truth(9) + [0.3, -0.25], o)
+    assert ok.all() and np.abs(q - _truth(10)).max() > 0.2
+    got, good = seeds.realign(source, "c", Frames(frame=np.array([10]), offset_ms=np.zeros(1)), 0, np.array([0]),
+                              q.reshape(1, 3, 2), ok.reshape(1, 3), o)
+    assert good.all()
+    assert np.abs(got.reshape(3, 2) - _truth(10)).max() < 0.05
+
+
+def test_a_point_slid_farther_is_rejected_in_that_camera_or_kept_as_flown():
+    for reject in (True, False):
+        clock, source, seeds, o = _setup(anchor_reject=reject)
+        q = _truth(10) + [[2.5, 0.0], [0.1, 0.0], [0.0, -2.0]]
+        got, good = seeds.realign(source, "c", Frames(frame=np.array([10]), offset_ms=np.zeros(1)), 0,
+                                  np.array([0]), q.reshape(1, 3, 2), np.ones((1, 3), bool), o)
+        assert list(good) == ([False, True, False] if reject else [True, True, True])
+        assert np.abs(got[1] - _truth(10)[1]).max() < 0.05  # the near one is realigned
+        assert np.array_equal(got[[0, 2]], q[[0, 2]])  # the far ones are not moved
+
+
+def test_a_camera_without_a_frame_at_that_time_or_a_seed_view_is_left_as_flown():
+    clock, source, seeds, o = _setup()
+    q = _truth(10) + 0.3
+    ok = np.ones((1, 3), bool)
+    for frames, s in ((Frames(frame=np.array([10]), offset_ms=np.array([12.0])), seeds),
+                      (Frames(frame=np.array([10]), offset_ms=np.zeros(1)),
+                       SeedViews(uv=np.full((1, 3, 1, 2), np.nan, np.float32), frame=np.array([0]), gray={}))):
+        got, good = s.realign(source, "c", frames, 0, np.array([0]), q.reshape(1, 3, 2), ok, o)
+        assert np.array_equal(got.reshape(3, 2), q) and good.all()
