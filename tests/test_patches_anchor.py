@@ -33,9 +33,9 @@ def test_a_point_slid_below_the_flow_checks_is_pulled_back_to_its_seed_appearanc
     # the flow itself passes its forward-backward check with a slide of this size: nothing per step sees it
     q, ok = flow_camera(source, "c", clock, 360.0, 400.0, _truth(9) + [0.3, -0.25], o)
     assert ok.all() and np.abs(q - _truth(10)).max() > 0.2
-    got, good = seeds.realign(source, "c", Frames(frame=np.array([10]), offset_ms=np.zeros(1)), 0, np.array([0]),
-                              q.reshape(1, 3, 2), ok.reshape(1, 3), o)
-    assert good.all()
+    got, good, off = seeds.realign(source, "c", Frames(frame=np.array([10]), offset_ms=np.zeros(1)), 0,
+                                   np.array([0]), q.reshape(1, 3, 2), ok.reshape(1, 3), o)
+    assert good.all() and not off.any()
     assert np.abs(got.reshape(3, 2) - _truth(10)).max() < 0.05
 
 
@@ -43,9 +43,10 @@ def test_a_point_slid_farther_is_rejected_in_that_camera_or_kept_as_flown():
     for reject in (True, False):
         clock, source, seeds, o = _setup(anchor_reject=reject)
         q = _truth(10) + [[2.5, 0.0], [0.1, 0.0], [0.0, -2.0]]
-        got, good = seeds.realign(source, "c", Frames(frame=np.array([10]), offset_ms=np.zeros(1)), 0,
-                                  np.array([0]), q.reshape(1, 3, 2), np.ones((1, 3), bool), o)
+        got, good, off = seeds.realign(source, "c", Frames(frame=np.array([10]), offset_ms=np.zeros(1)), 0,
+                                       np.array([0]), q.reshape(1, 3, 2), np.ones((1, 3), bool), o)
         assert list(good) == ([False, True, False] if reject else [True, True, True])
+        assert list(off) == [reject, False, reject]
         assert np.abs(got[1] - _truth(10)[1]).max() < 0.05  # the near one is realigned
         assert np.array_equal(got[[0, 2]], q[[0, 2]])  # the far ones are not moved
 
@@ -57,5 +58,5 @@ def test_a_camera_without_a_frame_at_that_time_or_a_seed_view_is_left_as_flown()
     for frames, s in ((Frames(frame=np.array([10]), offset_ms=np.array([12.0])), seeds),
                       (Frames(frame=np.array([10]), offset_ms=np.zeros(1)),
                        SeedViews(uv=np.full((1, 3, 1, 2), np.nan, np.float32), frame=np.array([0]), gray={}))):
-        got, good = s.realign(source, "c", frames, 0, np.array([0]), q.reshape(1, 3, 2), ok, o)
-        assert np.array_equal(got.reshape(3, 2), q) and good.all()
+        got, good, off = s.realign(source, "c", frames, 0, np.array([0]), q.reshape(1, 3, 2), ok, o)
+        assert np.array_equal(got.reshape(3, 2), q) and good.all() and not off.any()

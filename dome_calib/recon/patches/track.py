@@ -231,21 +231,22 @@ class SeedViews:
         return cls(uv=uv, frame=np.where(now, frames.frame, -1), gray={})
 
     def realign(self, source: FrameSource, name: str, frames: Frames, v: int, idx: np.ndarray, q: np.ndarray,
-                ok: np.ndarray, o: PatchOptions) -> tuple[np.ndarray, np.ndarray]:
+                ok: np.ndarray, o: PatchOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Flown points ``q`` (n, 3, 2), ``ok`` (n, 3) of patches ``idx`` in camera ``v`` (``name``) at this step's
-        time -> ((3 n, 2), (3 n,)), aligned to their seed appearance (Lucas-Kanade from the camera's seed image at the seed pixels, one
+        time -> ((3 n, 2) points, (3 n,) ok, (3 n,) rejected here), aligned to their seed appearance (Lucas-Kanade from the camera's seed image at the seed pixels, one
         pyramid level, started at the flown point; forward-backward checked): moved there when within
         ``anchor_flow_px`` of the flown point; a point farther (the flow slid, or the view changed) or not aligned
         is rejected in this camera when ``anchor_reject``. Points without a seed view in ``v``, or a camera with
         no frame at this very time, are left as flown."""
         q, ok = q.reshape(-1, 2).copy(), ok.reshape(-1).copy()
         f = int(frames.frame[v])
+        off = np.zeros(len(ok), bool)
         if self.frame[v] < 0 or f < 0 or abs(float(frames.offset_ms[v])) >= SAME_TIME_MS:
-            return q, ok
+            return q, ok, off
         p0 = self.uv[idx, :, v].reshape(-1, 2).astype(float)
         has = np.all(np.isfinite(p0), axis=1) & ok
         if not has.any():
-            return q, ok
+            return q, ok, off
         if v not in self.gray:
             self.gray[v] = source.gray(name, int(self.frame[v]))
         r, good = optical_flow(self.gray[v], source.gray(name, f), p0[has], o, guess=q[has], levels=1)
@@ -254,7 +255,8 @@ class SeedViews:
         q[rows[near]] = r[near]
         if o.anchor_reject:
             ok[rows[~near]] = False
-        return q, ok
+            off[rows[~near]] = True
+        return q, ok, off
 
 
 def _anchored(source: FrameSource, views: ViewSet, frames: Frames, X: np.ndarray, tmpl: np.ndarray,
@@ -299,6 +301,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             tracked = np.zeros((N, 3, V), bool)
             was = vis_out[:, k - 1]
             flown = best_views(views, X, was & live[:, None], o.track_views, o.track_view_spread_deg)
+            slid_view = np.zeros((N, V), bool)  # flown, but a point rejected by its seed appearance (anchor_flow)
             frames1 = judged_frames(clocks, t1)
             for v, name in enumerate(views.names):
                 idx = np.flatnonzero(flown[:, v])
@@ -307,7 +310,9 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                 p = project_points(views.subset([name]), X[idx].reshape(-1, 3)).uv_px[0]
                 q, ok = flow_camera(source, name, clocks[v], t0, t1, p, o)
                 if o.anchor_flow:
-                    q, ok = seed_of.realign(source, name, frames1, v, idx, q.reshape(-1, 3, 2), ok.reshape(-1, 3), o)
+                    q, ok, off = seed_of.realign(source, name, frames1, v, idx, q.reshape(-1, 3, 2),
+                                                 ok.reshape(-1, 3), o)
+                    slid_view[idx, v] = off.reshape(-1, 3).any(axis=1)
                 uv[idx, :, v] = q.reshape(-1, 3, 2)
                 tracked[idx, :, v] = ok.reshape(-1, 3)
             X_new = _triangulate_points(views, uv, tracked.astype(float), o)
@@ -325,7 +330,8 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                 proj = project_points(views.subset([views.names[v]]), X_new[idx].reshape(-1, 3)).uv_px[0]
                 resid[idx, v] = np.linalg.norm(uv[idx, :, v] - proj.reshape(-1, 3, 2), axis=-1).max(axis=1)
             # the motion term where the patch was flown: its residual, a failed flow 3 sigmas; elsewhere none
-            motion = np.where(tracked.all(axis=1), resid, np.where(flown, np.inf, np.nan))
+            # (a view whose flow left the seed appearance is not triangulated, and judged without the motion term)
+            motion = np.where(tracked.all(axis=1), resid, np.where(flown & ~slid_view, np.inf, np.nan))
             vis = estimate_visibility(source, views, frames1, X_new, velocity, was, motion, neighbours, o)
             use = vis.visible[:, None, :] & tracked
             again = _triangulate_points(views, uv, use.astype(float), o)
