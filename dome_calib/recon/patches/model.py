@@ -78,15 +78,6 @@ class PatchOptions:
     geometric_weight: PosFinite = 1.0
     prior_weight: Annotated[float, Field(ge=0)] = 0.3  # Potts weight between neighbouring cameras
     prior_neighbours: AtLeast(1) = 4
-    # drift (anchor.py): after every step a patch is moved to where its square looks most like its own appearance
-    # at the seed (per camera that saw it there), searching shifts of anchor_steps_cm along its plane axes and normal
-    # in at most anchor_views of those cameras that see it now; a patch whose best mean NCC is below anchor_min_ncc
-    # ends (-1: never)
-    anchor: bool = False
-    anchor_views: AtLeast(1) = 4
-    anchor_steps_cm: tuple[float, ...] = (0.4, 0.2, 0.1)
-    anchor_min_ncc: Annotated[float, Field(ge=-1, le=1)] = -1.0
-    anchor_normal: bool = False  # also shift along the normal (else the depth is the triangulation's)
     # drift (track.SeedViews): each flown point realigned by optical flow from the camera's seed image (where the
     # patch was at the seed) when within anchor_flow_px of the flow; farther: rejected in that camera (anchor_reject)
     anchor_flow: bool = False

@@ -33,7 +33,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from dome_calib.bundle import SyncTable
-from dome_calib.recon.patches.anchor import SAME_TIME_MS, anchor, as_columns, now_frames, templates
 from dome_calib.recon.patches.frames import FrameSource, patch_axes
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.seed import optical_flow
@@ -46,6 +45,8 @@ logger = logging.getLogger(__name__)
 
 #: Patch positions are rounded to multiples of this after every step (cm): no later choice rests on last bits.
 POSITION_QUANTUM_CM = 2.0 ** -10
+#: A camera's frame within this of a reference time (ms) is at that very time (the reference stream's cameras).
+SAME_TIME_MS = 0.5
 #: Streams' brackets wider than this many nominal periods are not bridged (as the skeleton stages).
 MAX_GAP_FRAMES = 2.5
 
@@ -209,6 +210,11 @@ def best_views(views: ViewSet, X: np.ndarray, candidates: np.ndarray, k: int, sp
     return chosen
 
 
+def now_frames(frames: Frames) -> np.ndarray:
+    """(V,) the cameras with a frame at the reference time itself."""
+    return (frames.frame >= 0) & (np.abs(frames.offset_ms) < SAME_TIME_MS)
+
+
 @dataclass
 class SeedViews:
     """Where each patch's three points were in each camera that saw it at the seed (the reference stream's cameras,
@@ -233,15 +239,16 @@ class SeedViews:
     def realign(self, source: FrameSource, name: str, frames: Frames, v: int, idx: np.ndarray, q: np.ndarray,
                 ok: np.ndarray, o: PatchOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Flown points ``q`` (n, 3, 2), ``ok`` (n, 3) of patches ``idx`` in camera ``v`` (``name``) at this step's
-        time -> ((3 n, 2) points, (3 n,) ok, (3 n,) rejected here), aligned to their seed appearance (Lucas-Kanade from the camera's seed image at the seed pixels, one
-        pyramid level, started at the flown point; forward-backward checked): moved there when within
+        time, aligned to their seed appearance -> ((3 n, 2) points, (3 n,) ok, (3 n,) rejected here): Lucas-Kanade
+        from the camera's seed image at the seed pixels, one pyramid level, started at the flown point,
+        forward-backward checked; a point is moved there when within
         ``anchor_flow_px`` of the flown point; a point farther (the flow slid, or the view changed) or not aligned
         is rejected in this camera when ``anchor_reject``. Points without a seed view in ``v``, or a camera with
         no frame at this very time, are left as flown."""
         q, ok = q.reshape(-1, 2).copy(), ok.reshape(-1).copy()
         f = int(frames.frame[v])
         off = np.zeros(len(ok), bool)
-        if self.frame[v] < 0 or f < 0 or abs(float(frames.offset_ms[v])) >= SAME_TIME_MS:
+        if self.frame[v] < 0 or not now_frames(frames)[v]:
             return q, ok, off
         p0 = self.uv[idx, :, v].reshape(-1, 2).astype(float)
         has = np.all(np.isfinite(p0), axis=1) & ok
@@ -259,24 +266,6 @@ class SeedViews:
         return q, ok, off
 
 
-def _anchored(source: FrameSource, views: ViewSet, frames: Frames, X: np.ndarray, tmpl: np.ndarray,
-              seen: np.ndarray, live: np.ndarray, o: PatchOptions) -> tuple[np.ndarray, np.ndarray]:
-    """The live patches re-anchored to their templates (:mod:`.anchor`) in at most ``anchor_views`` of the cameras
-    ``seen`` (N, V) (with a template, visible now) that have a frame at this time -> (X, (N,) slid: the best
-    score below ``anchor_min_ncc``; a patch no camera can judge is left as it is)."""
-    rows = np.flatnonzero(live)
-    slid = np.zeros(len(X), bool)
-    if len(rows) == 0:
-        return X, slid
-    pick = best_views(views, X[rows], seen[rows] & now_frames(frames)[None], o.anchor_views,
-                      o.track_view_spread_deg)
-    Xa, score = anchor(source, views, frames, X[rows], tmpl[rows], as_columns(pick), o)
-    X = X.copy()
-    X[rows] = quantise_cm(Xa)
-    slid[rows] = (score > -1.0) & (score < o.anchor_min_ncc)
-    return X, slid
-
-
 def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_ms: np.ndarray, X0: np.ndarray,
                 seen: np.ndarray, neighbours: np.ndarray, o: PatchOptions) -> CloudTrack:
     """Track N patches (X0 (N, 3, 3) at ``times_ms[0]``, the seed time; ``seen`` (N, V) the seed's cameras) over
@@ -290,8 +279,6 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
     zero = np.zeros_like(X)
     vis = estimate_visibility(source, views, judged_frames(clocks, times_ms[0]), X, zero, seen, None, neighbours, o)
     live = vis.visible.sum(1) >= o.min_visible
-    if o.anchor:
-        tmpl, has_tmpl = templates(source, views, judged_frames(clocks, times_ms[0]), X, vis.visible & live[:, None], o)
     if o.anchor_flow:
         seed_of = SeedViews.at_seed(source, views, judged_frames(clocks, times_ms[0]), X, vis.visible & live[:, None])
     for k in range(T):
@@ -340,13 +327,10 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             unseen = live & (vis.visible.sum(1) < o.min_visible)
             stretched = live & ~unseen & _stretched(X, o)
             live &= ~unseen & ~stretched
-            slid = np.zeros(N, bool)
-            if o.anchor:
-                X, slid = _anchored(source, views, frames1, X, tmpl, has_tmpl & vis.visible, live, o)
-                live &= ~slid
             X = quantise_cm(square_up(X, o.axis_cm))
-            logger.debug("step %d: %d live; ended: %d centre not triangulated, %d seen by too few, %d stretched, "
-                         "%d slid", k, live.sum(), lost.sum(), unseen.sum(), stretched.sum(), slid.sum())
+            logger.debug("step %d: %d live; ended: %d centre not triangulated, %d seen by too few, %d stretched; "
+                         "%d views off their seed appearance", k, live.sum(), lost.sum(), unseen.sum(),
+                         stretched.sum(), slid_view.sum())
         vis_v: Visibility = vis
         X_out[live, k] = X[live]
         vis_out[live, k] = vis_v.visible[live]
