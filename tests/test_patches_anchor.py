@@ -57,6 +57,18 @@ def test_a_point_slid_farther_is_rejected_in_that_camera_or_kept_as_flown():
         assert np.array_equal(got[[0, 2]], q[[0, 2]])  # the far ones are not moved
 
 
+def test_a_point_that_cannot_be_aligned_is_rejected_or_kept_as_flown():
+    for unaligned in (True, False):
+        clock, source, seeds, _ = _setup()
+        o = PatchOptions(anchor_flow=True, anchor_reject_unaligned=unaligned)
+        seeds.uv[0, 0, 0] = (-40.0, -40.0)  # its seed window lies outside the seed image: no alignment
+        q = _truth(10) + 0.3
+        got, good, off = seeds.realign(source, "c", Frames(frame=np.array([10]), offset_ms=np.zeros(1)), 0,
+                                       np.array([0]), q.reshape(1, 3, 2), np.ones((1, 3), bool), o)
+        assert list(off) == [unaligned, False, False] and list(good) == [not unaligned, True, True]
+        assert np.array_equal(got[0], q[0]) and np.abs(got[1:] - _truth(10)[1:]).max() < 0.05
+
+
 def test_a_camera_without_a_frame_at_that_time_or_a_seed_view_is_left_as_flown():
     clock, source, seeds, o = _setup()
     q = _truth(10) + 0.3

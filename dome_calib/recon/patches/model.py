@@ -83,6 +83,7 @@ class PatchOptions:
     anchor_flow: bool = False
     anchor_flow_px: PosFinite = 1.0
     anchor_reject: bool = True
+    anchor_reject_unaligned: bool = True  # also reject a point the seed image cannot be aligned at (else kept)
     min_visible: AtLeast(2) = 2  # a patch seen by fewer cameras ends
     max_stretch: Annotated[float, Field(gt=0, lt=1)] = 0.3  # a patch whose plane points move this much ends
 

@@ -242,8 +242,9 @@ class SeedViews:
         time, aligned to their seed appearance -> ((3 n, 2) points, (3 n,) ok, (3 n,) rejected here): Lucas-Kanade
         from the camera's seed image at the seed pixels, one pyramid level, started at the flown point,
         forward-backward checked; a point is moved there when within
-        ``anchor_flow_px`` of the flown point; a point farther (the flow slid, or the view changed) or not aligned
-        is rejected in this camera when ``anchor_reject``. Points without a seed view in ``v``, or a camera with
+        ``anchor_flow_px`` of the flown point; a point farther (the flow slid, or the view changed) is rejected in
+        this camera when ``anchor_reject``, and one that could not be aligned too when ``anchor_reject_unaligned``
+        (else it is kept as flown). Points without a seed view in ``v``, or a camera with
         no frame at this very time, are left as flown."""
         q, ok = q.reshape(-1, 2).copy(), ok.reshape(-1).copy()
         f = int(frames.frame[v])
@@ -261,8 +262,9 @@ class SeedViews:
         rows = np.flatnonzero(has)
         q[rows[near]] = r[near]
         if o.anchor_reject:
-            ok[rows[~near]] = False
-            off[rows[~near]] = True
+            bad = ~near if o.anchor_reject_unaligned else good & ~near
+            ok[rows[bad]] = False
+            off[rows[bad]] = True
         return q, ok, off
 
 
