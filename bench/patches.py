@@ -3,6 +3,7 @@
 
 Run: .venv/bin/python bench/patches.py [--people 2] [--scenario conversation] [--vga 24] [--hd 4] [--kinect 2]
          [--frames 30] [--seed 0] [--executors here,pool,dask --workers 2 --patches-per-task 1000]
+         [--variants 'base:;drift:anchor_flow=true']  (PatchOptions variants, one run each on the same frames)
      (``python -P`` with ``dask``: bench/distributed.py would shadow the ``distributed`` package)
 Setup: the as-built dome's panel preset (VGA of panels 1-2, the HD and Kinect colour cameras nearest them), the
 first ``--vga`` VGA by name and the first ``--hd`` / ``--kinect`` others; VGA at 640 x 480, HD and Kinect colour
