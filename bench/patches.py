@@ -3,6 +3,7 @@
 
 Run: .venv/bin/python bench/patches.py [--people 2] [--scenario conversation] [--vga 24] [--hd 4] [--kinect 2]
          [--frames 30] [--seed 0] [--executors here,pool,dask --workers 2 --patches-per-task 1000]
+         [--variants 'base:;drift:anchor_flow=true']  (PatchOptions variants, one run each on the same frames)
      (``python -P`` with ``dask``: bench/distributed.py would shadow the ``distributed`` package)
 Setup: the as-built dome's panel preset (VGA of panels 1-2, the HD and Kinect colour cameras nearest them), the
 first ``--vga`` VGA by name and the first ``--hd`` / ``--kinect`` others; VGA at 640 x 480, HD and Kinect colour
@@ -32,6 +33,7 @@ import argparse  # noqa: E402
 import contextlib  # noqa: E402
 import dataclasses  # noqa: E402
 import json  # noqa: E402
+import re  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -336,6 +338,21 @@ def run_executors(args, bundle, scene, cams, span, o, f: int) -> None:
              load=[round(x, 2) for x in os.getloadavg()])
 
 
+def parse_variants(text: str) -> dict[str, dict]:
+    """``--variants``: ``NAME:FIELD=VALUE,FIELD=VALUE;NAME2:...`` (values JSON; lists become tuples) -> {name:
+    PatchOptions fields}; empty: one run with the defaults, named "default"."""
+    if not text:
+        return {"default": {}}
+    out = {}
+    for item in text.split(";"):
+        name, _, fields = item.partition(":")
+        out[name.strip()] = {}
+        for key, value in re.findall(r"(\w+)=(\[[^\]]*\]|[^,]*)", fields):
+            v = json.loads(value)
+            out[name.strip()][key] = tuple(v) if isinstance(v, list) else v
+    return out
+
+
 def run(args: argparse.Namespace) -> None:
     bundle = as_built_dome(args.preset, seed=args.seed)
     bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=6000.0, seed=args.seed)
@@ -369,11 +386,13 @@ def run(args: argparse.Namespace) -> None:
         depth_cpu = time.process_time() - c0
         emit(what="depth", nodes=list(depth.read_frame.nodes), cpu_s=round(depth_cpu, 2),
              load=[round(x, 2) for x in os.getloadavg()])
-        runs = [(seeding, spacing, k) for seeding in args.seeding.split(",")
-                for spacing in (spacings if seeding == "images" else [0.0]) for k in track_views]
+        variants = parse_variants(args.variants)
+        runs = [(seeding, spacing, k, name) for seeding in args.seeding.split(",")
+                for spacing in (spacings if seeding == "images" else [0.0]) for k in track_views
+                for name in variants]
         memo: dict = {}
-        for seeding, spacing, k in runs:
-            ok = dataclasses.replace(o, track_views=k, seed_reference_spacing_deg=spacing)
+        for seeding, spacing, k, name in runs:
+            ok = dataclasses.replace(o, track_views=k, seed_reference_spacing_deg=spacing, **variants[name])
             load = os.getloadavg()
             cpu0, wall0, render0 = time.process_time(), time.perf_counter(), sum(scene.render_s.values())
             with PhaseTimer(scene, memo.setdefault((seeding, spacing), {})) as phases:
@@ -384,10 +403,11 @@ def run(args: argparse.Namespace) -> None:
             emit(what="render", **{f"{k}_cpu_ms_per_view": round(1000.0 * scene.render_s[k] / scene.renders[k], 1)
                                    for k in sorted(scene.renders)}, renders=scene.renders, people=args.people,
                  load=[round(x, 2) for x in load])
-            got = evaluate(args, bundle, truth, cams, traj, t_seed, nf, imaged_views(scene, cams), o)
+            got = evaluate(args, bundle, truth, cams, traj, t_seed, nf, imaged_views(scene, cams), ok)
             stage_cpu = cpu - render_cpu + phases.reused  # seeds reused from an earlier run count their CPU
             track_cpu = phases.cpu["track"] - phases.render["track"]
-            emit(what="patches", seeding=seeding, track_views=k, ref_spacing_deg=spacing,
+            emit(what="patches", seeding=seeding, track_views=k, ref_spacing_deg=spacing, variant=name,
+                 variant_options=variants[name],
                  reference_cameras=len(reference_cameras(view_set(bundle, [c for c in cams if c in by_type["vga"]]),
                                                          spacing, o.volume_height_cm)),
                  scenario=args.scenario, people=args.people, cameras=len(cams),
@@ -423,6 +443,9 @@ def main() -> None:
                     help="comma list of PatchOptions.track_views (0: all), one run each on the same rendered frames")
     ap.add_argument("--ref-spacing-deg", type=str, default="",
                     help="comma list of PatchOptions.seed_reference_spacing_deg (image seeding), one run each")
+    ap.add_argument("--variants", type=str, default="",
+                    help="PatchOptions variants, one run each on the same rendered frames: NAME:FIELD=VALUE,...;"
+                         "NAME2:... (values JSON, e.g. 'base:;anchor:anchor=true,anchor_min_ncc=0.5')")
     args = ap.parse_args()
     if args.workers < 1 or args.patches_per_task < 1:
         raise SystemExit("--workers and --patches-per-task must be at least 1")

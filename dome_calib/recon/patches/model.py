@@ -78,6 +78,12 @@ class PatchOptions:
     geometric_weight: PosFinite = 1.0
     prior_weight: Annotated[float, Field(ge=0)] = 0.3  # Potts weight between neighbouring cameras
     prior_neighbours: AtLeast(1) = 4
+    # drift (track.SeedViews): each flown point realigned by optical flow from the camera's seed image (where the
+    # patch was at the seed) when within anchor_flow_px of the flow; farther: rejected in that camera (anchor_reject)
+    anchor_flow: bool = False
+    anchor_flow_px: PosFinite = 1.0
+    anchor_reject: bool = True
+    anchor_reject_unaligned: bool = True  # also reject a point the seed image cannot be aligned at (else kept)
     min_visible: AtLeast(2) = 2  # a patch seen by fewer cameras ends
     max_stretch: Annotated[float, Field(gt=0, lt=1)] = 0.3  # a patch whose plane points move this much ends
 

@@ -132,12 +132,13 @@ def _lk(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, guess: np.ndarray | No
     return b.reshape(-1, 2).astype(float), ok
 
 
-def optical_flow(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, o: PatchOptions, guess: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def optical_flow(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, o: PatchOptions, guess: np.ndarray | None = None,
+                 levels: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Points (N, 2) of image ``src`` followed into ``dst`` by pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``,
-    window ``lk_window_px``, ``lk_levels``) -> ((N, 2) pixels, (N,) tracked: found both ways, back within
-    ``lk_fb_px``). Each point's result depends on the two images and that point only."""
-    return _lk(src, dst, p0, guess, o)
+    window ``lk_window_px``, ``lk_levels`` or ``levels``, started at ``guess`` if given) -> ((N, 2) pixels, (N,)
+    tracked: found both ways, back within ``lk_fb_px``). Each point's result depends on the two images and that
+    point only."""
+    return _lk(src, dst, p0, guess, o, levels=levels)
 
 
 def flow_to_neighbours(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int, corners: np.ndarray,

@@ -45,6 +45,8 @@ logger = logging.getLogger(__name__)
 
 #: Patch positions are rounded to multiples of this after every step (cm): no later choice rests on last bits.
 POSITION_QUANTUM_CM = 2.0 ** -10
+#: A camera's frame within this of a reference time (ms) is at that very time (the reference stream's cameras).
+SAME_TIME_MS = 0.5
 #: Streams' brackets wider than this many nominal periods are not bridged (as the skeleton stages).
 MAX_GAP_FRAMES = 2.5
 
@@ -208,6 +210,64 @@ def best_views(views: ViewSet, X: np.ndarray, candidates: np.ndarray, k: int, sp
     return chosen
 
 
+def now_frames(frames: Frames) -> np.ndarray:
+    """(V,) the cameras with a frame at the reference time itself."""
+    return (frames.frame >= 0) & (np.abs(frames.offset_ms) < SAME_TIME_MS)
+
+
+@dataclass
+class SeedViews:
+    """Where each patch's three points were in each camera that saw it at the seed (the reference stream's cameras,
+    whose frames are at the seed time), and those frames: the appearance a drifting track is pulled back to."""
+
+    uv: np.ndarray  # (N, 3, V, 2) float32, NaN where the camera has no seed view of the patch
+    frame: np.ndarray  # (V,) the seed frame of each camera (-1: none at the seed time)
+    gray: dict
+
+    @classmethod
+    def at_seed(cls, source: FrameSource, views: ViewSet, frames: Frames, X: np.ndarray, seen: np.ndarray
+                ) -> SeedViews:
+        N, V = seen.shape
+        now = now_frames(frames)
+        uv = np.full((N, 3, V, 2), np.nan, np.float32)
+        for v in np.flatnonzero((seen & now[None]).any(0)):
+            idx = np.flatnonzero(seen[:, v])
+            p = project_points(views.subset([views.names[v]]), X[idx].reshape(-1, 3)).uv_px[0]
+            uv[idx, :, v] = p.reshape(-1, 3, 2)
+        return cls(uv=uv, frame=np.where(now, frames.frame, -1), gray={})
+
+    def realign(self, source: FrameSource, name: str, frames: Frames, v: int, idx: np.ndarray, q: np.ndarray,
+                ok: np.ndarray, o: PatchOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Flown points ``q`` (n, 3, 2), ``ok`` (n, 3) of patches ``idx`` in camera ``v`` (``name``) at this step's
+        time, aligned to their seed appearance -> ((3 n, 2) points, (3 n,) ok, (3 n,) rejected here): Lucas-Kanade
+        from the camera's seed image at the seed pixels, one pyramid level, started at the flown point,
+        forward-backward checked; a point is moved there when within
+        ``anchor_flow_px`` of the flown point; a point farther (the flow slid, or the view changed) is rejected in
+        this camera when ``anchor_reject``, and one that could not be aligned too when ``anchor_reject_unaligned``
+        (else it is kept as flown). Points without a seed view in ``v``, or a camera with
+        no frame at this very time, are left as flown."""
+        q, ok = q.reshape(-1, 2).copy(), ok.reshape(-1).copy()
+        f = int(frames.frame[v])
+        off = np.zeros(len(ok), bool)
+        if self.frame[v] < 0 or not now_frames(frames)[v]:
+            return q, ok, off
+        p0 = self.uv[idx, :, v].reshape(-1, 2).astype(float)
+        has = np.all(np.isfinite(p0), axis=1) & ok
+        if not has.any():
+            return q, ok, off
+        if v not in self.gray:
+            self.gray[v] = source.gray(name, int(self.frame[v]))
+        r, good = optical_flow(self.gray[v], source.gray(name, f), p0[has], o, guess=q[has], levels=1)
+        near = good & (np.linalg.norm(r - q[has], axis=1) <= o.anchor_flow_px)
+        rows = np.flatnonzero(has)
+        q[rows[near]] = r[near]
+        if o.anchor_reject:
+            bad = ~near if o.anchor_reject_unaligned else good & ~near
+            ok[rows[bad]] = False
+            off[rows[bad]] = True
+        return q, ok, off
+
+
 def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_ms: np.ndarray, X0: np.ndarray,
                 seen: np.ndarray, neighbours: np.ndarray, o: PatchOptions) -> CloudTrack:
     """Track N patches (X0 (N, 3, 3) at ``times_ms[0]``, the seed time; ``seen`` (N, V) the seed's cameras) over
@@ -221,6 +281,8 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
     zero = np.zeros_like(X)
     vis = estimate_visibility(source, views, judged_frames(clocks, times_ms[0]), X, zero, seen, None, neighbours, o)
     live = vis.visible.sum(1) >= o.min_visible
+    if o.anchor_flow:
+        seed_of = SeedViews.at_seed(source, views, judged_frames(clocks, times_ms[0]), X, vis.visible & live[:, None])
     for k in range(T):
         if k > 0:
             t0, t1 = float(times_ms[k - 1]), float(times_ms[k])
@@ -228,12 +290,18 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             tracked = np.zeros((N, 3, V), bool)
             was = vis_out[:, k - 1]
             flown = best_views(views, X, was & live[:, None], o.track_views, o.track_view_spread_deg)
+            slid_view = np.zeros((N, V), bool)  # flown, but a point rejected by its seed appearance (anchor_flow)
+            frames1 = judged_frames(clocks, t1)
             for v, name in enumerate(views.names):
                 idx = np.flatnonzero(flown[:, v])
                 if len(idx) == 0:
                     continue
                 p = project_points(views.subset([name]), X[idx].reshape(-1, 3)).uv_px[0]
                 q, ok = flow_camera(source, name, clocks[v], t0, t1, p, o)
+                if o.anchor_flow:
+                    q, ok, off = seed_of.realign(source, name, frames1, v, idx, q.reshape(-1, 3, 2),
+                                                 ok.reshape(-1, 3), o)
+                    slid_view[idx, v] = off.reshape(-1, 3).any(axis=1)
                 uv[idx, :, v] = q.reshape(-1, 3, 2)
                 tracked[idx, :, v] = ok.reshape(-1, 3)
             X_new = _triangulate_points(views, uv, tracked.astype(float), o)
@@ -251,9 +319,9 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                 proj = project_points(views.subset([views.names[v]]), X_new[idx].reshape(-1, 3)).uv_px[0]
                 resid[idx, v] = np.linalg.norm(uv[idx, :, v] - proj.reshape(-1, 3, 2), axis=-1).max(axis=1)
             # the motion term where the patch was flown: its residual, a failed flow 3 sigmas; elsewhere none
-            motion = np.where(tracked.all(axis=1), resid, np.where(flown, np.inf, np.nan))
-            vis = estimate_visibility(source, views, judged_frames(clocks, t1), X_new, velocity, was, motion,
-                                      neighbours, o)
+            # (a view whose flow left the seed appearance is not triangulated, and judged without the motion term)
+            motion = np.where(tracked.all(axis=1), resid, np.where(flown & ~slid_view, np.inf, np.nan))
+            vis = estimate_visibility(source, views, frames1, X_new, velocity, was, motion, neighbours, o)
             use = vis.visible[:, None, :] & tracked
             again = _triangulate_points(views, uv, use.astype(float), o)
             redo = live & (use.sum(axis=2) >= 2).all(axis=1) & np.all(np.isfinite(again), axis=(1, 2))
@@ -262,8 +330,9 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             stretched = live & ~unseen & _stretched(X, o)
             live &= ~unseen & ~stretched
             X = quantise_cm(square_up(X, o.axis_cm))
-            logger.debug("step %d: %d live; ended: %d centre not triangulated, %d seen by too few, %d stretched",
-                         k, live.sum(), lost.sum(), unseen.sum(), stretched.sum())
+            logger.debug("step %d: %d live; ended: %d centre not triangulated, %d seen by too few, %d stretched; "
+                         "%d views off their seed appearance", k, live.sum(), lost.sum(), unseen.sum(),
+                         stretched.sum(), slid_view.sum())
         vis_v: Visibility = vis
         X_out[live, k] = X[live]
         vis_out[live, k] = vis_v.visible[live]
