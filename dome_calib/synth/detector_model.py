@@ -49,9 +49,9 @@ CONF_PERCENTILES = (0.5, 5.0, 10.0, 25.0, 50.0, 75.0, 90.0, 95.0, 99.5)
 JOINT_CLASS19 = np.array([1, 2, 1, 1, 1, 0, 1, 1, 1, 1, 1, 0, 1, 1, 1, 2, 2, 2, 2])
 #: Measured per-coordinate noise / person height of each joint (joints19 order; left and right averaged; the neck
 #: and body centre, which BODY_25B derives, take the shoulders' and hips' values).
-NOISE_REL19 = (0.0073, 0.0087, 0.0151, 0.0073, 0.0108, 0.0087, 0.0151, 0.0089, 0.0083, 0.0073, 0.0108, 0.0087,
-               0.0151, 0.0089, 0.0083, 0.007, 0.0059, 0.007, 0.0059)
-_OUTLIER_MS = Lognormal(29.7, 0.83)
+NOISE_REL19 = (0.0073, 0.0091, 0.0151, 0.0073, 0.0108, 0.0089, 0.0151, 0.0089, 0.0083, 0.0073, 0.0108, 0.0089,
+               0.0151, 0.0089, 0.0083, 0.0071, 0.0059, 0.0071, 0.0059)
+_OUTLIER_MS = Lognormal(32.3, 0.85)
 #: The options (marked * below) set through the twin (bench/detector_stats.py), not read off the real capture.
 TWIN_CORRECTED = ("hidden_noise", "noise_bias_share", "noise_tau_ms", "miss_base", "outlier_size_rel")
 
@@ -74,18 +74,18 @@ class DetectorModel:
     noise_tau_ms: float = 166.0  # * (read 151)
     # outliers: a joint placed off by size_rel x height in a direction, both held for the episode (the size drawn
     # from the lognormal above k_outlier sigmas: an episode the statistics would not see is not one)
-    outlier_wrists: float = 0.048
+    outlier_wrists: float = 0.046
     outlier_limbs: float = 0.001
-    outlier_face: float = 0.002
+    outlier_face: float = 0.001
     outlier_ms: Lognormal = _OUTLIER_MS
     outlier_size_rel: Lognormal = Lognormal(0.21, 0.82)  # * x height, each episode's largest (read 0.22)
     k_outlier: float = 5.0
     # misses
     miss_base: float = 0.00015  # * visible joints (read 0.0021: the fit alone reads ~0.003 from ~0)
-    miss_ms: Lognormal = Lognormal(18.6, 0.35)
+    miss_ms: Lognormal = Lognormal(18.4, 0.33)
     miss_self_face: float = 0.43  # face joints the person's own head hides (turned away)
     miss_self_body: float = 0.004  # body joints the person's own body hides
-    miss_self_ms: Lognormal = Lognormal(57.3, 1.55)
+    miss_self_ms: Lognormal = Lognormal(61.4, 1.56)
     miss_occluded: float = 0.6  # chosen: joints another person hides (the capture has nobody in front of anybody)
     miss_border_px: float = 20.0  # chosen: the border zone, image pixels
     miss_border: float = 0.5  # chosen: extra miss probability on the border itself (linear to 0 across the zone)
@@ -107,9 +107,9 @@ class DetectorModel:
     # confidence: percentiles (CONF_PERCENTILES) of visible inliers, hidden inliers and outliers, drawn through a
     # unit latent with a part constant per (camera, person, joint), an exponentially correlated part (tau) and a
     # white part; a few above 1 (the 5-camera capture: 5 of 113,750 keypoints at 1.004-1.037)
-    conf_visible: tuple[float, ...] = (0.237, 0.436, 0.503, 0.599, 0.641, 0.668, 0.694, 0.72, 0.804)
+    conf_visible: tuple[float, ...] = (0.232, 0.436, 0.503, 0.599, 0.641, 0.668, 0.694, 0.72, 0.804)
     conf_hidden: tuple[float, ...] = (0.054, 0.076, 0.09, 0.143, 0.283, 0.602, 0.654, 0.676, 0.775)
-    conf_outlier: tuple[float, ...] = (0.058, 0.061, 0.078, 0.172, 0.313, 0.506, 0.633, 0.648, 0.668)
+    conf_outlier: tuple[float, ...] = (0.058, 0.061, 0.073, 0.16, 0.3, 0.498, 0.627, 0.649, 0.668)
     conf_bias_share: float = 0.31
     conf_white_share: float = 0.04
     conf_tau_ms: float = 288.0
