@@ -78,7 +78,7 @@ class DetectorModel:
     outlier_limbs: float = 0.001
     outlier_face: float = 0.001
     outlier_ms: Lognormal = _OUTLIER_MS
-    outlier_size_rel: Lognormal = Lognormal(0.21, 0.82)  # * x height, each episode's largest (read 0.22)
+    outlier_size_rel: Lognormal = Lognormal(0.31, 0.82)  # * x height, each episode's largest (read 0.25)
     k_outlier: float = 5.0
     # misses
     miss_base: float = 0.00015  # * visible joints (read 0.0021: the fit alone reads ~0.003 from ~0)
