@@ -379,7 +379,7 @@ def run(args: argparse.Namespace) -> None:
              load=[round(x, 2) for x in os.getloadavg()])
         runs = [(seeding, spacing, k, streams) for seeding in args.seeding.split(",")
                 for spacing in (spacings if seeding == "images" else [0.0]) for k in track_views
-                for streams in (args.seed_streams.split(",") if seeding == "images" else ["reference"])]
+                for streams in args.seed_streams.split(",")]
         memo: dict = {}
         for seeding, spacing, k, streams in runs:
             ok = dataclasses.replace(o, track_views=k, seed_reference_spacing_deg=spacing, seed_streams=streams)

@@ -302,7 +302,7 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
     refs = reference_cameras(ref_views, o.seed_reference_spacing_deg, o.volume_height_cm)
     # the other streams that seed (sweep): each with enough cameras to triangulate a seed, sorted by name
     others = ([st for st in sorted(groups) if st != stream and len(groups[st]) >= o.seed_min_views]
-              if o.seed_streams == "all" and o.seed_method == "sweep" and depth is None else [])
+              if o.seed_streams == "all" and (o.seed_method == "sweep" or depth is not None) else [])
     other_views = [views.subset(groups[st]) for st in others]
     other_clocks = [[clocks[i] for i in views.index_of(groups[st])] for st in others]
     other_refs = [reference_cameras(v, o.seed_reference_spacing_deg, o.volume_height_cm) for v in other_views]
@@ -321,14 +321,20 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
             if g is None:
                 continue
             other_at[c, k] = (g, other_clocks[k - 1][0].table.time_of(g))
-            seed_tasks += [SeedTask(c, int(r), source, other_views[k - 1], {n: g for n in groups[st]},
-                                    other_at[c, k][1], o, stream_rank=k) for r in other_refs[k - 1]]
+            at_g = {n: g for n in groups[st]}
+            if depth is not None:  # the depth at the stream's frame time, placed in the stream's cameras
+                seed_tasks.append(SeedTask(c, -1, source, other_views[k - 1], at_g, other_at[c, k][1], o, bundle,
+                                           depth, stream_rank=k))
+            else:
+                seed_tasks += [SeedTask(c, int(r), source, other_views[k - 1], at_g, other_at[c, k][1], o,
+                                        stream_rank=k) for r in other_refs[k - 1]]
     got: dict[tuple[int, int], list] = {}
     for (c, k, _), result in run_tasks(executor, seed_task, seed_tasks):
         got.setdefault((c, k), []).append(result)
     place_tasks = []
     for (c, k), (g, t_g) in sorted(other_at.items()):
-        merged = merge_camera_seeds(got.get((c, k), []), other_views[k - 1], o)
+        merged = (got[c, k][0] if depth is not None
+                  else merge_camera_seeds(got.get((c, k), []), other_views[k - 1], o))
         seen = np.zeros((len(merged.X_cm), len(cameras)), bool)
         seen[:, views.index_of(groups[others[k - 1]])] = merged.seen
         place_tasks.append(PlaceTask(c, k, source, views, clocks, t_g, seed_times[c],
