@@ -261,7 +261,8 @@ def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int, imaged=Non
         right = given & (lab.person == sp.person) & (lab.bone == sp.part)
         labels[kind] = {"accuracy": round(float(right.sum() / max(given.sum(), 1)), 4),
                         "labelled_share": round(float(given.sum() / max(judged.sum(), 1)), 4), "n": int(judged.sum()),
-                        "by_true_part": {name: [int(np.sum(right & (sp.part == b))), int(np.sum(given & (sp.part == b)))]
+                        "by_true_part": {name: [int(np.sum(right & (sp.part == b))),  # [right, labelled]
+                                                int(np.sum(given & (sp.part == b)))]
                                          for b, (name, _, _) in enumerate(BONES)}}
     if args.save:
         np.savez_compressed(args.save, X_cm=traj.X_cm, normal=traj.normal, alive=traj.alive, visible=traj.visible,
@@ -395,7 +396,8 @@ def run(args: argparse.Namespace) -> None:
                  load=[round(x, 2) for x in load])
             save = args.save if len(runs) == 1 or not args.save else args.save.replace(
                 ".npz", f"_{seeding}_{streams}_{k}_{spacing:g}.npz")
-            got = evaluate(argparse.Namespace(**{**vars(args), "save": save}), bundle, truth, cams, traj, t_seed, nf, imaged_views(scene, cams), o)
+            got = evaluate(argparse.Namespace(**{**vars(args), "save": save}), bundle, truth, cams, traj, t_seed, nf,
+                           imaged_views(scene, cams), o)
             stage_cpu = cpu - render_cpu + phases.reused  # seeds reused from an earlier run count their CPU
             track_cpu = phases.cpu["track"] - phases.render["track"]
             emit(what="patches", seeding=seeding, seed_streams=streams, track_views=k, ref_spacing_deg=spacing,
