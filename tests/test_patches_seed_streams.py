@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from dome_calib.bundle import Bundle
+from dome_calib.executor import SerialExecutor
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.run import (clocks_of, imaged_views, patch_stream, place_seeds, stream_seed_frame)
 from dome_calib.recon.patches.seed import seed_patches
@@ -67,6 +68,7 @@ def test_another_streams_seeds_are_carried_to_the_seed_time(walker):
     assert np.mean(placed.seen[:, len(ref):].sum(1) >= 2) > 0.8
 
 
+@pytest.mark.slow  # two streams of 9 cameras seeded and placed twice: ~10 CPU-s
 def test_every_stream_seeds_and_the_reference_streams_seeds_are_kept(walker):
     bundle, truth, scene, ref, other, o = walker
     cams = ref + other
@@ -83,3 +85,8 @@ def test_every_stream_seeds_and_the_reference_streams_seeds_are_kept(walker):
     assert added.sum() > 10
     sp = nearest_surface_points(truth, table.time_of(FRAME), traj.X_cm[n_ref:][added, 0, 0])
     assert np.median(sp.distance_cm) < 1.0  # on the surface (the sweep on 4 cameras of one panel: ~7 mm)
+    # cut into tasks on an executor (seeds per stream and camera, placing per stream, tracks of 9): the same bits
+    many = patch_stream(bundle, scene, cams, span, o, seed_frames=[FRAME], executor=SerialExecutor(), patches_per_task=9)
+    for field in ("ids", "X_cm", "normal", "visible", "alive"):
+        x, y = getattr(traj, field), getattr(many, field)
+        assert x.shape == y.shape and np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), field
