@@ -23,7 +23,7 @@ from dome_calib.recon.patches.frames import FrameSource, patch_axes
 from dome_calib.recon.patches.model import PatchOptions, PatchTrajectories
 from dome_calib.recon.patches.seed import (CameraSeeds, Seeds, merge_camera_seeds, reference_cameras,
                                            seed_camera, thin_to_cells)
-from dome_calib.recon.patches.seed_depth import DepthFrames, seed_from_depth
+from dome_calib.recon.patches.seed_depth import DepthFrames, seed_from_depth, seed_from_own_kinect
 from dome_calib.recon.patches.seed_features import seed_from_features
 from dome_calib.recon.patches.seed_skeleton import BodyPrior, CameraBodySeeds, merge_body_seeds, seed_camera_on_body
 from dome_calib.recon.patches.refine import refine_normals
@@ -107,6 +107,7 @@ class SeedTask:
     depth: DepthFrames | None = None
     body_cm: np.ndarray | None = None
     stream_rank: int = 0  # 0: the reference stream; k > 0: the k-th other stream that seeds (sorted by name)
+    node: str = ""  # a Kinect seeding from its own depth in its colour camera ``camera`` of ``ref_views``
 
     @property
     def key(self) -> tuple[int, int, int]:
@@ -115,6 +116,10 @@ class SeedTask:
 
 def seed_task(task: SeedTask) -> tuple[tuple[int, int], CameraSeeds | CameraBodySeeds | Seeds]:
     """Run one :class:`SeedTask` (module level: picklable for a process pool or Dask)."""
+    if task.node:
+        return task.key, seed_from_own_kinect(task.bundle, task.depth, task.node, task.seed_time_ms, task.source,
+                                              task.ref_views, task.camera, task.frames[task.ref_views.names[
+                                                  task.camera]], task.options)
     if task.depth is not None:
         return task.key, seed_from_depth(task.bundle, task.depth, task.seed_time_ms, task.source, task.ref_views,
                                          task.frames, task.options)
@@ -140,7 +145,7 @@ def stream_seed_frame(clocks: list[Clock], t_ms: float) -> int | None:
 
 
 def place_seeds(source: FrameSource, views: ViewSet, clocks: list[Clock], from_ms: float, to_ms: float, seeds: Seeds,
-                neighbours: np.ndarray, o: PatchOptions) -> tuple[Seeds, np.ndarray]:
+                neighbours: np.ndarray, o: PatchOptions, *, refine: bool | None = None) -> tuple[Seeds, np.ndarray]:
     """Seeds of a stream at its own frame time ``from_ms`` (``seeds.seen`` over ``views``) -> the same patches at the
     cloud's seed time ``to_ms``: normals refined photometrically at ``from_ms`` (where the seeding stream's cameras
     have their frames, :mod:`.refine`), then one tracking step to ``to_ms`` (:func:`track_cloud`: each camera's track
@@ -151,7 +156,7 @@ def place_seeds(source: FrameSource, views: ViewSet, clocks: list[Clock], from_m
     if len(seeds.X_cm) == 0:
         return Seeds(X_cm=np.zeros((0, 3, 3)), normal=np.zeros((0, 3)), seen=np.zeros((0, V), bool)), np.zeros(0, bool)
     X = quantise_cm(seeds.X_cm)
-    if o.refine_normals:
+    if o.refine_normals if refine is None else refine:
         frames = judged_frames(clocks, from_ms)
         vis = estimate_visibility(source, views, frames, X, np.zeros_like(X), seeds.seen, None, neighbours, o)
         X = quantise_cm(refine_normals(source, views, frames, X, vis.visible, o))
@@ -178,6 +183,7 @@ class PlaceTask:
     seeds: Seeds
     neighbours: np.ndarray
     options: PatchOptions
+    refine: bool = True  # refine the normals first (not depth seeds': the depth's normal is better)
 
     @property
     def key(self) -> tuple[int, int]:
@@ -187,7 +193,7 @@ class PlaceTask:
 def place_task(task: PlaceTask) -> tuple[tuple[int, int], Seeds]:
     """Run one :class:`PlaceTask` (module level: picklable)."""
     return task.key, place_seeds(task.source, task.views, task.clocks, task.from_ms, task.to_ms, task.seeds,
-                                 task.neighbours, task.options)[0]
+                                 task.neighbours, task.options, refine=task.refine)[0]
 
 
 def merge_streams(clouds: list[Seeds], o: PatchOptions) -> Seeds:
@@ -303,6 +309,12 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
     # the other streams that seed (sweep): each with enough cameras to triangulate a seed, sorted by name
     others = ([st for st in sorted(groups) if st != stream and len(groups[st]) >= o.seed_min_views]
               if o.seed_streams == "all" and (o.seed_method == "sweep" or depth is not None) else [])
+    # with depth, a Kinect's colour camera (a stream of one camera, its own clock) seeds from its own depth
+    depth_nodes = (bundle.sync.kinect_depth if bundle.sync is not None and bundle.sync.kinect_depth else {})
+    own_kinects = ([st for st in sorted(groups) if st != stream and st not in others and len(groups[st]) == 1
+                    and st in depth_nodes and (depth.nodes is None or st in depth.nodes)]
+                   if o.seed_streams == "all" and depth is not None else [])
+    others += own_kinects
     other_views = [views.subset(groups[st]) for st in others]
     other_clocks = [[clocks[i] for i in views.index_of(groups[st])] for st in others]
     other_refs = [reference_cameras(v, o.seed_reference_spacing_deg, o.volume_height_cm) for v in other_views]
@@ -322,7 +334,10 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
                 continue
             other_at[c, k] = (g, other_clocks[k - 1][0].table.time_of(g))
             at_g = {n: g for n in groups[st]}
-            if depth is not None:  # the depth at the stream's frame time, placed in the stream's cameras
+            if st in own_kinects:
+                seed_tasks.append(SeedTask(c, int(views.index_of(groups[st])[0]), source, views, at_g,
+                                           other_at[c, k][1], o, bundle, depth, stream_rank=k, node=st))
+            elif depth is not None:  # the depth at the stream's frame time, placed in the stream's cameras
                 seed_tasks.append(SeedTask(c, -1, source, other_views[k - 1], at_g, other_at[c, k][1], o, bundle,
                                            depth, stream_rank=k))
             else:
@@ -335,10 +350,14 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
     for (c, k), (g, t_g) in sorted(other_at.items()):
         merged = (got[c, k][0] if depth is not None
                   else merge_camera_seeds(got.get((c, k), []), other_views[k - 1], o))
-        seen = np.zeros((len(merged.X_cm), len(cameras)), bool)
-        seen[:, views.index_of(groups[others[k - 1]])] = merged.seen
+        if others[k - 1] in own_kinects:  # seen over all cameras already
+            seen = merged.seen
+        else:
+            seen = np.zeros((len(merged.X_cm), len(cameras)), bool)
+            seen[:, views.index_of(groups[others[k - 1]])] = merged.seen
         place_tasks.append(PlaceTask(c, k, source, views, clocks, t_g, seed_times[c],
-                                     Seeds(X_cm=merged.X_cm, normal=merged.normal, seen=seen), neighbours, o))
+                                     Seeds(X_cm=merged.X_cm, normal=merged.normal, seen=seen), neighbours, o,
+                                     refine=o.refine_normals and depth is None))
     placed: dict[int, list[Seeds]] = {}
     for (c, _), result in run_tasks(executor, place_task, place_tasks):
         placed.setdefault(c, []).append(result)
