@@ -10,15 +10,22 @@ import pytest
 
 from dome_calib.bundle import Bundle
 from dome_calib.executor import SerialExecutor
+from dome_calib.panoptic_io import read_kcalibration
+from dome_calib.recon.depth import depth_folder_reader
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.run import (clocks_of, imaged_views, patch_stream, place_seeds, stream_seed_frame)
 from dome_calib.recon.patches.seed import seed_patches
+from dome_calib.recon.patches.seed_depth import DepthFrames, seed_from_own_kinect
 from dome_calib.recon.patches.track import quantise_cm
 from dome_calib.recon.patches.visibility import camera_neighbours
+from dome_calib.synth.depth_people import write_group_depth
 from dome_calib.synth.dome import nominal_dome
 from dome_calib.synth.group import GroupOptions, make_group
 from dome_calib.synth.skeleton import synthetic_sync
 from dome_calib.synth.textured import TexturedScene, TextureOptions, nearest_surface_points, surface_points_cm
+
+from .patches_helpers import one_person_capture
+from .recon_helpers import REAL_KCALIBRATION
 
 FRAME = 144  # HD frame of the seed (735 ms): the walker is in the tiny dome's middle
 
@@ -90,3 +97,28 @@ def test_every_stream_seeds_and_the_reference_streams_seeds_are_kept(walker):
     for field in ("ids", "X_cm", "normal", "visible", "alive"):
         x, y = getattr(traj, field), getattr(many, field)
         assert x.shape == y.shape and np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), field
+
+
+def test_a_kinect_seeds_from_its_own_depth_in_its_colour_camera(tmp_path):
+    """A Kinect's colour camera is a stream of one camera (its own clock): its own depth gives the seeds' points,
+    on the surface it sees, facing it."""
+    bundle, truth = one_person_capture()
+    bundle.kinect = read_kcalibration(REAL_KCALIBRATION)
+    scene = TexturedScene(bundle, truth, TextureOptions(scale={"vga": 1.0, "hd": 0.5, "kinect-color": 0.5}))
+    cams = ["01_01", "50_04"]
+    views = imaged_views(scene, cams)
+    table = bundle.sync.kinect_color["KINECTNODE4"]
+    t = bundle.sync.streams["vga"].time_of(120)
+    frame, _ = table.nearest(t)
+    t_c = table.time_of(int(frame))
+    write_group_depth(tmp_path / "depth", bundle, truth, (t_c - 40.0, t_c + 40.0), nodes=["KINECTNODE4"])
+    depth = DepthFrames(depth_folder_reader(tmp_path / "depth"))
+    seeds = seed_from_own_kinect(bundle, depth, "KINECTNODE4", t_c, scene, views, 1, int(frame), PatchOptions())
+    assert len(seeds.X_cm) > 200
+    assert seeds.seen[:, 1].all() and not seeds.seen[:, 0].any()
+    sp = nearest_surface_points(truth, t_c, seeds.X_cm[:, 0])
+    _, normal = surface_points_cm(truth, np.array([t_c]), sp.person, sp.part, sp.local_cm)
+    assert np.median(sp.distance_cm) < 0.5 and np.percentile(sp.distance_cm, 90) < 2.0  # not the floor or walls
+    assert np.median(np.sum(seeds.normal * normal[0], axis=1)) > np.cos(np.radians(15.0))
+    to_cam = views.center_cm[1] - seeds.X_cm[:, 0]
+    assert np.all(np.sum(to_cam * seeds.normal, axis=1) > 0)  # facing the camera that sees it
