@@ -3,7 +3,9 @@
 
 **One time for all streams.** The stream is kept at the frame times of one *reference stream* (by default the
 stream with the most cameras, ties by name: VGA in the dome, the one HD stream of a rig). Clouds are seeded from
-the reference stream's cameras at a seed frame (their images share its time); every other camera joins through
+the reference stream's cameras at a seed frame (their images share its time) and, with ``seed_streams="all"``,
+from every other stream at its own frame nearest that time, then carried to it by one tracking step
+(:func:`place_seeds`); every other camera joins through
 its own frames, brought to the reference times as the skeleton stages bring detections there: its 2D track is
 interpolated linearly between the two frames around the time (``frame_brackets``), see :mod:`.track`, and it is
 judged (photometric term) on its nearest frame with the patch moved to that frame's time.
