@@ -336,7 +336,9 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
                 continue
             other_at[c, k] = (g, other_clocks[k - 1][0].table.time_of(g))
             at_g = {n: g for n in groups[st]}
-            if st in own_kinects:
+            if st in own_kinects:  # the points are where they were at the depth frame's own time: placed from there
+                _, dt = depth_nodes[st].nearest(other_at[c, k][1])
+                other_at[c, k] = (g, other_at[c, k][1] + float(dt))
                 seed_tasks.append(SeedTask(c, int(views.index_of(groups[st])[0]), source, views, at_g,
                                            other_at[c, k][1], o, bundle, depth, stream_rank=k, node=st))
             elif depth is not None:  # the depth at the stream's frame time, placed in the stream's cameras

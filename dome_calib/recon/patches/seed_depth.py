@@ -89,9 +89,10 @@ def depth_points(bundle: Bundle, depth: DepthFrames, t_ms: float, o: PatchOption
 
 def seed_from_own_kinect(bundle: Bundle, depth: DepthFrames, node: str, t_ms: float, source: FrameSource,
                          views: ViewSet, camera: int, frame: int, o: PatchOptions) -> Seeds:
-    """Seeds from one Kinect's depth in its own colour camera (``views`` position ``camera``, at its ``frame``, time
-    ``t_ms``): a Kinect's colour camera is a stream of one camera (its own clock), which cannot triangulate a seed,
-    but its depth gives the point. The depth nearest ``t_ms`` (steps 1-3 of the module), kept where the colour
+    """Seeds from one Kinect's depth in its own colour camera (``views`` position ``camera``, its ``frame`` the one
+    nearest ``t_ms``): a Kinect's colour camera is a stream of one camera (its own clock), which cannot triangulate a
+    seed, but its depth gives the point. The depth nearest ``t_ms`` (its frame's time: the points are placed from
+    there, :func:`dome_calib.recon.patches.run.place_seeds`; steps 1-3 of the module), kept where the colour
     camera sees the point (in its image, the normal facing it by more than ``min_cos_view``) and its image can be
     tracked there (:func:`trackable`); ``seen`` that camera alone (the MAP then judges every camera at the first
     tracking step, :func:`dome_calib.recon.patches.run.place_seeds`)."""
