@@ -54,7 +54,7 @@ from dome_calib.synth.textured import (VISIBILITY_TOLERANCE_CM, TexturedScene, T
                                        nearest_surface_points, part_frames, surface_points_cm, surface_visibility)
 from dome_calib.recon.patches.frames import patch_grid_cm  # noqa: E402
 from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
-from dome_calib.recon.patches.parts import PartOptions, label_parts  # noqa: E402
+from dome_calib.recon.patches.parts import BONES, PartOptions, label_parts  # noqa: E402
 from dome_calib.recon.patches.run import imaged_views, patch_stream  # noqa: E402
 from dome_calib.recon.patches.seed import reference_cameras  # noqa: E402
 from dome_calib.recon.project import project_points, view_set  # noqa: E402
@@ -158,9 +158,9 @@ class PhaseTimer:
 
     def __init__(self, scene: TexturedScene, seeds_memo: dict | None = None) -> None:
         self.scene = scene
-        self.cpu = {"seed": 0.0, "track": 0.0}
-        self.render = {"seed": 0.0, "track": 0.0}
-        self._saved = (patch_run.seed_task, patch_run.track_task)
+        self.cpu = {"seed": 0.0, "place": 0.0, "track": 0.0}
+        self.render = {"seed": 0.0, "place": 0.0, "track": 0.0}
+        self._saved = (patch_run.seed_task, patch_run.place_task, patch_run.track_task)
         self.memo = seeds_memo  # seed tasks' results by key, reused (their CPU then counted as at the first run)
         self.reused = 0.0
 
@@ -190,11 +190,12 @@ class PhaseTimer:
             return self._lk_saved(prev, nxt, pts, *a, **k)
         cv2.calcOpticalFlowPyrLK = counted
         patch_run.seed_task = self._wrap("seed", self._saved[0])
-        patch_run.track_task = self._wrap("track", self._saved[1])
+        patch_run.place_task = self._wrap("place", self._saved[1])
+        patch_run.track_task = self._wrap("track", self._saved[2])
         return self
 
     def __exit__(self, *exc: object) -> None:
-        patch_run.seed_task, patch_run.track_task = self._saved
+        patch_run.seed_task, patch_run.place_task, patch_run.track_task = self._saved
         cv2.calcOpticalFlowPyrLK = self._lk_saved
 
 
@@ -247,6 +248,11 @@ def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int, imaged=Non
         split[name] = {"share": round(float(m.mean()), 3) if m.size else None,
                        "map": precision_recall(est & m, true & m), "photometric": precision_recall(base & m, true & m)}
     labels = {}
+    by_part = {}  # the true part of each seeded patch (alive at the seed): how many, per person
+    for person in np.unique(sp.person[live]):
+        on = live & (sp.person == person)
+        by_part[f"person_{int(person)}"] = {name: int(np.sum(on & (sp.part == b))) for b, (name, _, _) in
+                                            enumerate(BONES)}
     Xj, present = truth.joints_cm(traj.times_ms)
     Xj[~present] = np.nan
     rng = np.random.default_rng(args.seed)
@@ -256,12 +262,15 @@ def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int, imaged=Non
         given = judged & (lab.bone >= 0)
         right = given & (lab.person == sp.person) & (lab.bone == sp.part)
         labels[kind] = {"accuracy": round(float(right.sum() / max(given.sum(), 1)), 4),
-                        "labelled_share": round(float(given.sum() / max(judged.sum(), 1)), 4), "n": int(judged.sum())}
+                        "labelled_share": round(float(given.sum() / max(judged.sum(), 1)), 4), "n": int(judged.sum()),
+                        "by_true_part": {name: [int(np.sum(right & (sp.part == b))),  # [right, labelled]
+                                                int(np.sum(given & (sp.part == b)))]
+                                         for b, (name, _, _) in enumerate(BONES)}}
     if args.save:
         np.savez_compressed(args.save, X_cm=traj.X_cm, normal=traj.normal, alive=traj.alive, visible=traj.visible,
                             photometric=traj.photometric, times_ms=traj.times_ms, person=sp.person, part=sp.part,
                             local_cm=sp.local_cm, joints_cm=Xj)
-    return dict(seeds=int(live.sum()), errors=errors, seed_normal_error_deg=seed_normal_deg,
+    return dict(seeds=int(live.sum()), seeds_by_true_part=by_part, errors=errors, seed_normal_error_deg=seed_normal_deg,
                 length_median_frames=float(np.median(lengths)) if len(lengths) else None,
                 length_share_25=round(float(np.mean(lengths >= min(25, nf))), 3) if len(lengths) else None,
                 visibility_map={"precision": precision_recall(est, true)[0], "recall": precision_recall(est, true)[1]},
@@ -387,12 +396,13 @@ def run(args: argparse.Namespace) -> None:
         emit(what="depth", nodes=list(depth.read_frame.nodes), cpu_s=round(depth_cpu, 2),
              load=[round(x, 2) for x in os.getloadavg()])
         variants = parse_variants(args.variants)
-        runs = [(seeding, spacing, k, name) for seeding in args.seeding.split(",")
+        runs = [(seeding, spacing, k, streams, name) for seeding in args.seeding.split(",")
                 for spacing in (spacings if seeding == "images" else [0.0]) for k in track_views
-                for name in variants]
+                for streams in args.seed_streams.split(",") for name in variants]
         memo: dict = {}
-        for seeding, spacing, k, name in runs:
-            ok = dataclasses.replace(o, track_views=k, seed_reference_spacing_deg=spacing, **variants[name])
+        for seeding, spacing, k, streams, name in runs:
+            ok = dataclasses.replace(o, **{"track_views": k, "seed_reference_spacing_deg": spacing,
+                                           "seed_streams": streams, **variants[name]})  # a variant may set any
             load = os.getloadavg()
             cpu0, wall0, render0 = time.process_time(), time.perf_counter(), sum(scene.render_s.values())
             with PhaseTimer(scene, memo.setdefault((seeding, spacing), {})) as phases:
@@ -403,17 +413,21 @@ def run(args: argparse.Namespace) -> None:
             emit(what="render", **{f"{k}_cpu_ms_per_view": round(1000.0 * scene.render_s[k] / scene.renders[k], 1)
                                    for k in sorted(scene.renders)}, renders=scene.renders, people=args.people,
                  load=[round(x, 2) for x in load])
-            got = evaluate(args, bundle, truth, cams, traj, t_seed, nf, imaged_views(scene, cams), ok)
+            save = args.save if len(runs) == 1 or not args.save else args.save.replace(
+                ".npz", f"_{seeding}_{streams}_{k}_{spacing:g}_{name}.npz")
+            got = evaluate(argparse.Namespace(**{**vars(args), "save": save}), bundle, truth, cams, traj, t_seed, nf,
+                           imaged_views(scene, cams), ok)
             stage_cpu = cpu - render_cpu + phases.reused  # seeds reused from an earlier run count their CPU
             track_cpu = phases.cpu["track"] - phases.render["track"]
-            emit(what="patches", seeding=seeding, track_views=k, ref_spacing_deg=spacing, variant=name,
-                 variant_options=variants[name],
+            emit(what="patches", seeding=seeding, seed_streams=streams, track_views=k, ref_spacing_deg=spacing,
+                 variant=name, variant_options=variants[name],
                  reference_cameras=len(reference_cameras(view_set(bundle, [c for c in cams if c in by_type["vga"]]),
                                                          spacing, o.volume_height_cm)),
                  scenario=args.scenario, people=args.people, cameras=len(cams),
                  vga=args.vga, hd=args.hd, kinect=args.kinect, frames_each_way=nf, seed=args.seed, **got,
                  stage_cpu_s=round(stage_cpu, 1), render_cpu_s=round(render_cpu, 1),
                  seed_cpu_s=round(phases.cpu["seed"] - phases.render["seed"], 2),
+                 place_cpu_s=round(phases.cpu["place"] - phases.render["place"], 2),
                  track_cpu_s=round(track_cpu, 2), wall_s=round(wall, 1), lk_calls=phases.lk["calls"],
                  lk_points=phases.lk["points"],
                  patch_views_frames_per_cpu_s=round(got["patch_views_frames"] / max(stage_cpu, 1e-9), 1),
@@ -441,6 +455,9 @@ def main() -> None:
     ap.add_argument("--patches-per-task", type=int, default=1000)
     ap.add_argument("--track-views", type=str, default="",
                     help="comma list of PatchOptions.track_views (0: all), one run each on the same rendered frames")
+    ap.add_argument("--seed-streams", type=str, default="all",
+                    help="comma list of PatchOptions.seed_streams (image seeding): all (every stream with enough "
+                         "cameras), reference (the VGA alone); one run each on the same rendered frames")
     ap.add_argument("--ref-spacing-deg", type=str, default="",
                     help="comma list of PatchOptions.seed_reference_spacing_deg (image seeding), one run each")
     ap.add_argument("--variants", type=str, default="",

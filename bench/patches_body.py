@@ -1,7 +1,7 @@
 """The body over time with the patches' part motions against the body over time alone (issue 49 part 3).
 
 Run: .venv/bin/python bench/patches_body.py [--rig fewcam,panel] [--people 3] [--seconds 4] [--seeds 1,2]
-         [--occlusions 6] [--stream FILE.npz] [--end-to-end]
+         [--occlusions 6] [--limbs arms,legs] [--stream FILE.npz] [--end-to-end]
 
 Setup per (rig, seed): the synthetic group (``fewcam``: the 5-camera HD rig of bench/fewcam.py, ``small_area``
 group; ``panel``: the as-built dome's panel preset, VGA of panels 1-2 with their HD and Kinect colour cameras,
@@ -69,7 +69,11 @@ def emit(**fields) -> None:
     print(json.dumps(fields), flush=True)
 
 
-def occlude(det, bundle, truth, times_ms, n_spans, seed, span_frames=10):
+#: The shins' joints (knees and ankles): their own figures, ``shins`` in each row.
+SHIN_JOINTS = [JOINTS19.index(j) for j in ("l_knee", "l_ankle", "r_knee", "r_ankle")]
+
+
+def occlude(det, bundle, truth, times_ms, n_spans, seed, span_frames=10, limbs=None):
     """Remove one limb end and its middle joint of each person from every camera for ``span_frames`` reference
     frames, ``n_spans`` times per person at random starts (a detection is the person's whose true joints it lies
     nearest, mean pixel distance): -> (det, removed (T, P, 19) bool, the joint-times taken out of the truth)."""
@@ -82,7 +86,7 @@ def occlude(det, bundle, truth, times_ms, n_spans, seed, span_frames=10):
     for p in range(Xt.shape[1]):
         slots = np.arange(5, T - span_frames - 5, span_frames + 5)
         for s in np.sort(rng.choice(slots, min(n_spans, len(slots)), replace=False)):
-            a, b = LIMBS[rng.integers(len(LIMBS))]
+            a, b = (limbs or LIMBS)[rng.integers(len(limbs or LIMBS))]
             removed[s:s + span_frames, p, [a, b]] = present[s:s + span_frames, p, None]
             spans.append((p, [a, b], times_ms[s] - 0.5 * dt, times_ms[s + span_frames - 1] + 0.5 * dt))
     out = {}
@@ -153,7 +157,7 @@ def _on_tracks(bodies, ids, shape) -> np.ndarray:
 
 
 def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: str = "",
-        end_to_end: bool = False) -> list[dict]:
+        end_to_end: bool = False, limbs: list | None = None) -> list[dict]:
     if rig == "fewcam":
         bundle = few_camera_rig(RigOptions(seed=seed, duration_ms=1000.0 * seconds + GROUP_MARGIN_MS + 100.0))
         truth = rig_group(bundle, n_people=n_people, seed=seed)
@@ -173,7 +177,7 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
     if saved is not None:
         times = saved["times_ms"]
     det = synth_detections(bundle, truth, model=DetectorModel(seed=seed))
-    det, removed = occlude(det, bundle, truth, times, n_occ, seed)
+    det, removed = occlude(det, bundle, truth, times, n_occ, seed, limbs=limbs)
     streams = people_streams(bundle, det)
     views = view_set(bundle, [n for s in streams for n in s.cameras])
     X, present = truth.joints_cm(times)
@@ -239,6 +243,19 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
                "occluded_put_out": round(float(rec.sum() / max(removed.sum(), 1)), 4),
                "occluded_within_3cm": round(float((rec & (e_all < 3.0)).sum() / max(removed.sum(), 1)), 4),
                "occluded_median_error_cm": round(float(np.median(e_all[rec])), 2) if rec.any() else None}
+        shin = np.zeros(X.shape[:3], bool)
+        shin[..., SHIN_JOINTS] = True
+        rs = rec & shin
+        row["shins"] = {"mpjpe_common_cm": round(float(err[both & shin].mean()), 3) if (both & shin).any() else None,
+                        "accel_error_cm_s2": round(float(acc_err[m3 & shin[2:]].mean()), 1)
+                        if (m3 & shin[2:]).any() else None,
+                        "occluded_joint_times": int((removed & shin).sum()),
+                        "occluded_within_3cm": round(float((rs & (e_all < 3.0)).sum() / max((removed & shin).sum(),
+                                                                                          1)), 4)}
+        if mode == "with_patches":
+            row["shins"]["occluded_tied"] = round(float((removed & tied & shin).sum()
+                                                        / max((removed & shin).sum(), 1)), 4)
+            row["shins"]["patches_labelled"] = int(np.isin(lab.bone, [10, 11]).sum())  # l_shin, r_shin
         flags = flag_joints(frame, Y, conf[mode])
         row.update(flags=int(flags.sum()), flags_precision=round(float((flags & frame_wrong).sum() / max(
             flags.sum(), 1)), 4), flags_recall=round(float((flags & frame_wrong).sum() / max(frame_wrong.sum(), 1)), 4),
@@ -267,6 +284,8 @@ def main() -> None:
     ap.add_argument("--seeds", default="1,2")
     ap.add_argument("--occlusions", type=int, default=6)
     ap.add_argument("--stream", default="", help="bench/patches.py --save FILE: its tracked patches (panel, its seed)")
+    ap.add_argument("--limbs", default="arms,legs", help="which limbs the occluded spans take: arms (a wrist and "
+                    "its elbow), legs (an ankle and its knee), or both")
     ap.add_argument("--end-to-end", action="store_true", help="reconstruct's path: the session's windows, then "
                     "the body over time fitted again with the ties (recon.people.run.refit_over_time)")
     args = ap.parse_args()
@@ -274,7 +293,8 @@ def main() -> None:
     rows = []
     for rig in args.rig.split(","):
         for seed in [int(x) for x in args.seeds.split(",")]:
-            rows += run(rig, args.people, args.seconds, seed, args.occlusions, args.stream, args.end_to_end)
+            rows += run(rig, args.people, args.seconds, seed, args.occlusions, args.stream, args.end_to_end,
+                        [lb for k, lb in zip(("arms", "arms", "legs", "legs"), LIMBS) if k in args.limbs.split(",")])
     a = [r for r in rows if r["method"] == "body_over_time"]
     b = [r for r in rows if r["method"] == "with_patches"]
     emit(aims={"mpjpe_ratio": [round(y["mpjpe_common_cm"] / x["mpjpe_common_cm"], 3) for x, y in zip(a, b)],

@@ -3,7 +3,9 @@
 
 **One time for all streams.** The stream is kept at the frame times of one *reference stream* (by default the
 stream with the most cameras, ties by name: VGA in the dome, the one HD stream of a rig). Clouds are seeded from
-the reference stream's cameras at a seed frame (their images share its time); every other camera joins through
+the reference stream's cameras at a seed frame (their images share its time) and, with ``seed_streams="all"``,
+from every other stream at its own frame nearest that time, then carried to it by one tracking step
+(:func:`place_seeds`); every other camera joins through
 its own frames, brought to the reference times as the skeleton stages bring detections there: its 2D track is
 interpolated linearly between the two frames around the time (``frame_brackets``), see :mod:`.track`, and it is
 judged (photometric term) on its nearest frame with the patch moved to that frame's time.
@@ -22,15 +24,15 @@ from dome_calib.recon.errors import ReconError
 from dome_calib.recon.patches.frames import FrameSource, patch_axes
 from dome_calib.recon.patches.model import PatchOptions, PatchTrajectories
 from dome_calib.recon.patches.seed import (CameraSeeds, Seeds, merge_camera_seeds, reference_cameras,
-                                           seed_camera)
-from dome_calib.recon.patches.seed_depth import DepthFrames, seed_from_depth
+                                           seed_camera, thin_to_cells)
+from dome_calib.recon.patches.seed_depth import DepthFrames, seed_from_depth, seed_from_own_kinect
 from dome_calib.recon.patches.seed_features import seed_from_features
 from dome_calib.recon.patches.seed_skeleton import BodyPrior, CameraBodySeeds, merge_body_seeds, seed_camera_on_body
 from dome_calib.recon.patches.refine import refine_normals
 from dome_calib.recon.patches.track import Clock, CloudTrack, judged_frames, quantise_cm, track_cloud
 from dome_calib.recon.patches.visibility import camera_neighbours, estimate_visibility
 from dome_calib.recon.project import ViewSet, view_set
-from dome_calib.recon.streams import cameras_by_stream
+from dome_calib.recon.streams import cameras_by_stream, frame_period_ms
 
 logger = logging.getLogger(__name__)
 
@@ -106,14 +108,20 @@ class SeedTask:
     bundle: Bundle | None = None
     depth: DepthFrames | None = None
     body_cm: np.ndarray | None = None
+    stream_rank: int = 0  # 0: the reference stream; k > 0: the k-th other stream that seeds (sorted by name)
+    node: str = ""  # a Kinect seeding from its own depth in its colour camera ``camera`` of ``ref_views``
 
     @property
-    def key(self) -> tuple[int, int]:
-        return (self.cloud, self.camera)
+    def key(self) -> tuple[int, int, int]:
+        return (self.cloud, self.stream_rank, self.camera)
 
 
 def seed_task(task: SeedTask) -> tuple[tuple[int, int], CameraSeeds | CameraBodySeeds | Seeds]:
     """Run one :class:`SeedTask` (module level: picklable for a process pool or Dask)."""
+    if task.node:
+        return task.key, seed_from_own_kinect(task.bundle, task.depth, task.node, task.seed_time_ms, task.source,
+                                              task.ref_views, task.camera, task.frames[task.ref_views.names[
+                                                  task.camera]], task.options)
     if task.depth is not None:
         return task.key, seed_from_depth(task.bundle, task.depth, task.seed_time_ms, task.source, task.ref_views,
                                          task.frames, task.options)
@@ -123,6 +131,82 @@ def seed_task(task: SeedTask) -> tuple[tuple[int, int], CameraSeeds | CameraBody
         return task.key, seed_camera_on_body(task.source, task.ref_views, task.frames, task.camera, task.body_cm,
                                              task.options)
     return task.key, seed_camera(task.source, task.ref_views, task.frames, task.camera, task.options)
+
+
+def stream_seed_frame(clocks: list[Clock], t_ms: float) -> int | None:
+    """The frame of one stream (its cameras' ``clocks``) nearest ``t_ms`` that every camera holds, within half a
+    nominal period (ties: the earlier frame); None if there is none."""
+    held = clocks[0].frames
+    for c in clocks[1:]:
+        held = np.intersect1d(held, c.frames)
+    if len(held) == 0:
+        return None
+    times = clocks[0].table.times_of(held)
+    k = int(np.argmin(np.rint(np.abs(times - t_ms) * 1e3)))
+    return int(held[k]) if abs(times[k] - t_ms) <= 0.5 * frame_period_ms(clocks[0].table) + 1e-6 else None
+
+
+def place_seeds(source: FrameSource, views: ViewSet, clocks: list[Clock], from_ms: float, to_ms: float, seeds: Seeds,
+                neighbours: np.ndarray, o: PatchOptions, *, refine: bool | None = None) -> tuple[Seeds, np.ndarray]:
+    """Seeds of a stream at its own frame time ``from_ms`` (``seeds.seen`` over ``views``) -> the same patches at the
+    cloud's seed time ``to_ms``: normals refined photometrically at ``from_ms`` (where the seeding stream's cameras
+    have their frames, :mod:`.refine`), then one tracking step to ``to_ms`` (:func:`track_cloud`: each camera's track
+    interpolated linearly between its frames around the time, as every camera joins the tracking), the visibility
+    there (MAP) their ``seen``. A seed that does not survive the step is dropped -> (the placed seeds, (N,) which of
+    ``seeds`` they are). Per patch, like the tracking."""
+    V = len(views.names)
+    if len(seeds.X_cm) == 0:
+        return Seeds(X_cm=np.zeros((0, 3, 3)), normal=np.zeros((0, 3)), seen=np.zeros((0, V), bool)), np.zeros(0, bool)
+    X = quantise_cm(seeds.X_cm)
+    if o.refine_normals if refine is None else refine:
+        frames = judged_frames(clocks, from_ms)
+        vis = estimate_visibility(source, views, frames, X, np.zeros_like(X), seeds.seen, None, neighbours, o)
+        X = quantise_cm(refine_normals(source, views, frames, X, vis.visible, o))
+    times = np.array([from_ms, to_ms]) if abs(to_ms - from_ms) >= 0.5 else np.array([to_ms])
+    track = track_cloud(source, views, clocks, times, X, seeds.seen, neighbours, o)
+    ok = track.alive[:, -1]
+    Xo = track.X_cm[ok, -1]
+    _, _, normal = patch_axes(Xo[:, 0], Xo[:, 1], Xo[:, 2])
+    return Seeds(X_cm=Xo, normal=normal, seen=track.visible[ok, -1]), ok
+
+
+@dataclass(frozen=True)
+class PlaceTask:
+    """Executor task: the merged seeds of cloud ``cloud`` from the ``stream_rank``-th other stream, at its frame
+    time ``from_ms``, carried to the cloud's seed time ``to_ms`` (:func:`place_seeds`)."""
+
+    cloud: int
+    stream_rank: int
+    source: FrameSource
+    views: ViewSet
+    clocks: list[Clock]
+    from_ms: float
+    to_ms: float
+    seeds: Seeds
+    neighbours: np.ndarray
+    options: PatchOptions
+    refine: bool = True  # refine the normals first (not depth seeds': the depth's normal is better)
+
+    @property
+    def key(self) -> tuple[int, int]:
+        return (self.cloud, self.stream_rank)
+
+
+def place_task(task: PlaceTask) -> tuple[tuple[int, int], Seeds]:
+    """Run one :class:`PlaceTask` (module level: picklable)."""
+    return task.key, place_seeds(task.source, task.views, task.clocks, task.from_ms, task.to_ms, task.seeds,
+                                 task.neighbours, task.options, refine=task.refine)[0]
+
+
+def merge_streams(clouds: list[Seeds], o: PatchOptions) -> Seeds:
+    """One cloud's seeds of each stream (the reference stream's first, each ``seen`` over all cameras) -> one cloud:
+    one seed per ``seed_spacing_cm`` cell, the earlier stream's first (the reference stream's seeds are all kept,
+    in their order), then the one seen by most cameras, then the first."""
+    X = np.concatenate([c.X_cm for c in clouds])
+    rank = np.concatenate([np.full(len(c.X_cm), k) for k, c in enumerate(clouds)])
+    seen = np.concatenate([c.seen for c in clouds])
+    pick = thin_to_cells(X[:, 0], [np.arange(len(X)), -seen.sum(1), rank], o.seed_spacing_cm)
+    return Seeds(X_cm=X[pick], normal=np.concatenate([c.normal for c in clouds])[pick], seen=seen[pick])
 
 
 @dataclass(frozen=True)
@@ -224,6 +308,19 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
         windows.append(frames_in[max(pos - o.track_frames, 0):pos + o.track_frames + 1])
     seed_times = [table.time_of(int(f)) for f in seeds_at]
     refs = reference_cameras(ref_views, o.seed_reference_spacing_deg, o.volume_height_cm)
+    # the other streams that seed (sweep): each with enough cameras to triangulate a seed, sorted by name
+    others = ([st for st in sorted(groups) if st != stream and len(groups[st]) >= o.seed_min_views]
+              if o.seed_streams == "all" and (o.seed_method == "sweep" or depth is not None) else [])
+    # with depth, a Kinect's colour camera (a stream of one camera, its own clock) seeds from its own depth
+    depth_nodes = (bundle.sync.kinect_depth if bundle.sync is not None and bundle.sync.kinect_depth else {})
+    own_kinects = ([st for st in sorted(groups) if st != stream and st not in others and len(groups[st]) == 1
+                    and st in depth_nodes and (depth.nodes is None or st in depth.nodes)]
+                   if o.seed_streams == "all" and depth is not None else [])
+    others += own_kinects
+    other_views = [views.subset(groups[st]) for st in others]
+    other_clocks = [[clocks[i] for i in views.index_of(groups[st])] for st in others]
+    other_refs = [reference_cameras(v, o.seed_reference_spacing_deg, o.volume_height_cm) for v in other_views]
+    other_at: dict[tuple[int, int], tuple[int, float]] = {}  # (cloud, rank) -> the stream's frame and its time
     seed_tasks = []
     for c, f in enumerate(seeds_at):
         frames = {n: int(f) for n in ref_names}
@@ -233,17 +330,51 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
             body_cm = body.at(seed_times[c]) if on_body else None
             seed_tasks += [SeedTask(c, int(r), source, ref_views, frames, seed_times[c], o, body_cm=body_cm)
                            for r in refs]
-    got: dict[int, list] = {}
-    for (c, _), result in run_tasks(executor, seed_task, seed_tasks):
-        got.setdefault(c, []).append(result)
+        for k, st in enumerate(others, start=1):
+            g = stream_seed_frame(other_clocks[k - 1], seed_times[c])
+            if g is None:
+                continue
+            other_at[c, k] = (g, other_clocks[k - 1][0].table.time_of(g))
+            at_g = {n: g for n in groups[st]}
+            if st in own_kinects:  # the points are where they were at the depth frame's own time: placed from there
+                _, dt = depth_nodes[st].nearest(other_at[c, k][1])
+                other_at[c, k] = (g, other_at[c, k][1] + float(dt))
+                seed_tasks.append(SeedTask(c, int(views.index_of(groups[st])[0]), source, views, at_g,
+                                           other_at[c, k][1], o, bundle, depth, stream_rank=k, node=st))
+            elif depth is not None:  # the depth at the stream's frame time, placed in the stream's cameras
+                seed_tasks.append(SeedTask(c, -1, source, other_views[k - 1], at_g, other_at[c, k][1], o, bundle,
+                                           depth, stream_rank=k))
+            else:
+                seed_tasks += [SeedTask(c, int(r), source, other_views[k - 1], at_g, other_at[c, k][1], o,
+                                        stream_rank=k) for r in other_refs[k - 1]]
+    got: dict[tuple[int, int], list] = {}
+    for (c, k, _), result in run_tasks(executor, seed_task, seed_tasks):
+        got.setdefault((c, k), []).append(result)
+    place_tasks = []
+    for (c, k), (g, t_g) in sorted(other_at.items()):
+        merged = (got[c, k][0] if depth is not None
+                  else merge_camera_seeds(got.get((c, k), []), other_views[k - 1], o))
+        if others[k - 1] in own_kinects:  # seen over all cameras already
+            seen = merged.seen
+        else:
+            seen = np.zeros((len(merged.X_cm), len(cameras)), bool)
+            seen[:, views.index_of(groups[others[k - 1]])] = merged.seen
+        place_tasks.append(PlaceTask(c, k, source, views, clocks, t_g, seed_times[c],
+                                     Seeds(X_cm=merged.X_cm, normal=merged.normal, seen=seen), neighbours, o,
+                                     refine=o.refine_normals and depth is None))
+    placed: dict[int, list[Seeds]] = {}
+    for (c, _), result in run_tasks(executor, place_task, place_tasks):
+        placed.setdefault(c, []).append(result)
     track_tasks = []
     for c in range(len(seeds_at)):
-        ref_seeds = (got[c][0] if depth is not None or o.seed_method == "features"
-                     else merge_body_seeds(got.get(c, []), len(ref_names), o) if on_body
-                     else merge_camera_seeds(got.get(c, []), ref_views, o))
+        ref_seeds = (got[c, 0][0] if depth is not None or o.seed_method == "features"
+                     else merge_body_seeds(got.get((c, 0), []), len(ref_names), o) if on_body
+                     else merge_camera_seeds(got.get((c, 0), []), ref_views, o))
         seen = np.zeros((len(ref_seeds.X_cm), len(cameras)), bool)
         seen[:, ref_pos] = ref_seeds.seen
         seeds = Seeds(X_cm=ref_seeds.X_cm, normal=ref_seeds.normal, seen=seen)
+        if placed.get(c):
+            seeds = merge_streams([seeds] + placed[c], o)
         for lo in range(0, max(len(seeds.X_cm), 1), patches_per_task):
             part = slice(lo, lo + patches_per_task)
             track_tasks.append(TrackTask(c, lo, source, views, clocks, seed_times[c], table.times_of(windows[c]),

@@ -66,6 +66,51 @@ def trackable(gray: np.ndarray, uv_px: np.ndarray) -> np.ndarray:
     return sample(eig, uv_px) >= TRACKABLE_QUALITY * float(eig.max())
 
 
+def depth_points(bundle: Bundle, depth: DepthFrames, t_ms: float, o: PatchOptions, nodes: list[str] | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The Kinects' depth nearest ``t_ms`` as thinned points with normals (steps 1-3 of the module): (M, 3) points,
+    (M, 3) normals (towards their depth camera), (M, 3) first plane axes, (M, 3) their depth camera's centre.
+    ``nodes``: these Kinects (None: ``depth.nodes``)."""
+    use = nodes if nodes is not None else None if depth.nodes is None else list(depth.nodes)
+    cloud = pointcloud_at(bundle, t_ms, depth.read_frame, nodes=use)
+    keep = _in_volume(cloud.xyz_cm, o)
+    P, sensor = cloud.xyz_cm[keep], cloud.sensor[keep].astype(np.int64)
+    if len(P) == 0:
+        return (np.zeros((0, 3)),) * 4
+    sensor_centre = np.array([-R.T @ t for R, t in (depth_from_world(bundle, n) for n in cloud.sensors)])
+    cell_centre = (np.floor(P / o.seed_spacing_cm) + 0.5) * o.seed_spacing_cm
+    off = np.rint(np.linalg.norm(P - cell_centre, axis=1) * 1000.0)
+    pick = thin_to_cells(P, [np.arange(len(P)), sensor, off], o.seed_spacing_cm)
+    X = P[pick]
+    one_hot = sensor[pick][:, None] == np.arange(len(cloud.sensors))[None]
+    normal, axis, ok = _normals(X, P, one_hot, sensor_centre, o.size_cm / 2.0, o.normal_min_points)
+    return X[ok], normal[ok], axis[ok], sensor_centre[sensor[pick][ok]]
+
+
+def seed_from_own_kinect(bundle: Bundle, depth: DepthFrames, node: str, t_ms: float, source: FrameSource,
+                         views: ViewSet, camera: int, frame: int, o: PatchOptions) -> Seeds:
+    """Seeds from one Kinect's depth in its own colour camera (``views`` position ``camera``, its ``frame`` the one
+    nearest ``t_ms``): a Kinect's colour camera is a stream of one camera (its own clock), which cannot triangulate a
+    seed, but its depth gives the point. The depth nearest ``t_ms`` (its frame's time: the points are placed from
+    there, :func:`dome_calib.recon.patches.run.place_seeds`; steps 1-3 of the module), kept where the colour
+    camera sees the point (in its image, the normal facing it by more than ``min_cos_view``) and its image can be
+    tracked there (:func:`trackable`); ``seen`` that camera alone (the MAP then judges every camera at the first
+    tracking step, :func:`dome_calib.recon.patches.run.place_seeds`)."""
+    V = len(views.names)
+    X, normal, axis, _ = depth_points(bundle, depth, t_ms, o, nodes=[node])
+    proj = project_points(views.subset([views.names[camera]]), X) if len(X) else None
+    if proj is None:
+        return Seeds(X_cm=np.zeros((0, 3, 3)), normal=np.zeros((0, 3)), seen=np.zeros((0, V), bool))
+    to_cam = views.center_cm[camera][None] - X
+    to_cam /= np.linalg.norm(to_cam, axis=1, keepdims=True)
+    ok = proj.visible[0] & (np.sum(to_cam * normal, 1) > o.min_cos_view)
+    idx = np.flatnonzero(ok)
+    idx = idx[trackable(source.gray(views.names[camera], frame), proj.uv_px[0][idx])] if len(idx) else idx
+    seen = np.zeros((len(idx), V), bool)
+    seen[:, camera] = True
+    return Seeds(X_cm=patch_triplets(X[idx], normal[idx], axis[idx], o.axis_cm), normal=normal[idx], seen=seen)
+
+
 def seed_from_depth(bundle: Bundle, depth: DepthFrames, seed_time_ms: float, source: FrameSource, views: ViewSet,
                     frames: dict[str, int], o: PatchOptions) -> Seeds:
     """A seed cloud from the Kinects' depth at ``seed_time_ms``, placed in the reference cameras ``views`` (as
@@ -77,20 +122,9 @@ def seed_from_depth(bundle: Bundle, depth: DepthFrames, seed_time_ms: float, sou
     """
     V = len(views.names)
     empty = Seeds(X_cm=np.zeros((0, 3, 3)), normal=np.zeros((0, 3)), seen=np.zeros((0, V), bool))
-    cloud = pointcloud_at(bundle, seed_time_ms, depth.read_frame,
-                          nodes=None if depth.nodes is None else list(depth.nodes))
-    keep = _in_volume(cloud.xyz_cm, o)
-    P, sensor = cloud.xyz_cm[keep], cloud.sensor[keep].astype(np.int64)
-    if len(P) == 0:
+    X, normal, axis, own = depth_points(bundle, depth, seed_time_ms, o)
+    if len(X) == 0:
         return empty
-    sensor_centre = np.array([-R.T @ t for R, t in (depth_from_world(bundle, n) for n in cloud.sensors)])
-    cell_centre = (np.floor(P / o.seed_spacing_cm) + 0.5) * o.seed_spacing_cm
-    off = np.rint(np.linalg.norm(P - cell_centre, axis=1) * 1000.0)
-    pick = thin_to_cells(P, [np.arange(len(P)), sensor, off], o.seed_spacing_cm)
-    X = P[pick]
-    one_hot = sensor[pick][:, None] == np.arange(len(cloud.sensors))[None]
-    normal, axis, ok = _normals(X, P, one_hot, sensor_centre, o.size_cm / 2.0, o.normal_min_points)
-    X, normal, axis, own = X[ok], normal[ok], axis[ok], sensor_centre[sensor[pick][ok]]
     # the reference camera: the one looking at the point most nearly as its depth camera did
     proj = project_points(views, X)
     inside = proj.visible.T  # (N, V)
@@ -126,6 +160,5 @@ def seed_from_depth(bundle: Bundle, depth: DepthFrames, seed_time_ms: float, sou
     n, a = normal[k_a], axis[k_a]
     towards = np.einsum("nv,vk->nk", seen.astype(float), views.center_cm) - seen.sum(1, keepdims=True) * Xt
     n = np.where(np.sum(n * towards, 1, keepdims=True) > 0, n, -n)
-    logger.info("depth seed cloud at %.1f ms: %d depth points in the volume, %d cells, %d seeds", seed_time_ms,
-                len(P), len(X), len(Xt))
+    logger.info("depth seed cloud at %.1f ms: %d cells with a normal, %d seeds", seed_time_ms, len(X), len(Xt))
     return Seeds(X_cm=patch_triplets(Xt, n, a, o.axis_cm), normal=n, seen=seen)
