@@ -31,3 +31,22 @@ def test_no_signal_leaves_the_handlers_as_they_were():
     with _interrupts_after_launch():
         pass
     assert {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)} == before
+
+
+def test_a_process_launched_inside_starts_with_sigint_ignored():
+    """Ctrl-C reaches the whole process group: a worker still importing (before its initializer ignores SIGINT)
+    printed a KeyboardInterrupt traceback. Launched inside, it ignores SIGINT from its first instruction (an ignored
+    disposition survives exec, Python's own handler is then not installed)."""
+    import subprocess
+    import sys
+
+    kept = signal.getsignal(signal.SIGINT)
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a terminal
+    try:
+        with _interrupts_after_launch():
+            out = subprocess.run([sys.executable, "-c", "import signal; print(int(signal.getsignal(signal.SIGINT)))"],
+                                 capture_output=True, text=True, check=True).stdout
+        assert int(out) == int(signal.SIG_IGN)
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the parent's handler is back
+    finally:
+        signal.signal(signal.SIGINT, kept)

@@ -288,8 +288,49 @@ def test_reconstruct_refuses_a_malformed_images_json(tiny_detections, tmp_path, 
     assert not out.exists()
 
 
+CAMERAS_CASES = {  # dome-calib people-page FOLDER: FOLDER/cameras.json as reconstruct wrote it (scene_io.CamerasFile)
+    "a count below 0": (lambda d: d["cameras"][next(iter(d["cameras"]))].update(detected=-1),
+                        "cameras.{cam}.detected: expected an integer >= 0"),
+    "a flagged camera not among the cameras": (lambda d: d.update(flagged=["99_99"]),
+                                               "flagged[0]: camera 99_99 is not one of cameras"),
+    "cameras removed": (lambda d: d.pop("cameras"), "cameras: missing"),
+}
+
+
+@pytest.fixture(scope="module")
+def tiny_people(tiny_detections, tmp_path_factory):
+    """reconstruct's output folder (with its cameras.json) for the tiny detections."""
+    import subprocess
+    import sys
+
+    out = tmp_path_factory.mktemp("tiny_people") / "people"
+    done = subprocess.run([sys.executable, "-c", "from dome_calib.cli import main; main()", "reconstruct",
+                           str(tiny_detections / "det"), "--bundle", str(tiny_detections / "bundle"),
+                           "--body-model", "PANOPTIC19", "-o", str(out)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    return out
+
+
+@pytest.mark.parametrize("case", sorted(CAMERAS_CASES))
+def test_people_page_refuses_a_malformed_cameras_json(tiny_people, tmp_path, monkeypatch, capsys, case):
+    import shutil
+
+    folder = tmp_path / "people"
+    shutil.copytree(tiny_people, folder)
+    path = folder / "cameras.json"
+    doc = json.loads(path.read_text())
+    cam = next(iter(doc["cameras"]))
+    change, words = CAMERAS_CASES[case]
+    change(doc)
+    path.write_text(json.dumps(doc))
+    done = _run("dome-calib", ["people-page", folder, "-o", tmp_path / "page.html"], monkeypatch, capsys)
+    _one_line(done, f"{path}: {words.format(cam=cam)}")
+    assert not (tmp_path / "page.html").exists()
+
+
 def test_every_input_file_of_the_page_has_a_case_here():
     covered = {"capture.json", "session.json", "timestamps.json", "calibration_<seq>.json", "kcalibration_<seq>.json",
                "synctables_<seq>.json", "ksynctables_<seq>.json", "OpenPose JSON", "camera map", "dome_session.json",
-               "report/report.json", "report/session.json", "report/sync.json", "detections JSON", "images.json"}
+               "report/report.json", "report/session.json", "report/sync.json", "detections JSON", "images.json",
+               "cameras.json"}
     assert covered == NAMES

@@ -61,11 +61,16 @@ def _worker_ignores_sigint() -> None:
 
 @contextmanager
 def _interrupts_after_launch() -> Iterator[None]:
-    """SIGINT / SIGTERM that arrive while a worker process is being launched take effect right after the launch, not
-    inside it: an interrupt between spawning a worker and handing it its start-up data left the worker reading an
-    empty pipe, and it printed ``EOFError: Ran out of input`` with a traceback on the user's terminal. Python runs
-    signal handlers in the main thread only, so outside it (or with a non-Python handler) nothing is changed; the
-    handlers in place before are put back on leaving, and the first signal that came is then handed to its own."""
+    """While a worker process is launched: SIGTERM that arrives takes effect right after the launch, not inside it
+    (an interrupt between spawning a worker and handing it its start-up data left the worker reading an empty pipe,
+    and it printed ``EOFError: Ran out of input`` with a traceback on the user's terminal); SIGINT is ignored, so
+    that the worker starts with SIGINT ignored (an ignored disposition survives exec; a Python handler does not):
+    a Ctrl-C to the process group while the worker was still importing, before its initializer
+    (:func:`_worker_ignores_sigint`) ran, printed a ``KeyboardInterrupt`` traceback from it (seen under load in
+    tests/test_calibrate_safety.py). A Ctrl-C within the launch itself (milliseconds) is dropped, a press again
+    stops the run. Python runs signal handlers in the main thread only, so outside it (or with a non-Python
+    handler) nothing is changed; the handlers in place before are put back on leaving, and the first SIGTERM that
+    came is then handed to its own."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -73,7 +78,8 @@ def _interrupts_after_launch() -> Iterator[None]:
             if callable(handler := signal.getsignal(sig))}  # a default or ignored disposition: no Python handler
     came: list[tuple[int, Any]] = []
     for sig in kept:
-        signal.signal(sig, lambda signum, frame: came.append((signum, frame)))
+        signal.signal(sig, signal.SIG_IGN if sig == signal.SIGINT
+                      else lambda signum, frame: came.append((signum, frame)))
     try:
         yield
     finally:
