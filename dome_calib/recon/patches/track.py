@@ -152,12 +152,22 @@ def flow_camera(source: FrameSource, name: str, clock: Clock, t0: float, t1: flo
     return out, ok
 
 
+#: Patches triangulated per call: the robust triangulation's arrays are (points, cameras, hypotheses) and outgrow
+#: the caches (full dome, 6000 patches per call: 1.99 ms per patch, 1.41 in chunks of 1000, 1.17 of 500, 1.12 of
+#: 250); each point's result is its own (the same bits in any chunks).
+TRIANGULATE_CHUNK = 256
+
+
 def _triangulate_points(views: ViewSet, uv: np.ndarray, conf: np.ndarray, o: PatchOptions) -> np.ndarray:
     """(N, 3, V, 2) pixels, (N, 3, V) conf -> (N, 3, 3) points (NaN where a point has fewer than 2 inliers)."""
     N, _, V = conf.shape
-    tri = triangulate(views, uv.reshape(N * 3, V, 2), conf.reshape(N * 3, V),
-                      TriangulationOptions(inlier_threshold_px=o.triangulation_px, min_views=2))
-    return tri.X_cm.reshape(N, 3, 3)
+    out = np.full((N, 3, 3), np.nan)
+    for lo in range(0, N, TRIANGULATE_CHUNK):
+        n = len(conf[lo:lo + TRIANGULATE_CHUNK])
+        tri = triangulate(views, uv[lo:lo + n].reshape(n * 3, V, 2), conf[lo:lo + n].reshape(n * 3, V),
+                          TriangulationOptions(inlier_threshold_px=o.triangulation_px, min_views=2))
+        out[lo:lo + n] = tri.X_cm.reshape(n, 3, 3)
+    return out
 
 
 def square_up(X: np.ndarray, axis_cm: float) -> np.ndarray:
