@@ -133,3 +133,26 @@ def test_reference_cameras_cover_the_dome_once():
     shuffled = vs.subset(list(np.array(vga)[np.random.default_rng(0).permutation(len(vga))]))
     again = reference_cameras(shuffled, 10.0, 220.0)
     assert sorted(shuffled.names[i] for i in again) == sorted(vs.names[i] for i in refs)  # by name, not order
+
+
+def test_a_cloud_judges_its_seed_time_once_and_samples_only_squares_in_the_image(capture, monkeypatch):
+    _, scene, views, clocks, t, X = capture
+    judged, sampled = [], []
+    real_vis, real_sample = track_mod.estimate_visibility, vis_mod.sample
+
+    def counting_vis(*args):
+        got = real_vis(*args)
+        judged.append(int(got.candidate.sum()))
+        return got
+
+    def counting_sample(gray, uv):
+        sampled.append(len(uv))
+        return real_sample(gray, uv)
+    monkeypatch.setattr(track_mod, "estimate_visibility", counting_vis)
+    monkeypatch.setattr(vis_mod, "sample", counting_sample)
+    seeds = Seeds(X_cm=X[:30], normal=np.zeros((30, 3)), seen=np.ones((30, len(views.names)), bool))
+    back, fwd = run_cloud(scene, views, clocks, t, np.array([t - 40.0, t, t + 40.0]), seeds, PatchOptions(),
+                          refine=False)
+    assert len(judged) == 3  # the seed time once for both directions, then one per step
+    assert sum(sampled) == sum(judged)  # one square per patch and camera where it is in the image, no more
+    assert np.array_equal(back.visible[:, 0], fwd.visible[:, 0])

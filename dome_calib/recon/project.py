@@ -94,9 +94,14 @@ class ViewSet:
 
     def subset(self, names: list[str]) -> ViewSet:
         """The views ``names`` (in that order)."""
-        i = self.index_of(names)
-        return ViewSet(names=list(names), R=self.R[i], t_cm=self.t_cm[i], intr=self.intr[i], dist=self.dist[i],
-                       resolution=self.resolution[i], r2_max=self.r2_max[i])
+        return self.at(self.index_of(names))
+
+    def at(self, positions) -> ViewSet:
+        """The views at ``positions`` (in that order): :meth:`subset` without the look-up by name (a loop over a
+        dome's cameras calls it per camera)."""
+        i = np.asarray(positions, dtype=np.int64)
+        return ViewSet(names=[self.names[k] for k in i], R=self.R[i], t_cm=self.t_cm[i], intr=self.intr[i],
+                       dist=self.dist[i], resolution=self.resolution[i], r2_max=self.r2_max[i])
 
 
 def view_set(bundle: Bundle, names: list[str] | None = None, *, kinect_depth: bool = False) -> ViewSet:

@@ -44,7 +44,7 @@ def _score(source: FrameSource, views: ViewSet, frames: Frames, X0: np.ndarray, 
     for c in np.unique(cams[cams >= 0]):
         rows, ks = np.nonzero(cams == c)
         name = views.names[c]
-        p = project_points(views.subset([name]), grid[rows].reshape(-1, 3))
+        p = project_points(views.at([c]), grid[rows].reshape(-1, 3))
         inside[rows, ks] = p.visible[0].reshape(len(rows), H, G).all(-1)
         samples[rows, ks] = sample(source.gray(name, int(frames.frame[c])), p.uv_px[0].reshape(len(rows), H, G, 2))
     corr = ncc(samples[:, 1:], samples[:, :1])  # (N, K - 1, H)

@@ -29,7 +29,8 @@ from dome_calib.recon.patches.seed_depth import DepthFrames, seed_from_depth, se
 from dome_calib.recon.patches.seed_features import seed_from_features
 from dome_calib.recon.patches.seed_skeleton import BodyPrior, CameraBodySeeds, merge_body_seeds, seed_camera_on_body
 from dome_calib.recon.patches.refine import refine_normals
-from dome_calib.recon.patches.track import Clock, CloudTrack, judged_frames, quantise_cm, track_cloud
+from dome_calib.recon.patches.track import (Clock, CloudTrack, judged_frames, quantise_cm, seed_visibility,
+                                            track_cloud)
 from dome_calib.recon.patches.visibility import camera_neighbours, estimate_visibility
 from dome_calib.recon.project import ViewSet, view_set
 from dome_calib.recon.streams import cameras_by_stream, frame_period_ms
@@ -86,8 +87,9 @@ def run_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], seed_tim
         frames = judged_frames(clocks, float(t[s]))
         vis = estimate_visibility(source, views, frames, X, np.zeros_like(X), seeds.seen, None, neighbours, o)
         X = quantise_cm(refine_normals(source, views, frames, X, vis.visible, o))
-    back = track_cloud(source, views, clocks, t[:s + 1][::-1], X, seeds.seen, neighbours, o)
-    fwd = track_cloud(source, views, clocks, t[s:], X, seeds.seen, neighbours, o)
+    start = seed_visibility(source, views, clocks, float(t[s]), X, seeds.seen, neighbours, o)
+    back = track_cloud(source, views, clocks, t[:s + 1][::-1], X, seeds.seen, neighbours, o, start)
+    fwd = track_cloud(source, views, clocks, t[s:], X, seeds.seen, neighbours, o, start)
     return back, fwd
 
 

@@ -109,12 +109,21 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
     _, _, normal = patch_axes(X[:, 0], X[:, 1], X[:, 2])
     C = views.center_cm
     G = GRID_SIDE * GRID_SIDE
-    samples = np.zeros((N, V, G), np.float32)
+    # the squares are sampled where they are in the image only (a third of a dome's patch-cameras face the patch):
+    # one (M, G) block of samples, row row_of[n, v] for patch n in camera v
+    row_of = np.full((N, V), -1, np.int64)
+    blocks: list[np.ndarray] = []
+    M = 0
+    moved: dict[float, tuple[np.ndarray, np.ndarray]] = {}  # per time offset: the patches there and their squares
     for v, name in enumerate(views.names):
         f = int(frames.frame[v])
         if f < 0 or N == 0:
             continue
-        Xv = X + velocity * frames.offset_ms[v]
+        dt = float(frames.offset_ms[v])
+        if dt not in moved:  # a stream's cameras share the offset: the squares are made once per stream
+            Xt = X + velocity * dt
+            moved[dt] = Xt, patch_grid_cm(Xt[:, 0], Xt[:, 1], Xt[:, 2], o.ncc_size_cm)  # (N, G, 3)
+        Xv, grid_all = moved[dt]
         to_cam = C[v] - Xv[:, 0]
         cos[:, v] = np.sum(to_cam * normal, 1) / np.linalg.norm(to_cam, axis=1)
         # only patches whose normal faces the camera can be candidates: the others are not projected (a dome's
@@ -122,20 +131,29 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
         rows = np.flatnonzero(cos[:, v] > o.min_cos_view)
         if len(rows) == 0:
             continue
-        grid = patch_grid_cm(Xv[rows, 0], Xv[rows, 1], Xv[rows, 2], o.ncc_size_cm)  # (n, G, 3)
-        p = project_points(views.subset([name]), grid.reshape(-1, 3))
+        p = project_points(views.at([v]), grid_all[rows].reshape(-1, 3))
         inside = p.visible[0].reshape(len(rows), G).all(axis=1)
         in_image[rows, v] = inside
         if inside.any():
-            samples[rows[inside], v] = sample(source.gray(name, f), p.uv_px[0].reshape(len(rows), G, 2)[inside])
+            blocks.append(sample(source.gray(name, f), p.uv_px[0].reshape(len(rows), G, 2)[inside]))
+            row_of[rows[inside], v] = M + np.arange(len(blocks[-1]))
+            M += len(blocks[-1])
+    samples = np.concatenate(blocks) if blocks else np.zeros((0, G), np.float32)
     candidate = in_image & (cos > o.min_cos_view)
     prev = previous & candidate
     score = np.where(prev, cos, np.where(candidate, cos - 2.0, -np.inf))
     ref = np.argmax(np.where(np.isfinite(score), np.rint(score * 1e6), -1e9), axis=1)  # quantised: ties by position
     has_ref = np.isfinite(score[np.arange(N), ref])
-    corr = ncc(samples, samples[np.arange(N), ref][:, None])
-    corr = np.where(in_image & has_ref[:, None], corr, -1.0)
-    best = np.maximum(corr, neighbour_ncc(samples, prev, neighbours)) if o.neighbour_ncc else corr
+    pi, vi = np.nonzero(in_image & has_ref[:, None])
+    got = ncc(samples[row_of[pi, vi]], samples[row_of[pi, ref[pi]]])
+    corr = np.full((N, V), -1.0, got.dtype)
+    corr[pi, vi] = got
+    if o.neighbour_ncc:
+        dense = np.zeros((N, V, G), np.float32)
+        dense[row_of >= 0] = samples[row_of[row_of >= 0]]
+        best = np.maximum(corr, neighbour_ncc(dense, prev, neighbours))
+    else:
+        best = corr
     best = np.where(in_image & has_ref[:, None], best, -1.0)
     tau = o.map_ncc_threshold if o.neighbour_ncc else o.ncc_threshold
     cost1 = o.photometric_weight * (tau - best) / (1.0 - tau)
