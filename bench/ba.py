@@ -53,18 +53,23 @@ def peak_rss_gb() -> float:
 
 
 # ----------------------------------------------------------------------------------------------- workers
-def worker_ours(data: dict, start_key: str) -> dict:
+def worker_ours(data: dict, start_key: str, ba_options: dict | None = None) -> dict:
     from dome_calib.ba import BAOptions, bundle_adjust, solution_uncertainty
 
     problem = data[start_key]
     t0, c0 = time.perf_counter(), time.process_time()
-    res = bundle_adjust(problem, BAOptions(n_threads=2, compute_uncertainty=False))  # the work Ceres does
+    options = BAOptions(n_threads=2, compute_uncertainty=False, **(ba_options or {}))
+    res = bundle_adjust(problem, options)  # the work Ceres does
     elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
     t1 = time.perf_counter()
     u = res.uncertainty = solution_uncertainty(res, n_threads=2)  # what calibrate adds: timed apart
     uncertainty_s = time.perf_counter() - t1
     return dict(camera_params=res.problem.camera_params, points_cm=res.problem.points_cm, used=res.used,
                 time_s=elapsed, cpu_s=cpu, uncertainty_s=uncertainty_s, iterations=len(res.iterations),
+                reduced_systems=sum(it.reduced_systems for it in res.iterations),
+                factorisations=sum(it.factorisations for it in res.iterations),
+                rejected_steps=sum(it.rejected_steps for it in res.iterations),
+                shortened_steps=sum(it.shortened for it in res.iterations),
                 cost=res.cost, n_params=res.n_params,
                 n_used=int(res.used.sum()), termination=res.termination,
                 sigma_center_centroid_cm_median=float(np.median(u.sigma_center_centroid_cm))
@@ -919,6 +924,9 @@ def main() -> None:
     ap.add_argument("--workdir", help="keep the problem and solutions in this folder (default: a temp folder)")
     ap.add_argument("--only", help="comma-separated subset of ours,oracle,colmap,k1 (--factorisers: of dense, cholmod, "
                     "pcg_camera, pcg_panel, pcg_strong20, pcg_strong50, blocked, cholespy, qdldl; dense always runs, the reference)")
+    ap.add_argument("--ba-options", default="{}", help="ours and oracle: BAOptions fields as JSON, e.g. "
+                    "'{\"shorten_rejected_steps\": false}' (the solver's earlier rule, to compare in the same run)")
+    ap.add_argument("--tag", default="", help="suffix of the solutions' files in --workdir (runs side by side)")
     ap.add_argument("--reuse", action="store_true", help="reuse solutions already in --workdir (same seed/size)")
     ap.add_argument("--load", action="store_true",
                     help="run two CPU-bound processes beside every solver (a busy 2-core machine)")
@@ -961,9 +969,9 @@ def main() -> None:
         with open(args.data, "rb") as fh:
             data = pickle.load(fh)
         if args.worker == "ours":
-            out = worker_ours(data, "start")
+            out = worker_ours(data, "start", json.loads(args.ba_options))
         elif args.worker == "oracle":
-            out = worker_ours(data, "truth")
+            out = worker_ours(data, "truth", json.loads(args.ba_options))
         elif args.worker == "k1":
             out = worker_k1(data)
         elif args.worker == "phases":
@@ -1021,8 +1029,8 @@ def run_all(args, t0: float) -> None:
         if args.only:
             kinds = [k for k in kinds if k in args.only.split(",")]
         for kind in kinds:
-            extra = []
-            sol = run_worker(kind, data_file, Path(tmp) / f"{kind}.npz", extra, reuse=args.reuse)
+            extra = ["--ba-options", args.ba_options] if kind in ("ours", "oracle") else []
+            sol = run_worker(kind, data_file, Path(tmp) / f"{kind}{args.tag}.npz", extra, reuse=args.reuse)
             m = metrics(sol, truth, is_outlier, sigma, region)
             runs[kind] = (sol, m)
             info = {k: v for k, v in sol.items() if k not in ("camera_params", "points_cm", "used")}

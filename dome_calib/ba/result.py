@@ -17,7 +17,8 @@ class IterationLog:
     """One accepted LM iteration. cost = 0.5 * sum rho(|r|^2) (px^2); rms_px per coordinate over the stage's
     observations (plain, whatever the loss); step_norm in parameter units; lam the damping after the step;
     factorisations: of the reduced camera system in this iteration (one per step tried; 0 for a step on the last
-    iteration's factor, :func:`dome_calib.ba.schur.chord_step`)."""
+    iteration's factor, :func:`dome_calib.ba.schur.chord_step`); shortened: the step taken is the last rejected
+    step shortened along its direction (``BAOptions.shorten_rejected_steps``), not counted in rejected_steps."""
 
     stage: int
     iteration: int
@@ -28,6 +29,8 @@ class IterationLog:
     rejected_steps: int
     time_s: float
     factorisations: int = 1
+    reduced_systems: int = 1  # built in this iteration (a retry on the same system builds none)
+    shortened: bool = False
 
 
 @dataclass(kw_only=True)
