@@ -57,7 +57,7 @@ def plane():
     return bundle, names, views, normal
 
 
-def _labels(plane, covered: set[str], neighbour_ncc: bool):
+def _labels(plane, covered: set[str], neighbour_ncc: bool, **options):
     bundle, names, views, normal = plane
     source = TexturedPlane(bundle, normal, covered)
     tilt = np.radians(20.0)  # the patch's normal, 20 deg off the plane's
@@ -68,7 +68,7 @@ def _labels(plane, covered: set[str], neighbour_ncc: bool):
     frames = Frames(frame=np.zeros(len(names), np.int64), offset_ms=np.zeros(len(names)))
     seen_before = np.ones((1, len(names)), bool)
     vis = estimate_visibility(source, views, frames, X, np.zeros_like(X), seen_before, None,
-                              camera_neighbours(views, 4), PatchOptions(neighbour_ncc=neighbour_ncc))
+                              camera_neighbours(views, 4), PatchOptions(neighbour_ncc=neighbour_ncc, **options))
     assert vis.candidate.all()  # every camera sees the plane, facing it (cos 0.77-0.99)
     return names, vis
 
@@ -88,3 +88,10 @@ def test_a_covered_camera_stays_not_visible(plane):
     _, vis = _labels(plane, {far}, neighbour_ncc=True)
     assert not vis.visible[0, names.index(far)]
     assert vis.visible.sum() == len(names) - 1
+
+
+
+def test_the_photometric_baseline_is_the_reference_ncc_at_its_own_threshold_whatever_the_map_rule(plane):
+    _, vis = _labels(plane, set(), neighbour_ncc=True, map_ncc_threshold=0.99)
+    assert np.any(vis.candidate & (vis.ncc >= 0.6) & (vis.ncc < 0.99))  # views the two thresholds judge apart
+    assert np.array_equal(vis.photometric, vis.candidate & (vis.ncc >= PatchOptions().ncc_threshold))

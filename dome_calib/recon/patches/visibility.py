@@ -171,5 +171,6 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
     labels = min_cut_labels(cost, edges, np.full(len(edges), o.prior_weight))
     visible = np.zeros((N, V), bool)
     visible[pi, vi] = labels == 1
-    return Visibility(visible=visible, photometric=in_image & has_ref[:, None] & (corr >= tau), ncc=corr,
+    # the CVPR 2014 baseline is the reference's NCC at ncc_threshold whatever rule the MAP term uses
+    return Visibility(visible=visible, photometric=in_image & has_ref[:, None] & (corr >= o.ncc_threshold), ncc=corr,
                       candidate=candidate, reference=ref)
