@@ -8,6 +8,11 @@ frame or a file without rows is empty, and every such reshape was a traceback th
 A ``.npz`` a user hands back to us (a bundle's ``report/residuals.npz``) is an input like a JSON file: it is read
 through :func:`read_arrays` with a spec per array (:class:`ArraySpec`: kind, shape, indices), and any array that
 does not match is one line naming the file, the array and the element, never a traceback later.
+
+Numbers become text through :func:`fixed_text`, never numpy's ``char.mod``: numpy's vectorised string calls (2.4.6)
+swallow an exception a signal handler raises while they run, so a SIGTERM or Ctrl-C that lands there is lost and
+the command runs to the end with exit 0 (seen in ``export-people``'s SIGTERM test under load; ``tests/
+test_arrays_text.py`` holds the rule for the package).
 """
 from __future__ import annotations
 
@@ -24,6 +29,13 @@ def per_row(a: np.ndarray) -> np.ndarray:
     """(N, ...) -> (N, prod(...)): each row's values flattened, for N = 0 too."""
     a = np.asarray(a)
     return a.reshape(a.shape[0], math.prod(a.shape[1:]))
+
+
+def fixed_text(a: np.ndarray, decimals: int, missing: str = "nan") -> list[list[str]]:
+    """(N, ...) numbers -> N rows of their texts with ``decimals`` digits after the point (as ``"%.{d}f"``), NaN as
+    ``missing``; formatted by Python, so an interrupt raised while it runs ends it (see the module docstring)."""
+    spec = f".{int(decimals)}f"
+    return [[missing if v != v else format(v, spec) for v in row] for row in per_row(np.asarray(a, float)).tolist()]
 
 
 # ---- kept arrays: every .npz a user hands back to us is read through one declared spec ----------------------------

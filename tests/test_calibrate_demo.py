@@ -95,7 +95,10 @@ def _check_group(out: str, demo_dir):
     mp = re.search(r"MPJPE ([0-9.]+) cm session-aligned, oracle ([0-9.]+) cm: ratio ([0-9.]+) \(aim <= 1.10\)  ok;  "
                    r"world ([0-9.]+) cm", out)
     ours, oracle, ratio, world = (float(x) for x in mp.groups())
-    assert 0.5 < ours < 8.0 and ratio == pytest.approx(ours / oracle, abs=0.002)  # 14 views: a few cm (1.5 with the body over time)
+    # 14 views: a few cm (1.5 with the body over time). The ratio is printed from the unrounded values: the two
+    # printed to 0.01 cm bound it within 0.005 (1 + ours / oracle) / oracle, the ratio's own 3 decimals 0.0005 more
+    rounding = 0.005 * (1.0 + ours / oracle) / oracle + 0.0005
+    assert 0.5 < ours < 8.0 and ratio == pytest.approx(ours / oracle, abs=rounding)
     assert world >= ours - 0.01  # the alignment only takes the produced world's placement out
     assert re.search(r"false bodies \d+ body-frames, 0 lasting over 3 frames \(aim 0\)  ok", out)
     assert "identity switches 0 (0.0 per 1,000 body-frames, aim <= 1)  ok" in out

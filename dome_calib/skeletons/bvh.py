@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from dome_calib.arrays import fixed_text
 from dome_calib.skeletons.joints import PARENT, bones, marker_names, y_up_axes
 from dome_calib.skeletons.scenes import People, Track
 
@@ -207,7 +208,7 @@ def bvh_text(people: People, track: Track, joint_ok: np.ndarray, unit: str = "m"
             columns.append(local.as_euler("ZXY", degrees=True))
     motion = np.concatenate(columns, axis=1)
     lines += ["MOTION", f"Frames: {len(motion)}", f"Frame Time: {1.0 / float(people.fps):.10f}"]
-    lines += [" ".join(row) for row in np.char.mod("%.6f", motion)]
+    lines += [" ".join(row) for row in fixed_text(motion, 6)]
     return "\n".join(lines) + "\n"
 
 

@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dome_calib.arrays import per_row
+from dome_calib.arrays import fixed_text
 from dome_calib.skeletons.joints import marker_names, y_up_axes
 from dome_calib.skeletons.scenes import People, Track
 
@@ -97,8 +97,7 @@ def trc_text(people: People, track: Track, name: str, joint_ok: np.ndarray, *, f
              "\t\t" + "".join(f"X{k}\tY{k}\tZ{k}\t" for k in range(1, len(markers) + 1))]
     frames = people.frames[rows]
     times_s = (frames - people.frames[0]) / float(people.fps)
-    text = np.char.mod("%.6f", per_row(X))
-    text[np.isnan(per_row(X))] = ""
+    text = fixed_text(X, 6, missing="")
     for r, frame in enumerate(frames):
         lines.append(f"{int(frame)}\t{times_s[r]:.6f}\t" + "".join(v + "\t" for v in text[r]))
     return "\n".join(lines) + "\n"
