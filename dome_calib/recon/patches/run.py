@@ -118,7 +118,7 @@ class SeedTask:
         return (self.cloud, self.stream_rank, self.camera)
 
 
-def seed_task(task: SeedTask) -> tuple[tuple[int, int], CameraSeeds | CameraBodySeeds | Seeds]:
+def seed_task(task: SeedTask) -> tuple[tuple[int, int, int], CameraSeeds | CameraBodySeeds | Seeds]:
     """Run one :class:`SeedTask` (module level: picklable for a process pool or Dask)."""
     if task.node:
         return task.key, seed_from_own_kinect(task.bundle, task.depth, task.node, task.seed_time_ms, task.source,

@@ -83,7 +83,7 @@ def _sweep(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int, 
     X = np.full((len(corners), 3), np.nan)
     best = np.full(len(corners), -1.0)
     ref = sample(gray_r, corners[:, None, :] + off[None])  # (N, W2)
-    nb_views = views.subset([views.names[v] for v in nb])
+    nb_views = views.at(nb)
     for c0 in range(0, len(corners), chunk):
         sl = slice(c0, c0 + chunk)
         n_steps = int(np.ceil(np.nanmax(np.where(hi[sl] > lo[sl], hi[sl] - lo[sl], 0.0), initial=0.0)

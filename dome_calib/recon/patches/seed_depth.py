@@ -98,7 +98,7 @@ def seed_from_own_kinect(bundle: Bundle, depth: DepthFrames, node: str, t_ms: fl
     tracking step, :func:`dome_calib.recon.patches.run.place_seeds`)."""
     V = len(views.names)
     X, normal, axis, _ = depth_points(bundle, depth, t_ms, o, nodes=[node])
-    proj = project_points(views.subset([views.names[camera]]), X) if len(X) else None
+    proj = project_points(views.at([camera]), X) if len(X) else None
     if proj is None:
         return Seeds(X_cm=np.zeros((0, 3, 3)), normal=np.zeros((0, 3)), seen=np.zeros((0, V), bool))
     to_cam = views.center_cm[camera][None] - X

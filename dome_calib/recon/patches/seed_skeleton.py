@@ -148,7 +148,7 @@ def person_mask(views: ViewSet, v: int, size_wh: tuple[int, int], A: np.ndarray,
     axis_pts = (A[:, None] + t[None, :, None] * (B - A)[:, None]).reshape(-1, 3)
     offs = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
     pts = (axis_pts[:, None] + np.repeat(radius, len(t))[:, None, None] * offs[None]).reshape(-1, 3)
-    p = project_points(views.subset([views.names[v]]), pts)
+    p = project_points(views.at([v]), pts)
     if not p.visible[0].any():
         return mask
     uv = p.uv_px[0][p.visible[0]]
@@ -191,7 +191,7 @@ def _depth_scores(grays: list[np.ndarray], views: ViewSet, cams: np.ndarray, ori
     G = sq.shape[2]
 
     def look(c: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        p = project_points(views.subset([views.names[c]]), sq[rows].reshape(-1, 3))
+        p = project_points(views.at([c]), sq[rows].reshape(-1, 3))
         return (sample(grays[c], p.uv_px[0].reshape(len(rows), D, G, 2)),
                 p.visible[0].reshape(len(rows), D, G).all(-1))
 
@@ -276,7 +276,7 @@ def seed_camera_on_body(source: FrameSource, views: ViewSet, frames: dict[str, i
         return empty
     # views in ``grays`` order: the reference first, then the others by position
     order = [r] + [c for c in range(V) if c != r]
-    sub = views.subset([views.names[c] for c in order])
+    sub = views.at(order)
     grays = [source.gray(views.names[c], frames[views.names[c]]) for c in order]
     to_sub = np.argsort(order)  # view position -> position in ``sub``
     frames_sub = Frames(frame=np.array([frames[views.names[c]] for c in order]), offset_ms=np.zeros(V))

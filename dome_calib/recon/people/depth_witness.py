@@ -126,7 +126,7 @@ def judge_joints(X_cm: np.ndarray, frames: dict[str, np.ndarray], sensors: Depth
         return DepthVerdicts(judged=judged, seen_through=through, reject=through >= o.min_sensors, gap_cm=gap)
     names = sensors.views.names
     use = [i for i, n in enumerate(names) if n in frames]
-    proj = project_points(sensors.views.subset([names[i] for i in use]), np.where(have[:, None], X.reshape(-1, 3), 0.0))
+    proj = project_points(sensors.views.at(use), np.where(have[:, None], X.reshape(-1, 3), 0.0))
     r = np.arange(-_MAX_RADIUS_PX, _MAX_RADIUS_PX + 1)
     du, dv = np.meshgrid(r, r)
     disc2 = (du * du + dv * dv).ravel()
