@@ -2,6 +2,7 @@
 
 import cv2
 import numpy as np
+from hypothesis import given, settings, strategies as st
 from typer.testing import CliRunner
 
 from dome_calib.cli import app
@@ -64,3 +65,16 @@ def test_patterns_cli_bad_size(tmp_path, dome_calib_cli):
     r = dome_calib_cli("patterns", tmp_path, "--width", "10")
     assert r.returncode == 1
     assert r.stderr.strip().splitlines() == ["dome-calib: error: pattern size 10x800: expected 64..8192 pixels per side"]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.sampled_from([0.0, -0.0, 1.5, -1.5, 3e-38, -3e-38, np.inf, -np.inf, 7.0]) | st.floats(allow_nan=False, width=32),
+                min_size=1, max_size=200), st.integers(0, 2**31))
+def test_the_rank_order_is_numpys_stable_argsort(values, seed):
+    """The patterns' rank normalisation keeps numpy's stable order exactly: ties (equal values, -0.0 and +0.0)
+    by index, infinities and subnormals in place."""
+    from projector.patterns import _stable_order
+
+    x = np.asarray(values, np.float32)
+    x = np.concatenate([x, np.random.default_rng(seed).permutation(x)])  # every value at least twice: ties
+    np.testing.assert_array_equal(_stable_order(x.reshape(2, -1)), np.argsort(x, axis=None, kind="stable"))
