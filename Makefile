@@ -53,7 +53,7 @@ demo: $(STAMP)
 	$(BIN)/dome-calib demo
 
 test: system-deps $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist loadfile
 
 bench: $(STAMP)
 	$(BIN)/python -m pip install --quiet -e '.[bench]'

@@ -54,7 +54,10 @@ def test_the_uncertainties_factorise_with_the_bounded_thread_count(monkeypatch):
     solution_uncertainty(result, n_threads=2)
     monkeypatch.setattr(blas, "CHOLESKY_PARALLEL_MAX_COLUMN_BYTES", 10 ** 9)
     solution_uncertainty(result, n_threads=2)
-    assert seen and all(n == 1 for n in seen[0]) and all(n == 2 for n in seen[-1]), seen
+    with blas.blas_threads(2):  # what each OpenBLAS gives when asked for 2 (one loaded under a 1-thread cap stays 1)
+        reachable = get_blas_threads()
+    assert 2 in reachable, reachable
+    assert seen and all(n == 1 for n in seen[0]) and seen[-1] == reachable, (seen, reachable)
 
 
 @pytest.mark.slow

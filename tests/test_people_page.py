@@ -41,6 +41,7 @@ def _frame(driver) -> int:
 
 def test_the_demo_groups_page_plays_steps_and_shows_a_camera(browser, demo, dome_calib_cli, tmp_path):  # noqa: F811
     from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
     from selenium.webdriver.support.ui import Select
 
     page = tmp_path / "index.html"
@@ -62,10 +63,11 @@ def test_the_demo_groups_page_plays_steps_and_shows_a_camera(browser, demo, dome
                            "s.dispatchEvent(new Event('input'));")
     assert _frame(browser) == 20
     browser.find_element(By.ID, "play").click()
-    time.sleep(0.6)  # 25 fps: ~15 frames
+    # playing moves the frame on (waited for, not timed: a loaded machine draws fewer frames per second)
+    WebDriverWait(browser, 30, poll_frequency=0.05).until(lambda d: _frame(d) > 21)
     browser.find_element(By.ID, "play").click()
     stopped = _frame(browser)
-    assert stopped > 20
+    assert stopped > 21
     time.sleep(0.3)
     assert _frame(browser) == stopped  # paused
     # choose a person: the row is marked and the views know it
