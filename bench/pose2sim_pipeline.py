@@ -4,7 +4,7 @@ a user would (`dome-calib import --from pose2sim`, `reconstruct --videos`, `expo
 kinematics) on our TRC, against the same steps on Pose2Sim's own triangulation of the same detections.
 
 Run: .venv/bin/python bench/pose2sim_pipeline.py [--data ../shared/data/multiview/pose2sim_balancing] [--per-frame]
-[--cameras-only] (stop after reconstruct: cameras.json's flags and per-camera offsets, the ``cameras_json`` line)
+[--keep DIR] [--cameras-only] (stop after reconstruct: cameras.json's flags and per-camera offsets, the ``cameras_json`` line)
 Prints one JSON object per line:
 - ``machine``: load average at the start;
 - ``ours``: the reconstruct summary line, the TRC files, the seconds of each stage;
@@ -25,6 +25,7 @@ Prints one JSON object per line:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import subprocess
@@ -201,6 +202,8 @@ def main() -> None:
     ap.add_argument("--per-frame", action="store_true", help="reconstruct --per-frame (no body over time)")
     ap.add_argument("--two-people", action="store_true", help="also two synthetic people through Pose2Sim")
     ap.add_argument("--only-two-people", action="store_true", help="only the two synthetic people")
+    ap.add_argument("--keep", type=Path, default=None,
+                    help="work in this folder and keep it (the runs' TRC and .mot files, for a closer look)")
     ap.add_argument("--cameras-only", action="store_true",
                     help="stop after reconstruct: cameras.json's verdict on the real trial only")
     args = ap.parse_args()
@@ -210,7 +213,7 @@ def main() -> None:
         return
     DATA_USED = data = args.data
     emit(machine={"loadavg": os.getloadavg()[0]})
-    with tempfile.TemporaryDirectory() as tmp:
+    with (contextlib.nullcontext(str(args.keep)) if args.keep else tempfile.TemporaryDirectory()) as tmp:
         tmp = Path(tmp)
         t0 = time.perf_counter()
         dome_calib("import", str(data / "calibration" / "Calib_qualisys.toml"), "--from", "pose2sim", "-o",
