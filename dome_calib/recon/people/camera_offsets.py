@@ -11,10 +11,9 @@ so the correction is the camera's principal point moved by its measured offset, 
 
 What it does not model, measured (docs/reconstruct.md, "Where a camera puts people"): a camera moved (translated)
 shifts near and far people differently; a camera whose joints disagree each in its own direction and from frame to
-frame (the real Pose2Sim trial's camera 03: a shift takes its held-out median distance from 37 to 20 px, a full
-pose, focal length or k1 fitted to the others' joints no further than 19 px, a shift per joint 15 px, against 3.5-4 px
-for the three others) keeps what the shift does not explain, and the run's robust triangulation keeps setting it
-aside.
+frame keeps what the shift does not explain (the real Pose2Sim trial's camera 03, ``bench/camera_bias_models.py``: a
+shift takes its held-out median distance from the three others' joints from 37 to 20 px, a rotation, a full pose, the
+focal length or k1 no further than 19 px), and the shifted camera then weighs in with it.
 """
 from __future__ import annotations
 
