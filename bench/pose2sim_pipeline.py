@@ -4,7 +4,7 @@ a user would (`dome-calib import --from pose2sim`, `reconstruct --videos`, `expo
 kinematics) on our TRC, against the same steps on Pose2Sim's own triangulation of the same detections.
 
 Run: .venv/bin/python bench/pose2sim_pipeline.py [--data ../shared/data/multiview/pose2sim_balancing] [--per-frame]
-[--cameras-only] (stop after reconstruct: cameras.json's flags and per-camera offsets, the ``cameras_json`` line)
+[--keep DIR] [--correct-offsets] [--cameras-only] (stop after reconstruct: cameras.json's flags and per-camera offsets, the ``cameras_json`` line)
 Prints one JSON object per line:
 - ``machine``: load average at the start;
 - ``ours``: the reconstruct summary line, the TRC files, the seconds of each stage;
@@ -25,6 +25,7 @@ Prints one JSON object per line:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import subprocess
@@ -201,6 +202,9 @@ def main() -> None:
     ap.add_argument("--per-frame", action="store_true", help="reconstruct --per-frame (no body over time)")
     ap.add_argument("--two-people", action="store_true", help="also two synthetic people through Pose2Sim")
     ap.add_argument("--only-two-people", action="store_true", help="only the two synthetic people")
+    ap.add_argument("--keep", type=Path, default=None,
+                    help="work in this folder and keep it (the runs' TRC and .mot files, for a closer look)")
+    ap.add_argument("--correct-offsets", action="store_true", help="reconstruct --correct-offsets")
     ap.add_argument("--cameras-only", action="store_true",
                     help="stop after reconstruct: cameras.json's verdict on the real trial only")
     args = ap.parse_args()
@@ -209,13 +213,15 @@ def main() -> None:
             two_people(Path(tmp))
         return
     DATA_USED = data = args.data
+    if args.keep is not None and args.keep.exists() and any(args.keep.iterdir()):
+        raise SystemExit(f"--keep {args.keep}: not empty (the runs are made there from nothing)")
     emit(machine={"loadavg": os.getloadavg()[0]})
-    with tempfile.TemporaryDirectory() as tmp:
+    with (contextlib.nullcontext(str(args.keep)) if args.keep else tempfile.TemporaryDirectory()) as tmp:
         tmp = Path(tmp)
         t0 = time.perf_counter()
         dome_calib("import", str(data / "calibration" / "Calib_qualisys.toml"), "--from", "pose2sim", "-o",
                    str(tmp / "bundle"))
-        extra = ["--per-frame"] if args.per_frame else []
+        extra = (["--per-frame"] if args.per_frame else []) + (["--correct-offsets"] if args.correct_offsets else [])
         line = dome_calib("reconstruct", str(data / "pose"), "--bundle", str(tmp / "bundle"), "--body-model",
                           "BODY_25B", "--camera-map", CAMERA_MAP, "--videos", str(data / "videos"), "-o",
                           str(tmp / "people"), *extra)
@@ -224,7 +230,7 @@ def main() -> None:
         emit(cameras_json={"flagged": report["flagged"], "notes": report["notes"],
                            "cameras": {n: {k: c[k] for k in ("median_reprojection_px", "outvoted_share",
                                                              "median_offset_px", "offset_joints", "offset_z",
-                                                             "offset_floor_px")}
+                                                             "offset_floor_px", "offset_corrected_px")}
                                        for n, c in report["cameras"].items()}})
         if args.cameras_only:
             return

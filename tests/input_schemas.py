@@ -232,7 +232,8 @@ def _cameras_report_example() -> dict:
            "offset_floor_px": 7.71}
     return {"median_reprojection_px": 2.6, "median_share_used": 0.97, "flagged": ["00_03"],
             "notes": ["camera 00_03: its joints lie 16 px to the left of where the others put them: moved or re-aimed?"],
-            "cameras": {"00_01": row, "00_03": {**row, "median_offset_px": [-16.2, 0.4], "offset_z": 88.5}}}
+            "cameras": {"00_01": row, "00_03": {**row, "median_offset_px": [-16.2, 0.4], "offset_z": 88.5,
+                                                "offset_flagged": True}}}
 
 
 def _read_cameras_report(folder: Path, doc: Any):

@@ -211,3 +211,26 @@ def projection_gap_worst_px(truth: list[Camera], got: list[Camera]) -> float:
     cameras differ a little, written with few digits or without a term)."""
     X = world_points_cm(truth)
     return float(np.linalg.norm(pixels(truth, X) - pixels(got, X), axis=-1).max())
+
+
+def dlt_columns(cams: list[Camera], height_px: int, unit_cm: float = 0.1, skew_px: float = 0.0) -> np.ndarray:
+    """(11, C) easyWand DLT coefficients of pinhole cameras (distortion ignored; ``skew_px`` added to K[0, 1]) with
+    lengths in units of ``unit_cm`` cm and pixels from the bottom left of images ``height_px`` high: column k is
+    ``P.ravel()[:11]`` of ``P = flip K [R | t]`` scaled so that P[2, 3] = 1."""
+    out = []
+    for c in cams:
+        K = c.K.copy()
+        K[0, 1] += skew_px
+        P = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, float(height_px)], [0.0, 0.0, 1.0]]) @ K @ np.c_[
+            c.R, c.t_cm / unit_cm]
+        out.append((P / P[2, 3]).ravel()[:11])
+    return np.array(out).T
+
+
+def dlt_pixels(L: np.ndarray, X: np.ndarray, height_px: int) -> np.ndarray:
+    """(N, 2) OpenCV pixels of world points X (N, 3) (the DLT's unit) by the 11 coefficients ``L`` as the DLT defines
+    them (u = (L1 x + L2 y + L3 z + L4) / (L9 x + L10 y + L11 z + 1), v alike with L5..L8), v from the bottom left."""
+    w = X @ L[8:11] + 1.0
+    u = (X @ L[0:3] + L[3]) / w
+    v = (X @ L[4:7] + L[7]) / w
+    return np.stack([u, height_px - v], axis=1)

@@ -21,8 +21,8 @@ from dome_calib.interop.convert import export_bundle, import_calibration
 from dome_calib.panoptic_io import read_calibration
 
 from .conftest import REAL_CALIBRATION
-from .interop_helpers import (calib_intri_extri, gaps_px, in_cam0_frame, kalibr_camchain, nerfstudio_round_trip, pixels,
-                              projection_gap_worst_px, world_points_cm)
+from .interop_helpers import (calib_intri_extri, dlt_columns, dlt_pixels, gaps_px, in_cam0_frame, kalibr_camchain,
+                              nerfstudio_round_trip, pixels, projection_gap_worst_px, world_points_cm)
 
 QCA = Path(__file__).parent / "data" / "pose2sim_qualisys" / "Calib.qca.txt"
 ZUP_M = PANOPTIC_FROM_UP["+z"] / 100.0  # our point (cm, row vector) @ ZUP_M: the same point in a z-up world, m
@@ -329,3 +329,58 @@ def test_biocv_reads_as_pose2sims_calib_biocv_fun(tmp_path):
         worst = max(worst, float(np.abs(uv.reshape(-1, 2) - pixels(cam, X_cm)).max()))
     print(f"bioCV .calib: ours vs Pose2Sim's calib_biocv_fun: {worst:.2e} px")
     assert worst < 1e-2
+
+
+# ------------------------------------------------------------------------------------------------------ easyWand
+def _balancing_cameras():
+    from dome_calib.interop.convert import read_foreign
+
+    toml = Path(__file__).parent / "data" / "pose2sim_balancing" / "calibration" / "Calib_qualisys.toml"
+    source, _ = read_foreign(toml, "pose2sim", ImportOptions(world_up="-y"))  # the lab's world kept
+    return list(source.cameras.values())
+
+
+def test_easywand_dlt_reads_as_the_dlt_projects(tmp_path, caplog):
+    """easyWand's *_dltCoefs.csv (11 rows, a column per camera, pixels from the bottom left) made from the real
+    Pose2Sim trial's 4 cameras (1088 x 1920, their distortion left out: a DLT is linear), in mm: our import projects
+    as the DLT's own formula (argus_gui's dlt_inverse) within 1e-6 px over the image, and gives back the cameras'
+    K, R and t. The image size is needed (the file does not hold it); a skew is dropped and said."""
+    from dome_calib.interop.convert import read_foreign
+
+    cams = _balancing_cameras()
+    W, H = cams[0].resolution
+    L = dlt_columns(cams, H)
+    path = tmp_path / "trial_dltCoefs.csv"
+    np.savetxt(path, L, delimiter=",", fmt="%.17g")
+    bundle, unit = read_foreign(path, "easywand", ImportOptions(image_size=(W, H), unit="mm", world_up="-y"))
+    assert unit == "mm" and list(bundle.cameras) == ["cam_01", "cam_02", "cam_03", "cam_04"]
+    worst = 0.0
+    for k, (cam, src) in enumerate(zip(bundle.cameras.values(), cams)):
+        assert tuple(cam.resolution) == (W, H) and not cam.dist.any()
+        X_cm = world_points_cm(cam)
+        worst = max(worst, float(np.abs(dlt_pixels(L[:, k], X_cm * 10.0, H) - pixels(cam, X_cm)).max()))
+        np.testing.assert_allclose(cam.K, src.K, rtol=1e-9)
+        np.testing.assert_allclose(cam.R, src.R, atol=1e-9)
+        np.testing.assert_allclose(cam.t_cm, src.t_cm, atol=1e-6)
+    print(f"easyWand DLT: ours vs the DLT's own projection: {worst:.2e} px")
+    assert worst < 1e-6
+    np.savetxt(path, dlt_columns(cams, H, skew_px=2.0), delimiter=",", fmt="%.17g")
+    with caplog.at_level("WARNING"):
+        read_foreign(path, "easywand", ImportOptions(image_size=(W, H), unit="mm"))
+    assert "skew 2 px is dropped" in caplog.text
+
+
+@pytest.mark.parametrize("text, options, message", [
+    ("1,2\n" * 10, {"image_size": (10, 10)}, "rows: expected a list of 11 lists"),
+    ("1,2\n" * 10 + "1\n", {"image_size": (10, 10)}, "rows of [1, 2] columns"),
+    ("1,x\n" * 11, {"image_size": (10, 10)}, "line 1: 'x' is not a number"),
+    ("1,2\n" * 11, {}, "give --image-size"),
+    ("0,0\n" * 11, {"image_size": (10, 10)}, "column 1 (cam_01): its 3 x 3 part is singular")])
+def test_easywand_bad_files_one_line(tmp_path, text, options, message):
+    from dome_calib.interop.convert import read_foreign
+
+    path = tmp_path / "x_dltCoefs.csv"
+    path.write_text(text)
+    with pytest.raises(InteropError) as err:
+        read_foreign(path, "easywand", ImportOptions(unit="mm", **options))
+    assert message in str(err.value) and "\n" not in str(err.value) and str(path) in str(err.value)

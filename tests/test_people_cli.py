@@ -170,7 +170,8 @@ def test_camera_map_dotted_names_and_no_sync_tables(dome_calib_cli, tmp_path):
 
 @pytest.mark.parametrize("args, message", [(["--fps", "abc"], "--fps 'abc': not a frame rate"),
                                            (["--min-views", "1"], "--min-views 1: a person must be seen by at"),
-                                           (["--smooth", "-1"], "--smooth -1: expected 0 (off)")])
+                                           (["--smooth", "-1"], "--smooth -1: expected 0 (off)"),
+                                           (["--correct-offsets", "--images", "."], "--correct-offsets with --images")])
 def test_bad_options_one_line(group, dome_calib_cli, tmp_path, args, message):
     root, _, _ = group
     out = dome_calib_cli("reconstruct", str(root / "det"), "--bundle", str(root / "bundle"), "-o", str(tmp_path / "o"),

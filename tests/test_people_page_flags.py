@@ -45,6 +45,14 @@ def test_the_rows_say_each_cameras_figures_offset_and_verdict():
     assert camera_flags(None) == []
 
 
+def test_a_camera_shifted_by_correct_offsets_says_so_on_the_page():
+    """--correct-offsets: the camera it shifted agrees afterwards; its row says the shift."""
+    a = tallies([(0.5, 0.0), (0.0, 1.0), (1.0, 0.5), (-2.0, 1.0), (0.5, -1.5)], sigma_px=6.0)
+    rows = {r["camera"]: r for r in camera_flags(camera_report(a, HD, corrected_px={"00_00": np.array([-16.0, 0.4])}))}
+    assert rows["00_00"]["verdict"].startswith("agrees; its image shifted 16 px to the left (--correct-offsets")
+    assert rows["00_01"]["verdict"] == "agrees"
+
+
 def test_the_page_of_a_run_shows_the_flagged_camera_and_escapes_its_name(tmp_path):
     report = _report()
     summary = build_people_page(tmp_path / "people", out=tmp_path / "index.html",

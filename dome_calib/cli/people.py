@@ -55,6 +55,11 @@ def reconstruct(
                                     "matched along epipolar lines), skeleton (corners on the people put in 3D by "
                                     "their bodies' capsules, refined photometrically nearby: a few cameras far "
                                     "apart; the people are the depth prior)."),
+    correct_offsets: bool = typer.Option(False, "--correct-offsets", help="A camera flagged for its offset (its "
+                                         "joints to one side of where the others put them: turned since "
+                                         "calibration) gets its principal point moved by the offset measured, and "
+                                         "the people are made again (up to 4 times); cameras.json says the shifts. "
+                                         "Not with --images."),
     workers: int = typer.Option(1, "--workers", help="Processes for long sessions (chunks of 600 times, then the "
                                 "body over time's windows, the --images patch clouds; 1 to 1024)."),
     scheduler: str = typer.Option(None, "--scheduler", help="Dask scheduler (tcp://HOST:PORT) to run the chunks, "
@@ -67,11 +72,13 @@ def reconstruct(
         from dome_calib.cli.progress import ProgressBars
         from dome_calib.pipeline.cluster import open_executor
         from dome_calib.pipeline.people_page import people_page_writer
-        from dome_calib.recon.people.commands import (check_workers, format_summary, people_options,
-                                                      plan_reconstruction, run_reconstruction)
+        from dome_calib.recon.people.commands import (OFFSET_ROUNDS, check_correct_offsets, check_workers,
+                                                      format_summary, people_options, plan_reconstruction,
+                                                      run_reconstruction)
 
         options = people_options(min_views=min_views, smooth=smooth, fps=fps, per_frame=per_frame)
         check_workers(workers)
+        check_correct_offsets(correct_offsets, images)
         plan = plan_reconstruction(detections, bundle, out, body_model=body_model, camera_map=camera_map,
                                    reference=reference, options=options,
                                    depth_folder=depth, videos=videos, images=images)  # every input, in seconds
@@ -86,7 +93,8 @@ def reconstruct(
                                          page=page, after_people=None if patches is None else (
                                              lambda seq: patches.run(seq.times_ms, seq.bodies,
                                                                      bars.task("tracking patch clouds"),
-                                                                     executor=executor)))
+                                                                     executor=executor)),
+                                         offset_rounds=OFFSET_ROUNDS if correct_offsets else 0)
         typer.echo(format_summary(summary))
         if patches is not None:
             typer.echo(patches.summary)

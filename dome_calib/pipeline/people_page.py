@@ -60,7 +60,8 @@ def camera_flags(report: dict | None) -> list[dict]:
     """cameras.json's report (:func:`~dome_calib.recon.people.scene_io.camera_report`) -> one row per camera for the
     page, flagged cameras first, then in name order: ``camera``, ``reprojection_px``, ``outvoted_share``, ``offset`` ("15 px to the left
     (-15.0, 0.3)", or "" without an offset), ``flagged`` and ``verdict`` (the camera's offset note where the report
-    has one, "flagged" for the report's other criteria, "agrees" otherwise). Plain data: the page puts every string
+    has one, "flagged" for the report's other criteria, "agrees" otherwise, with its note where ``--correct-offsets``
+shifted it). Plain data: the page puts every string
     in as text."""
     if not report:
         return []
@@ -75,7 +76,7 @@ def camera_flags(report: dict | None) -> list[dict]:
         rows.append({"camera": name, "reprojection_px": cam.get("median_reprojection_px"),
                      "outvoted_share": cam.get("outvoted_share"), "offset": offset, "flagged": name in flagged,
                      "verdict": ("flagged: " + "; ".join(notes) if notes else "flagged") if name in flagged
-                     else "agrees"})
+                     else "; ".join(["agrees"] + notes)})  # a camera --correct-offsets shifted says so
     return rows
 
 

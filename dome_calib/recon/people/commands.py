@@ -28,6 +28,7 @@ from dome_calib.recon.errors import ReconError
 from dome_calib.recon.depth import depth_folder_reader
 from dome_calib.recon.openpose_io import body_model_of, file_digests, index_openpose_folder, parse_camera_map
 from dome_calib.recon.people.agreement import CameraAgreement
+from dome_calib.recon.people.camera_offsets import shifted_bundle, with_offsets_corrected
 from dome_calib.recon.people.chunks import reconstruct_people_chunked
 from dome_calib.recon.people.depth_witness import DepthWitness, DepthWitnessOptions
 from dome_calib.recon.people.detection_cache import PREFIX as KEPT_PREFIX
@@ -156,6 +157,14 @@ def check_workers(workers: int) -> None:
         raise ReconError(f"--workers {workers}: expected 1 to {MAX_WORKERS} processes")
 
 
+def check_correct_offsets(correct_offsets: bool, images: str | Path | None) -> None:
+    """``--correct-offsets`` with ``--images`` is refused: the patch stream would project with the bundle as
+    given, the people with their cameras shifted."""
+    if correct_offsets and images is not None:
+        raise ReconError("--correct-offsets with --images: the patch stream would use the bundle as given, the "
+                         "people the shifted cameras; run them apart")
+
+
 def default_output(detections: str | Path) -> Path:
     """``<DETECTIONS>_people`` beside the detections folder, named from the folder itself (``.`` and ``..``
     resolved: ``reconstruct ..`` inside a camera folder writes beside the detections, not into the camera)."""
@@ -251,6 +260,12 @@ def plan_reconstruction(detections: str | Path, bundle_folder: str | Path, out: 
                            lab_up=imported_up(bundle.calib_data_source), bundle=bundle, images=images)
 
 
+#: ``--correct-offsets``: at most this many corrections (each one a run of the people again). A camera turned by 1 or
+#: 2 degrees on the few-camera rig (``bench/camera_offsets.py``) is measured short (the bodies it pulls, its inliers
+#: only): 55-73 % of its shift at the first round, 91-97 % after the fourth.
+OFFSET_ROUNDS = 4
+
+
 #: The share of the joints the cameras agreed on that the Kinects' depth may see through before the run says so:
 #: measured on a rendered group (4 people, 5 Kinects, 3 times): 1 of 228 with this session's depth frames, 70 of
 #: 228 (and a person gone) with another session's.
@@ -299,8 +314,8 @@ def kept_detections(source, executor=None) -> Iterator:
 
 def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callable[[int, int], None] | None = None,
                        page: Callable[[Path, StagedPeople], None] | None = None,
-                       after_people: Callable[[PeopleSequence], FurtherStage] | None = None
-                       ) -> ReconstructSummary:
+                       after_people: Callable[[PeopleSequence], FurtherStage] | None = None,
+                       offset_rounds: int = 0) -> ReconstructSummary:
     """The work of a checked plan: people at every time (chunks on ``executor``), then the files, written only at
     the end (staged, then renamed); ``page(staging, staged)`` adds the caller's files to the staged folder from the
     run's own results (:class:`~dome_calib.recon.people.scene_io.StagedPeople`: the scenes written, cameras.json's
@@ -310,10 +325,24 @@ def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callab
     :class:`FurtherStage`: what adds its files there and, with ties, the body over time is fitted again from the
     same tracks with them (:func:`~dome_calib.recon.people.run.refit_over_time`, the same windows on the same
     executor) and those people are written. The camera report is computed once, for cameras.json and the
-    summary."""
+    summary. ``offset_rounds`` (``--correct-offsets``: :data:`OFFSET_ROUNDS`; 0: off): up to that many times, the
+    cameras flagged for their offset get their principal point moved by it and the people are made again
+    (:func:`~dome_calib.recon.people.camera_offsets.with_offsets_corrected`: its rules for stopping and undoing a
+    round); cameras.json says the shifts."""
     with kept_detections(plan.source, executor) as source:  # later passes take what the first one read
-        seq = reconstruct_people_chunked(plan.views, source, plan.times_ms, plan.options, executor=executor,
-                                         depth=plan.depth, progress=progress)
+        def people(shifts: dict[str, np.ndarray]) -> tuple[PeopleSequence, ReconstructPlan]:
+            p = plan
+            if shifts:
+                shifted = shifted_bundle(plan.bundle, shifts)
+                p = replace(plan, views=view_set(shifted, list(plan.views.names)), bundle=shifted)
+            return reconstruct_people_chunked(p.views, source, p.times_ms, p.options, executor=executor,
+                                              depth=p.depth, progress=progress), p
+
+        def report_of(run: tuple[PeopleSequence, ReconstructPlan]) -> dict:
+            return camera_report(run[0].cameras, run[1].views.subset(run[0].cameras.names).resolution,
+                                 plan.options.temporal.min_noise_px)
+
+        (seq, plan), correction = with_offsets_corrected(people, report_of, offset_rounds)  # --correct-offsets
         more = after_people(seq) if after_people is not None else None
         if more is not None and more.ties is not None:
             first, seq = seq, refit_over_time(plan.views, source, seq, plan.options, more.ties, depth=plan.depth,
@@ -331,7 +360,9 @@ def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callab
                 page(staging, replace(staged, detections=kept, patches=more.page_layer if more is not None else None))
 
         report = camera_report(seq.cameras, plan.views.subset(seq.cameras.names).resolution,
-                               plan.options.temporal.min_noise_px)
+                               plan.options.temporal.min_noise_px, corrected_px=correction.shifts_px,
+                               diverged=correction.diverged,
+                               undone=(correction.undone_shifted, correction.undone))
         write_people(plan.out, seq, plan.numbers, fps_type_of(plan.reference),
                      also=also if more is not None or page is not None else None, body_model=plan.model.value,
                      extras=extras, lab_up=plan.lab_up, fps=plan.fps, report=report, bundle=plan.bundle)
@@ -352,18 +383,20 @@ def reconstruct_folder(detections: str | Path, bundle_folder: str | Path, out: s
                        depth_folder: str | Path | None = None, depth_options: DepthWitnessOptions | None = None,
                        progress: Callable[[int, int], None] | None = None,
                        page: Callable[[Path, StagedPeople], None] | None = None,
-                       videos: str | Path | None = None) -> ReconstructSummary:
+                       videos: str | Path | None = None, correct_offsets: bool = False) -> ReconstructSummary:
     """Detections folder (OpenPose JSON per camera) + bundle -> ``out`` (body3DScene per time, cameras.json, and
     ``page(staging)``'s files).
 
     Every input is checked before any work (:func:`plan_reconstruction`); each chunk of times reads its own files
     (a long session is never in memory at once; a bad file stops the run when its chunk is read). ``out`` is
-    written only at the end (staged, then renamed): bad input leaves nothing behind.
+    written only at the end (staged, then renamed): bad input leaves nothing behind. ``correct_offsets``
+    (``--correct-offsets``): :func:`run_reconstruction`'s ``offset_rounds`` = :data:`OFFSET_ROUNDS`.
     """
     plan = plan_reconstruction(detections, bundle_folder, out, body_model=body_model, camera_map=camera_map,
                                reference=reference, options=options, depth_folder=depth_folder,
                                depth_options=depth_options, videos=videos)
-    return run_reconstruction(plan, executor=executor, progress=progress, page=page)
+    return run_reconstruction(plan, executor=executor, progress=progress, page=page,
+                              offset_rounds=OFFSET_ROUNDS if correct_offsets else 0)
 
 
 def format_summary(summary: ReconstructSummary) -> str:

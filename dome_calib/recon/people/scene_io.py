@@ -29,9 +29,11 @@ detections outvoted by the body over time, or its detections lying to one side o
 body over time, per camera also the share of its joint detections that the body outvoted (farther than 5 sigma of
 that camera's measured pixel noise from where the body puts the joint: swaps, a neighbour's limb, a moved camera),
 ``median_offset_px`` (u, v: the median of its inlier detections minus the body's joints projected), over
-``offset_joints``, ``offset_z`` (its length in standard errors) and ``offset_floor_px``; ``notes``: one line per camera
-flagged for its offset ("camera 03: its joints lie 16 px to the left of where the others put them: moved or
-re-aimed?").
+``offset_joints``, ``offset_z`` (its length in standard errors), ``offset_floor_px`` and ``offset_flagged`` (flagged for
+it); ``offset_corrected_px``: with ``--correct-offsets``, the shift its principal point was given before the run
+(:mod:`~dome_calib.recon.people.camera_offsets`; null: none); ``notes``: one line per camera flagged for its offset
+("camera 03: its joints lie 16 px to the left of where the others put them: moved or re-aimed?") and per camera
+corrected.
 """
 from __future__ import annotations
 
@@ -96,10 +98,16 @@ def offset_words(offset_px: np.ndarray) -> str:
 
 
 def camera_report(agreement: CameraAgreement, resolution_px: np.ndarray | None = None,
-                  min_noise_px: float = 0.5) -> dict:
+                  min_noise_px: float = 0.5, corrected_px: dict[str, np.ndarray] | None = None,
+                  diverged: list[str] = (), undone: tuple[list[str], list[str]] = ((), ())) -> dict:
     """The per-camera agreement as a JSON object (see the module docstring). resolution_px (V, 2): each camera's
     image (width, height), in ``agreement.names`` order, for the offset criterion's floor (None: that criterion is
-    not applied); min_noise_px: the body over time's floor of a camera's pixel noise."""
+    not applied); min_noise_px: the body over time's floor of a camera's pixel noise; corrected_px: camera -> the
+    shift (u, v px) its principal point was given before this run (``--correct-offsets``,
+    :mod:`~dome_calib.recon.people.camera_offsets`): said in its row and its note; diverged: those of them whose
+    correction stopped because its steps did not shrink (said in the note); undone: (the cameras whose further shift
+    was undone, the cameras it made disagree; said in a note)."""
+    corrected_px = corrected_px or {}
     offset, n_off = agreement.median_offset_px()
     noise = noise_px_of(agreement.noise, min_noise_px)
     off_len = np.hypot(offset[:, 0], offset[:, 1])
@@ -122,6 +130,11 @@ def camera_report(agreement: CameraAgreement, resolution_px: np.ndarray | None =
         if bad_offset:
             notes.append(f"camera {name}: its joints lie {offset_words(offset[v])} of where the others put them: "
                          f"moved or re-aimed?")
+        if name in corrected_px:
+            notes.append(f"camera {name}: its image shifted {offset_words(np.asarray(corrected_px[name]))} "
+                         "(--correct-offsets: its principal point moved by its measured offset)"
+                         + ("; the offset changed with the shift, so it is not a shift of the whole image: its "
+                            "joints disagree each their own way" if name in diverged else ""))
         if bad_err or bad_share or bad_outvoted or bad_offset:
             flagged.append(name)
         cams[name] = {"detected": int(agreement.detected[v]), "used": int(agreement.used[v]),
@@ -133,7 +146,13 @@ def camera_report(agreement: CameraAgreement, resolution_px: np.ndarray | None =
                                            [round(float(offset[v, 0]), 2), round(float(offset[v, 1]), 2)]),
                       "offset_joints": int(n_off[v]),
                       "offset_z": round(float(off_z[v]), 1) if n_off[v] else None,
+                      "offset_flagged": bad_offset,
+                      "offset_corrected_px": ([round(float(x), 2) for x in corrected_px[name]]
+                                              if name in corrected_px else None),
                       "offset_floor_px": round(float(floor[v]), 2) if np.isfinite(floor[v]) else None}
+    if len(undone[0]):
+        notes.append(f"--correct-offsets: shifting camera {', '.join(undone[0])} further made camera "
+                     f"{', '.join(undone[1])} disagree with the others, so that shift was undone")
     return {"median_reprojection_px": None if not np.isfinite(all_med) else round(all_med, 2),
             "median_share_used": None if not np.isfinite(all_share) else round(all_share, 4),
             "flagged": flagged, "notes": notes, "cameras": cams}
@@ -216,6 +235,9 @@ class CameraAgreementRow(FileSchema):
     offset_z: NonNegFinite | None = Field(None, description="the offset's length in standard errors")
     offset_floor_px: NonNegFinite | None = Field(None, description="the offset a flag needs at least (a share of "
                                                  "the image diagonal)")
+    offset_flagged: bool = Field(False, description="flagged for its offset (significant and above the floor)")
+    offset_corrected_px: Vec(2) | None = Field(
+        None, description="[u, v] the shift its principal point was given before the run (--correct-offsets)")
 
 
 class CamerasFile(FileSchema):
