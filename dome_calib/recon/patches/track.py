@@ -37,7 +37,7 @@ from dome_calib.recon.patches.frames import FrameSource, patch_axes
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.seed import optical_flow
 from dome_calib.recon.patches.visibility import Frames, Visibility, estimate_visibility
-from dome_calib.recon.project import ViewSet, project_points
+from dome_calib.recon.project import ViewSet, project_view
 from dome_calib.recon.streams import frame_brackets, frame_period_ms
 from dome_calib.recon.triangulate import TriangulationOptions, triangulate
 
@@ -242,7 +242,7 @@ class SeedViews:
         uv = np.full((N, 3, V, 2), np.nan, np.float32)
         for v in np.flatnonzero((seen & now[None]).any(0)):
             idx = np.flatnonzero(seen[:, v])
-            p = project_points(views.at([v]), X[idx].reshape(-1, 3)).uv_px[0]
+            p = project_view(views, v, X[idx].reshape(-1, 3))[0]
             uv[idx, :, v] = p.reshape(-1, 3, 2)
         return cls(uv=uv, frame=np.where(now, frames.frame, -1), gray={})
 
@@ -316,7 +316,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                 idx = np.flatnonzero(flown[:, v])
                 if len(idx) == 0:
                     continue
-                p = project_points(views.at([v]), X[idx].reshape(-1, 3)).uv_px[0]
+                p = project_view(views, v, X[idx].reshape(-1, 3))[0]
                 q, ok = flow_camera(source, name, clocks[v], t0, t1, p, o)
                 if o.anchor_flow:
                     q, ok, off = seed_of.realign(source, name, frames1, v, idx, q.reshape(-1, 3, 2),
@@ -336,7 +336,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             resid = np.full((N, V), np.nan)  # the flow against the reprojected motion, where flown
             for v in np.flatnonzero(flown.any(0)):
                 idx = np.flatnonzero(flown[:, v])
-                proj = project_points(views.at([v]), X_new[idx].reshape(-1, 3)).uv_px[0]
+                proj = project_view(views, v, X_new[idx].reshape(-1, 3))[0]
                 resid[idx, v] = np.linalg.norm(uv[idx, :, v] - proj.reshape(-1, 3, 2), axis=-1).max(axis=1)
             # the motion term where the patch was flown: its residual, a failed flow 3 sigmas; elsewhere none
             # (a view whose flow left the seed appearance is not triangulated, and judged without the motion term)
