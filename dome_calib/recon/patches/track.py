@@ -165,7 +165,8 @@ def _triangulate_points(views: ViewSet, uv: np.ndarray, conf: np.ndarray, o: Pat
     for lo in range(0, N, TRIANGULATE_CHUNK):
         n = len(conf[lo:lo + TRIANGULATE_CHUNK])
         tri = triangulate(views, uv[lo:lo + n].reshape(n * 3, V, 2), conf[lo:lo + n].reshape(n * 3, V),
-                          TriangulationOptions(inlier_threshold_px=o.triangulation_px, min_views=2))
+                          TriangulationOptions(inlier_threshold_px=o.triangulation_px, min_views=2),
+                          few_views=o.track_views)
         out[lo:lo + n] = tri.X_cm.reshape(n, 3, 3)
     return out
 
