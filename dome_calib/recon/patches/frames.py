@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from dome_calib.bundle import Camera
-from dome_calib.recon.project import ViewSet, project_points
+from dome_calib.recon.project import ViewSet, project_view
 
 #: A patch's appearance is sampled on this many points per side of its square (spacing size / (n - 1)).
 GRID_SIDE = 7
@@ -81,5 +81,5 @@ def patch_grid_cm(X0: np.ndarray, X1: np.ndarray, X2: np.ndarray, size_cm: float
 def project_one(views: ViewSet, v: int, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(..., 3) world points into view ``v`` -> ((..., 2) pixels, (...) visible: in front, in lens, in image)."""
     shape = X.shape[:-1]
-    p = project_points(views.at([v]), X.reshape(-1, 3))
-    return p.uv_px[0].reshape(*shape, 2), p.visible[0].reshape(shape)
+    uv, visible = project_view(views, v, X.reshape(-1, 3))
+    return uv.reshape(*shape, 2), visible.reshape(shape)

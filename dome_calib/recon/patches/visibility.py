@@ -36,7 +36,7 @@ import numpy as np
 from dome_calib.recon.patches.frames import GRID_SIDE, FrameSource, ncc, patch_axes, patch_grid_cm, sample
 from dome_calib.recon.patches.mincut import min_cut_labels
 from dome_calib.recon.patches.model import PatchOptions
-from dome_calib.recon.project import ViewSet, project_view
+from dome_calib.recon.project import ViewSet, project_view_rows
 
 
 def camera_neighbours(views: ViewSet, k: int) -> np.ndarray:
@@ -131,11 +131,10 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
         rows = np.flatnonzero(cos[:, v] > o.min_cos_view)
         if len(rows) == 0:
             continue
-        uv, seen = project_view(views, v, grid_all[rows].reshape(-1, 3))
-        inside = seen.reshape(len(rows), G).all(axis=1)
+        uv, inside = project_view_rows(views, v, grid_all, rows)
         in_image[rows, v] = inside
         if inside.any():
-            blocks.append(sample(source.gray(name, f), uv.reshape(len(rows), G, 2)[inside]))
+            blocks.append(sample(source.gray(name, f), uv[inside]))
             row_of[rows[inside], v] = M + np.arange(len(blocks[-1]))
             M += len(blocks[-1])
     samples = np.concatenate(blocks) if blocks else np.zeros((0, G), np.float32)
