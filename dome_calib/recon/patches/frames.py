@@ -52,9 +52,18 @@ def sample(gray: np.ndarray, uv_px: np.ndarray) -> np.ndarray:
 def ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Normalised cross-correlation over the last axis of (..., G) samples -> (...) in [-1, 1] (0 where either side
     has less than :data:`MIN_STD_DN` of texture)."""
+    return ncc_centred(*centred(a), *centred(b))
+
+
+def centred(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(..., G) samples -> their deviations from the mean (..., G) and variance (...): :func:`ncc`'s first half, to
+    compute once for samples compared more than once."""
     a = a - a.mean(-1, keepdims=True)
-    b = b - b.mean(-1, keepdims=True)
-    va, vb = (a * a).mean(-1), (b * b).mean(-1)
+    return a, (a * a).mean(-1)
+
+
+def ncc_centred(a: np.ndarray, va: np.ndarray, b: np.ndarray, vb: np.ndarray) -> np.ndarray:
+    """:func:`ncc` of samples already :func:`centred`."""
     ok = (va > MIN_STD_DN ** 2) & (vb > MIN_STD_DN ** 2)
     return np.where(ok, (a * b).mean(-1) / np.sqrt(np.where(ok, va * vb, 1.0)), 0.0)
 

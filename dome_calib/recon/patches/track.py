@@ -200,20 +200,24 @@ def best_views(views: ViewSet, X: np.ndarray, candidates: np.ndarray, k: int, sp
     many = candidates.sum(1) > k
     chosen = np.where(many[:, None], False, candidates)
     todo = np.flatnonzero(many)
-    for lo in range(0, len(todo), BEST_VIEWS_CHUNK):  # (n, V, 3) directions per chunk: a cloud's would not fit
+    centers = views.center_cm
+    for lo in range(0, len(todo), BEST_VIEWS_CHUNK):  # (n, C, 3) directions per chunk: a cloud's would not fit
         rows = todo[lo:lo + BEST_VIEWS_CHUNK]
+        # each patch's candidates first, in camera order (C columns: the most any of them has; the rest padding,
+        # never picked: a candidate scores >= 0), so a dome's patch is scored in its ~120 cameras, not all 521
+        cols = np.argsort(~candidates[rows], axis=1, kind="stable")[:, :int(candidates[rows].sum(1).max())]
         Xr = X[rows]
         _, _, normal = patch_axes(Xr[:, 0], Xr[:, 1], Xr[:, 2])
-        d = views.center_cm[None] - Xr[:, None, 0]  # (n, V, 3)
+        d = centers[cols] - Xr[:, None, 0]  # (n, C, 3)
         d = d / np.linalg.norm(d, axis=-1, keepdims=True)
         face = np.clip(np.sum(d * normal[:, None], axis=-1), 0.0, 1.0)
-        gap = np.ones((len(rows), V))
-        avail = candidates[rows].copy()
+        gap = np.ones(cols.shape)
+        avail = np.take_along_axis(candidates[rows], cols, axis=1)
         sub = np.arange(len(rows))
         for _ in range(k):
             score = np.where(avail, np.rint(face * gap * 1e6), -1.0)
             j = np.argmax(score, axis=1)
-            chosen[rows, j] = True
+            chosen[rows, cols[sub, j]] = True
             avail[sub, j] = False
             if spread_deg > 0:
                 cos_j = np.clip(np.sum(d * d[sub, j][:, None], axis=-1), -1.0, 1.0)
