@@ -112,6 +112,8 @@ def run(args: argparse.Namespace) -> None:
             _triangulate_points(views, uv[:2], ok[:2].astype(float), o)  # compiled before timing
             _, ms_tri = cpu_ms(lambda: _triangulate_points(views, uv, ok.astype(float), o))
             motion = np.where(flown, 0.5, np.nan)
+            estimate_visibility(source, views, frames, X[:2], np.zeros_like(X[:2]), seen[:2], motion[:2], nb,
+                                o)  # compiled (numba's cache: the first run of a checkout) before timing
             full, ms_vis_all = cpu_ms(lambda: estimate_visibility(source, views, frames, X, np.zeros_like(X), seen,
                                                                   motion, nb, o))
             per_patch = {k: round(v / N, 3) for k, v in (("select_views", ms_select), ("flow_flown", ms_flow),
