@@ -42,6 +42,8 @@ from dome_calib.recon.project import ViewSet, project_view_rows
 
 #: Cameras whose facing cosines are computed together ((patches, chunk, 3) arrays).
 FACING_CHUNK = 64
+#: Patch-views whose NCC against the reference is computed together.
+NCC_CHUNK = 8192
 
 
 def camera_neighbours(views: ViewSet, k: int) -> np.ndarray:
@@ -162,7 +164,9 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
     c, var = centred(samples)
     rows_b = row_of[pi, ref[pi]]
     corr = np.full((N, V), -1.0, np.float32)
-    corr[pi, vi] = ncc_centred(c[rows_a], var[rows_a], c[rows_b], var[rows_b])
+    for lo in range(0, len(rows_a), NCC_CHUNK):  # the pairs' (chunk, G) blocks stay in the caches
+        a, b = rows_a[lo:lo + NCC_CHUNK], rows_b[lo:lo + NCC_CHUNK]
+        corr[pi[lo:lo + NCC_CHUNK], vi[lo:lo + NCC_CHUNK]] = ncc_centred(c[a], var[a], c[b], var[b])
     if o.neighbour_ncc:
         dense = np.zeros((N, V, G), np.float32)
         dense[row_of >= 0] = samples[row_of[row_of >= 0]]
