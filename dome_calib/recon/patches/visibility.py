@@ -183,9 +183,8 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
     node = np.full((N, V), -1, np.int64)
     pi, vi = np.nonzero(candidate)
     node[pi, vi] = np.arange(len(pi))
-    a, b = node[:, neighbours[:, 0]], node[:, neighbours[:, 1]]  # (N, E)
-    both = (a >= 0) & (b >= 0)
-    edges = np.stack([a[both], b[both]], 1)
+    pe, e = np.nonzero(candidate[:, neighbours[:, 0]] & candidate[:, neighbours[:, 1]])  # (N, E) pairs, by patch
+    edges = np.stack([node[pe, neighbours[e, 0]], node[pe, neighbours[e, 1]]], 1)
     cost = np.stack([np.zeros(len(pi)), cost1[pi, vi]], 1)
     labels = min_cut_labels(cost, edges, np.full(len(edges), o.prior_weight))
     visible = np.zeros((N, V), bool)
