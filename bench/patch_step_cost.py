@@ -12,7 +12,9 @@ do, so they are not judged here: bench/patches.py judges them). Per preset and n
 patch for: choosing the flown views (``track.best_views``), optical flow forward-backward in the flown views (one
 call per camera and direction, as a track task makes them, with its calls counted) and in every view that sees the
 patch (the rule before ``track_views``), triangulating the three points from the flown views, and the visibility in
-every camera (``visibility.estimate_visibility``). Prints one JSON object per line.
+every camera (``visibility.estimate_visibility``). Prints one JSON object per line. The flow here is a lower bound
+of the stream's: the texture moves 1 px, and real motion takes Lucas-Kanade more iterations (the stream on the
+panel spent ~2x this bench's flow per patch-step, docs/benchmarks.md); the step also triangulates twice.
 """
 from __future__ import annotations
 
