@@ -51,12 +51,12 @@ def test_visibility_projects_a_patch_only_into_the_cameras_it_faces(capture, mon
     prev = np.ones((len(X), len(views.names)), bool)
     velocity = np.random.default_rng(2).normal(0, 0.01, X.shape)  # cm per ms: the HD camera judged at its own time
     projected = []
-    real = vis_mod.project_points
+    real = vis_mod.project_view_rows
 
-    def counting(v, P):
-        projected.append(len(P))
-        return real(v, P)
-    monkeypatch.setattr(vis_mod, "project_points", counting)
+    def counting(views, v, P, rows):
+        projected.append(P.shape[1] * len(rows))
+        return real(views, v, P, rows)
+    monkeypatch.setattr(vis_mod, "project_view_rows", counting)
     got = estimate_visibility(scene, views, frames, X, velocity, prev, None, nb, o)
     _, _, n = track_mod.patch_axes(X[:, 0], X[:, 1], X[:, 2])
     facing = np.zeros((len(X), len(views.names)), bool)

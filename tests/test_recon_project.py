@@ -8,7 +8,7 @@ import pytest
 from dome_calib.camera import project
 from dome_calib.recon.depth import depth_to_world
 from dome_calib.recon.errors import ReconError
-from dome_calib.recon.project import kinect_color_name, project_bundle, project_points, view_set
+from dome_calib.recon.project import kinect_color_name, project_bundle, project_points, project_view, project_view_rows, view_set
 
 from .recon_helpers import dome_points, real_bundle
 
@@ -88,3 +88,34 @@ def test_names_and_errors(bundle):
         view_set(no_kinect, ["KINECTNODE1"])
     with pytest.raises(ReconError, match=r"expected \(P, 3\)"):
         project_bundle(bundle, np.zeros((3, 2)))
+
+
+def test_project_view_gives_project_points_bits_in_every_view(bundle):
+    """The compiled one-view projection (the patch stage's loops) is project_points' uv and visibility to the last
+    bit: points in front, behind, outside the lens and the image, and a camera's own centre."""
+    views = view_set(bundle, kinect_depth=True)
+    rng = np.random.default_rng(3)
+    X = np.concatenate([rng.normal(0.0, 250.0, (400, 3)), views.center_cm[:3], [[np.nan, 0.0, 0.0]]])
+    for v in range(len(views.names)):
+        p = project_points(views.at([v]), X)
+        uv, visible = project_view(views, v, X)
+        assert np.array_equal(uv, p.uv_px[0], equal_nan=True), views.names[v]
+        assert np.array_equal(visible, p.visible[0]), views.names[v]
+    assert visible.any() and not visible.all()
+    with pytest.raises(ReconError, match="expected"):
+        project_view(views, 0, X[:, :2])
+
+
+def test_project_view_rows_is_the_projection_of_whole_groups(bundle):
+    """Groups of points (a patch's square) projected row by row: the pixels of project_points (to ~1e-13 px: the
+    transform is not BLAS's) and whether every point of the group is visible."""
+    views = view_set(bundle)
+    rng = np.random.default_rng(4)
+    X = rng.normal(0.0, 150.0, (300, 1, 3)) + rng.normal(0.0, 20.0, (300, 9, 3))
+    rows = np.arange(0, 300, 2)
+    for v in (0, 100, len(views.names) - 1):
+        p = project_points(views.at([v]), X[rows].reshape(-1, 3))
+        uv, whole = project_view_rows(views, v, X, rows)
+        vis = p.visible[0].reshape(len(rows), 9)
+        assert np.array_equal(whole, vis.all(axis=1)) and whole.any() and not whole.all()
+        np.testing.assert_allclose(uv[whole], p.uv_px[0].reshape(len(rows), 9, 2)[whole], rtol=0, atol=1e-9)

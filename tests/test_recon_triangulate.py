@@ -233,3 +233,25 @@ def test_the_most_views_within_the_threshold_win(views):
     tri = triangulate(sub, uv, conf, opt)
     assert meet.sum() > 50
     assert (tri.n_inliers[meet] == 3).all() and not tri.inliers[meet, 0].any()
+
+
+def test_few_views_solves_each_point_in_its_own_views(views):
+    """``few_views``: points seen in a few of the dome's 480 views are solved in K columns (their own views) with
+    the draws of the full columns: the same inliers and points to the last float32 bits (sums over K columns, not
+    480), in any batch (K is the caller's), and more detected views than K is an error."""
+    X = dome_points(90, seed=12)
+    uv, conf, _ = _observe(views, X, noise_px=2.0, wrong=0.2, seed=12)
+    rng = np.random.default_rng(12)
+    for p in range(len(X)):  # each point keeps 2..8 of its views (few: every pair; more: RANSAC draws)
+        seen = np.flatnonzero(conf[p])
+        conf[p, np.setdiff1d(seen, rng.choice(seen, rng.integers(2, 9), replace=False))] = 0.0
+    full = triangulate(views, uv, conf)
+    few = triangulate(views, uv, conf, few_views=8)
+    np.testing.assert_array_equal(few.inliers, full.inliers)
+    np.testing.assert_array_equal(np.isnan(few.X_cm), np.isnan(full.X_cm))
+    np.testing.assert_allclose(few.X_cm, full.X_cm, atol=1e-4)  # cm
+    assert np.isfinite(full.X_cm).all(axis=1).mean() > 0.8
+    half = triangulate(views, uv[::2], conf[::2], few_views=8)
+    np.testing.assert_array_equal(half.X_cm, few.X_cm[::2])
+    with pytest.raises(ReconError, match="more than few_views=4"):
+        triangulate(views, uv, conf, few_views=4)

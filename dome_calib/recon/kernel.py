@@ -55,6 +55,20 @@ class CameraKernel:
         self.r2_max = views.r2_max.astype(F32)
         self.table = camera_table(views)
 
+    def per_point(self, cols: np.ndarray) -> CameraKernel:
+        """The kernel of each point's own views: (P, K) positions ``cols`` into these views -> a kernel whose
+        component arrays are (P, K) (the same float32 numbers, broadcast per point instead of per view), for
+        points seen in a few of many views (``table`` is not carried)."""
+        out = object.__new__(CameraKernel)
+        out.V = cols.shape[1]
+        out.R = [[a[cols] for a in row] for row in self.R]
+        out.t = [a[cols] for a in self.t]
+        out.fx, out.fy, out.cx, out.cy = (a[cols] for a in (self.fx, self.fy, self.cx, self.cy))
+        out.k1, out.k2, out.p1, out.p2, out.k3 = (a[cols] for a in (self.k1, self.k2, self.p1, self.p2, self.k3))
+        out.r2_max = self.r2_max[cols]
+        out.table = None
+        return out
+
     def camera_points(self, X_world: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(P, 3) world cm -> x, y, z (P, V) camera-frame cm."""
         X = np.asarray(X_world, dtype=F32)
@@ -113,8 +127,11 @@ class CameraKernel:
         shape = u.shape
         u, v = u.reshape(-1, self.V), v.reshape(-1, self.V)
         x, y = np.empty_like(u), np.empty_like(u)
-        _undistort(u, v, self.fx, self.fy, self.cx, self.cy, self.k1, self.k2, self.p1, self.p2, self.k3,
-                   int(iterations), x, y)
+        lens = (self.fx, self.fy, self.cx, self.cy, self.k1, self.k2, self.p1, self.p2, self.k3)
+        if self.fx.ndim == 2:  # per point (:meth:`per_point`): one row of P * K entries, each with its own view
+            u, v, x, y = u.reshape(1, -1), v.reshape(1, -1), x.reshape(1, -1), y.reshape(1, -1)
+            lens = tuple(np.ascontiguousarray(a).reshape(-1) for a in lens)
+        _undistort(u, v, *lens, int(iterations), x, y)
         return x.reshape(shape), y.reshape(shape)
 
     def reprojection_error_px(self, X_world: np.ndarray, u_obs: np.ndarray, v_obs: np.ndarray) -> np.ndarray:

@@ -18,6 +18,7 @@ import numpy as np
 
 from dome_calib.bundle import Bundle, KinectSensor
 from dome_calib.camera import MIN_DEPTH, distort, max_valid_radius2
+from dome_calib.jit import njit
 from dome_calib.recon.errors import ReconError
 
 CM_PER_M = 100.0
@@ -190,6 +191,88 @@ def project_points(views: ViewSet, X_world: np.ndarray) -> ProjectedPoints:
         in_front=(X_cam[..., 2] > MIN_DEPTH).transpose(tr), in_lens=in_lens.transpose(tr),
         visible=(in_lens & inside).transpose(tr),
     )
+
+
+def project_view(views: ViewSet, v: int, X_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(P, 3) world points (cm) into the one view at position ``v`` -> ((P, 2) pixels, (P,) visible): the bits of
+    ``project_points(views.at([v]), X_world)``'s ``uv_px[0]`` and ``visible[0]`` (its transform, then its lens model
+    and image test operation for operation in one compiled pass, without the (P, 1, ...) temporaries): for loops
+    that project many points into one camera at a time (the patch stage's visibility and tracking)."""
+    X = np.asarray(X_world, dtype=float)
+    if X.ndim != 2 or X.shape[1] != 3:
+        raise ReconError(f"points have shape {X.shape} but expected (P, 3)")
+    X_cam = np.ascontiguousarray(X @ views.R[v].T + views.t_cm[v])
+    uv = np.empty((len(X), 2))
+    visible = np.empty(len(X), bool)
+    wh = views.resolution[v].astype(float)
+    _lens_and_image(X_cam, np.ascontiguousarray(views.dist[v], dtype=float),
+                    np.ascontiguousarray(views.intr[v], dtype=float), float(views.r2_max[v]), wh[0] - 0.5,
+                    wh[1] - 0.5, uv, visible)
+    return uv, visible
+
+
+def project_view_rows(views: ViewSet, v: int, X_world: np.ndarray, rows: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Groups of points (N, G, 3) world cm, the groups ``rows`` (R,) of them, into the one view at position ``v`` ->
+    ((R, G, 2) pixels, (R,) whether the whole group is visible); a group's pixels are computed up to its first
+    point that is not (the rest are NaN). :func:`project_view` without gathering the rows first and with the
+    camera transform as explicit products instead of a BLAS product (the same model; the last bits may differ from
+    :func:`project_points`, ~1e-13 px, and do not depend on the machine's BLAS): for the patch stage's squares."""
+    X = np.ascontiguousarray(X_world, dtype=float)
+    if X.ndim != 3 or X.shape[2] != 3:
+        raise ReconError(f"points have shape {X.shape} but expected (N, G, 3)")
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    uv = np.full((len(rows), X.shape[1], 2), np.nan)
+    whole = np.empty(len(rows), bool)
+    wh = views.resolution[v].astype(float)
+    _group_view(X, rows, np.ascontiguousarray(views.R[v], dtype=float), np.ascontiguousarray(views.t_cm[v], dtype=float),
+                np.ascontiguousarray(views.dist[v], dtype=float), np.ascontiguousarray(views.intr[v], dtype=float),
+                float(views.r2_max[v]), wh[0] - 0.5, wh[1] - 0.5, uv, whole)
+    return uv, whole
+
+
+@njit(nogil=True, boundscheck=False, inline="always")
+def _lens_point(x0, x1, z, dist, intr, r2_max, u_max, v_max):  # pragma: no cover - compiled
+    """One camera-frame point -> (u, v, visible): :func:`project_lean` and :func:`project_points`' image test, every
+    operation of the numpy code in the same order in float64 (numba contracts nothing without fastmath)."""
+    k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
+    front = z > MIN_DEPTH
+    if front:
+        x, y = x0 / z, x1 / z
+    else:
+        x, y = np.nan, np.nan
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xy2 = 2.0 * x * y
+    xd = x * radial + p1 * xy2 + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + p2 * xy2
+    u, w = xd * intr[0] + intr[2], yd * intr[1] + intr[3]
+    return u, w, front and r2 <= r2_max and u >= -0.5 and u <= u_max and w >= -0.5 and w <= v_max
+
+
+@njit(nogil=True, boundscheck=False)
+def _lens_and_image(X_cam, dist, intr, r2_max, u_max, v_max, uv, visible):  # pragma: no cover - compiled
+    """:func:`_lens_point` of (P, 3) camera-frame points."""
+    for i in range(X_cam.shape[0]):
+        uv[i, 0], uv[i, 1], visible[i] = _lens_point(X_cam[i, 0], X_cam[i, 1], X_cam[i, 2], dist, intr, r2_max,
+                                                     u_max, v_max)
+
+
+@njit(nogil=True, boundscheck=False)
+def _group_view(X, rows, R, t, dist, intr, r2_max, u_max, v_max, uv, whole):  # pragma: no cover - compiled
+    """:func:`project_view_rows`' loop: each group until its first point out of view."""
+    for r in range(rows.shape[0]):
+        n = rows[r]
+        whole[r] = True
+        for g in range(X.shape[1]):
+            a, b, c = X[n, g, 0], X[n, g, 1], X[n, g, 2]
+            x0 = a * R[0, 0] + b * R[0, 1] + c * R[0, 2] + t[0]
+            x1 = a * R[1, 0] + b * R[1, 1] + c * R[1, 2] + t[1]
+            z = a * R[2, 0] + b * R[2, 1] + c * R[2, 2] + t[2]
+            uv[r, g, 0], uv[r, g, 1], ok = _lens_point(x0, x1, z, dist, intr, r2_max, u_max, v_max)
+            if not ok:
+                whole[r] = False
+                break
 
 
 def project_bundle(bundle: Bundle, X_world: np.ndarray, names: list[str] | None = None, *,

@@ -118,7 +118,10 @@ def triangulate_dlt(views: ViewSet, xn: np.ndarray, weight: np.ndarray, blocks: 
     blocks = _dlt_blocks(views) if blocks is None else blocks
     w = np.maximum(np.where(np.isfinite(weight), weight, 0.0), 0.0)
     x, y = xn[..., 0], xn[..., 1]
-    normal = (w * (x * x + y * y)) @ blocks[0] + (w * x) @ blocks[1] + (w * y) @ blocks[2] + w @ blocks[3]
+    if blocks.ndim == 4:  # (4, P, K, 16): each point's own views (:func:`triangulate` ``few_views``)
+        normal = sum(np.einsum("pk,pkj->pj", c, b) for c, b in zip((w * (x * x + y * y), w * x, w * y, w), blocks))
+    else:
+        normal = (w * (x * x + y * y)) @ blocks[0] + (w * x) @ blocks[1] + (w * y) @ blocks[2] + w @ blocks[3]
     _, vecs = np.linalg.eigh(normal.reshape(-1, 4, 4))
     Xh = vecs[:, :, 0]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -202,23 +205,36 @@ def _mix64(x: np.ndarray) -> np.ndarray:
     return x ^ (x >> _U64(31))
 
 
-def point_draws(uv_px: np.ndarray, conf: np.ndarray, valid: np.ndarray, seed: int, n: int) -> np.ndarray:
+def point_draws(uv_px: np.ndarray, conf: np.ndarray, valid: np.ndarray, seed: int, n: int,
+                cols: np.ndarray | None = None) -> np.ndarray:
     """(P, n) uniform numbers in [0, 1) for each of P points, a function of that point's own detections only.
 
     The key of a point hashes its valid views (index, pixels quantised to 1/64 px, confidence to 2^-16): a sum of
     per-view hashes, so it does not depend on the order of the arithmetic; draw k is splitmix64 of key + k. The
     same detections give the same draws in any batch, chunk or process (results do not depend on how the work is
-    cut), and they are the same on every machine (integer arithmetic only).
+    cut), and they are the same on every machine (integer arithmetic only). ``cols`` (P, K): the columns are each
+    point's own views at these positions of the view set (the view index of the hash is the position).
     """
+    return draws_at(point_keys(uv_px, conf, valid, seed, cols), np.arange(n)[None, :])
+
+
+def point_keys(uv_px: np.ndarray, conf: np.ndarray, valid: np.ndarray, seed: int,
+               cols: np.ndarray | None = None) -> np.ndarray:
+    """(P,) uint64 keys of :func:`point_draws`."""
     P, V = valid.shape
     with np.errstate(over="ignore"):
         q = [np.rint(np.clip(np.where(valid, a, 0.0) * step, -2.0**53, 2.0**53)).astype(np.int64).view(_U64)
              for a, step in ((uv_px[..., 0], _DRAW_PX_STEPS), (uv_px[..., 1], _DRAW_PX_STEPS),
                              (conf, _DRAW_CONF_STEPS))]
-        view = np.arange(1, V + 1, dtype=_U64)[None, :]
+        view = (np.arange(V)[None, :] if cols is None else cols).astype(_U64) + _U64(1)
         h = _mix64(q[0] + _mix64(q[1] + _mix64(q[2] + _mix64(view * _GOLDEN))))
-        key = _mix64(np.where(valid, h, _U64(0)).sum(axis=1, dtype=_U64) + _U64(seed % 2**64) * _GOLDEN)
-        bits = _mix64(key[:, None] + np.arange(1, n + 1, dtype=_U64)[None, :] * _GOLDEN)
+        return _mix64(np.where(valid, h, _U64(0)).sum(axis=1, dtype=_U64) + _U64(seed % 2**64) * _GOLDEN)
+
+
+def draws_at(key: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Draws number ``k`` (broadcast against (P, 1), from 0) of points with keys (P,) -> uniform in [0, 1)."""
+    with np.errstate(over="ignore"):
+        bits = _mix64(key[:, None] + (np.asarray(k).astype(_U64) + _U64(1)) * _GOLDEN)
     return (bits >> _U64(11)).astype(float) * 2.0**-53
 
 
@@ -227,34 +243,38 @@ def _all_pairs(n_max: int) -> dict[int, np.ndarray]:
     return {n: np.array([(i, j) for i in range(n) for j in range(i + 1, n)]) for n in range(2, n_max + 1)}
 
 
-def _scoring_err2(views: ViewSet, sv: np.ndarray, xn: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _scoring_err2(views: ViewSet, sv: np.ndarray, xn: np.ndarray, X: np.ndarray,
+                  sv_view: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Squared reprojection errors (px^2, in each view's focal units) of hypotheses X (P, H, 3) in the scoring views
-    sv (P, S) of normalised detections xn (P, V, 2) -> err2 (P, H, S), depths zc (P, H, S) (float32)."""
+    sv (P, S) of normalised detections xn (P, V, 2) -> err2 (P, H, S), depths zc (P, H, S) (float32). ``sv_view``:
+    those views' positions in ``views`` where the columns of ``xn`` are each point's own (default ``sv``)."""
     rows = np.arange(len(sv))[:, None]
-    Rs = views.R[sv].astype(F32)[:, None]  # (P, 1, S, 3, 3)
-    ts = views.t_cm[sv].astype(F32)[:, None]  # (P, 1, S, 3)
+    sv_view = sv if sv_view is None else sv_view
+    Rs = views.R[sv_view].astype(F32)[:, None]  # (P, 1, S, 3, 3)
+    ts = views.t_cm[sv_view].astype(F32)[:, None]  # (P, 1, S, 3)
     Xh = np.where(np.isfinite(X), X, 0.0).astype(F32)[:, :, None]  # (P, H, 1, 3)
     xc, yc, zc = (Rs[..., i, 0] * Xh[..., 0] + Rs[..., i, 1] * Xh[..., 1] + Rs[..., i, 2] * Xh[..., 2] + ts[..., i]
                   for i in range(3))  # (P, H, S)
     front = zc > MIN_DEPTH
     inv_z = 1.0 / np.where(front, zc, F32(1.0))
-    f = views.intr[sv].astype(F32)[:, None]  # (P, 1, S, 4)
+    f = views.intr[sv_view].astype(F32)[:, None]  # (P, 1, S, 4)
     obs = xn[rows, sv].astype(F32)[:, None]  # (P, 1, S, 2)
     err2 = ((xc * inv_z - obs[..., 0]) * f[..., 0]) ** 2 + ((yc * inv_z - obs[..., 1]) * f[..., 1]) ** 2
     return err2, zc
 
 
 def _refit_rays(views: ViewSet, sv: np.ndarray, xn: np.ndarray, X: np.ndarray, w: np.ndarray,
-                zc: np.ndarray) -> np.ndarray:
+                zc: np.ndarray, sv_view: np.ndarray | None = None) -> np.ndarray:
     """Hypotheses X (P, H, 3) refitted to the rays of the scoring views sv (P, S) with weights w (P, H, S): the point
     nearest the rays, each ray's squared distance over the hypothesis' depth squared (about the reprojection error
     in normalised units). Hypotheses with fewer than 2 weighted views keep X."""
     rows = np.arange(len(sv))[:, None]
+    sv_view = sv if sv_view is None else sv_view
     xh = np.concatenate([xn[rows, sv], np.ones(sv.shape + (1,))], axis=-1)  # (P, S, 3)
-    d = np.einsum("psji,psj->psi", views.R[sv], xh)
+    d = np.einsum("psji,psj->psi", views.R[sv_view], xh)
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
     M = np.eye(3) - d[..., :, None] * d[..., None, :]  # (P, S, 3, 3)
-    c = views.center_cm[sv]  # (P, S, 3)
+    c = views.center_cm[sv_view]  # (P, S, 3)
     ww = w / np.maximum(np.asarray(zc, dtype=float), MIN_DEPTH) ** 2  # (P, H, S)
     A = np.einsum("phs,psij->phij", ww, M)
     b = np.einsum("phs,psij,psj->phi", ww, M, c)
@@ -267,20 +287,24 @@ def _refit_rays(views: ViewSet, sv: np.ndarray, xn: np.ndarray, X: np.ndarray, w
 
 
 def _ransac(views: ViewSet, xn: np.ndarray, conf: np.ndarray, valid: np.ndarray,
-            options: TriangulationOptions, uv_px: np.ndarray) -> np.ndarray:
+            options: TriangulationOptions, uv_px: np.ndarray, cols: np.ndarray | None = None) -> np.ndarray:
     """Best two-view hypothesis (P, 3) per point by MSAC over a subset of its views (NaN if none).
 
     Points with no more view pairs than ``ransac_hypotheses`` try every pair; the others draw them, and their
-    scoring views, with :func:`point_draws` (each point's draws depend on its own detections only).
+    scoring views, with :func:`point_draws` (each point's draws depend on its own detections only). ``cols``
+    (P, K): the columns are each point's own views at these positions of ``views`` (the same draws as the full
+    columns: a view's draw is keyed by its position).
     """
     P, V = valid.shape
     H = options.ransac_hypotheses
-    draws = point_draws(uv_px, conf, valid, options.seed, V + 2 * H)
-    keys = draws[:, :V].copy()
+    V_all = len(views.names)
+    key = point_keys(uv_px, conf, valid, options.seed, cols)
+    keys = draws_at(key, np.arange(V)[None, :] if cols is None else cols)
     keys[~valid] = 2.0
+    at_view = (lambda c: c) if cols is None else (lambda c: np.take_along_axis(cols, c, axis=1))
     order = np.argsort(keys, axis=1, kind="stable")  # the point's views in random order, valid ones first
     n_valid = valid.sum(axis=1)
-    u = draws[:, V:].reshape(P, H, 2)
+    u = draws_at(key, V_all + np.arange(2 * H)[None, :]).reshape(P, H, 2)
     nv = np.maximum(n_valid, 2)[:, None]
     i = np.minimum((u[..., 0] * nv).astype(np.int64), nv - 1)
     j = (i + 1 + np.minimum((u[..., 1] * (nv - 1)).astype(np.int64), nv - 2)) % nv
@@ -292,16 +316,17 @@ def _ransac(views: ViewSet, xn: np.ndarray, conf: np.ndarray, valid: np.ndarray,
         if few.any():
             take = np.minimum(np.arange(H), len(pairs) - 1)
             i[few], j[few] = pairs[take, 0], pairs[take, 1]
-    vi, vj = np.take_along_axis(order, i, axis=1), np.take_along_axis(order, j, axis=1)  # (P, H)
+    vi, vj = np.take_along_axis(order, i, axis=1), np.take_along_axis(order, j, axis=1)  # (P, H) columns
+    gi, gj = at_view(vi), at_view(vj)  # their views
     centers = views.center_cm
     rows = np.arange(P)[:, None]
 
-    def ray(v: np.ndarray) -> np.ndarray:
+    def ray(v: np.ndarray, g: np.ndarray) -> np.ndarray:
         xh = np.concatenate([xn[rows, v], np.ones((P, H, 1))], axis=-1)
-        return np.einsum("phji,phj->phi", views.R[v], xh)  # R^T [x, y, 1]: world direction
+        return np.einsum("phji,phj->phi", views.R[g], xh)  # R^T [x, y, 1]: world direction
 
-    di, dj = ray(vi), ray(vj)
-    w0 = centers[vi] - centers[vj]
+    di, dj = ray(vi, gi), ray(vj, gj)
+    w0 = centers[gi] - centers[gj]
     a, b, c = (di * di).sum(-1), (di * dj).sum(-1), (dj * dj).sum(-1)
     d, e = (di * w0).sum(-1), (dj * w0).sum(-1)
     den = a * c - b * b
@@ -309,10 +334,11 @@ def _ransac(views: ViewSet, xn: np.ndarray, conf: np.ndarray, valid: np.ndarray,
     den = np.where(good, den, 1.0)
     s, t = (b * e - c * d) / den, (a * e - b * d) / den
     good &= (s > 0) & (t > 0)
-    X_h = 0.5 * (centers[vi] + s[..., None] * di + centers[vj] + t[..., None] * dj)  # (P, H, 3)
+    X_h = 0.5 * (centers[gi] + s[..., None] * di + centers[gj] + t[..., None] * dj)  # (P, H, 3)
 
     S = min(options.ransac_score_views, V)
     sv = order[:, :S]  # (P, S)
+    sv_view = at_view(sv)
     s_ok = (np.arange(S)[None, :] < n_valid[:, None])[:, None, :]  # (P, 1, S)
     c_s = np.where(s_ok, conf[rows, sv][:, None, :], 0.0)  # (P, 1, S)
     thr2 = F32(options.inlier_threshold_px**2)
@@ -321,7 +347,7 @@ def _ransac(views: ViewSet, xn: np.ndarray, conf: np.ndarray, valid: np.ndarray,
     # its own point, not by the midpoint of two of its rays (which can miss the third view by more than the
     # threshold where the three meet within it)
     X_lo = X_h.copy()
-    err2, zc = _scoring_err2(views, sv, xn, X_h)
+    err2, zc = _scoring_err2(views, sv, xn, X_h, sv_view)
     seen = s_ok & (zc > MIN_DEPTH)
     n_h = np.where(good, (seen & (err2 < thr2)).sum(axis=-1), -1)
     n_loose = np.where(good, (seen & (err2 < F32(4.0) * thr2)).sum(axis=-1), -1)
@@ -329,10 +355,10 @@ def _ransac(views: ViewSet, xn: np.ndarray, conf: np.ndarray, valid: np.ndarray,
     # explains can gain a view by the refit (with few wrong detections, most points have none)
     need = np.flatnonzero((n_loose > n_h.max(axis=1, keepdims=True)).any(axis=1))
     if need.size:
-        Xs, e2, z, sv_n, xn_n = X_h[need], err2[need], zc[need], sv[need], xn[need]
+        Xs, e2, z, sv_n, xn_n, g_n = X_h[need], err2[need], zc[need], sv[need], xn[need], sv_view[need]
         for loose in (4.0, 1.0):
-            Xs = _refit_rays(views, sv_n, xn_n, Xs, c_s[need] * ((e2 < thr2 * F32(loose)) & (z > MIN_DEPTH)), z)
-            e2, z = _scoring_err2(views, sv_n, xn_n, Xs)
+            Xs = _refit_rays(views, sv_n, xn_n, Xs, c_s[need] * ((e2 < thr2 * F32(loose)) & (z > MIN_DEPTH)), z, g_n)
+            e2, z = _scoring_err2(views, sv_n, xn_n, Xs, g_n)
         X_lo[need], err2[need], zc[need] = Xs, e2, z
     good &= np.all(np.isfinite(X_lo), axis=-1)
     inlier = s_ok & (zc > MIN_DEPTH) & (err2 < thr2)
@@ -349,7 +375,7 @@ def _ransac(views: ViewSet, xn: np.ndarray, conf: np.ndarray, valid: np.ndarray,
 
 
 def triangulate(views: ViewSet, uv_px: np.ndarray, conf: np.ndarray,
-                options: TriangulationOptions | None = None) -> Triangulation:
+                options: TriangulationOptions | None = None, *, few_views: int = 0) -> Triangulation:
     """Triangulate P points from detections in V views, robust to wrong detections.
 
     Args:
@@ -357,6 +383,12 @@ def triangulate(views: ViewSet, uv_px: np.ndarray, conf: np.ndarray,
         uv_px: (P, V, 2) OpenCV pixels; NaN = no detection.
         conf: (P, V) detection confidence in [0, 1] (else ReconError); <= ``options.min_confidence`` or NaN = no
             detection.
+        few_views: K > 0: each point is solved in K columns, its detected views (at most K, else ReconError)
+            then views it was not detected in, instead of all V: for points seen in a few of many views (a patch
+            flown in 8 of a dome's 521 cameras). The same draws (a view's is keyed by its position in ``views``)
+            and the same operations per point and view; sums over a point's views run over K columns instead of
+            V, so the last bits may differ from K = 0 (all V). K is the caller's, not the batch's: a point's
+            result does not depend on the other points of the call.
     Returns:
         :class:`Triangulation`.
     Example:
@@ -375,18 +407,28 @@ def triangulate(views: ViewSet, uv_px: np.ndarray, conf: np.ndarray,
         raise ReconError(f"confidence {conf[tuple(bad)]:g} of point {bad[0]} in view {views.names[bad[1]]} is outside "
                          "[0, 1] (NaN = not detected)")
     valid = np.isfinite(conf) & (conf > options.min_confidence) & np.all(np.isfinite(uv_px), axis=-1)
+    cols = None
+    if few_views > 0:  # each point's detected views first, in view order (then padding: views it was not seen in)
+        K = min(max(int(few_views), 2), V)
+        if P and valid.sum(axis=1).max() > K:
+            p = int(np.argmax(valid.sum(axis=1)))
+            raise ReconError(f"point {p} is detected in {int(valid[p].sum())} views, more than few_views={K}")
+        cols = np.argsort(~valid, axis=1, kind="stable")[:, :K]
+        valid = np.take_along_axis(valid, cols, axis=1)
+        conf = np.take_along_axis(conf, cols, axis=1)
+        uv_px = np.take_along_axis(uv_px, cols[..., None], axis=1)
     w = np.where(valid, conf, 0.0)
     uv = np.where(valid[..., None], uv_px, 0.0)
     thr = options.inlier_threshold_px
-    kernel = CameraKernel(views)
+    kernel = CameraKernel(views) if cols is None else CameraKernel(views).per_point(cols)
     xn = undistort_detections(kernel, uv, valid)
     u_obs, v_obs = uv[..., 0].astype(F32), uv[..., 1].astype(F32)
 
-    X = _ransac(views, xn, w, valid, options, uv)
+    X = _ransac(views, xn, w, valid, options, uv, cols)
     have = np.all(np.isfinite(X), axis=1, keepdims=True)
     err = kernel.reprojection_error_px(np.where(have, X, 0.0), u_obs, v_obs)
     inl = valid & have & (err < thr)  # the views the hypothesis, refitted to them (_ransac), explains
-    X = triangulate_dlt(views, xn, np.where(inl, w, 0.0))
+    X = triangulate_dlt(views, xn, np.where(inl, w, 0.0), None if cols is None else _dlt_blocks(views)[:, cols])
     X, ev = refine_lm(kernel, X, uv, np.where(inl, w, 0.0), iterations=options.lm_iterations)
     err = np.sqrt(ev.r_u * ev.r_u + ev.r_v * ev.r_v).astype(float)
     inl = valid & (err < thr)
@@ -399,6 +441,10 @@ def triangulate(views: ViewSet, uv_px: np.ndarray, conf: np.ndarray,
         rms = np.sqrt(np.where(inl, err**2, 0.0).sum(axis=1) / n_inl)
     rms[~ok] = np.nan
     inl[~ok] = False
+    if cols is not None:
+        inl_all = np.zeros((P, V), bool)
+        np.put_along_axis(inl_all, cols, inl, axis=1)  # padding columns are never inliers (not valid)
+        inl = inl_all
     logger.debug("triangulated %d/%d points, median %d inlier views", ok.sum(), P,
                  int(np.median(n_inl)) if P else 0)
     return Triangulation(X_cm=X, confidence=confidence, inliers=inl, n_inliers=np.where(ok, n_inl, 0), rms_px=rms)

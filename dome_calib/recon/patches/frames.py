@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from dome_calib.bundle import Camera
-from dome_calib.recon.project import ViewSet, project_points
+from dome_calib.recon.project import ViewSet, project_view
 
 #: A patch's appearance is sampled on this many points per side of its square (spacing size / (n - 1)).
 GRID_SIDE = 7
@@ -52,9 +52,18 @@ def sample(gray: np.ndarray, uv_px: np.ndarray) -> np.ndarray:
 def ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Normalised cross-correlation over the last axis of (..., G) samples -> (...) in [-1, 1] (0 where either side
     has less than :data:`MIN_STD_DN` of texture)."""
+    return ncc_centred(*centred(a), *centred(b))
+
+
+def centred(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(..., G) samples -> their deviations from the mean (..., G) and variance (...): :func:`ncc`'s first half, to
+    compute once for samples compared more than once."""
     a = a - a.mean(-1, keepdims=True)
-    b = b - b.mean(-1, keepdims=True)
-    va, vb = (a * a).mean(-1), (b * b).mean(-1)
+    return a, (a * a).mean(-1)
+
+
+def ncc_centred(a: np.ndarray, va: np.ndarray, b: np.ndarray, vb: np.ndarray) -> np.ndarray:
+    """:func:`ncc` of samples already :func:`centred`."""
     ok = (va > MIN_STD_DN ** 2) & (vb > MIN_STD_DN ** 2)
     return np.where(ok, (a * b).mean(-1) / np.sqrt(np.where(ok, va * vb, 1.0)), 0.0)
 
@@ -81,5 +90,5 @@ def patch_grid_cm(X0: np.ndarray, X1: np.ndarray, X2: np.ndarray, size_cm: float
 def project_one(views: ViewSet, v: int, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(..., 3) world points into view ``v`` -> ((..., 2) pixels, (...) visible: in front, in lens, in image)."""
     shape = X.shape[:-1]
-    p = project_points(views.at([v]), X.reshape(-1, 3))
-    return p.uv_px[0].reshape(*shape, 2), p.visible[0].reshape(shape)
+    uv, visible = project_view(views, v, X.reshape(-1, 3))
+    return uv.reshape(*shape, 2), visible.reshape(shape)

@@ -37,7 +37,7 @@ from dome_calib.recon.patches.frames import FrameSource, patch_axes
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.seed import optical_flow
 from dome_calib.recon.patches.visibility import Frames, Visibility, estimate_visibility
-from dome_calib.recon.project import ViewSet, project_points
+from dome_calib.recon.project import ViewSet, project_view
 from dome_calib.recon.streams import frame_brackets, frame_period_ms
 from dome_calib.recon.triangulate import TriangulationOptions, triangulate
 
@@ -165,7 +165,8 @@ def _triangulate_points(views: ViewSet, uv: np.ndarray, conf: np.ndarray, o: Pat
     for lo in range(0, N, TRIANGULATE_CHUNK):
         n = len(conf[lo:lo + TRIANGULATE_CHUNK])
         tri = triangulate(views, uv[lo:lo + n].reshape(n * 3, V, 2), conf[lo:lo + n].reshape(n * 3, V),
-                          TriangulationOptions(inlier_threshold_px=o.triangulation_px, min_views=2))
+                          TriangulationOptions(inlier_threshold_px=o.triangulation_px, min_views=2),
+                          few_views=o.track_views)
         out[lo:lo + n] = tri.X_cm.reshape(n, 3, 3)
     return out
 
@@ -199,20 +200,24 @@ def best_views(views: ViewSet, X: np.ndarray, candidates: np.ndarray, k: int, sp
     many = candidates.sum(1) > k
     chosen = np.where(many[:, None], False, candidates)
     todo = np.flatnonzero(many)
-    for lo in range(0, len(todo), BEST_VIEWS_CHUNK):  # (n, V, 3) directions per chunk: a cloud's would not fit
+    centers = views.center_cm
+    for lo in range(0, len(todo), BEST_VIEWS_CHUNK):  # (n, C, 3) directions per chunk: a cloud's would not fit
         rows = todo[lo:lo + BEST_VIEWS_CHUNK]
+        # each patch's candidates first, in camera order (C columns: the most any of them has; the rest padding,
+        # never picked: a candidate scores >= 0), so a dome's patch is scored in its ~120 cameras, not all 521
+        cols = np.argsort(~candidates[rows], axis=1, kind="stable")[:, :int(candidates[rows].sum(1).max())]
         Xr = X[rows]
         _, _, normal = patch_axes(Xr[:, 0], Xr[:, 1], Xr[:, 2])
-        d = views.center_cm[None] - Xr[:, None, 0]  # (n, V, 3)
+        d = centers[cols] - Xr[:, None, 0]  # (n, C, 3)
         d = d / np.linalg.norm(d, axis=-1, keepdims=True)
         face = np.clip(np.sum(d * normal[:, None], axis=-1), 0.0, 1.0)
-        gap = np.ones((len(rows), V))
-        avail = candidates[rows].copy()
+        gap = np.ones(cols.shape)
+        avail = np.take_along_axis(candidates[rows], cols, axis=1)
         sub = np.arange(len(rows))
         for _ in range(k):
             score = np.where(avail, np.rint(face * gap * 1e6), -1.0)
             j = np.argmax(score, axis=1)
-            chosen[rows, j] = True
+            chosen[rows, cols[sub, j]] = True
             avail[sub, j] = False
             if spread_deg > 0:
                 cos_j = np.clip(np.sum(d * d[sub, j][:, None], axis=-1), -1.0, 1.0)
@@ -242,7 +247,7 @@ class SeedViews:
         uv = np.full((N, 3, V, 2), np.nan, np.float32)
         for v in np.flatnonzero((seen & now[None]).any(0)):
             idx = np.flatnonzero(seen[:, v])
-            p = project_points(views.at([v]), X[idx].reshape(-1, 3)).uv_px[0]
+            p = project_view(views, v, X[idx].reshape(-1, 3))[0]
             uv[idx, :, v] = p.reshape(-1, 3, 2)
         return cls(uv=uv, frame=np.where(now, frames.frame, -1), gray={})
 
@@ -316,7 +321,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                 idx = np.flatnonzero(flown[:, v])
                 if len(idx) == 0:
                     continue
-                p = project_points(views.at([v]), X[idx].reshape(-1, 3)).uv_px[0]
+                p = project_view(views, v, X[idx].reshape(-1, 3))[0]
                 q, ok = flow_camera(source, name, clocks[v], t0, t1, p, o)
                 if o.anchor_flow:
                     q, ok, off = seed_of.realign(source, name, frames1, v, idx, q.reshape(-1, 3, 2),
@@ -336,7 +341,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             resid = np.full((N, V), np.nan)  # the flow against the reprojected motion, where flown
             for v in np.flatnonzero(flown.any(0)):
                 idx = np.flatnonzero(flown[:, v])
-                proj = project_points(views.at([v]), X_new[idx].reshape(-1, 3)).uv_px[0]
+                proj = project_view(views, v, X_new[idx].reshape(-1, 3))[0]
                 resid[idx, v] = np.linalg.norm(uv[idx, :, v] - proj.reshape(-1, 3, 2), axis=-1).max(axis=1)
             # the motion term where the patch was flown: its residual, a failed flow 3 sigmas; elsewhere none
             # (a view whose flow left the seed appearance is not triangulated, and judged without the motion term)

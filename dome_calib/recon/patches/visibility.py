@@ -33,10 +33,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dome_calib.recon.patches.frames import GRID_SIDE, FrameSource, ncc, patch_axes, patch_grid_cm, sample
+from dome_calib.recon.patches.frames import (GRID_SIDE, FrameSource, centred, ncc, ncc_centred, patch_axes,
+                                             patch_grid_cm, sample)
 from dome_calib.recon.patches.mincut import min_cut_labels
 from dome_calib.recon.patches.model import PatchOptions
-from dome_calib.recon.project import ViewSet, project_points
+from dome_calib.recon.project import ViewSet, project_view_rows
+
+
+#: Cameras whose facing cosines are computed together ((patches, chunk, 3) arrays).
+FACING_CHUNK = 64
+#: Patch-views whose NCC against the reference is computed together.
+NCC_CHUNK = 8192
 
 
 def camera_neighbours(views: ViewSet, k: int) -> np.ndarray:
@@ -113,30 +120,36 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
     # one (M, G) block of samples, row row_of[n, v] for patch n in camera v
     row_of = np.full((N, V), -1, np.int64)
     blocks: list[np.ndarray] = []
+    row_n: list[np.ndarray] = []  # the patch and camera of each row
+    row_v: list[np.ndarray] = []
     M = 0
-    moved: dict[float, tuple[np.ndarray, np.ndarray]] = {}  # per time offset: the patches there and their squares
+    moved: dict[float, np.ndarray] = {}  # per time offset: the patches' squares there
+    judged = np.flatnonzero(frames.frame >= 0) if N else np.zeros(0, np.int64)
+    for dt in sorted({float(frames.offset_ms[v]) for v in judged}):  # a stream's cameras share the offset
+        Xt = X + velocity * dt
+        moved[dt] = patch_grid_cm(Xt[:, 0], Xt[:, 1], Xt[:, 2], o.ncc_size_cm)  # (N, G, 3)
+        cams = judged[frames.offset_ms[judged] == dt]
+        for lo in range(0, len(cams), FACING_CHUNK):  # the cosine to each camera, (N, chunk, 3) at a time
+            c = cams[lo:lo + FACING_CHUNK]
+            to_cam = C[c][None] - Xt[:, None, 0]
+            cos[:, c] = np.sum(to_cam * normal[:, None], -1) / np.linalg.norm(to_cam, axis=-1)
     for v, name in enumerate(views.names):
         f = int(frames.frame[v])
         if f < 0 or N == 0:
             continue
-        dt = float(frames.offset_ms[v])
-        if dt not in moved:  # a stream's cameras share the offset: the squares are made once per stream
-            Xt = X + velocity * dt
-            moved[dt] = Xt, patch_grid_cm(Xt[:, 0], Xt[:, 1], Xt[:, 2], o.ncc_size_cm)  # (N, G, 3)
-        Xv, grid_all = moved[dt]
-        to_cam = C[v] - Xv[:, 0]
-        cos[:, v] = np.sum(to_cam * normal, 1) / np.linalg.norm(to_cam, axis=1)
+        grid_all = moved[float(frames.offset_ms[v])]
         # only patches whose normal faces the camera can be candidates: the others are not projected (a dome's
         # camera faces a third of a patch's cameras; their NCC and the photometric baseline are left out there)
         rows = np.flatnonzero(cos[:, v] > o.min_cos_view)
         if len(rows) == 0:
             continue
-        p = project_points(views.at([v]), grid_all[rows].reshape(-1, 3))
-        inside = p.visible[0].reshape(len(rows), G).all(axis=1)
+        uv, inside = project_view_rows(views, v, grid_all, rows)
         in_image[rows, v] = inside
         if inside.any():
-            blocks.append(sample(source.gray(name, f), p.uv_px[0].reshape(len(rows), G, 2)[inside]))
+            blocks.append(sample(source.gray(name, f), uv[inside]))
             row_of[rows[inside], v] = M + np.arange(len(blocks[-1]))
+            row_n.append(rows[inside])
+            row_v.append(np.full(len(blocks[-1]), v))
             M += len(blocks[-1])
     samples = np.concatenate(blocks) if blocks else np.zeros((0, G), np.float32)
     candidate = in_image & (cos > o.min_cos_view)
@@ -144,10 +157,16 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
     score = np.where(prev, cos, np.where(candidate, cos - 2.0, -np.inf))
     ref = np.argmax(np.where(np.isfinite(score), np.rint(score * 1e6), -1e9), axis=1)  # quantised: ties by position
     has_ref = np.isfinite(score[np.arange(N), ref])
-    pi, vi = np.nonzero(in_image & has_ref[:, None])
-    got = ncc(samples[row_of[pi, vi]], samples[row_of[pi, ref[pi]]])
-    corr = np.full((N, V), -1.0, got.dtype)
-    corr[pi, vi] = got
+    # each row (a patch in the image of a camera) against its patch's reference row, every row centred once
+    pi, vi = (np.concatenate(r) if r else np.zeros(0, np.int64) for r in (row_n, row_v))
+    judge = has_ref[pi]
+    pi, vi, rows_a = pi[judge], vi[judge], np.flatnonzero(judge)
+    c, var = centred(samples)
+    rows_b = row_of[pi, ref[pi]]
+    corr = np.full((N, V), -1.0, np.float32)
+    for lo in range(0, len(rows_a), NCC_CHUNK):  # the pairs' (chunk, G) blocks stay in the caches
+        a, b = rows_a[lo:lo + NCC_CHUNK], rows_b[lo:lo + NCC_CHUNK]
+        corr[pi[lo:lo + NCC_CHUNK], vi[lo:lo + NCC_CHUNK]] = ncc_centred(c[a], var[a], c[b], var[b])
     if o.neighbour_ncc:
         dense = np.zeros((N, V, G), np.float32)
         dense[row_of >= 0] = samples[row_of[row_of >= 0]]
@@ -164,9 +183,8 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
     node = np.full((N, V), -1, np.int64)
     pi, vi = np.nonzero(candidate)
     node[pi, vi] = np.arange(len(pi))
-    a, b = node[:, neighbours[:, 0]], node[:, neighbours[:, 1]]  # (N, E)
-    both = (a >= 0) & (b >= 0)
-    edges = np.stack([a[both], b[both]], 1)
+    pe, e = np.nonzero(candidate[:, neighbours[:, 0]] & candidate[:, neighbours[:, 1]])  # (N, E) pairs, by patch
+    edges = np.stack([node[pe, neighbours[e, 0]], node[pe, neighbours[e, 1]]], 1)
     cost = np.stack([np.zeros(len(pi)), cost1[pi, vi]], 1)
     labels = min_cut_labels(cost, edges, np.full(len(edges), o.prior_weight))
     visible = np.zeros((N, V), bool)
