@@ -2,7 +2,7 @@
 (:mod:`dome_calib.synth.textured`), judged against the renderer's truth.
 
 Run: .venv/bin/python bench/patches.py [--people 2] [--scenario conversation] [--vga 24] [--hd 4] [--kinect 2]
-         [--frames 30] [--seed 0] [--executors here,pool,dask --workers 2 --patches-per-task 1000]
+         [--frames 30] [--seed 0] [--seeding images,depth,skeleton] [--joint-noise 1.5] [--executors here,pool,dask --workers 2 --patches-per-task 1000]
          [--variants 'base:;drift:anchor_flow=true']  (PatchOptions variants, one run each on the same frames)
      (``python -P`` with ``dask``: bench/distributed.py would shadow the ``distributed`` package)
 Setup: the as-built dome's panel preset (VGA of panels 1-2, the HD and Kinect colour cameras nearest them), the
@@ -13,7 +13,8 @@ rendered at half size (960 x 540); the group seeded by ``--seed``; one cloud see
 - ``render``: CPU ms per view per frame of the textured renderer, by camera type;
 - ``patches``: seeds, centre error against the true surface point (the one nearest the patch at the seed, followed
   on its part) after 0, 1, 10 and ``--frames`` frames (median and 90th percentile, mm; both directions pooled),
-  trajectory length (frames each way, median and share reaching 25), visibility against the renderer's truth
+  trajectory length (frames each way, median and share reaching 25; ``length_share_25_on_point``: share reaching 25
+  with the centre within 1 cm of its true point at every time on the way), visibility against the renderer's truth
   (precision and recall of the MAP labels and of photometric consistency alone, the CVPR 2014 baseline, over all
   live patch-times and cameras; split: patches within 1 cm of their true point, views within 78 deg of the true
   normal; ``visibility_errors``: the false positives and negatives of each, counted by cause, :func:`error_causes`),
@@ -57,6 +58,7 @@ from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
 from dome_calib.recon.patches.parts import BONES, PartOptions, label_parts  # noqa: E402
 from dome_calib.recon.patches.run import imaged_views, patch_stream  # noqa: E402
 from dome_calib.recon.patches.seed import reference_cameras  # noqa: E402
+from dome_calib.recon.patches.seed_skeleton import BodyPrior  # noqa: E402
 from dome_calib.recon.project import project_points, view_set  # noqa: E402
 
 
@@ -219,6 +221,10 @@ def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int, imaged=Non
     back = traj.alive[:, :s + 1][:, ::-1].cumprod(axis=1).sum(axis=1) - 1
     fwd = traj.alive[:, s:].cumprod(axis=1).sum(axis=1) - 1
     lengths = np.concatenate([back, fwd])[np.concatenate([traj.alive[:, s]] * 2)]
+    on = traj.alive & (err_mm <= 10.0)  # alive and within 1 cm of its point: the trajectory still follows it
+    on_back = on[:, :s + 1][:, ::-1].cumprod(axis=1).sum(axis=1) - 1
+    on_fwd = on[:, s:].cumprod(axis=1).sum(axis=1) - 1
+    on_lengths = np.concatenate([on_back, on_fwd])[np.concatenate([traj.alive[:, s]] * 2)]
     est, base, true, near, facing = [], [], [], [], []
     causes = {m: {} for m in ("map", "photometric")}
     centres = view_set(bundle, cams).center_cm
@@ -273,6 +279,7 @@ def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int, imaged=Non
     return dict(seeds=int(live.sum()), seeds_by_true_part=by_part, errors=errors, seed_normal_error_deg=seed_normal_deg,
                 length_median_frames=float(np.median(lengths)) if len(lengths) else None,
                 length_share_25=round(float(np.mean(lengths >= min(25, nf))), 3) if len(lengths) else None,
+                length_share_25_on_point=round(float(np.mean(on_lengths >= min(25, nf))), 3) if len(lengths) else None,
                 visibility_map={"precision": precision_recall(est, true)[0], "recall": precision_recall(est, true)[1]},
                 visibility_photometric={"precision": precision_recall(base, true)[0],
                                         "recall": precision_recall(base, true)[1]},
@@ -396,6 +403,11 @@ def run(args: argparse.Namespace) -> None:
         emit(what="depth", nodes=list(depth.read_frame.nodes), cpu_s=round(depth_cpu, 2),
              load=[round(x, 2) for x in os.getloadavg()])
         variants = parse_variants(args.variants)
+        at = table.times_of(np.arange(f - nf, f + nf + 1))  # "skeleton": the true people with --joint-noise
+        J, present = truth.joints_cm(at)
+        J = np.where(present[..., None, None], J, np.nan)
+        body = BodyPrior(times_ms=at, joints_cm=J + np.random.default_rng(args.seed).normal(0.0, args.joint_noise,
+                                                                                           J.shape))
         runs = [(seeding, spacing, k, streams, name) for seeding in args.seeding.split(",")
                 for spacing in (spacings if seeding == "images" else [0.0]) for k in track_views
                 for streams in args.seed_streams.split(",") for name in variants]
@@ -403,11 +415,18 @@ def run(args: argparse.Namespace) -> None:
         for seeding, spacing, k, streams, name in runs:
             ok = dataclasses.replace(o, **{"track_views": k, "seed_reference_spacing_deg": spacing,
                                            "seed_streams": streams, **variants[name]})  # a variant may set any
+            if seeding == "skeleton":
+                ok = dataclasses.replace(ok, seed_method="skeleton")
             load = os.getloadavg()
             cpu0, wall0, render0 = time.process_time(), time.perf_counter(), sum(scene.render_s.values())
-            with PhaseTimer(scene, memo.setdefault((seeding, spacing), {})) as phases:
+            # seed tasks are reused between runs whose seeding options are the same (a variant may change them:
+            # ncc_size_cm sizes the skeleton seeds' NCC)
+            seeding_key = (seeding, spacing, ok.ncc_size_cm, tuple(sorted(
+                (k, repr(v)) for k, v in dataclasses.asdict(ok).items() if k.startswith(("seed_", "normal_")))))
+            with PhaseTimer(scene, memo.setdefault(seeding_key, {})) as phases:
                 traj = patch_stream(bundle, source, cams, span, ok, seed_frames=[f],
-                                    depth=depth if seeding == "depth" else None)
+                                    depth=depth if seeding == "depth" else None,
+                                    body=body if seeding == "skeleton" else None)
             cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
             render_cpu = sum(scene.render_s.values()) - render0
             emit(what="render", **{f"{k}_cpu_ms_per_view": round(1000.0 * scene.render_s[k] / scene.renders[k], 1)
@@ -446,7 +465,10 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=30)
     ap.add_argument("--seed", type=int, default=0, help="the synthetic group's and the renderer's random seed")
     ap.add_argument("--seeding", type=str, default="images,depth",
-                    help="how clouds are seeded, one run each: images (triangulated features), depth (the Kinects)")
+                    help="how clouds are seeded, one run each: images (triangulated features), depth (the Kinects), "
+                         "skeleton (seed_method skeleton on the true people with --joint-noise)")
+    ap.add_argument("--joint-noise", type=float, default=1.5,
+                    help="--seeding skeleton: cm of noise per joint coordinate on the true people (seeded)")
     ap.add_argument("--save", type=str, default="", help="also write the trajectories and truth to this .npz")
     ap.add_argument("--executors", type=str, default="here",
                     help="here (this process), or a comma list of here, pool (a local process pool), dask (a Dask "

@@ -82,14 +82,16 @@ def test_a_camera_without_a_frame_at_that_time_or_a_seed_view_is_left_as_flown()
 
 @pytest.mark.slow
 def test_with_anchor_flow_any_part_of_a_cloud_is_tracked_bit_for_bit_as_in_the_whole():
-    # each point is realigned on its own (one optical-flow call per camera, per-point results), so a task's cut of
-    # the cloud changes no bit (tests/test_patches.py checks the same without the option)
+    # each point is realigned on its own (one optical-flow call per camera, per-point results), and a slid patch is
+    # ended on its own squares (seed_appearance_end), so a task's cut of the cloud changes no bit
+    # (tests/test_patches.py checks the same without the options)
     bundle, truth = one_person_capture()
     scene = TexturedScene(bundle, truth, TextureOptions())
     cams = [n for n in sorted(bundle.cameras) if str(bundle.cameras[n].type) == "vga"]
     table = bundle.sync.streams["vga"]
     f = 120
-    o = PatchOptions(track_frames=2, seed_features=100, seed_neighbours=3, seed_views=4, anchor_flow=True)
+    o = PatchOptions(track_frames=2, seed_features=100, seed_neighbours=3, seed_views=4, anchor_flow=True,
+                     seed_appearance_end=True)
     traj = patch_stream(bundle, scene, cams, (table.time_of(f - 2), table.time_of(f + 2)), o, seed_frames=[f])
     views = imaged_views(scene, cams)
     seeds = seed_patches(scene, views, {n: f for n in cams}, o)

@@ -10,7 +10,7 @@ import pytest
 from scipy.ndimage import map_coordinates
 
 from dome_calib.recon.patches.model import PatchOptions
-from dome_calib.recon.patches.visibility import Frames, camera_neighbours, estimate_visibility
+from dome_calib.recon.patches.visibility import Frames, camera_neighbours, estimate_visibility, off_seed
 from dome_calib.recon.project import view_set
 from dome_calib.synth.rays import CameraRays
 
@@ -95,3 +95,28 @@ def test_the_photometric_baseline_is_the_reference_ncc_at_its_own_threshold_what
     _, vis = _labels(plane, set(), neighbour_ncc=True, map_ncc_threshold=0.99)
     assert np.any(vis.candidate & (vis.ncc >= 0.6) & (vis.ncc < 0.99))  # views the two thresholds judge apart
     assert np.array_equal(vis.photometric, vis.candidate & (vis.ncc >= PatchOptions().ncc_threshold))
+
+
+def test_a_patch_that_slid_along_the_surface_is_off_its_seed_appearance(plane):
+    """Drift (visibility.off_seed): a patch that slid 2 cm along the textured plane is still photo-consistent in
+    every camera (the MAP sees it everywhere: the old rule kept it alive), but no longer shows the texture it was
+    seeded on; the same patch where it was seeded keeps its appearance, and a patch seen now in none of the cameras
+    that saw it at the seed is not judged."""
+    bundle, names, views, normal = plane
+    source = TexturedPlane(bundle, normal, set())
+    a = np.cross(normal, [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    X = np.array([[P0, P0 + 3.0 * a, P0 + 3.0 * np.cross(normal, a)]])
+    X = np.concatenate([X, X + 2.0 * a, X])  # seeded at P0 (3 patches), the second then slides 2 cm
+    frames = Frames(frame=np.zeros(len(names), np.int64), offset_ms=np.zeros(len(names)))
+    o, nb = PatchOptions(), camera_neighbours(views, 4)
+    seen = np.ones((3, len(names)), bool)
+    at_seed = estimate_visibility(source, views, frames, X[[0, 0, 0]], np.zeros_like(X), seen, None, nb, o)
+    assert at_seed.visible.all()
+    kept = at_seed.visible.copy()
+    kept[2, :len(names) // 2] = False  # the third kept its seed appearance in half of the cameras
+    seed = at_seed.appearance.keep(kept)
+    now = estimate_visibility(source, views, frames, X, np.zeros_like(X), at_seed.visible, None, nb, o)
+    assert now.visible[1].sum() >= o.min_visible  # the slid patch is photo-consistent: visible
+    now.visible[2, len(names) // 2:] = False  # ... the third is now seen in the other half only
+    assert off_seed(now, seed, o).tolist() == [False, True, False]

@@ -93,6 +93,10 @@ class PatchOptions:
     anchor_flow_px: PosFinite = 1.0
     anchor_reject: bool = True
     anchor_reject_unaligned: bool = True  # also reject a point the seed image cannot be aligned at (else kept)
+    # drift (track.py, visibility.off_seed): a patch ends when its visible views no longer show its seed
+    # appearance (median NCC, over the visible cameras that saw it at the seed, of its square now against its square
+    # there at the seed, below ncc_threshold): it slid off the surface point it was seeded on
+    seed_appearance_end: bool = False
     min_visible: AtLeast(2) = 2  # a patch seen by fewer cameras ends
     max_stretch: Annotated[float, Field(gt=0, lt=1)] = 0.3  # a patch whose plane points move this much ends
 

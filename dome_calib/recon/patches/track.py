@@ -36,7 +36,7 @@ from dome_calib.bundle import SyncTable
 from dome_calib.recon.patches.frames import FrameSource, patch_axes
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.seed import optical_flow
-from dome_calib.recon.patches.visibility import Frames, Visibility, estimate_visibility
+from dome_calib.recon.patches.visibility import Frames, Visibility, estimate_visibility, off_seed
 from dome_calib.recon.project import ViewSet, project_view
 from dome_calib.recon.streams import frame_brackets, frame_period_ms
 from dome_calib.recon.triangulate import TriangulationOptions, triangulate
@@ -306,6 +306,8 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
     vis = start if start is not None else seed_visibility(source, views, clocks, float(times_ms[0]), X, seen,
                                                            neighbours, o)
     live = vis.visible.sum(1) >= o.min_visible
+    # the seed appearance, where the patch was seen at the seed (seed_appearance_end)
+    seed_look = vis.appearance.keep(vis.visible & live[:, None]) if o.seed_appearance_end else None
     if o.anchor_flow:
         seed_of = SeedViews.at_seed(source, views, judged_frames(clocks, times_ms[0]), X, vis.visible & live[:, None])
     for k in range(T):
@@ -353,11 +355,12 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             X = np.where(redo[:, None, None], quantise_cm(np.where(redo[:, None, None], again, 0.0)), X_new)
             unseen = live & (vis.visible.sum(1) < o.min_visible)
             stretched = live & ~unseen & _stretched(X, o)
-            live &= ~unseen & ~stretched
+            slid = live & ~unseen & ~stretched & off_seed(vis, seed_look, o) if seed_look is not None else live & False
+            live &= ~unseen & ~stretched & ~slid
             X = quantise_cm(square_up(X, o.axis_cm))
-            logger.debug("step %d: %d live; ended: %d centre not triangulated, %d seen by too few, %d stretched; "
-                         "%d views off their seed appearance", k, live.sum(), lost.sum(), unseen.sum(),
-                         stretched.sum(), slid_view.sum())
+            logger.debug("step %d: %d live; ended: %d centre not triangulated, %d seen by too few, %d stretched, "
+                         "%d off their seed appearance; %d views off their seed appearance", k, live.sum(), lost.sum(),
+                         unseen.sum(), stretched.sum(), slid.sum(), slid_view.sum())
         vis_v: Visibility = vis
         X_out[live, k] = X[live]
         vis_out[live, k] = vis_v.visible[live]

@@ -86,15 +86,41 @@ class Frames:
 
 
 @dataclass(frozen=True)
+class Appearance:
+    """Patches' squares as sampled in the cameras: samples (M, G) float32, row_of (N, V) the row of patch n in
+    camera v (-1: not sampled there)."""
+
+    samples: np.ndarray
+    row_of: np.ndarray
+
+    def keep(self, which: np.ndarray) -> Appearance:
+        """Only the (N, V) ``which`` squares (the views a patch's seed appearance is kept in)."""
+        rows = np.where(which, self.row_of, -1)
+        used = np.flatnonzero(rows >= 0)
+        out = np.full(rows.shape, -1, np.int64)
+        out.flat[used] = np.arange(len(used))
+        return Appearance(samples=self.samples[rows.flat[used]], row_of=out)
+
+    def ncc_against(self, other: Appearance) -> np.ndarray:
+        """(N, V) NCC of each square against ``other``'s square of the same patch in the same camera (NaN where
+        either has none)."""
+        both = (self.row_of >= 0) & (other.row_of >= 0)
+        out = np.full(self.row_of.shape, np.nan)
+        out[both] = ncc(self.samples[self.row_of[both]], other.samples[other.row_of[both]])
+        return out
+
+
+@dataclass(frozen=True)
 class Visibility:
     """visible (N, V) MAP labels; photometric (N, V) NCC-alone baseline; ncc (N, V); candidate (N, V); reference
-    (N,) camera position."""
+    (N,) camera position; appearance: the squares sampled (the candidates' cameras)."""
 
     visible: np.ndarray
     photometric: np.ndarray
     ncc: np.ndarray
     candidate: np.ndarray
     reference: np.ndarray
+    appearance: Appearance | None = None
 
 
 def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: np.ndarray, velocity: np.ndarray,
@@ -191,4 +217,17 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
     visible[pi, vi] = labels == 1
     # the CVPR 2014 baseline is the reference's NCC at ncc_threshold whatever rule the MAP term uses
     return Visibility(visible=visible, photometric=in_image & has_ref[:, None] & (corr >= o.ncc_threshold), ncc=corr,
-                      candidate=candidate, reference=ref)
+                      candidate=candidate, reference=ref, appearance=Appearance(samples=samples, row_of=row_of))
+
+
+def off_seed(now: Visibility, seed: Appearance, o: PatchOptions) -> np.ndarray:
+    """(N,) bool: patches whose visible views no longer show their seed appearance: the median, over the cameras
+    labelled visible now that also saw the patch at the seed, of the NCC of the square now against the square
+    there at the seed (same camera: the viewpoint is alike, only the body moved), below ``ncc_threshold``. A patch
+    with no such camera is not judged."""
+    got = np.where(now.visible, now.appearance.ncc_against(seed), np.nan)
+    judged = np.isfinite(got).any(axis=1)
+    med = np.full(len(got), np.inf)
+    if judged.any():
+        med[judged] = np.nanmedian(got[judged], axis=1)
+    return med < o.ncc_threshold
