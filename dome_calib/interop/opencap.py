@@ -20,6 +20,7 @@ Cameras: the files in name order, named ``cam_00``, ``cam_01``, ... by that orde
 """
 from __future__ import annotations
 
+import codecs
 import importlib
 import io
 import pickle
@@ -51,7 +52,6 @@ def _resolve(module: str, name: str) -> Any:
     if module == "numpy":
         return {"ndarray": np.ndarray, "dtype": np.dtype}[name]
     if module == "_codecs":
-        import codecs
         return codecs.encode
     sub = module.rsplit(".", 1)[1]
     for core in ("numpy._core", "numpy.core"):
