@@ -345,3 +345,37 @@ def test_a_sequence_name_that_is_no_file_name_is_named_as_typed(small, tmp_path,
     assert code == 1 and len(err.strip().splitlines()) == 1, err
     assert f"--seq {seq!r}" in err and ".new." not in err and "staging" not in err
     assert not (tmp_path / "out").exists()
+
+
+def _opencap_pickle(tree: dict) -> bytes:
+    """An OpenCap camera file from a tree: numeric leaves as numpy arrays (OpenCap's), any other value as it is."""
+    import pickle
+
+    def array(v):
+        try:
+            a = np.array(v)
+        except ValueError:  # ragged
+            return v
+        return a if a.dtype.kind in "biuf" else v
+
+    return pickle.dumps({k: array(v) for k, v in tree.items()} if isinstance(tree, dict) else tree)
+
+
+def test_mutated_opencap_pickles_are_read_or_refused_in_one_line(small, tmp_path, monkeypatch, capsys):
+    cam = load_bundle(small).cameras["00_00"]
+    base = {"imageSize": [[cam.resolution[1]], [cam.resolution[0]]], "intrinsicMat": cam.K.tolist(),
+            "distortion": [cam.dist.tolist()], "rotation": cam.R.tolist(), "translation": (cam.t_cm * 10).tolist()}
+    seen = {"accepted": 0, "refused": 0}
+
+    @HOSTILE
+    @given(path=st.sampled_from(_paths(base)), kind=st.sampled_from(KINDS))
+    def run(path, kind):
+        with tempfile.TemporaryDirectory(dir=tmp_path) as tmp:
+            folder = Path(tmp) / "opencap"
+            folder.mkdir()
+            (folder / "cam0.pickle").write_bytes(_opencap_pickle(_mutate(base, path, kind)))
+            seen[_check([folder, "--from", "opencap"], Path(tmp) / "out", folder / "cam0.pickle", monkeypatch,
+                        capsys)] += 1
+
+    run()
+    assert seen["refused"] > 5, seen

@@ -432,7 +432,7 @@ def test_opencap_schema_names_the_field(real, tmp_path):
     _opencap_pickles(folder, list(real[1].cameras.values())[:1])
     f = folder / "cam0.pickle"
     d = pickle.loads(f.read_bytes())  # our own file, just written
-    d["distortion"] = np.zeros((1, 4))
+    d["distortion"] = np.zeros((1, 3))
     f.write_bytes(pickle.dumps(d))
     with pytest.raises(InteropError, match=r"cam0\.pickle.*distortion"):
         read(folder, ImportOptions())

@@ -5,7 +5,8 @@ A file is a pickled dict of numpy arrays (OpenCap's ``saveCameraParameters``)::
 
     imageSize     [height, width] px (any shape holding 2 numbers; Pose2Sim reverses it)
     intrinsicMat  K, 3 x 3
-    distortion    k1 k2 p1 p2 k3 (OpenCV's order, shape (1, 5); Pose2Sim reads the first four: k3 is kept here)
+    distortion    k1 k2 p1 p2 k3 (OpenCV's order, shape (1, 5); Pose2Sim reads the first four: k3 is kept here;
+                  4 terms are read as k1 k2 p1 p2)
     rotation      R, 3 x 3: world to camera
     translation   t, mm (3 numbers)
 
@@ -28,14 +29,11 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import Field
+from pydantic import BeforeValidator
 
 from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, label
-from dome_calib.interop.fields import ROTATION_REPAIR_TOL, rotation_error
-from dome_calib.schema import OpenSchema, validate
-
-Finite = Annotated[float, Field(ge=-1e9, le=1e9, allow_inf_nan=False)]
-Pixels = Annotated[int, Field(ge=1, le=100_000)]
+from dome_calib.interop.fields import CameraMatrix, Distortion, RotationMatrix, SidePx, Translation, flat
+from dome_calib.schema import OpenSchema, Vec, validate
 
 #: The globals a pickle of numpy arrays (and numpy scalars) names, by (module, name) as written in the file, and
 #: where the installed numpy keeps them. numpy 2 writes ``numpy._core``, numpy 1.x ``numpy.core``; protocol 5
@@ -94,18 +92,19 @@ def load_arrays(path: Path) -> Any:
 
 
 class OpencapCalib(OpenSchema):
-    """One OpenCap ``.pickle``, each array flattened (see the module docstring)."""
+    """One OpenCap ``.pickle`` (see the module docstring); a (1, N) or (N, 1) array read as a vector."""
 
-    imageSize: Annotated[list[Pixels], Field(min_length=2, max_length=2)]
-    intrinsicMat: Annotated[list[Finite], Field(min_length=9, max_length=9)]
-    distortion: Annotated[list[Finite], Field(min_length=5, max_length=5)]
-    rotation: Annotated[list[Finite], Field(min_length=9, max_length=9)]
-    translation: Annotated[list[Finite], Field(min_length=3, max_length=3)]
+    imageSize: Annotated[Vec(2, SidePx), BeforeValidator(flat)]
+    intrinsicMat: CameraMatrix
+    distortion: Annotated[Distortion, BeforeValidator(flat)]
+    rotation: RotationMatrix
+    translation: Annotated[Translation, BeforeValidator(flat)]
 
 
-def _flat(value: Any) -> Any:
-    if isinstance(value, np.ndarray) and value.dtype.kind in "biuf":
-        return value.ravel().tolist()
+def _plain(value: Any) -> Any:
+    """A numeric numpy array or scalar as nested lists / a number; anything else unchanged (the schema judges)."""
+    if isinstance(value, (np.ndarray, np.generic)) and value.dtype.kind in "biuf":
+        return value.tolist()
     return value
 
 
@@ -120,12 +119,11 @@ def read(path: Path, options: ImportOptions) -> Read:
     for k, f in enumerate(files):
         data = load_arrays(f)
         if isinstance(data, dict):
-            data = {key: _flat(v) for key, v in data.items()}
+            data = {key: _plain(v) for key, v in data.items()}
         c = validate(data, OpencapCalib, source=f, error=InteropError)
-        R = np.array(c.rotation).reshape(3, 3)
-        if not rotation_error(R) <= ROTATION_REPAIR_TOL:
-            raise InteropError(f"{f}: rotation: not a rotation")
         height, width = c.imageSize
-        cams.append(ForeignCamera(name=f"cam_{k:02d}", size=(width, height), K=np.array(c.intrinsicMat).reshape(3, 3),
-                                  dist=np.array(c.distortion), R=R, t=np.array(c.translation)))
+        dist = np.zeros(5)
+        dist[: len(c.distortion)] = c.distortion
+        cams.append(ForeignCamera(name=f"cam_{k:02d}", size=(width, height), K=np.array(c.intrinsicMat), dist=dist,
+                                  R=np.array(c.rotation), t=np.array(c.translation)))
     return Read(cameras=cams, unit="mm", path=path)
