@@ -379,3 +379,13 @@ def test_mutated_opencap_pickles_are_read_or_refused_in_one_line(small, tmp_path
 
     run()
     assert seen["refused"] > 5, seen
+
+
+def test_a_value_a_reader_lets_through_is_refused_naming_the_source(tmp_path, monkeypatch, capsys):
+    """bioCV's reader takes K as 9 numbers; one whose last row is not [0, 0, 1] used to be refused by the bundle
+    writer naming the OUTPUT file. Any such value is now refused naming the file read, nothing written."""
+    folder = tmp_path / "biocv"
+    folder.mkdir()
+    (folder / "00.calib").write_text("1920\n1080\n1000 0 960\n0 1000 540\n0 0 2\n\n1 0 0 0\n0 1 0 0\n0 0 1 1000\n"
+                                     "0 0 0 1\n\n0 0 0 0\n")
+    assert _check([folder, "--from", "biocv"], tmp_path / "out", folder, monkeypatch, capsys) == "refused"
