@@ -377,16 +377,27 @@ def test_opencap_reads_as_pose2sims_calib_opencap_fun(real, tmp_path):
     assert worst < 1e-6
 
 
+def _as_numpy_1(data: bytes, protocol: int) -> bytes:
+    """A pickle written by numpy 2 with the module names numpy 1.x writes (``numpy.core``): in text for protocols
+    0-3, as length-prefixed strings in the one frame of a small protocol 4-5 pickle (its length mended)."""
+    if protocol <= 3:
+        return data.replace(b"numpy._core.", b"numpy.core.")
+    assert data[2:3] == b"\x95" and int.from_bytes(data[3:11], "little") == len(data) - 11  # PROTO, one FRAME
+    for old in (b"numpy._core.multiarray", b"numpy._core.numeric"):
+        new = old.replace(b"._core", b".core")
+        data = data.replace(b"\x8c" + bytes([len(old)]) + old, b"\x8c" + bytes([len(new)]) + new)
+    return data[:3] + (len(data) - 11).to_bytes(8, "little") + data[11:]
+
+
 def test_opencap_pickle_of_any_protocol_and_numpy_1_names_reads(real, tmp_path):
     """Protocols 0-5, and numpy 1.x's global names (``numpy.core.multiarray``), give the same cameras."""
     cams = list(real[1].cameras.values())[:1]
     got = []
     for p in range(6):
         _opencap_pickles(tmp_path / f"p{p}", cams, protocol=p)
-        if p <= 2:  # text GLOBAL opcodes: rename as numpy 1.x wrote them
-            f = tmp_path / f"p{p}" / "cam0.pickle"
-            f.write_bytes(f.read_bytes().replace(b"numpy._core.", b"numpy.core."))
-            assert b"numpy.core.multiarray" in f.read_bytes()
+        f = tmp_path / f"p{p}" / "cam0.pickle"
+        f.write_bytes(_as_numpy_1(f.read_bytes(), p))
+        assert b"numpy.core." in f.read_bytes() and b"numpy._core" not in f.read_bytes()
         from dome_calib.interop.opencap import read
         got.append(read(tmp_path / f"p{p}", ImportOptions()).cameras[0])
     for c in got:
