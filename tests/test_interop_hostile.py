@@ -345,3 +345,47 @@ def test_a_sequence_name_that_is_no_file_name_is_named_as_typed(small, tmp_path,
     assert code == 1 and len(err.strip().splitlines()) == 1, err
     assert f"--seq {seq!r}" in err and ".new." not in err and "staging" not in err
     assert not (tmp_path / "out").exists()
+
+
+def _opencap_pickle(tree: dict) -> bytes:
+    """An OpenCap camera file from a tree: numeric leaves as numpy arrays (OpenCap's), any other value as it is."""
+    import pickle
+
+    def array(v):
+        try:
+            a = np.array(v)
+        except ValueError:  # ragged
+            return v
+        return a if a.dtype.kind in "biuf" else v
+
+    return pickle.dumps({k: array(v) for k, v in tree.items()} if isinstance(tree, dict) else tree)
+
+
+def test_mutated_opencap_pickles_are_read_or_refused_in_one_line(small, tmp_path, monkeypatch, capsys):
+    cam = load_bundle(small).cameras["00_00"]
+    base = {"imageSize": [[cam.resolution[1]], [cam.resolution[0]]], "intrinsicMat": cam.K.tolist(),
+            "distortion": [cam.dist.tolist()], "rotation": cam.R.tolist(), "translation": (cam.t_cm * 10).tolist()}
+    seen = {"accepted": 0, "refused": 0}
+
+    @HOSTILE
+    @given(path=st.sampled_from(_paths(base)), kind=st.sampled_from(KINDS))
+    def run(path, kind):
+        with tempfile.TemporaryDirectory(dir=tmp_path) as tmp:
+            folder = Path(tmp) / "opencap"
+            folder.mkdir()
+            (folder / "cam0.pickle").write_bytes(_opencap_pickle(_mutate(base, path, kind)))
+            seen[_check([folder, "--from", "opencap"], Path(tmp) / "out", folder / "cam0.pickle", monkeypatch,
+                        capsys)] += 1
+
+    run()
+    assert seen["refused"] > 5, seen
+
+
+def test_a_value_a_reader_lets_through_is_refused_naming_the_source(tmp_path, monkeypatch, capsys):
+    """bioCV's reader takes K as 9 numbers; one whose last row is not [0, 0, 1] used to be refused by the bundle
+    writer naming the OUTPUT file. Any such value is now refused naming the file read, nothing written."""
+    folder = tmp_path / "biocv"
+    folder.mkdir()
+    (folder / "00.calib").write_text("1920\n1080\n1000 0 960\n0 1000 540\n0 0 2\n\n1 0 0 0\n0 1 0 0\n0 0 1 1000\n"
+                                     "0 0 0 1\n\n0 0 0 0\n")
+    assert _check([folder, "--from", "biocv"], tmp_path / "out", folder, monkeypatch, capsys) == "refused"

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
-from dome_calib.bundle import Bundle
+from dome_calib.bundle import Bundle, Camera
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.interop.common import CM_PER_UNIT, PANOPTIC_FROM_UP, ExportOptions, ImportOptions, InteropError
 from dome_calib.interop.convert import export_bundle, import_calibration
@@ -384,3 +384,121 @@ def test_easywand_bad_files_one_line(tmp_path, text, options, message):
     with pytest.raises(InteropError) as err:
         read_foreign(path, "easywand", ImportOptions(unit="mm", **options))
     assert message in str(err.value) and "\n" not in str(err.value) and str(path) in str(err.value)
+
+
+# ---------------------------------------------------------------------------------------------------- OpenCap
+# Pose2Sim turns OpenCap's world (its vertical board's, y down) by Rz(pi) Rx(-pi/2): its world point is A @ ours.
+OPENCAP_TO_POSE2SIM = np.diag([-1.0, -1.0, 1.0]) @ np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])
+
+
+def _opencap_pickles(folder: Path, cams, protocol: int = 4) -> None:
+    """OpenCap's camera files as its saveCameraParameters writes them (pickled dict of arrays, t in mm)."""
+    import pickle
+
+    folder.mkdir()
+    for k, cam in enumerate(cams):
+        d = {"imageSize": np.array([[cam.resolution[1]], [cam.resolution[0]]]), "intrinsicMat": cam.K.copy(),
+             "distortion": cam.dist.reshape(1, 5).copy(), "rotation": cam.R.copy(),
+             "translation": (cam.t_cm * 10.0).reshape(3, 1), "rotation_EulerAngles": np.zeros((3, 1))}
+        (folder / f"cam{k}.pickle").write_bytes(pickle.dumps(d, protocol=protocol))
+
+
+def test_opencap_reads_as_pose2sims_calib_opencap_fun(real, tmp_path):
+    """OpenCap .pickle files written for 6 real Panoptic cameras (HD, with k3), read by Pose2Sim's own
+    calib_opencap_fun (pose2sim 0.10.49) and by our import: same order (cam_00 ..), sizes; Pose2Sim's cameras see its
+    turned world (A X, m) as ours see X (cm) within 1e-6 px over the image, against ours without k3 (Pose2Sim drops
+    it: ours keeps it)."""
+    from Pose2Sim.calibration import calib_opencap_fun
+
+    from dome_calib.interop.convert import read_foreign
+
+    cams = [c for n, c in real[1].cameras.items() if n.startswith("00_")][:6]
+    assert any(abs(c.dist[4]) > 0 for c in cams)
+    folder = tmp_path / "opencap"
+    _opencap_pickles(folder, cams)
+    _, C, S, D, K, R, T = calib_opencap_fun(sorted(folder.glob("*.pickle")))
+    bundle, unit = read_foreign(folder, "opencap", ImportOptions())
+    assert unit == "mm" and list(bundle.cameras) == C == [f"cam_{k:02d}" for k in range(6)]
+    worst = 0.0
+    for i, cam in enumerate(bundle.cameras.values()):
+        assert list(cam.resolution) == [int(v) for v in S[i]]
+        assert cam.dist[4] == cams[i].dist[4]  # k3 kept
+        X_cm = world_points_cm(cam)
+        uv, _ = cv2.projectPoints(X_cm @ OPENCAP_TO_POSE2SIM.T / 100.0, np.asarray(R[i], float),
+                                  np.asarray(T[i], float), np.asarray(K[i], float), np.asarray(D[i], float))
+        no_k3 = pixels(Camera(**{**cam.__dict__, "dist": np.array([*cam.dist[:4], 0.0])}), X_cm)
+        worst = max(worst, float(np.abs(uv.reshape(-1, 2) - no_k3).max()))
+    print(f"OpenCap .pickle: ours vs Pose2Sim's calib_opencap_fun: {worst:.2e} px")
+    assert worst < 1e-6
+
+
+def _as_numpy_1(data: bytes, protocol: int) -> bytes:
+    """A pickle written by numpy 2 with the module names numpy 1.x writes (``numpy.core``): in text for protocols
+    0-3, as length-prefixed strings in the one frame of a small protocol 4-5 pickle (its length mended)."""
+    if protocol <= 3:
+        return data.replace(b"numpy._core.", b"numpy.core.")
+    assert data[2:3] == b"\x95" and int.from_bytes(data[3:11], "little") == len(data) - 11  # PROTO, one FRAME
+    for old in (b"numpy._core.multiarray", b"numpy._core.numeric"):
+        new = old.replace(b"._core", b".core")
+        data = data.replace(b"\x8c" + bytes([len(old)]) + old, b"\x8c" + bytes([len(new)]) + new)
+    return data[:3] + (len(data) - 11).to_bytes(8, "little") + data[11:]
+
+
+def test_opencap_pickle_of_any_protocol_and_numpy_1_names_reads(real, tmp_path):
+    """Protocols 0-5, and numpy 1.x's global names (``numpy.core.multiarray``), give the same cameras."""
+    cams = list(real[1].cameras.values())[:1]
+    got = []
+    for p in range(6):
+        _opencap_pickles(tmp_path / f"p{p}", cams, protocol=p)
+        f = tmp_path / f"p{p}" / "cam0.pickle"
+        f.write_bytes(_as_numpy_1(f.read_bytes(), p))
+        assert b"numpy.core." in f.read_bytes() and b"numpy._core" not in f.read_bytes()
+        from dome_calib.interop.opencap import read
+        got.append(read(tmp_path / f"p{p}", ImportOptions()).cameras[0])
+    for c in got:
+        np.testing.assert_array_equal(c.K, got[0].K)
+        np.testing.assert_array_equal(c.t, cams[0].t_cm * 10.0)
+
+
+class _Payload:
+    def __init__(self, marker: Path):
+        self.marker = marker
+
+    def __reduce__(self):
+        import os
+        return (os.system, (f"touch {self.marker}",))
+
+
+@pytest.mark.parametrize("protocol", [2, 4])
+def test_opencap_pickle_naming_code_is_refused_unrun(tmp_path, protocol):
+    """A pickle that would run os.system on pickle.load is refused with one line naming the file and the global,
+    and the command is not run (its marker file does not appear)."""
+    import pickle
+
+    from dome_calib.interop.opencap import read
+
+    folder = tmp_path / "opencap"
+    folder.mkdir()
+    marker = tmp_path / "ran"
+    evil = folder / "cam0.pickle"
+    evil.write_bytes(pickle.dumps({"imageSize": np.array([1080, 1920]), "x": _Payload(marker)}, protocol=protocol))
+    with pytest.raises(InteropError) as exc:
+        read(folder, ImportOptions())
+    msg = str(exc.value)
+    assert "\n" not in msg and str(evil) in msg and ("posix.system" in msg or "os.system" in msg), msg
+    assert not marker.exists()
+
+
+def test_opencap_schema_names_the_field(real, tmp_path):
+    import pickle
+
+    from dome_calib.interop.opencap import read
+
+    folder = tmp_path / "opencap"
+    _opencap_pickles(folder, list(real[1].cameras.values())[:1])
+    f = folder / "cam0.pickle"
+    d = pickle.loads(f.read_bytes())  # our own file, just written
+    d["distortion"] = np.zeros((1, 3))
+    f.write_bytes(pickle.dumps(d))
+    with pytest.raises(InteropError, match=r"cam0\.pickle.*distortion"):
+        read(folder, ImportOptions())

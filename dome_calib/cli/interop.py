@@ -72,7 +72,7 @@ def import_(
                                       "turned to our -y (x kept where possible). Default: +z for pose2sim, "
                                       "easymocap, qualisys, vicon, biocv, caliscope; the world kept for colmap, "
                                       "aniposelib, "
-                                      "kalibr (cam0's frame); nerfstudio: undone from its applied_transform."),
+                                      "kalibr (cam0's frame) and opencap (its board's, y down); nerfstudio: undone from its applied_transform."),
     names: str = typer.Option(None, "--names", help=_NAMES_HELP),
     seq: str = typer.Option(None, "--seq", help="Sequence name for calibration_<seq>.json (default: the output "
                             "folder's name)."),

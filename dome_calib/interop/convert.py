@@ -23,6 +23,7 @@ import numpy as np
 
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import load_bundle, write_bundle
+from dome_calib.errors import BundleFormatError
 from dome_calib.interop.common import (ExportOptions, ExportResult, ImportOptions, InteropError, cm_per_unit,
                                        import_record, to_bundle, to_foreign)
 from dome_calib.interop.registry import UP_AXES, FormatInfo, format_info
@@ -194,6 +195,12 @@ def import_calibration(src: str | Path, fmt: str, out: str | Path,
     bundle, unit = read_foreign(src, info.name, options)
     up = _world_up(info, options.world_up, str(src), export=False)
     with replace_folder(out) as staging:
-        write_bundle(bundle, staging)
-        load_bundle(staging)  # the loader every stage uses accepts it, or nothing is replaced
+        try:
+            write_bundle(bundle, staging)
+            load_bundle(staging)  # the loader every stage uses accepts it, or nothing is replaced
+        except InteropError:
+            raise
+        except BundleFormatError as exc:  # a value the format's reader let through: said of the file read
+            detail = str(exc).split(": ", 1)[-1]
+            raise InteropError(f"{src}: read as {info.name}, gives what a bundle may not hold: {detail}") from None
     return ImportResult(out=out, format=info.name, cameras=len(bundle.cameras), unit=unit, world_up=up)

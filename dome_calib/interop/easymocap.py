@@ -28,7 +28,7 @@ from pydantic import BeforeValidator, ConfigDict, Field, ValidationInfo, field_v
 
 from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, label
 from dome_calib.interop.fields import (CameraMatrix, Distortion, RotationMatrix, RotationVector, SidePx,
-                                       Translation)
+                                       Translation, flat)
 from dome_calib.rotation import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from dome_calib.schema import CameraName, FileSchema, OpenSchema, path_of_name, read_yaml, validate
 
@@ -38,14 +38,6 @@ ROTATION_AGREEMENT_DEG = 1e-3
 #: Names that make valid FileStorage keys (``K_<name>``) and survive EasyMocap's ``name.split('.')[0]``.
 _KEY_NAME = re.compile(r"[A-Za-z0-9_-]+")
 _IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
-
-
-def _flat(value: Any) -> Any:
-    """An OpenCV matrix read as nested lists (1xN or Nx1) -> a flat list; anything else unchanged."""
-    if isinstance(value, list) and value and all(isinstance(row, list) for row in value):
-        if len(value) == 1 or all(len(row) == 1 for row in value):
-            return [v for row in value for v in row]
-    return value
 
 
 class CalibrationFile(OpenSchema):
@@ -66,7 +58,7 @@ class Intrinsics(FileSchema):
     """One camera's entries of ``intri.yml``: ``K_<name>``, ``dist_<name>`` (or ``D_``), ``H_<name>``, ``W_<name>``."""
 
     K: CameraMatrix
-    dist: Annotated[Distortion, BeforeValidator(_flat)]
+    dist: Annotated[Distortion, BeforeValidator(flat)]
     H: SidePx | None = None
     W: SidePx | None = None
 
@@ -74,9 +66,9 @@ class Intrinsics(FileSchema):
 class Extrinsics(FileSchema):
     """One camera's entries of ``extri.yml``: ``R_<name>`` (Rodrigues), ``Rot_<name>``, ``T_<name>`` (m)."""
 
-    R: Annotated[RotationVector, BeforeValidator(_flat)] | None = None
+    R: Annotated[RotationVector, BeforeValidator(flat)] | None = None
     Rot: RotationMatrix | None = None
-    T: Annotated[Translation, BeforeValidator(_flat)]
+    T: Annotated[Translation, BeforeValidator(flat)]
 
     @field_validator("Rot")
     @classmethod

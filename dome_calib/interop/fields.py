@@ -51,6 +51,15 @@ def _camera_matrix(K: list[list[float]]) -> list[list[float]]:
     return K
 
 
+def flat(value: Any) -> Any:
+    """An OpenCV matrix read as nested lists (1xN or Nx1) -> a flat list; anything else unchanged (a
+    ``BeforeValidator`` of a vector field)."""
+    if isinstance(value, list) and value and all(isinstance(row, list) for row in value):
+        if len(value) == 1 or all(len(row) == 1 for row in value):
+            return [v for row in value for v in row]
+    return value
+
+
 #: ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` px, fx, fy > 0.
 CameraMatrix = Annotated[Vec(3, Vec(3, Bounded)), AfterValidator(_camera_matrix)]
 
