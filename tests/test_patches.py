@@ -114,3 +114,20 @@ def test_any_part_of_a_cloud_is_tracked_bit_for_bit_as_in_the_whole(small):
         assert np.array_equal(got, want)
         assert np.array_equal(track.visible, traj.visible[part][:, pos])
         assert np.array_equal(track.alive, traj.alive[part][:, pos])
+
+
+def test_lucas_kanade_stops_at_the_options_termination():
+    """The flow's termination (lk_iterations, lk_eps_px) is the options': one iteration without a pyramid falls
+    short of a 3.7 px shift that the defaults recover."""
+    from dome_calib.recon.patches.seed import optical_flow
+    rng = np.random.default_rng(0)
+    base = cv2.GaussianBlur(rng.uniform(0, 255, (240, 320)).astype(np.float32), (0, 0), 2.0)
+    base = cv2.normalize(base, None, 20, 235, cv2.NORM_MINMAX)
+    shift = np.array([3.7, -2.3])
+    M = np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]]], np.float32)
+    a, b = base.astype(np.uint8), cv2.warpAffine(base, M, (320, 240), flags=cv2.INTER_CUBIC).astype(np.uint8)
+    p0 = np.stack(np.meshgrid(np.arange(60.0, 260.0, 40.0), np.arange(60.0, 180.0, 40.0)), -1).reshape(-1, 2)
+    p, ok = optical_flow(a, b, p0, PatchOptions())
+    assert ok.all() and np.abs(p - p0 - shift).max() < 0.1
+    p1, _ = optical_flow(a, b, p0, PatchOptions(lk_iterations=1, lk_eps_px=0.01, lk_levels=0))
+    assert np.median(np.linalg.norm(p1 - p0 - shift, axis=1)) > 0.3

@@ -67,6 +67,9 @@ class PatchOptions:
     lk_window_px: AtLeast(5) = 15
     lk_levels: AtLeast(0) = 3
     lk_fb_px: PosFinite = 0.5  # forward-backward check
+    # Lucas-Kanade's termination per pyramid level: at most this many iterations, or a step below lk_eps_px
+    lk_iterations: AtLeast(1) = 30
+    lk_eps_px: PosFinite = 0.01
     # each step tracks a patch by optical flow in at most this many of the cameras that saw it (track.py
     # best_views: the most face-on, spread in direction; 0: all); visibility is still judged in every camera
     track_views: Annotated[int, Field(ge=0)] = 8

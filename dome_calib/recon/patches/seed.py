@@ -115,7 +115,7 @@ def _lk(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, guess: np.ndarray | No
     """Pyramidal LK of (N, 2) points from image src to dst with a forward-backward check -> ((N, 2), (N,) ok)."""
     if len(p0) == 0:
         return np.zeros((0, 2)), np.zeros(0, bool)
-    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, o.lk_iterations, o.lk_eps_px)
     win = (o.lk_window_px, o.lk_window_px)
     lv = o.lk_levels if levels is None else levels
     a = np.ascontiguousarray(p0, dtype=np.float32).reshape(-1, 1, 2)
