@@ -19,7 +19,7 @@ import numpy as np
 import tomli_w
 from pydantic import AfterValidator, ConfigDict, Field, model_validator
 
-from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written
+from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, five_terms
 from dome_calib.interop.fields import CameraMatrix, Distortion, RotationVector, SidePxNumber, Translation
 from dome_calib.rotation import matrix_to_rotvec, rotvec_to_matrix
 from dome_calib.schema import CameraName, OpenSchema, Vec, read_toml
@@ -49,10 +49,8 @@ class CameraTable(OpenSchema):
     fisheye: Annotated[bool, AfterValidator(_pinhole)] = False
 
     def camera(self) -> ForeignCamera:
-        dist = np.zeros(5)
-        dist[: len(self.distortions)] = self.distortions
         return ForeignCamera(name=self.name, size=(int(self.size[0]), int(self.size[1])), K=np.array(self.matrix),
-                             dist=dist, R=rotvec_to_matrix(np.array(self.rotation)), t=np.array(self.translation))
+                             dist=five_terms(self.distortions), R=rotvec_to_matrix(np.array(self.rotation)), t=np.array(self.translation))
 
 
 class Metadata(OpenSchema):

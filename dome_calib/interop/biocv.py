@@ -26,7 +26,7 @@ from typing import Annotated
 import numpy as np
 from pydantic import Field
 
-from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read
+from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, five_terms, folder_files
 from dome_calib.interop.fields import ROTATION_REPAIR_TOL, rotation_error
 from dome_calib.schema import OpenSchema, validate
 
@@ -73,19 +73,13 @@ def _parse(path: Path) -> dict:
 
 def read(path: Path, options: ImportOptions) -> Read:
     """The cameras of the folder's ``*.calib`` files in name order, lengths in mm."""
-    if not path.is_dir():
-        raise InteropError(f"{path}: not a folder (a bioCV calibration is a folder of .calib files)")
-    files = sorted(p for p in path.iterdir() if p.suffix == ".calib" and p.is_file())
-    if not files:
-        raise InteropError(f"{path}: no .calib file")
     cams = []
-    for k, f in enumerate(files):
+    for k, f in enumerate(folder_files(path, ".calib", "a bioCV calibration")):
         c = validate(_parse(f), BiocvCalib, source=f, error=InteropError)
         RT = np.array(c.RT)
         if not rotation_error(RT[:, :3]) <= ROTATION_REPAIR_TOL:
             raise InteropError(f"{f}: [R | t]: R is not a rotation")
-        dist = np.zeros(5)
-        dist[: len(c.distortion)] = c.distortion  # k3 too where written (Pose2Sim reads the first four only)
+        dist = five_terms(c.distortion)  # k3 too where written (Pose2Sim reads the first four only)
         cams.append(ForeignCamera(name=f"cam_{k:02d}", size=(c.width, c.height), K=np.array(c.K), dist=dist,
                                   R=RT[:, :3], t=RT[:, 3]))
     return Read(cameras=cams, unit="mm", path=path)

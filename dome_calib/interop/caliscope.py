@@ -21,7 +21,7 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import AfterValidator, Field, model_validator
 
-from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read
+from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, five_terms
 from dome_calib.interop.fields import CameraMatrix, Distortion, RotationMatrix, RotationVector, SidePx, Translation
 from dome_calib.rotation import rotvec_to_matrix
 from dome_calib.schema import OpenSchema, Vec, read_toml
@@ -89,9 +89,8 @@ def read(path: Path, options: ImportOptions) -> Read:
                                "intrinsics)")
         rotation = np.array(c.rotation, dtype=float)
         R = rotvec_to_matrix(rotation) if rotation.shape == (3,) else rotation
-        dist = np.zeros(5)
-        dist[: len(c.distortions)] = c.distortions
-        cams.append(ForeignCamera(name=f"cam_{i}", size=(c.size[0], c.size[1]), K=np.array(c.matrix), dist=dist,
+        cams.append(ForeignCamera(name=f"cam_{i}", size=(c.size[0], c.size[1]), K=np.array(c.matrix),
+                                  dist=five_terms(c.distortions),
                                   R=R, t=np.array(c.translation)))
     if not cams:
         raise InteropError(f"{path}: no camera has a pose (rotation and translation): nothing to import")

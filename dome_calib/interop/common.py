@@ -254,6 +254,25 @@ def corner_shift_px(cam: ForeignCamera, kept: np.ndarray) -> float:
     return float(np.linalg.norm(shift, axis=1).max())
 
 
+def five_terms(terms: Any) -> np.ndarray:
+    """Distortion terms as a file writes them (OpenCV's order, k1 k2 p1 p2 [k3]: 4 or 5, its schema says which) ->
+    :class:`ForeignCamera`'s (5,), k3 0 where not written."""
+    dist = np.zeros(5)
+    dist[: len(terms)] = terms
+    return dist
+
+
+def folder_files(path: Path, suffix: str, what: str) -> list[Path]:
+    """The ``suffix`` files of a calibration written as a folder of one file per camera, in name order; one line
+    naming ``path`` when it is no folder or holds none (``what``: the format's calibration, "a bioCV calibration")."""
+    if not path.is_dir():
+        raise InteropError(f"{path}: not a folder ({what} is a folder of {suffix} files)")
+    files = sorted(p for p in path.iterdir() if p.suffix == suffix and p.is_file())
+    if not files:
+        raise InteropError(f"{path}: no {suffix} file")
+    return files
+
+
 def dropped_terms_line(shifts: dict[str, float], what: str) -> str:
     """One line saying what dropping ``what`` costs at the image corners (the worst camera named)."""
     worst = max(shifts, key=shifts.get)

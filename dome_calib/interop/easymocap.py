@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 from pydantic import BeforeValidator, ConfigDict, Field, ValidationInfo, field_validator
 
-from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, label
+from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, five_terms, label
 from dome_calib.interop.fields import (CameraMatrix, Distortion, RotationMatrix, RotationVector, SidePx,
                                        Translation, flat)
 from dome_calib.rotation import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
@@ -159,8 +159,7 @@ def read(folder: Path, options: ImportOptions) -> Read:
             raise InteropError(f"{paths[0]}: camera {label(name)}: H_{name}/W_{name}: missing (EasyMocap's calib_intri "
                                "writes no image size): give --image-size WIDTHxHEIGHT, or keep the images beside the "
                                "files (images/<camera>/)")
-        dist5 = np.zeros(5)
-        dist5[: len(i.dist)] = i.dist
-        cams.append(ForeignCamera(name=name, size=size, K=np.array(i.K), dist=dist5, R=e.matrix(), t=np.array(e.T)))
+        cams.append(ForeignCamera(name=name, size=size, K=np.array(i.K), dist=five_terms(i.dist), R=e.matrix(),
+                                  t=np.array(e.T)))
     return Read(cameras=cams, unit="m", path=folder)
 

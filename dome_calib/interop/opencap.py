@@ -31,7 +31,8 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import BeforeValidator
 
-from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, label
+from dome_calib.interop.common import (ForeignCamera, ImportOptions, InteropError, Read, five_terms, folder_files,
+                                       label)
 from dome_calib.interop.fields import CameraMatrix, Distortion, RotationMatrix, SidePx, Translation, flat
 from dome_calib.schema import OpenSchema, Vec, validate
 
@@ -110,20 +111,14 @@ def _plain(value: Any) -> Any:
 
 def read(path: Path, options: ImportOptions) -> Read:
     """The cameras of the folder's ``*.pickle`` files in name order, lengths in mm."""
-    if not path.is_dir():
-        raise InteropError(f"{path}: not a folder (an OpenCap calibration is a folder of .pickle files)")
-    files = sorted(p for p in path.iterdir() if p.suffix == ".pickle" and p.is_file())
-    if not files:
-        raise InteropError(f"{path}: no .pickle file")
     cams = []
-    for k, f in enumerate(files):
+    for k, f in enumerate(folder_files(path, ".pickle", "an OpenCap calibration")):
         data = load_arrays(f)
         if isinstance(data, dict):
             data = {key: _plain(v) for key, v in data.items()}
         c = validate(data, OpencapCalib, source=f, error=InteropError)
         height, width = c.imageSize
-        dist = np.zeros(5)
-        dist[: len(c.distortion)] = c.distortion
-        cams.append(ForeignCamera(name=f"cam_{k:02d}", size=(width, height), K=np.array(c.intrinsicMat), dist=dist,
+        cams.append(ForeignCamera(name=f"cam_{k:02d}", size=(width, height), K=np.array(c.intrinsicMat),
+                                  dist=five_terms(c.distortion),
                                   R=np.array(c.rotation), t=np.array(c.translation)))
     return Read(cameras=cams, unit="mm", path=path)
