@@ -33,7 +33,7 @@ from dome_calib.recon.depth import pointcloud_at
 from dome_calib.recon.patches.frames import FrameSource, sample
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.seed import Seeds, _normals, flow_to_neighbours, patch_triplets, thin_to_cells
-from dome_calib.recon.project import ViewSet, depth_from_world, project_points
+from dome_calib.recon.project import ViewSet, depth_from_world, project_points, project_view
 from dome_calib.recon.triangulate import TriangulationOptions, triangulate
 
 logger = logging.getLogger(__name__)
@@ -98,14 +98,14 @@ def seed_from_own_kinect(bundle: Bundle, depth: DepthFrames, node: str, t_ms: fl
     tracking step, :func:`dome_calib.recon.patches.run.place_seeds`)."""
     V = len(views.names)
     X, normal, axis, _ = depth_points(bundle, depth, t_ms, o, nodes=[node])
-    proj = project_points(views.at([camera]), X) if len(X) else None
-    if proj is None:
+    if len(X) == 0:
         return Seeds(X_cm=np.zeros((0, 3, 3)), normal=np.zeros((0, 3)), seen=np.zeros((0, V), bool))
+    uv, visible = project_view(views, camera, X)
     to_cam = views.center_cm[camera][None] - X
     to_cam /= np.linalg.norm(to_cam, axis=1, keepdims=True)
-    ok = proj.visible[0] & (np.sum(to_cam * normal, 1) > o.min_cos_view)
+    ok = visible & (np.sum(to_cam * normal, 1) > o.min_cos_view)
     idx = np.flatnonzero(ok)
-    idx = idx[trackable(source.gray(views.names[camera], frame), proj.uv_px[0][idx])] if len(idx) else idx
+    idx = idx[trackable(source.gray(views.names[camera], frame), uv[idx])] if len(idx) else idx
     seen = np.zeros((len(idx), V), bool)
     seen[:, camera] = True
     return Seeds(X_cm=patch_triplets(X[idx], normal[idx], axis[idx], o.axis_cm), normal=normal[idx], seen=seen)

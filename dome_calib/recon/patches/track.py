@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dome_calib.bundle import SyncTable
-from dome_calib.recon.patches.frames import FrameSource, patch_axes
+from dome_calib.recon.patches.frames import FrameSource, patch_axes, project_one
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.seed import optical_flow
 from dome_calib.recon.patches.visibility import Frames, Visibility, estimate_visibility, off_seed
@@ -247,8 +247,7 @@ class SeedViews:
         uv = np.full((N, 3, V, 2), np.nan, np.float32)
         for v in np.flatnonzero((seen & now[None]).any(0)):
             idx = np.flatnonzero(seen[:, v])
-            p = project_view(views, v, X[idx].reshape(-1, 3))[0]
-            uv[idx, :, v] = p.reshape(-1, 3, 2)
+            uv[idx, :, v] = project_one(views, v, X[idx])[0]
         return cls(uv=uv, frame=np.where(now, frames.frame, -1), gray={})
 
     def realign(self, source: FrameSource, name: str, frames: Frames, v: int, idx: np.ndarray, q: np.ndarray,
@@ -343,8 +342,8 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             resid = np.full((N, V), np.nan)  # the flow against the reprojected motion, where flown
             for v in np.flatnonzero(flown.any(0)):
                 idx = np.flatnonzero(flown[:, v])
-                proj = project_view(views, v, X_new[idx].reshape(-1, 3))[0]
-                resid[idx, v] = np.linalg.norm(uv[idx, :, v] - proj.reshape(-1, 3, 2), axis=-1).max(axis=1)
+                proj = project_one(views, v, X_new[idx])[0]
+                resid[idx, v] = np.linalg.norm(uv[idx, :, v] - proj, axis=-1).max(axis=1)
             # the motion term where the patch was flown: its residual, a failed flow 3 sigmas; elsewhere none
             # (a view whose flow left the seed appearance is not triangulated, and judged without the motion term)
             motion = np.where(tracked.all(axis=1), resid, np.where(flown & ~slid_view, np.inf, np.nan))
@@ -355,7 +354,8 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             X = np.where(redo[:, None, None], quantise_cm(np.where(redo[:, None, None], again, 0.0)), X_new)
             unseen = live & (vis.visible.sum(1) < o.min_visible)
             stretched = live & ~unseen & _stretched(X, o)
-            slid = live & ~unseen & ~stretched & off_seed(vis, seed_look, o) if seed_look is not None else live & False
+            slid = (live & ~unseen & ~stretched & off_seed(vis, seed_look, o) if seed_look is not None
+                    else np.zeros_like(live))
             live &= ~unseen & ~stretched & ~slid
             X = quantise_cm(square_up(X, o.axis_cm))
             logger.debug("step %d: %d live; ended: %d centre not triangulated, %d seen by too few, %d stretched, "

@@ -324,8 +324,8 @@ def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callab
     ``after_people(people)``, a further stage on the people (the patches of ``--images``), returns a
     :class:`FurtherStage`: what adds its files there and, with ties, the body over time is fitted again from the
     same tracks with them (:func:`~dome_calib.recon.people.run.refit_over_time`, the same windows on the same
-    executor) and those people are written. The camera report is computed once, for cameras.json and the
-    summary. ``offset_rounds`` (``--correct-offsets``: :data:`OFFSET_ROUNDS`; 0: off): up to that many times, the
+    executor) and those people are written. The camera report of the people written is computed once, for
+    cameras.json and the summary (each ``--correct-offsets`` round reads its own run's). ``offset_rounds`` (``--correct-offsets``: :data:`OFFSET_ROUNDS`; 0: off): up to that many times, the
     cameras flagged for their offset get their principal point moved by it and the people are made again
     (:func:`~dome_calib.recon.people.camera_offsets.with_offsets_corrected`: its rules for stopping and undoing a
     round); cameras.json says the shifts."""
