@@ -28,6 +28,23 @@ QCA = Path(__file__).parent / "data" / "pose2sim_qualisys" / "Calib.qca.txt"
 ZUP_M = PANOPTIC_FROM_UP["+z"] / 100.0  # our point (cm, row vector) @ ZUP_M: the same point in a z-up world, m
 
 
+def _gap_to_pose2sim_px(cams: list[Camera], converted: tuple, their_world=lambda X_cm: X_cm @ ZUP_M, dist=None,
+                        ours=lambda cam: cam) -> float:
+    """Worst px, over each camera's grid of world points, between our camera and the one a Pose2Sim converter
+    returned (its ``(ret, C, S, D, K, R, T)``), projected by OpenCV in Pose2Sim's world (``their_world``: our points,
+    cm, there); each image size checked. ``dist``: the distortion OpenCV is given per camera (default Pose2Sim's D);
+    ``ours``: the camera of ours it is compared with."""
+    _, _, S, D, K, R, T = converted
+    worst = 0.0
+    for i, cam in enumerate(cams):
+        assert list(cam.resolution) == [int(v) for v in S[i]]
+        X_cm = world_points_cm(cam)
+        uv, _ = cv2.projectPoints(their_world(X_cm), np.asarray(R[i], float), np.asarray(T[i], float),
+                                  np.asarray(K[i], float), np.asarray(D[i] if dist is None else dist[i], float))
+        worst = max(worst, float(np.abs(uv.reshape(-1, 2) - pixels(ours(cam), X_cm)).max()))
+    return worst
+
+
 @pytest.fixture(scope="module")
 def real(tmp_path_factory) -> tuple[Path, Bundle]:
     cameras, source = read_calibration(REAL_CALIBRATION)
@@ -115,18 +132,16 @@ def test_qualisys_reads_as_pose2sims_calib_qca_fun(binning):
     evidence of the cameras' own checkerboard images (tests/test_interop_qualisys_evidence.py)."""
     from Pose2Sim.calibration import calib_qca_fun
 
-    _, C, S, D, K, R, T = calib_qca_fun(str(QCA), binning_factor=binning)
+    converted = calib_qca_fun(str(QCA), binning_factor=binning)
+    C, D = converted[1], converted[3]
     from dome_calib.interop.convert import read_foreign
 
     bundle, unit = read_foreign(QCA, "qualisys", ImportOptions(binning=binning))
     assert unit == "mm" and list(bundle.cameras) == C
-    worst = 0.0
-    for i, cam in enumerate(bundle.cameras.values()):
-        assert list(cam.resolution) == [int(v) for v in S[i]]
+    cams = list(bundle.cameras.values())
+    for i, cam in enumerate(cams):
         np.testing.assert_allclose(cam.dist[:4], np.asarray(D[i], dtype=float) * 64 * binning, rtol=1e-12)
-        X_cm = world_points_cm(cam)
-        uv, _ = cv2.projectPoints(X_cm @ ZUP_M, R[i], T[i], K[i], cam.dist[:4])
-        worst = max(worst, float(np.abs(uv.reshape(-1, 2) - pixels(cam, X_cm)).max()))
+    worst = _gap_to_pose2sim_px(cams, converted, dist=[cam.dist[:4] for cam in cams])
     print(f"Qualisys .qca.txt: ours vs Pose2Sim's calib_qca_fun: {worst:.2e} px")
     assert worst < 1e-6
 
@@ -284,16 +299,12 @@ def test_vicon_reads_as_pose2sims_calib_vicon_fun(tmp_path):
     from dome_calib.interop.convert import read_foreign
 
     path, written = _xcp(tmp_path)
-    _, C, S, D, K, R, T = calib_vicon_fun(str(path))
+    converted = calib_vicon_fun(str(path))
     bundle, unit = read_foreign(path, "vicon", ImportOptions())
-    assert unit == "mm" and list(bundle.cameras) == C == list(written)
-    worst = 0.0
-    for i, cam in enumerate(bundle.cameras.values()):
-        assert list(cam.resolution) == [int(v) for v in S[i]]
-        X_cm = world_points_cm(cam)
-        uv, _ = cv2.projectPoints(X_cm @ ZUP_M, R[i], T[i], K[i], np.asarray(D[i], dtype=float))
-        worst = max(worst, float(np.abs(uv.reshape(-1, 2) - pixels(cam, X_cm)).max()))
+    assert unit == "mm" and list(bundle.cameras) == converted[1] == list(written)
+    for cam in bundle.cameras.values():
         np.testing.assert_allclose(cam.K, written[cam.name].K, rtol=1e-12)
+    worst = _gap_to_pose2sim_px(list(bundle.cameras.values()), converted)
     print(f"Vicon .xcp: ours vs Pose2Sim's calib_vicon_fun: {worst:.2e} px")
     assert worst < 1e-6
 
@@ -317,16 +328,10 @@ def test_biocv_reads_as_pose2sims_calib_biocv_fun(tmp_path):
         rows += [""] + [" ".join(repr(float(v)) for v in (*cam.R[i], cam.t_cm[i] * 10.0)) for i in range(3)]
         rows += ["0 0 0 1", "", " ".join(repr(float(v)) for v in (-0.01 * (k + 1), 0.002, 0.0001, -0.0002))]
         (folder / f"{k:02d}.calib").write_text("\n".join(rows) + "\n")
-    _, C, S, D, K, R, T = calib_biocv_fun(sorted(folder.glob("*.calib")))
+    converted = calib_biocv_fun(sorted(folder.glob("*.calib")))
     bundle, unit = read_foreign(folder, "biocv", ImportOptions())
-    assert unit == "mm" and list(bundle.cameras) == C == [f"cam_{k:02d}" for k in range(4)]
-    worst = 0.0
-    for i, cam in enumerate(bundle.cameras.values()):
-        assert list(cam.resolution) == [int(v) for v in S[i]]
-        X_cm = world_points_cm(cam)
-        uv, _ = cv2.projectPoints(X_cm @ ZUP_M, np.asarray(R[i], float), np.asarray(T[i], float),
-                                  np.asarray(K[i], float), np.asarray(D[i], dtype=float))
-        worst = max(worst, float(np.abs(uv.reshape(-1, 2) - pixels(cam, X_cm)).max()))
+    assert unit == "mm" and list(bundle.cameras) == converted[1] == [f"cam_{k:02d}" for k in range(4)]
+    worst = _gap_to_pose2sim_px(list(bundle.cameras.values()), converted)
     print(f"bioCV .calib: ours vs Pose2Sim's calib_biocv_fun: {worst:.2e} px")
     assert worst < 1e-2
 
@@ -416,18 +421,13 @@ def test_opencap_reads_as_pose2sims_calib_opencap_fun(real, tmp_path):
     assert any(abs(c.dist[4]) > 0 for c in cams)
     folder = tmp_path / "opencap"
     _opencap_pickles(folder, cams)
-    _, C, S, D, K, R, T = calib_opencap_fun(sorted(folder.glob("*.pickle")))
+    converted = calib_opencap_fun(sorted(folder.glob("*.pickle")))
     bundle, unit = read_foreign(folder, "opencap", ImportOptions())
-    assert unit == "mm" and list(bundle.cameras) == C == [f"cam_{k:02d}" for k in range(6)]
-    worst = 0.0
-    for i, cam in enumerate(bundle.cameras.values()):
-        assert list(cam.resolution) == [int(v) for v in S[i]]
-        assert cam.dist[4] == cams[i].dist[4]  # k3 kept
-        X_cm = world_points_cm(cam)
-        uv, _ = cv2.projectPoints(X_cm @ OPENCAP_TO_POSE2SIM.T / 100.0, np.asarray(R[i], float),
-                                  np.asarray(T[i], float), np.asarray(K[i], float), np.asarray(D[i], float))
-        no_k3 = pixels(Camera(**{**cam.__dict__, "dist": np.array([*cam.dist[:4], 0.0])}), X_cm)
-        worst = max(worst, float(np.abs(uv.reshape(-1, 2) - no_k3).max()))
+    assert unit == "mm" and list(bundle.cameras) == converted[1] == [f"cam_{k:02d}" for k in range(6)]
+    assert [cam.dist[4] for cam in bundle.cameras.values()] == [c.dist[4] for c in cams]  # k3 kept
+    worst = _gap_to_pose2sim_px(list(bundle.cameras.values()), converted,
+                                their_world=lambda X_cm: X_cm @ OPENCAP_TO_POSE2SIM.T / 100.0,
+                                ours=lambda cam: Camera(**{**cam.__dict__, "dist": np.array([*cam.dist[:4], 0.0])}))
     print(f"OpenCap .pickle: ours vs Pose2Sim's calib_opencap_fun: {worst:.2e} px")
     assert worst < 1e-6
 
