@@ -4,6 +4,7 @@ and a bias too few joints show are not."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from dome_calib.recon.people.agreement import ERROR_BIN_PX, NOISE_BIN_PX, CameraAgreement, tally_verdicts
 from dome_calib.recon.people.scene_io import camera_report, offset_words
@@ -92,3 +93,34 @@ def test_median_error_histogram_unchanged():
     a = tallies([(0.0, 0.0)] * 5, n=500)
     assert a.hist.sum() == 2500 and np.isfinite(a.median_px()).all()
     assert (a.median_px() < 3 * 3.0 + ERROR_BIN_PX).all()
+
+
+def _verdicts_from_the_file(report: dict) -> tuple[list[str], dict[str, bool]]:
+    """The flags recomputed from cameras.json's figures alone, as written (rounded)."""
+    from dome_calib.recon.people.scene_io import MIN_JUDGED, OFFSET_Z, OUTVOTED_LIMIT
+    rows = report["cameras"]
+    meds = [r["median_reprojection_px"] for r in rows.values() if r["median_reprojection_px"] is not None]
+    shares = [r["share_used"] for r in rows.values() if r["share_used"] is not None]
+    offset, flagged = {}, []
+    for name, r in rows.items():
+        offset[name] = bool(r["offset_joints"] >= MIN_JUDGED and r["offset_z"] is not None and r["offset_z"] > OFFSET_Z
+                            and r["offset_floor_px"] is not None
+                            and float(np.hypot(*r["median_offset_px"])) > r["offset_floor_px"])
+        bad = (r["median_reprojection_px"] is not None and r["median_reprojection_px"] > max(3.0 * float(
+               np.median(meds)), 5.0)) or (r["share_used"] is not None and r["share_used"] < 0.5 * float(
+               np.median(shares))) or (r["joints_judged"] >= MIN_JUDGED and r["outvoted_share"] > OUTVOTED_LIMIT)
+        if bad or offset[name]:
+            flagged.append(name)
+    return flagged, offset
+
+
+@pytest.mark.parametrize("sigma_px", [2.0, 6.0])
+@pytest.mark.parametrize("bias_px", [0.0, 5.2, 5.6, 16.0])
+def test_every_flag_follows_from_the_figures_as_written(bias_px, sigma_px):
+    """A verdict never rests on more than the file says: the flags recomputed from cameras.json's own (rounded)
+    figures are the report's, near the offset floor (7.7 px on a 1920 x 1080 image) and away from it."""
+    a = tallies([(bias_px, bias_px), (0.0, 0.0), (1.0, 0.5), (-2.0, 1.0), (0.5, -1.5)], sigma_px=sigma_px)
+    report = camera_report(a, HD)
+    flagged, offset = _verdicts_from_the_file(report)
+    assert flagged == report["flagged"]
+    assert offset == {n: r["offset_flagged"] for n, r in report["cameras"].items()}

@@ -89,7 +89,7 @@ class OffsetCorrection:
                 if (row.get("offset_z") or 0.0) <= OFFSET_Z or float(np.hypot(*m)) < MIN_STEP_PX:
                     continue
                 last = self._last[name]
-                if float(m @ last) <= 0.0 or float(np.hypot(*m)) >= float(np.hypot(*last)):
+                if m[0] * last[0] + m[1] * last[1] <= 0.0 or float(np.hypot(*m)) >= float(np.hypot(*last)):
                     self.diverged.append(name)
                     continue
             self.shifts_px[name] = self.shifts_px.get(name, np.zeros(2)) + m

@@ -110,13 +110,17 @@ def camera_report(agreement: CameraAgreement, resolution_px: np.ndarray | None =
     corrected_px = corrected_px or {}
     offset, n_off = agreement.median_offset_px()
     noise = noise_px_of(agreement.noise, min_noise_px)
+    # every verdict is made on the figures as written (rounded to their printed places): a flag never rests on a
+    # float's last bits, which another machine's kernels change, and the file's flags agree with its numbers
+    offset = np.round(offset, 2)
     off_len = np.hypot(offset[:, 0], offset[:, 1])
-    off_z = off_len / (np.sqrt(np.pi / 2.0) * noise / np.sqrt(np.maximum(n_off, 1)))
-    floor = (OFFSET_FLOOR * np.hypot(*np.asarray(resolution_px, float).T) if resolution_px is not None
+    off_z = np.round(off_len / (np.sqrt(np.pi / 2.0) * noise / np.sqrt(np.maximum(n_off, 1))), 1)
+    floor = (np.round(OFFSET_FLOOR * np.hypot(*np.asarray(resolution_px, float).T), 2) if resolution_px is not None
              else np.full(len(agreement.names), np.inf))
     notes = []
-    med = agreement.median_px()
-    share = np.where(agreement.detected > 0, agreement.used / np.maximum(agreement.detected, 1), np.nan)
+    med = np.round(agreement.median_px(), 2)
+    share = np.round(np.where(agreement.detected > 0, agreement.used / np.maximum(agreement.detected, 1), np.nan), 4)
+    outvoted = np.round(agreement.outvoted / np.maximum(agreement.judged, 1), 4)
     all_med = float(np.nanmedian(med)) if np.isfinite(med).any() else float("nan")
     all_share = float(np.nanmedian(share)) if np.isfinite(share).any() else float("nan")
     flagged = []
@@ -125,7 +129,7 @@ def camera_report(agreement: CameraAgreement, resolution_px: np.ndarray | None =
         bad_err = np.isfinite(med[v]) and med[v] > max(3.0 * all_med, 5.0)
         bad_share = np.isfinite(share[v]) and share[v] < 0.5 * all_share
         judged = int(agreement.judged[v])
-        bad_outvoted = judged >= MIN_JUDGED and agreement.outvoted[v] > OUTVOTED_LIMIT * judged  # absolute
+        bad_outvoted = judged >= MIN_JUDGED and agreement.outvoted[v] > OUTVOTED_LIMIT * judged  # counts: exact
         bad_offset = bool(n_off[v] >= MIN_JUDGED and off_z[v] > OFFSET_Z and off_len[v] > floor[v])  # absolute
         if bad_offset:
             notes.append(f"camera {name}: its joints lie {offset_words(offset[v])} of where the others put them: "
@@ -138,18 +142,17 @@ def camera_report(agreement: CameraAgreement, resolution_px: np.ndarray | None =
         if bad_err or bad_share or bad_outvoted or bad_offset:
             flagged.append(name)
         cams[name] = {"detected": int(agreement.detected[v]), "used": int(agreement.used[v]),
-                      "share_used": None if not np.isfinite(share[v]) else round(float(share[v]), 4),
-                      "median_reprojection_px": None if not np.isfinite(med[v]) else round(float(med[v]), 2),
+                      "share_used": None if not np.isfinite(share[v]) else float(share[v]),
+                      "median_reprojection_px": None if not np.isfinite(med[v]) else float(med[v]),
                       "joints_judged": judged,
-                      "outvoted_share": round(int(agreement.outvoted[v]) / judged, 4) if judged else None,
-                      "median_offset_px": (None if not n_off[v] else
-                                           [round(float(offset[v, 0]), 2), round(float(offset[v, 1]), 2)]),
+                      "outvoted_share": float(outvoted[v]) if judged else None,
+                      "median_offset_px": (None if not n_off[v] else [float(offset[v, 0]), float(offset[v, 1])]),
                       "offset_joints": int(n_off[v]),
-                      "offset_z": round(float(off_z[v]), 1) if n_off[v] else None,
+                      "offset_z": float(off_z[v]) if n_off[v] else None,
                       "offset_flagged": bad_offset,
                       "offset_corrected_px": ([round(float(x), 2) for x in corrected_px[name]]
                                               if name in corrected_px else None),
-                      "offset_floor_px": round(float(floor[v]), 2) if np.isfinite(floor[v]) else None}
+                      "offset_floor_px": float(floor[v]) if np.isfinite(floor[v]) else None}
     if len(undone[0]):
         notes.append(f"--correct-offsets: shifting camera {', '.join(undone[0])} further made camera "
                      f"{', '.join(undone[1])} disagree with the others, so that shift was undone")
