@@ -64,3 +64,16 @@ def test_missing_folder_and_bad_json(tmp_path):
     (tmp_path / "session.json").write_text("{not json")
     with pytest.raises(SessionError, match=r"session.json: not valid JSON"):
         load_session(tmp_path)
+
+
+def test_the_same_session_is_the_same_bytes(session_dir, tmp_path):
+    """Every file of a synthetic session, written again from the same options, is byte for byte the same (a float
+    WAV's PEAK chunk stamped the time of writing: the recordings are 24-bit PCM)."""
+    import time
+    time.sleep(1.1)  # a stamped second would differ
+    make_session(tmp_path, SynthSessionOptions(duration_s=2.0, n_kinects=2, kinect_missing_audio=("KINECTNODE2",),
+                                               hd_timecode_every=3))
+    files = sorted(p.relative_to(session_dir) for p in session_dir.rglob("*") if p.is_file())
+    assert [str(p) for p in files if p.suffix == ".wav"]
+    assert files == sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*") if p.is_file())
+    assert [str(p) for p in files if (session_dir / p).read_bytes() != (tmp_path / p).read_bytes()] == []

@@ -23,6 +23,10 @@ from timecode.sync.session import FORMAT, VERSION, write_session_json
 from dome_calib.options import AtLeast, Field, options
 from dome_calib.schema import Finite, NonNegFinite, PosFinite
 
+#: The recordings are written as 24-bit PCM, as the dome's audio interfaces and Kinect microphones record (the
+#: quantisation, 2^-23 of full scale, is ~120 dB under the LTC's own noise): a float WAV carries libsndfile's PEAK
+#: chunk, which stamps the time of writing, so the same capture would not be the same bytes twice.
+WAV_SUBTYPE = "PCM_24"
 BLOCK_SAMPLES = 256  # Kinect v2 audio sub-frame: 256 samples = 16 ms at 16 kHz
 
 
@@ -143,7 +147,7 @@ def make_session(folder: str | Path, options: SynthSessionOptions | None = None)
         c0 = int(o.restart_at_s * fs)
         stereo = np.delete(stereo, np.s_[c0:c0 + int(o.restart_gap_s * fs)], axis=0)
     with atomic_path(folder / "ltc.wav") as tmp:
-        sf.write(tmp, stereo.astype(np.float32), fs, subtype="FLOAT", format="WAV")
+        sf.write(tmp, stereo, fs, subtype=WAV_SUBTYPE, format="WAV")
 
     streams = {}
     for key, rate, base in (("vga", vr, 100), ("hd", hr, 5000)):
@@ -195,7 +199,7 @@ def make_session(folder: str | Path, options: SynthSessionOptions | None = None)
         has_audio = name not in o.kinect_missing_audio
         if has_audio:
             with atomic_path(node_dir / "audio.wav") as tmp:
-                sf.write(tmp, audio.astype(np.float32), o.kinect_sample_rate, subtype="FLOAT", format="WAV")
+                sf.write(tmp, audio, o.kinect_sample_rate, subtype=WAV_SUBTYPE, format="WAV")
         ts: dict = {"audio_blocks": {"first_sample": first.tolist(),
                                      "device_time_100ns": block_dev.astype(np.int64).tolist()}}
         period = 1 / 30 / (1 + d_dev * 1e-6)
