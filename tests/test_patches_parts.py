@@ -127,10 +127,10 @@ def test_a_patch_at_a_crease_is_left_unlabelled():
     """``crease_cm``: a patch within it of two of its person's parts' surfaces and rigid with both (both passing)
     gives no label, whichever its estimated normal favours; a patch near one part only, near two but labelled with
     a third, or rigid with one of the two only, keeps its label; a part without a measured radius (NaN) is never
-    near. Off (0) by default."""
+    near. 0.5 cm by default."""
     from dome_calib.recon.patches.parts import PartLabels, PartOptions, leave_creases
 
-    assert PartOptions().crease_cm == 0.0
+    assert PartOptions().crease_cm == 0.5
     N, P, K = 5, 2, 3
     mismatch = np.full((N, P, K), 5.0)
     dev = np.zeros((N, P, K))
@@ -158,7 +158,7 @@ def test_creases_left_unlabelled_cost_no_right_label_on_true_surfaces():
     from dome_calib.recon.patches.parts import PartOptions
 
     X, normal, alive, person, part, joints = _walkers_patches()
-    base = label_parts(X, normal, alive, joints)
+    base = label_parts(X, normal, alive, joints, PartOptions(crease_cm=0.0))
     crease = label_parts(X, normal, alive, joints, PartOptions(crease_cm=1.0))
     kept = crease.bone >= 0
     assert np.array_equal(crease.bone[kept], base.bone[kept]) and np.array_equal(crease.person[kept],
