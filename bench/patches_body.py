@@ -2,6 +2,8 @@
 
 Run: .venv/bin/python bench/patches_body.py [--rig fewcam,panel] [--people 3] [--seconds 4] [--seeds 1,2]
          [--occlusions 6] [--limbs arms,legs] [--stream FILE.npz] [--end-to-end]
+         [--own-stream sweep,skeleton,both [--frames 30] [--patch-options seed_min_views=2]]
+         [--part-options crease_cm=0.5]
 
 Setup per (rig, seed): the synthetic group (``fewcam``: the 5-camera HD rig of bench/fewcam.py, ``small_area``
 group; ``panel``: the as-built dome's panel preset, VGA of panels 1-2 with their HD and Kinect colour cameras,
@@ -20,7 +22,12 @@ by 2 cameras, with the stream's measured error added (a constant offset and a ra
 stream's: see that module); they are labelled by :func:`~dome_calib.recon.patches.parts.label_parts` with the body
 over time alone (not the truth), and their motions fitted by :func:`~dome_calib.recon.patches.motion.part_motions`.
 With ``--stream FILE`` (``--rig panel --people 2 --seeds 0``: bench/patches.py's setup, ``--save FILE``), the
-patches are the stream's own, tracked in the rendered images, at its times.
+patches are the stream's own, tracked in the rendered images, at its times. With ``--own-stream`` the stream's own
+patches are tracked here, from the rendered images alone (no depth; :data:`OWN_CAMERAS`): one cloud at the
+reference frame (a multiple of 20) nearest the span's middle, tracked ``--frames`` each way (the times judged),
+seeded by the sweep, by ``seed_method="skeleton"`` with the body over time alone as the seeds' prior (what
+``reconstruct --images --patch-seeds skeleton`` gives it), or both side by side; one row per seeding on the same
+rendered frames (``--patch-options``: PatchOptions fields; ``--part-options``: PartOptions fields of the labels).
 
 Prints one JSON object per line per (rig, seed) and method: MPJPE (cm, over the true joints both methods put out
 and over those each puts out), joint acceleration error (cm/s^2: the mean norm of the second difference of the
