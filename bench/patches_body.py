@@ -279,7 +279,8 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
 
 
 def _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present, removed, alone, fit, track_ids,
-           est, conf, seq, dt_s, Pt, normal, alive, t_person, t_part, cpu_alone, cpu_patches, extra, part_options=None) -> list[dict]:
+           est, conf, seq, dt_s, Pt, normal, alive, t_person, t_part, cpu_alone, cpu_patches, extra,
+           part_options=None) -> list[dict]:
     """One set of patches: labelled, their motions tied to the body, the fit with the ties, both rows emitted."""
     cpu = time.process_time()
     ties, lab, motions = ties_from_patches(Pt, normal, alive, times, alone.bodies,  # labelled with the body alone
@@ -340,7 +341,8 @@ def _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present
                                            for p in range(X.shape[1])}
             row["patches_by_label"] = {name: int(np.sum(lab.bone == b)) for b, (name, _, _) in enumerate(BONES)}
             # per removed joint: [recovered within 3 cm, a tie reaches it, removed] joint-times
-            row["occluded_by_joint"] = {JOINTS19[j]: [int((removed[..., j] & out[..., j] & (e_all[..., j] < 3.0)).sum()),
+            row["occluded_by_joint"] = {JOINTS19[j]: [int((removed[..., j] & out[..., j]
+                                                           & (e_all[..., j] < 3.0)).sum()),
                                                       int((removed[..., j] & tied[..., j]).sum()),
                                                       int(removed[..., j].sum())]
                                         for j in range(19) if removed[..., j].any()}
@@ -394,7 +396,8 @@ def main() -> None:
         item.split("=", 1) for item in args.patch_options.split(",") if item)})
     part_options = PartOptions(**{k: json.loads(v) for k, v in (
         item.split("=", 1) for item in args.part_options.split(",") if item)})
-    emit(bench="patches_body", patch_options=args.patch_options, part_options=args.part_options, cpus=os.cpu_count(), load=[round(x, 2) for x in os.getloadavg()])
+    emit(bench="patches_body", patch_options=args.patch_options, part_options=args.part_options,
+         cpus=os.cpu_count(), load=[round(x, 2) for x in os.getloadavg()])
     rows = []
     for rig in args.rig.split(","):
         for seed in [int(x) for x in args.seeds.split(",")]:
@@ -404,7 +407,8 @@ def main() -> None:
                         part_options)
     a = [r for r in rows if r["method"] == "body_over_time"]
     b = [r for r in rows if r["method"] == "with_patches"]
-    emit(aims={"patches_from": [y["patches_from"] for y in b], "mpjpe_ratio": [round(y["mpjpe_common_cm"] / x["mpjpe_common_cm"], 3) for x, y in zip(a, b)],
+    emit(aims={"patches_from": [y["patches_from"] for y in b],
+               "mpjpe_ratio": [round(y["mpjpe_common_cm"] / x["mpjpe_common_cm"], 3) for x, y in zip(a, b)],
                "accel_ratio": [round(y["accel_error_cm_s2"] / x["accel_error_cm_s2"], 3) for x, y in zip(a, b)],
                "occluded_within_3cm": [y["occluded_within_3cm"] for y in b],
                "occluded_within_3cm_alone": [x["occluded_within_3cm"] for x in a]},
