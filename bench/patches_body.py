@@ -2,6 +2,8 @@
 
 Run: .venv/bin/python bench/patches_body.py [--rig fewcam,panel] [--people 3] [--seconds 4] [--seeds 1,2]
          [--occlusions 6] [--limbs arms,legs] [--stream FILE.npz] [--end-to-end]
+         [--own-stream sweep,skeleton,both [--frames 30] [--patch-options seed_min_views=2]]
+         [--part-options crease_cm=0.5]
 
 Setup per (rig, seed): the synthetic group (``fewcam``: the 5-camera HD rig of bench/fewcam.py, ``small_area``
 group; ``panel``: the as-built dome's panel preset, VGA of panels 1-2 with their HD and Kinect colour cameras,
@@ -20,7 +22,12 @@ by 2 cameras, with the stream's measured error added (a constant offset and a ra
 stream's: see that module); they are labelled by :func:`~dome_calib.recon.patches.parts.label_parts` with the body
 over time alone (not the truth), and their motions fitted by :func:`~dome_calib.recon.patches.motion.part_motions`.
 With ``--stream FILE`` (``--rig panel --people 2 --seeds 0``: bench/patches.py's setup, ``--save FILE``), the
-patches are the stream's own, tracked in the rendered images, at its times.
+patches are the stream's own, tracked in the rendered images, at its times. With ``--own-stream`` the stream's own
+patches are tracked here, from the rendered images alone (no depth; :data:`OWN_CAMERAS`): one cloud at the
+reference frame (a multiple of 20) nearest the span's middle, tracked ``--frames`` each way (the times judged),
+seeded by the sweep, by ``seed_method="skeleton"`` with the body over time alone as the seeds' prior (what
+``reconstruct --images --patch-seeds skeleton`` gives it), or both side by side; one row per seeding on the same
+rendered frames (``--patch-options``: PatchOptions fields; ``--part-options``: PartOptions fields of the labels).
 
 Prints one JSON object per line per (rig, seed) and method: MPJPE (cm, over the true joints both methods put out
 and over those each puts out), joint acceleration error (cm/s^2: the mean norm of the second difference of the
@@ -60,6 +67,13 @@ from dome_calib.synth.skeleton import synthetic_sync  # noqa: E402
 from dome_calib.synth.detector import DetectorModel, synth_detections  # noqa: E402
 from dome_calib.synth.group_eval import match_bodies  # noqa: E402
 from dome_calib.synth.surface_patches import true_patches  # noqa: E402
+from dome_calib.synth.textured import TexturedScene, TextureOptions, nearest_surface_points  # noqa: E402
+from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
+from dome_calib.recon.patches.parts import BONES, PartOptions  # noqa: E402
+from dome_calib.recon.patches.run import patch_stream  # noqa: E402
+from dome_calib.recon.patches.seed_skeleton import BodyPrior  # noqa: E402
+from dome_calib.recon.patches.stage import people_at  # noqa: E402
+from patches import GrayCache  # noqa: E402  (bench/patches.py: the rendered grey images kept once)
 
 LIMBS = [(JOINTS19.index(a), JOINTS19.index(b)) for a, b in
          (("l_elbow", "l_wrist"), ("r_elbow", "r_wrist"), ("l_knee", "l_ankle"), ("r_knee", "r_ankle"))]
@@ -156,8 +170,41 @@ def _on_tracks(bodies, ids, shape) -> np.ndarray:
     return out
 
 
+#: The stream's own patches tracked here (``--own-stream``): the cameras of bench/patches.py's panel (the first 24
+#: VGA, 4 HD and 2 Kinect colour by name; HD and Kinect colour rendered at half size) or all of the few-camera rig's
+#: HD (half size).
+OWN_CAMERAS = {"panel": {"vga": 24, "hd": 4, "kinect-color": 2}, "fewcam": {"hd": 99}}
+
+
+def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int, method: str, bodies: list,
+                source, o: PatchOptions, done: dict) -> dict:
+    """The stream's own patches from images alone (no depth): one cloud at reference frame ``f`` tracked ``frames``
+    each way, seeded by ``method`` (``sweep``; ``skeleton``: the body over time ``bodies`` at ``times`` as the
+    seeds' depth prior, as ``reconstruct --images --patch-seeds skeleton`` does; ``both``: the two streams side by
+    side, their patches concatenated, not thinned) -> the arrays ``ties_from_patches`` takes and the truth's person
+    and part of each patch (the true surface point nearest its centre at the seed time)."""
+    by_type = {t: sorted(n for n, c in bundle.cameras.items() if str(c.type) == t) for t in OWN_CAMERAS[rig]}
+    cams = [n for t, k in OWN_CAMERAS[rig].items() for n in by_type[t][:k]]
+    prior = BodyPrior(times_ms=times, joints_cm=people_at(times, bodies, times)[0])
+    trajs = []
+    for m in (("sweep", "skeleton") if method == "both" else (method,)):
+        if m not in done:  # each seeding's stream computed once (``done``), "both" reuses them
+            done[m] = patch_stream(bundle, source, cams, (float(times[0]), float(times[-1])),
+                                   dataclasses.replace(o, track_frames=frames, seed_method=m), seed_frames=[f],
+                                   body=prior if m == "skeleton" else None)
+        trajs.append(done[m])
+    X = np.concatenate([t.X_cm for t in trajs])
+    normal = np.concatenate([t.normal for t in trajs])
+    alive = np.concatenate([t.alive for t in trajs])
+    t_seed = float(trajs[0].times_ms[frames])
+    sp = nearest_surface_points(truth, t_seed, np.nan_to_num(X[:, frames, 0]))
+    return dict(X_cm=X, normal=normal, alive=alive, person=sp.person, part=sp.part, cameras=len(cams),
+                seeds=[int(t.alive[:, frames].sum()) for t in trajs])
+
+
 def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: str = "",
-        end_to_end: bool = False, limbs: list | None = None) -> list[dict]:
+        end_to_end: bool = False, limbs: list | None = None, own: tuple[str, ...] = (), frames: int = 30,
+        patch_options: PatchOptions | None = None, part_options: PartOptions | None = None) -> list[dict]:
     if rig == "fewcam":
         bundle = few_camera_rig(RigOptions(seed=seed, duration_ms=1000.0 * seconds + GROUP_MARGIN_MS + 100.0))
         truth = rig_group(bundle, n_people=n_people, seed=seed)
@@ -176,6 +223,10 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
     saved = np.load(stream) if stream else None
     if saved is not None:
         times = saved["times_ms"]
+    if own:  # one cloud at the reference frame (a multiple of 20) nearest the span's middle, as bench/patches.py
+        f = int(table.index[int(np.searchsorted(table.univ_time_ms, start + 500.0 * seconds))])
+        f -= f % 20
+        times = table.times_of(np.arange(f - frames, f + frames + 1))
     det = synth_detections(bundle, truth, model=DetectorModel(seed=seed))
     det, removed = occlude(det, bundle, truth, times, n_occ, seed, limbs=limbs)
     streams = people_streams(bundle, det)
@@ -198,14 +249,42 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
     track_ids = np.array([np.bincount(ids[:, p][ids[:, p] >= 0]).argmax() if (ids[:, p] >= 0).any() else -1
                           for p in range(X.shape[1])])
     cams = list(views.names)
+    dt_s = float(np.median(np.diff(times))) / 1000.0
+    est = {}
+    conf = {}
+    mids, est["body_over_time"], _ = match_bodies([b.ids for b in alone.bodies], [b.X_cm for b in alone.bodies], X,
+                                                  present)
+    conf["body_over_time"] = _matched_confidence(alone.bodies, mids)
+    if own:
+        source = GrayCache(TexturedScene(bundle, truth, TextureOptions(seed=seed, scale={
+            "vga": 1.0, "hd": 0.5, "kinect-color": 0.5}), cache_frames=3))
+    rows, done = [], {}
+    for how in (own or ("",)):
+        cpu = time.process_time()
+        extra = {}
+        if how:
+            got = own_patches(bundle, truth, rig, times, f, frames, how, alone.bodies, source,
+                              patch_options or PatchOptions(), done)
+            Pt, normal, alive, t_person, t_part = (got[k] for k in ("X_cm", "normal", "alive", "person", "part"))
+            extra = dict(patch_cameras=got["cameras"], seeds=got["seeds"])
+        elif saved is None:
+            Pt, normal, alive, t_person, t_part = true_patches(bundle, cams, truth, times, seed)
+        else:
+            Pt, normal, alive, t_person, t_part = (saved[k] for k in ("X_cm", "normal", "alive", "person", "part"))
+        cpu_patches = time.process_time() - cpu
+        rows += _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present, removed, alone, fit,
+                       track_ids, est, conf, seq, dt_s, Pt, normal, alive, t_person, t_part, cpu_alone,
+                       cpu_patches, extra, part_options)
+    return rows
+
+
+def _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present, removed, alone, fit, track_ids,
+           est, conf, seq, dt_s, Pt, normal, alive, t_person, t_part, cpu_alone, cpu_patches, extra,
+           part_options=None) -> list[dict]:
+    """One set of patches: labelled, their motions tied to the body, the fit with the ties, both rows emitted."""
     cpu = time.process_time()
-    if saved is None:
-        Pt, normal, alive, t_person, t_part = true_patches(bundle, cams, truth, times, seed)
-    else:
-        Pt, normal, alive, t_person, t_part = (saved[k] for k in ("X_cm", "normal", "alive", "person", "part"))
-    cpu_patches = time.process_time() - cpu
-    cpu = time.process_time()
-    ties, lab, motions = ties_from_patches(Pt, normal, alive, times, alone.bodies)  # labelled with the body alone
+    ties, lab, motions = ties_from_patches(Pt, normal, alive, times, alone.bodies,  # labelled with the body alone
+                                           part_options=part_options)
     tracks = np.unique(np.concatenate([b.ids for b in alone.bodies]))
     lab_track = np.where(lab.person >= 0, tracks[np.maximum(lab.person, 0)], -1)
     withp = fit(ties)
@@ -213,13 +292,11 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
     judged = lab.bone >= 0
     t_track = np.where(t_person >= 0, track_ids[np.maximum(t_person, 0)], -2)
     right = judged & (lab_track == t_track) & (lab.bone == t_part)
-    dt_s = float(np.median(np.diff(times))) / 1000.0
     rows = []
-    est = {}
-    conf = {}
-    for mode, res in (("body_over_time", alone), ("with_patches", withp)):
-        mids, est[mode], _ = match_bodies([b.ids for b in res.bodies], [b.X_cm for b in res.bodies], X, present)
-        conf[mode] = _matched_confidence(res.bodies, mids)
+    est, conf = dict(est), dict(conf)
+    mids, est["with_patches"], _ = match_bodies([b.ids for b in withp.bodies], [b.X_cm for b in withp.bodies], X,
+                                                present)
+    conf["with_patches"] = _matched_confidence(withp.bodies, mids)
     frame = _on_tracks(seq.bodies, mids, X.shape)  # the per-frame joints of the same tracks
     tied = np.zeros(X.shape[:3], bool)  # joint-times a tie reaches (from or to)
     for p, tid in enumerate(track_ids):
@@ -233,7 +310,8 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
         out = np.isfinite(Y).all(-1) & present[..., None]
         e_all = np.linalg.norm(Y - X, axis=-1)
         rec = removed & out
-        row = {"rig": rig, "patches_from": "stream" if stream else "truth", "seed": seed, "people": n_people,
+        row = {"rig": rig, "patches_from": f"own stream, seeds {how}" if how else "stream" if stream else "truth",
+               "seed": seed, "people": n_people,
                "path": "reconstruct (session windows, refit_over_time)" if end_to_end else "one window",
                "views": len(cams), "times": len(times), "method": mode,
                "mpjpe_common_cm": round(float(err[both].mean()), 3),
@@ -256,6 +334,18 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
             row["shins"]["occluded_tied"] = round(float((removed & tied & shin).sum()
                                                         / max((removed & shin).sum(), 1)), 4)
             row["shins"]["patches_labelled"] = int(np.isin(lab.bone, [10, 11]).sum())  # l_shin, r_shin
+            row.update(extra)
+            # where the patches are (the truth's part of each, per person) and what they are labelled
+            row["patches_by_true_part"] = {f"person_{p}": {name: int(np.sum((t_person == p) & (t_part == b)))
+                                                           for b, (name, _, _) in enumerate(BONES)}
+                                           for p in range(X.shape[1])}
+            row["patches_by_label"] = {name: int(np.sum(lab.bone == b)) for b, (name, _, _) in enumerate(BONES)}
+            # per removed joint: [recovered within 3 cm, a tie reaches it, removed] joint-times
+            row["occluded_by_joint"] = {JOINTS19[j]: [int((removed[..., j] & out[..., j]
+                                                           & (e_all[..., j] < 3.0)).sum()),
+                                                      int((removed[..., j] & tied[..., j]).sum()),
+                                                      int(removed[..., j].sum())]
+                                        for j in range(19) if removed[..., j].any()}
         flags = flag_joints(frame, Y, conf[mode])
         row.update(flags=int(flags.sum()), flags_precision=round(float((flags & frame_wrong).sum() / max(
             flags.sum(), 1)), 4), flags_recall=round(float((flags & frame_wrong).sum() / max(frame_wrong.sum(), 1)), 4),
@@ -288,16 +378,37 @@ def main() -> None:
                     "its elbow), legs (an ankle and its knee), or both")
     ap.add_argument("--end-to-end", action="store_true", help="reconstruct's path: the session's windows, then "
                     "the body over time fitted again with the ties (recon.people.run.refit_over_time)")
+    ap.add_argument("--own-stream", default="", help="comma list of sweep, skeleton, both: the stream's own "
+                    "patches tracked here in the rendered images, one row each (images alone, no depth; skeleton: "
+                    "the body over time alone as the seeds' depth prior; both: the two side by side)")
+    ap.add_argument("--patch-options", default="", help="--own-stream: PatchOptions fields, FIELD=VALUE,... "
+                    "(values JSON), e.g. seed_min_views=2")
+    ap.add_argument("--part-options", default="", help="PartOptions fields of the labels, FIELD=VALUE,... "
+                    "(values JSON), e.g. crease_cm=1.0")
+    ap.add_argument("--frames", type=int, default=30, help="--own-stream: the cloud is tracked this many reference "
+                    "frames each way (the times judged: 2 x frames + 1)")
     args = ap.parse_args()
-    emit(bench="patches_body", cpus=os.cpu_count(), load=[round(x, 2) for x in os.getloadavg()])
+    if set(args.own_stream.split(",")) - {"", "sweep", "skeleton", "both"}:
+        raise SystemExit(f"--own-stream {args.own_stream!r}: a comma list of sweep, skeleton, both")
+    if args.own_stream and args.stream:
+        raise SystemExit("--own-stream and --stream: one source of the stream's patches")
+    patch_options = PatchOptions(**{k: json.loads(v) for k, v in (
+        item.split("=", 1) for item in args.patch_options.split(",") if item)})
+    part_options = PartOptions(**{k: json.loads(v) for k, v in (
+        item.split("=", 1) for item in args.part_options.split(",") if item)})
+    emit(bench="patches_body", patch_options=args.patch_options, part_options=args.part_options,
+         cpus=os.cpu_count(), load=[round(x, 2) for x in os.getloadavg()])
     rows = []
     for rig in args.rig.split(","):
         for seed in [int(x) for x in args.seeds.split(",")]:
             rows += run(rig, args.people, args.seconds, seed, args.occlusions, args.stream, args.end_to_end,
-                        [lb for k, lb in zip(("arms", "arms", "legs", "legs"), LIMBS) if k in args.limbs.split(",")])
+                        [lb for k, lb in zip(("arms", "arms", "legs", "legs"), LIMBS) if k in args.limbs.split(",")],
+                        tuple(x for x in args.own_stream.split(",") if x), args.frames, patch_options,
+                        part_options)
     a = [r for r in rows if r["method"] == "body_over_time"]
     b = [r for r in rows if r["method"] == "with_patches"]
-    emit(aims={"mpjpe_ratio": [round(y["mpjpe_common_cm"] / x["mpjpe_common_cm"], 3) for x, y in zip(a, b)],
+    emit(aims={"patches_from": [y["patches_from"] for y in b],
+               "mpjpe_ratio": [round(y["mpjpe_common_cm"] / x["mpjpe_common_cm"], 3) for x, y in zip(a, b)],
                "accel_ratio": [round(y["accel_error_cm_s2"] / x["accel_error_cm_s2"], 3) for x, y in zip(a, b)],
                "occluded_within_3cm": [y["occluded_within_3cm"] for y in b],
                "occluded_within_3cm_alone": [x["occluded_within_3cm"] for x in a]},

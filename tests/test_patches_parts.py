@@ -121,3 +121,47 @@ def test_a_part_with_a_radius_is_judged_by_its_surface_not_its_bone():
     was kept)."""
     X, normal, alive, person, part, joints = _walkers_patches()
     assert _share_right(label_parts(X, normal, alive, joints), person, part, alive) == 1.0
+
+
+def test_a_patch_at_a_crease_is_left_unlabelled():
+    """``crease_cm``: a patch within it of two of its person's parts' surfaces and rigid with both (both passing)
+    gives no label, whichever its estimated normal favours; a patch near one part only, near two but labelled with
+    a third, or rigid with one of the two only, keeps its label; a part without a measured radius (NaN) is never
+    near. 0.5 cm by default."""
+    from dome_calib.recon.patches.parts import PartLabels, PartOptions, leave_creases
+
+    assert PartOptions().crease_cm == 0.5
+    N, P, K = 5, 2, 3
+    mismatch = np.full((N, P, K), 5.0)
+    dev = np.zeros((N, P, K))
+    passes = np.ones((N, P, K), bool)
+    mismatch[0, 1, [0, 1]] = [0.2, 0.9]  # at the crease of parts 0 and 1: unlabelled
+    mismatch[1, 1, 0] = 0.2  # near part 0 only
+    mismatch[2, 1, [0, 1]] = 0.2  # near parts 0 and 1, labelled 2
+    mismatch[3, 1, [0, 1]] = 0.2  # near parts 0 and 1, but moves with part 0 only
+    dev[3, 1, 1] = 1.5
+    mismatch[4, 1, 0], mismatch[4, 1, 1] = 0.2, np.nan  # part 1 has no radius
+    mismatch[4, 0, 1] = 0.2  # another person's part near it does not count
+    labels = PartLabels(person=np.ones(N, np.int64), bone=np.array([0, 0, 2, 0, 0]), cost=np.ones(N))
+    out = leave_creases(labels, mismatch, dev, passes, 1.0)
+    assert out.bone.tolist() == [-1, 0, 2, 0, 0] and out.person.tolist() == [-1, 1, 1, 1, 1]
+    assert np.isnan(out.cost[0]) and np.isfinite(out.cost[1:]).all()
+    failing = passes.copy()
+    failing[0, 1, 1] = False  # the second part refuses the patch (normal, distance or frames): not a crease
+    assert leave_creases(labels, mismatch, dev, failing, 1.0).bone[0] == 0
+
+
+def test_creases_left_unlabelled_cost_no_right_label_on_true_surfaces():
+    """On true surface trajectories (the true skeleton, each part's radius measured from its patches) the crease
+    rule only takes labels away: every label it keeps is the one given without it, and the share right does not
+    fall."""
+    from dome_calib.recon.patches.parts import PartOptions
+
+    X, normal, alive, person, part, joints = _walkers_patches()
+    base = label_parts(X, normal, alive, joints, PartOptions(crease_cm=0.0))
+    crease = label_parts(X, normal, alive, joints, PartOptions(crease_cm=1.0))
+    kept = crease.bone >= 0
+    assert np.array_equal(crease.bone[kept], base.bone[kept]) and np.array_equal(crease.person[kept],
+                                                                                 base.person[kept])
+    assert 0.5 < kept.mean() < 1.0
+    assert _share_right(crease, person, part, alive) >= _share_right(base, person, part, alive)

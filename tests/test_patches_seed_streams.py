@@ -122,3 +122,45 @@ def test_a_kinect_seeds_from_its_own_depth_in_its_colour_camera(tmp_path):
     assert np.median(np.sum(seeds.normal * normal[0], axis=1)) > np.cos(np.radians(15.0))
     to_cam = views.center_cm[1] - seeds.X_cm[:, 0]
     assert np.all(np.sum(to_cam * seeds.normal, axis=1) > 0)  # facing the camera that sees it
+
+
+def test_the_body_prior_between_its_times_is_linear():
+    from dome_calib.recon.patches.seed_skeleton import BodyPrior
+
+    J = np.zeros((2, 1, 19, 3))
+    J[1] = 10.0
+    J[1, 0, 5] = np.nan
+    prior = BodyPrior(times_ms=np.array([100.0, 140.0]), joints_cm=J)
+    assert np.array_equal(prior.at(100.2), J[0]) and np.array_equal(prior.at(139.9), J[1], equal_nan=True)
+    mid = prior.at(110.0)
+    assert np.allclose(mid[0, 0], 2.5) and np.isnan(mid[0, 5]).all()  # a joint missing on either side: NaN
+    assert prior.at(99.0).shape == (0, 19, 3) and prior.at(141.0).shape == (0, 19, 3)
+
+
+@pytest.mark.slow  # two streams of 9 cameras seeded on the body twice: ~25 CPU-s
+def test_skeleton_seeds_come_from_every_stream_on_the_body_at_its_own_time(walker):
+    """``seed_method="skeleton"`` with ``seed_streams="all"``: the other stream (the 4 VGA of panel 1) seeds on the
+    people at its own frame time (the body prior between its times), and its seeds are carried to the seed time
+    and land on the surface; with ``seed_streams="reference"`` only the reference stream's seeds. (Before, the
+    skeleton seeded from the reference stream alone whatever ``seed_streams`` said: a dome's VGA, whose frames cut
+    off the legs, alone.)"""
+    from dome_calib.recon.patches.seed_skeleton import BodyPrior
+
+    bundle, truth, scene, ref, other, o = walker
+    o = dataclasses.replace(o, seed_method="skeleton", seed_features=120)
+    cams = ref + other
+    table = bundle.sync.streams["hd"]
+    at = table.times_of(np.arange(FRAME - 2, FRAME + 3))
+    J, present = truth.joints_cm(at)
+    body = BodyPrior(times_ms=at, joints_cm=np.where(present[..., None, None], J, np.nan))
+    span = (table.time_of(FRAME), table.time_of(FRAME))
+    alone = patch_stream(bundle, scene, cams, span, dataclasses.replace(o, seed_streams="reference"),
+                         seed_frames=[FRAME], body=body)
+    every = patch_stream(bundle, scene, cams, span, o, seed_frames=[FRAME], body=body)
+    n_ref = len(alone.ids)
+    added = every.alive[n_ref:, 0]
+    assert added.sum() >= 10
+    t = table.time_of(FRAME)
+    sp = nearest_surface_points(truth, t, every.X_cm[n_ref:][added, 0, 0])
+    assert np.median(sp.distance_cm) < 1.0
+    assert np.array_equal(every.X_cm[:n_ref], alone.X_cm, equal_nan=True)  # the reference stream's, as they were

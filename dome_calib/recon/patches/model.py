@@ -38,11 +38,13 @@ class PatchOptions:
     # reference cameras: every camera of the reference stream (0), or a cover of them spaced this far apart as seen
     # from the capture volume's centre (seed.reference_cameras): in a dense dome neighbours' seeds are the same
     seed_reference_spacing_deg: Annotated[float, Field(ge=0, lt=180)] = 0.0
-    # which streams seed ("sweep", and the Kinects' depth): "all", every stream with at least seed_min_views cameras,
-    # each at its own frame nearest the seed time, its seeds then carried to the seed time by one tracking step
+    # which streams seed ("sweep", "skeleton", and the Kinects' depth): "all", every stream with at least
+    # seed_min_views cameras, each at its own frame nearest the seed time, its seeds then carried to the seed time
+    # by one tracking step
     # (run.place_seeds: a dome's VGA do not see the legs its HD and Kinect colour cameras see), and with depth each
     # Kinect's colour camera from its own depth (seed_depth.seed_from_own_kinect); "reference": the reference
-    # stream alone ("features" and "skeleton" always seed from the reference stream)
+    # stream alone ("features" always seeds from the reference stream; "skeleton" seeds from every stream as
+    # "sweep" does, on the people at the stream's own frame time, BodyPrior.at)
     seed_streams: Literal["all", "reference"] = "all"
     seed_neighbours: AtLeast(2) = 4  # cameras the depth sweep is scored in
     seed_step_cm: PosFinite = 1.5  # depth sweep step along the ray

@@ -29,6 +29,12 @@ Per patch and candidate bone, over the times the patch is alive (at least ``min_
   patch where the torso meets the hips is nearer the hips' bone whichever surface it is on). Nothing is assumed
   of a body's shape: the radii are each capture's and person's own.
 
+- **creases** (``crease_cm`` > 0): a patch that lies within ``crease_cm`` of two parts' surfaces (the thickness
+  term, ``|median distance - radius|``, both parts' radii measured) and is rigid with both within ``crease_cm``
+  (the rigidity RMS), both passing, is left unlabelled: its place and motion fit either part within what they are
+  known to, so only its estimated normal (the alignment, made across both surfaces at a crease) would pick one.
+  The ties (:mod:`.body`) lose nothing by it: such a patch moves with both parts alike.
+
 The label is the bone of least cost among those that pass (costs quantised to 1e-4 cm, ties by person then bone
 order); -1 where none passes. Bones are segments between joints19 joints (:data:`BONES`), one per body part of
 the synthetic body volume (the head: neck to the ears' midpoint).
@@ -63,6 +69,10 @@ class PartOptions:
     max_distance_cm: PosFinite = 30.0
     min_radius_patches: AtLeast(1) = 5
     rigidity_half_window_frames: AtLeast(0) = 2
+    # a patch within this of two parts' surfaces and rigid with both within it is left unlabelled (0: off); 0.5 cm:
+    # what a tracked patch's place is known to (the stream's centre error, median 2.9 mm after 1 frame and 4.7-4.9
+    # mm after 10 on bench/patches.py's scenes)
+    crease_cm: NonNegFinite = 0.5
 
 
 @dataclass(frozen=True)
@@ -109,7 +119,27 @@ def label_parts(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, joints_
     radius = part_radii(first, c["dist"], c["interior"], P, K, o.min_radius_patches)
     mismatch = np.abs(c["dist"] - radius[None])
     on_part = np.where(np.isfinite(mismatch), o.radius_weight * mismatch, o.distance_weight * c["dist"])
-    return _choose(shape + on_part, c["passes"])
+    labels = _choose(shape + on_part, c["passes"])
+    if o.crease_cm > 0:
+        labels = leave_creases(labels, mismatch, c["dev"], c["passes"], o.crease_cm)
+    return labels
+
+
+def leave_creases(labels: PartLabels, mismatch: np.ndarray, dev: np.ndarray, passes: np.ndarray,
+                  crease_cm: float) -> PartLabels:
+    """Labels -> the same with the patches at a crease unlabelled: those whose own person has at least two bones,
+    the labelled one among them, that pass with the patch within ``crease_cm`` of the part's surface
+    (``mismatch``, NaN: no radius measured, never near) and rigid with it within ``crease_cm`` (``dev``); all
+    (N, P, K), compared after quantising to 1e-4 cm."""
+    q = np.rint(crease_cm / _QUANTUM)
+    with np.errstate(invalid="ignore"):
+        near = passes & (np.rint(mismatch / _QUANTUM) <= q) & (np.rint(dev / _QUANTUM) <= q)
+    n = np.flatnonzero(labels.bone >= 0)
+    own = near[n, labels.person[n]]  # (n, K)
+    crease = np.zeros(len(labels.bone), bool)
+    crease[n] = own[np.arange(len(n)), labels.bone[n]] & (own.sum(1) >= 2)
+    return PartLabels(person=np.where(crease, -1, labels.person), bone=np.where(crease, -1, labels.bone),
+                      cost=np.where(crease, np.nan, labels.cost))
 
 
 def part_radii(labels: PartLabels, dist: np.ndarray, interior: np.ndarray, P: int, K: int,

@@ -312,7 +312,7 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
     refs = reference_cameras(ref_views, o.seed_reference_spacing_deg, o.volume_height_cm)
     # the other streams that seed (sweep): each with enough cameras to triangulate a seed, sorted by name
     others = ([st for st in sorted(groups) if st != stream and len(groups[st]) >= o.seed_min_views]
-              if o.seed_streams == "all" and (o.seed_method == "sweep" or depth is not None) else [])
+              if o.seed_streams == "all" and (o.seed_method != "features" or depth is not None) else [])
     # with depth, a Kinect's colour camera (a stream of one camera, its own clock) seeds from its own depth
     depth_nodes = (bundle.sync.kinect_depth if bundle.sync is not None and bundle.sync.kinect_depth else {})
     own_kinects = ([st for st in sorted(groups) if st != stream and st not in others and len(groups[st]) == 1
@@ -346,15 +346,17 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
             elif depth is not None:  # the depth at the stream's frame time, placed in the stream's cameras
                 seed_tasks.append(SeedTask(c, -1, source, other_views[k - 1], at_g, other_at[c, k][1], o, bundle,
                                            depth, stream_rank=k))
-            else:
+            else:  # on the body: the people at the stream's own frame time
+                body_g = body.at(other_at[c, k][1]) if on_body else None
                 seed_tasks += [SeedTask(c, int(r), source, other_views[k - 1], at_g, other_at[c, k][1], o,
-                                        stream_rank=k) for r in other_refs[k - 1]]
+                                        body_cm=body_g, stream_rank=k) for r in other_refs[k - 1]]
     got: dict[tuple[int, int], list] = {}
     for (c, k, _), result in run_tasks(executor, seed_task, seed_tasks):
         got.setdefault((c, k), []).append(result)
     place_tasks = []
     for (c, k), (g, t_g) in sorted(other_at.items()):
         merged = (got[c, k][0] if depth is not None
+                  else merge_body_seeds(got.get((c, k), []), len(groups[others[k - 1]]), o) if on_body
                   else merge_camera_seeds(got.get((c, k), []), other_views[k - 1], o))
         if others[k - 1] in own_kinects:  # seen over all cameras already
             seen = merged.seen
@@ -363,7 +365,7 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
             seen[:, views.index_of(groups[others[k - 1]])] = merged.seen
         place_tasks.append(PlaceTask(c, k, source, views, clocks, t_g, seed_times[c],
                                      Seeds(X_cm=merged.X_cm, normal=merged.normal, seen=seen), neighbours, o,
-                                     refine=o.refine_normals and depth is None))
+                                     refine=o.refine_normals and depth is None and not on_body))
     placed: dict[int, list[Seeds]] = {}
     for (c, _), result in run_tasks(executor, place_task, place_tasks):
         placed.setdefault(c, []).append(result)

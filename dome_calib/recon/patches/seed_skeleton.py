@@ -71,12 +71,21 @@ class BodyPrior:
     joints_cm: np.ndarray
 
     def at(self, t_ms: float) -> np.ndarray:
-        """(P, 19, 3) the people at ``t_ms`` (one of the prior's times, within 0.5 ms; none there: (0, 19, 3))."""
+        """(P, 19, 3) the people at ``t_ms``: at one of the prior's times (within 0.5 ms) its joints; between two of
+        them (another stream's frame time) linear between the two, NaN where either lacks a joint; outside the
+        prior's times, or none: (0, 19, 3)."""
         t = np.asarray(self.times_ms, dtype=float)
         if not len(t):
             return np.zeros((0, 19, 3))
         k = int(np.argmin(np.abs(t - t_ms)))
-        return np.asarray(self.joints_cm[k], float) if abs(t[k] - t_ms) < 0.5 else np.zeros((0, 19, 3))
+        if abs(t[k] - t_ms) < 0.5:
+            return np.asarray(self.joints_cm[k], float)
+        if t_ms < t[0] or t_ms > t[-1]:
+            return np.zeros((0, 19, 3))
+        i = int(np.searchsorted(t, t_ms)) - 1
+        w = (t_ms - t[i]) / (t[i + 1] - t[i])
+        J = np.asarray(self.joints_cm, float)
+        return (1.0 - w) * J[i] + w * J[i + 1]
 
 
 def body_capsules(joints_cm: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
