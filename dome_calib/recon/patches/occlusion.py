@@ -27,8 +27,9 @@ per patch (its centre, the camera, the body at that time): which other patches s
 Without a body (or ``body_occlusion`` off) nothing changes. Distances are compared quantised (squared distances to
 1e-6 cm^2, :data:`DIST2_QUANTUM_CM2`): the same labels on every machine.
 
-Cost (vectorised, patches x candidate cameras x capsules): each person's capsules are tested only for the rays
-that meet the person's bounding sphere, and each capsule only where the ray meets its own bounding sphere.
+Cost (one compiled pass over the patch-camera pairs, numba): each person's capsules are tested only for the rays
+that meet the person's bounding sphere, each capsule only where the ray meets its own bounding sphere, and a pair
+stops at its first occluder (the labels do not depend on the order: a pair is hidden if any capsule hides it).
 """
 from __future__ import annotations
 
@@ -36,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dome_calib.jit import njit
 from dome_calib.recon.patches.parts import BONES
 
 #: The radius of each part's capsule (cm), in :data:`~.parts.BONES` order: a generic adult's (torso, head,
@@ -44,8 +46,6 @@ from dome_calib.recon.patches.parts import BONES
 PART_RADIUS_CM = np.array([13.0, 9.0, 6.0, 10.0, 5.0, 5.0, 4.0, 4.0, 7.0, 7.0, 5.0, 5.0])
 #: Squared distances are compared in multiples of this (cm^2) after rounding.
 DIST2_QUANTUM_CM2 = 1e-6
-#: Patch-camera rays tested together (memory: rays x capsules of the people they meet).
-RAY_CHUNK = 65536
 
 
 @dataclass(frozen=True)
@@ -134,32 +134,88 @@ class Occluders:
         return len(self.radius)
 
 
-def _point_segment2(P: np.ndarray, A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """Squared distance of points P (..., 3) to segments [A, B] (..., 3)."""
-    d = B - A
-    t = np.clip(np.sum((P - A) * d, -1) / np.maximum(np.sum(d * d, -1), 1e-12), 0.0, 1.0)
-    e = P - A - t[..., None] * d
-    return np.sum(e * e, -1)
+@njit(nogil=True, boundscheck=False, inline="always")
+def _point_segment2(px, py, pz, ax, ay, az, bx, by, bz):  # pragma: no cover - compiled
+    """Squared distance of point P to segment [A, B] (non-degenerate)."""
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    t = ((px - ax) * dx + (py - ay) * dy + (pz - az) * dz) / (dx * dx + dy * dy + dz * dz)
+    t = min(max(t, 0.0), 1.0)
+    ex, ey, ez = px - ax - t * dx, py - ay - t * dy, pz - az - t * dz
+    return ex * ex + ey * ey + ez * ez
 
 
-def _segment_segment2(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> np.ndarray:
-    """Squared distance between segments [p1, q1] and [p2, q2] ((M, 3) each, non-degenerate): the closest points'
-    parameters minimise the distance over the unit square, clamped (Ericson, Real-Time Collision Detection 5.1.9)."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a, e = np.sum(d1 * d1, 1), np.sum(d2 * d2, 1)
-    b, c, f = np.sum(d1 * d2, 1), np.sum(d1 * r, 1), np.sum(d2 * r, 1)
+@njit(nogil=True, boundscheck=False, inline="always")
+def _segment_segment2(p1x, p1y, p1z, q1x, q1y, q1z, p2x, p2y, p2z, q2x, q2y, q2z):  # pragma: no cover - compiled
+    """Squared distance between segments [p1, q1] and [p2, q2] (non-degenerate): the closest points' parameters
+    minimise the distance over the unit square, clamped (Ericson, Real-Time Collision Detection, 5.1.9)."""
+    d1x, d1y, d1z = q1x - p1x, q1y - p1y, q1z - p1z
+    d2x, d2y, d2z = q2x - p2x, q2y - p2y, q2z - p2z
+    rx, ry, rz = p1x - p2x, p1y - p2y, p1z - p2z
+    a = d1x * d1x + d1y * d1y + d1z * d1z
+    e = d2x * d2x + d2y * d2y + d2z * d2z
+    b = d1x * d2x + d1y * d2y + d1z * d2z
+    c = d1x * rx + d1y * ry + d1z * rz
+    f = d2x * rx + d2y * ry + d2z * rz
     denom = a * e - b * b
-    s = np.where(denom > 1e-12 * a * e, np.clip((b * f - c * e) / np.where(denom > 0, denom, 1.0), 0.0, 1.0), 0.0)
+    s = min(max((b * f - c * e) / denom, 0.0), 1.0) if denom > 1e-12 * a * e else 0.0
     t = (b * s + f) / e
-    s = np.where(t < 0.0, np.clip(-c / a, 0.0, 1.0), np.where(t > 1.0, np.clip((b - c) / a, 0.0, 1.0), s))
-    t = np.clip(t, 0.0, 1.0)
-    g = r + d1 * s[:, None] - d2 * t[:, None]
-    return np.sum(g * g, 1)
+    if t < 0.0:
+        t, s = 0.0, min(max(-c / a, 0.0), 1.0)
+    elif t > 1.0:
+        t, s = 1.0, min(max((b - c) / a, 0.0), 1.0)
+    gx, gy, gz = rx + d1x * s - d2x * t, ry + d1y * s - d2y * t, rz + d1z * s - d2z * t
+    return gx * gx + gy * gy + gz * gz
 
 
-def _below(d2: np.ndarray, r: np.ndarray) -> np.ndarray:
+@njit(nogil=True, boundscheck=False, inline="always")
+def _below(d2, r):  # pragma: no cover - compiled
     """d2 < r^2, both quantised to :data:`DIST2_QUANTUM_CM2`."""
     return np.rint(d2 / DIST2_QUANTUM_CM2) < np.rint(r * r / DIST2_QUANTUM_CM2)
+
+
+@njit(nogil=True, boundscheck=False)
+def _inside(X, A, B, radius, out):  # pragma: no cover - compiled
+    """(N, K) each patch centre lies in each capsule."""
+    for n in range(X.shape[0]):
+        for k in range(A.shape[0]):
+            out[n, k] = _below(_point_segment2(X[n, 0], X[n, 1], X[n, 2], A[k, 0], A[k, 1], A[k, 2], B[k, 0], B[k, 1],
+                                               B[k, 2]), radius[k])
+
+
+@njit(nogil=True, boundscheck=False)
+def _occluded(X, C, pi, ci, A, B, radius, start, centre, reach, inside, stop_cm, out):  # pragma: no cover - compiled
+    """:func:`occluded_views`' loop: per pair, each person whose bounding sphere the ray meets, each of its capsules
+    (not one holding the patch) whose bounding sphere the ray meets, until the first that the ray enters."""
+    for m in range(pi.shape[0]):
+        out[m] = False
+        n, c = pi[m], ci[m]
+        xx, xy, xz = X[n, 0], X[n, 1], X[n, 2]
+        cx, cy, cz = C[c, 0], C[c, 1], C[c, 2]
+        tx, ty, tz = cx - xx, cy - xy, cz - xz
+        dist = np.sqrt(tx * tx + ty * ty + tz * tz)
+        if dist <= stop_cm:
+            continue
+        w = stop_cm / dist
+        sx, sy, sz = xx + tx * w, xy + ty * w, xz + tz * w
+        for p in range(centre.shape[0]):
+            # 1 cm^2 of slack on the bounding spheres: the exact test decides
+            if _point_segment2(centre[p, 0], centre[p, 1], centre[p, 2], sx, sy, sz, cx, cy, cz) >= \
+                    reach[p] * reach[p] + 1.0:
+                continue
+            for k in range(start[p], start[p + 1]):
+                if inside[n, k]:
+                    continue  # the patch is inside this part: it says nothing
+                ax, ay, az, bx, by, bz, r = A[k, 0], A[k, 1], A[k, 2], B[k, 0], B[k, 1], B[k, 2], radius[k]
+                hx, hy, hz = bx - ax, by - ay, bz - az
+                half = 0.5 * np.sqrt(hx * hx + hy * hy + hz * hz) + r
+                if _point_segment2(0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * (az + bz), sx, sy, sz, cx, cy, cz) >= \
+                        half * half + 1.0:
+                    continue
+                if _below(_segment_segment2(sx, sy, sz, cx, cy, cz, ax, ay, az, bx, by, bz), r):
+                    out[m] = True
+                    break
+            if out[m]:
+                break
 
 
 def occluded_views(occ: Occluders, X: np.ndarray, C: np.ndarray, pi: np.ndarray, ci: np.ndarray,
@@ -171,36 +227,14 @@ def occluded_views(occ: Occluders, X: np.ndarray, C: np.ndarray, pi: np.ndarray,
         X: (N, 3) patch centres, world cm; C: (V, 3) camera centres; pi, ci: (M,) the patch-camera pairs judged.
         stop_cm: the ray starts this far from the patch, towards the camera.
     """
-    M = len(pi)
-    out = np.zeros(M, bool)
-    if M == 0 or len(occ) == 0:
+    out = np.zeros(len(pi), bool)
+    if len(pi) == 0 or len(occ) == 0:
         return out
-    inside = _below(_point_segment2(X[:, None], occ.A[None], occ.B[None]), occ.radius[None])  # (N, K)
-    for lo in range(0, M, RAY_CHUNK):
-        p, c = pi[lo:lo + RAY_CHUNK], ci[lo:lo + RAY_CHUNK]
-        to_cam = C[c] - X[p]
-        dist = np.linalg.norm(to_cam, axis=1)
-        live = dist > stop_cm
-        start = X[p] + to_cam * (stop_cm / np.where(live, dist, 1.0))[:, None]
-        # each person's capsules, only for the rays that meet the person's bounding sphere
-        near = live[:, None] & (_point_segment2(occ.centre[None], start[:, None], C[c][:, None])
-                                < occ.reach[None] ** 2 + 1.0)  # (m, P), 1 cm^2 of slack: the exact test decides
-        r_idx, person = np.nonzero(near)
-        if not len(r_idx):
-            continue
-        n = occ.start[person + 1] - occ.start[person]
-        rays = np.repeat(r_idx, n)
-        caps = np.repeat(occ.start[person] - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
-        caps = caps.astype(np.int64)
-        keep = ~inside[p[rays], caps]
-        rays, caps = rays[keep], caps[keep]
-        # each capsule's bounding sphere first (a point against the ray), then the segments' distance
-        mid = 0.5 * (occ.A[caps] + occ.B[caps])
-        half = 0.5 * np.linalg.norm(occ.B[caps] - occ.A[caps], axis=1) + occ.radius[caps]
-        close = _point_segment2(mid, start[rays], C[c][rays]) < half * half + 1.0
-        rays, caps = rays[close], caps[close]
-        hit = _below(_segment_segment2(start[rays], C[c][rays], occ.A[caps], occ.B[caps]), occ.radius[caps])
-        got = np.zeros(len(p), bool)
-        got[rays[hit]] = True
-        out[lo:lo + RAY_CHUNK] = got
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    X, A, B, radius = f64(X), f64(occ.A), f64(occ.B), f64(occ.radius)
+    inside = np.zeros((len(X), len(A)), bool)
+    _inside(X, A, B, radius, inside)
+    _occluded(X, f64(C), np.ascontiguousarray(pi, dtype=np.int64), np.ascontiguousarray(ci, dtype=np.int64), A, B,
+              radius, np.ascontiguousarray(occ.start, dtype=np.int64), f64(occ.centre), f64(occ.reach), inside,
+              float(stop_cm), out)
     return out
