@@ -140,7 +140,8 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
             the seed.
         neighbours: (E, 2) camera pairs of the prior (:func:`camera_neighbours`).
         body: the people over time; with ``o.body_occlusion`` a camera they hide the patch from (at its own frame
-            time ``frames.t_ms`` + its offset) is no candidate (:mod:`.occlusion`). None: no such term.
+            time ``frames.t_ms`` + its offset) is no candidate (:mod:`.occlusion`) but keeps its place in the prior
+            as a camera labelled "not visible". None: no such term.
     """
     N, V = len(X), len(views.names)
     in_image = np.zeros((N, V), bool)
@@ -217,6 +218,14 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
         r = np.where(np.isnan(motion_px), np.nan, np.minimum(motion_px / o.motion_sigma_px, 3.0))
         cost1 += np.where(np.isnan(r), 0.0, o.motion_weight * (r - 1.0))
     cost1 += o.geometric_weight * np.maximum(0.0, 0.5 - cos) / 0.5
+    if hidden.any():
+        # a hidden camera is a camera labelled "not visible" for certain: it stays in the prior, so each candidate
+        # neighbour of it pays prior_weight for "visible" (its edge to a fixed 0 label), as it would in the graph
+        facing_hidden = hidden & in_image & (cos > o.min_cos_view)
+        pull = np.zeros((N, V))
+        for a_, b_ in ((neighbours[:, 0], neighbours[:, 1]), (neighbours[:, 1], neighbours[:, 0])):
+            np.add.at(pull.T, b_, (facing_hidden[:, a_] & candidate[:, b_]).T)
+        cost1 = cost1 + o.prior_weight * pull
     node = np.full((N, V), -1, np.int64)
     pi, vi = np.nonzero(candidate)
     node[pi, vi] = np.arange(len(pi))
