@@ -14,8 +14,8 @@ call per camera and direction, as a track task makes them, with its calls counte
 patch (the rule before ``track_views``), triangulating the three points from the flown views, and the visibility in
 every camera (``visibility.estimate_visibility``), and the same with the people (the truth's joints at the time) as
 occluders of the views (``body_occlusion``, :mod:`dome_calib.recon.patches.occlusion`; and the occlusion test alone
-on the facing patch-cameras, with the views it hides per patch). Prints one JSON object per line. The flow here is a lower bound
-of the stream's: the texture moves 1 px, and real motion takes Lucas-Kanade more iterations (the stream on the
+on the facing patch-cameras, with the views it hides per patch and the truly seen views among them). Prints one
+JSON object per line. The flow here is a lower bound of the stream's: the texture moves 1 px, and real motion takes Lucas-Kanade more iterations (the stream on the
 panel spent ~2x this bench's flow per patch-step, docs/benchmarks.md); the step also triangulates twice.
 """
 from __future__ import annotations
