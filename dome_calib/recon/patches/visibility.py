@@ -34,6 +34,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import csr_matrix
 
 from dome_calib.recon.patches.frames import (GRID_SIDE, FrameSource, centred, ncc, ncc_centred, patch_axes,
                                              patch_grid_cm, sample)
@@ -221,11 +222,11 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
     if hidden.any():
         # a hidden camera is a camera labelled "not visible" for certain: it stays in the prior, so each candidate
         # neighbour of it pays prior_weight for "visible" (its edge to a fixed 0 label), as it would in the graph
-        facing_hidden = hidden & in_image & (cos > o.min_cos_view)
-        pull = np.zeros((N, V))
-        for a_, b_ in ((neighbours[:, 0], neighbours[:, 1]), (neighbours[:, 1], neighbours[:, 0])):
-            np.add.at(pull.T, b_, (facing_hidden[:, a_] & candidate[:, b_]).T)
-        cost1 = cost1 + o.prior_weight * pull
+        facing_hidden = (hidden & in_image & (cos > o.min_cos_view)).astype(np.float64)
+        ends = np.concatenate([neighbours, neighbours[:, ::-1]])
+        adjacent = csr_matrix((np.ones(len(ends)), (ends[:, 0], ends[:, 1])), shape=(V, V))
+        pull = np.asarray(adjacent @ facing_hidden.T).T  # (N, V) each camera's hidden neighbours (small integers)
+        cost1 = cost1 + o.prior_weight * np.where(candidate, pull, 0.0)
     node = np.full((N, V), -1, np.int64)
     pi, vi = np.nonzero(candidate)
     node[pi, vi] = np.arange(len(pi))
