@@ -12,8 +12,10 @@ do, so they are not judged here: bench/patches.py judges them). Per preset and n
 patch for: choosing the flown views (``track.best_views``), optical flow forward-backward in the flown views (one
 call per camera and direction, as a track task makes them, with its calls counted) and in every view that sees the
 patch (the rule before ``track_views``), triangulating the three points from the flown views, and the visibility in
-every camera (``visibility.estimate_visibility``). Prints one JSON object per line. The flow here is a lower bound
-of the stream's: the texture moves 1 px, and real motion takes Lucas-Kanade more iterations (the stream on the
+every camera (``visibility.estimate_visibility``), and the same with the people (the truth's joints at the time) as
+occluders of the views (``body_occlusion``, :mod:`dome_calib.recon.patches.occlusion`; and the occlusion test alone
+on the facing patch-cameras, with the views it hides per patch and the truly seen views among them). Prints one
+JSON object per line. The flow here is a lower bound of the stream's: the texture moves 1 px, and real motion takes Lucas-Kanade more iterations (the stream on the
 panel spent ~2x this bench's flow per patch-step, docs/benchmarks.md); the step also triangulates twice.
 """
 from __future__ import annotations
@@ -30,7 +32,10 @@ import zlib  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+import dataclasses  # noqa: E402
+
 from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
+from dome_calib.recon.patches.occlusion import BodyPrior, Occluders, occluded_views  # noqa: E402
 from dome_calib.recon.patches.seed import optical_flow, patch_triplets  # noqa: E402
 from dome_calib.recon.patches.track import _triangulate_points, best_views  # noqa: E402
 from dome_calib.recon.patches.visibility import Frames, camera_neighbours, estimate_visibility  # noqa: E402
@@ -95,7 +100,9 @@ def run(args: argparse.Namespace) -> None:
             X = patch_triplets(P[0], normal[0], rng.normal(size=P[0].shape), o.axis_cm)
             N = len(X)
             seen = surface_visibility(dome, names, truth, t, P[0], normal[0])
-            frames = Frames(frame=np.ones(V, np.int64), offset_ms=np.zeros(V))
+            frames = Frames(frame=np.ones(V, np.int64), offset_ms=np.zeros(V), t_ms=t)
+            body = BodyPrior(times_ms=np.array([t]), joints_cm=np.where(present[..., None, None], Xj, np.nan))
+            ob = dataclasses.replace(o, body_occlusion=True)
             flown, ms_select = cpu_ms(lambda: best_views(views, X, seen, o.track_views, o.track_view_spread_deg))
 
             def flow(mask):
@@ -118,14 +125,29 @@ def run(args: argparse.Namespace) -> None:
                                 o)  # compiled (numba's cache: the first run of a checkout) before timing
             full, ms_vis_all = cpu_ms(lambda: estimate_visibility(source, views, frames, X, np.zeros_like(X), seen,
                                                                   motion, nb, o))
+            occ_full, ms_vis_body = cpu_ms(lambda: estimate_visibility(source, views, frames, X, np.zeros_like(X),
+                                                                       seen, motion, nb, ob, body))
+            to_cam = views.center_cm[None] - X[:, None, 0]
+            pi, ci = np.nonzero(np.sum(to_cam * normal[0][:, None], -1) / np.linalg.norm(to_cam, axis=-1)
+                                > o.min_cos_view)
+
+            def occlusion():
+                return occluded_views(Occluders.of(body.between(t), o.occluder_margin_cm), X[:, 0],
+                                      views.center_cm, pi, ci, o.occlusion_stop_cm)
+            hidden, ms_occ = cpu_ms(occlusion)
             per_patch = {k: round(v / N, 3) for k, v in (("select_views", ms_select), ("flow_flown", ms_flow),
                                                           ("flow_every_seen_view", ms_flow_all),
                                                           ("triangulate_flown", ms_tri),
-                                                          ("visibility", ms_vis_all))}
+                                                          ("visibility", ms_vis_all),
+                                                          ("visibility_body_occlusion", ms_vis_body),
+                                                          ("occlusion_alone", ms_occ))}
             print(json.dumps({"preset": preset, "cameras": V, "people": args.people, "patches": N,
                               "track_views": o.track_views, "seen_views_per_patch": round(float(seen.sum(1).mean()), 1),
                               "flown_views_per_patch": round(float(flown.sum(1).mean()), 1),
                               "facing_views_per_patch": round(float(full.candidate.sum(1).mean()), 1),
+                              "hidden_views_per_patch": round(float(hidden.sum() / N), 1),
+                              "candidates_per_patch_body_occlusion": round(float(occ_full.candidate.sum(1).mean()), 1),
+                              "true_views_hidden": int(np.sum(hidden & seen[pi, ci])),
                               "flow_calls_flown": calls, "flow_calls_every_seen": calls_all,
                               "cpu_ms_per_patch": per_patch,
 

@@ -90,6 +90,13 @@ class PatchOptions:
     motion_weight: PosFinite = 1.0
     min_cos_view: Annotated[float, Field(ge=0, lt=1)] = 0.2  # geometric: the normal faces the camera
     geometric_weight: PosFinite = 1.0
+    # geometric: the people as occluders (occlusion.py; needs the body over time, patch_stream(..., body=)): a camera
+    # whose ray to the patch centre, stopped occlusion_stop_cm short of it (half the patch's side), passes through a
+    # part's capsule (a generic adult's radius less occluder_margin_cm: skeleton noise, parts not round) is no
+    # candidate. Off by default; without a body nothing changes
+    body_occlusion: bool = False
+    occluder_margin_cm: Annotated[float, Field(ge=0)] = 3.0
+    occlusion_stop_cm: Annotated[float, Field(ge=0)] = 3.0
     prior_weight: Annotated[float, Field(ge=0)] = 0.3  # Potts weight between neighbouring cameras
     prior_neighbours: AtLeast(1) = 4
     # drift (track.SeedViews): each flown point realigned by optical flow from the camera's seed image (where the

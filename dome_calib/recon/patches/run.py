@@ -74,22 +74,23 @@ def seed_frames_in(table_index: np.ndarray, table_times: np.ndarray, span_ms: tu
 
 
 def run_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], seed_time_ms: float, times_ms: np.ndarray,
-              seeds: Seeds, o: PatchOptions, neighbours: np.ndarray | None = None, *, refine: bool | None = None
-              ) -> tuple[CloudTrack, CloudTrack]:
+              seeds: Seeds, o: PatchOptions, neighbours: np.ndarray | None = None, *, refine: bool | None = None,
+              body: BodyPrior | None = None) -> tuple[CloudTrack, CloudTrack]:
     """One cloud (or any subset of its seeds) tracked from ``seed_time_ms`` over ``times_ms`` (increasing, holding
     the seed time): (backward, forward), each in travel order from the seed. ``refine``: refine the seeds' normals
-    photometrically first (:mod:`.refine`; None: ``o.refine_normals``)."""
+    photometrically first (:mod:`.refine`; None: ``o.refine_normals``). ``body``: the people over time, occluders of
+    the views with ``o.body_occlusion`` (:mod:`.occlusion`)."""
     neighbours = camera_neighbours(views, o.prior_neighbours) if neighbours is None else neighbours
     t = np.asarray(times_ms, dtype=float)
     s = int(np.argmin(np.abs(t - seed_time_ms)))
     X = quantise_cm(seeds.X_cm)
     if (o.refine_normals if refine is None else refine) and len(X):
         frames = judged_frames(clocks, float(t[s]))
-        vis = estimate_visibility(source, views, frames, X, np.zeros_like(X), seeds.seen, None, neighbours, o)
+        vis = estimate_visibility(source, views, frames, X, np.zeros_like(X), seeds.seen, None, neighbours, o, body)
         X = quantise_cm(refine_normals(source, views, frames, X, vis.visible, o))
-    start = seed_visibility(source, views, clocks, float(t[s]), X, seeds.seen, neighbours, o)
-    back = track_cloud(source, views, clocks, t[:s + 1][::-1], X, seeds.seen, neighbours, o, start)
-    fwd = track_cloud(source, views, clocks, t[s:], X, seeds.seen, neighbours, o, start)
+    start = seed_visibility(source, views, clocks, float(t[s]), X, seeds.seen, neighbours, o, body)
+    back = track_cloud(source, views, clocks, t[:s + 1][::-1], X, seeds.seen, neighbours, o, start, body)
+    fwd = track_cloud(source, views, clocks, t[s:], X, seeds.seen, neighbours, o, start, body)
     return back, fwd
 
 
@@ -149,7 +150,8 @@ def stream_seed_frame(clocks: list[Clock], t_ms: float) -> int | None:
 
 
 def place_seeds(source: FrameSource, views: ViewSet, clocks: list[Clock], from_ms: float, to_ms: float, seeds: Seeds,
-                neighbours: np.ndarray, o: PatchOptions, *, refine: bool | None = None) -> tuple[Seeds, np.ndarray]:
+                neighbours: np.ndarray, o: PatchOptions, *, refine: bool | None = None,
+                body: BodyPrior | None = None) -> tuple[Seeds, np.ndarray]:
     """Seeds of a stream at its own frame time ``from_ms`` (``seeds.seen`` over ``views``) -> the same patches at the
     cloud's seed time ``to_ms``: normals refined photometrically at ``from_ms`` (where the seeding stream's cameras
     have their frames, :mod:`.refine`), then one tracking step to ``to_ms`` (:func:`track_cloud`: each camera's track
@@ -162,10 +164,10 @@ def place_seeds(source: FrameSource, views: ViewSet, clocks: list[Clock], from_m
     X = quantise_cm(seeds.X_cm)
     if o.refine_normals if refine is None else refine:
         frames = judged_frames(clocks, from_ms)
-        vis = estimate_visibility(source, views, frames, X, np.zeros_like(X), seeds.seen, None, neighbours, o)
+        vis = estimate_visibility(source, views, frames, X, np.zeros_like(X), seeds.seen, None, neighbours, o, body)
         X = quantise_cm(refine_normals(source, views, frames, X, vis.visible, o))
     times = np.array([from_ms, to_ms]) if abs(to_ms - from_ms) >= 0.5 else np.array([to_ms])
-    track = track_cloud(source, views, clocks, times, X, seeds.seen, neighbours, o)
+    track = track_cloud(source, views, clocks, times, X, seeds.seen, neighbours, o, body=body)
     ok = track.alive[:, -1]
     Xo = track.X_cm[ok, -1]
     _, _, normal = patch_axes(Xo[:, 0], Xo[:, 1], Xo[:, 2])
@@ -188,6 +190,7 @@ class PlaceTask:
     neighbours: np.ndarray
     options: PatchOptions
     refine: bool = True  # refine the normals first (not depth seeds': the depth's normal is better)
+    body: BodyPrior | None = None  # occluders of the views (body_occlusion)
 
     @property
     def key(self) -> tuple[int, int]:
@@ -197,7 +200,7 @@ class PlaceTask:
 def place_task(task: PlaceTask) -> tuple[tuple[int, int], Seeds]:
     """Run one :class:`PlaceTask` (module level: picklable)."""
     return task.key, place_seeds(task.source, task.views, task.clocks, task.from_ms, task.to_ms, task.seeds,
-                                 task.neighbours, task.options, refine=task.refine)[0]
+                                 task.neighbours, task.options, refine=task.refine, body=task.body)[0]
 
 
 def merge_streams(clouds: list[Seeds], o: PatchOptions) -> Seeds:
@@ -226,6 +229,7 @@ class TrackTask:
     neighbours: np.ndarray
     options: PatchOptions
     refine: bool = True
+    body: BodyPrior | None = None  # occluders of the views (body_occlusion)
 
     @property
     def key(self) -> tuple[int, int]:
@@ -235,7 +239,7 @@ class TrackTask:
 def track_task(task: TrackTask) -> tuple[tuple[int, int], CloudTrack, CloudTrack]:
     """Run one :class:`TrackTask` (module level: picklable)."""
     back, fwd = run_cloud(task.source, task.views, task.clocks, task.seed_time_ms, task.times_ms, task.seeds,
-                          task.options, task.neighbours, refine=task.refine)
+                          task.options, task.neighbours, refine=task.refine, body=task.body)
     return task.key, back, fwd
 
 
@@ -276,7 +280,8 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
         seed_frames: the reference frames that seed clouds (default every ``seed_every_frames``-th in the span).
         depth: the Kinects' depth frames: clouds seeded from depth (:mod:`.seed_depth`); None: from image features.
         body: the people over time, the depth prior of ``seed_method="skeleton"`` (:mod:`.seed_skeleton`; needed
-            there, at the seed frames' times).
+            there, at the seed frames' times), and with ``body_occlusion`` the occluders of the views
+            (:mod:`.occlusion`; at the tracked times, linear between the body's times; None: no such term).
         progress: called with (tracking tasks done, tracking tasks).
     Example:
         >>> traj = patch_stream(bundle, TexturedScene(bundle, truth), vga_names, (1000.0, 3000.0))
@@ -287,6 +292,7 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
     on_body = depth is None and o.seed_method == "skeleton"
     if on_body and body is None:
         raise ReconError('seed_method "skeleton" needs the people over time (patch_stream(..., body=BodyPrior))')
+    occluders = body if o.body_occlusion else None  # the tasks carry the body only where it is used
     stream = stream or reference_stream(bundle, cameras)
     groups, tables = cameras_by_stream(bundle, cameras)
     if stream not in groups:
@@ -365,7 +371,7 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
             seen[:, views.index_of(groups[others[k - 1]])] = merged.seen
         place_tasks.append(PlaceTask(c, k, source, views, clocks, t_g, seed_times[c],
                                      Seeds(X_cm=merged.X_cm, normal=merged.normal, seen=seen), neighbours, o,
-                                     refine=o.refine_normals and depth is None and not on_body))
+                                     refine=o.refine_normals and depth is None and not on_body, body=occluders))
     placed: dict[int, list[Seeds]] = {}
     for (c, _), result in run_tasks(executor, place_task, place_tasks):
         placed.setdefault(c, []).append(result)
@@ -384,7 +390,7 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
             track_tasks.append(TrackTask(c, lo, source, views, clocks, seed_times[c], table.times_of(windows[c]),
                                          Seeds(X_cm=seeds.X_cm[part], normal=seeds.normal[part],
                                                seen=seeds.seen[part]), neighbours, o,
-                                         refine=o.refine_normals and depth is None and not on_body))
+                                         refine=o.refine_normals and depth is None and not on_body, body=occluders))
     tracks: dict[int, list[tuple[CloudTrack, CloudTrack]]] = {}
     results = (map(track_task, track_tasks) if executor is None or len(track_tasks) <= 1
                else in_order(executor.map(track_task, track_tasks), [t.key for t in track_tasks], lambda r: r[0]))

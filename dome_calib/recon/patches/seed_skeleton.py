@@ -41,7 +41,8 @@ import numpy as np
 from dome_calib.camera import pixels_to_normalized
 from dome_calib.recon.patches.frames import GRID_SIDE, FrameSource, ncc, patch_axes, sample
 from dome_calib.recon.patches.model import PatchOptions
-from dome_calib.recon.patches.parts import BONES
+# the body as capsules lives with its other use, the people as occluders of the views (re-exported here)
+from dome_calib.recon.patches.occlusion import PART_RADIUS_CM, BodyPrior, body_capsules  # noqa: F401
 from dome_calib.recon.patches.refine import refine_normals
 from dome_calib.recon.patches.seed import Seeds, _nearest_views, patch_triplets, thin_to_cells
 from dome_calib.recon.patches.visibility import Frames
@@ -49,10 +50,6 @@ from dome_calib.recon.project import ViewSet, project_points
 
 logger = logging.getLogger(__name__)
 
-#: The radius of each part's capsule (cm), in :data:`~.parts.BONES` order: a generic adult's (torso, head,
-#: shoulders, hips, upper arms, forearms, thighs, shins). A prior only: the photometric search looks
-#: ``seed_depth_window_cm`` either side of it, so a real body's own thickness (a chest is not round) is found there.
-PART_RADIUS_CM = np.array([13.0, 9.0, 6.0, 10.0, 5.0, 5.0, 4.0, 4.0, 7.0, 7.0, 5.0, 5.0])
 #: Corners' quality level (of the best corner on the people): a quarter of the sweep's 0.02, as the mask keeps only
 #: the people, whose skin and clothes are low-contrast (on the balancing trial's phone videos 0.02 finds 75-122
 #: corners per camera on the participant, this 134-320).
@@ -60,46 +57,6 @@ CORNER_QUALITY = 0.005
 MASK_STEP_PX = 4  # the person's mask is made on this grid of pixels
 FINE_STEPS = 5  # the fine search: this many steps of a fifth of the coarse step either side of the best
 _CHUNK = 64
-
-
-@dataclass(frozen=True)
-class BodyPrior:
-    """The people over time as the seeds' depth prior: times_ms (T,) and joints_cm (T, P, 19, 3) joints19 (world cm,
-    NaN where missing), e.g. the body over time at the reference stream's times."""
-
-    times_ms: np.ndarray
-    joints_cm: np.ndarray
-
-    def at(self, t_ms: float) -> np.ndarray:
-        """(P, 19, 3) the people at ``t_ms``: at one of the prior's times (within 0.5 ms) its joints; between two of
-        them (another stream's frame time) linear between the two, NaN where either lacks a joint; outside the
-        prior's times, or none: (0, 19, 3)."""
-        t = np.asarray(self.times_ms, dtype=float)
-        if not len(t):
-            return np.zeros((0, 19, 3))
-        k = int(np.argmin(np.abs(t - t_ms)))
-        if abs(t[k] - t_ms) < 0.5:
-            return np.asarray(self.joints_cm[k], float)
-        if t_ms < t[0] or t_ms > t[-1]:
-            return np.zeros((0, 19, 3))
-        i = int(np.searchsorted(t, t_ms)) - 1
-        w = (t_ms - t[i]) / (t[i + 1] - t[i])
-        J = np.asarray(self.joints_cm, float)
-        return (1.0 - w) * J[i] + w * J[i + 1]
-
-
-def body_capsules(joints_cm: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(P, 19, 3) joints -> capsules (A (K, 3), B (K, 3), radius (K,)) of every part whose ends are known."""
-    X = np.asarray(joints_cm, dtype=float).reshape(-1, 19, 3)
-    A, B, R = [], [], []
-    for p in range(len(X)):
-        for k, (_, a, b) in enumerate(BONES):
-            end = 0.5 * (X[p, 16] + X[p, 18]) if b < 0 else X[p, b]
-            if np.all(np.isfinite(X[p, a])) and np.all(np.isfinite(end)) and np.linalg.norm(end - X[p, a]) > 1e-6:
-                A.append(X[p, a]), B.append(end), R.append(PART_RADIUS_CM[k])
-    if not A:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
-    return np.array(A), np.array(B), np.array(R)
 
 
 def ray_capsules(origin: np.ndarray, dirs: np.ndarray, A: np.ndarray, B: np.ndarray, radius: np.ndarray

@@ -45,13 +45,14 @@ class PatchStage:
         """The stream over the people's times (``bodies[t]``: a time's people, with ``ids`` and ``X_cm``; its seeding
         and tracking tasks on ``executor``: ``reconstruct``'s ``--workers`` / ``--scheduler``, None here), labelled
         by part (with ``seed_method="skeleton"`` the people, at the reference stream's times, are the seeds' depth
-        prior), the parts' motions as ties on the patches' times (the people's own where the images' reference
-        stream is the people's; a tie on another time ties nothing) -> the :class:`FurtherStage` whose ``write``
-        puts ``patches.parquet`` into the staged output folder."""
+        prior; with ``body_occlusion`` the occluders of the views), the parts' motions as ties on the patches' times
+        (the people's own where the images' reference stream is the people's; a tie on another time ties nothing)
+        -> the :class:`FurtherStage` whose ``write`` puts ``patches.parquet`` into the staged output folder."""
         t = np.asarray(times_ms, dtype=float)
         stream = reference_stream(self.bundle, self.cameras)
         body = None
-        if self.options.seed_method == "skeleton":  # the people as the seeds' depth prior, at the stream's times
+        if self.options.seed_method == "skeleton" or self.options.body_occlusion:
+            # the people at the stream's times: the seeds' depth prior, the occluders of the views
             table = cameras_by_stream(self.bundle, self.cameras)[1][stream]
             at = table.univ_time_ms[(table.univ_time_ms >= t[0]) & (table.univ_time_ms <= t[-1])]
             body = BodyPrior(times_ms=at, joints_cm=people_at(t, bodies, at)[0])

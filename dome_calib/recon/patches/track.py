@@ -35,6 +35,7 @@ import numpy as np
 from dome_calib.bundle import SyncTable
 from dome_calib.recon.patches.frames import FrameSource, patch_axes, project_one
 from dome_calib.recon.patches.model import PatchOptions
+from dome_calib.recon.patches.occlusion import BodyPrior
 from dome_calib.recon.patches.seed import optical_flow
 from dome_calib.recon.patches.visibility import Frames, Visibility, estimate_visibility, off_seed
 from dome_calib.recon.project import ViewSet, project_view
@@ -89,7 +90,7 @@ def judged_frames(clocks: list[Clock], t_ms: float) -> Frames:
         i = int(np.argmin(np.abs(times - t_ms)))
         if abs(times[i] - t_ms) <= 0.5 * frame_period_ms(c.table) + 1e-6:
             frame[v], offset[v] = c.frames[i], times[i] - t_ms
-    return Frames(frame=frame, offset_ms=offset)
+    return Frames(frame=frame, offset_ms=offset, t_ms=float(t_ms))
 
 
 def _bracket(clock: Clock, t_ms: float, forward: bool) -> tuple[int, int, float] | None:
@@ -283,19 +284,21 @@ class SeedViews:
 
 
 def seed_visibility(source: FrameSource, views: ViewSet, clocks: list[Clock], t_ms: float, X0: np.ndarray,
-                    seen: np.ndarray, neighbours: np.ndarray, o: PatchOptions) -> Visibility:
+                    seen: np.ndarray, neighbours: np.ndarray, o: PatchOptions, body: BodyPrior | None = None
+                    ) -> Visibility:
     """The visibility a cloud's tracks start from at its seed time (the same for both directions: computed once)."""
     X = quantise_cm(np.asarray(X0, dtype=float))
     return estimate_visibility(source, views, judged_frames(clocks, t_ms), X, np.zeros_like(X), seen, None,
-                               neighbours, o)
+                               neighbours, o, body)
 
 
 def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_ms: np.ndarray, X0: np.ndarray,
-                seen: np.ndarray, neighbours: np.ndarray, o: PatchOptions, start: Visibility | None = None
-                ) -> CloudTrack:
+                seen: np.ndarray, neighbours: np.ndarray, o: PatchOptions, start: Visibility | None = None,
+                body: BodyPrior | None = None) -> CloudTrack:
     """Track N patches (X0 (N, 3, 3) at ``times_ms[0]``, the seed time; ``seen`` (N, V) the seed's cameras) over
     ``times_ms`` (T,), monotonic in either direction (see the module). ``start``: :func:`seed_visibility` of these
-    arguments if already computed."""
+    arguments if already computed. ``body``: the people over time, occluders of the views with
+    ``o.body_occlusion`` (:mod:`.occlusion`)."""
     N, V, T = len(X0), len(views.names), len(times_ms)
     X_out = np.full((N, T, 3, 3), np.nan)
     vis_out = np.zeros((N, T, V), bool)
@@ -303,7 +306,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
     alive = np.zeros((N, T), bool)
     X = quantise_cm(np.asarray(X0, dtype=float))
     vis = start if start is not None else seed_visibility(source, views, clocks, float(times_ms[0]), X, seen,
-                                                           neighbours, o)
+                                                           neighbours, o, body)
     live = vis.visible.sum(1) >= o.min_visible
     # the seed appearance, where the patch was seen at the seed (seed_appearance_end)
     seed_look = vis.appearance.keep(vis.visible & live[:, None]) if o.seed_appearance_end else None
@@ -347,7 +350,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             # the motion term where the patch was flown: its residual, a failed flow 3 sigmas; elsewhere none
             # (a view whose flow left the seed appearance is not triangulated, and judged without the motion term)
             motion = np.where(tracked.all(axis=1), resid, np.where(flown & ~slid_view, np.inf, np.nan))
-            vis = estimate_visibility(source, views, frames1, X_new, velocity, was, motion, neighbours, o)
+            vis = estimate_visibility(source, views, frames1, X_new, velocity, was, motion, neighbours, o, body)
             use = vis.visible[:, None, :] & tracked
             again = _triangulate_points(views, uv, use.astype(float), o)
             redo = live & (use.sum(axis=2) >= 2).all(axis=1) & np.all(np.isfinite(again), axis=(1, 2))

@@ -16,7 +16,9 @@ Per patch and camera, the cost of "visible" (the cost of "not visible" is 0):
   largest distance between a point's optical flow and the reprojection of its triangulated motion (a failed flow
   counts as 3 sigmas); 0 for the others;
 - **geometric**: a camera is a candidate only if the normal faces it (cosine above ``min_cos_view``; the others are
-  not projected) and the whole square projects into its image; then ``geometric_weight * max(0, 0.5 - cos) / 0.5`` (grazing views cost).
+  not projected), the whole square projects into its image and, with ``body_occlusion`` and the people given, no
+  body part lies on the ray from the camera to the patch (:mod:`.occlusion`); then
+  ``geometric_weight * max(0, 0.5 - cos) / 0.5`` (grazing views cost).
 
 Prior: ``prior_weight`` for each pair of neighbouring candidate cameras (each camera's ``prior_neighbours``
 nearest centres) labelled differently. All patches' graphs go through one cut (:mod:`.mincut`); each gets its own
@@ -32,11 +34,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import csr_matrix
 
 from dome_calib.recon.patches.frames import (GRID_SIDE, FrameSource, centred, ncc, ncc_centred, patch_axes,
                                              patch_grid_cm, sample)
 from dome_calib.recon.patches.mincut import min_cut_labels
 from dome_calib.recon.patches.model import PatchOptions
+from dome_calib.recon.patches.occlusion import BodyPrior, Occluders, occluded_views
 from dome_calib.recon.project import ViewSet, project_view_rows
 
 
@@ -79,10 +83,11 @@ def neighbour_ncc(samples: np.ndarray, anchor: np.ndarray, neighbours: np.ndarra
 @dataclass(frozen=True)
 class Frames:
     """The image each camera is judged on at one reference time: frame (V,) index (-1: none near), offset_ms (V,)
-    its time minus the reference time."""
+    its time minus the reference time; t_ms the reference time (NaN: not given, no body can be placed there)."""
 
     frame: np.ndarray
     offset_ms: np.ndarray
+    t_ms: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -125,7 +130,7 @@ class Visibility:
 
 def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: np.ndarray, velocity: np.ndarray,
                         previous: np.ndarray, motion_px: np.ndarray | None, neighbours: np.ndarray,
-                        o: PatchOptions) -> Visibility:
+                        o: PatchOptions, body: BodyPrior | None = None) -> Visibility:
     """The MAP visibility of N patches at one reference time.
 
     Args:
@@ -135,10 +140,14 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
         motion_px: (N, V) flow-against-motion residual, NaN where not tracked, inf where the flow failed; None at
             the seed.
         neighbours: (E, 2) camera pairs of the prior (:func:`camera_neighbours`).
+        body: the people over time; with ``o.body_occlusion`` a camera they hide the patch from (at its own frame
+            time ``frames.t_ms`` + its offset) is no candidate (:mod:`.occlusion`) but keeps its place in the prior
+            as a camera labelled "not visible". None: no such term.
     """
     N, V = len(X), len(views.names)
     in_image = np.zeros((N, V), bool)
     cos = np.full((N, V), -1.0)
+    hidden = np.zeros((N, V), bool)  # the people hide the patch's centre from the camera (body_occlusion)
     _, _, normal = patch_axes(X[:, 0], X[:, 1], X[:, 2])
     C = views.center_cm
     G = GRID_SIDE * GRID_SIDE
@@ -159,6 +168,10 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
             c = cams[lo:lo + FACING_CHUNK]
             to_cam = C[c][None] - Xt[:, None, 0]
             cos[:, c] = np.sum(to_cam * normal[:, None], -1) / np.linalg.norm(to_cam, axis=-1)
+        if body is not None and o.body_occlusion:
+            occ = Occluders.of(body.at(frames.t_ms + dt), o.occluder_margin_cm)
+            pi, k = np.nonzero(cos[:, cams] > o.min_cos_view)  # only the cameras the normal faces are judged
+            hidden[pi, cams[k]] = occluded_views(occ, Xt[:, 0], C, pi, cams[k], o.occlusion_stop_cm)
     for v, name in enumerate(views.names):
         f = int(frames.frame[v])
         if f < 0 or N == 0:
@@ -166,7 +179,7 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
         grid_all = moved[float(frames.offset_ms[v])]
         # only patches whose normal faces the camera can be candidates: the others are not projected (a dome's
         # camera faces a third of a patch's cameras; their NCC and the photometric baseline are left out there)
-        rows = np.flatnonzero(cos[:, v] > o.min_cos_view)
+        rows = np.flatnonzero(cos[:, v] > o.min_cos_view)  # the hidden too: the photometric baseline judges them
         if len(rows) == 0:
             continue
         uv, inside = project_view_rows(views, v, grid_all, rows)
@@ -178,7 +191,7 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
             row_v.append(np.full(len(blocks[-1]), v))
             M += len(blocks[-1])
     samples = np.concatenate(blocks) if blocks else np.zeros((0, G), np.float32)
-    candidate = in_image & (cos > o.min_cos_view)
+    candidate = in_image & (cos > o.min_cos_view) & ~hidden
     prev = previous & candidate
     score = np.where(prev, cos, np.where(candidate, cos - 2.0, -np.inf))
     ref = np.argmax(np.where(np.isfinite(score), np.rint(score * 1e6), -1e9), axis=1)  # quantised: ties by position
@@ -206,6 +219,14 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
         r = np.where(np.isnan(motion_px), np.nan, np.minimum(motion_px / o.motion_sigma_px, 3.0))
         cost1 += np.where(np.isnan(r), 0.0, o.motion_weight * (r - 1.0))
     cost1 += o.geometric_weight * np.maximum(0.0, 0.5 - cos) / 0.5
+    if hidden.any():
+        # a hidden camera is a camera labelled "not visible" for certain: it stays in the prior, so each candidate
+        # neighbour of it pays prior_weight for "visible" (its edge to a fixed 0 label), as it would in the graph
+        facing_hidden = (hidden & in_image & (cos > o.min_cos_view)).astype(np.float64)
+        ends = np.concatenate([neighbours, neighbours[:, ::-1]])
+        adjacent = csr_matrix((np.ones(len(ends)), (ends[:, 0], ends[:, 1])), shape=(V, V))
+        pull = np.asarray(adjacent @ facing_hidden.T).T  # (N, V) each camera's hidden neighbours (small integers)
+        cost1 = cost1 + o.prior_weight * np.where(candidate, pull, 0.0)
     node = np.full((N, V), -1, np.int64)
     pi, vi = np.nonzero(candidate)
     node[pi, vi] = np.arange(len(pi))
