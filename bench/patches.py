@@ -280,6 +280,8 @@ def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int, imaged=Non
                 length_median_frames=float(np.median(lengths)) if len(lengths) else None,
                 length_share_25=round(float(np.mean(lengths >= min(25, nf))), 3) if len(lengths) else None,
                 length_share_25_on_point=round(float(np.mean(on_lengths >= min(25, nf))), 3) if len(lengths) else None,
+                reach_share={str(n): round(float(np.mean(lengths >= n)), 4) if len(lengths) else None
+                             for n in sorted({min(10, nf), nf})},
                 visibility_map={"precision": precision_recall(est, true)[0], "recall": precision_recall(est, true)[1]},
                 visibility_photometric={"precision": precision_recall(base, true)[0],
                                         "recall": precision_recall(base, true)[1]},
