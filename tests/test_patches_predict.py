@@ -67,7 +67,7 @@ def test_a_point_at_constant_velocity_starts_at_its_predicted_pixel_and_lands_th
     calls.clear()
     q0, ok0 = flow_camera(source, "c", clock, t0, t1, start, o)
     assert calls[0][2] == 3  # no prediction: lk_levels
-    flat = PatchOptions(lk_levels=0)
+    flat = PatchOptions(lk_levels=0, lk_predict=False)
     q0, ok0 = flow_camera(source, "c", clock, t0, t1, start, flat)
     assert not np.any(ok0 & (np.linalg.norm(q0 - (P0 + FAST_PX_MS * t1), axis=1) < 0.05))
 
@@ -95,7 +95,7 @@ def cloud():
     return scene, views, clocks_of(bundle, scene, cams), table.time_of(120), table.times_of(np.arange(118, 123)), seeds
 
 
-BASE = PatchOptions(seed_features=40, seed_neighbours=3, seed_views=4)
+BASE = PatchOptions(seed_features=40, seed_neighbours=3, seed_views=4, lk_predict=False)
 PREDICTED = dataclasses.replace(BASE, lk_predict=True, lk_levels_predicted=1, lk_levels_full_px=0.6)
 
 
