@@ -11,7 +11,9 @@ it):
    that the camera's track, interpolated linearly to ``t`` as every stream is, passes through the projection;
 2. **optical flow** (pyramidal Lucas-Kanade, forward-backward checked) carries the points through the camera's
    frames up to the two frames around ``t'``, and the track is interpolated linearly to ``t'`` the same way
-   (for a reference-stream camera both weights are 0 or 1: one flow step, the CVPR 2014 method itself);
+   (for a reference-stream camera both weights are 0 or 1: one flow step, the CVPR 2014 method itself); with
+   ``lk_predict``, from a patch's second step on, each flow starts at the point's predicted motion (its last
+   step's 3D velocity projected at the frames' times) with ``lk_levels_predicted`` pyramid levels;
 3. **triangulation** of each point from the cameras it was tracked in (robust, inliers within
    ``triangulation_px``), then the MAP visibility at ``t'`` in **every** camera (:mod:`.visibility`; a camera the
    patch was not flown in has no motion term), then the points triangulated again from the visible tracked
@@ -115,7 +117,8 @@ def predicted_motion(predict: Predictor, t_i: float, t_j: float, o: PatchOptions
     shift = np.where(np.all(np.isfinite(shift), axis=1, keepdims=True), shift, 0.0)
     levels = np.full(len(shift), o.lk_levels_predicted, np.int64)
     if o.lk_levels_full_px > 0:
-        levels[np.linalg.norm(shift, axis=1) >= o.lk_levels_full_px] = o.lk_levels
+        # quantised before the comparison: no choice rests on last bits
+        levels[np.rint(np.linalg.norm(shift, axis=1) * 1e6) >= np.rint(o.lk_levels_full_px * 1e6)] = o.lk_levels
     return shift, levels
 
 
