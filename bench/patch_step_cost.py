@@ -3,6 +3,7 @@ figure that scales the stream to the full dome (480 VGA, 31 HD, 10 Kinect) and t
 
 Run: .venv/bin/python bench/patch_step_cost.py [--presets panel,full] [--people 8] [--patches 250,1000]
          [--track-views 8] [--seed 0]
+         [--predicted-levels 3,2,1]
 Setup: the as-built dome's preset, every camera (HD and Kinect colour at half size, as bench/patches.py renders
 them); the group at 2.5 s; patches on the people's true surface (the nearest surface point of random points within
 15 cm of the joints) with their true normals, ``previous`` = the cameras that truly see them
@@ -14,8 +15,10 @@ call per camera and direction, as a track task makes them, with its calls counte
 patch (the rule before ``track_views``), triangulating the three points from the flown views, and the visibility in
 every camera (``visibility.estimate_visibility``), and the same with the people (the truth's joints at the time) as
 occluders of the views (``body_occlusion``, :mod:`dome_calib.recon.patches.occlusion`; and the occlusion test alone
-on the facing patch-cameras, with the views it hides per patch and the truly seen views among them). Prints one
-JSON object per line. The flow here is a lower bound of the stream's: the texture moves 1 px, and real motion takes Lucas-Kanade more iterations (the stream on the
+on the facing patch-cameras, with the views it hides per patch and the truly seen views among them); and the flown
+views' flow started at its prediction (the true shift) with each of ``--predicted-levels`` pyramid levels
+(``PatchOptions.lk_predict``). Prints one JSON object per line. The flow here is a lower bound of the stream's: the
+texture moves 1 px, and real motion takes Lucas-Kanade more iterations (the stream on the
 panel spent ~2x this bench's flow per patch-step, docs/benchmarks.md); the step also triangulates twice.
 """
 from __future__ import annotations
@@ -105,19 +108,25 @@ def run(args: argparse.Namespace) -> None:
             ob = dataclasses.replace(o, body_occlusion=True)
             flown, ms_select = cpu_ms(lambda: best_views(views, X, seen, o.track_views, o.track_view_spread_deg))
 
-            def flow(mask):
+            def flow(mask, levels=None):
                 calls = 0
                 uv = np.full((N, 3, V, 2), np.nan)
                 ok = np.zeros((N, 3, V), bool)
                 for v in np.flatnonzero(mask.any(0)):
                     idx = np.flatnonzero(mask[:, v])
                     p = project_points(views.subset([names[v]]), X[idx].reshape(-1, 3)).uv_px[0]
-                    got, good = optical_flow(source.gray(names[v], 0), source.gray(names[v], 1), p, o)
+                    a, b = source.gray(names[v], 0), source.gray(names[v], 1)
+                    if levels is None:
+                        got, good = optical_flow(a, b, p, o)
+                    else:  # started at the prediction (the true 1 px shift), as track.py with lk_predict
+                        got, good = optical_flow(a, b, p, o, guess=p + [1.0, 0.0], levels=levels, predicted=True)
                     uv[idx, :, v], ok[idx, :, v] = got.reshape(-1, 3, 2), good.reshape(-1, 3)
                     calls += 2
                 return uv, ok, calls
             (uv, ok, calls), ms_flow = cpu_ms(lambda: flow(flown))
             (_, _, calls_all), ms_flow_all = cpu_ms(lambda: flow(seen))
+            ms_predicted = {f"flow_flown_predicted_levels_{lv}": cpu_ms(lambda: flow(flown, lv))[1]
+                            for lv in [int(x) for x in args.predicted_levels.split(",") if x]}
             _triangulate_points(views, uv[:2], ok[:2].astype(float), o)  # compiled before timing
             _, ms_tri = cpu_ms(lambda: _triangulate_points(views, uv, ok.astype(float), o))
             motion = np.where(flown, 0.5, np.nan)
@@ -140,7 +149,7 @@ def run(args: argparse.Namespace) -> None:
                                                           ("triangulate_flown", ms_tri),
                                                           ("visibility", ms_vis_all),
                                                           ("visibility_body_occlusion", ms_vis_body),
-                                                          ("occlusion_alone", ms_occ))}
+                                                          ("occlusion_alone", ms_occ), *ms_predicted.items())}
             print(json.dumps({"preset": preset, "cameras": V, "people": args.people, "patches": N,
                               "track_views": o.track_views, "seen_views_per_patch": round(float(seen.sum(1).mean()), 1),
                               "flown_views_per_patch": round(float(flown.sum(1).mean()), 1),
@@ -161,6 +170,8 @@ def main() -> None:
     ap.add_argument("--patches", default="250,1000")
     ap.add_argument("--track-views", type=int, default=8)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--predicted-levels", default="3,2,1",
+                    help="also the flown views' flow started at the prediction with these pyramid levels (lk_predict)")
     run(ap.parse_args())
 
 

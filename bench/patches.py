@@ -14,7 +14,8 @@ rendered at half size (960 x 540); the group seeded by ``--seed``; one cloud see
 - ``patches``: seeds, centre error against the true surface point (the one nearest the patch at the seed, followed
   on its part) after 0, 1, 10 and ``--frames`` frames (median and 90th percentile, mm; both directions pooled),
   trajectory length (frames each way, median and share reaching 25; ``length_share_25_on_point``: share reaching 25
-  with the centre within 1 cm of its true point at every time on the way), visibility against the renderer's truth
+  with the centre within 1 cm of its true point at every time on the way; ``reach_share``: share of the seeds'
+  tracks, both ways, alive all of 10 and of ``--frames`` frames), visibility against the renderer's truth
   (precision and recall of the MAP labels and of photometric consistency alone, the CVPR 2014 baseline, over all
   live patch-times and cameras; split: patches within 1 cm of their true point, views within 78 deg of the true
   normal; ``visibility_errors``: the false positives and negatives of each, counted by cause, :func:`error_causes`),
@@ -280,6 +281,8 @@ def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int, imaged=Non
                 length_median_frames=float(np.median(lengths)) if len(lengths) else None,
                 length_share_25=round(float(np.mean(lengths >= min(25, nf))), 3) if len(lengths) else None,
                 length_share_25_on_point=round(float(np.mean(on_lengths >= min(25, nf))), 3) if len(lengths) else None,
+                reach_share={str(n): round(float(np.mean(lengths >= n)), 4) if len(lengths) else None
+                             for n in sorted({min(10, nf), nf})},
                 visibility_map={"precision": precision_recall(est, true)[0], "recall": precision_recall(est, true)[1]},
                 visibility_photometric={"precision": precision_recall(base, true)[0],
                                         "recall": precision_recall(base, true)[1]},

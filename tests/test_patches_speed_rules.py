@@ -104,9 +104,9 @@ def test_a_patch_is_flown_in_at_most_track_views_cameras(capture, monkeypatch):
     flown = []
     real = track_mod.flow_camera
 
-    def counting(source, name, clock, t0, t1, p, o):
+    def counting(source, name, clock, t0, t1, p, o, *predict):
         flown.append(len(p) // 3)
-        return real(source, name, clock, t0, t1, p, o)
+        return real(source, name, clock, t0, t1, p, o, *predict)
     monkeypatch.setattr(track_mod, "flow_camera", counting)
     seeds = Seeds(X_cm=X[:30], normal=np.zeros((30, 3)), seen=np.ones((30, len(views.names)), bool))
     times = np.array([t, t + 40.0])

@@ -111,8 +111,10 @@ def _sweep(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int, 
 
 
 def _lk(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, guess: np.ndarray | None, o: PatchOptions,
-        levels: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Pyramidal LK of (N, 2) points from image src to dst with a forward-backward check -> ((N, 2), (N,) ok)."""
+        levels: int | None = None, predicted: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Pyramidal LK of (N, 2) points from image src to dst with a forward-backward check -> ((N, 2), (N,) ok). The
+    backward flow starts at the points themselves, or with ``predicted`` (``guess`` a prediction of the motion, not
+    a position found otherwise) at the forward's end moved back by the predicted motion: not at its own answer."""
     if len(p0) == 0:
         return np.zeros((0, 2)), np.zeros(0, bool)
     crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, o.lk_iterations, o.lk_eps_px)
@@ -125,7 +127,8 @@ def _lk(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, guess: np.ndarray | No
         g = np.ascontiguousarray(guess, dtype=np.float32).reshape(-1, 1, 2)
         flags = cv2.OPTFLOW_USE_INITIAL_FLOW
     b, st, _ = cv2.calcOpticalFlowPyrLK(src, dst, a, g, winSize=win, maxLevel=lv, criteria=crit, flags=flags)
-    back, st2, _ = cv2.calcOpticalFlowPyrLK(dst, src, b, a.copy(), winSize=win, maxLevel=lv, criteria=crit,
+    start = b - (g - a) if predicted and g is not None else a.copy()
+    back, st2, _ = cv2.calcOpticalFlowPyrLK(dst, src, b, start, winSize=win, maxLevel=lv, criteria=crit,
                                             flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
     fb = np.linalg.norm((back - a).reshape(-1, 2), axis=1)
     ok = (st.ravel() == 1) & (st2.ravel() == 1) & (fb < o.lk_fb_px)
@@ -133,12 +136,13 @@ def _lk(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, guess: np.ndarray | No
 
 
 def optical_flow(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, o: PatchOptions, guess: np.ndarray | None = None,
-                 levels: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 levels: int | None = None, predicted: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Points (N, 2) of image ``src`` followed into ``dst`` by pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``,
     window ``lk_window_px``, ``lk_levels`` or ``levels``, started at ``guess`` if given) -> ((N, 2) pixels, (N,)
     tracked: found both ways, back within ``lk_fb_px``). Each point's result depends on the two images and that
-    point only."""
-    return _lk(src, dst, p0, guess, o, levels=levels)
+    point only. ``predicted``: ``guess`` is a predicted motion (the backward flow then starts from the forward's
+    end moved back by it, see :func:`_lk`)."""
+    return _lk(src, dst, p0, guess, o, levels=levels, predicted=predicted)
 
 
 def flow_to_neighbours(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int, corners: np.ndarray,

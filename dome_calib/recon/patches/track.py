@@ -11,7 +11,9 @@ it):
    that the camera's track, interpolated linearly to ``t`` as every stream is, passes through the projection;
 2. **optical flow** (pyramidal Lucas-Kanade, forward-backward checked) carries the points through the camera's
    frames up to the two frames around ``t'``, and the track is interpolated linearly to ``t'`` the same way
-   (for a reference-stream camera both weights are 0 or 1: one flow step, the CVPR 2014 method itself);
+   (for a reference-stream camera both weights are 0 or 1: one flow step, the CVPR 2014 method itself); with
+   ``lk_predict``, from a patch's second step on, each flow starts at the point's predicted motion (its last
+   step's 3D velocity projected at the frames' times) with ``lk_levels_predicted`` pyramid levels;
 3. **triangulation** of each point from the cameras it was tracked in (robust, inliers within
    ``triangulation_px``), then the MAP visibility at ``t'`` in **every** camera (:mod:`.visibility`; a camera the
    patch was not flown in has no motion term), then the points triangulated again from the visible tracked
@@ -28,6 +30,7 @@ bit for bit what tracking the whole cloud gives them.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -103,19 +106,49 @@ def _bracket(clock: Clock, t_ms: float, forward: bool) -> tuple[int, int, float]
     return int(b.pos1[0]), int(b.pos0[0]), float(b.w0[0])
 
 
-def _flow_step(source: FrameSource, name: str, clock: Clock, i: int, j: int, p: np.ndarray, o: PatchOptions
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """Points (M, 2) from frame position i to j of one camera -> ((M, 2), (M,) ok)."""
+#: Predicts where a camera's points (M, 2) are at a universal time (ms): (M, 2) pixels (:func:`track_cloud`).
+Predictor = Callable[[float], np.ndarray]
+
+
+def predicted_motion(predict: Predictor, t_i: float, t_j: float, o: PatchOptions) -> tuple[np.ndarray, np.ndarray]:
+    """The predicted image motion (M, 2) of a camera's points from its frame at ``t_i`` to the one at ``t_j`` (0
+    where the prediction is not finite) and each point's pyramid levels (M,): ``lk_levels_predicted``, or
+    ``lk_levels`` where the predicted motion is at least ``lk_levels_full_px`` (if that is not 0)."""
+    shift = predict(t_j) - predict(t_i)
+    shift = np.where(np.all(np.isfinite(shift), axis=1, keepdims=True), shift, 0.0)
+    levels = np.full(len(shift), o.lk_levels_predicted, np.int64)
+    if o.lk_levels_full_px > 0:
+        # quantised before the comparison: no choice rests on last bits
+        levels[np.rint(np.linalg.norm(shift, axis=1) * 1e6) >= np.rint(o.lk_levels_full_px * 1e6)] = o.lk_levels
+    return shift, levels
+
+
+def _flow_step(source: FrameSource, name: str, clock: Clock, i: int, j: int, p: np.ndarray, o: PatchOptions,
+               predict: Predictor | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Points (M, 2) from frame position i to j of one camera -> ((M, 2), (M,) ok). With ``predict``: each point's
+    flow starts at ``p`` plus its predicted motion between the two frames' times, with its own pyramid levels
+    (:func:`predicted_motion`; one call per level count)."""
     if i == j:
         return p.copy(), np.ones(len(p), bool)
     a = source.gray(name, int(clock.frames[i]))
     b = source.gray(name, int(clock.frames[j]))
-    return optical_flow(a, b, p, o)
+    if predict is None:
+        return optical_flow(a, b, p, o)
+    t = clock.table.times_of(clock.frames[[i, j]])
+    shift, levels = predicted_motion(predict, float(t[0]), float(t[1]), o)
+    q, ok = np.empty((len(p), 2)), np.zeros(len(p), bool)
+    for lv in np.unique(levels):
+        rows = np.flatnonzero(levels == lv)
+        q[rows], ok[rows] = optical_flow(a, b, p[rows], o, guess=p[rows] + shift[rows], levels=int(lv),
+                                         predicted=True)
+    return q, ok
 
 
 def flow_camera(source: FrameSource, name: str, clock: Clock, t0: float, t1: float, p: np.ndarray,
-                o: PatchOptions) -> tuple[np.ndarray, np.ndarray]:
-    """Points (M, 2) where the camera's track meets reference time t0 -> ((M, 2) where it meets t1, (M,) ok)."""
+                o: PatchOptions, predict: Predictor | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Points (M, 2) where the camera's track meets reference time t0 -> ((M, 2) where it meets t1, (M,) ok).
+    ``predict``: where the points are predicted at a time (each flow step starts at the predicted motion, see
+    :func:`_flow_step`); None: every flow starts where the point is."""
     forward = t1 > t0
     b0, b1 = _bracket(clock, t0, forward), _bracket(clock, t1, forward)
     M = len(p)
@@ -129,7 +162,7 @@ def flow_camera(source: FrameSource, name: str, clock: Clock, t0: float, t1: flo
         known[a_next] = p
         last = a_next
     elif w > 0:
-        q, good = _flow_step(source, name, clock, a, a_next, p, o)
+        q, good = _flow_step(source, name, clock, a, a_next, p, o, predict)
         d = q - p
         known[a], known[a_next] = p - w * d, p + (1 - w) * d
         ok &= good
@@ -140,7 +173,7 @@ def flow_camera(source: FrameSource, name: str, clock: Clock, t0: float, t1: flo
     b, b_next, w1 = b1
     need = b_next if w1 > 0 else b
     while (need - last) * step > 0:
-        q, good = _flow_step(source, name, clock, last, last + step, known[last], o)
+        q, good = _flow_step(source, name, clock, last, last + step, known[last], o, predict)
         known[last + step] = q
         ok &= good
         last += step
@@ -283,6 +316,12 @@ class SeedViews:
         return q, ok, off
 
 
+def _predictor(views: ViewSet, v: int, X: np.ndarray, velocity: np.ndarray, t0: float) -> Predictor:
+    """Points (M, 3) at reference time ``t0`` moving at ``velocity`` (M, 3) cm / ms, projected into view ``v`` at a
+    time: the constant-velocity prediction each flow step starts from (``PatchOptions.lk_predict``)."""
+    return lambda t_ms: project_view(views, v, X + velocity * (t_ms - t0))[0]
+
+
 def seed_visibility(source: FrameSource, views: ViewSet, clocks: list[Clock], t_ms: float, X0: np.ndarray,
                     seen: np.ndarray, neighbours: np.ndarray, o: PatchOptions, body: BodyPrior | None = None
                     ) -> Visibility:
@@ -312,9 +351,11 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
     seed_look = vis.appearance.keep(vis.visible & live[:, None]) if o.seed_appearance_end else None
     if o.anchor_flow:
         seed_of = SeedViews.at_seed(source, views, judged_frames(clocks, times_ms[0]), X, vis.visible & live[:, None])
+    velocity_last = None  # (N, 3, 3) each point's velocity over the last step (cm / ms): the flow's prediction
     for k in range(T):
         if k > 0:
             t0, t1 = float(times_ms[k - 1]), float(times_ms[k])
+            X_prev = X
             uv = np.full((N, 3, V, 2), np.nan)
             tracked = np.zeros((N, 3, V), bool)
             was = vis_out[:, k - 1]
@@ -326,7 +367,10 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                 if len(idx) == 0:
                     continue
                 p = project_view(views, v, X[idx].reshape(-1, 3))[0]
-                q, ok = flow_camera(source, name, clocks[v], t0, t1, p, o)
+                predict = None
+                if o.lk_predict and velocity_last is not None:
+                    predict = _predictor(views, v, X[idx].reshape(-1, 3), velocity_last[idx].reshape(-1, 3), t0)
+                q, ok = flow_camera(source, name, clocks[v], t0, t1, p, o, predict)
                 if o.anchor_flow:
                     q, ok, off = seed_of.realign(source, name, frames1, v, idx, q.reshape(-1, 3, 2),
                                                  ok.reshape(-1, 3), o)
@@ -361,6 +405,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                     else np.zeros_like(live))
             live &= ~unseen & ~stretched & ~slid
             X = quantise_cm(square_up(X, o.axis_cm))
+            velocity_last = (X - X_prev) / (t1 - t0)
             logger.debug("step %d: %d live; ended: %d centre not triangulated, %d seen by too few, %d stretched, "
                          "%d off their seed appearance; %d views off their seed appearance", k, live.sum(), lost.sum(),
                          unseen.sum(), stretched.sum(), slid.sum(), slid_view.sum())
