@@ -141,7 +141,7 @@ def run(args: argparse.Namespace) -> None:
                                 > o.min_cos_view)
 
             def occlusion():
-                return occluded_views(Occluders.of(body.between(t), o.occluder_margin_cm), X[:, 0],
+                return occluded_views(Occluders.of(body.at(t), o.occluder_margin_cm), X[:, 0],
                                       views.center_cm, pi, ci, o.occlusion_stop_cm)
             hidden, ms_occ = cpu_ms(occlusion)
             per_patch = {k: round(v / N, 3) for k, v in (("select_views", ms_select), ("flow_flown", ms_flow),
