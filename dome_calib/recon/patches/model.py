@@ -69,6 +69,7 @@ class PatchOptions:
     lk_window_px: AtLeast(5) = 15
     lk_levels: AtLeast(0) = 3
     lk_fb_px: PosFinite = 0.5  # forward-backward check
+    lk_fb_lenient: bool = False  # TEMPORARY (measurement, issue 49): the old backward start at the answer
     # Lucas-Kanade's termination per pyramid level: at most this many iterations, or a step below lk_eps_px
     lk_iterations: AtLeast(1) = 30
     lk_eps_px: PosFinite = 0.01

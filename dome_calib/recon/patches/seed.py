@@ -113,8 +113,10 @@ def _sweep(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int, 
 def _lk(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, guess: np.ndarray | None, o: PatchOptions,
         levels: int | None = None, predicted: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Pyramidal LK of (N, 2) points from image src to dst with a forward-backward check -> ((N, 2), (N,) ok). The
-    backward flow starts at the points themselves, or with ``predicted`` (``guess`` a prediction of the motion, not
-    a position found otherwise) at the forward's end moved back by the predicted motion: not at its own answer."""
+    backward flow never starts at its own answer (the points): it starts at the forward's end moved back by the
+    guess's displacement (``guess - p0``: the same initial motion reversed), or at the forward's end itself without
+    a guess, and must find its way back within ``lk_fb_px``. This is the one place the rule lives, for every caller
+    (the tracker's first and predicted steps, the seed alignment, the seeds' flows to their neighbours)."""
     if len(p0) == 0:
         return np.zeros((0, 2)), np.zeros(0, bool)
     crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, o.lk_iterations, o.lk_eps_px)
@@ -126,8 +128,14 @@ def _lk(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, guess: np.ndarray | No
     if guess is not None:
         g = np.ascontiguousarray(guess, dtype=np.float32).reshape(-1, 1, 2)
         flags = cv2.OPTFLOW_USE_INITIAL_FLOW
-    b, st, _ = cv2.calcOpticalFlowPyrLK(src, dst, a, g, winSize=win, maxLevel=lv, criteria=crit, flags=flags)
-    start = b - (g - a) if predicted and g is not None else a.copy()
+    # OpenCV writes the result into the initial-flow array in place (it returns that very array): the forward gets
+    # a copy, so that ``g`` is still the guess below (the caller's array is not written either)
+    b, st, _ = cv2.calcOpticalFlowPyrLK(src, dst, a, None if g is None else g.copy(), winSize=win, maxLevel=lv,
+                                        criteria=crit, flags=flags)
+    if o.lk_fb_lenient:  # the old start, bit for bit: at a (the predicted start's guess had been overwritten by b)
+        start = b - (b - a) if predicted and g is not None else a.copy()
+    else:
+        start = b - (g - a) if g is not None else b.copy()
     back, st2, _ = cv2.calcOpticalFlowPyrLK(dst, src, b, start, winSize=win, maxLevel=lv, criteria=crit,
                                             flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
     fb = np.linalg.norm((back - a).reshape(-1, 2), axis=1)
