@@ -1,5 +1,5 @@
-"""The optical flow's forward-backward check (issue 49): the backward flow never starts at its own answer (the points
-it must return to), for every caller of ``seed._lk``: it starts at the forward's end moved back by the guess's
+"""The optical flow's forward-backward check with ``lk_fb_strict`` (issue 49): the backward flow never starts at its
+own answer (the points it must return to), for every caller of ``seed._lk``: it starts at the forward's end moved back by the guess's
 displacement, or at the forward's end without a guess; the caller's guess is not written; a point whose true
 motion the forward flow gets wrong by several pixels fails the check (a backward flow started at the answer passed
 these: it converged there at once)."""
@@ -17,6 +17,7 @@ from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.seed import optical_flow
 
 SHIFT = np.array([4.0, -3.0])  # the true motion, px
+STRICT = PatchOptions(lk_fb_strict=True)
 
 
 def _pair() -> tuple[np.ndarray, np.ndarray]:
@@ -47,7 +48,7 @@ def test_the_backward_flow_starts_off_its_answer(monkeypatch, guess):
         return out
 
     monkeypatch.setattr(seed_mod.cv2, "calcOpticalFlowPyrLK", spy)
-    q, _ = optical_flow(src, dst, P0, PatchOptions(), guess=g, levels=1)
+    q, _ = optical_flow(src, dst, P0, STRICT, guess=g, levels=1)
     (a, _, b), (b_in, start, _) = calls
     assert np.array_equal(b_in, b)
     want = b if g is None else b - (np.float32(g).reshape(-1, 1, 2) - a)
@@ -57,12 +58,13 @@ def test_the_backward_flow_starts_off_its_answer(monkeypatch, guess):
     assert not np.any(np.all(start.reshape(-1, 2)[moved] == a.reshape(-1, 2)[moved], axis=1))
 
 
-def test_the_callers_guess_is_not_written():
+@pytest.mark.parametrize("strict", [False, True])
+def test_the_callers_guess_is_not_written(strict):
     """OpenCV writes its result into the initial-flow array: the flow works on a copy."""
     src, dst = _pair()
     g = np.ascontiguousarray(P0 + SHIFT + [1.0, 0.5], dtype=np.float32)
     kept = g.copy()
-    optical_flow(src, dst, P0, PatchOptions(), guess=g, levels=1)
+    optical_flow(src, dst, P0, PatchOptions(lk_fb_strict=strict), guess=g, levels=1, predicted=True)
     assert np.array_equal(g, kept)
 
 
@@ -76,7 +78,7 @@ def test_a_forward_flow_wrong_by_several_px_fails_the_check(points, guess_error,
     src, dst = _pair()
     p0 = np.array(points)
     g = None if guess_error is None else p0 + SHIFT + guess_error
-    q, ok = optical_flow(src, dst, p0, PatchOptions(), guess=g, levels=levels)
+    q, ok = optical_flow(src, dst, p0, STRICT, guess=g, levels=levels)
     assert np.all(np.linalg.norm(q - p0 - SHIFT, axis=1) > 3.0)
     assert not ok.any()
 
@@ -84,7 +86,7 @@ def test_a_forward_flow_wrong_by_several_px_fails_the_check(points, guess_error,
 def test_a_right_flow_passes_the_check():
     """The check is not a rejection of everything: the flow started at the true motion passes it."""
     src, dst = _pair()
-    q, ok = optical_flow(src, dst, P0, PatchOptions(), guess=P0 + SHIFT, levels=1)
+    q, ok = optical_flow(src, dst, P0, STRICT, guess=P0 + SHIFT, levels=1)
     assert ok.all() and np.abs(q - P0 - SHIFT).max() < 0.1
 
 

@@ -112,11 +112,13 @@ def _sweep(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int, 
 
 def _lk(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, guess: np.ndarray | None, o: PatchOptions,
         levels: int | None = None, predicted: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Pyramidal LK of (N, 2) points from image src to dst with a forward-backward check -> ((N, 2), (N,) ok). The
-    backward flow never starts at its own answer (the points): it starts at the forward's end moved back by the
-    guess's displacement (``guess - p0``: the same initial motion reversed), or at the forward's end itself without
-    a guess, and must find its way back within ``lk_fb_px``. This is the one place the rule lives, for every caller
-    (the tracker's first and predicted steps, the seed alignment, the seeds' flows to their neighbours)."""
+    """Pyramidal LK of (N, 2) points from image src to dst with a forward-backward check -> ((N, 2), (N,) ok), the one
+    place of the check's rule for every caller (the tracker's first and predicted steps, the seed alignment, the
+    seeds' flows to their neighbours). With ``lk_fb_strict`` the backward flow never starts at its own answer (the
+    points): at the forward's end moved back by the guess's displacement (``guess - p0``: the same initial motion
+    reversed), or at the forward's end itself without a guess, and must find its way back within ``lk_fb_px``.
+    Without (the default), it starts at the points (with ``predicted``, at ``b - (b - p0)``: the old code's
+    arithmetic, whose guess OpenCV had overwritten with the forward's end ``b``), bit for bit as before."""
     if len(p0) == 0:
         return np.zeros((0, 2)), np.zeros(0, bool)
     crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, o.lk_iterations, o.lk_eps_px)
@@ -132,10 +134,10 @@ def _lk(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, guess: np.ndarray | No
     # a copy, so that ``g`` is still the guess below (the caller's array is not written either)
     b, st, _ = cv2.calcOpticalFlowPyrLK(src, dst, a, None if g is None else g.copy(), winSize=win, maxLevel=lv,
                                         criteria=crit, flags=flags)
-    if o.lk_fb_lenient:  # the old start, bit for bit: at a (the predicted start's guess had been overwritten by b)
-        start = b - (b - a) if predicted and g is not None else a.copy()
-    else:
+    if o.lk_fb_strict:
         start = b - (g - a) if g is not None else b.copy()
+    else:  # the old start, bit for bit: at the answer
+        start = b - (b - a) if predicted and g is not None else a.copy()
     back, st2, _ = cv2.calcOpticalFlowPyrLK(dst, src, b, start, winSize=win, maxLevel=lv, criteria=crit,
                                             flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
     fb = np.linalg.norm((back - a).reshape(-1, 2), axis=1)
@@ -148,8 +150,7 @@ def optical_flow(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, o: PatchOptio
     """Points (N, 2) of image ``src`` followed into ``dst`` by pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``,
     window ``lk_window_px``, ``lk_levels`` or ``levels``, started at ``guess`` if given) -> ((N, 2) pixels, (N,)
     tracked: found both ways, back within ``lk_fb_px``). Each point's result depends on the two images and that
-    point only. ``predicted``: ``guess`` is a predicted motion (the backward flow then starts from the forward's
-    end moved back by it, see :func:`_lk`)."""
+    point only. ``predicted``: ``guess`` is a predicted motion (the backward flow's start, see :func:`_lk`)."""
     return _lk(src, dst, p0, guess, o, levels=levels, predicted=predicted)
 
 
