@@ -78,8 +78,8 @@ class PatchOptions:
     lk_iterations: AtLeast(1) = 30
     lk_eps_px: PosFinite = 0.01
     # prediction (track.py): from a patch's second step on, each point's flow starts where its last step's 3D
-    # velocity puts it at the camera's next frame (cv2.OPTFLOW_USE_INITIAL_FLOW; the backward flow from the
-    # forward's end moved back by the same predicted motion); lk_levels_predicted pyramid levels then follow the
+    # velocity puts it at the camera's next frame (cv2.OPTFLOW_USE_INITIAL_FLOW; the backward flow's start: see
+    # lk_fb_strict); lk_levels_predicted pyramid levels then follow the
     # rest of the motion (the first step from a seed, without a velocity: lk_levels), except a point whose predicted
     # image motion in the frame step is at least lk_levels_full_px (0: none is): lk_levels. On the bench's walkers
     # the prediction with 1 level reaches 10 frames 42 -> 53 %, on the conversation scenes the same figures, for
