@@ -1,6 +1,6 @@
 """The flow started where the patch is going (``PatchOptions.lk_predict``): a point moving at constant velocity is
 started at its predicted pixel and followed there with a shallower pyramid than its motion needs from a standing
-start; the backward check starts from the prediction, not from its own answer; without a velocity (a patch's
+start (the backward check's start: tests/test_patches_fb.py); without a velocity (a patch's
 first step from its seed) the tracks are the ones without the option, bit for bit; from the second step the
 stated pyramid levels are used; and any part of a cloud is tracked bit for bit as in the whole."""
 from __future__ import annotations
@@ -61,8 +61,8 @@ def test_a_point_at_constant_velocity_starts_at_its_predicted_pixel_and_lands_th
     (fwd_pts, fwd_guess, fwd_levels), (back_pts, back_start, back_levels) = calls[:2]
     assert fwd_levels == back_levels == 0
     assert np.allclose(fwd_guess, P0 + FAST_PX_MS * t1, atol=1e-3)  # the forward flow starts at the predicted pixel
-    # the backward flow starts at the forward's end moved back by the prediction, not at the answer it must find
-    assert np.allclose(back_start, fwd_pts + (back_pts - fwd_guess), atol=1e-3)
+    # the default check's backward flow starts at the answer it must find (lk_fb_strict: tests/test_patches_fb.py)
+    assert np.allclose(back_start, fwd_pts, atol=1e-3)
     # without the prediction, the same pyramid (none) does not follow the motion
     calls.clear()
     q0, ok0 = flow_camera(source, "c", clock, t0, t1, start, o)
