@@ -20,7 +20,14 @@ rendered at half size (960 x 540); the group seeded by ``--seed``; one cloud see
   live patch-times and cameras; split: patches within 1 cm of their true point, views within 78 deg of the true
   normal; ``visibility_errors``: the false positives and negatives of each, counted by cause, :func:`error_causes`),
   patches given to the right body part (true skeleton, and the truth plus 1.5 cm noise per joint),
-  patch-views-frames per CPU-second of the stage (rendering excluded), load average;
+  patch-views-frames per CPU-second of the stage (rendering excluded), load average, and the costs of
+  ``stream_cost``;
+- ``stream_cost`` (printed before the judging, which takes minutes on the full dome): CPU of the stage by phase,
+  rendering excluded (seeding, placing, the track tasks), and of the tracking steps alone (``steps_cpu_s``: the
+  track tasks' :func:`~dome_calib.recon.patches.track.track_cloud` calls; ``per_cloud_cpu_s``: the rest of the track
+  tasks, the seeds' normals refined and the seed time's visibility), ``patch_steps`` (a patch alive at a time
+  before its direction's last is tried one step further) and ``patch_steps_kept`` (alive after the step),
+  ``steps_cpu_ms_per_patch_step``, rendering CPU, wall;
 - ``executor`` (with ``--executors``, image seeding only, not judged): per executor the CPU of this process and of
   its worker processes (rendering included: each worker renders the frames it reads), the wall of the stream and of
   starting the executor, and whether the arrays are the bits of the first executor's.
@@ -166,6 +173,10 @@ class PhaseTimer:
         self._saved = (patch_run.seed_task, patch_run.place_task, patch_run.track_task)
         self.memo = seeds_memo  # seed tasks' results by key, reused (their CPU then counted as at the first run)
         self.reused = 0.0
+        # the tracking steps alone (track_cloud inside the track tasks; not the seeds' refinement and seed-time
+        # visibility, the per-cloud work of a track task): CPU, rendering inside it, patch-steps tried and kept
+        self.steps = {"cpu_s": 0.0, "render_s": 0.0, "tried": 0, "kept": 0}
+        self._in_track = False
 
     def _wrap(self, phase: str, fn):
         def timed(task):
@@ -175,7 +186,11 @@ class PhaseTimer:
                 self.reused += cpu
                 return out
             c0, r0 = time.process_time(), sum(self.scene.render_s.values())
-            out = fn(task)
+            self._in_track = phase == "track"
+            try:
+                out = fn(task)
+            finally:
+                self._in_track = False
             if phase == "seed" and self.memo is not None:
                 self.memo[task.key] = (out, time.process_time() - c0 - (sum(self.scene.render_s.values()) - r0))
             self.cpu[phase] += time.process_time() - c0
@@ -192,6 +207,19 @@ class PhaseTimer:
             self.lk["points"] += len(pts)
             return self._lk_saved(prev, nxt, pts, *a, **k)
         cv2.calcOpticalFlowPyrLK = counted
+        self._track_cloud_saved = patch_run.track_cloud
+
+        def stepped(*a, **k):  # a patch alive at a time before the last is tried one step further
+            if not self._in_track:
+                return self._track_cloud_saved(*a, **k)
+            c0, r0 = time.process_time(), sum(self.scene.render_s.values())
+            out = self._track_cloud_saved(*a, **k)
+            self.steps["render_s"] += sum(self.scene.render_s.values()) - r0
+            self.steps["cpu_s"] += time.process_time() - c0
+            self.steps["tried"] += int(out.alive[:, :-1].sum())
+            self.steps["kept"] += int(out.alive[:, 1:].sum())
+            return out
+        patch_run.track_cloud = stepped
         patch_run.seed_task = self._wrap("seed", self._saved[0])
         patch_run.place_task = self._wrap("place", self._saved[1])
         patch_run.track_task = self._wrap("track", self._saved[2])
@@ -199,6 +227,7 @@ class PhaseTimer:
 
     def __exit__(self, *exc: object) -> None:
         patch_run.seed_task, patch_run.place_task, patch_run.track_task = self._saved
+        patch_run.track_cloud = self._track_cloud_saved
         cv2.calcOpticalFlowPyrLK = self._lk_saved
 
 
@@ -435,23 +464,31 @@ def run(args: argparse.Namespace) -> None:
             emit(what="render", **{f"{k}_cpu_ms_per_view": round(1000.0 * scene.render_s[k] / scene.renders[k], 1)
                                    for k in sorted(scene.renders)}, renders=scene.renders, people=args.people,
                  load=[round(x, 2) for x in load])
+            stage_cpu = cpu - render_cpu + phases.reused  # seeds reused from an earlier run count their CPU
+            track_cpu = phases.cpu["track"] - phases.render["track"]
+            steps_cpu = phases.steps["cpu_s"] - phases.steps["render_s"]
+            cost = dict(stage_cpu_s=round(stage_cpu, 1), render_cpu_s=round(render_cpu, 1),
+                        seed_cpu_s=round(phases.cpu["seed"] - phases.render["seed"], 2),
+                        place_cpu_s=round(phases.cpu["place"] - phases.render["place"], 2),
+                        track_cpu_s=round(track_cpu, 2), patch_steps=phases.steps["tried"],
+                        patch_steps_kept=phases.steps["kept"], steps_cpu_s=round(steps_cpu, 2),
+                        steps_cpu_ms_per_patch_step=round(1000.0 * steps_cpu / max(phases.steps["tried"], 1), 3),
+                        per_cloud_cpu_s=round(track_cpu - steps_cpu, 2),
+                        wall_s=round(wall, 1), lk_calls=phases.lk["calls"], lk_points=phases.lk["points"])
+            # the costs before the judging (on the full dome the truth's visibility takes minutes)
+            emit(what="stream_cost", seeding=seeding, variant=name, cameras=len(cams), people=args.people,
+                 frames_each_way=nf, seeds=int(traj.alive.any(1).sum()), **cost,
+                 load_before=[round(x, 2) for x in load], load=[round(x, 2) for x in os.getloadavg()])
             save = args.save if len(runs) == 1 or not args.save else args.save.replace(
                 ".npz", f"_{seeding}_{streams}_{k}_{spacing:g}_{name}.npz")
             got = evaluate(argparse.Namespace(**{**vars(args), "save": save}), bundle, truth, cams, traj, t_seed, nf,
                            imaged_views(scene, cams), ok)
-            stage_cpu = cpu - render_cpu + phases.reused  # seeds reused from an earlier run count their CPU
-            track_cpu = phases.cpu["track"] - phases.render["track"]
             emit(what="patches", seeding=seeding, seed_streams=streams, track_views=k, ref_spacing_deg=spacing,
                  variant=name, variant_options=variants[name],
                  reference_cameras=len(reference_cameras(view_set(bundle, [c for c in cams if c in by_type["vga"]]),
                                                          spacing, o.volume_height_cm)),
                  scenario=args.scenario, people=args.people, cameras=len(cams),
-                 vga=args.vga, hd=args.hd, kinect=args.kinect, frames_each_way=nf, seed=args.seed, **got,
-                 stage_cpu_s=round(stage_cpu, 1), render_cpu_s=round(render_cpu, 1),
-                 seed_cpu_s=round(phases.cpu["seed"] - phases.render["seed"], 2),
-                 place_cpu_s=round(phases.cpu["place"] - phases.render["place"], 2),
-                 track_cpu_s=round(track_cpu, 2), wall_s=round(wall, 1), lk_calls=phases.lk["calls"],
-                 lk_points=phases.lk["points"],
+                 vga=args.vga, hd=args.hd, kinect=args.kinect, frames_each_way=nf, seed=args.seed, **got, **cost,
                  patch_views_frames_per_cpu_s=round(got["patch_views_frames"] / max(stage_cpu, 1e-9), 1),
                  tracking_patch_views_frames_per_cpu_s=round(got["patch_views_frames"] / max(track_cpu, 1e-9), 1),
                  load_before=[round(x, 2) for x in load], load=[round(x, 2) for x in os.getloadavg()])
