@@ -68,6 +68,12 @@ def _json_diff(a: Path, b: Path, drop: tuple[str, ...] = ()) -> dict:
     ja, jb = (json.loads(p.read_text(encoding="utf-8")) for p in (a, b))
     for key in drop:
         ja.pop(key, None), jb.pop(key, None)
+    return _compare(ja, jb)
+
+
+def _compare(ja, jb) -> dict:
+    """Two JSON values: identical or not, the same structure (strings and shape) or not, the largest difference of
+    any number in them (None where the structure differs)."""
     na, nb = _numbers(ja), _numbers(jb)
     same_shape = len(na) == len(nb) and json.dumps(_strings(ja)) == json.dumps(_strings(jb))
     return {"identical": ja == jb, "same_structure": same_shape,
@@ -172,12 +178,10 @@ def demo_stage(work: Path) -> None:
         if da == db:
             continue
         if rel.suffix == ".json":
-            ja, jb = (_untimed(json.loads(x)) for x in (da, db))
-            na, nb = _numbers(ja), _numbers(jb)
-            same_shape = len(na) == len(nb) and json.dumps(_strings(ja)) == json.dumps(_strings(jb))
-            d = float(np.max(np.abs(np.subtract(na, nb)))) if same_shape and na else None
-            differ.append({"file": str(rel), "same_structure": same_shape, "max_abs_difference": d})
-            worst = max(worst, d or 0.0)
+            d = _compare(*(_untimed(json.loads(x)) for x in (da, db)))
+            differ.append({"file": str(rel), "same_structure": d["same_structure"],
+                           "max_abs_difference": d["max_abs_difference"]})
+            worst = max(worst, d["max_abs_difference"] or 0.0)
         else:
             differ.append({"file": str(rel), "bytes_differ": True})
     emit(bench="kernels", stage="demo", files=len(files_a), same_files=files_a == files_b,
