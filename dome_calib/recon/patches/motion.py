@@ -28,6 +28,7 @@ import numpy as np
 from dome_calib.options import AtLeast, options
 from dome_calib.rotation import rigid_fit
 from dome_calib.schema import PosFinite
+from dome_calib import ties
 
 #: 1 / the standard normal's median absolute deviation.
 MAD_SCALE = 1.4826
@@ -109,7 +110,7 @@ def _least_median(X0: np.ndarray, X1: np.ndarray, hypotheses: int) -> tuple[np.n
     t = cb - np.einsum("hij,hj->hi", R, ca)
     e = np.einsum("hij,nkj->hnki", R, X0) + t[:, None, None] - X1[None]
     med = np.median(np.sqrt(np.mean(np.sum(e * e, -1), -1)), axis=1)
-    h = int(np.argmin(np.round(med, 9)))
+    h = ties.argmin_first(med, ties.RESIDUAL_QUANTUM_CM)
     return R[h], t[h]
 
 

@@ -48,12 +48,13 @@ import numpy as np
 
 from dome_calib.options import AtLeast, UnitInterval, options
 from dome_calib.schema import NonNegFinite, PosFinite
+from dome_calib import ties
 
 #: Body parts as (name, joint a, joint b) of joints19; -1 as joint b: the midpoint of the ears (16, 18).
 BONES = [("torso", 2, 0), ("head", 0, -1), ("shoulders", 3, 9), ("hips", 6, 12), ("l_upper_arm", 3, 4),
          ("r_upper_arm", 9, 10), ("l_forearm", 4, 5), ("r_forearm", 10, 11), ("l_thigh", 6, 7), ("r_thigh", 12, 13),
          ("l_shin", 7, 8), ("r_shin", 13, 14)]
-_QUANTUM = 1e-4
+_QUANTUM = ties.LENGTH_QUANTUM_CM
 _CHUNK = 128
 
 
@@ -131,9 +132,7 @@ def leave_creases(labels: PartLabels, mismatch: np.ndarray, dev: np.ndarray, pas
     the labelled one among them, that pass with the patch within ``crease_cm`` of the part's surface
     (``mismatch``, NaN: no radius measured, never near) and rigid with it within ``crease_cm`` (``dev``); all
     (N, P, K), compared after quantising to 1e-4 cm."""
-    q = np.rint(crease_cm / _QUANTUM)
-    with np.errstate(invalid="ignore"):
-        near = passes & (np.rint(mismatch / _QUANTUM) <= q) & (np.rint(dev / _QUANTUM) <= q)
+    near = passes & ties.at_most(mismatch, crease_cm, _QUANTUM) & ties.at_most(dev, crease_cm, _QUANTUM)
     n = np.flatnonzero(labels.bone >= 0)
     own = near[n, labels.person[n]]  # (n, K)
     crease = np.zeros(len(labels.bone), bool)
@@ -163,11 +162,12 @@ def part_radii(labels: PartLabels, dist: np.ndarray, interior: np.ndarray, P: in
 def _choose(cost: np.ndarray, passes: np.ndarray) -> PartLabels:
     """(N, P, K) costs and which pass -> the least per patch (quantised, ties by person then bone order)."""
     N, P, K = cost.shape
-    key = np.where(passes & np.isfinite(cost), np.rint(cost / _QUANTUM), np.inf).reshape(N, P * K)
-    best = np.argmin(key, axis=1)  # first of equal keys: person, then bone order
-    found = np.isfinite(key[np.arange(N), best])
+    flat = cost.reshape(N, P * K)
+    # the first of equal quantised costs: person, then bone order
+    best, found = ties.argmin_where(flat, (passes & np.isfinite(cost)).reshape(N, P * K), _QUANTUM)
+    least = ties.quantize(np.where(found, flat[np.arange(N), best], 0.0), _QUANTUM)
     return PartLabels(person=np.where(found, best // K, -1), bone=np.where(found, best % K, -1),
-                      cost=np.where(found, key[np.arange(N), best] * _QUANTUM, np.nan))
+                      cost=np.where(found, least * _QUANTUM, np.nan))
 
 
 def windowed_mean(v: np.ndarray, ok: np.ndarray, half: int) -> np.ndarray:

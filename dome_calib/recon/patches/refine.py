@@ -16,6 +16,7 @@ from dome_calib.recon.patches.frames import FrameSource, GRID_SIDE, ncc, patch_a
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.visibility import Frames
 from dome_calib.recon.project import ViewSet, project_points
+from dome_calib import ties
 
 REFINE_VIEWS = 6
 REFINE_STEPS_DEG = (8.0, 4.0, 2.0)
@@ -68,14 +69,14 @@ def refine_normals(source: FrameSource, views: ViewSet, frames: Frames, X: np.nd
         to_cam = C[None] - X0[:, None]
         to_cam /= np.linalg.norm(to_cam, axis=-1, keepdims=True)
         cos = np.sum(to_cam * n[:, None], -1)
-        ref = np.argmax(np.where(vis, np.rint(cos * 1e6), -1e9), axis=1)
+        ref, _ = ties.argmax_where(cos, vis, ties.VIEW_COSINE_QUANTUM)
         rows = np.arange(len(Xc))
         # the others, most oblique to the reference first (quantised, ties by position)
         cos_ref = np.sum(to_cam * to_cam[rows, ref][:, None], -1)
-        key = np.where(vis, np.rint(cos_ref * 1e6), 1e9)
-        key[rows, ref] = 1e9
-        others = np.argsort(key, axis=1, kind="stable")[:, :REFINE_VIEWS - 1]
-        others = np.where(np.take_along_axis(key, others, 1) < 1e9, others, -1)
+        other = vis.copy()
+        other[rows, ref] = False
+        others = ties.argsort_where(cos_ref, other, ties.VIEW_COSINE_QUANTUM)[:, :REFINE_VIEWS - 1]
+        others = np.where(np.take_along_axis(other, others, 1), others, -1)
         cams = np.concatenate([np.where(vis[rows, ref], ref, -1)[:, None], others], 1)
         for step in REFINE_STEPS_DEG:
             tilt = _tilts(step)
@@ -84,7 +85,7 @@ def refine_normals(source: FrameSource, views: ViewSet, frames: Frames, X: np.nd
             hyp /= np.linalg.norm(hyp, axis=-1, keepdims=True)
             uh = u[:, None] - np.sum(u[:, None] * hyp, -1, keepdims=True) * hyp
             uh /= np.linalg.norm(uh, axis=-1, keepdims=True)
-            best = np.argmax(np.rint(_score(source, views, frames, X0, uh, hyp, cams, o) * 1e6), axis=1)
+            best = ties.argmax_first(_score(source, views, frames, X0, uh, hyp, cams, o), ties.NCC_QUANTUM, axis=1)
             n, u = hyp[rows, best], uh[rows, best]
         v = np.cross(n, u)
         out[c0:c0 + chunk, 1] = X0 + o.axis_cm * u

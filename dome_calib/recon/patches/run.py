@@ -34,6 +34,7 @@ from dome_calib.recon.patches.track import (Clock, CloudTrack, judged_frames, qu
 from dome_calib.recon.patches.visibility import camera_neighbours, estimate_visibility
 from dome_calib.recon.project import ViewSet, view_set
 from dome_calib.recon.streams import cameras_by_stream, frame_period_ms
+from dome_calib import ties
 
 logger = logging.getLogger(__name__)
 
@@ -145,7 +146,7 @@ def stream_seed_frame(clocks: list[Clock], t_ms: float) -> int | None:
     if len(held) == 0:
         return None
     times = clocks[0].table.times_of(held)
-    k = int(np.argmin(np.rint(np.abs(times - t_ms) * 1e3)))
+    k = ties.argmin_first(np.abs(times - t_ms), ties.TIME_QUANTUM_MS)
     return int(held[k]) if abs(times[k] - t_ms) <= 0.5 * frame_period_ms(clocks[0].table) + 1e-6 else None
 
 

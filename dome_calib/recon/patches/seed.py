@@ -27,6 +27,7 @@ from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.project import ViewSet, project_points
 from dome_calib.recon.triangulate import TriangulationOptions, triangulate
 from dome_calib.camera import pixels_to_normalized
+from dome_calib import ties
 
 logger = logging.getLogger(__name__)
 
@@ -44,9 +45,9 @@ class Seeds:
 def _nearest_views(views: ViewSet, r: int, n: int) -> np.ndarray:
     """The ``n`` views nearest view ``r`` (centre distance, quantised to 0.1 mm; ties by name), r excluded."""
     d = np.linalg.norm(views.center_cm - views.center_cm[r], axis=1)
-    key = np.rint(d * 100.0)
-    order = sorted((k, views.names[i], i) for i, k in enumerate(key) if i != r)
-    return np.array([i for _, _, i in order[:n]], dtype=np.int64)
+    others = [i for i in range(len(d)) if i != r]
+    order = ties.order_by(d[others], [views.names[i] for i in others], ties.CAMERA_DISTANCE_QUANTUM_CM)
+    return np.array([others[m] for m in order[:n]], dtype=np.int64)
 
 
 def _volume_span(origin: np.ndarray, dirs: np.ndarray, radius: float, height: float) -> tuple[np.ndarray, np.ndarray]:
@@ -261,7 +262,7 @@ def reference_cameras(views: ViewSet, spacing_deg: float, volume_height_cm: floa
     limit = np.cos(np.radians(spacing_deg))
     taken: list[int] = []
     for i in sorted(range(V), key=lambda j: views.names[j]):
-        if not taken or np.max(np.rint(d[taken] @ d[i] * 1e9)) <= np.rint(limit * 1e9):
+        if not taken or ties.at_most(d[taken] @ d[i], limit, ties.UNIT_QUANTUM).all():
             taken.append(i)
     return np.array(sorted(taken), dtype=np.int64)
 

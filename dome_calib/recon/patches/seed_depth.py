@@ -35,6 +35,7 @@ from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.seed import Seeds, _normals, flow_to_neighbours, patch_triplets, thin_to_cells
 from dome_calib.recon.project import ViewSet, depth_from_world, project_points, project_view
 from dome_calib.recon.triangulate import TriangulationOptions, triangulate
+from dome_calib import ties
 
 logger = logging.getLogger(__name__)
 
@@ -79,7 +80,7 @@ def depth_points(bundle: Bundle, depth: DepthFrames, t_ms: float, o: PatchOption
         return (np.zeros((0, 3)),) * 4
     sensor_centre = np.array([-R.T @ t for R, t in (depth_from_world(bundle, n) for n in cloud.sensors)])
     cell_centre = (np.floor(P / o.seed_spacing_cm) + 0.5) * o.seed_spacing_cm
-    off = np.rint(np.linalg.norm(P - cell_centre, axis=1) * 1000.0)
+    off = ties.quantize(np.linalg.norm(P - cell_centre, axis=1), ties.POINT_OFFSET_QUANTUM_CM)
     pick = thin_to_cells(P, [np.arange(len(P)), sensor, off], o.seed_spacing_cm)
     X = P[pick]
     one_hot = sensor[pick][:, None] == np.arange(len(cloud.sensors))[None]
@@ -133,9 +134,7 @@ def seed_from_depth(bundle: Bundle, depth: DepthFrames, seed_time_ms: float, sou
     to_own = own - X
     to_own /= np.linalg.norm(to_own, axis=-1, keepdims=True)
     faces = np.sum(to_cam * normal[:, None], -1) > o.min_cos_view
-    key = np.where(inside & faces, np.rint(np.sum(to_cam * to_own[:, None], -1) * 1e6), -1e9)
-    ref = np.argmax(key, axis=1)
-    has = key[np.arange(len(X)), ref] > -1e9
+    ref, has = ties.argmax_where(np.sum(to_cam * to_own[:, None], -1), inside & faces, ties.VIEW_COSINE_QUANTUM)
     tri_o = TriangulationOptions(inlier_threshold_px=o.triangulation_px, min_views=o.seed_min_views)
     centre_px = proj.uv_px  # (V, N, 2)
     got_X, got_seen, got_n, got_r, got_k = [], [], [], [], []

@@ -34,6 +34,7 @@ from dome_calib.recon.patches.seed import Seeds, _normals, _volume_span
 from dome_calib.recon.patches.visibility import Frames
 from dome_calib.recon.project import ViewSet
 from dome_calib.recon.triangulate import TriangulationOptions, triangulate
+from dome_calib import ties
 
 logger = logging.getLogger(__name__)
 
@@ -54,8 +55,7 @@ def _keypoints(gray: np.ndarray, views: ViewSet, v: int, o: PatchOptions) -> tup
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     lo, hi = _volume_span(views.center_cm[v], dirs, o.volume_radius_cm, o.volume_height_cm)
     keep = np.flatnonzero(hi > lo)
-    q = np.rint(uv[keep] * 8).astype(np.int64)
-    keep = keep[np.lexsort((q[:, 0], q[:, 1]))]
+    keep = keep[ties.raster_order(uv[keep], ties.CORNER_QUANTUM_PX)]
     return uv[keep], np.asarray(desc, np.float32)[keep]
 
 
@@ -200,7 +200,7 @@ def square_ncc(source: FrameSource, views: ViewSet, at: Frames, X: np.ndarray, s
     _, _, n = patch_axes(X[:, 0], X[:, 1], X[:, 2])
     to_cam = views.center_cm[None] - X[:, None, 0]
     cos = np.sum(to_cam * n[:, None], -1) / np.linalg.norm(to_cam, axis=-1)
-    ref = np.argmax(np.where(seen, np.rint(cos * 1e6), -1e9), axis=1)
+    ref, _ = ties.argmax_where(cos, seen, ties.VIEW_COSINE_QUANTUM)
     samples, inside = [], []
     for v in range(len(views.names)):
         uv, vis = project_one(views, v, grid)

@@ -47,6 +47,7 @@ from dome_calib.recon.patches.refine import refine_normals
 from dome_calib.recon.patches.seed import Seeds, _nearest_views, patch_triplets, thin_to_cells
 from dome_calib.recon.patches.visibility import Frames
 from dome_calib.recon.project import ViewSet, project_points
+from dome_calib import ties
 
 logger = logging.getLogger(__name__)
 
@@ -180,7 +181,7 @@ def _search(grays, views, cams, origin, dirs, centre_s, half_cm, step_cm, normal
     score = _depth_scores(grays, views, cams, origin, dirs, s, normal, o)
     have = np.isfinite(score)
     mean = np.where(have.any(-1), np.where(have, score, 0.0).sum(-1) / np.maximum(have.sum(-1), 1), -2.0)
-    k = np.argmax(np.rint(mean * 1e6), axis=1)  # ties: the nearer depth
+    k = ties.argmax_first(mean, ties.NCC_QUANTUM, axis=1)  # ties: the nearer depth
     rows = np.arange(len(k))
     return s[rows, k], score[rows, k], (k == 0) | (k == s.shape[1] - 1)
 
@@ -231,8 +232,7 @@ def seed_camera_on_body(source: FrameSource, views: ViewSet, frames: dict[str, i
     if corners is None:
         return empty
     corners = corners.reshape(-1, 2).astype(float)
-    q = np.rint(corners * 8).astype(np.int64)
-    corners = corners[np.lexsort((q[:, 0], q[:, 1]))]  # row then column: no detector order decides anything
+    corners = corners[ties.raster_order(corners, ties.CORNER_QUANTUM_PX)]  # no detector order decides anything
     origin = views.center_cm[r]
     dirs = _rays(views, r, corners)
     s0, n0 = ray_capsules(origin, dirs, A, B, radius)

@@ -44,6 +44,7 @@ from dome_calib.recon.patches.visibility import Frames, Visibility, estimate_vis
 from dome_calib.recon.project import ViewSet, project_view
 from dome_calib.recon.streams import frame_brackets, frame_period_ms
 from dome_calib.recon.triangulate import TriangulationOptions, triangulate
+from dome_calib import ties
 
 logger = logging.getLogger(__name__)
 
@@ -119,7 +120,7 @@ def predicted_motion(predict: Predictor, t_i: float, t_j: float, o: PatchOptions
     levels = np.full(len(shift), o.lk_levels_predicted, np.int64)
     if o.lk_levels_full_px > 0:
         # quantised before the comparison: no choice rests on last bits
-        levels[np.rint(np.linalg.norm(shift, axis=1) * 1e6) >= np.rint(o.lk_levels_full_px * 1e6)] = o.lk_levels
+        levels[ties.at_least(np.linalg.norm(shift, axis=1), o.lk_levels_full_px, ties.FLOW_QUANTUM_PX)] = o.lk_levels
     return shift, levels
 
 
@@ -249,8 +250,7 @@ def best_views(views: ViewSet, X: np.ndarray, candidates: np.ndarray, k: int, sp
         avail = np.take_along_axis(candidates[rows], cols, axis=1)
         sub = np.arange(len(rows))
         for _ in range(k):
-            score = np.where(avail, np.rint(face * gap * 1e6), -1.0)
-            j = np.argmax(score, axis=1)
+            j, _ = ties.argmax_where(face * gap, avail, ties.VIEW_COSINE_QUANTUM)
             chosen[rows, cols[sub, j]] = True
             avail[sub, j] = False
             if spread_deg > 0:

@@ -42,6 +42,7 @@ from dome_calib.recon.patches.mincut import min_cut_labels
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.occlusion import BodyPrior, Occluders, occluded_views
 from dome_calib.recon.project import ViewSet, project_view_rows
+from dome_calib import ties
 
 
 #: Cameras whose facing cosines are computed together ((patches, chunk, 3) arrays).
@@ -55,9 +56,10 @@ def camera_neighbours(views: ViewSet, k: int) -> np.ndarray:
     C = views.center_cm
     pairs = set()
     for i in range(len(C)):
-        key = np.rint(np.linalg.norm(C - C[i], axis=1) * 100.0)
-        order = sorted((key[j], views.names[j], j) for j in range(len(C)) if j != i)
-        for _, _, j in order[:k]:
+        others = [j for j in range(len(C)) if j != i]
+        near = ties.order_by(np.linalg.norm(C - C[i], axis=1)[others], [views.names[j] for j in others],
+                             ties.CAMERA_DISTANCE_QUANTUM_CM)
+        for j in (others[m] for m in near[:k]):
             pairs.add((min(i, j), max(i, j)))
     return np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
 
@@ -194,7 +196,7 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
     candidate = in_image & (cos > o.min_cos_view) & ~hidden
     prev = previous & candidate
     score = np.where(prev, cos, np.where(candidate, cos - 2.0, -np.inf))
-    ref = np.argmax(np.where(np.isfinite(score), np.rint(score * 1e6), -1e9), axis=1)  # quantised: ties by position
+    ref, _ = ties.argmax_where(score, np.isfinite(score), ties.VIEW_COSINE_QUANTUM)  # ties by position
     has_ref = np.isfinite(score[np.arange(N), ref])
     # each row (a patch in the image of a camera) against its patch's reference row, every row centred once
     pi, vi = (np.concatenate(r) if r else np.zeros(0, np.int64) for r in (row_n, row_v))
