@@ -18,25 +18,53 @@ _MAY_ROUND = re.compile(r"\b(np|numpy)\.(rint|round|around)\b")
 _CHOICES = {"argmax", "argmin", "nanargmax", "nanargmin", "argsort", "lexsort", "sort", "sorted", "max", "min",
             "unique", "searchsorted", "argpartition", "partition"}
 
-#: (module path, function) -> number of ``np.rint`` calls in it: the uses that are not a choice, each with why.
-ALLOWED_RINT = {
-    # values written or displayed
-    ("recon/patches/page_layer.py", "patch_layer"): 1,  # mm on the page
+#: (module path, function) -> number of numpy roundings (``np.rint``, ``np.round``, ``np.around``) in it: the uses
+#: that are not a choice, each with why.
+ALLOWED_ROUNDING = {
+    # values written, displayed or kept on a grid (no choice reads their last bits)
+    ("recon/patches/page_layer.py", "patch_layer"): 2,  # mm and ms on the page
     ("recon/patches/track.py", "quantise_cm"): 1,  # the position quantum that makes the stream's positions exact
+    ("recon/patches/parts.py", "part_radii"): 1,  # a part's radius kept on the 1e-4 cm grid
+    ("recon/people/windows.py", "infer_unmeasured_bones"): 1,  # a guessed bone length on the BONE_STEP_CM grid
+    ("recon/people/scene_io.py", "camera_report"): 6,  # figures in the report
     ("report/page.py", "arrows_of"): 2,  # pixels and centi-pixels on the page
-    ("skeletons/page.py", "_detections"): 3,  # quarter pixels and confidences on the page
+    ("skeletons/page.py", "_cameras"): 1,  # cm on the page
+    ("skeletons/page.py", "_detections"): 4,  # quarter pixels, confidences and ms on the page
     ("skeletons/page.py", "_mm_i16"): 1,  # mm on the page
-    # integers for a solver, an image or a hash
+    ("skeletons/page.py", "page_data"): 1,  # ms on the page
+    ("synth/detector.py", "_detect"): 2,  # the detector's pixels and confidences as it writes them
+    ("synth/detector.py", "feet_detections"): 1,  # the same for the feet
+    ("synth/group_session.py", "truth_document"): 1,  # the truth file's joints
+    ("synth/rays.py", "CameraRays.__init__"): 1,  # an error message
+    # integers for a solver, a rasteriser, an image, a clock or a hash
     ("recon/patches/mincut.py", "quantise_costs"): 1,  # min-cut capacities (mincut.COST_SCALE)
     ("recon/triangulate.py", "point_keys"): 1,  # the integer hash of a RANSAC draw (named steps)
     ("recon/people/depth_witness.py", "judge_joints"): 2,  # the pixel a joint projects to
     ("kinect/board.py", "RayGrid.build"): 2,  # a pixel's nearest grid node
+    ("kinect/board.py", "Checkerboard.reflectance_xy.ramp"): 1,  # distance to the nearest square edge (a value)
+    ("kinect/depth_bias.py", "board_mask"): 1,  # a polygon in cv2's fixed point
     ("synth/kinect_boards.py", "render_depth"): 1,  # rendered depth image (uint16)
     ("synth/kinect_boards.py", "render_ir"): 1,  # rendered IR image (uint8)
     ("synth/render.py", "sensor_image"): 1,  # rendered image (uint8)
     ("synth/textured.py", "render_view"): 1,  # rendered image (uint8)
+    ("synth/depth.py", "render_depth_mm"): 1,  # rendered depth image (uint16)
+    ("synth/depth_people.py", "render_people_depth_mm"): 1,  # rendered depth image (uint16)
+    ("synth/sync_session.py", "make_session"): 2,  # simulated clock stamps in integer ticks
     # a compiled (numba) kernel cannot call ties: the same rule there, its step named (DIST2_QUANTUM_CM2)
     ("recon/patches/occlusion.py", "_below"): 2,
+}
+#: Choices of the people stream still quantised inline (np.round(cost, 3) and the like before an assignment, a sort
+#: or a clustering), NOT yet through ties: a follow-up; listed so that no new one joins them.
+PEOPLE_CHOICES_NOT_YET_THROUGH_TIES = {
+    ("recon/people/bridging.py", "_proposals_near"): 1,
+    ("recon/people/bridging.py", "bridge_gaps"): 1,
+    ("recon/people/compiled.py", "_fill_records"): 1,
+    ("recon/people/matching.py", "greedy_match"): 1,
+    ("recon/people/proposals.py", "_ranked_pairs"): 1,
+    ("recon/people/proposals.py", "cluster_hypotheses"): 1,
+    ("recon/people/proposals.py", "pair_hypotheses"): 1,
+    ("recon/people/tracking.py", "track_bodies"): 1,
+    ("recon/people/windows.py", "bone_lengths"): 1,
 }
 #: Compiled (numba) kernels, where a quantised comparison is written out with a named step: ties cannot run there.
 COMPILED_CHOICES = {("recon/patches/occlusion.py", "_below")}
@@ -52,9 +80,9 @@ def _called(node: ast.Call) -> str:
 
 
 def scan(source: str) -> tuple[dict[str, int], list[tuple[int, str, str]]]:
-    """One module's source -> (``np.rint`` calls per function qualname, [(line, function, code)] of inline
+    """One module's source -> (numpy roundings per function qualname, [(line, function, code)] of inline
     roundings inside a choice: a call of argmax, argmin, a sort, min or max, or a comparison)."""
-    rints: dict[str, int] = {}
+    roundings: dict[str, int] = {}
     choices: list[tuple[int, str, str]] = []
 
     def walk(node: ast.AST, qualname: str) -> None:
@@ -62,15 +90,15 @@ def scan(source: str) -> tuple[dict[str, int], list[tuple[int, str, str]]]:
             name = qualname
             if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
                 name = f"{qualname}.{child.name}" if qualname else child.name
-            if _is_np_rounding(child) and child.func.attr == "rint":
-                rints[name] = rints.get(name, 0) + 1
+            if _is_np_rounding(child):
+                roundings[name] = roundings.get(name, 0) + 1
             if (isinstance(child, ast.Call) and _called(child) in _CHOICES) or isinstance(child, ast.Compare):
                 if any(_is_np_rounding(n) for n in ast.walk(child) if n is not child):
                     choices.append((child.lineno, name, ast.unparse(child)[:100]))
             walk(child, name)
 
     walk(ast.parse(source), "")
-    return rints, choices
+    return roundings, choices
 
 
 @functools.cache
@@ -87,12 +115,13 @@ def test_no_inline_rounding_feeds_a_choice():
     assert not found, "choose through dome_calib.ties (a named step), not inline:\n" + "\n".join(found)
 
 
-def test_every_inline_rint_is_a_named_non_choice_use():
+def test_every_inline_rounding_is_a_named_non_choice_use():
     found = {(path, fn): n for path, (r, _) in _package().items() for fn, n in r.items()}
-    extra = {k: n for k, n in found.items() if n > ALLOWED_RINT.get(k, 0)}
-    assert not extra, f"np.rint outside ties.py and the allow-list (a choice? use ties): {extra}"
-    stale = sorted(set(ALLOWED_RINT) - set(found))
-    assert not stale, f"allow-list entries with no np.rint left: drop them {stale}"
+    allowed = ALLOWED_ROUNDING | PEOPLE_CHOICES_NOT_YET_THROUGH_TIES
+    extra = {k: n for k, n in found.items() if n > allowed.get(k, 0)}
+    assert not extra, f"numpy rounding outside ties.py and the allow-list (a choice? use ties): {extra}"
+    stale = {k: n for k, n in allowed.items() if found.get(k, 0) < n}
+    assert not stale, f"allow-list entries with fewer roundings left: lower or drop them {stale}"
 
 
 def test_the_scan_sees_the_patterns_it_refuses():
@@ -106,6 +135,6 @@ def pick(score, mask, cos, limit, names, C):
     order = sorted((key[j], names[j], j) for j in range(len(C)))
     return ref, k, ok, order
 '''
-    rints, choices = scan(old)
-    assert rints == {"pick": 4}
+    roundings, choices = scan(old)
+    assert roundings == {"pick": 5}
     assert [line for line, _, _ in choices] == [3, 4, 5]
