@@ -39,6 +39,7 @@ import numpy as np
 
 from dome_calib.jit import njit
 from dome_calib.recon.patches.parts import BONES
+from dome_calib import ties
 
 #: The radius of each part's capsule (cm), in :data:`~.parts.BONES` order: a generic adult's (torso, head,
 #: shoulders, hips, upper arms, forearms, thighs, shins). A prior only: the skeleton seeds' photometric search looks
@@ -64,7 +65,7 @@ class BodyPrior:
         t = np.asarray(self.times_ms, dtype=float)
         if not len(t) or not np.isfinite(t_ms) or t_ms < t[0] - 0.5 or t_ms > t[-1] + 0.5:
             return np.zeros((0, 19, 3))
-        k = int(np.argmin(np.abs(t - t_ms)))
+        k = ties.argmin_first(np.abs(t - t_ms), ties.TIME_QUANTUM_MS)
         if abs(t[k] - t_ms) < 0.5:
             return np.asarray(self.joints_cm[k], float)
         hi = int(np.searchsorted(t, t_ms))

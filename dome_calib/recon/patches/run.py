@@ -83,7 +83,7 @@ def run_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], seed_tim
     the views with ``o.body_occlusion`` (:mod:`.occlusion`)."""
     neighbours = camera_neighbours(views, o.prior_neighbours) if neighbours is None else neighbours
     t = np.asarray(times_ms, dtype=float)
-    s = int(np.argmin(np.abs(t - seed_time_ms)))
+    s = ties.argmin_first(np.abs(t - seed_time_ms), ties.TIME_QUANTUM_MS)
     X = quantise_cm(seeds.X_cm)
     if (o.refine_normals if refine is None else refine) and len(X):
         frames = judged_frames(clocks, float(t[s]))

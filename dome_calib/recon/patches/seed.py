@@ -103,7 +103,7 @@ def _sweep(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int, 
             scores += np.where(vis, score, 0.0)
             counts += vis
         mean = np.where(counts >= 2, scores / np.maximum(counts, 1), -1.0)
-        k = np.argmax(mean, axis=1)
+        k = ties.argmax_first(mean, ties.NCC_QUANTUM, axis=1)
         rows = np.arange(len(k))
         best[sl] = mean[rows, k]
         good = best[sl] >= o.seed_min_ncc

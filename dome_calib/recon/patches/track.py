@@ -91,7 +91,7 @@ def judged_frames(clocks: list[Clock], t_ms: float) -> Frames:
         if len(c.frames) == 0:
             continue
         times = c.times()
-        i = int(np.argmin(np.abs(times - t_ms)))
+        i = ties.argmin_first(np.abs(times - t_ms), ties.TIME_QUANTUM_MS)
         if abs(times[i] - t_ms) <= 0.5 * frame_period_ms(c.table) + 1e-6:
             frame[v], offset[v] = c.frames[i], times[i] - t_ms
     return Frames(frame=frame, offset_ms=offset, t_ms=float(t_ms))
