@@ -21,7 +21,7 @@ UNIT_QUANTUM = 1e-9
 # The steps of the patch stream's choices (:mod:`dome_calib.recon.patches`), by unit. Each is far above float noise
 # on its values and far below any difference the choice is meant to see; they are the steps the stream wrote inline
 # before (``np.rint(x * 1e6)``), named here once. ``quantize`` divides by the step: on a value within one ulp of a
-# half step that may differ by one step from multiplying by its inverse, which changes no tie-break of the stream.
+# half step that may differ by one step from multiplying by its inverse (no choice changed on the benches' runs).
 #: Distances between camera centres when picking neighbour cameras: 0.1 mm.
 CAMERA_DISTANCE_QUANTUM_CM = 1e-2
 #: A depth point's offset from its cell's centre when thinning a cloud to one point per cell: 10 um.
