@@ -13,6 +13,7 @@ import os
 import signal
 import sys
 import threading
+import _thread
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -86,10 +87,41 @@ def _terminate_as_interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
+#: How long after a swallowed interrupt it is handed to the main thread again: long after the hook that saw it has
+#: returned (microseconds), short beside a user's patience.
+REDELIVER_AFTER_S = 0.05
+
+
+def _redeliver(generation: int) -> None:
+    """Hand SIGTERM (our handler, inside the block) to the main thread again, if the block that lost an interrupt
+    is still the one open."""
+    if _active and _generation == generation:
+        _thread.interrupt_main(signal.SIGTERM)
+
+
+def _interrupt_never_swallowed(unraisable: Any) -> None:
+    """``sys.unraisablehook`` inside :func:`interrupt_as_one_line`. A signal's handler runs in the main thread at
+    whatever Python code runs there next; when that is a finaliser or a weakref callback (an import lock's, while
+    a module loads; a ``__del__`` under garbage collection), its ``KeyboardInterrupt`` is "ignored": printed, then
+    dropped, and the run went on as if no signal had come (seen: SIGTERM during an import, the run then blocked on
+    its input). Here such an interrupt is not printed but handed to the main thread again shortly after, as
+    SIGTERM, whose handler in the block raises it where the run stands; a hand-over that lands in a callback
+    again comes back here. Anything else goes to the hook that was in place."""
+    if (isinstance(unraisable.exc_value, KeyboardInterrupt) and _active
+            and threading.current_thread() is threading.main_thread()):
+        timer = threading.Timer(REDELIVER_AFTER_S, _redeliver, args=(_generation,))
+        timer.daemon = True
+        timer.start()
+        return
+    _hook_before(unraisable)
+
+
 #: Libraries whose import installs C-level signal handlers over Python's (pycolmap: glog's failure handler, which
 #: prints a C stack and kills the process on SIGTERM): imported first inside the block, then ours put back over
 HANDLER_REPLACING_IMPORTS = ("pycolmap",)
 _active = 0  # interrupt_as_one_line blocks open
+_generation = 0  # outermost blocks opened so far: a hand-over meant for one never reaches the next
+_hook_before: Callable[[Any], object] = sys.unraisablehook
 
 
 def restore_interrupt_handler() -> None:
@@ -105,8 +137,11 @@ def interrupt_as_one_line(prog: str, advice: str = "rerun the same command to re
     """SIGINT or SIGTERM inside the block: one line on stderr ("interrupted during STAGE; ADVICE", the stage when a
     pipeline stage was running), exit code 130, no traceback (``DOME_CALIB_DEBUG=1``: raise). ``imports``: libraries
     whose handlers ours must go over, imported first."""
-    global _active
+    global _active, _generation, _hook_before
     previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+    if not _active:  # the outermost block
+        _hook_before, sys.unraisablehook = sys.unraisablehook, _interrupt_never_swallowed
+        _generation += 1
     _active += 1
     try:
         for name in imports:  # their handlers first, ours over them
@@ -121,6 +156,8 @@ def interrupt_as_one_line(prog: str, advice: str = "rerun the same command to re
         sys.exit(EXIT_INTERRUPTED)
     finally:
         _active -= 1
+        if not _active:
+            sys.unraisablehook = _hook_before
         signal.signal(signal.SIGTERM, previous)
 
 
