@@ -131,6 +131,39 @@ def restore_interrupt_handler() -> None:
         signal.signal(signal.SIGTERM, _terminate_as_interrupt)
 
 
+def _interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The interrupt an error was raised from or while handling (its ``__cause__`` / ``__context__`` chain), if any.
+    An extension module's initialiser turns an interrupt inside it into ``ImportError("initialization failed")``
+    (pybind11: gtsam, pycolmap), and a cleanup may fail while an interrupt unwinds: both are the interrupt."""
+    seen: set[int] = set()
+    link: BaseException | None = exc
+    while link is not None and id(link) not in seen:
+        if isinstance(link, KeyboardInterrupt):
+            return link
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
+    return None
+
+
+@contextlib.contextmanager
+def _held_while_a_library_loads() -> Iterator[None]:
+    """While a library of HANDLER_REPLACING_IMPORTS loads: SIGTERM is held back (blocked in the main thread), the
+    handler in place before is put back over the one the library installed at the C level, and a SIGTERM that came
+    meanwhile is then delivered to it. Before: a SIGTERM within the load reached glog's handler, which printed a C
+    stack and killed the process (exit -15). Outside the main thread nothing is changed (signals are its own)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    handler = signal.getsignal(signal.SIGTERM)
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
+    try:
+        yield
+    finally:
+        if callable(handler):
+            signal.signal(signal.SIGTERM, handler)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+
+
 @contextlib.contextmanager
 def interrupt_as_one_line(prog: str, advice: str = "rerun the same command to resume",
                           imports: tuple[str, ...] = HANDLER_REPLACING_IMPORTS) -> Iterator[None]:
@@ -145,13 +178,15 @@ def interrupt_as_one_line(prog: str, advice: str = "rerun the same command to re
     _active += 1
     try:
         for name in imports:  # their handlers first, ours over them
-            importlib.import_module(name)
+            with _held_while_a_library_loads():
+                importlib.import_module(name)
         restore_interrupt_handler()
         yield
-    except KeyboardInterrupt as exc:
-        if os.environ.get("DOME_CALIB_DEBUG"):
+    except (KeyboardInterrupt, Exception) as exc:
+        interrupt = exc if isinstance(exc, KeyboardInterrupt) else _interrupt_behind(exc)
+        if interrupt is None or os.environ.get("DOME_CALIB_DEBUG"):
             raise
-        where = f" during {exc.stage}" if isinstance(exc, Interrupted) else ""
+        where = f" during {interrupt.stage}" if isinstance(interrupt, Interrupted) else ""
         print(f"{prog}: interrupted{where}; {advice}", file=sys.stderr)
         sys.exit(EXIT_INTERRUPTED)
     finally:
@@ -231,13 +266,17 @@ class _HandlerGuard(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         return spec
 
     def create_module(self, spec):
-        return self.inner.create_module(spec)
+        self.held = contextlib.ExitStack()  # from here (an extension's init may run now) to the end of exec_module
+        self.held.enter_context(_held_while_a_library_loads())
+        try:
+            return self.inner.create_module(spec)
+        except BaseException:
+            self.held.close()
+            raise
 
     def exec_module(self, module) -> None:
-        handler = signal.getsignal(signal.SIGTERM)
-        self.inner.exec_module(module)
-        if callable(handler) and threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, handler)
+        with self.held:
+            self.inner.exec_module(module)
 
 
 class _SaidAtFinalPlace(logging.Formatter):
