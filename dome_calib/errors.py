@@ -13,6 +13,7 @@ import os
 import signal
 import sys
 import threading
+import _thread
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -86,10 +87,41 @@ def _terminate_as_interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
+#: How long after a swallowed interrupt it is handed to the main thread again: long after the hook that saw it has
+#: returned (microseconds), short beside a user's patience.
+REDELIVER_AFTER_S = 0.05
+
+
+def _redeliver(generation: int) -> None:
+    """Hand SIGTERM (our handler, inside the block) to the main thread again, if the block that lost an interrupt
+    is still the one open."""
+    if _active and _generation == generation:
+        _thread.interrupt_main(signal.SIGTERM)
+
+
+def _interrupt_never_swallowed(unraisable: Any) -> None:
+    """``sys.unraisablehook`` inside :func:`interrupt_as_one_line`. A signal's handler runs in the main thread at
+    whatever Python code runs there next; when that is a finaliser or a weakref callback (an import lock's, while
+    a module loads; a ``__del__`` under garbage collection), its ``KeyboardInterrupt`` is "ignored": printed, then
+    dropped, and the run went on as if no signal had come (seen: SIGTERM during an import, the run then blocked on
+    its input). Here such an interrupt is not printed but handed to the main thread again shortly after, as
+    SIGTERM, whose handler in the block raises it where the run stands; a hand-over that lands in a callback
+    again comes back here. Anything else goes to the hook that was in place."""
+    if (isinstance(unraisable.exc_value, KeyboardInterrupt) and _active
+            and threading.current_thread() is threading.main_thread()):
+        timer = threading.Timer(REDELIVER_AFTER_S, _redeliver, args=(_generation,))
+        timer.daemon = True
+        timer.start()
+        return
+    _hook_before(unraisable)
+
+
 #: Libraries whose import installs C-level signal handlers over Python's (pycolmap: glog's failure handler, which
 #: prints a C stack and kills the process on SIGTERM): imported first inside the block, then ours put back over
 HANDLER_REPLACING_IMPORTS = ("pycolmap",)
 _active = 0  # interrupt_as_one_line blocks open
+_generation = 0  # outermost blocks opened so far: a hand-over meant for one never reaches the next
+_hook_before: Callable[[Any], object] = sys.unraisablehook
 
 
 def restore_interrupt_handler() -> None:
@@ -99,28 +131,68 @@ def restore_interrupt_handler() -> None:
         signal.signal(signal.SIGTERM, _terminate_as_interrupt)
 
 
+def _interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The interrupt an error was raised from or while handling (its ``__cause__`` / ``__context__`` chain), if any.
+    An extension module's initialiser turns an interrupt inside it into ``ImportError("initialization failed")``
+    (pybind11: gtsam, pycolmap), and a cleanup may fail while an interrupt unwinds: both are the interrupt."""
+    seen: set[int] = set()
+    link: BaseException | None = exc
+    while link is not None and id(link) not in seen:
+        if isinstance(link, KeyboardInterrupt):
+            return link
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
+    return None
+
+
+@contextlib.contextmanager
+def _held_while_a_library_loads() -> Iterator[None]:
+    """While a library of HANDLER_REPLACING_IMPORTS loads: SIGTERM is held back (blocked in the main thread), the
+    handler in place before is put back over the one the library installed at the C level, and a SIGTERM that came
+    meanwhile is then delivered to it. Before: a SIGTERM within the load reached glog's handler, which printed a C
+    stack and killed the process (exit -15). Outside the main thread nothing is changed (signals are its own)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    handler = signal.getsignal(signal.SIGTERM)
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
+    try:
+        yield
+    finally:
+        if callable(handler):
+            signal.signal(signal.SIGTERM, handler)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+
+
 @contextlib.contextmanager
 def interrupt_as_one_line(prog: str, advice: str = "rerun the same command to resume",
                           imports: tuple[str, ...] = HANDLER_REPLACING_IMPORTS) -> Iterator[None]:
     """SIGINT or SIGTERM inside the block: one line on stderr ("interrupted during STAGE; ADVICE", the stage when a
     pipeline stage was running), exit code 130, no traceback (``DOME_CALIB_DEBUG=1``: raise). ``imports``: libraries
     whose handlers ours must go over, imported first."""
-    global _active
+    global _active, _generation, _hook_before
     previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+    if not _active:  # the outermost block
+        _hook_before, sys.unraisablehook = sys.unraisablehook, _interrupt_never_swallowed
+        _generation += 1
     _active += 1
     try:
         for name in imports:  # their handlers first, ours over them
-            importlib.import_module(name)
+            with _held_while_a_library_loads():
+                importlib.import_module(name)
         restore_interrupt_handler()
         yield
-    except KeyboardInterrupt as exc:
-        if os.environ.get("DOME_CALIB_DEBUG"):
+    except (KeyboardInterrupt, Exception) as exc:
+        interrupt = exc if isinstance(exc, KeyboardInterrupt) else _interrupt_behind(exc)
+        if interrupt is None or os.environ.get("DOME_CALIB_DEBUG"):
             raise
-        where = f" during {exc.stage}" if isinstance(exc, Interrupted) else ""
+        where = f" during {interrupt.stage}" if isinstance(interrupt, Interrupted) else ""
         print(f"{prog}: interrupted{where}; {advice}", file=sys.stderr)
         sys.exit(EXIT_INTERRUPTED)
     finally:
         _active -= 1
+        if not _active:
+            sys.unraisablehook = _hook_before
         signal.signal(signal.SIGTERM, previous)
 
 
@@ -194,13 +266,17 @@ class _HandlerGuard(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         return spec
 
     def create_module(self, spec):
-        return self.inner.create_module(spec)
+        self.held = contextlib.ExitStack()  # from here (an extension's init may run now) to the end of exec_module
+        self.held.enter_context(_held_while_a_library_loads())
+        try:
+            return self.inner.create_module(spec)
+        except BaseException:
+            self.held.close()
+            raise
 
     def exec_module(self, module) -> None:
-        handler = signal.getsignal(signal.SIGTERM)
-        self.inner.exec_module(module)
-        if callable(handler) and threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, handler)
+        with self.held:
+            self.inner.exec_module(module)
 
 
 class _SaidAtFinalPlace(logging.Formatter):
