@@ -39,6 +39,22 @@ TIME_QUANTUM_MS = 1e-3
 #: Residuals (cm) of rigid-motion hypotheses when choosing the least.
 RESIDUAL_QUANTUM_CM = 1e-9
 
+# The steps of the people stream's choices (:mod:`dome_calib.recon.people`), by unit: the ones it wrote inline
+# before (``np.round(cost, 3)`` and the like), named here once. ``np.round(x, 3)`` multiplies by 1000 where
+# ``quantize`` divides by 1e-3: the two may differ by one step on a value within an ulp of a half step only.
+#: Skeleton distances (median joint distance) when assigning bodies to tracks, gaps or proposals: 10 um.
+SKELETON_DISTANCE_QUANTUM_CM = 1e-3
+#: Pixel distances between detections when matching them across frames.
+DETECTION_DISTANCE_QUANTUM_PX = 1e-3
+#: Pair hypotheses' centres (and their distances) when clustering them into proposals: 10 um.
+HYPOTHESIS_CENTRE_QUANTUM_CM = 1e-3
+#: A hypothesis cluster's density (a sum of common joints: whole numbers) against its floor.
+CLUSTER_WEIGHT_QUANTUM = 1e-6
+#: The angle between two cameras' optical axes when ranking view pairs: 0.1 deg.
+AXIS_ANGLE_QUANTUM_DEG = 0.1
+#: Detector confidences when keeping a joint's strongest detections (a numba kernel: written out there).
+CONFIDENCE_QUANTUM = 1e-4
+
 
 def quantize(values: np.ndarray | Sequence[float], step: float) -> np.ndarray:
     """Values as integer multiples of ``step`` (int64, same shape); NaN is refused."""
@@ -107,6 +123,14 @@ def at_most(a: np.ndarray | float, b: np.ndarray | float, step: float) -> np.nda
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     ok = ~(np.isnan(a) | np.isnan(b))
     return ok & (quantize(np.where(ok, a, 0.0), step) <= quantize(np.where(ok, b, 0.0), step))
+
+
+def below(a: np.ndarray | float, b: np.ndarray | float, step: float) -> np.ndarray:
+    """``a < b`` elementwise after quantising both to ``step``; False where either is NaN; inf is above any
+    finite value (a cost of inf is below no gate)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    ok = ~(np.isnan(a) | np.isnan(b))
+    return ok & (quantize(np.where(ok, a, 0.0), step) < quantize(np.where(ok, b, 0.0), step))
 
 
 def at_least(a: np.ndarray | float, b: np.ndarray | float, step: float) -> np.ndarray:

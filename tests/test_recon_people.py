@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
 
+from dome_calib import ties
 from dome_calib.bundle import SyncTable
 from dome_calib.executor.local import LocalProcessExecutor
 from dome_calib.recon.people.chunks import reconstruct_people_chunked
@@ -47,6 +48,9 @@ def _errors(seq, truth):
     return err, ids
 
 
+STEP = ties.SKELETON_DISTANCE_QUANTUM_CM
+
+
 def test_greedy_match_is_optimal_when_separated():
     rng = np.random.default_rng(0)
     for _ in range(50):
@@ -54,10 +58,10 @@ def test_greedy_match_is_optimal_when_separated():
         cost = rng.uniform(50, 100, (n, n))
         perm = rng.permutation(n)
         cost[np.arange(n), perm] = rng.uniform(0, 5, n)
-        m = greedy_match(cost, 20.0)
+        m = greedy_match(cost, 20.0, STEP)
         assert m.tolist() == perm.tolist()
-    assert greedy_match(np.array([[30.0]]), 20.0).tolist() == [-1]
-    assert greedy_match(np.zeros((2, 0, 3)), 1.0).shape == (2, 0)
+    assert greedy_match(np.array([[30.0]]), 20.0, STEP).tolist() == [-1]
+    assert greedy_match(np.zeros((2, 0, 3)), 1.0, STEP).shape == (2, 0)
 
 
 @given(st.lists(st.floats(-1e3, 1e3, allow_nan=False), min_size=1, max_size=9), st.integers(0, 5))

@@ -52,22 +52,12 @@ ALLOWED_ROUNDING = {
     ("synth/sync_session.py", "make_session"): 2,  # simulated clock stamps in integer ticks
     # a compiled (numba) kernel cannot call ties: the same rule there, its step named (DIST2_QUANTUM_CM2)
     ("recon/patches/occlusion.py", "_below"): 2,
-}
-#: Choices of the people stream still quantised inline (np.round(cost, 3) and the like before an assignment, a sort
-#: or a clustering), NOT yet through ties: a follow-up; listed so that no new one joins them.
-PEOPLE_CHOICES_NOT_YET_THROUGH_TIES = {
-    ("recon/people/bridging.py", "_proposals_near"): 1,
-    ("recon/people/bridging.py", "bridge_gaps"): 1,
+    # the same for a joint's strongest detections (ties.CONFIDENCE_QUANTUM); quantising before the call would need a
+    # key array as large as the session's detections
     ("recon/people/compiled.py", "_fill_records"): 1,
-    ("recon/people/matching.py", "greedy_match"): 1,
-    ("recon/people/proposals.py", "_ranked_pairs"): 1,
-    ("recon/people/proposals.py", "cluster_hypotheses"): 1,
-    ("recon/people/proposals.py", "pair_hypotheses"): 1,
-    ("recon/people/tracking.py", "track_bodies"): 1,
-    ("recon/people/windows.py", "bone_lengths"): 1,
 }
 #: Compiled (numba) kernels, where a quantised comparison is written out with a named step: ties cannot run there.
-COMPILED_CHOICES = {("recon/patches/occlusion.py", "_below")}
+COMPILED_CHOICES = {("recon/patches/occlusion.py", "_below"), ("recon/people/compiled.py", "_fill_records")}
 
 
 def _is_np_rounding(node: ast.AST) -> bool:
@@ -117,7 +107,7 @@ def test_no_inline_rounding_feeds_a_choice():
 
 def test_every_inline_rounding_is_a_named_non_choice_use():
     found = {(path, fn): n for path, (r, _) in _package().items() for fn, n in r.items()}
-    allowed = ALLOWED_ROUNDING | PEOPLE_CHOICES_NOT_YET_THROUGH_TIES
+    allowed = ALLOWED_ROUNDING
     extra = {k: n for k, n in found.items() if n > allowed.get(k, 0)}
     assert not extra, f"numpy rounding outside ties.py and the allow-list (a choice? use ties): {extra}"
     stale = {k: n for k, n in allowed.items() if found.get(k, 0) < n}

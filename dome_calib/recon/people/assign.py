@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from dome_calib import ties
 from dome_calib.recon.kernel import CameraKernel
 from dome_calib.recon.people.matching import dedupe, greedy_match
 from dome_calib.recon.people.proposals import AssociationOptions, propose, residual_pairs, world_rays
@@ -59,7 +60,7 @@ def assign(kernel: CameraKernel, skeletons: np.ndarray, kp: np.ndarray, options:
     n = both.sum(-1)
     cost = np.full((V, N, P), np.inf)
     cost[v, i, p] = np.where(n >= options.min_common_joints, err.sum(-1) / np.maximum(n, 1), np.inf)
-    match = greedy_match(cost, options.assign_gate_cm)  # (V, N) -> proposal
+    match = greedy_match(cost, options.assign_gate_cm, ties.SKELETON_DISTANCE_QUANTUM_CM)  # (V, N) -> proposal
     out = np.full((V, P), -1, dtype=np.int64)
     v, i = np.nonzero(match >= 0)
     out[v, match[v, i]] = i

@@ -19,7 +19,8 @@ row, while he is tracked before and after. There the track is the evidence the f
    check, the depth witness, ``min_body_joints`` joints); a body found is not within ``duplicate_cm`` of a body
    already there.
 3. **One body per track** by the tracker's matching (Hungarian on the median joint distance to the predictions,
-   quantised to 0.001 cm, gated): it takes the track's id. No track starts here, so no false body can.
+   quantised to :data:`~dome_calib.ties.SKELETON_DISTANCE_QUANTUM_CM`, as is the gate): it takes the track's id. No
+   track starts here, so no false body can.
 
 Each time is searched on its own, from the tracks (made once over the whole session) and that time's detections:
 the result depends on neither chunks, batches nor workers. Cost: only the gaps' times, with the leftover detections.
@@ -31,12 +32,13 @@ import dataclasses
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from dome_calib import ties
 from dome_calib.recon.kernel import CameraKernel
 from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.assign import assign, assign_passes, enough_views, leftover
 from dome_calib.recon.people.bodies import Bodies
 from dome_calib.recon.people.depth_witness import DepthWitness
-from dome_calib.recon.people.matching import skeleton_distance_cm
+from dome_calib.recon.people.matching import NO_MATCH, skeleton_distance_cm
 from dome_calib.recon.people.options import PeopleOptions
 from dome_calib.recon.people.per_time import bodies_of
 from dome_calib.recon.people.proposals import (AssociationOptions, cluster_hypotheses, pair_hypotheses,
@@ -95,8 +97,8 @@ def _proposals_near(views: ViewSet, kernel: CameraKernel, kp_left: np.ndarray, h
                                                                                    options.max_pairs), options)
     if not len(joints):
         return np.zeros((0, 19, 3))
-    d = np.round(skeleton_distance_cm(gap.X_cm, joints), 3)
-    near = (d < gap.gate_cm[:, None]).any(0)
+    near = ties.below(skeleton_distance_cm(gap.X_cm, joints), gap.gate_cm[:, None],
+                      ties.SKELETON_DISTANCE_QUANTUM_CM).any(0)
     no_floor = dataclasses.replace(options, min_cluster_weight=0.0, relative_cluster_weight=0.0)
     return cluster_hypotheses(centres[near], joints[near], weights[near], no_floor)
 
@@ -172,12 +174,14 @@ def bridge_gaps(views: ViewSet, source: InMemorySource | FileSource, times_ms: n
             if not len(new.ids):
                 continue
             here = out[gap.k]
-            clash = (skeleton_distance_cm(new.X_cm, here.X_cm) < a.duplicate_cm).any(1) if len(here.ids) else \
-                np.zeros(len(new.ids), bool)
-            cost = np.round(skeleton_distance_cm(gap.X_cm, new.X_cm), 3)
-            cost = np.where((cost < gap.gate_cm[:, None]) & ~clash[None], cost, 1e6)
+            step = ties.SKELETON_DISTANCE_QUANTUM_CM
+            clash = ties.below(skeleton_distance_cm(new.X_cm, here.X_cm), a.duplicate_cm, step).any(1) \
+                if len(here.ids) else np.zeros(len(new.ids), bool)
+            cost = skeleton_distance_cm(gap.X_cm, new.X_cm)
+            inside = ties.below(cost, gap.gate_cm[:, None], step) & ~clash[None]
+            cost = np.where(inside, ties.quantize(np.where(inside, cost, 0.0), step), NO_MATCH)
             r, c = linear_sum_assignment(cost)
-            good = cost[r, c] < 1e6
+            good = inside[r, c]
             r, c = r[good], c[good]
             if not len(c):
                 continue

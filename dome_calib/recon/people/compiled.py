@@ -13,8 +13,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from dome_calib import ties
 from dome_calib.camera import MIN_DEPTH
 from dome_calib.jit import njit
+
+#: Confidence keys of :func:`_fill_records` per unit of confidence: steps of :data:`dome_calib.ties.CONFIDENCE_QUANTUM`
+#: (a numba kernel cannot call ties; multiplying by this exact whole number keeps the keys it always made).
+_STEPS_PER_CONFIDENCE = float(round(1.0 / ties.CONFIDENCE_QUANTUM))
 
 
 @njit(nogil=True, boundscheck=False)
@@ -185,7 +190,7 @@ def _fill_records(kp, time_of, A, starts, strongest, row, view, joint, uv, conf,
                     c = min(c, 1.0)
                     row[m], view[m], joint[m] = b, v, j
                     uv[m, 0], uv[m, 1], conf[m] = kp[t, v, a, j, 0], kp[t, v, a, j, 1], c
-                    keys[j, n[j]] = np.int64(np.round(np.float64(c) * 10_000.0)) * V + (V - 1 - v)
+                    keys[j, n[j]] = np.int64(np.round(np.float64(c) * _STEPS_PER_CONFIDENCE)) * V + (V - 1 - v)
                     where[j, n[j]] = m
                     n[j] += 1
                     m += 1
@@ -202,8 +207,8 @@ def assigned_records(kp: np.ndarray, time_of: np.ndarray, assigned: np.ndarray, 
     """The detections assigned to B bodies, one record per (body, view, joint) with a detection, in that order:
     kp (T, V, N, 19, 3), time_of (B,) each body's time, assigned (B, V) its detection per view (-1: none) ->
     body (M,) int32, view (M,) int16, joint (M,) int8, uv_px (M, 2) float32, conf (M,) float32 clipped to 1,
-    strong (M,) bool: among its (body, joint)'s ``strongest`` most confident (confidence in steps of 1e-4, ties: the
-    lower view)."""
+    strong (M,) bool: among its (body, joint)'s ``strongest`` most confident (confidence in steps of
+    :data:`~dome_calib.ties.CONFIDENCE_QUANTUM`, ties: the lower view)."""
     kp = np.ascontiguousarray(kp, dtype=np.float32)
     time_of, A = _ints(time_of), np.ascontiguousarray(assigned)
     counts = np.zeros(len(A), np.int64)

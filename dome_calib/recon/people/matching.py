@@ -9,16 +9,25 @@ from __future__ import annotations
 
 import numpy as np
 
+from dome_calib import ties
 
-def greedy_match(cost: np.ndarray, gate: np.ndarray | float) -> np.ndarray:
+#: An assignment's cost of a pair outside its gate, in steps of :data:`~dome_calib.ties.SKELETON_DISTANCE_QUANTUM_CM`
+#: (1e6 cm): far above any sum of gated costs, so the assignment takes as many gated pairs as it can.
+NO_MATCH = 10**9
+
+
+def greedy_match(cost: np.ndarray, gate: np.ndarray | float, step: float) -> np.ndarray:
     """Vectorised greedy one-to-one matching: (..., A, B) costs -> (..., A) index into B or -1.
 
     Repeatedly takes the smallest cost below ``gate`` (broadcast to cost) over all rows of a batch element. Costs
-    are quantised to 1e-3 before comparison and ties go to the lowest (a, b), so the result does not rest on the
-    last bits of a float. For the few people per view here it equals the optimal assignment except when two
-    people are nearly equally close to two others.
+    and gate are quantised to ``step`` (:mod:`dome_calib.ties`, in the cost's unit) before comparison and ties go
+    to the lowest (a, b), so the result does not rest on the last bits of a float. For the few people per view here
+    it equals the optimal assignment except when two people are nearly equally close to two others.
     """
-    c = np.round(np.where(cost < gate, cost, np.inf), 3)
+    none = np.iinfo(np.int64).max
+    cost = np.asarray(cost, dtype=float)
+    inside = ties.below(cost, gate, step)
+    c = np.where(inside, ties.quantize(np.where(inside, cost, 0.0), step), none)
     batch, (A, B) = c.shape[:-2], c.shape[-2:]
     if A == 0 or B == 0:
         return np.full((*batch, A), -1, dtype=np.int64)
@@ -27,14 +36,14 @@ def greedy_match(cost: np.ndarray, gate: np.ndarray | float) -> np.ndarray:
     rows = np.arange(c.shape[0])
     for _ in range(min(A, B)):
         k = np.argmin(c, axis=1)
-        ok = np.isfinite(c[rows, k])
+        ok = c[rows, k] != none
         if not ok.any():
             break
         a, b = k // B, k % B
         out[rows[ok], a[ok]] = b[ok]
         view = c.reshape(-1, A, B)
-        view[rows[ok], a[ok], :] = np.inf
-        view[rows[ok], :, b[ok]] = np.inf
+        view[rows[ok], a[ok], :] = none
+        view[rows[ok], :, b[ok]] = none
     return out.reshape(*batch, A)
 
 

@@ -8,9 +8,10 @@ Method (linear in views; see docs/reconstruct.md for the measurements behind the
    triangulated at once (midpoint of the two rays); the person pair is a 3D hypothesis if the median ray gap is
    below ``max_ray_gap_cm`` over at least ``min_common_joints`` joints and its bones are a person's
    (:func:`plausible_bones`). Cost: pairs x N^2 x 19, not V^2.
-2. **Clustering in 3D.** Hypothesis centres (mean of the torso joints, else median of all; quantised to 0.1 mm)
-   are clustered greedily around the densest one (weight = common joints), radius ``cluster_radius_cm``; each
-   cluster is a proposal whose skeleton is the per-joint median of its hypotheses.
+2. **Clustering in 3D.** Hypothesis centres (mean of the torso joints, else median of all; compared in steps of
+   0.01 mm, :data:`~dome_calib.ties.HYPOTHESIS_CENTRE_QUANTUM_CM`) are clustered greedily around the densest one
+   (weight = common joints), radius ``cluster_radius_cm``; each cluster is a proposal whose skeleton is the
+   per-joint median of its hypotheses.
 
 Each view's detections are then assigned to the proposals (:mod:`dome_calib.recon.people.assign`, which also
 proposes again from the detections no proposal took, over :func:`residual_pairs`).
@@ -21,6 +22,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from dome_calib import ties
 from dome_calib.recon.body_models import BONE_LENGTH_CM, JOINTS19
 from dome_calib.options import AtLeast, UnitInterval, options, require
 from dome_calib.schema import NonNegFinite, PosFinite
@@ -107,10 +109,11 @@ def _ranked_pairs(names: tuple[str, ...], axes: bytes) -> np.ndarray:
     axis = np.frombuffer(axes, dtype=np.float64).reshape(V, 3)
     a, b = np.triu_indices(V, 1)
     cos = np.clip((axis[a] * axis[b]).sum(-1), -1, 1)
-    score = np.round(np.abs(np.degrees(np.arccos(cos)) - 90.0), 1)
+    step = ties.AXIS_ANGLE_QUANTUM_DEG
+    score = ties.quantize(np.abs(np.degrees(np.arccos(cos)) - 90.0), step)
     name_rank = np.argsort(np.argsort(np.array(names)))
     order = np.lexsort((name_rank[b], name_rank[a], score))
-    order = order[score[order] <= 87.0]  # not within 3 deg of (anti)parallel: no depth from those
+    order = order[score[order] <= ties.quantize(87.0, step)]  # not within 3 deg of (anti)parallel: no depth
     out = np.stack([a[order], b[order]], axis=1)
     out.flags.writeable = False
     return out
@@ -191,30 +194,45 @@ def pair_hypotheses(views: ViewSet, rays: np.ndarray, kp: np.ndarray, pairs: np.
     n_torso = np.isfinite(torso[..., 0]).sum(1)
     centres = np.where((n_torso >= 2)[:, None], np.nanmean(np.where(n_torso[:, None, None] >= 2, torso, 0.0), axis=1)
                        if len(X) else np.zeros((0, 3)), nan_median(X, axis=1))
-    centres = np.round(centres, 3)
     return centres, X, n[q, i, j].astype(float)
 
 
 def cluster_hypotheses(centres: np.ndarray, joints: np.ndarray, weights: np.ndarray,
                        options: AssociationOptions) -> np.ndarray:
-    """Greedy density clustering of hypothesis centres -> (P, 19, 3) proposal skeletons (per-joint medians)."""
+    """Greedy density clustering of hypothesis centres -> (P, 19, 3) proposal skeletons (per-joint medians).
+
+    Every choice here is exact: the centres are quantised to :data:`~dome_calib.ties.HYPOTHESIS_CENTRE_QUANTUM_CM`
+    (integers), their squared distances and the radius's square compared exactly (in steps squared), a cluster's
+    centre is the median rounded to a step (half to even), and densities (sums of common joints) are compared
+    through :mod:`dome_calib.ties`; the densest first, the first hypothesis among equals."""
     M = len(centres)
     if M == 0:
         return np.zeros((0, 19, 3))
-    r2 = options.cluster_radius_cm ** 2
-    sq = (centres * centres).sum(1)
-    near = (sq[:, None] + sq[None] - 2 * centres @ centres.T) < r2
+    step = ties.HYPOTHESIS_CENTRE_QUANTUM_CM
+    q = ties.quantize(centres, step)  # (M, 3) steps
+    r2 = int(ties.quantize(options.cluster_radius_cm ** 2, step * step))
+
+    def within(centre: np.ndarray) -> np.ndarray:
+        """Squared distances of the centres to ``centre`` (steps, broadcast) below the radius's: exact (integer
+        differences, in float64 exact up to 2^53 steps squared; farther ones are far outside the radius anyway)."""
+        d2 = np.zeros(np.broadcast_shapes(q.shape[:-1], np.shape(centre)[:-1]))
+        for k in range(3):
+            d = (q[..., k] - centre[..., k]).astype(float)
+            d2 += d * d
+        return d2 < r2
+
+    near = within(q[:, None])
     left = np.ones(M, bool)
     density = np.where(near, weights[None], 0.0).sum(1)
     out = []
     floor = max(options.min_cluster_weight, options.relative_cluster_weight * float(density.max()))
     while left.any():
-        seed = int(np.argmax(np.where(left, density, -1.0)))
-        if density[seed] < floor:
+        seed = int(ties.argmax_where(density, left, ties.CLUSTER_WEIGHT_QUANTUM)[0])
+        if ties.below(density[seed], floor, ties.CLUSTER_WEIGHT_QUANTUM):
             break
         members = left & near[seed]
-        centre = np.round(np.median(centres[members], axis=0), 3)
-        members = left & (((centres - centre) ** 2).sum(1) < r2)
+        centre = ties.quantize(np.median(q[members], axis=0), 1.0)  # steps: a median of integers, exact
+        members = left & within(centre)
         members[seed] = True
         out.append(nan_median(joints[members], axis=0))
         left &= ~members

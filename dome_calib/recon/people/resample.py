@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from dome_calib import ties
 from dome_calib.recon.people.matching import greedy_match
 from dome_calib.recon.people.sources import PeopleStream
 from dome_calib.recon.streams import Brackets, frame_brackets
@@ -59,7 +60,7 @@ def interpolate_people(stream: PeopleStream, univ_time_ms: np.ndarray, *, max_ga
     n_common = both.sum(-1)
     cost = np.where(n_common >= 3, np.where(both, dist, 0).sum(-1) / np.maximum(n_common, 1), np.inf)
     gate = np.maximum(match_gate * _person_size_px(a19), min_gate_px)[..., None]
-    match = greedy_match(cost, gate)  # (M, V, N)
+    match = greedy_match(cost, gate, ties.DETECTION_DISTANCE_QUANTUM_PX)  # (M, V, N)
     M, V, N = match.shape
     bm = np.take_along_axis(b, np.maximum(match, 0)[..., None, None], axis=2)
     matched = match >= 0

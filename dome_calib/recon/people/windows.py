@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dome_calib import ties
 from dome_calib.recon.body_models import BONE_LENGTH_CM, MIRROR19
 from dome_calib.recon.people.agreement import NOISE_BIN_PX, CameraAgreement, tally_verdicts
 from dome_calib.recon.people.bodies import Bodies, Observations, observations_of
@@ -94,7 +95,7 @@ def bone_lengths(bodies: list[Bodies], min_views: int) -> tuple[np.ndarray, np.n
     for e in range(E):
         sides = np.unique([e, BONE_MIRROR[e]])  # a bone and its left/right mirror: one length
         t = np.concatenate([track[good[:, x]] for x in sides])
-        steps = np.concatenate([np.round(length[good[:, x], x] / BONE_STEP_CM).astype(np.int64) for x in sides])
+        steps = np.concatenate([ties.quantize(length[good[:, x], x], BONE_STEP_CM) for x in sides])
         order = np.lexsort((steps, t))
         t, steps = t[order], steps[order]
         start = np.searchsorted(t, np.arange(len(track_ids)))
