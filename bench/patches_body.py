@@ -71,8 +71,7 @@ from dome_calib.synth.textured import TexturedScene, TextureOptions, nearest_sur
 from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
 from dome_calib.recon.patches.parts import BONES, PartOptions  # noqa: E402
 from dome_calib.recon.patches.run import patch_stream  # noqa: E402
-from dome_calib.recon.patches.seed_skeleton import BodyPrior  # noqa: E402
-from dome_calib.recon.patches.stage import people_at  # noqa: E402
+from dome_calib.recon.patches.stage import body_prior  # noqa: E402
 from patches import GrayCache  # noqa: E402  (bench/patches.py: the rendered grey images kept once)
 
 LIMBS = [(JOINTS19.index(a), JOINTS19.index(b)) for a, b in
@@ -185,7 +184,7 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
     and part of each patch (the true surface point nearest its centre at the seed time)."""
     by_type = {t: sorted(n for n, c in bundle.cameras.items() if str(c.type) == t) for t in OWN_CAMERAS[rig]}
     cams = [n for t, k in OWN_CAMERAS[rig].items() for n in by_type[t][:k]]
-    prior = BodyPrior(times_ms=times, joints_cm=people_at(times, bodies, times)[0])
+    prior = body_prior(times, bodies, times)  # what reconstruct --images gives the stage
     trajs = []
     for m in (("sweep", "skeleton") if method == "both" else (method,)):
         if m not in done:  # each seeding's stream computed once (``done``), "both" reuses them
