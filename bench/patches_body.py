@@ -196,8 +196,13 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
     normal = np.concatenate([t.normal for t in trajs])
     alive = np.concatenate([t.alive for t in trajs])
     t_seed = float(trajs[0].times_ms[frames])
-    sp = nearest_surface_points(truth, t_seed, np.nan_to_num(X[:, frames, 0]))
-    return dict(X_cm=X, normal=normal, alive=alive, person=sp.person, part=sp.part, cameras=len(cams),
+    # a patch not alive at the seed time (a seed that did not survive the step to it) has no truth: -1, not the
+    # part nearest the origin (which made 17 never-alive patches of the panel "left-shin seeds")
+    person, part = np.full(len(X), -1), np.full(len(X), -1)
+    live = alive[:, frames]
+    sp = nearest_surface_points(truth, t_seed, X[live, frames, 0])
+    person[live], part[live] = sp.person, sp.part
+    return dict(X_cm=X, normal=normal, alive=alive, person=person, part=part, cameras=len(cams),
                 seeds=[int(t.alive[:, frames].sum()) for t in trajs])
 
 

@@ -84,22 +84,22 @@ def hold_unseen_parts(times_ms: np.ndarray, joints_cm: np.ndarray, seen: np.ndar
     seen: (T,) times, (T, P, 19, 3) joints (NaN: missing), (T, P, 19) ``seen`` (the joint rests on detections at
     that time) -> (T, P, 19, 3).
 
-    A joint put out where no detection saw it (an occluded limb: the body over time bridges the gap with its
-    smoothness prior alone) is where the body's estimate is worst, and a prior resting on it puts a part's capsule
-    in the wrong place (a skeleton seed's depth and normal, an occluder). Per person and unseen joint, parents
-    before children (the neck, the tree's root, is kept as it is): its offset from its parent is taken from the
-    nearest times before and after where both were seen, linear in time between them (one side: that side's),
-    and added to the parent's place at that time (the parent itself already so placed if it was unseen). Where the
-    joint and its parent were never seen together, or the parent is missing, the joint is left as it is. Seen
-    joints are unchanged bit for bit."""
+    Through an occluded limb the body over time either leaves the joints out (their variance grows past its
+    ``max_sigma_cm``: the part has no capsule, so no skeleton seed and no occluder there) or puts them out from its
+    smoothness prior alone, its worst estimate (the capsule in the wrong place: a seed's depth and normal, an
+    occluder). Per person and joint not seen at a time, parents before children (the neck, the tree's root, is
+    kept as it is): its offset from its parent is taken from the nearest times before and after where both were
+    seen, linear in time between them (one side: that side's), and added to the parent's place at that time (the
+    parent itself already so placed if it was unseen). Where the joint and its parent were never seen together, or
+    the parent is missing, the joint is left as it is (missing or not). Seen joints are unchanged bit for bit."""
     t = np.asarray(times_ms, dtype=float)
     J = np.array(joints_cm, dtype=float, copy=True)
     ok = np.asarray(seen, bool) & np.isfinite(J).all(-1)
     for j, a in _TREE:
         both = ok[:, :, j] & ok[:, :, a]  # (T, P)
-        for p in np.flatnonzero((~ok[:, :, j] & np.isfinite(J[:, :, j]).all(-1)).any(0)):
+        for p in np.flatnonzero((~ok[:, :, j]).any(0)):
             have = np.flatnonzero(both[:, p])
-            fill = np.flatnonzero(~ok[:, p, j] & np.isfinite(J[:, p, j]).all(-1) & np.isfinite(J[:, p, a]).all(-1))
+            fill = np.flatnonzero(~ok[:, p, j] & np.isfinite(J[:, p, a]).all(-1))
             if not len(have) or not len(fill):
                 continue
             off = J[have, p, j] - J[have, p, a]  # (H, 3) the seen offsets
