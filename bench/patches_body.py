@@ -25,9 +25,10 @@ With ``--stream FILE`` (``--rig panel --people 2 --seeds 0``: bench/patches.py's
 patches are the stream's own, tracked in the rendered images, at its times. With ``--own-stream`` the stream's own
 patches are tracked here, from the rendered images alone (no depth; :data:`OWN_CAMERAS`): one cloud at the
 reference frame (a multiple of 20) nearest the span's middle, tracked ``--frames`` each way (the times judged),
-seeded by the sweep, by ``seed_method="skeleton"`` with the body over time alone as the seeds' prior (what
+seeded by the sweep, by ``seed_method="skeleton"`` with the body over time alone as the seeds' prior
+(:func:`~dome_calib.recon.patches.stage.body_prior`, the joints no detection saw carried by their parents: what
 ``reconstruct --images --patch-seeds skeleton`` gives it), or both side by side; one row per seeding on the same
-rendered frames (``--patch-options``: PatchOptions fields; ``--part-options``: PartOptions fields of the labels).
+rendered frames (a patch not alive at the seed time has no true person or part) (``--patch-options``: PatchOptions fields; ``--part-options``: PartOptions fields of the labels).
 
 Prints one JSON object per line per (rig, seed) and method: MPJPE (cm, over the true joints both methods put out
 and over those each puts out), joint acceleration error (cm/s^2: the mean norm of the second difference of the
