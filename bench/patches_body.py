@@ -25,9 +25,10 @@ With ``--stream FILE`` (``--rig panel --people 2 --seeds 0``: bench/patches.py's
 patches are the stream's own, tracked in the rendered images, at its times. With ``--own-stream`` the stream's own
 patches are tracked here, from the rendered images alone (no depth; :data:`OWN_CAMERAS`): one cloud at the
 reference frame (a multiple of 20) nearest the span's middle, tracked ``--frames`` each way (the times judged),
-seeded by the sweep, by ``seed_method="skeleton"`` with the body over time alone as the seeds' prior (what
+seeded by the sweep, by ``seed_method="skeleton"`` with the body over time alone as the seeds' prior
+(:func:`~dome_calib.recon.patches.stage.body_prior`, the joints no detection saw carried by their parents: what
 ``reconstruct --images --patch-seeds skeleton`` gives it), or both side by side; one row per seeding on the same
-rendered frames (``--patch-options``: PatchOptions fields; ``--part-options``: PartOptions fields of the labels).
+rendered frames (a patch not alive at the seed time has no true person or part) (``--patch-options``: PatchOptions fields; ``--part-options``: PartOptions fields of the labels).
 
 Prints one JSON object per line per (rig, seed) and method: MPJPE (cm, over the true joints both methods put out
 and over those each puts out), joint acceleration error (cm/s^2: the mean norm of the second difference of the
@@ -71,8 +72,7 @@ from dome_calib.synth.textured import TexturedScene, TextureOptions, nearest_sur
 from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
 from dome_calib.recon.patches.parts import BONES, PartOptions  # noqa: E402
 from dome_calib.recon.patches.run import patch_stream  # noqa: E402
-from dome_calib.recon.patches.seed_skeleton import BodyPrior  # noqa: E402
-from dome_calib.recon.patches.stage import people_at  # noqa: E402
+from dome_calib.recon.patches.stage import body_prior  # noqa: E402
 from patches import GrayCache  # noqa: E402  (bench/patches.py: the rendered grey images kept once)
 
 LIMBS = [(JOINTS19.index(a), JOINTS19.index(b)) for a, b in
@@ -185,7 +185,7 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
     and part of each patch (the true surface point nearest its centre at the seed time)."""
     by_type = {t: sorted(n for n, c in bundle.cameras.items() if str(c.type) == t) for t in OWN_CAMERAS[rig]}
     cams = [n for t, k in OWN_CAMERAS[rig].items() for n in by_type[t][:k]]
-    prior = BodyPrior(times_ms=times, joints_cm=people_at(times, bodies, times)[0])
+    prior = body_prior(times, bodies, times)  # what reconstruct --images gives the stage
     trajs = []
     for m in (("sweep", "skeleton") if method == "both" else (method,)):
         if m not in done:  # each seeding's stream computed once (``done``), "both" reuses them
@@ -197,8 +197,13 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
     normal = np.concatenate([t.normal for t in trajs])
     alive = np.concatenate([t.alive for t in trajs])
     t_seed = float(trajs[0].times_ms[frames])
-    sp = nearest_surface_points(truth, t_seed, np.nan_to_num(X[:, frames, 0]))
-    return dict(X_cm=X, normal=normal, alive=alive, person=sp.person, part=sp.part, cameras=len(cams),
+    # a patch not alive at the seed time (a seed that did not survive the step to it) has no truth: -1, not the
+    # part nearest the origin (which made 17 never-alive patches of the panel "left-shin seeds")
+    person, part = np.full(len(X), -1), np.full(len(X), -1)
+    live = alive[:, frames]
+    sp = nearest_surface_points(truth, t_seed, X[live, frames, 0])
+    person[live], part[live] = sp.person, sp.part
+    return dict(X_cm=X, normal=normal, alive=alive, person=person, part=part, cameras=len(cams),
                 seeds=[int(t.alive[:, frames].sum()) for t in trajs])
 
 

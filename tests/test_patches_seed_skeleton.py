@@ -10,7 +10,7 @@ import pytest
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.run import patch_stream
-from dome_calib.recon.patches.seed_skeleton import BodyPrior, body_capsules, ray_capsules, seed_on_body
+from dome_calib.recon.patches.seed_skeleton import BodyPrior, body_capsules, ray_capsules, seed_on_body, views_needed
 from dome_calib.synth.textured import nearest_surface_points, surface_points_cm
 
 from .patches_helpers import WIDE_PAIR, wide_pair_scene
@@ -80,3 +80,18 @@ def test_the_stream_seeds_on_the_body_alike_however_the_work_is_cut(wide):
     s = list(whole.times_ms).index(t)
     assert whole.alive[:, s].mean() > 0.9  # the MAP visibility at the seed keeps nearly all
     assert np.array_equal(whole.X_cm, cut.X_cm, equal_nan=True) and np.array_equal(whole.visible, cut.visible)
+
+
+def test_where_fewer_cameras_may_see_a_seed_than_three_every_one_of_them_must_agree(wide):
+    """Two cameras 72 deg apart: with the default ``seed_min_views`` (3) the skeleton seeds are those both cameras
+    agree on, as with ``seed_min_views=2`` (before, a fixed three kept nothing on such a rig); where three or more
+    may see a point, three must agree."""
+    _, _, scene, views, _, joints = wide
+    frames = {n: FRAME for n in CAMS}
+    default = seed_on_body(scene, views, frames, joints, PatchOptions(seed_method="skeleton", seed_features=150))
+    two = seed_on_body(scene, views, frames, joints, PatchOptions(seed_method="skeleton", seed_features=150,
+                                                                  seed_min_views=2))
+    assert len(default.X_cm) >= 30
+    assert np.array_equal(default.X_cm, two.X_cm) and np.array_equal(default.seen, two.seen)
+    assert list(views_needed(np.array([1, 2, 3, 4, 9]), 3)) == [2, 2, 3, 3, 3]
+    assert list(views_needed(np.array([1, 2, 3, 4, 9]), 4)) == [2, 2, 3, 4, 4]

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dome_calib.jit import njit
+from dome_calib.recon.body_models import BONES19, JOINTS19
 from dome_calib.recon.patches.parts import BONES
 from dome_calib import ties
 
@@ -72,6 +73,44 @@ class BodyPrior:
         w = (t_ms - t[hi - 1]) / (t[hi] - t[hi - 1])
         J = np.asarray(self.joints_cm, float)
         return (1.0 - w) * J[hi - 1] + w * J[hi]
+
+
+#: Each joints19 joint's parent in the body's tree (:data:`~dome_calib.recon.body_models.BONES19`, rooted at the
+#: neck; -1: the root), in an order where a parent comes before its children.
+_TREE = [(JOINTS19.index(b), JOINTS19.index(a)) for a, b in BONES19]
+
+
+def hold_unseen_parts(times_ms: np.ndarray, joints_cm: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """The people over time with each joint the detector did not see carried by its parent from the times it was
+    seen: (T,) times, (T, P, 19, 3) joints (NaN: missing), (T, P, 19) ``seen`` (the joint rests on detections at
+    that time) -> (T, P, 19, 3).
+
+    Through an occluded limb the body over time either leaves the joints out (their variance grows past its
+    ``max_sigma_cm``: the part has no capsule, so no skeleton seed and no occluder there) or puts them out from its
+    smoothness prior alone, its worst estimate (the capsule in the wrong place: a seed's depth and normal, an
+    occluder). Per person and joint not seen at a time, parents before children (the neck, the tree's root, is
+    kept as it is): its offset from its parent is taken from the nearest times before and after where both were
+    seen, linear in time between them (one side: that side's), and added to the parent's place at that time (the
+    parent itself already so placed if it was unseen). Where the joint and its parent were never seen together, or
+    the parent is missing, the joint is left as it is (missing or not). Seen joints are unchanged bit for bit."""
+    t = np.asarray(times_ms, dtype=float)
+    J = np.array(joints_cm, dtype=float, copy=True)
+    ok = np.asarray(seen, bool) & np.isfinite(J).all(-1)
+    for j, a in _TREE:
+        both = ok[:, :, j] & ok[:, :, a]  # (T, P)
+        for p in np.flatnonzero((~ok[:, :, j]).any(0)):
+            have = np.flatnonzero(both[:, p])
+            fill = np.flatnonzero(~ok[:, p, j] & np.isfinite(J[:, p, a]).all(-1))
+            if not len(have) or not len(fill):
+                continue
+            off = J[have, p, j] - J[have, p, a]  # (H, 3) the seen offsets
+            k = np.searchsorted(t[have], t[fill])
+            i0, i1 = np.clip(k - 1, 0, len(have) - 1), np.clip(k, 0, len(have) - 1)
+            lo, hi = have[i0], have[i1]
+            span = t[hi] - t[lo]
+            w = np.where(span > 0, (t[fill] - t[lo]) / np.where(span > 0, span, 1.0), 0.0)[:, None]
+            J[fill, p, j] = J[fill, p, a] + (1.0 - w) * off[i0] + w * off[i1]
+    return J
 
 
 def body_capsules(joints_cm: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -23,8 +23,10 @@ them), so the depth of a pixel on a person is known to a few centimetres:
    windows, the square is warped by its plane into each camera, which is what a wide baseline needs. The normal is
    then tilted as PMVS does (:func:`.refine.refine_normals`) and the depth searched once more with it.
 4. **Kept** only where the square's NCC with the reference reaches ``seed_min_ncc`` in at least
-   ``seed_min_views - 1`` other cameras (``seed_min_views`` cameras agree), and the best depth is not at either end
-   of the window (there the surface lies outside it, or nothing matched). Those cameras are the seed's ``seen``.
+   ``seed_min_views - 1`` other cameras (``seed_min_views`` cameras agree), or in every other camera it was compared
+   in where fewer than ``seed_min_views`` cameras may see it (at least one other: :func:`views_needed`; the body
+   bounds the depth, so a second camera far from the reference is the check), and the best depth is not at either
+   end of the window (there the surface lies outside it, or nothing matched). Those cameras are the seed's ``seen``.
 
 Seeds of all reference cameras are thinned to one per ``seed_spacing_cm`` cell (most agreeing cameras, then the
 first reference camera by position) and keep their own normals. Each camera's seeds depend on the images and the
@@ -202,6 +204,15 @@ def _candidates(views: ViewSet, r: int, X: np.ndarray, normal: np.ndarray, A, B,
     return cams
 
 
+def views_needed(n_compared: np.ndarray, min_views: int) -> np.ndarray:
+    """(N,) how many cameras (the reference among them) must agree on a seed compared in ``n_compared`` cameras (the
+    reference and the others that may see it, the square inside their images): ``min_views``, or every one of them
+    where fewer may see it, at least two. On a rig of a few cameras far apart most of a body's surface faces two
+    cameras at most, so a fixed three keeps almost nothing (the 5-camera rig: 17-52 seeds for three people); where
+    three cameras or more may see a point, three must agree as before."""
+    return np.clip(np.asarray(n_compared), 2, max(int(min_views), 2))
+
+
 @dataclass(frozen=True)
 class CameraBodySeeds:
     """One reference camera's seeds: ``camera`` its position, ``seeds`` (patches, normals, agreeing views), n_agree
@@ -267,7 +278,7 @@ def seed_camera_on_body(source: FrameSource, views: ViewSet, frames: dict[str, i
         s, score, _ = _search(grays, sub, cams_sub, origin, d, s, step, step / FINE_STEPS, n, o)
         agree = np.nan_to_num(score, nan=-1.0) >= o.seed_min_ncc
         n_agree = 1 + agree.sum(1)
-        ok = (n_agree >= o.seed_min_views) & ~edge
+        ok = (n_agree >= views_needed(1 + np.isfinite(score).sum(1), o.seed_min_views)) & ~edge
         if not ok.any():
             continue
         X = origin + s[ok, None] * d[ok]

@@ -11,6 +11,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -24,7 +25,7 @@ from dome_calib.recon.patches.motion import part_motions
 from dome_calib.recon.patches.page_layer import patch_layer
 from dome_calib.recon.patches.parts import label_parts
 from dome_calib.recon.patches.run import patch_stream, reference_stream
-from dome_calib.recon.patches.seed_skeleton import BodyPrior
+from dome_calib.recon.patches.occlusion import BodyPrior, hold_unseen_parts
 from dome_calib.recon.patches.stream_file import FILE_NAME, patch_table, write_patch_table
 from dome_calib.recon.streams import cameras_by_stream, frame_period_ms
 
@@ -55,7 +56,7 @@ class PatchStage:
             # the people at the stream's times: the seeds' depth prior, the occluders of the views
             table = cameras_by_stream(self.bundle, self.cameras)[1][stream]
             at = table.univ_time_ms[(table.univ_time_ms >= t[0]) & (table.univ_time_ms <= t[-1])]
-            body = BodyPrior(times_ms=at, joints_cm=people_at(t, bodies, at)[0])
+            body = body_prior(t, bodies, at)
         traj = patch_stream(self.bundle, self.source, self.cameras, (float(t[0]), float(t[-1])), self.options,
                             stream=stream, body=body, executor=executor, progress=progress)
         joints, ids = people_at(t, bodies, traj.times_ms)
@@ -136,3 +137,17 @@ def people_at(times_ms: np.ndarray, bodies: list, at_ms: np.ndarray) -> tuple[np
         out = a + b
     out[~np.isfinite(w1) | wide] = np.nan
     return out, ids
+
+
+def body_prior(times_ms: np.ndarray, bodies: list, at_ms: np.ndarray) -> BodyPrior:
+    """The people at their times (``bodies[t]``: ``ids``, ``X_cm`` and ``n_inliers``, the detections each joint
+    rests on) -> the patches' body prior at ``at_ms`` (:func:`people_at`), each joint the detections did not see
+    (no inlier at either of the two people times around) carried by its parent from the times it was seen
+    (:func:`~.occlusion.hold_unseen_parts`): the skeleton seeds' depth prior and the occluders of the views rest on
+    what the detector saw. Bodies without ``n_inliers``: every joint seen."""
+    joints, _ = people_at(times_ms, bodies, at_ms)
+    seen_only = [SimpleNamespace(ids=b.ids, X_cm=np.where((np.asarray(b.n_inliers) > 0)[..., None], b.X_cm, np.nan))
+                 if getattr(b, "n_inliers", None) is not None else b for b in bodies]
+    seen = np.isfinite(people_at(times_ms, seen_only, at_ms)[0]).all(-1)
+    at = np.asarray(at_ms, dtype=float)
+    return BodyPrior(times_ms=at, joints_cm=hold_unseen_parts(at, joints, seen))
