@@ -3,8 +3,9 @@
 The normal of a seed (the SVD of its neighbours, :mod:`.seed`) comes from nearby cameras only and is off by ~15 deg
 (median; 35 deg at the 90th percentile on the synthetic group): enough to spoil the NCC in cameras far from the
 seeding ones. Once the seed's visibility is known, the normal is searched (as PMVS optimises a patch) among tilts
-of the current normal by (-s, 0, s) about its two plane axes, ``s`` = 8, 4, 2 deg in turn, keeping the tilt whose
-square looks most alike (mean NCC against the most face-on visible camera, in up to ``REFINE_VIEWS`` - 1 other
+of the current normal by (-s, 0, s) about its two plane axes, ``s`` = 8, 4, 2 deg in turn (the first step is
+``normal_refine_reach_deg``, then halved down to 2 deg: 8 reaches 14 deg about each axis, 16 reaches 30), keeping
+the tilt whose square looks most alike (mean NCC against the most face-on visible camera, in up to ``REFINE_VIEWS`` - 1 other
 visible cameras, those most oblique to it first: they tell normals apart). Scores are quantised to 1e-6 and
 the untilted normal comes first, so ties keep it. The centre does not move.
 """
@@ -18,7 +19,15 @@ from dome_calib.recon.patches.visibility import Frames
 from dome_calib.recon.project import ViewSet, project_points
 
 REFINE_VIEWS = 6
-REFINE_STEPS_DEG = (8.0, 4.0, 2.0)
+REFINE_LAST_STEP_DEG = 2.0
+
+
+def refine_steps_deg(first_deg: float) -> tuple[float, ...]:
+    """The tilt steps: ``first_deg``, then halved while at least :data:`REFINE_LAST_STEP_DEG` (8: 8, 4, 2)."""
+    steps = [float(first_deg)]
+    while steps[-1] / 2.0 >= REFINE_LAST_STEP_DEG - 1e-9:
+        steps.append(steps[-1] / 2.0)
+    return tuple(steps)
 
 
 def _tilts(step_deg: float) -> np.ndarray:
@@ -77,7 +86,7 @@ def refine_normals(source: FrameSource, views: ViewSet, frames: Frames, X: np.nd
         others = np.argsort(key, axis=1, kind="stable")[:, :REFINE_VIEWS - 1]
         others = np.where(np.take_along_axis(key, others, 1) < 1e9, others, -1)
         cams = np.concatenate([np.where(vis[rows, ref], ref, -1)[:, None], others], 1)
-        for step in REFINE_STEPS_DEG:
+        for step in refine_steps_deg(o.normal_refine_reach_deg):
             tilt = _tilts(step)
             v = np.cross(n, u)
             hyp = n[:, None] + tilt[None, :, 0:1] * u[:, None] + tilt[None, :, 1:2] * v[:, None]
