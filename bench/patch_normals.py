@@ -20,8 +20,10 @@ false positives of patches within 1 cm), ``drifted`` (false positives of patches
 ``separations``: for rules that could drop a labelled view, how many back-facing false positives and how many true
 positives each drops (and the precision the labels would then have, before any recall change). ``by_seed_normal_error``:
 the patches alive at the seed binned by their seed normal error, with their views over the whole track per class;
-``concentration``: how few patches hold half and four fifths of the back-facing false positives. Prints one JSON
-object per line.
+``concentration``: how few patches hold half and four fifths of the back-facing false positives. ``oracle_grazing``:
+a bound on any grazing-angle rule: told which patches' seed normals are at least ``seed_error_deg`` off (which no
+rule knows), their labelled views with ``cos_est`` below ``cut`` dropped: the precision and recall then. Prints one
+JSON object per line.
 """
 from __future__ import annotations
 
@@ -37,6 +39,8 @@ from dome_calib.synth.textured import surface_points_cm, surface_visibility
 from dome_calib.recon.project import view_set
 from patches import bench_cameras
 
+ORACLE_ERROR_DEG = (15.0, 20.0, 30.0)
+ORACLE_CUTS = (0.3, 0.4, 0.5)
 CLASSES = ("true_positive", "back_facing_fp", "other_fp", "drifted", "false_negative")
 
 
@@ -63,6 +67,8 @@ def run(args: argparse.Namespace) -> None:
                                 "visible_spread_deg")} for c in CLASSES}
     keep = {c: [] for c in CLASSES}  # (cos_est, normal error, spread) per view, for the separations
     per_patch = np.zeros((len(alive), len(CLASSES)))  # views of each class per patch, over the track
+    totals = np.zeros(3)  # true positives, false positives, false negatives (all patches)
+    oracle = {(e, c): np.zeros(2) for e in ORACLE_ERROR_DEG for c in ORACLE_CUTS}  # (TP, FP) dropped
     for k in range(len(times)):
         a = np.flatnonzero(alive[:, k])
         if not len(a):
@@ -82,6 +88,10 @@ def run(args: argparse.Namespace) -> None:
         masks = {"true_positive": est & true, "back_facing_fp": est & ~true & (cos_t <= 0) & near[:, None],
                  "other_fp": est & ~true & (cos_t > 0) & near[:, None], "drifted": est & ~true & ~near[:, None],
                  "false_negative": ~est & true & near[:, None]}
+        totals += [np.sum(est & true), np.sum(est & ~true), np.sum(true & ~est)]
+        for (e_deg, cut), got in oracle.items():
+            drop = est & (seed_err[a] >= e_deg)[:, None] & (cos_e < cut)
+            got += [np.sum(drop & true), np.sum(drop & ~true)]
         for c, m in masks.items():
             pi, vi = np.nonzero(m)
             r = rows[c]
@@ -121,9 +131,13 @@ def run(args: argparse.Namespace) -> None:
     concentration = {"patches_alive_at_seed": int(at_seed.sum()),
                      "patches_with_half": int(np.searchsorted(share, 0.5) + 1) if back.sum() else 0,
                      "patches_with_four_fifths": int(np.searchsorted(share, 0.8) + 1) if back.sum() else 0}
+    tp_n, fp_n, fn_n = totals
+    bound = [{"seed_error_deg": e, "cut": c, "precision": round(float((tp_n - d[0]) / max(tp_n - d[0] + fp_n - d[1], 1)), 4),
+              "recall": round(float((tp_n - d[0]) / max(tp_n + fn_n, 1)), 4)} for (e, c), d in oracle.items()]
     print(json.dumps({"stream": args.stream, "people": args.people, "seed": args.seed, "scenario": args.scenario,
                       "precision": round(len(tp) / max(len(tp) + fp_all, 1), 4), "classes": out,
-                      "separations": seps, "by_seed_normal_error": bins, "concentration": concentration, "load": [round(x, 2) for x in os.getloadavg()]}), flush=True)
+                      "separations": seps, "by_seed_normal_error": bins, "concentration": concentration,
+                      "oracle_grazing": bound, "load": [round(x, 2) for x in os.getloadavg()]}), flush=True)
 
 
 def main() -> None:

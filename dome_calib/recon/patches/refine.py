@@ -66,12 +66,14 @@ def refine_normals(source: FrameSource, views: ViewSet, frames: Frames, X: np.nd
                    o: PatchOptions, chunk: int = 256) -> np.ndarray:
     """Patches (N, 3, 3) at a time, seen by ``visible`` (N, V) -> the patches with refined normals (centre kept,
     plane points turned with the plane). Only cameras with a frame at that very time (``frames``, offset below
-    0.5 ms: the seeding stream) take part."""
+    0.5 ms: the seeding stream) take part; with ``o.normal_refine_all_streams`` every stream's cameras do, each at its
+    nearest frame with the patch where it is at the reference time (no motion is known at a seed)."""
     out = X.copy()
     C = views.center_cm
     for c0 in range(0, len(X), chunk):
         Xc = X[c0:c0 + chunk]
-        vis = visible[c0:c0 + chunk] & ((frames.frame >= 0) & (np.abs(frames.offset_ms) < 0.5))[None]
+        at_time = (frames.frame >= 0) & ((np.abs(frames.offset_ms) < 0.5) | o.normal_refine_all_streams)
+        vis = visible[c0:c0 + chunk] & at_time[None]
         X0 = Xc[:, 0]
         u, _, n = patch_axes(Xc[:, 0], Xc[:, 1], Xc[:, 2])
         to_cam = C[None] - X0[:, None]
