@@ -132,7 +132,8 @@ def run(args: argparse.Namespace) -> None:
                      "patches_with_half": int(np.searchsorted(share, 0.5) + 1) if back.sum() else 0,
                      "patches_with_four_fifths": int(np.searchsorted(share, 0.8) + 1) if back.sum() else 0}
     tp_n, fp_n, fn_n = totals
-    bound = [{"seed_error_deg": e, "cut": c, "precision": round(float((tp_n - d[0]) / max(tp_n - d[0] + fp_n - d[1], 1)), 4),
+    bound = [{"seed_error_deg": e, "cut": c,
+              "precision": round(float((tp_n - d[0]) / max(tp_n - d[0] + fp_n - d[1], 1)), 4),
               "recall": round(float((tp_n - d[0]) / max(tp_n + fn_n, 1)), 4)} for (e, c), d in oracle.items()]
     print(json.dumps({"stream": args.stream, "people": args.people, "seed": args.seed, "scenario": args.scenario,
                       "precision": round(len(tp) / max(len(tp) + fp_all, 1), 4), "classes": out,

@@ -5,8 +5,8 @@ The normal of a seed (the SVD of its neighbours, :mod:`.seed`) comes from nearby
 seeding ones. Once the seed's visibility is known, the normal is searched (as PMVS optimises a patch) among tilts
 of the current normal by (-s, 0, s) about its two plane axes, ``s`` = 8, 4, 2 deg in turn (the first step is
 ``normal_refine_reach_deg``, then halved down to 2 deg: 8 reaches 14 deg about each axis, 16 reaches 30), keeping
-the tilt whose square looks most alike (mean NCC against the most face-on visible camera, in up to ``REFINE_VIEWS`` - 1 other
-visible cameras, those most oblique to it first: they tell normals apart). Scores are quantised to 1e-6 and
+the tilt whose square looks most alike (mean NCC against the most face-on visible camera, in up to
+``REFINE_VIEWS`` - 1 other visible cameras, those most oblique to it first: they tell normals apart). Scores are quantised to 1e-6 and
 the untilted normal comes first, so ties keep it. The centre does not move.
 """
 from __future__ import annotations
