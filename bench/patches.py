@@ -386,6 +386,17 @@ def run_executors(args, bundle, scene, cams, span, o, f: int) -> None:
              load=[round(x, 2) for x in os.getloadavg()])
 
 
+def cameras_by_type(bundle) -> dict[str, list[str]]:
+    """The bundle's VGA, HD and Kinect colour cameras, each by name."""
+    return {t: sorted(n for n, c in bundle.cameras.items() if str(c.type) == t) for t in ("vga", "hd", "kinect-color")}
+
+
+def bench_cameras(bundle, vga: int, hd: int, kinect: int) -> list[str]:
+    """The bench's cameras: the first ``vga`` VGA by name, then the first ``hd`` HD and ``kinect`` Kinect colour."""
+    by_type = cameras_by_type(bundle)
+    return by_type["vga"][:vga] + by_type["hd"][:hd] + by_type["kinect-color"][:kinect]
+
+
 def parse_variants(text: str) -> dict[str, dict]:
     """``--variants``: ``NAME:FIELD=VALUE,FIELD=VALUE;NAME2:...`` (values JSON; lists become tuples) -> {name:
     PatchOptions fields}; empty: one run with the defaults, named "default"."""
@@ -410,9 +421,8 @@ def run(args: argparse.Namespace) -> None:
     scene = TexturedScene(bundle, truth, TextureOptions(seed=args.seed, scale={"vga": 1.0, "hd": 0.5,
                                                                               "kinect-color": 0.5}),
                           cache_frames=1 if args.preset == "full" else 3)  # the grey images are kept (GrayCache)
-    by_type = {t: sorted(n for n, c in bundle.cameras.items() if str(c.type) == t) for t in ("vga", "hd",
-                                                                                             "kinect-color")}
-    cams = by_type["vga"][:args.vga] + by_type["hd"][:args.hd] + by_type["kinect-color"][:args.kinect]
+    by_type = cameras_by_type(bundle)
+    cams = bench_cameras(bundle, args.vga, args.hd, args.kinect)
     table = bundle.sync.streams["vga"]
     pos = int(np.searchsorted(table.univ_time_ms, 2500.0))
     f = int(table.index[pos])

@@ -61,6 +61,12 @@ class PatchOptions:
     normal_radius_cm: PosFinite = 4.0  # seeds within this distance give the normal (least principal axis)
     normal_min_points: AtLeast(3) = 5
     refine_normals: bool = True  # then refined photometrically in the cameras that see the seed (refine.py)
+    # the refinement's first tilt step (deg); each later step halves it down to 2 deg (8: steps 8, 4, 2, reaching
+    # 14 deg about each plane axis; 16: 16, 8, 4, 2, reaching 30 deg)
+    normal_refine_reach_deg: Annotated[float, Field(ge=2, le=45)] = 8.0
+    # the refinement in every stream's cameras (each at its nearest frame, the patch not moved: a seed has no motion
+    # yet), not the seeding stream's alone: a dome's VGA panels see some surface from one side only
+    normal_refine_all_streams: bool = False
     volume_radius_cm: PosFinite = 250.0  # the capture volume: a vertical cylinder on the floor
     volume_height_cm: PosFinite = 220.0
     # seeding from Kinect depth (seed_depth.py): points of the capture volume this far above the floor (y = 0)

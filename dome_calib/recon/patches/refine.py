@@ -3,9 +3,10 @@
 The normal of a seed (the SVD of its neighbours, :mod:`.seed`) comes from nearby cameras only and is off by ~15 deg
 (median; 35 deg at the 90th percentile on the synthetic group): enough to spoil the NCC in cameras far from the
 seeding ones. Once the seed's visibility is known, the normal is searched (as PMVS optimises a patch) among tilts
-of the current normal by (-s, 0, s) about its two plane axes, ``s`` = 8, 4, 2 deg in turn, keeping the tilt whose
-square looks most alike (mean NCC against the most face-on visible camera, in up to ``REFINE_VIEWS`` - 1 other
-visible cameras, those most oblique to it first: they tell normals apart). Scores are quantised to 1e-6 and
+of the current normal by (-s, 0, s) about its two plane axes, ``s`` = 8, 4, 2 deg in turn (the first step is
+``normal_refine_reach_deg``, then halved down to 2 deg: 8 reaches 14 deg about each axis, 16 reaches 30), keeping
+the tilt whose square looks most alike (mean NCC against the most face-on visible camera, in up to
+``REFINE_VIEWS`` - 1 other visible cameras, those most oblique to it first: they tell normals apart). Scores are quantised to 1e-6 and
 the untilted normal comes first, so ties keep it. The centre does not move.
 """
 from __future__ import annotations
@@ -19,7 +20,15 @@ from dome_calib.recon.project import ViewSet, project_points
 from dome_calib import ties
 
 REFINE_VIEWS = 6
-REFINE_STEPS_DEG = (8.0, 4.0, 2.0)
+REFINE_LAST_STEP_DEG = 2.0
+
+
+def refine_steps_deg(first_deg: float) -> tuple[float, ...]:
+    """The tilt steps: ``first_deg``, then halved while at least :data:`REFINE_LAST_STEP_DEG` (8: 8, 4, 2)."""
+    steps = [float(first_deg)]
+    while steps[-1] / 2.0 >= REFINE_LAST_STEP_DEG - 1e-9:
+        steps.append(steps[-1] / 2.0)
+    return tuple(steps)
 
 
 def _tilts(step_deg: float) -> np.ndarray:
@@ -58,12 +67,14 @@ def refine_normals(source: FrameSource, views: ViewSet, frames: Frames, X: np.nd
                    o: PatchOptions, chunk: int = 256) -> np.ndarray:
     """Patches (N, 3, 3) at a time, seen by ``visible`` (N, V) -> the patches with refined normals (centre kept,
     plane points turned with the plane). Only cameras with a frame at that very time (``frames``, offset below
-    0.5 ms: the seeding stream) take part."""
+    0.5 ms: the seeding stream) take part; with ``o.normal_refine_all_streams`` every stream's cameras do, each at its
+    nearest frame with the patch where it is at the reference time (no motion is known at a seed)."""
     out = X.copy()
     C = views.center_cm
     for c0 in range(0, len(X), chunk):
         Xc = X[c0:c0 + chunk]
-        vis = visible[c0:c0 + chunk] & ((frames.frame >= 0) & (np.abs(frames.offset_ms) < 0.5))[None]
+        at_time = (frames.frame >= 0) & ((np.abs(frames.offset_ms) < 0.5) | o.normal_refine_all_streams)
+        vis = visible[c0:c0 + chunk] & at_time[None]
         X0 = Xc[:, 0]
         u, _, n = patch_axes(Xc[:, 0], Xc[:, 1], Xc[:, 2])
         to_cam = C[None] - X0[:, None]
@@ -78,7 +89,7 @@ def refine_normals(source: FrameSource, views: ViewSet, frames: Frames, X: np.nd
         others = ties.argsort_where(cos_ref, other, ties.VIEW_COSINE_QUANTUM)[:, :REFINE_VIEWS - 1]
         others = np.where(np.take_along_axis(other, others, 1), others, -1)
         cams = np.concatenate([np.where(vis[rows, ref], ref, -1)[:, None], others], 1)
-        for step in REFINE_STEPS_DEG:
+        for step in refine_steps_deg(o.normal_refine_reach_deg):
             tilt = _tilts(step)
             v = np.cross(n, u)
             hyp = n[:, None] + tilt[None, :, 0:1] * u[:, None] + tilt[None, :, 1:2] * v[:, None]
