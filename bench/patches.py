@@ -50,6 +50,7 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from dome_calib.io_utils import atomic_path  # noqa: E402
 from dome_calib.panoptic_io import read_kcalibration  # noqa: E402
 from dome_calib.recon.depth import depth_folder_reader  # noqa: E402
 from dome_calib.recon.patches import run as patch_run  # noqa: E402
@@ -142,12 +143,36 @@ def error_causes(truth, views, t_ms: float, X: np.ndarray, P: np.ndarray, normal
     return out
 
 
+#: The modules whose code draws a pixel of the rendered frames (the render cache's key holds their text).
+RENDER_MODULES = ("dome_calib/synth/textured.py", "dome_calib/synth/group.py", "dome_calib/synth/dome.py",
+                  "dome_calib/synth/skeleton.py", "dome_calib/camera.py", "dome_calib/recon/project.py")
+
+
+def render_cache_key(bundle, truth_options: GroupOptions, texture: TextureOptions, preset: str, seed: int) -> str:
+    """What makes every pixel of a rendered frame: the dome (preset, seed: the cameras), the group, the texture
+    options (seed, blur, noise, scale) and the renderer's code; a hash of all of it (``--render-cache``)."""
+    import hashlib
+
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    h.update(repr((preset, seed, dataclasses.asdict(truth_options), dataclasses.asdict(texture))).encode())
+    h.update(repr(sorted((n, repr(c)) for n, c in bundle.cameras.items())).encode())
+    h.update(repr(bundle.sync).encode())
+    for m in RENDER_MODULES:
+        if (root / m).exists():
+            h.update((root / m).read_bytes())
+    return h.hexdigest()[:16]
+
+
 class GrayCache:
     """The scene's grey images kept once rendered (``--track-views`` / ``--ref-spacing-deg`` run the stage several
-    times on the same frames: each is rendered once); the frame source the stage reads."""
+    times on the same frames: each is rendered once); the frame source the stage reads. With ``disk`` (a folder,
+    ``--render-cache``; its name the :func:`render_cache_key`), each grey image is also read from and written to
+    ``disk/CAMERA_FRAME.npy`` (written to a staging file, then renamed): a later run on the same scene renders
+    nothing. Reading one counts as rendering (``render_s["disk"]``): the bench's cost, not the stream's."""
 
-    def __init__(self, scene: TexturedScene) -> None:
-        self.scene, self._gray = scene, {}
+    def __init__(self, scene: TexturedScene, disk: Path | None = None) -> None:
+        self.scene, self._gray, self.disk = scene, {}, disk
         self.render_s, self.renders = scene.render_s, scene.renders
 
     def camera(self, name: str):
@@ -159,7 +184,19 @@ class GrayCache:
     def gray(self, name: str, frame: int) -> np.ndarray:
         key = (name, int(frame))
         if key not in self._gray:
-            self._gray[key] = self.scene.gray(name, frame)
+            path = None if self.disk is None else self.disk / f"{name}_{int(frame)}.npy"
+            if path is not None and path.exists():
+                c0 = time.process_time()
+                self._gray[key] = np.load(path)
+                self.render_s["disk"] = self.render_s.get("disk", 0.0) + time.process_time() - c0
+                self.renders["disk"] = self.renders.get("disk", 0) + 1
+            else:
+                self._gray[key] = self.scene.gray(name, frame)
+                if path is not None:
+                    c0 = time.process_time()
+                    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+                        np.save(fh, self._gray[key])
+                    self.render_s["disk"] = self.render_s.get("disk", 0.0) + time.process_time() - c0
         return self._gray[key]
 
 
@@ -405,10 +442,11 @@ def run(args: argparse.Namespace) -> None:
     bundle = as_built_dome(args.preset, seed=args.seed)
     bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=6000.0, seed=args.seed)
     bundle.kinect = read_kcalibration(KCALIBRATION)
-    truth = make_group(GroupOptions(n_people=args.people, scenario=args.scenario, start_ms=500.0,
-                                    duration_ms=5000.0, seed=args.seed))
-    scene = TexturedScene(bundle, truth, TextureOptions(seed=args.seed, scale={"vga": 1.0, "hd": 0.5,
-                                                                              "kinect-color": 0.5}),
+    group = GroupOptions(n_people=args.people, scenario=args.scenario, start_ms=500.0, duration_ms=5000.0,
+                         seed=args.seed)
+    truth = make_group(group)
+    texture = TextureOptions(seed=args.seed, scale={"vga": 1.0, "hd": 0.5, "kinect-color": 0.5})
+    scene = TexturedScene(bundle, truth, texture,
                           cache_frames=1 if args.preset == "full" else 3)  # the grey images are kept (GrayCache)
     by_type = {t: sorted(n for n, c in bundle.cameras.items() if str(c.type) == t) for t in ("vga", "hd",
                                                                                              "kinect-color")}
@@ -423,7 +461,12 @@ def run(args: argparse.Namespace) -> None:
     o = PatchOptions(track_frames=nf)
     if args.executors != "here":
         return run_executors(args, bundle, scene, cams, span, o, f)
-    source = GrayCache(scene)
+    disk = None
+    if args.render_cache:
+        disk = Path(args.render_cache) / render_cache_key(bundle, group, texture, args.preset, args.seed)
+        disk.mkdir(parents=True, exist_ok=True)
+        emit(what="render_cache", folder=str(disk), files=sum(1 for _ in disk.glob("*.npy")))
+    source = GrayCache(scene, disk)
     track_views = [int(k) for k in args.track_views.split(",")] if args.track_views else [o.track_views]
     spacings = ([float(x) for x in args.ref_spacing_deg.split(",")] if args.ref_spacing_deg
                 else [o.seed_reference_spacing_deg])
@@ -525,6 +568,9 @@ def main() -> None:
     ap.add_argument("--variants", type=str, default="",
                     help="PatchOptions variants, one run each on the same rendered frames: NAME:FIELD=VALUE,...;"
                          "NAME2:... (values JSON, e.g. 'base:;anchor:anchor=true,anchor_min_ncc=0.5')")
+    ap.add_argument("--render-cache", type=str, default="",
+                    help="a folder: the grey frames are read from it when there, else rendered and written to it "
+                         "(a subfolder per scene, named by the hash of everything that changes a pixel)")
     args = ap.parse_args()
     if args.workers < 1 or args.patches_per_task < 1:
         raise SystemExit("--workers and --patches-per-task must be at least 1")
