@@ -295,24 +295,26 @@ def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int, imaged=Non
     est, base, true, near, facing = [], [], [], [], []
     causes = {m: {} for m in ("map", "photometric")}
     centres = view_set(bundle, cams).center_cm
+    chunk = max(1, int(getattr(args, "judge_chunk", 0) or len(traj.alive) or 1))
     for k in range(len(traj.times_ms)):
-        a = traj.alive[:, k]
-        if not a.any():
-            continue
-        true.append(surface_visibility(bundle, cams, truth, float(traj.times_ms[k]), P[k][a], normal[k][a]))
-        est.append(traj.visible[a, k])
-        base.append(traj.photometric[a, k])
-        near.append(np.broadcast_to((err_mm[a, k] < 10.0)[:, None], true[-1].shape))
-        to_cam = centres[None] - P[k][a][:, None]
-        facing.append(np.sum(to_cam * normal[k][a][:, None], -1) / np.linalg.norm(to_cam, axis=-1) >= 0.2)
-        if imaged is not None:
-            for m, labels in (("map", est[-1]), ("photometric", base[-1])):
-                got = error_causes(truth, imaged, float(traj.times_ms[k]), traj.X_cm[a, k], P[k][a], normal[k][a],
-                                   sp.person[a], sp.part[a], err_mm[a, k], labels, true[-1], o)
-                for kind, counts in got.items():
-                    for name, c in counts.items():
-                        causes[m].setdefault(kind, {}).setdefault(name, 0)
-                        causes[m][kind][name] += c
+        for lo in range(0, len(traj.alive), chunk):  # every figure is per patch: judged in chunks of rows
+            a = np.flatnonzero(traj.alive[lo:lo + chunk, k]) + lo
+            if len(a) == 0:
+                continue
+            true.append(surface_visibility(bundle, cams, truth, float(traj.times_ms[k]), P[k][a], normal[k][a]))
+            est.append(traj.visible[a, k])
+            base.append(traj.photometric[a, k])
+            near.append(np.broadcast_to((err_mm[a, k] < 10.0)[:, None], true[-1].shape))
+            to_cam = centres[None] - P[k][a][:, None]
+            facing.append(np.sum(to_cam * normal[k][a][:, None], -1) / np.linalg.norm(to_cam, axis=-1) >= 0.2)
+            if imaged is not None:
+                for m, labels in (("map", est[-1]), ("photometric", base[-1])):
+                    got = error_causes(truth, imaged, float(traj.times_ms[k]), traj.X_cm[a, k], P[k][a], normal[k][a],
+                                       sp.person[a], sp.part[a], err_mm[a, k], labels, true[-1], o)
+                    for kind, counts in got.items():
+                        for name, c in counts.items():
+                            causes[m].setdefault(kind, {}).setdefault(name, 0)
+                            causes[m][kind][name] += c
     V = len(cams)
     est, base, true = (np.concatenate(x + [np.zeros((0, V), bool)]) for x in (est, base, true))
     near, facing = (np.concatenate(x + [np.zeros((0, V), bool)]) for x in (near, facing))
@@ -568,6 +570,9 @@ def main() -> None:
     ap.add_argument("--variants", type=str, default="",
                     help="PatchOptions variants, one run each on the same rendered frames: NAME:FIELD=VALUE,...;"
                          "NAME2:... (values JSON, e.g. 'base:;anchor:anchor=true,anchor_min_ncc=0.5')")
+    ap.add_argument("--judge-chunk", type=int, default=1000,
+                    help="patches judged together against the truth per time (the judging's memory grows with this "
+                         "times the cameras; every figure is per patch, so the chunk changes no figure; 0: all)")
     ap.add_argument("--render-cache", type=str, default="",
                     help="a folder: the grey frames are read from it when there, else rendered and written to it "
                          "(a subfolder per scene, named by the hash of everything that changes a pixel)")
