@@ -5,6 +5,9 @@ Run: .venv/bin/python bench/patches.py [--people 2] [--scenario conversation] [-
          [--frames 30] [--seed 0] [--seeding images,depth,skeleton] [--joint-noise 1.5] [--executors here,pool,dask --workers 2 --patches-per-task 1000]
          [--variants 'base:;drift:anchor_flow=true']  (PatchOptions variants, one run each on the same frames)
      (``python -P`` with ``dask``: bench/distributed.py would shadow the ``distributed`` package)
+Options not shown above: ``--render-cache FOLDER`` (the grey frames read from disk when there, else rendered and
+written there: a re-run renders nothing), ``--judge-chunk 1000`` (patches judged together: bounds the judging's
+memory on the full dome; no figure depends on it), ``--patches-per-task 1000,4000`` (one run per cut).
 Setup: the as-built dome's panel preset (VGA of panels 1-2, the HD and Kinect colour cameras nearest them), the
 first ``--vga`` VGA by name and the first ``--hd`` / ``--kinect`` others; VGA at 640 x 480, HD and Kinect colour
 rendered at half size (960 x 540); the group seeded by ``--seed``; one cloud seeded at a VGA frame (a multiple of
@@ -27,7 +30,9 @@ rendered at half size (960 x 540); the group seeded by ``--seed``; one cloud see
   track tasks' :func:`~dome_calib.recon.patches.track.track_cloud` calls; ``per_cloud_cpu_s``: the rest of the track
   tasks, the seeds' normals refined and the seed time's visibility), ``patch_steps`` (a patch alive at a time
   before its direction's last is tried one step further) and ``patch_steps_kept`` (alive after the step),
-  ``steps_cpu_ms_per_patch_step``, rendering CPU, wall;
+  ``steps_cpu_ms_per_patch_step``, rendering CPU, wall, ``patches_per_task`` and the process's peak memory so far;
+- ``same_stream`` (a second ``--patches-per-task`` cut of the same run): whether its arrays are the first cut's bits
+  (not judged again), and its costs;
 - ``executor`` (with ``--executors``, image seeding only, not judged): per executor the CPU of this process and of
   its worker processes (rendering included: each worker renders the frames it reads), the wall of the stream and of
   starting the executor, and whether the arrays are the bits of the first executor's.
@@ -406,7 +411,7 @@ def run_executors(args, bundle, scene, cams, span, o, f: int) -> None:
             start_wall = time.perf_counter() - w0
             before, cpu0, wall0 = _children_cpu_s(), time.process_time(), time.perf_counter()
             traj = patch_stream(bundle, scene, cams, span, o, seed_frames=[f], executor=ex,
-                                patches_per_task=args.patches_per_task)
+                                patches_per_task=cuts(args)[0])
             wall = time.perf_counter() - wall0
             head_cpu, after = time.process_time() - cpu0, _children_cpu_s()
         workers_cpu = sum(c - before.get(pid, 0.0) for pid, c in after.items())
@@ -417,7 +422,7 @@ def run_executors(args, bundle, scene, cams, span, o, f: int) -> None:
             for k, a in arrays.items())
         first = arrays if first is None else first
         emit(what="executor", executor=kind, workers=1 if kind == "here" else args.workers,
-             patches_per_task=args.patches_per_task, cameras=len(cams), frames_each_way=args.frames,
+             patches_per_task=cuts(args)[0], cameras=len(cams), frames_each_way=args.frames,
              seeds=int(traj.alive.any(1).sum()), patch_views_frames=int(traj.visible.sum()),
              same_bits_as_first=same, start_wall_s=round(start_wall, 1), wall_s=round(wall, 1),
              head_cpu_s=round(head_cpu, 1), workers_cpu_s=round(workers_cpu, 1),
@@ -485,11 +490,12 @@ def run(args: argparse.Namespace) -> None:
         J = np.where(present[..., None, None], J, np.nan)
         body = BodyPrior(times_ms=at, joints_cm=J + np.random.default_rng(args.seed).normal(0.0, args.joint_noise,
                                                                                            J.shape))
-        runs = [(seeding, spacing, k, streams, name) for seeding in args.seeding.split(",")
+        runs = [(seeding, spacing, k, streams, name, cut) for seeding in args.seeding.split(",")
                 for spacing in (spacings if seeding == "images" else [0.0]) for k in track_views
-                for streams in args.seed_streams.split(",") for name in variants]
+                for streams in args.seed_streams.split(",") for name in variants for cut in cuts(args)]
         memo: dict = {}
-        for seeding, spacing, k, streams, name in runs:
+        judged: dict = {}  # a run's arrays by its runs' key without the cut: a second cut is compared, not judged
+        for seeding, spacing, k, streams, name, cut in runs:
             ok = dataclasses.replace(o, **{"track_views": k, "seed_reference_spacing_deg": spacing,
                                            "seed_streams": streams, **variants[name]})  # a variant may set any
             if seeding == "skeleton":
@@ -501,7 +507,7 @@ def run(args: argparse.Namespace) -> None:
             seeding_key = (seeding, spacing, ok.ncc_size_cm, tuple(sorted(
                 (k, repr(v)) for k, v in dataclasses.asdict(ok).items() if k.startswith(("seed_", "normal_")))))
             with PhaseTimer(scene, memo.setdefault(seeding_key, {})) as phases:
-                traj = patch_stream(bundle, source, cams, span, ok, seed_frames=[f],
+                traj = patch_stream(bundle, source, cams, span, ok, seed_frames=[f], patches_per_task=cut,
                                     depth=depth if seeding == "depth" else None,
                                     body=body if seeding == "skeleton" or ok.body_occlusion else None)
             cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
@@ -519,13 +525,23 @@ def run(args: argparse.Namespace) -> None:
                         patch_steps_kept=phases.steps["kept"], steps_cpu_s=round(steps_cpu, 2),
                         steps_cpu_ms_per_patch_step=round(1000.0 * steps_cpu / max(phases.steps["tried"], 1), 3),
                         per_cloud_cpu_s=round(track_cpu - steps_cpu, 2),
-                        wall_s=round(wall, 1), lk_calls=phases.lk["calls"], lk_points=phases.lk["points"])
+                        wall_s=round(wall, 1), lk_calls=phases.lk["calls"], lk_points=phases.lk["points"],
+                        patches_per_task=cut, max_rss_mb=max_rss_mb())
             # the costs before the judging (on the full dome the truth's visibility takes minutes)
             emit(what="stream_cost", seeding=seeding, variant=name, cameras=len(cams), people=args.people,
                  frames_each_way=nf, seeds=int(traj.alive.any(1).sum()), **cost,
                  load_before=[round(x, 2) for x in load], load=[round(x, 2) for x in os.getloadavg()])
+            arrays = {a: getattr(traj, a) for a in ("ids", "X_cm", "normal", "visible", "photometric", "alive")}
+            earlier = judged.get((seeding, spacing, k, streams, name))
+            if earlier is not None:  # the same stream cut otherwise: the same bits expected, and judged once
+                emit(what="same_stream", as_patches_per_task=earlier[0],
+                     same_bits=all(np.array_equal(earlier[1][a], x, equal_nan=x.dtype.kind == "f")
+                                   for a, x in arrays.items()), **cost)
+                continue
+            judged[seeding, spacing, k, streams, name] = (cut, arrays)
             save = args.save if len(runs) == 1 or not args.save else args.save.replace(
                 ".npz", f"_{seeding}_{streams}_{k}_{spacing:g}_{name}.npz")
+            rss_before = max_rss_mb()
             got = evaluate(argparse.Namespace(**{**vars(args), "save": save}), bundle, truth, cams, traj, t_seed, nf,
                            imaged_views(scene, cams), ok)
             emit(what="patches", seeding=seeding, seed_streams=streams, track_views=k, ref_spacing_deg=spacing,
@@ -536,7 +552,20 @@ def run(args: argparse.Namespace) -> None:
                  vga=args.vga, hd=args.hd, kinect=args.kinect, frames_each_way=nf, seed=args.seed, **got, **cost,
                  patch_views_frames_per_cpu_s=round(got["patch_views_frames"] / max(stage_cpu, 1e-9), 1),
                  tracking_patch_views_frames_per_cpu_s=round(got["patch_views_frames"] / max(track_cpu, 1e-9), 1),
+                 max_rss_mb_before_judging=rss_before, max_rss_mb_after_judging=max_rss_mb(),
                  load_before=[round(x, 2) for x in load], load=[round(x, 2) for x in os.getloadavg()])
+
+
+def cuts(args: argparse.Namespace) -> list[int]:
+    """``--patches-per-task`` as a list (one run each in this process; the executors take the first)."""
+    return [int(x) for x in str(args.patches_per_task).split(",")]
+
+
+def max_rss_mb() -> int:
+    """This process's peak resident memory so far (MB)."""
+    import resource
+
+    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024)
 
 
 def main() -> None:
@@ -559,7 +588,10 @@ def main() -> None:
                     help="here (this process), or a comma list of here, pool (a local process pool), dask (a Dask "
                          "LocalCluster of worker processes): the image-seeded stream on each, CPU, wall, same bits")
     ap.add_argument("--workers", type=int, default=2, help="worker processes of --executors pool and dask")
-    ap.add_argument("--patches-per-task", type=int, default=1000)
+    ap.add_argument("--patches-per-task", type=str, default="1000",
+                    help="comma list: seeds per track task (the cut of the work: the same bits whatever it is), one "
+                         "run each in this process (a second is compared with the first, not judged again); "
+                         "--executors take the first")
     ap.add_argument("--track-views", type=str, default="",
                     help="comma list of PatchOptions.track_views (0: all), one run each on the same rendered frames")
     ap.add_argument("--seed-streams", type=str, default="all",
@@ -577,7 +609,7 @@ def main() -> None:
                     help="a folder: the grey frames are read from it when there, else rendered and written to it "
                          "(a subfolder per scene, named by the hash of everything that changes a pixel)")
     args = ap.parse_args()
-    if args.workers < 1 or args.patches_per_task < 1:
+    if args.workers < 1 or min(cuts(args)) < 1:
         raise SystemExit("--workers and --patches-per-task must be at least 1")
     run(args)
 
