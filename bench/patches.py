@@ -30,7 +30,8 @@ rendered at half size (960 x 540); the group seeded by ``--seed``; one cloud see
   track tasks' :func:`~dome_calib.recon.patches.track.track_cloud` calls; ``per_cloud_cpu_s``: the rest of the track
   tasks, the seeds' normals refined and the seed time's visibility), ``patch_steps`` (a patch alive at a time
   before its direction's last is tried one step further) and ``patch_steps_kept`` (alive after the step),
-  ``steps_cpu_ms_per_patch_step``, rendering CPU, wall, ``patches_per_task`` and the process's peak memory so far;
+  ``steps_cpu_ms_per_patch_step``, the same by step number from the seed (``..._by_step``: step 1, a direction's
+  first, has no prediction and flows with ``lk_levels``; the CPU between the starts of two steps), rendering CPU, wall, ``patches_per_task`` and the process's peak memory so far;
 - ``same_stream`` (a second ``--patches-per-task`` cut of the same run): whether its arrays are the first cut's bits
   (not judged again), and its costs;
 - ``executor`` (with ``--executors``, image seeding only, not judged): per executor the CPU of this process and of
@@ -59,6 +60,7 @@ from dome_calib.io_utils import atomic_path  # noqa: E402
 from dome_calib.panoptic_io import read_kcalibration  # noqa: E402
 from dome_calib.recon.depth import depth_folder_reader  # noqa: E402
 from dome_calib.recon.patches import run as patch_run  # noqa: E402
+from dome_calib.recon.patches import track as patch_track  # noqa: E402
 from dome_calib.recon.patches.seed_depth import DepthFrames  # noqa: E402
 from dome_calib.synth.depth_people import write_group_depth  # noqa: E402
 from dome_calib.synth.dome import as_built_dome  # noqa: E402
@@ -251,16 +253,36 @@ class PhaseTimer:
         cv2.calcOpticalFlowPyrLK = counted
         self._track_cloud_saved = patch_run.track_cloud
 
+        marks: list[float] = []  # CPU less rendering at each step's start (its flown views chosen) and at the end
+        self.by_step: dict[int, list] = {}  # step number (1: the first from the seed) -> [CPU s, patch-steps tried]
+
+        def net() -> float:
+            return time.process_time() - sum(self.scene.render_s.values())
+
         def stepped(*a, **k):  # a patch alive at a time before the last is tried one step further
             if not self._in_track:
                 return self._track_cloud_saved(*a, **k)
             c0, r0 = time.process_time(), sum(self.scene.render_s.values())
+            marks.clear()
             out = self._track_cloud_saved(*a, **k)
+            marks.append(net())
             self.steps["render_s"] += sum(self.scene.render_s.values()) - r0
             self.steps["cpu_s"] += time.process_time() - c0
             self.steps["tried"] += int(out.alive[:, :-1].sum())
             self.steps["kept"] += int(out.alive[:, 1:].sum())
+            for j in range(1, len(marks)):
+                got = self.by_step.setdefault(j, [0.0, 0])
+                got[0] += marks[j] - marks[j - 1]
+                got[1] += int(out.alive[:, j - 1].sum())
+            marks.clear()
             return out
+        self._best_views_saved = patch_track.best_views
+
+        def step_start(*a, **k):  # called once at the start of every tracking step
+            if self._in_track:
+                marks.append(net())
+            return self._best_views_saved(*a, **k)
+        patch_track.best_views = step_start
         patch_run.track_cloud = stepped
         patch_run.seed_task = self._wrap("seed", self._saved[0])
         patch_run.place_task = self._wrap("place", self._saved[1])
@@ -270,6 +292,7 @@ class PhaseTimer:
     def __exit__(self, *exc: object) -> None:
         patch_run.seed_task, patch_run.place_task, patch_run.track_task = self._saved
         patch_run.track_cloud = self._track_cloud_saved
+        patch_track.best_views = self._best_views_saved
         cv2.calcOpticalFlowPyrLK = self._lk_saved
 
 
@@ -526,6 +549,9 @@ def run(args: argparse.Namespace) -> None:
                         steps_cpu_ms_per_patch_step=round(1000.0 * steps_cpu / max(phases.steps["tried"], 1), 3),
                         per_cloud_cpu_s=round(track_cpu - steps_cpu, 2),
                         wall_s=round(wall, 1), lk_calls=phases.lk["calls"], lk_points=phases.lk["points"],
+                        steps_cpu_ms_per_patch_step_by_step={
+                            str(j): round(1000.0 * c / max(n, 1), 3) for j, (c, n) in sorted(phases.by_step.items())},
+                        patch_steps_by_step={str(j): n for j, (_, n) in sorted(phases.by_step.items())},
                         patches_per_task=cut, max_rss_mb=max_rss_mb())
             # the costs before the judging (on the full dome the truth's visibility takes minutes)
             emit(what="stream_cost", seeding=seeding, variant=name, cameras=len(cams), people=args.people,
