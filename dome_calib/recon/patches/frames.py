@@ -35,18 +35,21 @@ class FrameSource(Protocol):
 def sample(gray: np.ndarray, uv_px: np.ndarray) -> np.ndarray:
     """(H, W) uint8 or float32 image, (..., 2) pixels -> (...) float32 bilinear samples (0 outside the image)."""
     uv_px = np.asarray(uv_px)
-    uv = uv_px.astype(np.float32).reshape(-1, 2)
+    shape = uv_px.shape[:-1]
+    uv = uv_px.reshape(-1, 2)
     n = len(uv)
     if n == 0:
-        return np.zeros(uv_px.shape[:-1], np.float32)
+        return np.zeros(shape, np.float32)
     cols = _REMAP_COLS if n > _REMAP_COLS else n  # remap's maps are images: fewer than 32767 rows and columns
     rows = -(-n // cols)
-    maps = np.full((rows * cols, 2), -100.0, np.float32)
-    maps[:n] = uv
-    maps = maps.reshape(rows, cols, 2)
-    out = cv2.remap(gray, np.ascontiguousarray(maps[..., 0]), np.ascontiguousarray(maps[..., 1]), cv2.INTER_LINEAR,
+    # the two maps written straight from the pixels (cast to float32 on assignment, as astype casts), the tail
+    # outside the image: no interleaved float32 copy and no contiguous copies of its halves (a third of the cost)
+    mx, my = np.empty(rows * cols, np.float32), np.empty(rows * cols, np.float32)
+    mx[:n], my[:n] = uv[:, 0], uv[:, 1]
+    mx[n:], my[n:] = -100.0, -100.0
+    out = cv2.remap(gray, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR,
                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return out.reshape(-1)[:n].astype(np.float32).reshape(uv_px.shape[:-1])
+    return out.reshape(-1)[:n].astype(np.float32, copy=False).reshape(shape)
 
 
 def ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
