@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from dome_calib.recon.patches import frames
-from dome_calib.recon.patches.frames import sample
+from dome_calib.recon.patches.frames import sample, sample_windows
 
 
 def remapped(gray: np.ndarray, uv_px: np.ndarray) -> np.ndarray:
@@ -42,3 +42,17 @@ def test_sample_is_the_one_map_remap_bit_for_bit(shape, image_dtype, pixel_dtype
 
 def test_sample_of_no_points_is_empty():
     assert sample(np.zeros((4, 4), np.uint8), np.zeros((0, 49, 2))).shape == (0, 49)
+
+
+@pytest.mark.parametrize("shape", [(1, 2), (48, 355, 2), (5, 2)])
+def test_sample_windows_is_sample_of_the_summed_pixels(shape):
+    rng = np.random.default_rng(len(shape))
+    gray = (rng.random((48, 64)) * 255).astype(np.uint8)
+    centres = rng.uniform(-5.0, 68.0, shape)
+    centres[..., 1] *= 0.75
+    centres[rng.random(shape[:-1]) < 0.2] = -100.0  # the sweep's depths outside a neighbour's image
+    half = 3
+    off = np.stack(np.meshgrid(np.arange(-half, half + 1), np.arange(-half, half + 1)), -1).reshape(-1, 2)
+    got = sample_windows(gray, centres, off)
+    assert got.shape == shape[:-1] + (len(off),) and got.dtype == np.float32
+    assert np.array_equal(got, sample(gray, centres[..., None, :] + off))
