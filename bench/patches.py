@@ -101,9 +101,10 @@ FALSE_NEGATIVE_CAUSES = ("drifted", "near_border", "grazing", "wrong_normal", "l
 
 
 def error_causes(truth, views, t_ms: float, X: np.ndarray, P: np.ndarray, normal: np.ndarray, person: np.ndarray,
-                 part: np.ndarray, err_mm: np.ndarray, est: np.ndarray, true: np.ndarray, o: PatchOptions
-                 ) -> dict[str, dict[str, int]]:
-    """The visibility's false positives and negatives at one time, each given the first cause that applies.
+                 part: np.ndarray, err_mm: np.ndarray, labellings: dict[str, np.ndarray], true: np.ndarray,
+                 o: PatchOptions) -> dict[str, dict[str, dict[str, int]]]:
+    """The visibility's false positives and negatives at one time, each given the first cause that applies, for each
+    of ``labellings`` (name -> (N, V) labels; the causes' geometry is computed once for all of them).
 
     False positive (labelled visible, the truth says not): ``drifted`` (the patch is more than 1 cm from its true
     point), ``back_facing`` (the true surface faces away), occluded by a capsule of ``other_person``, of the same
@@ -134,19 +135,22 @@ def error_causes(truth, views, t_ms: float, X: np.ndarray, P: np.ndarray, normal
         hidden = hit < s - VISIBILITY_TOLERANCE_CM
         occ_person[hidden, v] = people[which[hidden] // fr.radius.shape[1]]
         occ_part[hidden, v] = which[hidden] % fr.radius.shape[1]
-    drift = np.broadcast_to((err_mm > 10.0)[:, None], est.shape)
+    drift = np.broadcast_to((err_mm > 10.0)[:, None], true.shape)
     own = occ_person == person[:, None]
+    every = np.ones_like(true)
     fp_rules = [drift, cos_t <= 0, (occ_person >= 0) & ~own, own & (occ_part != part[:, None]),
-                own & (occ_part == part[:, None]), ~in_image, np.ones_like(est)]
-    fn_rules = [drift, ~square_in, cos_t < o.min_cos_view, cos_e <= o.min_cos_view, np.ones_like(est)]
+                own & (occ_part == part[:, None]), ~in_image, every]
+    fn_rules = [drift, ~square_in, cos_t < o.min_cos_view, cos_e <= o.min_cos_view, every]
     out = {}
-    for kind, wrong, rules, names in (("false_positive", est & ~true, fp_rules, FALSE_POSITIVE_CAUSES),
-                                      ("false_negative", true & ~est, fn_rules, FALSE_NEGATIVE_CAUSES)):
-        left, counts = wrong.copy(), {}
-        for name, rule in zip(names, rules):
-            counts[name] = int((left & rule).sum())
-            left &= ~rule
-        out[kind] = counts
+    for method, est in labellings.items():
+        out[method] = {}
+        for kind, wrong, rules, names in (("false_positive", est & ~true, fp_rules, FALSE_POSITIVE_CAUSES),
+                                          ("false_negative", true & ~est, fn_rules, FALSE_NEGATIVE_CAUSES)):
+            left, counts = wrong.copy(), {}
+            for name, rule in zip(names, rules):
+                counts[name] = int((left & rule).sum())
+                left &= ~rule
+            out[method][kind] = counts
     return out
 
 
@@ -336,9 +340,10 @@ def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int, imaged=Non
             to_cam = centres[None] - P[k][a][:, None]
             facing.append(np.sum(to_cam * normal[k][a][:, None], -1) / np.linalg.norm(to_cam, axis=-1) >= 0.2)
             if imaged is not None:
-                for m, labels in (("map", est[-1]), ("photometric", base[-1])):
-                    got = error_causes(truth, imaged, float(traj.times_ms[k]), traj.X_cm[a, k], P[k][a], normal[k][a],
-                                       sp.person[a], sp.part[a], err_mm[a, k], labels, true[-1], o)
+                got_all = error_causes(truth, imaged, float(traj.times_ms[k]), traj.X_cm[a, k], P[k][a], normal[k][a],
+                                       sp.person[a], sp.part[a], err_mm[a, k],
+                                       {"map": est[-1], "photometric": base[-1]}, true[-1], o)
+                for m, got in got_all.items():
                     for kind, counts in got.items():
                         for name, c in counts.items():
                             causes[m].setdefault(kind, {}).setdefault(name, 0)
