@@ -570,6 +570,8 @@ def run(args: argparse.Namespace) -> None:
                                    for a, x in arrays.items()), **cost)
                 continue
             judged[seeding, spacing, k, streams, name] = (cut, arrays)
+            if args.no_judge:
+                continue
             save = args.save if len(runs) == 1 or not args.save else args.save.replace(
                 ".npz", f"_{seeding}_{streams}_{k}_{spacing:g}_{name}.npz")
             rss_before = max_rss_mb()
@@ -636,6 +638,8 @@ def main() -> None:
     ap.add_argument("--judge-chunk", type=int, default=1000,
                     help="patches judged together against the truth per time (the judging's memory grows with this "
                          "times the cameras; every figure is per patch, so the chunk changes no figure; 0: all)")
+    ap.add_argument("--no-judge", action="store_true",
+                    help="the costs alone (stream_cost, same_stream lines): the stream is not judged against the truth")
     ap.add_argument("--render-cache", type=str, default="",
                     help="a folder: the grey frames are read from it when there, else rendered and written to it "
                          "(a subfolder per scene, named by the hash of everything that changes a pixel)")
