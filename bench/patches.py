@@ -5,6 +5,9 @@ Run: .venv/bin/python bench/patches.py [--people 2] [--scenario conversation] [-
          [--frames 30] [--seed 0] [--seeding images,depth,skeleton] [--joint-noise 1.5] [--executors here,pool,dask --workers 2 --patches-per-task 1000]
          [--variants 'base:;drift:anchor_flow=true']  (PatchOptions variants, one run each on the same frames)
      (``python -P`` with ``dask``: bench/distributed.py would shadow the ``distributed`` package)
+Options not shown above: ``--render-cache FOLDER`` (the grey frames read from disk when there, else rendered and
+written there: a re-run renders nothing), ``--judge-chunk 1000`` (patches judged together: bounds the judging's
+memory on the full dome; no figure depends on it), ``--patches-per-task 1000,4000`` (one run per cut).
 Setup: the as-built dome's panel preset (VGA of panels 1-2, the HD and Kinect colour cameras nearest them), the
 first ``--vga`` VGA by name and the first ``--hd`` / ``--kinect`` others; VGA at 640 x 480, HD and Kinect colour
 rendered at half size (960 x 540); the group seeded by ``--seed``; one cloud seeded at a VGA frame (a multiple of
@@ -27,7 +30,10 @@ rendered at half size (960 x 540); the group seeded by ``--seed``; one cloud see
   track tasks' :func:`~dome_calib.recon.patches.track.track_cloud` calls; ``per_cloud_cpu_s``: the rest of the track
   tasks, the seeds' normals refined and the seed time's visibility), ``patch_steps`` (a patch alive at a time
   before its direction's last is tried one step further) and ``patch_steps_kept`` (alive after the step),
-  ``steps_cpu_ms_per_patch_step``, rendering CPU, wall;
+  ``steps_cpu_ms_per_patch_step``, the same by step number from the seed (``..._by_step``: step 1, a direction's
+  first, has no prediction and flows with ``lk_levels``; the CPU between the starts of two steps), rendering CPU, wall, ``patches_per_task`` and the process's peak memory so far;
+- ``same_stream`` (a second ``--patches-per-task`` cut of the same run): whether its arrays are the first cut's bits
+  (not judged again), and its costs;
 - ``executor`` (with ``--executors``, image seeding only, not judged): per executor the CPU of this process and of
   its worker processes (rendering included: each worker renders the frames it reads), the wall of the stream and of
   starting the executor, and whether the arrays are the bits of the first executor's.
@@ -50,9 +56,11 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from dome_calib.io_utils import atomic_path  # noqa: E402
 from dome_calib.panoptic_io import read_kcalibration  # noqa: E402
 from dome_calib.recon.depth import depth_folder_reader  # noqa: E402
 from dome_calib.recon.patches import run as patch_run  # noqa: E402
+from dome_calib.recon.patches import track as patch_track  # noqa: E402
 from dome_calib.recon.patches.seed_depth import DepthFrames  # noqa: E402
 from dome_calib.synth.depth_people import write_group_depth  # noqa: E402
 from dome_calib.synth.dome import as_built_dome  # noqa: E402
@@ -93,9 +101,10 @@ FALSE_NEGATIVE_CAUSES = ("drifted", "near_border", "grazing", "wrong_normal", "l
 
 
 def error_causes(truth, views, t_ms: float, X: np.ndarray, P: np.ndarray, normal: np.ndarray, person: np.ndarray,
-                 part: np.ndarray, err_mm: np.ndarray, est: np.ndarray, true: np.ndarray, o: PatchOptions
-                 ) -> dict[str, dict[str, int]]:
-    """The visibility's false positives and negatives at one time, each given the first cause that applies.
+                 part: np.ndarray, err_mm: np.ndarray, labellings: dict[str, np.ndarray], true: np.ndarray,
+                 o: PatchOptions) -> dict[str, dict[str, dict[str, int]]]:
+    """The visibility's false positives and negatives at one time, each given the first cause that applies, for each
+    of ``labellings`` (name -> (N, V) labels; the causes' geometry is computed once for all of them).
 
     False positive (labelled visible, the truth says not): ``drifted`` (the patch is more than 1 cm from its true
     point), ``back_facing`` (the true surface faces away), occluded by a capsule of ``other_person``, of the same
@@ -126,28 +135,55 @@ def error_causes(truth, views, t_ms: float, X: np.ndarray, P: np.ndarray, normal
         hidden = hit < s - VISIBILITY_TOLERANCE_CM
         occ_person[hidden, v] = people[which[hidden] // fr.radius.shape[1]]
         occ_part[hidden, v] = which[hidden] % fr.radius.shape[1]
-    drift = np.broadcast_to((err_mm > 10.0)[:, None], est.shape)
+    drift = np.broadcast_to((err_mm > 10.0)[:, None], true.shape)
     own = occ_person == person[:, None]
+    every = np.ones_like(true)
     fp_rules = [drift, cos_t <= 0, (occ_person >= 0) & ~own, own & (occ_part != part[:, None]),
-                own & (occ_part == part[:, None]), ~in_image, np.ones_like(est)]
-    fn_rules = [drift, ~square_in, cos_t < o.min_cos_view, cos_e <= o.min_cos_view, np.ones_like(est)]
+                own & (occ_part == part[:, None]), ~in_image, every]
+    fn_rules = [drift, ~square_in, cos_t < o.min_cos_view, cos_e <= o.min_cos_view, every]
     out = {}
-    for kind, wrong, rules, names in (("false_positive", est & ~true, fp_rules, FALSE_POSITIVE_CAUSES),
-                                      ("false_negative", true & ~est, fn_rules, FALSE_NEGATIVE_CAUSES)):
-        left, counts = wrong.copy(), {}
-        for name, rule in zip(names, rules):
-            counts[name] = int((left & rule).sum())
-            left &= ~rule
-        out[kind] = counts
+    for method, est in labellings.items():
+        out[method] = {}
+        for kind, wrong, rules, names in (("false_positive", est & ~true, fp_rules, FALSE_POSITIVE_CAUSES),
+                                          ("false_negative", true & ~est, fn_rules, FALSE_NEGATIVE_CAUSES)):
+            left, counts = wrong.copy(), {}
+            for name, rule in zip(names, rules):
+                counts[name] = int((left & rule).sum())
+                left &= ~rule
+            out[method][kind] = counts
     return out
+
+
+#: The modules whose code draws a pixel of the rendered frames (the render cache's key holds their text).
+RENDER_MODULES = ("dome_calib/synth/textured.py", "dome_calib/synth/group.py", "dome_calib/synth/dome.py",
+                  "dome_calib/synth/skeleton.py", "dome_calib/camera.py", "dome_calib/recon/project.py")
+
+
+def render_cache_key(bundle, truth_options: GroupOptions, texture: TextureOptions, preset: str, seed: int) -> str:
+    """What makes every pixel of a rendered frame: the dome (preset, seed: the cameras), the group, the texture
+    options (seed, blur, noise, scale) and the renderer's code; a hash of all of it (``--render-cache``)."""
+    import hashlib
+
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    h.update(repr((preset, seed, dataclasses.asdict(truth_options), dataclasses.asdict(texture))).encode())
+    h.update(repr(sorted((n, repr(c)) for n, c in bundle.cameras.items())).encode())
+    h.update(repr(bundle.sync).encode())
+    for m in RENDER_MODULES:
+        if (root / m).exists():
+            h.update((root / m).read_bytes())
+    return h.hexdigest()[:16]
 
 
 class GrayCache:
     """The scene's grey images kept once rendered (``--track-views`` / ``--ref-spacing-deg`` run the stage several
-    times on the same frames: each is rendered once); the frame source the stage reads."""
+    times on the same frames: each is rendered once); the frame source the stage reads. With ``disk`` (a folder,
+    ``--render-cache``; its name the :func:`render_cache_key`), each grey image is also read from and written to
+    ``disk/CAMERA_FRAME.npy`` (written to a staging file, then renamed): a later run on the same scene renders
+    nothing. Reading one counts as rendering (``render_s["disk"]``): the bench's cost, not the stream's."""
 
-    def __init__(self, scene: TexturedScene) -> None:
-        self.scene, self._gray = scene, {}
+    def __init__(self, scene: TexturedScene, disk: Path | None = None) -> None:
+        self.scene, self._gray, self.disk = scene, {}, disk
         self.render_s, self.renders = scene.render_s, scene.renders
 
     def camera(self, name: str):
@@ -159,7 +195,19 @@ class GrayCache:
     def gray(self, name: str, frame: int) -> np.ndarray:
         key = (name, int(frame))
         if key not in self._gray:
-            self._gray[key] = self.scene.gray(name, frame)
+            path = None if self.disk is None else self.disk / f"{name}_{int(frame)}.npy"
+            if path is not None and path.exists():
+                c0 = time.process_time()
+                self._gray[key] = np.load(path)
+                self.render_s["disk"] = self.render_s.get("disk", 0.0) + time.process_time() - c0
+                self.renders["disk"] = self.renders.get("disk", 0) + 1
+            else:
+                self._gray[key] = self.scene.gray(name, frame)
+                if path is not None:
+                    c0 = time.process_time()
+                    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+                        np.save(fh, self._gray[key])
+                    self.render_s["disk"] = self.render_s.get("disk", 0.0) + time.process_time() - c0
         return self._gray[key]
 
 
@@ -209,16 +257,36 @@ class PhaseTimer:
         cv2.calcOpticalFlowPyrLK = counted
         self._track_cloud_saved = patch_run.track_cloud
 
+        marks: list[float] = []  # CPU less rendering at each step's start (its flown views chosen) and at the end
+        self.by_step: dict[int, list] = {}  # step number (1: the first from the seed) -> [CPU s, patch-steps tried]
+
+        def net() -> float:
+            return time.process_time() - sum(self.scene.render_s.values())
+
         def stepped(*a, **k):  # a patch alive at a time before the last is tried one step further
             if not self._in_track:
                 return self._track_cloud_saved(*a, **k)
             c0, r0 = time.process_time(), sum(self.scene.render_s.values())
+            marks.clear()
             out = self._track_cloud_saved(*a, **k)
+            marks.append(net())
             self.steps["render_s"] += sum(self.scene.render_s.values()) - r0
             self.steps["cpu_s"] += time.process_time() - c0
             self.steps["tried"] += int(out.alive[:, :-1].sum())
             self.steps["kept"] += int(out.alive[:, 1:].sum())
+            for j in range(1, len(marks)):
+                got = self.by_step.setdefault(j, [0.0, 0])
+                got[0] += marks[j] - marks[j - 1]
+                got[1] += int(out.alive[:, j - 1].sum())
+            marks.clear()
             return out
+        self._best_views_saved = patch_track.best_views
+
+        def step_start(*a, **k):  # called once at the start of every tracking step
+            if self._in_track:
+                marks.append(net())
+            return self._best_views_saved(*a, **k)
+        patch_track.best_views = step_start
         patch_run.track_cloud = stepped
         patch_run.seed_task = self._wrap("seed", self._saved[0])
         patch_run.place_task = self._wrap("place", self._saved[1])
@@ -228,6 +296,7 @@ class PhaseTimer:
     def __exit__(self, *exc: object) -> None:
         patch_run.seed_task, patch_run.place_task, patch_run.track_task = self._saved
         patch_run.track_cloud = self._track_cloud_saved
+        patch_track.best_views = self._best_views_saved
         cv2.calcOpticalFlowPyrLK = self._lk_saved
 
 
@@ -258,24 +327,27 @@ def evaluate(args, bundle, truth, cams, traj, t_seed: float, nf: int, imaged=Non
     est, base, true, near, facing = [], [], [], [], []
     causes = {m: {} for m in ("map", "photometric")}
     centres = view_set(bundle, cams).center_cm
+    chunk = max(1, int(getattr(args, "judge_chunk", 0) or len(traj.alive) or 1))
     for k in range(len(traj.times_ms)):
-        a = traj.alive[:, k]
-        if not a.any():
-            continue
-        true.append(surface_visibility(bundle, cams, truth, float(traj.times_ms[k]), P[k][a], normal[k][a]))
-        est.append(traj.visible[a, k])
-        base.append(traj.photometric[a, k])
-        near.append(np.broadcast_to((err_mm[a, k] < 10.0)[:, None], true[-1].shape))
-        to_cam = centres[None] - P[k][a][:, None]
-        facing.append(np.sum(to_cam * normal[k][a][:, None], -1) / np.linalg.norm(to_cam, axis=-1) >= 0.2)
-        if imaged is not None:
-            for m, labels in (("map", est[-1]), ("photometric", base[-1])):
-                got = error_causes(truth, imaged, float(traj.times_ms[k]), traj.X_cm[a, k], P[k][a], normal[k][a],
-                                   sp.person[a], sp.part[a], err_mm[a, k], labels, true[-1], o)
-                for kind, counts in got.items():
-                    for name, c in counts.items():
-                        causes[m].setdefault(kind, {}).setdefault(name, 0)
-                        causes[m][kind][name] += c
+        for lo in range(0, len(traj.alive), chunk):  # every figure is per patch: judged in chunks of rows
+            a = np.flatnonzero(traj.alive[lo:lo + chunk, k]) + lo
+            if len(a) == 0:
+                continue
+            true.append(surface_visibility(bundle, cams, truth, float(traj.times_ms[k]), P[k][a], normal[k][a]))
+            est.append(traj.visible[a, k])
+            base.append(traj.photometric[a, k])
+            near.append(np.broadcast_to((err_mm[a, k] < 10.0)[:, None], true[-1].shape))
+            to_cam = centres[None] - P[k][a][:, None]
+            facing.append(np.sum(to_cam * normal[k][a][:, None], -1) / np.linalg.norm(to_cam, axis=-1) >= 0.2)
+            if imaged is not None:
+                got_all = error_causes(truth, imaged, float(traj.times_ms[k]), traj.X_cm[a, k], P[k][a], normal[k][a],
+                                       sp.person[a], sp.part[a], err_mm[a, k],
+                                       {"map": est[-1], "photometric": base[-1]}, true[-1], o)
+                for m, got in got_all.items():
+                    for kind, counts in got.items():
+                        for name, c in counts.items():
+                            causes[m].setdefault(kind, {}).setdefault(name, 0)
+                            causes[m][kind][name] += c
     V = len(cams)
     est, base, true = (np.concatenate(x + [np.zeros((0, V), bool)]) for x in (est, base, true))
     near, facing = (np.concatenate(x + [np.zeros((0, V), bool)]) for x in (near, facing))
@@ -367,7 +439,7 @@ def run_executors(args, bundle, scene, cams, span, o, f: int) -> None:
             start_wall = time.perf_counter() - w0
             before, cpu0, wall0 = _children_cpu_s(), time.process_time(), time.perf_counter()
             traj = patch_stream(bundle, scene, cams, span, o, seed_frames=[f], executor=ex,
-                                patches_per_task=args.patches_per_task)
+                                patches_per_task=cuts(args)[0])
             wall = time.perf_counter() - wall0
             head_cpu, after = time.process_time() - cpu0, _children_cpu_s()
         workers_cpu = sum(c - before.get(pid, 0.0) for pid, c in after.items())
@@ -378,7 +450,7 @@ def run_executors(args, bundle, scene, cams, span, o, f: int) -> None:
             for k, a in arrays.items())
         first = arrays if first is None else first
         emit(what="executor", executor=kind, workers=1 if kind == "here" else args.workers,
-             patches_per_task=args.patches_per_task, cameras=len(cams), frames_each_way=args.frames,
+             patches_per_task=cuts(args)[0], cameras=len(cams), frames_each_way=args.frames,
              seeds=int(traj.alive.any(1).sum()), patch_views_frames=int(traj.visible.sum()),
              same_bits_as_first=same, start_wall_s=round(start_wall, 1), wall_s=round(wall, 1),
              head_cpu_s=round(head_cpu, 1), workers_cpu_s=round(workers_cpu, 1),
@@ -416,10 +488,11 @@ def run(args: argparse.Namespace) -> None:
     bundle = as_built_dome(args.preset, seed=args.seed)
     bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=6000.0, seed=args.seed)
     bundle.kinect = read_kcalibration(KCALIBRATION)
-    truth = make_group(GroupOptions(n_people=args.people, scenario=args.scenario, start_ms=500.0,
-                                    duration_ms=5000.0, seed=args.seed))
-    scene = TexturedScene(bundle, truth, TextureOptions(seed=args.seed, scale={"vga": 1.0, "hd": 0.5,
-                                                                              "kinect-color": 0.5}),
+    group = GroupOptions(n_people=args.people, scenario=args.scenario, start_ms=500.0, duration_ms=5000.0,
+                         seed=args.seed)
+    truth = make_group(group)
+    texture = TextureOptions(seed=args.seed, scale={"vga": 1.0, "hd": 0.5, "kinect-color": 0.5})
+    scene = TexturedScene(bundle, truth, texture,
                           cache_frames=1 if args.preset == "full" else 3)  # the grey images are kept (GrayCache)
     by_type = cameras_by_type(bundle)
     cams = bench_cameras(bundle, args.vga, args.hd, args.kinect)
@@ -433,7 +506,12 @@ def run(args: argparse.Namespace) -> None:
     o = PatchOptions(track_frames=nf)
     if args.executors != "here":
         return run_executors(args, bundle, scene, cams, span, o, f)
-    source = GrayCache(scene)
+    disk = None
+    if args.render_cache:
+        disk = Path(args.render_cache) / render_cache_key(bundle, group, texture, args.preset, args.seed)
+        disk.mkdir(parents=True, exist_ok=True)
+        emit(what="render_cache", folder=str(disk), files=sum(1 for _ in disk.glob("*.npy")))
+    source = GrayCache(scene, disk)
     track_views = [int(k) for k in args.track_views.split(",")] if args.track_views else [o.track_views]
     spacings = ([float(x) for x in args.ref_spacing_deg.split(",")] if args.ref_spacing_deg
                 else [o.seed_reference_spacing_deg])
@@ -450,11 +528,12 @@ def run(args: argparse.Namespace) -> None:
         J = np.where(present[..., None, None], J, np.nan)
         body = BodyPrior(times_ms=at, joints_cm=J + np.random.default_rng(args.seed).normal(0.0, args.joint_noise,
                                                                                            J.shape))
-        runs = [(seeding, spacing, k, streams, name) for seeding in args.seeding.split(",")
+        runs = [(seeding, spacing, k, streams, name, cut) for seeding in args.seeding.split(",")
                 for spacing in (spacings if seeding == "images" else [0.0]) for k in track_views
-                for streams in args.seed_streams.split(",") for name in variants]
+                for streams in args.seed_streams.split(",") for name in variants for cut in cuts(args)]
         memo: dict = {}
-        for seeding, spacing, k, streams, name in runs:
+        judged: dict = {}  # a run's arrays by its runs' key without the cut: a second cut is compared, not judged
+        for seeding, spacing, k, streams, name, cut in runs:
             ok = dataclasses.replace(o, **{"track_views": k, "seed_reference_spacing_deg": spacing,
                                            "seed_streams": streams, **variants[name]})  # a variant may set any
             if seeding == "skeleton":
@@ -466,7 +545,7 @@ def run(args: argparse.Namespace) -> None:
             seeding_key = (seeding, spacing, ok.ncc_size_cm, tuple(sorted(
                 (k, repr(v)) for k, v in dataclasses.asdict(ok).items() if k.startswith(("seed_", "normal_")))))
             with PhaseTimer(scene, memo.setdefault(seeding_key, {})) as phases:
-                traj = patch_stream(bundle, source, cams, span, ok, seed_frames=[f],
+                traj = patch_stream(bundle, source, cams, span, ok, seed_frames=[f], patches_per_task=cut,
                                     depth=depth if seeding == "depth" else None,
                                     body=body if seeding == "skeleton" or ok.body_occlusion else None)
             cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
@@ -484,13 +563,28 @@ def run(args: argparse.Namespace) -> None:
                         patch_steps_kept=phases.steps["kept"], steps_cpu_s=round(steps_cpu, 2),
                         steps_cpu_ms_per_patch_step=round(1000.0 * steps_cpu / max(phases.steps["tried"], 1), 3),
                         per_cloud_cpu_s=round(track_cpu - steps_cpu, 2),
-                        wall_s=round(wall, 1), lk_calls=phases.lk["calls"], lk_points=phases.lk["points"])
+                        wall_s=round(wall, 1), lk_calls=phases.lk["calls"], lk_points=phases.lk["points"],
+                        steps_cpu_ms_per_patch_step_by_step={
+                            str(j): round(1000.0 * c / max(n, 1), 3) for j, (c, n) in sorted(phases.by_step.items())},
+                        patch_steps_by_step={str(j): n for j, (_, n) in sorted(phases.by_step.items())},
+                        patches_per_task=cut, max_rss_mb=max_rss_mb())
             # the costs before the judging (on the full dome the truth's visibility takes minutes)
             emit(what="stream_cost", seeding=seeding, variant=name, cameras=len(cams), people=args.people,
                  frames_each_way=nf, seeds=int(traj.alive.any(1).sum()), **cost,
                  load_before=[round(x, 2) for x in load], load=[round(x, 2) for x in os.getloadavg()])
+            arrays = {a: getattr(traj, a) for a in ("ids", "X_cm", "normal", "visible", "photometric", "alive")}
+            earlier = judged.get((seeding, spacing, k, streams, name))
+            if earlier is not None:  # the same stream cut otherwise: the same bits expected, and judged once
+                emit(what="same_stream", as_patches_per_task=earlier[0],
+                     same_bits=all(np.array_equal(earlier[1][a], x, equal_nan=x.dtype.kind == "f")
+                                   for a, x in arrays.items()), **cost)
+                continue
+            judged[seeding, spacing, k, streams, name] = (cut, arrays)
+            if args.no_judge:
+                continue
             save = args.save if len(runs) == 1 or not args.save else args.save.replace(
                 ".npz", f"_{seeding}_{streams}_{k}_{spacing:g}_{name}.npz")
+            rss_before = max_rss_mb()
             got = evaluate(argparse.Namespace(**{**vars(args), "save": save}), bundle, truth, cams, traj, t_seed, nf,
                            imaged_views(scene, cams), ok)
             emit(what="patches", seeding=seeding, seed_streams=streams, track_views=k, ref_spacing_deg=spacing,
@@ -501,7 +595,20 @@ def run(args: argparse.Namespace) -> None:
                  vga=args.vga, hd=args.hd, kinect=args.kinect, frames_each_way=nf, seed=args.seed, **got, **cost,
                  patch_views_frames_per_cpu_s=round(got["patch_views_frames"] / max(stage_cpu, 1e-9), 1),
                  tracking_patch_views_frames_per_cpu_s=round(got["patch_views_frames"] / max(track_cpu, 1e-9), 1),
+                 max_rss_mb_before_judging=rss_before, max_rss_mb_after_judging=max_rss_mb(),
                  load_before=[round(x, 2) for x in load], load=[round(x, 2) for x in os.getloadavg()])
+
+
+def cuts(args: argparse.Namespace) -> list[int]:
+    """``--patches-per-task`` as a list (one run each in this process; the executors take the first)."""
+    return [int(x) for x in str(args.patches_per_task).split(",")]
+
+
+def max_rss_mb() -> int:
+    """This process's peak resident memory so far (MB)."""
+    import resource
+
+    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024)
 
 
 def main() -> None:
@@ -524,7 +631,10 @@ def main() -> None:
                     help="here (this process), or a comma list of here, pool (a local process pool), dask (a Dask "
                          "LocalCluster of worker processes): the image-seeded stream on each, CPU, wall, same bits")
     ap.add_argument("--workers", type=int, default=2, help="worker processes of --executors pool and dask")
-    ap.add_argument("--patches-per-task", type=int, default=1000)
+    ap.add_argument("--patches-per-task", type=str, default="1000",
+                    help="comma list: seeds per track task (the cut of the work: the same bits whatever it is), one "
+                         "run each in this process (a second is compared with the first, not judged again); "
+                         "--executors take the first")
     ap.add_argument("--track-views", type=str, default="",
                     help="comma list of PatchOptions.track_views (0: all), one run each on the same rendered frames")
     ap.add_argument("--seed-streams", type=str, default="all",
@@ -535,8 +645,16 @@ def main() -> None:
     ap.add_argument("--variants", type=str, default="",
                     help="PatchOptions variants, one run each on the same rendered frames: NAME:FIELD=VALUE,...;"
                          "NAME2:... (values JSON, e.g. 'base:;anchor:anchor=true,anchor_min_ncc=0.5')")
+    ap.add_argument("--judge-chunk", type=int, default=1000,
+                    help="patches judged together against the truth per time (the judging's memory grows with this "
+                         "times the cameras; every figure is per patch, so the chunk changes no figure; 0: all)")
+    ap.add_argument("--no-judge", action="store_true",
+                    help="the costs alone (stream_cost, same_stream lines): the stream is not judged against the truth")
+    ap.add_argument("--render-cache", type=str, default="",
+                    help="a folder: the grey frames are read from it when there, else rendered and written to it "
+                         "(a subfolder per scene, named by the hash of everything that changes a pixel)")
     args = ap.parse_args()
-    if args.workers < 1 or args.patches_per_task < 1:
+    if args.workers < 1 or min(cuts(args)) < 1:
         raise SystemExit("--workers and --patches-per-task must be at least 1")
     run(args)
 

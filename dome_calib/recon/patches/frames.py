@@ -35,18 +35,46 @@ class FrameSource(Protocol):
 def sample(gray: np.ndarray, uv_px: np.ndarray) -> np.ndarray:
     """(H, W) uint8 or float32 image, (..., 2) pixels -> (...) float32 bilinear samples (0 outside the image)."""
     uv_px = np.asarray(uv_px)
-    uv = uv_px.astype(np.float32).reshape(-1, 2)
-    n = len(uv)
-    if n == 0:
-        return np.zeros(uv_px.shape[:-1], np.float32)
-    cols = _REMAP_COLS if n > _REMAP_COLS else n  # remap's maps are images: fewer than 32767 rows and columns
+    shape = uv_px.shape[:-1]
+    uv = uv_px.reshape(-1, 2)
+    mx, my = _maps(len(uv))
+    # the two maps written straight from the pixels (cast to float32 on assignment, as astype casts): no interleaved
+    # float32 copy and no contiguous copies of its halves (a third of the cost)
+    mx[:len(uv)], my[:len(uv)] = uv[:, 0], uv[:, 1]
+    return _remap(gray, mx, my, len(uv), shape)
+
+
+def sample_windows(gray: np.ndarray, centres_px: np.ndarray, offsets_px: np.ndarray) -> np.ndarray:
+    """(H, W) image, (..., 2) window centres, (K, 2) offsets -> (..., K) float32 samples: the bits of
+    ``sample(gray, centres_px[..., None, :] + offsets_px)`` (each pixel summed in float64, then cast to float32)
+    without the (..., K, 2) float64 array of the sums, which cost more than the sampling (the seeds' depth sweep)."""
+    c = np.asarray(centres_px, dtype=float)
+    off = np.asarray(offsets_px, dtype=float)
+    shape = c.shape[:-1] + (len(off),)
+    n = int(np.prod(shape))
+    mx, my = _maps(n)
+    np.add(c[..., 0, None], off[:, 0], out=mx[:n].reshape(shape), casting="unsafe")
+    np.add(c[..., 1, None], off[:, 1], out=my[:n].reshape(shape), casting="unsafe")
+    return _remap(gray, mx, my, n, shape)
+
+
+def _maps(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The remap's x and y maps for n points, flat (rows x cols: remap's maps are images, fewer than 32767 rows and
+    columns), the tail past n outside the image."""
+    cols = _REMAP_COLS if n > _REMAP_COLS else max(n, 1)
     rows = -(-n // cols)
-    maps = np.full((rows * cols, 2), -100.0, np.float32)
-    maps[:n] = uv
-    maps = maps.reshape(rows, cols, 2)
-    out = cv2.remap(gray, np.ascontiguousarray(maps[..., 0]), np.ascontiguousarray(maps[..., 1]), cv2.INTER_LINEAR,
+    mx, my = np.empty(rows * cols, np.float32), np.empty(rows * cols, np.float32)
+    mx[n:], my[n:] = -100.0, -100.0
+    return mx, my
+
+
+def _remap(gray: np.ndarray, mx: np.ndarray, my: np.ndarray, n: int, shape: tuple) -> np.ndarray:
+    if n == 0:
+        return np.zeros(shape, np.float32)
+    rows = len(mx) // (_REMAP_COLS if n > _REMAP_COLS else n)
+    out = cv2.remap(gray, mx.reshape(rows, -1), my.reshape(rows, -1), cv2.INTER_LINEAR,
                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return out.reshape(-1)[:n].astype(np.float32).reshape(uv_px.shape[:-1])
+    return out.reshape(-1)[:n].astype(np.float32, copy=False).reshape(shape)
 
 
 def ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -40,6 +40,11 @@ logger = logging.getLogger(__name__)
 
 #: Patch ids: cloud number * ID_STRIDE + position in the cloud.
 ID_STRIDE = 100_000
+#: Seeds per track task by default. A task makes two optical-flow calls per camera and step whatever its patches
+#: (OpenCV builds both images' pyramids in each, ~0.5 ms per VGA image), so on a dense dome the task's size sets
+#: that cost's share: a full-dome cloud (~7,300 seeds with 8 people) in two tasks, one per core of a small machine
+#: (docs/patches.md#speed). The cut changes no bit of the result.
+PATCHES_PER_TASK = 4000
 
 
 def imaged_views(source: FrameSource, cameras: list[str]) -> ViewSet:
@@ -263,7 +268,7 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
                  options: PatchOptions | None = None, *, stream: str | None = None,
                  seed_frames: list[int] | None = None, depth: DepthFrames | None = None,
                  body: BodyPrior | None = None, executor=None,
-                 patches_per_task: int = 1000,
+                 patches_per_task: int = PATCHES_PER_TASK,
                  progress: Callable[[int, int], None] | None = None) -> PatchTrajectories:
     """The dense patch trajectory stream of ``cameras`` (all streams) over ``span_ms``.
 

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from dome_calib.recon.patches.frames import FrameSource, ncc, sample
+from dome_calib.recon.patches.frames import FrameSource, ncc, sample, sample_windows
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.project import ViewSet, project_points
 from dome_calib.recon.triangulate import TriangulationOptions, triangulate
@@ -98,7 +98,7 @@ def _sweep(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int, 
         for k, g in enumerate(grays):
             uv = proj.uv_px[k].reshape(*s.shape, 2)
             vis = proj.visible[k].reshape(s.shape) & ok
-            win = sample(g, np.where(vis[..., None], uv, -100.0)[..., None, :] + off)  # (n, D, W2)
+            win = sample_windows(g, np.where(vis[..., None], uv, -100.0), off)  # (n, D, W2)
             score = ncc(ref[sl, None], win)
             scores += np.where(vis, score, 0.0)
             counts += vis
