@@ -11,10 +11,9 @@ from dome_calib.recon.patches.frames import patch_axes
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.refine import refine_normals, refine_steps_deg
 from dome_calib.recon.patches.visibility import Frames
-from dome_calib.recon.project import view_set
 
 from .patches_helpers import one_person_capture
-from .test_patches_visibility import P0, TexturedPlane
+from .test_patches_visibility import P0, TexturedPlane, facing_plane
 
 
 class _Kept(TexturedPlane):
@@ -34,10 +33,7 @@ class _Kept(TexturedPlane):
 def plane():
     bundle, _ = one_person_capture()
     names = sorted(n for n, c in bundle.cameras.items() if str(c.type) == "vga")
-    views = view_set(bundle, names)
-    to_cam = views.center_cm - P0
-    normal = (to_cam / np.linalg.norm(to_cam, axis=1, keepdims=True)).mean(0)
-    normal /= np.linalg.norm(normal)
+    views, normal = facing_plane(bundle, names)
     return views, names, normal, _Kept(bundle, normal, set())
 
 
@@ -80,10 +76,7 @@ def streams():
     vga = sorted(n for n, c in bundle.cameras.items() if str(c.type) == "vga")[:1]
     hd = sorted(n for n, c in bundle.cameras.items() if str(c.type) == "hd")
     names = vga + hd
-    views = view_set(bundle, names)
-    to_cam = views.center_cm - P0
-    normal = (to_cam / np.linalg.norm(to_cam, axis=1, keepdims=True)).mean(0)
-    normal /= np.linalg.norm(normal)
+    views, normal = facing_plane(bundle, names)
     return views, names, normal, _Kept(bundle, normal, set())
 
 

@@ -46,14 +46,19 @@ class TexturedPlane:
         return np.clip(map_coordinates(tex, [b, a], order=1, cval=128.0), 0, 255).astype(np.uint8).reshape(rays.shape)
 
 
+def facing_plane(bundle, names: list[str]):
+    """The views of ``names`` and the unit normal of a plane through P0 facing them on average."""
+    views = view_set(bundle, names)
+    to_cam = views.center_cm - P0
+    normal = (to_cam / np.linalg.norm(to_cam, axis=1, keepdims=True)).mean(0)
+    return views, normal / np.linalg.norm(normal)
+
+
 @pytest.fixture(scope="module")
 def plane():
     bundle, _ = one_person_capture()
     names = sorted(n for n, c in bundle.cameras.items() if str(c.type) == "vga")
-    views = view_set(bundle, names)
-    to_cam = views.center_cm - P0
-    normal = (to_cam / np.linalg.norm(to_cam, axis=1, keepdims=True)).mean(0)
-    normal /= np.linalg.norm(normal)
+    views, normal = facing_plane(bundle, names)
     return bundle, names, views, normal
 
 
