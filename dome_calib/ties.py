@@ -30,8 +30,11 @@ POINT_OFFSET_QUANTUM_CM = 1e-3
 VIEW_COSINE_QUANTUM = 1e-6
 #: Photometric scores (mean NCC) when choosing a depth or a normal.
 NCC_QUANTUM = 1e-6
-#: Predicted image motion compared with a pixel threshold.
+#: Image distances compared with a pixel threshold: predicted motion, a flow's forward-backward error, a flow's
+#: distance from its guess, a keypoint's distance from an epipolar line.
 FLOW_QUANTUM_PX = 1e-6
+#: SIFT descriptor distances (descriptor units, values of order 100) in the nearest / second-nearest ratio test.
+DESCRIPTOR_DISTANCE_QUANTUM = 1e-6
 #: Corner positions when ordering detected corners (a detector's order decides nothing): 1/8 px.
 CORNER_QUANTUM_PX = 0.125
 #: Time differences when choosing the nearest frame: 1 us.
@@ -136,6 +139,11 @@ def below(a: np.ndarray | float, b: np.ndarray | float, step: float) -> np.ndarr
 def at_least(a: np.ndarray | float, b: np.ndarray | float, step: float) -> np.ndarray:
     """``a >= b`` elementwise after quantising both to ``step``; False where either is NaN."""
     return at_most(b, a, step)
+
+
+def above(a: np.ndarray | float, b: np.ndarray | float, step: float) -> np.ndarray:
+    """``a > b`` elementwise after quantising both to ``step``; False where either is NaN."""
+    return below(b, a, step)
 
 
 def raster_order(uv_px: np.ndarray, step_px: float) -> np.ndarray:

@@ -50,6 +50,15 @@ def _nearest_views(views: ViewSet, r: int, n: int) -> np.ndarray:
     return np.array([others[m] for m in order[:n]], dtype=np.int64)
 
 
+def in_volume(X: np.ndarray, o: PatchOptions, floor_cm: float) -> np.ndarray:
+    """(N,) bool: points (N, 3) inside the capture volume (the cylinder of ``volume_radius_cm`` about the y axis,
+    ``volume_height_cm`` tall) at least ``floor_cm`` above the floor (y = 0, up is -y); positions quantised to
+    ``ties.LENGTH_QUANTUM_CM`` (a point on the wall is inside on every machine)."""
+    q = ties.LENGTH_QUANTUM_CM
+    return (ties.at_most(np.hypot(X[:, 0], X[:, 2]), o.volume_radius_cm, q)
+            & ties.at_least(X[:, 1], -o.volume_height_cm, q) & ties.at_most(X[:, 1], -floor_cm, q))
+
+
 def _volume_span(origin: np.ndarray, dirs: np.ndarray, radius: float, height: float) -> tuple[np.ndarray, np.ndarray]:
     """Ray parameters (N,) where rays enter and leave the cylinder x^2 + z^2 <= radius^2, -height <= y <= 0."""
     ox, oz, dx, dz = origin[0], origin[2], dirs[:, 0], dirs[:, 2]
@@ -106,7 +115,7 @@ def _sweep(source: FrameSource, views: ViewSet, frames: dict[str, int], r: int, 
         k = ties.argmax_first(mean, ties.NCC_QUANTUM, axis=1)
         rows = np.arange(len(k))
         best[sl] = mean[rows, k]
-        good = best[sl] >= o.seed_min_ncc
+        good = ties.at_least(best[sl], o.seed_min_ncc, ties.NCC_QUANTUM)
         X[sl][good] = P[rows, k][good]
     return X, best
 
@@ -142,7 +151,7 @@ def _lk(src: np.ndarray, dst: np.ndarray, p0: np.ndarray, guess: np.ndarray | No
     back, st2, _ = cv2.calcOpticalFlowPyrLK(dst, src, b, start, winSize=win, maxLevel=lv, criteria=crit,
                                             flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
     fb = np.linalg.norm((back - a).reshape(-1, 2), axis=1)
-    ok = (st.ravel() == 1) & (st2.ravel() == 1) & (fb < o.lk_fb_px)
+    ok = (st.ravel() == 1) & (st2.ravel() == 1) & ties.below(fb, o.lk_fb_px, ties.FLOW_QUANTUM_PX)
     return b.reshape(-1, 2).astype(float), ok
 
 

@@ -32,7 +32,8 @@ from dome_calib.bundle import Bundle
 from dome_calib.recon.depth import pointcloud_at
 from dome_calib.recon.patches.frames import FrameSource, sample
 from dome_calib.recon.patches.model import PatchOptions
-from dome_calib.recon.patches.seed import Seeds, _normals, flow_to_neighbours, patch_triplets, thin_to_cells
+from dome_calib.recon.patches.seed import (Seeds, _normals, flow_to_neighbours, in_volume, patch_triplets,
+                                           thin_to_cells)
 from dome_calib.recon.project import ViewSet, depth_from_world, project_points, project_view
 from dome_calib.recon.triangulate import TriangulationOptions, triangulate
 from dome_calib import ties
@@ -51,8 +52,7 @@ class DepthFrames:
 
 
 def _in_volume(X: np.ndarray, o: PatchOptions) -> np.ndarray:
-    return ((X[:, 0] ** 2 + X[:, 2] ** 2 <= o.volume_radius_cm ** 2) & (X[:, 1] >= -o.volume_height_cm)
-            & (X[:, 1] <= -o.depth_floor_cm))
+    return in_volume(X, o, o.depth_floor_cm)
 
 
 #: A seed is kept where its reference camera's image can be tracked: the structure tensor's smaller eigenvalue
@@ -104,7 +104,7 @@ def seed_from_own_kinect(bundle: Bundle, depth: DepthFrames, node: str, t_ms: fl
     uv, visible = project_view(views, camera, X)
     to_cam = views.center_cm[camera][None] - X
     to_cam /= np.linalg.norm(to_cam, axis=1, keepdims=True)
-    ok = visible & (np.sum(to_cam * normal, 1) > o.min_cos_view)
+    ok = visible & ties.above(np.sum(to_cam * normal, 1), o.min_cos_view, ties.VIEW_COSINE_QUANTUM)
     idx = np.flatnonzero(ok)
     idx = idx[trackable(source.gray(views.names[camera], frame), uv[idx])] if len(idx) else idx
     seen = np.zeros((len(idx), V), bool)
@@ -133,7 +133,7 @@ def seed_from_depth(bundle: Bundle, depth: DepthFrames, seed_time_ms: float, sou
     to_cam /= np.linalg.norm(to_cam, axis=-1, keepdims=True)
     to_own = own - X
     to_own /= np.linalg.norm(to_own, axis=-1, keepdims=True)
-    faces = np.sum(to_cam * normal[:, None], -1) > o.min_cos_view
+    faces = ties.above(np.sum(to_cam * normal[:, None], -1), o.min_cos_view, ties.VIEW_COSINE_QUANTUM)
     ref, has = ties.argmax_where(np.sum(to_cam * to_own[:, None], -1), inside & faces, ties.VIEW_COSINE_QUANTUM)
     tri_o = TriangulationOptions(inlier_threshold_px=o.triangulation_px, min_views=o.seed_min_views)
     centre_px = proj.uv_px  # (V, N, 2)

@@ -30,7 +30,7 @@ from dome_calib.camera import pixels_to_normalized
 from dome_calib.recon.patches.frames import FrameSource, ncc, patch_axes, patch_grid_cm, project_one, sample
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.refine import refine_normals
-from dome_calib.recon.patches.seed import Seeds, _normals, _volume_span
+from dome_calib.recon.patches.seed import Seeds, _normals, _volume_span, in_volume
 from dome_calib.recon.patches.visibility import Frames
 from dome_calib.recon.project import ViewSet
 from dome_calib.recon.triangulate import TriangulationOptions, triangulate
@@ -90,7 +90,8 @@ def match_pair(uv_a: np.ndarray, desc_a: np.ndarray, uv_b: np.ndarray, desc_b: n
     far = np.full(len(uv_a), np.inf)
     for c0 in range(0, len(uv_a), _CHUNK):
         sl = slice(c0, c0 + _CHUNK)
-        near = _epipolar_px(E, xa[sl], xb, float(views.intr[i][0]), float(views.intr[j][0])) < o.seed_match_px
+        line_px = _epipolar_px(E, xa[sl], xb, float(views.intr[i][0]), float(views.intr[j][0]))
+        near = ties.below(line_px, o.seed_match_px, ties.FLOW_QUANTUM_PX)
         da = desc_a[sl].astype(np.float64)
         d2 = np.sum(da ** 2, 1)[:, None] + nb2[None] - 2.0 * da @ desc_b.T.astype(np.float64)
         d = np.sqrt(np.maximum(d2, 0.0))
@@ -100,7 +101,7 @@ def match_pair(uv_a: np.ndarray, desc_a: np.ndarray, uv_b: np.ndarray, desc_b: n
     part = np.argsort(D, axis=1, kind="stable")[:, :2] if len(uv_b) > 1 else np.zeros((len(uv_a), 1), np.int64)
     best = D[rows, part[:, 0]]
     second = D[rows, part[:, 1]] if part.shape[1] > 1 else np.full(len(uv_a), np.inf)
-    ok = np.isfinite(best) & (best < o.seed_ratio * np.minimum(second, far))
+    ok = np.isfinite(best) & ties.below(best, o.seed_ratio * np.minimum(second, far), ties.DESCRIPTOR_DISTANCE_QUANTUM)
     back = np.argmin(D, axis=0)  # b's nearest a among its own candidates (first on ties)
     ok &= back[part[:, 0]] == rows
     a = np.flatnonzero(ok)
@@ -131,7 +132,7 @@ def _tracks(offsets: np.ndarray, matches: dict[tuple[int, int], np.ndarray]) -> 
 
 
 def _inside_volume(X: np.ndarray, o: PatchOptions) -> np.ndarray:
-    return (np.hypot(X[:, 0], X[:, 2]) <= o.volume_radius_cm) & (X[:, 1] <= 0.0) & (X[:, 1] >= -o.volume_height_cm)
+    return in_volume(X, o, 0.0)
 
 
 def seed_from_features(source: FrameSource, views: ViewSet, frames: dict[str, int], o: PatchOptions) -> Seeds:
@@ -185,7 +186,7 @@ def seed_from_features(source: FrameSource, views: ViewSet, frames: dict[str, in
     at = Frames(frame=np.array([frames[n] for n in views.names]), offset_ms=np.zeros(V))
     trip = refine_normals(source, views, at, trip, seen, o) if len(trip) else trip
     score = square_ncc(source, views, at, trip, seen, o)
-    alike = score >= o.seed_min_ncc
+    alike = ties.at_least(score, o.seed_min_ncc, ties.NCC_QUANTUM)
     _, _, normal = patch_axes(trip[:, 0], trip[:, 1], trip[:, 2])
     logger.info("seed cloud (features): %d patches from %d cameras (%d tracks, %d thinned, %d with normals from "
                 "neighbours)", int(alike.sum()), V, len(tracks), len(X), int(ok.sum()))

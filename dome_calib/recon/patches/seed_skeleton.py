@@ -197,9 +197,9 @@ def _candidates(views: ViewSet, r: int, X: np.ndarray, normal: np.ndarray, A, B,
     for k, c in enumerate(near):
         to_cam = views.center_cm[c] - X
         dist = np.linalg.norm(to_cam, axis=1)
-        ok = np.sum(to_cam * normal, 1) / dist > o.min_cos_view
+        ok = ties.above(np.sum(to_cam * normal, 1) / dist, o.min_cos_view, ties.VIEW_COSINE_QUANTUM)
         s, _ = ray_capsules(views.center_cm[c], -to_cam / dist[:, None], A, B, radius)
-        ok &= s >= dist - o.seed_depth_window_cm
+        ok &= ties.at_least(s, dist - o.seed_depth_window_cm, ties.LENGTH_QUANTUM_CM)
         cams[ok, k] = c
     return cams
 
@@ -276,7 +276,7 @@ def seed_camera_on_body(source: FrameSource, views: ViewSet, frames: dict[str, i
         trip = refine_normals(source, sub, frames_sub, trip, seen, o)
         _, _, n = patch_axes(trip[:, 0], trip[:, 1], trip[:, 2])
         s, score, _ = _search(grays, sub, cams_sub, origin, d, s, step, step / FINE_STEPS, n, o)
-        agree = np.nan_to_num(score, nan=-1.0) >= o.seed_min_ncc
+        agree = ties.at_least(score, o.seed_min_ncc, ties.NCC_QUANTUM)  # NaN (not scored) never agrees
         n_agree = 1 + agree.sum(1)
         ok = (n_agree >= views_needed(1 + np.isfinite(score).sum(1), o.seed_min_views)) & ~edge
         if not ok.any():

@@ -214,7 +214,7 @@ def square_up(X: np.ndarray, axis_cm: float) -> np.ndarray:
 
 def _stretched(X: np.ndarray, o: PatchOptions) -> np.ndarray:
     d = np.linalg.norm(X[:, 1:] - X[:, :1], axis=-1)  # (N, 2)
-    return np.any(np.abs(d / o.axis_cm - 1.0) > o.max_stretch, axis=1)
+    return np.any(ties.above(np.abs(d / o.axis_cm - 1.0), o.max_stretch, ties.UNIT_QUANTUM), axis=1)
 
 
 #: Patches whose flown views are chosen together (memory: chunk x cameras x 3 directions).
@@ -306,7 +306,7 @@ class SeedViews:
         if v not in self.gray:
             self.gray[v] = source.gray(name, int(self.frame[v]))
         r, good = optical_flow(self.gray[v], source.gray(name, f), p0[has], o, guess=q[has], levels=1)
-        near = good & (np.linalg.norm(r - q[has], axis=1) <= o.anchor_flow_px)
+        near = good & ties.at_most(np.linalg.norm(r - q[has], axis=1), o.anchor_flow_px, ties.FLOW_QUANTUM_PX)
         rows = np.flatnonzero(has)
         q[rows[near]] = r[near]
         if o.anchor_reject:

@@ -172,8 +172,10 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
             cos[:, c] = np.sum(to_cam * normal[:, None], -1) / np.linalg.norm(to_cam, axis=-1)
         if body is not None and o.body_occlusion:
             occ = Occluders.of(body.at(frames.t_ms + dt), o.occluder_margin_cm)
-            pi, k = np.nonzero(cos[:, cams] > o.min_cos_view)  # only the cameras the normal faces are judged
+            # only the cameras the normal faces are judged
+            pi, k = np.nonzero(ties.above(cos[:, cams], o.min_cos_view, ties.VIEW_COSINE_QUANTUM))
             hidden[pi, cams[k]] = occluded_views(occ, Xt[:, 0], C, pi, cams[k], o.occlusion_stop_cm)
+    facing = ties.above(cos, o.min_cos_view, ties.VIEW_COSINE_QUANTUM)  # (N, V) the normal faces the camera
     for v, name in enumerate(views.names):
         f = int(frames.frame[v])
         if f < 0 or N == 0:
@@ -181,7 +183,7 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
         grid_all = moved[float(frames.offset_ms[v])]
         # only patches whose normal faces the camera can be candidates: the others are not projected (a dome's
         # camera faces a third of a patch's cameras; their NCC and the photometric baseline are left out there)
-        rows = np.flatnonzero(cos[:, v] > o.min_cos_view)  # the hidden too: the photometric baseline judges them
+        rows = np.flatnonzero(facing[:, v])  # the hidden too: the photometric baseline judges them
         if len(rows) == 0:
             continue
         uv, inside = project_view_rows(views, v, grid_all, rows)
@@ -193,7 +195,7 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
             row_v.append(np.full(len(blocks[-1]), v))
             M += len(blocks[-1])
     samples = np.concatenate(blocks) if blocks else np.zeros((0, G), np.float32)
-    candidate = in_image & (cos > o.min_cos_view) & ~hidden
+    candidate = in_image & facing & ~hidden
     prev = previous & candidate
     score = np.where(prev, cos, np.where(candidate, cos - 2.0, -np.inf))
     ref, _ = ties.argmax_where(score, np.isfinite(score), ties.VIEW_COSINE_QUANTUM)  # ties by position
@@ -224,7 +226,7 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
     if hidden.any():
         # a hidden camera is a camera labelled "not visible" for certain: it stays in the prior, so each candidate
         # neighbour of it pays prior_weight for "visible" (its edge to a fixed 0 label), as it would in the graph
-        facing_hidden = (hidden & in_image & (cos > o.min_cos_view)).astype(np.float64)
+        facing_hidden = (hidden & in_image & facing).astype(np.float64)
         ends = np.concatenate([neighbours, neighbours[:, ::-1]])
         adjacent = csr_matrix((np.ones(len(ends)), (ends[:, 0], ends[:, 1])), shape=(V, V))
         pull = np.asarray(adjacent @ facing_hidden.T).T  # (N, V) each camera's hidden neighbours (small integers)
@@ -239,7 +241,8 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
     visible = np.zeros((N, V), bool)
     visible[pi, vi] = labels == 1
     # the CVPR 2014 baseline is the reference's NCC at ncc_threshold whatever rule the MAP term uses
-    return Visibility(visible=visible, photometric=in_image & has_ref[:, None] & (corr >= o.ncc_threshold), ncc=corr,
+    photometric = in_image & has_ref[:, None] & ties.at_least(corr, o.ncc_threshold, ties.NCC_QUANTUM)
+    return Visibility(visible=visible, photometric=photometric, ncc=corr,
                       candidate=candidate, reference=ref, appearance=Appearance(samples=samples, row_of=row_of))
 
 
@@ -253,4 +256,4 @@ def off_seed(now: Visibility, seed: Appearance, o: PatchOptions) -> np.ndarray:
     med = np.full(len(got), np.inf)
     if judged.any():
         med[judged] = np.nanmedian(got[judged], axis=1)
-    return med < o.ncc_threshold
+    return ties.below(med, o.ncc_threshold, ties.NCC_QUANTUM)
