@@ -76,6 +76,7 @@ def test_first_along_an_axis_and_comparisons_ignore_noise(case, data):
     assert ties.at_most(values, limit, step).tolist() == (k <= limit_k).tolist()
     assert ties.at_least(values, limit, step).tolist() == (k >= limit_k).tolist()
     assert ties.below(values, limit, step).tolist() == (k < limit_k).tolist()
+    assert ties.above(values, limit, step).tolist() == (k > limit_k).tolist()
 
 
 def test_comparisons_give_nan_no_rank_and_equal_by_design_values_compare_equal():
@@ -87,6 +88,8 @@ def test_comparisons_give_nan_no_rank_and_equal_by_design_values_compare_equal()
     assert ties.below(a, 0.5, step).tolist() == [False, False, False, False, False]
     assert ties.below(np.array([np.nan, 0.4, -np.inf]), 0.5, step).tolist() == [False, True, True]
     assert not ties.below(0.4, np.nan, step)
+    assert ties.above(a, 0.5, step).tolist() == [False, False, False, False, True]
+    assert not ties.above(0.6, np.nan, step)
     with pytest.raises(ValueError):  # a NaN inside the mask has no rank
         ties.argmax_where(np.array([[np.nan, 1.0]]), np.array([[True, True]]), step)
 
