@@ -1,5 +1,5 @@
 """The class rule of :mod:`dome_calib.ties` for the patch stream's thresholds: a computed float compared with a
-:class:`PatchOptions` field (``cos > o.min_cos_view``, ``corr >= o.ncc_threshold``) is a choice on the float's last
+field of the stream's options (:class:`PatchOptions`, and ``MotionOptions``, ``PartOptions``, ``TieOptions``) (``cos > o.min_cos_view``, ``corr >= o.ncc_threshold``) is a choice on the float's last
 bits; it goes through ``ties.at_most`` / ``at_least`` / ``below`` / ``above`` with a named step. Read from the
 source of ``recon/patches`` (AST): a ``Compare`` node one of whose sides reads an options field is refused unless
 its other side is a literal (``o.seed_method == "features"``) or it is on the short list below of comparisons of
@@ -9,20 +9,41 @@ from __future__ import annotations
 import ast
 import dataclasses
 import functools
+import importlib
 from pathlib import Path
 
 import dome_calib
 from dome_calib.recon.patches.model import PatchOptions
 
 PATCHES = Path(dome_calib.__file__).parent / "recon" / "patches"
-FIELDS = frozenset(f.name for f in dataclasses.fields(PatchOptions))
+
+
+def _options_classes() -> list[type]:
+    """Every options dataclass (``...Options``) defined in a module of ``recon/patches``."""
+    found = []
+    for p in sorted(PATCHES.glob("*.py")):
+        module = importlib.import_module("dome_calib.recon.patches" + ("" if p.stem == "__init__" else f".{p.stem}"))
+        found += [c for n, c in vars(module).items() if n.endswith("Options") and dataclasses.is_dataclass(c)
+                  and c.__module__ == module.__name__]
+    return found
+
+
+OPTIONS = _options_classes()
+FIELDS = frozenset(f.name for c in OPTIONS for f in dataclasses.fields(c))
 
 #: (module, function) -> number of comparisons of exact values against an options field in it, each with why.
 ALLOWED_EXACT = {
     ("run.py", "patch_stream"): 1,  # a stream's camera count (len) against seed_min_views
     ("seed_skeleton.py", "seed_camera_on_body"): 1,  # counts of agreeing views against views_needed(...) (integers)
     ("track.py", "track_cloud"): 2,  # counts of visible cameras (sum of a bool array) against min_visible
+    ("motion.py", "fit_part"): 2,  # a part's patch count and inlier count against min_patches
+    ("parts.py", "_components"): 1,  # frames a bone's patch is seen in against min_frames
 }
+
+
+def test_the_options_classes_are_found():
+    assert {c.__name__ for c in OPTIONS} >= {"PatchOptions", "MotionOptions", "PartOptions", "TieOptions"}
+    assert PatchOptions in OPTIONS
 
 
 def _reads_option(node: ast.AST) -> bool:
@@ -32,7 +53,7 @@ def _reads_option(node: ast.AST) -> bool:
 
 def scan(source: str) -> list[tuple[int, str, str]]:
     """One module's source -> [(line, function qualname, code)] of comparisons of a non-literal against an
-    expression reading a ``PatchOptions`` field (an attribute of that name on a plain name: ``o.``, ``opts.``)."""
+    expression reading an options field (an attribute of that name on a plain name: ``o.``, ``opts.``)."""
     found: list[tuple[int, str, str]] = []
 
     def walk(node: ast.AST, qualname: str) -> None:
@@ -67,7 +88,7 @@ def test_no_unquantised_comparison_against_an_option():
             counts[(path, fn)] = counts.get((path, fn), 0) + 1
             lines.setdefault((path, fn), []).append(f"recon/patches/{path}:{line}: {code}")
     extra = [s for k, n in counts.items() if n > ALLOWED_EXACT.get(k, 0) for s in lines[k]]
-    assert not extra, ("a computed float against a PatchOptions field: compare through dome_calib.ties "
+    assert not extra, ("a computed float against an options field: compare through dome_calib.ties "
                        "(at_most / at_least / below / above, a named step), or list an exact comparison:\n"
                        + "\n".join(extra))
     stale = {k: n for k, n in ALLOWED_EXACT.items() if counts.get(k, 0) < n}

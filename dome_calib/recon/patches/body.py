@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from dome_calib import ties
 from dome_calib.options import UnitInterval, options
 from dome_calib.recon.patches.motion import MotionOptions, PartMotions, part_motions, point_sigma_cm
 from dome_calib.recon.patches.parts import BONES, PartLabels, PartOptions, label_parts
@@ -180,7 +181,7 @@ def joint_ties(motions: PartMotions, track_ids: np.ndarray, times_ms: np.ndarray
     X = J[k, p, joint]
     sub = PartMotions(*(getattr(motions, f)[m] for f in PartMotions.__dataclass_fields__))
     sigma = point_sigma_cm(sub, X, o.floor_cm)
-    keep = np.isfinite(sigma) & (sigma <= o.max_sigma_cm)
+    keep = np.isfinite(sigma) & ties.at_most(sigma, o.max_sigma_cm, ties.LENGTH_QUANTUM_CM)
     t = np.asarray(times_ms, dtype=float)
     return JointTies(track_id=np.asarray(track_ids)[p[keep]], joint=joint[keep], from_ms=t[k[keep]],
                      to_ms=t[k[keep] + 1], R=motions.R[m[keep]], t_cm=motions.t_cm[m[keep]], sigma_cm=sigma[keep])
@@ -226,5 +227,5 @@ def flag_joints(X_frame_cm: np.ndarray, X_refined_cm: np.ndarray, confidence: np
     from a refined joint with ``c >= flag_min_confidence`` (module docstring)."""
     o = options or TieOptions()
     d = np.linalg.norm(np.asarray(X_frame_cm) - np.asarray(X_refined_cm), axis=-1)
-    with np.errstate(invalid="ignore"):
-        return np.isfinite(d) & (d > o.flag_min_cm) & (np.asarray(confidence) >= o.flag_min_confidence)
+    return (np.isfinite(d) & ties.above(d, o.flag_min_cm, ties.LENGTH_QUANTUM_CM)
+            & ties.at_least(confidence, o.flag_min_confidence, ties.UNIT_QUANTUM))

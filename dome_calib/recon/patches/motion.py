@@ -87,7 +87,7 @@ def fit_part(X0: np.ndarray, X1: np.ndarray, o: MotionOptions) -> tuple[np.ndarr
         R, t = rigid_fit(A, B, np.repeat(w, 3))
     r = _patch_residuals(R, t, X0, X1)
     s = max(MAD_SCALE * float(np.median(r)), o.min_scale_cm)
-    inl = r <= o.reject_k * s
+    inl = ties.at_most(r, o.reject_k * s, ties.RESIDUAL_QUANTUM_CM)
     if inl.sum() < o.min_patches:
         return None
     R, t = rigid_fit(X0[inl].reshape(-1, 3), X1[inl].reshape(-1, 3), np.ones(3 * int(inl.sum())))

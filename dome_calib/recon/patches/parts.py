@@ -218,4 +218,5 @@ def _components(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, A: np.n
         dev = np.where(ok_t, (zs - zm[:, None]) ** 2 + (rs - rm[:, None]) ** 2, 0.0).sum(1) / np.maximum(n_t, 1)
         share_away = np.where(ok_t, away, False).sum(1) / np.maximum(n_t, 1)
     return {"dev": np.sqrt(dev), "dist": dm, "align": am, "interior": (sm > 0.0) & (sm < 1.0),
-            "passes": (n_t >= o.min_frames) & (share_away >= o.min_away) & (dm <= o.max_distance_cm)}
+            "passes": (n_t >= o.min_frames) & ties.at_least(share_away, o.min_away, ties.UNIT_QUANTUM)
+            & ties.at_most(dm, o.max_distance_cm, _QUANTUM)}
