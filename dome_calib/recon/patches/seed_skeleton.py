@@ -328,7 +328,7 @@ def seed_on_body(source: FrameSource, views: ViewSet, frames: dict[str, int], jo
 #: the reference image assume neighbours see the surface alike. Measured: the dome's neighbours (a few deg) seed
 #: thousands; three half-size HD cameras 28-72 deg apart (nearest 28-44) seed 29; four phones 55-130 deg apart keep
 #: 1-7 of 400 corners per camera; the five-camera rig 63-141 deg apart (nearest 63-73) seeds none, where skeleton
-#: seeds give ~480 (docs/patches.md#which-seeding-by-default-seed_methodauto). 45 lies between the last seeding
+#: seeds give ~480 (docs/patches.md#which-seeding-by-default---patch-seeds-auto). 45 lies between the last seeding
 #: rig and the first that does not.
 SWEEP_REACH_DEG = 45.0
 #: What ``--patch-seeds auto`` may pick.
