@@ -8,8 +8,10 @@ from __future__ import annotations
 import inspect
 
 import numpy as np
+import pytest
 
 from dome_calib.cli.people import reconstruct
+from dome_calib.recon.patches import run as patch_run
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.run import patch_stream
 from dome_calib.recon.patches.seed_skeleton import (SWEEP_REACH_DEG, BodyPrior, choose_seed_method,
@@ -18,6 +20,7 @@ from dome_calib.recon.patches.stage import PatchStage
 from dome_calib.recon.project import view_set
 from dome_calib.synth.dome import as_built_dome
 from dome_calib.synth.rig import RigOptions, few_camera_rig
+from dome_calib.synth.textured import TexturedScene, TextureOptions
 
 from .patches_helpers import WIDE_PAIR, one_person_capture, wide_pair_scene
 
@@ -70,3 +73,30 @@ def test_a_stream_of_two_cameras_seeds_on_the_people_but_not_by_the_sweep():
     o = PatchOptions()  # seed_min_views 3
     assert [stream_may_seed(n, o, on_body=True) for n in (1, 2, 3)] == [False, True, True]
     assert [stream_may_seed(n, o, on_body=False) for n in (1, 2, 3)] == [False, False, True]
+
+
+@pytest.mark.slow  # two HD cameras rendered: ~9 CPU-s on a loaded machine
+def test_a_pair_of_hd_cameras_beside_the_vga_reference_seeds_on_the_people(monkeypatch):
+    """run.py's check of the other streams follows stream_may_seed: two HD cameras (fewer than ``seed_min_views``)
+    seed on the body (before, only the VGA reference stream seeded)."""
+    bundle, truth = one_person_capture()
+    hd = sorted(n for n, c in bundle.cameras.items() if str(c.type) == "hd")[:2]
+    cams = ["01_01", "01_02", "01_03"] + hd
+    scene = TexturedScene(bundle, truth, TextureOptions())
+    at = bundle.sync.streams["vga"].times_of(np.arange(FRAME - 1, FRAME + 2))
+    J, present = truth.joints_cm(at)
+    body = BodyPrior(times_ms=at, joints_cm=np.where(present[..., None], J, np.nan))
+    seeded: dict[int, int] = {}
+    run_one = patch_run.seed_task
+
+    def counted(task):
+        key, got = run_one(task)
+        seeded[task.stream_rank] = seeded.get(task.stream_rank, 0) + len(got.seeds.X_cm)
+        return key, got
+
+    monkeypatch.setattr(patch_run, "seed_task", counted)
+    o = PatchOptions(seed_method="skeleton", track_frames=1, seed_features=60)
+    traj = patch_run.patch_stream(bundle, scene, cams, (float(at[0]), float(at[-1])), o, stream="vga",
+                                  seed_frames=[FRAME], body=body)
+    assert set(seeded) == {0, 1} and seeded[1] >= 20, seeded  # the HD pair's seeds: 67
+    assert len(traj.ids) > seeded[0] // 2
