@@ -194,7 +194,7 @@ def test_reconstruct_with_images_refines_the_people_and_adds_the_patch_stream(ca
     assert out.returncode == 0, out.stderr
     assert "patches: " in out.stdout and "given a body part -> patches.parquet" in out.stdout
     assert "joint ties on the people's times" in out.stdout and "per-frame joints as wrong" in out.stdout
-    assert "(seeds: sweep (auto))" in out.stdout  # the tiny dome's neighbours ~3 deg apart: the sweep, by default
+    assert "(seeds: sweep, auto: stream vga's 8 cameras' nearest neighbours stand 3.3 deg apart" in out.stdout
     seeding = json.loads(pq.read_schema(root / "with" / "patches.parquet").metadata[METADATA_KEY])["seeding"]
     assert seeding["method"] == "sweep" and seeding["chosen"] == "auto" and seeding["neighbour_deg"] < 45.0
     df = pd.read_parquet(root / "with" / "patches.parquet")

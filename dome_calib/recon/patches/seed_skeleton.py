@@ -331,8 +331,6 @@ def seed_on_body(source: FrameSource, views: ViewSet, frames: dict[str, int], jo
 #: seeds give ~480 (docs/patches.md#which-seeding-by-default---patch-seeds-auto). 45 lies between the last seeding
 #: rig and the first that does not.
 SWEEP_REACH_DEG = 45.0
-#: What ``--patch-seeds auto`` may pick.
-AUTO_METHODS = ("sweep", "skeleton")
 
 
 @dataclass(frozen=True)
@@ -345,7 +343,8 @@ class SeedChoice:
     reason: str
 
     def as_dict(self) -> dict:
-        return {"method": self.method, "chosen": "auto", "neighbour_deg": self.neighbour_deg,
+        deg = self.neighbour_deg if np.isfinite(self.neighbour_deg) else None  # one camera: no neighbour
+        return {"method": self.method, "chosen": "auto", "neighbour_deg": deg,
                 "sweep_reach_deg": SWEEP_REACH_DEG, "reason": self.reason}
 
 

@@ -75,11 +75,11 @@ class PatchStage:
                             axis_cm=options.axis_cm, seeding=seeding)
         self.source.close()
         labelled = int(np.sum(labels.bone >= 0))
+        seeds = seeding["method"] + (f", auto: {seeding['reason']}" if self.auto_seeds else "")
         self.summary = (f"patches: {len(traj.ids)} trajectories ({table.num_rows} patch-times) at {len(traj.times_ms)} "
-                        f"times of stream {stream} from {len(self.cameras)} cameras (seeds: {seeding['method']}"
-                        + (" (auto)" if self.auto_seeds else "") + f"), {labelled} given a body part -> "
-                        f"{FILE_NAME}; {len(motions.bone)} part motions, {int(on_times.sum())} joint ties on the "
-                        "people's times")
+                        f"times of stream {stream} from {len(self.cameras)} cameras (seeds: {seeds}), {labelled} "
+                        f"given a body part -> {FILE_NAME}; {len(motions.bone)} part motions, "
+                        f"{int(on_times.sum())} joint ties on the people's times")
         return FurtherStage(write=lambda staging: write_patch_table(Path(staging) / FILE_NAME, table), ties=ties,
                             refined=self.report_flags, page_layer=patch_layer(traj, labels))
 
