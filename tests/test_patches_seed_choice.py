@@ -6,17 +6,20 @@ skeleton seed needs (stream_may_seed: views_needed, one rule)."""
 from __future__ import annotations
 
 import inspect
+from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from dome_calib.cli.people import reconstruct
+from dome_calib.recon.errors import ReconError
 from dome_calib.recon.patches import run as patch_run
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.run import patch_stream
 from dome_calib.recon.patches.seed_skeleton import (SWEEP_REACH_DEG, BodyPrior, choose_seed_method,
                                                     neighbour_angle_deg, stream_may_seed)
-from dome_calib.recon.patches.stage import PatchStage
+from dome_calib.recon.patches.stage import PatchStage, plan_patches
 from dome_calib.recon.project import view_set
 from dome_calib.synth.dome import as_built_dome
 from dome_calib.synth.rig import RigOptions, few_camera_rig
@@ -29,6 +32,9 @@ FRAME = 120
 
 def test_reconstruct_seeds_patches_by_the_rig_by_default():
     assert inspect.signature(reconstruct).parameters["patch_seeds"].default.default == "auto"
+    # a seeding it does not know: one line naming the option and what it takes, before the images are opened
+    with pytest.raises(ReconError, match=r"--patch-seeds 'sweeps': expected \"auto\" or \"sweep\" or"):
+        plan_patches(SimpleNamespace(images=Path("nowhere")), seed_method="sweeps")
 
 
 def test_the_five_camera_rig_is_seeded_on_the_people_and_the_dome_by_the_sweep():

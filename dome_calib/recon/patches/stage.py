@@ -17,6 +17,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from dome_calib.bundle import Bundle, SyncTable
+from dome_calib.errors import OptionsError
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.people.commands import FurtherStage, ReconstructPlan
 from dome_calib.recon.patches.images import ImageSource, open_images, with_shared_clock
@@ -127,7 +128,10 @@ def plan_patches(plan: ReconstructPlan, options: PatchOptions | None = None, *,
     options = options or PatchOptions()
     auto = seed_method == "auto"
     if seed_method is not None and not auto:
-        options = replace(options, seed_method=seed_method)
+        try:
+            options = replace(options, seed_method=seed_method)
+        except OptionsError as exc:
+            raise ReconError(f"--patch-seeds {seed_method!r}: expected \"auto\" or {exc.expected}") from None
     source = open_images(plan.images, plan.bundle)
     clocked = with_shared_clock(plan.bundle, source, plan.fps)
     if len(source.names) < 2:
