@@ -390,8 +390,8 @@ def main() -> None:
                     "the body over time fitted again with the ties (recon.people.run.refit_over_time)")
     ap.add_argument("--own-stream", default="", help="comma list of sweep, skeleton, both, auto: the stream's own "
                     "patches tracked here in the rendered images, one row each (images alone, no depth; skeleton: "
-                    "the body over time alone as the seeds' depth prior; both: the two side by side; auto: what reconstruct "
-                    "--images picks by default)")
+                    "the body over time alone as the seeds' depth prior; both: the two side by side; auto: what "
+                    "reconstruct --images picks by default)")
     ap.add_argument("--patch-options", default="", help="--own-stream: PatchOptions fields, FIELD=VALUE,... "
                     "(values JSON), e.g. seed_min_views=2")
     ap.add_argument("--part-options", default="", help="PartOptions fields of the labels, FIELD=VALUE,... "
