@@ -71,7 +71,9 @@ from dome_calib.synth.surface_patches import true_patches  # noqa: E402
 from dome_calib.synth.textured import TexturedScene, TextureOptions, nearest_surface_points  # noqa: E402
 from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
 from dome_calib.recon.patches.parts import BONES, PartOptions  # noqa: E402
-from dome_calib.recon.patches.run import patch_stream  # noqa: E402
+from dome_calib.recon.patches.run import patch_stream, reference_stream  # noqa: E402
+from dome_calib.recon.patches.seed_skeleton import choose_seed_method  # noqa: E402
+from dome_calib.recon.streams import cameras_by_stream  # noqa: E402
 from dome_calib.recon.patches.stage import body_prior  # noqa: E402
 from patches import GrayCache  # noqa: E402  (bench/patches.py: the rendered grey images kept once)
 
@@ -188,6 +190,9 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
     prior = body_prior(times, bodies, times)  # what reconstruct --images gives the stage
     trajs = []
     for m in (("sweep", "skeleton") if method == "both" else (method,)):
+        if m == "auto":  # reconstruct --images' default: the seeding the reference stream's geometry picks
+            m = choose_seed_method(view_set(bundle, cameras_by_stream(bundle, cams)[0][reference_stream(bundle, cams)]
+                                            )).method
         if m not in done:  # each seeding's stream computed once (``done``), "both" reuses them
             done[m] = patch_stream(bundle, source, cams, (float(times[0]), float(times[-1])),
                                    dataclasses.replace(o, track_frames=frames, seed_method=m), seed_frames=[f],
@@ -383,9 +388,10 @@ def main() -> None:
                     "its elbow), legs (an ankle and its knee), or both")
     ap.add_argument("--end-to-end", action="store_true", help="reconstruct's path: the session's windows, then "
                     "the body over time fitted again with the ties (recon.people.run.refit_over_time)")
-    ap.add_argument("--own-stream", default="", help="comma list of sweep, skeleton, both: the stream's own "
+    ap.add_argument("--own-stream", default="", help="comma list of sweep, skeleton, both, auto: the stream's own "
                     "patches tracked here in the rendered images, one row each (images alone, no depth; skeleton: "
-                    "the body over time alone as the seeds' depth prior; both: the two side by side)")
+                    "the body over time alone as the seeds' depth prior; both: the two side by side; auto: what "
+                    "reconstruct --images picks by default)")
     ap.add_argument("--patch-options", default="", help="--own-stream: PatchOptions fields, FIELD=VALUE,... "
                     "(values JSON), e.g. seed_min_views=2")
     ap.add_argument("--part-options", default="", help="PartOptions fields of the labels, FIELD=VALUE,... "
@@ -393,8 +399,8 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=30, help="--own-stream: the cloud is tracked this many reference "
                     "frames each way (the times judged: 2 x frames + 1)")
     args = ap.parse_args()
-    if set(args.own_stream.split(",")) - {"", "sweep", "skeleton", "both"}:
-        raise SystemExit(f"--own-stream {args.own_stream!r}: a comma list of sweep, skeleton, both")
+    if set(args.own_stream.split(",")) - {"", "sweep", "skeleton", "both", "auto"}:
+        raise SystemExit(f"--own-stream {args.own_stream!r}: a comma list of sweep, skeleton, both, auto")
     if args.own_stream and args.stream:
         raise SystemExit("--own-stream and --stream: one source of the stream's patches")
     patch_options = PatchOptions(**{k: json.loads(v) for k, v in (

@@ -194,6 +194,9 @@ def test_reconstruct_with_images_refines_the_people_and_adds_the_patch_stream(ca
     assert out.returncode == 0, out.stderr
     assert "patches: " in out.stdout and "given a body part -> patches.parquet" in out.stdout
     assert "joint ties on the people's times" in out.stdout and "per-frame joints as wrong" in out.stdout
+    assert "(seeds: sweep, auto: stream vga's 8 cameras' nearest neighbours stand 3.3 deg apart" in out.stdout
+    seeding = json.loads(pq.read_schema(root / "with" / "patches.parquet").metadata[METADATA_KEY])["seeding"]
+    assert seeding["method"] == "sweep" and seeding["chosen"] == "auto" and seeding["neighbour_deg"] < 45.0
     df = pd.read_parquet(root / "with" / "patches.parquet")
     assert len(df) > 100 and set(df["person_id"]) <= {-1, 0}
     assert df["part"].notna().mean() > 0.5
@@ -246,5 +249,7 @@ def test_reconstruct_images_seeds_patches_on_the_people_with_patch_seeds_skeleto
                          "PANOPTIC19", "--images", str(root / "images"), "--patch-seeds", "skeleton", "-o",
                          str(root / "skeleton_seeds"))
     assert out.returncode == 0, out.stderr
+    meta = json.loads(pq.read_schema(root / "skeleton_seeds" / "patches.parquet").metadata[METADATA_KEY])
+    assert meta["seeding"] == {"method": "skeleton", "chosen": "given"}
     df = pd.read_parquet(root / "skeleton_seeds" / "patches.parquet")
     assert len(df) > 100 and df["part"].notna().mean() > 0.5, out.stdout

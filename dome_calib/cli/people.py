@@ -50,11 +50,13 @@ def reconstruct(
                                 "folder of frames (images.json maps camera names to them, else <camera>.mp4 or "
                                 "<camera>/). After the people, the dense patch trajectory stream is tracked on them, "
                                 "each patch given the body part it moves with, into OUT/patches.parquet."),
-    patch_seeds: str = typer.Option("sweep", "--patch-seeds", help="How --images seeds its patches: sweep (corners "
-                                    "put in 3D by a depth sweep in nearby cameras: a dense dome), features (SIFT "
-                                    "matched along epipolar lines), skeleton (corners on the people put in 3D by "
-                                    "their bodies' capsules, refined photometrically nearby: a few cameras far "
-                                    "apart; the people are the depth prior)."),
+    patch_seeds: str = typer.Option("auto", "--patch-seeds", help="How --images seeds its patches: auto (the "
+                                    "default: sweep where the reference stream's cameras stand within 45 deg of "
+                                    "their nearest neighbour, median, else skeleton; the output says which and "
+                                    "why), sweep (corners put in 3D by a depth sweep in nearby cameras: a dense "
+                                    "dome), features (SIFT matched along epipolar lines), skeleton (corners on the "
+                                    "people put in 3D by their bodies' capsules, refined photometrically nearby: "
+                                    "a few cameras far apart; the people are the depth prior)."),
     correct_offsets: bool = typer.Option(False, "--correct-offsets", help="A camera flagged for its offset (its "
                                          "joints to one side of where the others put them: turned since "
                                          "calibration) gets its principal point moved by the offset measured, and "

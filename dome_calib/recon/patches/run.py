@@ -27,7 +27,8 @@ from dome_calib.recon.patches.seed import (CameraSeeds, Seeds, merge_camera_seed
                                            seed_camera, thin_to_cells)
 from dome_calib.recon.patches.seed_depth import DepthFrames, seed_from_depth, seed_from_own_kinect
 from dome_calib.recon.patches.seed_features import seed_from_features
-from dome_calib.recon.patches.seed_skeleton import BodyPrior, CameraBodySeeds, merge_body_seeds, seed_camera_on_body
+from dome_calib.recon.patches.seed_skeleton import (BodyPrior, CameraBodySeeds, merge_body_seeds, seed_camera_on_body,
+                                                    stream_may_seed)
 from dome_calib.recon.patches.refine import refine_normals
 from dome_calib.recon.patches.track import (Clock, CloudTrack, judged_frames, quantise_cm, seed_visibility,
                                             track_cloud)
@@ -322,8 +323,8 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
         windows.append(frames_in[max(pos - o.track_frames, 0):pos + o.track_frames + 1])
     seed_times = [table.time_of(int(f)) for f in seeds_at]
     refs = reference_cameras(ref_views, o.seed_reference_spacing_deg, o.volume_height_cm)
-    # the other streams that seed (sweep): each with enough cameras to triangulate a seed, sorted by name
-    others = ([st for st in sorted(groups) if st != stream and len(groups[st]) >= o.seed_min_views]
+    # the other streams that seed (sweep, skeleton): each with the cameras a seed needs (stream_may_seed), by name
+    others = ([st for st in sorted(groups) if st != stream and stream_may_seed(len(groups[st]), o, on_body)]
               if o.seed_streams == "all" and (o.seed_method != "features" or depth is not None) else [])
     # with depth, a Kinect's colour camera (a stream of one camera, its own clock) seeds from its own depth
     depth_nodes = (bundle.sync.kinect_depth if bundle.sync is not None and bundle.sync.kinect_depth else {})

@@ -321,3 +321,62 @@ def seed_on_body(source: FrameSource, views: ViewSet, frames: dict[str, int], jo
     """
     return merge_body_seeds([seed_camera_on_body(source, views, frames, r, joints_cm, o)
                              for r in range(len(views.names))], len(views.names), o)
+
+
+#: The widest neighbours' angle the depth sweep matches across (deg; the median over a stream's cameras of the angle
+#: between a camera's optical axis and its nearest neighbour's): the sweep's upright windows and optical flow from
+#: the reference image assume neighbours see the surface alike. Measured: the dome's neighbours (a few deg) seed
+#: thousands; three half-size HD cameras 28-72 deg apart (nearest 28-44) seed 29; four phones 55-130 deg apart keep
+#: 1-7 of 400 corners per camera; the five-camera rig 63-141 deg apart (nearest 63-73) seeds none, where skeleton
+#: seeds give ~480 (docs/patches.md#which-seeding-by-default---patch-seeds-auto). 45 lies between the last seeding
+#: rig and the first that does not.
+SWEEP_REACH_DEG = 45.0
+
+
+@dataclass(frozen=True)
+class SeedChoice:
+    """The seeding ``auto`` picked for a stream: ``method`` (``sweep`` or ``skeleton``), the stream's median
+    nearest-neighbour angle ``neighbour_deg`` (quantised, ``ties.AXIS_ANGLE_QUANTUM_DEG``), and why, one line."""
+
+    method: str
+    neighbour_deg: float
+    reason: str
+
+    def as_dict(self) -> dict:
+        deg = self.neighbour_deg if np.isfinite(self.neighbour_deg) else None  # one camera: no neighbour
+        return {"method": self.method, "chosen": "auto", "neighbour_deg": deg,
+                "sweep_reach_deg": SWEEP_REACH_DEG, "reason": self.reason}
+
+
+def neighbour_angle_deg(views: ViewSet) -> float:
+    """The median over ``views`` of the angle between a camera's optical axis and its nearest other camera's
+    (deg, quantised to ``ties.AXIS_ANGLE_QUANTUM_DEG``); inf for fewer than two cameras."""
+    if len(views.names) < 2:
+        return float("inf")
+    axes = views.R[:, 2, :]  # cam_from_world: the optical axis in the world is R's third row
+    axes = axes / np.linalg.norm(axes, axis=1, keepdims=True)
+    angle = np.degrees(np.arccos(np.clip(axes @ axes.T, -1.0, 1.0)))
+    np.fill_diagonal(angle, np.inf)
+    nearest = ties.quantize(angle.min(1), ties.AXIS_ANGLE_QUANTUM_DEG)  # integers: the median of them is exact
+    return float(np.median(nearest)) * ties.AXIS_ANGLE_QUANTUM_DEG
+
+
+def choose_seed_method(views: ViewSet, stream: str = "") -> SeedChoice:
+    """``seed_method="auto"`` for a stream's cameras ``views``: ``sweep`` where its neighbours stand within
+    :data:`SWEEP_REACH_DEG` (median nearest-neighbour angle, :func:`neighbour_angle_deg`), else ``skeleton`` (the
+    people as the depth prior, the one image seeding that survives such baselines)."""
+    deg = neighbour_angle_deg(views)
+    within = bool(ties.at_most(deg, SWEEP_REACH_DEG, ties.AXIS_ANGLE_QUANTUM_DEG))
+    method = "sweep" if within else "skeleton"
+    what = f"stream {stream}'s" if stream else "the"
+    shown = f"{deg:.1f}" if np.isfinite(deg) else "no"
+    reason = (f"{what} {len(views.names)} cameras' nearest neighbours stand {shown} deg apart (median), "
+              + ("within" if within else "beyond") + f" the {SWEEP_REACH_DEG:g} deg the depth sweep matches across")
+    return SeedChoice(method=method, neighbour_deg=deg, reason=reason)
+
+
+def stream_may_seed(n_cameras: int, o: PatchOptions, on_body: bool) -> bool:
+    """Whether a stream of ``n_cameras`` may seed: ``seed_min_views`` cameras, or on the body
+    (:func:`seed_camera_on_body`) as many as :func:`views_needed` asks of a seed its cameras may all see."""
+    need = int(views_needed(n_cameras, o.seed_min_views)) if on_body else int(o.seed_min_views)
+    return n_cameras >= need

@@ -7,6 +7,7 @@ people and returns what writes the file into the staged folder.
 """
 from __future__ import annotations
 
+import logging
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -16,6 +17,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from dome_calib.bundle import Bundle, SyncTable
+from dome_calib.errors import OptionsError
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.people.commands import FurtherStage, ReconstructPlan
 from dome_calib.recon.patches.images import ImageSource, open_images, with_shared_clock
@@ -26,8 +28,12 @@ from dome_calib.recon.patches.page_layer import patch_layer
 from dome_calib.recon.patches.parts import label_parts
 from dome_calib.recon.patches.run import patch_stream, reference_stream
 from dome_calib.recon.patches.occlusion import BodyPrior, hold_unseen_parts
+from dome_calib.recon.patches.seed_skeleton import choose_seed_method
 from dome_calib.recon.patches.stream_file import FILE_NAME, patch_table, write_patch_table
+from dome_calib.recon.project import view_set
 from dome_calib.recon.streams import cameras_by_stream, frame_period_ms
+
+logger = logging.getLogger(__name__)
 
 
 @dataclass
@@ -39,6 +45,7 @@ class PatchStage:
     cameras: list[str]
     options: PatchOptions
     ties_options: TieOptions | None = None
+    auto_seeds: bool = False  # --patch-seeds auto: the seeding picked from the reference stream's geometry at run
     summary: str = ""  # what the run gave, one line (set by run, completed once the people are refined)
 
     def run(self, times_ms: np.ndarray, bodies: list, progress: Callable[[int, int], None] | None = None, *,
@@ -51,29 +58,42 @@ class PatchStage:
         -> the :class:`FurtherStage` whose ``write`` puts ``patches.parquet`` into the staged output folder."""
         t = np.asarray(times_ms, dtype=float)
         stream = reference_stream(self.bundle, self.cameras)
+        options, seeding = self.seeding(stream)
         body = None
-        if self.options.seed_method == "skeleton" or self.options.body_occlusion:
+        if options.seed_method == "skeleton" or options.body_occlusion:
             # the people at the stream's times: the seeds' depth prior, the occluders of the views
             table = cameras_by_stream(self.bundle, self.cameras)[1][stream]
             at = table.univ_time_ms[(table.univ_time_ms >= t[0]) & (table.univ_time_ms <= t[-1])]
             body = body_prior(t, bodies, at)
-        traj = patch_stream(self.bundle, self.source, self.cameras, (float(t[0]), float(t[-1])), self.options,
+        traj = patch_stream(self.bundle, self.source, self.cameras, (float(t[0]), float(t[-1])), options,
                             stream=stream, body=body, executor=executor, progress=progress)
         joints, ids = people_at(t, bodies, traj.times_ms)
         labels = label_parts(traj.X_cm[:, :, 0], traj.normal, traj.alive, joints)
         motions = part_motions(traj.X_cm, traj.alive, labels.person, labels.bone)
         ties = joint_ties(motions, ids, traj.times_ms, joints, self.ties_options)
         on_times = np.isin(ties.from_ms, t) & np.isin(ties.to_ms, t)
-        table = patch_table(traj, labels, ids, reference_stream=stream, size_cm=self.options.size_cm,
-                            axis_cm=self.options.axis_cm)
+        table = patch_table(traj, labels, ids, reference_stream=stream, size_cm=options.size_cm,
+                            axis_cm=options.axis_cm, seeding=seeding)
         self.source.close()
         labelled = int(np.sum(labels.bone >= 0))
+        seeds = seeding["method"] + (f", auto: {seeding['reason']}" if self.auto_seeds else "")
         self.summary = (f"patches: {len(traj.ids)} trajectories ({table.num_rows} patch-times) at {len(traj.times_ms)} "
-                        f"times of stream {stream} from {len(self.cameras)} cameras, {labelled} given a body part -> "
-                        f"{FILE_NAME}; {len(motions.bone)} part motions, {int(on_times.sum())} joint ties on the "
-                        "people's times")
+                        f"times of stream {stream} from {len(self.cameras)} cameras (seeds: {seeds}), {labelled} "
+                        f"given a body part -> {FILE_NAME}; {len(motions.bone)} part motions, "
+                        f"{int(on_times.sum())} joint ties on the people's times")
         return FurtherStage(write=lambda staging: write_patch_table(Path(staging) / FILE_NAME, table), ties=ties,
                             refined=self.report_flags, page_layer=patch_layer(traj, labels))
+
+    def seeding(self, stream: str) -> tuple[PatchOptions, dict]:
+        """The options the stream runs with and how it was seeded (the patch file's ``seeding`` metadata): the
+        options' ``seed_method`` as given, or with ``auto_seeds`` the one :func:`~.seed_skeleton.choose_seed_method`
+        picks from the reference stream's cameras (logged, one line, with why)."""
+        if not self.auto_seeds:
+            return self.options, {"method": self.options.seed_method, "chosen": "given"}
+        choice = choose_seed_method(view_set(self.bundle, cameras_by_stream(self.bundle, self.cameras)[0][stream]),
+                                    stream)
+        logger.info("patch seeds: %s (auto): %s", choice.method, choice.reason)
+        return replace(self.options, seed_method=choice.method), choice.as_dict()
 
     def report_flags(self, first, final) -> None:
         """The people fitted again with the ties -> the summary line says how many per-frame joints (the tracked
@@ -101,19 +121,24 @@ def plan_patches(plan: ReconstructPlan, options: PatchOptions | None = None, *,
     """Check the images of a reconstruction's plan (``--images``, which :func:`plan_reconstruction` checked as an
     input place beside the others): every camera's file, its frames and size (:func:`~.images.open_images`); a
     bundle without sync tables takes the detections' rate ``plan.fps``. ``seed_method`` (``--patch-seeds``)
-    replaces the options' seeding method."""
+    replaces the options' seeding method; ``"auto"`` picks it when the stage runs, from the reference stream's
+    cameras (:meth:`PatchStage.seeding`)."""
     if plan.images is None:
         raise ValueError("plan_patches: the plan has no images (plan_reconstruction(..., images=FOLDER))")
     options = options or PatchOptions()
-    if seed_method is not None:
-        options = replace(options, seed_method=seed_method)
+    auto = seed_method == "auto"
+    if seed_method is not None and not auto:
+        try:
+            options = replace(options, seed_method=seed_method)
+        except OptionsError as exc:
+            raise ReconError(f"--patch-seeds {seed_method!r}: expected \"auto\" or {exc.expected}") from None
     source = open_images(plan.images, plan.bundle)
     clocked = with_shared_clock(plan.bundle, source, plan.fps)
     if len(source.names) < 2:
         raise ReconError(f"--images {plan.images}: images of {len(source.names)} camera; patches are triangulated "
                          "from two cameras or more")
     cameras_by_stream(clocked, source.names)  # every camera's sync table, before any work
-    return PatchStage(source=source, bundle=clocked, cameras=source.names, options=options)
+    return PatchStage(source=source, bundle=clocked, cameras=source.names, options=options, auto_seeds=auto)
 
 
 def people_at(times_ms: np.ndarray, bodies: list, at_ms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

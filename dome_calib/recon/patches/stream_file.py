@@ -17,7 +17,9 @@ One row per patch and reference time at which the patch is alive, sorted by patc
 
 The file's key-value metadata ``dome_calib.patches`` holds a JSON object: ``format`` ("dome-calib patch stream"),
 ``version`` (1), ``units`` (positions cm, times ms), ``world`` (the Panoptic frame), ``cameras`` (every camera
-of the stage, in order), ``parts`` (the part names), ``reference_stream``, ``patch_size_cm`` and ``axis_cm``.
+of the stage, in order), ``parts`` (the part names), ``reference_stream``, ``patch_size_cm``, ``axis_cm`` and
+(``reconstruct --images``) ``seeding``: ``method`` (sweep, features, skeleton), ``chosen`` ("given" by
+``--patch-seeds``, or "auto" with ``neighbour_deg``, ``sweep_reach_deg`` and ``reason``).
 Written with pyarrow (zstd compression), through the output's staging.
 """
 from __future__ import annotations
@@ -40,7 +42,8 @@ _AXES = ("x", "y", "z")
 
 
 def patch_table(traj: PatchTrajectories, labels: PartLabels | None = None, person_ids: np.ndarray | None = None, *,
-                reference_stream: str = "", size_cm: float = 6.0, axis_cm: float = 3.0) -> pa.Table:
+                reference_stream: str = "", size_cm: float = 6.0, axis_cm: float = 3.0,
+                seeding: dict | None = None) -> pa.Table:
     """Trajectories (and their part labels; ``person_ids`` maps a label's person position to its id) -> the table
     of the module docstring."""
     n, t = np.nonzero(traj.alive)  # patch-major: sorted by patch, then time
@@ -73,6 +76,8 @@ def patch_table(traj: PatchTrajectories, labels: PartLabels | None = None, perso
             "world": "Panoptic: origin at the dome floor's centre, y down, cm",
             "cameras": list(traj.cameras), "parts": [b[0] for b in BONES], "reference_stream": reference_stream,
             "patch_size_cm": size_cm, "axis_cm": axis_cm}
+    if seeding is not None:
+        meta["seeding"] = seeding
     table = pa.table(cols)
     return table.replace_schema_metadata({METADATA_KEY: json.dumps(meta).encode("utf-8")})
 
