@@ -33,7 +33,6 @@ FIELDS = frozenset(f.name for c in OPTIONS for f in dataclasses.fields(c))
 
 #: (module, function) -> number of comparisons of exact values against an options field in it, each with why.
 ALLOWED_EXACT = {
-    ("run.py", "patch_stream"): 1,  # a stream's camera count (len) against seed_min_views
     ("seed_skeleton.py", "seed_camera_on_body"): 1,  # counts of agreeing views against views_needed(...) (integers)
     ("track.py", "track_cloud"): 2,  # counts of visible cameras (sum of a bool array) against min_visible
     ("motion.py", "fit_part"): 2,  # a part's patch count and inlier count against min_patches
