@@ -91,11 +91,18 @@ def argmin_first(values: np.ndarray, step: float, axis: int | None = None) -> in
 _NONE = np.iinfo(np.int64).min  # below every quantised value (quantize clips to +-2**62)
 
 
-def _masked_keys(values: np.ndarray, mask: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
-    """(quantised values where ``mask``, 0 elsewhere; mask as bool), values outside ``mask`` never read."""
+def quantize_where(values: np.ndarray, mask: np.ndarray, step: float, fill: int) -> np.ndarray:
+    """:func:`quantize` where ``mask`` (broadcast to the values), ``fill`` elsewhere (int64); values outside ``mask``
+    are never read (NaN, inf: a gated cost's outside)."""
     v = np.asarray(values, dtype=float)
     m = np.broadcast_to(np.asarray(mask, dtype=bool), v.shape)
-    return np.where(m, quantize(np.where(m, v, 0.0), step), 0), m
+    return np.where(m, quantize(np.where(m, v, 0.0), step), fill)
+
+
+def _masked_keys(values: np.ndarray, mask: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """(quantised values where ``mask``, 0 elsewhere; mask as bool), values outside ``mask`` never read."""
+    m = np.broadcast_to(np.asarray(mask, dtype=bool), np.shape(values))
+    return quantize_where(values, m, step, 0), m
 
 
 def argmax_where(values: np.ndarray, mask: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:

@@ -30,7 +30,6 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from dome_calib import ties
 from dome_calib.recon.kernel import CameraKernel
@@ -38,7 +37,7 @@ from dome_calib.recon.people.agreement import CameraAgreement
 from dome_calib.recon.people.assign import assign, assign_passes, enough_views, leftover
 from dome_calib.recon.people.bodies import Bodies
 from dome_calib.recon.people.depth_witness import DepthWitness
-from dome_calib.recon.people.matching import NO_MATCH, skeleton_distance_cm
+from dome_calib.recon.people.matching import gated_assignment, skeleton_distance_cm
 from dome_calib.recon.people.options import PeopleOptions
 from dome_calib.recon.people.per_time import bodies_of
 from dome_calib.recon.people.proposals import (AssociationOptions, cluster_hypotheses, pair_hypotheses,
@@ -178,11 +177,7 @@ def bridge_gaps(views: ViewSet, source: InMemorySource | FileSource, times_ms: n
             clash = ties.below(skeleton_distance_cm(new.X_cm, here.X_cm), a.duplicate_cm, step).any(1) \
                 if len(here.ids) else np.zeros(len(new.ids), bool)
             cost = skeleton_distance_cm(gap.X_cm, new.X_cm)
-            inside = ties.below(cost, gap.gate_cm[:, None], step) & ~clash[None]
-            cost = np.where(inside, ties.quantize(np.where(inside, cost, 0.0), step), NO_MATCH)
-            r, c = linear_sum_assignment(cost)
-            good = inside[r, c]
-            r, c = r[good], c[good]
+            r, c = gated_assignment(cost, ties.below(cost, gap.gate_cm[:, None], step) & ~clash[None], step)
             if not len(c):
                 continue
             order = np.argsort(c)

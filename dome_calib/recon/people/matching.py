@@ -8,12 +8,22 @@ here rests on the last bits of a float: costs are quantised and ties go by order
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from dome_calib import ties
 
 #: An assignment's cost of a pair outside its gate, in steps of :data:`~dome_calib.ties.SKELETON_DISTANCE_QUANTUM_CM`
 #: (1e6 cm): far above any sum of gated costs, so the assignment takes as many gated pairs as it can.
 NO_MATCH = 10**9
+
+
+def gated_assignment(cost: np.ndarray, inside: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """The optimal one-to-one assignment (Hungarian) of an (A, B) cost among the pairs ``inside`` their gate, costs
+    quantised to ``step`` (:mod:`dome_calib.ties`; a pair outside costs :data:`NO_MATCH` and is never read) ->
+    (rows, cols) of the gated pairs taken, rows ascending."""
+    r, c = linear_sum_assignment(ties.quantize_where(cost, inside, step, NO_MATCH))
+    keep = inside[r, c]
+    return r[keep], c[keep]
 
 
 def greedy_match(cost: np.ndarray, gate: np.ndarray | float, step: float) -> np.ndarray:
@@ -25,9 +35,7 @@ def greedy_match(cost: np.ndarray, gate: np.ndarray | float, step: float) -> np.
     it equals the optimal assignment except when two people are nearly equally close to two others.
     """
     none = np.iinfo(np.int64).max
-    cost = np.asarray(cost, dtype=float)
-    inside = ties.below(cost, gate, step)
-    c = np.where(inside, ties.quantize(np.where(inside, cost, 0.0), step), none)
+    c = ties.quantize_where(cost, ties.below(cost, gate, step), step, none)
     batch, (A, B) = c.shape[:-2], c.shape[-2:]
     if A == 0 or B == 0:
         return np.full((*batch, A), -1, dtype=np.int64)

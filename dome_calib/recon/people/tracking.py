@@ -19,12 +19,11 @@ Tracking runs once over the whole session (long sessions too: see :mod:`~dome_ca
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from dome_calib import ties
 from dome_calib.options import AtLeast, options
 from dome_calib.recon.people.bodies import Bodies
-from dome_calib.recon.people.matching import NO_MATCH, skeleton_distance_cm
+from dome_calib.recon.people.matching import gated_assignment, skeleton_distance_cm
 from dome_calib.schema import NonNegFinite, PosFinite
 
 
@@ -94,13 +93,9 @@ def track_bodies(times_ms: np.ndarray, bodies: list[np.ndarray],
             pred = np.stack([last_X[i] + vel[i] * (t - last_t[i]) for i in group])
             cost = skeleton_distance_cm(pred, X[free])
             gate = options.gate_cm + options.gate_cm_per_s * 1e-3 * np.array([t - last_t[i] for i in group])
-            inside = ties.below(cost, gate[:, None], ties.SKELETON_DISTANCE_QUANTUM_CM)
-            cost = np.where(inside, ties.quantize(np.where(inside, cost, 0.0), ties.SKELETON_DISTANCE_QUANTUM_CM),
-                            NO_MATCH)
-            rows, cols = linear_sum_assignment(cost)
-            for r, c in zip(rows, cols):
-                if inside[r, c]:
-                    track_of[k][free[c]] = group[r]
+            step = ties.SKELETON_DISTANCE_QUANTUM_CM
+            for r, c in zip(*gated_assignment(cost, ties.below(cost, gate[:, None], step), step)):
+                track_of[k][free[c]] = group[r]
         for c in range(P):
             i = track_of[k][c]
             if i < 0:
