@@ -40,7 +40,7 @@ def sample(gray: np.ndarray, uv_px: np.ndarray) -> np.ndarray:
     mx, my = _maps(len(uv))
     # the two maps written straight from the pixels (cast to float32 on assignment, as astype casts): no interleaved
     # float32 copy and no contiguous copies of its halves (a third of the cost)
-    mx[:len(uv)], my[:len(uv)] = uv[:, 0], uv[:, 1]
+    mx.reshape(-1)[:len(uv)], my.reshape(-1)[:len(uv)] = uv[:, 0], uv[:, 1]
     return _remap(gray, mx, my, len(uv), shape)
 
 
@@ -53,27 +53,25 @@ def sample_windows(gray: np.ndarray, centres_px: np.ndarray, offsets_px: np.ndar
     shape = c.shape[:-1] + (len(off),)
     n = int(np.prod(shape))
     mx, my = _maps(n)
-    np.add(c[..., 0, None], off[:, 0], out=mx[:n].reshape(shape), casting="unsafe")
-    np.add(c[..., 1, None], off[:, 1], out=my[:n].reshape(shape), casting="unsafe")
+    np.add(c[..., 0, None], off[:, 0], out=mx.reshape(-1)[:n].reshape(shape), casting="unsafe")
+    np.add(c[..., 1, None], off[:, 1], out=my.reshape(-1)[:n].reshape(shape), casting="unsafe")
     return _remap(gray, mx, my, n, shape)
 
 
 def _maps(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """The remap's x and y maps for n points, flat (rows x cols: remap's maps are images, fewer than 32767 rows and
-    columns), the tail past n outside the image."""
+    """The remap's x and y maps for n points, (rows, cols) images (remap's maps: fewer than 32767 rows and columns),
+    filled row by row (write the first n of ``reshape(-1)``), the tail past n outside the image."""
     cols = _REMAP_COLS if n > _REMAP_COLS else max(n, 1)
     rows = -(-n // cols)
-    mx, my = np.empty(rows * cols, np.float32), np.empty(rows * cols, np.float32)
-    mx[n:], my[n:] = -100.0, -100.0
+    mx, my = np.empty((rows, cols), np.float32), np.empty((rows, cols), np.float32)
+    mx.reshape(-1)[n:], my.reshape(-1)[n:] = -100.0, -100.0
     return mx, my
 
 
 def _remap(gray: np.ndarray, mx: np.ndarray, my: np.ndarray, n: int, shape: tuple) -> np.ndarray:
     if n == 0:
         return np.zeros(shape, np.float32)
-    rows = len(mx) // (_REMAP_COLS if n > _REMAP_COLS else n)
-    out = cv2.remap(gray, mx.reshape(rows, -1), my.reshape(rows, -1), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    out = cv2.remap(gray, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     return out.reshape(-1)[:n].astype(np.float32, copy=False).reshape(shape)
 
 
