@@ -27,11 +27,12 @@ def _texture(seed: int) -> np.ndarray:
 
 
 class TexturedPlane:
-    """Every camera's image of one textured plane through P0 (ray-plane intersection, bilinear texture); the
-    cameras in ``covered`` see another texture instead (something between them and the plane)."""
+    """Every camera's image of one textured plane through ``centre`` (P0; the texture's centre, 40 cm square; ray-plane
+    intersection, bilinear texture); the cameras in ``covered`` see another texture instead (something between them
+    and the plane)."""
 
-    def __init__(self, bundle, normal: np.ndarray, covered: set[str]):
-        self.bundle, self.n, self.covered = bundle, normal, covered
+    def __init__(self, bundle, normal: np.ndarray, covered: set[str], centre: np.ndarray = P0):
+        self.bundle, self.n, self.covered, self.centre = bundle, normal, covered, np.asarray(centre, float)
         self.u = np.cross(normal, [0.0, 1.0, 0.0])
         self.u /= np.linalg.norm(self.u)
         self.v = np.cross(normal, self.u)
@@ -40,8 +41,8 @@ class TexturedPlane:
     def gray(self, name: str, frame: int) -> np.ndarray:
         rays = CameraRays(self.bundle.cameras[name])
         d = rays.base_dirs
-        X = rays.origin_cm + ((P0 - rays.origin_cm) @ self.n / (d @ self.n))[:, None] * d
-        a, b = (X - P0) @ self.u / TEXEL_CM + 200, (X - P0) @ self.v / TEXEL_CM + 200
+        X = rays.origin_cm + ((self.centre - rays.origin_cm) @ self.n / (d @ self.n))[:, None] * d
+        a, b = (X - self.centre) @ self.u / TEXEL_CM + 200, (X - self.centre) @ self.v / TEXEL_CM + 200
         tex = self.other if name in self.covered else self.tex
         return np.clip(map_coordinates(tex, [b, a], order=1, cval=128.0), 0, 255).astype(np.uint8).reshape(rays.shape)
 

@@ -36,12 +36,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import csr_matrix
 
-from dome_calib.recon.patches.frames import (GRID_SIDE, FrameSource, centred, ncc, ncc_centred, patch_axes,
-                                             patch_grid_cm, sample)
+from dome_calib.recon.patches.frames import (GRID_SIDE, MIN_STD_DN, FrameSource, centred, ncc, ncc_centred,
+                                             patch_axes, patch_grid_cm, sample)
 from dome_calib.recon.patches.mincut import min_cut_labels
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.occlusion import BodyPrior, Occluders, occluded_views
-from dome_calib.recon.project import ViewSet, project_view_rows
+from dome_calib.recon.project import ViewSet, project_view, project_view_rows
 from dome_calib import ties
 
 
@@ -49,6 +49,32 @@ from dome_calib import ties
 FACING_CHUNK = 64
 #: Patch-views whose NCC against the reference is computed together.
 NCC_CHUNK = 8192
+#: The grid point at the square's centre (``frames.patch_grid_cm``'s order).
+CENTRE_SAMPLE = (GRID_SIDE * GRID_SIDE) // 2
+#: A square crossing the image border (``border_squares``) is judged on its samples inside the image: at least this
+#: many (half the square, rounded up), and a pair of squares on the samples inside both, at least as many.
+MIN_BORDER_SAMPLES = (GRID_SIDE * GRID_SIDE + 1) // 2
+
+
+def ncc_partial(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """:func:`~.frames.ncc` of (..., G) samples where NaN marks a sample outside the image: over the samples inside
+    both, 0 where fewer than :data:`MIN_BORDER_SAMPLES` are (or either side has no texture there). Rows without a NaN
+    get :func:`~.frames.ncc`'s bits."""
+    a, b = np.broadcast_arrays(np.asarray(a, np.float32), np.asarray(b, np.float32))
+    out = np.asarray(ncc(np.nan_to_num(a), np.nan_to_num(b)), dtype=float)
+    both = np.isfinite(a) & np.isfinite(b)
+    part = ~both.all(-1)
+    if not part.any():
+        return out
+    m, x, y = both[part], np.where(both[part], a[part], 0.0), np.where(both[part], b[part], 0.0)
+    n = m.sum(-1)
+    k = np.maximum(n, 1)
+    x = np.where(m, x - (x.sum(-1) / k)[..., None], 0.0)
+    y = np.where(m, y - (y.sum(-1) / k)[..., None], 0.0)
+    vx, vy = (x * x).sum(-1) / k, (y * y).sum(-1) / k
+    ok = (n >= MIN_BORDER_SAMPLES) & (vx > MIN_STD_DN ** 2) & (vy > MIN_STD_DN ** 2)
+    out[part] = np.where(ok, (x * y).sum(-1) / k / np.sqrt(np.where(ok, vx * vy, 1.0)), 0.0)
+    return out
 
 
 def camera_neighbours(views: ViewSet, k: int) -> np.ndarray:
@@ -68,7 +94,7 @@ def neighbour_ncc(samples: np.ndarray, anchor: np.ndarray, neighbours: np.ndarra
     """(N, V) each camera's best NCC against its prior neighbours that are anchors (-1 where it has none).
 
     Args:
-        samples: (N, V, G) the patches' squares sampled in every camera.
+        samples: (N, V, G) the patches' squares sampled in every camera (NaN: a sample outside the image).
         anchor: (N, V) bool, the cameras a camera may be compared with (those that saw the patch before and are
             candidates now).
         neighbours: (E, 2) camera pairs (:func:`camera_neighbours`), both ways.
@@ -76,7 +102,7 @@ def neighbour_ncc(samples: np.ndarray, anchor: np.ndarray, neighbours: np.ndarra
     N, V = anchor.shape
     best = np.full((N, V), -1.0)
     for i, j in neighbours:
-        c = ncc(samples[:, i], samples[:, j])
+        c = ncc_partial(samples[:, i], samples[:, j])
         best[:, i] = np.where(anchor[:, j], np.maximum(best[:, i], c), best[:, i])
         best[:, j] = np.where(anchor[:, i], np.maximum(best[:, j], c), best[:, j])
     return best
@@ -94,8 +120,9 @@ class Frames:
 
 @dataclass(frozen=True)
 class Appearance:
-    """Patches' squares as sampled in the cameras: samples (M, G) float32, row_of (N, V) the row of patch n in
-    camera v (-1: not sampled there)."""
+    """Patches' squares as sampled in the cameras: samples (M, G) float32 (NaN: a sample outside the image, a square
+    crossing the border with ``border_squares``), row_of (N, V) the row of patch n in camera v (-1: not sampled
+    there)."""
 
     samples: np.ndarray
     row_of: np.ndarray
@@ -113,7 +140,7 @@ class Appearance:
         either has none)."""
         both = (self.row_of >= 0) & (other.row_of >= 0)
         out = np.full(self.row_of.shape, np.nan)
-        out[both] = ncc(self.samples[self.row_of[both]], other.samples[other.row_of[both]])
+        out[both] = ncc_partial(self.samples[self.row_of[both]], other.samples[other.row_of[both]])
         return out
 
 
@@ -187,9 +214,12 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
         if len(rows) == 0:
             continue
         uv, inside = project_view_rows(views, v, grid_all, rows)
+        got = sample(source.gray(name, f), uv[inside]) if inside.any() else np.zeros((0, G), np.float32)
+        if o.border_squares and not inside.all():
+            got, inside = _with_border_squares(views, v, source.gray(name, f), grid_all, rows, inside, got)
         in_image[rows, v] = inside
         if inside.any():
-            blocks.append(sample(source.gray(name, f), uv[inside]))
+            blocks.append(got)
             row_of[rows[inside], v] = M + np.arange(len(blocks[-1]))
             row_n.append(rows[inside])
             row_v.append(np.full(len(blocks[-1]), v))
@@ -210,6 +240,10 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
     for lo in range(0, len(rows_a), NCC_CHUNK):  # the pairs' (chunk, G) blocks stay in the caches
         a, b = rows_a[lo:lo + NCC_CHUNK], rows_b[lo:lo + NCC_CHUNK]
         corr[pi[lo:lo + NCC_CHUNK], vi[lo:lo + NCC_CHUNK]] = ncc_centred(c[a], var[a], c[b], var[b])
+    if o.border_squares:  # a square crossing the border on either side: judged on the samples inside both
+        cut = ~np.isfinite(samples).all(-1)
+        pair = np.flatnonzero(cut[rows_a] | cut[rows_b])
+        corr[pi[pair], vi[pair]] = ncc_partial(samples[rows_a[pair]], samples[rows_b[pair]])
     if o.neighbour_ncc:
         dense = np.zeros((N, V, G), np.float32)
         dense[row_of >= 0] = samples[row_of[row_of >= 0]]
@@ -244,6 +278,28 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
     photometric = in_image & has_ref[:, None] & ties.at_least(corr, o.ncc_threshold, ties.NCC_QUANTUM)
     return Visibility(visible=visible, photometric=photometric, ncc=corr,
                       candidate=candidate, reference=ref, appearance=Appearance(samples=samples, row_of=row_of))
+
+
+def _with_border_squares(views: ViewSet, v: int, gray: np.ndarray, grid: np.ndarray, rows: np.ndarray,
+                         inside: np.ndarray, got: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``border_squares``: the squares ``rows`` of camera ``v`` that cross its image border (``inside`` False) are
+    taken too when their centre and at least :data:`MIN_BORDER_SAMPLES` of their samples are in the image; their
+    samples outside are NaN. -> (samples of the taken rows in ``rows`` order, (R,) taken)."""
+    cross = np.flatnonzero(~inside)
+    uv, seen = project_view(views, v, grid[rows[cross]].reshape(-1, 3))
+    G = grid.shape[1]
+    uv, seen = uv.reshape(len(cross), G, 2), seen.reshape(len(cross), G)
+    take = seen[:, CENTRE_SAMPLE] & (seen.sum(1) >= MIN_BORDER_SAMPLES)
+    if not take.any():
+        return got, inside
+    part = sample(gray, np.where(seen[take, :, None], uv[take], -100.0))
+    part[~seen[take]] = np.nan
+    taken = inside.copy()
+    taken[cross[take]] = True
+    out = np.empty((int(taken.sum()), G), np.float32)
+    out[inside[taken]] = got
+    out[~inside[taken]] = part
+    return out, taken
 
 
 def off_seed(now: Visibility, seed: Appearance, o: PatchOptions) -> np.ndarray:
