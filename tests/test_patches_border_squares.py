@@ -1,6 +1,7 @@
 """A patch whose square crosses a camera's image border (``PatchOptions.border_squares``): with the option the camera
 is a candidate, judged on the square's samples inside the image, and labelled visible when it sees the patch and not
-when it sees something else; without it, the camera is no candidate (the old rule: the whole square inside).
+when it sees something else; without it, the camera is no candidate (the old rule: the whole square inside). On by
+default.
 ``visibility.ncc_partial`` is the plain NCC where nothing is cut, the NCC of the shared samples where something is."""
 from __future__ import annotations
 
@@ -63,7 +64,7 @@ def _visibility(plane, covered: set[str], **options):
 
 
 def test_a_square_across_the_border_is_judged_on_its_inside(plane):
-    old = _visibility(plane, set())
+    old = _visibility(plane, set(), border_squares=False)
     assert not old.candidate[0, CUT_CAMERA]  # the whole square must be inside: the camera is lost
     assert not old.visible[0, CUT_CAMERA]
     new = _visibility(plane, set(), border_squares=True)

@@ -112,9 +112,10 @@ class PatchOptions:
     min_cos_view: Annotated[float, Field(ge=0, lt=1)] = 0.2  # geometric: the normal faces the camera
     # geometric: a camera whose image the patch's square crosses the border of is a candidate too when the square's
     # centre and at least half its samples are inside (visibility.MIN_BORDER_SAMPLES), every NCC of it then over the
-    # samples inside both images; False: the whole square must be inside. On the bench's walkers (people crossing
-    # the panels' views 1-1.5 m away) squares crossing the border were 4.6 points of the recall lost
-    border_squares: bool = False
+    # samples inside both images; False: the whole square must be inside (the old rule). On the bench (10 frames)
+    # recall +0.40 / +1.46 / +5.10 points on scenes 1, 2 and the walkers, precision -0.03 / +0.03 / -0.15
+    # (docs/benchmarks.md, issue 49)
+    border_squares: bool = True
     geometric_weight: PosFinite = 1.0
     # geometric: the people as occluders (occlusion.py; needs the body over time, patch_stream(..., body=)): a camera
     # whose ray to the patch centre, stopped occlusion_stop_cm short of it (half the patch's side), passes through a
