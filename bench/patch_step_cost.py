@@ -17,7 +17,8 @@ every camera (``visibility.estimate_visibility``), and the same with the people 
 occluders of the views (``body_occlusion``, :mod:`dome_calib.recon.patches.occlusion`; and the occlusion test alone
 on the facing patch-cameras, with the views it hides per patch and the truly seen views among them); and the flown
 views' flow started at its prediction (the true shift) with each of ``--predicted-levels`` pyramid levels
-(``PatchOptions.lk_predict``). Prints one JSON object per line. The flow here is a lower bound of the stream's: the
+(``PatchOptions.lk_predict``); and the visibility with ``border_squares`` the other way than the default
+(``visibility_border_squares_false``: the whole square in the image). Prints one JSON object per line. The flow here is a lower bound of the stream's: the
 texture moves 1 px, and real motion takes Lucas-Kanade more iterations (the stream on the
 panel spent ~2x this bench's flow per patch-step, docs/benchmarks.md); the step also triangulates twice.
 """
@@ -136,6 +137,16 @@ def run(args: argparse.Namespace) -> None:
                                                                   motion, nb, o))
             occ_full, ms_vis_body = cpu_ms(lambda: estimate_visibility(source, views, frames, X, np.zeros_like(X),
                                                                        seen, motion, nb, ob, body))
+            whole = dataclasses.replace(o, border_squares=not o.border_squares)
+            ms_vis_other = []
+            for _ in range(2):  # alternated with the default's, each the faster of two (the first call pays more)
+                other, ms = cpu_ms(lambda: estimate_visibility(source, views, frames, X, np.zeros_like(X), seen,
+                                                               motion, nb, whole))
+                ms_vis_other.append(ms)
+                ms_vis_all = min(ms_vis_all, cpu_ms(lambda: estimate_visibility(source, views, frames, X,
+                                                                                np.zeros_like(X), seen, motion, nb,
+                                                                                o))[1])
+            ms_vis_other = min(ms_vis_other)
             to_cam = views.center_cm[None] - X[:, None, 0]
             pi, ci = np.nonzero(np.sum(to_cam * normal[0][:, None], -1) / np.linalg.norm(to_cam, axis=-1)
                                 > o.min_cos_view)
@@ -149,11 +160,16 @@ def run(args: argparse.Namespace) -> None:
                                                           ("triangulate_flown", ms_tri),
                                                           ("visibility", ms_vis_all),
                                                           ("visibility_body_occlusion", ms_vis_body),
-                                                          ("occlusion_alone", ms_occ), *ms_predicted.items())}
+                                                          ("occlusion_alone", ms_occ),
+                                                          (f"visibility_border_squares_{whole.border_squares}".lower(),
+                                                           ms_vis_other), *ms_predicted.items())}
             print(json.dumps({"preset": preset, "cameras": V, "people": args.people, "patches": N,
                               "track_views": o.track_views, "seen_views_per_patch": round(float(seen.sum(1).mean()), 1),
                               "flown_views_per_patch": round(float(flown.sum(1).mean()), 1),
                               "facing_views_per_patch": round(float(full.candidate.sum(1).mean()), 1),
+                              "border_squares": o.border_squares,
+                              "candidates_per_patch_border_squares_other": round(float(other.candidate.sum(1).mean()),
+                                                                                 1),
                               "hidden_views_per_patch": round(float(hidden.sum() / N), 1),
                               "candidates_per_patch_body_occlusion": round(float(occ_full.candidate.sum(1).mean()), 1),
                               "true_views_hidden": int(np.sum(hidden & seen[pi, ci])),

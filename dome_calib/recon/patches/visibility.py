@@ -286,6 +286,8 @@ def _with_border_squares(views: ViewSet, v: int, gray: np.ndarray, grid: np.ndar
     taken too when their centre and at least :data:`MIN_BORDER_SAMPLES` of their samples are in the image; their
     samples outside are NaN. -> (samples of the taken rows in ``rows`` order, (R,) taken)."""
     cross = np.flatnonzero(~inside)
+    # the centres first: most squares not wholly inside are wholly outside (a dome camera facing away from them)
+    cross = cross[project_view(views, v, grid[rows[cross], CENTRE_SAMPLE])[1]]
     uv, seen = project_view(views, v, grid[rows[cross]].reshape(-1, 3))
     G = grid.shape[1]
     uv, seen = uv.reshape(len(cross), G, 2), seen.reshape(len(cross), G)
