@@ -113,8 +113,8 @@ class PatchOptions:
     # geometric: a camera whose image the patch's square crosses the border of is a candidate too when the square's
     # centre and at least half its samples are inside (visibility.MIN_BORDER_SAMPLES), every NCC of it then over the
     # samples inside both images; False: the whole square must be inside (the old rule). On the bench (10 frames)
-    # recall +0.40 / +1.46 / +5.10 points on scenes 1, 2 and the walkers, precision -0.03 / +0.03 / -0.15
-    # (docs/benchmarks.md, issue 49)
+    # recall +0.40 / +1.46 / +5.10 / +0.53 points on scenes 1, 2, the walkers and an unseen scene, precision -0.03 /
+    # +0.03 / -0.15 / -0.01 (docs/benchmarks.md, issue 49)
     border_squares: bool = True
     geometric_weight: PosFinite = 1.0
     # geometric: the people as occluders (occlusion.py; needs the body over time, patch_stream(..., body=)): a camera
