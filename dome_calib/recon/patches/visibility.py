@@ -16,7 +16,9 @@ Per patch and camera, the cost of "visible" (the cost of "not visible" is 0):
   largest distance between a point's optical flow and the reprojection of its triangulated motion (a failed flow
   counts as 3 sigmas); 0 for the others;
 - **geometric**: a camera is a candidate only if the normal faces it (cosine above ``min_cos_view``; the others are
-  not projected), the whole square projects into its image and, with ``body_occlusion`` and the people given, no
+  not projected), the square projects into its image (with ``border_squares``, the default, its centre and at least
+  :data:`MIN_BORDER_SAMPLES` of its samples, every NCC of it then over the samples inside both images,
+  :func:`ncc_partial`; else the whole square) and, with ``body_occlusion`` and the people given, no
   body part lies on the ray from the camera to the patch (:mod:`.occlusion`); then
   ``geometric_weight * max(0, 0.5 - cos) / 0.5`` (grazing views cost).
 
