@@ -49,12 +49,14 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
 import json  # noqa: E402
+import pickle  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
 from dome_calib.recon.body_models import JOINTS19  # noqa: E402
-from dome_calib.recon.patches.body import flag_joints, ties_from_patches  # noqa: E402
+from dome_calib.recon.patches.body import TIED_JOINTS, flag_joints, ties_from_patches  # noqa: E402
+from dome_calib.recon.patches.motion import MotionOptions  # noqa: E402
 from dome_calib.recon.people.run import PeopleOptions, reconstruct_people, refit_over_time  # noqa: E402
 from dome_calib.recon.people.sources import InMemorySource, people_streams  # noqa: E402
 from dome_calib.recon.people.temporal import TemporalOptions, refine_tracks  # noqa: E402
@@ -179,7 +181,7 @@ OWN_CAMERAS = {"panel": {"vga": 24, "hd": 4, "kinect-color": 2}, "fewcam": {"hd"
 
 
 def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int, method: str, bodies: list,
-                source, o: PatchOptions, done: dict) -> dict:
+                source, o: PatchOptions, done: dict, seed: int = 0, cache: str = "") -> dict:
     """The stream's own patches from images alone (no depth): one cloud at reference frame ``f`` tracked ``frames``
     each way, seeded by ``method`` (``sweep``; ``skeleton``: the body over time ``bodies`` at ``times`` as the
     seeds' depth prior, as ``reconstruct --images --patch-seeds skeleton`` does; ``both``: the two streams side by
@@ -193,10 +195,17 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
         if m == "auto":  # reconstruct --images' default: the seeding the reference stream's geometry picks
             m = choose_seed_method(view_set(bundle, cameras_by_stream(bundle, cams)[0][reference_stream(bundle, cams)]
                                             )).method
+        cached = os.path.join(cache, f"{rig}_{seed}_{m}_{f}_{frames}.pkl") if cache else ""
+        if m not in done and cached and os.path.exists(cached):
+            with open(cached, "rb") as fh:
+                done[m] = pickle.load(fh)
         if m not in done:  # each seeding's stream computed once (``done``), "both" reuses them
             done[m] = patch_stream(bundle, source, cams, (float(times[0]), float(times[-1])),
                                    dataclasses.replace(o, track_frames=frames, seed_method=m), seed_frames=[f],
                                    body=prior if m == "skeleton" else None)
+            if cached:
+                with open(cached, "wb") as fh:
+                    pickle.dump(done[m], fh)
         trajs.append(done[m])
     X = np.concatenate([t.X_cm for t in trajs])
     normal = np.concatenate([t.normal for t in trajs])
@@ -214,7 +223,8 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
 
 def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: str = "",
         end_to_end: bool = False, limbs: list | None = None, own: tuple[str, ...] = (), frames: int = 30,
-        patch_options: PatchOptions | None = None, part_options: PartOptions | None = None) -> list[dict]:
+        patch_options: PatchOptions | None = None, part_options: PartOptions | None = None,
+        cache: str = "") -> list[dict]:
     if rig == "fewcam":
         bundle = few_camera_rig(RigOptions(seed=seed, duration_ms=1000.0 * seconds + GROUP_MARGIN_MS + 100.0))
         truth = rig_group(bundle, n_people=n_people, seed=seed)
@@ -274,7 +284,7 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
         extra = {}
         if how:
             got = own_patches(bundle, truth, rig, times, f, frames, how, alone.bodies, source,
-                              patch_options or PatchOptions(), done)
+                              patch_options or PatchOptions(), done, seed, cache)
             Pt, normal, alive, t_person, t_part = (got[k] for k in ("X_cm", "normal", "alive", "person", "part"))
             extra = dict(patch_cameras=got["cameras"], seeds=got["seeds"])
         elif saved is None:
@@ -286,6 +296,67 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
                        track_ids, est, conf, seq, dt_s, Pt, normal, alive, t_person, t_part, cpu_alone,
                        cpu_patches, extra, part_options)
     return rows
+
+
+#: Why an occluded joint-time no tie reaches within 3 cm (:func:`reach`), in the order the stages come.
+REACH_CAUSES = ("no_seed", "seed_dies", "wrong_label", "no_motion", "tie_too_weak", "tied_not_within_3cm")
+
+
+def reach(removed, within, times, track_ids, tracks, lab, t_person, t_part, alive, motions, ties) -> dict:
+    """How far the patches reach each body part and why the occluded joint-times missed are missed.
+
+    Per true part (summed over the people): the patches seeded on it (true part at the seed time), their frames
+    alive (median), how many are labelled right, labelled another part, or left unlabelled, and the steps with a
+    motion of it. Per occluded joint-time not recovered within 3 cm (``removed & ~within``, (T, P, 19)): the
+    furthest stage any part carrying the joint (:data:`TIED_JOINTS`) reaches at either step touching that time:
+    ``no_seed`` (no patch seeded on it), ``seed_dies`` (fewer than a motion's ``min_patches`` alive at both ends
+    of the step), ``wrong_label`` (alive, but fewer than that labelled to it), ``no_motion`` (labelled, no fit),
+    ``tie_too_weak`` (a motion whose tie's sigma passes ``max_sigma_cm``), ``tied_not_within_3cm``."""
+    need = MotionOptions().min_patches
+    T, P = removed.shape[:2]
+    lab_track = np.where(lab.bone >= 0, tracks[np.maximum(lab.person, 0)], -1)
+    track_pos = {int(t): i for i, t in enumerate(tracks)}
+    moved = {(int(p), int(b), int(k)) for p, b, k in zip(motions.person, motions.bone, motions.step)}
+    tied = {(int(tr), int(j), float(a)) for tr, j, a in zip(ties.track_id, ties.joint, ties.from_ms)}
+    parts = {}
+    for b, (name, _, _) in enumerate(BONES):
+        on = t_part == b
+        life = alive[on].sum(1)
+        right = on & (lab_track == np.where(t_person >= 0, track_ids[np.maximum(t_person, 0)], -2)) & (lab.bone == b)
+        parts[name] = {"seeds": int(on.sum()), "frames_alive_median": float(np.median(life)) if on.any() else None,
+                       "right": int(right.sum()), "other_part": int((on & (lab.bone >= 0) & ~right).sum()),
+                       "unlabelled": int((on & (lab.bone < 0)).sum()),
+                       "steps_moved": int(sum(1 for (_, bb, _) in moved if bb == b))}
+    causes = {c: 0 for c in REACH_CAUSES}
+    by_joint: dict[str, dict[str, int]] = {}
+    for k, p, j in zip(*np.nonzero(removed & ~within)):
+        tr = int(track_ids[p])
+        best = 0
+        for b in [b for b, js in enumerate(TIED_JOINTS) if j in js]:
+            mine = (t_person == p) & (t_part == b)
+            if mine.any():
+                best = max(best, 1)
+            for s in (k - 1, k):
+                if s < 0 or s + 1 >= T:
+                    continue
+                both = alive[:, s] & alive[:, s + 1]
+                if (mine & both).sum() < need:
+                    continue
+                best = max(best, 2)
+                if (mine & both & (lab_track == tr) & (lab.bone == b)).sum() < need:
+                    continue
+                best = max(best, 3)
+                if tr < 0 or (track_pos.get(tr, -1), b, s) not in moved:
+                    continue
+                best = max(best, 4)
+                if (tr, int(j), float(times[s])) not in tied:
+                    continue
+                best = max(best, 5)
+        c = REACH_CAUSES[best]
+        causes[c] += 1
+        by_joint.setdefault(JOINTS19[j], {}).setdefault(c, 0)
+        by_joint[JOINTS19[j]][c] += 1
+    return {"by_part": parts, "missed_causes": causes, "missed_by_joint": by_joint}
 
 
 def _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present, removed, alone, fit, track_ids,
@@ -351,6 +422,8 @@ def _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present
                                            for p in range(X.shape[1])}
             row["patches_by_label"] = {name: int(np.sum(lab.bone == b)) for b, (name, _, _) in enumerate(BONES)}
             # per removed joint: [recovered within 3 cm, a tie reaches it, removed] joint-times
+            row["reach"] = reach(removed, out & (e_all < 3.0), times, track_ids, tracks, lab, t_person, t_part,
+                                 alive, motions, ties)
             row["occluded_by_joint"] = {JOINTS19[j]: [int((removed[..., j] & out[..., j]
                                                            & (e_all[..., j] < 3.0)).sum()),
                                                       int((removed[..., j] & tied[..., j]).sum()),
@@ -398,6 +471,9 @@ def main() -> None:
                     "(values JSON), e.g. crease_cm=1.0")
     ap.add_argument("--frames", type=int, default=30, help="--own-stream: the cloud is tracked this many reference "
                     "frames each way (the times judged: 2 x frames + 1)")
+    ap.add_argument("--stream-cache", default="", help="--own-stream: a folder where each (rig, seed, seeding, "
+                    "frame) stream is kept once computed and read back (pickle; to judge labels and ties again: "
+                    "clear it when the stream's code or --patch-options change)")
     args = ap.parse_args()
     if set(args.own_stream.split(",")) - {"", "sweep", "skeleton", "both", "auto"}:
         raise SystemExit(f"--own-stream {args.own_stream!r}: a comma list of sweep, skeleton, both, auto")
@@ -415,7 +491,7 @@ def main() -> None:
             rows += run(rig, args.people, args.seconds, seed, args.occlusions, args.stream, args.end_to_end,
                         [lb for k, lb in zip(("arms", "arms", "legs", "legs"), LIMBS) if k in args.limbs.split(",")],
                         tuple(x for x in args.own_stream.split(",") if x), args.frames, patch_options,
-                        part_options)
+                        part_options, args.stream_cache)
     a = [r for r in rows if r["method"] == "body_over_time"]
     b = [r for r in rows if r["method"] == "with_patches"]
     emit(aims={"patches_from": [y["patches_from"] for y in b],
