@@ -10,13 +10,14 @@ them), so the depth of a pixel on a person is known to a few centimetres:
 1. **The body as capsules** at the seed time: each part of :data:`~.parts.BONES` (the person's joints19 at the
    seed time, the body over time) a capsule of the part's radius (:data:`PART_RADIUS_CM`, a generic adult; where
    a bone's end is missing the part is left out).
-2. **Pixels on the person**, per reference camera (in name order): corners (``cv2.goodFeaturesToTrack``,
-   ``seed_features`` per image, quality :data:`CORNER_QUALITY` of the best) among the pixels whose ray meets a
-   capsule (a mask made on a 4 px grid of the capsules' box in the image), each ray's first capsule hit giving an
+2. **Pixels on every part**, per reference camera (in name order): each pixel labelled with the capsule its ray
+   meets first (:func:`part_image`, made on a 4 px grid of the capsules' box in the image); the ``seed_features``
+   corners spread over the parts by their area in the image, each part's judged against its own best
+   (:func:`part_corners`: limb coverage, not only the textured torso), each ray's first capsule hit giving an
    **initial depth and normal** (the capsule's outward normal there).
 3. **Refined photometrically** along the ray within ``seed_depth_window_cm`` of the hit (coarse steps of
-   ``seed_depth_step_cm``, then a fifth of it round the best): the patch's square (``ncc_size_cm``, its plane
-   given by the normal) is sampled in the reference camera and in each other camera of the stream that may see it
+   ``seed_depth_step_cm``, then a fifth of it round the best): the patch's square (``ncc_size_cm``, at most the
+   radius of the part the ray meets: :func:`square_side_cm`; its plane given by the normal) is sampled in the reference camera and in each other camera of the stream that may see it
    (the whole square in the image, the normal facing it by more than ``min_cos_view``, no capsule on the way to it
    more than the window before it: the body hides itself), up to ``seed_views`` of them nearest the reference;
    the depth of the highest mean NCC wins (quantised to 1e-6; ties the nearer depth). Unlike the sweep's upright
