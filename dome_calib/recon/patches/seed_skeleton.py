@@ -17,9 +17,10 @@ them), so the depth of a pixel on a person is known to a few centimetres:
    **initial depth and normal** (the capsule's outward normal there).
 3. **Refined photometrically** along the ray within ``seed_depth_window_cm`` of the hit (coarse steps of
    ``seed_depth_step_cm``, then a fifth of it round the best): the patch's square (``ncc_size_cm``, at most the
-   radius of the part the ray meets: :func:`square_side_cm`; its plane given by the normal) is sampled in the reference camera and in each other camera of the stream that may see it
-   (the whole square in the image, the normal facing it by more than ``min_cos_view``, no capsule on the way to it
-   more than the window before it: the body hides itself), up to ``seed_views`` of them nearest the reference;
+   radius of the part the ray meets: :func:`square_side_cm`; its plane given by the normal) is sampled in the
+   reference camera and in each other camera of the stream that may see it (the whole square in the image, the
+   normal facing it by more than ``min_cos_view``, no capsule on the way to it more than the window before it: the
+   body hides itself), up to ``seed_views`` of them nearest the reference;
    the depth of the highest mean NCC wins (quantised to 1e-6; ties the nearer depth). Unlike the sweep's upright
    windows, the square is warped by its plane into each camera, which is what a wide baseline needs. The normal is
    then tilted as PMVS does (:func:`.refine.refine_normals`) and the depth searched once more with it.
@@ -156,9 +157,10 @@ def part_corners(gray: np.ndarray, parts: np.ndarray, n_corners: int, min_distan
     """(M, 2) corners of ``gray`` on the people, every part its share: per capsule of the part image ``parts``
     (:func:`part_image`), ``ceil(n_corners x its pixels / all the people's pixels)`` corners of quality
     :data:`CORNER_QUALITY` of that part's own best (``cv2.goodFeaturesToTrack`` within the part's box, on the
-    part's pixels whose corner block lies on the part), in capsule order. A budget spread by area, not by contrast: one corner detection over the people gives the
-    textured torso most of the budget and the low-contrast forearms and shins almost none (the few-camera rig's
-    5 HD at the cloud of seed 1: torso 775 of 2,000 corners, each forearm 48-69; docs/patches.md)."""
+    part's pixels whose corner block lies on the part), in capsule order. A budget spread by area, not by
+    contrast: one corner detection over the people gives the textured torso most of the budget and the
+    low-contrast forearms and shins little (the few-camera rig's 5 HD at the cloud of seed 1: torso 775 of 2,000
+    corners, each forearm 48-69; docs/benchmarks.md)."""
     labels, area = np.unique(parts[parts >= 0], return_counts=True)
     out = [np.zeros((0, 2))]
     for lab, a in zip(labels, area):
