@@ -2,7 +2,8 @@
 
 Run: .venv/bin/python bench/patches_body.py [--rig fewcam,panel] [--people 3] [--seconds 4] [--seeds 1,2]
          [--occlusions 6] [--limbs arms,legs] [--stream FILE.npz] [--end-to-end]
-         [--own-stream sweep,skeleton,both [--frames 30] [--patch-options seed_min_views=2]]
+         [--own-stream sweep,skeleton,both,auto [--frames 30] [--seed-every 20] [--patch-options seed_min_views=2]
+         [--stream-cache DIR]]
          [--part-options crease_cm=0.5]
 
 Setup per (rig, seed): the synthetic group (``fewcam``: the 5-camera HD rig of bench/fewcam.py, ``small_area``
@@ -24,11 +25,16 @@ over time alone (not the truth), and their motions fitted by :func:`~dome_calib.
 With ``--stream FILE`` (``--rig panel --people 2 --seeds 0``: bench/patches.py's setup, ``--save FILE``), the
 patches are the stream's own, tracked in the rendered images, at its times. With ``--own-stream`` the stream's own
 patches are tracked here, from the rendered images alone (no depth; :data:`OWN_CAMERAS`): one cloud at the
-reference frame (a multiple of 20) nearest the span's middle, tracked ``--frames`` each way (the times judged),
+reference frame (a multiple of 20) nearest the span's middle, tracked ``--frames`` each way (the times judged;
+``--seed-every N``: a cloud at every multiple of N in them, as ``reconstruct`` seeds every 20th frame),
 seeded by the sweep, by ``seed_method="skeleton"`` with the body over time alone as the seeds' prior
 (:func:`~dome_calib.recon.patches.stage.body_prior`, the joints no detection saw carried by their parents: what
 ``reconstruct --images --patch-seeds skeleton`` gives it), or both side by side; one row per seeding on the same
 rendered frames (a patch not alive at the seed time has no true person or part) (``--patch-options``: PatchOptions fields; ``--part-options``: PartOptions fields of the labels).
+
+With the stream's own patches each row has ``reach`` (:func:`reach`): per part the patches seeded on it, their
+frames alive, how they are labelled, and why each occluded joint-time not recovered within 3 cm is missed (no
+seed, seed dies, wrong label, no motion, tie too weak). ``--stream-cache DIR`` keeps each stream computed.
 
 Prints one JSON object per line per (rig, seed) and method: MPJPE (cm, over the true joints both methods put out
 and over those each puts out), joint acceleration error (cm/s^2: the mean norm of the second difference of the
@@ -49,12 +55,14 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
 import json  # noqa: E402
+import pickle  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
 from dome_calib.recon.body_models import JOINTS19  # noqa: E402
-from dome_calib.recon.patches.body import flag_joints, ties_from_patches  # noqa: E402
+from dome_calib.recon.patches.body import TIED_JOINTS, flag_joints, ties_from_patches  # noqa: E402
+from dome_calib.recon.patches.motion import MotionOptions  # noqa: E402
 from dome_calib.recon.people.run import PeopleOptions, reconstruct_people, refit_over_time  # noqa: E402
 from dome_calib.recon.people.sources import InMemorySource, people_streams  # noqa: E402
 from dome_calib.recon.people.temporal import TemporalOptions, refine_tracks  # noqa: E402
@@ -179,7 +187,7 @@ OWN_CAMERAS = {"panel": {"vga": 24, "hd": 4, "kinect-color": 2}, "fewcam": {"hd"
 
 
 def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int, method: str, bodies: list,
-                source, o: PatchOptions, done: dict) -> dict:
+                source, o: PatchOptions, done: dict, seed: int = 0, cache: str = "", every: int = 0) -> dict:
     """The stream's own patches from images alone (no depth): one cloud at reference frame ``f`` tracked ``frames``
     each way, seeded by ``method`` (``sweep``; ``skeleton``: the body over time ``bodies`` at ``times`` as the
     seeds' depth prior, as ``reconstruct --images --patch-seeds skeleton`` does; ``both``: the two streams side by
@@ -193,28 +201,42 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
         if m == "auto":  # reconstruct --images' default: the seeding the reference stream's geometry picks
             m = choose_seed_method(view_set(bundle, cameras_by_stream(bundle, cams)[0][reference_stream(bundle, cams)]
                                             )).method
+        cached = os.path.join(cache, f"{rig}_{seed}_{m}_{f}_{frames}_{every}.pkl") if cache else ""
+        if m not in done and cached and os.path.exists(cached):
+            with open(cached, "rb") as fh:
+                done[m] = pickle.load(fh)
         if m not in done:  # each seeding's stream computed once (``done``), "both" reuses them
             done[m] = patch_stream(bundle, source, cams, (float(times[0]), float(times[-1])),
-                                   dataclasses.replace(o, track_frames=frames, seed_method=m), seed_frames=[f],
+                                   dataclasses.replace(o, track_frames=frames, seed_method=m), seed_frames=(
+                                       [g for g in range(f - frames, f + frames + 1) if g % every == 0] if every
+                                       else [f]),
                                    body=prior if m == "skeleton" else None)
+            if cached:
+                with open(cached, "wb") as fh:
+                    pickle.dump(done[m], fh)
         trajs.append(done[m])
     X = np.concatenate([t.X_cm for t in trajs])
     normal = np.concatenate([t.normal for t in trajs])
     alive = np.concatenate([t.alive for t in trajs])
-    t_seed = float(trajs[0].times_ms[frames])
-    # a patch not alive at the seed time (a seed that did not survive the step to it) has no truth: -1, not the
+    seed_t = np.concatenate([t.seed_time_ms for t in trajs])
+    # a patch not alive at its seed time (a seed that did not survive the step to it) has no truth: -1, not the
     # part nearest the origin (which made 17 never-alive patches of the panel "left-shin seeds")
     person, part = np.full(len(X), -1), np.full(len(X), -1)
-    live = alive[:, frames]
-    sp = nearest_surface_points(truth, t_seed, X[live, frames, 0])
-    person[live], part[live] = sp.person, sp.part
+    tt = trajs[0].times_ms
+    for t_seed in np.unique(seed_t):
+        k = int(np.argmin(np.abs(tt - t_seed)))
+        live = (seed_t == t_seed) & alive[:, k]
+        sp = nearest_surface_points(truth, float(tt[k]), X[live, k, 0])
+        person[live], part[live] = sp.person, sp.part
     return dict(X_cm=X, normal=normal, alive=alive, person=person, part=part, cameras=len(cams),
-                seeds=[int(t.alive[:, frames].sum()) for t in trajs])
+                seeds=[int(sum(t.alive[t.seed_time_ms == ts, int(np.argmin(np.abs(tt - ts)))].sum()
+                               for ts in np.unique(t.seed_time_ms))) for t in trajs])
 
 
 def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: str = "",
         end_to_end: bool = False, limbs: list | None = None, own: tuple[str, ...] = (), frames: int = 30,
-        patch_options: PatchOptions | None = None, part_options: PartOptions | None = None) -> list[dict]:
+        patch_options: PatchOptions | None = None, part_options: PartOptions | None = None,
+        cache: str = "", every: int = 0, motion_options: MotionOptions | None = None) -> list[dict]:
     if rig == "fewcam":
         bundle = few_camera_rig(RigOptions(seed=seed, duration_ms=1000.0 * seconds + GROUP_MARGIN_MS + 100.0))
         truth = rig_group(bundle, n_people=n_people, seed=seed)
@@ -274,9 +296,9 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
         extra = {}
         if how:
             got = own_patches(bundle, truth, rig, times, f, frames, how, alone.bodies, source,
-                              patch_options or PatchOptions(), done)
+                              patch_options or PatchOptions(), done, seed, cache, every)
             Pt, normal, alive, t_person, t_part = (got[k] for k in ("X_cm", "normal", "alive", "person", "part"))
-            extra = dict(patch_cameras=got["cameras"], seeds=got["seeds"])
+            extra = dict(patch_cameras=got["cameras"], seeds=got["seeds"], seed_every=every)
         elif saved is None:
             Pt, normal, alive, t_person, t_part = true_patches(bundle, cams, truth, times, seed)
         else:
@@ -284,17 +306,78 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
         cpu_patches = time.process_time() - cpu
         rows += _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present, removed, alone, fit,
                        track_ids, est, conf, seq, dt_s, Pt, normal, alive, t_person, t_part, cpu_alone,
-                       cpu_patches, extra, part_options)
+                       cpu_patches, extra, part_options, motion_options)
     return rows
+
+
+#: Why an occluded joint-time no tie reaches within 3 cm (:func:`reach`), in the order the stages come.
+REACH_CAUSES = ("no_seed", "seed_dies", "wrong_label", "no_motion", "tie_too_weak", "tied_not_within_3cm")
+
+
+def reach(removed, within, times, track_ids, tracks, lab, t_person, t_part, alive, motions, ties) -> dict:
+    """How far the patches reach each body part and why the occluded joint-times missed are missed.
+
+    Per true part (summed over the people): the patches seeded on it (true part at the seed time), their frames
+    alive (median), how many are labelled right, labelled another part, or left unlabelled, and the steps with a
+    motion of it. Per occluded joint-time not recovered within 3 cm (``removed & ~within``, (T, P, 19)): the
+    furthest stage any part carrying the joint (:data:`TIED_JOINTS`) reaches at either step touching that time:
+    ``no_seed`` (no patch seeded on it), ``seed_dies`` (fewer than a motion's ``min_patches`` alive at both ends
+    of the step), ``wrong_label`` (alive, but fewer than that labelled to it), ``no_motion`` (labelled, no fit),
+    ``tie_too_weak`` (a motion whose tie's sigma passes ``max_sigma_cm``), ``tied_not_within_3cm``."""
+    need = MotionOptions().min_patches
+    T, P = removed.shape[:2]
+    lab_track = np.where(lab.bone >= 0, tracks[np.maximum(lab.person, 0)], -1)
+    track_pos = {int(t): i for i, t in enumerate(tracks)}
+    moved = {(int(p), int(b), int(k)) for p, b, k in zip(motions.person, motions.bone, motions.step)}
+    tied = {(int(tr), int(j), float(a)) for tr, j, a in zip(ties.track_id, ties.joint, ties.from_ms)}
+    parts = {}
+    for b, (name, _, _) in enumerate(BONES):
+        on = t_part == b
+        life = alive[on].sum(1)
+        right = on & (lab_track == np.where(t_person >= 0, track_ids[np.maximum(t_person, 0)], -2)) & (lab.bone == b)
+        parts[name] = {"seeds": int(on.sum()), "frames_alive_median": float(np.median(life)) if on.any() else None,
+                       "right": int(right.sum()), "other_part": int((on & (lab.bone >= 0) & ~right).sum()),
+                       "unlabelled": int((on & (lab.bone < 0)).sum()),
+                       "steps_moved": int(sum(1 for (_, bb, _) in moved if bb == b))}
+    causes = {c: 0 for c in REACH_CAUSES}
+    by_joint: dict[str, dict[str, int]] = {}
+    for k, p, j in zip(*np.nonzero(removed & ~within)):
+        tr = int(track_ids[p])
+        best = 0
+        for b in [b for b, js in enumerate(TIED_JOINTS) if j in js]:
+            mine = (t_person == p) & (t_part == b)
+            if mine.any():
+                best = max(best, 1)
+            for s in (k - 1, k):
+                if s < 0 or s + 1 >= T:
+                    continue
+                both = alive[:, s] & alive[:, s + 1]
+                if (mine & both).sum() < need:
+                    continue
+                best = max(best, 2)
+                if (mine & both & (lab_track == tr) & (lab.bone == b)).sum() < need:
+                    continue
+                best = max(best, 3)
+                if tr < 0 or (track_pos.get(tr, -1), b, s) not in moved:
+                    continue
+                best = max(best, 4)
+                if (tr, int(j), float(times[s])) not in tied:
+                    continue
+                best = max(best, 5)
+        c = REACH_CAUSES[best]
+        causes[c] += 1
+        by_joint.setdefault(JOINTS19[j], {}).setdefault(c, 0)
+        by_joint[JOINTS19[j]][c] += 1
+    return {"by_part": parts, "missed_causes": causes, "missed_by_joint": by_joint}
 
 
 def _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present, removed, alone, fit, track_ids,
            est, conf, seq, dt_s, Pt, normal, alive, t_person, t_part, cpu_alone, cpu_patches, extra,
-           part_options=None) -> list[dict]:
+           part_options=None, motion_options=None) -> list[dict]:
     """One set of patches: labelled, their motions tied to the body, the fit with the ties, both rows emitted."""
     cpu = time.process_time()
     ties, lab, motions = ties_from_patches(Pt, normal, alive, times, alone.bodies,  # labelled with the body alone
-                                           part_options=part_options)
+                                           part_options=part_options, motion_options=motion_options)
     tracks = np.unique(np.concatenate([b.ids for b in alone.bodies]))
     lab_track = np.where(lab.person >= 0, tracks[np.maximum(lab.person, 0)], -1)
     withp = fit(ties)
@@ -351,6 +434,8 @@ def _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present
                                            for p in range(X.shape[1])}
             row["patches_by_label"] = {name: int(np.sum(lab.bone == b)) for b, (name, _, _) in enumerate(BONES)}
             # per removed joint: [recovered within 3 cm, a tie reaches it, removed] joint-times
+            row["reach"] = reach(removed, out & (e_all < 3.0), times, track_ids, tracks, lab, t_person, t_part,
+                                 alive, motions, ties)
             row["occluded_by_joint"] = {JOINTS19[j]: [int((removed[..., j] & out[..., j]
                                                            & (e_all[..., j] < 3.0)).sum()),
                                                       int((removed[..., j] & tied[..., j]).sum()),
@@ -396,8 +481,16 @@ def main() -> None:
                     "(values JSON), e.g. seed_min_views=2")
     ap.add_argument("--part-options", default="", help="PartOptions fields of the labels, FIELD=VALUE,... "
                     "(values JSON), e.g. crease_cm=1.0")
+    ap.add_argument("--motion-options", default="", help="MotionOptions fields of the part motions, FIELD=VALUE,... "
+                    "(values JSON), e.g. min_patches=2")
     ap.add_argument("--frames", type=int, default=30, help="--own-stream: the cloud is tracked this many reference "
                     "frames each way (the times judged: 2 x frames + 1)")
+    ap.add_argument("--stream-cache", default="", help="--own-stream: a folder where each (rig, seed, seeding, "
+                    "frame) stream is kept once computed and read back (pickle; to judge labels and ties again: "
+                    "clear it when the stream's code or --patch-options change)")
+    ap.add_argument("--seed-every", type=int, default=0, help="--own-stream: a cloud at every reference frame "
+                    "of the judged span that is a multiple of this (reconstruct's rule: 20; each tracked --frames each "
+                    "way within the span), not one cloud at its middle (0)")
     args = ap.parse_args()
     if set(args.own_stream.split(",")) - {"", "sweep", "skeleton", "both", "auto"}:
         raise SystemExit(f"--own-stream {args.own_stream!r}: a comma list of sweep, skeleton, both, auto")
@@ -407,7 +500,10 @@ def main() -> None:
         item.split("=", 1) for item in args.patch_options.split(",") if item)})
     part_options = PartOptions(**{k: json.loads(v) for k, v in (
         item.split("=", 1) for item in args.part_options.split(",") if item)})
+    motion_options = MotionOptions(**{k: json.loads(v) for k, v in (
+        item.split("=", 1) for item in args.motion_options.split(",") if item)})
     emit(bench="patches_body", patch_options=args.patch_options, part_options=args.part_options,
+         motion_options=args.motion_options, seed_every=args.seed_every,
          cpus=os.cpu_count(), load=[round(x, 2) for x in os.getloadavg()])
     rows = []
     for rig in args.rig.split(","):
@@ -415,7 +511,7 @@ def main() -> None:
             rows += run(rig, args.people, args.seconds, seed, args.occlusions, args.stream, args.end_to_end,
                         [lb for k, lb in zip(("arms", "arms", "legs", "legs"), LIMBS) if k in args.limbs.split(",")],
                         tuple(x for x in args.own_stream.split(",") if x), args.frames, patch_options,
-                        part_options)
+                        part_options, args.stream_cache, args.seed_every, motion_options)
     a = [r for r in rows if r["method"] == "body_over_time"]
     b = [r for r in rows if r["method"] == "with_patches"]
     emit(aims={"patches_from": [y["patches_from"] for y in b],

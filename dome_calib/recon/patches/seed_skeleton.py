@@ -10,15 +10,17 @@ them), so the depth of a pixel on a person is known to a few centimetres:
 1. **The body as capsules** at the seed time: each part of :data:`~.parts.BONES` (the person's joints19 at the
    seed time, the body over time) a capsule of the part's radius (:data:`PART_RADIUS_CM`, a generic adult; where
    a bone's end is missing the part is left out).
-2. **Pixels on the person**, per reference camera (in name order): corners (``cv2.goodFeaturesToTrack``,
-   ``seed_features`` per image, quality :data:`CORNER_QUALITY` of the best) among the pixels whose ray meets a
-   capsule (a mask made on a 4 px grid of the capsules' box in the image), each ray's first capsule hit giving an
+2. **Pixels on every part**, per reference camera (in name order): each pixel labelled with the capsule its ray
+   meets first (:func:`part_image`, made on a 4 px grid of the capsules' box in the image); the ``seed_features``
+   corners spread over the parts by their area in the image, each part's judged against its own best
+   (:func:`part_corners`: limb coverage, not only the textured torso), each ray's first capsule hit giving an
    **initial depth and normal** (the capsule's outward normal there).
 3. **Refined photometrically** along the ray within ``seed_depth_window_cm`` of the hit (coarse steps of
-   ``seed_depth_step_cm``, then a fifth of it round the best): the patch's square (``ncc_size_cm``, its plane
-   given by the normal) is sampled in the reference camera and in each other camera of the stream that may see it
-   (the whole square in the image, the normal facing it by more than ``min_cos_view``, no capsule on the way to it
-   more than the window before it: the body hides itself), up to ``seed_views`` of them nearest the reference;
+   ``seed_depth_step_cm``, then a fifth of it round the best): the patch's square (``ncc_size_cm``, at most the
+   radius of the part the ray meets: :func:`square_side_cm`; its plane given by the normal) is sampled in the
+   reference camera and in each other camera of the stream that may see it (the whole square in the image, the
+   normal facing it by more than ``min_cos_view``, no capsule on the way to it more than the window before it: the
+   body hides itself), up to ``seed_views`` of them nearest the reference;
    the depth of the highest mean NCC wins (quantised to 1e-6; ties the nearer depth). Unlike the sweep's upright
    windows, the square is warped by its plane into each camera, which is what a wide baseline needs. The normal is
    then tilted as PMVS does (:func:`.refine.refine_normals`) and the depth searched once more with it.
@@ -58,6 +60,9 @@ logger = logging.getLogger(__name__)
 #: corners per camera on the participant, this 134-320).
 CORNER_QUALITY = 0.005
 MASK_STEP_PX = 4  # the person's mask is made on this grid of pixels
+BOX_MARGIN_PX = 8  # a part's corners are found in its box and this margin (more than the corner's block)
+CORNER_BLOCK_PX = 5  # the corner response's block (cv2.goodFeaturesToTrack blockSize)
+_BLOCK = np.ones((CORNER_BLOCK_PX, CORNER_BLOCK_PX), np.uint8)
 FINE_STEPS = 5  # the fine search: this many steps of a fifth of the coarse step either side of the best
 _CHUNK = 64
 
@@ -67,10 +72,18 @@ def ray_capsules(origin: np.ndarray, dirs: np.ndarray, A: np.ndarray, B: np.ndar
     """Unit rays ``origin + s dirs`` (N, 3) against capsules -> ((N,) first hit s > 0, inf: none; (N, 3) the
     capsule's outward unit normal there, NaN: none). A capsule is the cylinder round [A, B] and the two spheres at
     its ends; the first of their entry points that lies on the capsule's surface."""
+    s, normal, _ = ray_capsule_hits(origin, dirs, A, B, radius)
+    return s, normal
+
+
+def ray_capsule_hits(origin: np.ndarray, dirs: np.ndarray, A: np.ndarray, B: np.ndarray, radius: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`ray_capsules` and (N,) which capsule each ray meets first (-1: none; of equal hits the first)."""
     N = len(dirs)
     best = np.full(N, np.inf)
     normal = np.full((N, 3), np.nan)
-    for a, b, r in zip(A, B, radius):
+    which = np.full(N, -1, np.int64)
+    for i, (a, b, r) in enumerate(zip(A, B, radius)):
         axis = (b - a) / np.linalg.norm(b - a)
         length = float(np.linalg.norm(b - a))
         oa = origin - a
@@ -98,7 +111,8 @@ def ray_capsules(origin: np.ndarray, dirs: np.ndarray, A: np.ndarray, B: np.ndar
             n = P - (a + t[:, None] * axis)
             normal[nearer] = n / np.linalg.norm(n, axis=1, keepdims=True)
             best[nearer] = s[nearer]
-    return best, normal
+            which[nearer] = i
+    return best, normal, which
 
 
 def _rays(views: ViewSet, v: int, uv: np.ndarray) -> np.ndarray:
@@ -111,8 +125,15 @@ def person_mask(views: ViewSet, v: int, size_wh: tuple[int, int], A: np.ndarray,
                 radius: np.ndarray) -> np.ndarray:
     """(H, W) uint8 mask (255) of view ``v``'s pixels whose rays meet a capsule, made on a ``MASK_STEP_PX`` grid of
     the capsules' box in the image (each grid cell takes its corner's verdict)."""
+    return (part_image(views, v, size_wh, A, B, radius) >= 0).astype(np.uint8) * 255
+
+
+def part_image(views: ViewSet, v: int, size_wh: tuple[int, int], A: np.ndarray, B: np.ndarray,
+               radius: np.ndarray) -> np.ndarray:
+    """(H, W) int32: per pixel of view ``v`` the capsule its ray meets first (-1: none), made on a ``MASK_STEP_PX``
+    grid of the capsules' box in the image (each grid cell takes its corner's verdict)."""
     W, H = size_wh
-    mask = np.zeros((H, W), np.uint8)
+    mask = np.full((H, W), -1, np.int32)
     t = np.linspace(0.0, 1.0, 5)
     axis_pts = (A[:, None] + t[None, :, None] * (B - A)[:, None]).reshape(-1, 3)
     offs = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
@@ -125,18 +146,48 @@ def person_mask(views: ViewSet, v: int, size_wh: tuple[int, int], A: np.ndarray,
     u1, v1 = (np.clip(np.ceil(uv.max(0)) + 2 * MASK_STEP_PX, 0, [W - 1, H - 1])).astype(int)
     gu, gv = np.arange(u0, u1 + 1, MASK_STEP_PX), np.arange(v0, v1 + 1, MASK_STEP_PX)
     grid = np.stack(np.meshgrid(gu, gv), -1).reshape(-1, 2).astype(float)
-    s, _ = ray_capsules(views.center_cm[v], _rays(views, v, grid), A, B, radius)
-    hit = np.isfinite(s).reshape(len(gv), len(gu))
+    _, _, which = ray_capsule_hits(views.center_cm[v], _rays(views, v, grid), A, B, radius)
+    hit = which.reshape(len(gv), len(gu)).astype(np.int32)
     mask[v0:v0 + len(gv) * MASK_STEP_PX, u0:u0 + len(gu) * MASK_STEP_PX] = np.repeat(
-        np.repeat(hit, MASK_STEP_PX, 0), MASK_STEP_PX, 1)[:H - v0, :W - u0].astype(np.uint8) * 255
+        np.repeat(hit, MASK_STEP_PX, 0), MASK_STEP_PX, 1)[:H - v0, :W - u0]
     return mask
 
 
-def _squares(X0: np.ndarray, u: np.ndarray, v: np.ndarray, size_cm: float) -> np.ndarray:
-    """Centres (..., 3), plane axes (..., 3) -> (..., G, 3) the square's sample points."""
-    g = (np.arange(GRID_SIDE) / (GRID_SIDE - 1) - 0.5) * size_cm
+def part_corners(gray: np.ndarray, parts: np.ndarray, n_corners: int, min_distance_px: float) -> np.ndarray:
+    """(M, 2) corners of ``gray`` on the people, every part its share: per capsule of the part image ``parts``
+    (:func:`part_image`), ``ceil(n_corners x its pixels / all the people's pixels)`` corners of quality
+    :data:`CORNER_QUALITY` of that part's own best (``cv2.goodFeaturesToTrack`` within the part's box, on the
+    part's pixels whose corner block lies on the part), in capsule order. A budget spread by area, not by
+    contrast: one corner detection over the people gives the textured torso most of the budget and the
+    low-contrast forearms and shins little (the few-camera rig's 5 HD at the cloud of seed 1: torso 775 of 2,000
+    corners, each forearm 48-69; docs/benchmarks.md)."""
+    labels, area = np.unique(parts[parts >= 0], return_counts=True)
+    out = [np.zeros((0, 2))]
+    for lab, a in zip(labels, area):
+        rows, cols = np.nonzero(parts == lab)
+        H, W = parts.shape  # the part's box and a margin: the corner response near the box's edge as in the image
+        v0, v1 = max(rows.min() - BOX_MARGIN_PX, 0), min(rows.max() + 1 + BOX_MARGIN_PX, H)
+        u0, u1 = max(cols.min() - BOX_MARGIN_PX, 0), min(cols.max() + 1 + BOX_MARGIN_PX, W)
+        want = int(np.ceil(n_corners * a / area.sum()))
+        # the part's pixels whose whole corner block lies on the part: a corner's response at the outline is the
+        # neighbour's texture or the edge itself, not the part's (and would set the part's own quality level)
+        inner = cv2.erode((parts[v0:v1, u0:u1] == lab).astype(np.uint8) * 255, _BLOCK)
+        if not inner.any():
+            continue
+        got = cv2.goodFeaturesToTrack(np.ascontiguousarray(gray[v0:v1, u0:u1]), want, CORNER_QUALITY,
+                                      min_distance_px, mask=inner, blockSize=CORNER_BLOCK_PX)
+        if got is not None:
+            out.append(got.reshape(-1, 2).astype(float) + [u0, v0])
+    return np.concatenate(out)
+
+
+def _squares(X0: np.ndarray, u: np.ndarray, v: np.ndarray, size_cm) -> np.ndarray:
+    """Centres (..., 3), plane axes (..., 3), the squares' sides (cm; a number or broadcasting to ``...``) ->
+    (..., G, 3) the squares' sample points."""
+    g = np.arange(GRID_SIDE) / (GRID_SIDE - 1) - 0.5
     a, b = (x.ravel() for x in np.meshgrid(g, g))
-    return X0[..., None, :] + a[:, None] * u[..., None, :] + b[:, None] * v[..., None, :]
+    side = np.asarray(size_cm, float)[..., None, None]
+    return X0[..., None, :] + side * (a[:, None] * u[..., None, :] + b[:, None] * v[..., None, :])
 
 
 def _plane_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -148,15 +199,16 @@ def _plane_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _depth_scores(grays: list[np.ndarray], views: ViewSet, cams: np.ndarray, origin: np.ndarray, dirs: np.ndarray,
-                  s: np.ndarray, normal: np.ndarray, o: PatchOptions) -> np.ndarray:
-    """Per ray (N,) and depth (N, D): NCC (N, D, K) of the square at ``origin + s dirs`` (plane ``normal`` (N, 3))
-    in each camera ``cams`` (N, K) (-1: none) against the reference (``grays[0]``, view ``cams``' reference is the
-    first of ``views``); NaN where a camera is none or the square leaves an image."""
+                  s: np.ndarray, normal: np.ndarray, size_cm: np.ndarray) -> np.ndarray:
+    """Per ray (N,) and depth (N, D): NCC (N, D, K) of the square of side ``size_cm`` (N,) at ``origin + s dirs``
+    (plane ``normal`` (N, 3)) in each camera ``cams`` (N, K) (-1: none) against the reference (``grays[0]``, view
+    ``cams``' reference is the first of ``views``); NaN where a camera is none or the square leaves an image."""
     N, D = s.shape
     K = cams.shape[1]
     u, v = _plane_axes(normal)
     X0 = origin + s[..., None] * dirs[:, None]  # (N, D, 3)
-    sq = _squares(X0, np.broadcast_to(u[:, None], X0.shape), np.broadcast_to(v[:, None], X0.shape), o.ncc_size_cm)
+    sq = _squares(X0, np.broadcast_to(u[:, None], X0.shape), np.broadcast_to(v[:, None], X0.shape),
+                  np.asarray(size_cm, float)[:, None])
     G = sq.shape[2]
 
     def look(c: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -174,13 +226,13 @@ def _depth_scores(grays: list[np.ndarray], views: ViewSet, cams: np.ndarray, ori
     return out
 
 
-def _search(grays, views, cams, origin, dirs, centre_s, half_cm, step_cm, normal, o
+def _search(grays, views, cams, origin, dirs, centre_s, half_cm, step_cm, normal, size_cm
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The depth of best mean NCC within ``centre_s +- half_cm`` (steps ``step_cm``) -> (best s (N,), NCC per camera
-    there (N, K), at an end of the range (N,))."""
+    """The depth of best mean NCC of squares of side ``size_cm`` (N,) within ``centre_s +- half_cm`` (steps
+    ``step_cm``) -> (best s (N,), NCC per camera there (N, K), at an end of the range (N,))."""
     n_steps = int(round(half_cm / step_cm))
     s = centre_s[:, None] + step_cm * np.arange(-n_steps, n_steps + 1)[None]
-    score = _depth_scores(grays, views, cams, origin, dirs, s, normal, o)
+    score = _depth_scores(grays, views, cams, origin, dirs, s, normal, size_cm)
     have = np.isfinite(score)
     mean = np.where(have.any(-1), np.where(have, score, 0.0).sum(-1) / np.maximum(have.sum(-1), 1), -2.0)
     k = ties.argmax_first(mean, ties.NCC_QUANTUM, axis=1)  # ties: the nearer depth
@@ -202,6 +254,16 @@ def _candidates(views: ViewSet, r: int, X: np.ndarray, normal: np.ndarray, A, B,
         ok &= ties.at_least(s, dist - o.seed_depth_window_cm, ties.LENGTH_QUANTUM_CM)
         cams[ok, k] = c
     return cams
+
+
+def square_side_cm(part_radius_cm: np.ndarray, ncc_size_cm: float) -> np.ndarray:
+    """(N,) the side of the square a seed on a part of capsule radius ``part_radius_cm`` (N,) is compared by:
+    ``ncc_size_cm``, at most the part's radius. A plane square of side ``a`` on a limb of radius ``r`` stands off
+    the surface by ``a^2 / 8r`` at its edges and, centred where a camera sees the limb obliquely, runs past its
+    outline onto what lies behind, which two cameras far apart see differently: at most ``r`` it stands off at most
+    ``r / 8`` and covers half the limb's width. The few-camera rig's forearms (radius 4 cm) and shins (5 cm)
+    matched with 6 cm squares reach a median best NCC of 0.55-0.64 against the torso's 0.84 (docs/patches.md)."""
+    return np.minimum(np.asarray(part_radius_cm, float), float(ncc_size_cm))
 
 
 def views_needed(n_compared: np.ndarray, min_views: int) -> np.ndarray:
@@ -235,22 +297,19 @@ def seed_camera_on_body(source: FrameSource, views: ViewSet, frames: dict[str, i
         return empty
     name = views.names[r]
     gray_r = source.gray(name, frames[name])
-    mask = person_mask(views, r, (gray_r.shape[1], gray_r.shape[0]), A, B, radius)
-    if not mask.any():
+    parts = part_image(views, r, (gray_r.shape[1], gray_r.shape[0]), A, B, radius)
+    corners = part_corners(gray_r, parts, o.seed_features, o.seed_min_distance_px)
+    if not len(corners):
         return empty
-    corners = cv2.goodFeaturesToTrack(gray_r, o.seed_features, CORNER_QUALITY, o.seed_min_distance_px, mask=mask,
-                                      blockSize=5)
-    if corners is None:
-        return empty
-    corners = corners.reshape(-1, 2).astype(float)
     corners = corners[ties.raster_order(corners, ties.CORNER_QUANTUM_PX)]  # no detector order decides anything
     origin = views.center_cm[r]
     dirs = _rays(views, r, corners)
-    s0, n0 = ray_capsules(origin, dirs, A, B, radius)
+    s0, n0, which = ray_capsule_hits(origin, dirs, A, B, radius)
     hit = np.isfinite(s0)
     corners, dirs, s0, n0 = corners[hit], dirs[hit], s0[hit], n0[hit]
     if not len(corners):
         return empty
+    size = square_side_cm(radius[which[hit]], o.ncc_size_cm)
     # views in ``grays`` order: the reference first, then the others by position
     order = [r] + [c for c in range(V) if c != r]
     sub = views.at(order)
@@ -261,10 +320,10 @@ def seed_camera_on_body(source: FrameSource, views: ViewSet, frames: dict[str, i
     keep_X, keep_n, keep_seen, keep_agree = [], [], [], []
     for c0 in range(0, len(corners), _CHUNK):
         sl = slice(c0, c0 + _CHUNK)
-        d, n = dirs[sl], n0[sl]
+        d, n, side = dirs[sl], n0[sl], size[sl]
         cams = _candidates(views, r, origin + s0[sl, None] * d, n, A, B, radius, o)
         cams_sub = np.where(cams >= 0, to_sub[np.maximum(cams, 0)], -1)
-        s, _, edge = _search(grays, sub, cams_sub, origin, d, s0[sl], half, step, n, o)
+        s, _, edge = _search(grays, sub, cams_sub, origin, d, s0[sl], half, step, n, side)
         # the normal tilted as PMVS does, in the cameras that agree at that depth, then the depth once more
         X = origin + s[:, None] * d
         u, v = _plane_axes(n)
@@ -275,7 +334,7 @@ def seed_camera_on_body(source: FrameSource, views: ViewSet, frames: dict[str, i
         seen[rows, cams_sub[rows, ks]] = True
         trip = refine_normals(source, sub, frames_sub, trip, seen, o)
         _, _, n = patch_axes(trip[:, 0], trip[:, 1], trip[:, 2])
-        s, score, _ = _search(grays, sub, cams_sub, origin, d, s, step, step / FINE_STEPS, n, o)
+        s, score, _ = _search(grays, sub, cams_sub, origin, d, s, step, step / FINE_STEPS, n, side)
         agree = ties.at_least(score, o.seed_min_ncc, ties.NCC_QUANTUM)  # NaN (not scored) never agrees
         n_agree = 1 + agree.sum(1)
         ok = (n_agree >= views_needed(1 + np.isfinite(score).sum(1), o.seed_min_views)) & ~edge
