@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/same_bytes.py [--work /tmp/same_bytes] [--kernels Haswell,SkylakeX]
 
-Runs ``tests/hostile/test_same_bytes.py``'s two processes (every command of the hostile catalogue that writes, on
+Runs ``tests/hostile/same_bytes.py``'s two processes (every command of the hostile catalogue that writes, on
 the matrix's small inputs; calibrate on five VGA cameras of ``data/synthetic/tiny``) twice: once both on this
 machine's kernels (run to run: every file must be the same), once one with ``OPENBLAS_CORETYPE`` set to each of
 ``--kernels`` (set only for those children: a diagnostic of other CPUs, never in tests or CI). One JSON object per
@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from tests.hostile.inputs import build_inputs  # noqa: E402
-from tests.hostile.test_same_bytes import Runs, run_twice  # noqa: E402
+from tests.hostile.same_bytes import Runs, run_twice  # noqa: E402
 
 
 def emit(**obj) -> None:

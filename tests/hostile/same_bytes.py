@@ -1,6 +1,7 @@
 """The same bytes run to run (docs/conventions.md, "Same result on every machine"): every command of the catalogue
 that writes, run on its small input twice, in two processes at once, every file either run wrote compared byte for
-byte.
+byte (the tests are in :mod:`.test_matrix`, which builds the same inputs; ``bench/same_bytes.py`` runs it across
+OpenBLAS kernel sets).
 
 The inputs are the hostile matrix's (:mod:`.inputs`), each process with its own copy, and for ``calibrate`` a capture
 with images (five VGA cameras of ``data/synthetic/tiny``: the matrix's capture has none, so calibrate stops before
@@ -35,16 +36,17 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
 
 from .catalogue import ENTRIES, Entry
-from .inputs import Inputs
-from .test_matrix import _rooted
+from .inputs import Inputs, rooted
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "data" / "synthetic" / "tiny"
 CALIBRATE_CAMERAS = ("01_01", "01_02", "01_03", "13_01", "13_02")  # VGA (640 x 480): the cheapest images to match
 NOT_RUN = {"demo": "minutes; its stages are session and reconstruct (bench/kernels.py --stages demo)"}
+#: The writers that take more than a few seconds on their small input (on 2 cores): their pair runs in the slow tests.
+HEAVY = {"calibrate": "SIFT, matching, mapping, bundle adjustment and the report of 5 images: ~20 s",
+         "synth": "renders an HD image: ~10 s", "kinect-synth": "renders the Kinect frames: ~15 s"}
 #: What refuses the matrix's small inputs, so writes nothing (the same nothing twice), and why.
 REFUSED = {"kinect": "the matrix's Kinect folder is empty", "pointcloud": "no depth frames (the same empty folder)",
            "session": "no Kinect images in the matrix's session"}
@@ -72,9 +74,11 @@ open("codes.json", "w").write(json.dumps({"codes": codes, "seconds": seconds}))
 """
 
 
-def _writers() -> list[tuple[str, Entry]]:
+def writers(heavy: bool | None = None) -> list[tuple[str, Entry]]:
+    """(label, entry) of every command that writes (``heavy``: only those of :data:`HEAVY`, or only the others)."""
     return [(f"{name}{'-' + e.variant if e.variant else ''}", e) for name, entries in sorted(ENTRIES.items())
-            for e in entries if e.output != "none" and name not in NOT_RUN]
+            for e in entries if e.output != "none" and name not in NOT_RUN
+            and (heavy is None or (name in HEAVY) == heavy)]
 
 
 def _capture(folder: Path) -> Path:
@@ -91,13 +95,13 @@ def _capture(folder: Path) -> Path:
     return folder
 
 
-def _prepare(inputs: Inputs, side: Path) -> list[list]:
-    """A copy of the inputs in ``side`` and the command lines of every writer, each into its own folder."""
-    i = _rooted(inputs, side / "in")
+def _prepare(inputs: Inputs, side: Path, chosen: list[tuple[str, Entry]]) -> list[list]:
+    """A copy of the inputs in ``side`` and the command lines of the ``chosen`` writers, each into its own folder."""
+    i = rooted(inputs, side / "in")
     shutil.copytree(inputs.root, i.root, symlinks=True)
     i = dataclasses.replace(i, capture=_capture(side / "in" / "capture_images"))
     lines = []
-    for label, entry in _writers():
+    for label, entry in chosen:
         here = side / label
         here.mkdir()
         if entry.setup is not None:
@@ -107,24 +111,24 @@ def _prepare(inputs: Inputs, side: Path) -> list[list]:
     return lines
 
 
-def _normal(path: Path, side: Path) -> bytes:
+def normal(path: Path, side: Path) -> bytes:
     data = path.read_bytes()
     if path.name == RECORD:
         return json.dumps(sorted(json.loads(data)["entries"])).encode()
     if path.suffix not in (".json", ".html", ".txt", ".toml", ".trc", ".csv", ".yaml", ".yml"):
         return data
     text = data.decode("utf-8", errors="surrogateescape").replace(str(side), "SIDE")
-    return _SECONDS.sub(r"\1T", text).encode("utf-8", errors="surrogateescape")
+    return seconds_hidden(text).encode("utf-8", errors="surrogateescape")
 
 
-def _files(side: Path) -> dict[str, Path]:
+def seconds_hidden(text: str) -> str:
+    """``text`` with the value of every JSON field named ``seconds`` or ``*_seconds`` replaced by ``T``."""
+    return _SECONDS.sub(r"\1T", text)
+
+
+def files_of_side(side: Path) -> dict[str, Path]:
     return {str(p.relative_to(side)): p for p in sorted(side.rglob("*"))
             if p.is_file() and not p.is_symlink() and p.name != "codes.json" and not EXEMPT.search(p.name)}
-
-
-def test_the_normalisation_hides_timings_only():
-    doc = '{"stage_seconds": {"sfm": 23.8, "ba": 2.6}, "seconds": 1.5e-3, "focal": 1308.11}'
-    assert _SECONDS.sub(r"\1T", doc) == '{"stage_seconds": T, "seconds": T, "focal": 1308.11}'
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,17 +147,17 @@ class Runs:
         a, b = self.files
         only = sorted(set(a) ^ set(b))
         return only + [rel for rel in sorted(set(a) & set(b))
-                       if _normal(a[rel], self.sides[0]) != _normal(b[rel], self.sides[1])]
+                       if normal(a[rel], self.sides[0]) != normal(b[rel], self.sides[1])]
 
 
-def run_twice(inputs: Inputs, root: Path, envs: tuple[dict, dict] = ({}, {})) -> Runs:
-    """Every writer run on ``inputs`` by two processes at once, in ``root/a`` and ``root/b``, each with its own copy
-    of the inputs and the variables of ``envs`` added to its environment (``bench/same_bytes.py``: OpenBLAS's
-    kernel sets)."""
-    sides, runs = [root / "a", root / "b"], []
+def run_twice(inputs: Inputs, root: Path, envs: tuple[dict, dict] = ({}, {}), heavy: bool | None = None) -> Runs:
+    """The writers (``heavy``: as :func:`writers`) run on ``inputs`` by two processes at once, in ``root/a`` and
+    ``root/b``, each with its own copy of the inputs and the variables of ``envs`` added to its environment
+    (``bench/same_bytes.py``: OpenBLAS's kernel sets)."""
+    sides, runs, chosen = [root / "a", root / "b"], [], writers(heavy)
     for side, extra in zip(sides, envs):
         side.mkdir(parents=True)
-        lines = _prepare(inputs, side)
+        lines = _prepare(inputs, side, chosen)
         env = {**os.environ, "PYTHONPATH": str(ROOT), **extra}
         runs.append(subprocess.Popen([sys.executable, "-c", _DRIVER, json.dumps(lines)], cwd=side, env=env,
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
@@ -162,14 +166,5 @@ def run_twice(inputs: Inputs, root: Path, envs: tuple[dict, dict] = ({}, {})) ->
         if run.returncode != 0:
             raise RuntimeError(err[-2000:])
     done = [json.loads((side / "codes.json").read_text()) for side in sides]
-    return Runs(labels=[label for label, _ in _writers()], sides=sides, codes=[d["codes"] for d in done],
-                seconds=[d["seconds"] for d in done], files=[_files(side) for side in sides])
-
-
-def test_every_command_writes_the_same_bytes_twice(hostile_inputs, tmp_path):
-    runs = run_twice(hostile_inputs, tmp_path)
-    assert runs.codes[0] == runs.codes[1], dict(zip(runs.labels, zip(*runs.codes)))
-    refused = {label for label, code in zip(runs.labels, runs.codes[0]) if code != 0}
-    assert refused == set(REFUSED), f"these did not go through (nothing of theirs compared): {refused}"
-    differ = runs.differing()
-    assert differ == [], f"not the same bytes in two runs: {differ}"
+    return Runs(labels=[label for label, _ in chosen], sides=sides, codes=[d["codes"] for d in done],
+                seconds=[d["seconds"] for d in done], files=[files_of_side(side) for side in sides])
