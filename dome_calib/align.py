@@ -20,6 +20,7 @@ import numpy as np
 import pycolmap
 
 from dome_calib.bundle import Camera
+from dome_calib.colmap_options import colmap_options
 from dome_calib.errors import DomeCalibError
 from dome_calib.options import AtLeast, UnitInterval, options
 from dome_calib.rotation import rigid_fit as weighted_rigid_fit
@@ -149,8 +150,8 @@ def align_points(src: np.ndarray, tgt: np.ndarray, options: AlignOptions | None 
         raise AlignmentError(f"only {len(src)} shared cameras; need at least {MIN_SHARED_CAMERAS} to align")
     if np.linalg.matrix_rank(src - src.mean(axis=0), tol=1e-9 * max(1.0, np.abs(src).max())) < 2:
         raise AlignmentError("the shared cameras are collinear; a similarity is not determined")
-    ransac = pycolmap.RANSACOptions(max_error=options.max_error_cm, min_inlier_ratio=options.min_inlier_ratio,
-                                    random_seed=options.random_seed, num_threads=1)
+    ransac = colmap_options(pycolmap.RANSACOptions, seed=options.random_seed, max_error=options.max_error_cm,
+                            min_inlier_ratio=options.min_inlier_ratio)
     found = pycolmap.estimate_sim3d_robust(src, tgt, ransac)
     if found is None or found["num_inliers"] < MIN_SHARED_CAMERAS:
         raise AlignmentError(f"no similarity agrees with at least {MIN_SHARED_CAMERAS} of {len(src)} cameras "

@@ -20,6 +20,7 @@ import numpy as np
 import pycolmap
 
 from dome_calib.bundle import NOMINAL_RESOLUTION, Camera, CameraType, camera_type_from_name
+from dome_calib.colmap_options import colmap_options
 from dome_calib.executor import Executor, SerialExecutor, in_order
 from dome_calib.layout import INTRINSICS_STATS
 from dome_calib.progress import Progress, counting
@@ -75,8 +76,7 @@ _EXTRACTORS: dict[tuple, object] = {}  # per worker process: pycolmap extractor 
 def _extractor(options: FeatureOptions):
     key = (options.max_num_features, options.first_octave, options.peak_threshold)
     if key not in _EXTRACTORS:
-        opts = pycolmap.FeatureExtractionOptions()
-        opts.num_threads = 1
+        opts = colmap_options(pycolmap.FeatureExtractionOptions)
         opts.max_image_size = 8192
         opts.sift.max_num_features = options.max_num_features
         opts.sift.first_octave = options.first_octave

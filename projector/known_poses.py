@@ -20,6 +20,7 @@ import pycolmap
 
 from dome_calib.bundle import Camera
 from dome_calib.camera import colmap_to_opencv_px
+from dome_calib.colmap_options import colmap_options
 from projector.database import camera_of_image, to_colmap_camera, verified_partner_ids
 from projector.observations import Observations
 
@@ -68,7 +69,7 @@ def triangulate_known(database_path: str | Path, image_dir: str | Path, output_d
     if output_dir.exists():
         shutil.rmtree(output_dir)
     output_dir.mkdir(parents=True)
-    options = options or pycolmap.IncrementalPipelineOptions()
+    options = options or colmap_options(pycolmap.IncrementalPipelineOptions)
     return pycolmap.triangulate_points(rec, str(database_path), str(image_dir), str(output_dir), options=options)
 
 
@@ -115,10 +116,9 @@ def register_cameras(database_path: str | Path, rec: pycolmap.Reconstruction, ca
     done: dict[str, Registration] = {}
     failed: dict[str, str] = {}
     registered = {im.image_id for im in rec.images.values() if im.has_pose}
-    estimation = pycolmap.AbsolutePoseEstimationOptions()
+    estimation = colmap_options(pycolmap.AbsolutePoseEstimationOptions)
     estimation.ransac.max_error = PNP_MAX_ERROR_PX
-    estimation.ransac.random_seed = 0
-    refinement = pycolmap.AbsolutePoseRefinementOptions()
+    refinement = colmap_options(pycolmap.AbsolutePoseRefinementOptions)
     with pycolmap.Database.open(str(database_path)) as db:
         ids = {camera_of_image(im.name): im.image_id for im in db.read_all_images()}
         partners = verified_partner_ids(db)

@@ -35,6 +35,7 @@ import numpy as np
 import pycolmap
 
 from dome_calib.bundle import Camera, camera_type_from_name
+from dome_calib.colmap_options import colmap_options
 from dome_calib.io_utils import atomic_folder, atomic_write_text
 from projector.database import DatabaseSummary, camera_of_image, intrinsics_from_colmap, read_summary
 from projector.known_poses import add_posed_image, register_cameras, triangulate_known
@@ -92,14 +93,12 @@ class KnownPoseOptions:
 
 
 def triangulator_options(options: KnownPoseOptions) -> pycolmap.IncrementalPipelineOptions:
-    o = pycolmap.IncrementalPipelineOptions()
+    o = colmap_options(pycolmap.IncrementalPipelineOptions)
     o.triangulation.merge_max_reproj_error = options.max_reproj_error_px
     o.triangulation.complete_max_reproj_error = options.max_reproj_error_px
     o.triangulation.min_angle = options.min_tri_angle_deg
     o.mapper.filter_max_reproj_error = options.filter_max_reproj_error_px
     o.mapper.filter_min_tri_angle = options.min_tri_angle_deg
-    o.random_seed = 0
-    o.triangulation.random_seed = 0
     return o
 
 

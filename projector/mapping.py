@@ -23,6 +23,7 @@ from typing import Annotated
 
 import pycolmap
 
+from dome_calib.colmap_options import colmap_options
 from dome_calib.io_utils import atomic_folder
 from projector.database import DatabaseSummary, camera_of_image, read_summary
 from dome_calib.options import AtLeast, Lax, options
@@ -52,7 +53,10 @@ class MappingOptions:
     min_num_matches: AtLeast(1) = 15
     min_model_size: AtLeast(2) = 3
     min_points_per_image: AtLeast(0) = 30  # a registered image seeing fewer 3D points is reported, not used
-    num_threads: AtLeast(-1) = -1  # -1: all cores
+    # 1: the same model, bit for bit, on every run (dome_calib.colmap_options). More (-1: all cores) lets Ceres and
+    # GLOMAP sum in the order their threads finish: the model, and calibrate's bundle after it, then differ in the
+    # last bits from run to run, for no gain in time measured on the tiny dome (docs/benchmarks.md)
+    num_threads: AtLeast(-1) = 1
     random_seed: AtLeast(0) = 0
     reuse: bool = True  # load an existing model instead of mapping again
     fallback: bool = True  # try the other mapper when the first gives no model
@@ -72,13 +76,10 @@ class SceneModel:
 
 
 def _global_options(options: MappingOptions) -> pycolmap.GlobalPipelineOptions:
-    o = pycolmap.GlobalPipelineOptions()
+    o = colmap_options(pycolmap.GlobalPipelineOptions, seed=options.random_seed)
     o.min_num_matches = options.min_num_matches
     o.min_model_size = options.min_model_size
-    o.num_threads = options.num_threads
-    o.random_seed = options.random_seed
-    o.mapper.num_threads = options.num_threads
-    o.mapper.random_seed = options.random_seed
+    o.num_threads = o.mapper.num_threads = options.num_threads
     o.mapper.ba_num_iterations = options.ba_rounds
     o.mapper.ba_skip_fixed_rotation_stage = options.skip_fixed_rotation_stage
     o.mapper.skip_retriangulation = options.skip_retriangulation
@@ -92,11 +93,10 @@ def _global_options(options: MappingOptions) -> pycolmap.GlobalPipelineOptions:
 
 
 def _incremental_options(options: MappingOptions) -> pycolmap.IncrementalPipelineOptions:
-    o = pycolmap.IncrementalPipelineOptions()
+    o = colmap_options(pycolmap.IncrementalPipelineOptions, seed=options.random_seed)
     o.min_num_matches = options.min_num_matches
     o.min_model_size = options.min_model_size
-    o.num_threads = options.num_threads
-    o.random_seed = options.random_seed
+    o.num_threads = o.mapper.num_threads = options.num_threads
     o.ba_refine_focal_length = options.refine_focal_length
     o.ba_refine_principal_point = options.refine_principal_point
     o.ba_refine_extra_params = options.refine_extra_params

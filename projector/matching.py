@@ -27,6 +27,7 @@ from typing import Annotated
 import numpy as np
 import pycolmap
 
+from dome_calib.colmap_options import colmap_options
 from dome_calib.executor import Executor, SerialExecutor, in_order
 from dome_calib.progress import Progress, counting
 from projector.database import FeatureReader, image_name
@@ -161,8 +162,7 @@ def _reader(database_path: str, call: str) -> FeatureReader:
 def _pycolmap_match(d1: np.ndarray, d2: np.ndarray, options: MatchOptions) -> np.ndarray:
     key = (options.max_ratio, options.max_distance, options.cross_check)
     if key not in _MATCHERS:
-        mo = pycolmap.FeatureMatchingOptions()
-        mo.num_threads = 1
+        mo = colmap_options(pycolmap.FeatureMatchingOptions)
         mo.sift.max_ratio, mo.sift.max_distance, mo.sift.cross_check = key
         _MATCHERS[key] = pycolmap.FeatureMatcher.create(mo, pycolmap.Device.cpu)
     t = pycolmap.FeatureExtractorType.SIFT
@@ -171,10 +171,9 @@ def _pycolmap_match(d1: np.ndarray, d2: np.ndarray, options: MatchOptions) -> np
 
 
 def verify_options(options: MatchOptions):
-    vo = pycolmap.TwoViewGeometryOptions()
+    vo = colmap_options(pycolmap.TwoViewGeometryOptions)
     vo.min_num_inliers = options.min_num_inliers
     vo.ransac.max_error = options.ransac_max_error_px
-    vo.ransac.random_seed = 0
     vo.ransac.min_num_trials = options.ransac_min_num_trials
     vo.detect_watermark = options.detect_watermark
     vo.use_sampson_refinement = options.sampson_refinement

@@ -33,6 +33,7 @@ import pycolmap
 from dome_calib.align import Alignment, sim3_apply
 from dome_calib.bundle import Camera
 from dome_calib.camera import colmap_to_opencv_px
+from dome_calib.colmap_options import colmap_options
 from dome_calib.rotation import rotation_angle_deg
 from dome_calib.ties import UNIT_QUANTUM, quantize
 from projector.database import camera_of_image, intrinsics_from_colmap
@@ -99,9 +100,7 @@ def robust_similarity(src: Mapping[str, np.ndarray], tgt: Mapping[str, np.ndarra
         return None
     A = np.stack([src[n] for n in names])
     B = np.stack([tgt[n] for n in names])
-    ransac = pycolmap.RANSACOptions()
-    ransac.max_error = threshold
-    ransac.random_seed = 0
+    ransac = colmap_options(pycolmap.RANSACOptions, max_error=threshold)
     sim = pycolmap.estimate_sim3d_robust(A, B, ransac)
     if sim is None:
         return None

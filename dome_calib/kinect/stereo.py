@@ -22,6 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from dome_calib.rotation import rotation_angle_deg
 from dome_calib.camera import K_to_intr, intr_to_K, project_with_jacobians
+from dome_calib.cv_threads import one_cv_thread
 from dome_calib.rotation import d_rotate_d_rotvec, rotvec_to_matrix
 from dome_calib.options import AtLeast, options
 from dome_calib.schema import PosFinite
@@ -83,8 +84,9 @@ def initial_estimate(obj_mm: np.ndarray, ir_px: np.ndarray, color_px: np.ndarray
     Args: obj_mm (N, 3); ir_px, color_px (F, N, 2) corners of the same F frames. Returns a dict of arrays.
     """
     obj = [obj_mm.astype(np.float32)] * len(ir_px)
-    _, K_ir, d_ir, rvecs, tvecs = cv2.calibrateCamera(obj, [p.astype(np.float32) for p in ir_px], tuple(ir_size),
-                                                      None, None)
+    with one_cv_thread():  # OpenCV's threads sum in the order they finish (dome_calib.cv_threads)
+        _, K_ir, d_ir, rvecs, tvecs = cv2.calibrateCamera(obj, [p.astype(np.float32) for p in ir_px],
+                                                          tuple(ir_size), None, None)
     K_col = intr_to_K(color_intr)
     rel = []
     for f in range(len(ir_px)):
@@ -252,12 +254,13 @@ def opencv_stereo_calibrate(obj_mm: np.ndarray, ir_px: np.ndarray, color_px: np.
     obj = [obj_mm.astype(np.float32)] * len(ir_px)
     ir = [p.astype(np.float32) for p in ir_px]
     col = [p.astype(np.float32) for p in color_px]
-    _, K_ir, d_ir, _, _ = cv2.calibrateCamera(obj, ir, tuple(ir_size), None, None)
     flags = cv2.CALIB_FIX_INTRINSIC if fix_color else cv2.CALIB_USE_INTRINSIC_GUESS
     criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
-    rms, K1, D1, K2, D2, R, T, _, _ = cv2.stereoCalibrate(
-        obj, ir, col, K_ir, d_ir, intr_to_K(color_intr), np.asarray(color_dist, float).reshape(1, 5), tuple(ir_size),
-        flags=flags, criteria=criteria)
+    with one_cv_thread():  # OpenCV's threads sum in the order they finish (dome_calib.cv_threads)
+        _, K_ir, d_ir, _, _ = cv2.calibrateCamera(obj, ir, tuple(ir_size), None, None)
+        rms, K1, D1, K2, D2, R, T, _, _ = cv2.stereoCalibrate(
+            obj, ir, col, K_ir, d_ir, intr_to_K(color_intr), np.asarray(color_dist, float).reshape(1, 5),
+            tuple(ir_size), flags=flags, criteria=criteria)
     return {"ir_intr": K_to_intr(K1), "ir_dist": D1.ravel()[:5], "color_intr": K_to_intr(K2),
             "color_dist": D2.ravel()[:5], "R": R, "t_mm": T.ravel(), "rms_px": float(rms)}
 

@@ -3,6 +3,7 @@ trimmed real dome with sync tables and the real Kinect calibration, a group's Op
 reconstruction, a triangulate detections file, a capture skeleton, a sync session, an aniposelib file and LTC."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from dataclasses import dataclass
@@ -59,6 +60,12 @@ def _triangulate_doc(people: dict[str, dict[int, np.ndarray]]) -> dict:
                            else [None, None, None] for u, v, c in row[:19]])
         cameras[cam] = {"frames": order, "joints": joints}
     return {"joints": 19, "reference": "vga", "cameras": cameras}
+
+
+def rooted(inputs: Inputs, root: Path) -> Inputs:
+    """``inputs`` as they are once ``inputs.root`` is copied to ``root``."""
+    return dataclasses.replace(inputs, **{f.name: root / getattr(inputs, f.name).relative_to(inputs.root)
+                                          for f in dataclasses.fields(inputs) if f.name != "root"}, root=root)
 
 
 def build_inputs(root: Path) -> Inputs:

@@ -10,7 +10,6 @@ A command without a catalogue entry fails :func:`test_every_command_has_a_catalo
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
 import os
 import random
@@ -27,8 +26,9 @@ import typer.main
 from ..cli_runner import run_in_process
 from .catalogue import ENTRIES, KINDS, NAME_VALUES, REFUSE, Entry
 from .contents import CONTENT_KINDS, NUMBER_VALUES, files_of, mutate
-from .inputs import Inputs
+from .inputs import Inputs, rooted
 from .oracle import judge, snapshot
+from .same_bytes import REFUSED, run_twice, seconds_hidden
 
 ROOT = Path(__file__).resolve().parents[2]
 SEED = 50  # the issue's number: the sample is the same on every run and machine
@@ -98,11 +98,6 @@ def _cases() -> list[tuple[str, int, str, str]]:
 
 
 CASES = _cases()
-
-
-def _rooted(inputs: Inputs, root: Path) -> Inputs:
-    return dataclasses.replace(inputs, **{f.name: root / getattr(inputs, f.name).relative_to(inputs.root)
-                                          for f in dataclasses.fields(inputs) if f.name != "root"}, root=root)
 
 
 def _unwritable(sandbox: Path) -> Path:
@@ -200,7 +195,7 @@ def test_hostile_matrix(command, index, kind, value, hostile_inputs, tmp_path, m
     entry = ENTRIES[command][index]
     sandbox = tmp_path / "sandbox"
     sandbox.mkdir()
-    i = _rooted(hostile_inputs, sandbox / "in")
+    i = rooted(hostile_inputs, sandbox / "in")
     shutil.copytree(hostile_inputs.root, i.root, symlinks=True)
     if entry.setup is not None:
         entry.setup(i, sandbox)
@@ -240,3 +235,29 @@ def test_hostile_matrix(command, index, kind, value, hostile_inputs, tmp_path, m
 
 def test_the_catalogue_names_its_kinds():
     assert {kind for _, _, kind, _ in CASES} <= set(KINDS)
+
+
+def test_the_same_bytes_normalisation_hides_timings_only():
+    doc = '{"stage_seconds": {"sfm": 23.8, "ba": 2.6}, "seconds": 1.5e-3, "focal": 1308.11}'
+    assert seconds_hidden(doc) == '{"stage_seconds": T, "seconds": T, "focal": 1308.11}'
+
+
+def _same_bytes(hostile_inputs, tmp_path, heavy: bool) -> None:
+    runs = run_twice(hostile_inputs, tmp_path, heavy=heavy)
+    assert runs.codes[0] == runs.codes[1], dict(zip(runs.labels, zip(*runs.codes)))
+    refused = {label for label, code in zip(runs.labels, runs.codes[0]) if code != 0}
+    expected = set() if heavy else set(REFUSED)
+    assert refused == expected, f"these did not go through (nothing of theirs compared): {refused - expected}"
+    differ = runs.differing()
+    assert differ == [], f"not the same bytes in two runs: {differ}"
+
+
+def test_every_command_writes_the_same_bytes_twice(hostile_inputs, tmp_path):
+    """Every writer but the heavy ones, twice in two processes at once: every file the same (.same_bytes)."""
+    _same_bytes(hostile_inputs, tmp_path, heavy=False)
+
+
+@pytest.mark.slow
+def test_the_heavy_commands_write_the_same_bytes_twice(hostile_inputs, tmp_path):
+    """calibrate (five VGA images), synth and kinect-synth, twice in two processes at once (~1 min on 2 cores)."""
+    _same_bytes(hostile_inputs, tmp_path, heavy=True)

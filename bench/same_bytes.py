@@ -1,0 +1,76 @@
+"""The same bytes run to run, and what differs under another CPU's kernels: every command that writes, twice.
+
+    .venv/bin/python bench/same_bytes.py [--work /tmp/same_bytes] [--kernels Haswell,SkylakeX]
+
+Runs ``tests/hostile/same_bytes.py``'s two processes (every command of the hostile catalogue that writes, on
+the matrix's small inputs; calibrate on five VGA cameras of ``data/synthetic/tiny``) twice: once both on this
+machine's kernels (run to run: every file must be the same), once one with ``OPENBLAS_CORETYPE`` set to each of
+``--kernels`` (set only for those children: a diagnostic of other CPUs, never in tests or CI). One JSON object per
+line: per pair of runs, the commands' exit codes and seconds, the files that differ (after the test's
+normalisation: timings, the run's folder, ownership hashes), and for a JSON file that differs the largest
+difference of any number in it.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from tests.hostile.inputs import build_inputs  # noqa: E402
+from tests.hostile.same_bytes import Runs, run_twice  # noqa: E402
+
+
+def emit(**obj) -> None:
+    print(json.dumps(obj), flush=True)
+
+
+def _numbers(obj) -> list[float]:
+    if isinstance(obj, bool) or obj is None or isinstance(obj, str):
+        return []
+    if isinstance(obj, (int, float)):
+        return [float(obj)]
+    if isinstance(obj, dict):
+        return [x for k in sorted(obj) for x in _numbers(obj[k])]
+    return [x for v in obj for x in _numbers(v)]
+
+
+def _largest(runs: Runs, rel: str) -> float | None:
+    """The largest difference of any number in a JSON file both runs wrote with the same shape (else None)."""
+    paths = [files.get(rel) for files in runs.files]
+    if rel[-5:] != ".json" or None in paths:
+        return None
+    a, b = (_numbers(json.loads(p.read_text(encoding="utf-8"))) for p in paths)
+    if len(a) != len(b) or not a:
+        return None
+    return max(abs(x - y) for x, y in zip(a, b))
+
+
+def _report(what: str, runs: Runs) -> None:
+    differ = runs.differing()
+    emit(what=what, codes=dict(zip(runs.labels, zip(*runs.codes))),
+         seconds=dict(zip(runs.labels, zip(*runs.seconds))), files=sum(len(f) for f in runs.files) // 2,
+         differ=differ, largest={rel: _largest(runs, rel) for rel in differ})
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--work", type=Path, default=None, help="folder for the runs (default: a temporary one)")
+    parser.add_argument("--kernels", default="Haswell,SkylakeX", help="two OPENBLAS_CORETYPE values")
+    args = parser.parse_args()
+    work = args.work or Path(tempfile.mkdtemp(prefix="same_bytes_"))
+    shutil.rmtree(work, ignore_errors=True)
+    inputs = build_inputs(work / "inputs")
+    _report("run to run", run_twice(inputs, work / "same"))
+    kernels = args.kernels.split(",")
+    _report(f"kernels {kernels[0]} / {kernels[1]}",
+            run_twice(inputs, work / "kernels", envs=tuple({"OPENBLAS_CORETYPE": k} for k in kernels)))
+
+
+if __name__ == "__main__":
+    main()
