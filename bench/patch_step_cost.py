@@ -40,8 +40,8 @@ import dataclasses  # noqa: E402
 from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
 from dome_calib.recon.patches.occlusion import BodyPrior, Occluders, occluded_views  # noqa: E402
 from dome_calib.recon.patches.seed import optical_flow, patch_triplets  # noqa: E402
-from dome_calib.recon.patches.track import _triangulate_points, best_views  # noqa: E402
-from dome_calib.recon.patches.visibility import Frames, camera_neighbours, estimate_visibility  # noqa: E402
+from dome_calib.recon.patches.track import SeedViews, _triangulate_points, best_views  # noqa: E402
+from dome_calib.recon.patches.visibility import Frames, camera_neighbours, estimate_visibility, off_seed  # noqa: E402
 from dome_calib.recon.project import project_points, view_set  # noqa: E402
 from dome_calib.synth.dome import as_built_dome  # noqa: E402
 from dome_calib.synth.group import GroupOptions, make_group  # noqa: E402
@@ -136,6 +136,27 @@ def run(args: argparse.Namespace) -> None:
                                                                   motion, nb, o))
             occ_full, ms_vis_body = cpu_ms(lambda: estimate_visibility(source, views, frames, X, np.zeros_like(X),
                                                                        seen, motion, nb, ob, body))
+            # afnn4e's pieces (docs/patches.md): neighbour_ncc (map_ncc_threshold 0.75), the 4 cm square, the
+            # anchor flow (each flown camera's points aligned to their seed appearance: seed frame 0, now frame 1)
+            # and the seed appearance's end test, each alone, then all four with the people as occluders
+            afnn4e = dict(anchor_flow=True, neighbour_ncc=True, ncc_size_cm=4.0, seed_appearance_end=True,
+                          map_ncc_threshold=0.75)
+            on = {k: dataclasses.replace(o, **v) for k, v in (
+                ("neighbour_ncc", dict(neighbour_ncc=True, map_ncc_threshold=0.75)), ("ncc_size_4", dict(ncc_size_cm=4.0)),
+                ("afnn4e", afnn4e), ("afnn4e_body_occlusion", dict(afnn4e, body_occlusion=True)))}
+            ms_vis_on = {f"visibility_{k}": cpu_ms(lambda: estimate_visibility(
+                source, views, frames, X, np.zeros_like(X), seen, motion, nb, ok_, body))[1] for k, ok_ in on.items()}
+            seed_views = SeedViews.at_seed(source, views, Frames(frame=np.zeros(V, np.int64), offset_ms=np.zeros(V),
+                                                                 t_ms=t), X, seen)
+
+            def realign():
+                for v in np.flatnonzero(flown.any(0)):
+                    idx = np.flatnonzero(flown[:, v])
+                    seed_views.realign(source, names[v], frames, v, idx, uv[idx, :, v], ok[idx, :, v], on["afnn4e"])
+            _, ms_anchor = cpu_ms(realign)
+            look = full.appearance.keep(full.visible)
+            _, ms_off_seed = cpu_ms(lambda: off_seed(full, look, on["afnn4e"]))
+            ms_afnn4e = {**ms_vis_on, "anchor_realign_flown": ms_anchor, "seed_appearance_end": ms_off_seed}
             to_cam = views.center_cm[None] - X[:, None, 0]
             pi, ci = np.nonzero(np.sum(to_cam * normal[0][:, None], -1) / np.linalg.norm(to_cam, axis=-1)
                                 > o.min_cos_view)
@@ -149,7 +170,8 @@ def run(args: argparse.Namespace) -> None:
                                                           ("triangulate_flown", ms_tri),
                                                           ("visibility", ms_vis_all),
                                                           ("visibility_body_occlusion", ms_vis_body),
-                                                          ("occlusion_alone", ms_occ), *ms_predicted.items())}
+                                                          ("occlusion_alone", ms_occ), *ms_predicted.items(),
+                                                          *ms_afnn4e.items())}
             print(json.dumps({"preset": preset, "cameras": V, "people": args.people, "patches": N,
                               "track_views": o.track_views, "seen_views_per_patch": round(float(seen.sum(1).mean()), 1),
                               "flown_views_per_patch": round(float(flown.sum(1).mean()), 1),
