@@ -17,7 +17,11 @@ every camera (``visibility.estimate_visibility``), and the same with the people 
 occluders of the views (``body_occlusion``, :mod:`dome_calib.recon.patches.occlusion`; and the occlusion test alone
 on the facing patch-cameras, with the views it hides per patch and the truly seen views among them); and the flown
 views' flow started at its prediction (the true shift) with each of ``--predicted-levels`` pyramid levels
-(``PatchOptions.lk_predict``). Prints one JSON object per line. The flow here is a lower bound of the stream's: the
+(``PatchOptions.lk_predict``); and afnn4e's pieces (docs/patches.md): the visibility with ``neighbour_ncc``
+(``map_ncc_threshold`` 0.75), with the 4 cm square (``ncc_size_cm``), with all of afnn4e and with afnn4e and the
+occluders, the anchor flow's realignment of the flown views' points to their seed appearance (``anchor_flow``:
+seed frame 0, now frame 1; ``track.SeedViews.realign``) and the seed-appearance end test (``seed_appearance_end``,
+``visibility.off_seed``). Prints one JSON object per line. The flow here is a lower bound of the stream's: the
 texture moves 1 px, and real motion takes Lucas-Kanade more iterations (the stream on the
 panel spent ~2x this bench's flow per patch-step, docs/benchmarks.md); the step also triangulates twice.
 """
