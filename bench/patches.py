@@ -7,7 +7,8 @@ Run: .venv/bin/python bench/patches.py [--people 2] [--scenario conversation] [-
      (``python -P`` with ``dask``: bench/distributed.py would shadow the ``distributed`` package)
 Options not shown above: ``--render-cache FOLDER`` (the grey frames read from disk when there, else rendered and
 written there: a re-run renders nothing), ``--judge-chunk 1000`` (patches judged together: bounds the judging's
-memory on the full dome; no figure depends on it), ``--patches-per-task 1000,4000`` (one run per cut).
+memory on the full dome; no figure depends on it), ``--patches-per-task 1000,4000`` (one run per cut),
+``--oracle-normals all|outline`` (a ceiling: the seeds tracked with the true normal, :func:`oracle_normals`).
 Setup: the as-built dome's panel preset (VGA of panels 1-2, the HD and Kinect colour cameras nearest them), the
 first ``--vga`` VGA by name and the first ``--hd`` / ``--kinect`` others; VGA at 640 x 480, HD and Kinect colour
 rendered at half size (960 x 540); the group seeded by ``--seed``; one cloud seeded at a VGA frame (a multiple of
@@ -484,6 +485,51 @@ def parse_variants(text: str) -> dict[str, dict]:
     return out
 
 
+OUTLINE_EDGE_ON_DEG = 15.0  # --oracle-normals outline: every camera seeing the seed within this of edge-on
+
+
+@contextlib.contextmanager
+def oracle_normals(mode: str, truth):
+    """``--oracle-normals``: a ceiling, not a method. ``all``: every seed within 1 cm of the true surface tracked
+    with the true normal there (the photometric refinement off); ``outline``: after the refinement, only the seeds
+    whose cameras labelled visible at the seed all see the true surface within :data:`OUTLINE_EDGE_ON_DEG` of edge-on
+    get it. The stage's ``run_cloud`` / ``refine_normals`` are wrapped for the run and put back after."""
+    from dome_calib.recon.patches.frames import patch_axes
+    from dome_calib.recon.patches.seed import Seeds, patch_triplets
+
+    def true_normals(X: np.ndarray, centres: np.ndarray, t_ms: float, seen: np.ndarray | None, axis_cm: float):
+        sp = nearest_surface_points(truth, float(t_ms), X[:, 0])
+        P, n_true = (a[0] for a in surface_points_cm(truth, np.array([float(t_ms)]), sp.person, sp.part,
+                                                     sp.local_cm))
+        take = np.linalg.norm(P - X[:, 0], axis=1) < 1.0
+        if seen is not None:
+            to = centres[None] - X[:, 0][:, None]
+            to /= np.linalg.norm(to, axis=-1, keepdims=True)
+            cos = np.einsum("nvi,ni->nv", to, n_true)
+            take &= np.all(np.where(seen, np.abs(cos) <= np.sin(np.radians(OUTLINE_EDGE_ON_DEG)), True), 1)
+        u, _, n = patch_axes(X[:, 0], X[:, 1], X[:, 2])
+        n = np.where(take[:, None], n_true, n)
+        return patch_triplets(X[:, 0], n, u, axis_cm), n
+
+    saved = (patch_run.run_cloud, patch_run.refine_normals)
+    if mode == "all":
+        def run_cloud(source, views, clocks, t_ms, times, seeds, o, *a, **k):
+            if len(seeds.X_cm):
+                X, n = true_normals(seeds.X_cm, views.center_cm, t_ms, None, o.axis_cm)
+                seeds = Seeds(X_cm=X, normal=n, seen=seeds.seen)
+            return saved[0](source, views, clocks, t_ms, times, seeds, o, *a, **{**k, "refine": False})
+        patch_run.run_cloud = run_cloud
+    elif mode == "outline":
+        def refine(source, views, frames, X, visible, o):
+            return true_normals(saved[1](source, views, frames, X, visible, o), views.center_cm, frames.t_ms,
+                                visible, o.axis_cm)[0]
+        patch_run.refine_normals = refine
+    try:
+        yield
+    finally:
+        patch_run.run_cloud, patch_run.refine_normals = saved
+
+
 def run(args: argparse.Namespace) -> None:
     bundle = as_built_dome(args.preset, seed=args.seed)
     bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=6000.0, seed=args.seed)
@@ -544,7 +590,8 @@ def run(args: argparse.Namespace) -> None:
             # ncc_size_cm sizes the skeleton seeds' NCC)
             seeding_key = (seeding, spacing, ok.ncc_size_cm, tuple(sorted(
                 (k, repr(v)) for k, v in dataclasses.asdict(ok).items() if k.startswith(("seed_", "normal_")))))
-            with PhaseTimer(scene, memo.setdefault(seeding_key, {})) as phases:
+            with PhaseTimer(scene, memo.setdefault(seeding_key, {})) as phases, \
+                    oracle_normals(args.oracle_normals, truth):
                 traj = patch_stream(bundle, source, cams, span, ok, seed_frames=[f], patches_per_task=cut,
                                     depth=depth if seeding == "depth" else None,
                                     body=body if seeding == "skeleton" or ok.body_occlusion else None)
@@ -653,6 +700,10 @@ def main() -> None:
     ap.add_argument("--render-cache", type=str, default="",
                     help="a folder: the grey frames are read from it when there, else rendered and written to it "
                          "(a subfolder per scene, named by the hash of everything that changes a pixel)")
+    ap.add_argument("--oracle-normals", choices=("", "all", "outline"), default="",
+                    help="a ceiling, not a method: the seeds tracked with the true surface normal (all: every seed "
+                         "within 1 cm, refinement off; outline: after the refinement, the seeds every visible camera "
+                         "sees within 15 deg of edge-on)")
     args = ap.parse_args()
     if args.workers < 1 or min(cuts(args)) < 1:
         raise SystemExit("--workers and --patches-per-task must be at least 1")

@@ -60,6 +60,10 @@ class PatchOptions:
     seed_spacing_cm: PosFinite = 1.5  # one seed per cell of this size
     normal_radius_cm: PosFinite = 4.0  # seeds within this distance give the normal (least principal axis)
     normal_min_points: AtLeast(3) = 5
+    # the seeds' normal from those points: "plane", their least principal axis (the CVPR 2014 paper's); "quadric", a
+    # quadric fitted to them in that axis' frame, its normal at the seed (seed._normals: the plane leans towards the
+    # side that has seeds where a curved surface is seeded on one side only)
+    normal_fit: Literal["plane", "quadric"] = "plane"
     refine_normals: bool = True  # then refined photometrically in the cameras that see the seed (refine.py)
     # the refinement's first tilt step (deg); each later step halves it down to 2 deg (8: steps 8, 4, 2, reaching
     # 14 deg about each plane axis; 16: 16, 8, 4, 2, reaching 30 deg)

@@ -201,11 +201,18 @@ def thin_to_cells(X: np.ndarray, keys: list[np.ndarray], spacing_cm: float) -> n
     return np.sort(order[first])
 
 
+QUADRIC_MIN_POINTS = 8  # a quadric (6 coefficients) is fitted to at least this many points, else the plane
+
+
 def _normals(X: np.ndarray, cloud: np.ndarray, seen: np.ndarray, centres: np.ndarray, radius_cm: float,
-             min_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             min_points: int, fit: str = "plane") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Seeds (N, 3) -> (normal (N, 3), first axis (N, 3), ok (N,)): the least principal axis (SVD) of the ``cloud``
     points within ``radius_cm`` (at least ``min_points``), its sign towards the cameras ``seen`` (N, V) with centres
-    (V, 3)."""
+    (V, 3). ``fit="quadric"``: then, with at least :data:`QUADRIC_MIN_POINTS` points, a quadric height field
+    ``z = c0 + c1 x + c2 y + c3 x^2 + c4 xy + c5 y^2`` fitted (least squares) to them in that axis' frame centred on
+    the seed, and the normal taken at the seed, ``(-c1, -c2, 1)``: the plane's is the mean normal of the points round
+    it, which on a curved surface seeded on one side only (a limb's outline, where the cloud ends) leans towards the
+    side that has points (``bench/patch_normals.py --seeds``)."""
     tree = cKDTree(cloud)
     near = tree.query_ball_point(X, radius_cm)
     normal, axis = np.full(X.shape, np.nan), np.full(X.shape, np.nan)
@@ -216,6 +223,11 @@ def _normals(X: np.ndarray, cloud: np.ndarray, seen: np.ndarray, centres: np.nda
         Q = cloud[sorted(nb)]
         _, _, Vt = np.linalg.svd(Q - Q.mean(0), full_matrices=False)
         n = Vt[2]
+        if fit == "quadric" and len(Q) >= QUADRIC_MIN_POINTS:
+            x, y, z = ((Q - X[i]) @ Vt.T).T
+            c, *_ = np.linalg.lstsq(np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], 1), z, rcond=None)
+            n = np.array([-c[1], -c[2], 1.0]) @ Vt
+            n /= np.linalg.norm(n)
         towards = (centres[seen[i]] - X[i]).sum(0)
         normal[i] = n if n @ towards > 0 else -n
         axis[i] = Vt[0]
@@ -297,7 +309,7 @@ def merge_camera_seeds(per_camera: list[CameraSeeds], views: ViewSet, o: PatchOp
     r_a = np.concatenate([np.full(len(c.X_cm), c.camera) for c in parts])
     pick = thin_to_cells(X, [r_a, -n_a], o.seed_spacing_cm)
     X, seen_a = X[pick], seen_a[pick]
-    normal, axis, ok = _normals(X, X, seen_a, views.center_cm, o.normal_radius_cm, o.normal_min_points)
+    normal, axis, ok = _normals(X, X, seen_a, views.center_cm, o.normal_radius_cm, o.normal_min_points, o.normal_fit)
     logger.info("seed cloud: %d patches from %d cameras", ok.sum(), V)
     return Seeds(X_cm=patch_triplets(X[ok], normal[ok], axis[ok], o.axis_cm), normal=normal[ok], seen=seen_a[ok])
 

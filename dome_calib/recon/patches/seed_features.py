@@ -170,7 +170,8 @@ def seed_from_features(source: FrameSource, views: ViewSet, frames: dict[str, in
     first[1:] = np.any(cell[order][1:] != cell[order][:-1], axis=1)
     pick = np.sort(order[first])
     X, seen = X[pick], seen[pick]
-    normal, axis, ok = _normals(X, X, seen, views.center_cm, o.normal_radius_cm, o.normal_min_points)
+    normal, axis, ok = _normals(X, X, seen, views.center_cm, o.normal_radius_cm, o.normal_min_points,
+                                o.normal_fit)
     towards = np.stack([((views.center_cm - x) / np.linalg.norm(views.center_cm - x, axis=1)[:, None])[s].sum(0)
                         for x, s in zip(X, seen)])
     towards /= np.linalg.norm(towards, axis=1, keepdims=True)
