@@ -93,6 +93,15 @@ class PatchOptions:
     lk_predict: bool = True
     lk_levels_predicted: AtLeast(0) = 1
     lk_levels_full_px: Annotated[float, Field(ge=0)] = 0.0
+    # a point whose flow fails in a camera where another point of its patch is tracked is flown again from its
+    # position moved by those points' mean image motion (track.refind_lost): on the few-camera rig 92 % of the limb
+    # patches that end at a step's triangulation lost one flow to the forward-backward check (docs/benchmarks.md)
+    lk_refind: bool = True
+    # a flown view is a failed flow in the visibility's motion term (3 sigmas) when its patch's centre was lost there,
+    # its residual over the points tracked (track.py): a plane point lost alone (on a limb it may fall past the
+    # outline) moves with the centre, as in the triangulation. False: when any of the three points was lost (the
+    # old rule: on the few-camera rig it ended two-view limb patches whose centre was tracked in both views)
+    view_lost_with_centre: bool = True
     # each step tracks a patch by optical flow in at most this many of the cameras that saw it (track.py
     # best_views: the most face-on, spread in direction; 0: all); visibility is still judged in every camera
     track_views: Annotated[int, Field(ge=0)] = 8
