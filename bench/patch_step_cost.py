@@ -17,8 +17,13 @@ every camera (``visibility.estimate_visibility``), and the same with the people 
 occluders of the views (``body_occlusion``, :mod:`dome_calib.recon.patches.occlusion`; and the occlusion test alone
 on the facing patch-cameras, with the views it hides per patch and the truly seen views among them); and the flown
 views' flow started at its prediction (the true shift) with each of ``--predicted-levels`` pyramid levels
-(``PatchOptions.lk_predict``); and the visibility with ``border_squares`` the other way than the default
-(``visibility_border_squares_false``: the whole square in the image). Prints one JSON object per line. The flow here is a lower bound of the stream's: the
+(``PatchOptions.lk_predict``); the visibility with ``border_squares`` the other way than the default
+(``visibility_border_squares_false``: the whole square in the image); and afnn4e's pieces (docs/patches.md): the
+visibility with ``neighbour_ncc`` (``map_ncc_threshold`` 0.75), with the 4 cm square (``ncc_size_cm``), with all of
+afnn4e and with afnn4e and the occluders, the anchor flow's realignment of the flown views' points to their seed
+appearance (``anchor_flow``: seed frame 0, now frame 1; ``track.SeedViews.realign``) and the seed-appearance end
+test (``seed_appearance_end``, ``visibility.off_seed``). Prints one JSON object per line. The flow here is a lower
+bound of the stream's: the
 texture moves 1 px, and real motion takes Lucas-Kanade more iterations (the stream on the
 panel spent ~2x this bench's flow per patch-step, docs/benchmarks.md); the step also triangulates twice.
 """
@@ -41,8 +46,8 @@ import dataclasses  # noqa: E402
 from dome_calib.recon.patches.model import PatchOptions  # noqa: E402
 from dome_calib.recon.patches.occlusion import BodyPrior, Occluders, occluded_views  # noqa: E402
 from dome_calib.recon.patches.seed import optical_flow, patch_triplets  # noqa: E402
-from dome_calib.recon.patches.track import _triangulate_points, best_views  # noqa: E402
-from dome_calib.recon.patches.visibility import Frames, camera_neighbours, estimate_visibility  # noqa: E402
+from dome_calib.recon.patches.track import SeedViews, _triangulate_points, best_views  # noqa: E402
+from dome_calib.recon.patches.visibility import Frames, camera_neighbours, estimate_visibility, off_seed  # noqa: E402
 from dome_calib.recon.project import project_points, view_set  # noqa: E402
 from dome_calib.synth.dome import as_built_dome  # noqa: E402
 from dome_calib.synth.group import GroupOptions, make_group  # noqa: E402
@@ -147,6 +152,27 @@ def run(args: argparse.Namespace) -> None:
                                                                                 np.zeros_like(X), seen, motion, nb,
                                                                                 o))[1])
             ms_vis_other = min(ms_vis_other)
+            # afnn4e's pieces (docs/patches.md): neighbour_ncc (map_ncc_threshold 0.75), the 4 cm square, the
+            # anchor flow (each flown camera's points aligned to their seed appearance: seed frame 0, now frame 1)
+            # and the seed appearance's end test, each alone, then all four with the people as occluders
+            afnn4e = dict(anchor_flow=True, neighbour_ncc=True, ncc_size_cm=4.0, seed_appearance_end=True,
+                          map_ncc_threshold=0.75)
+            on = {k: dataclasses.replace(o, **v) for k, v in (
+                ("neighbour_ncc", dict(neighbour_ncc=True, map_ncc_threshold=0.75)), ("ncc_size_4", dict(ncc_size_cm=4.0)),
+                ("afnn4e", afnn4e), ("afnn4e_body_occlusion", dict(afnn4e, body_occlusion=True)))}
+            ms_vis_on = {f"visibility_{k}": cpu_ms(lambda: estimate_visibility(
+                source, views, frames, X, np.zeros_like(X), seen, motion, nb, ok_, body))[1] for k, ok_ in on.items()}
+            seed_views = SeedViews.at_seed(source, views, Frames(frame=np.zeros(V, np.int64), offset_ms=np.zeros(V),
+                                                                 t_ms=t), X, seen)
+
+            def realign():
+                for v in np.flatnonzero(flown.any(0)):
+                    idx = np.flatnonzero(flown[:, v])
+                    seed_views.realign(source, names[v], frames, v, idx, uv[idx, :, v], ok[idx, :, v], on["afnn4e"])
+            _, ms_anchor = cpu_ms(realign)
+            look = full.appearance.keep(full.visible)
+            _, ms_off_seed = cpu_ms(lambda: off_seed(full, look, on["afnn4e"]))
+            ms_afnn4e = {**ms_vis_on, "anchor_realign_flown": ms_anchor, "seed_appearance_end": ms_off_seed}
             to_cam = views.center_cm[None] - X[:, None, 0]
             pi, ci = np.nonzero(np.sum(to_cam * normal[0][:, None], -1) / np.linalg.norm(to_cam, axis=-1)
                                 > o.min_cos_view)
@@ -162,7 +188,8 @@ def run(args: argparse.Namespace) -> None:
                                                           ("visibility_body_occlusion", ms_vis_body),
                                                           ("occlusion_alone", ms_occ),
                                                           (f"visibility_border_squares_{whole.border_squares}".lower(),
-                                                           ms_vis_other), *ms_predicted.items())}
+                                                           ms_vis_other), *ms_predicted.items(),
+                                                          *ms_afnn4e.items())}
             print(json.dumps({"preset": preset, "cameras": V, "people": args.people, "patches": N,
                               "track_views": o.track_views, "seen_views_per_patch": round(float(seen.sum(1).mean()), 1),
                               "flown_views_per_patch": round(float(flown.sum(1).mean()), 1),

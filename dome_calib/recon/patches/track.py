@@ -231,6 +231,19 @@ def _triangulate_points(views: ViewSet, uv: np.ndarray, conf: np.ndarray, o: Pat
     return out
 
 
+def _triangulate_again(views: ViewSet, uv: np.ndarray, tracked: np.ndarray, use: np.ndarray, X_tri: np.ndarray,
+                       o: PatchOptions) -> np.ndarray:
+    """:func:`_triangulate_points` of ``uv`` (N, 3, V, 2) in the views ``use`` (N, 3, V), given ``X_tri``, the same
+    points triangulated in the views ``tracked``: a patch whose views did not change (every tracked view still
+    visible: most of them) keeps ``X_tri``'s points, which are the same bits (a point's triangulation depends on its
+    own pixels and views only); the others are triangulated again."""
+    again = X_tri.copy()
+    changed = np.flatnonzero(np.any(use != tracked, axis=(1, 2)))
+    if len(changed):
+        again[changed] = _triangulate_points(views, uv[changed], use[changed].astype(float), o)
+    return again
+
+
 def square_up(X: np.ndarray, axis_cm: float) -> np.ndarray:
     """Patches (N, 3, 3) -> the same centre and plane with the plane points back at ``axis_cm``, orthogonal."""
     u, v, _ = patch_axes(X[:, 0], X[:, 1], X[:, 2])
@@ -429,7 +442,8 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                     slid_view[idx, v] = off.reshape(-1, 3).any(axis=1)
                 uv[idx, :, v] = q.reshape(-1, 3, 2)
                 tracked[idx, :, v] = ok.reshape(-1, 3)
-            X_new = _triangulate_points(views, uv, tracked.astype(float), o)
+            X_tri = _triangulate_points(views, uv, tracked.astype(float), o)
+            X_new = X_tri
             centre = np.all(np.isfinite(X_new[:, 0]), axis=1)
             lost = live & ~centre
             live &= centre
@@ -441,7 +455,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             motion = motion_term(views, uv, tracked, flown, slid_view, X_new, o)
             vis = estimate_visibility(source, views, frames1, X_new, velocity, was, motion, neighbours, o, body)
             use = vis.visible[:, None, :] & tracked
-            again = _triangulate_points(views, uv, use.astype(float), o)
+            again = _triangulate_again(views, uv, tracked, use, X_tri, o)
             redo = live & (use.sum(axis=2) >= 2).all(axis=1) & np.all(np.isfinite(again), axis=(1, 2))
             X = np.where(redo[:, None, None], quantise_cm(np.where(redo[:, None, None], again, 0.0)), X_new)
             unseen = live & (vis.visible.sum(1) < o.min_visible)
