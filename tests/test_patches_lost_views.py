@@ -37,7 +37,7 @@ def test_a_lost_point_is_re_found_from_its_patch_mates_motion():
 
 def test_a_plane_point_lost_alone_keeps_its_view_in_the_motion_term():
     bundle, _ = one_person_capture()
-    names = [n for n in sorted(bundle.cameras) if str(bundle.cameras[n].type) == "vga"][:2]
+    names = [n for n in sorted(bundle.cameras) if str(bundle.cameras[n].type) == "vga"][:3]
     views = view_set(bundle, names)
     X = np.array([[[0.0, -100.0, 0.0], [3.0, -100.0, 0.0], [0.0, -97.0, 0.0]]] * 3)  # three patches (N, 3, 3)
     N, V = len(X), len(names)
@@ -47,8 +47,13 @@ def test_a_plane_point_lost_alone_keeps_its_view_in_the_motion_term():
     uv[1, 2, 0] += 40.0  # where its failed flow left it
     tracked[2, 0, 0] = False  # patch 2: its centre lost in camera 0
     flown, slid = np.ones((N, V), bool), np.zeros((N, V), bool)
+    flown[:, 2] = False  # flown in two cameras: no view to spare (min_visible 2)
     new = motion_term(views, uv, tracked, flown, slid, X, PatchOptions())
     old = motion_term(views, uv, tracked, flown, slid, X, PatchOptions(view_lost_with_centre=False))
-    assert np.all(new[0] < 1.0) and np.array_equal(new[0], old[0])  # all tracked: the same
+    assert np.all(new[0, :2] < 1.0) and np.array_equal(new[0], old[0], equal_nan=True)  # all tracked: the same
+    assert np.isnan(new[:, 2]).all()  # not flown: no term
     assert new[1, 0] < 1.0 and old[1, 0] == np.inf  # the plane point lost alone: the view keeps its term
     assert new[2, 0] == np.inf and old[2, 0] == np.inf  # the centre lost: a failed flow either way
+    # flown in three cameras, a view to spare: the old rule (a view with a point lost is doubtful)
+    spare = motion_term(views, uv, tracked, np.ones((N, V), bool), slid, X, PatchOptions())
+    assert spare[1, 0] == np.inf and spare[2, 0] == np.inf and np.all(spare[0] < 1.0)

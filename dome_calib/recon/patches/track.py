@@ -303,18 +303,22 @@ def motion_term(views: ViewSet, uv: np.ndarray, tracked: np.ndarray, flown: np.n
     points ``X`` (N, 3, 3) reprojected (the largest over its points); a failed flow inf (3 sigmas); elsewhere NaN
     (no term; a view whose flow left the seed appearance is not triangulated, and judged without it). ``uv``
     (N, 3, V, 2) the flown points, ``tracked`` (N, 3, V) their flows' success, ``flown`` and ``slid_view`` (N, V).
-    ``o.view_lost_with_centre``: a failed flow is its centre's, the residual over the points tracked there (a plane
-    point lost alone moves with the centre, as in the triangulation); else any of its points' (the old rule)."""
+    A failed flow is any of its points' (a view with a point lost is doubtful), except, with
+    ``o.view_lost_with_centre``, for a patch with no view to spare (flown in at most ``min_visible`` cameras): there
+    a failed flow is its centre's and the residual is over the points tracked (a plane point lost alone moves with
+    the centre, as in the triangulation), so a lost plane point does not end the patch."""
     N, V = flown.shape
+    spare = flown.sum(axis=1) > o.min_visible
+    centre_rule = np.zeros(N, bool) if not o.view_lost_with_centre else ~spare
     resid = np.full((N, V), np.nan)
     for v in np.flatnonzero(flown.any(0)):
         idx = np.flatnonzero(flown[:, v])
         proj = project_one(views, v, X[idx])[0]
         err = np.linalg.norm(uv[idx, :, v] - proj, axis=-1)
-        if o.view_lost_with_centre:  # a failed point's pixels say nothing
-            err = np.where(tracked[idx, :, v], err, 0.0)
+        # a failed point's pixels say nothing where the centre rule holds
+        err = np.where(tracked[idx, :, v] | ~centre_rule[idx, None], err, 0.0)
         resid[idx, v] = err.max(axis=1)
-    flow_ok = tracked[:, 0] if o.view_lost_with_centre else tracked.all(axis=1)
+    flow_ok = np.where(centre_rule[:, None], tracked[:, 0], tracked.all(axis=1))
     return np.where(flow_ok, resid, np.where(flown & ~slid_view, np.inf, np.nan))
 
 
