@@ -97,6 +97,17 @@ class PatchOptions:
     lk_predict: bool = True
     lk_levels_predicted: AtLeast(0) = 1
     lk_levels_full_px: Annotated[float, Field(ge=0)] = 0.0
+    # a point whose flow fails in a camera where another point of its patch is tracked is flown again from its
+    # position moved by those points' mean image motion (track.refind_lost): on the few-camera rig 92 % of the limb
+    # patches that end at a step's triangulation lost one flow to the forward-backward check (docs/benchmarks.md)
+    lk_refind: bool = True
+    # a patch flown in at most min_visible cameras (no view to spare): a flown view is a failed flow in the
+    # visibility's motion term (3 sigmas) when its centre was lost there, its residual over the points tracked
+    # (track.motion_term): a plane point lost alone (on a limb it may fall past the outline) moves with the centre,
+    # as in the triangulation. Other patches, or False: when any of the three points was lost (the old rule; on the
+    # few-camera rig it ended two-view limb patches whose centre was tracked in both views; on the dome's scene 1,
+    # applied to every patch, it cost 0.18 points of precision: docs/benchmarks.md)
+    view_lost_with_centre: bool = True
     # each step tracks a patch by optical flow in at most this many of the cameras that saw it (track.py
     # best_views: the most face-on, spread in direction; 0: all); visibility is still judged in every camera
     track_views: Annotated[int, Field(ge=0)] = 8

@@ -187,6 +187,31 @@ def flow_camera(source: FrameSource, name: str, clock: Clock, t0: float, t1: flo
     return out, ok
 
 
+def refind_lost(source: FrameSource, name: str, clock: Clock, t0: float, t1: float, p: np.ndarray, q: np.ndarray,
+                ok: np.ndarray, o: PatchOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A lost point re-found from where its patch went (``PatchOptions.lk_refind``): patches (n, 3) of one camera,
+    their points at t0 ``p`` (n, 3, 2), flown to t1 ``q`` (n, 3, 2), ``ok`` (n, 3). A point whose flow failed in a
+    patch with another point tracked in this camera is flown again (:func:`flow_camera`), started at its own
+    position moved by the mean image motion of its patch's tracked points there (the patch is a 6 cm square: its
+    points move together), one prediction's pyramid levels, the same forward-backward check; kept where it passes.
+    -> (q, ok, re-found (n, 3))."""
+    q, ok = q.copy(), ok.copy()
+    found = np.zeros(ok.shape, bool)
+    some = ok.any(axis=1) & ~ok.all(axis=1)
+    if not some.any() or t1 == t0:
+        return q, ok, found
+    n_ok = ok.sum(axis=1, keepdims=True)
+    shift = np.where(ok[..., None], q - p, 0.0).sum(axis=1) / np.maximum(n_ok, 1)  # (n, 2)
+    rows, cols = np.nonzero(some[:, None] & ~ok)
+    start, move = p[rows, cols], shift[rows]
+    r, good = flow_camera(source, name, clock, t0, t1, start, o,
+                          lambda t_ms: start + move * ((t_ms - t0) / (t1 - t0)))
+    q[rows[good], cols[good]] = r[good]
+    ok[rows[good], cols[good]] = True
+    found[rows[good], cols[good]] = True
+    return q, ok, found
+
+
 #: Patches triangulated per call: the robust triangulation's arrays are (points, cameras, hypotheses) and outgrow
 #: the caches (full dome, 6000 patches per call: 1.99 ms per patch, 1.41 in chunks of 1000, 1.17 of 500, 1.12 of
 #: 250); each point's result is its own (the same bits in any chunks).
@@ -270,6 +295,31 @@ def best_views(views: ViewSet, X: np.ndarray, candidates: np.ndarray, k: int, sp
                 cos_j = np.clip(np.sum(d * d[sub, j][:, None], axis=-1), -1.0, 1.0)
                 gap = np.minimum(gap, np.degrees(np.arccos(cos_j)) / spread_deg)
     return chosen
+
+
+def motion_term(views: ViewSet, uv: np.ndarray, tracked: np.ndarray, flown: np.ndarray, slid_view: np.ndarray,
+                X: np.ndarray, o: PatchOptions) -> np.ndarray:
+    """The visibility's motion term of a step (N, V) px: where a patch was flown, its flow against its triangulated
+    points ``X`` (N, 3, 3) reprojected (the largest over its points); a failed flow inf (3 sigmas); elsewhere NaN
+    (no term; a view whose flow left the seed appearance is not triangulated, and judged without it). ``uv``
+    (N, 3, V, 2) the flown points, ``tracked`` (N, 3, V) their flows' success, ``flown`` and ``slid_view`` (N, V).
+    A failed flow is any of its points' (a view with a point lost is doubtful), except, with
+    ``o.view_lost_with_centre``, for a patch with no view to spare (flown in at most ``min_visible`` cameras): there
+    a failed flow is its centre's and the residual is over the points tracked (a plane point lost alone moves with
+    the centre, as in the triangulation), so a lost plane point does not end the patch."""
+    N, V = flown.shape
+    spare = flown.sum(axis=1) > o.min_visible
+    centre_rule = np.zeros(N, bool) if not o.view_lost_with_centre else ~spare
+    resid = np.full((N, V), np.nan)
+    for v in np.flatnonzero(flown.any(0)):
+        idx = np.flatnonzero(flown[:, v])
+        proj = project_one(views, v, X[idx])[0]
+        err = np.linalg.norm(uv[idx, :, v] - proj, axis=-1)
+        # a failed point's pixels say nothing where the centre rule holds
+        err = np.where(tracked[idx, :, v] | ~centre_rule[idx, None], err, 0.0)
+        resid[idx, v] = err.max(axis=1)
+    flow_ok = np.where(centre_rule[:, None], tracked[:, 0], tracked.all(axis=1))
+    return np.where(flow_ok, resid, np.where(flown & ~slid_view, np.inf, np.nan))
 
 
 def now_frames(frames: Frames) -> np.ndarray:
@@ -373,6 +423,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             tracked = np.zeros((N, 3, V), bool)
             was = vis_out[:, k - 1]
             flown = best_views(views, X, was & live[:, None], o.track_views, o.track_view_spread_deg)
+            refound = 0  # points whose flow failed, re-found from their patch's motion (lk_refind)
             slid_view = np.zeros((N, V), bool)  # flown, but a point rejected by its seed appearance (anchor_flow)
             frames1 = judged_frames(clocks, t1)
             for v, name in enumerate(views.names):
@@ -384,6 +435,11 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                 if o.lk_predict and velocity_last is not None:
                     predict = _predictor(views, v, X[idx].reshape(-1, 3), velocity_last[idx].reshape(-1, 3), t0)
                 q, ok = flow_camera(source, name, clocks[v], t0, t1, p, o, predict)
+                if o.lk_refind:
+                    q3, ok3, found = refind_lost(source, name, clocks[v], t0, t1, p.reshape(-1, 3, 2),
+                                                 q.reshape(-1, 3, 2), ok.reshape(-1, 3), o)
+                    q, ok = q3.reshape(-1, 2), ok3.reshape(-1)
+                    refound += int(found.sum())
                 if o.anchor_flow:
                     q, ok, off = seed_of.realign(source, name, frames1, v, idx, q.reshape(-1, 3, 2),
                                                  ok.reshape(-1, 3), o)
@@ -400,14 +456,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             X_new = np.where(np.isfinite(X_new), X_new, X + moved)
             X_new = quantise_cm(np.where(live[:, None, None], X_new, 0.0))
             velocity = (X_new - X) / (t1 - t0)
-            resid = np.full((N, V), np.nan)  # the flow against the reprojected motion, where flown
-            for v in np.flatnonzero(flown.any(0)):
-                idx = np.flatnonzero(flown[:, v])
-                proj = project_one(views, v, X_new[idx])[0]
-                resid[idx, v] = np.linalg.norm(uv[idx, :, v] - proj, axis=-1).max(axis=1)
-            # the motion term where the patch was flown: its residual, a failed flow 3 sigmas; elsewhere none
-            # (a view whose flow left the seed appearance is not triangulated, and judged without the motion term)
-            motion = np.where(tracked.all(axis=1), resid, np.where(flown & ~slid_view, np.inf, np.nan))
+            motion = motion_term(views, uv, tracked, flown, slid_view, X_new, o)
             vis = estimate_visibility(source, views, frames1, X_new, velocity, was, motion, neighbours, o, body)
             use = vis.visible[:, None, :] & tracked
             again = _triangulate_again(views, uv, tracked, use, X_tri, o)
@@ -421,8 +470,8 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             X = quantise_cm(square_up(X, o.axis_cm))
             velocity_last = (X - X_prev) / (t1 - t0)
             logger.debug("step %d: %d live; ended: %d centre not triangulated, %d seen by too few, %d stretched, "
-                         "%d off their seed appearance; %d views off their seed appearance", k, live.sum(), lost.sum(),
-                         unseen.sum(), stretched.sum(), slid.sum(), slid_view.sum())
+                         "%d off their seed appearance; %d views off their seed appearance; %d points re-found", k, live.sum(),
+                         lost.sum(), unseen.sum(), stretched.sum(), slid.sum(), slid_view.sum(), refound)
         vis_v: Visibility = vis
         X_out[live, k] = X[live]
         vis_out[live, k] = vis_v.visible[live]

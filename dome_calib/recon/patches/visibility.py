@@ -77,6 +77,8 @@ def ncc_partial(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     ok = (n >= MIN_BORDER_SAMPLES) & (vx > MIN_STD_DN ** 2) & (vy > MIN_STD_DN ** 2)
     out[part] = np.where(ok, (x * y).sum(-1) / k / np.sqrt(np.where(ok, vx * vy, 1.0)), 0.0)
     return out
+
+
 #: Patches whose neighbour pairs are found together ((chunk, E) masks; :func:`neighbour_ncc`).
 NEIGHBOUR_CHUNK = 1024
 
