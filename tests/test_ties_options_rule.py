@@ -35,6 +35,7 @@ FIELDS = frozenset(f.name for c in OPTIONS for f in dataclasses.fields(c))
 ALLOWED_EXACT = {
     ("seed_skeleton.py", "seed_camera_on_body"): 1,  # counts of agreeing views against views_needed(...) (integers)
     ("track.py", "track_cloud"): 2,  # counts of visible cameras (sum of a bool array) against min_visible
+    ("track.py", "motion_term"): 1,  # counts of flown cameras (sum of a bool array) against min_visible (life50)
     ("motion.py", "fit_part"): 2,  # a part's patch count and inlier count against min_patches
     ("parts.py", "_components"): 1,  # frames a bone's patch is seen in against min_frames
 }
