@@ -54,14 +54,14 @@ def _child(kernel: str, code: str) -> str:
                           cwd=ROOT).stdout
 
 
-def _numbers(obj) -> list[float]:
+def json_numbers(obj) -> list[float]:
     if isinstance(obj, bool) or obj is None or isinstance(obj, str):
         return []
     if isinstance(obj, (int, float)):
         return [float(obj)]
     if isinstance(obj, dict):
-        return [x for k in sorted(obj) for x in _numbers(obj[k])]
-    return [x for v in obj for x in _numbers(v)]
+        return [x for k in sorted(obj) for x in json_numbers(obj[k])]
+    return [x for v in obj for x in json_numbers(v)]
 
 
 def _json_diff(a: Path, b: Path, drop: tuple[str, ...] = ()) -> dict:
@@ -74,7 +74,7 @@ def _json_diff(a: Path, b: Path, drop: tuple[str, ...] = ()) -> dict:
 def _compare(ja, jb) -> dict:
     """Two JSON values: identical or not, the same structure (strings and shape) or not, the largest difference of
     any number in them (None where the structure differs)."""
-    na, nb = _numbers(ja), _numbers(jb)
+    na, nb = json_numbers(ja), json_numbers(jb)
     same_shape = len(na) == len(nb) and json.dumps(_strings(ja)) == json.dumps(_strings(jb))
     return {"identical": ja == jb, "same_structure": same_shape,
             "max_abs_difference": float(np.max(np.abs(np.subtract(na, nb)))) if same_shape and na else None}

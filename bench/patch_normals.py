@@ -193,8 +193,7 @@ def run_seeds(args: argparse.Namespace) -> None:
     import time
     from pathlib import Path
 
-    from patches import (GrayCache, KCALIBRATION, TexturedScene, TextureOptions, cameras_by_type, read_kcalibration,
-                         render_cache_key, synthetic_sync)
+    from patches import GrayCache, TexturedScene, bench_scene, cameras_by_type, render_cache_key
     from dome_calib.recon.patches import seed as S
     from dome_calib.recon.patches.frames import patch_axes
     from dome_calib.recon.patches.model import PatchOptions
@@ -204,13 +203,7 @@ def run_seeds(args: argparse.Namespace) -> None:
     from dome_calib.recon.patches.visibility import camera_neighbours, estimate_visibility
     from dome_calib.synth.textured import nearest_surface_points
 
-    bundle = as_built_dome(args.preset, seed=args.seed)
-    bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=6000.0, seed=args.seed)
-    bundle.kinect = read_kcalibration(KCALIBRATION)
-    group = GroupOptions(n_people=args.people, scenario=args.scenario, start_ms=500.0, duration_ms=5000.0,
-                         seed=args.seed)
-    truth = make_group(group)
-    texture = TextureOptions(seed=args.seed, scale={"vga": 1.0, "hd": 0.5, "kinect-color": 0.5})
+    bundle, group, truth, texture = bench_scene(args)
     disk = (Path(args.render_cache) / render_cache_key(bundle, group, texture, args.preset, args.seed)
             if args.render_cache else None)
     source = GrayCache(TexturedScene(bundle, truth, texture, cache_frames=3), disk if disk and disk.exists() else None)

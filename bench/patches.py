@@ -530,14 +530,21 @@ def oracle_normals(mode: str, truth):
         patch_run.run_cloud, patch_run.refine_normals = saved
 
 
-def run(args: argparse.Namespace) -> None:
+def bench_scene(args: argparse.Namespace) -> tuple:
+    """The bench's dome, group and texture from ``--preset``, ``--seed``, ``--people``, ``--scenario`` ->
+    (bundle with its sync and Kinects, group options, the group's truth, texture options); other benches judge the
+    same scene (``bench/patch_normals.py --seeds``)."""
     bundle = as_built_dome(args.preset, seed=args.seed)
     bundle.sync = synthetic_sync(bundle, start_ms=0.0, duration_ms=6000.0, seed=args.seed)
     bundle.kinect = read_kcalibration(KCALIBRATION)
     group = GroupOptions(n_people=args.people, scenario=args.scenario, start_ms=500.0, duration_ms=5000.0,
                          seed=args.seed)
-    truth = make_group(group)
     texture = TextureOptions(seed=args.seed, scale={"vga": 1.0, "hd": 0.5, "kinect-color": 0.5})
+    return bundle, group, make_group(group), texture
+
+
+def run(args: argparse.Namespace) -> None:
+    bundle, group, truth, texture = bench_scene(args)
     scene = TexturedScene(bundle, truth, texture,
                           cache_frames=1 if args.preset == "full" else 3)  # the grey images are kept (GrayCache)
     by_type = cameras_by_type(bundle)

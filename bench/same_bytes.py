@@ -24,20 +24,11 @@ sys.path.insert(0, str(ROOT))
 
 from tests.hostile.inputs import build_inputs  # noqa: E402
 from tests.hostile.same_bytes import Runs, run_twice  # noqa: E402
+from kernels import json_numbers  # noqa: E402  (a JSON file's numbers in a fixed order, as bench/kernels.py compares them)
 
 
 def emit(**obj) -> None:
     print(json.dumps(obj), flush=True)
-
-
-def _numbers(obj) -> list[float]:
-    if isinstance(obj, bool) or obj is None or isinstance(obj, str):
-        return []
-    if isinstance(obj, (int, float)):
-        return [float(obj)]
-    if isinstance(obj, dict):
-        return [x for k in sorted(obj) for x in _numbers(obj[k])]
-    return [x for v in obj for x in _numbers(v)]
 
 
 def _largest(runs: Runs, rel: str) -> float | None:
@@ -45,7 +36,7 @@ def _largest(runs: Runs, rel: str) -> float | None:
     paths = [files.get(rel) for files in runs.files]
     if rel[-5:] != ".json" or None in paths:
         return None
-    a, b = (_numbers(json.loads(p.read_text(encoding="utf-8"))) for p in paths)
+    a, b = (json_numbers(json.loads(p.read_text(encoding="utf-8"))) for p in paths)
     if len(a) != len(b) or not a:
         return None
     return max(abs(x - y) for x, y in zip(a, b))

@@ -15,8 +15,7 @@ from dome_calib.recon.patches.visibility import (MIN_BORDER_SAMPLES, Frames, cam
 from dome_calib.recon.project import project_view
 from dome_calib.camera import pixels_to_normalized
 
-from .patches_helpers import one_person_capture
-from .test_patches_visibility import P0, TexturedPlane, facing_plane
+from .test_patches_visibility import P0, TexturedPlane, plane  # noqa: F401  (the module's plane fixture)
 
 CUT_CAMERA = 0  # the camera (name order) whose left border the square crosses
 
@@ -41,12 +40,6 @@ def _at_border(views, normal: np.ndarray, o: PatchOptions) -> tuple[np.ndarray, 
     raise AssertionError("no point puts the square across the border")
 
 
-@pytest.fixture(scope="module")
-def plane():
-    bundle, _ = one_person_capture()
-    names = sorted(n for n, c in bundle.cameras.items() if str(c.type) == "vga")
-    views, normal = facing_plane(bundle, names)
-    return bundle, names, views, normal
 
 
 def _visibility(plane, covered: set[str], **options):
