@@ -99,8 +99,10 @@ class PatchOptions:
     lk_levels_full_px: Annotated[float, Field(ge=0)] = 0.0
     # a point whose flow fails in a camera where another point of its patch is tracked is flown again from its
     # position moved by those points' mean image motion (track.refind_lost): on the few-camera rig 92 % of the limb
-    # patches that end at a step's triangulation lost one flow to the forward-backward check (docs/benchmarks.md)
-    lk_refind: bool = True
+    # patches that end at a step's triangulation lost one flow to the forward-backward check (docs/benchmarks.md).
+    # Off: alone it moved the few-camera rig by 0.001 and scene 1 not at all, and on the full dome its second flow
+    # call per camera raised the LK calls 12,684 -> 20,548 and a patch-step ~2.5 -> ~2.9 ms (docs/benchmarks.md)
+    lk_refind: bool = False
     # a patch flown in at most min_visible cameras (no view to spare): a flown view is a failed flow in the
     # visibility's motion term (3 sigmas) when its centre was lost there, its residual over the points tracked
     # (track.motion_term): a plane point lost alone (on a limb it may fall past the outline) moves with the centre,
