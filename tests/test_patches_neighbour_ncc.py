@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from dome_calib.recon.patches import visibility
-from dome_calib.recon.patches.frames import centred
-from dome_calib.recon.patches.visibility import ncc_partial, neighbour_ncc
+from dome_calib.recon.patches.visibility import Squares, ncc_partial, neighbour_ncc
 
 
 def dense_rule(samples: np.ndarray, row_of: np.ndarray, anchor: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
@@ -52,8 +51,7 @@ def scene(N: int, V: int, seed: int, cut: float = 0.0) -> tuple[np.ndarray, np.n
 def test_neighbour_ncc_is_the_dense_rule_bit_for_bit(N, V, chunk, cut, monkeypatch):
     monkeypatch.setattr(visibility, "NEIGHBOUR_CHUNK", chunk)
     samples, row_of, anchor, neighbours = scene(N, V, N + V, cut)
-    c, var = centred(samples)
-    got = neighbour_ncc(samples, c, var, row_of, anchor, neighbours)
+    got = neighbour_ncc(Squares.of(samples), row_of, anchor, neighbours)
     want = dense_rule(samples, row_of, anchor, neighbours)
     assert got.dtype == want.dtype and got.shape == (N, V)
     assert np.array_equal(got, want)
@@ -63,5 +61,4 @@ def test_neighbour_ncc_is_the_dense_rule_bit_for_bit(N, V, chunk, cut, monkeypat
 
 def test_no_anchor_is_minus_one_everywhere():
     samples, row_of, anchor, neighbours = scene(20, 8, 3, 0.3)
-    c, var = centred(samples)
-    assert np.all(neighbour_ncc(samples, c, var, row_of, np.zeros_like(anchor), neighbours) == -1.0)
+    assert np.all(neighbour_ncc(Squares.of(samples), row_of, np.zeros_like(anchor), neighbours) == -1.0)

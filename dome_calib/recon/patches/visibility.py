@@ -79,6 +79,31 @@ def ncc_partial(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+@dataclass(frozen=True)
+class Squares:
+    """Sampled squares (M, G) (NaN: a sample outside the image, ``border_squares``), each centred once, with its
+    variance (M,) (:func:`~.frames.centred`) and whether it crosses its image border (M,)."""
+
+    samples: np.ndarray
+    centred: np.ndarray
+    variance: np.ndarray
+    cut: np.ndarray
+
+    @classmethod
+    def of(cls, samples: np.ndarray) -> "Squares":
+        c, var = centred(samples)
+        return cls(samples=samples, centred=c, variance=var, cut=~np.isfinite(samples).all(-1))
+
+    def ncc(self, ra: np.ndarray, rb: np.ndarray) -> np.ndarray:
+        """(P,) float64 NCC of rows ``ra`` against rows ``rb``: :func:`~.frames.ncc_centred`'s bits, over the samples
+        inside both images (:func:`ncc_partial`) where either square crosses its border."""
+        out = ncc_centred(self.centred[ra], self.variance[ra], self.centred[rb], self.variance[rb]).astype(float)
+        cut = np.flatnonzero(self.cut[ra] | self.cut[rb])
+        if len(cut):
+            out[cut] = ncc_partial(self.samples[ra[cut]], self.samples[rb[cut]])
+        return out
+
+
 #: Patches whose neighbour pairs are found together ((chunk, E) masks; :func:`neighbour_ncc`).
 NEIGHBOUR_CHUNK = 1024
 
@@ -96,8 +121,7 @@ def camera_neighbours(views: ViewSet, k: int) -> np.ndarray:
     return np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
 
 
-def neighbour_ncc(samples: np.ndarray, centred_samples: np.ndarray, variance: np.ndarray, row_of: np.ndarray,
-                  anchor: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+def neighbour_ncc(squares: Squares, row_of: np.ndarray, anchor: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """(N, V) each camera's best NCC against its prior neighbours that are anchors (-1 where it has none; 0 against a
     neighbour where either camera has no square).
 
@@ -107,8 +131,7 @@ def neighbour_ncc(samples: np.ndarray, centred_samples: np.ndarray, variance: np
     (:func:`ncc_partial`).
 
     Args:
-        samples: (M, G) the sampled squares (NaN: a sample outside the image).
-        centred_samples, variance: the same squares centred and their variances (M,) (:func:`~.frames.centred`).
+        squares: the sampled squares (:class:`Squares`).
         row_of: (N, V) the row of patch n's square in camera v (-1: not sampled there, as a square of zeros).
         anchor: (N, V) bool, the cameras a camera may be compared with (those that saw the patch before and are
             candidates now).
@@ -117,7 +140,6 @@ def neighbour_ncc(samples: np.ndarray, centred_samples: np.ndarray, variance: np
     N, V = anchor.shape
     best = np.full((N, V), -1.0)
     i, j = neighbours[:, 0], neighbours[:, 1]
-    cut_rows = ~np.isfinite(samples).all(-1)  # squares crossing the image border
     for lo in range(0, N, NEIGHBOUR_CHUNK):  # (chunk, E) pair masks at a time
         a_i, a_j = anchor[lo:lo + NEIGHBOUR_CHUNK][:, i], anchor[lo:lo + NEIGHBOUR_CHUNK][:, j]
         pn, pe = np.nonzero(a_i | a_j)  # the pairs where one end may lift the other
@@ -127,10 +149,7 @@ def neighbour_ncc(samples: np.ndarray, centred_samples: np.ndarray, variance: np
         ra, rb = row_of[n, i[pe]], row_of[n, j[pe]]
         both = (ra >= 0) & (rb >= 0)
         c = np.zeros(len(pn))  # a missing square has no texture: NCC 0
-        c[both] = ncc_centred(centred_samples[ra[both]], variance[ra[both]], centred_samples[rb[both]],
-                              variance[rb[both]])
-        cut = np.flatnonzero(both)[cut_rows[ra[both]] | cut_rows[rb[both]]]
-        c[cut] = ncc_partial(samples[ra[cut]], samples[rb[cut]])
+        c[both] = squares.ncc(ra[both], rb[both])
         up_i, up_j = a_j[pn, pe], a_i[pn, pe]
         np.maximum.at(best, (n[up_i], i[pe[up_i]]), c[up_i])
         np.maximum.at(best, (n[up_j], j[pe[up_j]]), c[up_j])
@@ -263,18 +282,14 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
     pi, vi = (np.concatenate(r) if r else np.zeros(0, np.int64) for r in (row_n, row_v))
     judge = has_ref[pi]
     pi, vi, rows_a = pi[judge], vi[judge], np.flatnonzero(judge)
-    c, var = centred(samples)
+    squares = Squares.of(samples)
     rows_b = row_of[pi, ref[pi]]
     corr = np.full((N, V), -1.0, np.float32)
     for lo in range(0, len(rows_a), NCC_CHUNK):  # the pairs' (chunk, G) blocks stay in the caches
-        a, b = rows_a[lo:lo + NCC_CHUNK], rows_b[lo:lo + NCC_CHUNK]
-        corr[pi[lo:lo + NCC_CHUNK], vi[lo:lo + NCC_CHUNK]] = ncc_centred(c[a], var[a], c[b], var[b])
-    if o.border_squares:  # a square crossing the border on either side: judged on the samples inside both
-        cut = ~np.isfinite(samples).all(-1)
-        pair = np.flatnonzero(cut[rows_a] | cut[rows_b])
-        corr[pi[pair], vi[pair]] = ncc_partial(samples[rows_a[pair]], samples[rows_b[pair]])
+        sl = slice(lo, lo + NCC_CHUNK)
+        corr[pi[sl], vi[sl]] = squares.ncc(rows_a[sl], rows_b[sl])
     if o.neighbour_ncc:
-        best = np.maximum(corr, neighbour_ncc(samples, c, var, row_of, prev, neighbours))
+        best = np.maximum(corr, neighbour_ncc(squares, row_of, prev, neighbours))
     else:
         best = corr
     best = np.where(in_image & has_ref[:, None], best, -1.0)
