@@ -21,7 +21,8 @@ from pydantic import AfterValidator, ConfigDict, Field, model_validator
 
 from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, five_terms
 from dome_calib.interop.fields import CameraMatrix, Distortion, RotationVector, SidePxNumber, Translation
-from dome_calib.rotation import matrix_to_rotvec, rotvec_to_matrix
+from dome_calib.interop.exact import rotvec
+from dome_calib.rotation import rotvec_to_matrix
 from dome_calib.schema import CameraName, OpenSchema, Vec, read_toml
 
 
@@ -82,7 +83,7 @@ def camera_table(cam: ForeignCamera, *, size_as_float: bool = False) -> dict[str
         "size": size,
         "matrix": np.asarray(cam.K, dtype=float).tolist(),
         "distortions": [float(v) for v in cam.dist],
-        "rotation": matrix_to_rotvec(cam.R).tolist(),
+        "rotation": rotvec(cam.R).tolist(),
         "translation": np.asarray(cam.t, dtype=float).tolist(),
     }
 

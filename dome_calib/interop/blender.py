@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.interop.common import ForeignCamera, Written, corner_shift_px, dropped_terms_line
+from dome_calib.interop.exact import centre, matmul3, transpose3
 
 SENSOR_WIDTH_MM = 36.0
 OPENGL_FROM_OPENCV = np.diag([1.0, -1.0, -1.0])
@@ -38,8 +39,8 @@ def blender_camera(cam: ForeignCamera) -> dict:
     cx, cy = float(cam.K[0, 2]) + 0.5, float(cam.K[1, 2]) + 0.5
     ratio = fy / fx
     world_from_cam = np.eye(4)
-    world_from_cam[:3, :3] = cam.R.T @ OPENGL_FROM_OPENCV
-    world_from_cam[:3, 3] = -cam.R.T @ cam.t
+    world_from_cam[:3, :3] = matmul3(transpose3(cam.R), OPENGL_FROM_OPENCV)
+    world_from_cam[:3, 3] = centre(cam.R, cam.t)
     return {
         "name": cam.name, "resolution": [int(w), int(h)],
         "pixel_aspect": [ratio, 1.0] if ratio >= 1.0 else [1.0, 1.0 / ratio],

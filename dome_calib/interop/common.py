@@ -22,6 +22,7 @@ import numpy as np
 from dome_calib.bundle import Bundle, Camera, camera_type_from_name
 from dome_calib.camera import distort, pixels_to_normalized
 from dome_calib.errors import BundleFormatError
+from dome_calib.interop.exact import matmul3, rotation_exact
 from dome_calib.interop.fields import ROTATION_EXACT_TOL, rotation_error
 from dome_calib.interop.registry import UNIT_CHOICES
 from dome_calib.lab_world import PANOPTIC_FROM_UP, import_record  # noqa: F401  (import_record: convert's, via here)
@@ -170,29 +171,18 @@ def cm_per_unit(unit: str | None, square_size_mm: float | None, where: str) -> f
     return CM_PER_UNIT[unit]
 
 
-def exact_rotation(R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The nearest rotation to ``R`` (3, 3) and the translation that keeps the camera centre where it was.
-
-    A bundle's R is orthonormal only to the digits its file keeps (~1e-10 for the real Panoptic files); every other
-    format stores a true rotation (quaternion, Rodrigues vector). Keeping the centre makes the change an angle of
-    that size (~1e-7 px) at every depth, instead of an offset of |R' - R| |X| that grows near the camera.
-    """
-    U, _, Vt = np.linalg.svd(R)
-    R_exact = U @ Vt
-    centre = -np.linalg.solve(R, t)
-    return R_exact, -R_exact @ centre
-
-
 def to_foreign(bundle: Bundle, options: ExportOptions, unit: str, world_up: str, where: str) -> list[ForeignCamera]:
     """Our cameras, in the bundle's order, as foreign records in a world whose up axis is ``world_up``, with
-    translations in ``unit`` and names mapped (rotations made exact, centres kept: :func:`exact_rotation`)."""
+    translations in ``unit`` and names mapped (rotations made exact, centres kept:
+    :func:`dome_calib.interop.exact.rotation_exact`; every number through :mod:`~dome_calib.interop.exact`'s
+    basic operations, so every machine computes the same bits)."""
     names = rename(list(bundle.cameras), options.names, where)
     scale = 1.0 / cm_per_unit(unit, None, where)
     M = PANOPTIC_FROM_UP[world_up]
     out = []
     for new, c in zip(names, bundle.cameras.values()):
-        R, t_cm = exact_rotation(c.R, c.t_cm)
-        out.append(ForeignCamera(name=new, size=c.resolution, K=c.K.copy(), dist=c.dist.copy(), R=R @ M,
+        R, t_cm = rotation_exact(c.R, c.t_cm)
+        out.append(ForeignCamera(name=new, size=c.resolution, K=c.K.copy(), dist=c.dist.copy(), R=matmul3(R, M),
                                  t=t_cm * scale))
     return out
 

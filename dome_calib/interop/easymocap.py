@@ -29,7 +29,8 @@ from pydantic import BeforeValidator, ConfigDict, Field, ValidationInfo, field_v
 from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, five_terms, label
 from dome_calib.interop.fields import (CameraMatrix, Distortion, RotationMatrix, RotationVector, SidePx,
                                        Translation, flat)
-from dome_calib.rotation import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
+from dome_calib.interop.exact import rotvec
+from dome_calib.rotation import rotation_angle_deg, rotvec_to_matrix
 from dome_calib.schema import CameraName, FileSchema, OpenSchema, path_of_name, read_yaml, validate
 
 FILES = ("intri.yml", "extri.yml")
@@ -102,7 +103,7 @@ def write(cams: list[ForeignCamera], folder: Path, unit: str, options: object = 
     extri = cv2.FileStorage(str(folder / FILES[1]), cv2.FILE_STORAGE_WRITE)
     _write_names(extri, names)
     for cam in cams:
-        extri.write(f"R_{cam.name}", matrix_to_rotvec(cam.R).reshape(3, 1))
+        extri.write(f"R_{cam.name}", rotvec(cam.R).reshape(3, 1))
         extri.write(f"Rot_{cam.name}", np.asarray(cam.R, dtype=float))
         extri.write(f"T_{cam.name}", np.asarray(cam.t, dtype=float).reshape(3, 1))
     extri.release()

@@ -29,6 +29,7 @@ from pydantic import Field, model_validator
 
 from dome_calib.camera import COLMAP_PIXEL_OFFSET_PX
 from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, label
+from dome_calib.interop.exact import centre, matmul3, transpose3
 from dome_calib.interop.fields import Bounded, DistTerm, Length, SidePxNumber, check_rotation
 from dome_calib.interop.registry import UNITS
 from dome_calib.schema import CameraName, OpenSchema, Vec, read_json
@@ -123,8 +124,8 @@ def write(cams: list[ForeignCamera], path: Path, unit: str, options: object = No
     frames = []
     for cam in cams:
         world_from_cam = np.eye(4)
-        world_from_cam[:3, :3] = cam.R.T @ OPENGL_FROM_OPENCV
-        world_from_cam[:3, 3] = -cam.R.T @ cam.t
+        world_from_cam[:3, :3] = matmul3(transpose3(cam.R), OPENGL_FROM_OPENCV)
+        world_from_cam[:3, 3] = centre(cam.R, cam.t)
         k1, k2, p1, p2, k3 = (float(v) for v in cam.dist)
         frames.append({
             "file_path": f"images/{cam.name}.png", "camera_name": cam.name,

@@ -37,6 +37,8 @@ import sys
 from pathlib import Path
 
 
+from dome_calib.interop.registry import FORMATS
+
 from .catalogue import ENTRIES, Entry
 from .inputs import Inputs, rooted
 
@@ -74,9 +76,26 @@ open("codes.json", "w").write(json.dumps({"codes": codes, "seconds": seconds}))
 """
 
 
+def _every_export() -> list[Entry]:
+    """``export`` to every format that writes (the catalogue has two: the matrix crosses those with every situation;
+    here each format's own numbers are compared), the catalogue's own entries first."""
+    have = {e.variant: e for e in ENTRIES["export"]}
+    out = []
+    for info in FORMATS:
+        if not info.writes or info.name in have:
+            continue
+        name = info.default_file or {"pose2sim": "Calib.toml", "blender": "cameras.py"}.get(info.name, "out")
+        out.append(Entry("dome-calib", "folder" if info.folder else "file",
+                         lambda i, o, fmt=info.name: ["export", i.bundle, "--to", fmt, "-o", o],
+                         out_name=name, variant=info.name))
+    return list(have.values()) + out
+
+
 def writers(heavy: bool | None = None) -> list[tuple[str, Entry]]:
-    """(label, entry) of every command that writes (``heavy``: only those of :data:`HEAVY`, or only the others)."""
-    return [(f"{name}{'-' + e.variant if e.variant else ''}", e) for name, entries in sorted(ENTRIES.items())
+    """(label, entry) of every command that writes (``heavy``: only those of :data:`HEAVY`, or only the others);
+    ``export`` to every format (:func:`_every_export`)."""
+    entries = {**ENTRIES, "export": _every_export()}
+    return [(f"{name}{'-' + e.variant if e.variant else ''}", e) for name, entries in sorted(entries.items())
             for e in entries if e.output != "none" and name not in NOT_RUN
             and (heavy is None or (name in HEAVY) == heavy)]
 
@@ -115,7 +134,7 @@ def normal(path: Path, side: Path) -> bytes:
     data = path.read_bytes()
     if path.name == RECORD:
         return json.dumps(sorted(json.loads(data)["entries"])).encode()
-    if path.suffix not in (".json", ".html", ".txt", ".toml", ".trc", ".csv", ".yaml", ".yml"):
+    if path.suffix not in (".json", ".html", ".txt", ".toml", ".trc", ".csv", ".yaml", ".yml", ".py"):
         return data
     text = data.decode("utf-8", errors="surrogateescape").replace(str(side), "SIDE")
     return seconds_hidden(text).encode("utf-8", errors="surrogateescape")

@@ -1,0 +1,151 @@
+"""The arithmetic of the exports: 3 x 3 matrices, rotations and rotation vectors in IEEE basic operations only.
+
+An export writes numbers computed from the bundle's; every machine must write the same bits for the same bundle
+(README, "Same result on every machine"). Three kinds of library call do not give the same bits on every CPU
+(measured by ``bench/same_bytes.py``, docs/benchmarks.md):
+
+- BLAS and LAPACK (``@``, ``np.dot``, ``np.linalg.svd`` / ``solve`` / ``det``, scipy's ``Rotation.from_matrix``,
+  which orthonormalises by SVD): OpenBLAS picks its kernels by CPU, and they sum in other orders, with or without
+  fused multiply-adds;
+- numpy's transcendental ufuncs (``np.arctan2``, ``np.arccos``, ``np.exp``, ...): on an AVX-512 CPU numpy takes
+  Intel's SVML routines, elsewhere the C library's;
+- the C library's own (``math.atan2``, ``np.sin``): glibc picks a variant compiled with or without FMA by CPU.
+
+What every CPU does alike is an IEEE basic operation (+, -, *, /, sqrt: correctly rounded) on one element at a
+time, in an order the program fixes. So this module writes every product out term by term (left to right),
+inverts through cofactors, finds the nearest rotation by Newton's iteration for the polar factor, and takes the
+one angle a rotation vector needs from its own arctangent (a table of 9 exact constants and 8 terms of the
+series). Every function is vectorised over leading axes with numpy's elementwise operations (no reduction: numpy
+may sum a reduction in SIMD-width blocks). The exporters take every computed number from here.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+#: atan(k / 8), k = 0..8, each the double nearest the true value (computed in 60-digit decimal arithmetic).
+_ATAN_EIGHTHS = np.array([0.0, 0.12435499454676144, 0.24497866312686414, 0.35877067027057225, 0.4636476090008061,
+                          0.5585993153435624, 0.6435011087932844, 0.7188299996216245, 0.7853981633974483])
+_HALF_PI = 1.5707963267948966
+#: Newton steps for the polar factor: from a rotation orthonormal to 1e-5 the error squares each step (1e-10,
+#: 1e-20): converged in 3; the rest is margin. A fixed count, so that a camera's bits do not depend on the others.
+_POLAR_STEPS = 6
+
+
+def matmul3(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) @ (..., 3, 3), each entry a0*b0 + a1*b1 + a2*b2 in that order."""
+    A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
+    return (A[..., :, 0, None] * B[..., None, 0, :] + A[..., :, 1, None] * B[..., None, 1, :]
+            + A[..., :, 2, None] * B[..., None, 2, :])
+
+
+def matvec3(A: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) @ (..., 3), each entry a0*v0 + a1*v1 + a2*v2 in that order."""
+    A, v = np.asarray(A, dtype=float), np.asarray(v, dtype=float)
+    return A[..., :, 0] * v[..., None, 0] + A[..., :, 1] * v[..., None, 1] + A[..., :, 2] * v[..., None, 2]
+
+
+def transpose3(A: np.ndarray) -> np.ndarray:
+    return np.swapaxes(np.asarray(A, dtype=float), -1, -2)
+
+
+def cofactor3(A: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) cofactor matrix: row i is the cross product of the other two rows (inverse = cofactor.T / det)."""
+    A = np.asarray(A, dtype=float)
+    r0, r1, r2 = A[..., 0, :], A[..., 1, :], A[..., 2, :]
+    return np.stack([cross3(r1, r2), cross3(r2, r0), cross3(r0, r1)], axis=-2)
+
+
+def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1], a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+
+
+def det3(A: np.ndarray) -> np.ndarray:
+    """(...,) determinant: row 0 dotted with its cofactor row."""
+    A = np.asarray(A, dtype=float)
+    c = cross3(A[..., 1, :], A[..., 2, :])
+    return A[..., 0, 0] * c[..., 0] + A[..., 0, 1] * c[..., 1] + A[..., 0, 2] * c[..., 2]
+
+
+def solve3(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(..., 3) x with A x = b, through the cofactors (A well conditioned: a rotation, a camera matrix)."""
+    return matvec3(transpose3(cofactor3(A)), b) / det3(A)[..., None]
+
+
+def nearest_rotation(R: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) the rotation nearest ``R`` (its orthogonal polar factor, as U @ Vt of its SVD) for a matrix
+    with positive determinant: Newton's iteration X <- (X + X^-T) / 2, X^-T = cofactor(X) / det(X)."""
+    X = np.asarray(R, dtype=float)
+    for _ in range(_POLAR_STEPS):
+        X = 0.5 * (X + cofactor3(X) / det3(X)[..., None, None])
+    return X
+
+
+def rotation_exact(R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest rotation to ``R`` (..., 3, 3) and the translation (..., 3) that keeps the camera centre
+    ``-R^-1 t`` where it was.
+
+    A bundle's R is orthonormal only to the digits its file keeps (~1e-10 for the real Panoptic files); every other
+    format stores a true rotation (quaternion, Rodrigues vector). Keeping the centre makes the change an angle of
+    that size (~1e-7 px) at every depth, instead of an offset of |R' - R| |X| that grows near the camera.
+    """
+    R_exact = nearest_rotation(R)
+    centre = -solve3(R, t)
+    return R_exact, -matvec3(R_exact, centre)
+
+
+def centre(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(..., 3) camera centre ``-R^T t`` of a rotation ``R`` and translation ``t``."""
+    return -matvec3(transpose3(R), t)
+
+
+def _atan_unit(z: np.ndarray) -> np.ndarray:
+    """atan(z) for 0 <= z <= 1: atan(k/8) + atan(u), u = (z - k/8) / (1 + z k/8), |u| <= 1/16, 8 terms of the
+    series (the first left out is below 1e-21 of u)."""
+    k = np.rint(z * 8.0)
+    c = k / 8.0
+    u = (z - c) / (1.0 + z * c)
+    u2 = u * u
+    s = -1.0 / 15.0
+    for n in (13, 11, 9, 7, 5, 3):
+        s = (1.0 if n % 4 == 1 else -1.0) / n + u2 * s
+    return _ATAN_EIGHTHS[k.astype(int)] + (u + u * (u2 * s))
+
+
+def atan_ratio(s: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """atan2(s, c) for s >= 0, c >= 0 (not both 0), in [0, pi/2], within a few units in the last place."""
+    s, c = np.asarray(s, dtype=float), np.asarray(c, dtype=float)
+    low = s <= c
+    z = np.where(low, s, c) / np.where(low, c, s)
+    a = _atan_unit(z)
+    return np.where(low, a, _HALF_PI - a)
+
+
+def quaternion(R: np.ndarray) -> np.ndarray:
+    """(..., 4) unit quaternion [w, x, y, z], w >= 0, of a rotation (..., 3, 3) (Shepperd: from the largest of the
+    trace and the diagonal, the others by division)."""
+    R = np.asarray(R, dtype=float)
+    d0, d1, d2 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    tr = d0 + d1 + d2
+    choice = np.argmax(np.stack([tr, d0, d1, d2], axis=-1), axis=-1)
+    s21, s02, s10 = R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]
+    a21, a02, a10 = R[..., 2, 1] + R[..., 1, 2], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 0] + R[..., 0, 1]
+    big = np.stack([1.0 + tr, 1.0 + d0 - d1 - d2, 1.0 - d0 + d1 - d2, 1.0 - d0 - d1 + d2], axis=-1)
+    b = np.sqrt(np.take_along_axis(big, choice[..., None], axis=-1)[..., 0])  # 2 |q_choice|
+    rows = np.stack([np.stack([b * b, s21, s02, s10], -1), np.stack([s21, b * b, a10, a02], -1),
+                     np.stack([s02, a10, b * b, a21], -1), np.stack([s10, a02, a21, b * b], -1)], axis=-2)
+    q = np.take_along_axis(rows, choice[..., None, None], axis=-2)[..., 0, :] / (2.0 * b[..., None])
+    norm = np.sqrt(q[..., 0] * q[..., 0] + q[..., 1] * q[..., 1] + q[..., 2] * q[..., 2] + q[..., 3] * q[..., 3])
+    q = q / norm[..., None]
+    return np.where(q[..., :1] < 0.0, -q, q)
+
+
+def rotvec(R: np.ndarray) -> np.ndarray:
+    """(..., 3) rotation vector (axis times angle in [0, pi], rad) of a rotation (..., 3, 3)."""
+    q = quaternion(R)
+    v = q[..., 1:]
+    sin_half = np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2])
+    angle = 2.0 * atan_ratio(sin_half, q[..., 0])
+    scale = np.where(sin_half > 0.0, angle / np.where(sin_half > 0.0, sin_half, 1.0), 2.0)
+    return v * scale[..., None]
