@@ -133,3 +133,22 @@ def test_splice_of_whole_frames_in_both_channels_is_a_restart():
     for clock, (d, fs) in zip((vga, hd), chans):
         assert [e["kind"] for e in clock.events] == ["restart"] and len(clock.audio) == 2
         np.testing.assert_array_equal(clock.ticks, d["ticks"][np.isin(d["count"], fs.count)])
+
+
+def test_the_line_is_the_exact_least_squares_line_without_lapack(monkeypatch):
+    """A Kinect's device clock (x in 100 ns ~1e10, y in ms ~3.6e7) over 2 s to 40 s: the slope within 1e-15 of the
+    least-squares slope in exact rational arithmetic, in means and sums only (the same bits on every CPU).
+    np.linalg.lstsq (LAPACK) was 1.8e-12 off here, and its bits changed with OpenBLAS's kernels."""
+    for name in ("lstsq", "solve", "svd", "pinv", "inv", "qr"):
+        monkeypatch.setattr(np.linalg, name, lambda *a, **k: pytest.fail("LAPACK in a clock fit"))
+    rng = np.random.default_rng(0)
+    for trial in range(20):
+        x = np.sort(rng.uniform(1e10, 1e10 + 2e7 * (trial + 1), 60)).round()
+        y = 3.6e7 + 1.0000116e-4 * (x - x[0]) + rng.normal(scale=0.3, size=60)
+        fit = robust_line(x, y, sigma=1e9, floor=1e9)  # no outliers: the plain least-squares line
+        xs = [Fraction(v) - Fraction(fit.x_ref) for v in x]
+        ys = [Fraction(v) for v in y]
+        mx, my = sum(xs) / 60, sum(ys) / 60
+        slope = sum((a - mx) * (b - my) for a, b in zip(xs, ys)) / sum((a - mx) ** 2 for a in xs)
+        assert abs(Fraction(fit.slope) / slope - 1) < Fraction(1, 10**15)
+        assert abs(Fraction(fit.y_ref) - (my - slope * mx)) < Fraction(1, 10**6)  # ms: 1 ns (the ulp at 3.6e7 is 7e-9)

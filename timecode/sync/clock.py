@@ -99,8 +99,12 @@ def robust_line(x: np.ndarray, y: np.ndarray, *, sigma: float, floor: float, max
         xi, yi = x[inl] - x_ref, y[inl]
         if xi.size < 2 or np.ptp(xi) == 0:
             raise ClockError("too few distinct points left after outlier rejection")
-        A = np.stack([np.ones_like(xi), xi], axis=1)
-        (y_ref, slope), *_ = np.linalg.lstsq(A, yi, rcond=None)
+        # The least-squares line in closed form (means and sums: the same bits on every CPU), not np.linalg.lstsq
+        # (LAPACK: another CPU's kernels gave a Kinect clock's slope 3.7e-13 apart, docs/benchmarks.md).
+        x_mean, y_mean = float(np.mean(xi)), float(np.mean(yi))
+        dx = xi - x_mean
+        slope = float(np.sum(dx * (yi - y_mean)) / np.sum(dx * dx))
+        y_ref = y_mean - slope * x_mean  # the line at x_ref
         resid = y - (y_ref + slope * (x - x_ref))
         med = np.median(resid[inl])
         thr = max(sigma * 1.4826 * float(np.median(np.abs(resid[inl] - med))), floor)
