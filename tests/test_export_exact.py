@@ -5,7 +5,7 @@ What differs between CPUs is BLAS and LAPACK (``@``, ``np.linalg``, scipy's ``Ro
 kernels), numpy's transcendental ufuncs (SVML on AVX-512) and the C library's (glibc's FMA variants); what does not is
 one +, -, *, /, sqrt at a time. The test runs every exporter on a bundle whose arrays admit only those: any matrix
 product, reduction, linear-algebra call or transcendental on them raises. (Across OpenBLAS's Haswell and SkylakeX
-kernels, every exporter but none wrote other bytes before: ``bench/same_bytes.py``, docs/benchmarks.md.)
+kernels every exporter wrote other bytes before: ``bench/same_bytes.py``, docs/benchmarks.md.)
 """
 from __future__ import annotations
 
@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.interop import convert, exact
 from dome_calib.interop.convert import export_bundle
 from dome_calib.interop.registry import EXPORT_FORMATS
 from dome_calib.panoptic_io import read_calibration
-from dome_calib.bundle import Bundle
 
 from .conftest import REAL_CALIBRATION
 
@@ -61,7 +61,8 @@ def _trapped(bundle: Bundle) -> Bundle:
 
 @pytest.fixture(scope="module")
 def real_bundle(tmp_path_factory) -> Path:
-    """Twelve cameras of the real Panoptic calibration (rotations orthonormal to ~1e-10: the export makes them exact)."""
+    """Twelve cameras of the real Panoptic calibration (rotations orthonormal to ~1e-10: the export makes them
+    exact)."""
     cameras, source = read_calibration(REAL_CALIBRATION)
     names = sorted(cameras)[::45]
     folder = tmp_path_factory.mktemp("real") / "bundle"
