@@ -22,7 +22,7 @@ import numpy as np
 from dome_calib.bundle import Bundle, Camera, camera_type_from_name
 from dome_calib.camera import distort, pixels_to_normalized
 from dome_calib.errors import BundleFormatError
-from dome_calib.interop.exact import matmul3, rotation_exact
+from dome_calib.interop.exact import matmul3, nearest_rotation, rotation_exact, transpose3
 from dome_calib.interop.fields import ROTATION_EXACT_TOL, rotation_error
 from dome_calib.interop.registry import UNIT_CHOICES
 from dome_calib.lab_world import PANOPTIC_FROM_UP, import_record  # noqa: F401  (import_record: convert's, via here)
@@ -211,8 +211,7 @@ def to_bundle(cams: list[ForeignCamera], cm_per_file_unit: float, world_up: str,
         R = np.asarray(cam.R, dtype=float)
         if rotation_error(R) > ROTATION_EXACT_TOL:
             repaired.append(cam.name)
-            U, _, Vt = np.linalg.svd(R)
-            R = U @ Vt
+            R = nearest_rotation(R)
         t_cm = np.asarray(cam.t, dtype=float) * cm_per_file_unit
         if np.abs(t_cm).max() > LIMIT_T_CM:
             raise InteropError(f"{path}: camera {label(cam.name)}: translation {np.abs(t_cm).max() / 1e5:.3g} km "
@@ -220,7 +219,7 @@ def to_bundle(cams: list[ForeignCamera], cm_per_file_unit: float, world_up: str,
         m = _PANOPTIC_NAME.fullmatch(name)
         cameras[name] = Camera(name=name, type=camera_type_from_name(name), resolution=cam.size,
                                K=np.asarray(cam.K, dtype=float), dist=np.asarray(cam.dist, dtype=float),
-                               R=R @ M.T, t_cm=t_cm, panel=int(m.group(1)) if m else 0,
+                               R=matmul3(R, transpose3(M)), t_cm=t_cm, panel=int(m.group(1)) if m else 0,
                                node=int(m.group(2)) if m else 0)
     if repaired:
         logger.warning("%s: %d rotation(s) orthonormal only to ~1e-6 (%s%s), as when written with few decimals: "
