@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT))
 
 from tests.hostile.inputs import build_inputs  # noqa: E402
 from tests.hostile.same_bytes import Runs, run_twice  # noqa: E402
-from kernels import json_numbers  # noqa: E402  (a JSON file's numbers in a fixed order, as bench/kernels.py compares them)
+from kernels import _untimed, json_numbers  # noqa: E402  (numbers in a fixed order, less timings: as bench/kernels.py)
 
 
 def emit(**obj) -> None:
@@ -42,11 +42,12 @@ def emit(**obj) -> None:
 
 
 def _largest(runs: Runs, rel: str) -> float | None:
-    """The largest difference of any number in a JSON file both runs wrote with the same shape (else None)."""
+    """The largest difference of any number (timings left out) in a JSON file both runs wrote with the same shape
+    (else None)."""
     paths = [files.get(rel) for files in runs.files]
     if rel[-5:] != ".json" or None in paths:
         return None
-    a, b = (json_numbers(json.loads(p.read_text(encoding="utf-8"))) for p in paths)
+    a, b = (json_numbers(_untimed(json.loads(p.read_text(encoding="utf-8")))) for p in paths)
     if len(a) != len(b) or not a:
         return None
     return max(abs(x - y) for x, y in zip(a, b))
