@@ -1,7 +1,7 @@
 """The same bytes run to run (docs/conventions.md, "Same result on every machine"): every command of the catalogue
-that writes, run on its small input twice, in two processes at once, every file either run wrote compared byte for
-byte (the tests are in :mod:`.test_matrix`, which builds the same inputs; ``bench/same_bytes.py`` runs it across
-OpenBLAS kernel sets).
+that writes (``export`` to every format), run on its small input twice, in two processes at once, every file either
+run wrote compared byte for byte (the tests are in :mod:`.test_matrix`, which builds the same inputs;
+``bench/same_bytes.py`` runs it across OpenBLAS kernel sets and against an older CPU's library paths).
 
 The inputs are the hostile matrix's (:mod:`.inputs`), each process with its own copy, and for ``calibrate`` a capture
 with images (five VGA cameras of ``data/synthetic/tiny``: the matrix's capture has none, so calibrate stops before
