@@ -1,11 +1,13 @@
 """Seeds where the seeded cloud ends on one side (PatchOptions.normal_max_gap_deg, seed.neighbour_gap_deg): their
 neighbours leave a wide gap round them in their plane, their plane leans towards the side that has seeds, and with
 the option they are dropped; inside the cloud nothing changes."""
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from dome_calib.recon.patches.model import PatchOptions
-from dome_calib.recon.patches.seed import _normals, neighbour_gap_deg
+from dome_calib.recon.patches.seed import CameraSeeds, _normals, merge_camera_seeds, neighbour_gap_deg
 from tests.test_patches_normal_fit import CAMERAS, SPACING_CM, _half_cylinder
 
 U, V = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
@@ -59,6 +61,22 @@ def test_default_keeps_every_seed():
     b = _normals(X, X, seen, CAMERAS, 4.0, 5, "plane", max_gap_deg=PatchOptions().normal_max_gap_deg)
     for p, q in zip(a, b):
         assert np.array_equal(p, q, equal_nan=p.dtype.kind == "f")
+
+
+def test_the_stage_merge_drops_them():
+    """``merge_camera_seeds`` (each stream's sweep seeds) applies the option: the outline columns' seeds go, the
+    others keep their patches bit for bit, in their order."""
+    X, n_true = _half_cylinder()
+    views = SimpleNamespace(names=[f"cam{i}" for i in range(len(CAMERAS))], center_cm=CAMERAS)
+    per = [CameraSeeds(camera=0, X_cm=X, seen=np.ones((len(X), len(CAMERAS)), bool), n_inliers=np.full(len(X), 5))]
+    every = merge_camera_seeds(per, views, PatchOptions())
+    some = merge_camera_seeds(per, views, PatchOptions(normal_max_gap_deg=150.0))
+    assert len(every.X_cm) == len(X) and 0 < len(some.X_cm) < len(X)
+    kept = np.array([np.flatnonzero((every.X_cm[:, 0] == x).all(1))[0] for x in some.X_cm[:, 0]])
+    assert np.all(np.diff(kept) > 0)
+    assert np.array_equal(some.X_cm, every.X_cm[kept]) and np.array_equal(some.normal, every.normal[kept])
+    outline = np.abs(n_true[:, 0]) >= np.abs(n_true[:, 0]).max() - 1e-9
+    assert not np.isin(kept, np.flatnonzero(outline & (np.abs(X[:, 1]) <= 1.5 + 1e-9))).any()
 
 
 def test_option_is_checked():
