@@ -21,6 +21,9 @@ false positives of patches within 1 cm), ``drifted`` (false positives of patches
 ``separations``: for rules that could drop a labelled view, how many back-facing false positives and how many true
 positives each drops (and the precision the labels would then have, before any recall change). ``by_seed_normal_error``:
 the patches alive at the seed binned by their seed normal error, with their views over the whole track per class;
+``by_neighbour_gap``: the same by the seed's widest empty angle among the live seeds round it
+(:func:`~dome_calib.recon.patches.seed.neighbour_gap_deg`, within 4 cm, in the plane of its normal: 180 deg and more
+where the cloud ends on one side; branch prec61), with the precision of their views.
 ``concentration``: how few patches hold half and four fifths of the back-facing false positives. ``oracle_grazing``:
 a bound on any grazing-angle rule: told which patches' seed normals are at least ``seed_error_deg`` off (which no
 rule knows), their labelled views with ``cos_est`` below ``cut`` dropped: the precision and recall then. Prints one
@@ -148,13 +151,45 @@ def run(args: argparse.Namespace) -> None:
                      "patches_with_half": int(np.searchsorted(share, 0.5) + 1) if back.sum() else 0,
                      "patches_with_four_fifths": int(np.searchsorted(share, 0.8) + 1) if back.sum() else 0}
     tp_n, fp_n, fn_n = totals
+    gaps = _seed_gaps(X[:, s, 0], n_est[:, s], at_seed)
+    by_gap = {}
+    for lo, hi in GAP_BINS_DEG:
+        m = at_seed & (gaps >= lo) & (gaps < hi)
+        got = {c: int(per_patch[m, i].sum()) for i, c in enumerate(CLASSES)}
+        fp = got["back_facing_fp"] + got["other_fp"] + got["drifted"]
+        by_gap[f"{lo:g}-{hi:g}"] = {"patches": int(m.sum()), **got,
+                                    "precision": round(got["true_positive"] / max(got["true_positive"] + fp, 1), 4),
+                                    "seed_normal_error_deg": _pcts(seed_err[m & np.isfinite(seed_err)])}
     bound = [{"seed_error_deg": e, "cut": c,
               "precision": round(float((tp_n - d[0]) / max(tp_n - d[0] + fp_n - d[1], 1)), 4),
               "recall": round(float((tp_n - d[0]) / max(tp_n + fn_n, 1)), 4)} for (e, c), d in oracle.items()]
     print(json.dumps({"stream": args.stream, "people": args.people, "seed": args.seed, "scenario": args.scenario,
                       "precision": round(len(tp) / max(len(tp) + fp_all, 1), 4), "classes": out,
-                      "separations": seps, "by_seed_normal_error": bins, "concentration": concentration,
+                      "separations": seps, "by_seed_normal_error": bins, "by_neighbour_gap": by_gap,
+                      "concentration": concentration,
                       "oracle_grazing": bound, "load": [round(x, 2) for x in os.getloadavg()]}), flush=True)
+
+
+#: ``by_neighbour_gap``'s bins (deg) of the seeds' :func:`~dome_calib.recon.patches.seed.neighbour_gap_deg`.
+GAP_BINS_DEG = ((0.0, 90.0), (90.0, 150.0), (150.0, 180.0), (180.0, 210.0), (210.0, 240.0), (240.0, 361.0))
+
+
+def _seed_gaps(X: np.ndarray, normal: np.ndarray, alive: np.ndarray, radius_cm: float = 4.0) -> np.ndarray:
+    """(N,) each seed's :func:`~dome_calib.recon.patches.seed.neighbour_gap_deg` among the live seeds (``alive``)
+    within ``radius_cm``, in the plane of its normal (NaN where not alive): the stream's merged cloud at the seed
+    time, near what each stream's merge saw."""
+    from scipy.spatial import cKDTree
+
+    from dome_calib.recon.patches.seed import neighbour_gap_deg
+
+    out = np.full(len(X), np.nan)
+    idx = np.flatnonzero(alive)
+    for i, nb in zip(idx, cKDTree(X[idx]).query_ball_point(X[idx], radius_cm)):
+        n = normal[i]
+        u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        out[i] = neighbour_gap_deg(X[i], X[idx[nb]], u, np.cross(n, u))
+    return out
 
 
 SEED_RADII_CM = (3.0, 4.0, 6.0)

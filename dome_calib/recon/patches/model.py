@@ -64,6 +64,10 @@ class PatchOptions:
     # quadric fitted to them in that axis' frame, its normal at the seed (seed._normals: the plane leans towards the
     # side that has seeds where a curved surface is seeded on one side only)
     normal_fit: Literal["plane", "quadric"] = "plane"
+    # a sweep seed whose neighbours (within normal_radius_cm, in its plane) leave a gap round it wider than this
+    # (deg) is dropped: the seeded cloud ends on one side of it, there the plane leans towards the side that has
+    # seeds and its normal cannot be had (seed.neighbour_gap_deg; 360: none dropped)
+    normal_max_gap_deg: Annotated[float, Field(gt=0, le=360)] = 360.0
     refine_normals: bool = True  # then refined photometrically in the cameras that see the seed (refine.py)
     # the refinement's first tilt step (deg); each later step halves it down to 2 deg (8: steps 8, 4, 2, reaching
     # 14 deg about each plane axis; 16: 16, 8, 4, 2, reaching 30 deg)

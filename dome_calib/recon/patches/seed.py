@@ -204,15 +204,36 @@ def thin_to_cells(X: np.ndarray, keys: list[np.ndarray], spacing_cm: float) -> n
 QUADRIC_MIN_POINTS = 8  # a quadric (6 coefficients) is fitted to at least this many points, else the plane
 
 
+def neighbour_gap_deg(x: np.ndarray, Q: np.ndarray, u: np.ndarray, v: np.ndarray) -> float:
+    """The widest angle (deg) round the point ``x`` that none of the points ``Q`` (K, 3) lies in, as seen in the plane
+    of the orthonormal axes ``u``, ``v`` (the points within a tiny distance of ``x``, ``x`` itself among them, left
+    out): small inside a seeded surface, 180 deg or more where the seeds round ``x`` all lie on one side of it (the
+    cloud ends there), 360 with fewer than two other points. Quantised to :data:`GAP_QUANTUM_DEG`."""
+    d = Q - x
+    d = d[np.linalg.norm(d, axis=1) > ties.POINT_OFFSET_QUANTUM_CM]
+    if len(d) < 2:
+        return 360.0
+    a = np.sort(np.degrees(np.arctan2(d @ v, d @ u)))
+    return float(ties.quantize(np.max(np.diff(np.concatenate([a, a[:1] + 360.0]))), GAP_QUANTUM_DEG)
+                 * GAP_QUANTUM_DEG)
+
+
+#: :func:`neighbour_gap_deg` is rounded to multiples of this (deg) before it is compared.
+GAP_QUANTUM_DEG = 1e-6
+
+
 def _normals(X: np.ndarray, cloud: np.ndarray, seen: np.ndarray, centres: np.ndarray, radius_cm: float,
-             min_points: int, fit: str = "plane") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             min_points: int, fit: str = "plane", max_gap_deg: float = 360.0
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Seeds (N, 3) -> (normal (N, 3), first axis (N, 3), ok (N,)): the least principal axis (SVD) of the ``cloud``
     points within ``radius_cm`` (at least ``min_points``), its sign towards the cameras ``seen`` (N, V) with centres
     (V, 3). ``fit="quadric"``: then, with at least :data:`QUADRIC_MIN_POINTS` points, a quadric height field
     ``z = c0 + c1 x + c2 y + c3 x^2 + c4 xy + c5 y^2`` fitted (least squares) to them in that axis' frame centred on
     the seed, and the normal taken at the seed, ``(-c1, -c2, 1)``: the plane's is the mean normal of the points round
     it, which on a curved surface seeded on one side only (a limb's outline, where the cloud ends) leans towards the
-    side that has points (``bench/patch_normals.py --seeds``)."""
+    side that has points (``bench/patch_normals.py --seeds``). ``max_gap_deg`` below 360: a seed whose points leave a
+    gap wider than that round it in the plane (:func:`neighbour_gap_deg`: the cloud ends on one side of it, where the
+    plane leans towards the side that has points and the normal cannot be had) is not ``ok``."""
     tree = cKDTree(cloud)
     near = tree.query_ball_point(X, radius_cm)
     normal, axis = np.full(X.shape, np.nan), np.full(X.shape, np.nan)
@@ -228,6 +249,9 @@ def _normals(X: np.ndarray, cloud: np.ndarray, seen: np.ndarray, centres: np.nda
             c, *_ = np.linalg.lstsq(np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], 1), z, rcond=None)
             n = np.array([-c[1], -c[2], 1.0]) @ Vt
             n /= np.linalg.norm(n)
+        if max_gap_deg < 360.0 and ties.above(neighbour_gap_deg(X[i], Q, Vt[0], Vt[1]), max_gap_deg,
+                                              GAP_QUANTUM_DEG):
+            continue
         towards = (centres[seen[i]] - X[i]).sum(0)
         normal[i] = n if n @ towards > 0 else -n
         axis[i] = Vt[0]
@@ -309,7 +333,8 @@ def merge_camera_seeds(per_camera: list[CameraSeeds], views: ViewSet, o: PatchOp
     r_a = np.concatenate([np.full(len(c.X_cm), c.camera) for c in parts])
     pick = thin_to_cells(X, [r_a, -n_a], o.seed_spacing_cm)
     X, seen_a = X[pick], seen_a[pick]
-    normal, axis, ok = _normals(X, X, seen_a, views.center_cm, o.normal_radius_cm, o.normal_min_points, o.normal_fit)
+    normal, axis, ok = _normals(X, X, seen_a, views.center_cm, o.normal_radius_cm, o.normal_min_points, o.normal_fit,
+                                o.normal_max_gap_deg)
     logger.info("seed cloud: %d patches from %d cameras", ok.sum(), V)
     return Seeds(X_cm=patch_triplets(X[ok], normal[ok], axis[ok], o.axis_cm), normal=normal[ok], seen=seen_a[ok])
 
