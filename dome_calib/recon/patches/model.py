@@ -110,6 +110,11 @@ class PatchOptions:
     # few-camera rig it ended two-view limb patches whose centre was tracked in both views; on the dome's scene 1,
     # applied to every patch, it cost 0.18 points of precision: docs/benchmarks.md)
     view_lost_with_centre: bool = True
+    # a patch flown in at most min_visible cameras (no view to spare) whose centre's flow failed in a view: its lost
+    # points there flown again, started where its body part's motion (the body over time: the part whose capsule
+    # surface is nearest the centre, that bone's move) carries them (track.refind_from_body). Needs the people
+    # (patch_stream(..., body=)); without them, or False, nothing changes
+    refind_from_body: bool = False
     # each step tracks a patch by optical flow in at most this many of the cameras that saw it (track.py
     # best_views: the most face-on, spread in direction; 0: all); visibility is still judged in every camera
     track_views: Annotated[int, Field(ge=0)] = 8

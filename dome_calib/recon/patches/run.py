@@ -299,7 +299,9 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
     on_body = depth is None and o.seed_method == "skeleton"
     if on_body and body is None:
         raise ReconError('seed_method "skeleton" needs the people over time (patch_stream(..., body=BodyPrior))')
-    occluders = body if o.body_occlusion else None  # the tasks carry the body only where it is used
+    # the tasks carry the body only where it is used: the occluders of the views (body_occlusion), the parts'
+    # motions a lost centre is re-found from (refind_from_body); with both off, none (the same bits as without it)
+    occluders = body if o.body_occlusion or o.refind_from_body else None
     stream = stream or reference_stream(bundle, cameras)
     groups, tables = cameras_by_stream(bundle, cameras)
     if stream not in groups:
