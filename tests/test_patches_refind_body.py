@@ -138,3 +138,43 @@ def test_a_two_view_patch_lost_by_its_flow_lives_on_with_its_parts_motion():
     # without the people the option changes nothing
     _, alone = run_cloud(source, views, clocks, SEED_MS, times, seeds, on)
     assert np.array_equal(alone.X_cm, before.X_cm, equal_nan=True) and np.array_equal(alone.alive, before.alive)
+
+
+class HiddenFrame(PlaneScene):
+    """The plane scene with camera b's view of the patch covered by a flat grey square in frame ``hidden``."""
+
+    def __init__(self, hidden: int):
+        super().__init__()
+        self.hidden = hidden
+
+    def gray(self, camera: str, frame: int) -> np.ndarray:
+        img = super().gray(camera, frame)
+        if camera == "b" and frame == self.hidden:
+            u, v = (np.array([160.0 - BASELINE_CM * PX_PER_CM, 120.0]) + FAST_PX_MS * (40.0 * frame - SEED_MS)
+                    ).astype(int)
+            img[v - 20:v + 20, u - 20:u + 20] = 128
+        return img
+
+
+def test_a_patch_lost_in_a_view_for_two_steps_is_carried_by_its_part_and_found_again():
+    clocks = [Clock(table=SyncTable(index=np.arange(40), univ_time_ms=np.arange(40) * 40.0), frames=np.arange(40))] * 2
+    times = SEED_MS + 40.0 * np.arange(6)  # frames 5..10; camera b's frame 7 hides the patch
+    seeds = Seeds(X_cm=_patch(), normal=np.array([[0.0, 0.0, -1.0]]), seen=np.ones((1, 2), bool))
+    o = PatchOptions(refine_normals=False, refind_from_body=True)
+    source, views, body = HiddenFrame(7), _views(), _body(times)
+    _, ends = run_cloud(source, views, clocks, SEED_MS, times, seeds, o, body=body)
+    assert ends.alive[0].tolist() == [True, True, False, False, False, False]
+    assert not ends.carried.any()
+    # carried at frame 7 (lost in b) and 8 (flown in b from the hidden frame): predicted, nothing written there
+    _, kept = run_cloud(source, views, clocks, SEED_MS, times, seeds, dataclasses.replace(o, refind_carry_steps=2),
+                        body=body)
+    assert kept.alive[0].tolist() == [True, True, False, False, True, True]
+    assert kept.carried[0].tolist() == [False, False, True, True, False, False]
+    assert np.isnan(kept.X_cm[0, 2:4]).all() and not kept.visible[0, 2:4].any()
+    assert np.abs(kept.X_cm[0, 4:] - _plane_point(times[4:, None, None], _patch()[0])).max() < 0.3
+    assert np.array_equal(kept.X_cm[0, :2], ends.X_cm[0, :2])  # the same bits before
+    # one step allowed: the second loss ends it
+    _, once = run_cloud(source, views, clocks, SEED_MS, times, seeds, dataclasses.replace(o, refind_carry_steps=1),
+                        body=body)
+    assert once.alive[0].tolist() == [True, True, False, False, False, False]
+    assert once.carried[0].tolist() == [False, False, True, False, False, False]

@@ -115,6 +115,10 @@ class PatchOptions:
     # surface is nearest the centre, that bone's move) carries them (track.refind_from_body). Needs the people
     # (patch_stream(..., body=)); without them, or False, nothing changes
     refind_from_body: bool = False
+    # with refind_from_body: a patch whose centre is still lost is kept at most this many steps in a row where its
+    # part's motion carries it (predicted: not alive there, no position written, no view counted), flown from there
+    # at the next step in the views it was last seen in (0: it ends, as before)
+    refind_carry_steps: Annotated[int, Field(ge=0)] = 0
     # each step tracks a patch by optical flow in at most this many of the cameras that saw it (track.py
     # best_views: the most face-on, spread in direction; 0: all); visibility is still judged in every camera
     track_views: Annotated[int, Field(ge=0)] = 8

@@ -262,7 +262,9 @@ def _concat_tracks(tracks: list[CloudTrack]) -> CloudTrack:
     return CloudTrack(times_ms=tracks[0].times_ms, X_cm=np.concatenate([t.X_cm for t in tracks]),
                       visible=np.concatenate([t.visible for t in tracks]),
                       photometric=np.concatenate([t.photometric for t in tracks]),
-                      alive=np.concatenate([t.alive for t in tracks]))
+                      alive=np.concatenate([t.alive for t in tracks]),
+                      carried=None if any(t.carried is None for t in tracks)
+                      else np.concatenate([t.carried for t in tracks]))
 
 
 def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_ms: tuple[float, float],

@@ -72,13 +72,16 @@ class Clock:
 @dataclass(frozen=True)
 class CloudTrack:
     """One cloud over its reference times (T, travel order from the seed): X_cm (N, T, 3, 3) (NaN: ended);
-    visible, photometric (N, T, V) bool; alive (N, T)."""
+    visible, photometric (N, T, V) bool; alive (N, T); carried (N, T) bool or None: the patch was kept at that time
+    by its part's motion alone (``refind_carry_steps``: predicted, not measured; not alive there, no position, no
+    view)."""
 
     times_ms: np.ndarray
     X_cm: np.ndarray
     visible: np.ndarray
     photometric: np.ndarray
     alive: np.ndarray
+    carried: np.ndarray | None = None
 
 
 def quantise_cm(X: np.ndarray) -> np.ndarray:
@@ -460,6 +463,10 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
     if o.anchor_flow:
         seed_of = SeedViews.at_seed(source, views, judged_frames(clocks, times_ms[0]), X, vis.visible & live[:, None])
     velocity_last = None  # (N, 3, 3) each point's velocity over the last step (cm / ms): the flow's prediction
+    # refind_carry_steps: the patches kept this step by their part's motion alone, how many steps in a row, and the
+    # views each was last seen in (a carried patch is flown there at the next step: it was seen by none)
+    carried, carry_run = np.zeros(N, bool), np.zeros(N, np.int64)
+    carried_out, last_seen = np.zeros((N, T), bool), np.zeros((N, V), bool)
     for k in range(T):
         if k > 0:
             t0, t1 = float(times_ms[k - 1]), float(times_ms[k])
@@ -467,6 +474,8 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             uv = np.full((N, 3, V, 2), np.nan)
             tracked = np.zeros((N, 3, V), bool)
             was = vis_out[:, k - 1]
+            if carried.any():
+                was = np.where(carried[:, None], last_seen, was)
             flown = best_views(views, X, was & live[:, None], o.track_views, o.track_view_spread_deg)
             refound = 0  # points whose flow failed, re-found from their patch's motion (lk_refind)
             # refind_from_body: where the part's motion carries each patch with no view to spare (NaN: no part)
@@ -509,6 +518,9 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             X_new = X_tri
             centre = np.all(np.isfinite(X_new[:, 0]), axis=1)
             lost = live & ~centre
+            # refind_carry_steps: a centre still lost with its part's motion known is carried by it (predicted)
+            carry = (lost & np.all(np.isfinite(by_body), axis=(1, 2)) & (carry_run < o.refind_carry_steps)
+                     if o.refind_carry_steps > 0 else np.zeros(N, bool))
             live &= centre
             # a plane point that cannot be triangulated moves with the centre
             moved = X_new[:, :1] - X[:, :1]
@@ -527,17 +539,24 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                     else np.zeros_like(live))
             live &= ~unseen & ~stretched & ~slid
             X = quantise_cm(square_up(X, o.axis_cm))
+            if carry.any():
+                X[carry] = quantise_cm(square_up(by_body[carry], o.axis_cm))
+                live |= carry
+            carried, carry_run = carry, np.where(carry, carry_run + 1, 0)
             velocity_last = (X - X_prev) / (t1 - t0)
             logger.debug("step %d: %d live; ended: %d centre not triangulated, %d seen by too few, %d stretched, "
-                         "%d off their seed appearance; %d views off their seed appearance; %d points re-found, %d from the body",
-                         k, live.sum(), lost.sum(), unseen.sum(), stretched.sum(), slid.sum(), slid_view.sum(), refound,
-                         from_body)
+                         "%d off their seed appearance; %d views off their seed appearance; %d points re-found, %d from the body; "
+                         "%d carried by their part", k, live.sum(), lost.sum() - carry.sum(), unseen.sum(),
+                         stretched.sum(), slid.sum(), slid_view.sum(), refound, from_body, carry.sum())
         vis_v: Visibility = vis
-        X_out[live, k] = X[live]
-        vis_out[live, k] = vis_v.visible[live]
-        photo_out[live, k] = vis_v.photometric[live]
-        alive[:, k] = live
+        seen = live & ~carried  # measured at this time (a carried patch is written nowhere)
+        X_out[seen, k] = X[seen]
+        vis_out[seen, k] = vis_v.visible[seen]
+        photo_out[seen, k] = vis_v.photometric[seen]
+        alive[:, k] = seen
+        carried_out[:, k] = carried
+        last_seen[seen] = vis_v.visible[seen]
         if not live.any():
             break
     return CloudTrack(times_ms=np.asarray(times_ms, dtype=float), X_cm=X_out, visible=vis_out,
-                      photometric=photo_out, alive=alive)
+                      photometric=photo_out, alive=alive, carried=carried_out)
