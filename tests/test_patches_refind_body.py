@@ -178,3 +178,24 @@ def test_a_patch_lost_in_a_view_for_two_steps_is_carried_by_its_part_and_found_a
                         body=body)
     assert once.alive[0].tolist() == [True, True, False, False, False, False]
     assert once.carried[0].tolist() == [False, False, True, False, False, False]
+
+
+def test_the_options_off_or_no_people_give_the_same_bits_and_any_subset_tracks_as_the_whole():
+    clocks = [Clock(table=SyncTable(index=np.arange(40), univ_time_ms=np.arange(40) * 40.0), frames=np.arange(40))] * 2
+    times = SEED_MS + 40.0 * np.arange(6)
+    source, views, body = HiddenFrame(7), _views(), _body(times)
+    off = PatchOptions(refine_normals=False)
+    X = np.concatenate([_patch(), _patch() + [-12.0, 10.0, 0.0]])  # the second 10 cm off the forearm: no part
+    seeds = Seeds(X_cm=X, normal=np.array([[0.0, 0.0, -1.0]] * 2), seen=np.ones((2, 2), bool))
+    _, plain = run_cloud(source, views, clocks, SEED_MS, times, seeds, off)
+    _, given = run_cloud(source, views, clocks, SEED_MS, times, seeds, off, body=body)
+    assert np.array_equal(plain.X_cm, given.X_cm, equal_nan=True) and np.array_equal(plain.visible, given.visible)
+    assert not given.carried.any()
+    on = dataclasses.replace(off, refind_from_body=True, refind_carry_steps=2)
+    _, whole = run_cloud(source, views, clocks, SEED_MS, times, seeds, on, body=body)
+    assert whole.carried[0].any() and not whole.carried[1].any()
+    for n in range(2):
+        one = Seeds(X_cm=X[n:n + 1], normal=seeds.normal[n:n + 1], seen=seeds.seen[n:n + 1])
+        _, alone = run_cloud(source, views, clocks, SEED_MS, times, one, on, body=body)
+        assert np.array_equal(alone.X_cm[0], whole.X_cm[n], equal_nan=True)
+        assert np.array_equal(alone.carried[0], whole.carried[n]) and np.array_equal(alone.alive[0], whole.alive[n])
