@@ -13,7 +13,7 @@ from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.motion import bone_carry
 from dome_calib.recon.patches.occlusion import PART_RADIUS_CM, BodyPrior
 from dome_calib.recon.patches.parts import BONES, nearest_part
-from dome_calib.recon.patches.run import run_cloud
+from dome_calib.recon.patches.run import assemble, run_cloud
 from dome_calib.recon.patches.seed import Seeds
 from dome_calib.recon.patches.track import Clock, body_prediction, refind_from_body
 from dome_calib.recon.project import ViewSet
@@ -199,3 +199,15 @@ def test_the_options_off_or_no_people_give_the_same_bits_and_any_subset_tracks_a
         _, alone = run_cloud(source, views, clocks, SEED_MS, times, one, on, body=body)
         assert np.array_equal(alone.X_cm[0], whole.X_cm[n], equal_nan=True)
         assert np.array_equal(alone.carried[0], whole.carried[n]) and np.array_equal(alone.alive[0], whole.alive[n])
+
+
+def test_the_stream_keeps_the_carried_flag_where_nothing_is_written():
+    clocks = [Clock(table=SyncTable(index=np.arange(40), univ_time_ms=np.arange(40) * 40.0), frames=np.arange(40))] * 2
+    times = SEED_MS + 40.0 * np.arange(-2, 6)  # frames 3..10, the seed at frame 5
+    seeds = Seeds(X_cm=_patch(), normal=np.array([[0.0, 0.0, -1.0]]), seen=np.ones((1, 2), bool))
+    o = PatchOptions(refine_normals=False, refind_from_body=True, refind_carry_steps=2)
+    back, fwd = run_cloud(HiddenFrame(7), _views(), clocks, SEED_MS, times, seeds, o, body=_body(times))
+    traj = assemble([(0, SEED_MS, np.arange(3, 11), back, fwd)], times, ["a", "b"])
+    assert traj.carried[0].tolist() == [False, False, False, False, True, True, False, False]
+    assert traj.alive[0].tolist() == [True, True, True, True, False, False, True, True]
+    assert np.isnan(traj.X_cm[0, 4:6]).all() and not traj.visible[0, 4:6].any()

@@ -173,7 +173,9 @@ class PatchTrajectories:
     ids (N,) int64 ``cloud * 100000 + k``; seed_time_ms (N,); times_ms (T,) reference stream times;
     X_cm (N, T, 3, 3) the three points (centre, two plane points), NaN where the patch is not alive;
     normal (N, T, 3); visible (N, T, V) bool (the MAP labels); photometric (N, T, V) bool (NCC above the
-    threshold alone: the CVPR 2014 baseline, same patches and times); alive (N, T) bool.
+    threshold alone: the CVPR 2014 baseline, same patches and times); alive (N, T) bool; carried (N, T) bool or
+    None: the patch was kept at that time by its part's motion alone (``refind_carry_steps``: predicted, not
+    measured; not alive there, nothing else written; not in the stream file).
     """
 
     ids: np.ndarray
@@ -185,3 +187,4 @@ class PatchTrajectories:
     visible: np.ndarray
     photometric: np.ndarray
     alive: np.ndarray
+    carried: np.ndarray | None = None
