@@ -601,7 +601,8 @@ def run(args: argparse.Namespace) -> None:
                     oracle_normals(args.oracle_normals, truth):
                 traj = patch_stream(bundle, source, cams, span, ok, seed_frames=[f], patches_per_task=cut,
                                     depth=depth if seeding == "depth" else None,
-                                    body=body if seeding == "skeleton" or ok.body_occlusion else None)
+                                    body=(body if seeding == "skeleton" or ok.body_occlusion or ok.refind_from_body
+                                          else None))
             cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
             render_cpu = sum(scene.render_s.values()) - render0
             emit(what="render", **{f"{k}_cpu_ms_per_view": round(1000.0 * scene.render_s[k] / scene.renders[k], 1)

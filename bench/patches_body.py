@@ -210,7 +210,7 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
                                    dataclasses.replace(o, track_frames=frames, seed_method=m), seed_frames=(
                                        [g for g in range(f - frames, f + frames + 1) if g % every == 0] if every
                                        else [f]),
-                                   body=prior if m == "skeleton" else None)
+                                   body=prior if m == "skeleton" or o.refind_from_body else None)
             if cached:
                 with open(cached, "wb") as fh:
                     pickle.dump(done[m], fh)

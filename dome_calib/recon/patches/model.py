@@ -114,6 +114,15 @@ class PatchOptions:
     # few-camera rig it ended two-view limb patches whose centre was tracked in both views; on the dome's scene 1,
     # applied to every patch, it cost 0.18 points of precision: docs/benchmarks.md)
     view_lost_with_centre: bool = True
+    # a patch flown in at most min_visible cameras (no view to spare) whose centre's flow failed in a view: its lost
+    # points there flown again, started where its body part's motion (the body over time: the part whose capsule
+    # surface is nearest the centre, that bone's move) carries them (track.refind_from_body). Needs the people
+    # (patch_stream(..., body=)); without them, or False, nothing changes
+    refind_from_body: bool = False
+    # with refind_from_body: a patch whose centre is still lost is kept at most this many steps in a row where its
+    # part's motion carries it (predicted: not alive there, no position written, no view counted), flown from there
+    # at the next step in the views it was last seen in (0: it ends, as before)
+    refind_carry_steps: Annotated[int, Field(ge=0)] = 0
     # each step tracks a patch by optical flow in at most this many of the cameras that saw it (track.py
     # best_views: the most face-on, spread in direction; 0: all); visibility is still judged in every camera
     track_views: Annotated[int, Field(ge=0)] = 8
@@ -168,7 +177,9 @@ class PatchTrajectories:
     ids (N,) int64 ``cloud * 100000 + k``; seed_time_ms (N,); times_ms (T,) reference stream times;
     X_cm (N, T, 3, 3) the three points (centre, two plane points), NaN where the patch is not alive;
     normal (N, T, 3); visible (N, T, V) bool (the MAP labels); photometric (N, T, V) bool (NCC above the
-    threshold alone: the CVPR 2014 baseline, same patches and times); alive (N, T) bool.
+    threshold alone: the CVPR 2014 baseline, same patches and times); alive (N, T) bool; carried (N, T) bool or
+    None: the patch was kept at that time by its part's motion alone (``refind_carry_steps``: predicted, not
+    measured; not alive there, nothing else written; not in the stream file).
     """
 
     ids: np.ndarray
@@ -180,3 +191,4 @@ class PatchTrajectories:
     visible: np.ndarray
     photometric: np.ndarray
     alive: np.ndarray
+    carried: np.ndarray | None = None

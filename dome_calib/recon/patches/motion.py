@@ -165,3 +165,24 @@ def point_sigma_cm(motions: PartMotions, X_cm: np.ndarray, floor_cm: float) -> n
     lever2 = np.sum((np.asarray(X_cm) - motions.centroid_cm) ** 2, -1) / np.maximum(motions.spread_cm, 1e-3) ** 2
     fit2 = motions.rms_cm ** 2 / (3.0 * np.maximum(motions.n_patches, 1)) * (1.0 + lever2)
     return np.sqrt(floor_cm ** 2 + fit2)
+
+
+def bone_carry(X_cm: np.ndarray, A0: np.ndarray, B0: np.ndarray, A1: np.ndarray, B1: np.ndarray) -> np.ndarray:
+    """Points carried by their bone's move, the part's motion as the body over time alone gives it: (n, k, 3)
+    points at t, each row's bone (n, 3) from ``A0`` to ``B0`` at t and ``A1`` to ``B1`` at t+1 -> (n, k, 3) at t+1.
+    A point at fraction ``s`` along its bone (its closest point ``C``, clamped to the bone) keeps ``s`` and its
+    offset from ``C``, turned by the least rotation taking the bone's direction at t to the one at t+1 (the twist
+    about the bone is not known from two joints: none). NaN where a bone is missing or has no length."""
+    X = np.asarray(X_cm, dtype=float)
+    d0, d1 = np.asarray(B0, float) - A0, np.asarray(B1, float) - A1
+    L0, L1 = np.linalg.norm(d0, axis=-1), np.linalg.norm(d1, axis=-1)
+    ok = (L0 > 1e-9) & (L1 > 1e-9)
+    a = d0 / np.where(ok, L0, 1.0)[:, None]
+    b = d1 / np.where(ok, L1, 1.0)[:, None]
+    s = np.clip(np.einsum("nki,ni->nk", X - A0[:, None], d0) / np.where(ok, L0 * L0, 1.0)[:, None], 0.0, 1.0)
+    off = X - (A0[:, None] + s[..., None] * d0[:, None])
+    w = np.cross(a, b)[:, None]  # sin * axis
+    c = np.sum(a * b, -1)[:, None, None]  # cos
+    turned = off + np.cross(w, off) + np.cross(w, np.cross(w, off)) / np.maximum(1.0 + c, 1e-9)
+    out = A1[:, None] + s[..., None] * d1[:, None] + turned
+    return np.where(ok[:, None, None], out, np.nan)

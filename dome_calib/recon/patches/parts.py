@@ -220,3 +220,28 @@ def _components(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, A: np.n
     return {"dev": np.sqrt(dev), "dist": dm, "align": am, "interior": (sm > 0.0) & (sm < 1.0),
             "passes": (n_t >= o.min_frames) & ties.at_least(share_away, o.min_away, ties.UNIT_QUANTUM)
             & ties.at_most(dm, o.max_distance_cm, _QUANTUM)}
+
+
+def nearest_part(X_cm: np.ndarray, joints_cm: np.ndarray, radius_cm: np.ndarray, reach_cm: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The part each point lies on at one time, before any trajectory is labelled (the tracking's use: a patch's
+    part while its trajectory is being made): (N, 3) points, (P, 19, 3) the people's joints (NaN: missing), (K,)
+    each part's radius (a capsule round each bone of :data:`BONES`) -> (person (N,), bone (N,)): the capsule whose
+    surface is nearest the point (``| distance to the bone - radius |``, quantised to 1e-4 cm; ties by person then
+    bone order), if within ``reach_cm``; -1 where none is (or a part's ends are missing)."""
+    X = np.asarray(X_cm, dtype=float).reshape(-1, 3)
+    J = np.asarray(joints_cm, dtype=float).reshape(-1, 19, 3)
+    N, P = len(X), len(J)
+    if N == 0 or P == 0:
+        return np.full(N, -1), np.full(N, -1)
+    A, B = bone_segments(J)  # (P, K, 3)
+    d = B - A
+    L2 = np.sum(d * d, -1)
+    rel = X[:, None, None] - A[None]  # (N, P, K, 3)
+    s = np.clip(np.sum(rel * d[None], -1) / np.where(L2 > 0, L2, 1.0)[None], 0.0, 1.0)
+    gap = np.abs(np.linalg.norm(rel - s[..., None] * d[None], axis=-1) - np.asarray(radius_cm, float)[None, None])
+    known = np.isfinite(gap) & (L2 > 0)[None] & np.isfinite(X).all(-1)[:, None, None]
+    near = known & ties.at_most(np.where(known, gap, 0.0), reach_cm, _QUANTUM)
+    K = A.shape[1]
+    best, found = ties.argmin_where(np.where(near, gap, 0.0).reshape(N, P * K), near.reshape(N, P * K), _QUANTUM)
+    return np.where(found, best // K, -1), np.where(found, best % K, -1)

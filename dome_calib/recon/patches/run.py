@@ -262,7 +262,9 @@ def _concat_tracks(tracks: list[CloudTrack]) -> CloudTrack:
     return CloudTrack(times_ms=tracks[0].times_ms, X_cm=np.concatenate([t.X_cm for t in tracks]),
                       visible=np.concatenate([t.visible for t in tracks]),
                       photometric=np.concatenate([t.photometric for t in tracks]),
-                      alive=np.concatenate([t.alive for t in tracks]))
+                      alive=np.concatenate([t.alive for t in tracks]),
+                      carried=None if any(t.carried is None for t in tracks)
+                      else np.concatenate([t.carried for t in tracks]))
 
 
 def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_ms: tuple[float, float],
@@ -299,7 +301,9 @@ def patch_stream(bundle: Bundle, source: FrameSource, cameras: list[str], span_m
     on_body = depth is None and o.seed_method == "skeleton"
     if on_body and body is None:
         raise ReconError('seed_method "skeleton" needs the people over time (patch_stream(..., body=BodyPrior))')
-    occluders = body if o.body_occlusion else None  # the tasks carry the body only where it is used
+    # the tasks carry the body only where it is used: the occluders of the views (body_occlusion), the parts'
+    # motions a lost centre is re-found from (refind_from_body); with both off, none (the same bits as without it)
+    occluders = body if o.body_occlusion or o.refind_from_body else None
     stream = stream or reference_stream(bundle, cameras)
     groups, tables = cameras_by_stream(bundle, cameras)
     if stream not in groups:
@@ -414,22 +418,25 @@ def assemble(parts: list[tuple[int, float, np.ndarray, CloudTrack, CloudTrack]],
              cameras: list[str]) -> PatchTrajectories:
     """Clouds' backward and forward tracks -> one :class:`PatchTrajectories` on the reference times."""
     T, V = len(times_ms), len(cameras)
-    ids, seed_t, X, vis, photo, alive = [], [], [], [], [], []
+    ids, seed_t, X, vis, photo, alive, carried = [], [], [], [], [], [], []
     for c, t_seed, _, back, fwd in parts:
         N = len(fwd.X_cm)
         Xc = np.full((N, T, 3, 3), np.nan)
         vc, pc, ac = np.zeros((N, T, V), bool), np.zeros((N, T, V), bool), np.zeros((N, T), bool)
+        cc = np.zeros((N, T), bool)
         for track in (back, fwd):
             pos = np.searchsorted(times_ms, track.times_ms)
             Xc[:, pos], vc[:, pos], pc[:, pos], ac[:, pos] = track.X_cm, track.visible, track.photometric, track.alive
+            if track.carried is not None:
+                cc[:, pos] |= track.carried
         ids.append(c * ID_STRIDE + np.arange(N))
         seed_t.append(np.full(N, t_seed))
-        X.append(Xc), vis.append(vc), photo.append(pc), alive.append(ac)
+        X.append(Xc), vis.append(vc), photo.append(pc), alive.append(ac), carried.append(cc)
     if not ids:
         return PatchTrajectories(ids=np.zeros(0, np.int64), seed_time_ms=np.zeros(0), times_ms=times_ms,
                                  cameras=cameras, X_cm=np.zeros((0, T, 3, 3)), normal=np.zeros((0, T, 3)),
                                  visible=np.zeros((0, T, V), bool), photometric=np.zeros((0, T, V), bool),
-                                 alive=np.zeros((0, T), bool))
+                                 alive=np.zeros((0, T), bool), carried=np.zeros((0, T), bool))
     Xa = np.concatenate(X)
     with np.errstate(invalid="ignore"):
         _, _, normal = patch_axes(Xa[..., 0, :].reshape(-1, 3), Xa[..., 1, :].reshape(-1, 3),
@@ -437,4 +444,4 @@ def assemble(parts: list[tuple[int, float, np.ndarray, CloudTrack, CloudTrack]],
     return PatchTrajectories(ids=np.concatenate(ids), seed_time_ms=np.concatenate(seed_t), times_ms=times_ms,
                              cameras=cameras, X_cm=Xa, normal=normal.reshape(Xa.shape[:2] + (3,)),
                              visible=np.concatenate(vis), photometric=np.concatenate(photo),
-                             alive=np.concatenate(alive))
+                             alive=np.concatenate(alive), carried=np.concatenate(carried))

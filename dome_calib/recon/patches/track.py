@@ -38,7 +38,9 @@ import numpy as np
 from dome_calib.bundle import SyncTable
 from dome_calib.recon.patches.frames import FrameSource, patch_axes, project_one
 from dome_calib.recon.patches.model import PatchOptions
-from dome_calib.recon.patches.occlusion import BodyPrior
+from dome_calib.recon.patches.motion import bone_carry
+from dome_calib.recon.patches.occlusion import PART_RADIUS_CM, BodyPrior
+from dome_calib.recon.patches.parts import bone_segments, nearest_part
 from dome_calib.recon.patches.seed import optical_flow
 from dome_calib.recon.patches.visibility import Frames, Visibility, estimate_visibility, off_seed
 from dome_calib.recon.project import ViewSet, project_view
@@ -70,13 +72,16 @@ class Clock:
 @dataclass(frozen=True)
 class CloudTrack:
     """One cloud over its reference times (T, travel order from the seed): X_cm (N, T, 3, 3) (NaN: ended);
-    visible, photometric (N, T, V) bool; alive (N, T)."""
+    visible, photometric (N, T, V) bool; alive (N, T); carried (N, T) bool or None: the patch was kept at that time
+    by its part's motion alone (``refind_carry_steps``: predicted, not measured; not alive there, no position, no
+    view)."""
 
     times_ms: np.ndarray
     X_cm: np.ndarray
     visible: np.ndarray
     photometric: np.ndarray
     alive: np.ndarray
+    carried: np.ndarray | None = None
 
 
 def quantise_cm(X: np.ndarray) -> np.ndarray:
@@ -206,6 +211,49 @@ def refind_lost(source: FrameSource, name: str, clock: Clock, t0: float, t1: flo
     start, move = p[rows, cols], shift[rows]
     r, good = flow_camera(source, name, clock, t0, t1, start, o,
                           lambda t_ms: start + move * ((t_ms - t0) / (t1 - t0)))
+    q[rows[good], cols[good]] = r[good]
+    ok[rows[good], cols[good]] = True
+    found[rows[good], cols[good]] = True
+    return q, ok, found
+
+
+def body_prediction(X: np.ndarray, J0: np.ndarray, J1: np.ndarray, o: PatchOptions) -> np.ndarray:
+    """Patches (n, 3, 3) at t0 -> where the body over time carries them at t1 (n, 3, 3), NaN where it cannot: each
+    patch's part at t0 (:func:`~.parts.nearest_part`: the capsule of :data:`~.occlusion.PART_RADIUS_CM` whose
+    surface is nearest its centre, within ``seed_depth_window_cm``, how far the skeleton seeds take the real
+    surface to lie from it) and that bone's move from t0 to t1 (:func:`~.motion.bone_carry`); ``J0``, ``J1``
+    (P, 19, 3) the people at t0 and t1 (:meth:`BodyPrior.at`, the same people in the same order)."""
+    out = np.full(X.shape, np.nan)
+    if len(X) == 0 or len(J0) == 0 or len(J1) != len(J0):
+        return out
+    person, bone = nearest_part(X[:, 0], J0, PART_RADIUS_CM, o.seed_depth_window_cm)
+    on = np.flatnonzero(person >= 0)
+    if len(on):
+        (A0, B0), (A1, B1) = bone_segments(J0), bone_segments(J1)
+        pb = (person[on], bone[on])
+        out[on] = bone_carry(X[on], A0[pb], B0[pb], A1[pb], B1[pb])
+    return out
+
+
+def refind_from_body(source: FrameSource, views: ViewSet, v: int, clock: Clock, t0: float, t1: float,
+                     X: np.ndarray, X_pred: np.ndarray, p: np.ndarray, q: np.ndarray, ok: np.ndarray,
+                     need: np.ndarray, o: PatchOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A centre lost in a view re-found from the part's motion (``PatchOptions.refind_from_body``): patches (n, 3)
+    of camera ``v``, at t0 ``X`` (n, 3, 3) in the world and ``p`` (n, 3, 2) in the image, flown to t1 ``q`` (n, 3,
+    2), ``ok`` (n, 3); ``X_pred`` (n, 3, 3) where the body over time carries them at t1 (:func:`body_prediction`;
+    NaN: no part). In each patch of ``need`` (n,) whose centre's flow failed, each lost point with a prediction is
+    flown again (:func:`flow_camera`), started at its position moved by its predicted image motion (the points
+    moved linearly in the world from ``X`` to ``X_pred`` between the frames' times, projected), the prediction's
+    pyramid levels, the same forward-backward check; kept where it passes -> (q, ok, re-found (n, 3))."""
+    q, ok = q.copy(), ok.copy()
+    found = np.zeros(ok.shape, bool)
+    has = np.all(np.isfinite(X_pred), axis=(1, 2))
+    rows, cols = np.nonzero((need & ~ok[:, 0] & has)[:, None] & ~ok)
+    if not len(rows) or t1 == t0:
+        return q, ok, found
+    start, X_a, X_b = p[rows, cols], X[rows, cols], X_pred[rows, cols]
+    r, good = flow_camera(source, views.names[v], clock, t0, t1, start, o,
+                          lambda t_ms: project_view(views, v, X_a + (X_b - X_a) * ((t_ms - t0) / (t1 - t0)))[0])
     q[rows[good], cols[good]] = r[good]
     ok[rows[good], cols[good]] = True
     found[rows[good], cols[good]] = True
@@ -415,6 +463,10 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
     if o.anchor_flow:
         seed_of = SeedViews.at_seed(source, views, judged_frames(clocks, times_ms[0]), X, vis.visible & live[:, None])
     velocity_last = None  # (N, 3, 3) each point's velocity over the last step (cm / ms): the flow's prediction
+    # refind_carry_steps: the patches kept this step by their part's motion alone, how many steps in a row, and the
+    # views each was last seen in (a carried patch is flown there at the next step: it was seen by none)
+    carried, carry_run = np.zeros(N, bool), np.zeros(N, np.int64)
+    carried_out, last_seen = np.zeros((N, T), bool), np.zeros((N, V), bool)
     for k in range(T):
         if k > 0:
             t0, t1 = float(times_ms[k - 1]), float(times_ms[k])
@@ -422,8 +474,16 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             uv = np.full((N, 3, V, 2), np.nan)
             tracked = np.zeros((N, 3, V), bool)
             was = vis_out[:, k - 1]
+            if carried.any():
+                was = np.where(carried[:, None], last_seen, was)
             flown = best_views(views, X, was & live[:, None], o.track_views, o.track_view_spread_deg)
             refound = 0  # points whose flow failed, re-found from their patch's motion (lk_refind)
+            # refind_from_body: where the part's motion carries each patch with no view to spare (NaN: no part)
+            by_body = np.full((N, 3, 3), np.nan)
+            if o.refind_from_body and body is not None:
+                bare = np.flatnonzero(live & (flown.sum(axis=1) <= o.min_visible))
+                by_body[bare] = body_prediction(X[bare], body.at(t0), body.at(t1), o)
+            from_body = 0  # points whose flow failed, re-found from their part's motion (refind_from_body)
             slid_view = np.zeros((N, V), bool)  # flown, but a point rejected by its seed appearance (anchor_flow)
             frames1 = judged_frames(clocks, t1)
             for v, name in enumerate(views.names):
@@ -440,6 +500,14 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                                                  q.reshape(-1, 3, 2), ok.reshape(-1, 3), o)
                     q, ok = q3.reshape(-1, 2), ok3.reshape(-1)
                     refound += int(found.sum())
+                if o.refind_from_body and body is not None:
+                    need = np.all(np.isfinite(by_body[idx]), axis=(1, 2))
+                    if (need & ~ok.reshape(-1, 3)[:, 0]).any():
+                        q3, ok3, found = refind_from_body(source, views, v, clocks[v], t0, t1, X[idx], by_body[idx],
+                                                          p.reshape(-1, 3, 2), q.reshape(-1, 3, 2),
+                                                          ok.reshape(-1, 3), need, o)
+                        q, ok = q3.reshape(-1, 2), ok3.reshape(-1)
+                        from_body += int(found.sum())
                 if o.anchor_flow:
                     q, ok, off = seed_of.realign(source, name, frames1, v, idx, q.reshape(-1, 3, 2),
                                                  ok.reshape(-1, 3), o)
@@ -450,6 +518,9 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             X_new = X_tri
             centre = np.all(np.isfinite(X_new[:, 0]), axis=1)
             lost = live & ~centre
+            # refind_carry_steps: a centre still lost with its part's motion known is carried by it (predicted)
+            carry = (lost & np.all(np.isfinite(by_body), axis=(1, 2)) & (carry_run < o.refind_carry_steps)
+                     if o.refind_carry_steps > 0 else np.zeros(N, bool))
             live &= centre
             # a plane point that cannot be triangulated moves with the centre
             moved = X_new[:, :1] - X[:, :1]
@@ -468,16 +539,24 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                     else np.zeros_like(live))
             live &= ~unseen & ~stretched & ~slid
             X = quantise_cm(square_up(X, o.axis_cm))
+            if carry.any():
+                X[carry] = quantise_cm(square_up(by_body[carry], o.axis_cm))
+                live |= carry
+            carried, carry_run = carry, np.where(carry, carry_run + 1, 0)
             velocity_last = (X - X_prev) / (t1 - t0)
             logger.debug("step %d: %d live; ended: %d centre not triangulated, %d seen by too few, %d stretched, "
-                         "%d off their seed appearance; %d views off their seed appearance; %d points re-found", k, live.sum(),
-                         lost.sum(), unseen.sum(), stretched.sum(), slid.sum(), slid_view.sum(), refound)
+                         "%d off their seed appearance; %d views off their seed appearance; %d points re-found, %d from the body; "
+                         "%d carried by their part", k, live.sum(), lost.sum() - carry.sum(), unseen.sum(),
+                         stretched.sum(), slid.sum(), slid_view.sum(), refound, from_body, carry.sum())
         vis_v: Visibility = vis
-        X_out[live, k] = X[live]
-        vis_out[live, k] = vis_v.visible[live]
-        photo_out[live, k] = vis_v.photometric[live]
-        alive[:, k] = live
+        seen = live & ~carried  # measured at this time (a carried patch is written nowhere)
+        X_out[seen, k] = X[seen]
+        vis_out[seen, k] = vis_v.visible[seen]
+        photo_out[seen, k] = vis_v.photometric[seen]
+        alive[:, k] = seen
+        carried_out[:, k] = carried
+        last_seen[seen] = vis_v.visible[seen]
         if not live.any():
             break
     return CloudTrack(times_ms=np.asarray(times_ms, dtype=float), X_cm=X_out, visible=vis_out,
-                      photometric=photo_out, alive=alive)
+                      photometric=photo_out, alive=alive, carried=carried_out)
