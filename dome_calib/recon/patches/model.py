@@ -147,6 +147,9 @@ class PatchOptions:
     # patch was at the seed) when within anchor_flow_px of the flow; farther: rejected in that camera (anchor_reject)
     anchor_flow: bool = False
     anchor_flow_px: PosFinite = 1.0
+    # the realignment's pyramid levels above the image (cv2 maxLevel): it starts at the flown point and keeps an
+    # answer within anchor_flow_px of it, so the image itself can do (0); 1 was the rule before (docs/benchmarks.md)
+    anchor_levels: AtLeast(0) = 1
     anchor_reject: bool = True
     anchor_reject_unaligned: bool = True  # also reject a point the seed image cannot be aligned at (else kept)
     # drift (track.py, visibility.off_seed): a patch ends when its visible views no longer show its seed
