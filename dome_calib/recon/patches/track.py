@@ -370,7 +370,7 @@ class SeedViews:
         if v not in self.gray:
             self.gray[v] = source.gray(name, int(self.frame[v]))
         r, good = optical_flow(self.gray[v], source.gray(name, f), p0[has], o, guess=q[has],
-                                  levels=o.anchor_levels)
+                               levels=o.anchor_levels)
         near = good & ties.at_most(np.linalg.norm(r - q[has], axis=1), o.anchor_flow_px, ties.FLOW_QUANTUM_PX)
         rows = np.flatnonzero(has)
         q[rows[near]] = r[near]
