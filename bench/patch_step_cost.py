@@ -3,7 +3,7 @@ figure that scales the stream to the full dome (480 VGA, 31 HD, 10 Kinect) and t
 
 Run: .venv/bin/python bench/patch_step_cost.py [--presets panel,full] [--people 8] [--patches 250,1000]
          [--track-views 8] [--seed 0]
-         [--predicted-levels 3,2,1]
+         [--predicted-levels 3,2,1] [--anchor-levels 1,0]
 Setup: the as-built dome's preset, every camera (HD and Kinect colour at half size, as bench/patches.py renders
 them); the group at 2.5 s; patches on the people's true surface (the nearest surface point of random points within
 15 cm of the joints) with their true normals, ``previous`` = the cameras that truly see them
@@ -21,7 +21,8 @@ views' flow started at its prediction (the true shift) with each of ``--predicte
 (``visibility_border_squares_false``: the whole square in the image); and afnn4e's pieces (docs/patches.md): the
 visibility with ``neighbour_ncc`` (``map_ncc_threshold`` 0.75), with the 4 cm square (``ncc_size_cm``), with all of
 afnn4e and with afnn4e and the occluders, the anchor flow's realignment of the flown views' points to their seed
-appearance (``anchor_flow``: seed frame 0, now frame 1; ``track.SeedViews.realign``) and the seed-appearance end
+appearance (``anchor_flow``: seed frame 0, now frame 1; ``track.SeedViews.realign``; with each of
+``--anchor-levels`` pyramid levels, ``anchor_levels``) and the seed-appearance end
 test (``seed_appearance_end``, ``visibility.off_seed``). Prints one JSON object per line. The flow here is a lower
 bound of the stream's: the
 texture moves 1 px, and real motion takes Lucas-Kanade more iterations (the stream on the
@@ -165,14 +166,16 @@ def run(args: argparse.Namespace) -> None:
             seed_views = SeedViews.at_seed(source, views, Frames(frame=np.zeros(V, np.int64), offset_ms=np.zeros(V),
                                                                  t_ms=t), X, seen)
 
-            def realign():
+            def realign(levels):
+                oa = dataclasses.replace(on["afnn4e"], anchor_levels=levels)
                 for v in np.flatnonzero(flown.any(0)):
                     idx = np.flatnonzero(flown[:, v])
-                    seed_views.realign(source, names[v], frames, v, idx, uv[idx, :, v], ok[idx, :, v], on["afnn4e"])
-            _, ms_anchor = cpu_ms(realign)
+                    seed_views.realign(source, names[v], frames, v, idx, uv[idx, :, v], ok[idx, :, v], oa)
+            ms_anchor = {f"anchor_realign_flown_levels_{lv}": cpu_ms(lambda: realign(lv))[1]
+                         for lv in [int(x) for x in args.anchor_levels.split(",") if x]}
             look = full.appearance.keep(full.visible)
             _, ms_off_seed = cpu_ms(lambda: off_seed(full, look, on["afnn4e"]))
-            ms_afnn4e = {**ms_vis_on, "anchor_realign_flown": ms_anchor, "seed_appearance_end": ms_off_seed}
+            ms_afnn4e = {**ms_vis_on, **ms_anchor, "seed_appearance_end": ms_off_seed}
             to_cam = views.center_cm[None] - X[:, None, 0]
             pi, ci = np.nonzero(np.sum(to_cam * normal[0][:, None], -1) / np.linalg.norm(to_cam, axis=-1)
                                 > o.min_cos_view)
@@ -215,6 +218,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--predicted-levels", default="3,2,1",
                     help="also the flown views' flow started at the prediction with these pyramid levels (lk_predict)")
+    ap.add_argument("--anchor-levels", default="1,0",
+                    help="the anchor flow's realignment timed with each of these pyramid levels (anchor_levels)")
     run(ap.parse_args())
 
 

@@ -399,7 +399,8 @@ class SeedViews:
                 ok: np.ndarray, o: PatchOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Flown points ``q`` (n, 3, 2), ``ok`` (n, 3) of patches ``idx`` in camera ``v`` (``name``) at this step's
         time, aligned to their seed appearance -> ((3 n, 2) points, (3 n,) ok, (3 n,) rejected here): Lucas-Kanade
-        from the camera's seed image at the seed pixels, one pyramid level, started at the flown point,
+        from the camera's seed image at the seed pixels, ``anchor_levels`` pyramid levels above the image,
+        started at the flown point,
         forward-backward checked; a point is moved there when within
         ``anchor_flow_px`` of the flown point; a point farther (the flow slid, or the view changed) is rejected in
         this camera when ``anchor_reject``, and one that could not be aligned too when ``anchor_reject_unaligned``
@@ -416,7 +417,8 @@ class SeedViews:
             return q, ok, off
         if v not in self.gray:
             self.gray[v] = source.gray(name, int(self.frame[v]))
-        r, good = optical_flow(self.gray[v], source.gray(name, f), p0[has], o, guess=q[has], levels=1)
+        r, good = optical_flow(self.gray[v], source.gray(name, f), p0[has], o, guess=q[has],
+                               levels=o.anchor_levels)
         near = good & ties.at_most(np.linalg.norm(r - q[has], axis=1), o.anchor_flow_px, ties.FLOW_QUANTUM_PX)
         rows = np.flatnonzero(has)
         q[rows[near]] = r[near]
