@@ -54,6 +54,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
+import hashlib  # noqa: E402
 import json  # noqa: E402
 import pickle  # noqa: E402
 import time  # noqa: E402
@@ -191,7 +192,8 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
     """The stream's own patches from images alone (no depth): one cloud at reference frame ``f`` tracked ``frames``
     each way, seeded by ``method`` (``sweep``; ``skeleton``: the body over time ``bodies`` at ``times`` as the
     seeds' depth prior, as ``reconstruct --images --patch-seeds skeleton`` does; ``both``: the two streams side by
-    side, their patches concatenated, not thinned) -> the arrays ``ties_from_patches`` takes and the truth's person
+    side, their patches concatenated, not thinned; with ``o.body_occlusion`` the body over time is the views'
+    occluders, as ``reconstruct --images`` gives it) -> the arrays ``ties_from_patches`` takes and the truth's person
     and part of each patch (the true surface point nearest its centre at the seed time)."""
     by_type = {t: sorted(n for n, c in bundle.cameras.items() if str(c.type) == t) for t in OWN_CAMERAS[rig]}
     cams = [n for t, k in OWN_CAMERAS[rig].items() for n in by_type[t][:k]]
@@ -201,7 +203,8 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
         if m == "auto":  # reconstruct --images' default: the seeding the reference stream's geometry picks
             m = choose_seed_method(view_set(bundle, cameras_by_stream(bundle, cams)[0][reference_stream(bundle, cams)]
                                             )).method
-        cached = os.path.join(cache, f"{rig}_{seed}_{m}_{f}_{frames}_{every}.pkl") if cache else ""
+        opts = hashlib.sha256(repr(sorted(dataclasses.asdict(o).items())).encode()).hexdigest()[:12]  # the options
+        cached = os.path.join(cache, f"{rig}_{seed}_{m}_{f}_{frames}_{every}_{opts}.pkl") if cache else ""
         if m not in done and cached and os.path.exists(cached):
             with open(cached, "rb") as fh:
                 done[m] = pickle.load(fh)
@@ -210,7 +213,8 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
                                    dataclasses.replace(o, track_frames=frames, seed_method=m), seed_frames=(
                                        [g for g in range(f - frames, f + frames + 1) if g % every == 0] if every
                                        else [f]),
-                                   body=prior if m == "skeleton" or o.refind_from_body else None)
+                                   body=prior if m == "skeleton" or o.body_occlusion or o.refind_from_body
+                                   else None)
             if cached:
                 with open(cached, "wb") as fh:
                     pickle.dump(done[m], fh)
@@ -487,7 +491,7 @@ def main() -> None:
                     "frames each way (the times judged: 2 x frames + 1)")
     ap.add_argument("--stream-cache", default="", help="--own-stream: a folder where each (rig, seed, seeding, "
                     "frame) stream is kept once computed and read back (pickle; to judge labels and ties again: "
-                    "clear it when the stream's code or --patch-options change)")
+                    "the key holds --patch-options; clear it when the stream's code changes)")
     ap.add_argument("--seed-every", type=int, default=0, help="--own-stream: a cloud at every reference frame "
                     "of the judged span that is a multiple of this (reconstruct's rule: 20; each tracked --frames each "
                     "way within the span), not one cloud at its middle (0)")
