@@ -104,6 +104,10 @@ _LOST_IN_A_CALLBACK = """
 import signal, sys, time, weakref
 from dome_calib.errors import interrupt_as_one_line
 
+# as from a terminal: a job started in the background by a non-interactive shell inherits SIGINT ignored (an ignored
+# disposition survives exec), and the command rightly keeps it so; the test is of a handler's interrupt
+signal.signal(signal.SIGINT, signal.default_int_handler)
+
 class Resource:
     def __del__(self):
         signal.raise_signal(getattr(signal, sys.argv[1]))
