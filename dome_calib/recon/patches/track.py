@@ -200,17 +200,25 @@ def refind_lost(source: FrameSource, name: str, clock: Clock, t0: float, t1: flo
     position moved by the mean image motion of its patch's tracked points there (the patch is a 6 cm square: its
     points move together), one prediction's pyramid levels, the same forward-backward check; kept where it passes.
     -> (q, ok, re-found (n, 3))."""
-    q, ok = q.copy(), ok.copy()
-    found = np.zeros(ok.shape, bool)
     some = ok.any(axis=1) & ~ok.all(axis=1)
     if not some.any() or t1 == t0:
-        return q, ok, found
+        return q.copy(), ok.copy(), np.zeros(ok.shape, bool)
     n_ok = ok.sum(axis=1, keepdims=True)
     shift = np.where(ok[..., None], q - p, 0.0).sum(axis=1) / np.maximum(n_ok, 1)  # (n, 2)
     rows, cols = np.nonzero(some[:, None] & ~ok)
     start, move = p[rows, cols], shift[rows]
-    r, good = flow_camera(source, name, clock, t0, t1, start, o,
-                          lambda t_ms: start + move * ((t_ms - t0) / (t1 - t0)))
+    return _fly_again(source, name, clock, t0, t1, q, ok, rows, cols, start,
+                      lambda t_ms: start + move * ((t_ms - t0) / (t1 - t0)), o)
+
+
+def _fly_again(source: FrameSource, name: str, clock: Clock, t0: float, t1: float, q: np.ndarray, ok: np.ndarray,
+               rows: np.ndarray, cols: np.ndarray, start: np.ndarray, predict: Predictor, o: PatchOptions
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The lost points (``rows``, ``cols``) of ``q`` (n, 3, 2) / ``ok`` (n, 3) flown again from ``start`` with the
+    prediction ``predict`` (:func:`flow_camera`), kept where they pass -> (new q, new ok, re-found (n, 3)): the one
+    re-flight of :func:`refind_lost` and :func:`refind_from_body`."""
+    q, ok, found = q.copy(), ok.copy(), np.zeros(ok.shape, bool)
+    r, good = flow_camera(source, name, clock, t0, t1, start, o, predict)
     q[rows[good], cols[good]] = r[good]
     ok[rows[good], cols[good]] = True
     found[rows[good], cols[good]] = True
@@ -245,19 +253,13 @@ def refind_from_body(source: FrameSource, views: ViewSet, v: int, clock: Clock, 
     flown again (:func:`flow_camera`), started at its position moved by its predicted image motion (the points
     moved linearly in the world from ``X`` to ``X_pred`` between the frames' times, projected), the prediction's
     pyramid levels, the same forward-backward check; kept where it passes -> (q, ok, re-found (n, 3))."""
-    q, ok = q.copy(), ok.copy()
-    found = np.zeros(ok.shape, bool)
     has = np.all(np.isfinite(X_pred), axis=(1, 2))
     rows, cols = np.nonzero((need & ~ok[:, 0] & has)[:, None] & ~ok)
     if not len(rows) or t1 == t0:
-        return q, ok, found
+        return q.copy(), ok.copy(), np.zeros(ok.shape, bool)
     start, X_a, X_b = p[rows, cols], X[rows, cols], X_pred[rows, cols]
-    r, good = flow_camera(source, views.names[v], clock, t0, t1, start, o,
-                          lambda t_ms: project_view(views, v, X_a + (X_b - X_a) * ((t_ms - t0) / (t1 - t0)))[0])
-    q[rows[good], cols[good]] = r[good]
-    ok[rows[good], cols[good]] = True
-    found[rows[good], cols[good]] = True
-    return q, ok, found
+    return _fly_again(source, views.names[v], clock, t0, t1, q, ok, rows, cols, start,
+                      lambda t_ms: project_view(views, v, X_a + (X_b - X_a) * ((t_ms - t0) / (t1 - t0)))[0], o)
 
 
 #: Patches triangulated per call: the robust triangulation's arrays are (points, cameras, hypotheses) and outgrow
@@ -345,6 +347,12 @@ def best_views(views: ViewSet, X: np.ndarray, candidates: np.ndarray, k: int, sp
     return chosen
 
 
+def has_spare_view(flown: np.ndarray, o: PatchOptions) -> np.ndarray:
+    """(N,) the patches flown (``flown`` (N, V)) in more than ``min_visible`` cameras: a view to spare, so a
+    doubtful view is not the patch's end (``view_lost_with_centre``, ``refind_from_body`` apply to the others)."""
+    return flown.sum(axis=1) > o.min_visible
+
+
 def motion_term(views: ViewSet, uv: np.ndarray, tracked: np.ndarray, flown: np.ndarray, slid_view: np.ndarray,
                 X: np.ndarray, o: PatchOptions) -> np.ndarray:
     """The visibility's motion term of a step (N, V) px: where a patch was flown, its flow against its triangulated
@@ -356,8 +364,7 @@ def motion_term(views: ViewSet, uv: np.ndarray, tracked: np.ndarray, flown: np.n
     a failed flow is its centre's and the residual is over the points tracked (a plane point lost alone moves with
     the centre, as in the triangulation), so a lost plane point does not end the patch."""
     N, V = flown.shape
-    spare = flown.sum(axis=1) > o.min_visible
-    centre_rule = np.zeros(N, bool) if not o.view_lost_with_centre else ~spare
+    centre_rule = np.zeros(N, bool) if not o.view_lost_with_centre else ~has_spare_view(flown, o)
     resid = np.full((N, V), np.nan)
     for v in np.flatnonzero(flown.any(0)):
         idx = np.flatnonzero(flown[:, v])
@@ -483,7 +490,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             # refind_from_body: where the part's motion carries each patch with no view to spare (NaN: no part)
             by_body = np.full((N, 3, 3), np.nan)
             if o.refind_from_body and body is not None:
-                bare = np.flatnonzero(live & (flown.sum(axis=1) <= o.min_visible))
+                bare = np.flatnonzero(live & ~has_spare_view(flown, o))
                 by_body[bare] = body_prediction(X[bare], body.at(t0), body.at(t1), o)
             from_body = 0  # points whose flow failed, re-found from their part's motion (refind_from_body)
             slid_view = np.zeros((N, V), bool)  # flown, but a point rejected by its seed appearance (anchor_flow)
