@@ -245,13 +245,15 @@ def test_a_likely_reference_that_is_not_the_reference_leaves_no_trace(capture, t
     assert early.scenes["scene_01"].pairs == late.scenes["scene_01"].pairs
 
 
-def test_an_error_in_the_later_scenes_triangulation_is_raised(capture, tmp_path, monkeypatch):
-    """The later scenes are triangulated together once all are matched: an error there reaches the caller."""
+def test_an_error_in_the_later_scenes_triangulation_is_raised(capture, runs, tmp_path, monkeypatch):
+    """The later scenes are triangulated together once all are matched: an error there reaches the caller (the
+    known-pose run's features and matches reused: the triangulation is what is broken)."""
     import projector.scene as scene
 
     def broken(*args, **kwargs):
         raise RuntimeError("triangulator exploded")
 
+    _copy_databases(runs[2], tmp_path)
     monkeypatch.setattr(scene, "map_known_scenes", broken)
     with pytest.raises(RuntimeError, match="triangulator exploded"):
-        _run(capture, tmp_path / "work", enabled=True)
+        _run(capture, tmp_path, enabled=True)
