@@ -51,6 +51,25 @@ def built_once(tmp_path_factory, name: str, build: Callable[[Path], T]) -> T:
     return pickle.loads(value.read_bytes())
 
 
+#: The nine cameras of the SfM tests' rendered capture: one HD (00_00) and eight VGA around the tent.
+SFM_CAMERAS = ["00_00", "01_01", "01_02", "01_03", "01_04", "01_05", "01_06", "01_11", "01_12"]
+SFM_SEED = 1
+
+
+@pytest.fixture(scope="session")
+def sfm_capture(tmp_path_factory) -> Path:
+    """A rendered capture of SFM_CAMERAS, 2 scenes (the full preset, seed SFM_SEED), built once per run
+    (``built_once``): test_sfm and test_sfm_known each copy it and break or remove images in their copy."""
+    from dome_calib.synth.capture import SynthOptions, synthesize
+
+    def build(folder: Path) -> Path:
+        synthesize(folder / "capture", SynthOptions(preset="full", n_scenes=2, seed=SFM_SEED, cameras=SFM_CAMERAS,
+                                                    workers=2))
+        return folder / "capture"
+
+    return built_once(tmp_path_factory, "sfm_capture", build)
+
+
 @pytest.fixture(scope="session")
 def real_cameras():
     """The 520 cameras of the real file, keyed by name."""

@@ -17,7 +17,7 @@ from projector.pairs import pairs_exhaustive
 from dome_calib.pipeline.stages import problem_from_observations
 from projector.sfm import SfmOptions, run_sfm
 
-CAMERAS = ["00_00", "01_01", "01_02", "01_03", "01_04", "01_05", "01_06", "01_11", "01_12"]
+from .conftest import SFM_CAMERAS as CAMERAS, SFM_SEED
 CORRUPT, BLACK, AWAY = "01_03", "01_04", "01_12"
 GOOD = sorted(set(CAMERAS) - {CORRUPT, BLACK, AWAY})
 HD = "00_00"  # the one HD camera of CAMERAS
@@ -36,24 +36,26 @@ def _render_facing_away(capture: Path, name: str) -> np.ndarray:
     turn = rotvec_to_matrix(np.array([0.0, np.pi, 0.0]))
     R = cam.R @ turn  # camera rotated about the world vertical through its centre
     away = replace(cam, R=R, t_cm=-R @ cam.center_cm)
-    projs = projectors(0)
+    projs = projectors(SFM_SEED)
     options = RenderOptions()
-    scene = prepare_scene("scene_01", scene_poses(1, 0)[0], projs, make_patterns(0, tuple(sorted(projs))), options)
-    return render_image(CameraRays(away), scene, options, 0)
+    scene = prepare_scene("scene_01", scene_poses(2, SFM_SEED)[0], projs,
+                          make_patterns(SFM_SEED, tuple(sorted(projs))), options)
+    return render_image(CameraRays(away), scene, options, SFM_SEED)
 
 
 @pytest.fixture(scope="module")
-def broken_capture(tmp_path_factory) -> Path:
-    from dome_calib.synth.capture import SynthOptions, synthesize
+def broken_capture(tmp_path_factory, sfm_capture) -> Path:
+    import shutil
 
     capture = tmp_path_factory.mktemp("sfm") / "capture"
-    synthesize(capture, SynthOptions(preset="full", n_scenes=1, seed=0, cameras=CAMERAS, workers=2))  # its own set
+    shutil.copytree(sfm_capture, capture)  # conftest's capture of CAMERAS, rendered once per run
     scene = capture / "scenes" / "scene_01"
     (scene / f"{CORRUPT}.png").write_bytes(b"\x89PNG\r\n\x1a\n this is not an image")
     cv2.imwrite(str(scene / f"{BLACK}.png"), np.zeros((480, 640), np.uint8))
     cv2.imwrite(str(scene / f"{AWAY}.png"), _render_facing_away(capture, AWAY))
     # a scene that cannot reconstruct: two views only
     small = capture / "scenes" / "scene_02"
+    shutil.rmtree(small)
     small.mkdir()
     for name in ("01_01", "01_02"):
         (small / f"{name}.png").write_bytes((scene / f"{name}.png").read_bytes())

@@ -15,7 +15,7 @@ from projector.known_scene import KNOWN_FILTER_MAX_REPROJ_ERROR_PX, KnownPoseOpt
 from projector.known_poses import PNP_MAX_ERROR_PX
 from projector.sfm import SfmOptions, known_scene_pairs, report_dict, run_sfm, select_pairs
 
-CAMERAS = ["00_00", "01_01", "01_02", "01_03", "01_04", "01_05", "01_06", "01_11", "01_12"]
+from .conftest import SFM_CAMERAS as CAMERAS
 ONLY_LATER = "01_05"  # not in scene_01 (the reference): registered by absolute pose in scene_02
 ONLY_FIRST = "01_12"  # not in scene_02, so both scenes have 8 images and scene_01 wins the tie by name
 CENTRE_TOL_CM = 1.0  # SfM centres after the similarity to the (ground-truth) prior, before the bundle adjustment
@@ -24,11 +24,9 @@ FOCAL_TOL = 0.01  # reference's refined focal length against the truth (relative
 
 
 @pytest.fixture(scope="module")
-def capture(tmp_path_factory) -> Path:
-    from dome_calib.synth.capture import SynthOptions, synthesize
-
+def capture(tmp_path_factory, sfm_capture) -> Path:
     capture = tmp_path_factory.mktemp("known") / "capture"
-    synthesize(capture, SynthOptions(preset="full", n_scenes=2, seed=1, cameras=CAMERAS, workers=2))
+    shutil.copytree(sfm_capture, capture)  # conftest's two scenes of CAMERAS, rendered once per run
     (capture / "scenes" / "scene_01" / f"{ONLY_LATER}.png").unlink()
     (capture / "scenes" / "scene_02" / f"{ONLY_FIRST}.png").unlink()
     return capture
