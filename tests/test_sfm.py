@@ -17,9 +17,10 @@ from projector.pairs import pairs_exhaustive
 from dome_calib.pipeline.stages import problem_from_observations
 from projector.sfm import SfmOptions, run_sfm
 
-CAMERAS = ["00_00", "01_01", "01_02", "01_03", "01_04", "01_05", "01_06", "01_11", "01_12"]
+from .conftest import SFM_CAMERAS as CAMERAS, SFM_SEED
 CORRUPT, BLACK, AWAY = "01_03", "01_04", "01_12"
 GOOD = sorted(set(CAMERAS) - {CORRUPT, BLACK, AWAY})
+HD = "00_00"  # the one HD camera of CAMERAS
 
 
 def _render_facing_away(capture: Path, name: str) -> np.ndarray:
@@ -35,24 +36,26 @@ def _render_facing_away(capture: Path, name: str) -> np.ndarray:
     turn = rotvec_to_matrix(np.array([0.0, np.pi, 0.0]))
     R = cam.R @ turn  # camera rotated about the world vertical through its centre
     away = replace(cam, R=R, t_cm=-R @ cam.center_cm)
-    projs = projectors(0)
+    projs = projectors(SFM_SEED)
     options = RenderOptions()
-    scene = prepare_scene("scene_01", scene_poses(1, 0)[0], projs, make_patterns(0, tuple(sorted(projs))), options)
-    return render_image(CameraRays(away), scene, options, 0)
+    scene = prepare_scene("scene_01", scene_poses(2, SFM_SEED)[0], projs,
+                          make_patterns(SFM_SEED, tuple(sorted(projs))), options)
+    return render_image(CameraRays(away), scene, options, SFM_SEED)
 
 
 @pytest.fixture(scope="module")
-def broken_capture(tmp_path_factory) -> Path:
-    from dome_calib.synth.capture import SynthOptions, synthesize
+def broken_capture(tmp_path_factory, sfm_capture) -> Path:
+    import shutil
 
     capture = tmp_path_factory.mktemp("sfm") / "capture"
-    synthesize(capture, SynthOptions(preset="full", n_scenes=1, seed=0, cameras=CAMERAS, workers=2))  # its own set
+    shutil.copytree(sfm_capture, capture)  # conftest's capture of CAMERAS, rendered once per run
     scene = capture / "scenes" / "scene_01"
     (scene / f"{CORRUPT}.png").write_bytes(b"\x89PNG\r\n\x1a\n this is not an image")
     cv2.imwrite(str(scene / f"{BLACK}.png"), np.zeros((480, 640), np.uint8))
     cv2.imwrite(str(scene / f"{AWAY}.png"), _render_facing_away(capture, AWAY))
     # a scene that cannot reconstruct: two views only
     small = capture / "scenes" / "scene_02"
+    shutil.rmtree(small)
     small.mkdir()
     for name in ("01_01", "01_02"):
         (small / f"{name}.png").write_bytes((scene / f"{name}.png").read_bytes())
@@ -227,11 +230,10 @@ def test_dropped_features_are_extracted_and_matched_again(sfm_result, broken_cap
     assert inliers() == before
 
 
-@pytest.mark.parametrize("change", ["turned", "new"])
-def test_quick_recalibration_gives_a_disturbed_hd_camera_full_resolution(broken_capture, tmp_path, change):
-    """calibrate --only-changed on rendered images, the prior with the HD camera turned 1 deg (or without it: a
-    new camera): it is a suspect from its halved image, extracted again at full resolution with its first-round
-    pairs matched again, and re-estimated near the truth; the others keep the prior."""
+def _quick_recalibration(capture: Path, root: Path, change: str):
+    """calibrate --only-changed on ``capture`` into ``root / "out"``, the prior (written to ``root / "prior"``) being
+    the truth with the HD camera turned 1 deg ("turned") or without it ("new").
+    Returns (options, prior's cameras, result)."""
     import dataclasses
 
     from scipy.spatial.transform import Rotation
@@ -239,44 +241,60 @@ def test_quick_recalibration_gives_a_disturbed_hd_camera_full_resolution(broken_
     import dome_calib.pipeline.full as pipeline
     from dome_calib.bundle import Bundle
     from dome_calib.bundle_io import write_bundle
+
+    truth = load_bundle(capture / "ground_truth")
+    cams = dict(truth.cameras)
+    c = cams.pop(HD)
+    if change == "turned":
+        cams[HD] = dataclasses.replace(c, R=Rotation.from_rotvec([0.0, np.radians(1.0), 0.0]).as_matrix() @ c.R)
+    prior = write_bundle(Bundle(seq="prior", cameras=cams), root / "prior")
+    options = pipeline.CalibrateOptions(prior=prior, only_changed=True)
+    return options, cams, pipeline.run_calibration(capture, root / "out", options)
+
+
+@pytest.fixture(scope="module")
+def new_camera_run(broken_capture, tmp_path_factory):
+    """The quick recalibration with the HD camera new to the prior, run once: its test and the interrupted run's
+    (whose uninterrupted reference it is) read it. Returns (root folder, options, prior's cameras, result)."""
+    root = tmp_path_factory.mktemp("quick_new")
+    return (root, *_quick_recalibration(broken_capture, root, "new"))
+
+
+@pytest.mark.parametrize("change", ["turned", "new"])
+def test_quick_recalibration_gives_a_disturbed_hd_camera_full_resolution(broken_capture, tmp_path, change, request):
+    """calibrate --only-changed on rendered images, the prior with the HD camera turned 1 deg (or without it: a
+    new camera): it is a suspect from its halved image, extracted again at full resolution with its first-round
+    pairs matched again, and re-estimated near the truth; the others keep the prior."""
     from dome_calib.compare import camera_error
 
+    if change == "new":
+        root, _, cams, result = request.getfixturevalue("new_camera_run")
+    else:
+        root = tmp_path
+        _, cams, result = _quick_recalibration(broken_capture, root, change)
     truth = load_bundle(broken_capture / "ground_truth")
-    hd = "00_00"
-    cams = dict(truth.cameras)
-    c = cams.pop(hd)
-    if change == "turned":
-        cams[hd] = dataclasses.replace(c, R=Rotation.from_rotvec([0.0, np.radians(1.0), 0.0]).as_matrix() @ c.R)
-    prior = write_bundle(Bundle(seq="prior", cameras=cams), tmp_path / "prior")
-    result = pipeline.run_calibration(broken_capture, tmp_path / "out", pipeline.CalibrateOptions(
-        prior=prior, only_changed=True))
-    assert sorted(result.changes) == [hd]
-    assert result.stats["quick"]["full_resolution"] == [hd]
-    out = load_bundle(tmp_path / "out")
-    err = camera_error(out.cameras[hd], truth.cameras[hd])
+    assert sorted(result.changes) == [HD]
+    assert result.stats["quick"]["full_resolution"] == [HD]
+    out = load_bundle(root / "out")
+    err = camera_error(out.cameras[HD], truth.cameras[HD])
     # a new camera starts from nominal intrinsics and gets all of them from five VGA partners in one scene:
     # 1.7 cm / 0.21 deg here, the same to the last digit without the halved first round
     within_cm, within_deg = (1.0, 0.05) if change == "turned" else (3.0, 0.4)
     assert err.rotation_deg < within_deg and err.center_cm < within_cm, err
     for n in GOOD:
-        if n != hd:
+        if n != HD:
             np.testing.assert_array_equal(out.cameras[n].R, cams[n].R)
 
 
-def test_quick_recalibration_rerun_after_a_failed_suspect_match(broken_capture, tmp_path, monkeypatch):
+def test_quick_recalibration_rerun_after_a_failed_suspect_match(broken_capture, new_camera_run, tmp_path, monkeypatch):
     """The run stops inside suspect_match, after the features of the HD camera (new to the prior) were dropped:
     the rerun resumes after detect, restores its first-round pairs from pairs.txt (a new camera has no other
-    partners) and gives the same bundle as a run that never stopped."""
+    partners) and gives the same bundle as a run that never stopped (new_camera_run: the same capture, prior and
+    options)."""
     import dome_calib.pipeline.full as pipeline
     import dome_calib.pipeline.quick as quick
-    from dome_calib.bundle import Bundle
-    from dome_calib.bundle_io import write_bundle
 
-    truth = load_bundle(broken_capture / "ground_truth")
-    hd = "00_00"
-    cams = {n: c for n, c in truth.cameras.items() if n != hd}
-    prior = write_bundle(Bundle(seq="prior", cameras=cams), tmp_path / "prior")
-    options = pipeline.CalibrateOptions(prior=prior, only_changed=True)
+    fresh_root, options, _, _ = new_camera_run
     real = quick.extract_features
 
     def power_cut(*args, **kwargs):
@@ -288,8 +306,7 @@ def test_quick_recalibration_rerun_after_a_failed_suspect_match(broken_capture, 
     assert not (tmp_path / "out").exists()
     monkeypatch.setattr(quick, "extract_features", real)
     again = pipeline.run_calibration(broken_capture, tmp_path / "out", options)
-    assert again.resumed == ["match", "detect"] and sorted(again.changes) == [hd]
-    pipeline.run_calibration(broken_capture, tmp_path / "fresh", options)
-    resumed, fresh = load_bundle(tmp_path / "out").cameras[hd], load_bundle(tmp_path / "fresh").cameras[hd]
+    assert again.resumed == ["match", "detect"] and sorted(again.changes) == [HD]
+    resumed, fresh = load_bundle(tmp_path / "out").cameras[HD], load_bundle(fresh_root / "out").cameras[HD]
     np.testing.assert_array_equal(resumed.R, fresh.R)
     np.testing.assert_array_equal(resumed.t_cm, fresh.t_cm)

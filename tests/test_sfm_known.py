@@ -15,7 +15,7 @@ from projector.known_scene import KNOWN_FILTER_MAX_REPROJ_ERROR_PX, KnownPoseOpt
 from projector.known_poses import PNP_MAX_ERROR_PX
 from projector.sfm import SfmOptions, known_scene_pairs, report_dict, run_sfm, select_pairs
 
-CAMERAS = ["00_00", "01_01", "01_02", "01_03", "01_04", "01_05", "01_06", "01_11", "01_12"]
+from .conftest import SFM_CAMERAS as CAMERAS
 ONLY_LATER = "01_05"  # not in scene_01 (the reference): registered by absolute pose in scene_02
 ONLY_FIRST = "01_12"  # not in scene_02, so both scenes have 8 images and scene_01 wins the tie by name
 CENTRE_TOL_CM = 1.0  # SfM centres after the similarity to the (ground-truth) prior, before the bundle adjustment
@@ -24,11 +24,9 @@ FOCAL_TOL = 0.01  # reference's refined focal length against the truth (relative
 
 
 @pytest.fixture(scope="module")
-def capture(tmp_path_factory) -> Path:
-    from dome_calib.synth.capture import SynthOptions, synthesize
-
+def capture(tmp_path_factory, sfm_capture) -> Path:
     capture = tmp_path_factory.mktemp("known") / "capture"
-    synthesize(capture, SynthOptions(preset="full", n_scenes=2, seed=1, cameras=CAMERAS, workers=2))
+    shutil.copytree(sfm_capture, capture)  # conftest's two scenes of CAMERAS, rendered once per run
     (capture / "scenes" / "scene_01" / f"{ONLY_LATER}.png").unlink()
     (capture / "scenes" / "scene_02" / f"{ONLY_FIRST}.png").unlink()
     return capture
@@ -37,7 +35,7 @@ def capture(tmp_path_factory) -> Path:
 def _copy_databases(work: Path, to: Path) -> None:
     """The matched scene databases of ``work`` into a fresh work folder ``to`` (features and matches reused)."""
     for scene in ("scene_01", "scene_02"):
-        (to / scene).mkdir()
+        (to / scene).mkdir(parents=True)
         shutil.copy(work / scene / "database.db", to / scene / "database.db")
 
 
@@ -206,6 +204,8 @@ def test_a_likely_reference_that_is_not_the_reference_leaves_no_trace(capture, t
     maps nothing early."""
     import cv2
 
+    from projector.database import drop_matches
+
     shutil.copytree(capture, tmp_path / "capture")
     cap = tmp_path / "capture"
     shutil.copy(capture / "scenes" / "scene_01" / f"{ONLY_FIRST}.png", cap / "scenes" / "scene_02" / f"{ONLY_FIRST}.png")
@@ -219,6 +219,10 @@ def test_a_likely_reference_that_is_not_the_reference_leaves_no_trace(capture, t
         options.pairs.exhaustive_below = 0  # pairs by the geometry, so that ...
         options.known_poses.pairs_per_camera = 2  # ... scene_01 has fewer than as a reference: an early one shows
         work = tmp_path / f"work_{early}"
+        if not early:  # the first run's features, none of its matches: this run matches and maps on its own
+            _copy_databases(tmp_path / "work_True", work)
+            for scene in ("scene_01", "scene_02"):
+                drop_matches(work / scene / "database.db")
         results[early] = run_sfm(cap, work, options, prior=load_bundle(capture / "ground_truth"))
         scenes = report_dict(results[early])["scenes"]
         assert scenes["scene_02"]["mapping"] == "glomap"
@@ -245,13 +249,15 @@ def test_a_likely_reference_that_is_not_the_reference_leaves_no_trace(capture, t
     assert early.scenes["scene_01"].pairs == late.scenes["scene_01"].pairs
 
 
-def test_an_error_in_the_later_scenes_triangulation_is_raised(capture, tmp_path, monkeypatch):
-    """The later scenes are triangulated together once all are matched: an error there reaches the caller."""
+def test_an_error_in_the_later_scenes_triangulation_is_raised(capture, runs, tmp_path, monkeypatch):
+    """The later scenes are triangulated together once all are matched: an error there reaches the caller (the
+    known-pose run's features and matches reused: the triangulation is what is broken)."""
     import projector.scene as scene
 
     def broken(*args, **kwargs):
         raise RuntimeError("triangulator exploded")
 
+    _copy_databases(runs[2], tmp_path)
     monkeypatch.setattr(scene, "map_known_scenes", broken)
     with pytest.raises(RuntimeError, match="triangulator exploded"):
-        _run(capture, tmp_path / "work", enabled=True)
+        _run(capture, tmp_path, enabled=True)
