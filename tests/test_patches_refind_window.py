@@ -18,16 +18,12 @@ from dome_calib.recon.patches.parts import _components, PartOptions, closest_on_
 from dome_calib.recon.patches.track import Clock, refind_flow_options, refind_from_body
 from dome_calib.recon.project import ViewSet
 
+from .patches_helpers import blurred_texture
+
 DEPTH_CM = 100.0  # f 200 px at 100 cm: 2 px per cm
 MOVE_PX = np.array([6.0, -3.0])  # the limb's image motion per 40 ms frame
 BAND_HALF_PX = 6  # the band: 13 px across
 SEED_FRAME = 5
-
-
-def _texture(seed: int) -> np.ndarray:
-    r = np.random.default_rng(seed)
-    b = cv2.GaussianBlur(r.uniform(0, 255, (240, 320)).astype(np.float32), (0, 0), 1.5)
-    return cv2.normalize(b, None, 20, 235, cv2.NORM_MINMAX)
 
 
 class LimbScene:
@@ -35,7 +31,7 @@ class LimbScene:
     on row 120 at the seed frame, moving MOVE_PX per frame."""
 
     def __init__(self):
-        self.background, self.limb = _texture(1), _texture(2)
+        self.background, self.limb = blurred_texture(1, (240, 320), 1.5), blurred_texture(2, (240, 320), 1.5)
 
     def gray(self, camera: str, frame: int) -> np.ndarray:
         shift = MOVE_PX * (frame - SEED_FRAME)
