@@ -34,3 +34,12 @@ def wide_pair_scene(frame: int = 120):
     axes = views.R[:, 2]
     assert np.degrees(np.arccos(axes[0] @ axes[1])) > 60.0
     return bundle, truth, scene, views, bundle.sync.streams["vga"].time_of(frame)
+
+
+def blurred_texture(seed: int, shape: tuple[int, int], sigma_px: float):
+    """(H, W) float32 grey levels 20-235: uniform noise (``seed``) blurred by a Gaussian of ``sigma_px``, stretched."""
+    import cv2
+    import numpy as np
+
+    tex = cv2.GaussianBlur(np.random.default_rng(seed).uniform(0, 255, shape).astype(np.float32), (0, 0), sigma_px)
+    return cv2.normalize(tex, None, 20, 235, cv2.NORM_MINMAX)

@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 
 import numpy as np
 
-from dome_calib.options import AtLeast, Field, UnitInterval, options
+from dome_calib.options import AtLeast, Field, UnitInterval, options, require
 from dome_calib.schema import PosFinite
 
 
@@ -123,6 +123,16 @@ class PatchOptions:
     # part's motion carries it (predicted: not alive there, no position written, no view counted), flown from there
     # at the next step in the views it was last seen in (0: it ends, as before)
     refind_carry_steps: Annotated[int, Field(ge=0)] = 0
+    # with refind_from_body: the re-flight's Lucas-Kanade window (px; 0: lk_window_px, the same bits) and pyramid
+    # levels (-1: the prediction's, lk_levels_predicted). The re-flight starts where the body carries the point,
+    # within 3.5 px of the truth for 95 % of the lost centres, and the flow's own 15 px window, wider than a limb's
+    # outline, passes its forward-backward check there for 6-19 % of them; a 9 px one for 48 %. Unset: with the
+    # carry, 7 px (chosen on the few-camera seeds 1-2) raises three clouds' occluded spans 80.6 -> 81.7 % and 85.0 ->
+    # 87.8 %, but the unseen seed's one cloud loses 62.8 -> 62.2 % (docs/benchmarks.md, branch refind62)
+    refind_window_px: Annotated[int, Field(ge=0)] = 0
+    refind_levels: Annotated[int, Field(ge=-1)] = -1
+    _refind_window = require(lambda o: o.refind_window_px == 0 or o.refind_window_px >= 5,
+                             "refind_window_px {o.refind_window_px}: expected 0 (lk_window_px) or at least 5")
     # each step tracks a patch by optical flow in at most this many of the cameras that saw it (track.py
     # best_views: the most face-on, spread in direction; 0: all); visibility is still judged in every camera
     track_views: Annotated[int, Field(ge=0)] = 8

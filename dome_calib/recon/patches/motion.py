@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dome_calib.options import AtLeast, options
+from dome_calib.recon.patches.parts import closest_on_bone
 from dome_calib.rotation import rigid_fit
 from dome_calib.schema import PosFinite
 from dome_calib import ties
@@ -179,8 +180,7 @@ def bone_carry(X_cm: np.ndarray, A0: np.ndarray, B0: np.ndarray, A1: np.ndarray,
     ok = (L0 > 1e-9) & (L1 > 1e-9)
     a = d0 / np.where(ok, L0, 1.0)[:, None]
     b = d1 / np.where(ok, L1, 1.0)[:, None]
-    s = np.clip(np.einsum("nki,ni->nk", X - A0[:, None], d0) / np.where(ok, L0 * L0, 1.0)[:, None], 0.0, 1.0)
-    off = X - (A0[:, None] + s[..., None] * d0[:, None])
+    _, s, off = closest_on_bone(X - A0[:, None], d0[:, None])
     w = np.cross(a, b)[:, None]  # sin * axis
     c = np.sum(a * b, -1)[:, None, None]  # cos
     turned = off + np.cross(w, off) + np.cross(w, np.cross(w, off)) / np.maximum(1.0 + c, 1e-9)

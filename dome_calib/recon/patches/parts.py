@@ -95,6 +95,19 @@ def bone_segments(joints_cm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return A, B
 
 
+def closest_on_bone(rel: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The closest point on a bone, the one formula of the labels (:func:`label_parts`), the tracking's parts
+    (:func:`nearest_part`) and the bone's carry (:func:`~.motion.bone_carry`): ``rel`` (..., 3) a point less the
+    bone's first end ``A``, ``d`` (..., 3) the bone ``B - A`` (broadcast) -> (``s_raw`` (...) the fraction along the
+    bone of the point's foot on its line, ``rel . d / |d|^2`` (0 on a bone of no length: its closest point is
+    ``A``); ``s`` (...) that fraction clamped to [0, 1], the closest point being ``A + s d``; (..., 3) the point less
+    its closest point). NaN where the bone or the point is."""
+    L2 = np.sum(d * d, -1)
+    s_raw = np.sum(rel * d, -1) / np.where(L2 > 0, L2, 1.0)
+    s = np.clip(s_raw, 0.0, 1.0)
+    return s_raw, s, rel - s[..., None] * d
+
+
 def label_parts(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, joints_cm: np.ndarray,
                 options: PartOptions | None = None) -> PartLabels:
     """Label N patch trajectories with a bone.
@@ -197,10 +210,7 @@ def _components(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, A: np.n
     z = np.sum(rel * axis[None], -1)  # (N, T, P, K)
     radial = rel - z[..., None] * axis[None]
     r = np.linalg.norm(radial, axis=-1)
-    s_raw = z / np.maximum(L[None], 1e-9)
-    s = np.clip(s_raw, 0.0, 1.0)
-    closest = A[None] + s[..., None] * d[None]
-    out = X - closest
+    s_raw, _, out = closest_on_bone(rel, d[None])
     dist = np.linalg.norm(out, axis=-1)
     along = np.sum(out * np.where(alive[..., None], normal, 0.0)[:, :, None, None], -1)
     away = along > 0
@@ -237,9 +247,8 @@ def nearest_part(X_cm: np.ndarray, joints_cm: np.ndarray, radius_cm: np.ndarray,
     A, B = bone_segments(J)  # (P, K, 3)
     d = B - A
     L2 = np.sum(d * d, -1)
-    rel = X[:, None, None] - A[None]  # (N, P, K, 3)
-    s = np.clip(np.sum(rel * d[None], -1) / np.where(L2 > 0, L2, 1.0)[None], 0.0, 1.0)
-    gap = np.abs(np.linalg.norm(rel - s[..., None] * d[None], axis=-1) - np.asarray(radius_cm, float)[None, None])
+    _, _, out = closest_on_bone(X[:, None, None] - A[None], d[None])  # (N, P, K, 3)
+    gap = np.abs(np.linalg.norm(out, axis=-1) - np.asarray(radius_cm, float)[None, None])
     known = np.isfinite(gap) & (L2 > 0)[None] & np.isfinite(X).all(-1)[:, None, None]
     near = known & ties.at_most(np.where(known, gap, 0.0), reach_cm, _QUANTUM)
     K = A.shape[1]

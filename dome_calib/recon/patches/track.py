@@ -29,6 +29,7 @@ bit for bit what tracking the whole cloud gives them.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -252,14 +253,26 @@ def refind_from_body(source: FrameSource, views: ViewSet, v: int, clock: Clock, 
     NaN: no part). In each patch of ``need`` (n,) whose centre's flow failed, each lost point with a prediction is
     flown again (:func:`flow_camera`), started at its position moved by its predicted image motion (the points
     moved linearly in the world from ``X`` to ``X_pred`` between the frames' times, projected), the prediction's
-    pyramid levels, the same forward-backward check; kept where it passes -> (q, ok, re-found (n, 3))."""
+    pyramid levels, the same forward-backward check; kept where it passes -> (q, ok, re-found (n, 3)). The flow's
+    window and levels are ``refind_window_px`` and ``refind_levels`` where set (:func:`refind_flow_options`)."""
     has = np.all(np.isfinite(X_pred), axis=(1, 2))
     rows, cols = np.nonzero((need & ~ok[:, 0] & has)[:, None] & ~ok)
     if not len(rows) or t1 == t0:
         return q.copy(), ok.copy(), np.zeros(ok.shape, bool)
     start, X_a, X_b = p[rows, cols], X[rows, cols], X_pred[rows, cols]
     return _fly_again(source, views.names[v], clock, t0, t1, q, ok, rows, cols, start,
-                      lambda t_ms: project_view(views, v, X_a + (X_b - X_a) * ((t_ms - t0) / (t1 - t0)))[0], o)
+                      lambda t_ms: project_view(views, v, X_a + (X_b - X_a) * ((t_ms - t0) / (t1 - t0)))[0],
+                      refind_flow_options(o))
+
+
+def refind_flow_options(o: PatchOptions) -> PatchOptions:
+    """The options :func:`refind_from_body`'s re-flight flies with: ``o`` with its window ``refind_window_px`` and
+    its predicted levels ``refind_levels`` where set (``o`` itself where neither is: the same bits)."""
+    if o.refind_window_px == 0 and o.refind_levels < 0:
+        return o
+    return dataclasses.replace(o, lk_window_px=o.refind_window_px or o.lk_window_px,
+                               lk_levels_predicted=o.lk_levels_predicted if o.refind_levels < 0 else o.refind_levels,
+                               lk_levels_full_px=o.lk_levels_full_px if o.refind_levels < 0 else 0.0)
 
 
 #: Patches triangulated per call: the robust triangulation's arrays are (points, cameras, hypotheses) and outgrow
