@@ -165,6 +165,13 @@ class PatchOptions:
     # ms per patch-step, 4.5 % fewer points rejected, the visibility aims moved within 0.05 point but scene 1's
     # precision with best 97.01 -> 96.99 %; 1, the rule so far (docs/benchmarks.md, branch fast61)
     anchor_levels: AtLeast(0) = 1
+    # the seed image warped, before the realignment, by each patch's seed-to-now map in that camera (the affine map
+    # of its triplet's projections at the seed to those of its current triplet: its turn and foreshortening since
+    # the seed, track.seed_to_now / warped_flow), so a turned patch is compared with its seed appearance as its plane
+    # is seen now. False: the seed square as it was at the seed (the rule so far). On the few-camera rig (cand,
+    # seed 1, three clouds) 4.6 % of the flown points were rejected, 23 % of those on a part turned 10-20 deg and
+    # 40 % at 20-45 deg, two thirds not aligned at all; a rejected point of a two-view limb patch ends it
+    anchor_warp: bool = False
     anchor_reject: bool = True
     anchor_reject_unaligned: bool = True  # also reject a point the seed image cannot be aligned at (else kept)
     # drift (track.py, visibility.off_seed): a patch ends when its visible views no longer show its seed

@@ -35,6 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+import cv2
+
 from dome_calib.bundle import SyncTable
 from dome_calib.recon.patches.frames import FrameSource, patch_axes, project_one
 from dome_calib.recon.patches.model import PatchOptions
@@ -54,6 +56,9 @@ logger = logging.getLogger(__name__)
 POSITION_QUANTUM_CM = 2.0 ** -10
 #: A camera's frame within this of a reference time (ms) is at that very time (the reference stream's cameras).
 SAME_TIME_MS = 0.5
+#: anchor_warp: a patch's seed-to-now image map whose area ratio (determinant) lies outside these is not warped by
+#: (seen nearly edge-on, or from behind, in one of the two): its seed square is compared as it was at the seed.
+WARP_DET_RANGE = (0.2, 5.0)
 #: Streams' brackets wider than this many nominal periods are not bridged (as the skeleton stages).
 MAX_GAP_FRAMES = 2.5
 
@@ -403,7 +408,8 @@ class SeedViews:
         return cls(uv=uv, frame=np.where(now, frames.frame, -1), gray={})
 
     def realign(self, source: FrameSource, name: str, frames: Frames, v: int, idx: np.ndarray, q: np.ndarray,
-                ok: np.ndarray, o: PatchOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                ok: np.ndarray, o: PatchOptions, now: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Flown points ``q`` (n, 3, 2), ``ok`` (n, 3) of patches ``idx`` in camera ``v`` (``name``) at this step's
         time, aligned to their seed appearance -> ((3 n, 2) points, (3 n,) ok, (3 n,) rejected here): Lucas-Kanade
         from the camera's seed image at the seed pixels, ``anchor_levels`` pyramid levels above the image,
@@ -412,7 +418,9 @@ class SeedViews:
         ``anchor_flow_px`` of the flown point; a point farther (the flow slid, or the view changed) is rejected in
         this camera when ``anchor_reject``, and one that could not be aligned too when ``anchor_reject_unaligned``
         (else it is kept as flown). Points without a seed view in ``v``, or a camera with
-        no frame at this very time, are left as flown."""
+        no frame at this very time, are left as flown. With ``anchor_warp`` and ``now`` (n, 3, 2), the patches'
+        current triplets projected in ``v``, the seed image is first warped by each patch's seed-to-now map
+        (:func:`seed_to_now`, :func:`warped_flow`): the seed appearance as the patch's plane is seen now."""
         q, ok = q.reshape(-1, 2).copy(), ok.reshape(-1).copy()
         f = int(frames.frame[v])
         off = np.zeros(len(ok), bool)
@@ -424,8 +432,12 @@ class SeedViews:
             return q, ok, off
         if v not in self.gray:
             self.gray[v] = source.gray(name, int(self.frame[v]))
-        r, good = optical_flow(self.gray[v], source.gray(name, f), p0[has], o, guess=q[has],
-                               levels=o.anchor_levels)
+        if o.anchor_warp and now is not None:
+            A = np.repeat(seed_to_now(self.uv[idx, :, v], now.reshape(-1, 3, 2)), 3, axis=0)[has]
+            r, good = warped_flow(self.gray[v], source.gray(name, f), p0[has], A, q[has], o)
+        else:
+            r, good = optical_flow(self.gray[v], source.gray(name, f), p0[has], o, guess=q[has],
+                                   levels=o.anchor_levels)
         near = good & ties.at_most(np.linalg.norm(r - q[has], axis=1), o.anchor_flow_px, ties.FLOW_QUANTUM_PX)
         rows = np.flatnonzero(has)
         q[rows[near]] = r[near]
@@ -434,6 +446,64 @@ class SeedViews:
             ok[rows[bad]] = False
             off[rows[bad]] = True
         return q, ok, off
+
+
+def seed_to_now(seed: np.ndarray, now: np.ndarray) -> np.ndarray:
+    """Patches' triplets (n, 3, 2) in one camera at the seed and now -> (n, 2, 2) the linear part of the affine map
+    that takes the seed's triplet to now's (the patch's plane, to first order: its in-plane turn and foreshortening
+    since the seed); the identity where either triplet is missing or the map's determinant lies outside
+    :data:`WARP_DET_RANGE`. Written out (no LAPACK), so every machine gets the same bits."""
+    S = np.stack([seed[:, 1] - seed[:, 0], seed[:, 2] - seed[:, 0]], axis=-1).astype(float)  # columns: the axes
+    D = np.stack([now[:, 1] - now[:, 0], now[:, 2] - now[:, 0]], axis=-1).astype(float)
+    det_s = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        S_inv = np.stack([np.stack([S[:, 1, 1], -S[:, 0, 1]], -1), np.stack([-S[:, 1, 0], S[:, 0, 0]], -1)],
+                         axis=1) / det_s[:, None, None]
+        A = np.einsum("nij,njk->nik", D, S_inv)
+    det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
+    lo, hi = WARP_DET_RANGE
+    use = (np.all(np.isfinite(A), axis=(1, 2)) & np.isfinite(det) & ties.at_least(np.nan_to_num(det), lo, ties.UNIT_QUANTUM)
+           & ties.at_most(np.nan_to_num(det), hi, ties.UNIT_QUANTUM))
+    return np.where(use[:, None, None], np.nan_to_num(A), np.eye(2)[None])
+
+
+def warped_flow(seed_gray: np.ndarray, gray: np.ndarray, p0: np.ndarray, A: np.ndarray, guess: np.ndarray,
+                o: PatchOptions) -> tuple[np.ndarray, np.ndarray]:
+    """Seed pixels ``p0`` (m, 2) of image ``seed_gray`` followed into ``gray`` (:func:`seed.optical_flow`, started
+    at ``guess``, ``anchor_levels`` levels), each point's seed neighbourhood first warped by its map ``A`` (m, 2, 2)
+    (:func:`seed_to_now`): the neighbourhoods are resampled (bilinear) into tiles of one image, each tile's centre
+    the point's seed pixel, its pixel ``c + d`` the seed's ``p0 + A^-1 d``, and the flow runs from the tiles'
+    centres. A tile is wide enough that the flow's windows at every level and the pyramid's filters stay inside it:
+    each point's result depends on its own neighbourhood only, as :func:`seed.optical_flow`'s."""
+    m = len(p0)
+    r, good = np.zeros((m, 2)), np.zeros(m, bool)
+    scale = 2 ** o.anchor_levels
+    half = (o.lk_window_px // 2 + 12) * scale  # a tile's side a multiple of the coarsest level's pixel: every
+    tile = 2 * half  # tile lies alike on the pyramid's grid, wherever it is
+    H, W = gray.shape[:2]
+    rows, cols = H // tile, W // tile  # the flow wants two images of one size: the tiles fill one like ``gray``
+    if rows * cols == 0:
+        return r, good
+    det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
+    inv = np.stack([np.stack([A[:, 1, 1], -A[:, 0, 1]], -1), np.stack([-A[:, 1, 0], A[:, 0, 0]], -1)],
+                   axis=1) / det[:, None, None]
+    d = np.arange(tile, dtype=float) - half
+    dx, dy = d[None, :], d[:, None]  # (1, tile) columns, (tile, 1) rows
+    for lo in range(0, m, rows * cols):
+        k = np.arange(lo, min(m, lo + rows * cols))
+        mx = np.zeros((rows * cols, tile, tile), np.float32)
+        my = np.full((rows * cols, tile, tile), -1.0, np.float32)  # the unused tiles: outside the seed image
+        mx[:len(k)] = p0[k, 0, None, None] + inv[k, 0, 0, None, None] * dx + inv[k, 0, 1, None, None] * dy
+        my[:len(k)] = p0[k, 1, None, None] + inv[k, 1, 0, None, None] * dx + inv[k, 1, 1, None, None] * dy
+        maps = [a.reshape(rows, cols, tile, tile).transpose(0, 2, 1, 3).reshape(rows * tile, cols * tile)
+                for a in (mx, my)]
+        tiles = np.zeros_like(gray)
+        tiles[:rows * tile, :cols * tile] = cv2.remap(seed_gray, maps[0], maps[1], cv2.INTER_LINEAR,
+                                                      borderMode=cv2.BORDER_REPLICATE)
+        j = k - lo
+        centres = np.stack([(j % cols) * tile + half, (j // cols) * tile + half], axis=1).astype(float)
+        r[k], good[k] = optical_flow(tiles, gray, centres, o, guess=guess[k], levels=o.anchor_levels)
+    return r, good
 
 
 def _predictor(views: ViewSet, v: int, X: np.ndarray, velocity: np.ndarray, t0: float) -> Predictor:
@@ -519,7 +589,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                         from_body += int(found.sum())
                 if o.anchor_flow:
                     q, ok, off = seed_of.realign(source, name, frames1, v, idx, q.reshape(-1, 3, 2),
-                                                 ok.reshape(-1, 3), o)
+                                                 ok.reshape(-1, 3), o, now=p)
                     slid_view[idx, v] = off.reshape(-1, 3).any(axis=1)
                 uv[idx, :, v] = q.reshape(-1, 3, 2)
                 tracked[idx, :, v] = ok.reshape(-1, 3)
