@@ -56,8 +56,7 @@ def test_a_turned_patch_is_kept_and_realigned_with_its_warped_seed_appearance():
     o = PatchOptions(anchor_flow=True, anchor_levels=0)
     (q, ok, off), truth = _realign(o)
     assert off.sum() >= 6  # the old rule: the seed square as it was, most points rejected
-    (q, ok, off), truth = _realign(o.model_copy(update={"anchor_warp": True}) if hasattr(o, "model_copy")
-                                   else PatchOptions(anchor_flow=True, anchor_levels=0, anchor_warp=True))
+    (q, ok, off), truth = _realign(PatchOptions(anchor_flow=True, anchor_levels=0, anchor_warp=True))
     assert ok.all() and not off.any()
     assert np.abs(q - truth).max() < 0.15  # pulled back from the 0.4 px slide
 

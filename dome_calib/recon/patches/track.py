@@ -448,6 +448,12 @@ class SeedViews:
         return q, ok, off
 
 
+def _inverse_2x2(M: np.ndarray, det: np.ndarray) -> np.ndarray:
+    """(n, 2, 2) matrices and their (n,) determinants -> their inverses, written out."""
+    return np.stack([np.stack([M[:, 1, 1], -M[:, 0, 1]], -1), np.stack([-M[:, 1, 0], M[:, 0, 0]], -1)],
+                    axis=1) / det[:, None, None]
+
+
 def seed_to_now(seed: np.ndarray, now: np.ndarray) -> np.ndarray:
     """Patches' triplets (n, 3, 2) in one camera at the seed and now -> (n, 2, 2) the linear part of the affine map
     that takes the seed's triplet to now's (the patch's plane, to first order: its in-plane turn and foreshortening
@@ -457,9 +463,9 @@ def seed_to_now(seed: np.ndarray, now: np.ndarray) -> np.ndarray:
     D = np.stack([now[:, 1] - now[:, 0], now[:, 2] - now[:, 0]], axis=-1).astype(float)
     det_s = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
     with np.errstate(divide="ignore", invalid="ignore"):
-        S_inv = np.stack([np.stack([S[:, 1, 1], -S[:, 0, 1]], -1), np.stack([-S[:, 1, 0], S[:, 0, 0]], -1)],
-                         axis=1) / det_s[:, None, None]
-        A = np.einsum("nij,njk->nik", D, S_inv)
+        S_inv = _inverse_2x2(S, det_s)
+        A = np.stack([np.stack([D[:, i, 0] * S_inv[:, 0, k] + D[:, i, 1] * S_inv[:, 1, k] for k in (0, 1)], -1)
+                      for i in (0, 1)], axis=1)
     det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
     lo, hi = WARP_DET_RANGE
     use = (np.all(np.isfinite(A), axis=(1, 2)) & np.isfinite(det) & ties.at_least(np.nan_to_num(det), lo, ties.UNIT_QUANTUM)
@@ -484,9 +490,7 @@ def warped_flow(seed_gray: np.ndarray, gray: np.ndarray, p0: np.ndarray, A: np.n
     rows, cols = H // tile, W // tile  # the flow wants two images of one size: the tiles fill one like ``gray``
     if rows * cols == 0:
         return r, good
-    det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
-    inv = np.stack([np.stack([A[:, 1, 1], -A[:, 0, 1]], -1), np.stack([-A[:, 1, 0], A[:, 0, 0]], -1)],
-                   axis=1) / det[:, None, None]
+    inv = _inverse_2x2(A, A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0])
     d = np.arange(tile, dtype=float) - half
     dx, dy = d[None, :], d[:, None]  # (1, tile) columns, (tile, 1) rows
     for lo in range(0, m, rows * cols):
