@@ -79,3 +79,13 @@ def test_the_warp_is_per_point_and_off_is_the_old_rule():
     off = PatchOptions(anchor_flow=True, anchor_levels=0)
     (a, b) = (_realign(off)[0], _realign(off, now_given=False)[0])
     assert all(np.array_equal(x, y) for x, y in zip(a, b))
+
+
+def test_a_patch_that_did_not_turn_is_aligned_as_without_the_warp():
+    seed, _ = _patches()
+    views = SeedViews(uv=seed.astype(np.float32)[:, :, None], frame=np.array([0]), gray={})
+    q = seed + 0.3
+    frames = Frames(frame=np.array([1]), offset_ms=np.zeros(1))
+    got = [views.realign(TurningTexture(), "c", frames, 0, np.arange(len(seed)), q, np.ones(q.shape[:2], bool),
+                         PatchOptions(anchor_flow=True, anchor_warp=w), now=seed + 0.01) for w in (False, True)]
+    assert all(np.array_equal(x, y) for x, y in zip(*got))

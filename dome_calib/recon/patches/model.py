@@ -172,6 +172,10 @@ class PatchOptions:
     # seed 1, three clouds) 4.6 % of the flown points were rejected, 23 % of those on a part turned 10-20 deg and
     # 40 % at 20-45 deg, two thirds not aligned at all; a rejected point of a two-view limb patch ends it
     anchor_warp: bool = False
+    # ... for the patches whose map moves a corner of the flow's window (lk_window_px) farther than this from where
+    # a plain shift leaves it (track.warp_px; 0.5 px: a turn of ~3 deg): the others, most of them, are aligned as
+    # without the warp, bit for bit (and the warp's resampling is paid only where it matters)
+    anchor_warp_px: Annotated[float, Field(ge=0)] = 0.5
     anchor_reject: bool = True
     anchor_reject_unaligned: bool = True  # also reject a point the seed image cannot be aligned at (else kept)
     # drift (track.py, visibility.off_seed): a patch ends when its visible views no longer show its seed

@@ -420,7 +420,8 @@ class SeedViews:
         (else it is kept as flown). Points without a seed view in ``v``, or a camera with
         no frame at this very time, are left as flown. With ``anchor_warp`` and ``now`` (n, 3, 2), the patches'
         current triplets projected in ``v``, the seed image is first warped by each patch's seed-to-now map
-        (:func:`seed_to_now`, :func:`warped_flow`): the seed appearance as the patch's plane is seen now."""
+        (:func:`seed_to_now`, :func:`warped_flow`) where that map moves the flow window's corners by more than
+        ``anchor_warp_px`` (:func:`warp_px`): the seed appearance as the patch's plane is seen now."""
         q, ok = q.reshape(-1, 2).copy(), ok.reshape(-1).copy()
         f = int(frames.frame[v])
         off = np.zeros(len(ok), bool)
@@ -432,12 +433,16 @@ class SeedViews:
             return q, ok, off
         if v not in self.gray:
             self.gray[v] = source.gray(name, int(self.frame[v]))
-        if o.anchor_warp and now is not None:
-            A = np.repeat(seed_to_now(self.uv[idx, :, v], now.reshape(-1, 3, 2)), 3, axis=0)[has]
-            r, good = warped_flow(self.gray[v], source.gray(name, f), p0[has], A, q[has], o)
-        else:
-            r, good = optical_flow(self.gray[v], source.gray(name, f), p0[has], o, guess=q[has],
-                                   levels=o.anchor_levels)
+        gray = source.gray(name, f)
+        A = np.repeat(seed_to_now(self.uv[idx, :, v], now.reshape(-1, 3, 2)), 3, axis=0)[has] if (
+            o.anchor_warp and now is not None) else np.repeat(np.eye(2)[None], int(has.sum()), axis=0)
+        warp = ties.above(warp_px(A, o.lk_window_px), o.anchor_warp_px, ties.FLOW_QUANTUM_PX)
+        r, good = np.zeros((len(A), 2)), np.zeros(len(A), bool)
+        if (~warp).any():
+            r[~warp], good[~warp] = optical_flow(self.gray[v], gray, p0[has][~warp], o, guess=q[has][~warp],
+                                                 levels=o.anchor_levels)
+        if warp.any():
+            r[warp], good[warp] = warped_flow(self.gray[v], gray, p0[has][warp], A[warp], q[has][warp], o)
         near = good & ties.at_most(np.linalg.norm(r - q[has], axis=1), o.anchor_flow_px, ties.FLOW_QUANTUM_PX)
         rows = np.flatnonzero(has)
         q[rows[near]] = r[near]
@@ -473,6 +478,16 @@ def seed_to_now(seed: np.ndarray, now: np.ndarray) -> np.ndarray:
     return np.where(use[:, None, None], np.nan_to_num(A), np.eye(2)[None])
 
 
+def warp_px(A: np.ndarray, window_px: int) -> np.ndarray:
+    """(m, 2, 2) seed-to-now maps -> (m,) how far each moves a corner of the flow's window (``window_px`` square
+    about the point) from where the identity leaves it, px: how much the seed square differs from a shifted one."""
+    h = window_px // 2
+    corners = np.array([[h, h], [h, -h]], float)  # the other two are these negated
+    D = A - np.eye(2)[None]
+    return np.max([np.hypot(D[:, 0, 0] * c[0] + D[:, 0, 1] * c[1], D[:, 1, 0] * c[0] + D[:, 1, 1] * c[1])
+                   for c in corners], axis=0)
+
+
 def warped_flow(seed_gray: np.ndarray, gray: np.ndarray, p0: np.ndarray, A: np.ndarray, guess: np.ndarray,
                 o: PatchOptions) -> tuple[np.ndarray, np.ndarray]:
     """Seed pixels ``p0`` (m, 2) of image ``seed_gray`` followed into ``gray`` (:func:`seed.optical_flow`, started
@@ -484,7 +499,7 @@ def warped_flow(seed_gray: np.ndarray, gray: np.ndarray, p0: np.ndarray, A: np.n
     m = len(p0)
     r, good = np.zeros((m, 2)), np.zeros(m, bool)
     scale = 2 ** o.anchor_levels
-    half = (o.lk_window_px // 2 + 12) * scale  # a tile's side a multiple of the coarsest level's pixel: every
+    half = (o.lk_window_px // 2 + 6) * scale  # a tile's side a multiple of the coarsest level's pixel: every
     tile = 2 * half  # tile lies alike on the pyramid's grid, wherever it is
     H, W = gray.shape[:2]
     rows, cols = H // tile, W // tile  # the flow wants two images of one size: the tiles fill one like ``gray``
