@@ -510,14 +510,15 @@ def warped_flow(seed_gray: np.ndarray, gray: np.ndarray, p0: np.ndarray, A: np.n
     dx, dy = d[None, :], d[:, None]  # (1, tile) columns, (tile, 1) rows
     for lo in range(0, m, rows * cols):
         k = np.arange(lo, min(m, lo + rows * cols))
-        mx = np.zeros((rows * cols, tile, tile), np.float32)
-        my = np.full((rows * cols, tile, tile), -1.0, np.float32)  # the unused tiles: outside the seed image
+        used = -(-len(k) // cols)  # the rows of tiles this batch fills (the rest of the image stays 0)
+        mx = np.zeros((used * cols, tile, tile), np.float32)
+        my = np.full((used * cols, tile, tile), -1.0, np.float32)  # the unused tiles: outside the seed image
         mx[:len(k)] = p0[k, 0, None, None] + inv[k, 0, 0, None, None] * dx + inv[k, 0, 1, None, None] * dy
         my[:len(k)] = p0[k, 1, None, None] + inv[k, 1, 0, None, None] * dx + inv[k, 1, 1, None, None] * dy
-        maps = [a.reshape(rows, cols, tile, tile).transpose(0, 2, 1, 3).reshape(rows * tile, cols * tile)
+        maps = [a.reshape(used, cols, tile, tile).transpose(0, 2, 1, 3).reshape(used * tile, cols * tile)
                 for a in (mx, my)]
         tiles = np.zeros_like(gray)
-        tiles[:rows * tile, :cols * tile] = cv2.remap(seed_gray, maps[0], maps[1], cv2.INTER_LINEAR,
+        tiles[:used * tile, :cols * tile] = cv2.remap(seed_gray, maps[0], maps[1], cv2.INTER_LINEAR,
                                                       borderMode=cv2.BORDER_REPLICATE)
         j = k - lo
         centres = np.stack([(j % cols) * tile + half, (j // cols) * tile + half], axis=1).astype(float)
