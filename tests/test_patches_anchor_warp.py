@@ -8,7 +8,8 @@ import cv2
 import numpy as np
 
 from dome_calib.recon.patches.model import PatchOptions
-from dome_calib.recon.patches.track import SeedViews, seed_to_now, warped_flow
+from dome_calib.recon.patches.track import SeedViews
+from dome_calib.recon.patches.warp import seed_to_now, warped_flow
 from dome_calib.recon.patches.visibility import Frames
 
 CENTRE = np.array([160.0, 120.0])
