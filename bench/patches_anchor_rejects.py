@@ -102,7 +102,7 @@ def main() -> None:
     for seed, recs in points.items():
         c = {k: np.concatenate([r[k] for r in recs]) for k in recs[0]}
         _, inverse, count = np.unique(c["key"], axis=0, return_inverse=True, return_counts=True)
-        views = count[inverse.ravel()]  # the cameras the point's patch was realigned in at that step
+        views = count[inverse.ravel()] // 3  # the cameras the point's patch was realigned in at that step
         ok, off, good = c["ok"], c["off"], c["good"]
         row = {"what": "anchor_rejects", "seed": seed, "points": int(ok.sum()), "rejected": round(float(
             off.sum() / max(ok.sum(), 1)), 4), "rejected_two_view_share": round(float(

@@ -167,7 +167,7 @@ class PatchOptions:
     anchor_levels: AtLeast(0) = 1
     # the seed image warped, before the realignment, by each patch's seed-to-now map in that camera (the affine map
     # of its triplet's projections at the seed to those of its current triplet: its turn and foreshortening since
-    # the seed, track.seed_to_now / warped_flow), so a turned patch is compared with its seed appearance as its plane
+    # the seed, warp.seed_to_now / warped_flow), so a turned patch is compared with its seed appearance as its plane
     # is seen now. False: the seed square as it was at the seed (the rule so far). On the few-camera rig with the
     # visibility's setting ("cand", docs/patches.md) 4.6-5.8 % of the flown points were rejected (2 % of a still
     # part's, 23-26 % of a part's turned 10-20 deg, 40-51 % at 20-45), two thirds not aligned at all; a point of
@@ -176,7 +176,7 @@ class PatchOptions:
     # scene 2 98.09 / 92.10, unseen 98.28 / 91.42) (docs/benchmarks.md, branch anchor62)
     anchor_warp: bool = False
     # ... for the patches whose map moves a corner of the flow's window (lk_window_px) farther than this from where
-    # a plain shift leaves it (track.warp_px; 0.5 px: a turn of ~3 deg): the others, most of them, are aligned as
+    # a plain shift leaves it (warp.warp_px; 0.5 px: a turn of ~3 deg): the others, most of them, are aligned as
     # without the warp, bit for bit (and the warp's resampling is paid only where it matters)
     anchor_warp_px: Annotated[float, Field(ge=0)] = 0.5
     anchor_reject: bool = True
