@@ -81,7 +81,7 @@ def warped_flow(seed_gray: np.ndarray, gray: np.ndarray, p0: np.ndarray, A: np.n
         k = np.arange(lo, min(m, lo + rows * cols))
         used = -(-len(k) // cols)  # the rows of tiles this batch fills (the rest of the image stays 0)
         mx = np.zeros((used * cols, tile, tile), np.float32)
-        my = np.full((used * cols, tile, tile), -1.0, np.float32)  # the unused tiles: outside the seed image
+        my = np.full((used * cols, tile, tile), -1.0, np.float32)  # unused tiles: the border (no point reads them)
         mx[:len(k)] = p0[k, 0, None, None] + inv[k, 0, 0, None, None] * dx + inv[k, 0, 1, None, None] * dy
         my[:len(k)] = p0[k, 1, None, None] + inv[k, 1, 0, None, None] * dx + inv[k, 1, 1, None, None] * dy
         maps = [a.reshape(used, cols, tile, tile).transpose(0, 2, 1, 3).reshape(used * tile, cols * tile)
