@@ -170,7 +170,7 @@ class PatchOptions:
     # the seed, warp.seed_to_now / warped_flow), so a turned patch is compared with its seed appearance as its plane
     # is seen now. False: the seed square as it was at the seed (the rule so far). On the few-camera rig with the
     # visibility's setting ("cand", docs/patches.md) 4.6-5.8 % of the flown points were rejected (2 % of a still
-    # part's, 23-26 % of a part's turned 10-20 deg, 40-51 % at 20-45), two thirds not aligned at all; a point of
+    # part's, 23-26 % of a part's turned 10-20 deg, 41-55 % at 20-45), two thirds not aligned at all; a point of
     # a two-view limb patch rejected ends it; with the warp its occluded spans (three clouds) 75.6 -> 82.2 % (seed 1),
     # 78.9 -> 84.4 % (seed 2), 58.3 -> 67.8 % (seed 3, a check), the visibility aims kept (scene 1 97.36 / 92.56,
     # scene 2 98.09 / 92.10, unseen 98.28 / 91.42) (docs/benchmarks.md, branch anchor62)
