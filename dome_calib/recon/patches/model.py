@@ -175,6 +175,20 @@ class PatchOptions:
     # ms per patch-step, 4.5 % fewer points rejected, the visibility aims moved within 0.05 point but scene 1's
     # precision with best 97.01 -> 96.99 %; 1, the rule so far (docs/benchmarks.md, branch fast61)
     anchor_levels: AtLeast(0) = 1
+    # the seed image warped, before the realignment, by each patch's seed-to-now map in that camera (the affine map
+    # of its triplet's projections at the seed to those of its current triplet: its turn and foreshortening since
+    # the seed, warp.seed_to_now / warped_flow), so a turned patch is compared with its seed appearance as its plane
+    # is seen now. False: the seed square as it was at the seed (the rule so far). On the few-camera rig with the
+    # visibility's setting ("cand", docs/patches.md) 4.6-5.8 % of the flown points were rejected (2 % of a still
+    # part's, 23-26 % of a part's turned 10-20 deg, 41-55 % at 20-45), two thirds not aligned at all; a point of
+    # a two-view limb patch rejected ends it; with the warp its occluded spans (three clouds) 75.6 -> 82.2 % (seed 1),
+    # 78.9 -> 84.4 % (seed 2), 58.3 -> 67.8 % (seed 3, a check), the visibility aims kept (scene 1 97.36 / 92.56,
+    # scene 2 98.09 / 92.10, unseen 98.28 / 91.42) (docs/benchmarks.md, branch anchor62)
+    anchor_warp: bool = False
+    # ... for the patches whose map moves a corner of the flow's window (lk_window_px) farther than this from where
+    # a plain shift leaves it (warp.warp_px; 0.5 px: a turn of ~3 deg): the others, most of them, are aligned as
+    # without the warp, bit for bit (and the warp's resampling is paid only where it matters)
+    anchor_warp_px: Annotated[float, Field(ge=0)] = 0.5
     anchor_reject: bool = True
     anchor_reject_unaligned: bool = True  # also reject a point the seed image cannot be aligned at (else kept)
     # drift (track.py, visibility.off_seed): a patch ends when its visible views no longer show its seed

@@ -44,6 +44,7 @@ from dome_calib.recon.patches.occlusion import PART_RADIUS_CM, BodyPrior
 from dome_calib.recon.patches.parts import bone_segments, nearest_part
 from dome_calib.recon.patches.seed import optical_flow
 from dome_calib.recon.patches.visibility import Frames, Visibility, estimate_visibility, off_seed
+from dome_calib.recon.patches.warp import seed_to_now, warp_px, warped_flow
 from dome_calib.recon.project import ViewSet, project_view
 from dome_calib.recon.streams import frame_brackets, frame_period_ms
 from dome_calib.recon.triangulate import TriangulationOptions, triangulate
@@ -416,7 +417,8 @@ class SeedViews:
         return cls(uv=uv, frame=np.where(now, frames.frame, -1), gray={})
 
     def realign(self, source: FrameSource, name: str, frames: Frames, v: int, idx: np.ndarray, q: np.ndarray,
-                ok: np.ndarray, o: PatchOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                ok: np.ndarray, o: PatchOptions, now: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Flown points ``q`` (n, 3, 2), ``ok`` (n, 3) of patches ``idx`` in camera ``v`` (``name``) at this step's
         time, aligned to their seed appearance -> ((3 n, 2) points, (3 n,) ok, (3 n,) rejected here): Lucas-Kanade
         from the camera's seed image at the seed pixels, ``anchor_levels`` pyramid levels above the image,
@@ -425,7 +427,10 @@ class SeedViews:
         ``anchor_flow_px`` of the flown point; a point farther (the flow slid, or the view changed) is rejected in
         this camera when ``anchor_reject``, and one that could not be aligned too when ``anchor_reject_unaligned``
         (else it is kept as flown). Points without a seed view in ``v``, or a camera with
-        no frame at this very time, are left as flown."""
+        no frame at this very time, are left as flown. With ``anchor_warp`` and ``now`` (n, 3, 2), the patches'
+        current triplets projected in ``v``, the seed image is first warped by each patch's seed-to-now map
+        (:mod:`.warp`) where that map moves the flow window's corners by more than ``anchor_warp_px``: the seed
+        appearance as the patch's plane is seen now."""
         q, ok = q.reshape(-1, 2).copy(), ok.reshape(-1).copy()
         f = int(frames.frame[v])
         off = np.zeros(len(ok), bool)
@@ -437,8 +442,16 @@ class SeedViews:
             return q, ok, off
         if v not in self.gray:
             self.gray[v] = source.gray(name, int(self.frame[v]))
-        r, good = optical_flow(self.gray[v], source.gray(name, f), p0[has], o, guess=q[has],
-                               levels=o.anchor_levels)
+        gray = source.gray(name, f)
+        A = np.repeat(seed_to_now(self.uv[idx, :, v], now.reshape(-1, 3, 2)), 3, axis=0)[has] if (
+            o.anchor_warp and now is not None) else np.repeat(np.eye(2)[None], int(has.sum()), axis=0)
+        warped = ties.above(warp_px(A, o.lk_window_px), o.anchor_warp_px, ties.FLOW_QUANTUM_PX)
+        r, good = np.zeros((len(A), 2)), np.zeros(len(A), bool)
+        if (~warped).any():
+            r[~warped], good[~warped] = optical_flow(self.gray[v], gray, p0[has][~warped], o,
+                                                     guess=q[has][~warped], levels=o.anchor_levels)
+        if warped.any():
+            r[warped], good[warped] = warped_flow(self.gray[v], gray, p0[has][warped], A[warped], q[has][warped], o)
         near = good & ties.at_most(np.linalg.norm(r - q[has], axis=1), o.anchor_flow_px, ties.FLOW_QUANTUM_PX)
         rows = np.flatnonzero(has)
         q[rows[near]] = r[near]
@@ -532,7 +545,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                         from_body += int(found.sum())
                 if o.anchor_flow:
                     q, ok, off = seed_of.realign(source, name, frames1, v, idx, q.reshape(-1, 3, 2),
-                                                 ok.reshape(-1, 3), o)
+                                                 ok.reshape(-1, 3), o, now=p)
                     slid_view[idx, v] = off.reshape(-1, 3).any(axis=1)
                 uv[idx, :, v] = q.reshape(-1, 3, 2)
                 tracked[idx, :, v] = ok.reshape(-1, 3)
