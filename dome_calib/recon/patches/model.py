@@ -21,9 +21,15 @@ class PatchOptions:
     """How patches are seeded, tracked and judged visible (defaults: the CVPR 2014 method's sizes)."""
 
     size_cm: PosFinite = 6.0  # side of the patch's square
-    # side of the square its appearance is compared on (seeds' checks, normal refinement, visibility); 4 cm gains
-    # precision and recall on the bench's two scenes (docs/benchmarks.md, issue 49), the default is the paper's
+    # side of the square its appearance is compared on (the visibility, and the seeds' roles below unless they have
+    # their own); 4 cm gains precision and recall on the bench's two scenes (docs/benchmarks.md, issue 49), the
+    # default is the paper's
     ncc_size_cm: PosFinite = 6.0
+    # the seeds' own square (None: ncc_size_cm): seed_ncc_size_cm the seeds' checks (seed_skeleton's depth search and
+    # agreement, seed_features.square_ncc), refine_ncc_size_cm the normals' photometric refinement (refine.py: at the
+    # seeds only); the visibility (MAP, seed appearance) keeps ncc_size_cm. (seed_square_cm / refine_square_cm)
+    seed_ncc_size_cm: PosFinite | None = None
+    refine_ncc_size_cm: PosFinite | None = None
     axis_cm: PosFinite = 3.0  # distance of the two plane points from the centre
     seed_every_frames: AtLeast(1) = 20  # a new cloud every 20th frame of the reference stream
     track_frames: AtLeast(0) = 30  # each cloud tracked this many reference frames backward and forward
@@ -173,6 +179,16 @@ class PatchOptions:
     seed_appearance_end: bool = False
     min_visible: AtLeast(2) = 2  # a patch seen by fewer cameras ends
     max_stretch: Annotated[float, Field(gt=0, lt=1)] = 0.3  # a patch whose plane points move this much ends
+
+
+def seed_square_cm(o: PatchOptions) -> float:
+    """The side of the square the seeds' checks compare (``seed_ncc_size_cm``, else ``ncc_size_cm``)."""
+    return float(o.ncc_size_cm if o.seed_ncc_size_cm is None else o.seed_ncc_size_cm)
+
+
+def refine_square_cm(o: PatchOptions) -> float:
+    """The side of the square the normals' refinement compares (``refine_ncc_size_cm``, else ``ncc_size_cm``)."""
+    return float(o.ncc_size_cm if o.refine_ncc_size_cm is None else o.refine_ncc_size_cm)
 
 
 @dataclass(frozen=True)
