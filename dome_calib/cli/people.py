@@ -57,11 +57,6 @@ def reconstruct(
                                     "dome), features (SIFT matched along epipolar lines), skeleton (corners on the "
                                     "people put in 3D by their bodies' capsules, refined photometrically nearby: "
                                     "a few cameras far apart; the people are the depth prior)."),
-    patch_setting: str = typer.Option("body", "--patch-setting", help="Which setting --images tracks its patches "
-                                      "with: body (the default: the body's occluded limbs recovered best), or "
-                                      "visibility (each patch's visible cameras judged best: 97 % precision, 90 % "
-                                      "recall on the bench's scenes; on a rig of a few cameras far apart it recovers "
-                                      "fewer occluded limbs; docs/patches.md)."),
     correct_offsets: bool = typer.Option(False, "--correct-offsets", help="A camera flagged for its offset (its "
                                          "joints to one side of where the others put them: turned since "
                                          "calibration) gets its principal point moved by the offset measured, and "
@@ -92,7 +87,7 @@ def reconstruct(
         patches = None
         if images is not None:
             from dome_calib.recon.patches.stage import plan_patches
-            patches = plan_patches(plan, seed_method=patch_seeds, setting=patch_setting)  # the images' contents, before any work
+            patches = plan_patches(plan, seed_method=patch_seeds)  # the images' contents, before any work
         page = people_page_writer(plan.out, bundle, detections, camera_map=camera_map, body_model=plan.model.value,
                                   files=plan.source.files)
         with open_executor(None, scheduler, workers=workers) as executor, ProgressBars(transient=True) as bars:

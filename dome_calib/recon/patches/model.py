@@ -191,18 +191,6 @@ def refine_square_cm(o: PatchOptions) -> float:
     return float(o.ncc_size_cm if o.refine_ncc_size_cm is None else o.refine_ncc_size_cm)
 
 
-#: Named settings of :class:`PatchOptions` (``reconstruct --patch-setting``): "body", the defaults (what the body's
-#: occluded spans are measured with: ``reconstruct --images``' purpose); "visibility", the setting that meets issue
-#: 49's visibility aims on the bench's judged scenes (docs/patches.md "The visibility's setting"; it loses the body's
-#: occluded-span aim on the few-camera rig: docs/benchmarks.md).
-PATCH_SETTINGS: dict[str, dict[str, object]] = {
-    "body": {},
-    "visibility": {"anchor_flow": True, "neighbour_ncc": True, "ncc_size_cm": 4.0, "refine_ncc_size_cm": 6.0,
-                   "seed_appearance_end": True, "body_occlusion": True, "map_ncc_threshold": 0.75,
-                   "normal_max_gap_deg": 210.0, "anchor_levels": 0, "lk_levels_predicted": 0},
-}
-
-
 @dataclass(frozen=True)
 class PatchTrajectories:
     """Patches over reference times: N patches, T times, V cameras (``cameras`` order).

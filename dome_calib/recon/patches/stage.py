@@ -22,7 +22,7 @@ from dome_calib.recon.errors import ReconError
 from dome_calib.recon.people.commands import FurtherStage, ReconstructPlan
 from dome_calib.recon.patches.images import ImageSource, open_images, with_shared_clock
 from dome_calib.recon.patches.body import TieOptions, flag_joints, joint_ties
-from dome_calib.recon.patches.model import PATCH_SETTINGS, PatchOptions
+from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.motion import part_motions
 from dome_calib.recon.patches.page_layer import patch_layer
 from dome_calib.recon.patches.parts import label_parts
@@ -117,20 +117,15 @@ class PatchStage:
 
 
 def plan_patches(plan: ReconstructPlan, options: PatchOptions | None = None, *,
-                 seed_method: str | None = None, setting: str | None = None) -> PatchStage:
+                 seed_method: str | None = None) -> PatchStage:
     """Check the images of a reconstruction's plan (``--images``, which :func:`plan_reconstruction` checked as an
     input place beside the others): every camera's file, its frames and size (:func:`~.images.open_images`); a
     bundle without sync tables takes the detections' rate ``plan.fps``. ``seed_method`` (``--patch-seeds``)
     replaces the options' seeding method; ``"auto"`` picks it when the stage runs, from the reference stream's
-    cameras (:meth:`PatchStage.seeding`). ``setting`` (``--patch-setting``): a named setting of
-    :data:`~.model.PATCH_SETTINGS` put over the options."""
+    cameras (:meth:`PatchStage.seeding`)."""
     if plan.images is None:
         raise ValueError("plan_patches: the plan has no images (plan_reconstruction(..., images=FOLDER))")
     options = options or PatchOptions()
-    if setting is not None:
-        if setting not in PATCH_SETTINGS:
-            raise ReconError(f"--patch-setting {setting!r}: expected one of {', '.join(PATCH_SETTINGS)}")
-        options = replace(options, **PATCH_SETTINGS[setting])
     auto = seed_method == "auto"
     if seed_method is not None and not auto:
         try:
