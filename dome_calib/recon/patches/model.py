@@ -28,7 +28,8 @@ class PatchOptions:
     # agreement, seed_features.square_ncc), refine_ncc_size_cm the normals' photometric refinement (refine.py: at the
     # seeds only); the visibility (MAP, seed appearance) keeps ncc_size_cm. (seed_square_cm / refine_square_cm).
     # The refinement on 6 cm: with the visibility's 4 cm the panel's occluded spans fall 80 -> 45 % (the seeds per part
-    # are the same; the left knee's motion is lost), back to 80 % with this alone (docs/benchmarks.md, branch split62)
+    # are the same; the left thigh's motion no longer ties the knee), back to 80 % with this alone (docs/benchmarks.md,
+    # branch split62)
     seed_ncc_size_cm: PosFinite | None = None
     refine_ncc_size_cm: PosFinite | None = 6.0
     axis_cm: PosFinite = 3.0  # distance of the two plane points from the centre
