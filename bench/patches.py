@@ -594,8 +594,8 @@ def run(args: argparse.Namespace) -> None:
             load = os.getloadavg()
             cpu0, wall0, render0 = time.process_time(), time.perf_counter(), sum(scene.render_s.values())
             # seed tasks are reused between runs whose seeding options are the same (a variant may change them:
-            # ncc_size_cm sizes the skeleton seeds' NCC)
-            seeding_key = (seeding, spacing, ok.ncc_size_cm, tuple(sorted(
+            # ncc_size_cm and refine_ncc_size_cm size the skeleton seeds' NCC; seed_ncc_size_cm is a seed_ field)
+            seeding_key = (seeding, spacing, ok.ncc_size_cm, ok.refine_ncc_size_cm, tuple(sorted(
                 (k, repr(v)) for k, v in dataclasses.asdict(ok).items() if k.startswith(("seed_", "normal_")))))
             with PhaseTimer(scene, memo.setdefault(seeding_key, {})) as phases, \
                     oracle_normals(args.oracle_normals, truth):

@@ -80,9 +80,10 @@ def _labels(plane, covered: set[str], neighbour_ncc: bool, **options):
 
 
 def test_cameras_far_from_the_reference_that_agree_with_their_neighbours_are_visible(plane):
-    names, old = _labels(plane, set(), neighbour_ncc=False)
+    # on the 6 cm square (the default before split62): on the default 4 cm one the reference alone keeps all 8 here
+    names, old = _labels(plane, set(), neighbour_ncc=False, ncc_size_cm=6.0)
     assert old.visible.sum() < len(names)  # against the reference alone some cameras are lost 
-    _, new = _labels(plane, set(), neighbour_ncc=True)
+    _, new = _labels(plane, set(), neighbour_ncc=True, ncc_size_cm=6.0)
     assert new.visible.all()
     assert np.array_equal(new.photometric, old.photometric)  # the CVPR 2014 baseline is the same
 

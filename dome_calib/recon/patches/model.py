@@ -21,9 +21,17 @@ class PatchOptions:
     """How patches are seeded, tracked and judged visible (defaults: the CVPR 2014 method's sizes)."""
 
     size_cm: PosFinite = 6.0  # side of the patch's square
-    # side of the square its appearance is compared on (seeds' checks, normal refinement, visibility); 4 cm gains
-    # precision and recall on the bench's two scenes (docs/benchmarks.md, issue 49), the default is the paper's
-    ncc_size_cm: PosFinite = 6.0
+    # side of the square its appearance is compared on (the visibility, and the seeds' roles below unless they have
+    # their own); 4 cm gains precision and recall on the bench's scenes (docs/benchmarks.md, issue 49; the paper's 6)
+    ncc_size_cm: PosFinite = 4.0
+    # the seeds' own square (None: ncc_size_cm): seed_ncc_size_cm the seeds' checks (seed_skeleton's depth search and
+    # agreement, seed_features.square_ncc), refine_ncc_size_cm the normals' photometric refinement (refine.py: at the
+    # seeds only); the visibility (MAP, seed appearance) keeps ncc_size_cm. (seed_square_cm / refine_square_cm).
+    # The refinement on 6 cm: with the visibility's 4 cm the panel's occluded spans fall 80 -> 45 % (the seeds per part
+    # are the same; the left thigh's motion no longer ties the knee), back to 80 % with this alone (docs/benchmarks.md,
+    # branch split62)
+    seed_ncc_size_cm: PosFinite | None = None
+    refine_ncc_size_cm: PosFinite | None = 6.0
     axis_cm: PosFinite = 3.0  # distance of the two plane points from the centre
     seed_every_frames: AtLeast(1) = 20  # a new cloud every 20th frame of the reference stream
     track_frames: AtLeast(0) = 30  # each cloud tracked this many reference frames backward and forward
@@ -66,8 +74,8 @@ class PatchOptions:
     normal_fit: Literal["plane", "quadric"] = "plane"
     # a sweep seed whose neighbours (within normal_radius_cm, in its plane) leave a gap round it wider than this
     # (deg) is dropped: the seeded cloud ends on one side of it, there the plane leans towards the side that has
-    # seeds and its normal cannot be had (seed.neighbour_gap_deg; 360: none dropped)
-    normal_max_gap_deg: Annotated[float, Field(gt=0, le=360)] = 360.0
+    # seeds and its normal cannot be had (seed.neighbour_gap_deg; 360: none dropped; 210 the default since split62)
+    normal_max_gap_deg: Annotated[float, Field(gt=0, le=360)] = 210.0
     refine_normals: bool = True  # then refined photometrically in the cameras that see the seed (refine.py)
     # the refinement's first tilt step (deg); each later step halves it down to 2 deg (8: steps 8, 4, 2, reaching
     # 14 deg about each plane axis; 16: 16, 8, 4, 2, reaching 30 deg)
@@ -97,9 +105,10 @@ class PatchOptions:
     # rest of the motion (the first step from a seed, without a velocity: lk_levels), except a point whose predicted
     # image motion in the frame step is at least lk_levels_full_px (0: none is): lk_levels. On the bench's walkers
     # the prediction with 1 level reaches 10 frames 42 -> 53 %, on the conversation scenes the same figures, for
-    # 25-37 % less tracking CPU (docs/benchmarks.md, issue 49)
+    # 25-37 % less tracking CPU (docs/benchmarks.md, issue 49); 0 levels: the default since split62 (one setting meets
+    # issue 49's visibility aims and the body's, docs/benchmarks.md)
     lk_predict: bool = True
-    lk_levels_predicted: AtLeast(0) = 1
+    lk_levels_predicted: AtLeast(0) = 0
     lk_levels_full_px: Annotated[float, Field(ge=0)] = 0.0
     # a point whose flow fails in a camera where another point of its patch is tracked is flown again from its
     # position moved by those points' mean image motion (track.refind_lost): on the few-camera rig 92 % of the limb
@@ -141,11 +150,12 @@ class PatchOptions:
     # visibility (MAP): unary costs of "visible" against "not visible" (the latter 0), Potts prior
     ncc_threshold: Annotated[float, Field(ge=-1, le=1)] = 0.6  # photometric: NCC above this favours "visible"
     # photometric term of the MAP: True, the best NCC against the reference and the previously visible neighbours
-    # (visibility.neighbour_ncc), judged against map_ncc_threshold; False (default): the reference alone,
-    # ncc_threshold. Off: on the bench it gains recall but its extra views make patches drift (docs/benchmarks.md);
-    # with anchor_flow the drift is held (recall 89-92 %, length kept) but precision falls 1.3 points on one scene
-    neighbour_ncc: bool = False
-    map_ncc_threshold: Annotated[float, Field(ge=-1, lt=1)] = 0.7
+    # (visibility.neighbour_ncc), judged against map_ncc_threshold (0.75); False: the reference alone, ncc_threshold.
+    # Alone it gains recall but its extra views make patches drift (docs/benchmarks.md); with the slid patches' end,
+    # the people as occluders and the 4 cm square it is the default since split62 (one setting meets issue 49's
+    # visibility aims and the body's, docs/benchmarks.md)
+    neighbour_ncc: bool = True
+    map_ncc_threshold: Annotated[float, Field(ge=-1, lt=1)] = 0.75
     photometric_weight: PosFinite = 2.0
     motion_sigma_px: PosFinite = 1.5  # motion: flow against the reprojected 3D motion
     motion_weight: PosFinite = 1.0
@@ -160,14 +170,16 @@ class PatchOptions:
     # geometric: the people as occluders (occlusion.py; needs the body over time, patch_stream(..., body=)): a camera
     # whose ray to the patch centre, stopped occlusion_stop_cm short of it (half the patch's side), passes through a
     # part's capsule (a generic adult's radius less occluder_margin_cm: skeleton noise, parts not round) is no
-    # candidate. Off by default; without a body nothing changes
-    body_occlusion: bool = False
+    # candidate. On by default (split62); without a body nothing changes
+    body_occlusion: bool = True
     occluder_margin_cm: Annotated[float, Field(ge=0)] = 3.0
     occlusion_stop_cm: Annotated[float, Field(ge=0)] = 3.0
     prior_weight: Annotated[float, Field(ge=0)] = 0.3  # Potts weight between neighbouring cameras
     prior_neighbours: AtLeast(1) = 4
     # drift (track.SeedViews): each flown point realigned by optical flow from the camera's seed image (where the
-    # patch was at the seed) when within anchor_flow_px of the flow; farther: rejected in that camera (anchor_reject)
+    # patch was at the seed) when within anchor_flow_px of the flow; farther: rejected in that camera (anchor_reject).
+    # Off: on the few-camera rig it rejects two-view limb points as the limb turns (three clouds, occluded spans 87.2
+    # -> 77.8 / 78.9 % on seeds 1 / 2), for +0.16 point of precision on scene 1 (docs/benchmarks.md, branch split62)
     anchor_flow: bool = False
     anchor_flow_px: PosFinite = 1.0
     # the realignment's pyramid levels above the image (cv2 maxLevel): it starts at the flown point and keeps an
@@ -193,10 +205,20 @@ class PatchOptions:
     anchor_reject_unaligned: bool = True  # also reject a point the seed image cannot be aligned at (else kept)
     # drift (track.py, visibility.off_seed): a patch ends when its visible views no longer show its seed
     # appearance (median NCC, over the visible cameras that saw it at the seed, of its square now against its square
-    # there at the seed, below ncc_threshold): it slid off the surface point it was seeded on
-    seed_appearance_end: bool = False
+    # there at the seed, below ncc_threshold): it slid off the surface point it was seeded on (on by default: split62)
+    seed_appearance_end: bool = True
     min_visible: AtLeast(2) = 2  # a patch seen by fewer cameras ends
     max_stretch: Annotated[float, Field(gt=0, lt=1)] = 0.3  # a patch whose plane points move this much ends
+
+
+def seed_square_cm(o: PatchOptions) -> float:
+    """The side of the square the seeds' checks compare (``seed_ncc_size_cm``, else ``ncc_size_cm``)."""
+    return float(o.ncc_size_cm if o.seed_ncc_size_cm is None else o.seed_ncc_size_cm)
+
+
+def refine_square_cm(o: PatchOptions) -> float:
+    """The side of the square the normals' refinement compares (``refine_ncc_size_cm``, else ``ncc_size_cm``)."""
+    return float(o.ncc_size_cm if o.refine_ncc_size_cm is None else o.refine_ncc_size_cm)
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from dome_calib.recon.patches.frames import FrameSource, GRID_SIDE, ncc, patch_axes, sample
-from dome_calib.recon.patches.model import PatchOptions
+from dome_calib.recon.patches.model import PatchOptions, refine_square_cm
 from dome_calib.recon.patches.visibility import Frames
 from dome_calib.recon.project import ViewSet, project_points
 from dome_calib import ties
@@ -45,7 +45,7 @@ def _score(source: FrameSource, views: ViewSet, frames: Frames, X0: np.ndarray, 
     N, H = n.shape[:2]
     K = cams.shape[1]
     v = np.cross(n, u)
-    g = (np.arange(GRID_SIDE) / (GRID_SIDE - 1) - 0.5) * o.ncc_size_cm
+    g = (np.arange(GRID_SIDE) / (GRID_SIDE - 1) - 0.5) * refine_square_cm(o)
     a, b = (x.ravel() for x in np.meshgrid(g, g))
     grid = X0[:, None, None] + a[:, None] * u[:, :, None] + b[:, None] * v[:, :, None]  # (N, H, G, 3)
     G = grid.shape[2]

@@ -28,7 +28,7 @@ import numpy as np
 
 from dome_calib.camera import pixels_to_normalized
 from dome_calib.recon.patches.frames import FrameSource, ncc, patch_axes, patch_grid_cm, project_one, sample
-from dome_calib.recon.patches.model import PatchOptions
+from dome_calib.recon.patches.model import PatchOptions, seed_square_cm
 from dome_calib.recon.patches.refine import refine_normals
 from dome_calib.recon.patches.seed import Seeds, _normals, _volume_span, in_volume
 from dome_calib.recon.patches.visibility import Frames
@@ -196,9 +196,9 @@ def seed_from_features(source: FrameSource, views: ViewSet, frames: dict[str, in
 
 def square_ncc(source: FrameSource, views: ViewSet, at: Frames, X: np.ndarray, seen: np.ndarray, o: PatchOptions
                ) -> np.ndarray:
-    """(N,) the least NCC of a patch's square (``ncc_size_cm``) between its most face-on seeing camera and each of
+    """(N,) the least NCC of a patch's square (:func:`.model.seed_square_cm`) between its most face-on seeing camera and each of
     the others that see it (-1 where a square leaves an image or fewer than two cameras see it)."""
-    grid = patch_grid_cm(X[:, 0], X[:, 1], X[:, 2], o.ncc_size_cm)
+    grid = patch_grid_cm(X[:, 0], X[:, 1], X[:, 2], seed_square_cm(o))
     _, _, n = patch_axes(X[:, 0], X[:, 1], X[:, 2])
     to_cam = views.center_cm[None] - X[:, None, 0]
     cos = np.sum(to_cam * n[:, None], -1) / np.linalg.norm(to_cam, axis=-1)

@@ -16,7 +16,7 @@ them), so the depth of a pixel on a person is known to a few centimetres:
    (:func:`part_corners`: limb coverage, not only the textured torso), each ray's first capsule hit giving an
    **initial depth and normal** (the capsule's outward normal there).
 3. **Refined photometrically** along the ray within ``seed_depth_window_cm`` of the hit (coarse steps of
-   ``seed_depth_step_cm``, then a fifth of it round the best): the patch's square (``ncc_size_cm``, at most the
+   ``seed_depth_step_cm``, then a fifth of it round the best): the patch's square (``seed_ncc_size_cm``, else ``ncc_size_cm``, at most the
    radius of the part the ray meets: :func:`square_side_cm`; its plane given by the normal) is sampled in the
    reference camera and in each other camera of the stream that may see it (the whole square in the image, the
    normal facing it by more than ``min_cos_view``, no capsule on the way to it more than the window before it: the
@@ -44,7 +44,7 @@ import numpy as np
 
 from dome_calib.camera import pixels_to_normalized
 from dome_calib.recon.patches.frames import GRID_SIDE, FrameSource, ncc, patch_axes, sample
-from dome_calib.recon.patches.model import PatchOptions
+from dome_calib.recon.patches.model import PatchOptions, seed_square_cm
 # the body as capsules lives with its other use, the people as occluders of the views (re-exported here)
 from dome_calib.recon.patches.occlusion import PART_RADIUS_CM, BodyPrior, body_capsules  # noqa: F401
 from dome_calib.recon.patches.refine import refine_normals
@@ -309,7 +309,7 @@ def seed_camera_on_body(source: FrameSource, views: ViewSet, frames: dict[str, i
     corners, dirs, s0, n0 = corners[hit], dirs[hit], s0[hit], n0[hit]
     if not len(corners):
         return empty
-    size = square_side_cm(radius[which[hit]], o.ncc_size_cm)
+    size = square_side_cm(radius[which[hit]], seed_square_cm(o))
     # views in ``grays`` order: the reference first, then the others by position
     order = [r] + [c for c in range(V) if c != r]
     sub = views.at(order)
