@@ -13,15 +13,11 @@ import pytest
 import dome_calib.pipeline.full as pipeline
 from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.layout import nominal_dome
-from dome_calib.report import ReportError, ReportOptions, Residuals, write_report
+from dome_calib.report import ReportError, Residuals, write_report
 
-from .report_data import REPORT_FILES, copy_kept_files, moved_copy, old_report_json, synthetic_residuals
+from .report_data import NO_PLOTS, REPORT_FILES, copy_kept_files, moved_copy, old_report_json, synthetic_residuals
 from .test_calibrate import CERTAIN, UNCERTAIN, capture, stand_in_stages  # noqa: F401  (fixtures)
 from .test_quick_recalibration import _matched_scene, _neighbourhood
-
-#: The reports these tests write have no plots (1-2 s each): none of them reads a plot. `dome-calib report` still
-#: draws its own (the rebuild tests' page).
-NO_PLOTS = ReportOptions(plots=False)
 
 
 def _numpy_warnings(caught) -> list[str]:
