@@ -59,7 +59,8 @@ SFM_SEED = 1
 @pytest.fixture(scope="session")
 def sfm_capture(tmp_path_factory) -> Path:
     """A rendered capture of SFM_CAMERAS, 2 scenes (the full preset, seed SFM_SEED), built once per run
-    (``built_once``): test_sfm and test_sfm_known each copy it and break or remove images in their copy."""
+    (``built_once``): test_sfm and test_sfm_known each copy it and break or remove images in their copy;
+    test_synth_cli renders two of its cameras again (the same bytes in one process as in its 2-worker build)."""
     from dome_calib.synth.capture import SynthOptions, synthesize
 
     def build(folder: Path) -> Path:

@@ -15,10 +15,15 @@ from dome_calib.bundle import Bundle, CameraType
 from dome_calib.bundle_io import write_bundle
 from dome_calib.compare import detect_changes
 from dome_calib.reasons import ReasonCode, reason
+from dome_calib.report import ReportOptions
 from dome_calib.residuals import Residuals
 
 OBS_RANGE = {CameraType.VGA: (500, 1400), CameraType.HD: (2000, 3500), CameraType.KINECT_COLOR: (1200, 2200)}
 SIGMA_PX = {CameraType.VGA: 0.35, CameraType.HD: 0.25, CameraType.KINECT_COLOR: 0.3}
+
+#: A report without its plots (1-2 s a report): for the tests that read no plot (test_report and test_session
+#: check the plots' files; `dome-calib report` draws its own).
+NO_PLOTS = ReportOptions(plots=False)
 
 
 @dataclasses.dataclass(kw_only=True)

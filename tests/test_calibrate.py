@@ -21,6 +21,8 @@ from dome_calib.pipeline.stages import observation_residuals, residuals_of
 from dome_calib.pipeline.types import BAOutcome, SfmOutcome
 from dome_calib.layout import nominal_dome
 
+from .report_data import NO_PLOTS  # no test here reads a plot
+
 SFM_FRAME = pycolmap.Sim3d(0.05, pycolmap.Rotation3d(Rotation.from_rotvec([0.2, 1.3, -0.4]).as_matrix()), [1, 2, 3])
 NOISE_PX = 0.3
 _TINY = nominal_dome("tiny", seed=0)  # cameras the tests need are asked of the preset, not assumed
@@ -90,7 +92,7 @@ def stand_in_stages(monkeypatch, capture):
 def test_calibrate_writes_bundle_and_report_and_resumes(tmp_path, capture, stand_in_stages):
     cap, truth = capture
     out = tmp_path / "bundle"
-    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test"))
+    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", report=NO_PLOTS))
     bundle = load_bundle(out)
     assert sorted(bundle.cameras) == sorted(truth.cameras)
     for n, c in truth.cameras.items():  # nominal-geometry frame = the synthetic truth frame
@@ -111,7 +113,7 @@ def test_calibrate_writes_bundle_and_report_and_resumes(tmp_path, capture, stand
     assert rep["cluster"] == {"executor": "local", "processes": n, "on_this_machine": ON_THE_HEAD,
                               "description": f"local process pool, {n} processes" if n > 1
                               else "in the calling process (1 worker)"}
-    again = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test"))
+    again = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", report=NO_PLOTS))
     assert stand_in_stages == {"sfm": 1, "ba": 1}  # both taken from the work folder
     assert again.resumed == ["sfm", "ba"]
 
@@ -141,7 +143,7 @@ def test_scheduler_run_reports_where_each_stage_ran_also_when_resumed(tmp_path, 
     out = tmp_path / "bundle"
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, protocol="tcp",
                       dashboard_address=":0") as lc:
-        options = pipeline.CalibrateOptions(seq="test", scheduler=lc.scheduler_address)
+        options = pipeline.CalibrateOptions(seq="test", scheduler=lc.scheduler_address, report=NO_PLOTS)
         result = pipeline.run_calibration(cap, out, options)
         section = json.loads((out / "report" / "report.json").read_text())["cluster"]
         assert section["executor"] == "dask" and section["scheduler"] == lc.scheduler_address
@@ -165,7 +167,7 @@ def test_calibrate_with_prior_reports_moved_camera(tmp_path, capture, stand_in_s
     moved["01_02"] = type(c)(**{**c.__dict__, "t_cm": c.t_cm + np.array([0.0, 3.0, 0.0])})
     prior = write_bundle(type(truth)(seq="old", cameras=moved), tmp_path / "prior")
     out = tmp_path / "bundle"
-    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(prior=prior))
+    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(prior=prior, report=NO_PLOTS))
     assert sorted(result.changes) == ["01_02"]
     assert result.normalized.reference == "prior" and result.normalized.alignment.outliers == ["01_02"]
     assert "01_02: moved 3.0 cm" in pipeline.format_result(result)

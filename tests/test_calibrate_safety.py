@@ -22,14 +22,14 @@ from dome_calib.bundle_io import load_bundle, recover_folder, replace_folder, wr
 from dome_calib.errors import CaptureError, DomeCalibError
 from dome_calib.pipeline.workstate import WorkFolderBusy, WorkState
 
-from .report_data import REPORT_FILES
+from .report_data import NO_PLOTS, REPORT_FILES
 from .test_calibrate import capture, stand_in_stages  # noqa: F401  (fixtures)
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _options(**kw):
-    return pipeline.CalibrateOptions(**kw)
+    return pipeline.CalibrateOptions(**{"report": NO_PLOTS, **kw})  # no test here reads a plot
 
 
 def _write_png(path: Path, value: int) -> None:

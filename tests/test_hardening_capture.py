@@ -18,11 +18,12 @@ from dome_calib.bundle import Bundle, Camera
 from dome_calib.bundle_io import write_bundle
 from dome_calib.errors import CaptureError, DomeCalibError
 
+from .report_data import NO_PLOTS
 from .test_calibrate import capture, stand_in_stages  # noqa: F401  (fixtures)
 
 
 def _options(**kw):
-    return pipeline.CalibrateOptions(progress=None, **kw)
+    return pipeline.CalibrateOptions(progress=None, report=NO_PLOTS, **kw)  # no test here reads a plot
 
 
 def _in_metres(bundle: Bundle) -> Bundle:

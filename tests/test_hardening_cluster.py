@@ -9,6 +9,7 @@ import pytest
 import dome_calib.pipeline.full as pipeline
 from dome_calib.errors import DomeCalibError
 
+from .report_data import NO_PLOTS  # the test reads no plot
 from .test_calibrate import capture, stand_in_stages  # noqa: F401  (fixtures)
 
 
@@ -24,7 +25,7 @@ def test_relative_capture_output_and_work_reach_the_stages_absolute(tmp_path, ca
     monkeypatch.setattr(pipeline, "run_sfm_stage", sfm)
     monkeypatch.chdir(tmp_path)
     result = pipeline.run_calibration(cap.relative_to(tmp_path), "out",
-                                      pipeline.CalibrateOptions(progress=None, work_dir="w"))
+                                      pipeline.CalibrateOptions(progress=None, work_dir="w", report=NO_PLOTS))
     assert seen["capture"].is_absolute() and seen["capture"] == cap
     assert seen["work"].is_absolute() and seen["work"].parent == tmp_path / "w"
     assert result.bundle_dir == tmp_path / "out" and (tmp_path / "out").is_dir()

@@ -19,6 +19,7 @@ from dome_calib import io_utils
 from dome_calib.io_utils import OutputPathError
 
 from .cli_runner import run_in_process
+from .report_data import NO_PLOTS  # no test here reads a plot
 from .test_calibrate import capture, stand_in_stages  # noqa: F401  (fixtures)
 
 LTC = Path(__file__).parent / "data" / "ltc" / "ltcsync_ltc.wav"
@@ -232,10 +233,10 @@ def test_an_sfm_stopped_in_its_first_stage_is_resumed_not_thrown_away(tmp_path, 
     monkeypatch.setattr(pipeline, "run_sfm_stage", sfm)
     out = tmp_path / "bundle"
     with pytest.raises(KeyboardInterrupt):
-        pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(progress=None))
+        pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(progress=None, report=NO_PLOTS))
     state = json.loads((tmp_path / "bundle.work" / "state.json").read_text())
     assert state["stages"] == {}
-    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(progress=None))
+    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(progress=None, report=NO_PLOTS))
     assert seen == [False, True]  # the rerun found the first run's features
     assert load_bundle(out).cameras
 

@@ -130,9 +130,27 @@ def test_kcalibration_file_round_trip_and_world_pose(capture, calibrated, tmp_pa
     np.testing.assert_allclose((sensor.M_world2sensor @ np.r_[c_color_m, 1])[:3], sensor.M_color[:3, 3], atol=1e-9)
 
 
-def test_cli_calibrates_and_prints_a_summary(capture, dome_folder, tmp_path, dome_calib_cli):
+def test_cli_calibrates_and_prints_a_summary(capture, calibrated, dome_folder, tmp_path, dome_calib_cli,
+                                             monkeypatch):
+    """The command's calibration is the library's: it is handed the folder, the dome bundle and the default
+    options, and given the module's one run (``calibrated``) back instead of calibrating again; what it prints and
+    writes is checked."""
+    import dome_calib.kinect.calibrate as kcal
+
     folder, _ = capture
+    result, bundle = calibrated
+    calls = []
+
+    def one_run(kinect_folder, dome, opts=None, on_frame=None):
+        calls.append(1)
+        assert Path(kinect_folder) == folder and opts == kcal.KinectCalibOptions()
+        assert dome.seq == bundle.seq and dome.cameras.keys() == bundle.cameras.keys()
+        assert dome.kinect is None and on_frame is not None
+        return [result], bundle
+
+    monkeypatch.setattr(kcal, "calibrate_kinect_folder", one_run)
     proc = dome_calib_cli("kinect", str(folder), "--bundle", str(dome_folder), "-o", str(tmp_path / "out"))
+    assert calls == [1]
     assert proc.returncode == 0, proc.stderr
     assert f"{SENSOR}" in proc.stdout and "frames used   9, rejected  2" in proc.stdout
     assert "baseline 52." in proc.stdout or "baseline 53." in proc.stdout

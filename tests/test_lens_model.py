@@ -280,6 +280,8 @@ def real_crop(tmp_path_factory):
     from dome_calib.pipeline.full import run_calibration
     from dome_calib.pipeline.types import CalibrateOptions
 
+    from .report_data import NO_PLOTS
+
     root = tmp_path_factory.mktemp("real_crop")
     reference = _strecha_cameras(0.25)
     capture = root / "capture"
@@ -297,7 +299,8 @@ def real_crop(tmp_path_factory):
         K[1, 1] *= 1.03
         prior[n] = replace(c, R=R, t_cm=-R @ (c.center_cm + 0.5 * d / np.linalg.norm(d)), K=K)
     write_bundle(Bundle(seq="prior", cameras=prior), root / "prior")
-    result = run_calibration(capture, root / "out", CalibrateOptions(prior=root / "prior", work_dir=root / "work"))
+    result = run_calibration(capture, root / "out", CalibrateOptions(prior=root / "prior", work_dir=root / "work",
+                                                                report=NO_PLOTS))  # reads no plot
     return result, reference, root / "out"
 
 

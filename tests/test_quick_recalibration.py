@@ -24,6 +24,8 @@ from dome_calib.reasons import ReasonCode
 from projector.consistency import changed_cameras, pair_errors
 from projector.database import add_image, image_name, write_features
 
+from .report_data import NO_PLOTS  # the calibration test reads no plot
+
 NOISE_PX = 0.2
 #: Its own camera set (not a preset's): one panel's neighbourhood, as the quick path sees it on the dome, where
 #: every camera has close partners.
@@ -135,7 +137,7 @@ def test_quick_recalibration_reestimates_only_the_changed(tmp_path, scene, monke
     monkeypatch.setattr(quick, "match_first_scene", lambda *a, **k: matched)
     prior_dir = write_bundle(prior, tmp_path / "prior")
     out = tmp_path / "quick"
-    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(prior=prior_dir, only_changed=True))
+    result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(prior=prior_dir, only_changed=True, report=NO_PLOTS))
     assert sorted(result.changes) == [MOVED, RELENSED]
     bundle = load_bundle(out)
     for n in prior.cameras:

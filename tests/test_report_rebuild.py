@@ -15,7 +15,7 @@ from dome_calib.bundle_io import load_bundle, write_bundle
 from dome_calib.layout import nominal_dome
 from dome_calib.report import ReportError, Residuals, write_report
 
-from .report_data import REPORT_FILES, copy_kept_files, moved_copy, old_report_json, synthetic_residuals
+from .report_data import NO_PLOTS, REPORT_FILES, copy_kept_files, moved_copy, old_report_json, synthetic_residuals
 from .test_calibrate import CERTAIN, UNCERTAIN, capture, stand_in_stages  # noqa: F401  (fixtures)
 from .test_quick_recalibration import _matched_scene, _neighbourhood
 
@@ -40,7 +40,7 @@ def test_quick_path_with_nothing_changed_reports_every_camera_held_not_too_few(t
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(prior=prior_dir, only_changed=True,
-                                                                              progress=None))
+                                                                              progress=None, report=NO_PLOTS))
         text = pipeline.format_result(result)
     assert _numpy_warnings(caught) == []
     assert result.to_check == [] and "nan" not in text and "too few" not in text
@@ -70,7 +70,7 @@ def test_report_rebuild_keeps_what_the_calibration_found(tmp_path, capture, stan
     and sync.json in report/: `dome-calib report` keeps all of it."""
     cap, _ = capture
     out = tmp_path / "bundle"
-    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=None))
+    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=None, report=NO_PLOTS))
     report_dir = out / "report"
     before = json.loads((report_dir / "report.json").read_text())
     assert sorted(r["name"] for r in before["to_check"]) == ["01_24", UNCERTAIN]
@@ -93,7 +93,7 @@ def test_report_rebuild_of_a_report_json_from_before_found_was_saved(tmp_path, c
     calibration's reasons told from the rules' by the texts that layout wrote."""
     cap, _ = capture
     out = tmp_path / "bundle"
-    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=None))
+    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=None, report=NO_PLOTS))
     path = out / "report" / "report.json"
     new = json.loads(path.read_text())
     old = {k: v for k, v in new.items() if k not in ("found", "report_version", "expected_per_type")}
@@ -112,14 +112,14 @@ def test_report_rebuild_of_a_report_json_from_before_found_was_saved(tmp_path, c
 def test_calibrate_compares_with_the_bundle_out_held_and_with_previous(tmp_path, capture, stand_in_stages):  # noqa: F811
     cap, truth = capture
     out = tmp_path / "bundle"
-    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=None))
+    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=None, report=NO_PLOTS))
     assert json.loads((out / "report" / "report.json").read_text())["previous"] is None  # OUT was new
-    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=None))
+    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=None, report=NO_PLOTS))
     prev = json.loads((out / "report" / "report.json").read_text())["previous"]
     assert prev["source"] == str(out.resolve()) and prev["added"] == [] and prev["gone"] == []
     assert max(c["moved_mm"] for c in prev["cameras"].values()) < 1e-6  # the same calibration again
     moved = write_bundle(moved_copy(load_bundle(out), {"01_02": 3.0}), tmp_path / "moved")
-    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=None, previous=moved))
+    pipeline.run_calibration(cap, out, pipeline.CalibrateOptions(seq="test", progress=None, report=NO_PLOTS, previous=moved))
     rep = json.loads((out / "report" / "report.json").read_text())
     cams = rep["previous"]["cameras"]
     assert cams["01_02"]["moved_mm"] == pytest.approx(30.0, abs=0.5)  # the rigid fit leaves the moved camera out
@@ -180,7 +180,7 @@ def test_residuals_without_pixel_positions_still_load_and_the_page_says_so(tmp_p
     tiny = nominal_dome("tiny", seed=0)
     res = synthetic_residuals(tiny, loose_lens="01_01", skewed="01_02", few="01_03")
     folder = write_bundle(tiny, tmp_path / "b")
-    target = write_report(folder, tiny, res)
+    target = write_report(folder, tiny, res, NO_PLOTS)
     back = Residuals.load(target / "residuals.npz")
     np.testing.assert_allclose(back.uv_px, res.uv_px, atol=1e-3)  # px, float32
     np.savez_compressed(target / "residuals.npz", camera_names=np.asarray(res.camera_names),
@@ -195,7 +195,7 @@ def test_residuals_without_pixel_positions_still_load_and_the_page_says_so(tmp_p
 def test_report_cli_damaged_residuals_is_one_line_and_writes_nothing(tmp_path, dome_calib_cli):
     tiny = nominal_dome("tiny", seed=0)
     folder = write_bundle(tiny, tmp_path / "b")
-    write_report(folder, tiny, synthetic_residuals(tiny, loose_lens="01_01", skewed="01_02", few="01_03"))
+    write_report(folder, tiny, synthetic_residuals(tiny, loose_lens="01_01", skewed="01_02", few="01_03"), NO_PLOTS)
     before = (folder / "report" / "report.json").read_text()
     (folder / "report" / "residuals.npz").write_bytes(b"PK\x03\x04 half a zip")
     proc = dome_calib_cli("report", folder)

@@ -12,6 +12,7 @@ from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import write_bundle
 from dome_calib.layout import nominal_dome
 
+from .report_data import NO_PLOTS  # no test here reads a plot
 from .test_calibrate import capture, stand_in_stages  # noqa: F401  (fixtures)
 
 
@@ -50,5 +51,5 @@ def test_calibrate_prior_sharing_too_few_cameras_is_refused_before_work(capture,
     cap, _ = capture
     prior = _bundle(dome, sorted(dome.cameras)[:2], tmp_path / "prior")
     with pytest.raises(AlignmentError, match=f"--prior {prior}: 2 camera\\(s\\) in common with the capture {cap}"):
-        pipeline.run_calibration(cap, tmp_path / "out", pipeline.CalibrateOptions(prior=prior))
+        pipeline.run_calibration(cap, tmp_path / "out", pipeline.CalibrateOptions(prior=prior, report=NO_PLOTS))
     assert stand_in_stages["sfm"] == 0 and not (tmp_path / "out").exists()

@@ -13,6 +13,8 @@ from dome_calib.ownership import NotOursError
 from dome_calib.synth.capture import SynthOptions, synthesize
 from dome_calib.layout import nominal_dome
 
+from .conftest import SFM_CAMERAS, SFM_SEED
+
 REAL = Path(__file__).parent / "data" / "panoptic" / "calibration_160906_band1.json"
 
 
@@ -37,17 +39,20 @@ def test_synth_cli_writes_contract_folder(tmp_path):
     assert not list(tmp_path.glob(".cap.tmp-*"))  # nothing left behind
 
 
-def test_synth_deterministic_serial_equals_parallel_and_seeded(tmp_path):
+def test_synth_deterministic_serial_equals_parallel_and_seeded(tmp_path, sfm_capture):
+    """The parallel run is conftest's shared SfM capture (2 workers, nine cameras, two scenes, seed SFM_SEED):
+    two of its cameras rendered again in this process, alone and with one scene, are the same bytes; another
+    seed gives other images."""
     names = ["01_01", "01_04"]
 
-    def run(name, seed, workers):
-        synthesize(tmp_path / name, SynthOptions(preset="tiny", n_scenes=1, seed=seed, cameras=names,
-                                                 workers=workers))
+    def run(name, seed):
+        synthesize(tmp_path / name, SynthOptions(preset="full", n_scenes=1, seed=seed, cameras=names, workers=1))
         return [(tmp_path / name / "scenes" / "scene_01" / f"{n}.png").read_bytes() for n in names]
 
-    serial = run("serial", 1, workers=1)
-    assert run("parallel", 1, workers=2) == serial
-    assert run("other_seed", 2, workers=1) != serial
+    assert sorted(json.loads((sfm_capture / "capture.json").read_text())["cameras"]) == SFM_CAMERAS
+    serial = run("serial", SFM_SEED)
+    assert serial == [(sfm_capture / "scenes" / "scene_01" / f"{n}.png").read_bytes() for n in names]
+    assert run("other_seed", SFM_SEED + 1) != serial
 
 
 def test_synth_from_real_layout(tmp_path):
