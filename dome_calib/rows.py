@@ -13,9 +13,12 @@ change a row here; the size did (``tests/test_rows_rule.py`` holds both).
 :func:`rows_product` computes such a product row by row in the order k = 0, 1, ... of the short inner dimension,
 with numpy's elementwise operations (no contraction, no reordering): a row is the same bits alone, in any batch, on
 any thread count and on any CPU. Use it where a product's rows are per-item results a cut may separate and its
-inner dimension is short (3 coordinates, a camera's views); a product that never spans items (a stacked ``(n, 3,
-3) @ (3, 3)`` is one product per item, the same shape whatever n; a whole depth frame's pixels) may stay a BLAS
-product.
+inner dimension is short (3 coordinates, a camera's views): the DLT's normal matrices
+(:func:`dome_calib.recon.triangulate.triangulate_dlt`); the camera transform of
+:mod:`dome_calib.recon.project` is the same order in a compiled loop. A product that never spans the items of a
+cut may stay a BLAS product: a stacked one is one product per item, of the item's own shape whatever their number
+(each point's ``(6, V) @ (V, 6)`` normal equations, a patch's ``(3, 3) @ (3, 3)``); a whole depth frame's pixels;
+an image's corners or keypoints turned into rays, all in the one seed task of their camera and cloud.
 """
 from __future__ import annotations
 

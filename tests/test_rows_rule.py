@@ -15,7 +15,7 @@ from dome_calib.recon.people.run import PeopleOptions, reconstruct_people
 from dome_calib.recon.people.sources import people_streams
 from dome_calib.recon.people.temporal import TemporalOptions
 from dome_calib.recon.project import project_points, project_view, project_view_rows, transform_points, view_set
-from dome_calib.recon.triangulate import triangulate_dlt
+from dome_calib.recon.triangulate import triangulate, triangulate_dlt
 from dome_calib.rows import rows_product
 
 from .people_helpers import group_detections
@@ -78,6 +78,11 @@ def test_a_points_dlt_triangulation_is_alike_in_any_batch(views):
     w = np.where(p.visible.T, np.random.default_rng(5).uniform(0.3, 1.0, p.visible.T.shape), 0.0)
     xn = np.where(p.visible.T[..., None], xn, 0.0)
     _alike(lambda r: triangulate_dlt(views, xn[r], w[r]), len(X))
+    sub = views.subset(views.names[::5])  # and the whole triangulation: RANSAC, each point's few views, refinement
+    p = project_points(sub, X)
+    uv, conf = p.uv_px.transpose(1, 0, 2), np.where(p.visible.T, 0.8, 0.0)
+    conf[:40, 4:] = 0.0
+    _alike(lambda r: triangulate(sub, uv[r], conf[r]).X_cm, len(X))
 
 
 def test_the_people_stage_read_one_time_at_a_time_is_the_whole_to_the_last_bit():
