@@ -26,18 +26,20 @@ import numpy as np
 
 
 def rows_product(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``A @ B`` for (P, K) ``A`` and (K, N) or (K,) ``B`` -> (P, N) or (P,): ``sum_k A[:, k] B[k]`` added in the
-    order k = 0, 1, ..., K - 1 (the first term, then each next one added to it), each row the same bits however many
-    rows are computed together."""
+    """``A @ B`` for (P, K) ``A`` and (K, N) or (K,) ``B`` -> (P, N) or (P,), or each row by its own matrix, (P, K,
+    N) ``B`` -> (P, N): ``sum_k A[:, k] B[k]`` added in the order k = 0, 1, ..., K - 1 (the first term, then each
+    next one added to it), each row the same bits however many rows are computed together."""
     A, B = np.asarray(A), np.asarray(B)
-    if A.ndim != 2 or B.ndim not in (1, 2) or B.shape[0] != A.shape[1]:
+    own = B.ndim == 3
+    if A.ndim != 2 or B.ndim not in (1, 2, 3) or B.shape[own] != A.shape[1] or (own and len(B) != len(A)):
         raise ValueError(f"rows_product of shapes {A.shape} and {B.shape}")
-    col = (lambda k: A[:, k, None]) if B.ndim == 2 else (lambda k: A[:, k])  # noqa: E731
+    col = (lambda k: A[:, k, None]) if B.ndim >= 2 else (lambda k: A[:, k])  # noqa: E731
+    row = (lambda k: B[:, k]) if own else (lambda k: B[k])  # noqa: E731
     if A.shape[1] == 0:
-        return np.zeros((A.shape[0],) + B.shape[1:], np.result_type(A, B))
-    out = col(0) * B[0]
+        return np.zeros((A.shape[0],) + B.shape[1 + own:], np.result_type(A, B))
+    out = col(0) * row(0)
     term = np.empty_like(out)  # one buffer for every next term (a new array per term cost as much as the sums)
     for k in range(1, A.shape[1]):
-        np.multiply(col(k), B[k], out=term)
+        np.multiply(col(k), row(k), out=term)
         out += term
     return out

@@ -83,6 +83,7 @@ def test_a_points_dlt_triangulation_is_alike_in_any_batch(views):
     uv, conf = p.uv_px.transpose(1, 0, 2), np.where(p.visible.T, 0.8, 0.0)
     conf[:40, 4:] = 0.0
     _alike(lambda r: triangulate(sub, uv[r], conf[r]).X_cm, len(X))
+    _alike(lambda r: triangulate(sub, uv[r], conf[r], few_views=4).X_cm, 40)  # each point's own 4 views
 
 
 def test_the_people_stage_read_one_time_at_a_time_is_the_whole_to_the_last_bit():

@@ -119,13 +119,14 @@ def triangulate_dlt(views: ViewSet, xn: np.ndarray, weight: np.ndarray, blocks: 
     blocks = _dlt_blocks(views) if blocks is None else blocks
     w = np.maximum(np.where(np.isfinite(weight), weight, 0.0), 0.0)
     x, y = xn[..., 0], xn[..., 1]
+    # view by view in camera order, each point's four terms of a view together (dome_calib.rows: a BLAS product's
+    # rows change their last bits with the batch's size, a batch of 2 times against 16)
+    coefs = np.stack((w * (x * x + y * y), w * x, w * y, w), axis=2)  # (P, V, 4)
+    coefs = coefs.reshape(len(coefs), -1)
     if blocks.ndim == 4:  # (4, P, K, 16): each point's own views (:func:`triangulate` ``few_views``)
-        normal = sum(np.einsum("pk,pkj->pj", c, b) for c, b in zip((w * (x * x + y * y), w * x, w * y, w), blocks))
+        normal = rows_product(coefs, blocks.transpose(1, 2, 0, 3).reshape(len(coefs), -1, blocks.shape[-1]))
     else:
-        # view by view in camera order, each point's four terms of a view together (dome_calib.rows: a BLAS
-        # product's rows change their last bits with the batch's size, a batch of 2 times against 16)
-        coefs = np.stack((w * (x * x + y * y), w * x, w * y, w), axis=2)  # (P, V, 4)
-        normal = rows_product(coefs.reshape(len(coefs), -1), blocks.transpose(1, 0, 2).reshape(-1, blocks.shape[-1]))
+        normal = rows_product(coefs, blocks.transpose(1, 0, 2).reshape(-1, blocks.shape[-1]))
     _, vecs = np.linalg.eigh(normal.reshape(-1, 4, 4))
     Xh = vecs[:, :, 0]
     with np.errstate(divide="ignore", invalid="ignore"):
