@@ -138,11 +138,13 @@ def view_set(bundle: Bundle, names: list[str] | None = None, *, kinect_depth: bo
 
 
 def transform_points(views: ViewSet, X_world: np.ndarray) -> np.ndarray:
-    """(P, 3) world points -> (P, V, 3) camera-frame points, one BLAS product for all views."""
-    X = np.asarray(X_world, dtype=float)
-    V = len(views.names)
-    Xc = (X @ views.R.reshape(V * 3, 3).T).reshape(len(X), V, 3)
-    return Xc + views.t_cm
+    """(P, 3) world points -> (P, V, 3) camera-frame points ``R X + t``, each coordinate ``((R_0 a + R_1 b) + R_2 c)
+    + t`` in that order (:mod:`dome_calib.rows`' rule, compiled): a point's bits do not depend on the points
+    transformed beside it, unlike a BLAS product's rows (one point against 4,000: other last bits)."""
+    X = np.ascontiguousarray(X_world, dtype=float).reshape(-1, 3)
+    out = np.empty((len(X), len(views.names), 3))
+    _transform(X, np.ascontiguousarray(views.R, dtype=float), np.ascontiguousarray(views.t_cm, dtype=float), out)
+    return out
 
 
 def project_lean(views: ViewSet, X_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -201,11 +203,11 @@ def project_view(views: ViewSet, v: int, X_world: np.ndarray) -> tuple[np.ndarra
     X = np.asarray(X_world, dtype=float)
     if X.ndim != 2 or X.shape[1] != 3:
         raise ReconError(f"points have shape {X.shape} but expected (P, 3)")
-    X_cam = np.ascontiguousarray(X @ views.R[v].T + views.t_cm[v])
     uv = np.empty((len(X), 2))
     visible = np.empty(len(X), bool)
     wh = views.resolution[v].astype(float)
-    _lens_and_image(X_cam, np.ascontiguousarray(views.dist[v], dtype=float),
+    _view_and_image(np.ascontiguousarray(X), np.ascontiguousarray(views.R[v], dtype=float),
+                    np.ascontiguousarray(views.t_cm[v], dtype=float), np.ascontiguousarray(views.dist[v], dtype=float),
                     np.ascontiguousarray(views.intr[v], dtype=float), float(views.r2_max[v]), wh[0] - 0.5,
                     wh[1] - 0.5, uv, visible)
     return uv, visible
@@ -215,9 +217,8 @@ def project_view_rows(views: ViewSet, v: int, X_world: np.ndarray, rows: np.ndar
                       ) -> tuple[np.ndarray, np.ndarray]:
     """Groups of points (N, G, 3) world cm, the groups ``rows`` (R,) of them, into the one view at position ``v`` ->
     ((R, G, 2) pixels, (R,) whether the whole group is visible); a group's pixels are computed up to its first
-    point that is not (the rest are NaN). :func:`project_view` without gathering the rows first and with the
-    camera transform as explicit products instead of a BLAS product (the same model; the last bits may differ from
-    :func:`project_points`, ~1e-13 px, and do not depend on the machine's BLAS): for the patch stage's squares."""
+    point that is not (the rest are NaN). :func:`project_view` without gathering the rows first (the same bits as
+    it and :func:`project_points`, none from the machine's BLAS): for the patch stage's squares."""
     X = np.ascontiguousarray(X_world, dtype=float)
     if X.ndim != 3 or X.shape[2] != 3:
         raise ReconError(f"points have shape {X.shape} but expected (N, G, 3)")
@@ -250,12 +251,28 @@ def _lens_point(x0, x1, z, dist, intr, r2_max, u_max, v_max):  # pragma: no cove
     return u, w, front and r2 <= r2_max and u >= -0.5 and u <= u_max and w >= -0.5 and w <= v_max
 
 
+@njit(nogil=True, boundscheck=False, inline="always")
+def _camera_point(a, b, c, R, t):  # pragma: no cover - compiled
+    """One world point -> its camera-frame (x, y, z): each ``((R_0 a + R_1 b) + R_2 c) + t`` in that order, the one
+    order of :func:`transform_points`, :func:`project_view` and :func:`project_view_rows` (dome_calib.rows)."""
+    return (a * R[0, 0] + b * R[0, 1] + c * R[0, 2] + t[0], a * R[1, 0] + b * R[1, 1] + c * R[1, 2] + t[1],
+            a * R[2, 0] + b * R[2, 1] + c * R[2, 2] + t[2])
+
+
 @njit(nogil=True, boundscheck=False)
-def _lens_and_image(X_cam, dist, intr, r2_max, u_max, v_max, uv, visible):  # pragma: no cover - compiled
-    """:func:`_lens_point` of (P, 3) camera-frame points."""
-    for i in range(X_cam.shape[0]):
-        uv[i, 0], uv[i, 1], visible[i] = _lens_point(X_cam[i, 0], X_cam[i, 1], X_cam[i, 2], dist, intr, r2_max,
-                                                     u_max, v_max)
+def _transform(X, R, t, out):  # pragma: no cover - compiled
+    """:func:`_camera_point` of (P, 3) points into (V, 3, 3) rotations and (V, 3) translations -> (P, V, 3)."""
+    for i in range(X.shape[0]):
+        for v in range(R.shape[0]):
+            out[i, v, 0], out[i, v, 1], out[i, v, 2] = _camera_point(X[i, 0], X[i, 1], X[i, 2], R[v], t[v])
+
+
+@njit(nogil=True, boundscheck=False)
+def _view_and_image(X, R, t, dist, intr, r2_max, u_max, v_max, uv, visible):  # pragma: no cover - compiled
+    """:func:`_camera_point` then :func:`_lens_point` of (P, 3) world points in one view."""
+    for i in range(X.shape[0]):
+        x0, x1, z = _camera_point(X[i, 0], X[i, 1], X[i, 2], R, t)
+        uv[i, 0], uv[i, 1], visible[i] = _lens_point(x0, x1, z, dist, intr, r2_max, u_max, v_max)
 
 
 @njit(nogil=True, boundscheck=False)
@@ -265,10 +282,7 @@ def _group_view(X, rows, R, t, dist, intr, r2_max, u_max, v_max, uv, whole):  # 
         n = rows[r]
         whole[r] = True
         for g in range(X.shape[1]):
-            a, b, c = X[n, g, 0], X[n, g, 1], X[n, g, 2]
-            x0 = a * R[0, 0] + b * R[0, 1] + c * R[0, 2] + t[0]
-            x1 = a * R[1, 0] + b * R[1, 1] + c * R[1, 2] + t[1]
-            z = a * R[2, 0] + b * R[2, 1] + c * R[2, 2] + t[2]
+            x0, x1, z = _camera_point(X[n, g, 0], X[n, g, 1], X[n, g, 2], R, t)
             uv[r, g, 0], uv[r, g, 1], ok = _lens_point(x0, x1, z, dist, intr, r2_max, u_max, v_max)
             if not ok:
                 whole[r] = False

@@ -34,6 +34,7 @@ from dome_calib.schema import NonNegFinite, PosFinite
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.kernel import F32, CameraKernel, Evaluation, normal_equations
 from dome_calib.recon.project import ViewSet
+from dome_calib.rows import rows_product
 
 logger = logging.getLogger(__name__)
 
@@ -109,18 +110,6 @@ def _dlt_blocks(views: ViewSet) -> np.ndarray:
                      outer(P1, P1) + outer(P2, P2)])
 
 
-def _sum_over_views(coefs: tuple[np.ndarray, ...], blocks: np.ndarray) -> np.ndarray:
-    """(P, 16) ``sum_k coefs[k] @ blocks[k]`` for (P, V) coefficients and (4, V, 16) blocks, added view by view in
-    camera order: each point's row is the same bits however many points are solved together. A BLAS product
-    (``coefs[k] @ blocks[k]``) is not: OpenBLAS cuts its rows among threads by the product's size, and the cut
-    changes a row's last bits (measured on an AMD EPYC: a batch of 2 times against 16, 4e-14 cm)."""
-    normal = np.zeros((coefs[0].shape[0], blocks.shape[-1]))
-    for v in range(blocks.shape[1]):
-        for c, b in zip(coefs, blocks):
-            normal += c[:, v, None] * b[v]
-    return normal
-
-
 def triangulate_dlt(views: ViewSet, xn: np.ndarray, weight: np.ndarray, blocks: np.ndarray | None = None) -> np.ndarray:
     """Weighted linear triangulation of (P, V, 2) normalised rays with (P, V) weights -> (P, 3) cm.
 
@@ -130,10 +119,14 @@ def triangulate_dlt(views: ViewSet, xn: np.ndarray, weight: np.ndarray, blocks: 
     blocks = _dlt_blocks(views) if blocks is None else blocks
     w = np.maximum(np.where(np.isfinite(weight), weight, 0.0), 0.0)
     x, y = xn[..., 0], xn[..., 1]
+    # view by view in camera order, each point's four terms of a view together (dome_calib.rows: a BLAS product's
+    # rows change their last bits with the batch's size, a batch of 2 times against 16)
+    coefs = np.stack((w * (x * x + y * y), w * x, w * y, w), axis=2)  # (P, V, 4)
+    coefs = coefs.reshape(len(coefs), -1)
     if blocks.ndim == 4:  # (4, P, K, 16): each point's own views (:func:`triangulate` ``few_views``)
-        normal = sum(np.einsum("pk,pkj->pj", c, b) for c, b in zip((w * (x * x + y * y), w * x, w * y, w), blocks))
+        normal = rows_product(coefs, blocks.transpose(1, 2, 0, 3).reshape(len(coefs), -1, blocks.shape[-1]))
     else:
-        normal = _sum_over_views((w * (x * x + y * y), w * x, w * y, w), blocks)
+        normal = rows_product(coefs, blocks.transpose(1, 0, 2).reshape(-1, blocks.shape[-1]))
     _, vecs = np.linalg.eigh(normal.reshape(-1, 4, 4))
     Xh = vecs[:, :, 0]
     with np.errstate(divide="ignore", invalid="ignore"):
