@@ -34,6 +34,7 @@ from dome_calib.schema import NonNegFinite, PosFinite
 from dome_calib.recon.errors import ReconError
 from dome_calib.recon.kernel import F32, CameraKernel, Evaluation, normal_equations
 from dome_calib.recon.project import ViewSet
+from dome_calib.arrays import per_row
 from dome_calib.rows import rows_product
 
 logger = logging.getLogger(__name__)
@@ -122,11 +123,12 @@ def triangulate_dlt(views: ViewSet, xn: np.ndarray, weight: np.ndarray, blocks: 
     # view by view in camera order, each point's four terms of a view together (dome_calib.rows: a BLAS product's
     # rows change their last bits with the batch's size, a batch of 2 times against 16)
     coefs = np.stack((w * (x * x + y * y), w * x, w * y, w), axis=2)  # (P, V, 4)
-    coefs = coefs.reshape(len(coefs), -1)
+    coefs = per_row(coefs)  # (P, V * 4), for P = 0 too
     if blocks.ndim == 4:  # (4, P, K, 16): each point's own views (:func:`triangulate` ``few_views``)
-        normal = rows_product(coefs, blocks.transpose(1, 2, 0, 3).reshape(len(coefs), -1, blocks.shape[-1]))
+        own = blocks.transpose(1, 2, 0, 3).reshape(len(coefs), coefs.shape[1], blocks.shape[-1])  # (P, K * 4, 16)
+        normal = rows_product(coefs, own)
     else:
-        normal = rows_product(coefs, blocks.transpose(1, 0, 2).reshape(-1, blocks.shape[-1]))
+        normal = rows_product(coefs, blocks.transpose(1, 0, 2).reshape(coefs.shape[1], blocks.shape[-1]))
     _, vecs = np.linalg.eigh(normal.reshape(-1, 4, 4))
     Xh = vecs[:, :, 0]
     with np.errstate(divide="ignore", invalid="ignore"):
