@@ -26,7 +26,8 @@ class PatchOptions:
     ncc_size_cm: PosFinite = 4.0
     # the seeds' own square (None: ncc_size_cm): seed_ncc_size_cm the seeds' checks (seed_skeleton's depth search and
     # agreement, seed_features.square_ncc), refine_ncc_size_cm the normals' photometric refinement (refine.py: at the
-    # seeds only); the visibility (MAP, seed appearance) keeps ncc_size_cm. (seed_square_cm / refine_square_cm).
+    # seeds only); the visibility (MAP, seed appearance) keeps ncc_size_cm (read them through seed_square_cm and
+    # refine_square_cm below).
     # The refinement on 6 cm: with the visibility's 4 cm the panel's occluded spans fall 80 -> 45 % (the seeds per part
     # are the same; the left thigh's motion no longer ties the knee), back to 80 % with this alone (docs/benchmarks.md,
     # branch split62)
