@@ -34,7 +34,8 @@ rendered frames (a patch not alive at the seed time has no true person or part) 
 
 With the stream's own patches each row has ``reach`` (:func:`reach`): per part the patches seeded on it, their
 frames alive, how they are labelled, and why each occluded joint-time not recovered within 3 cm is missed (no
-seed, seed dies, wrong label, no motion, tie too weak). ``--stream-cache DIR`` keeps each stream computed.
+seed, seed dies, wrong label, no motion, tie too weak; "seed dies" split by whether the clouds around the time seeded
+the part). ``--stream-cache DIR`` keeps each stream computed.
 
 Prints one JSON object per line per (rig, seed) and method: MPJPE (cm, over the true joints both methods put out
 and over those each puts out), joint acceleration error (cm/s^2: the mean norm of the second difference of the
@@ -233,7 +234,7 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
         sp = nearest_surface_points(truth, float(tt[k]), X[live, k, 0])
         person[live], part[live] = sp.person, sp.part
     return dict(X_cm=X, normal=normal, alive=alive, person=person, part=part, cameras=len(cams),
-                seeds=[int(sum(t.alive[t.seed_time_ms == ts, int(np.argmin(np.abs(tt - ts)))].sum()
+                seed_time_ms=seed_t, seeds=[int(sum(t.alive[t.seed_time_ms == ts, int(np.argmin(np.abs(tt - ts)))].sum()
                                for ts in np.unique(t.seed_time_ms))) for t in trajs])
 
 
@@ -297,12 +298,13 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
     rows, done = [], {}
     for how in (own or ("",)):
         cpu = time.process_time()
-        extra = {}
+        extra, seed_t = {}, None
         if how:
             got = own_patches(bundle, truth, rig, times, f, frames, how, alone.bodies, source,
                               patch_options or PatchOptions(), done, seed, cache, every)
             Pt, normal, alive, t_person, t_part = (got[k] for k in ("X_cm", "normal", "alive", "person", "part"))
             extra = dict(patch_cameras=got["cameras"], seeds=got["seeds"], seed_every=every)
+            seed_t = got["seed_time_ms"]
         elif saved is None:
             Pt, normal, alive, t_person, t_part = true_patches(bundle, cams, truth, times, seed)
         else:
@@ -310,7 +312,7 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
         cpu_patches = time.process_time() - cpu
         rows += _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present, removed, alone, fit,
                        track_ids, est, conf, seq, dt_s, Pt, normal, alive, t_person, t_part, cpu_alone,
-                       cpu_patches, extra, part_options, motion_options)
+                       cpu_patches, extra, part_options, motion_options, seed_t)
     return rows
 
 
@@ -318,7 +320,8 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
 REACH_CAUSES = ("no_seed", "seed_dies", "wrong_label", "no_motion", "tie_too_weak", "tied_not_within_3cm")
 
 
-def reach(removed, within, times, track_ids, tracks, lab, t_person, t_part, alive, motions, ties) -> dict:
+def reach(removed, within, times, track_ids, tracks, lab, t_person, t_part, alive, motions, ties,
+          seed_time_ms=None) -> dict:
     """How far the patches reach each body part and why the occluded joint-times missed are missed.
 
     Per true part (summed over the people): the patches seeded on it (true part at the seed time), their frames
@@ -327,7 +330,10 @@ def reach(removed, within, times, track_ids, tracks, lab, t_person, t_part, aliv
     furthest stage any part carrying the joint (:data:`TIED_JOINTS`) reaches at either step touching that time:
     ``no_seed`` (no patch seeded on it), ``seed_dies`` (fewer than a motion's ``min_patches`` alive at both ends
     of the step), ``wrong_label`` (alive, but fewer than that labelled to it), ``no_motion`` (labelled, no fit),
-    ``tie_too_weak`` (a motion whose tie's sigma passes ``max_sigma_cm``), ``tied_not_within_3cm``."""
+    ``tie_too_weak`` (a motion whose tie's sigma passes ``max_sigma_cm``), ``tied_not_within_3cm``. With the
+    patches' seed times (N,) (the stream's own clouds), ``seed_dies_by_seeding`` splits ``seed_dies``: the clouds
+    nearest the time on either side (at or before, after) seeded at least ``min_patches`` on a part carrying the
+    joint, which ended before it (``seeded_then_ended``), or fewer (``too_few_seeded``)."""
     need = MotionOptions().min_patches
     T, P = removed.shape[:2]
     lab_track = np.where(lab.bone >= 0, tracks[np.maximum(lab.person, 0)], -1)
@@ -344,6 +350,10 @@ def reach(removed, within, times, track_ids, tracks, lab, t_person, t_part, aliv
                        "unlabelled": int((on & (lab.bone < 0)).sum()),
                        "steps_moved": int(sum(1 for (_, bb, _) in moved if bb == b))}
     causes = {c: 0 for c in REACH_CAUSES}
+    by_seeding = {"seeded_then_ended": 0, "too_few_seeded": 0}
+    if seed_time_ms is not None:  # each patch's cloud as an index into times
+        cloud = np.abs(np.asarray(seed_time_ms)[:, None] - np.asarray(times)[None, :]).argmin(1)
+        clouds = np.unique(cloud)
     by_joint: dict[str, dict[str, int]] = {}
     for k, p, j in zip(*np.nonzero(removed & ~within)):
         tr = int(track_ids[p])
@@ -370,14 +380,22 @@ def reach(removed, within, times, track_ids, tracks, lab, t_person, t_part, aliv
                 best = max(best, 5)
         c = REACH_CAUSES[best]
         causes[c] += 1
+        if c == "seed_dies" and seed_time_ms is not None:
+            around = [clouds[clouds <= k].max(initial=-1), clouds[clouds > k].min(initial=T)]
+            seeded = max(int(((t_person == p) & (t_part == b) & np.isin(cloud, around)).sum())
+                         for b, js in enumerate(TIED_JOINTS) if j in js)
+            by_seeding["seeded_then_ended" if seeded >= need else "too_few_seeded"] += 1
         by_joint.setdefault(JOINTS19[j], {}).setdefault(c, 0)
         by_joint[JOINTS19[j]][c] += 1
-    return {"by_part": parts, "missed_causes": causes, "missed_by_joint": by_joint}
+    out = {"by_part": parts, "missed_causes": causes, "missed_by_joint": by_joint}
+    if seed_time_ms is not None:
+        out["seed_dies_by_seeding"] = by_seeding
+    return out
 
 
 def _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present, removed, alone, fit, track_ids,
            est, conf, seq, dt_s, Pt, normal, alive, t_person, t_part, cpu_alone, cpu_patches, extra,
-           part_options=None, motion_options=None) -> list[dict]:
+           part_options=None, motion_options=None, seed_time_ms=None) -> list[dict]:
     """One set of patches: labelled, their motions tied to the body, the fit with the ties, both rows emitted."""
     cpu = time.process_time()
     ties, lab, motions = ties_from_patches(Pt, normal, alive, times, alone.bodies,  # labelled with the body alone
@@ -439,7 +457,7 @@ def _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present
             row["patches_by_label"] = {name: int(np.sum(lab.bone == b)) for b, (name, _, _) in enumerate(BONES)}
             # per removed joint: [recovered within 3 cm, a tie reaches it, removed] joint-times
             row["reach"] = reach(removed, out & (e_all < 3.0), times, track_ids, tracks, lab, t_person, t_part,
-                                 alive, motions, ties)
+                                 alive, motions, ties, seed_time_ms)
             row["occluded_by_joint"] = {JOINTS19[j]: [int((removed[..., j] & out[..., j]
                                                            & (e_all[..., j] < 3.0)).sum()),
                                                       int((removed[..., j] & tied[..., j]).sum()),
