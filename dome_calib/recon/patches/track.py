@@ -443,16 +443,18 @@ class SeedViews:
         if v not in self.gray:
             self.gray[v] = source.gray(name, int(self.frame[v]))
         gray = source.gray(name, f)
-        A = np.repeat(seed_to_now(self.uv[idx, :, v], now.reshape(-1, 3, 2)), 3, axis=0)[has] if (
-            o.anchor_warp and now is not None) else np.repeat(np.eye(2)[None], int(has.sum()), axis=0)
-        warped = ties.above(warp_px(A, o.lk_window_px), o.anchor_warp_px, ties.FLOW_QUANTUM_PX)
-        r, good = np.zeros((len(A), 2)), np.zeros(len(A), bool)
+        start, guess = p0[has], q[has]
+        warped = np.zeros(len(start), bool)  # the points whose seed square is warped first (anchor_warp)
+        if o.anchor_warp and now is not None:
+            A = np.repeat(seed_to_now(self.uv[idx, :, v], now.reshape(-1, 3, 2)), 3, axis=0)[has]
+            warped = ties.above(warp_px(A, o.lk_window_px), o.anchor_warp_px, ties.FLOW_QUANTUM_PX)
+        r, good = np.zeros((len(start), 2)), np.zeros(len(start), bool)
         if (~warped).any():
-            r[~warped], good[~warped] = optical_flow(self.gray[v], gray, p0[has][~warped], o,
-                                                     guess=q[has][~warped], levels=o.anchor_levels)
+            r[~warped], good[~warped] = optical_flow(self.gray[v], gray, start[~warped], o, guess=guess[~warped],
+                                                     levels=o.anchor_levels)
         if warped.any():
-            r[warped], good[warped] = warped_flow(self.gray[v], gray, p0[has][warped], A[warped], q[has][warped], o)
-        near = good & ties.at_most(np.linalg.norm(r - q[has], axis=1), o.anchor_flow_px, ties.FLOW_QUANTUM_PX)
+            r[warped], good[warped] = warped_flow(self.gray[v], gray, start[warped], A[warped], guess[warped], o)
+        near = good & ties.at_most(np.linalg.norm(r - guess, axis=1), o.anchor_flow_px, ties.FLOW_QUANTUM_PX)
         rows = np.flatnonzero(has)
         q[rows[near]] = r[near]
         if o.anchor_reject:
