@@ -4,7 +4,7 @@ The toolkit promises that a result does not depend on how the work is cut (batch
 patches per task, windows). A BLAS product ``A @ B`` whose rows (or columns) are the items being cut breaks that
 promise: OpenBLAS picks its kernel by the product's size (one row goes to gemv, a few rows to the tail of the gemm
 kernel, many rows are cut among its threads), and each path adds a row's terms in another order. Measured on this
-machine (AMD EPYC, OpenBLAS 0.3.30 as numpy 2 bundles it, Haswell and Zen kernels, 1 or 2 threads): the rows of
+machine (AMD EPYC, OpenBLAS 0.3.31 as numpy 2 bundles it, Haswell and Zen kernels, 1 or 2 threads): the rows of
 ``(P, 3) @ (3, 3 V)`` computed one by one differ in their last bits from the same rows in a product of 64 to 4,000
 rows (74 of 192 values at P = 64), and ``(P, 31) @ (31, 16)`` (the DLT's normal matrices) differs between batches of
 7, 33 and all (123, 24 of 1,024 values); with SkylakeX's kernels other sizes differ. The thread count alone did not

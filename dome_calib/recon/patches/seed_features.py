@@ -196,8 +196,8 @@ def seed_from_features(source: FrameSource, views: ViewSet, frames: dict[str, in
 
 def square_ncc(source: FrameSource, views: ViewSet, at: Frames, X: np.ndarray, seen: np.ndarray, o: PatchOptions
                ) -> np.ndarray:
-    """(N,) the least NCC of a patch's square (:func:`.model.seed_square_cm`) between its most face-on seeing camera and each of
-    the others that see it (-1 where a square leaves an image or fewer than two cameras see it)."""
+    """(N,) the least NCC of a patch's square (:func:`.model.seed_square_cm`) between its most face-on seeing camera
+    and each of the others that see it (-1 where a square leaves an image or fewer than two cameras see it)."""
     grid = patch_grid_cm(X[:, 0], X[:, 1], X[:, 2], seed_square_cm(o))
     _, _, n = patch_axes(X[:, 0], X[:, 1], X[:, 2])
     to_cam = views.center_cm[None] - X[:, None, 0]

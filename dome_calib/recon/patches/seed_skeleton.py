@@ -16,11 +16,11 @@ them), so the depth of a pixel on a person is known to a few centimetres:
    (:func:`part_corners`: limb coverage, not only the textured torso), each ray's first capsule hit giving an
    **initial depth and normal** (the capsule's outward normal there).
 3. **Refined photometrically** along the ray within ``seed_depth_window_cm`` of the hit (coarse steps of
-   ``seed_depth_step_cm``, then a fifth of it round the best): the patch's square (``seed_ncc_size_cm``, else ``ncc_size_cm``, at most the
-   radius of the part the ray meets: :func:`square_side_cm`; its plane given by the normal) is sampled in the
-   reference camera and in each other camera of the stream that may see it (the whole square in the image, the
-   normal facing it by more than ``min_cos_view``, no capsule on the way to it more than the window before it: the
-   body hides itself), up to ``seed_views`` of them nearest the reference;
+   ``seed_depth_step_cm``, then a fifth of it round the best): the patch's square (``seed_ncc_size_cm``, else
+   ``ncc_size_cm``, at most the radius of the part the ray meets: :func:`square_side_cm`; its plane given by the
+   normal) is sampled in the reference camera and in each other camera of the stream that may see it (the whole
+   square in the image, the normal facing it by more than ``min_cos_view``, no capsule on the way to it more than
+   the window before it: the body hides itself), up to ``seed_views`` of them nearest the reference;
    the depth of the highest mean NCC wins (quantised to 1e-6; ties the nearer depth). Unlike the sweep's upright
    windows, the square is warped by its plane into each camera, which is what a wide baseline needs. The normal is
    then tilted as PMVS does (:func:`.refine.refine_normals`) and the depth searched once more with it.
