@@ -21,6 +21,7 @@ import numpy as np
 from dome_calib.bundle import NOMINAL_RESOLUTION, Bundle, Camera, CameraType
 from dome_calib.camera import intr_to_K
 from dome_calib.errors import DomeCalibError
+from dome_calib.interop import exact
 from dome_calib.ties import LENGTH_QUANTUM_CM, order_by
 
 logger = logging.getLogger(__name__)
@@ -72,14 +73,14 @@ def direction(lat_deg: float, az_deg: float) -> np.ndarray:
 
 def look_at(center_cm: np.ndarray, target_cm: np.ndarray, roll_rad: float = 0.0) -> np.ndarray:
     """cam_from_world rotation (3, 3) of a camera at ``center_cm`` looking at ``target_cm``, image-down = world-down."""
-    z = target_cm - center_cm
-    z = z / np.linalg.norm(z)
+    # in basic operations (dome_calib.interop.exact): the synthetic truth is the same bits on every CPU
+    z = exact.unit3(np.asarray(target_cm, dtype=float) - center_cm)
     down = np.array([0.0, 1.0, 0.0])
-    y = down - (down @ z) * z
-    if np.linalg.norm(y) < 1e-9:  # looking straight down or up
+    y = down - z[1] * z  # (down . z) z
+    if exact.norm3(y) < 1e-9:  # looking straight down or up
         y = np.array([0.0, 0.0, 1.0]) - z[2] * z
-    y = y / np.linalg.norm(y)
-    x = np.cross(y, z)
+    y = exact.unit3(y)
+    x = exact.cross3(y, z)
     c, s = np.cos(roll_rad), np.sin(roll_rad)
     x, y = c * x + s * y, -s * x + c * y
     return np.stack([x, y, z])
@@ -116,7 +117,7 @@ def _aimed_camera(rng: np.random.Generator, *, name: str, camera_type: CameraTyp
     R = look_at(center_cm, target, np.radians(rng.normal(0.0, ROLL_JITTER_DEG)))
     K, dist = _draw_intrinsics(rng, camera_type)
     return Camera(name=name, type=camera_type, resolution=NOMINAL_RESOLUTION[camera_type], K=K, dist=dist, R=R,
-                  t_cm=-R @ center_cm, panel=panel, node=node)
+                  t_cm=-exact.matvec3(R, center_cm), panel=panel, node=node)
 
 
 def panel_centres() -> dict[int, np.ndarray]:
@@ -136,12 +137,11 @@ def all_nominal_cameras(seed: int) -> dict[str, Camera]:
     cams: dict[str, Camera] = {}
     hd_dirs = []
     for panel, n in panel_centres().items():
-        e1 = np.cross(n, [0.0, 1.0, 0.0])
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(n, e1)
+        e1 = exact.unit3(exact.cross3(n, [0.0, 1.0, 0.0]))
+        e2 = exact.cross3(n, e1)
         for node, (a, b) in enumerate(nodes, start=1):
             p = r_mount * n + a * e1 + b * e2
-            p = DOME_CENTRE_CM + r_mount * p / np.linalg.norm(p)
+            p = DOME_CENTRE_CM + r_mount * p / exact.norm3(p)
             name = f"{panel:02d}_{node:02d}"
             cams[name] = _aimed_camera(rng, name=name, camera_type=CameraType.VGA, center_cm=p, panel=panel, node=node)
         hd_dirs.append(n)
@@ -180,11 +180,11 @@ def _arc_point_cm(a_cm: np.ndarray, b_cm: np.ndarray, fraction: float, lift_deg:
     """The point ``fraction`` along the great-circle arc (about the dome centre) from ``a_cm`` to ``b_cm``, lifted
     ``lift_deg`` of latitude, on the sphere of their mean radius (world frame, cm)."""
     a, b = a_cm - DOME_CENTRE_CM, b_cm - DOME_CENTRE_CM
-    ua, ub = a / np.linalg.norm(a), b / np.linalg.norm(b)
-    angle = np.arccos(np.clip(ua @ ub, -1.0, 1.0))
+    ua, ub = exact.unit3(a), exact.unit3(b)
+    angle = np.arccos(np.clip(exact.dot3(ua, ub), -1.0, 1.0))  # SVML on AVX-512 CPUs (tests/test_synth_exact.py)
     u = (np.sin((1 - fraction) * angle) * ua + np.sin(fraction * angle) * ub) / np.sin(angle)
-    lat, az = np.degrees(np.arcsin(-u[1] / np.linalg.norm(u))), np.degrees(np.arctan2(u[2], u[0]))
-    return DOME_CENTRE_CM + 0.5 * (np.linalg.norm(a) + np.linalg.norm(b)) * direction(lat + lift_deg, az)
+    lat, az = np.degrees(np.arcsin(-u[1] / exact.norm3(u))), np.degrees(np.arctan2(u[2], u[0]))
+    return DOME_CENTRE_CM + 0.5 * (exact.norm3(a) + exact.norm3(b)) * direction(lat + lift_deg, az)
 
 
 def _nearest(cands: list[Camera], point_cm: np.ndarray, n: int, taken: set[str] = frozenset()) -> list[str]:

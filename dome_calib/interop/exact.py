@@ -1,7 +1,9 @@
-"""The arithmetic of the exports: 3 x 3 matrices, rotations and rotation vectors in IEEE basic operations only.
+"""The arithmetic of the exports and of the synthetic generators' truth: 3 x 3 matrices, rotations, rotation
+vectors, dot products and powers in IEEE basic operations only.
 
-An export writes numbers computed from the bundle's; every machine must write the same bits for the same bundle
-(README, "Same result on every machine"). Three kinds of library call do not give the same bits on every CPU
+An export writes numbers computed from the bundle's, a synthetic generator the truth it drew (``synth``'s projectors
+and tent, ``kinect-synth``'s poses) and the images it rendered from it; every machine must write the same bits for
+the same input or seed (README, "Same result on every machine"). Three kinds of library call do not give the same bits on every CPU
 (measured by ``bench/same_bytes.py``, docs/benchmarks.md):
 
 - BLAS and LAPACK (``@``, ``np.dot``, ``np.linalg.svd`` / ``solve`` / ``det``, scipy's ``Rotation.from_matrix``,
@@ -16,7 +18,9 @@ time, in an order the program fixes. So this module writes every product out ter
 inverts through cofactors, finds the nearest rotation by Newton's iteration for the polar factor, and takes the
 one angle a rotation vector needs from its own arctangent (a table of 9 exact constants and 8 terms of the
 series). Every function is vectorised over leading axes with numpy's elementwise operations (no reduction: numpy
-may sum a reduction in SIMD-width blocks). The exporters take every computed number from here.
+may sum a reduction in SIMD-width blocks). The exporters take every computed number from here, the synthetic
+generators every product that reaches a file (``tests/test_synth_exact.py`` holds them to it). A float32 array
+stays float32 (the renderer's shading); anything else is computed in float64.
 """
 from __future__ import annotations
 
@@ -31,6 +35,12 @@ _HALF_PI = 1.5707963267948966
 _POLAR_STEPS = 6
 
 
+def _floats(x: np.ndarray) -> np.ndarray:
+    """``x`` as a float array: float32 and float64 kept, anything else float64."""
+    x = np.asarray(x)
+    return x if x.dtype in (np.float32, np.float64) else x.astype(float)
+
+
 def matmul3(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """(..., 3, 3) @ (..., 3, 3), each entry a0*b0 + a1*b1 + a2*b2 in that order."""
     A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
@@ -39,9 +49,53 @@ def matmul3(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 
 def matvec3(A: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) @ (..., 3), each entry a0*v0 + a1*v1 + a2*v2 in that order."""
-    A, v = np.asarray(A, dtype=float), np.asarray(v, dtype=float)
+    """(..., 3, 3) @ (..., 3), each entry a0*v0 + a1*v1 + a2*v2 in that order (broadcast: one matrix and (N, 3)
+    points gives each point's product, ``points @ A.T``)."""
+    A, v = _floats(A), _floats(v)
     return A[..., :, 0] * v[..., None, 0] + A[..., :, 1] * v[..., None, 1] + A[..., :, 2] * v[..., None, 2]
+
+
+def dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(...,) a0*b0 + a1*b1 + a2*b2 in that order, of (..., 3) vectors (not a BLAS dot, not an einsum)."""
+    a, b = _floats(a), _floats(b)
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
+def norm3(a: np.ndarray) -> np.ndarray:
+    """(...,) Euclidean length of (..., 3) vectors: the square root of :func:`dot3`."""
+    return np.sqrt(dot3(a, a))
+
+
+def unit3(a: np.ndarray) -> np.ndarray:
+    """(..., 3) vectors divided by their :func:`norm3`."""
+    return _floats(a) / norm3(a)[..., None]
+
+
+#: The largest m of a power k / 2^m :func:`power_dyadic` takes as square roots (gamma 0.625 = 5 / 8: m = 3).
+_DYADIC_ROOTS = 6
+
+
+def power_dyadic(x: np.ndarray, p: float) -> np.ndarray:
+    """``x ** p`` for x >= 0 and p = k / 2^m (k a whole number below 64, m <= 6): x^k by multiplications in a fixed
+    order, then m square roots (the roots first where x^k would leave the normal floats), so the same bits on every
+    CPU (``np.power`` is Intel's SVML on AVX-512 CPUs, the C library's elsewhere). Within 2 units in the last place
+    of libm's power for the powers of ``tests/test_synth_exact.py`` (x in [0, 1]). Any other ``p``: ValueError."""
+    k, m = float(p), 0
+    while not k.is_integer() and m < _DYADIC_ROOTS:
+        k, m = k * 2.0, m + 1
+    if not (k.is_integer() and 0 <= k < 64):
+        raise ValueError(f"power_dyadic: {p} is not k / 2^m with k < 64, m <= {_DYADIC_ROOTS}")
+    x = _floats(x)
+    first, root = np.ones_like(x), x  # the power first (the more accurate), or the roots first (no underflow)
+    for _ in range(m):
+        root = np.sqrt(root)
+    then = np.ones_like(x)
+    for _ in range(int(k)):
+        first, then = first * x, then * root
+    for _ in range(m):
+        first = np.sqrt(first)
+    tiny = np.finfo(x.dtype).tiny
+    return np.where((first >= tiny) | (x == 0.0), first, then)
 
 
 def transpose3(A: np.ndarray) -> np.ndarray:

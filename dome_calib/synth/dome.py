@@ -2,7 +2,8 @@
 and the projectors that light the tent.
 
 The design itself (where calibrate starts without a prior) is production code: :mod:`dome_calib.layout`.
-World frame: Panoptic (origin at the floor centre, y DOWN, cm); ``x_cam = R @ X_world + t_cm``.
+World frame: Panoptic (origin at the floor centre, y DOWN, cm); ``x_cam = R @ X_world + t_cm``. Every product
+is :mod:`dome_calib.interop.exact`'s (the truth the same bits on every CPU: ``tests/test_synth_exact.py``).
 """
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import numpy as np
 
 from dome_calib.bundle import Bundle, Camera
 from dome_calib.camera import intr_to_K
+from dome_calib.interop import exact
 from dome_calib.layout import (DOME_CENTRE_CM, DOME_RADIUS_CM, Preset, direction, all_nominal_cameras, look_at,
                                nominal_dome, select_preset)
 from dome_calib.panoptic_io import read_calibration
@@ -37,7 +39,7 @@ class Projector:
 
     @property
     def center_cm(self) -> np.ndarray:
-        return -self.R.T @ self.t_cm
+        return exact.centre(self.R, self.t_cm)
 
 
 #: RMS per axis (cm) of the as-built camera centres around the design (:func:`as_built_dome`).
@@ -57,7 +59,7 @@ def as_built_dome(preset: Preset | str = Preset.FULL, seed: int = 0,
         c = drawn[n]
         center = c.center_cm + rng.normal(0.0, center_sigma_cm, 3)
         cams[n] = Camera(name=c.name, type=c.type, resolution=c.resolution, K=c.K.copy(), dist=c.dist.copy(), R=c.R.copy(),
-                         t_cm=-c.R @ center, panel=c.panel, node=c.node)
+                         t_cm=-exact.matvec3(c.R, center), panel=c.panel, node=c.node)
     return Bundle(seq="as_built", cameras=cams,
                   calib_data_source=f"dome_calib.synth dome as built, preset {Preset(preset)}, seed {seed}")
 
@@ -89,5 +91,5 @@ def projectors(seed: int = 0) -> dict[str, Projector]:
         R = look_at(c, PROJECTOR_TARGET_CM + rng.normal(0.0, 5.0, size=3))
         f = PROJECTOR_FOCAL_PX * (1.0 + rng.normal(0.0, 0.01))
         K = intr_to_K(np.array([f, f, (w - 1) / 2, (h - 1) / 2]))
-        out[f"P{k + 1}"] = Projector(name=f"P{k + 1}", resolution=(w, h), K=K, R=R, t_cm=-R @ c)
+        out[f"P{k + 1}"] = Projector(name=f"P{k + 1}", resolution=(w, h), K=K, R=R, t_cm=-exact.matvec3(R, c))
     return out

@@ -27,6 +27,7 @@ import numpy as np
 
 from dome_calib.bundle import Bundle, CameraType, KinectCalibration, KinectSensor
 from dome_calib.camera import K_to_intr, intr_to_K, project
+from dome_calib.interop import exact
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.jsonfmt import dumps
 from dome_calib.kinect.board import BoardRender, Checkerboard, RayGrid, render_board
@@ -87,9 +88,28 @@ class SensorTruth:
     @property
     def depth_from_world_cm(self) -> np.ndarray:
         """(4, 4) Panoptic world (cm) -> depth camera (cm)."""
-        d_from_c = np.linalg.inv(self.color_from_depth_mm)
-        d_from_c[:3, 3] /= 10.0
-        return d_from_c @ self.color_from_world_cm
+        return _rigid_product(_rigid_inverse(self.color_from_depth_mm, scale=0.1), self.color_from_world_cm)
+
+
+def _rigid_inverse(T: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """(4, 4) inverse of ``[R t; 0 1]`` through R's cofactors (:mod:`dome_calib.interop.exact`: the same bits on
+    every CPU, unlike LAPACK's), its translation times ``scale`` (mm -> cm: 0.1)."""
+    R_inv = exact.transpose3(exact.cofactor3(T[:3, :3])) / exact.det3(T[:3, :3])
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = R_inv, -exact.matvec3(R_inv, T[:3, 3]) * scale
+    return out
+
+
+def _rigid_product(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """(4, 4) ``A @ B`` of two rigid transforms in basic operations."""
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = exact.matmul3(A[:3, :3], B[:3, :3]), exact.matvec3(A[:3, :3], B[:3, 3]) + A[:3, 3]
+    return out
+
+
+def _in_color(T: np.ndarray, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A depth-camera pose (R, t) in the colour camera (``T`` = color_from_depth), in basic operations."""
+    return exact.matmul3(T[:3, :3], R), exact.matvec3(T[:3, :3], t) + T[:3, 3]
 
 
 def color_camera_of(sensor: str) -> str:
@@ -124,7 +144,7 @@ def _corners_visible(truth: SensorTruth, board: Checkerboard, R: np.ndarray, t: 
     out = []
     T = truth.color_from_depth_mm
     for (Rc, tc), K, dist, size in (((R, t), truth.K_depth, truth.dist_depth, IR_SIZE),
-                                    ((T[:3, :3] @ R, T[:3, :3] @ t + T[:3, 3]), truth.K_color, truth.dist_color,
+                                    (_in_color(T, R, t), truth.K_color, truth.dist_color,
                                      truth.color_size)):
         p = project(pts, Rc, tc, K_to_intr(K), dist)
         lo, hi = margin_px, np.asarray(size) - 1 - margin_px
@@ -145,9 +165,10 @@ def sample_board_pose(truth: SensorTruth, opts: KinectBoardsOptions, rng: np.ran
         else:
             xy = rng.uniform(-1, 1, 2) * [0.3, 0.2]
         axis = rng.standard_normal(2)
-        tilt = np.radians(rng.uniform(5.0, opts.max_tilt_deg)) * np.r_[axis / np.linalg.norm(axis), 0.0]
-        R = rotvec_to_matrix(tilt) @ rotvec_to_matrix(np.array([0.0, 0.0, np.radians(rng.uniform(-25, 25))]))
-        t = np.array([xy[0] * z, xy[1] * z, z]) - R @ center_board
+        tilt = np.radians(rng.uniform(5.0, opts.max_tilt_deg)) * np.r_[axis, 0.0] / exact.norm3(np.r_[axis, 0.0])
+        R = exact.matmul3(rotvec_to_matrix(tilt),
+                          rotvec_to_matrix(np.array([0.0, 0.0, np.radians(rng.uniform(-25, 25))])))
+        t = np.array([xy[0] * z, xy[1] * z, z]) - exact.matvec3(R, center_board)
         ir_in, col_in = _corners_visible(truth, board, R, t, margin_px=8.0)
         if not cut_off and ir_in.all() and col_in.all():
             return R, t
@@ -168,7 +189,8 @@ def _motion_blur(image: np.ndarray, length_px: float, angle_rad: float) -> np.nd
 def _vignetting(size: tuple[int, int], K: np.ndarray, strength: float) -> np.ndarray:
     w, h = size
     u, v = np.meshgrid((np.arange(w) - K[0, 2]) / K[0, 0], (np.arange(h) - K[1, 2]) / K[1, 1])
-    return (1.0 + strength * (u * u + v * v)) ** -2
+    q = 1.0 + strength * (u * u + v * v)
+    return 1.0 / (q * q)  # not q ** -2: np.power is the CPU's (tests/test_synth_exact.py)
 
 
 def render_ir(r: BoardRender, truth: SensorTruth, opts: KinectBoardsOptions, rng: np.random.Generator) -> np.ndarray:
@@ -253,8 +275,7 @@ def generate_sensor(truth: SensorTruth, folder: Path, opts: KinectBoardsOptions,
     for k, kind in enumerate(_frame_kinds(opts, rng)):
         R, t = sample_board_pose(truth, opts, rng, cut_off=kind == "cut_off")
         r_ir = render_board(board, rays_ir, R, t, supersample=opts.ir_supersample)
-        r_col = render_board(board, rays_col, T[:3, :3] @ R, T[:3, :3] @ t + T[:3, 3],
-                             supersample=opts.color_supersample)
+        r_col = render_board(board, rays_col, *_in_color(T, R, t), supersample=opts.color_supersample)
         ir, color = render_ir(r_ir, truth, opts, rng), render_color(r_col, scene, opts, rng)
         depth = render_depth(r_ir, truth, opts, rng)
         if kind == "blurred":  # the board moved during the exposure: both cameras smear it

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from dome_calib.bundle import Camera, CameraType
+from dome_calib.interop import exact
 from dome_calib.synth.dome import Projector
 from dome_calib.synth.rays import CHUNK_RAYS, CameraRays
 from dome_calib.synth.tent import TentPose, intersect_scene
@@ -86,8 +87,8 @@ def projector_rays(p: Projector, scale: float = 1.0) -> tuple[np.ndarray, np.nda
     w, h = int(round(p.resolution[0] * scale)), int(round(p.resolution[1] * scale))
     u, v = np.meshgrid((np.arange(w) + 0.5) / scale - 0.5, (np.arange(h) + 0.5) / scale - 0.5)
     xn = np.stack([(u.ravel() - p.K[0, 2]) / p.K[0, 0], (v.ravel() - p.K[1, 2]) / p.K[1, 1], np.ones(u.size)], axis=1)
-    norm = np.linalg.norm(xn, axis=1)
-    return (xn / norm[:, None]) @ p.R, 1.0 / norm, (h, w)
+    norm = exact.norm3(xn)
+    return exact.matvec3(exact.transpose3(p.R), xn / norm[:, None]), 1.0 / norm, (h, w)
 
 
 def prepare_scene(name: str, pose: TentPose, projectors: dict[str, Projector], patterns: dict[str, np.ndarray],
@@ -119,14 +120,14 @@ def irradiance(X: np.ndarray, normal: np.ndarray, scene: SceneState, patterns: l
     normal = normal.astype(np.float32)
     for p, pat, depth in zip(scene.projectors, patterns, scene.depth_cm):
         R, t, K, c = (a.astype(np.float32) for a in (p.R, p.t_cm, p.K, p.center_cm))
-        x_p = X @ R.T + t
+        x_p = exact.matvec3(R, X) + t  # float32, in basic operations (not a BLAS sgemm: its kernel is the CPU's)
         z = x_p[:, 2]
         zs = np.maximum(z, np.float32(1.0))
         u = K[0, 0] * x_p[:, 0] / zs + K[0, 2]
         v = K[1, 1] * x_p[:, 1] / zs + K[1, 2]
         to_proj = c - X
-        inv_dist = 1.0 / np.sqrt(np.einsum("ij,ij->i", to_proj, to_proj))
-        cos = np.einsum("ij,ij->i", normal, to_proj) * inv_dist
+        inv_dist = 1.0 / exact.norm3(to_proj)
+        cos = exact.dot3(normal, to_proj) * inv_dist
         value = cv2.remap(pat, u[:, None], v[:, None], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                           borderValue=0.0)[:, 0]
         du = ((u + 0.5) * k - 0.5)[:, None]
@@ -219,13 +220,25 @@ def noise_seed(seed: int, scene: str, camera: str) -> int:
     return zlib.crc32(f"{seed}/{scene}/{camera}".encode())
 
 
+def tone_curve(x: np.ndarray, gamma: float) -> np.ndarray:
+    """``x ** gamma`` (x in [0, 1]) in float64: for a gamma of k / 2^m (the default 5 / 8) in multiplications and
+    square roots (:func:`dome_calib.interop.exact.power_dyadic`: the same bits on every CPU, so a pixel's 8-bit
+    rounding cannot flip between machines), any other through ``np.power`` (Intel's SVML on an AVX-512 CPU, the
+    C library elsewhere: its last bits are the CPU's)."""
+    x = np.asarray(x, dtype=float)
+    try:
+        return exact.power_dyadic(x, gamma)
+    except ValueError:
+        return x ** gamma
+
+
 def sensor_image(L: np.ndarray, camera_type: CameraType, options: RenderOptions,
                  rng: np.random.Generator) -> np.ndarray:
     """Pixel radiance (H, W) -> 8-bit image: lens blur, tone curve, shot and read noise, rounding."""
     sigma = options.lens_blur_px[CameraType(camera_type)]
     if sigma > 0:
         L = cv2.GaussianBlur(L, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
-    dn = (255.0 * np.clip(L * options.exposure, 0.0, 1.0) ** options.gamma).astype(np.float32)
+    dn = (255.0 * tone_curve(np.clip(L * options.exposure, 0.0, 1.0), options.gamma)).astype(np.float32)
     if options.noise:
         std = np.sqrt(options.read_noise_dn**2 + options.shot_noise_dn2_per_dn * dn)
         dn = dn + std * rng.standard_normal(dn.shape, dtype=np.float32)

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dome_calib.interop import exact
+
 FLOOR_RADIUS_CM = 260.0
 TENT_ALBEDO = 0.9
 FLOOR_ALBEDO = 0.3
@@ -67,10 +69,10 @@ class TentPose:
         return np.array([self.x_cm, 0.0, self.z_cm])
 
     def to_world(self, X_tent: np.ndarray) -> np.ndarray:
-        return X_tent @ self.R.T + self.T_cm
+        return exact.matvec3(self.R, X_tent) + self.T_cm
 
     def to_tent(self, X_world: np.ndarray) -> np.ndarray:
-        return (X_world - self.T_cm) @ self.R
+        return exact.matvec3(exact.transpose3(self.R), X_world - self.T_cm)
 
 
 def scene_poses(n_scenes: int, seed: int) -> list[TentPose]:
@@ -133,7 +135,7 @@ def tent_normals(X_tent: np.ndarray, which: np.ndarray) -> np.ndarray:
     for j, ell in enumerate(TENT_ELLIPSOIDS):
         m = which == len(TENT_CONES) + j
         n[m] = (X_tent[m] - np.asarray(ell.centre_cm)) / np.asarray(ell.radii_cm) ** 2
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), _EPS)
+    return n / np.maximum(exact.norm3(n), _EPS)[:, None]
 
 
 def _bounding_sphere() -> tuple[np.ndarray, float]:
@@ -142,7 +144,7 @@ def _bounding_sphere() -> tuple[np.ndarray, float]:
                 + [np.subtract(e.centre_cm, e.radii_cm) for e in TENT_ELLIPSOIDS], axis=0)
     hi = np.max([[c.x_cm + c.radius_cm, 0.0, c.z_cm + c.radius_cm] for c in TENT_CONES]
                 + [np.add(e.centre_cm, e.radii_cm) for e in TENT_ELLIPSOIDS], axis=0)
-    return (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2 + 1.0)
+    return (lo + hi) / 2, float(exact.norm3(hi - lo) / 2 + 1.0)
 
 
 _BOUND_CENTRE, _BOUND_RADIUS = _bounding_sphere()
@@ -158,8 +160,8 @@ def intersect_tent(o_tent: np.ndarray, d_tent: np.ndarray) -> tuple[np.ndarray, 
     n = len(d_tent)
     # cull rays that miss the bounding sphere
     to_c = _BOUND_CENTRE - o_tent
-    along = np.einsum("ij,ij->i", to_c, d_tent)
-    perp2 = np.einsum("ij,ij->i", to_c, to_c) - along * along
+    along = exact.dot3(to_c, d_tent)
+    perp2 = exact.dot3(to_c, to_c) - along * along
     idx = np.flatnonzero((perp2 < _BOUND_RADIUS**2) & (along > -_BOUND_RADIUS))
     s = np.full(n, np.inf)
     which = np.full(n, -1)
@@ -191,7 +193,7 @@ def intersect_scene(o_world: np.ndarray, d_world: np.ndarray, pose: TentPose, *,
     """First hit of world rays (o (N, 3) or (3,), d (N, 3)) with the placed tent and the floor disk."""
     d_world = np.asarray(d_world, dtype=float)
     o_world = np.broadcast_to(np.asarray(o_world, dtype=float), d_world.shape)
-    o_t, d_t = pose.to_tent(o_world), d_world @ pose.R
+    o_t, d_t = pose.to_tent(o_world), exact.matvec3(exact.transpose3(pose.R), d_world)
     s, which = intersect_tent(o_t, d_t)
     kind = np.where(which >= 0, 1, 0).astype(np.uint8)
     if floor:
@@ -207,7 +209,7 @@ def intersect_scene(o_world: np.ndarray, d_world: np.ndarray, pose: TentPose, *,
     normal = np.zeros_like(X)
     tent = kind == 1
     if tent.any():
-        normal[tent] = tent_normals(pose.to_tent(X[tent]), which[tent]) @ pose.R.T
+        normal[tent] = exact.matvec3(pose.R, tent_normals(pose.to_tent(X[tent]), which[tent]))
     normal[kind == 2] = (0.0, -1.0, 0.0)
     albedo = np.select([kind == 1, kind == 2], [TENT_ALBEDO, FLOOR_ALBEDO], 0.0)
     return Hits(s=s, X_cm=X, normal=normal, kind=kind, albedo=albedo)
