@@ -1,7 +1,7 @@
 """The same bytes run to run, and what differs under another CPU's kernels: every command that writes, twice.
 
     .venv/bin/python bench/same_bytes.py [--work /tmp/same_bytes] [--kernels Haswell,SkylakeX]
-                                         [--pairs run,kernels,older]
+                                         [--pairs run,kernels,older,switches] [--writers synth,triangulate]
 
 Runs ``tests/hostile/same_bytes.py``'s two processes (every command of the hostile catalogue that writes, on
 the matrix's small inputs, ``export`` to every format; calibrate on five VGA cameras of ``data/synthetic/tiny``)
@@ -13,7 +13,11 @@ as pairs (``--pairs``, default ``run,kernels``):
   kernels (SSE only), numpy without its AVX-512 paths (``NPY_DISABLE_CPU_FEATURES``: on AVX-512 numpy takes
   Intel's SVML for ``arctan2``, ``arccos``, ``exp``, ``log``, ...) and glibc's maths without its AVX2 / FMA
   variants (``GLIBC_TUNABLES=glibc.cpu.hwcaps``: ``math.atan2``, ``np.sin``). OpenBLAS's kernels alone do not show
-  the other two.
+  the other two;
+- ``switches``: this machine against each of ``older``'s three variables alone (which library's CPU-chosen path
+  makes a file differ).
+
+``--writers`` runs only those (labels as in ``tests/hostile/same_bytes.writers``: ``synth``, ``export-colmap``).
 
 The variables are set only for those children: a diagnostic of other CPUs, never in tests or CI. One JSON object
 per line: per pair of runs, the commands' exit codes and seconds, the files that differ (after the test's
@@ -70,21 +74,27 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, default=None, help="folder for the runs (default: a temporary one)")
     parser.add_argument("--kernels", default="Haswell,SkylakeX", help="two OPENBLAS_CORETYPE values")
-    parser.add_argument("--pairs", default="run,kernels", help="comma-separated: run, kernels, older")
+    parser.add_argument("--pairs", default="run,kernels", help="comma-separated: run, kernels, older, switches")
+    parser.add_argument("--writers", default=None, help="comma-separated labels: only these writers (default all)")
     args = parser.parse_args()
     work = args.work or Path(tempfile.mkdtemp(prefix="same_bytes_"))
     shutil.rmtree(work, ignore_errors=True)
     inputs = build_inputs(work / "inputs")
     pairs = args.pairs.split(",")
+    only = frozenset(args.writers.split(",")) if args.writers else None
     if "run" in pairs:
-        _report("run to run", run_twice(inputs, work / "same"))
+        _report("run to run", run_twice(inputs, work / "same", only=only))
     if "kernels" in pairs:
         kernels = args.kernels.split(",")
         _report(f"kernels {kernels[0]} / {kernels[1]}",
-                run_twice(inputs, work / "kernels", envs=tuple({"OPENBLAS_CORETYPE": k} for k in kernels)))
+                run_twice(inputs, work / "kernels", envs=tuple({"OPENBLAS_CORETYPE": k} for k in kernels), only=only))
     if "older" in pairs:
         _report("this CPU / an older one (OpenBLAS Nehalem, numpy without AVX-512, glibc without AVX2/FMA)",
-                run_twice(inputs, work / "older", envs=({}, OLDER_CPU)))
+                run_twice(inputs, work / "older", envs=({}, OLDER_CPU), only=only))
+    if "switches" in pairs:
+        for key, value in OLDER_CPU.items():
+            _report(f"this CPU / {key}={value} alone",
+                    run_twice(inputs, work / key, envs=({}, {key: value}), only=only))
 
 
 if __name__ == "__main__":

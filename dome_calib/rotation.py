@@ -42,7 +42,8 @@ def right_jacobian(rotvec: np.ndarray) -> np.ndarray:
     small = theta < _SMALL_ANGLE_RAD
     safe = np.where(small, 1.0, theta)
     a = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
-    b = np.where(small, 1.0 / 6.0 - theta**2 / 120.0, (safe - np.sin(safe)) / safe**3)
+    cube = safe * safe * safe  # not safe ** 3: np.power is Intel's SVML on an AVX-512 CPU (docs/benchmarks.md)
+    b = np.where(small, 1.0 / 6.0 - theta**2 / 120.0, (safe - np.sin(safe)) / cube)
     return np.eye(3) - a * K + b * K2
 
 

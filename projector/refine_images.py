@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from dome_calib.interop import exact
 from dome_calib.jit import njit
 
 
@@ -178,7 +179,9 @@ class PatchGrid:
         r = self.radius_px
         gy, gx = np.mgrid[-r:r + 1, -r:r + 1]
         offsets = np.stack([gx.ravel(), gy.ravel()], axis=1).astype(np.float64)
-        weights = np.exp(-0.5 * np.sum(offsets ** 2, axis=1) / (self.window_sigma * max(r, 1)) ** 2)
+        # exact.exp, not np.exp (Intel's SVML on an AVX-512 CPU): the weights, hence every refined keypoint, are the
+        # same bits on every CPU (docs/benchmarks.md, "The older CPU, bisected")
+        weights = exact.exp(-0.5 * np.sum(offsets ** 2, axis=1) / (self.window_sigma * max(r, 1)) ** 2)
         return offsets, weights
 
 

@@ -3,8 +3,8 @@ vectors, dot products and powers in IEEE basic operations only.
 
 An export writes numbers computed from the bundle's, a synthetic generator the truth it drew (``synth``'s projectors
 and tent, ``kinect-synth``'s poses) and the images it rendered from it; every machine must write the same bits for
-the same input or seed (README, "Same result on every machine"). Three kinds of library call do not give the same bits on every CPU
-(measured by ``bench/same_bytes.py``, docs/benchmarks.md):
+the same input or seed (README, "Same result on every machine"). Three kinds of library call do not give the same
+bits on every CPU (measured by ``bench/same_bytes.py``, docs/benchmarks.md):
 
 - BLAS and LAPACK (``@``, ``np.dot``, ``np.linalg.svd`` / ``solve`` / ``det``, scipy's ``Rotation.from_matrix``,
   which orthonormalises by SVD): OpenBLAS picks its kernels by CPU, and they sum in other orders, with or without
@@ -69,6 +69,26 @@ def norm3(a: np.ndarray) -> np.ndarray:
 def unit3(a: np.ndarray) -> np.ndarray:
     """(..., 3) vectors divided by their :func:`norm3`."""
     return _floats(a) / norm3(a)[..., None]
+
+
+#: ln 2 in two parts (Cody and Waite): the first with its last 11 bits zero, so that k * _LN2_HI is exact for
+#: |k| < 2^11; the second the rest.
+_LN2_HI, _LN2_LO = 0.6931471803691238, 1.9082149292705877e-10
+#: 1 / n! for the series of exp(r), |r| <= ln(2) / 2: the first term left out (r^14 / 14!) is below 2e-17 of it.
+_EXP_TERMS = tuple(1.0 / np.prod(np.arange(1.0, n + 1.0)) for n in range(14))
+
+
+def exp(x: np.ndarray) -> np.ndarray:
+    """e^x (float64) in basic operations: x = k ln 2 + r, |r| <= ln(2) / 2, the series of e^r by Horner's rule,
+    times 2^k (``np.ldexp``: exact). Within 2 units in the last place of libm's for x in [-700, 700]
+    (``tests/test_synth_exact.py``); numpy's ``np.exp`` is Intel's SVML on an AVX-512 CPU."""
+    x = np.asarray(x, dtype=float)
+    k = np.rint(x / _LN2_HI)
+    r = (x - k * _LN2_HI) - k * _LN2_LO
+    s = _EXP_TERMS[-1]
+    for c in _EXP_TERMS[-2::-1]:
+        s = c + r * s
+    return np.ldexp(s, k.astype(np.int64))
 
 
 #: The largest m of a power k / 2^m :func:`power_dyadic` takes as square roots (gamma 0.625 = 5 / 8: m = 3).

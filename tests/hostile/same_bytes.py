@@ -169,11 +169,13 @@ class Runs:
                        if normal(a[rel], self.sides[0]) != normal(b[rel], self.sides[1])]
 
 
-def run_twice(inputs: Inputs, root: Path, envs: tuple[dict, dict] = ({}, {}), heavy: bool | None = None) -> Runs:
-    """The writers (``heavy``: as :func:`writers`) run on ``inputs`` by two processes at once, in ``root/a`` and
-    ``root/b``, each with its own copy of the inputs and the variables of ``envs`` added to its environment
-    (``bench/same_bytes.py``: OpenBLAS's kernel sets)."""
-    sides, runs, chosen = [root / "a", root / "b"], [], writers(heavy)
+def run_twice(inputs: Inputs, root: Path, envs: tuple[dict, dict] = ({}, {}), heavy: bool | None = None,
+              only: frozenset[str] | None = None) -> Runs:
+    """The writers (``heavy``: as :func:`writers`; ``only``: those labels) run on ``inputs`` by two processes at
+    once, in ``root/a`` and ``root/b``, each with its own copy of the inputs and the variables of ``envs`` added to
+    its environment (``bench/same_bytes.py``: OpenBLAS's kernel sets, an older CPU's library paths)."""
+    sides, runs = [root / "a", root / "b"], []
+    chosen = [(label, e) for label, e in writers(heavy) if only is None or label in only]
     for side, extra in zip(sides, envs):
         side.mkdir(parents=True)
         lines = _prepare(inputs, side, chosen)
