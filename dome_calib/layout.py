@@ -68,7 +68,7 @@ class Preset(StrEnum):
 def direction(lat_deg: float, az_deg: float) -> np.ndarray:
     """Unit vector from the dome centre at a latitude (up positive) and azimuth (atan2(z, x)), world frame."""
     lat, az = np.radians(lat_deg), np.radians(az_deg)
-    return np.array([np.cos(lat) * np.cos(az), -np.sin(lat), np.cos(lat) * np.sin(az)])
+    return np.array([exact.cos(lat) * exact.cos(az), -exact.sin(lat), exact.cos(lat) * exact.sin(az)])
 
 
 def look_at(center_cm: np.ndarray, target_cm: np.ndarray, roll_rad: float = 0.0) -> np.ndarray:
@@ -81,7 +81,7 @@ def look_at(center_cm: np.ndarray, target_cm: np.ndarray, roll_rad: float = 0.0)
         y = np.array([0.0, 0.0, 1.0]) - z[2] * z
     y = exact.unit3(y)
     x = exact.cross3(y, z)
-    c, s = np.cos(roll_rad), np.sin(roll_rad)
+    c, s = exact.cos(roll_rad), exact.sin(roll_rad)
     x, y = c * x + s * y, -s * x + c * y
     return np.stack([x, y, z])
 
@@ -89,8 +89,8 @@ def look_at(center_cm: np.ndarray, target_cm: np.ndarray, roll_rad: float = 0.0)
 def _hexagon_nodes_cm() -> np.ndarray:
     """(24, 2) node offsets in a panel's tangent plane: an inner hexagon of 6 and an outer one of 18 (3 per side)."""
     angles = np.radians(np.arange(6) * 60.0 + 30.0)
-    inner = 22.0 * np.stack([np.cos(angles), np.sin(angles)], axis=1)
-    corners = 55.0 * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    inner = 22.0 * np.stack([exact.cos(angles), exact.sin(angles)], axis=1)
+    corners = 55.0 * np.stack([exact.cos(angles), exact.sin(angles)], axis=1)
     outer = [corners[i] + f * (corners[(i + 1) % 6] - corners[i]) for i in range(6) for f in (0.0, 1 / 3, 2 / 3)]
     return np.vstack([inner, np.array(outer)])
 
@@ -157,7 +157,7 @@ def all_nominal_cameras(seed: int) -> dict[str, Camera]:
         horizontal = np.sqrt(r_kinect**2 - dy**2)
         for k in range(5):
             az = np.radians(az0 + 72.0 * k)
-            p = np.array([horizontal * np.cos(az), -height, horizontal * np.sin(az)])
+            p = np.array([horizontal * exact.cos(az), -height, horizontal * exact.sin(az)])
             node = 5 * ring + k + 1
             name = f"50_{node:02d}"
             cams[name] = _aimed_camera(rng, name=name, camera_type=CameraType.KINECT_COLOR, center_cm=p, panel=50,
@@ -182,7 +182,7 @@ def _arc_point_cm(a_cm: np.ndarray, b_cm: np.ndarray, fraction: float, lift_deg:
     a, b = a_cm - DOME_CENTRE_CM, b_cm - DOME_CENTRE_CM
     ua, ub = exact.unit3(a), exact.unit3(b)
     angle = np.arccos(np.clip(exact.dot3(ua, ub), -1.0, 1.0))  # SVML on AVX-512 CPUs (tests/test_synth_exact.py)
-    u = (np.sin((1 - fraction) * angle) * ua + np.sin(fraction * angle) * ub) / np.sin(angle)
+    u = (exact.sin((1 - fraction) * angle) * ua + exact.sin(fraction * angle) * ub) / exact.sin(angle)
     lat, az = np.degrees(np.arcsin(-u[1] / exact.norm3(u))), np.degrees(np.arctan2(u[2], u[0]))
     return DOME_CENTRE_CM + 0.5 * (exact.norm3(a) + exact.norm3(b)) * direction(lat + lift_deg, az)
 

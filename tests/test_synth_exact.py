@@ -14,9 +14,10 @@ variable), but for the uses listed below, each with why.
 The keypoint refinement of calibrate is held to it too (``projector/refine_images.py``: its window's ``np.exp``
 made every refined keypoint, hence the bundle, differ with and without numpy's AVX-512 paths).
 
-Not covered: ``np.sin`` / ``np.cos`` (glibc's FMA variants differ on some inputs; the files above were alike with
-and without them, ``bench/same_bytes.py --pairs older``, docs/benchmarks.md) and the functions those modules call
-elsewhere (``camera.project``, ``kinect.board``: their files were alike too).
+The sines and cosines are :func:`~dome_calib.interop.exact.sincos`'s and the rotation vectors'
+:func:`~dome_calib.interop.exact.rotvec_matrix` (glibc's ``sin`` / ``cos``, and scipy's ``from_rotvec`` through
+them, have variants with and without FMA that differ on some inputs). Not covered: what those modules call elsewhere
+(``camera.project``, ``kinect.board``: their files were alike with and without each variable).
 """
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 import dome_calib
 from dome_calib.interop import exact
@@ -38,7 +40,9 @@ MODULES = ("layout.py", "synth/dome.py", "synth/tent.py", "synth/rays.py", "synt
 #: numpy functions another CPU computes otherwise: BLAS / LAPACK products, Intel's SVML on AVX-512 CPUs.
 CPU_CHOSEN = {"dot", "vdot", "inner", "tensordot", "einsum", "matmul", "arctan2", "arccos", "arcsin", "arctan",
               "exp", "expm1", "exp2", "log", "log1p", "log2", "log10", "power", "float_power", "tan", "sinh", "cosh",
-              "tanh", "cbrt"}
+              "tanh", "cbrt", "sin", "cos"}
+#: Other calls whose last bits are the CPU's: scipy's rotations (the C library's sine and cosine, LAPACK's SVD).
+OTHER_CPU_CHOSEN = ("rotvec_to_matrix", "matrix_to_rotvec", "Rotation.")
 
 #: (module, function) -> how many such uses, and why they stay.
 ALLOWED = {
@@ -73,7 +77,7 @@ def _uses(tree: ast.AST) -> dict[str, list[str]]:
                 what = "** a variable"
             elif isinstance(child, ast.Call):
                 name = _name(child.func)
-                if name.startswith(("np.linalg.", "numpy.linalg.")) or (
+                if name.startswith(("np.linalg.", "numpy.linalg.", *OTHER_CPU_CHOSEN)) or (
                         name.startswith("np.") and name[3:] in CPU_CHOSEN):
                     what = name
             if what is not None:
@@ -106,7 +110,7 @@ def test_the_rule_sees_what_it_refuses():
     assert _uses(ast.parse(code)) == {"f": ["@", "np.linalg.inv", "np.einsum", "** a variable", "np.arctan2"]}
 
 
-def test_the_dyadic_power_and_the_exponential_are_within_a_few_units_in_the_last_place():
+def test_the_power_the_exponential_and_the_sine_are_within_a_few_units_in_the_last_place():
     x = np.concatenate([np.random.default_rng(0).uniform(0.0, 1.0, 20000), [0.0, 1.0, 1e-300, 0.5]])
     for p in (0.625, 0.5, 1.0, 2.0, 3.25, 0.015625):
         ours = exact.power_dyadic(x, p)
@@ -117,6 +121,10 @@ def test_the_dyadic_power_and_the_exponential_are_within_a_few_units_in_the_last
     e = np.concatenate([np.random.default_rng(1).uniform(-700.0, 700.0, 20000), [0.0, -0.5, 1.0]])
     libm = np.array([math.exp(v) for v in e])
     assert (np.abs(exact.exp(e) - libm) <= 2 * np.spacing(libm)).all()
+    a = np.concatenate([np.random.default_rng(2).uniform(-1e5, 1e5, 20000), np.linspace(-7.0, 7.0, 2001)])
+    for ours, f in zip(exact.sincos(a), (math.sin, math.cos)):
+        libm = np.array([f(v) for v in a])
+        assert (np.abs(ours - libm) <= np.maximum(2 * np.spacing(np.abs(libm)), 1.2e-16)).all()
     np.testing.assert_allclose(tone_curve(x, 1 / 2.2), x ** (1 / 2.2), rtol=0, atol=0)  # any other gamma: np.power
 
 
@@ -126,5 +134,7 @@ def test_the_helpers_are_the_products_they_replace():
     np.testing.assert_allclose(exact.matvec3(R, X), X @ R.T, rtol=0, atol=1e-12)
     np.testing.assert_allclose(exact.dot3(X, X[::-1]), np.einsum("ij,ij->i", X, X[::-1]), rtol=1e-15, atol=1e-9)
     np.testing.assert_allclose(exact.norm3(X), np.linalg.norm(X, axis=1), rtol=1e-15)
+    r = np.concatenate([Rotation.random(500, random_state=3).as_rotvec(), [[0.0, 0.0, 0.0], [1e-9, 0.0, 0.0]]])
+    np.testing.assert_allclose(exact.rotvec_matrix(r), Rotation.from_rotvec(r).as_matrix(), rtol=0, atol=2e-15)
     f32 = X.astype(np.float32)
     assert exact.matvec3(R.astype(np.float32), f32).dtype == np.float32 and exact.dot3(f32, f32).dtype == np.float32

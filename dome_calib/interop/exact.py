@@ -1,10 +1,10 @@
-"""The arithmetic of the exports and of the synthetic generators' truth: 3 x 3 matrices, rotations, rotation
-vectors, dot products and powers in IEEE basic operations only.
+"""The arithmetic of the exports, of the synthetic generators and of calibrate's keypoint refinement: 3 x 3
+matrices, rotations, rotation vectors, dot products, sines, exponentials and powers in IEEE basic operations only.
 
-An export writes numbers computed from the bundle's, a synthetic generator the truth it drew (``synth``'s projectors
-and tent, ``kinect-synth``'s poses) and the images it rendered from it; every machine must write the same bits for
-the same input or seed (README, "Same result on every machine"). Three kinds of library call do not give the same
-bits on every CPU (measured by ``bench/same_bytes.py``, docs/benchmarks.md):
+An export writes numbers computed from the bundle's, a synthetic generator the truth it drew (``synth``'s design,
+projectors and tent, ``kinect-synth``'s poses) and the images it rendered from it; every machine must write the
+same bits for the same input or seed (README, "Same result on every machine"). Three kinds of library call do
+not give the same bits on every CPU (measured by ``bench/same_bytes.py``, docs/benchmarks.md):
 
 - BLAS and LAPACK (``@``, ``np.dot``, ``np.linalg.svd`` / ``solve`` / ``det``, scipy's ``Rotation.from_matrix``,
   which orthonormalises by SVD): OpenBLAS picks its kernels by CPU, and they sum in other orders, with or without
@@ -89,6 +89,59 @@ def exp(x: np.ndarray) -> np.ndarray:
     for c in _EXP_TERMS[-2::-1]:
         s = c + r * s
     return np.ldexp(s, k.astype(np.int64))
+
+
+#: pi / 2 in three parts (fdlibm's): the first two of 33 significant bits, so that k times each is exact for
+#: |k| < 2^20 (|x| below 1.6e6 rad).
+_PIO2_1, _PIO2_2, _PIO2_3 = 1.57079632673412561417e+00, 6.07710050630396597660e-11, 2.02226624871116645580e-21
+#: (-1)^n / (2n + 1)! and (-1)^n / (2n)!, n = 0..9: for |r| <= pi / 4 the first terms left out are below 1e-20.
+_SIN_TERMS = tuple((-1.0) ** n / float(np.prod(np.arange(1.0, 2 * n + 2.0))) for n in range(10))
+_COS_TERMS = tuple((-1.0) ** n / float(np.prod(np.arange(1.0, 2 * n + 1.0))) for n in range(10))
+
+
+def sincos(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(sin x, cos x) (float64) in basic operations: x = k pi / 2 + r, |r| <= pi / 4, the two series by Horner's
+    rule, the quadrant from k. Within 2 units in the last place of libm's on uniform draws up to |x| = 1e5 (and
+    1.2e-16 absolute near its zeros; ``tests/test_synth_exact.py``); ``np.sin`` / ``np.cos`` are glibc's, whose
+    variants with and without FMA differ on some inputs."""
+    x = np.asarray(x, dtype=float)
+    k = np.rint(x / _PIO2_1)
+    r = ((x - k * _PIO2_1) - k * _PIO2_2) - k * _PIO2_3
+    r2 = r * r
+    s, c = _SIN_TERMS[-1], _COS_TERMS[-1]
+    for a, b in zip(_SIN_TERMS[-2::-1], _COS_TERMS[-2::-1]):
+        s, c = a + r2 * s, b + r2 * c
+    s = r * s
+    q = np.mod(k, 4.0)
+    sin = np.where(q == 0.0, s, np.where(q == 1.0, c, np.where(q == 2.0, -s, -c)))
+    cos = np.where(q == 0.0, c, np.where(q == 1.0, -s, np.where(q == 2.0, -c, s)))
+    return sin, cos
+
+
+def sin(x: np.ndarray) -> np.ndarray:
+    """sin x: :func:`sincos`'s first."""
+    return sincos(x)[0]
+
+
+def cos(x: np.ndarray) -> np.ndarray:
+    """cos x: :func:`sincos`'s second."""
+    return sincos(x)[1]
+
+
+def rotvec_matrix(r: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation of the (..., 3) rotation vectors (axis times angle, rad) through their unit quaternion
+    (as scipy's ``Rotation.from_rotvec(r).as_matrix()``, whose sine and cosine are the C library's): the angle's
+    half by :func:`sincos`, sin(h) / angle by its series below 1e-3 rad."""
+    r = np.asarray(r, dtype=float)
+    theta = norm3(r)
+    s_half, c_half = sincos(0.5 * theta)
+    t2 = theta * theta
+    scale = np.where(theta > 1e-3, s_half / np.where(theta > 1e-3, theta, 1.0), 0.5 - t2 / 48.0 + t2 * t2 / 3840.0)
+    x, y, z, w = r[..., 0] * scale, r[..., 1] * scale, r[..., 2] * scale, c_half
+    return np.stack([np.stack([w * w + x * x - y * y - z * z, 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)], -1),
+                     np.stack([2.0 * (x * y + z * w), w * w - x * x + y * y - z * z, 2.0 * (y * z - x * w)], -1),
+                     np.stack([2.0 * (x * z - y * w), 2.0 * (y * z + x * w), w * w - x * x - y * y + z * z], -1)],
+                    axis=-2)
 
 
 #: The largest m of a power k / 2^m :func:`power_dyadic` takes as square roots (gamma 0.625 = 5 / 8: m = 3).

@@ -32,7 +32,6 @@ from dome_calib.io_utils import atomic_write_text
 from dome_calib.jsonfmt import dumps
 from dome_calib.kinect.board import BoardRender, Checkerboard, RayGrid, render_board
 from dome_calib.kinect.world import M_WORLD2VGA, sensor_matrices
-from dome_calib.rotation import rotvec_to_matrix
 from dome_calib.options import AtLeast, Field, options
 from dome_calib.schema import NonNegFinite, PosFinite
 
@@ -126,7 +125,7 @@ def draw_sensor_truth(name: str, bundle: Bundle, opts: KinectBoardsOptions, rng:
     dist[[0, 1, 4]] *= 1.0 + 0.04 * rng.standard_normal()
     dist[[2, 3]] = 3e-4 * rng.standard_normal(2)
     T = np.eye(4)
-    T[:3, :3] = rotvec_to_matrix(np.radians(_ROT_STD_DEG * rng.standard_normal(3)))
+    T[:3, :3] = exact.rotvec_matrix(np.radians(_ROT_STD_DEG * rng.standard_normal(3)))
     T[:3, 3] = _T_COLOR_FROM_DEPTH_MM + _T_STD_MM * rng.standard_normal(3)
     return SensorTruth(
         name=name, color_camera=cam.name, K_depth=intr_to_K(intr), dist_depth=dist, K_color=cam.K.copy(),
@@ -166,8 +165,8 @@ def sample_board_pose(truth: SensorTruth, opts: KinectBoardsOptions, rng: np.ran
             xy = rng.uniform(-1, 1, 2) * [0.3, 0.2]
         axis = rng.standard_normal(2)
         tilt = np.radians(rng.uniform(5.0, opts.max_tilt_deg)) * np.r_[axis, 0.0] / exact.norm3(np.r_[axis, 0.0])
-        R = exact.matmul3(rotvec_to_matrix(tilt),
-                          rotvec_to_matrix(np.array([0.0, 0.0, np.radians(rng.uniform(-25, 25))])))
+        R = exact.matmul3(exact.rotvec_matrix(tilt),
+                          exact.rotvec_matrix(np.array([0.0, 0.0, np.radians(rng.uniform(-25, 25))])))
         t = np.array([xy[0] * z, xy[1] * z, z]) - exact.matvec3(R, center_board)
         ir_in, col_in = _corners_visible(truth, board, R, t, margin_px=8.0)
         if not cut_off and ir_in.all() and col_in.all():
@@ -181,7 +180,7 @@ def _motion_blur(image: np.ndarray, length_px: float, angle_rad: float) -> np.nd
     n = int(np.ceil(length_px)) | 1
     kernel = np.zeros((n, n), np.float32)
     c = n // 2
-    d = np.array([np.cos(angle_rad), np.sin(angle_rad)]) * length_px / 2
+    d = np.array([exact.cos(angle_rad), exact.sin(angle_rad)]) * length_px / 2
     cv2.line(kernel, (int(round(c - d[0])), int(round(c - d[1]))), (int(round(c + d[0])), int(round(c + d[1]))), 1.0, 1)
     return cv2.filter2D(image, -1, kernel / kernel.sum(), borderType=cv2.BORDER_REFLECT)
 
@@ -221,7 +220,7 @@ def color_scene(truth: SensorTruth, rng: np.random.Generator) -> ColorScene:
     w, h = truth.color_size
     u, v = np.meshgrid(np.linspace(0, 1, w, dtype=np.float32), np.linspace(0, 1, h, dtype=np.float32))
     vignette = _vignetting(truth.color_size, truth.K_color, 0.15).astype(np.float32)
-    bg = (70.0 + 30.0 * u * (1 - v) + 15.0 * np.sin(3 * u + 2 * v)) * vignette
+    bg = (70.0 + 30.0 * u * (1 - v) + 15.0 * exact.sin(3 * u + 2 * v)) * vignette
     tint = np.array([0.95, 1.0, 1.06], dtype=np.float32)  # BGR: a warm room
     noise = rng.standard_normal((h + _NOISE_MARGIN, w + _NOISE_MARGIN, 3), dtype=np.float32)
     return ColorScene(background=bg[..., None] * tint, light=(0.9 + 0.1 * u) * vignette, noise=noise)

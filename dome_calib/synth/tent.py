@@ -48,7 +48,7 @@ TENT_ELLIPSOIDS = (Ellipsoid(centre_cm=(0.0, -95.0, 0.0), radii_cm=(80.0, 105.0,
 
 def yaw_matrix(yaw_rad: float) -> np.ndarray:
     """(3, 3) rotation about the world's vertical (y) axis."""
-    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    c, s = exact.cos(yaw_rad), exact.sin(yaw_rad)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
@@ -83,7 +83,7 @@ def scene_poses(n_scenes: int, seed: int) -> list[TentPose]:
         radius = 0.0 if i == 0 else rng.uniform(20.0, 45.0)
         angle = rng.uniform(0.0, 2 * np.pi)
         poses.append(TentPose(yaw_rad=float(rng.uniform(0.0, 2 * np.pi)) if i else 0.3,
-                              x_cm=float(radius * np.cos(angle)), z_cm=float(radius * np.sin(angle))))
+                              x_cm=float(radius * exact.cos(angle)), z_cm=float(radius * exact.sin(angle))))
     return poses
 
 
@@ -253,18 +253,19 @@ def tent_mesh(pose: TentPose, *, step_cm: float = 4.0) -> tuple[np.ndarray, np.n
         f = np.linspace(0.0, 1.0, nv)[None, :]  # 0 apex .. 1 base
         r = cone.radius_cm * f
         y = -cone.height_cm * (1.0 - f)
-        grid(np.stack([cone.x_cm + r * np.cos(th), y + 0 * th, cone.z_cm + r * np.sin(th)], -1))
+        grid(np.stack([cone.x_cm + r * exact.cos(th), y + 0 * th, cone.z_cm + r * exact.sin(th)], -1))
         f_base = np.linspace(1.0, 0.0, max(3, int(cone.radius_cm / step_cm)))[None, :]
-        grid(np.stack([cone.x_cm + cone.radius_cm * f_base * np.cos(th), 0 * f_base + 0 * th,
-                       cone.z_cm + cone.radius_cm * f_base * np.sin(th)], -1))
+        grid(np.stack([cone.x_cm + cone.radius_cm * f_base * exact.cos(th), 0 * f_base + 0 * th,
+                       cone.z_cm + cone.radius_cm * f_base * exact.sin(th)], -1))
     for ell in TENT_ELLIPSOIDS:
         rx, ry, rz = ell.radii_cm
         nu = max(12, int(2 * np.pi * max(rx, rz) / step_cm))
         nv = max(6, int(np.pi * ry / step_cm))
         th = np.linspace(0, 2 * np.pi, nu, endpoint=False)[:, None]
         ph = np.linspace(0, np.pi, nv)[None, :]
-        grid(np.stack([ell.centre_cm[0] + rx * np.sin(ph) * np.cos(th), ell.centre_cm[1] - ry * np.cos(ph) + 0 * th,
-                       ell.centre_cm[2] + rz * np.sin(ph) * np.sin(th)], -1))
+        (s_ph, c_ph), (s_th, c_th) = exact.sincos(ph), exact.sincos(th)
+        grid(np.stack([ell.centre_cm[0] + rx * s_ph * c_th, ell.centre_cm[1] - ry * c_ph + 0 * th,
+                       ell.centre_cm[2] + rz * s_ph * s_th], -1))
     V = np.concatenate(verts)
     F = np.concatenate(faces)
     keep = ~inside_tent(V, margin_cm=0.05) & (V[:, 1] <= 1e-9)  # ellipsoid parts below the floor are cut
