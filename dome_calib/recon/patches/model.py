@@ -202,6 +202,13 @@ class PatchOptions:
     # a plain shift leaves it (warp.warp_px; 0.5 px: a turn of ~3 deg): the others, most of them, are aligned as
     # without the warp, bit for bit (and the warp's resampling is paid only where it matters)
     anchor_warp_px: Annotated[float, Field(ge=0)] = 0.5
+    # the anchor flow only for the patches flown this step in at least this many cameras (track.anchored; 0: every
+    # patch, the same bits): a patch with views to spare is not ended by one rejected view, and on the few-camera rig
+    # the anchor's rejections were 80-83 % in two-view patches (branch anchor62). With anchor_flow, anchor_warp,
+    # anchor_levels=0 and 3 (min_visible + 1): scene 1 over 30 frames each way 96.99 -> 97.26 % precision (97.26
+    # with the anchor on every patch), the few-camera rig's occluded spans (three clouds) seeds 1 / 2 87.2 / 87.2 ->
+    # 86.7 / 87.8 % (78.3 / 84.4 with it on every patch) (docs/benchmarks.md, branch prec63)
+    anchor_min_views: AtLeast(0) = 0
     anchor_reject: bool = True
     anchor_reject_unaligned: bool = True  # also reject a point the seed image cannot be aligned at (else kept)
     # drift (track.py, visibility.off_seed): a patch ends when its visible views no longer show its seed
