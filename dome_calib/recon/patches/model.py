@@ -215,6 +215,9 @@ class PatchOptions:
     # appearance (median NCC, over the visible cameras that saw it at the seed, of its square now against its square
     # there at the seed, below ncc_threshold): it slid off the surface point it was seeded on (on by default: split62)
     seed_appearance_end: bool = True
+    # ... judged against this NCC (None: ncc_threshold, the same bits). 0.7 was probed once with the anchor where a
+    # patch has views to spare (anchor_min_views=3): docs/benchmarks.md, branch prec63
+    seed_appearance_ncc: Annotated[float, Field(ge=-1, le=1)] | None = None
     min_visible: AtLeast(2) = 2  # a patch seen by fewer cameras ends
     max_stretch: Annotated[float, Field(gt=0, lt=1)] = 0.3  # a patch whose plane points move this much ends
 
