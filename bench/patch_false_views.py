@@ -24,15 +24,12 @@ import numpy as np
 from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.synth.textured import TexturedScene, surface_points_cm, surface_visibility
 from dome_calib.recon.patches.run import imaged_views
-from patches import (FALSE_POSITIVE_CAUSES, bench_cameras, bench_scene, cameras_by_type, cause_rules,
-                     first_cause)
+from patch_misses import binned
+from patches import (FALSE_POSITIVE_CAUSES, add_scene_arguments, bench_cameras, bench_scene, cameras_by_type,
+                     cause_rules, first_cause)
 
 BINS = {"frames_from_seed": (0, 1, 4, 8, 12, 16, 21, 26, 31, 100), "map_views": (0, 3, 4, 6, 10, 100),
         "drift_mm": (0.0, 2.0, 4.0, 6.0, 10.0, 1e9), "truly_seen_before": (0, 1, 2)}
-
-
-def _binned(values: np.ndarray, edges: tuple) -> list[int]:
-    return np.histogram(values, bins=np.asarray(edges, float))[0].astype(int).tolist()
 
 
 def run(args: argparse.Namespace) -> None:
@@ -73,9 +70,9 @@ def run(args: argparse.Namespace) -> None:
         m = fp & (g[:, 5] == c)
         out[name] = {"views": int(m.sum()), "share_of_false": round(float(m.sum() / max(fp.sum(), 1)), 4),
                      "by_camera_type": {t: int(np.sum(kinds[g[m, 4].astype(int)] == t)) for t in sorted(set(kinds))},
-                     **{b: _binned(g[m, i], e) for i, (b, e) in enumerate(BINS.items())}}
-    every = {b: _binned(g[:, i], e) for i, (b, e) in enumerate(BINS.items())}
-    false = {b: _binned(g[fp, i], e) for i, (b, e) in enumerate(BINS.items())}
+                     **{b: binned(g[m, i], e) for i, (b, e) in enumerate(BINS.items())}}
+    every = {b: binned(g[:, i], e) for i, (b, e) in enumerate(BINS.items())}
+    false = {b: binned(g[fp, i], e) for i, (b, e) in enumerate(BINS.items())}
     precision = {b: [round(1.0 - f / n, 4) if n else None for f, n in zip(false[b], every[b])] for b in BINS}
     print(json.dumps({"stream": args.stream, "scenario": args.scenario, "people": args.people, "seed": args.seed,
                       "precision": round(float(1.0 - fp.sum() / max(len(g), 1)), 4), "labelled_visible": int(len(g)),
@@ -87,13 +84,7 @@ def run(args: argparse.Namespace) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("stream")
-    ap.add_argument("--preset", default="panel")
-    ap.add_argument("--people", type=int, default=2)
-    ap.add_argument("--scenario", default="conversation")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--vga", type=int, default=24)
-    ap.add_argument("--hd", type=int, default=4)
-    ap.add_argument("--kinect", type=int, default=2)
+    add_scene_arguments(ap)
     run(ap.parse_args())
 
 

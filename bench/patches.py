@@ -477,6 +477,17 @@ def run_executors(args, bundle, scene, cams, span, o, f: int) -> None:
              load=[round(x, 2) for x in os.getloadavg()])
 
 
+def add_scene_arguments(ap: argparse.ArgumentParser, scenario: str = "conversation") -> None:
+    """The scene options of a bench that judges a saved stream (``--save``) again: the same as the run's."""
+    ap.add_argument("--preset", default="panel")
+    ap.add_argument("--people", type=int, default=2)
+    ap.add_argument("--scenario", default=scenario)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--vga", type=int, default=24)
+    ap.add_argument("--hd", type=int, default=4)
+    ap.add_argument("--kinect", type=int, default=2)
+
+
 def cameras_by_type(bundle) -> dict[str, list[str]]:
     """The bundle's VGA, HD and Kinect colour cameras, each by name."""
     return {t: sorted(n for n, c in bundle.cameras.items() if str(c.type) == t) for t in ("vga", "hd", "kinect-color")}
