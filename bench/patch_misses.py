@@ -27,14 +27,15 @@ from dome_calib.recon.project import project_points, view_set
 from dome_calib.synth.dome import as_built_dome
 from dome_calib.synth.group import GroupOptions, make_group
 from dome_calib.synth.textured import surface_points_cm, surface_visibility
-from patches import bench_cameras, cameras_by_type
+from patches import add_scene_arguments, bench_cameras, cameras_by_type
 
 CAUSES = ("drifted", "grazing", "wrong_normal", "near_border", "labelled_not_visible")
 BINS = {"distance_m": (0.0, 1.0, 1.5, 2.0, 2.5, 10.0), "cos_true": (0.0, 0.2, 0.4, 0.6, 0.8, 1.01),
         "speed_cm_per_frame": (0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 100.0), "frames_from_seed": (0, 1, 3, 6, 11, 100)}
 
 
-def _binned(values: np.ndarray, edges: tuple) -> list[int]:
+def binned(values: np.ndarray, edges: tuple) -> list[int]:
+    """How many of ``values`` fall in each bin of ``edges``."""
     return np.histogram(values, bins=np.asarray(edges, float))[0].astype(int).tolist()
 
 
@@ -92,7 +93,7 @@ def run(args: argparse.Namespace) -> None:
         g = np.concatenate(got) if got else np.zeros((0, 5))
         out[name] = {"views": int(len(g)), "share_of_live_true": round(len(g) / max(live_true, 1), 4),
                      "by_camera_type": {t: int(np.sum(kinds[g[:, 4].astype(int)] == t)) for t in sorted(set(kinds))},
-                     **{b: _binned(g[:, i], e) for i, (b, e) in enumerate(BINS.items())}}
+                     **{b: binned(g[:, i], e) for i, (b, e) in enumerate(BINS.items())}}
     hits = out["hit"]["views"]
     print(json.dumps({"stream": args.stream, "scenario": args.scenario, "people": args.people, "seed": args.seed,
                       "recall": round(hits / max(live_true, 1), 4), "bins": BINS, "classes": out,
@@ -102,13 +103,7 @@ def run(args: argparse.Namespace) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("stream")
-    ap.add_argument("--preset", default="panel")
-    ap.add_argument("--people", type=int, default=2)
-    ap.add_argument("--scenario", default="walk_past")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--vga", type=int, default=24)
-    ap.add_argument("--hd", type=int, default=4)
-    ap.add_argument("--kinect", type=int, default=2)
+    add_scene_arguments(ap, "walk_past")
     run(ap.parse_args())
 
 

@@ -101,11 +101,11 @@ FALSE_POSITIVE_CAUSES = ("drifted", "back_facing", "occluded_other_person", "occ
 FALSE_NEGATIVE_CAUSES = ("drifted", "near_border", "grazing", "wrong_normal", "labelled_not_visible")
 
 
-def error_causes(truth, views, t_ms: float, X: np.ndarray, P: np.ndarray, normal: np.ndarray, person: np.ndarray,
-                 part: np.ndarray, err_mm: np.ndarray, labellings: dict[str, np.ndarray], true: np.ndarray,
-                 o: PatchOptions) -> dict[str, dict[str, dict[str, int]]]:
-    """The visibility's false positives and negatives at one time, each given the first cause that applies, for each
-    of ``labellings`` (name -> (N, V) labels; the causes' geometry is computed once for all of them).
+def cause_rules(truth, views, t_ms: float, X: np.ndarray, P: np.ndarray, normal: np.ndarray, person: np.ndarray,
+                part: np.ndarray, err_mm: np.ndarray, true: np.ndarray, o: PatchOptions
+                ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The (N, V) rules of the visibility's errors at one time, in the order they are given (the first that applies
+    is the cause): false positives' (:data:`FALSE_POSITIVE_CAUSES`), false negatives' (:data:`FALSE_NEGATIVE_CAUSES`).
 
     False positive (labelled visible, the truth says not): ``drifted`` (the patch is more than 1 cm from its true
     point), ``back_facing`` (the true surface faces away), occluded by a capsule of ``other_person``, of the same
@@ -142,6 +142,24 @@ def error_causes(truth, views, t_ms: float, X: np.ndarray, P: np.ndarray, normal
     fp_rules = [drift, cos_t <= 0, (occ_person >= 0) & ~own, own & (occ_part != part[:, None]),
                 own & (occ_part == part[:, None]), ~in_image, every]
     fn_rules = [drift, ~square_in, cos_t < o.min_cos_view, cos_e <= o.min_cos_view, every]
+    return fp_rules, fn_rules
+
+
+def first_cause(rules: list[np.ndarray]) -> np.ndarray:
+    """(N, V) the index of the first of ``rules`` ((N, V) bool each, the last all True) that holds."""
+    out = np.full(rules[0].shape, len(rules) - 1, np.int64)
+    for i in range(len(rules) - 1, -1, -1):
+        out = np.where(rules[i], i, out)
+    return out
+
+
+def error_causes(truth, views, t_ms: float, X: np.ndarray, P: np.ndarray, normal: np.ndarray, person: np.ndarray,
+                 part: np.ndarray, err_mm: np.ndarray, labellings: dict[str, np.ndarray], true: np.ndarray,
+                 o: PatchOptions) -> dict[str, dict[str, dict[str, int]]]:
+    """The visibility's false positives and negatives at one time, each given the first cause that applies, for each
+    of ``labellings`` (name -> (N, V) labels; the causes' geometry is computed once for all of them): the classes
+    of :func:`cause_rules`."""
+    fp_rules, fn_rules = cause_rules(truth, views, t_ms, X, P, normal, person, part, err_mm, true, o)
     out = {}
     for method, est in labellings.items():
         out[method] = {}
@@ -457,6 +475,17 @@ def run_executors(args, bundle, scene, cams, span, o, f: int) -> None:
              head_cpu_s=round(head_cpu, 1), workers_cpu_s=round(workers_cpu, 1),
              cpu_s=round(head_cpu + workers_cpu, 1), load_before=[round(x, 2) for x in load],
              load=[round(x, 2) for x in os.getloadavg()])
+
+
+def add_scene_arguments(ap: argparse.ArgumentParser, scenario: str = "conversation") -> None:
+    """The scene options of a bench that judges a saved stream (``--save``) again: the same as the run's."""
+    ap.add_argument("--preset", default="panel")
+    ap.add_argument("--people", type=int, default=2)
+    ap.add_argument("--scenario", default=scenario)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--vga", type=int, default=24)
+    ap.add_argument("--hd", type=int, default=4)
+    ap.add_argument("--kinect", type=int, default=2)
 
 
 def cameras_by_type(bundle) -> dict[str, list[str]]:

@@ -38,6 +38,7 @@ ALLOWED_EXACT = {
     # a row against refind_carry_steps (refind61): integers
     ("track.py", "track_cloud"): 3,
     ("track.py", "has_spare_view"): 1,  # counts of flown cameras (sum of a bool array) against min_visible (life50)
+    ("track.py", "anchored"): 1,  # counts of flown cameras (sum of a bool array) against anchor_min_views (prec63)
     ("motion.py", "fit_part"): 2,  # a part's patch count and inlier count against min_patches
     ("parts.py", "_components"): 1,  # frames a bone's patch is seen in against min_frames
 }

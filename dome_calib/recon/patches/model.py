@@ -202,12 +202,26 @@ class PatchOptions:
     # a plain shift leaves it (warp.warp_px; 0.5 px: a turn of ~3 deg): the others, most of them, are aligned as
     # without the warp, bit for bit (and the warp's resampling is paid only where it matters)
     anchor_warp_px: Annotated[float, Field(ge=0)] = 0.5
+    # the anchor flow only for the patches flown this step in at least this many cameras (track.anchored; 0: every
+    # patch, the same bits): a patch with views to spare is not ended by one rejected view, and on the few-camera rig
+    # the anchor's rejections were 80-83 % in two-view patches (branch anchor62). With anchor_flow, anchor_warp,
+    # anchor_levels=0 and 4: scene 1 over 30 frames each way 96.99 -> 97.26 % precision (97.26 with the anchor on
+    # every patch; the dome's patches are flown in 8 cameras), the few-camera rig (5 cameras) as without the anchor:
+    # occluded spans (three clouds) seeds 1 / 2 / 3 87.2 / 87.2 / 68.3 % (78.3 / 84.4 with it on every patch; 86.7 /
+    # 87.8 / 68.9 with 3) (docs/benchmarks.md, branch prec63)
+    anchor_min_views: AtLeast(0) = 0
     anchor_reject: bool = True
     anchor_reject_unaligned: bool = True  # also reject a point the seed image cannot be aligned at (else kept)
     # drift (track.py, visibility.off_seed): a patch ends when its visible views no longer show its seed
     # appearance (median NCC, over the visible cameras that saw it at the seed, of its square now against its square
     # there at the seed, below ncc_threshold): it slid off the surface point it was seeded on (on by default: split62)
     seed_appearance_end: bool = True
+    # ... judged against this NCC (None: ncc_threshold, the same bits). 0.7, probed once on top of the anchor where
+    # a patch has views to spare (anchor_min_views=3 above; 3 and 4 gave the same scenes' figures): precision 97.26
+    # -> 97.57 % on scene 1 over 30 frames each way, 98.05 -> 98.24 % on scene 2, unseen 97.62 both; scene 1's
+    # median length 30 -> 29 of 30; few-camera seed 2's occluded spans 87.8 -> 87.2 % (docs/benchmarks.md, branch
+    # prec63)
+    seed_appearance_ncc: Annotated[float, Field(ge=-1, le=1)] | None = None
     min_visible: AtLeast(2) = 2  # a patch seen by fewer cameras ends
     max_stretch: Annotated[float, Field(gt=0, lt=1)] = 0.3  # a patch whose plane points move this much ends
 

@@ -464,6 +464,32 @@ class SeedViews:
         return q, ok, off
 
 
+def anchored(flown: np.ndarray, o: PatchOptions) -> np.ndarray:
+    """(n,) the patches the anchor flow realigns this step, of ``flown`` (n, V) (their cameras flown): those flown
+    in at least ``anchor_min_views`` cameras (0: every patch)."""
+    return flown.sum(axis=1) >= o.anchor_min_views
+
+
+def anchor(seed_of: SeedViews, source: FrameSource, name: str, frames: Frames, v: int, idx: np.ndarray,
+           q: np.ndarray, ok: np.ndarray, p: np.ndarray, flown: np.ndarray, slid_view: np.ndarray, o: PatchOptions
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """The anchor flow of one camera's flown points: ``q`` (3 n, 2), ``ok`` (3 n,) of patches ``idx`` in camera
+    ``v``, ``p`` (3 n, 2) their triplets' projections before the step -> (q, ok) with the :func:`anchored` patches'
+    points realigned (:meth:`SeedViews.realign`); ``slid_view[idx, v]`` set where a point was rejected."""
+    a = anchored(flown[idx], o)
+    if a.all():  # every patch: the call as it was
+        q, ok, off = seed_of.realign(source, name, frames, v, idx, q.reshape(-1, 3, 2), ok.reshape(-1, 3), o, now=p)
+        slid_view[idx, v] = off.reshape(-1, 3).any(axis=1)
+        return q, ok
+    q3, ok3 = q.reshape(-1, 3, 2).copy(), ok.reshape(-1, 3).copy()
+    if a.any():
+        qa, oka, off = seed_of.realign(source, name, frames, v, idx[a], q3[a], ok3[a], o,
+                                       now=p.reshape(-1, 3, 2)[a].reshape(-1, 2))
+        q3[a], ok3[a] = qa.reshape(-1, 3, 2), oka.reshape(-1, 3)
+        slid_view[idx[a], v] = off.reshape(-1, 3).any(axis=1)
+    return q3.reshape(-1, 2), ok3.reshape(-1)
+
+
 def _predictor(views: ViewSet, v: int, X: np.ndarray, velocity: np.ndarray, t0: float) -> Predictor:
     """Points (M, 3) at reference time ``t0`` moving at ``velocity`` (M, 3) cm / ms, projected into view ``v`` at a
     time: the constant-velocity prediction each flow step starts from (``PatchOptions.lk_predict``)."""
@@ -546,9 +572,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                         q, ok = q3.reshape(-1, 2), ok3.reshape(-1)
                         from_body += int(found.sum())
                 if o.anchor_flow:
-                    q, ok, off = seed_of.realign(source, name, frames1, v, idx, q.reshape(-1, 3, 2),
-                                                 ok.reshape(-1, 3), o, now=p)
-                    slid_view[idx, v] = off.reshape(-1, 3).any(axis=1)
+                    q, ok = anchor(seed_of, source, name, frames1, v, idx, q, ok, p, flown, slid_view, o)
                 uv[idx, :, v] = q.reshape(-1, 3, 2)
                 tracked[idx, :, v] = ok.reshape(-1, 3)
             X_tri = _triangulate_points(views, uv, tracked.astype(float), o)

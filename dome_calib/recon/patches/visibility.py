@@ -349,11 +349,12 @@ def _with_border_squares(views: ViewSet, v: int, gray: np.ndarray, grid: np.ndar
 def off_seed(now: Visibility, seed: Appearance, o: PatchOptions) -> np.ndarray:
     """(N,) bool: patches whose visible views no longer show their seed appearance: the median, over the cameras
     labelled visible now that also saw the patch at the seed, of the NCC of the square now against the square
-    there at the seed (same camera: the viewpoint is alike, only the body moved), below ``ncc_threshold``. A patch
-    with no such camera is not judged."""
+    there at the seed (same camera: the viewpoint is alike, only the body moved), below ``seed_appearance_ncc``
+    (None: ``ncc_threshold``). A patch with no such camera is not judged."""
     got = np.where(now.visible, now.appearance.ncc_against(seed), np.nan)
     judged = np.isfinite(got).any(axis=1)
     med = np.full(len(got), np.inf)
     if judged.any():
         med[judged] = np.nanmedian(got[judged], axis=1)
-    return ties.below(med, o.ncc_threshold, ties.NCC_QUANTUM)
+    tau = o.ncc_threshold if o.seed_appearance_ncc is None else o.seed_appearance_ncc
+    return ties.below(med, tau, ties.NCC_QUANTUM)
