@@ -74,6 +74,15 @@ class PartOptions:
     # what a tracked patch's place is known to (the stream's centre error, median 2.9 mm after 1 frame and 4.7-4.9
     # mm after 10 on bench/patches.py's scenes)
     crease_cm: NonNegFinite = 0.5
+    # joint caps (0: off): a labelled patch whose closest point on its bone lies within this of a joint the bone
+    # shares with another part of its person, and whose distance to that part's bone is within joint_cap_near_cm of
+    # its distance to its own, is left unlabelled (:func:`leave_joint_caps`): it sits on the joint's round end, where
+    # the nearest point of both bones is the joint, and its motion follows whichever part moves the joint's surface
+    # (the few-camera rig's seed 3: 21 of 48 patches labelled an upper arm sat on the shoulder's cap and the arm's
+    # motion followed the shoulders; docs/benchmarks.md, branch hidden63)
+    joint_cap_cm: NonNegFinite = 0.0
+    # "about as near": what a tracked patch's place is known to (the stream's centre error, as crease_cm)
+    joint_cap_near_cm: NonNegFinite = 0.5
 
 
 @dataclass(frozen=True)
@@ -136,7 +145,41 @@ def label_parts(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, joints_
     labels = _choose(shape + on_part, c["passes"])
     if o.crease_cm > 0:
         labels = leave_creases(labels, mismatch, c["dev"], c["passes"], o.crease_cm)
+    if o.joint_cap_cm > 0:
+        labels = leave_joint_caps(labels, c["dist"], c["foot"], o.joint_cap_cm, o.joint_cap_near_cm)
     return labels
+
+
+def _shared_joints() -> list[tuple[int, int, int]]:
+    """(bone, its end 0 / 1, another bone with a joint at that end) for every two bones of :data:`BONES` that meet
+    at a joint (the head's ear end meets none)."""
+    ends = [(a, b) for _, a, b in BONES]
+    return [(k, e, m) for k, pair in enumerate(ends) for e, j in enumerate(pair) if j >= 0
+            for m, other in enumerate(ends) if m != k and j in other]
+
+
+#: :func:`_shared_joints`, once.
+SHARED_JOINTS = _shared_joints()
+
+
+def leave_joint_caps(labels: PartLabels, dist: np.ndarray, foot: np.ndarray, cap_cm: float,
+                     near_cm: float) -> PartLabels:
+    """Labels -> the same with the patches on a joint's cap unlabelled: a patch labelled bone k of person p whose
+    closest point on k lies within ``cap_cm`` of an end of k (``foot`` (N, P, K, 2): the median distance along the
+    bone from each end, end a then end b, of the clamped closest point) where k meets another bone m of that person,
+    and whose median distance to m is within ``near_cm`` of its distance to k (``dist`` (N, P, K), NaN: m not
+    passed through, never near); compared after quantising to 1e-4 cm."""
+    n = np.flatnonzero(labels.bone >= 0)
+    p, k = labels.person[n], labels.bone[n]
+    cap = np.zeros(len(labels.bone), bool)
+    for b, e, m in SHARED_JOINTS:
+        on = k == b
+        i, q = n[on], p[on]
+        gap = np.abs(dist[i, q, m] - dist[i, q, b])
+        at_end = ties.at_most(foot[i, q, b, e], cap_cm, _QUANTUM)
+        cap[i] |= at_end & np.isfinite(gap) & ties.at_most(np.where(np.isfinite(gap), gap, 0.0), near_cm, _QUANTUM)
+    return PartLabels(person=np.where(cap, -1, labels.person), bone=np.where(cap, -1, labels.bone),
+                      cost=np.where(cap, np.nan, labels.cost))
 
 
 def leave_creases(labels: PartLabels, mismatch: np.ndarray, dev: np.ndarray, passes: np.ndarray,
@@ -200,8 +243,9 @@ def windowed_mean(v: np.ndarray, ok: np.ndarray, half: int) -> np.ndarray:
 def _components(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, A: np.ndarray, B: np.ndarray,
                 o: PartOptions) -> dict[str, np.ndarray]:
     """Per patch, person and bone (N, P, K): the rigidity ``dev`` (cm), the median distance ``dist`` (cm) and
-    alignment ``align``, ``interior`` (the median closest point lies inside the bone, not at a joint) and
-    ``passes`` (enough times, normal away from the bone)."""
+    alignment ``align``, ``interior`` (the median closest point lies inside the bone, not at a joint),
+    ``passes`` (enough times, normal away from the bone) and, with ``joint_cap_cm``, ``foot`` (N, P, K, 2) the
+    median distance along the bone of the clamped closest point from each end (absent without)."""
     d = B - A
     L = np.linalg.norm(d, axis=-1)
     axis = d / np.maximum(L, 1e-9)[..., None]
@@ -210,7 +254,7 @@ def _components(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, A: np.n
     z = np.sum(rel * axis[None], -1)  # (N, T, P, K)
     radial = rel - z[..., None] * axis[None]
     r = np.linalg.norm(radial, axis=-1)
-    s_raw, _, out = closest_on_bone(rel, d[None])
+    s_raw, s, out = closest_on_bone(rel, d[None])
     dist = np.linalg.norm(out, axis=-1)
     along = np.sum(out * np.where(alive[..., None], normal, 0.0)[:, :, None, None], -1)
     away = along > 0
@@ -225,11 +269,13 @@ def _components(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, A: np.n
         dm = np.nanmedian(np.where(ok_t, dist, np.nan), axis=1)
         am = np.nanmedian(np.where(ok_t, align, np.nan), axis=1)
         sm = np.nanmedian(np.where(ok_t, s_raw, np.nan), axis=1)
+        foot = (np.stack([np.nanmedian(np.where(ok_t, f * L[None], np.nan), axis=1) for f in (s, 1.0 - s)], -1)
+                if o.joint_cap_cm > 0 else None)  # only the joint caps' rule reads it
         dev = np.where(ok_t, (zs - zm[:, None]) ** 2 + (rs - rm[:, None]) ** 2, 0.0).sum(1) / np.maximum(n_t, 1)
         share_away = np.where(ok_t, away, False).sum(1) / np.maximum(n_t, 1)
     return {"dev": np.sqrt(dev), "dist": dm, "align": am, "interior": (sm > 0.0) & (sm < 1.0),
             "passes": (n_t >= o.min_frames) & ties.at_least(share_away, o.min_away, ties.UNIT_QUANTUM)
-            & ties.at_most(dm, o.max_distance_cm, _QUANTUM)}
+            & ties.at_most(dm, o.max_distance_cm, _QUANTUM)} | ({} if foot is None else {"foot": foot})
 
 
 def nearest_part(X_cm: np.ndarray, joints_cm: np.ndarray, radius_cm: np.ndarray, reach_cm: float
