@@ -173,8 +173,9 @@ class PatchOptions:
     # part's capsule (a generic adult's radius less occluder_margin_cm: skeleton noise, parts not round) is no
     # candidate. On by default (split62); without a body nothing changes
     body_occlusion: bool = True
-    # the stream run twice where the body over time is fitted with its ties (the bench, bench/patches_body.py): the
-    # second time with that body (fitted with the first stream's ties) as the prior of the joints no detection saw
+    # the stream run twice where the body over time is fitted with its ties (reconstruct --images' stage:
+    # FurtherStage.again; bench/patches_body.py): the second time with that body (fitted with the first stream's
+    # ties) as the prior of the joints no detection saw
     # (stage.body_prior(hidden_from=)), so a hidden limb's skeleton seeds and occluders sit where the patches carried
     # it, not where occlusion.hold_unseen_parts guesses it; the second stream's ties are the ones fitted. False: one
     # stream (docs/benchmarks.md, branch hidden63)

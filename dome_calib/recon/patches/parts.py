@@ -150,12 +150,16 @@ def label_parts(X_cm: np.ndarray, normal: np.ndarray, alive: np.ndarray, joints_
     return labels
 
 
+#: The parts of the trunk a limb hangs from (:data:`BONES` index): the shoulders and the hips.
+TRUNK_PARTS = tuple(k for k, (name, _, _) in enumerate(BONES) if name in ("shoulders", "hips"))
+
+
 def _shared_joints() -> list[tuple[int, int, int]]:
-    """(bone, its end 0 / 1, another bone with a joint at that end) for every two bones of :data:`BONES` that meet
-    at a joint (the head's ear end meets none)."""
+    """(a limb's bone, its end 0 / 1, the trunk's bone it meets there) for every limb that hangs from the trunk's
+    parts (:data:`TRUNK_PARTS`): the upper arms at the shoulders, the thighs at the hips."""
     ends = [(a, b) for _, a, b in BONES]
-    return [(k, e, m) for k, pair in enumerate(ends) for e, j in enumerate(pair) if j >= 0
-            for m, other in enumerate(ends) if m != k and j in other]
+    return [(k, e, m) for m in TRUNK_PARTS for k, pair in enumerate(ends) if k not in TRUNK_PARTS
+            for e, j in enumerate(pair) if j >= 0 and j in ends[m]]
 
 
 #: :func:`_shared_joints`, once.
@@ -164,11 +168,13 @@ SHARED_JOINTS = _shared_joints()
 
 def leave_joint_caps(labels: PartLabels, dist: np.ndarray, foot: np.ndarray, cap_cm: float,
                      near_cm: float) -> PartLabels:
-    """Labels -> the same with the patches on a joint's cap unlabelled: a patch labelled bone k of person p whose
-    closest point on k lies within ``cap_cm`` of an end of k (``foot`` (N, P, K, 2): the median distance along the
-    bone from each end, end a then end b, of the clamped closest point) where k meets another bone m of that person,
-    and whose median distance to m is within ``near_cm`` of its distance to k (``dist`` (N, P, K), NaN: m not
-    passed through, never near); compared after quantising to 1e-4 cm."""
+    """Labels -> the same with the patches on the cap of a joint where a limb meets the trunk unlabelled (kept out
+    of the limb's motion): a patch labelled a limb's bone k (an upper arm, a thigh: :func:`_shared_joints`) of
+    person p whose closest point on k lies within ``cap_cm`` of the end of k where it meets the trunk's bone m (the
+    shoulders, the hips) (``foot`` (N, P, K, 2): the median distance along the bone from each end, end a then end b,
+    of the clamped closest point), and whose median distance to m is within ``near_cm`` of its distance to k
+    (``dist`` (N, P, K), NaN: m not passed through, never near); compared after quantising to 1e-4 cm. A patch
+    labelled the trunk's part keeps its label (it moves with the trunk there)."""
     n = np.flatnonzero(labels.bone >= 0)
     p, k = labels.person[n], labels.bone[n]
     cap = np.zeros(len(labels.bone), bool)
