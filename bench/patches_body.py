@@ -208,7 +208,8 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
                                             )).method
         opts = hashlib.sha256(repr(sorted((k, v) for k, v in dataclasses.asdict(o).items() if k != "reseed_hidden"
                                           )).encode()).hexdigest()[:12]  # the options (main's keys)
-        second = "_hidden" if hidden_from is not None else ""  # reseed_hidden's second stream
+        second = ("_hidden" + hashlib.sha256(b"".join(np.ascontiguousarray(b.X_cm).tobytes() for b in hidden_from)
+                                             ).hexdigest()[:12] if hidden_from is not None else "")  # on its prior
         cached = os.path.join(cache, f"{rig}_{seed}_{m}_{f}_{frames}_{every}_{opts}{second}.pkl") if cache else ""
         if m not in done and cached and os.path.exists(cached):
             with open(cached, "rb") as fh:
