@@ -253,3 +253,29 @@ def test_reconstruct_images_seeds_patches_on_the_people_with_patch_seeds_skeleto
     assert meta["seeding"] == {"method": "skeleton", "chosen": "given"}
     df = pd.read_parquet(root / "skeleton_seeds" / "patches.parquet")
     assert len(df) > 100 and df["part"].notna().mean() > 0.5, out.stdout
+
+
+@pytest.mark.slow  # reconstruct --images in this process, with the stream run twice, and once without: ~20 CPU-s
+def test_reseed_hidden_runs_the_stage_again_from_the_people_fitted_with_its_ties(capture, monkeypatch, tmp_path):
+    """``PatchOptions.reseed_hidden``: run_reconstruction fits the people with the first stream's ties, gives them
+    to the stage's ``again`` (a second stream, its prior's hidden joints from those people) and fits the same first
+    people with the second stream's ties; the files are written once."""
+    import dome_calib.recon.patches.stage as stage_module
+    from dome_calib.recon.patches.model import PatchOptions
+    from dome_calib.recon.people.commands import plan_reconstruction, run_reconstruction
+
+    root = capture[0]
+    streams = []
+    real = stage_module.patch_stream
+    monkeypatch.setattr(stage_module, "patch_stream", lambda *a, **k: streams.append(k["body"]) or real(*a, **k))
+    out = {}
+    for name, options in (("once", PatchOptions()), ("twice", PatchOptions(reseed_hidden=True))):
+        plan = plan_reconstruction(root / "det", root / "bundle", tmp_path / name, body_model="PANOPTIC19",
+                                   images=root / "images")
+        stage = stage_module.plan_patches(plan, options)
+        run_reconstruction(plan, after_people=lambda seq: stage.run(seq.times_ms, seq.bodies))
+        out[name] = pd.read_parquet(tmp_path / name / "patches.parquet")
+    assert len(streams) == 3  # one stream without, two with
+    assert len(out["twice"]) > 100 and set(out["twice"]["person_id"]) <= {-1, 0}
+    assert all(b is not None for b in streams) and streams[2].joints_cm.shape == streams[1].joints_cm.shape
+    assert any(n.name.startswith("body3DScene") for n in (tmp_path / "twice").iterdir())
