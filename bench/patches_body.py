@@ -84,7 +84,7 @@ from dome_calib.recon.patches.parts import BONES, PartOptions  # noqa: E402
 from dome_calib.recon.patches.run import patch_stream, reference_stream  # noqa: E402
 from dome_calib.recon.patches.seed_skeleton import choose_seed_method  # noqa: E402
 from dome_calib.recon.streams import cameras_by_stream  # noqa: E402
-from dome_calib.recon.patches.stage import body_prior  # noqa: E402
+from dome_calib.recon.patches.stage import body_prior, reseed_clouds  # noqa: E402
 from patches import GrayCache  # noqa: E402  (bench/patches.py: the rendered grey images kept once)
 
 LIMBS = [(JOINTS19.index(a), JOINTS19.index(b)) for a, b in
@@ -190,14 +190,16 @@ OWN_CAMERAS = {"panel": {"vga": 24, "hd": 4, "kinect-color": 2}, "fewcam": {"hd"
 
 def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int, method: str, bodies: list,
                 source, o: PatchOptions, done: dict, seed: int = 0, cache: str = "", every: int = 0,
-                hidden_from: list | None = None) -> dict:
+                hidden_from: list | None = None, first: dict | None = None) -> dict:
     """The stream's own patches from images alone (no depth): one cloud at reference frame ``f`` tracked ``frames``
     each way, seeded by ``method`` (``sweep``; ``skeleton``: the body over time ``bodies`` at ``times`` as the
     seeds' depth prior, as ``reconstruct --images --patch-seeds skeleton`` does; ``both``: the two streams side by
     side, their patches concatenated, not thinned; with ``o.body_occlusion`` the body over time is the views'
     occluders, as ``reconstruct --images`` gives it) -> the arrays ``ties_from_patches`` takes and the truth's person
     and part of each patch (the true surface point nearest its centre at the seed time). ``hidden_from``: the body
-    fitted with a first stream's ties, the prior of the joints no detection saw (``reseed_hidden``'s second pass)."""
+    fitted with a first stream's ties, the prior of the joints no detection saw (``reseed_hidden``'s second pass:
+    of the first streams ``first``, by seeding, the clouds whose seeds' prior it changes streamed again, the
+    others kept: :func:`~dome_calib.recon.patches.stage.reseed_clouds`)."""
     by_type = {t: sorted(n for n, c in bundle.cameras.items() if str(c.type) == t) for t in OWN_CAMERAS[rig]}
     cams = [n for t, k in OWN_CAMERAS[rig].items() for n in by_type[t][:k]]
     prior = body_prior(times, bodies, times, hidden_from)  # what reconstruct --images gives the stage
@@ -208,19 +210,27 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
                                             )).method
         opts = hashlib.sha256(repr(sorted((k, v) for k, v in dataclasses.asdict(o).items() if k != "reseed_hidden"
                                           )).encode()).hexdigest()[:12]  # the options (main's keys)
-        second = ("_hidden" + hashlib.sha256(b"".join(np.ascontiguousarray(b.X_cm).tobytes() for b in hidden_from)
+        second = ("_reseed" + hashlib.sha256(b"".join(np.ascontiguousarray(b.X_cm).tobytes() for b in hidden_from)
                                              ).hexdigest()[:12] if hidden_from is not None else "")  # on its prior
         cached = os.path.join(cache, f"{rig}_{seed}_{m}_{f}_{frames}_{every}_{opts}{second}.pkl") if cache else ""
         if m not in done and cached and os.path.exists(cached):
             with open(cached, "rb") as fh:
                 done[m] = pickle.load(fh)
         if m not in done:  # each seeding's stream computed once (``done``), "both" reuses them
-            done[m] = patch_stream(bundle, source, cams, (float(times[0]), float(times[-1])),
-                                   dataclasses.replace(o, track_frames=frames, seed_method=m), seed_frames=(
-                                       [g for g in range(f - frames, f + frames + 1) if g % every == 0] if every
-                                       else [f]),
-                                   body=prior if m == "skeleton" or o.body_occlusion or o.refind_from_body
-                                   else None)
+            seed_frames = [g for g in range(f - frames, f + frames + 1) if g % every == 0] if every else [f]
+            uses = m == "skeleton" or o.body_occlusion or o.refind_from_body
+
+            def stream_of(at, m=m, uses=uses):
+                return patch_stream(bundle, source, cams, (float(times[0]), float(times[-1])),
+                                    dataclasses.replace(o, track_frames=frames, seed_method=m), seed_frames=at,
+                                    body=prior if uses else None)
+            if first is None:
+                done[m] = stream_of(seed_frames)
+            else:
+                table = cameras_by_stream(bundle, cams)[1][reference_stream(bundle, cams)]
+                done[m] = reseed_clouds(first[m], np.array(seed_frames),
+                                        np.array([table.time_of(g) for g in seed_frames]),
+                                        body_prior(times, bodies, times) if uses else None, prior, stream_of)
             if cached:
                 with open(cached, "wb") as fh:
                     pickle.dump(done[m], fh)
@@ -316,7 +326,7 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
                 extra["first_pass"] = {k: first[1][k] for k in ("occluded_within_3cm", "limb_end_seeds", "seeds")
                                        if k in first[1]}
                 got = own_patches(bundle, truth, rig, times, f, frames, how, alone.bodies, source, po, {}, seed,
-                                  cache, every, hidden_from=first[-1])
+                                  cache, every, hidden_from=first[-1], first=done)
             Pt, normal, alive, t_person, t_part = (got[k] for k in ("X_cm", "normal", "alive", "person", "part"))
             extra.update(patch_cameras=got["cameras"], seeds=got["seeds"], seed_every=every)
             seed_t = got["seed_time_ms"]

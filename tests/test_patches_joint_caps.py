@@ -99,3 +99,43 @@ def test_a_hidden_joint_is_taken_from_the_body_fitted_with_the_patches():
     gone = [SimpleNamespace(ids=b.ids, X_cm=np.where(np.arange(19)[None, :, None] == 5, np.nan, b.X_cm))
             for b in refit]
     assert np.array_equal(body_prior(times, alone, times, hidden_from=gone).joints_cm, old, equal_nan=True)
+
+
+def test_the_second_stream_replaces_only_the_clouds_whose_prior_changed():
+    """reseed_hidden's second stream (stage.reseed_clouds): a cloud whose seed time's prior the fitted people changed
+    is streamed again, alone, and put in its place (its ids those of its cloud); the others are the first's."""
+    from dome_calib.recon.patches.model import PatchTrajectories
+    from dome_calib.recon.patches.occlusion import BodyPrior
+    from dome_calib.recon.patches.stage import reseed_clouds
+
+    T, V = 5, 2
+
+    def stream(clouds, n, value):
+        ids = np.concatenate([c * 100000 + np.arange(n) for c in range(len(clouds))])
+        N = len(ids)
+        return PatchTrajectories(ids=ids, seed_time_ms=np.repeat(np.asarray(clouds, float) * 40.0, n),
+                                 times_ms=np.arange(T) * 40.0, cameras=["a", "b"],
+                                 X_cm=np.full((N, T, 3, 3), value), normal=np.zeros((N, T, 3)),
+                                 visible=np.ones((N, T, V), bool), photometric=np.ones((N, T, V), bool),
+                                 alive=np.ones((N, T), bool), carried=np.zeros((N, T), bool))
+
+    first = stream([0, 2, 4], 3, 1.0)
+    J = np.zeros((T, 1, 19, 3))
+    moved = J.copy()
+    moved[2, 0, 5] = 10.0  # the fitted people move a hidden wrist at time 80 ms (cloud 1, frame 2)
+    asked = []
+
+    def again(frames):
+        asked.append(frames)
+        return stream(frames, 4, 2.0)
+
+    held, fitted = BodyPrior(np.arange(T) * 40.0, J), BodyPrior(np.arange(T) * 40.0, moved)
+    out = reseed_clouds(first, np.array([0, 2, 4]), np.array([0.0, 80.0, 160.0]), held, fitted, again)
+    assert asked == [[2]]
+    assert out.ids.tolist() == [0, 1, 2, 100000, 100001, 100002, 100003, 200000, 200001, 200002]
+    assert (out.X_cm[3:7] == 2.0).all() and (out.X_cm[:3] == 1.0).all() and (out.X_cm[7:] == 1.0).all()
+    assert (out.seed_time_ms[3:7] == 80.0).all()  # the new cloud's own seed time (frame 2)
+    # nothing changed, or no prior: the first stream itself, nothing streamed
+    assert reseed_clouds(first, np.array([0, 2, 4]), np.array([0.0, 80.0, 160.0]), held, held, again) is first
+    assert reseed_clouds(first, np.array([0, 2, 4]), np.array([0.0, 80.0, 160.0]), None, fitted, again) is first
+    assert asked == [[2]]
