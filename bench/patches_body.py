@@ -84,7 +84,7 @@ from dome_calib.recon.patches.parts import BONES, PartOptions  # noqa: E402
 from dome_calib.recon.patches.run import patch_stream, reference_stream  # noqa: E402
 from dome_calib.recon.patches.seed_skeleton import choose_seed_method  # noqa: E402
 from dome_calib.recon.streams import cameras_by_stream  # noqa: E402
-from dome_calib.recon.patches.stage import body_prior  # noqa: E402
+from dome_calib.recon.patches.stage import body_prior, reseed_clouds  # noqa: E402
 from patches import GrayCache  # noqa: E402  (bench/patches.py: the rendered grey images kept once)
 
 LIMBS = [(JOINTS19.index(a), JOINTS19.index(b)) for a, b in
@@ -189,33 +189,48 @@ OWN_CAMERAS = {"panel": {"vga": 24, "hd": 4, "kinect-color": 2}, "fewcam": {"hd"
 
 
 def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int, method: str, bodies: list,
-                source, o: PatchOptions, done: dict, seed: int = 0, cache: str = "", every: int = 0) -> dict:
+                source, o: PatchOptions, done: dict, seed: int = 0, cache: str = "", every: int = 0,
+                hidden_from: list | None = None, first: dict | None = None) -> dict:
     """The stream's own patches from images alone (no depth): one cloud at reference frame ``f`` tracked ``frames``
     each way, seeded by ``method`` (``sweep``; ``skeleton``: the body over time ``bodies`` at ``times`` as the
     seeds' depth prior, as ``reconstruct --images --patch-seeds skeleton`` does; ``both``: the two streams side by
     side, their patches concatenated, not thinned; with ``o.body_occlusion`` the body over time is the views'
     occluders, as ``reconstruct --images`` gives it) -> the arrays ``ties_from_patches`` takes and the truth's person
-    and part of each patch (the true surface point nearest its centre at the seed time)."""
+    and part of each patch (the true surface point nearest its centre at the seed time). ``hidden_from``: the body
+    fitted with a first stream's ties, the prior of the joints no detection saw (``reseed_hidden``'s second pass:
+    of the first streams ``first``, by seeding, the clouds whose seeds' prior it changes streamed again, the
+    others kept: :func:`~dome_calib.recon.patches.stage.reseed_clouds`)."""
     by_type = {t: sorted(n for n, c in bundle.cameras.items() if str(c.type) == t) for t in OWN_CAMERAS[rig]}
     cams = [n for t, k in OWN_CAMERAS[rig].items() for n in by_type[t][:k]]
-    prior = body_prior(times, bodies, times)  # what reconstruct --images gives the stage
+    prior = body_prior(times, bodies, times, hidden_from)  # what reconstruct --images gives the stage
     trajs = []
     for m in (("sweep", "skeleton") if method == "both" else (method,)):
         if m == "auto":  # reconstruct --images' default: the seeding the reference stream's geometry picks
             m = choose_seed_method(view_set(bundle, cameras_by_stream(bundle, cams)[0][reference_stream(bundle, cams)]
                                             )).method
-        opts = hashlib.sha256(repr(sorted(dataclasses.asdict(o).items())).encode()).hexdigest()[:12]  # the options
-        cached = os.path.join(cache, f"{rig}_{seed}_{m}_{f}_{frames}_{every}_{opts}.pkl") if cache else ""
+        opts = hashlib.sha256(repr(sorted((k, v) for k, v in dataclasses.asdict(o).items() if k != "reseed_hidden"
+                                          )).encode()).hexdigest()[:12]  # the options (main's keys)
+        second = ("_reseed" + hashlib.sha256(b"".join(np.ascontiguousarray(b.X_cm).tobytes() for b in hidden_from)
+                                             ).hexdigest()[:12] if hidden_from is not None else "")  # on its prior
+        cached = os.path.join(cache, f"{rig}_{seed}_{m}_{f}_{frames}_{every}_{opts}{second}.pkl") if cache else ""
         if m not in done and cached and os.path.exists(cached):
             with open(cached, "rb") as fh:
                 done[m] = pickle.load(fh)
         if m not in done:  # each seeding's stream computed once (``done``), "both" reuses them
-            done[m] = patch_stream(bundle, source, cams, (float(times[0]), float(times[-1])),
-                                   dataclasses.replace(o, track_frames=frames, seed_method=m), seed_frames=(
-                                       [g for g in range(f - frames, f + frames + 1) if g % every == 0] if every
-                                       else [f]),
-                                   body=prior if m == "skeleton" or o.body_occlusion or o.refind_from_body
-                                   else None)
+            seed_frames = [g for g in range(f - frames, f + frames + 1) if g % every == 0] if every else [f]
+            uses = m == "skeleton" or o.body_occlusion or o.refind_from_body
+
+            def stream_of(at, m=m, uses=uses):
+                return patch_stream(bundle, source, cams, (float(times[0]), float(times[-1])),
+                                    dataclasses.replace(o, track_frames=frames, seed_method=m), seed_frames=at,
+                                    body=prior if uses else None)
+            if first is None:
+                done[m] = stream_of(seed_frames)
+            else:
+                table = cameras_by_stream(bundle, cams)[1][reference_stream(bundle, cams)]
+                done[m] = reseed_clouds(first[m], np.array(seed_frames),
+                                        np.array([table.time_of(g) for g in seed_frames]),
+                                        body_prior(times, bodies, times) if uses else None, prior, stream_of)
             if cached:
                 with open(cached, "wb") as fh:
                     pickle.dump(done[m], fh)
@@ -300,10 +315,20 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
         cpu = time.process_time()
         extra, seed_t = {}, None
         if how:
+            po = patch_options or PatchOptions()
             got = own_patches(bundle, truth, rig, times, f, frames, how, alone.bodies, source,
-                              patch_options or PatchOptions(), done, seed, cache, every)
+                              dataclasses.replace(po, reseed_hidden=False), done, seed, cache, every)
+            if po.reseed_hidden:  # the first stream's ties fit the body; the second stream is seeded from it
+                first = _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present, removed,
+                               alone, fit, track_ids, est, conf, seq, dt_s, *(got[k] for k in (
+                                   "X_cm", "normal", "alive", "person", "part")), cpu_alone, 0.0, {}, part_options,
+                               motion_options, got["seed_time_ms"], quiet=True)
+                extra["first_pass"] = {k: first[1][k] for k in ("occluded_within_3cm", "limb_end_seeds", "seeds")
+                                       if k in first[1]}
+                got = own_patches(bundle, truth, rig, times, f, frames, how, alone.bodies, source, po, {}, seed,
+                                  cache, every, hidden_from=first[-1], first=done)
             Pt, normal, alive, t_person, t_part = (got[k] for k in ("X_cm", "normal", "alive", "person", "part"))
-            extra = dict(patch_cameras=got["cameras"], seeds=got["seeds"], seed_every=every)
+            extra.update(patch_cameras=got["cameras"], seeds=got["seeds"], seed_every=every)
             seed_t = got["seed_time_ms"]
         elif saved is None:
             Pt, normal, alive, t_person, t_part = true_patches(bundle, cams, truth, times, seed)
@@ -312,7 +337,7 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
         cpu_patches = time.process_time() - cpu
         rows += _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present, removed, alone, fit,
                        track_ids, est, conf, seq, dt_s, Pt, normal, alive, t_person, t_part, cpu_alone,
-                       cpu_patches, extra, part_options, motion_options, seed_t)
+                       cpu_patches, extra, part_options, motion_options, seed_t)[:-1]
     return rows
 
 
@@ -395,8 +420,9 @@ def reach(removed, within, times, track_ids, tracks, lab, t_person, t_part, aliv
 
 def _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present, removed, alone, fit, track_ids,
            est, conf, seq, dt_s, Pt, normal, alive, t_person, t_part, cpu_alone, cpu_patches, extra,
-           part_options=None, motion_options=None, seed_time_ms=None) -> list[dict]:
-    """One set of patches: labelled, their motions tied to the body, the fit with the ties, both rows emitted."""
+           part_options=None, motion_options=None, seed_time_ms=None, quiet=False) -> list:
+    """One set of patches: labelled, their motions tied to the body, the fit with the ties, both rows emitted
+    (``quiet``: not emitted) -> [row alone, row with the patches, the bodies fitted with the ties]."""
     cpu = time.process_time()
     ties, lab, motions = ties_from_patches(Pt, normal, alive, times, alone.bodies,  # labelled with the body alone
                                            part_options=part_options, motion_options=motion_options)
@@ -463,6 +489,8 @@ def _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present
                                                       int((removed[..., j] & tied[..., j]).sum()),
                                                       int(removed[..., j].sum())]
                                         for j in range(19) if removed[..., j].any()}
+            if seed_time_ms is not None:
+                row["limb_end_seeds"] = limb_end_seeds(removed, times, seed_time_ms, alive, t_person, t_part)
         flags = flag_joints(frame, Y, conf[mode])
         row.update(flags=int(flags.sum()), flags_precision=round(float((flags & frame_wrong).sum() / max(
             flags.sum(), 1)), 4), flags_recall=round(float((flags & frame_wrong).sum() / max(frame_wrong.sum(), 1)), 4),
@@ -479,8 +507,29 @@ def _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present
         else:
             row.update(cpu_s=round(cpu_alone, 1))
         rows.append(row)
-        emit(**row)
-    return rows
+        if not quiet:
+            emit(**row)
+    return rows + [withp.bodies]
+
+
+#: The limb ends (:data:`BONES` index, its distal joint): the forearms and shins.
+LIMB_ENDS = [(6, 5), (7, 11), (10, 8), (11, 14)]
+
+
+def limb_end_seeds(removed, times, seed_time_ms, alive, t_person, t_part) -> dict:
+    """The seeds (alive at their cloud's time) on each person's forearms and shins (the truth's part), per (cloud,
+    person, limb end): ``in_span`` where the limb end's distal joint is occluded at the cloud's time, ``elsewhere``
+    the others; each [cases, seeds]."""
+    out = {"in_span": [0, 0], "elsewhere": [0, 0]}
+    for ts in np.unique(seed_time_ms):
+        k = int(np.argmin(np.abs(times - ts)))
+        live = (seed_time_ms == ts) & alive[:, k]
+        for p in range(removed.shape[1]):
+            for b, j in LIMB_ENDS:
+                key = "in_span" if removed[k, p, j] else "elsewhere"
+                out[key][0] += 1
+                out[key][1] += int(np.sum(live & (t_person == p) & (t_part == b)))
+    return out
 
 
 def main() -> None:

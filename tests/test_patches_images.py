@@ -253,3 +253,30 @@ def test_reconstruct_images_seeds_patches_on_the_people_with_patch_seeds_skeleto
     assert meta["seeding"] == {"method": "skeleton", "chosen": "given"}
     df = pd.read_parquet(root / "skeleton_seeds" / "patches.parquet")
     assert len(df) > 100 and df["part"].notna().mean() > 0.5, out.stdout
+
+
+@pytest.mark.slow  # reconstruct --images in this process, with reseed_hidden and without: ~10 s
+def test_reseed_hidden_runs_the_stage_again_from_the_people_fitted_with_its_ties(capture, monkeypatch, tmp_path):
+    """``PatchOptions.reseed_hidden``: run_reconstruction fits the people with the first stream's ties and gives them
+    to the stage's ``again``, whose clouds are streamed again where their seeds' prior changed
+    (:func:`~dome_calib.recon.patches.stage.reseed_clouds`). Here the detector saw every joint: no prior changes,
+    nothing is streamed again, and the files are those of one stream."""
+    import dome_calib.recon.patches.stage as stage_module
+    from dome_calib.recon.patches.model import PatchOptions
+    from dome_calib.recon.people.commands import plan_reconstruction, run_reconstruction
+
+    root = capture[0]
+    streams, reseeded = [], []
+    real_stream, real_reseed = stage_module.patch_stream, stage_module.reseed_clouds
+    monkeypatch.setattr(stage_module, "patch_stream", lambda *a, **k: streams.append(1) or real_stream(*a, **k))
+    monkeypatch.setattr(stage_module, "reseed_clouds", lambda *a: reseeded.append(1) or real_reseed(*a))
+    for name, options in (("once", PatchOptions()), ("twice", PatchOptions(reseed_hidden=True))):
+        plan = plan_reconstruction(root / "det", root / "bundle", tmp_path / name, body_model="PANOPTIC19",
+                                   images=root / "images")
+        stage = stage_module.plan_patches(plan, options)
+        run_reconstruction(plan, after_people=lambda seq: stage.run(seq.times_ms, seq.bodies))
+    assert len(streams) == 2 and len(reseeded) == 1  # the second pass ran, and streamed nothing again
+    once, twice = (pd.read_parquet(tmp_path / n / "patches.parquet") for n in ("once", "twice"))
+    pd.testing.assert_frame_equal(once, twice)
+    for n in sorted(p.name for p in (tmp_path / "once").iterdir() if p.name.startswith("body3DScene")):
+        assert (tmp_path / "once" / n).read_bytes() == (tmp_path / "twice" / n).read_bytes(), n

@@ -175,6 +175,16 @@ class PatchOptions:
     body_occlusion: bool = True
     occluder_margin_cm: Annotated[float, Field(ge=0)] = 3.0
     occlusion_stop_cm: Annotated[float, Field(ge=0)] = 3.0
+    # a second stream where the body over time is fitted with the ties (reconstruct --images' stage, through
+    # FurtherStage.again; bench/patches_body.py): the body fitted with the first stream's ties is the prior of the
+    # joints no detection saw (stage.body_prior(hidden_from=)), so a hidden limb's skeleton seeds and occluders sit
+    # where the patches carried it, not where occlusion.hold_unseen_parts guessed it; the clouds whose seeds' prior
+    # that changes are streamed again, the others kept (stage.reseed_clouds), and that stream's ties are fitted. On
+    # the few-camera rig the clouds inside a span seed their hidden forearm or shin 87 -> 118 times (12 cases, seeds
+    # 1-4), occluded joints within 3 cm 87.2 -> 91.1 / 87.2 -> 87.8 % (seeds 1 / 2), 68.3 -> 70.0 / 83.3 -> 83.9 %
+    # (seeds 3 / 4, checks), the panel the same figures, for one cloud of three streamed again (docs/benchmarks.md,
+    # branch hidden63). False: one stream
+    reseed_hidden: bool = False
     prior_weight: Annotated[float, Field(ge=0)] = 0.3  # Potts weight between neighbouring cameras
     prior_neighbours: AtLeast(1) = 4
     # drift (track.SeedViews): each flown point realigned by optical flow from the camera's seed image (where the

@@ -77,12 +77,15 @@ class FurtherStage:
     adds its files to the staged output folder; ``ties`` (None: none), the part motions the body over time is
     fitted again with (:class:`~dome_calib.recon.patches.body.JointTies`); ``refined(first, final)`` is told both
     people sequences once that is done (the stage's report); ``page_layer`` (None: none), what it adds to the people
-    page (the patches coloured by part: :func:`~dome_calib.recon.patches.page_layer.patch_layer`)."""
+    page (the patches coloured by part: :func:`~dome_calib.recon.patches.page_layer.patch_layer`); ``again`` (None:
+    none), told the people fitted with the ties, gives the stage a second time (the patches' ``reseed_hidden``):
+    its ties are fitted instead, from the same people, and its files written."""
 
     write: Callable[[Path], None]
     ties: object | None = None
     refined: Callable[[PeopleSequence, PeopleSequence], None] | None = None
     page_layer: dict | None = None
+    again: Callable[[PeopleSequence], FurtherStage] | None = None
 
 
 @dataclass(frozen=True)
@@ -347,6 +350,10 @@ def run_reconstruction(plan: ReconstructPlan, *, executor=None, progress: Callab
         if more is not None and more.ties is not None:
             first, seq = seq, refit_over_time(plan.views, source, seq, plan.options, more.ties, depth=plan.depth,
                                               executor=executor)
+            if more.again is not None:  # the stage again from the people fitted with its ties, fitted instead
+                more = more.again(seq)
+                seq = refit_over_time(plan.views, source, first, plan.options, more.ties, depth=plan.depth,
+                                      executor=executor)
             if more.refined is not None:
                 more.refined(first, seq)
         extras = (extra_joints(plan.views, source, seq, plan.options)
