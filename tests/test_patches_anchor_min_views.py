@@ -31,11 +31,14 @@ def _setup():
     return source, SeedViews(uv=uv, frame=np.array([0, 0, 0]), gray={}), q
 
 
+PLAIN = dict(anchor_warp=False, anchor_levels=1)  # the anchor as it was before the warp and the image-only flow
+
+
 def _anchor(min_views: int):
     source, seeds, q = _setup()
     flown = np.array([[True, True, False], [True, True, True]])  # patch 0 flown in 2 cameras, patch 1 in 3
     slid = np.zeros((2, 3), bool)
-    o = PatchOptions(anchor_flow=True, anchor_min_views=min_views)
+    o = PatchOptions(anchor_flow=True, anchor_min_views=min_views, **PLAIN)
     got, ok = anchor(seeds, source, "c", FRAMES, 0, np.array([0, 1]), q, np.ones(6, bool), q.copy(), flown, slid, o)
     return q, got, ok, slid
 
@@ -53,7 +56,7 @@ def test_zero_anchors_every_patch_and_a_threshold_below_every_count_gives_the_sa
     assert list(ok) == [False, True, True] * 2 and list(slid[:, 0]) == [True, True]
     source, seeds, _ = _setup()  # the realignment as called before the option
     old, old_ok, _ = seeds.realign(source, "c", FRAMES, 0, np.array([0, 1]), q.reshape(2, 3, 2), np.ones((2, 3), bool),
-                                   PatchOptions(anchor_flow=True), now=q)
+                                   PatchOptions(anchor_flow=True, anchor_min_views=0, **PLAIN), now=q)
     assert np.array_equal(got, old) and np.array_equal(ok, old_ok)
     for m in (1, 2):
         _, got_m, ok_m, slid_m = _anchor(m)

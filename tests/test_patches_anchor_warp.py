@@ -54,7 +54,7 @@ def _realign(o: PatchOptions, now_given: bool = True):
 
 
 def test_a_turned_patch_is_kept_and_realigned_with_its_warped_seed_appearance():
-    o = PatchOptions(anchor_flow=True, anchor_levels=0)
+    o = PatchOptions(anchor_flow=True, anchor_levels=0, anchor_warp=False)
     (q, ok, off), truth = _realign(o)
     assert off.sum() >= 6  # the old rule: the seed square as it was, most points rejected
     (q, ok, off), truth = _realign(PatchOptions(anchor_flow=True, anchor_levels=0, anchor_warp=True))
@@ -77,7 +77,7 @@ def test_the_warp_is_per_point_and_off_is_the_old_rule():
     flat[:, 2] = flat[:, 0] + 0.01 * (flat[:, 1] - flat[:, 0])
     assert np.array_equal(seed_to_now(seed, flat), np.repeat(np.eye(2)[None], len(seed), axis=0))
     # off: the triplets given or not, the old rule's bits
-    off = PatchOptions(anchor_flow=True, anchor_levels=0)
+    off = PatchOptions(anchor_flow=True, anchor_levels=0, anchor_warp=False)
     (a, b) = (_realign(off)[0], _realign(off, now_given=False)[0])
     assert all(np.array_equal(x, y) for x, y in zip(a, b))
 

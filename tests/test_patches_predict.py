@@ -95,7 +95,7 @@ def cloud():
     return scene, views, clocks_of(bundle, scene, cams), table.time_of(120), table.times_of(np.arange(118, 123)), seeds
 
 
-BASE = PatchOptions(seed_features=40, seed_neighbours=3, seed_views=4, lk_predict=False)
+BASE = PatchOptions(seed_features=40, seed_neighbours=3, seed_views=4, lk_predict=False, anchor_flow=False)  # the tracking flow's calls only
 PREDICTED = dataclasses.replace(BASE, lk_predict=True, lk_levels_predicted=1, lk_levels_full_px=0.6)
 
 

@@ -190,14 +190,16 @@ class PatchOptions:
     # drift (track.SeedViews): each flown point realigned by optical flow from the camera's seed image (where the
     # patch was at the seed) when within anchor_flow_px of the flow; farther: rejected in that camera (anchor_reject).
     # Off: on the few-camera rig it rejects two-view limb points as the limb turns (three clouds, occluded spans 87.2
-    # -> 77.8 / 78.9 % on seeds 1 / 2), for +0.16 point of precision on scene 1 (docs/benchmarks.md, branch split62)
-    anchor_flow: bool = False
+    # -> 77.8 / 78.9 % on seeds 1 / 2), for +0.16 point of precision on scene 1 (docs/benchmarks.md, branch split62).
+    # On by default since merge63 with anchor_warp, anchor_levels=0 and anchor_min_views=4 (below): only patches
+    # with views to spare are anchored
+    anchor_flow: bool = True
     anchor_flow_px: PosFinite = 1.0
     # the realignment's pyramid levels above the image (cv2 maxLevel): it starts at the flown point and keeps an
     # answer within anchor_flow_px of it, so the image alone can do (0): on the full dome its flow's CPU 0.39 -> 0.21
     # ms per patch-step, 4.5 % fewer points rejected, the visibility aims moved within 0.05 point but scene 1's
     # precision with best 97.01 -> 96.99 %; 1, the rule so far (docs/benchmarks.md, branch fast61)
-    anchor_levels: AtLeast(0) = 1
+    anchor_levels: AtLeast(0) = 0  # (default 0 since merge63, with anchor_flow)
     # the seed image warped, before the realignment, by each patch's seed-to-now map in that camera (the affine map
     # of its triplet's projections at the seed to those of its current triplet: its turn and foreshortening since
     # the seed, warp.seed_to_now / warped_flow), so a turned patch is compared with its seed appearance as its plane
@@ -207,7 +209,7 @@ class PatchOptions:
     # a two-view limb patch rejected ends it; with the warp its occluded spans (three clouds) 75.6 -> 82.2 % (seed 1),
     # 78.9 -> 84.4 % (seed 2), 58.3 -> 67.8 % (seed 3, a check), the visibility aims kept (scene 1 97.36 / 92.56,
     # scene 2 98.09 / 92.10, unseen 98.28 / 91.42) (docs/benchmarks.md, branch anchor62)
-    anchor_warp: bool = False
+    anchor_warp: bool = True  # (default since merge63, with anchor_flow)
     # ... for the patches whose map moves a corner of the flow's window (lk_window_px) farther than this from where
     # a plain shift leaves it (warp.warp_px; 0.5 px: a turn of ~3 deg): the others, most of them, are aligned as
     # without the warp, bit for bit (and the warp's resampling is paid only where it matters)
@@ -219,7 +221,7 @@ class PatchOptions:
     # every patch; the dome's patches are flown in 8 cameras), the few-camera rig (5 cameras) as without the anchor:
     # occluded spans (three clouds) seeds 1 / 2 / 3 87.2 / 87.2 / 68.3 % (78.3 / 84.4 with it on every patch; 86.7 /
     # 87.8 / 68.9 with 3) (docs/benchmarks.md, branch prec63)
-    anchor_min_views: AtLeast(0) = 0
+    anchor_min_views: AtLeast(0) = 4  # (default since merge63)
     anchor_reject: bool = True
     anchor_reject_unaligned: bool = True  # also reject a point the seed image cannot be aligned at (else kept)
     # drift (track.py, visibility.off_seed): a patch ends when its visible views no longer show its seed
