@@ -133,9 +133,6 @@ class PatchOptions:
     # part's motion carries it (predicted: not alive there, no position written, no view counted), flown from there
     # at the next step in the views it was last seen in (0: it ends, as before)
     refind_carry_steps: Annotated[int, Field(ge=0)] = 0
-    # with refind_from_body: every patch on a part is re-found and carried by its part's motion, not only those with
-    # no view to spare (flown in at most min_visible cameras)
-    refind_spare_views: bool = False
     # with refind_carry_steps: a patch seen by fewer than min_visible cameras after the MAP cut (its centre
     # triangulated, its views lost) is carried by its part's motion as one whose centre was lost (predicted: not
     # alive there, no position written, no view counted), flown at the next step in the views it was last seen in

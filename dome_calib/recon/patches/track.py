@@ -547,7 +547,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             # refind_from_body: where the part's motion carries each patch with no view to spare (NaN: no part)
             by_body = np.full((N, 3, 3), np.nan)
             if o.refind_from_body and body is not None:
-                bare = np.flatnonzero(live & (o.refind_spare_views | ~has_spare_view(flown, o)))
+                bare = np.flatnonzero(live & ~has_spare_view(flown, o))
                 by_body[bare] = body_prediction(X[bare], body.at(t0), body.at(t1), o)
             from_body = 0  # points whose flow failed, re-found from their part's motion (refind_from_body)
             slid_view = np.zeros((N, V), bool)  # flown, but a point rejected by its seed appearance (anchor_flow)
