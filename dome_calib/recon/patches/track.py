@@ -84,7 +84,9 @@ class CloudTrack:
     photometric: np.ndarray
     alive: np.ndarray
     carried: np.ndarray | None = None
-    ended: np.ndarray | None = None  # (N,) int8: the rule that ended each patch (END_CAUSES; 0: not ended)
+    # (N,) int8: the rule that ended each patch (END_CAUSES; 0: not ended); a diagnosis of run_cloud's tracks
+    # (bench/patch_ends.py), not kept in PatchTrajectories
+    ended: np.ndarray | None = None
 
 
 #: Why a patch ended at a step (:attr:`CloudTrack.ended`, an index into this; "" not ended), in the order the rules
