@@ -133,6 +133,13 @@ class PatchOptions:
     # part's motion carries it (predicted: not alive there, no position written, no view counted), flown from there
     # at the next step in the views it was last seen in (0: it ends, as before)
     refind_carry_steps: Annotated[int, Field(ge=0)] = 0
+    # with refind_carry_steps: a patch seen by fewer than min_visible cameras after the MAP cut (its centre
+    # triangulated, its views lost; one with no view to spare, as refind_from_body's) is carried by its part's motion
+    # as one whose centre was lost (predicted: not alive there, no position written, no view counted), flown at the
+    # next step in the views it was last seen in. Off: on the few-camera rig (limb63) it lowers MPJPE and
+    # acceleration and lengthens the forearms' lives, but the occluded spans of seeds 1-2 stay 87.2 %
+    # (docs/benchmarks.md, "Why the limb ends' patches end")
+    carry_unseen: bool = False
     # with refind_from_body: the re-flight's Lucas-Kanade window (px; 0: lk_window_px, the same bits) and pyramid
     # levels (-1: the prediction's, lk_levels_predicted). The re-flight starts where the body carries the point,
     # within 3.5 px of the truth for 95 % of the lost centres, and the flow's own 15 px window, wider than a limb's

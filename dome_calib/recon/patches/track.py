@@ -84,6 +84,36 @@ class CloudTrack:
     photometric: np.ndarray
     alive: np.ndarray
     carried: np.ndarray | None = None
+    # (N,) int8: the rule that ended each patch (END_CAUSES; 0: not ended); a diagnosis of run_cloud's tracks
+    # (bench/patch_ends.py), not kept in PatchTrajectories
+    ended: np.ndarray | None = None
+
+
+#: Why a patch ended at a step (:attr:`CloudTrack.ended`, an index into this; "" not ended), in the order the rules
+#: are applied: its centre's flow kept in fewer than two of its flown views ("flow") or kept in two or more with no
+#: two agreeing within ``triangulation_px`` ("triangulation"); seen by fewer than ``min_visible`` cameras after the
+#: MAP cut because fewer than that many are in the image and faced ("unseen_geometry"), or are once the people's
+#: occlusion is taken out ("unseen_body"), or the cut labelled the candidates "not visible" where one of them had a
+#: failed flow in the motion term ("unseen_flow") or none had ("unseen_photo"); a plane point's distance changed
+#: ("stretched"); off its seed appearance ("slid").
+END_CAUSES = ("", "flow", "triangulation", "unseen_geometry", "unseen_body", "unseen_flow", "unseen_photo",
+              "stretched", "slid")
+
+
+def end_causes(lost: np.ndarray, unseen: np.ndarray, stretched: np.ndarray, slid: np.ndarray, tracked: np.ndarray,
+               vis: Visibility, motion: np.ndarray, o: PatchOptions) -> np.ndarray:
+    """(N,) int8: the :data:`END_CAUSES` index of each patch ended at a step by the rules' masks (N,), ``tracked``
+    (N, 3, V) the step's flows, ``vis`` the step's visibility and ``motion`` (N, V) its motion term."""
+    out = np.zeros(len(lost), np.int8)
+    code = {c: np.int8(i) for i, c in enumerate(END_CAUSES)}
+    out[lost] = np.where(tracked[lost, 0].sum(axis=1) < 2, code["flow"], code["triangulation"])
+    hidden = vis.hidden if vis.hidden is not None else np.zeros_like(vis.candidate)
+    shown = (vis.candidate | hidden).sum(axis=1) >= o.min_visible
+    by_flow = (vis.candidate & np.isinf(motion)).any(axis=1)
+    out[unseen] = np.select([~shown[unseen], vis.candidate[unseen].sum(axis=1) < o.min_visible, by_flow[unseen]],
+                            [code["unseen_geometry"], code["unseen_body"], code["unseen_flow"]], code["unseen_photo"])
+    out[stretched], out[slid] = code["stretched"], code["slid"]
+    return out
 
 
 def quantise_cm(X: np.ndarray) -> np.ndarray:
@@ -530,6 +560,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
     # views each was last seen in (a carried patch is flown there at the next step: it was seen by none)
     carried, carry_run = np.zeros(N, bool), np.zeros(N, np.int64)
     carried_out, last_seen = np.zeros((N, T), bool), np.zeros((N, V), bool)
+    ended = np.zeros(N, np.int8)  # the rule that ended each patch (END_CAUSES)
     for k in range(T):
         if k > 0:
             t0, t1 = float(times_ms[k - 1]), float(times_ms[k])
@@ -599,6 +630,10 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             slid = (live & ~unseen & ~stretched & off_seed(vis, seed_look, o) if seed_look is not None
                     else np.zeros_like(live))
             live &= ~unseen & ~stretched & ~slid
+            if o.carry_unseen:  # a patch whose views were lost is carried as one whose centre was
+                carry |= (unseen & np.all(np.isfinite(by_body), axis=(1, 2)) & (carry_run < o.refind_carry_steps))
+            ended = np.where(ended > 0, ended, end_causes(lost & ~carry, unseen & ~carry, stretched, slid, tracked,
+                                                          vis, motion, o))
             X = quantise_cm(square_up(X, o.axis_cm))
             if carry.any():
                 X[carry] = quantise_cm(square_up(by_body[carry], o.axis_cm))
@@ -620,4 +655,4 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
         if not live.any():
             break
     return CloudTrack(times_ms=np.asarray(times_ms, dtype=float), X_cm=X_out, visible=vis_out,
-                      photometric=photo_out, alive=alive, carried=carried_out)
+                      photometric=photo_out, alive=alive, carried=carried_out, ended=ended)

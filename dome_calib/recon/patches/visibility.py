@@ -195,7 +195,8 @@ class Appearance:
 @dataclass(frozen=True)
 class Visibility:
     """visible (N, V) MAP labels; photometric (N, V) NCC-alone baseline; ncc (N, V); candidate (N, V); reference
-    (N,) camera position; appearance: the squares sampled (the candidates' cameras)."""
+    (N,) camera position; appearance: the squares sampled (the candidates' cameras); hidden (N, V): the people hide
+    the patch from the camera (no candidate there)."""
 
     visible: np.ndarray
     photometric: np.ndarray
@@ -203,6 +204,7 @@ class Visibility:
     candidate: np.ndarray
     reference: np.ndarray
     appearance: Appearance | None = None
+    hidden: np.ndarray | None = None  # (N, V) the people hide the patch from the camera (body_occlusion)
 
 
 def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: np.ndarray, velocity: np.ndarray,
@@ -319,7 +321,8 @@ def estimate_visibility(source: FrameSource, views: ViewSet, frames: Frames, X: 
     # the CVPR 2014 baseline is the reference's NCC at ncc_threshold whatever rule the MAP term uses
     photometric = in_image & has_ref[:, None] & ties.at_least(corr, o.ncc_threshold, ties.NCC_QUANTUM)
     return Visibility(visible=visible, photometric=photometric, ncc=corr,
-                      candidate=candidate, reference=ref, appearance=Appearance(samples=samples, row_of=row_of))
+                      candidate=candidate, reference=ref, appearance=Appearance(samples=samples, row_of=row_of),
+                      hidden=hidden)
 
 
 def _with_border_squares(views: ViewSet, v: int, gray: np.ndarray, grid: np.ndarray, rows: np.ndarray,
