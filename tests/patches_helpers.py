@@ -43,3 +43,13 @@ def blurred_texture(seed: int, shape: tuple[int, int], sigma_px: float):
 
     tex = cv2.GaussianBlur(np.random.default_rng(seed).uniform(0, 255, shape).astype(np.float32), (0, 0), sigma_px)
     return cv2.normalize(tex, None, 20, 235, cv2.NORM_MINMAX)
+
+
+def uncarried(**options) -> "PatchOptions":
+    """PatchOptions with the body's carry off (``refind_from_body``, ``refind_carry_steps``, ``refind_window_px``,
+    ``carry_unseen`` as they were before merge63 made the carry the default), then ``options``: the tests of the
+    carry's own pieces turn on what each tests."""
+    from dome_calib.recon.patches.model import PatchOptions
+
+    return PatchOptions(**{"refind_from_body": False, "refind_carry_steps": 0, "refind_window_px": 0,
+                           "carry_unseen": False, **options})

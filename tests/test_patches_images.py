@@ -270,7 +270,7 @@ def test_reseed_hidden_runs_the_stage_again_from_the_people_fitted_with_its_ties
     real_stream, real_reseed = stage_module.patch_stream, stage_module.reseed_clouds
     monkeypatch.setattr(stage_module, "patch_stream", lambda *a, **k: streams.append(1) or real_stream(*a, **k))
     monkeypatch.setattr(stage_module, "reseed_clouds", lambda *a: reseeded.append(1) or real_reseed(*a))
-    for name, options in (("once", PatchOptions()), ("twice", PatchOptions(reseed_hidden=True))):
+    for name, options in (("once", PatchOptions(reseed_hidden=False)), ("twice", PatchOptions(reseed_hidden=True))):
         plan = plan_reconstruction(root / "det", root / "bundle", tmp_path / name, body_model="PANOPTIC19",
                                    images=root / "images")
         stage = stage_module.plan_patches(plan, options)

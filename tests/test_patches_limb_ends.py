@@ -10,19 +10,20 @@ import dataclasses
 import numpy as np
 
 from dome_calib.bundle import SyncTable
-from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.occlusion import BodyPrior
 from dome_calib.recon.patches.run import run_cloud
 from dome_calib.recon.patches.seed import Seeds
 from dome_calib.recon.patches.track import END_CAUSES, Clock, end_causes
 from dome_calib.recon.patches.visibility import Visibility
 
+from .patches_helpers import uncarried
+
 from .test_patches_refind_body import BASELINE_CM, DEPTH_CM, SEED_MS, PlaneScene, _body, _patch, _plane_point, _views
 
 
 def test_each_ended_patch_is_given_the_first_rule_that_ended_it():
     N, V = 7, 3
-    o = PatchOptions()
+    o = uncarried()
     lost = np.array([1, 1, 0, 0, 0, 0, 0], bool)
     unseen = np.array([0, 0, 1, 1, 1, 1, 0], bool)
     stretched = np.array([0, 0, 0, 0, 0, 0, 1], bool)
@@ -59,7 +60,7 @@ def test_a_patch_the_people_hide_for_a_step_is_carried_and_found_again_with_carr
     clocks = [Clock(table=SyncTable(index=np.arange(40), univ_time_ms=np.arange(40) * 40.0), frames=np.arange(40))] * 2
     times = SEED_MS + 40.0 * np.arange(5)  # frames 5..9; the people hide it from b at frame 7
     seeds = Seeds(X_cm=_patch(), normal=np.array([[0.0, 0.0, -1.0]]), seen=np.ones((1, 2), bool))
-    o = PatchOptions(refine_normals=False, refind_from_body=True, refind_carry_steps=2, occluder_margin_cm=0.0)
+    o = uncarried(refine_normals=False, refind_from_body=True, refind_carry_steps=2, occluder_margin_cm=0.0)
     body = _occluded_body(times, float(times[2]))
     _, ends = run_cloud(PlaneScene(), _views(), clocks, SEED_MS, times, seeds, o, body=body)
     assert ends.alive[0].tolist() == [True, True, False, False, False]

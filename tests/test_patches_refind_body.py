@@ -9,7 +9,6 @@ import cv2
 import numpy as np
 
 from dome_calib.bundle import SyncTable
-from dome_calib.recon.patches.model import PatchOptions
 from dome_calib.recon.patches.motion import bone_carry
 from dome_calib.recon.patches.occlusion import PART_RADIUS_CM, BodyPrior
 from dome_calib.recon.patches.parts import BONES, nearest_part
@@ -17,6 +16,8 @@ from dome_calib.recon.patches.run import assemble, run_cloud
 from dome_calib.recon.patches.seed import Seeds
 from dome_calib.recon.patches.track import Clock, body_prediction, refind_from_body
 from dome_calib.recon.project import ViewSet
+
+from .patches_helpers import uncarried
 
 PX_PER_CM = 2.0  # f 200 px at 100 cm
 DEPTH_CM = 100.0
@@ -97,17 +98,17 @@ def test_bone_carry_keeps_a_points_place_on_its_bone():
 def test_body_prediction_carries_the_patch_with_its_part():
     times = np.array([SEED_MS, SEED_MS + 40.0])
     body = _body(times)
-    got = body_prediction(_patch(), body.at(times[0]), body.at(times[1]), PatchOptions())
+    got = body_prediction(_patch(), body.at(times[0]), body.at(times[1]), uncarried())
     assert np.allclose(got, _plane_point(times[1], _patch()))
     far = _patch() + [0.0, 0.0, -20.0]  # 20 cm off every capsule: no part, no prediction
-    assert np.isnan(body_prediction(far, body.at(times[0]), body.at(times[1]), PatchOptions())).all()
+    assert np.isnan(body_prediction(far, body.at(times[0]), body.at(times[1]), uncarried())).all()
 
 
 def test_a_lost_centre_is_flown_again_from_the_bodys_prediction():
     views, source = _views(), PlaneScene()
     clock = Clock(table=SyncTable(index=np.arange(40), univ_time_ms=np.arange(40) * 40.0), frames=np.arange(40))
     t0, t1 = SEED_MS, SEED_MS + 40.0
-    o = PatchOptions(lk_levels=0, lk_levels_predicted=0)  # no pyramid: an 18 px motion is beyond a standing start
+    o = uncarried(lk_levels=0, lk_levels_predicted=0)  # no pyramid: an 18 px motion is beyond a standing start
     X = _patch()
     p = X[..., :2] / DEPTH_CM * 200.0 + [160.0, 120.0]  # camera a's pixels (1, 3, 2)
     true = p + FAST_PX_MS * (t1 - t0)
@@ -127,7 +128,7 @@ def test_a_two_view_patch_lost_by_its_flow_lives_on_with_its_parts_motion():
     clocks = [Clock(table=SyncTable(index=np.arange(40), univ_time_ms=np.arange(40) * 40.0), frames=np.arange(40))] * 2
     times = SEED_MS + 40.0 * np.arange(4)
     seeds = Seeds(X_cm=_patch(), normal=np.array([[0.0, 0.0, -1.0]]), seen=np.ones((1, 2), bool))
-    o = PatchOptions(lk_levels=0, lk_levels_predicted=0, refine_normals=False)
+    o = uncarried(lk_levels=0, lk_levels_predicted=0, refine_normals=False)
     body = _body(times)
     _, before = run_cloud(source, views, clocks, SEED_MS, times, seeds, o, body=body)
     assert before.alive[0].tolist() == [True, False, False, False]  # the standing start loses it in both views
@@ -160,7 +161,7 @@ def test_a_patch_lost_in_a_view_for_two_steps_is_carried_by_its_part_and_found_a
     clocks = [Clock(table=SyncTable(index=np.arange(40), univ_time_ms=np.arange(40) * 40.0), frames=np.arange(40))] * 2
     times = SEED_MS + 40.0 * np.arange(6)  # frames 5..10; camera b's frame 7 hides the patch
     seeds = Seeds(X_cm=_patch(), normal=np.array([[0.0, 0.0, -1.0]]), seen=np.ones((1, 2), bool))
-    o = PatchOptions(refine_normals=False, refind_from_body=True)
+    o = uncarried(refine_normals=False, refind_from_body=True)
     source, views, body = HiddenFrame(7), _views(), _body(times)
     _, ends = run_cloud(source, views, clocks, SEED_MS, times, seeds, o, body=body)
     assert ends.alive[0].tolist() == [True, True, False, False, False, False]
@@ -184,7 +185,7 @@ def test_the_options_off_or_no_people_give_the_same_bits_and_any_subset_tracks_a
     clocks = [Clock(table=SyncTable(index=np.arange(40), univ_time_ms=np.arange(40) * 40.0), frames=np.arange(40))] * 2
     times = SEED_MS + 40.0 * np.arange(6)
     source, views, body = HiddenFrame(7), _views(), _body(times)
-    off = PatchOptions(refine_normals=False)
+    off = uncarried(refine_normals=False)
     X = np.concatenate([_patch(), _patch() + [-12.0, 10.0, 0.0]])  # the second 10 cm off the forearm: no part
     seeds = Seeds(X_cm=X, normal=np.array([[0.0, 0.0, -1.0]] * 2), seen=np.ones((2, 2), bool))
     _, plain = run_cloud(source, views, clocks, SEED_MS, times, seeds, off)
@@ -205,7 +206,7 @@ def test_the_stream_keeps_the_carried_flag_where_nothing_is_written():
     clocks = [Clock(table=SyncTable(index=np.arange(40), univ_time_ms=np.arange(40) * 40.0), frames=np.arange(40))] * 2
     times = SEED_MS + 40.0 * np.arange(-2, 6)  # frames 3..10, the seed at frame 5
     seeds = Seeds(X_cm=_patch(), normal=np.array([[0.0, 0.0, -1.0]]), seen=np.ones((1, 2), bool))
-    o = PatchOptions(refine_normals=False, refind_from_body=True, refind_carry_steps=2)
+    o = uncarried(refine_normals=False, refind_from_body=True, refind_carry_steps=2)
     back, fwd = run_cloud(HiddenFrame(7), _views(), clocks, SEED_MS, times, seeds, o, body=_body(times))
     traj = assemble([(0, SEED_MS, np.arange(3, 11), back, fwd)], times, ["a", "b"])
     assert traj.carried[0].tolist() == [False, False, False, False, True, True, False, False]

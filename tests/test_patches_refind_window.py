@@ -18,6 +18,8 @@ from dome_calib.recon.patches.parts import _components, PartOptions, closest_on_
 from dome_calib.recon.patches.track import Clock, refind_flow_options, refind_from_body
 from dome_calib.recon.project import ViewSet
 
+from .patches_helpers import uncarried
+
 from .patches_helpers import blurred_texture
 
 DEPTH_CM = 100.0  # f 200 px at 100 cm: 2 px per cm
@@ -59,22 +61,22 @@ def _lost_centre(o: PatchOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def test_a_narrow_window_refinds_a_limb_centre_the_flows_own_window_loses():
-    q, ok, _ = _lost_centre(PatchOptions())
+    q, ok, _ = _lost_centre(uncarried())
     assert not ok[0, 0]  # the 15 px window: the band's edges, the check fails
-    q, ok, true = _lost_centre(PatchOptions(refind_window_px=9))
+    q, ok, true = _lost_centre(uncarried(refind_window_px=9))
     assert ok[0, 0] and np.abs(q[0, 0] - true[0, 0]).max() < 0.05
     # no pyramid: the start is the body's prediction, within a pixel here
-    q, ok, true = _lost_centre(PatchOptions(refind_window_px=9, refind_levels=0))
+    q, ok, true = _lost_centre(uncarried(refind_window_px=9, refind_levels=0))
     assert ok[0, 0] and np.abs(q[0, 0] - true[0, 0]).max() < 0.05
 
 
 def test_the_options_unset_are_the_flows_own_and_checked():
-    o = PatchOptions()
+    o = uncarried()
     assert refind_flow_options(o) is o
-    same = PatchOptions(refind_window_px=o.lk_window_px)
+    same = uncarried(refind_window_px=o.lk_window_px)
     a, b = _lost_centre(o), _lost_centre(same)
     assert all(np.array_equal(x, y) for x, y in zip(a, b))
-    got = refind_flow_options(PatchOptions(refind_window_px=9, refind_levels=0, lk_levels_full_px=20.0))
+    got = refind_flow_options(uncarried(refind_window_px=9, refind_levels=0, lk_levels_full_px=20.0))
     assert (got.lk_window_px, got.lk_levels_predicted, got.lk_levels_full_px) == (9, 0, 0.0)
     for bad in ({"refind_window_px": 3}, {"refind_levels": -2}):
         try:
