@@ -38,16 +38,15 @@ def _scene(T=8):
 
 def test_a_patch_on_a_joints_cap_is_kept_out_of_the_limbs_motion():
     X, normal, alive, joints = _scene()
-    off = label_parts(X, normal, alive, joints, PartOptions(crease_cm=0.0))
+    off = label_parts(X, normal, alive, joints, PartOptions(crease_cm=0.0, joint_cap_cm=0.0))
     arm = [b[0] for b in BONES].index("l_upper_arm")
     assert (off.bone == arm).all()  # the old rule: the cap's patches given to the arm
     on = label_parts(X, normal, alive, joints, PartOptions(crease_cm=0.0, joint_cap_cm=5.0))
     assert (on.bone[:6] == -1).all() and (on.person[:6] == -1).all() and np.isnan(on.cost[:6]).all()
     assert np.array_equal(on.bone[6:], off.bone[6:])  # the arm's own patches keep their label
-    # off (0, the default): the same labels as without the rule
-    assert PartOptions().joint_cap_cm == 0.0
-    again = label_parts(X, normal, alive, joints, PartOptions(crease_cm=0.0, joint_cap_cm=0.0))
-    assert np.array_equal(again.bone, off.bone) and np.array_equal(again.cost, off.cost, equal_nan=True)
+    assert PartOptions().joint_cap_cm == 5.0  # the default since merge63: what reconstruct labels with
+    dflt = label_parts(X, normal, alive, joints, PartOptions(crease_cm=0.0))
+    assert np.array_equal(dflt.bone, on.bone) and np.array_equal(dflt.cost, on.cost, equal_nan=True)
 
 
 def test_the_cap_rule_needs_both_the_joint_and_the_neighbour_as_near():
