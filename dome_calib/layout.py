@@ -21,7 +21,7 @@ import numpy as np
 from dome_calib.bundle import NOMINAL_RESOLUTION, Bundle, Camera, CameraType
 from dome_calib.camera import intr_to_K
 from dome_calib.errors import DomeCalibError
-from dome_calib.interop import exact
+from dome_calib import exact
 from dome_calib.ties import LENGTH_QUANTUM_CM, order_by
 
 logger = logging.getLogger(__name__)
@@ -73,7 +73,7 @@ def direction(lat_deg: float, az_deg: float) -> np.ndarray:
 
 def look_at(center_cm: np.ndarray, target_cm: np.ndarray, roll_rad: float = 0.0) -> np.ndarray:
     """cam_from_world rotation (3, 3) of a camera at ``center_cm`` looking at ``target_cm``, image-down = world-down."""
-    # in basic operations (dome_calib.interop.exact): the synthetic truth is the same bits on every CPU
+    # in basic operations (dome_calib.exact): the synthetic truth is the same bits on every CPU
     z = exact.unit3(np.asarray(target_cm, dtype=float) - center_cm)
     down = np.array([0.0, 1.0, 0.0])
     y = down - z[1] * z  # (down . z) z

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from dome_calib.interop import exact
+from dome_calib import exact
 from dome_calib.jit import njit
 
 

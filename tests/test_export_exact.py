@@ -1,4 +1,4 @@
-"""Every export computes its numbers in IEEE basic operations only (dome_calib.interop.exact), so every machine writes
+"""Every export computes its numbers in IEEE basic operations only (dome_calib.exact), so every machine writes
 the same bytes for the same bundle (README, "Same result on every machine").
 
 What differs between CPUs is BLAS and LAPACK (``@``, ``np.linalg``, scipy's ``Rotation.from_matrix``: OpenBLAS's
@@ -19,7 +19,8 @@ from scipy.spatial.transform import Rotation
 
 from dome_calib.bundle import Bundle
 from dome_calib.bundle_io import load_bundle, write_bundle
-from dome_calib.interop import convert, exact
+from dome_calib import exact
+from dome_calib.interop import convert
 from dome_calib.interop.convert import export_bundle
 from dome_calib.interop.registry import EXPORT_FORMATS
 from dome_calib.panoptic_io import read_calibration

@@ -410,7 +410,10 @@ def test_one_view_of_a_shallow_scene_holds_the_principal_point_by_its_marginal_s
     problem, truth = _facade_problem(depth_cm=5.0)
     pp, marginal, conditional = _principal_point_sigmas(problem)
     sigma = np.array([d.sigma_px for d in pp])
-    np.testing.assert_allclose(sigma, marginal, rtol=1e-3)  # what the rule judges is the marginal sigma
+    # what the rule judges is the marginal sigma: ~700-2,000 px here, a near-singular block's, known only to ~1 %
+    # (one ulp in rotation.right_jacobian, safe ** 3 against safe * safe * safe, moved the walk's by up to 0.8 % and
+    # this inverse's by up to 0.6 %, each its own way), against the rule's 10 px
+    np.testing.assert_allclose(sigma, marginal, rtol=2e-2)
     assert conditional.max() < 0.05 < 5.0 < 10.0 < marginal.min()  # the conditional one would free it
     assert not any(d.free for d in pp), [d.reason for d in pp]
     outcome = run_ba_stage(problem)

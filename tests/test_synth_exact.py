@@ -1,5 +1,5 @@
 """The synthetic generators write the same bytes on every CPU: their truth and their pixels are computed in IEEE
-basic operations (:mod:`dome_calib.interop.exact`), never in what another CPU computes otherwise.
+basic operations (:mod:`dome_calib.exact`), never in what another CPU computes otherwise.
 
 ``bench/same_bytes.py --pairs older`` (this machine against an older x86-64 CPU as far as OpenBLAS, numpy and glibc
 choose their code by CPU) found ``synth``'s ``projectors.json`` (5.7e-14 cm), its tent (1.4e-14 cm) and an image
@@ -14,8 +14,8 @@ variable), but for the uses listed below, each with why.
 The keypoint refinement of calibrate is held to it too (``projector/refine_images.py``: its window's ``np.exp``
 made every refined keypoint, hence the bundle, differ with and without numpy's AVX-512 paths).
 
-The sines and cosines are :func:`~dome_calib.interop.exact.sincos`'s and the rotation vectors'
-:func:`~dome_calib.interop.exact.rotvec_matrix` (glibc's ``sin`` / ``cos``, and scipy's ``from_rotvec`` through
+The sines and cosines are :func:`~dome_calib.exact.sincos`'s and the rotation vectors'
+:func:`~dome_calib.exact.rotvec_matrix` (glibc's ``sin`` / ``cos``, and scipy's ``from_rotvec`` through
 them, have variants with and without FMA that differ on some inputs). Not covered: what those modules call elsewhere
 (``camera.project``, ``kinect.board``: their files were alike with and without each variable).
 """
@@ -30,7 +30,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import dome_calib
-from dome_calib.interop import exact
+from dome_calib import exact
 from dome_calib.synth.render import tone_curve
 
 PACKAGE = Path(dome_calib.__file__).parent
@@ -100,7 +100,7 @@ def test_the_synthetic_truth_and_pixels_are_computed_in_basic_operations():
     found = _found()
     bad = {k: v for k, v in found.items() if k not in ALLOWED or len(v) != ALLOWED[k][0]}
     assert not bad, ("a product, np.linalg or an SVML ufunc where a synthetic file's numbers are made: write it with "
-                     f"dome_calib.interop.exact (or list it in ALLOWED, with why): {bad}")
+                     f"dome_calib.exact (or list it in ALLOWED, with why): {bad}")
     assert not set(ALLOWED) - set(found), f"ALLOWED lists uses that are gone: {sorted(set(ALLOWED) - set(found))}"
 
 

@@ -50,9 +50,9 @@ ALLOWED_ROUNDING = {
     ("synth/depth.py", "render_depth_mm"): 1,  # rendered depth image (uint16)
     ("synth/depth_people.py", "render_people_depth_mm"): 1,  # rendered depth image (uint16)
     ("synth/sync_session.py", "make_session"): 2,  # simulated clock stamps in integer ticks
-    ("interop/exact.py", "_atan_unit"): 1,  # the arctangent's table entry k/8 (either neighbour is exact)
-    ("interop/exact.py", "exp"): 1,  # the multiple k of ln 2 to reduce by (either neighbour is as exact)
-    ("interop/exact.py", "sincos"): 1,  # the quarter turn k to reduce by (either neighbour is as exact)
+    ("exact.py", "_atan_unit"): 1,  # the arctangent's table entry k/8 (either neighbour is exact)
+    ("exact.py", "exp"): 1,  # the multiple k of ln 2 to reduce by (either neighbour is as exact)
+    ("exact.py", "sincos"): 1,  # the quarter turn k to reduce by (either neighbour is as exact)
     # a compiled (numba) kernel cannot call ties: the same rule there, its step named (DIST2_QUANTUM_CM2)
     ("recon/patches/occlusion.py", "_below"): 2,
     # the same for a joint's strongest detections (ties.CONFIDENCE_QUANTUM); quantising before the call would need a

@@ -21,7 +21,7 @@ from pydantic import AfterValidator, ConfigDict, Field, model_validator
 
 from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, five_terms
 from dome_calib.interop.fields import CameraMatrix, Distortion, RotationVector, SidePxNumber, Translation
-from dome_calib.interop.exact import rotvec
+from dome_calib.exact import rotvec
 from dome_calib.rotation import rotvec_to_matrix
 from dome_calib.schema import CameraName, OpenSchema, Vec, read_toml
 

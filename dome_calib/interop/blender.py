@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from dome_calib.interop.common import ForeignCamera, Written, corner_shift_px, dropped_terms_line
-from dome_calib.interop.exact import centre, matmul3, transpose3
+from dome_calib.exact import centre, matmul3, transpose3
 
 SENSOR_WIDTH_MM = 36.0
 OPENGL_FROM_OPENCV = np.diag([1.0, -1.0, -1.0])

@@ -22,7 +22,7 @@ import numpy as np
 from dome_calib.bundle import Bundle, Camera, camera_type_from_name
 from dome_calib.camera import distort, pixels_to_normalized
 from dome_calib.errors import BundleFormatError
-from dome_calib.interop.exact import matmul3, nearest_rotation, rotation_exact, transpose3
+from dome_calib.exact import matmul3, nearest_rotation, rotation_exact, transpose3
 from dome_calib.interop.fields import ROTATION_EXACT_TOL, rotation_error
 from dome_calib.interop.registry import UNIT_CHOICES
 from dome_calib.lab_world import PANOPTIC_FROM_UP, import_record  # noqa: F401  (import_record: convert's, via here)
@@ -174,7 +174,7 @@ def cm_per_unit(unit: str | None, square_size_mm: float | None, where: str) -> f
 def to_foreign(bundle: Bundle, options: ExportOptions, unit: str, world_up: str, where: str) -> list[ForeignCamera]:
     """Our cameras, in the bundle's order, as foreign records in a world whose up axis is ``world_up``, with
     translations in ``unit`` and names mapped (rotations made exact, centres kept:
-    :func:`dome_calib.interop.exact.rotation_exact`; every number through :mod:`~dome_calib.interop.exact`'s
+    :func:`dome_calib.exact.rotation_exact`; every number through :mod:`~dome_calib.exact`'s
     basic operations, so every machine computes the same bits)."""
     names = rename(list(bundle.cameras), options.names, where)
     scale = 1.0 / cm_per_unit(unit, None, where)

@@ -29,7 +29,7 @@ from pydantic import BeforeValidator, ConfigDict, Field, ValidationInfo, field_v
 from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, five_terms, label
 from dome_calib.interop.fields import (CameraMatrix, Distortion, RotationMatrix, RotationVector, SidePx,
                                        Translation, flat)
-from dome_calib.interop.exact import rotvec
+from dome_calib.exact import rotvec
 from dome_calib.rotation import rotation_angle_deg, rotvec_to_matrix
 from dome_calib.schema import CameraName, FileSchema, OpenSchema, path_of_name, read_yaml, validate
 

@@ -12,7 +12,7 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import AfterValidator, BeforeValidator, Field
 
-from dome_calib.interop.exact import det3, matmul3, transpose3
+from dome_calib.exact import det3, matmul3, transpose3
 from dome_calib.schema import Finite, Vec, show
 
 #: Largest plausible magnitude of a pixel value (focal length, principal point) and of a distortion term.
@@ -80,7 +80,7 @@ Translation = Vec(3, Length)
 
 def rotation_error(R: Any) -> float:
     """max |R R^T - I| and |det R - 1| of a 3x3 matrix."""
-    R = np.asarray(R, dtype=float)  # in basic operations (dome_calib.interop.exact): the same on every CPU
+    R = np.asarray(R, dtype=float)  # in basic operations (dome_calib.exact): the same on every CPU
     return max(float(np.abs(matmul3(R, transpose3(R)) - np.eye(3)).max()), abs(float(det3(R)) - 1.0))
 
 

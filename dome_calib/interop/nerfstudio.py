@@ -29,7 +29,7 @@ from pydantic import Field, model_validator
 
 from dome_calib.camera import COLMAP_PIXEL_OFFSET_PX
 from dome_calib.interop.common import ForeignCamera, ImportOptions, InteropError, Read, Written, label
-from dome_calib.interop.exact import centre, matmul3, transpose3
+from dome_calib.exact import centre, matmul3, transpose3
 from dome_calib.interop.fields import Bounded, DistTerm, Length, SidePxNumber, check_rotation
 from dome_calib.interop.registry import UNITS
 from dome_calib.schema import CameraName, OpenSchema, Vec, read_json

@@ -3,7 +3,7 @@ and the projectors that light the tent.
 
 The design itself (where calibrate starts without a prior) is production code: :mod:`dome_calib.layout`.
 World frame: Panoptic (origin at the floor centre, y DOWN, cm); ``x_cam = R @ X_world + t_cm``. Every product
-is :mod:`dome_calib.interop.exact`'s (the truth the same bits on every CPU: ``tests/test_synth_exact.py``).
+is :mod:`dome_calib.exact`'s (the truth the same bits on every CPU: ``tests/test_synth_exact.py``).
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import numpy as np
 
 from dome_calib.bundle import Bundle, Camera
 from dome_calib.camera import intr_to_K
-from dome_calib.interop import exact
+from dome_calib import exact
 from dome_calib.layout import (DOME_CENTRE_CM, DOME_RADIUS_CM, Preset, direction, all_nominal_cameras, look_at,
                                nominal_dome, select_preset)
 from dome_calib.panoptic_io import read_calibration

@@ -27,7 +27,7 @@ import numpy as np
 
 from dome_calib.bundle import Bundle, CameraType, KinectCalibration, KinectSensor
 from dome_calib.camera import K_to_intr, intr_to_K, project
-from dome_calib.interop import exact
+from dome_calib import exact
 from dome_calib.io_utils import atomic_write_text
 from dome_calib.jsonfmt import dumps
 from dome_calib.kinect.board import BoardRender, Checkerboard, RayGrid, render_board
@@ -91,7 +91,7 @@ class SensorTruth:
 
 
 def _rigid_inverse(T: np.ndarray, scale: float = 1.0) -> np.ndarray:
-    """(4, 4) inverse of ``[R t; 0 1]`` through R's cofactors (:mod:`dome_calib.interop.exact`: the same bits on
+    """(4, 4) inverse of ``[R t; 0 1]`` through R's cofactors (:mod:`dome_calib.exact`: the same bits on
     every CPU, unlike LAPACK's), its translation times ``scale`` (mm -> cm: 0.1)."""
     R_inv = exact.transpose3(exact.cofactor3(T[:3, :3])) / exact.det3(T[:3, :3])
     out = np.eye(4)

@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from dome_calib.bundle import Camera, CameraType
-from dome_calib.interop import exact
+from dome_calib import exact
 from dome_calib.synth.dome import Projector
 from dome_calib.synth.rays import CHUNK_RAYS, CameraRays
 from dome_calib.synth.tent import TentPose, intersect_scene
@@ -222,7 +222,7 @@ def noise_seed(seed: int, scene: str, camera: str) -> int:
 
 def tone_curve(x: np.ndarray, gamma: float) -> np.ndarray:
     """``x ** gamma`` (x in [0, 1]) in float64: for a gamma of k / 2^m (the default 5 / 8) in multiplications and
-    square roots (:func:`dome_calib.interop.exact.power_dyadic`: the same bits on every CPU, so a pixel's 8-bit
+    square roots (:func:`dome_calib.exact.power_dyadic`: the same bits on every CPU, so a pixel's 8-bit
     rounding cannot flip between machines), any other through ``np.power`` (Intel's SVML on an AVX-512 CPU, the
     C library elsewhere: its last bits are the CPU's)."""
     x = np.asarray(x, dtype=float)

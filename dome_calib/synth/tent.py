@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dome_calib.interop import exact
+from dome_calib import exact
 
 FLOOR_RADIUS_CM = 260.0
 TENT_ALBEDO = 0.9
