@@ -250,7 +250,8 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
         sp = nearest_surface_points(truth, float(tt[k]), X[live, k, 0])
         person[live], part[live] = sp.person, sp.part
     return dict(X_cm=X, normal=normal, alive=alive, person=person, part=part, cameras=len(cams),
-                seed_time_ms=seed_t, carried=carried, seeds=[int(sum(t.alive[t.seed_time_ms == ts, int(np.argmin(np.abs(tt - ts)))].sum()
+                seed_time_ms=seed_t, carried=carried,
+                seeds=[int(sum(t.alive[t.seed_time_ms == ts, int(np.argmin(np.abs(tt - ts)))].sum()
                                for ts in np.unique(t.seed_time_ms))) for t in trajs])
 
 
