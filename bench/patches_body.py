@@ -239,6 +239,7 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
     normal = np.concatenate([t.normal for t in trajs])
     alive = np.concatenate([t.alive for t in trajs])
     seed_t = np.concatenate([t.seed_time_ms for t in trajs])
+    carried = np.concatenate([np.zeros(t.alive.shape, bool) if t.carried is None else t.carried for t in trajs])
     # a patch not alive at its seed time (a seed that did not survive the step to it) has no truth: -1, not the
     # part nearest the origin (which made 17 never-alive patches of the panel "left-shin seeds")
     person, part = np.full(len(X), -1), np.full(len(X), -1)
@@ -249,7 +250,8 @@ def own_patches(bundle, truth, rig: str, times: np.ndarray, f: int, frames: int,
         sp = nearest_surface_points(truth, float(tt[k]), X[live, k, 0])
         person[live], part[live] = sp.person, sp.part
     return dict(X_cm=X, normal=normal, alive=alive, person=person, part=part, cameras=len(cams),
-                seed_time_ms=seed_t, seeds=[int(sum(t.alive[t.seed_time_ms == ts, int(np.argmin(np.abs(tt - ts)))].sum()
+                seed_time_ms=seed_t, carried=carried,
+                seeds=[int(sum(t.alive[t.seed_time_ms == ts, int(np.argmin(np.abs(tt - ts)))].sum()
                                for ts in np.unique(t.seed_time_ms))) for t in trajs])
 
 
@@ -313,7 +315,7 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
     rows, done = [], {}
     for how in (own or ("",)):
         cpu = time.process_time()
-        extra, seed_t = {}, None
+        extra, seed_t, carried = {}, None, None
         if how:
             po = patch_options or PatchOptions()
             got = own_patches(bundle, truth, rig, times, f, frames, how, alone.bodies, source,
@@ -322,14 +324,14 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
                 first = _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present, removed,
                                alone, fit, track_ids, est, conf, seq, dt_s, *(got[k] for k in (
                                    "X_cm", "normal", "alive", "person", "part")), cpu_alone, 0.0, {}, part_options,
-                               motion_options, got["seed_time_ms"], quiet=True)
+                               motion_options, got["seed_time_ms"], quiet=True, carried=got["carried"])
                 extra["first_pass"] = {k: first[1][k] for k in ("occluded_within_3cm", "limb_end_seeds", "seeds")
                                        if k in first[1]}
                 got = own_patches(bundle, truth, rig, times, f, frames, how, alone.bodies, source, po, {}, seed,
                                   cache, every, hidden_from=first[-1], first=done)
             Pt, normal, alive, t_person, t_part = (got[k] for k in ("X_cm", "normal", "alive", "person", "part"))
             extra.update(patch_cameras=got["cameras"], seeds=got["seeds"], seed_every=every)
-            seed_t = got["seed_time_ms"]
+            seed_t, carried = got["seed_time_ms"], got["carried"]
         elif saved is None:
             Pt, normal, alive, t_person, t_part = true_patches(bundle, cams, truth, times, seed)
         else:
@@ -337,7 +339,7 @@ def run(rig: str, n_people: int, seconds: float, seed: int, n_occ: int, stream: 
         cpu_patches = time.process_time() - cpu
         rows += _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present, removed, alone, fit,
                        track_ids, est, conf, seq, dt_s, Pt, normal, alive, t_person, t_part, cpu_alone,
-                       cpu_patches, extra, part_options, motion_options, seed_t)[:-1]
+                       cpu_patches, extra, part_options, motion_options, seed_t, carried=carried)[:-1]
     return rows
 
 
@@ -346,7 +348,7 @@ REACH_CAUSES = ("no_seed", "seed_dies", "wrong_label", "no_motion", "tie_too_wea
 
 
 def reach(removed, within, times, track_ids, tracks, lab, t_person, t_part, alive, motions, ties,
-          seed_time_ms=None) -> dict:
+          seed_time_ms=None, carried=None) -> dict:
     """How far the patches reach each body part and why the occluded joint-times missed are missed.
 
     Per true part (summed over the people): the patches seeded on it (true part at the seed time), their frames
@@ -358,7 +360,10 @@ def reach(removed, within, times, track_ids, tracks, lab, t_person, t_part, aliv
     ``tie_too_weak`` (a motion whose tie's sigma passes ``max_sigma_cm``), ``tied_not_within_3cm``. With the
     patches' seed times (N,) (the stream's own clouds), ``seed_dies_by_seeding`` splits ``seed_dies``: the clouds
     nearest the time on either side (at or before, after) seeded at least ``min_patches`` on a part carrying the
-    joint, which ended before it (``seeded_then_ended``), or fewer (``too_few_seeded``)."""
+    joint, which ended before it (``seeded_then_ended``), or fewer (``too_few_seeded``). With the stream's
+    ``carried`` (N, T) (a patch kept by its part's motion at that time, not measured: ``refind_carry_steps``),
+    ``seed_dies_carried`` counts the ``seed_dies`` where at least ``min_patches`` of the part were alive or carried
+    at both ends of a step touching the time (kept by the carry, not found again)."""
     need = MotionOptions().min_patches
     T, P = removed.shape[:2]
     lab_track = np.where(lab.bone >= 0, tracks[np.maximum(lab.person, 0)], -1)
@@ -376,6 +381,8 @@ def reach(removed, within, times, track_ids, tracks, lab, t_person, t_part, aliv
                        "steps_moved": int(sum(1 for (_, bb, _) in moved if bb == b))}
     causes = {c: 0 for c in REACH_CAUSES}
     by_seeding = {"seeded_then_ended": 0, "too_few_seeded": 0}
+    n_carried = 0
+    kept = None if carried is None else alive | carried
     if seed_time_ms is not None:  # each patch's cloud as an index into times
         cloud = np.abs(np.asarray(seed_time_ms)[:, None] - np.asarray(times)[None, :]).argmin(1)
         clouds = np.unique(cloud)
@@ -405,6 +412,9 @@ def reach(removed, within, times, track_ids, tracks, lab, t_person, t_part, aliv
                 best = max(best, 5)
         c = REACH_CAUSES[best]
         causes[c] += 1
+        if c == "seed_dies" and kept is not None:
+            n_carried += any(((t_person == p) & (t_part == b) & kept[:, s] & kept[:, s + 1]).sum() >= need
+                             for b, js in enumerate(TIED_JOINTS) if j in js for s in (k - 1, k) if 0 <= s < T - 1)
         if c == "seed_dies" and seed_time_ms is not None:
             around = [clouds[clouds <= k].max(initial=-1), clouds[clouds > k].min(initial=T)]
             seeded = max(int(((t_person == p) & (t_part == b) & np.isin(cloud, around)).sum())
@@ -415,12 +425,14 @@ def reach(removed, within, times, track_ids, tracks, lab, t_person, t_part, aliv
     out = {"by_part": parts, "missed_causes": causes, "missed_by_joint": by_joint}
     if seed_time_ms is not None:
         out["seed_dies_by_seeding"] = by_seeding
+    if carried is not None:
+        out["seed_dies_carried"] = n_carried
     return out
 
 
 def _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present, removed, alone, fit, track_ids,
            est, conf, seq, dt_s, Pt, normal, alive, t_person, t_part, cpu_alone, cpu_patches, extra,
-           part_options=None, motion_options=None, seed_time_ms=None, quiet=False) -> list:
+           part_options=None, motion_options=None, seed_time_ms=None, quiet=False, carried=None) -> list:
     """One set of patches: labelled, their motions tied to the body, the fit with the ties, both rows emitted
     (``quiet``: not emitted) -> [row alone, row with the patches, the bodies fitted with the ties]."""
     cpu = time.process_time()
@@ -483,7 +495,7 @@ def _judge(rig, seed, n_people, stream, how, end_to_end, cams, times, X, present
             row["patches_by_label"] = {name: int(np.sum(lab.bone == b)) for b, (name, _, _) in enumerate(BONES)}
             # per removed joint: [recovered within 3 cm, a tie reaches it, removed] joint-times
             row["reach"] = reach(removed, out & (e_all < 3.0), times, track_ids, tracks, lab, t_person, t_part,
-                                 alive, motions, ties, seed_time_ms)
+                                 alive, motions, ties, seed_time_ms, carried)
             row["occluded_by_joint"] = {JOINTS19[j]: [int((removed[..., j] & out[..., j]
                                                            & (e_all[..., j] < 3.0)).sum()),
                                                       int((removed[..., j] & tied[..., j]).sum()),
