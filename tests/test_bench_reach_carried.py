@@ -42,10 +42,10 @@ def _case(n_carried: int):
 
 
 def test_seed_dies_carried_counts_the_joint_times_the_carry_kept():
-    pb, args, carried = _case(3)
+    pb, args, carried = _case(2)
     out = pb.reach(*args, carried=carried)
     assert out["missed_causes"]["seed_dies"] == 2
-    assert out["seed_dies_carried"] == 2  # three kept (the motion's min_patches) at both ends of a step
+    assert out["seed_dies_carried"] == 2  # two kept (the motion's min_patches, 2) at both ends of a step
     assert "seed_dies_carried" not in pb.reach(*args)  # no carry given: the old fields only
-    pb, args, carried = _case(2)
-    assert pb.reach(*args, carried=carried)["seed_dies_carried"] == 0  # two kept: fewer than a motion takes
+    pb, args, carried = _case(1)
+    assert pb.reach(*args, carried=carried)["seed_dies_carried"] == 0  # one kept: fewer than a motion takes

@@ -101,8 +101,8 @@ def test_noise_and_patches_of_other_parts(walkers):
 
 
 def test_too_few_patches_and_options():
-    X = np.zeros((2, 3, 3, 3))
-    m = part_motions(X, np.ones((2, 3), bool), np.zeros(2, int), np.zeros(2, int))
+    X = np.zeros((1, 3, 3, 3))  # one patch: fewer than min_patches (2)
+    m = part_motions(X, np.ones((1, 3), bool), np.zeros(1, int), np.zeros(1, int))
     assert len(m) == 0 and m.R.shape == (0, 3, 3)
     with pytest.raises(OptionsError):
         MotionOptions(min_patches=1)

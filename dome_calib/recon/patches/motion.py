@@ -39,7 +39,12 @@ MAD_SCALE = 1.4826
 class MotionOptions:
     """How a part's motion is fitted (see the module docstring)."""
 
-    min_patches: AtLeast(2) = 3
+    # the fewest inlier patches a part's motion is fitted from (an SE(3) needs three points; two patches give six:
+    # their centres and the points on their planes). 2 since merge63 (3 before): on the few-camera rig's limb ends,
+    # where two patches are often all that is measured, occluded joints within 3 cm 91.1 / 87.8 -> 91.7 / 91.7 %
+    # (seeds 1 / 2, choosing), 76.7 / 87.2 -> 85.6 / 94.4 % (seeds 3 / 4, checks), MPJPE lower on every seed and
+    # the panel (0.879 / 0.442 -> 0.873 / 0.420 / 80 %) (docs/benchmarks.md, branch seed363)
+    min_patches: AtLeast(2) = 2
     hypotheses: AtLeast(1) = 32
     iterations: AtLeast(0) = 3
     min_scale_cm: PosFinite = 0.1
