@@ -49,8 +49,8 @@ class PatchStage:
     summary: str = ""  # what the run gave, one line (set by run, completed once the people are refined)
 
     def run(self, times_ms: np.ndarray, bodies: list, progress: Callable[[int, int], None] | None = None, *,
-            executor=None, hidden_from: list | None = None, first: PatchTrajectories | None = None
-            ) -> FurtherStage:
+            executor=None, hidden_from: list | None = None, first: PatchTrajectories | None = None,
+            first_prior: BodyPrior | None = None) -> FurtherStage:
         """The stream over the people's times (``bodies[t]``: a time's people, with ``ids`` and ``X_cm``; its seeding
         and tracking tasks on ``executor``: ``reconstruct``'s ``--workers`` / ``--scheduler``, None here), labelled
         by part (with ``seed_method="skeleton"`` the people, at the reference stream's times, are the seeds' depth
@@ -58,26 +58,25 @@ class PatchStage:
         (the people's own where the images' reference stream is the people's; a tie on another time ties nothing)
         -> the :class:`FurtherStage` whose ``write`` puts ``patches.parquet`` into the staged output folder. With
         ``reseed_hidden`` its ``again(people fitted with the ties)`` runs the stream a second time, the joints no
-        detection saw taken from those people (:func:`body_prior`'s ``hidden_from``; ``first``, the first stream:
-        only its clouds whose seeds' prior changed are streamed again, :func:`reseed_clouds`), and gives the stage
-        to write and fit with instead."""
+        detection saw taken from those people (:func:`body_prior`'s ``hidden_from``; ``first``, the first stream, and
+        ``first_prior``, the prior it ran on: only its clouds whose seeds' prior changed are streamed again,
+        :func:`reseed_clouds`), and gives the stage to write and fit with instead."""
         t = np.asarray(times_ms, dtype=float)
         stream = reference_stream(self.bundle, self.cameras)
         options, seeding = self.seeding(stream)
-        body = held = None
-        table = cameras_by_stream(self.bundle, self.cameras)[1][stream]
+        body = None
+        clock = cameras_by_stream(self.bundle, self.cameras)[1][stream]
         if options.seed_method == "skeleton" or options.body_occlusion:
             # the people at the stream's times: the seeds' depth prior, the occluders of the views
-            at = table.univ_time_ms[(table.univ_time_ms >= t[0]) & (table.univ_time_ms <= t[-1])]
+            at = clock.univ_time_ms[(clock.univ_time_ms >= t[0]) & (clock.univ_time_ms <= t[-1])]
             body = body_prior(t, bodies, at, hidden_from)
-            held = body_prior(t, bodies, at) if first is not None else None
         span = (float(t[0]), float(t[-1]))
         if first is None:
             traj = patch_stream(self.bundle, self.source, self.cameras, span, options, stream=stream, body=body,
                                 executor=executor, progress=progress)
         else:  # the second stream: the clouds whose seeds' prior the fitted people changed
-            frames = seed_frames_in(table.index, table.univ_time_ms, span, options.seed_every_frames)
-            traj = reseed_clouds(first, frames, np.array([table.time_of(int(f)) for f in frames]), held, body,
+            frames = seed_frames_in(clock.index, clock.univ_time_ms, span, options.seed_every_frames)
+            traj = reseed_clouds(first, frames, np.array([clock.time_of(int(f)) for f in frames]), first_prior, body,
                                  lambda again: patch_stream(self.bundle, self.source, self.cameras, span, options,
                                                             stream=stream, seed_frames=again, body=body,
                                                             executor=executor, progress=progress))
@@ -98,7 +97,7 @@ class PatchStage:
                         f"given a body part -> {FILE_NAME}; {len(motions.bone)} part motions, "
                         f"{int(on_times.sum())} joint ties on the people's times")
         again = (lambda fitted: self.run(times_ms, bodies, progress, executor=executor,
-                                         hidden_from=fitted.bodies, first=traj)) if second else None
+                                         hidden_from=fitted.bodies, first=traj, first_prior=body)) if second else None
         return FurtherStage(write=lambda staging: write_patch_table(Path(staging) / FILE_NAME, table), ties=ties,
                             refined=self.report_flags, page_layer=patch_layer(traj, labels), again=again)
 
