@@ -611,8 +611,8 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
             centre = np.all(np.isfinite(X_new[:, 0]), axis=1)
             lost = live & ~centre
             # refind_carry_steps: a centre still lost with its part's motion known is carried by it (predicted)
-            carry = (lost & np.all(np.isfinite(by_body), axis=(1, 2)) & (carry_run < o.refind_carry_steps)
-                     if o.refind_carry_steps > 0 else np.zeros(N, bool))
+            carriable = np.all(np.isfinite(by_body), axis=(1, 2)) & (carry_run < o.refind_carry_steps)
+            carry = lost & carriable
             live &= centre
             # a plane point that cannot be triangulated moves with the centre
             moved = X_new[:, :1] - X[:, :1]
@@ -631,7 +631,7 @@ def track_cloud(source: FrameSource, views: ViewSet, clocks: list[Clock], times_
                     else np.zeros_like(live))
             live &= ~unseen & ~stretched & ~slid
             if o.carry_unseen:  # a patch whose views were lost is carried as one whose centre was
-                carry |= (unseen & np.all(np.isfinite(by_body), axis=(1, 2)) & (carry_run < o.refind_carry_steps))
+                carry |= unseen & carriable
             ended = np.where(ended > 0, ended, end_causes(lost & ~carry, unseen & ~carry, stretched, slid, tracked,
                                                           vis, motion, o))
             X = quantise_cm(square_up(X, o.axis_cm))
