@@ -131,8 +131,7 @@ class PatchOptions:
     # The carry (refind_from_body, refind_carry_steps=10, refind_window_px=9, carry_unseen) and reseed_hidden are
     # the defaults since merge63: with the anchor's defaults, few-camera seeds 1 / 2 (choosing) 0.817 / 0.414 / 87.2
     # -> 0.808 / 0.347 / 91.1 %, 0.798 / 0.373 / 87.2 -> 0.778 / 0.323 / 87.8 %; seeds 3 / 4 (checks) 68.3 -> 78.3 %,
-    # 83.3 -> 87.8 %; the panel 0.874 / 0.406 / 80 % either way (docs/benchmarks.md, "The carry and the second
-    # stream by default")
+    # 83.3 -> 87.8 %; the panel 0.874 / 0.406 / 80 % either way (docs/benchmarks.md, "The defaults since merge63")
     refind_from_body: bool = True
     # with refind_from_body: a patch whose centre is still lost is kept at most this many steps in a row where its
     # part's motion carries it (predicted: not alive there, no position written, no view counted), flown from there
@@ -141,16 +140,17 @@ class PatchOptions:
     # with refind_carry_steps: a patch seen by fewer than min_visible cameras after the MAP cut (its centre
     # triangulated, its views lost; one with no view to spare, as refind_from_body's) is carried by its part's motion
     # as one whose centre was lost (predicted: not alive there, no position written, no view counted), flown at the
-    # next step in the views it was last seen in. Off: on the few-camera rig (limb63) it lowers MPJPE and
-    # acceleration and lengthens the forearms' lives, but the occluded spans of seeds 1-2 stay 87.2 %
-    # (docs/benchmarks.md, "Why the limb ends' patches end")
+    # next step in the views it was last seen in. Measured alone (limb63, before it was the default): on the
+    # few-camera rig it lowers MPJPE and acceleration and lengthens the forearms' lives, but the occluded spans of
+    # seeds 1-2 stay 87.2 % (docs/benchmarks.md, "Why the limb ends' patches end")
     carry_unseen: bool = True
-    # with refind_from_body: the re-flight's Lucas-Kanade window (px; 0: lk_window_px, the same bits) and pyramid
-    # levels (-1: the prediction's, lk_levels_predicted). The re-flight starts where the body carries the point,
-    # within 3.5 px of the truth for 95 % of the lost centres, and the flow's own 15 px window, wider than a limb's
-    # outline, passes its forward-backward check there for 6-19 % of them; a 9 px one for 48 %. Unset: with the
-    # carry, 7 px (chosen on the few-camera seeds 1-2) raises three clouds' occluded spans 80.6 -> 81.7 % and 85.0 ->
-    # 87.8 %, but the unseen seed's one cloud loses 62.8 -> 62.2 % (docs/benchmarks.md, branch refind62)
+    # with refind_from_body: the re-flight's Lucas-Kanade window (px; 0: lk_window_px, the same bits) and pyramid levels
+    # (-1: the prediction's, lk_levels_predicted). The re-flight starts where the body carries the point, within 3.5 px
+    # of the truth for 95 % of the lost centres, and the flow's own 15 px window, wider than a limb's outline, passes
+    # its forward-backward check there for 6-19 % of them; a 9 px one for 48 % (9 since merge63, with the carry).
+    # refind62 left it unset: with the carry, 7 px (chosen on the few-camera seeds 1-2) raises three clouds' occluded
+    # spans 80.6 -> 81.7 % and 85.0 -> 87.8 %, but the unseen seed's one cloud loses 62.8 -> 62.2 % (docs/benchmarks.md,
+    # branch refind62)
     refind_window_px: Annotated[int, Field(ge=0)] = 9
     refind_levels: Annotated[int, Field(ge=-1)] = -1
     _refind_window = require(lambda o: o.refind_window_px == 0 or o.refind_window_px >= 5,
@@ -195,7 +195,7 @@ class PatchOptions:
     # the few-camera rig the clouds inside a span seed their hidden forearm or shin 87 -> 118 times (12 cases, seeds
     # 1-4), occluded joints within 3 cm 87.2 -> 91.1 / 87.2 -> 87.8 % (seeds 1 / 2), 68.3 -> 70.0 / 83.3 -> 83.9 %
     # (seeds 3 / 4, checks), the panel the same figures, for one cloud of three streamed again (docs/benchmarks.md,
-    # branch hidden63). False: one stream
+    # branch hidden63). On by default since merge63; False: one stream
     reseed_hidden: bool = True
     prior_weight: Annotated[float, Field(ge=0)] = 0.3  # Potts weight between neighbouring cameras
     prior_neighbours: AtLeast(1) = 4
