@@ -191,8 +191,7 @@ def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def det3(A: np.ndarray) -> np.ndarray:
     """(...,) determinant: row 0 dotted with its cofactor row."""
     A = np.asarray(A, dtype=float)
-    c = cross3(A[..., 1, :], A[..., 2, :])
-    return A[..., 0, 0] * c[..., 0] + A[..., 0, 1] * c[..., 1] + A[..., 0, 2] * c[..., 2]
+    return dot3(A[..., 0, :], cross3(A[..., 1, :], A[..., 2, :]))
 
 
 def solve3(A: np.ndarray, b: np.ndarray) -> np.ndarray:
